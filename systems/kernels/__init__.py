@@ -1,0 +1,1 @@
+"""numba kernels: pure functions on flat arrays, no ECS imports."""

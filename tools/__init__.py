@@ -1,0 +1,1 @@
+"""Benchmarks, studies and pack tooling."""
