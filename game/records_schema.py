@@ -1,0 +1,60 @@
+"""Schema of the trainee-records database and its ordered migrations (thesis 3.3.4, 6.1.5).
+
+The assessment tool of section 3.3.4 files each attempt under a class and a trainee name; the
+metrics stored per attempt are those of 6.1.5 (landmark error E over the three marks, needle
+error from the tip to the foramen ovale) plus the aids that were switched on, which is what the
+with/without-feature comparison of 6.1.3-6.1.5 needs.
+
+The schema version lives in ``PRAGMA user_version``. ``MIGRATIONS[i]`` takes a database from
+version ``i`` to version ``i + 1``; each one runs inside the same transaction as the version bump,
+so a database is never left half-migrated. Never edit a shipped step: append a new one.
+"""
+
+from __future__ import annotations
+
+# Version 1: the first released layout. Kept verbatim so tests can build a genuine v1 file.
+V1_DDL: tuple[str, ...] = (
+    """
+    CREATE TABLE classes (
+        id   INTEGER PRIMARY KEY,
+        name TEXT NOT NULL UNIQUE
+    )
+    """,
+    """
+    CREATE TABLE trainees (
+        id       INTEGER PRIMARY KEY,
+        class_id INTEGER NOT NULL REFERENCES classes(id) ON DELETE CASCADE,
+        name     TEXT NOT NULL,
+        UNIQUE (class_id, name)
+    )
+    """,
+    """
+    CREATE TABLE attempts (
+        id                INTEGER PRIMARY KEY,
+        trainee_id        INTEGER NOT NULL REFERENCES trainees(id) ON DELETE CASCADE,
+        pack              TEXT NOT NULL,
+        created_at        TEXT NOT NULL,
+        duration_s        REAL NOT NULL,
+        landmark_error_mm REAL NOT NULL,
+        needle_error_mm   REAL,
+        target            TEXT NOT NULL,
+        skull_contacts    INTEGER NOT NULL,
+        path_length_mm    REAL NOT NULL,
+        aids              TEXT NOT NULL,
+        step_times        TEXT NOT NULL
+    )
+    """,
+)
+
+# Version 2: free-form extra metrics (D1..D3, d1..d3, landmark positions) and an index for the
+# per-trainee history queries that `list`, `export` and `plot` run.
+V2_DDL: tuple[str, ...] = (
+    "ALTER TABLE attempts ADD COLUMN details TEXT NOT NULL DEFAULT '{}'",
+    "CREATE INDEX attempts_by_trainee ON attempts (trainee_id, created_at, id)",
+)
+
+MIGRATIONS: tuple[tuple[str, ...], ...] = (V1_DDL, V2_DDL)
+SCHEMA_VERSION = len(MIGRATIONS)
+
+# Tables a records database owns; a version-0 file holding anything else is not ours.
+OWN_TABLES = frozenset({"classes", "trainees", "attempts"})
