@@ -1,0 +1,1 @@
+"""Plain-data components. Every module here registers its types with game.registry on import."""

@@ -1,0 +1,76 @@
+"""Resources every App owns: injected time, input state, settings, the pending-input queue.
+
+Resources are singletons keyed by type (`app.resource(Time)`). Time is advanced only by the App's
+fixed-step loop, never read from a clock, so a run is a pure function of its pack and input script.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass(slots=True)
+class Time:
+    """Simulated time. `sim_time` is tick * dt exactly (no accumulated rounding)."""
+
+    dt: float = 1.0 / 120.0
+    tick: int = 0  # fixed simulation steps done
+    frame: int = 0  # frames (App.update calls) done
+    frame_dt: float = 0.0  # simulated seconds the current frame advances
+    accumulator: float = 0.0  # simulated seconds not yet consumed by fixed steps
+
+    @property
+    def sim_time(self) -> float:
+        return self.tick * self.dt
+
+
+@dataclass(slots=True)
+class InputState:
+    """What the input devices look like right now (window pixels, origin bottom-left)."""
+
+    mouse: tuple[float, float] = (0.0, 0.0)
+    buttons: set[str] = field(default_factory=set)  # "left", "middle", "right"
+    keys: set[str] = field(default_factory=set)  # pyglet key names, lower case: "left", "space", "r"
+    modifiers: set[str] = field(default_factory=set)
+    window_size: tuple[int, int] = (1280, 800)
+
+
+@dataclass(slots=True)
+class Settings:
+    """Named options from the pack, the command line and the user; read-only for systems."""
+
+    values: dict[str, Any] = field(default_factory=dict)
+
+    def get(self, key: str, default: Any = None) -> Any:
+        return self.values.get(key, default)
+
+
+@dataclass(slots=True)
+class PendingInput:
+    """Timestamped input events waiting for their time (from a script, a replay or the window).
+
+    Each item is (t_seconds, event). The input system releases those with t <= the simulated time
+    at the start of the frame, in order.
+    """
+
+    items: list[tuple[float, Any]] = field(default_factory=list)
+    cursor: int = 0
+
+    def push(self, t: float, event: Any) -> None:
+        self.items.append((t, event))
+
+    def extend(self, timed_events) -> None:
+        self.items.extend(timed_events)
+        self.items.sort(key=lambda te: te[0])  # stable: same-time events keep script order
+
+    def due(self, now: float) -> list[Any]:
+        out = []
+        while self.cursor < len(self.items) and self.items[self.cursor][0] <= now + 1e-12:
+            out.append(self.items[self.cursor][1])
+            self.cursor += 1
+        return out
+
+    @property
+    def exhausted(self) -> bool:
+        return self.cursor >= len(self.items)
