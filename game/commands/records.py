@@ -30,38 +30,45 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         NAME, help=HELP, description=HELP, epilog=_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--db", metavar="PATH", help="records database file (default: $CHAINSIM_DB or user data folder)")
+    db_help = "records database file (default: $CHAINSIM_DB or user data folder)"
+    p.add_argument("--db", metavar="PATH", help=db_help)
+    # Also accepted after the action (`records list --db x`); SUPPRESS keeps an earlier --db.
+    db_after = argparse.ArgumentParser(add_help=False)
+    db_after.add_argument("--db", metavar="PATH", default=argparse.SUPPRESS, help=db_help)
     acts = p.add_subparsers(dest="action", metavar="ACTION", required=True)
 
-    acts.add_parser("classes", help="list classes with trainee and attempt counts")
+    def action(name: str, help: str) -> argparse.ArgumentParser:
+        return acts.add_parser(name, help=help, description=help, parents=[db_after])
 
-    a = acts.add_parser("trainees", help="list trainees with attempt counts")
+    action("classes", "list classes with trainee and attempt counts")
+
+    a = action("trainees", "list trainees with attempt counts")
     a.add_argument("--class", dest="class_name", metavar="C", help="only this class")
 
-    a = acts.add_parser("list", help="table of attempts, oldest first")
+    a = action("list", "table of attempts, oldest first")
     a.add_argument("--class", dest="class_name", metavar="C", help="only this class")
     a.add_argument("--trainee", metavar="T", help="only this trainee")
 
-    a = acts.add_parser("show", help="every field of one attempt")
+    a = action("show", "every field of one attempt")
     a.add_argument("id", type=_positive_id, help="attempt id (from `list`)")
 
-    a = acts.add_parser("export", help="write attempts to a CSV file (atomically)")
+    a = action("export", "write attempts to a CSV file (atomically)")
     a.add_argument("--csv", required=True, type=Path, metavar="FILE", help="output CSV file")
     a.add_argument("--class", dest="class_name", metavar="C", help="only this class")
     a.add_argument("--trainee", metavar="T", help="only this trainee")
 
-    a = acts.add_parser("delete", help="delete one attempt (needs --yes)")
+    a = action("delete", "delete one attempt (needs --yes)")
     a.add_argument("id", type=_positive_id, help="attempt id (from `list`)")
     a.add_argument("--yes", action="store_true", help="really delete; without it only show what would go")
 
-    a = acts.add_parser("add-class", help="create a class")
+    a = action("add-class", "create a class")
     a.add_argument("name", help="class name (1-64 characters)")
 
-    a = acts.add_parser("add-trainee", help="add a trainee to a class (created if missing)")
+    a = action("add-trainee", "add a trainee to a class (created if missing)")
     a.add_argument("class_name", metavar="CLASS", help="class name")
     a.add_argument("name", help="trainee name (1-64 characters)")
 
-    a = acts.add_parser("plot", help="PNG of one trainee's landmark and needle errors over attempts")
+    a = action("plot", "PNG of one trainee's landmark and needle errors over attempts")
     a.add_argument("--class", dest="class_name", metavar="C", required=True, help="class name")
     a.add_argument("--trainee", metavar="T", required=True, help="trainee name")
     a.add_argument("--out", required=True, type=Path, metavar="FILE.png", help="output PNG file")

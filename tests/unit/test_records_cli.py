@@ -268,3 +268,13 @@ def test_entry_point_exit_codes(db, tmp_path):
 
     r = chainsim("records", "classes", env={ENV_VAR: str(db)})
     assert r.returncode == 0 and "c1" in r.stdout
+
+
+def test_db_flag_also_accepted_after_the_action(db, tmp_path, capsys):
+    other = tmp_path / "other.sqlite3"
+    # Given twice, the one after the action is the nearer and wins.
+    assert call(other, "classes", "--db", str(db)) == 0
+    assert [line.split()[0] for line in capsys.readouterr().out.splitlines()[2:]] == ["c1", "c2"]
+    assert call(db, "add-class", "solo", "--db", str(other)) == 0
+    with RecordStore(other) as s:
+        assert s.list_classes() == ["solo"]
