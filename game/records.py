@@ -264,8 +264,8 @@ class RecordStore:
     def list_trainees(self, class_name: str | None = None) -> list[dict[str, Any]]:
         """Trainees (optionally of one class) as dicts: class_name, trainee, attempts."""
         if class_name is not None:
-            self._require_class(clean_name("class", class_name))
-            class_name = class_name.strip()
+            class_name = clean_name("class", class_name)
+            self._require_class(class_name)
         rows = self._db.execute(
             """
             SELECT c.name AS class_name, t.name AS trainee, COUNT(a.id) AS attempts
