@@ -1,0 +1,327 @@
+"""Deformation: serves grab / release / cut / add-link requests on deformable bodies with ChainMail.
+
+Stage: simulation (ORDER_DEFORMATION; the scripted puller just before it). Reads GrabRequest,
+ReleaseRequest, CutRequest, AddLinksRequest (game.deform_events) and Widget events (to start pulls).
+Writes Deformable.pos / dirty / version / held / alive, emits Deformed.
+
+Each grab runs one Generalised ChainMail cascade (thesis 5.2.3) from the grabbed elements, then the
+relaxation of 5.2.5 over the elements that moved (grabbed, held and fixed elements stay put). Cuts
+mark links dead (thesis 4.5.2); the renderer sees moved vertices through `dirty`.
+
+Installed only when some entity is deformable: a `deformable` table, or `simulation.kind` "surface" /
+"volume" on a mesh entity (which gets a default `deformable`, material = its mesh material). A scene
+of rigid bodies gets no deformation system at all.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import esper
+import numpy as np
+
+from components.deformable import Deformable, Pull, setup_deformable
+from game.app import ORDER_DEFORMATION
+from game.deform_events import (FRAMES, AddLinksRequest, CutRequest, Deformed, GrabRequest, ReleaseRequest,
+                                as_points)
+from game.input_events import Widget
+
+ORDER_PULL = ORDER_DEFORMATION - 10
+_ORDER_CODES = {"fifo": 0, "balanced": 1, "schill": 2}
+
+
+@dataclass(slots=True)
+class DeformationState:
+    """Event cursors of the deformation systems, and counters for summaries."""
+
+    grabs: object = None
+    releases: object = None
+    cuts: object = None
+    adds: object = None
+    widgets: object = None
+    cascades: int = 0
+    moved_total: int = 0
+    errors: list = field(default_factory=list)
+
+
+# -- frames --------------------------------------------------------------------------------------
+
+
+def _to_local(ent: int, pts: np.ndarray, frame: str) -> np.ndarray:
+    if frame not in FRAMES:
+        raise ValueError(f"frame must be one of {', '.join(FRAMES)}, got {frame!r}")
+    if frame == "local":
+        return pts
+    from components.core import Transform
+
+    tr = esper.try_component(ent, Transform)
+    if tr is None:
+        return pts
+    m = np.linalg.inv(tr.matrix())
+    return pts @ m[:3, :3].T + m[:3, 3]
+
+
+def _to_world(ent: int, pts: np.ndarray) -> np.ndarray:
+    from components.core import Transform
+
+    tr = esper.try_component(ent, Transform)
+    if tr is None:
+        return pts
+    m = tr.matrix()
+    return pts @ m[:3, :3].T + m[:3, 3]
+
+
+def _entity(app, ref) -> int | None:
+    if isinstance(ref, str):
+        from game.loader import EntityIndex
+
+        index = app.get_resource(EntityIndex)
+        return index.get(ref) if index is not None else None
+    return int(ref)
+
+
+# -- operations (also used directly by tools and tests) -------------------------------------------
+
+
+def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np.ndarray:
+    """Move `ids` to local `targets`, cascade and relax; returns the ids that changed."""
+    from systems.kernels.chainmail import cascade
+
+    ids = np.atleast_1d(np.asarray(ids, dtype=np.int64))
+    n = d.n_elements
+    if len(ids) == 0 or ids.min() < 0 or ids.max() >= n:
+        raise ValueError(f"element ids must be in 0..{n - 1}")
+    targets = np.asarray(targets_local, dtype=np.float64).reshape(len(ids), 3)
+    if len(d.held):
+        fixed = d.fixed_mask.copy()
+        fixed[d.held] = True  # what a tool already holds stays where it is
+        fixed[ids] = d.fixed_mask[ids]
+    else:
+        fixed = d.fixed_mask
+    order, sponsor = cascade(d.rest, d.pos, d.graph, d.amin, d.amax, d.beta_l, ids, targets.astype(d.pos.dtype),
+                             fixed=fixed, order=_ORDER_CODES[d.order], workspace=d.workspace, depth=d.depth)
+    d.last_order, d.last_sponsor = order, sponsor
+    if hold:
+        d.held = np.union1d(d.held, ids)
+    changed = order
+    if d.relax_iterations > 0 and len(order) > len(ids):
+        from systems.kernels.relax import relax
+
+        pin = d.fixed_mask.copy()
+        pin[ids] = True
+        if len(d.held):
+            pin[d.held] = True
+        relax(d.rest, d.pos, d.graph, order, d.relax_iterations, step=d.relax_step, fixed=pin)
+    if len(changed):
+        d.mark_dirty(changed)
+        d.version += 1
+    return changed
+
+
+def release(d: Deformable, ids=None) -> None:
+    if ids is None:
+        d.held = np.zeros(0, dtype=np.int64)
+    else:
+        d.held = np.setdiff1d(d.held, np.asarray(ids, dtype=np.int64))
+
+
+def cut(d: Deformable, ent: int, req: CutRequest) -> int:
+    """Kill the links a blade crosses (4.5.2); returns how many were cut."""
+    from systems.kernels import topology
+
+    before = int(np.count_nonzero(d.alive))
+    if req.polyline is not None:
+        pts = _to_local(ent, as_points(req.polyline, "CutRequest.polyline"), req.frame)
+        if len(pts) < 2:
+            raise ValueError("CutRequest.polyline: needs at least 2 points")
+        topology.cut_path(d.pos, d.graph, pts, **_blade_kwargs(ent, req))
+    else:
+        if req.p0 is None or req.p1 is None:
+            raise ValueError("CutRequest: give p0 and p1, or a polyline")
+        p0 = _to_local(ent, as_points(req.p0, "CutRequest.p0"), req.frame)[0]
+        p1 = _to_local(ent, as_points(req.p1, "CutRequest.p1"), req.frame)[0]
+        topology.cut_segment(d.pos, d.graph, p0, p1, **_blade_kwargs(ent, req))
+    cut_count = before - int(np.count_nonzero(d.alive))
+    if cut_count:
+        d.version += 1
+    return cut_count
+
+
+def _blade_kwargs(ent: int, req: CutRequest) -> dict:
+    kw = {}
+    if req.normal is not None:
+        nrm = as_points(req.normal, "CutRequest.normal")[0]
+        if req.frame == "world":
+            from components.core import Transform
+
+            tr = esper.try_component(ent, Transform)
+            if tr is not None:
+                nrm = np.linalg.inv(tr.matrix()[:3, :3]).dot(nrm)
+        kw["normal"] = nrm
+    if req.depth < 1e9:
+        kw["depth"] = float(req.depth)
+    return kw
+
+
+def add_links(d: Deformable, links) -> int:
+    """Join element pairs with new links carrying the body's material limits; returns how many."""
+    from systems.kernels import topology
+    from systems.kernels.chainmail import material_arrays
+
+    links = np.asarray(links, dtype=np.int64).reshape(-1, 2)
+    m_before = d.graph.n_links
+    graph = topology.add_links(d.graph, links)
+    added = graph.n_links - m_before
+    if added:
+        amin, amax, beta = material_arrays(added, float(d.amin[0]) if m_before else 0.8,
+                                           float(d.amax[0]) if m_before else 1.2,
+                                           float(d.beta_l[0]) if m_before else 0.1)
+        d.amin = np.concatenate([d.amin, amin])
+        d.amax = np.concatenate([d.amax, amax])
+        d.beta_l = np.concatenate([d.beta_l, beta])
+        d.graph = graph
+        d.alive = graph.alive
+        d.workspace.ensure(graph.indices.shape[0] + 1)
+        d.version += 1
+    return added
+
+
+# -- systems -------------------------------------------------------------------------------------
+
+
+def deformation_system(app) -> None:
+    st: DeformationState = app.resource(DeformationState)
+    counts: dict[int, list] = {}
+
+    def body(ref):
+        ent = _entity(app, ref)
+        if ent is None or not esper.entity_exists(ent):
+            return None, None
+        return ent, esper.try_component(ent, Deformable)
+
+    for req in st.releases.read():
+        ent, d = body(req.entity)
+        if d is not None:
+            release(d, req.ids)
+    for req in st.grabs.read():
+        ent, d = body(req.entity)
+        if d is None:
+            st.errors.append(f"grab: no deformable entity {req.entity!r}")
+            continue
+        try:
+            pts = _to_local(ent, as_points(req.targets, "GrabRequest.targets"), req.frame)
+            changed = grab(d, req.ids, pts, hold=req.hold)
+        except ValueError as e:
+            st.errors.append(f"grab on {req.entity!r}: {e}")
+            continue
+        st.cascades += 1
+        st.moved_total += len(changed)
+        c = counts.setdefault(ent, [0, 0, 0])
+        c[0] += len(changed)
+    for req in st.cuts.read():
+        ent, d = body(req.entity)
+        if d is None:
+            continue
+        try:
+            counts.setdefault(ent, [0, 0, 0])[1] += cut(d, ent, req)
+        except ValueError as e:
+            st.errors.append(f"cut on {req.entity!r}: {e}")
+    for req in st.adds.read():
+        ent, d = body(req.entity)
+        if d is None:
+            continue
+        try:
+            counts.setdefault(ent, [0, 0, 0])[2] += add_links(d, req.links)
+        except ValueError as e:
+            st.errors.append(f"add links on {req.entity!r}: {e}")
+    for ent, (m, c, a) in counts.items():
+        if m or c or a:
+            app.events.emit(Deformed(ent, m, c, a))
+    del st.errors[:-20]  # keep the last few for summaries and tests
+
+
+def _path_target(p: Pull, start: np.ndarray) -> tuple[np.ndarray, bool]:
+    pts = np.vstack([start[None, :], p.waypoints])
+    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    left = p.travelled
+    for i, length in enumerate(seg):
+        if left <= length:
+            t = left / length if length > 0 else 1.0
+            return pts[i] + (pts[i + 1] - pts[i]) * t, False
+        left -= length
+    return pts[-1].copy(), True
+
+
+def pull_system(app) -> None:
+    """Turns `pull` components into GrabRequests along their paths (simulated time only)."""
+    st: DeformationState = app.resource(DeformationState)
+    pressed = {w.name for w in st.widgets.read()}
+    for ent, (p, d) in esper.get_components(Pull, Deformable):
+        if p.done:
+            continue
+        if not p.started:
+            if (p.widget and p.widget in pressed) or (not p.widget and app.time.sim_time + 1e-12 >= p.start):
+                p.started = True
+                if p.resolved < 0:
+                    p.resolved = _pull_element(ent, p, d)
+                if p.frame == "world":
+                    p.waypoints = _to_local(ent, p.waypoints, "world")
+                p.start_at = d.pos[p.resolved].astype(np.float64)
+            else:
+                continue
+        p.travelled += p.speed * app.time.dt
+        target, finished = _path_target(p, p.start_at)
+        app.events.emit(GrabRequest(ent, np.array([p.resolved]), target[None, :], frame="local", hold=True))
+        if finished:
+            p.done = True
+            if not p.hold:
+                app.events.emit(ReleaseRequest(ent, np.array([p.resolved])))
+
+
+def _pull_element(ent: int, p: Pull, d: Deformable) -> int:
+    if p.element >= 0:
+        if p.element >= d.n_elements:
+            from components.core import Name
+            from game.errors import UserError
+
+            name = esper.try_component(ent, Name)
+            raise UserError(f"entities.{name.value if name else ent}.pull.element: {p.element} is not an element id "
+                            f"(0..{d.n_elements - 1})")
+        return int(p.element)
+    at = np.asarray(p.at, dtype=np.float64)[None, :]
+    if p.frame == "world":
+        at = _to_local(ent, at, "world")
+    return int(np.argmin(np.sum((d.rest - at) ** 2, axis=1)))
+
+
+def _default_deformables(app) -> None:
+    """Entities with simulation.kind surface/volume and a mesh but no deformable table get one."""
+    from components.core import MeshRef, Name, Simulation
+    from game.loader import PackResource
+
+    pres = app.get_resource(PackResource)
+    if pres is None:
+        return
+    for ent, (sim, mref) in esper.get_components(Simulation, MeshRef):
+        if sim.kind in ("surface", "volume") and not esper.has_component(ent, Deformable):
+            d = Deformable(source=sim.kind)
+            setup_deformable(d, pres.pack.mesh(mref.mesh), pres.pack.section("materials"), mref.material,
+                             f"entities.{esper.component_for_entity(ent, Name).value}.simulation")
+            esper.add_component(ent, d)
+
+
+def plugin(app) -> None:
+    with app.active():
+        _default_deformables(app)
+        needed = bool(esper.get_component(Deformable))
+        pulls = bool(esper.get_component(Pull))
+        for ent, (p, d) in esper.get_components(Pull, Deformable):
+            p.resolved = _pull_element(ent, p, d)
+    if not needed:
+        return
+    ev = app.events
+    app.insert_resource(DeformationState(ev.reader(GrabRequest), ev.reader(ReleaseRequest), ev.reader(CutRequest),
+                                         ev.reader(AddLinksRequest), ev.reader(Widget)))
+    if pulls:
+        app.add_system("simulation", pull_system, order=ORDER_PULL, name="pull")
+    app.add_system("simulation", deformation_system, order=ORDER_DEFORMATION, name="deformation")
