@@ -62,53 +62,53 @@ def _check(mesh: MeshData, where: str) -> MeshData:
     return mesh
 
 
-def load_file(path: Path, scale_to_mm: float = 1.0, merge_vertices: bool = True) -> MeshData:
-    """Read a surface or tetrahedral mesh file and convert it to millimetres."""
+def load_file(path: Path, scale_to_mm: float = 1.0, merge_vertices: bool = True, label: str | None = None) -> MeshData:
+    """Read a surface or tetrahedral mesh file and convert it to millimetres; `label` names it in errors."""
     path = Path(path)
-    where = str(path)
+    where = label or str(path)
     ext = "".join(path.suffixes[-1:]).lower()
     try:
         size = path.stat().st_size
     except OSError as e:
         raise MeshError(f"{where}: cannot read ({e.strerror})") from None
     if size > max_mesh_bytes():
-        raise MeshError(f"{where}: {size / 1e6:.1f} MB is over the {max_mesh_bytes() / 1048576:.0f} MB mesh limit")
+        raise MeshError(f"{where}: {size / 1048576:.2f} MB is over the {max_mesh_bytes() / 1048576:.3g} MB mesh limit")
     if ext in VOLUME_EXT:
-        mesh = _load_volume(path)
+        mesh = _load_volume(path, where)
     elif ext in SURFACE_EXT:
-        mesh = _load_surface(path, merge_vertices)
+        mesh = _load_surface(path, merge_vertices, where)
     else:
         raise MeshError(f"{where}: unsupported mesh type '{ext}'; expected one of {', '.join(SURFACE_EXT + VOLUME_EXT)}")
     mesh.vertices = mesh.vertices * scale_to_mm
     return _check(mesh, where)
 
 
-def _load_surface(path: Path, merge_vertices: bool) -> MeshData:
+def _load_surface(path: Path, merge_vertices: bool, where: str) -> MeshData:
     import trimesh
 
     try:
         loaded = trimesh.load(str(path), force="mesh", process=merge_vertices)
     except Exception as e:  # trimesh raises many types for bad files
-        raise MeshError(f"{path}: not a readable mesh ({type(e).__name__}: {str(e).splitlines()[0] if str(e) else 'parse error'})") from None
+        raise MeshError(f"{where}: not a readable mesh ({type(e).__name__}: {str(e).splitlines()[0] if str(e) else 'parse error'})") from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.vertices) == 0:
-        raise MeshError(f"{path}: contains no triangle mesh")
+        raise MeshError(f"{where}: contains no triangle mesh")
     return MeshData(np.asarray(loaded.vertices, dtype=np.float64), np.asarray(loaded.faces, dtype=np.int64))
 
 
-def _load_volume(path: Path) -> MeshData:
+def _load_volume(path: Path, where: str) -> MeshData:
     import meshio
 
     try:
         m = meshio.read(str(path))
     except Exception as e:
-        raise MeshError(f"{path}: not a readable volume mesh ({type(e).__name__}: {str(e).splitlines()[0] if str(e) else 'parse error'})") from None
+        raise MeshError(f"{where}: not a readable volume mesh ({type(e).__name__}: {str(e).splitlines()[0] if str(e) else 'parse error'})") from None
     tets = [c.data for c in m.cells if c.type == "tetra"]
     tris = [c.data for c in m.cells if c.type == "triangle"]
     pts = np.asarray(m.points, dtype=np.float64)
     if pts.ndim == 2 and pts.shape[1] == 2:
         pts = np.column_stack([pts, np.zeros(len(pts))])
     if not tets and not tris:
-        raise MeshError(f"{path}: has no tetra or triangle cells")
+        raise MeshError(f"{where}: has no tetra or triangle cells")
     t4 = np.concatenate(tets).astype(np.int64) if tets else None
     surf = np.concatenate(tris).astype(np.int64) if tris else (boundary_triangles(t4) if t4 is not None else np.zeros((0, 3), np.int64))
     return MeshData(pts, surf, t4)

@@ -73,6 +73,8 @@ def _line_of(text: str, keypath: str) -> int | None:
             header = [p.strip().strip('"') for p in m.group(1).split(".")]
             if header == parts:
                 return i
+            if header[: len(parts)] == parts and best is None:
+                best = i  # the first sub-table of the section in question
             continue
         m = re.match(r'^("?[A-Za-z0-9_\-]+"?)\s*=', s)
         if m:
@@ -235,7 +237,7 @@ def build_mesh(root: Path, name: str, spec: dict) -> MeshData:
         m.vertices = m.vertices * scale
         return m
     path = _inside(root, spec["path"])
-    m = load_file(path, scale, spec["merge_vertices"])
+    m = load_file(path, scale, spec["merge_vertices"], label=spec["path"])
     if spec.get("reorder"):
         from game.reorder import reorder_mesh  # locality reordering (optional module)
 
@@ -405,6 +407,8 @@ def validate(root: Path, *, load_meshes: bool = True) -> tuple[Pack | None, list
     # meshes
     for name, spec in man.get("meshes", {}).items():
         key = f"meshes.{name}"
+        if any(p.key == key or p.key.startswith(key + ".") for p in v.problems):
+            continue  # its table is already wrong; checking the file would only repeat that
         has_path, has_prim = bool(spec.get("path")), bool(spec.get("primitive"))
         if has_path == has_prim:
             v.add(file_of(key), key, "give exactly one of 'path' or 'primitive'")
@@ -414,13 +418,13 @@ def validate(root: Path, *, load_meshes: bool = True) -> tuple[Pack | None, list
             if p is None:
                 continue
             if p.stat().st_size > max_mesh_bytes():
-                v.add(file_of(key), f"{key}.path", f"{spec['path']} is {p.stat().st_size / 1e6:.1f} MB, over the {max_mesh_bytes() / 1048576:.0f} MB mesh limit")
+                v.add(file_of(key), f"{key}.path", f"{spec['path']} is {p.stat().st_size / 1048576:.2f} MB, over the {max_mesh_bytes() / 1048576:.3g} MB mesh limit (CHAINSIM_MAX_MESH_MB)")
                 continue
         if load_meshes:
             try:
                 build_mesh(root, name, spec)
             except MeshError as e:
-                v.add(file_of(key), f"{key}.path" if has_path else key, str(e).replace(str(root) + os.sep, ""))
+                v.add(file_of(key), f"{key}.path" if has_path else key, str(e))
     # docs
     for name, spec in man.get("docs", {}).items():
         if "path" in spec:

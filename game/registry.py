@@ -193,7 +193,7 @@ def convert(f: Field, v: Any) -> Any:
         out = v
     elif k == "enum":
         if v not in f.choices:
-            raise FieldError(f"expected one of {', '.join(map(str, f.choices))}; got {_show(v)}")
+            raise FieldError(f"expected one of {', '.join(str(c) for c in f.choices if c != '')}; got {_show(v)}")
         out = v
     elif k == "int":
         if isinstance(v, bool) or not isinstance(v, int):

@@ -1,0 +1,23 @@
+"""Shared test setup: headless everywhere, numba threads fixed, helpers to run the CLI in-process."""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("PYGLET_HEADLESS", "true")
+os.environ.pop("CHAINSIM_PACK_PATH", None)
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture
+def cli(capsys):
+    """Run `chainsim ARGS` in-process; returns (exit code, stdout, stderr)."""
+    from game.cli import main
+
+    def run(*args: str):
+        code = main([str(a) for a in args])
+        out = capsys.readouterr()
+        return code, out.out, out.err
+
+    return run
