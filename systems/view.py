@@ -1,0 +1,331 @@
+"""Cameras, picking and the control panel: turns pointer and key events into camera moves, `Picked` /
+`Dragged` events and `Widget` events (thesis 3.3.4 linked views and controller; 4.5.2 dragging tissue).
+
+Stage: input (ORDER_VIEW), after systems.input. Reads: every input event on the queue, Transform /
+MeshRef / Deformable (picking, attached cameras), PackResource.layout, Settings. Writes: ViewState
+(viewport rectangles and cameras, resource), WidgetState, HudState (ages messages), the `visible` flag
+of MeshRef / Marker / PolyLine components of a layer switched by a toggle; emits Picked, Dragged,
+LayerChanged and Widget events.
+
+Routing: a press goes to the viewport under the cursor, which keeps the following drags and the
+release (so a drag that leaves the viewport still turns its camera). In an orbit viewport with
+`interactive = true`: left-drag rotates, right- or middle-drag pans, scroll zooms; a click (press and
+release within CLICK_PX) picks. Attached viewports never move with the mouse. In viewports whose camera
+the mouse does not move, a left press on a surface starts a `Dragged` sequence.
+
+Widgets: clicks, drags and shortcut keys on the panel produce `Widget(name, value)` events that this
+system emits directly on the event queue (not through PendingInput, so a recording holds the clicks
+once and a replay reproduces the widget events from them). Scripted Widget events, released by the
+input system, go through the same `apply_widget` + layer effects, so both have the same effect.
+Toggle `layer` conventions: "NAME" shows/hides entities of layer NAME (and the pack's [planes] when
+NAME is "planes"); "view:NAME" shows/hides viewport NAME; "xray:NAME" draws layer NAME see-through.
+Key "f1" toggles the help overlay.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import esper
+import numpy as np
+
+from components.core import Marker, MeshRef, PolyLine, Transform
+from game import widgets as wd
+from game.app import ORDER_VIEW
+from game.errors import UserError
+from game.hud import HudState
+from game.input_events import Key, MouseButton, MouseDrag, PickPoint, Resize, Scroll, Widget
+from game.loader import EntityIndex, PackResource
+from game.resources import InputState, Settings
+from game.view_events import Dragged, LayerChanged, Picked
+from game.viewports import KINDS_3D, Camera, OrbitCamera, Rect, attached_camera, layout_rects, orbit_from_table
+
+CLICK_PX = 4.0  # a press and release closer than this (total travel) is a click, not a drag
+
+
+@dataclass(slots=True)
+class Viewport:
+    name: str
+    kind: str
+    spec: dict
+    rect: Rect
+    camera: Camera | None
+    visible: bool
+    interactive: bool
+
+    @property
+    def is_3d(self) -> bool:
+        return self.kind in KINDS_3D
+
+    @property
+    def mouse_camera(self) -> bool:
+        """Whether mouse drags move this viewport's camera."""
+        return self.kind == "orbit" and self.interactive
+
+
+@dataclass(slots=True)
+class ViewState:
+    """Viewports with their cameras and pixel rectangles (window pixels), layer switches, pointer capture."""
+
+    viewports: list[Viewport] = field(default_factory=list)
+    size: tuple[int, int] = (1280, 800)
+    layers: dict[str, bool] = field(default_factory=dict)
+    xray: set[str] = field(default_factory=set)
+    panels: dict[str, list[wd.Placed]] = field(default_factory=dict)
+    show_help: bool = False
+    # pointer capture (runtime)
+    active: str | None = None
+    press: tuple[float, float, str] | None = None
+    travel: float = 0.0
+    widget: wd.Placed | None = None
+    grab: tuple | None = None  # (viewport, entity, name, triangle, grab_point)
+
+    def get(self, name: str) -> Viewport | None:
+        for vp in self.viewports:
+            if vp.name == name:
+                return vp
+        return None
+
+    def at(self, x: float, y: float) -> Viewport | None:
+        """The visible viewport under a window point (the last listed wins where they overlap)."""
+        for vp in reversed(self.viewports):
+            if vp.visible and vp.rect.contains(x, y):
+                return vp
+        return None
+
+    def layer_visible(self, layer: str) -> bool:
+        return self.layers.get(layer, True)
+
+
+def first_panel(vs: ViewState) -> str:
+    return next((vp.name for vp in vs.viewports if vp.kind == "panel"), "")
+
+
+def relayout(vs: ViewState, widgets: list[dict], width: int, height: int) -> None:
+    vs.size = (int(width), int(height))
+    rects = layout_rects([vp.spec for vp in vs.viewports], vs.size[0], vs.size[1])
+    for vp in vs.viewports:
+        vp.rect = rects[vp.name]
+    fp = first_panel(vs)
+    vs.panels = {vp.name: wd.place(wd.panel_widgets(widgets, vp.name, fp), vp.rect)
+                 for vp in vs.viewports if vp.kind == "panel"}
+
+
+def build_view_state(layout: dict, size: tuple[int, int]) -> ViewState:
+    vs = ViewState()
+    for spec in layout.get("viewports", []):
+        kind = spec["kind"]
+        cam = orbit_from_table(spec) if kind in ("orbit", "fixed", "attached") else None
+        vs.viewports.append(Viewport(spec["name"], kind, spec, Rect(0, 0, 1, 1), cam,
+                                     bool(spec.get("visible", True)), bool(spec.get("interactive", True))))
+    relayout(vs, layout.get("widgets", []), *size)
+    return vs
+
+
+def refresh_cameras(app, vs: ViewState) -> None:
+    """Place attached cameras on their entities (call before drawing or picking)."""
+    index = app.get_resource(EntityIndex)
+    for vp in vs.viewports:
+        if vp.kind != "attached" or index is None:
+            continue
+        ent = index.get(vp.spec.get("attach", ""))
+        tr = esper.try_component(ent, Transform) if ent is not None else None
+        if tr is None:
+            continue
+        vp.camera = attached_camera(tr.position, tr.rotation, tr.scale, vp.spec.get("offset", (0, 0, 0)),
+                                    float(vp.spec.get("fov", 40.0)), float(vp.spec.get("near", 1.0)),
+                                    float(vp.spec.get("far", 5000.0)))
+
+
+def set_layer(app, layer: str, visible: bool) -> None:
+    """Show or hide a visibility group (see the module docstring for the `view:` and `xray:` forms)."""
+    vs: ViewState = app.resource(ViewState)
+    if layer.startswith("view:"):
+        vp = vs.get(layer[5:])
+        if vp is not None:
+            vp.visible = bool(visible)
+    elif layer.startswith("xray:"):
+        (vs.xray.add if visible else vs.xray.discard)(layer[5:])
+    else:
+        vs.layers[layer] = bool(visible)
+        for comp_type in (MeshRef, Marker, PolyLine):
+            for _, comp in esper.get_component(comp_type):
+                if comp.layer == layer:
+                    comp.visible = bool(visible)
+    app.events.emit(LayerChanged(layer, bool(visible)))
+
+
+class ViewSystem:
+    """The system object: holds its event reader and the events it emitted itself."""
+
+    def __init__(self, app):
+        self.reader = app.events.reader(None)
+        self.own: list = []
+
+    def emit(self, app, ev) -> None:
+        self.own.append(ev)
+        app.events.emit(ev)
+
+    # -- widgets ---------------------------------------------------------------------------------
+    def use_widget(self, app, name: str, value) -> None:
+        st: wd.WidgetState = app.resource(wd.WidgetState)
+        if not st.enabled(name):
+            return
+        self.emit(app, Widget(name, value))
+        self.apply(app, name, value)
+
+    def apply(self, app, name: str, value) -> None:
+        st: wd.WidgetState = app.resource(wd.WidgetState)
+        if not wd.apply_widget(st, name, value):
+            return
+        spec = st.specs.get(name)
+        if spec is not None and spec["kind"] == "toggle" and spec.get("layer"):
+            set_layer(app, spec["layer"], bool(st.values[name]))
+
+    # -- pointer ---------------------------------------------------------------------------------
+    def ray(self, vp: Viewport, x: float, y: float):
+        # window events carry whole pixels: aim through the pixel centre, as the renderer samples it
+        return vp.camera.ray(x + 0.5, y + 0.5, vp.rect)
+
+    def press(self, app, vs: ViewState, ev: MouseButton) -> None:
+        vp = vs.at(ev.x, ev.y)
+        vs.active = vp.name if vp else None
+        vs.press = (ev.x, ev.y, ev.button)
+        vs.travel = 0.0
+        vs.widget = None
+        vs.grab = None
+        if vp is None:
+            return
+        if vp.kind == "panel":
+            p = wd.hit(vs.panels.get(vp.name, []), ev.x, ev.y)
+            st: wd.WidgetState = app.resource(wd.WidgetState)
+            if p is not None and ev.button == "left" and st.enabled(p.spec["name"]):
+                vs.widget = p
+                self.use_widget(app, p.spec["name"], wd.click_value(p, ev.x, st.values.get(p.spec["name"])))
+        elif vp.is_3d and vp.camera is not None and not vp.mouse_camera and vp.interactive and ev.button == "left":
+            from game.picking import pick
+
+            o, d = self.ray(vp, ev.x, ev.y)
+            hit = pick(app, o, d)
+            if hit is not None:
+                gp = tuple(float(c) for c in hit.point)
+                vs.grab = (vp.name, hit.entity, hit.name, hit.triangle, gp)
+                self.emit(app, Dragged(vp.name, hit.entity, hit.name, "start", hit.triangle, gp, gp, ev.button))
+
+    def drag_point(self, vs: ViewState, vp: Viewport, x: float, y: float):
+        o, d = self.ray(vp, x, y)
+        gp = np.asarray(vs.grab[4])
+        n = vp.camera.forward
+        denom = float(d @ n)
+        t = float((gp - o) @ n) / denom if abs(denom) > 1e-12 else 0.0
+        return tuple(float(c) for c in (o + t * d))
+
+    def drag(self, app, vs: ViewState, ev: MouseDrag) -> None:
+        vs.travel += abs(ev.dx) + abs(ev.dy)
+        vp = vs.get(vs.active) if vs.active else None
+        if vp is None:
+            return
+        if vp.kind == "panel":
+            if vs.widget is not None and vs.widget.spec["kind"] in ("slider", "dial"):
+                st: wd.WidgetState = app.resource(wd.WidgetState)
+                name = vs.widget.spec["name"]
+                cur = st.values.get(name)
+                new = wd.drag_value(vs.widget, ev.x, ev.dx, cur)
+                if new != cur:
+                    self.use_widget(app, name, new)
+        elif vs.grab is not None:
+            g = vs.grab
+            self.emit(app, Dragged(vp.name, g[1], g[2], "move", g[3], g[4], self.drag_point(vs, vp, ev.x, ev.y), ev.button))
+        elif vp.mouse_camera and isinstance(vp.camera, OrbitCamera):
+            if ev.button == "left":
+                vp.camera.rotate(ev.dx, ev.dy)
+            else:
+                vp.camera.pan(ev.dx, ev.dy, vp.rect)
+
+    def release(self, app, vs: ViewState, ev: MouseButton) -> None:
+        vp = vs.get(vs.active) if vs.active else None
+        if vs.press is not None:
+            vs.travel = max(vs.travel, abs(ev.x - vs.press[0]) + abs(ev.y - vs.press[1]))
+        if vp is not None and vp.is_3d and vp.camera is not None:
+            if vs.grab is not None:
+                g = vs.grab
+                self.emit(app, Dragged(vp.name, g[1], g[2], "end", g[3], g[4], self.drag_point(vs, vp, ev.x, ev.y), ev.button))
+            if vs.travel <= CLICK_PX and vp.interactive and vp.kind != "attached":
+                from game.picking import pick
+
+                o, d = self.ray(vp, ev.x, ev.y)
+                hit = pick(app, o, d)
+                if hit is not None:
+                    self.emit(app, Picked(vp.name, hit.entity, hit.name, hit.triangle,
+                                          tuple(float(c) for c in hit.point), ev.button))
+        vs.active, vs.press, vs.widget, vs.grab, vs.travel = None, None, None, None, 0.0
+
+    def pick_point(self, app, ev: PickPoint) -> None:
+        from game.picking import snap
+
+        index: EntityIndex = app.resource(EntityIndex)
+        ent = index.get(ev.entity)
+        if ent is None:
+            raise UserError(f"pick event: no entity '{ev.entity}' in this scene; entities: {', '.join(sorted(index.by_name))}")
+        hit = snap(app, ent, ev.point)
+        if hit is None:
+            raise UserError(f"pick event: entity '{ev.entity}' has no triangle mesh to pick on")
+        self.emit(app, Picked("", ent, hit.name, hit.triangle, tuple(float(c) for c in hit.point), ev.button))
+
+    # -- the system ------------------------------------------------------------------------------
+    def __call__(self, app) -> None:
+        vs: ViewState = app.resource(ViewState)
+        app.resource(HudState).age(app.time.frame_dt)
+        events = self.reader.read()
+        own, self.own = self.own, []
+        layout = app.resource(PackResource).layout
+        refreshed = False
+        for ev in events:
+            if any(ev is o for o in own):
+                continue
+            if isinstance(ev, (MouseButton, MouseDrag, PickPoint)) and not refreshed:
+                refresh_cameras(app, vs)
+                refreshed = True
+            if isinstance(ev, Resize):
+                relayout(vs, layout.get("widgets", []), ev.width, ev.height)
+            elif isinstance(ev, MouseButton):
+                (self.press if ev.pressed else self.release)(app, vs, ev)
+            elif isinstance(ev, MouseDrag):
+                self.drag(app, vs, ev)
+            elif isinstance(ev, Scroll):
+                vp = vs.at(ev.x, ev.y)
+                if vp is not None and vp.mouse_camera and isinstance(vp.camera, OrbitCamera):
+                    vp.camera.zoom(ev.dy)
+            elif isinstance(ev, Key) and ev.pressed:
+                if ev.key == "f1":
+                    vs.show_help = not vs.show_help
+                st: wd.WidgetState = app.resource(wd.WidgetState)
+                for w in layout.get("widgets", []):
+                    if w.get("key") and w["key"].lower() == ev.key and w["kind"] in wd.INTERACTIVE:
+                        if st.enabled(w["name"]):
+                            self.use_widget(app, w["name"], wd.key_value(w, st.values.get(w["name"])))
+            elif isinstance(ev, Widget):
+                self.apply(app, ev.name, ev.value)
+            elif isinstance(ev, PickPoint):
+                self.pick_point(app, ev)
+        self.own.extend(o for o in own if not any(o is e for e in events))
+
+
+def plugin(app) -> None:
+    pres: PackResource = app.resource(PackResource)
+    layout = pres.layout
+    size = tuple(int(v) for v in app.resource(Settings).get("window_size", (1280, 800)))
+    app.resource(InputState).window_size = size
+    vs = app.insert_resource(build_view_state(layout, size))
+    st = app.insert_resource(wd.WidgetState.from_layout(layout.get("widgets", [])))
+    steps = pres.pack.section("steps")
+    hud = HudState()
+    if steps:
+        hud.step_title, hud.step_instruction = steps[0].get("title", ""), steps[0].get("instruction", "")
+    app.insert_resource(hud)
+    vs.layers.setdefault("planes", False)
+    with app.active():
+        for w in layout.get("widgets", []):
+            if w["kind"] == "toggle" and w.get("layer"):
+                set_layer(app, w["layer"], bool(st.values[w["name"]]))
+    app.add_system("input", ViewSystem(app), order=ORDER_VIEW, name="view")

@@ -1,0 +1,118 @@
+"""Ray picking and surface snapping (game/picking.py) and the Picked events of systems/view.py."""
+
+import esper
+import numpy as np
+from hypothesis import given, settings, strategies as st
+
+from components.core import Transform
+from game.headless import build_app
+from game.input_events import MouseButton, MouseDrag, PickPoint
+from game.loader import EntityIndex
+from game.picking import closest_on_mesh, ray_mesh, ray_triangles, triangle_links
+from game.resources import PendingInput
+from game.view_events import Picked
+from systems.view import ViewState
+
+
+def _reference_hit(o, d, a, b, c):
+    """Plain barycentric solve of o + t d = a + u (b - a) + v (c - a)."""
+    m = np.column_stack([-d, b - a, c - a])
+    if abs(np.linalg.det(m)) < 1e-12:
+        return np.inf
+    t, u, v = np.linalg.solve(m, o - a)
+    return t if (u >= 0 and v >= 0 and u + v <= 1 and t > 0) else np.inf
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 10_000))
+def test_ray_triangles_matches_a_direct_solve(seed):
+    rng = np.random.default_rng(seed)
+    tris = rng.uniform(-10, 10, (30, 3, 3))
+    o = rng.uniform(-20, 20, 3)
+    d = rng.normal(size=3)
+    d /= np.linalg.norm(d)
+    got = ray_triangles(o, d, tris[:, 0], tris[:, 1], tris[:, 2])
+    want = np.array([_reference_hit(o, d, *t) for t in tris])
+    finite = np.isfinite(want)
+    # points within a hair of an edge may go either way; elsewhere the two must agree
+    assert np.array_equal(np.isfinite(got), finite) or np.sum(np.isfinite(got) != finite) <= 1
+    both = finite & np.isfinite(got)
+    np.testing.assert_allclose(got[both], want[both], rtol=1e-7, atol=1e-7)
+
+
+def test_ray_mesh_returns_the_nearest_of_stacked_triangles():
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 5], [1, 0, 5], [0, 1, 5]], float)
+    tris = np.array([[0, 1, 2], [3, 4, 5]])
+    assert ray_mesh([0.2, 0.2, 10.0], [0, 0, -1.0], verts, tris) == (1, 5.0)
+    assert ray_mesh([0.2, 0.2, -1.0], [0, 0, 1.0], verts, tris) == (0, 1.0)
+    assert ray_mesh([2.0, 2.0, 10.0], [0, 0, -1.0], verts, tris) is None
+
+
+def test_closest_on_mesh_snaps_to_the_plane():
+    verts = np.array([[0, 0, 0], [10, 0, 0], [0, 10, 0]], float)
+    tri, p = closest_on_mesh(verts, np.array([[0, 1, 2]]), [2.0, 3.0, 7.0])
+    assert tri == 0
+    np.testing.assert_allclose(p, [2.0, 3.0, 0.0])
+
+
+def test_triangle_links_finds_each_edge():
+    tris = np.array([[0, 1, 2], [2, 1, 3]])
+    links = np.array([[1, 2], [0, 1], [2, 0], [3, 1]])
+    tl = triangle_links(tris, links)
+    assert tl.tolist() == [[1, 0, 2], [0, 3, -1]]
+
+
+def _ball(app):
+    with app.active():
+        ent = app.resource(EntityIndex)["ball"]
+        return ent, esper.component_for_entity(ent, Transform).position.copy()
+
+
+def test_click_on_the_ball_emits_one_picked_event_on_its_surface():
+    app = build_app("loop-demo")
+    try:
+        app.events.log = []
+        ent, centre = _ball(app)
+        vp = app.resource(ViewState).get("main")
+        x, y, _ = vp.camera.project(centre, vp.rect)[0]
+        app.resource(PendingInput).extend([(0.0, MouseButton(int(x), int(y), "left", True)),
+                                           (0.0, MouseButton(int(x), int(y), "left", False))])
+        app.update(0.0)  # zero-length frame: the ball has not moved yet
+        picks = [e for e in app.events.log if isinstance(e, Picked)]
+        assert len(picks) == 1
+        assert picks[0].entity == ent and picks[0].entity_name == "ball" and picks[0].viewport == "main"
+        r = np.linalg.norm(np.array(picks[0].point) - centre)
+        assert 14.0 < r < 15.0 + 1e-6  # on the tessellated sphere of radius 15
+    finally:
+        app.close()
+
+
+def test_drag_is_not_a_pick():
+    app = build_app("loop-demo")
+    try:
+        app.events.log = []
+        _, centre = _ball(app)
+        vp = app.resource(ViewState).get("main")
+        x, y, _ = vp.camera.project(centre, vp.rect)[0]
+        app.resource(PendingInput).extend([(0.0, MouseButton(x, y, "left", True)), (0.0, MouseDrag(x + 30, y, 30, 0, "left")),
+                                           (0.0, MouseButton(x, y, "left", False))])
+        app.update(0.0)
+        assert [e for e in app.events.log if isinstance(e, Picked)] == []
+    finally:
+        app.close()
+
+
+def test_scripted_pick_point_snaps_to_the_surface():
+    app = build_app("loop-demo")
+    try:
+        app.events.log = []
+        ent, centre = _ball(app)
+        app.resource(PendingInput).extend([(0.0, PickPoint("ball", tuple(centre + [0.0, 0.0, 40.0])))])
+        app.update(0.0)
+        picks = [e for e in app.events.log if isinstance(e, Picked)]
+        assert len(picks) == 1 and picks[0].entity == ent and picks[0].viewport == ""
+        p = np.array(picks[0].point)
+        assert abs(p[0] - centre[0]) < 1.0 and abs(p[1] - centre[1]) < 1.0
+        assert 14.0 < p[2] - centre[2] <= 15.0 + 1e-6
+    finally:
+        app.close()

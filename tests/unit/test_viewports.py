@@ -1,0 +1,99 @@
+"""Camera math and layout rectangles (game/viewports.py): what the renderer and picking both rely on."""
+
+import math
+
+import numpy as np
+from hypothesis import given, settings, strategies as st
+
+from game.viewports import OrbitCamera, Rect, attached_camera, fraction_rect, layout_rects
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(50, 3000), st.integers(50, 2000), st.floats(0.05, 0.95))
+def test_side_by_side_viewports_tile_the_window(w, h, split):
+    r = layout_rects([{"name": "a", "rect": [0.0, 0.0, split, 1.0]}, {"name": "b", "rect": [split, 0.0, 1.0 - split, 1.0]}], w, h)
+    assert r["a"].x == 0
+    assert r["a"].x + r["a"].w == r["b"].x
+    assert r["b"].x + r["b"].w == w
+    assert r["a"].h == h and r["b"].h == h
+
+
+def test_fraction_rect_is_bottom_left_origin():
+    r = fraction_rect([0.5, 0.25, 0.5, 0.5], 800, 400)
+    assert r == Rect(400, 100, 400, 200)
+    assert r.contains(400, 100)
+    assert not r.contains(800, 100)
+
+
+def test_orbit_convention_yaw_zero_looks_along_minus_y():
+    cam = OrbitCamera(target=np.array([1.0, 2.0, 3.0]), distance=100.0, yaw=0.0, pitch=0.0)
+    np.testing.assert_allclose(cam.eye, [1.0, 102.0, 3.0], atol=1e-9)
+    np.testing.assert_allclose(cam.forward, [0.0, -1.0, 0.0], atol=1e-12)
+    cam.yaw, cam.pitch = 90.0, 0.0
+    cam.update_eye()
+    np.testing.assert_allclose(cam.eye, [-99.0, 2.0, 3.0], atol=1e-9)  # counter-clockwise from +Y is -X
+    cam.pitch = 45.0
+    cam.update_eye()
+    assert cam.eye[2] > 3.0  # positive pitch lifts the eye
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(0, 360), st.floats(-80, 80), st.floats(50, 800), st.lists(st.floats(-40, 40), min_size=3, max_size=3))
+def test_ray_through_projected_pixel_passes_through_point(yaw, pitch, dist, p):
+    cam = OrbitCamera(target=np.zeros(3), distance=dist, yaw=yaw, pitch=pitch, near=1.0, far=5000.0)
+    rect = Rect(37, 11, 640, 480)
+    point = np.array(p)
+    px, py, depth = cam.project(point, rect)[0]
+    assert -1.0 < depth < 1.0
+    o, d = cam.ray(px, py, rect)
+    assert abs(np.linalg.norm(d) - 1.0) < 1e-9
+    off = (point - o) - ((point - o) @ d) * d
+    assert np.linalg.norm(off) < 1e-6 * dist
+
+
+def test_target_projects_to_the_viewport_centre():
+    cam = OrbitCamera(target=np.array([5.0, -3.0, 2.0]), distance=300, yaw=33, pitch=21)
+    rect = Rect(100, 50, 400, 300)
+    x, y, _ = cam.project(cam.target, rect)[0]
+    assert abs(x - 300.0) < 1e-6 and abs(y - 200.0) < 1e-6
+
+
+def test_vertical_field_of_view_matches_projection():
+    cam = OrbitCamera(target=np.zeros(3), distance=100.0, yaw=0, pitch=0, fov=60.0)
+    rect = Rect(0, 0, 200, 100)
+    top = np.array([0.0, 0.0, 100.0 * math.tan(math.radians(30.0))])  # on the upper frustum edge at the target
+    assert abs(cam.project(top, rect)[0][1] - 100.0) < 1e-6
+
+
+def test_zoom_pan_rotate():
+    rect = Rect(0, 0, 800, 600)
+    cam = OrbitCamera(target=np.zeros(3), distance=400.0, yaw=10, pitch=20)
+    cam.zoom(1.0)
+    assert cam.distance < 400.0
+    cam.zoom(-1.0)
+    assert abs(cam.distance - 400.0) < 1e-9
+    before = cam.project(np.zeros(3), rect)[0]
+    cam.pan(30.0, -20.0, rect)
+    after = cam.project(np.zeros(3), rect)[0]
+    np.testing.assert_allclose(after[:2] - before[:2], [30.0, -20.0], atol=1e-6)  # the scene follows the cursor
+    yaw = cam.yaw
+    cam.rotate(10.0, 0.0)
+    assert cam.yaw != yaw
+    cam.rotate(0.0, -10000.0)
+    assert cam.pitch <= 89.9
+
+
+def test_attached_camera_looks_along_rotated_plus_z():
+    # 90 degrees about +X maps local +Z to world -Y and local +Y to world +Z
+    q = np.array([math.cos(math.pi / 4), math.sin(math.pi / 4), 0.0, 0.0])
+    cam = attached_camera(position=[10.0, 20.0, 30.0], rotation=q, scale=2.0, offset=[0.0, 0.0, 5.0], fov=50, near=0.5, far=1000)
+    np.testing.assert_allclose(cam.eye, [10.0, 10.0, 30.0], atol=1e-9)  # offset scaled and rotated
+    np.testing.assert_allclose(cam.forward, [0.0, -1.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(cam.up, [0.0, 0.0, 1.0], atol=1e-9)
+    ahead = cam.eye + 50.0 * cam.forward
+    x, y, _ = cam.project(ahead, Rect(0, 0, 100, 100))[0]
+    assert abs(x - 50.0) < 1e-6 and abs(y - 50.0) < 1e-6
+
+
+def test_scaled_rect_for_hidpi():
+    assert Rect(10, 20, 30, 40).scaled(2.0) == Rect(20, 40, 60, 80)
