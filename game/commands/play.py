@@ -17,6 +17,8 @@ def add_parser(sub):
     p.add_argument("--exit-after", type=float, default=None, metavar="SECONDS", help="close after this much simulated time")
     p.add_argument("--screenshot", metavar="PNG", help="save a screenshot of the window when closing")
     p.add_argument("--db", metavar="PATH", help="trainee records database")
+    p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempts are saved under")
+    p.add_argument("--trainee", metavar="NAME", help="trainee the attempts are saved under")
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     return p
 

@@ -32,6 +32,16 @@ def _nonneg(text: str) -> int:
     return v
 
 
+def user_settings(args) -> dict:
+    """Settings a user gives on the command line (records database, class, trainee)."""
+    out = {}
+    for key, attr in (("db", "db"), ("class", "class_name"), ("trainee", "trainee")):
+        v = getattr(args, attr, None)
+        if v is not None:
+            out[key] = v
+    return out
+
+
 def add_parser(sub):
     p = sub.add_parser(NAME, help=HELP)
     p.add_argument("pack", help="PACK or PACK/SCENE (a pack name or folder)")
@@ -43,6 +53,9 @@ def add_parser(sub):
     p.add_argument("--dt", type=float, default=None, help="override the fixed step (seconds)")
     p.add_argument("--screenshot-every", type=_nonneg, default=0, metavar="K", help="write a PNG every K frames (needs EGL)")
     p.add_argument("--size", type=_size, default=None, metavar="WxH", help="off-screen frame size for screenshots")
+    p.add_argument("--db", metavar="PATH", help="trainee records database (procedures that save attempts)")
+    p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempt is saved under")
+    p.add_argument("--trainee", metavar="NAME", help="trainee the attempt is saved under")
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     return p
@@ -59,7 +72,8 @@ def run(args) -> int:
     if args.screenshot_every and not args.out:
         raise UserError("--screenshot-every needs --out DIR for the frames")
     summary = run_pack(args.pack, args.steps, script=args.input, record=args.record, out=args.out,
-                       pack_paths=args.pack_path, dt=args.dt, screenshot_every=args.screenshot_every, size=args.size)
+                       pack_paths=args.pack_path, dt=args.dt, screenshot_every=args.screenshot_every, size=args.size,
+                       settings=user_settings(args))
     if args.json:
         print(json.dumps(summary, indent=2, sort_keys=True))
     else:
