@@ -1,0 +1,269 @@
+"""Deformable bodies in the engine: spawn from a pack, grab/release requests, frames, anchors, dirty ids,
+the digest, default bodies from `simulation.kind`, and the absence of the system in rigid scenes."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import esper
+import numpy as np
+import pytest
+
+from components.deformable import Deformable, Pull
+from game.deform_events import Deformed, GrabRequest, ReleaseRequest
+from game.digest import world_digest
+from game.errors import UserError
+from game.headless import build_app
+
+PACK_HEAD = """
+[pack]
+name = "deftest"
+format = 1
+
+[meshes.sheet]
+primitive = "grid"
+extents = [10.0, 10.0, 0.0]
+resolution = [10.0, 10.0, 1.0]
+
+[meshes.block]
+primitive = "tet_block"
+extents = [4.0, 4.0, 4.0]
+resolution = [4.0, 4.0, 4.0]
+
+[materials.rigid]
+alpha_min = 1.0
+alpha_max = 1.0
+beta = 0.0
+relax = 0
+
+[materials.medium]
+alpha_min = 0.8
+alpha_max = 1.2
+beta = 0.1
+relax = 0
+"""
+
+
+def make_pack(tmp_path: Path, body: str) -> str:
+    root = tmp_path / "deftest"
+    root.mkdir(exist_ok=True)
+    (root / "pack.toml").write_text(textwrap.dedent(PACK_HEAD) + textwrap.dedent(body), encoding="utf-8")
+    return str(root)
+
+
+def body(app, name="body") -> tuple[int, Deformable]:
+    from game.loader import EntityIndex
+
+    ent = app.resource(EntityIndex)[name]
+    with app.active():
+        return ent, esper.component_for_entity(ent, Deformable)
+
+
+SHEET = """
+[entities.body.mesh]
+mesh = "sheet"
+material = "{material}"
+[entities.body.deformable]
+"""
+
+
+def test_rigid_scene_gets_no_deformation_system():
+    app = build_app("loop-demo")
+    try:
+        assert "deformation" not in app.systems("simulation")
+        assert "pull" not in app.systems("simulation")
+    finally:
+        app.close()
+
+
+def test_spawn_builds_the_chainmail_object_from_the_render_mesh(tmp_path):
+    app = build_app(make_pack(tmp_path, SHEET.format(material="medium")))
+    try:
+        assert "deformation" in app.systems("simulation")
+        _, d = body(app)
+        from game.loader import PackResource
+
+        mesh = app.resource(PackResource).pack.mesh("sheet")
+        np.testing.assert_array_equal(d.pos, mesh.vertices)  # same vertex order as the renderer's mesh
+        np.testing.assert_array_equal(d.rest, mesh.vertices)
+        assert d.graph.n_links == len(mesh.edge_links())
+        assert np.all(d.amin == 0.8) and np.all(d.amax == 1.2) and np.all(d.beta_l == 0.1)
+        assert d.relax_iterations == 0 and d.version == 0 and len(d.dirty) == 0
+    finally:
+        app.close()
+
+
+def test_grab_moves_the_element_emits_deformed_and_marks_dirty(tmp_path):
+    app = build_app(make_pack(tmp_path, SHEET.format(material="medium")))
+    try:
+        ent, d = body(app)
+        seen = app.events.reader(Deformed)
+        target = d.rest[60] + [0.0, 0.0, 4.0]
+        app.events.emit(GrabRequest("body", [60], target, frame="local"))
+        app.run_steps(1)
+        np.testing.assert_allclose(d.pos[60], target)
+        moved = np.flatnonzero(np.any(d.pos != d.rest, axis=1))
+        assert 60 in moved and len(moved) > 1
+        assert set(moved.tolist()) <= set(d.dirty.tolist())
+        assert set(d.dirty.tolist()) == set(d.last_order.tolist())
+        evs = seen.read()
+        assert len(evs) == 1 and evs[0].entity == ent and evs[0].moved_count == len(d.last_order)
+        assert d.version == 1 and d.held.tolist() == [60]
+        # every moved element sits in the valid region of its sponsor (thesis 5.2.2), nothing else moved
+        for e, s in zip(d.last_order[1:], d.last_sponsor[1:]):
+            lo, hi = _box(d.rest, d.pos, e, s, 0.8, 1.2, 0.1)
+            assert np.all(d.pos[e] >= lo - 1e-9) and np.all(d.pos[e] <= hi + 1e-9)
+    finally:
+        app.close()
+
+
+def _box(rest, pos, e, s, amin, amax, beta):
+    dv = rest[e] - rest[s]
+    ad = np.abs(dv)
+    other = ad.sum() - ad
+    lo_off, hi_off = amin * ad - beta * other, amax * ad + beta * other
+    return (np.where(dv >= 0, pos[s] + lo_off, pos[s] - hi_off), np.where(dv >= 0, pos[s] + hi_off, pos[s] - lo_off))
+
+
+def test_rigid_material_translates_and_world_targets_use_the_transform(tmp_path):
+    app = build_app(make_pack(tmp_path, SHEET.format(material="rigid") + """
+[entities.body.transform]
+position = [100.0, 0.0, 0.0]
+"""))
+    try:
+        _, d = body(app)
+        world_target = d.rest[5] + [100.0, 0.0, 3.0]
+        app.events.emit(GrabRequest("body", [5], world_target))  # world frame is the default
+        app.run_steps(1)
+        np.testing.assert_allclose(d.pos, d.rest + [0.0, 0.0, 3.0], atol=1e-12)
+    finally:
+        app.close()
+
+
+def test_fixed_box_pins_elements(tmp_path):
+    app = build_app(make_pack(tmp_path, SHEET.format(material="rigid") + """
+fixed_box = [-100.0, -100.0, -1.0, -4.0, 100.0, 1.0]
+"""))
+    try:
+        _, d = body(app)
+        pinned = d.rest[:, 0] <= -4.0
+        assert pinned.sum() > 0 and np.array_equal(d.fixed_mask, pinned)
+        app.events.emit(GrabRequest("body", [int(np.argmax(d.rest[:, 0]))], d.rest[np.argmax(d.rest[:, 0])] + [0, 0, 5.0], frame="local"))
+        app.run_steps(1)
+        np.testing.assert_array_equal(d.pos[pinned], d.rest[pinned])
+        assert np.any(d.pos[~pinned] != d.rest[~pinned])
+    finally:
+        app.close()
+
+
+def test_dirty_is_a_union_until_the_renderer_clears_it(tmp_path):
+    app = build_app(make_pack(tmp_path, SHEET.format(material="medium")))
+    try:
+        _, d = body(app)
+        app.events.emit(GrabRequest("body", [0], d.rest[0] + [0, 0, 2.0], frame="local"))
+        app.run_steps(1)
+        first = set(d.last_order.tolist())
+        app.events.emit(GrabRequest("body", [120], d.rest[120] + [0, 0, 2.0], frame="local"))
+        app.run_steps(1)
+        second = set(d.last_order.tolist())
+        assert sorted(d.dirty.tolist()) == sorted(first | second) and len(d.dirty) == len(set(d.dirty.tolist()))
+        d.dirty = np.zeros(0, dtype=np.int64)  # what the render system does after uploading
+        app.events.emit(GrabRequest("body", [0], d.rest[0] + [0, 0, 3.0], frame="local"))
+        app.run_steps(1)
+        assert sorted(d.dirty.tolist()) == sorted(set(d.last_order.tolist()))
+    finally:
+        app.close()
+
+
+def test_held_elements_stay_put_until_released(tmp_path):
+    app = build_app(make_pack(tmp_path, SHEET.format(material="medium")))
+    try:
+        _, d = body(app)
+        app.events.emit(GrabRequest("body", [0], d.rest[0] + [0, 0, 1.0], frame="local"))
+        app.run_steps(1)
+        held_at = d.pos[0].copy()
+        app.events.emit(GrabRequest("body", [1], d.rest[1] + [0, 0, 6.0], frame="local"))
+        app.run_steps(1)
+        np.testing.assert_array_equal(d.pos[0], held_at)
+        assert sorted(d.held.tolist()) == [0, 1]
+        app.events.emit(ReleaseRequest("body", [0]))
+        app.events.emit(GrabRequest("body", [1], d.rest[1] + [0, 0, 9.0], frame="local"))
+        app.run_steps(1)
+        assert d.pos[0, 2] > held_at[2]
+        assert d.held.tolist() == [1]
+    finally:
+        app.close()
+
+
+def test_digest_follows_positions_not_render_bookkeeping(tmp_path):
+    app = build_app(make_pack(tmp_path, SHEET.format(material="medium")))
+    try:
+        _, d = body(app)
+        before = world_digest(app)
+        d.dirty = np.arange(5, dtype=np.int64)
+        assert world_digest(app) == before
+        d.pos[3, 2] += 1.0
+        assert world_digest(app) != before
+    finally:
+        app.close()
+
+
+def test_simulation_kind_volume_gets_a_default_deformable(tmp_path):
+    app = build_app(make_pack(tmp_path, """
+[entities.body.mesh]
+mesh = "block"
+material = "medium"
+[entities.body.simulation]
+kind = "volume"
+"""))
+    try:
+        _, d = body(app)
+        from game import meshgen
+        from game.loader import PackResource
+
+        mesh = app.resource(PackResource).pack.mesh("block")
+        assert d.source == "volume"
+        assert d.graph.n_links == len(meshgen.links_from_cells(mesh.tets))
+        assert "deformation" in app.systems("simulation")
+    finally:
+        app.close()
+
+
+def test_scripted_pull_reaches_its_target(tmp_path):
+    app = build_app(make_pack(tmp_path, SHEET.format(material="medium") + """
+fixed_boundary = true
+[entities.body.pull]
+at = [0.0, 0.0, 0.0]
+path = [0.0, 0.0, 3.0, 1.0, 0.0, 3.0]
+speed = 40.0
+start = 0.05
+"""))
+    try:
+        ent, d = body(app)
+        with app.active():
+            p = esper.component_for_entity(ent, Pull)
+        assert p.resolved == int(np.argmin(np.linalg.norm(d.rest, axis=1)))
+        app.run_steps(60)
+        assert p.done
+        np.testing.assert_allclose(d.pos[p.resolved], [1.0, 0.0, 3.0], atol=1e-12)
+        rim = d.fixed_mask
+        assert rim.sum() == 40  # the rim of an 11 x 11 sheet
+        np.testing.assert_array_equal(d.pos[rim], d.rest[rim])
+    finally:
+        app.close()
+
+
+@pytest.mark.parametrize("table, needle", [
+    ("[entities.body.mesh]\nmesh = \"sheet\"\n[entities.body.deformable]\nalpha_min = 1.5\n", "alpha_min"),
+    ("[entities.body.mesh]\nmesh = \"sheet\"\n[entities.body.deformable]\nalpha_max = 0.5\n", "alpha_max"),
+    ("[entities.body.mesh]\nmesh = \"sheet\"\n[entities.body.deformable]\nsource = \"volume\"\n", "tetrahedra"),
+    ("[entities.body.mesh]\nmesh = \"sheet\"\n[entities.body.deformable]\nmaterial = \"jelly\"\n", "jelly"),
+    ("[entities.body.mesh]\nmesh = \"sheet\"\n[entities.body.deformable]\nfixed = [5000]\n", "fixed"),
+    ("[entities.body.deformable]\n", "mesh"),
+    ("[entities.body.mesh]\nmesh = \"sheet\"\n[entities.body.deformable]\n[entities.body.pull]\npath = [1.0, 2.0]\n", "path"),
+])
+def test_bad_tables_are_one_line_user_errors(tmp_path, table, needle):
+    with pytest.raises(UserError) as err:
+        build_app(make_pack(tmp_path, table)).close()
+    assert needle in str(err.value) and "\n" not in str(err.value)
