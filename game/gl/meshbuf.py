@@ -1,0 +1,209 @@
+"""GPU buffers of one mesh: positions and normals (float32), triangle and link index buffers.
+
+A deformed mesh is updated in place: only the vertices the deformation moved are written, as a few
+contiguous ranges (`buffer.write` with an offset), and normals are recomputed only around them - the
+moved vertices and the other corners of their triangles, from the triangles touching those. ChainMail
+moves a local patch per pull (thesis 5.2.3), so an update costs in proportion to the patch, not the mesh.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: vertex-id gaps smaller than this are written through rather than split into two writes
+RUN_GAP = 256
+#: above this fraction of moved vertices a full rewrite is cheaper than the bookkeeping
+FULL_FRACTION = 0.3
+
+
+def face_normals(pos: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """Area-weighted (unnormalised) face normals."""
+    a = pos[tris[:, 0]]
+    return np.cross(pos[tris[:, 1]] - a, pos[tris[:, 2]] - a)
+
+
+def vertex_normals(pos: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """Unit per-vertex normals: the area-weighted mean of the incident face normals."""
+    n = len(pos)
+    out = np.zeros((n, 3), np.float64)
+    if len(tris):
+        fn = face_normals(pos.astype(np.float64, copy=False), tris)
+        flat = tris.ravel()
+        for c in range(3):
+            out[:, c] = np.bincount(flat, weights=np.repeat(fn[:, c], 3), minlength=n)
+    return _normalise(out)
+
+
+def _normalise(v: np.ndarray) -> np.ndarray:
+    ln = np.linalg.norm(v, axis=1, keepdims=True)
+    return np.where(ln > 1e-30, v / np.where(ln > 1e-30, ln, 1.0), 0.0)
+
+
+def runs(ids: np.ndarray, gap: int = RUN_GAP) -> list[tuple[int, int]]:
+    """Sorted ids -> [start, end) ranges covering them, merging gaps shorter than `gap`."""
+    if len(ids) == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(ids) > gap)
+    starts = np.r_[ids[0], ids[breaks + 1]]
+    ends = np.r_[ids[breaks], ids[-1]] + 1
+    return list(zip(starts.tolist(), ends.tolist()))
+
+
+def incidence(n: int, tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """CSR vertex -> incident triangles: triangles of v are idx[ptr[v]:ptr[v+1]]."""
+    flat = tris.ravel()
+    order = np.argsort(flat, kind="stable")
+    ptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(flat, minlength=n), out=ptr[1:])
+    return ptr, (order // 3).astype(np.int64)
+
+
+def gather(ptr: np.ndarray, idx: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """Concatenated CSR rows of `ids` (may repeat entries)."""
+    counts = ptr[ids + 1] - ptr[ids]
+    total = int(counts.sum())
+    if total == 0:
+        return np.zeros(0, np.int64)
+    starts = np.repeat(ptr[ids] - np.cumsum(np.r_[0, counts[:-1]]), counts)
+    return idx[starts + np.arange(total)]
+
+
+class GpuMesh:
+    """Vertex/normal/index buffers of one mesh plus the CPU copy needed for partial updates."""
+
+    def __init__(self, ctx, vertices: np.ndarray, triangles: np.ndarray, links: np.ndarray | None = None):
+        self.ctx = ctx
+        self.pos = np.ascontiguousarray(vertices, dtype=np.float32)
+        self.tris = np.ascontiguousarray(triangles, dtype=np.int64).reshape(-1, 3)
+        self.n = len(self.pos)
+        self.normals = vertex_normals(self.pos, self.tris).astype(np.float32)
+        self.vbo_pos = ctx.buffer(self.pos.tobytes(), dynamic=True)
+        self.vbo_nrm = ctx.buffer(self.normals.tobytes(), dynamic=True)
+        self.ibo = ctx.buffer(self.tris.astype(np.uint32).tobytes() or b"\0" * 12)
+        self.n_indices = self.tris.size
+        self.tri_ids = np.arange(len(self.tris))  # drawn triangles (all, until a cut removes some)
+        self._links = None if links is None else np.ascontiguousarray(links, dtype=np.int64)
+        self.lbo = None
+        self.n_line_indices = 0
+        self._csr = None
+        self.pending = np.zeros(self.n, np.bool_)  # vertices moved since the last upload
+        self.stale = False  # everything must be rewritten
+        self.bytes_written = 0  # statistics for benchmarks and tests
+        self.vaos: dict[str, object] = {}
+        self._center = None
+
+    def center(self) -> np.ndarray:
+        """Bounding-box centre in the mesh frame (sorting transparent meshes)."""
+        if self._center is None:
+            self._center = 0.5 * (self.pos.min(axis=0) + self.pos.max(axis=0)).astype(np.float64) if self.n else np.zeros(3)
+        return self._center
+
+    # -- vertex arrays -----------------------------------------------------------------------
+    def vao(self, prog, kind: str):
+        """A vertex array for `prog`: kind 'tri' (positions, normals, triangles) or 'line' (links)."""
+        key = f"{kind}:{prog.glo}"
+        if key not in self.vaos:
+            if kind == "tri":
+                attrs = [(self.vbo_pos, "3f", "in_pos")]
+                if "in_normal" in prog:
+                    attrs.append((self.vbo_nrm, "3f", "in_normal"))
+                self.vaos[key] = self.ctx.vertex_array(prog, attrs, self.ibo)
+            else:
+                self._ensure_lines()
+                self.vaos[key] = self.ctx.vertex_array(prog, [(self.vbo_pos, "3f", "in_pos")], self.lbo)
+        return self.vaos[key]
+
+    def _ensure_lines(self):
+        if self.lbo is None:
+            links = self._links
+            if links is None:
+                from game.meshgen import links_from_polygons
+
+                links = links_from_polygons(self.tris) if len(self.tris) else np.zeros((0, 2), np.int64)
+                self._links = links
+            self.lbo = self.ctx.buffer(links.astype(np.uint32).tobytes() or b"\0" * 8, dynamic=True)
+            self.n_line_indices = links.size
+
+    def set_links(self, links: np.ndarray) -> None:
+        """Replace the drawn links (after a cut)."""
+        links = np.ascontiguousarray(links, dtype=np.int64).reshape(-1, 2)
+        self._links = links
+        if self.lbo is not None:
+            data = links.astype(np.uint32).tobytes()
+            if len(data) > self.lbo.size:
+                self.lbo.orphan(len(data))
+            if data:
+                self.lbo.write(data)
+            self.n_line_indices = links.size
+
+    def set_triangles(self, tri_ids: np.ndarray) -> None:
+        """Draw only these triangles (ids into the original list), e.g. after a cut."""
+        self.tri_ids = np.asarray(tri_ids, np.int64)
+        data = self.tris[self.tri_ids].astype(np.uint32).tobytes()
+        if data:
+            self.ibo.write(data)
+        self.n_indices = len(self.tri_ids) * 3
+
+    # -- deformation uploads -----------------------------------------------------------------
+    def mark(self, ids) -> None:
+        ids = np.asarray(ids)
+        if ids.dtype == np.bool_:
+            self.pending |= ids[: self.n]
+        elif len(ids):
+            self.pending[ids] = True
+
+    def upload(self, positions: np.ndarray) -> int:
+        """Write moved vertices (those marked, or all when stale) from `positions`; returns their count."""
+        if self.stale:
+            self.stale = False
+            self.pending[:] = False
+            return self._upload_all(positions)
+        ids = np.flatnonzero(self.pending)
+        if len(ids) == 0:
+            return 0
+        self.pending[ids] = False
+        self._center = None
+        if len(ids) > FULL_FRACTION * self.n:
+            return self._upload_all(positions)
+        self.pos[ids] = positions[ids]
+        if self._csr is None:
+            self._csr = incidence(self.n, self.tris)
+        ptr, idx = self._csr
+        touched = np.unique(gather(ptr, idx, ids))  # triangles with a moved corner
+        verts = np.unique(self.tris[touched])  # their corners: all get new normals
+        around = np.unique(gather(ptr, idx, verts))  # every triangle touching those corners
+        fn = face_normals(self.pos.astype(np.float64), self.tris[around])
+        local = np.full(self.n, -1, np.int64)
+        local[verts] = np.arange(len(verts))
+        acc = np.zeros((len(verts), 3))
+        corners = self.tris[around]
+        for c in range(3):
+            li = local[corners[:, c]]
+            keep = li >= 0
+            for k in range(3):
+                acc[:, k] += np.bincount(li[keep], weights=fn[keep, k], minlength=len(verts))
+        self.normals[verts] = _normalise(acc).astype(np.float32)
+        for a, b in runs(ids):
+            self.vbo_pos.write(self.pos[a:b].tobytes(), offset=a * 12)
+            self.bytes_written += (b - a) * 12
+        for a, b in runs(verts):
+            self.vbo_nrm.write(self.normals[a:b].tobytes(), offset=a * 12)
+            self.bytes_written += (b - a) * 12
+        return len(ids)
+
+    def _upload_all(self, positions: np.ndarray) -> int:
+        self._center = None
+        self.pos[:] = positions
+        self.normals[:] = vertex_normals(self.pos, self.tris)
+        self.vbo_pos.write(self.pos.tobytes())
+        self.vbo_nrm.write(self.normals.tobytes())
+        self.bytes_written += self.n * 24
+        return self.n
+
+    def release(self) -> None:
+        for v in self.vaos.values():
+            v.release()
+        for b in (self.vbo_pos, self.vbo_nrm, self.ibo, self.lbo):
+            if b is not None:
+                b.release()
+        self.vaos.clear()

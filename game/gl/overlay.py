@@ -1,0 +1,170 @@
+"""2-D drawing in window pixels: batched flat shapes and text from a glyph atlas (HUD and control panel).
+
+Shapes and glyph quads are collected in Python lists during a frame and drawn with one call each per
+flush, which keeps the panel cheap. Text uses pillow's bundled FreeType font rasterised once into an
+atlas texture at the framebuffer's pixel scale (crisp on HiDPI screens).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from game.gl import shaders
+
+FIRST, LAST = 32, 126
+
+
+class Font:
+    """Glyph atlas: ASCII 32..126 in a grid of equal cells; the baseline sits `ascent` below a cell top."""
+
+    def __init__(self, ctx, size_px: int):
+        from PIL import Image, ImageDraw, ImageFont
+
+        self.font = ImageFont.load_default(size=size_px)
+        self.ascent, self.descent = self.font.getmetrics()
+        chars = [chr(c) for c in range(FIRST, LAST + 1)]
+        self.advance = {ch: float(self.font.getlength(ch)) for ch in chars}
+        self.cell_w = int(max(self.font.getbbox(ch)[2] for ch in chars)) + 2
+        self.cell_h = self.ascent + self.descent + 2
+        cols = 16
+        rows = math.ceil(len(chars) / cols)
+        img = Image.new("L", (cols * self.cell_w, rows * self.cell_h), 0)
+        draw = ImageDraw.Draw(img)
+        self.uv = {}
+        W, H = img.size
+        for i, ch in enumerate(chars):
+            cx, cy = (i % cols) * self.cell_w, (i // cols) * self.cell_h
+            draw.text((cx + 1, cy + 1), ch, font=self.font, fill=255)
+            # atlas rows are uploaded top row first, so v = 0 is the image top
+            self.uv[ch] = (cx / W, cy / H, (cx + self.cell_w) / W, (cy + self.cell_h) / H)
+        self.texture = ctx.texture(img.size, 1, img.tobytes())
+        self.texture.filter = (ctx.NEAREST, ctx.NEAREST)
+        self.line_h = self.ascent + self.descent + 3
+
+    def width(self, text: str) -> float:
+        return sum(self.advance.get(ch, self.advance["?"]) for ch in text)
+
+    def wrap(self, text: str, width: float) -> list[str]:
+        """Greedy word wrap to `width` pixels."""
+        out = []
+        for para in text.split("\n"):
+            line = ""
+            for word in para.split(" "):
+                trial = f"{line} {word}" if line else word
+                if self.width(trial) <= width or not line:
+                    line = trial
+                else:
+                    out.append(line)
+                    line = word
+            out.append(line)
+        return out
+
+    def release(self):
+        self.texture.release()
+
+
+class Overlay:
+    """Collects flat shapes and text for one pass over the whole framebuffer."""
+
+    def __init__(self, ctx, font_px: int = 14):
+        self.ctx = ctx
+        self.flat = ctx.program(vertex_shader=shaders.FLAT2D_VS, fragment_shader=shaders.FLAT2D_FS)
+        self.text = ctx.program(vertex_shader=shaders.TEXT_VS, fragment_shader=shaders.TEXT_FS)
+        self.font_px = font_px
+        self.scale = 1.0
+        self.font = Font(ctx, font_px)
+        self.shapes: list[float] = []
+        self.glyphs: list[float] = []
+        self.vbo_shapes = ctx.buffer(reserve=1 << 16, dynamic=True)
+        self.vbo_glyphs = ctx.buffer(reserve=1 << 16, dynamic=True)
+        self.vao_shapes = ctx.vertex_array(self.flat, [(self.vbo_shapes, "2f 4f", "in_pos", "in_color")])
+        self.vao_glyphs = ctx.vertex_array(self.text, [(self.vbo_glyphs, "2f 2f 4f", "in_pos", "in_uv", "in_color")])
+
+    def set_scale(self, scale: float) -> None:
+        """Pixels per window unit (HiDPI); rebuilds the atlas at the new size."""
+        if abs(scale - self.scale) > 1e-6:
+            self.scale = scale
+            self.font.release()
+            self.font = Font(self.ctx, max(6, round(self.font_px * scale)))
+
+    # -- shapes (framebuffer pixels) ---------------------------------------------------------
+    def rect(self, x, y, w, h, color) -> None:
+        r, g, b, a = color
+        x1, y1 = x + w, y + h
+        self.shapes += [x, y, r, g, b, a, x1, y, r, g, b, a, x1, y1, r, g, b, a,
+                        x, y, r, g, b, a, x1, y1, r, g, b, a, x, y1, r, g, b, a]
+
+    def frame(self, x, y, w, h, color, t=1.0) -> None:
+        self.rect(x, y, w, t, color)
+        self.rect(x, y + h - t, w, t, color)
+        self.rect(x, y, t, h, color)
+        self.rect(x + w - t, y, t, h, color)
+
+    def disc(self, cx, cy, radius, color, segments: int = 24) -> None:
+        r, g, b, a = color
+        for i in range(segments):
+            a0 = 2 * math.pi * i / segments
+            a1 = 2 * math.pi * (i + 1) / segments
+            self.shapes += [cx, cy, r, g, b, a,
+                            cx + radius * math.cos(a0), cy + radius * math.sin(a0), r, g, b, a,
+                            cx + radius * math.cos(a1), cy + radius * math.sin(a1), r, g, b, a]
+
+    def segment(self, x0, y0, x1, y1, color, t=1.5) -> None:
+        dx, dy = x1 - x0, y1 - y0
+        ln = math.hypot(dx, dy) or 1.0
+        nx, ny = -dy / ln * t / 2, dx / ln * t / 2
+        r, g, b, a = color
+        p = [(x0 + nx, y0 + ny), (x0 - nx, y0 - ny), (x1 - nx, y1 - ny), (x1 + nx, y1 + ny)]
+        for i in (0, 1, 2, 0, 2, 3):
+            self.shapes += [p[i][0], p[i][1], r, g, b, a]
+
+    # -- text --------------------------------------------------------------------------------
+    def label(self, text: str, x: float, baseline: float, color=(1, 1, 1, 1), max_w: float | None = None) -> float:
+        """Draw one line with its baseline at `baseline`; returns the pen x after it."""
+        f = self.font
+        if max_w is not None and f.width(text) > max_w:
+            while text and f.width(text + "...") > max_w:
+                text = text[:-1]
+            text += "..."
+        r, g, b, a = color
+        pen = float(x)
+        top = baseline + f.ascent + 1
+        bottom = top - f.cell_h
+        for ch in text:
+            if ch not in f.uv:
+                ch = "?"
+            u0, v0, u1, v1 = f.uv[ch]
+            x0, x1 = pen - 1, pen - 1 + f.cell_w
+            self.glyphs += [x0, bottom, u0, v1, r, g, b, a, x1, bottom, u1, v1, r, g, b, a, x1, top, u1, v0, r, g, b, a,
+                            x0, bottom, u0, v1, r, g, b, a, x1, top, u1, v0, r, g, b, a, x0, top, u0, v0, r, g, b, a]
+            pen += f.advance[ch]
+        return pen
+
+    def flush(self, size: tuple[int, int]) -> None:
+        """Draw what was collected (shapes under text) over the whole framebuffer, then forget it."""
+        ctx = self.ctx
+        ctx.disable(ctx.DEPTH_TEST | ctx.CULL_FACE)
+        ctx.enable(ctx.BLEND)
+        ctx.blend_func = ctx.SRC_ALPHA, ctx.ONE_MINUS_SRC_ALPHA
+        for data, vbo, vao, prog, stride in ((self.shapes, self.vbo_shapes, self.vao_shapes, self.flat, 6),
+                                             (self.glyphs, self.vbo_glyphs, self.vao_glyphs, self.text, 8)):
+            if not data:
+                continue
+            arr = np.asarray(data, np.float32)
+            if arr.nbytes > vbo.size:
+                vbo.orphan(arr.nbytes * 2)
+            vbo.write(arr.tobytes())
+            prog["u_screen"].value = (float(size[0]), float(size[1]))
+            if prog is self.text:
+                self.font.texture.use(0)
+                prog["u_atlas"].value = 0
+            vao.render(ctx.TRIANGLES, vertices=len(arr) // stride)
+        self.shapes.clear()
+        self.glyphs.clear()
+
+    def release(self) -> None:
+        for o in (self.vao_shapes, self.vao_glyphs, self.vbo_shapes, self.vbo_glyphs, self.flat, self.text):
+            o.release()
+        self.font.release()
