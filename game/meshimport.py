@@ -14,6 +14,8 @@ becomes a one-line UserError naming the file (or the argument) and what is expec
 
 from __future__ import annotations
 
+import contextlib
+import io
 from pathlib import Path
 
 import numpy as np
@@ -35,9 +37,13 @@ def load_mesh(path, *, kind: str = "auto", pitch: float | None = None, cells: in
 
     where = where or str(path)
     try:
-        mesh = load_file(Path(path), scale_to_mm)
+        # meshio reports some unreadable files by printing and calling sys.exit: keep both inside
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            mesh = load_file(Path(path), scale_to_mm)
     except MeshError as e:
         raise UserError(str(e)) from None
+    except SystemExit:
+        raise UserError(f"{where}: not a readable mesh file") from None
     if kind not in ("auto", "surface", "volume"):
         raise UserError(f"{where}: kind must be auto, surface or volume, got {kind!r}")
     has_tets = mesh.tets is not None and len(mesh.tets) > 0

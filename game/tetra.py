@@ -46,9 +46,7 @@ def tetrahedralize(mesh, pitch: float | None = None, cells: int = DEFAULT_CELLS,
     if len(tri.faces) == 0:
         raise TetraError("the surface has no triangles")
     if not tri.is_watertight:
-        trimesh.repair.fill_holes(tri)
-        if not tri.is_watertight:
-            raise TetraError("the surface is not closed (watertight); only closed surfaces can be filled")
+        raise TetraError("the surface is not closed (watertight); only closed surfaces can be filled")
     lo, hi = tri.bounds
     size = hi - lo
     if pitch is None:
