@@ -1,0 +1,299 @@
+"""Needle kinematics: rotation by concatenated quaternions, then insertion along the axis (thesis 3.3.4-3.3.5).
+
+Stage: simulation (ORDER_KINEMATICS). Reads: Widget and Key events, Needle, NeedleState, WidgetState,
+InputState. Writes: NeedleState, the Transforms of the needle (tip) and its shaft, WidgetState
+(`disabled` and the dial/slider values it keeps in step); emits RotationRefused, InsertRefused,
+NeedleAction and NeedleReset.
+
+Controls (documented for trainees in the pack's how-to page):
+
+    rotate_horizontal  dial, ABSOLUTE degrees turned about the vertical (+Z) axis since the needle was
+                       placed; positive turns counter-clockwise seen from above. Keys left/right step it.
+    rotate_vertical    dial, ABSOLUTE degrees of tilt about the needle's own horizontal axis (d x Z);
+                       positive raises the tip. Keys up/down step it.
+    insert             slider: ABSOLUTE depth in mm along the needle axis; as a button (no value) it
+                       advances one step. Key i advances, key o withdraws one step.
+    withdraw           button: back one step (or by its value in mm)
+    reset              needle back to landmark 1 and unlocked; value "all" (or shift held) also clears
+                       the landmarks (the procedure system does that part)
+
+A dial value is turned into the increment from the current angle, and that increment is applied as a
+quaternion product (eq. 3.1 and the product formula of 3.3.5): horizontal rotations about world +Z,
+vertical ones about the needle's current horizontal axis, so the tilt is kept when turning and the
+heading is kept when tilting. Once the needle has been inserted (target depth > 0) rotation is locked,
+as in the thesis, until a reset.
+
+Forward insertion reaches the requested depth within one step; the collision system that runs next
+tests the whole swept segment, so a jump of any length cannot pass through bone. Backward motion
+(withdrawal, the bounce after touching bone) runs at `withdraw_speed` so it can be seen.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import esper
+import numpy as np
+
+from components.core import Transform
+from components.needle import Needle, NeedleState
+from game import quaternion as Q
+from game.app import ORDER_KINEMATICS
+from game.input_events import Key, Widget
+from game.loader import EntityIndex
+from game.resources import InputState
+
+Z = np.array([0.0, 0.0, 1.0])
+ROTATION_WIDGETS = ("rotate_horizontal", "rotate_vertical")
+KEY_ACTIONS = {
+    "left": ("rotate_horizontal", +1.0),
+    "right": ("rotate_horizontal", -1.0),
+    "up": ("rotate_vertical", +1.0),
+    "down": ("rotate_vertical", -1.0),
+    "i": ("insert", +1.0),
+    "o": ("withdraw", +1.0),
+}
+SHIFT_KEYS = {"lshift", "rshift", "shift"}
+
+
+@dataclass(frozen=True, slots=True)
+class RotationRefused:
+    """A rotation command was refused (`reason`: "locked" once inserted, "not_placed" before landmark 1)."""
+
+    widget: str
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class InsertRefused:
+    reason: str  # "not_placed", "in_target", "max_depth"
+
+
+@dataclass(frozen=True, slots=True)
+class NeedleAction:
+    """A command the needle carried out: kind is a widget name; value the new angle or depth."""
+
+    kind: str
+    value: float
+
+
+@dataclass(frozen=True, slots=True)
+class NeedleReset:
+    all: bool
+
+
+# -- pose -----------------------------------------------------------------------------------------
+
+
+def initial_direction(entry) -> np.ndarray:
+    """Into the head, within the axial plane, toward the vertical axis through the head-frame origin
+    (midway between the foramina): the needle starts level and aimed at the midline."""
+    d = np.array([-float(entry[0]), -float(entry[1]), 0.0])
+    n = float(np.linalg.norm(d))
+    if n < 1e-9:
+        return np.array([-math.copysign(1.0, float(entry[0]) or 1.0), 0.0, 0.0])
+    return d / n
+
+
+def apply_pose(app, ent: int, needle: Needle, st: NeedleState) -> None:
+    """Write the tip Transform (origin at the tip, local +Z along insertion) and the shaft's."""
+    tr = esper.try_component(ent, Transform)
+    d = st.direction()
+    tip = st.entry + st.depth * d
+    if tr is not None:
+        tr.position = tip.copy()
+        tr.rotation = st.q.copy()
+    if needle.shaft:
+        index = app.get_resource(EntityIndex)
+        sh = index.get(needle.shaft) if index is not None else None
+        str_ = esper.try_component(sh, Transform) if sh is not None else None
+        if str_ is not None:
+            str_.position = tip - d * (0.5 * needle.length)
+            str_.rotation = st.q.copy()
+
+
+def place(app, ent: int, needle: Needle, st: NeedleState, entry) -> None:
+    """Put the tip at `entry` (landmark 1) pointing along `initial_direction`, unlocked, not inserted."""
+    st.entry = np.asarray(entry, dtype=np.float64).copy()
+    st.q0 = Q.look_rotation(initial_direction(st.entry), Z)
+    reset(app, ent, needle, st)
+    st.placed = True
+    apply_pose(app, ent, needle, st)
+
+
+def reset(app, ent: int, needle: Needle, st: NeedleState) -> None:
+    st.q = st.q0.copy()
+    st.yaw = st.pitch = 0.0
+    st.depth = st.target_depth = st.prev_depth = 0.0
+    st.locked = st.done = False
+    st.contact = ""
+    st.contact_point = np.full(3, np.nan)
+    _sync_widgets(app, st)
+    if st.placed:
+        apply_pose(app, ent, needle, st)
+
+
+def park(app, ent: int, needle: Needle, st: NeedleState) -> None:
+    """Back to where the pack placed the needle, before any landmark."""
+    reset(app, ent, needle, st)
+    st.placed = False
+    st.skull_contacts = 0
+    st.rotation_refused = 0
+    st.path_length = 0.0
+    tr = esper.try_component(ent, Transform)
+    if tr is not None:
+        tr.position = st.park_position.copy()
+        tr.rotation = st.park_rotation.copy()
+
+
+def rotate_horizontal(st: NeedleState, delta_deg: float) -> None:
+    st.q = Q.normalize(Q.mul(Q.from_axis_angle(Z, math.radians(delta_deg)), st.q))
+    st.yaw += delta_deg
+
+
+def rotate_vertical(st: NeedleState, delta_deg: float, max_pitch: float) -> float:
+    """Tilt about the needle's horizontal axis, clamped to +-max_pitch; returns the tilt applied."""
+    new = min(max(st.pitch + delta_deg, -max_pitch), max_pitch)
+    delta = new - st.pitch
+    if delta == 0.0:
+        return 0.0
+    d = st.direction()
+    h = np.cross(d, Z)
+    h /= np.linalg.norm(h)
+    st.q = Q.normalize(Q.mul(Q.from_axis_angle(h, math.radians(delta)), st.q))
+    st.pitch = new
+    return delta
+
+
+def _widgets(app):
+    from game.widgets import WidgetState
+
+    return app.get_resource(WidgetState)
+
+
+def _sync_widgets(app, st: NeedleState) -> None:
+    ws = _widgets(app)
+    if ws is None:
+        return
+    for name, v in (("rotate_horizontal", st.yaw), ("rotate_vertical", st.pitch), ("insert", st.target_depth)):
+        if name in ws.specs:
+            ws.set(name, v)
+    if st.locked:
+        ws.disable(*ROTATION_WIDGETS)
+    else:
+        ws.enable(*ROTATION_WIDGETS)
+
+
+# -- the system -------------------------------------------------------------------------------------
+
+
+class NeedleSystem:
+    def __init__(self, app):
+        self.widgets = app.events.reader(Widget)
+        self.keys = app.events.reader(Key)
+
+    def commands(self, app):
+        """(name, value, from_key) in event order; keys become increments."""
+        out = []
+        for ev in self.widgets.read():
+            out.append((ev.name, ev.value, False))
+        for ev in self.keys.read():
+            if ev.pressed and ev.key in KEY_ACTIONS:
+                name, sign = KEY_ACTIONS[ev.key]
+                out.append((name, sign, True))
+        return out
+
+    def rotate(self, app, ent, needle, st, name, value, from_key) -> None:
+        if not st.placed:
+            app.events.emit(RotationRefused(name, "not_placed"))
+            return
+        if st.locked:
+            st.rotation_refused += 1
+            app.events.emit(RotationRefused(name, "locked"))
+            return
+        current = st.yaw if name == "rotate_horizontal" else st.pitch
+        if from_key:
+            delta = float(value) * needle.rotate_step
+        elif isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+            delta = float(value) - current
+        else:
+            return
+        if name == "rotate_horizontal":
+            rotate_horizontal(st, delta)
+        else:
+            rotate_vertical(st, delta, needle.max_pitch)
+        apply_pose(app, ent, needle, st)
+        _sync_widgets(app, st)
+        app.events.emit(NeedleAction(name, st.yaw if name == "rotate_horizontal" else st.pitch))
+
+    def insert(self, app, ent, needle, st, name, value, from_key) -> None:
+        if not st.placed:
+            app.events.emit(InsertRefused("not_placed"))
+            return
+        if name == "withdraw":
+            step = needle.insert_step if (from_key or value is None or isinstance(value, (bool, str))) else abs(float(value))
+            want = st.target_depth - step
+        elif from_key or value is None or isinstance(value, (bool, str)):
+            want = st.target_depth + needle.insert_step
+        else:
+            want = float(value)
+        if st.done and want > st.depth:
+            app.events.emit(InsertRefused("in_target"))
+            return
+        if want > needle.max_depth:
+            app.events.emit(InsertRefused("max_depth"))
+        st.target_depth = min(max(want, 0.0), needle.max_depth)
+        if st.target_depth > 0.0 and not st.locked:
+            st.locked = True  # thesis 3.3.4: no rotation once the insertion has begun
+        _sync_widgets(app, st)
+        app.events.emit(NeedleAction(name, st.target_depth))
+
+    def __call__(self, app) -> None:
+        cmds = self.commands(app)
+        for ent, (needle, st) in esper.get_components(Needle, NeedleState):
+            for name, value, from_key in cmds:
+                if name in ROTATION_WIDGETS:
+                    self.rotate(app, ent, needle, st, name, value, from_key)
+                elif name in ("insert", "withdraw"):
+                    self.insert(app, ent, needle, st, name, value, from_key)
+                elif name == "reset":
+                    keys = app.resource(InputState).keys
+                    everything = value == "all" or bool(keys & SHIFT_KEYS)
+                    if everything:
+                        park(app, ent, needle, st)
+                    else:
+                        reset(app, ent, needle, st)
+                    app.events.emit(NeedleReset(everything))
+            self.move(app, ent, needle, st)
+
+    def move(self, app, ent, needle, st) -> None:
+        st.prev_depth = st.depth
+        if not st.placed:
+            return
+        if st.target_depth > st.depth:
+            st.depth = st.target_depth
+        elif st.target_depth < st.depth:
+            st.depth = max(st.target_depth, st.depth - needle.withdraw_speed * app.time.dt)
+        if st.depth != st.prev_depth:
+            st.path_length += abs(st.depth - st.prev_depth)
+            apply_pose(app, ent, needle, st)
+
+
+def init_state(app) -> None:
+    """Give every needle its runtime state, remembering where the pack parked it."""
+    with app.active():
+        for ent, needle in esper.get_component(Needle):
+            if esper.has_component(ent, NeedleState):
+                continue
+            st = NeedleState()
+            tr = esper.try_component(ent, Transform)
+            if tr is not None:
+                st.park_position = tr.position.copy()
+                st.park_rotation = tr.rotation.copy()
+            esper.add_component(ent, st)
+
+
+def plugin(app) -> None:
+    init_state(app)
+    app.add_system("simulation", NeedleSystem(app), order=ORDER_KINEMATICS, name="needle")

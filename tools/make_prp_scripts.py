@@ -1,0 +1,215 @@
+"""Generate the prp pack's scripted attempts from its anatomy: scripts/correct.toml and scripts/skull-hit.toml.
+
+    .venv/bin/python -m tools.make_prp_scripts [--pack assets/prp] [--side left] [--check]
+
+Ideal landmarks (thesis 3.3.4, 6.1.5), on the skin of the chosen side:
+    1  on the skin section by the axial plane through the mouth angle, 25 mm from it, laterally
+    2  the skin point nearest the medial aspect of the pupil
+    3  on the skin section by the axial plane through the ear, 30 mm in front of the tragus
+The needle is aimed from landmark 1 at the reference path's target ([paths.<side>], else the
+foramen centre); the two dial angles are computed from that direction exactly as the needle system
+applies them (horizontal: about +Z from the initial heading; vertical: elevation). The skull-hit
+attempt is the same with the vertical angle raised (12 degrees by default) so the tip meets the
+skull base. Both are checked against the obstacle meshes before they are written; --check also runs
+them headless and prints the assessment.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+HIGH_DEG = 12.0
+
+
+def _skin(pack):
+    import trimesh
+
+    from game.registry import load_all
+
+    load_all()
+    ent = pack.manifest["entities"]["skin"]
+    mesh = pack.mesh(ent["mesh"]["mesh"])
+    tr = ent.get("transform")
+    v = mesh.vertices
+    if tr is not None:
+        from components.core import Transform
+
+        m = Transform(np.asarray(tr["position"]), np.asarray(tr["rotation"]), float(tr["scale"])).matrix()
+        v = v @ m[:3, :3].T + m[:3, 3]
+    return trimesh.Trimesh(v, mesh.triangles, process=False)
+
+
+def _section_point(skin, plane, centre, radius, prefer) -> np.ndarray:
+    """The point of the skin's section by `plane` at `radius` from `centre` that maximises `prefer`."""
+    import trimesh
+
+    segs = trimesh.intersections.mesh_plane(skin, plane.normal, plane.point)
+    if len(segs) == 0:
+        raise SystemExit(f"the skin does not cross the plane through {centre}")
+    best, best_score = None, -np.inf
+    for a, b in segs:
+        da, db = np.linalg.norm(a - centre) - radius, np.linalg.norm(b - centre) - radius
+        if da * db > 0:
+            continue
+        t = da / (da - db) if da != db else 0.0
+        p = a + t * (b - a)
+        score = prefer(p)
+        if score > best_score:
+            best, best_score = p, score
+    if best is None:
+        raise SystemExit(f"no skin point {radius} mm from {centre} in that plane")
+    return best
+
+
+def ideal_landmarks(pack, anat, side):
+    skin = _skin(pack)
+    sa = anat.sides[side]
+    sx = 1.0 if side == "left" else -1.0
+    l1 = _section_point(skin, sa.planes["mouth"], sa.points["mouth"], 25.0, lambda p: sx * p[0])
+    l2 = skin.nearest.on_surface([sa.points["pupil"]])[0][0]
+    l3 = _section_point(skin, sa.planes["tragus"], sa.points["tragus"], 30.0, lambda p: p[1])
+    return np.array([l1, l2, l3]), skin
+
+
+def dial_angles(entry, direction) -> tuple[float, float]:
+    """(horizontal, vertical) dial degrees that turn the initial heading into `direction`."""
+    from systems.needle import initial_direction
+
+    d = np.asarray(direction, float) / np.linalg.norm(direction)
+    d0 = initial_direction(entry)
+    yaw = math.degrees(math.atan2(d[1], d[0]) - math.atan2(d0[1], d0[0]))
+    yaw = (yaw + 180.0) % 360.0 - 180.0
+    pitch = math.degrees(math.asin(max(-1.0, min(1.0, d[2]))))
+    return yaw, pitch
+
+
+def direction_of(yaw, pitch, entry):
+    from systems.needle import initial_direction
+
+    d0 = initial_direction(entry)
+    az = math.atan2(d0[1], d0[0]) + math.radians(yaw)
+    p = math.radians(pitch)
+    return np.array([math.cos(p) * math.cos(az), math.cos(p) * math.sin(az), math.sin(p)])
+
+
+def first_object(obstacles, entry, direction, reach=200.0):
+    name, t, _ = obstacles.first_hit(entry, entry + reach * direction)
+    return name, t * reach
+
+
+def _fmt(v) -> str:
+    if isinstance(v, str):
+        return f'"{v}"'
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_fmt(float(c)) for c in v) + "]"
+    return repr(round(float(v), 6))
+
+
+def script_text(description, landmarks, yaw, pitch, depth, extra=()) -> str:
+    ev = [(0.5, dict(kind="pick", entity="skin", point=landmarks[0])),
+          (1.0, dict(kind="pick", entity="skin", point=landmarks[1])),
+          (1.5, dict(kind="pick", entity="skin", point=landmarks[2])),
+          (2.0, dict(kind="widget", name="rotate_horizontal", value=yaw)),
+          (2.5, dict(kind="widget", name="rotate_vertical", value=pitch))]
+    t = 3.0
+    d = 0.0
+    while d < depth:
+        d = min(d + 10.0, depth)
+        ev.append((round(t, 3), dict(kind="widget", name="insert", value=d)))
+        t += 0.1
+    ev.extend(extra)
+    ev.append((max(t + 0.5, 4.6), dict(kind="widget", name="self_assessment")))
+    ev.sort(key=lambda e: e[0])
+    out = ["# Generated by tools/make_prp_scripts.py from the pack's anatomy; do not edit by hand.",
+           "# rotate_* values are ABSOLUTE dial angles in degrees; insert values are ABSOLUTE depths in mm.",
+           "format = 1", f'description = "{description}"', ""]
+    for t, e in ev:
+        out.append("[[event]]")
+        out.append(f"t = {t!r}")
+        for k, v in e.items():
+            out.append(f"{k} = {_fmt(v)}")
+        out.append("")
+    return "\n".join(out)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--pack", default=str(ROOT / "assets" / "prp"))
+    ap.add_argument("--side", choices=("left", "right"), default="left")
+    ap.add_argument("--high", type=float, default=HIGH_DEG, help="degrees too high for the skull-hit attempt")
+    ap.add_argument("--out", default=None, help="folder for the scripts (default: the pack's scripts/)")
+    ap.add_argument("--check", action="store_true", help="run both scripts headless and print the assessment")
+    args = ap.parse_args(argv)
+
+    from components.procedure import anatomy_from_pack
+    from game import packs
+    from systems.collision import OBSTACLES, PrpObstacles, SegmentTree
+
+    pack = packs.load(Path(args.pack))
+    anat = anatomy_from_pack(pack)
+    sa = anat.sides[args.side]
+    lms, _skin_mesh = ideal_landmarks(pack, anat, args.side)
+    obstacles = PrpObstacles()
+    for name in OBSTACLES:
+        ent = pack.manifest["entities"].get(name)
+        if ent and "mesh" in ent:
+            m = pack.mesh(ent["mesh"]["mesh"])
+            obstacles.names.append(name)
+            obstacles.trees.append(SegmentTree.build(m.vertices, m.triangles))
+    target = sa.path_target if sa.path_target is not None else sa.foramen_centre
+    want = f"foramen_ovale_{args.side}"
+    entry = lms[0]
+    d = target - entry
+    hit, dist = first_object(obstacles, entry, d / np.linalg.norm(d))
+    if hit != want and sa.path_entry is not None:
+        print(f"aim from the ideal landmark 1 meets {hit or 'nothing'}; using the reference path's entry instead", file=sys.stderr)
+        entry = sa.path_entry
+        lms[0] = entry
+        d = target - entry
+        hit, dist = first_object(obstacles, entry, d / np.linalg.norm(d))
+    if hit != want:
+        raise SystemExit(f"the straight path from landmark 1 meets {hit or 'nothing'} before {want}")
+    yaw, pitch = dial_angles(entry, d)
+    depth = math.ceil(float(np.linalg.norm(d)) + 12.0)
+    print(f"correct: landmarks {np.round(lms, 2).tolist()}, horizontal {yaw:.3f} deg, vertical {pitch:.3f} deg, "
+          f"meets {hit} at {dist:.1f} mm", file=sys.stderr)
+    high = pitch + args.high
+    hd = direction_of(yaw, high, entry)
+    hhit, hdist = first_object(obstacles, entry, hd)
+    if hhit not in ("skull",):
+        raise SystemExit(f"aiming {args.high} degrees too high meets {hhit or 'nothing'}, not the skull; try another --high")
+    print(f"skull-hit: vertical {high:.3f} deg meets {hhit} at {hdist:.1f} mm", file=sys.stderr)
+    out = Path(args.out) if args.out else Path(args.pack) / "scripts"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "correct.toml").write_text(script_text(
+        "ideal landmarks, needle aimed along the clear reference path, inserted into the foramen ovale",
+        lms, yaw, pitch, depth), encoding="utf-8")
+    hdepth = 10.0 * math.ceil((hdist + 0.5) / 10.0)  # the 10 mm push that first passes the bone: one contact
+    n_ins = math.ceil(hdepth / 10.0)
+    t_after = 3.0 + 0.1 * n_ins + 0.3
+    extra = [(round(t_after, 3), dict(kind="widget", name="rotate_vertical", value=pitch)),
+             (round(t_after + 0.2, 3), dict(kind="widget", name="rotate_horizontal", value=yaw + 5.0))]
+    (out / "skull-hit.toml").write_text(script_text(
+        f"ideal landmarks, needle aimed {args.high:g} degrees too high: it meets the skull base and springs back; "
+        "re-aiming after insertion is refused", lms, yaw, high, hdepth, extra), encoding="utf-8")
+    print(f"wrote {out / 'correct.toml'} and {out / 'skull-hit.toml'}", file=sys.stderr)
+    if args.check:
+        from game.headless import run_pack
+
+        for name in ("correct", "skull-hit"):
+            s = run_pack(str(Path(args.pack)), script=str(out / f"{name}.toml"))
+            a = s["assessment"]
+            print(f"{name}: landmark error {a['landmark_error_mm']:.3f} mm, needle error "
+                  f"{a['needle_error_mm']:.3f} mm, target {a['target']}, contacts {a['skull_contacts']}, "
+                  f"refused rotations {a['rotation_refused']}, final tip-target {a['tip_to_target_mm']:.1f} mm")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
