@@ -47,9 +47,9 @@ class RenderTarget:
             return
         want = (max(int(round(size[0] * self.scale)), 1), max(int(round(size[1] * self.scale)), 1))
         if tuple(self.fbo.size) != want:
-            from game.gl.context import offscreen_framebuffer
+            from game.gl.context import offscreen_framebuffer, release_framebuffer
 
-            self.fbo.release()
+            release_framebuffer(self.ctx, self.fbo)
             self.fbo = offscreen_framebuffer(self.ctx, want)
 
 
@@ -244,7 +244,7 @@ class RenderSystem:
 
 
 def plugin(app) -> None:
-    from game.gl.context import egl_context, offscreen_framebuffer
+    from game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
     from game.gl.renderer import Renderer
 
     target = app.get_resource(RenderTarget)
@@ -256,7 +256,7 @@ def plugin(app) -> None:
     def release():
         renderer.release()
         if target.offscreen:
-            target.fbo.release()
+            release_framebuffer(target.ctx, target.fbo)
 
     app.on_close(release)
     app.add_system("render", RenderSystem(), order=ORDER_RENDER, name="render")

@@ -45,3 +45,17 @@ def offscreen_framebuffer(ctx, size: tuple[int, int]):
     color = ctx.renderbuffer((w, h), 4)
     depth = ctx.depth_renderbuffer((w, h))
     return ctx.framebuffer(color_attachments=[color], depth_attachment=depth)
+
+
+_parking: dict[int, object] = {}
+
+
+def release_framebuffer(ctx, fbo) -> None:
+    """Release a framebuffer without leaving it bound: moderngl re-binds the current framebuffer after
+    creating another one, and binding a deleted one is a GL error."""
+    if ctx.fbo is fbo:
+        park = _parking.get(id(ctx))
+        if park is None:
+            park = _parking[id(ctx)] = ctx.framebuffer(color_attachments=[ctx.renderbuffer((1, 1), 4)])
+        park.use()
+    fbo.release()

@@ -250,6 +250,7 @@ class Renderer:
         view = next(v for v in frame.views if v.name == view_name)
         r = view.rect.scaled(frame.scale)
         W, H = size
+        previous = ctx.fbo
         fbo = ctx.framebuffer(color_attachments=[ctx.renderbuffer((W, H), 4)], depth_attachment=ctx.depth_renderbuffer((W, H)))
         try:
             fbo.use()
@@ -268,7 +269,11 @@ class Renderer:
             raw = np.frombuffer(fbo.read(components=4, alignment=1), np.uint8).reshape(H, W, 4).astype(np.int64)
         finally:
             ctx.scissor = None
-            fbo.release()
+            if previous is not None:
+                previous.use()
+            from game.gl.context import release_framebuffer
+
+            release_framebuffer(ctx, fbo)
         slot = raw[:, :, 3]
         prim = raw[:, :, 0] | (raw[:, :, 1] << 8) | (raw[:, :, 2] << 16)
         ent = np.full((H, W), -1, np.int64)
