@@ -90,7 +90,8 @@ class Workspace:
     """Scratch reused across cascades on one mesh.
 
     stamp[i] == gen means element i has moved in the current cascade; bumping `gen` clears every flag
-    at once. Queue and output buffers are grown on demand (to the CSR size) and then kept.
+    at once. The output buffers are N long; the waiting-list buffers of the balanced and Schill orders
+    are grown on demand (to the CSR size plus K) and then kept. The FIFO order needs no queue.
     """
 
     def __init__(self, n: int):
@@ -102,7 +103,6 @@ class Workspace:
         self.gen = 0
         self.out_order = np.empty(n, dtype=np.int64)
         self.out_sponsor = np.empty(n, dtype=np.int64)
-        self._cap = 0
         self.q_entry = np.empty(0, dtype=np.int64)   # CSR entry index (gives element and link)
         self.q_sponsor = np.empty(0, dtype=np.int64)
         self.q_aux = np.empty(0, dtype=np.int64)     # depth (balanced) or sequence number (Schill)
@@ -111,18 +111,21 @@ class Workspace:
         self.branch_head = np.empty(0, dtype=np.int64)
         self.branch_tail = np.empty(0, dtype=np.int64)
 
-    def ensure(self, capacity: int) -> None:
-        if capacity <= self._cap:
+    def ensure(self, capacity: int, order: int = ORDER_BALANCED) -> None:
+        """Make the waiting-list buffers hold `capacity` entries for `order` (FIFO needs none)."""
+        if order == ORDER_FIFO:
             return
         cap = max(int(capacity), 16)
-        self.q_entry = np.empty(cap, dtype=np.int64)
-        self.q_sponsor = np.empty(cap, dtype=np.int64)
-        self.q_aux = np.empty(cap, dtype=np.int64)
-        self.q_next = np.empty(cap, dtype=np.int64)
-        self.q_key = np.empty(cap, dtype=np.float64)
-        self.branch_head = np.empty(cap, dtype=np.int64)
-        self.branch_tail = np.empty(cap, dtype=np.int64)
-        self._cap = cap
+        if cap > self.q_entry.shape[0]:
+            self.q_entry = np.empty(cap, dtype=np.int64)
+            self.q_sponsor = np.empty(cap, dtype=np.int64)
+            self.q_aux = np.empty(cap, dtype=np.int64)
+        if order == ORDER_BALANCED and cap > self.q_next.shape[0]:
+            self.q_next = np.empty(cap, dtype=np.int64)
+            self.branch_head = np.empty(cap, dtype=np.int64)
+            self.branch_tail = np.empty(cap, dtype=np.int64)
+        if order == ORDER_SCHILL and cap > self.q_key.shape[0]:
+            self.q_key = np.empty(cap, dtype=np.float64)
 
     def next_generation(self) -> int:
         self.gen += 1
@@ -141,7 +144,7 @@ def make_workspace(n: int) -> Workspace:
 # kernels
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _box(rest, pos, e, s, a, amin_l, amax_l, beta_l):
     """Valid interval of element e on axis a w.r.t. sponsor s (5.2.2, 5.2.6)."""
     d = np.float64(rest[e, a]) - np.float64(rest[s, a])
@@ -160,7 +163,7 @@ def _box(rest, pos, e, s, a, amin_l, amax_l, beta_l):
     return lo, hi
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _try_move(rest, pos, e, s, amin_l, amax_l, beta_l):
     """Clamp e into its box w.r.t. s, in place; True when e actually changed."""
     moved = False
@@ -180,7 +183,7 @@ def _try_move(rest, pos, e, s, amin_l, amax_l, beta_l):
     return moved
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _violation(rest, pos, e, s, amin_l, amax_l, beta_l):
     """Euclidean distance from e to its box w.r.t. s (0 when inside)."""
     v = 0.0
@@ -194,7 +197,7 @@ def _violation(rest, pos, e, s, amin_l, amax_l, beta_l):
     return np.sqrt(v)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _start(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor):
     """Move the grabbed elements to their targets; returns how many moved (fixed ones stay)."""
     count = 0
@@ -213,38 +216,26 @@ def _start(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_s
 
 @njit(cache=True)
 def _cascade_fifo(rest, pos, indptr, indices, link, alive, amin, amax, beta, grabbed, targets,
-                  fixed, has_fixed, stamp, gen, q_entry, q_sponsor, out_order, out_sponsor):
+                  fixed, has_fixed, stamp, gen, out_order, out_sponsor):
+    # With a FIFO waiting list the first queued entry for an element that violates its box is the one
+    # that moves it: neither its position nor its (already moved) sponsor's changes before that entry
+    # is served. So the move can be made when the entry is queued, and the output list doubles as the
+    # queue: each element is queued at most once, like a breadth-first search.
     count = _start(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
-    tail = 0
-    for k in range(count):
-        g = out_order[k]
-        for j in range(indptr[g], indptr[g + 1]):
-            nb = indices[j]
-            if stamp[nb] != gen and alive[link[j]] and not (has_fixed and fixed[nb]):
-                q_entry[tail] = j
-                q_sponsor[tail] = g
-                tail += 1
     head = 0
-    while head < tail:
-        j = q_entry[head]
-        s = q_sponsor[head]
+    while head < count:
+        s = out_order[head]
         head += 1
-        e = indices[j]
-        if stamp[e] == gen:
-            continue
-        l = link[j]
-        if not _try_move(rest, pos, e, s, amin[l], amax[l], beta[l]):
-            continue
-        stamp[e] = gen
-        out_order[count] = e
-        out_sponsor[count] = s
-        count += 1
-        for jj in range(indptr[e], indptr[e + 1]):
-            nb = indices[jj]
-            if stamp[nb] != gen and alive[link[jj]] and not (has_fixed and fixed[nb]):
-                q_entry[tail] = jj
-                q_sponsor[tail] = e
-                tail += 1
+        for j in range(indptr[s], indptr[s + 1]):
+            e = indices[j]
+            if stamp[e] == gen or not alive[link[j]] or (has_fixed and fixed[e]):
+                continue
+            l = link[j]
+            if _try_move(rest, pos, e, s, amin[l], amax[l], beta[l]):
+                stamp[e] = gen
+                out_order[count] = e
+                out_sponsor[count] = s
+                count += 1
     return count
 
 
@@ -314,7 +305,7 @@ def _cascade_balanced(rest, pos, indptr, indices, link, alive, amin, amax, beta,
     return count
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _heap_less(key, seq, i, j):
     """True when heap slot i should be served before slot j (bigger violation, then earlier push)."""
     if key[i] != key[j]:
@@ -322,7 +313,7 @@ def _heap_less(key, seq, i, j):
     return seq[i] < seq[j]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _heap_swap(q_entry, q_sponsor, key, seq, i, j):
     q_entry[i], q_entry[j] = q_entry[j], q_entry[i]
     q_sponsor[i], q_sponsor[j] = q_sponsor[j], q_sponsor[i]
@@ -330,7 +321,7 @@ def _heap_swap(q_entry, q_sponsor, key, seq, i, j):
     seq[i], seq[j] = seq[j], seq[i]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _heap_push(q_entry, q_sponsor, key, seq, size, j, s, v, sq):
     i = size
     q_entry[i] = j
@@ -347,7 +338,7 @@ def _heap_push(q_entry, q_sponsor, key, seq, size, j, s, v, sq):
     return size + 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _heap_pop(q_entry, q_sponsor, key, seq, size):
     """Moves the top to slot `size - 1` and restores the heap on the rest; returns the new size."""
     size -= 1
@@ -484,12 +475,12 @@ def cascade(rest, pos, graph: Graph, amin, amax, beta, grabbed, targets, fixed=N
     ws = workspace if workspace is not None else Workspace(n)
     if ws.n != n:
         raise ValueError(f"workspace was made for {ws.n} elements, mesh has {n}")
-    ws.ensure(graph.indices.shape[0] + grabbed.shape[0])
+    ws.ensure(graph.indices.shape[0] + grabbed.shape[0], order)
     gen = ws.next_generation()
     args = (rest, pos, graph.indptr, graph.indices, graph.link, graph.alive, amin, amax, beta,
             grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen)
     if order == ORDER_FIFO:
-        count = _cascade_fifo(*args, ws.q_entry, ws.q_sponsor, ws.out_order, ws.out_sponsor)
+        count = _cascade_fifo(*args, ws.out_order, ws.out_sponsor)
     elif order == ORDER_BALANCED:
         count = _cascade_balanced(*args, depth, ws.q_entry, ws.q_sponsor, ws.q_aux, ws.q_next,
                                   ws.branch_head, ws.branch_tail, ws.out_order, ws.out_sponsor)
