@@ -61,8 +61,8 @@ def _check_links(n: int, links) -> np.ndarray:
 def build_graph(n: int, links: np.ndarray, alive: np.ndarray | None = None) -> Graph:
     """CSR graph of `n` elements joined by undirected `links` (M, 2); link ids are row numbers.
 
-    Within each element's row the neighbours keep the order of the link list (stable sort), so a
-    cascade's visiting order is reproducible from the link list alone. `alive` (optional, bool (M,))
+    Within each element's row the neighbours are listed in increasing link id, so a cascade's visiting
+    order follows from the link list alone. `alive` (optional, bool (M,))
     carries over cut links; by default every link is alive.
     """
     n = int(n)
@@ -71,7 +71,7 @@ def build_graph(n: int, links: np.ndarray, alive: np.ndarray | None = None) -> G
     src = np.concatenate([links[:, 0], links[:, 1]])
     dst = np.concatenate([links[:, 1], links[:, 0]])
     lid = np.concatenate([np.arange(m, dtype=np.int64), np.arange(m, dtype=np.int64)])
-    perm = np.argsort(src, kind="stable")
+    perm = np.lexsort((lid, src))
     counts = np.bincount(src, minlength=n) if m else np.zeros(n, dtype=np.int64)
     indptr = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(counts, out=indptr[1:])
