@@ -99,12 +99,10 @@ def panel_lines(v: dict) -> list[str]:
     return lines
 
 
-def attempt_record(app, v: dict) -> dict:
-    """The records-store attempt (game.records) for the current values."""
-    from game.loader import PackResource
-
+def attempt_record(pack_name: str, v: dict) -> dict:
+    """The records-store attempt (game.records) for assessment values `v` (as in the summary)."""
     return {
-        "pack": app.resource(PackResource).pack.name,
+        "pack": pack_name,
         "duration_s": v["duration_s"],
         "landmark_error_mm": v["landmark_error_mm"],
         "needle_error_mm": v["needle_error_mm"],
@@ -122,6 +120,7 @@ def attempt_record(app, v: dict) -> dict:
 def save(app, v: dict) -> int:
     """Save the attempt to the records DB (Settings db/class/trainee); raises UserError on failure."""
     from game.errors import UserError
+    from game.loader import PackResource
     from game.records import RecordStore
 
     if v["landmark_error_mm"] is None:
@@ -129,7 +128,7 @@ def save(app, v: dict) -> int:
     s = app.resource(Settings)
     with RecordStore(s.get("db") or None) as store:
         return store.save_attempt(s.get("class") or DEFAULT_CLASS, s.get("trainee") or DEFAULT_TRAINEE,
-                                  attempt_record(app, v))
+                                  attempt_record(app.resource(PackResource).pack.name, v))
 
 
 class AssessmentSystem:

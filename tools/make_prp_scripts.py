@@ -144,7 +144,9 @@ def main(argv=None) -> int:
     ap.add_argument("--side", choices=("left", "right"), default="left")
     ap.add_argument("--high", type=float, default=HIGH_DEG, help="degrees too high for the skull-hit attempt")
     ap.add_argument("--out", default=None, help="folder for the scripts (default: the pack's scripts/)")
-    ap.add_argument("--check", action="store_true", help="run both scripts headless and print the assessment")
+    ap.add_argument("--variants", type=int, default=3, help="imperfect attempts to write (scripts/variant-K.toml)")
+    ap.add_argument("--seed", type=int, default=61, help="seed of the variants' landmark and aim errors")
+    ap.add_argument("--check", action="store_true", help="run the scripts headless and print the assessment")
     args = ap.parse_args(argv)
 
     from components.procedure import anatomy_from_pack
@@ -198,15 +200,28 @@ def main(argv=None) -> int:
     (out / "skull-hit.toml").write_text(script_text(
         f"ideal landmarks, needle aimed {args.high:g} degrees too high: it meets the skull base and springs back; "
         "re-aiming after insertion is refused", lms, yaw, high, hdepth, extra), encoding="utf-8")
-    print(f"wrote {out / 'correct.toml'} and {out / 'skull-hit.toml'}", file=sys.stderr)
+    names = ["correct", "skull-hit"]
+    # imperfect attempts for study-mode protocols: landmarks a few mm off (the pick snaps them to the
+    # skin) and the aim a few degrees off, from a fixed seed
+    rng = np.random.default_rng(args.seed)
+    for k in range(1, args.variants + 1):
+        vl = lms + rng.normal(0.0, 3.0, size=lms.shape)
+        vl[0] = _skin_mesh.nearest.on_surface([vl[0]])[0][0]
+        vy, vp = yaw + rng.uniform(-4.0, 4.0), pitch + rng.uniform(-4.0, 4.0)
+        (out / f"variant-{k}.toml").write_text(script_text(
+            f"an imperfect attempt (seed {args.seed}, variant {k}): landmarks about 3 mm off, aim within 4 degrees",
+            vl, vy, vp, depth), encoding="utf-8")
+        names.append(f"variant-{k}")
+    print(f"wrote {', '.join(n + '.toml' for n in names)} in {out}", file=sys.stderr)
     if args.check:
         from game.headless import run_pack
 
-        for name in ("correct", "skull-hit"):
+        for name in names:
             s = run_pack(str(Path(args.pack)), script=str(out / f"{name}.toml"))
             a = s["assessment"]
+            ne = a["needle_error_mm"]
             print(f"{name}: landmark error {a['landmark_error_mm']:.3f} mm, needle error "
-                  f"{a['needle_error_mm']:.3f} mm, target {a['target']}, contacts {a['skull_contacts']}, "
+                  f"{'-' if ne is None else f'{ne:.3f} mm'}, target {a['target']}, contacts {a['skull_contacts']}, "
                   f"refused rotations {a['rotation_refused']}, final tip-target {a['tip_to_target_mm']:.1f} mm")
     return 0
 
