@@ -40,6 +40,7 @@ class RenderTarget:
     fbo: object
     scale: float = 1.0  # framebuffer pixels per window pixel
     offscreen: bool = True
+    size: tuple[int, int] | None = None  # framebuffer pixels, when fbo.size cannot be trusted (windows)
 
     def ensure_size(self, size: tuple[int, int]) -> None:
         """Off-screen targets follow the window layout size."""
@@ -209,7 +210,7 @@ def draw(app):
     with app.active():
         sync_deformables(app)
         frame = collect_frame(app)
-        app.resource(Renderer).render(frame, target.fbo)
+        app.resource(Renderer).render(frame, target.fbo, target.size)
     return frame
 
 
@@ -217,15 +218,34 @@ def read_pixels(app) -> np.ndarray:
     """The render target's pixels, (H, W, 4) uint8, top row first."""
     from game.gl.png import read_rgba
 
-    return read_rgba(app.resource(RenderTarget).fbo)
+    target: RenderTarget = app.resource(RenderTarget)
+    if target.size is not None:
+        return read_rgba(target.fbo, (0, 0, *target.size))
+    return read_rgba(target.fbo)
 
 
 def screenshot(app, path) -> Path:
-    """Draw now and write a PNG."""
-    from game.gl.png import write_png
+    """Draw now and write a PNG. A window's own framebuffer may be multisampled (not readable), so
+    window screenshots are drawn again into an off-screen framebuffer of the same size."""
+    from game.gl.context import offscreen_framebuffer, release_framebuffer
+    from game.gl.png import read_rgba, write_png
 
-    draw(app)
-    return write_png(path, read_pixels(app))
+    target: RenderTarget = app.resource(RenderTarget)
+    if target.offscreen:
+        draw(app)
+        return write_png(path, read_pixels(app))
+    size = target.size or tuple(target.fbo.size)
+    fbo = offscreen_framebuffer(target.ctx, size)
+    window_fbo = target.fbo
+    try:
+        target.fbo = fbo
+        draw(app)
+        rgba = read_rgba(fbo, (0, 0, *size))
+    finally:
+        target.fbo = window_fbo
+        window_fbo.use()
+        release_framebuffer(target.ctx, fbo)
+    return write_png(path, rgba)
 
 
 class RenderSystem:

@@ -128,10 +128,12 @@ class Renderer:
             gm.release()
 
     # -- frame -------------------------------------------------------------------------------
-    def render(self, frame: Frame, fbo) -> None:
+    def render(self, frame: Frame, fbo, size: tuple[int, int] | None = None) -> None:
+        """Draw `frame` into `fbo` (`size`: its pixel size when the framebuffer cannot tell, e.g. a
+        resized window's default framebuffer)."""
         ctx = self.ctx
         fbo.use()
-        W, H = fbo.size
+        W, H = size or fbo.size
         s = frame.scale
         ctx.scissor = None
         ctx.viewport = (0, 0, W, H)
