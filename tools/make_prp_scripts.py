@@ -2,7 +2,8 @@
 
     .venv/bin/python -m tools.make_prp_scripts [--pack assets/prp] [--side left] [--check]
 
-Ideal landmarks (thesis 3.3.4, 6.1.5), on the skin of the chosen side:
+Ideal landmarks (thesis 3.3.4, 6.1.5), on the skin of the chosen side: the pack's
+[points.landmarkK_ideal_<side>] when present, else computed as
     1  on the skin section by the axial plane through the mouth angle, 25 mm from it, laterally
     2  the skin point nearest the medial aspect of the pupil
     3  on the skin section by the axial plane through the ear, 30 mm in front of the tragus
@@ -68,7 +69,13 @@ def _section_point(skin, plane, centre, radius, prefer) -> np.ndarray:
 
 
 def ideal_landmarks(pack, anat, side):
+    """The pack's [points.landmarkK_ideal_<side>] when it has them (snapped to the skin), else computed."""
     skin = _skin(pack)
+    pts = pack.section("points")
+    names = [f"landmark{k}_ideal_{side}" for k in (1, 2, 3)]
+    if all(n in pts for n in names):
+        given = np.array([pts[n]["position"] for n in names], dtype=np.float64)
+        return skin.nearest.on_surface(given)[0], skin
     sa = anat.sides[side]
     sx = 1.0 if side == "left" else -1.0
     l1 = _section_point(skin, sa.planes["mouth"], sa.points["mouth"], 25.0, lambda p: sx * p[0])
