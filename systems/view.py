@@ -10,8 +10,12 @@ LayerChanged and Widget events.
 Routing: a press goes to the viewport under the cursor, which keeps the following drags and the
 release (so a drag that leaves the viewport still turns its camera). In an orbit viewport with
 `interactive = true`: left-drag rotates, right- or middle-drag pans, scroll zooms; a click (press and
-release within CLICK_PX) picks. Attached viewports never move with the mouse. In viewports whose camera
-the mouse does not move, a left press on a surface starts a `Dragged` sequence.
+release within CLICK_PX) picks. `interactive = false` freezes an orbit camera (it then behaves like a
+fixed one). Clicks pick in orbit and fixed viewports; attached viewports (the needle-tip view) neither
+move with the mouse nor pick. In orbit/fixed viewports whose camera the mouse does not move, a left
+press on a surface starts a `Dragged` sequence (grabbing tissue, thesis 4.5.2). Procedures may move
+any camera themselves: `ViewState.get(name).camera` is an OrbitCamera (set yaw/pitch/distance/target,
+then call `update_eye()`).
 
 Widgets: clicks, drags and shortcut keys on the panel produce `Widget(name, value)` events that this
 system emits directly on the event queue (not through PendingInput, so a recording holds the clicks
@@ -61,6 +65,11 @@ class Viewport:
     def mouse_camera(self) -> bool:
         """Whether mouse drags move this viewport's camera."""
         return self.kind == "orbit" and self.interactive
+
+    @property
+    def picks(self) -> bool:
+        """Whether clicks pick here: orbit and fixed views; attached views only show (thesis 3.3.4)."""
+        return self.kind in ("orbit", "fixed")
 
 
 @dataclass(slots=True)
@@ -202,7 +211,7 @@ class ViewSystem:
             if p is not None and ev.button == "left" and st.enabled(p.spec["name"]):
                 vs.widget = p
                 self.use_widget(app, p.spec["name"], wd.click_value(p, ev.x, st.values.get(p.spec["name"])))
-        elif vp.is_3d and vp.camera is not None and not vp.mouse_camera and vp.interactive and ev.button == "left":
+        elif vp.picks and vp.camera is not None and not vp.mouse_camera and ev.button == "left":
             from game.picking import pick
 
             o, d = self.ray(vp, ev.x, ev.y)
@@ -250,7 +259,7 @@ class ViewSystem:
             if vs.grab is not None:
                 g = vs.grab
                 self.emit(app, Dragged(vp.name, g[1], g[2], "end", g[3], g[4], self.drag_point(vs, vp, ev.x, ev.y), ev.button))
-            if vs.travel <= CLICK_PX and vp.interactive and vp.kind != "attached":
+            if vs.travel <= CLICK_PX and vp.picks:
                 from game.picking import pick
 
                 o, d = self.ray(vp, ev.x, ev.y)

@@ -8,7 +8,7 @@ from components.core import Transform
 from game.headless import build_app
 from game.input_events import MouseButton, MouseDrag, PickPoint
 from game.loader import EntityIndex
-from game.picking import closest_on_mesh, ray_mesh, ray_triangles, triangle_links
+from game.picking import closest_on_mesh, pick, ray_mesh, ray_triangles, triangle_links
 from game.resources import PendingInput
 from game.view_events import Picked
 from systems.view import ViewState
@@ -114,5 +114,94 @@ def test_scripted_pick_point_snaps_to_the_surface():
         p = np.array(picks[0].point)
         assert abs(p[0] - centre[0]) < 1.0 and abs(p[1] - centre[1]) < 1.0
         assert 14.0 < p[2] - centre[2] <= 15.0 + 1e-6
+    finally:
+        app.close()
+
+
+FIXED_PACK = """
+[pack]
+name = "fixedview"
+format = 1
+
+[settings]
+window_size = [400.0, 300.0]
+
+[meshes.box]
+primitive = "box"
+extents = [60.0, 60.0, 60.0]
+
+[entities.box.mesh]
+mesh = "box"
+[entities.probe.transform]
+position = [0.0, -150.0, 0.0]
+rotation = [0.70710678, -0.70710678, 0.0, 0.0]
+
+[layouts.two]
+[[layouts.two.viewports]]
+name = "controller"
+kind = "fixed"
+rect = [0.0, 0.0, 0.5, 1.0]
+distance = 300.0
+[[layouts.two.viewports]]
+name = "tip"
+kind = "attached"
+attach = "probe"
+rect = [0.5, 0.0, 0.5, 1.0]
+"""
+
+
+def _pack(tmp_path):
+    root = tmp_path / "fixedview"
+    root.mkdir()
+    (root / "pack.toml").write_text(FIXED_PACK, encoding="utf-8")
+    return str(root)
+
+
+def test_drag_on_a_fixed_view_grabs_the_surface_and_follows_the_cursor(tmp_path):
+    from game.view_events import Dragged
+
+    app = build_app(_pack(tmp_path))
+    try:
+        app.events.log = []
+        vp = app.resource(ViewState).get("controller")
+        x, y, _ = vp.camera.project([0.0, 0.0, 0.0], vp.rect)[0]
+        x, y = int(x), int(y)
+        app.resource(PendingInput).extend([(0.0, MouseButton(x, y, "left", True)), (0.0, MouseDrag(x + 20, y + 10, 20, 10, "left")),
+                                           (0.0, MouseButton(x + 20, y + 10, "left", False))])
+        app.update(0.0)
+        drags = [e for e in app.events.log if isinstance(e, Dragged)]
+        assert [d.phase for d in drags] == ["start", "move", "end"]
+        assert drags[0].entity_name == "box"
+        grab = np.array(drags[0].grab_point)
+        assert abs(grab[1] - 30.0) < 1e-6  # the box face towards the camera (+Y side)
+        moved = np.array(drags[1].point)
+        assert abs(float((moved - grab) @ vp.camera.forward)) < 1e-6  # stays in the screen-parallel plane
+        px, py, _ = vp.camera.project(moved, vp.rect)[0]
+        assert abs(px - (x + 20.5)) < 1e-6 and abs(py - (y + 10.5)) < 1e-6
+        assert vp.camera.yaw == 0.0  # a fixed camera does not turn
+        assert len([e for e in app.events.log if isinstance(e, Picked)]) == 0  # a drag is not a click
+    finally:
+        app.close()
+
+
+def test_attached_view_rides_on_its_entity_and_does_not_pick(tmp_path):
+    from systems.view import refresh_cameras
+
+    app = build_app(_pack(tmp_path))
+    try:
+        app.events.log = []
+        vs = app.resource(ViewState)
+        with app.active():
+            refresh_cameras(app, vs)
+        tip = vs.get("tip")
+        np.testing.assert_allclose(tip.camera.eye, [0.0, -150.0, 0.0], atol=1e-9)
+        np.testing.assert_allclose(tip.camera.forward, [0.0, 1.0, 0.0], atol=1e-6)  # local +Z turned onto +Y
+        cx, cy = tip.rect.x + tip.rect.w // 2, tip.rect.y + tip.rect.h // 2
+        with app.active():
+            o, d = tip.camera.ray(cx + 0.5, cy + 0.5, tip.rect)
+            assert pick(app, o, d) is not None  # the box is right ahead of the probe ...
+        app.resource(PendingInput).extend([(0.0, MouseButton(cx, cy, "left", True)), (0.0, MouseButton(cx, cy, "left", False))])
+        app.update(0.0)
+        assert [e for e in app.events.log if isinstance(e, Picked)] == []  # ... but the needle view only shows
     finally:
         app.close()
