@@ -235,7 +235,7 @@ def collision_system(app) -> None:
 
     from components.needle import Needle, NeedleState
     from components.procedure import PrpAnatomy
-    from systems.needle import apply_pose
+    from systems.needle import _sync_widgets, apply_pose
 
     obs: PrpObstacles = app.resource(PrpObstacles)
     anat: PrpAnatomy = app.resource(PrpAnatomy)
@@ -266,6 +266,7 @@ def collision_system(app) -> None:
             st.target_depth = max(stop - needle.bounce, 0.0)
         st.prev_depth = stop
         apply_pose(app, ent, needle, st)
+        _sync_widgets(app, st)  # the depth slider shows where the needle is going after the contact
         app.events.emit(NeedleHit(name, tuple(float(c) for c in point), dist, float(hit_depth)))
 
 
