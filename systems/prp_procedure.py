@@ -23,7 +23,7 @@ from __future__ import annotations
 import esper
 import numpy as np
 
-from components.core import Marker, MeshRef, Name, Transform
+from components.core import Label, Marker, MeshRef, Name, Transform
 from components.needle import Needle, NeedleState
 from components.procedure import LANDMARK_COUNT, ProcedureState, anatomy_from_pack
 from game import quaternion as Q
@@ -138,6 +138,9 @@ class ProcedureSystem:
             mk = esper.try_component(handles.markers[k], Marker)
             if mk is not None:
                 mk.visible = True
+            lb = esper.try_component(handles.markers[k], Label)
+            if lb is not None:
+                lb.text = handles.labels[k]
         if k < len(handles.planes) and handles.planes[k] is not None:
             tr = esper.try_component(handles.planes[k], Transform)
             if tr is not None:
@@ -149,10 +152,7 @@ class ProcedureSystem:
         ps.placed = 0
         ps.side = ""
         handles: PrpHandles = app.resource(PrpHandles)
-        for ent in handles.markers:
-            mk = esper.try_component(ent, Marker) if ent is not None else None
-            if mk is not None:
-                mk.visible = False
+        _hide_markers(handles.markers)
         for ent in handles.planes:
             ref = esper.try_component(ent, MeshRef) if ent is not None else None
             if ref is not None:
@@ -262,11 +262,25 @@ def _side(app, p) -> str:
 class PrpHandles:
     """Entity ids the procedure systems use (resource)."""
 
-    def __init__(self, needle: int, procedure: int, markers: list, planes: list):
+    def __init__(self, needle: int, procedure: int, markers: list, planes: list, labels: list):
         self.needle = needle
         self.procedure = procedure
         self.markers = markers
         self.planes = planes
+        self.labels = labels  # the markers' label texts, shown once a landmark is placed
+
+
+def _hide_markers(markers: list) -> None:
+    """Unplaced landmarks are not drawn: marker hidden, label emptied (labels have no visible flag)."""
+    for ent in markers:
+        if ent is None:
+            continue
+        mk = esper.try_component(ent, Marker)
+        if mk is not None:
+            mk.visible = False
+        lb = esper.try_component(ent, Label)
+        if lb is not None:
+            lb.text = ""
 
 
 def plugin(app) -> None:
@@ -292,15 +306,16 @@ def plugin(app) -> None:
         index.by_name["procedure"] = proc
         markers = [index.get(f"landmark{k}") for k in range(1, LANDMARK_COUNT + 1)]
         planes = [index.get(f"landmark_plane{k}") for k in range(1, LANDMARK_COUNT + 1)]
+        labels = []
         for ent in markers:
-            mk = esper.try_component(ent, Marker) if ent is not None else None
-            if mk is not None:
-                mk.visible = False
+            lb = esper.try_component(ent, Label) if ent is not None else None
+            labels.append(lb.text if lb is not None else "")
+        _hide_markers(markers)
         for ent in planes:
             ref = esper.try_component(ent, MeshRef) if ent is not None else None
             if ref is not None:
                 ref.visible = False
-    app.insert_resource(PrpHandles(needles[0], proc, markers, planes))
+    app.insert_resource(PrpHandles(needles[0], proc, markers, planes, labels))
     needle_sys.plugin(app)
     collision.plugin(app)
     system = ProcedureSystem(app)

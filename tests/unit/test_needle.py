@@ -212,10 +212,24 @@ def test_picks_off_the_skin_are_ignored_with_a_message(run):
     assert any("skin" in m for m, _ in run.app.resource(HudState).messages)
 
 
+def _marker(run, k):
+    from components.core import Label, Marker, Transform
+    from game.loader import EntityIndex
+
+    ent = run.app.resource(EntityIndex)[f"landmark{k}"]
+    with run.app.active():
+        return (esper.component_for_entity(ent, Marker), esper.component_for_entity(ent, Label),
+                esper.component_for_entity(ent, Transform))
+
+
 def test_landmarks_in_order_and_reset_all_clears_them(run):
     pts = [L1, on_skin([30, 80, 30]), on_skin([80, 20, 0])]
+    mk, lb, _ = _marker(run, 2)
+    assert not mk.visible and lb.text == ""  # nothing drawn before it is placed
     for p in pts:
         run.send(PickPoint("skin", tuple(p)))
+    mk, lb, tr = _marker(run, 2)
+    assert mk.visible and lb.text == "2" and np.allclose(tr.position, pts[1], atol=0.5)
     ps = run.proc
     assert ps.placed == 3 and ps.step_id == "orient_horizontal"
     assert np.allclose(ps.landmarks, pts, atol=0.5)
@@ -223,6 +237,7 @@ def test_landmarks_in_order_and_reset_all_clears_them(run):
     assert run.proc.placed == 3
     run.send(Widget("reset", "all"))
     assert run.proc.placed == 0 and not run.needle.placed
+    assert not _marker(run, 1)[0].visible and _marker(run, 1)[1].text == ""
     assert run.proc.step_id == "landmark1"
 
 
