@@ -82,6 +82,27 @@ def _entity(app, ref) -> int | None:
 
 # -- operations (also used directly by tools and tests) -------------------------------------------
 
+#: below this many active elements relaxation runs on one thread: a parallel region's barriers cost
+#: far more than the work when the machine is busy (measured ~100x slower for a 1000-element patch)
+PARALLEL_RELAX_MIN = 100_000
+
+
+def relax_moved(rest, pos, graph, active, iterations: int, step: float = 1.0, fixed=None) -> None:
+    """Relaxation of thesis 5.2.5 over `active` (systems.kernels.relax), serial for small sets."""
+    import numba
+
+    from systems.kernels.relax import relax
+
+    if len(active) >= PARALLEL_RELAX_MIN:
+        relax(rest, pos, graph, active, iterations, step=step, fixed=fixed)
+        return
+    previous = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        relax(rest, pos, graph, active, iterations, step=step, fixed=fixed)
+    finally:
+        numba.set_num_threads(previous)
+
 
 def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np.ndarray:
     """Move `ids` to local `targets`, cascade and relax; returns the ids that changed."""
@@ -105,13 +126,11 @@ def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np
         d.held = np.union1d(d.held, ids)
     changed = order
     if d.relax_iterations > 0 and len(order) > len(ids):
-        from systems.kernels.relax import relax
-
         pin = d.fixed_mask.copy()
         pin[ids] = True
         if len(d.held):
             pin[d.held] = True
-        relax(d.rest, d.pos, d.graph, order, d.relax_iterations, step=d.relax_step, fixed=pin)
+        relax_moved(d.rest, d.pos, d.graph, order, d.relax_iterations, step=d.relax_step, fixed=pin)
     if len(changed):
         d.mark_dirty(changed)
         d.version += 1

@@ -94,11 +94,11 @@ class Body:
                            workspace=self.ws, copy=False)
         self.moved = len(moved)
         if relax_n:
-            from systems.kernels.relax import relax
+            from systems.deformation import relax_moved
 
             pin = np.zeros(len(self.pos), dtype=np.bool_)
             pin[grab] = True
-            relax(self.rest, self.pos, self.graph, moved, relax_n, fixed=pin)
+            relax_moved(self.rest, self.pos, self.graph, moved, relax_n, fixed=pin)
 
 
 # -- part a: thesis 6.2 ------------------------------------------------------------------------------

@@ -102,11 +102,11 @@ def simulate(positions, links, fixed_ids, grab: int, target, alpha_min, alpha_ma
                               np.asarray(target, dtype=np.float64).reshape(1, -1), fixed=fixed, order=code,
                               workspace=make_workspace(n))
     if relax_n > 0 and len(moved) > 1:
-        from systems.kernels.relax import relax
+        from systems.deformation import relax_moved
 
         pin = np.zeros(n, dtype=np.bool_) if fixed is None else fixed.copy()
         pin[grab] = True  # the user holds the grabbed element where it was put
-        relax(rest, pos, graph, moved, relax_n, step=relax_step, fixed=pin)
+        relax_moved(rest, pos, graph, moved, relax_n, step=relax_step, fixed=pin)
     sponsor = np.full(n, -1, dtype=np.int64)
     sponsor[moved] = sponsors
     return pos, moved.astype(np.int64), sponsor
