@@ -35,6 +35,7 @@ ORDER_SCHILL = 2
 _ORDERS = (ORDER_FIFO, ORDER_BALANCED, ORDER_SCHILL)
 
 _NO_FIXED = np.zeros(1, dtype=np.bool_)
+_GEN_LIMIT = 2**62
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -129,7 +130,7 @@ class Workspace:
 
     def next_generation(self) -> int:
         self.gen += 1
-        if self.gen >= np.iinfo(np.int64).max - 1:  # practically never; keeps stamps unambiguous
+        if self.gen >= _GEN_LIMIT:  # practically never; keeps stamps unambiguous
             self.stamp[:] = 0
             self.gen = 1
         return self.gen
@@ -199,7 +200,20 @@ def _violation(rest, pos, e, s, amin_l, amax_l, beta_l):
 
 @njit(cache=True, inline="always")
 def _start(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor):
-    """Move the grabbed elements to their targets; returns how many moved (fixed ones stay)."""
+    """Move the grabbed elements to their targets; returns how many moved (fixed ones stay), or a
+    negative error code before anything moves: -1 id out of range, -2 repeated id, -3 target not finite.
+    Checking here keeps the per-call Python cost independent of K."""
+    n = pos.shape[0]
+    for k in range(grabbed.shape[0]):
+        g = grabbed[k]
+        if g < 0 or g >= n:
+            return -1
+        if stamp[g] == gen:
+            return -2
+        stamp[g] = gen
+        for a in range(pos.shape[1]):
+            if not np.isfinite(targets[k, a]):
+                return -3
     count = 0
     for k in range(grabbed.shape[0]):
         g = grabbed[k]
@@ -207,7 +221,6 @@ def _start(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_s
             continue
         for a in range(pos.shape[1]):
             pos[g, a] = targets[k, a]
-        stamp[g] = gen
         out_order[count] = g
         out_sponsor[count] = -1
         count += 1
@@ -222,6 +235,8 @@ def _cascade_fifo(rest, pos, indptr, indices, link, alive, amin, amax, beta, gra
     # is served. So the move can be made when the entry is queued, and the output list doubles as the
     # queue: each element is queued at most once, like a breadth-first search.
     count = _start(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
+    if count < 0:
+        return count
     head = 0
     while head < count:
         s = out_order[head]
@@ -244,6 +259,8 @@ def _cascade_balanced(rest, pos, indptr, indices, link, alive, amin, amax, beta,
                       fixed, has_fixed, stamp, gen, depth, q_entry, q_sponsor, q_depth, q_next,
                       head, tail, out_order, out_sponsor):
     count = _start(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
+    if count < 0:
+        return count
     n_entries = 0
     n_branches = 0
     for k in range(count):
@@ -362,6 +379,8 @@ def _heap_pop(q_entry, q_sponsor, key, seq, size):
 def _cascade_schill(rest, pos, indptr, indices, link, alive, amin, amax, beta, grabbed, targets,
                     fixed, has_fixed, stamp, gen, q_entry, q_sponsor, key, seq, out_order, out_sponsor):
     count = _start(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
+    if count < 0:
+        return count
     size = 0
     pushed = 0
     for k in range(count):
@@ -403,13 +422,19 @@ def _cascade_schill(rest, pos, indptr, indices, link, alive, amin, amax, beta, g
 # Python entry point
 
 
+_START_ERRORS = {-1: "grabbed ids must be element ids in [0, N)", -2: "grabbed ids must be distinct",
+                 -3: "targets must be finite (no NaN or inf)"}
+_INT64 = np.dtype(np.int64)
+_BOOL = np.dtype(np.bool_)
+
+
 def _check_points(name, arr, n=None):
-    if not isinstance(arr, np.ndarray) or arr.ndim != 2 or arr.dtype not in (np.float32, np.float64):
+    if type(arr) is not np.ndarray or arr.ndim != 2 or arr.dtype.char not in "fd":
         got = arr.shape if isinstance(arr, np.ndarray) else type(arr).__name__
         raise ValueError(f"{name} must be a float32 or float64 array of shape (N, D), got {got}")
     if not arr.flags.c_contiguous:
         raise ValueError(f"{name} must be C-contiguous")
-    if arr.shape[1] not in (1, 2, 3):
+    if not 1 <= arr.shape[1] <= 3:
         raise ValueError(f"{name} must have D = 1, 2 or 3 columns, got {arr.shape[1]}")
     if n is not None and arr.shape[0] != n:
         raise ValueError(f"{name} must have {n} rows, got {arr.shape[0]}")
@@ -427,66 +452,68 @@ def cascade(rest, pos, graph: Graph, amin, amax, beta, grabbed, targets, fixed=N
 
     Returns (order, sponsor_of_moved): the ids that moved in the order they moved (grabbed first), each
     once, and for each the element whose move made it move (-1 for grabbed). With copy=False these are
-    views into the workspace, valid until its next cascade.
+    views into the workspace, valid until its next cascade. Raises ValueError on bad arguments (pos is
+    then left untouched).
     """
     _check_points("pos", pos)
     n, dim = pos.shape
-    _check_points("rest", rest, n)
-    if rest.shape[1] != dim:
-        raise ValueError(f"rest has D = {rest.shape[1]} but pos has D = {dim}")
-    if rest.dtype != pos.dtype:
-        raise ValueError(f"rest and pos must share a dtype, got {rest.dtype} and {pos.dtype}")
+    if type(rest) is not np.ndarray or rest.shape != pos.shape or rest.dtype != pos.dtype:
+        raise ValueError(f"rest must match pos in shape {pos.shape} and dtype {pos.dtype}, got "
+                         f"{getattr(rest, 'shape', type(rest).__name__)} {getattr(rest, 'dtype', '')}")
+    if not rest.flags.c_contiguous:
+        raise ValueError("rest must be C-contiguous")
     if graph.indptr.shape[0] != n + 1:
         raise ValueError(f"graph has {graph.indptr.shape[0] - 1} elements but pos has {n}")
     m = graph.links.shape[0]
     for name, arr in (("amin", amin), ("amax", amax), ("beta", beta)):
-        if not isinstance(arr, np.ndarray) or arr.shape != (m,):
-            raise ValueError(f"{name} must be a per-link array of shape ({m},) (see material_arrays)")
-    grabbed = np.ascontiguousarray(np.atleast_1d(np.asarray(grabbed)), dtype=np.int64)
-    if grabbed.ndim != 1 or grabbed.shape[0] < 1:
-        raise ValueError("grabbed must be a non-empty 1-D array of element ids")
-    if grabbed.min() < 0 or grabbed.max() >= n:
-        raise ValueError(f"grabbed ids must lie in [0, {n}), got range [{grabbed.min()}, {grabbed.max()}]")
-    if grabbed.shape[0] > 1 and np.unique(grabbed).shape[0] != grabbed.shape[0]:
-        raise ValueError("grabbed ids must be distinct")
-    targets = np.asarray(targets, dtype=pos.dtype)
-    if targets.ndim == 1 and grabbed.shape[0] == 1 and targets.shape[0] == dim:
-        targets = targets.reshape(1, dim)
-    if targets.shape != (grabbed.shape[0], dim):
-        raise ValueError(f"targets must have shape ({grabbed.shape[0]}, {dim}), got {targets.shape}")
-    targets = np.ascontiguousarray(targets)
-    if not np.all(np.isfinite(targets)):
-        raise ValueError("targets must be finite (no NaN or inf)")
+        if type(arr) is not np.ndarray or arr.shape != (m,) or arr.dtype.char not in "fd":
+            raise ValueError(f"{name} must be a per-link float array of shape ({m},) (see material_arrays)")
+    if type(grabbed) is not np.ndarray or grabbed.dtype != _INT64 or grabbed.ndim != 1:
+        grabbed = np.ascontiguousarray(np.atleast_1d(np.asarray(grabbed)), dtype=np.int64)
+        if grabbed.ndim != 1:
+            raise ValueError("grabbed must be a 1-D array of element ids")
+    k = grabbed.shape[0]
+    if k < 1:
+        raise ValueError("grabbed must hold at least one element id")
+    if type(targets) is not np.ndarray or targets.dtype != pos.dtype or not targets.flags.c_contiguous:
+        targets = np.ascontiguousarray(targets, dtype=pos.dtype)
+    if targets.shape != (k, dim):
+        if targets.ndim == 1 and k == 1 and targets.shape[0] == dim:
+            targets = targets.reshape(1, dim)
+        else:
+            raise ValueError(f"targets must have shape ({k}, {dim}), got {targets.shape}")
     if fixed is None:
         fixed_arr, has_fixed = _NO_FIXED, False
     else:
         fixed_arr = fixed
-        if not isinstance(fixed_arr, np.ndarray) or fixed_arr.dtype != np.bool_ or fixed_arr.shape != (n,):
-            fixed_arr = np.asarray(fixed, dtype=np.bool_)
+        if type(fixed_arr) is not np.ndarray or fixed_arr.dtype != _BOOL or fixed_arr.shape != (n,):
+            fixed_arr = np.ascontiguousarray(fixed, dtype=np.bool_)
             if fixed_arr.shape != (n,):
                 raise ValueError(f"fixed must be a bool array of shape ({n},) or None, got {fixed_arr.shape}")
         has_fixed = True
     if order not in _ORDERS:
         raise ValueError(f"order must be ORDER_FIFO (0), ORDER_BALANCED (1) or ORDER_SCHILL (2), got {order!r}")
-    depth = int(depth)
-    if depth < 1:
+    if order == ORDER_BALANCED and depth < 1:
         raise ValueError(f"depth must be >= 1, got {depth}")
 
     ws = workspace if workspace is not None else Workspace(n)
     if ws.n != n:
         raise ValueError(f"workspace was made for {ws.n} elements, mesh has {n}")
-    ws.ensure(graph.indices.shape[0] + grabbed.shape[0], order)
+    if order != ORDER_FIFO:
+        ws.ensure(graph.indices.shape[0] + k, order)
     gen = ws.next_generation()
     args = (rest, pos, graph.indptr, graph.indices, graph.link, graph.alive, amin, amax, beta,
             grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen)
     if order == ORDER_FIFO:
         count = _cascade_fifo(*args, ws.out_order, ws.out_sponsor)
     elif order == ORDER_BALANCED:
-        count = _cascade_balanced(*args, depth, ws.q_entry, ws.q_sponsor, ws.q_aux, ws.q_next,
+        count = _cascade_balanced(*args, int(depth), ws.q_entry, ws.q_sponsor, ws.q_aux, ws.q_next,
                                   ws.branch_head, ws.branch_tail, ws.out_order, ws.out_sponsor)
     else:
         count = _cascade_schill(*args, ws.q_entry, ws.q_sponsor, ws.q_key, ws.q_aux,
                                 ws.out_order, ws.out_sponsor)
+    if count < 0:
+        raise ValueError(_START_ERRORS[count].replace("N)", f"{n})"))
     moved = ws.out_order[:count]
     sponsors = ws.out_sponsor[:count]
     if copy:
