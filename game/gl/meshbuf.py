@@ -86,6 +86,7 @@ class GpuMesh:
         self.lbo = None
         self.n_line_indices = 0
         self._csr = None
+        self._local = None
         self.pending = np.zeros(self.n, np.bool_)  # vertices moved since the last upload
         self.stale = False  # everything must be rewritten
         self.bytes_written = 0  # statistics for benchmarks and tests
@@ -172,16 +173,20 @@ class GpuMesh:
         touched = np.unique(gather(ptr, idx, ids))  # triangles with a moved corner
         verts = np.unique(self.tris[touched])  # their corners: all get new normals
         around = np.unique(gather(ptr, idx, verts))  # every triangle touching those corners
-        fn = face_normals(self.pos.astype(np.float64), self.tris[around])
-        local = np.full(self.n, -1, np.int64)
+        corners = self.tris[around]
+        a = self.pos[corners[:, 0]].astype(np.float64)
+        fn = np.cross(self.pos[corners[:, 1]] - a, self.pos[corners[:, 2]] - a)
+        if self._local is None:
+            self._local = np.full(self.n, -1, np.int64)  # scratch: vertex id -> row in `acc`
+        local = self._local
         local[verts] = np.arange(len(verts))
         acc = np.zeros((len(verts), 3))
-        corners = self.tris[around]
         for c in range(3):
             li = local[corners[:, c]]
             keep = li >= 0
             for k in range(3):
                 acc[:, k] += np.bincount(li[keep], weights=fn[keep, k], minlength=len(verts))
+        local[verts] = -1
         self.normals[verts] = _normalise(acc).astype(np.float32)
         for a, b in runs(ids):
             self.vbo_pos.write(self.pos[a:b].tobytes(), offset=a * 12)

@@ -381,3 +381,35 @@ def test_wireframe_material_draws_links_not_faces(make_pack):
         assert 0.05 < frac < 0.6  # lines over the sheet, background between them
     finally:
         app.close()
+
+
+def test_partial_uploads_match_a_full_recompute_on_random_patches(gl_ctx):
+    from hypothesis import given, settings, strategies as st
+
+    from game.gl.meshbuf import GpuMesh, runs, vertex_normals
+    from game.meshgen import triangulated_grid
+
+    pos0, tris, _ = triangulated_grid(15, 12, 2.0, dim=3)
+    pos0 = np.asarray(pos0, float)
+    gm = GpuMesh(gl_ctx, pos0, tris)
+    try:
+        current = pos0.copy()
+
+        @settings(max_examples=30, deadline=None)
+        @given(st.integers(0, 2**31 - 1), st.integers(1, 40))
+        def check(seed, k):
+            rng = np.random.default_rng(seed)
+            ids = rng.choice(len(current), k, replace=False)
+            current[ids] += rng.normal(scale=1.5, size=(k, 3))
+            gm.mark(ids)
+            gm.upload(current)
+            gpu_pos = np.frombuffer(gm.vbo_pos.read(), np.float32).reshape(-1, 3)
+            gpu_nrm = np.frombuffer(gm.vbo_nrm.read(), np.float32).reshape(-1, 3)
+            np.testing.assert_allclose(gpu_pos, current, atol=1e-4)
+            np.testing.assert_allclose(gpu_nrm, vertex_normals(current.astype(np.float32), gm.tris), atol=2e-5)
+
+        check()
+    finally:
+        gm.release()
+    assert runs(np.array([1, 2, 3, 900, 901]), gap=256) == [(1, 4), (900, 902)]
+    assert runs(np.array([5, 100]), gap=256) == [(5, 101)]
