@@ -32,6 +32,7 @@ class Forceps:
     held_element: int = -1
     tip: np.ndarray = field(default_factory=_vec)  # world mm
     target: np.ndarray = field(default_factory=_vec)  # world mm the tip moves towards
+    grip_start: np.ndarray = field(default_factory=_vec)  # world mm where the current grip began
     moving: bool = False
     release_on_arrival: bool = False  # a drag has ended: open once the tip reaches the hand
     uses: int = 0

@@ -24,7 +24,8 @@ Systems:
   procedure stage, ORDER_PROCEDURE (`cutting_steps`): tool choice side effects (the frozen controller
       view and the other views jump to the best view for the tool, 4.5.2), the `wireframe` and `reset`
       widgets, tool drawing (tip marker, shaft and blade lines, the current cut path), the pack's
-      [[steps]] (pull -> cut -> open) and HUD text.
+      [[steps]] (pull, cut, open: each done when what it asks for has happened, in any order, 4.5.2)
+      and HUD text.
   procedure stage, ORDER_ASSESSMENT (`cutting_assessment`): game.headless.Assessment values.
 
 Writes: Forceps / Scissors runtime fields, the tools' Transform / Marker / PolyLine, CuttingState
@@ -54,11 +55,11 @@ STEP_IDS = ("pull", "cut", "open")
 PUSH_BUTTON_MM = 2.0  # depth of one press of the Push button
 SCROLL_MM = 1.0  # forceps travel along the normal per scroll notch
 MOVED_MM = 0.01  # an element this far from rest counts as displaced
-PULL_DONE_MM = 5.0  # the pull step is done when a grip has moved tissue this far
-CUT_DONE_MM = 20.0  # the cut step is done after this much cut path
-OPEN_DONE_MM = 10.0  # the open step is done when a grip after the cut lifts tissue this far
+PULL_DONE_MM = 5.0  # 'pull' is done once a grip has carried tissue this far
+CUT_DONE_MM = 20.0  # 'cut' is done after this much cut path that removed links
+OPEN_DONE_MM = 10.0  # 'open' is done once a grip on a cut layer has carried it this far
 #: best views for each tool (4.5.2), relative to the tissue's bounding sphere
-VIEWS = {"forceps": dict(yaw=30.0, pitch=35.0, zoom=1.0), "scissors": dict(yaw=0.0, pitch=75.0, zoom=0.95)}
+VIEWS = {"forceps": dict(yaw=30.0, pitch=35.0, zoom=0.8), "scissors": dict(yaw=0.0, pitch=75.0, zoom=0.75)}
 
 
 @dataclass(slots=True)
@@ -79,10 +80,8 @@ class CuttingState:
     layers: list = field(default_factory=list)  # deformable entity ids, top layer first
     top: int = -1
     names: dict = field(default_factory=dict)  # entity id -> name
-    step: int = 0
     step_ids: list = field(default_factory=list)
-    steps_done: list = field(default_factory=list)
-    step_start_pos: np.ndarray | None = None  # top layer positions when the current step began
+    steps_done: list = field(default_factory=list)  # in the order they were done
     links_cut: dict = field(default_factory=dict)  # layer name -> links cut since the last reset
     cut_length: float = 0.0  # mm since the last reset
     wireframe: bool = False
@@ -209,6 +208,7 @@ class ToolsSystem:
         f.held_entity, f.held_element = int(ent), elem
         f.tip = world_positions(ent, d)[elem].copy()
         f.target = f.tip.copy()
+        f.grip_start = f.tip.copy()
         f.moving = False
         f.uses += 1
         f.use_start = app.time.sim_time
@@ -418,9 +418,11 @@ def tissue_bounds(st: CuttingState) -> tuple[np.ndarray, np.ndarray]:
 
 
 def apply_view(app, st: CuttingState, tool: str) -> None:
-    """Jump the 3-D views to the tool's best view of the tissue (thesis 4.5.2): an oblique view from the
-    free edge for the forceps, so pulling up and back is a drag up the screen; a near top-down view
-    for the scissors, so a drag across the screen runs across the tissue."""
+    """Jump the frozen (controller) views to the tool's best view of the tissue (thesis 4.5.2): an
+    oblique view from the free edge for the forceps, so pulling up and back is a drag up the screen; a
+    near top-down view for the scissors, so a drag across the screen runs across the tissue. The
+    mouse-driven viewer keeps the trainee's own viewpoint; a layout without a frozen view has its orbit
+    views moved instead."""
     from game.viewports import OrbitCamera
     from systems.view import ViewState
 
@@ -431,7 +433,8 @@ def apply_view(app, st: CuttingState, tool: str) -> None:
     centre = 0.5 * (lo + hi)
     radius = max(0.5 * float(np.linalg.norm(hi - lo)), 1.0)
     v = VIEWS[tool]
-    for vp in vs.viewports:
+    frozen = [vp for vp in vs.viewports if vp.is_3d and not vp.mouse_camera]
+    for vp in frozen or vs.viewports:
         cam = vp.camera
         if vp.kind not in ("orbit", "fixed") or not isinstance(cam, OrbitCamera):
             continue
@@ -467,15 +470,9 @@ def reset_tissue(app, st: CuttingState) -> None:
     s.stroke = np.zeros((0, 3))
     st.drag_origin = None
     st.cut_length = 0.0
-    st.step = 0
     st.steps_done = []
-    st.step_start_pos = snapshot(st)
     st.resets += 1
     st.cache.clear()
-
-
-def snapshot(st: CuttingState) -> dict:
-    return {e: np.array(esper.component_for_entity(e, Deformable).pos, dtype=np.float64) for e in st.layers}
 
 
 def draw_tools(st: CuttingState) -> None:
@@ -544,25 +541,16 @@ class StepsSystem:
     def __init__(self, st: CuttingState):
         self.st = st
 
-    def moved_since_step(self, layers=None) -> float:
+    def step_done(self, app, step_id: str) -> bool:
         st = self.st
-        best = 0.0
-        for e in layers if layers is not None else st.layers:
-            d = esper.component_for_entity(e, Deformable)
-            start = st.step_start_pos.get(e)
-            if start is not None:
-                best = max(best, float(np.max(np.linalg.norm(d.pos - start, axis=1))))
-        return best
-
-    def step_done(self, step_id: str) -> bool:
-        st = self.st
+        f = esper.component_for_entity(st.forceps, Forceps)
+        carried = float(np.linalg.norm(f.tip - f.grip_start)) if f.held_entity >= 0 else 0.0
         if step_id == "pull":
-            return self.moved_since_step() >= PULL_DONE_MM
+            return carried >= PULL_DONE_MM
         if step_id == "cut":
             return st.cut_length >= CUT_DONE_MM and any(_dead(e) for e in st.layers)
         if step_id == "open":
-            cut_layers = [e for e in st.layers if _dead(e)]
-            return bool(cut_layers) and self.moved_since_step(cut_layers) >= OPEN_DONE_MM
+            return f.held_entity >= 0 and _dead(f.held_entity) > 0 and carried >= OPEN_DONE_MM
         return False
 
     def __call__(self, app) -> None:
@@ -592,15 +580,18 @@ class StepsSystem:
         draw_tools(st)
         pres: PackResource = app.resource(PackResource)
         steps = pres.pack.section("steps")
-        while st.step < len(st.step_ids) and self.step_done(st.step_ids[st.step]):
-            st.steps_done.append(st.step_ids[st.step])
-            st.step += 1
-            st.step_start_pos = snapshot(st)
-            if hud is not None:
-                hud.message("Step done." if st.step < len(st.step_ids) else "Opening made: all steps done.", 4.0)
+        # the thesis lets the trainee pull, cut and pull again in any order (4.5.2): a step is done when
+        # what it asks for has happened, and the HUD shows the first step not yet done
+        for k, sid in enumerate(st.step_ids):
+            if sid not in st.steps_done and self.step_done(app, sid):
+                st.steps_done.append(sid)
+                if hud is not None:
+                    last = len(st.steps_done) == len(st.step_ids)
+                    hud.message("Opening made: all steps done." if last else f"Done: {steps[k].get('title', sid)}", 4.0)
+        todo = [k for k, sid in enumerate(st.step_ids) if sid not in st.steps_done]
         if hud is not None:
-            if st.step < len(st.step_ids):
-                spec = steps[st.step]
+            if todo:
+                spec = steps[todo[0]]
                 hud.step_title, hud.step_instruction = spec.get("title", ""), spec.get("instruction", "")
             elif st.step_ids:
                 hud.step_title = "Done"
@@ -677,7 +668,7 @@ class AssessmentSystem:
             uses.append({"tool": u.tool, "layer": u.layer, "start_s": round(u.start_s, 6), "duration_s": round(dur, 6)})
         values = {
             "tool": st.tool,
-            "step": st.step_ids[st.step] if st.step < len(st.step_ids) else "done",
+            "step": next((sid for sid in st.step_ids if sid not in st.steps_done), "done"),
             "steps_done": list(st.steps_done),
             "links_cut": sum(p["links_cut"] for p in per.values()),
             "links_cut_by_layer": {k: p["links_cut"] for k, p in per.items()},
@@ -745,7 +736,7 @@ def plugin(app) -> None:
         f = esper.component_for_entity(st.forceps, Forceps)
         f.tip = np.array(esper.component_for_entity(st.forceps, Transform).position, dtype=np.float64)
         f.target = f.tip.copy()
-        st.step_start_pos = snapshot(st)
+        f.grip_start = f.tip.copy()
     ev = app.events
     st.widgets = ev.reader(Widget)
     st.picks = ev.reader(Picked)
