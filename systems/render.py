@@ -82,9 +82,12 @@ def sync_deformables(app) -> None:
     for ent, d in esper.get_component(D):
         dirty = getattr(d, "dirty", None)
         gm = renderer.meshes.get(ent)
-        if dirty is None:
-            if gm is not None and getattr(d, "version", 0) != getattr(gm, "source_version", 0):
+        if dirty is None:  # a body that only counts versions: rewrite it whole when the count moves
+            version = getattr(d, "version", 0)
+            if gm is not None and version != getattr(gm, "source_version", version):
                 gm.stale = True
+            if gm is not None:
+                gm.source_version = version
             continue
         if len(dirty):
             if gm is not None:

@@ -165,19 +165,24 @@ def _plot(rows, path, info) -> None:
     import numpy as np
 
     sizes = sorted({r["triangles"] for r in rows})
-    fig, ax = plt.subplots(figsize=(7, 4.2), dpi=120)
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(10, 4.2), dpi=120)
     width = 0.26
     x = np.arange(len(sizes))
     for k, mode in enumerate(MODES):
-        vals = [next((r["median_ms"] for r in rows if r["triangles"] == s and r["mode"] == mode), np.nan) for s in sizes]
-        ax.bar(x + (k - 1) * width, vals, width, label=mode)
+        for axis, key in ((ax, "median_ms"), (ax2, "upload_median_ms")):
+            vals = [next((r[key] for r in rows if r["triangles"] == s and r["mode"] == mode), np.nan) for s in sizes]
+            if axis is ax2 and mode == "static":
+                continue  # nothing is uploaded
+            axis.bar(x + (k - 1) * width, vals, width, label=mode, color=f"C{k}")
     ax.axhline(1000 / 60, color="0.4", lw=0.8, ls="--", label="60 fps")
-    ax.set_yscale("log")
-    ax.set_xticks(x, [f"{s:,}" for s in sizes])
-    ax.set_xlabel("triangles")
-    ax.set_ylabel("frame time, median (ms)")
-    ax.set_title(f"Off-screen frame time {info['size'][0]}x{info['size'][1]} ({info['renderer'][:40]})", fontsize=9)
-    ax.legend(fontsize=8)
+    for axis, title in ((ax, "frame time (upload + draw + finish)"), (ax2, "upload of moved vertices + normals")):
+        axis.set_yscale("log")
+        axis.set_xticks(x, [f"{s:,}" for s in sizes])
+        axis.set_xlabel("triangles")
+        axis.set_ylabel("median (ms)")
+        axis.set_title(title, fontsize=9)
+        axis.legend(fontsize=8)
+    fig.suptitle(f"Off-screen renderer, {info['size'][0]}x{info['size'][1]}, {info['renderer'][:48]}", fontsize=10)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

@@ -137,7 +137,9 @@ class Renderer:
         s = frame.scale
         ctx.scissor = None
         ctx.viewport = (0, 0, W, H)
-        fbo.clear(*frame.background, depth=1.0)
+        covered = sum(v.rect.scaled(s).w * v.rect.scaled(s).h for v in frame.views)
+        if covered < W * H:  # viewports clear their own rectangles; clear the rest only when some shows
+            fbo.clear(*frame.background, depth=1.0)
         for view in frame.views:
             r = view.rect.scaled(s)
             if r.w <= 0 or r.h <= 0:
