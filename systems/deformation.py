@@ -1,7 +1,8 @@
 """Deformation: serves grab / release / cut / add-link requests on deformable bodies with ChainMail.
 
 Stage: simulation (ORDER_DEFORMATION; the scripted puller just before it). Reads GrabRequest,
-ReleaseRequest, CutRequest, AddLinksRequest (game.deform_events) and Widget events (to start pulls).
+ReleaseRequest, CutRequest, AddLinksRequest (game.deform_events), Widget events (to start pulls) and
+the view system's Dragged events (a mouse drag on a body pulls the element nearest the grab point).
 Writes Deformable.pos / dirty / version / held / alive, emits Deformed.
 
 Each grab runs one Generalised ChainMail cascade (thesis 5.2.3) from the grabbed elements, then the
@@ -34,11 +35,10 @@ _ORDER_CODES = {"fifo": 0, "balanced": 1, "schill": 2}
 class DeformationState:
     """Event cursors of the deformation systems, and counters for summaries."""
 
-    grabs: object = None
-    releases: object = None
-    cuts: object = None
-    adds: object = None
+    requests: object = None  # one cursor over all events, so requests are served in emission order
     widgets: object = None
+    drag_type: type | None = None  # view_events.Dragged, when the view system is part of the build
+    dragging: dict = field(default_factory=dict)  # entity -> (element, its local start, world grab point)
     cascades: int = 0
     moved_total: int = 0
     errors: list = field(default_factory=list)
@@ -209,54 +209,74 @@ def add_links(d: Deformable, links) -> int:
 
 
 def deformation_system(app) -> None:
+    """Serve every request in the order it was emitted (a release after a grab undoes that grab's hold)."""
     st: DeformationState = app.resource(DeformationState)
     counts: dict[int, list] = {}
-
-    def body(ref):
-        ent = _entity(app, ref)
-        if ent is None or not esper.entity_exists(ent):
-            return None, None
-        return ent, esper.try_component(ent, Deformable)
-
-    for req in st.releases.read():
-        ent, d = body(req.entity)
-        if d is not None:
-            release(d, req.ids)
-    for req in st.grabs.read():
-        ent, d = body(req.entity)
-        if d is None:
-            st.errors.append(f"grab: no deformable entity {req.entity!r}")
-            continue
-        try:
-            pts = _to_local(ent, as_points(req.targets, "GrabRequest.targets"), req.frame)
-            changed = grab(d, req.ids, pts, hold=req.hold)
-        except ValueError as e:
-            st.errors.append(f"grab on {req.entity!r}: {e}")
-            continue
-        st.cascades += 1
-        st.moved_total += len(changed)
-        c = counts.setdefault(ent, [0, 0, 0])
-        c[0] += len(changed)
-    for req in st.cuts.read():
-        ent, d = body(req.entity)
-        if d is None:
-            continue
-        try:
-            counts.setdefault(ent, [0, 0, 0])[1] += cut(d, ent, req)
-        except ValueError as e:
-            st.errors.append(f"cut on {req.entity!r}: {e}")
-    for req in st.adds.read():
-        ent, d = body(req.entity)
-        if d is None:
-            continue
-        try:
-            counts.setdefault(ent, [0, 0, 0])[2] += add_links(d, req.links)
-        except ValueError as e:
-            st.errors.append(f"add links on {req.entity!r}: {e}")
+    drag_type = type(None) if st.drag_type is None else st.drag_type
+    for ev in st.requests.read():
+        if isinstance(ev, drag_type):
+            for req in _drag_requests(st, ev):
+                _serve(app, st, req, counts)
+        elif isinstance(ev, REQUESTS):
+            _serve(app, st, ev, counts)
     for ent, (m, c, a) in counts.items():
         if m or c or a:
             app.events.emit(Deformed(ent, m, c, a))
     del st.errors[:-20]  # keep the last few for summaries and tests
+
+
+REQUESTS = (GrabRequest, ReleaseRequest, CutRequest, AddLinksRequest)
+
+
+def _serve(app, st: DeformationState, req, counts: dict) -> None:
+    ent = _entity(app, req.entity)
+    d = esper.try_component(ent, Deformable) if ent is not None and esper.entity_exists(ent) else None
+    if d is None:
+        st.errors.append(f"{type(req).__name__}: no deformable entity {req.entity!r}")
+        return
+    c = counts.setdefault(ent, [0, 0, 0])
+    try:
+        if isinstance(req, GrabRequest):
+            pts = _to_local(ent, as_points(req.targets, "GrabRequest.targets"), req.frame)
+            changed = grab(d, req.ids, pts, hold=req.hold)
+            st.cascades += 1
+            st.moved_total += len(changed)
+            c[0] += len(changed)
+        elif isinstance(req, ReleaseRequest):
+            release(d, req.ids)
+        elif isinstance(req, CutRequest):
+            c[1] += cut(d, ent, req)
+        else:
+            c[2] += add_links(d, req.links)
+    except ValueError as e:
+        st.errors.append(f"{type(req).__name__} on {req.entity!r}: {e}")
+
+
+def _drag_requests(st: DeformationState, ev) -> list:
+    """A mouse drag on a deformable body (view_events.Dragged) as grab and release requests.
+
+    The element nearest the grab point follows the cursor: its target is its position at the start plus
+    the cursor's displacement in the plane the view system drags in.
+    """
+    ent = ev.entity
+    d = esper.try_component(ent, Deformable) if esper.entity_exists(ent) else None
+    if d is None:
+        return []
+    if ev.phase == "start":
+        local = _to_local(ent, np.asarray([ev.grab_point], dtype=np.float64), "world")[0]
+        v = int(np.argmin(np.sum((d.pos - local) ** 2, axis=1)))
+        st.dragging[ent] = (v, _to_world(ent, d.pos[v][None, :].astype(np.float64))[0],
+                            np.asarray(ev.grab_point, dtype=np.float64))
+        return []
+    if ent not in st.dragging:
+        return []
+    v, start, grab_point = st.dragging[ent]
+    target = start + (np.asarray(ev.point, dtype=np.float64) - grab_point)
+    out = [GrabRequest(ent, np.array([v]), target[None, :], frame="world")]
+    if ev.phase == "end":
+        out.append(ReleaseRequest(ent, np.array([v])))
+        del st.dragging[ent]
+    return out
 
 
 def _path_target(p: Pull, start: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -339,8 +359,14 @@ def plugin(app) -> None:
     if not needed:
         return
     ev = app.events
-    app.insert_resource(DeformationState(ev.reader(GrabRequest), ev.reader(ReleaseRequest), ev.reader(CutRequest),
-                                         ev.reader(AddLinksRequest), ev.reader(Widget)))
+    st = DeformationState(ev.reader(None), ev.reader(Widget))
+    try:
+        from game.view_events import Dragged
+
+        st.drag_type = Dragged
+    except ImportError:  # a build without the view system: drags simply never arrive
+        pass
+    app.insert_resource(st)
     if pulls:
         app.add_system("simulation", pull_system, order=ORDER_PULL, name="pull")
     app.add_system("simulation", deformation_system, order=ORDER_DEFORMATION, name="deformation")

@@ -267,3 +267,72 @@ def test_bad_tables_are_one_line_user_errors(tmp_path, table, needle):
     with pytest.raises(UserError) as err:
         build_app(make_pack(tmp_path, table)).close()
     assert needle in str(err.value) and "\n" not in str(err.value)
+
+
+def test_mouse_drag_pulls_the_nearest_element_and_releases_it(tmp_path):
+    from game.view_events import Dragged
+
+    app = build_app(make_pack(tmp_path, SHEET.format(material="medium") + """
+[entities.body.transform]
+position = [0.0, 0.0, 50.0]
+"""))
+    try:
+        ent, d = body(app)
+        grab_world = d.rest[60] + [0.1, 0.0, 50.0]
+        app.events.emit(Dragged("front", ent, "body", "start", 0, tuple(grab_world), tuple(grab_world)))
+        app.events.emit(Dragged("front", ent, "body", "move", 0, tuple(grab_world), tuple(grab_world + [0, 0, 4.0])))
+        app.run_steps(1)
+        np.testing.assert_allclose(d.pos[60], d.rest[60] + [0, 0, 4.0])
+        assert d.held.tolist() == [60]
+        app.events.emit(Dragged("front", ent, "body", "end", 0, tuple(grab_world), tuple(grab_world + [0, 0, 5.0])))
+        app.run_steps(1)
+        np.testing.assert_allclose(d.pos[60], d.rest[60] + [0, 0, 5.0])
+        assert len(d.held) == 0
+    finally:
+        app.close()
+
+
+def test_cut_kills_crossed_links_and_the_pieces_move_apart(tmp_path):
+    from game.deform_events import CutRequest
+
+    app = build_app(make_pack(tmp_path, SHEET.format(material="rigid")))
+    try:
+        ent, d = body(app)
+        seen = app.events.reader(Deformed)
+        # a blade across the whole sheet at x = 0.5 (between grid columns), pressed along z
+        app.events.emit(CutRequest("body", p0=[0.5, -20.0, 0.0], p1=[0.5, 20.0, 0.0], normal=[0.0, 0.0, 1.0], frame="local"))
+        app.run_steps(1)
+        cut = [e for e in seen.read() if e.cut_count]
+        assert cut and cut[0].cut_count == int((~d.alive).sum()) > 0
+        a, b = d.rest[d.graph.links[~d.alive, 0], 0], d.rest[d.graph.links[~d.alive, 1], 0]
+        assert np.all(np.minimum(a, b) < 0.5) and np.all(np.maximum(a, b) > 0.5)
+        left = int(np.argmin(d.rest[:, 0]))
+        app.events.emit(GrabRequest("body", [left], d.rest[left] + [0, 0, 3.0], frame="local"))
+        app.run_steps(1)
+        right_side = d.rest[:, 0] > 0.5
+        np.testing.assert_array_equal(d.pos[right_side], d.rest[right_side])  # no link left to pull them
+        assert np.all(d.pos[~right_side, 2] == 3.0)
+    finally:
+        app.close()
+
+
+def test_added_links_join_pieces_with_the_body_material(tmp_path):
+    from game.deform_events import AddLinksRequest, CutRequest
+
+    app = build_app(make_pack(tmp_path, SHEET.format(material="rigid")))
+    try:
+        ent, d = body(app)
+        app.events.emit(CutRequest("body", p0=[0.5, -20.0, 0.0], p1=[0.5, 20.0, 0.0], normal=[0.0, 0.0, 1.0], frame="local"))
+        app.run_steps(1)
+        m = d.graph.n_links
+        a = int(np.argmin(np.abs(d.rest[:, 0] - 0.0) + np.abs(d.rest[:, 1])))
+        b = int(np.argmin(np.abs(d.rest[:, 0] - 1.0) + np.abs(d.rest[:, 1])))
+        app.events.emit(AddLinksRequest("body", [[a, b]]))
+        app.run_steps(1)
+        assert d.graph.n_links == m + 1 and len(d.amin) == m + 1 and d.amin[-1] == 1.0 and d.amax[-1] == 1.0
+        left = int(np.argmin(d.rest[:, 0]))
+        app.events.emit(GrabRequest("body", [left], d.rest[left] + [0, 0, 3.0], frame="local"))
+        app.run_steps(1)
+        np.testing.assert_allclose(d.pos[:, 2], 3.0)  # the stitch carries the pull across the cut
+    finally:
+        app.close()
