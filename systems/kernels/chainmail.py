@@ -165,10 +165,53 @@ def _box(rest, pos, e, s, a, amin_l, amax_l, beta_l):
 
 
 @njit(cache=True, inline="always")
+def _clamp_axis(pos, e, a, base, d, o, amin_l, amax_l, beta_l):
+    """Clamp coordinate a of e into its interval; True when the stored value changed."""
+    ad = abs(d)
+    if d >= 0.0:
+        lo = base + (amin_l * ad - beta_l * o)
+        hi = base + (amax_l * ad + beta_l * o)
+    else:
+        lo = base - (amax_l * ad + beta_l * o)
+        hi = base - (amin_l * ad - beta_l * o)
+    x = np.float64(pos[e, a])
+    if x < lo:
+        c = lo
+    elif x > hi:
+        c = hi
+    else:
+        return False
+    old = pos[e, a]
+    pos[e, a] = c  # cast to pos's dtype here, so float32 meshes compare what they store
+    return pos[e, a] != old
+
+
+@njit(cache=True, inline="always")
 def _try_move(rest, pos, e, s, amin_l, amax_l, beta_l):
-    """Clamp e into its box w.r.t. s, in place; True when e actually changed."""
+    """Clamp e into its box w.r.t. s, in place; True when e actually changed.
+
+    Written out per dimension (same arithmetic, same order as _box) because this is the inner loop.
+    """
+    dim = pos.shape[1]
+    if dim == 3:
+        d0 = np.float64(rest[e, 0]) - np.float64(rest[s, 0])
+        d1 = np.float64(rest[e, 1]) - np.float64(rest[s, 1])
+        d2 = np.float64(rest[e, 2]) - np.float64(rest[s, 2])
+        a0 = abs(d0)
+        a1 = abs(d1)
+        a2 = abs(d2)
+        m0 = _clamp_axis(pos, e, 0, np.float64(pos[s, 0]), d0, a1 + a2, amin_l, amax_l, beta_l)
+        m1 = _clamp_axis(pos, e, 1, np.float64(pos[s, 1]), d1, a0 + a2, amin_l, amax_l, beta_l)
+        m2 = _clamp_axis(pos, e, 2, np.float64(pos[s, 2]), d2, a0 + a1, amin_l, amax_l, beta_l)
+        return m0 or m1 or m2
+    if dim == 2:
+        d0 = np.float64(rest[e, 0]) - np.float64(rest[s, 0])
+        d1 = np.float64(rest[e, 1]) - np.float64(rest[s, 1])
+        m0 = _clamp_axis(pos, e, 0, np.float64(pos[s, 0]), d0, abs(d1), amin_l, amax_l, beta_l)
+        m1 = _clamp_axis(pos, e, 1, np.float64(pos[s, 1]), d1, abs(d0), amin_l, amax_l, beta_l)
+        return m0 or m1
     moved = False
-    for a in range(pos.shape[1]):
+    for a in range(dim):
         lo, hi = _box(rest, pos, e, s, a, amin_l, amax_l, beta_l)
         x = np.float64(pos[e, a])
         if x < lo:
@@ -178,7 +221,7 @@ def _try_move(rest, pos, e, s, amin_l, amax_l, beta_l):
         else:
             continue
         old = pos[e, a]
-        pos[e, a] = c  # cast to pos's dtype here, so float32 meshes compare what they store
+        pos[e, a] = c
         if pos[e, a] != old:
             moved = True
     return moved
