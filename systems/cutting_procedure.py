@@ -318,18 +318,21 @@ class ToolsSystem:
             self.lift_blade(app)
         elif name in ("pull", "pull_by", "push"):
             f = esper.component_for_entity(st.forceps, Forceps)
+            if name == "push":
+                value = PUSH_BUTTON_MM if ev.value is None else ev.value
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                    raise UserError(f"widget 'push': value must be a depth in mm, got {ev.value!r}")
+            else:
+                value = parse_point(ev.value, f"widget '{name}'")
             if st.tool != "forceps" or f.held_entity < 0:
                 self.say(app, "Choose the forceps and grip the tissue first.")
                 return
             if name == "push":
-                depth = PUSH_BUTTON_MM if ev.value is None else ev.value
-                if isinstance(depth, bool) or not isinstance(depth, (int, float)) or not math.isfinite(depth):
-                    raise UserError(f"widget 'push': value must be a depth in mm, got {ev.value!r}")
-                self.push(app, float(depth))
+                self.push(app, float(value))
             elif name == "pull":
-                self.aim(f, parse_point(ev.value, "widget 'pull'"))
+                self.aim(f, value)
             else:
-                self.aim(f, f.target + parse_point(ev.value, "widget 'pull_by'"))
+                self.aim(f, f.target + value)
 
     def on_pick(self, app, ev: Picked) -> None:
         if ev.button != "left":
@@ -369,9 +372,34 @@ class ToolsSystem:
                 self.lift_blade(app)
                 self.touch(app, ev.entity, ev.grab_point, normal)
             else:
-                self.touch(app, ev.entity, ev.point, normal)
+                s = esper.component_for_entity(st.scissors, Scissors)
+                if s.stroke_entity >= 0 and cam is not None:
+                    self.touch(app, ev.entity, self.on_layer(app, s, cam.eye, ev.point), normal)
                 if ev.phase == "end":
                     self.lift_blade(app)
+
+    def on_layer(self, app, s: Scissors, eye, point) -> np.ndarray:
+        """Where the line of sight through a drag point meets the layer being cut (the drag point itself
+        lies on a plane facing the camera, which leaves the tissue as the cursor moves away): on the
+        layer's live surface, else on the plane through the path's last point along the layer."""
+        from game.picking import entity_surface, ray_mesh
+
+        eye = np.asarray(eye, dtype=np.float64)
+        ray = np.asarray(point, dtype=np.float64) - eye
+        ray /= max(float(np.linalg.norm(ray)), 1e-12)
+        surf = entity_surface(app, s.stroke_entity)
+        if surf is not None:
+            verts, tris, ids = surf
+            hit = ray_mesh(eye, ray, verts, tris[ids])
+            if hit is not None:
+                return eye + hit[1] * ray
+        d = self.body(s.stroke_entity)
+        last = s.stroke[-1]
+        n = element_normal(app, s.stroke_entity, d, nearest_element(s.stroke_entity, d, last)[0])
+        denom = float(ray @ n)
+        if abs(denom) < 1e-9:
+            return np.asarray(point, dtype=np.float64)
+        return eye + float((last - eye) @ n) / denom * ray
 
     def on_scroll(self, app, ev: Scroll) -> None:
         from systems.view import ViewState
@@ -386,14 +414,21 @@ class ToolsSystem:
 
     def __call__(self, app) -> None:
         st = self.st
-        for ev in st.widgets.read():
-            self.on_widget(app, ev)
+        # Within one frame: the tool choice first, then touches and drags (the view system reports
+        # them after the raw input events), then what the hand does with the tool.
+        widgets = st.widgets.read()
+        for ev in widgets:
+            if ev.name in TOOLS:
+                self.on_widget(app, ev)
         for ev in st.picks.read():
             self.on_pick(app, ev)
         for ev in st.drags.read():
             self.on_drag(app, ev)
         for ev in st.scrolls.read():
             self.on_scroll(app, ev)
+        for ev in widgets:
+            if ev.name not in TOOLS:
+                self.on_widget(app, ev)
         self.move_tip(app)
         f = esper.component_for_entity(st.forceps, Forceps)
         if f.release_on_arrival and not f.moving:
@@ -745,6 +780,13 @@ def plugin(app) -> None:
     st.deformed = ev.reader(Deformed)
     st.tool_widgets = ev.reader(Widget)
     app.insert_resource(st)
+    from systems.deformation import DeformationState
+
+    ds = app.get_resource(DeformationState)
+    if ds is not None:
+        # the instruments interpret mouse drags (grip at the forceps' speed, or cut), so the deformation
+        # system's own drag-to-pull must not act on them as well
+        ds.drag_type = None
     if not app.has_resource(Assessment):
         app.insert_resource(Assessment())
     app.add_system("simulation", ToolsSystem(app, st), order=ORDER_KINEMATICS, name="cutting_tools")
