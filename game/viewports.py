@@ -131,7 +131,8 @@ class Camera:
         """World points (K, 3) -> (K, 3): window x, y (continuous pixels) and NDC depth in [-1, 1]."""
         p = np.atleast_2d(np.asarray(points, float))
         clip = np.c_[p, np.ones(len(p))] @ self.view_projection(rect.aspect).T
-        ndc = clip[:, :3] / clip[:, 3:4]
+        with np.errstate(divide="ignore", invalid="ignore"):  # points in the eye's plane: inf/nan, never drawn
+            ndc = clip[:, :3] / clip[:, 3:4]
         x = rect.x + (ndc[:, 0] + 1.0) * 0.5 * rect.w
         y = rect.y + (ndc[:, 1] + 1.0) * 0.5 * rect.h
         return np.c_[x, y, ndc[:, 2]]

@@ -24,7 +24,7 @@ import numpy as np
 from components.core import Label, Marker, MeshRef, PolyLine, Transform
 from game.app import ORDER_RENDER
 from game.hud import HudState
-from game.loader import PackResource
+from game.loader import EntityIndex, PackResource
 from game.resources import InputState, Settings
 from game.widgets import WidgetState
 
@@ -179,7 +179,7 @@ def collect_frame(app):
         renderer.forget(key)  # entity removed
     for ent, (mk, tr) in esper.get_components(Marker, Transform):
         if mk.visible:
-            frame.markers.append((np.asarray(tr.position, float), float(mk.radius), tuple(float(c) for c in mk.color)))
+            frame.markers.append((np.asarray(tr.position, float), float(mk.radius), tuple(float(c) for c in mk.color), ent))
     for ent, pl in esper.get_component(PolyLine):
         if pl.visible and len(pl.points) >= 2:
             frame.lines.append((np.asarray(pl.points, float).reshape(-1, 3), tuple(float(c) for c in pl.color)))
@@ -189,12 +189,18 @@ def collect_frame(app):
         half = 0.6 * float(np.linalg.norm(hi - lo)) if np.all(np.isfinite(lo)) else 100.0
         frame.planes = _plane_quads(pack, max(half, 1.0))
     st: WidgetState = app.resource(WidgetState)
+    index = app.get_resource(EntityIndex)
     for vp in vs.viewports:
         if not vp.visible:
             continue
-        frame.views.append(ViewDraw(vp.name, vp.kind, vp.rect, vp.camera, vp.spec.get("title", "")))
+        hide = -1
+        if vp.kind == "attached" and index is not None:  # the camera's own entity would fill the view
+            hide = index.get(vp.spec.get("attach", ""), -1)
+        frame.views.append(ViewDraw(vp.name, vp.kind, vp.rect, vp.camera, vp.spec.get("title", ""), hide_entity=hide))
         if vp.kind == "panel":
-            frame.panels.append(PanelDraw(vp.name, vp.rect, vp.spec.get("title", ""), vs.panels.get(vp.name, []), st.values, st.disabled))
+            placed = vs.panels.get(vp.name, [])
+            hint = next((p.spec.get("help", "") for p in placed if p.spec["name"] == vs.hover), "")
+            frame.panels.append(PanelDraw(vp.name, vp.rect, vp.spec.get("title", ""), placed, st.values, st.disabled, hint))
     frame.hud = app.get_resource(HudState)
     shown3d = [v for v in frame.views if v.kind != "panel"]
     orbit = [v for v in shown3d if v.kind == "orbit"]

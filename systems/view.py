@@ -38,7 +38,7 @@ from game import widgets as wd
 from game.app import ORDER_VIEW
 from game.errors import UserError
 from game.hud import HudState
-from game.input_events import Key, MouseButton, MouseDrag, PickPoint, Resize, Scroll, Widget
+from game.input_events import Key, MouseButton, MouseDrag, MouseMove, PickPoint, Resize, Scroll, Widget
 from game.loader import EntityIndex, PackResource
 from game.resources import InputState, Settings
 from game.view_events import Dragged, LayerChanged, Picked
@@ -82,6 +82,7 @@ class ViewState:
     xray: set[str] = field(default_factory=set)
     panels: dict[str, list[wd.Placed]] = field(default_factory=dict)
     show_help: bool = False
+    hover: str = ""  # widget under the pointer (its `help` is shown in the panel)
     # pointer capture (runtime)
     active: str | None = None
     press: tuple[float, float, str] | None = None
@@ -301,6 +302,11 @@ class ViewSystem:
                 (self.press if ev.pressed else self.release)(app, vs, ev)
             elif isinstance(ev, MouseDrag):
                 self.drag(app, vs, ev)
+            elif isinstance(ev, MouseMove):
+                vp = vs.at(ev.x, ev.y)
+                placed = vs.panels.get(vp.name, []) if vp is not None and vp.kind == "panel" else []
+                under = next((p for p in reversed(placed) if p.rect.contains(ev.x, ev.y)), None)
+                vs.hover = under.spec["name"] if under is not None else ""
             elif isinstance(ev, Scroll):
                 vp = vs.at(ev.x, ev.y)
                 if vp is not None and vp.mouse_camera and isinstance(vp.camera, OrbitCamera):

@@ -47,6 +47,7 @@ class ViewDraw:
     camera: Camera | None
     title: str = ""
     clear: tuple | None = None  # RGBA; None: the frame background (3-D) or the panel colour
+    hide_entity: int = -1  # not drawn in this view (an attached camera's own entity)
 
 
 @dataclass(slots=True)
@@ -57,6 +58,7 @@ class PanelDraw:
     placed: list  # game.widgets.Placed
     values: dict
     disabled: set
+    hint: str = ""  # help of the widget under the pointer, shown at the bottom
 
 
 @dataclass(slots=True)
@@ -67,7 +69,7 @@ class Frame:
     views: list[ViewDraw] = field(default_factory=list)
     meshes: list[MeshDraw] = field(default_factory=list)
     lines: list[tuple] = field(default_factory=list)  # (points (K, 3), RGBA)
-    markers: list[tuple] = field(default_factory=list)  # (position, radius, RGBA)
+    markers: list[tuple] = field(default_factory=list)  # (position, radius, RGBA, entity)
     planes: list[tuple] = field(default_factory=list)  # (corners (4, 3), RGBA)
     labels: list[tuple] = field(default_factory=list)  # (position, text, RGBA)
     panels: list[PanelDraw] = field(default_factory=list)
@@ -149,7 +151,7 @@ class Renderer:
             ctx.viewport = (r.x, r.y, r.w, r.h)
             fbo.clear(*clear, depth=1.0, viewport=(r.x, r.y, r.w, r.h))
             if view.camera is not None and view.kind != "panel":
-                self._scene(frame, view.camera, r, fbo)
+                self._scene(frame, view.camera, r, fbo, view.hide_entity)
         ctx.scissor = None
         ctx.viewport = (0, 0, W, H)
         self.overlay.set_scale(s)
@@ -190,7 +192,7 @@ class Renderer:
         _set(self.line_prog, "u_color", tuple(float(c) for c in color))
         self.dyn_vao.render(mode, vertices=len(pts))
 
-    def _scene(self, frame: Frame, cam: Camera, r: Rect, fbo) -> None:
+    def _scene(self, frame: Frame, cam: Camera, r: Rect, fbo, hide: int = -1) -> None:
         ctx = self.ctx
         vp = cam.view_projection(r.aspect)
         eye = np.asarray(cam.eye, float)
@@ -199,12 +201,16 @@ class Renderer:
         fbo.depth_mask = True
         see_through = []
         for m in frame.meshes:
+            if hide >= 0 and m.entity == hide:
+                continue
             if m.color[3] < 0.999:
                 see_through.append(("mesh", m))
             else:
                 self._draw_mesh(m, vp, eye)
-        for pos, radius, color in frame.markers:
-            md = MeshDraw(self.sphere, _trs(pos, radius), color)
+        for pos, radius, color, ent in frame.markers:
+            if hide >= 0 and ent == hide:
+                continue
+            md = MeshDraw(self.sphere, _trs(pos, radius), color, entity=ent)
             if color[3] < 0.999:
                 see_through.append(("mesh", md))
             else:
@@ -354,19 +360,25 @@ class Renderer:
             self._widget(pl, p, lights, s)
             shown.add(pl.spec["name"])
         y = below_widgets(p.placed, p.rect) * s
-        extra = [(n, v) for n, v in lights.items() if n not in shown]
-        for name, state in extra:
+        hint = f.wrap(p.hint, r.w - 16 * s) if p.hint else []
+        floor = r.y + (len(hint) * f.line_h + 8 * s if hint else 0)
+        for name, state in [(n, v) for n, v in lights.items() if n not in shown]:
             y -= 22 * s
+            if y < floor:
+                break
             ov.disc(r.x + 18 * s, y + 8 * s, 7 * s, LIGHT_RGBA.get(state, LIGHT_RGBA["off"]))
             ov.label(name, r.x + 32 * s, y + 3 * s, TEXT, max_w=r.w - 40 * s)
         if hud is not None and hud.panel_text:
             y -= 6 * s
-            for line in hud.panel_text:
-                for t in f.wrap(line, r.w - 16 * s):
-                    y -= f.line_h
-                    if y < r.y:
-                        return
-                    ov.label(t, r.x + 8 * s, y + f.descent, TEXT)
+            for t in [t for line in hud.panel_text for t in f.wrap(line, r.w - 16 * s)]:
+                y -= f.line_h
+                if y < floor:
+                    break
+                ov.label(t, r.x + 8 * s, y + f.descent, TEXT)
+        if hint:  # the help of the widget under the pointer, along the bottom
+            ov.rect(r.x, r.y, r.w, floor - r.y, (0.08, 0.09, 0.11, 1.0))
+            for i, t in enumerate(reversed(hint)):
+                ov.label(t, r.x + 8 * s, r.y + 4 * s + i * f.line_h + f.descent, DIM)
 
     def _widget(self, pl, p: PanelDraw, lights: dict, s: float) -> None:
         ov, f = self.overlay, self.overlay.font
