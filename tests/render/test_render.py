@@ -413,3 +413,76 @@ def test_partial_uploads_match_a_full_recompute_on_random_patches(gl_ctx):
         gm.release()
     assert runs(np.array([1, 2, 3, 900, 901]), gap=256) == [(1, 4), (900, 902)]
     assert runs(np.array([5, 100]), gap=256) == [(5, 101)]
+
+
+ATTACHED = """
+[meshes.box]
+primitive = "box"
+extents = [60.0, 10.0, 60.0]
+[meshes.shell]
+primitive = "sphere"
+radius = 10.0
+
+[materials.red]
+color = [1.0, 0.0, 0.0, 1.0]
+shading = "unlit"
+[materials.green]
+color = [0.0, 1.0, 0.0, 1.0]
+shading = "unlit"
+
+[entities.target.mesh]
+mesh = "box"
+material = "red"
+[entities.probe.transform]
+position = [0.0, -150.0, 0.0]
+rotation = [0.70710678, -0.70710678, 0.0, 0.0]
+[entities.probe.mesh]
+mesh = "shell"
+material = "green"
+
+[layouts.two]
+[[layouts.two.viewports]]
+name = "room"
+kind = "fixed"
+rect = [0.0, 0.0, 0.5, 1.0]
+distance = 400.0
+yaw = 90.0
+[[layouts.two.viewports]]
+name = "tip"
+kind = "attached"
+attach = "probe"
+rect = [0.5, 0.0, 0.5, 1.0]
+fov = 40.0
+"""
+
+
+def test_attached_view_looks_ahead_of_its_entity_without_drawing_it(make_pack):
+    app = open_app(make_pack(ATTACHED), size=(200, 100))
+    try:
+        _, img = frame_pixels(app)
+        assert tuple(img[50, 150, :3]) == (255, 0, 0)  # the target straight ahead of the probe's +Z
+        tip = img[:, 100:, :3].reshape(-1, 3)
+        assert not np.any(np.all(tip == (0, 255, 0), axis=1))  # its own shell is not in the way
+        room = img[:, :100, :3].reshape(-1, 3)
+        assert np.any(np.all(room == (0, 255, 0), axis=1))  # but the room view shows it
+    finally:
+        app.close()
+
+
+def test_hidpi_target_draws_the_same_layout_at_twice_the_pixels(make_pack):
+    from systems.render import RenderTarget, draw, read_pixels
+
+    app = open_app(make_pack(ATTACHED), size=(200, 100))
+    try:
+        draw(app)
+        one = read_pixels(app).astype(int)
+        app.resource(RenderTarget).scale = 2.0
+        draw(app)
+        two = read_pixels(app).astype(int)
+        assert one.shape == (100, 200, 4)
+        assert two.shape == (200, 400, 4)
+        # same picture: the 2x image sampled at the centres of the 1x pixels agrees almost everywhere
+        diff = np.abs(two[1::2, 1::2, :3] - one[:, :, :3]).max(axis=2)
+        assert (diff > 40).mean() < 0.05
+    finally:
+        app.close()

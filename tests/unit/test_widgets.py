@@ -139,3 +139,20 @@ def test_left_drag_in_orbit_viewport_turns_its_camera_only():
         assert not np.allclose(cam.eye, eye0)
     finally:
         app.close()
+
+
+def test_pointer_over_a_widget_selects_its_help():
+    from game.input_events import MouseMove
+
+    app = build_app("loop-demo")
+    try:
+        vs: ViewState = app.resource(ViewState)
+        p = vs.panels["panel"][0]
+        app.resource(PendingInput).extend([(0.0, MouseMove(p.rect.x + 5, p.rect.y + 5))])
+        app.update(0.0)
+        assert vs.hover == "toggle_rod"
+        app.resource(PendingInput).extend([(0.0, MouseMove(10, 10))])
+        app.update(0.0)
+        assert vs.hover == ""
+    finally:
+        app.close()
