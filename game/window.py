@@ -10,7 +10,7 @@ HiDPI: layouts, input events and widgets work in window units; the renderer draw
 framebuffer's resolution (`RenderTarget.scale` = framebuffer pixels per window unit).
 
 Keys: a widget's `key` (pyglet key names, lower case: "t", "left", "space", "f2"; digits "1".."9")
-uses that widget; F1 toggles the help overlay, F12 saves a screenshot (chainsim-shot-FRAME.png in the
+uses that widget (held arrow keys repeat); F1 toggles the help overlay, F12 saves a screenshot (chainsim-shot-FRAME.png in the
 current folder), Esc quits. `--input SCRIPT` plays a script, `--exit-after S` closes after S simulated
 seconds, `--screenshot PNG` saves the last frame on closing, `--record FILE` saves the session.
 """
@@ -153,8 +153,21 @@ def run_window(args) -> int:
             path = render.screenshot(app, f"chainsim-shot-{app.time.frame:06d}.png")
             app.resource(HudState).message(f"saved {path}", 3.0)
             return pyglet.event.EVENT_HANDLED
+        if symbol in ARROWS:
+            return pyglet.event.EVENT_HANDLED  # arrives through on_text_motion, with key repeat
         pending.push(now(), Key(key_name(symbol), True))
         return pyglet.event.EVENT_HANDLED
+
+    ARROWS = {pyglet.window.key.LEFT: "left", pyglet.window.key.RIGHT: "right",
+              pyglet.window.key.UP: "up", pyglet.window.key.DOWN: "down"}
+    MOTIONS = {pyglet.window.key.MOTION_LEFT: "left", pyglet.window.key.MOTION_RIGHT: "right",
+               pyglet.window.key.MOTION_UP: "up", pyglet.window.key.MOTION_DOWN: "down"}
+
+    @window.event
+    def on_text_motion(motion):
+        # held arrow keys repeat, so a dial on an arrow key keeps turning while it is held
+        if motion in MOTIONS:
+            pending.push(now(), Key(MOTIONS[motion], True))
 
     @window.event
     def on_key_release(symbol, modifiers):

@@ -326,9 +326,35 @@ class ViewSystem:
         self.own.extend(o for o in own if not any(o is e for e in events))
 
 
+def default_layout(app) -> dict:
+    """One orbit viewport framing every mesh, for scenes that name no layout."""
+    import math
+
+    pack = app.resource(PackResource).pack
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    with app.active():
+        for ent, ref in esper.get_component(MeshRef):
+            tr = esper.try_component(ent, Transform)
+            v = pack.mesh(ref.mesh).vertices
+            m = tr.matrix() if tr is not None else np.eye(4)
+            w = v @ m[:3, :3].T + m[:3, 3]
+            lo, hi = np.minimum(lo, w.min(axis=0)), np.maximum(hi, w.max(axis=0))
+    if not np.all(np.isfinite(lo)):
+        lo, hi = np.full(3, -100.0), np.full(3, 100.0)
+    radius = max(float(np.linalg.norm(hi - lo)) / 2, 1.0)
+    fov = 40.0
+    dist = 1.15 * radius / math.sin(math.radians(fov / 2))
+    vp = {"name": "main", "kind": "orbit", "rect": [0.0, 0.0, 1.0, 1.0], "title": "", "target": (lo + hi) / 2,
+          "distance": dist, "yaw": 30.0, "pitch": 25.0, "fov": fov, "near": max(dist / 1000, 1e-3),
+          "far": dist * 10 + radius, "attach": "", "offset": np.zeros(3), "visible": True, "interactive": True}
+    return {"viewports": [vp], "widgets": []}
+
+
 def plugin(app) -> None:
     pres: PackResource = app.resource(PackResource)
     layout = pres.layout
+    if not layout.get("viewports"):
+        layout = {"viewports": default_layout(app)["viewports"], "widgets": layout.get("widgets", [])}
     size = tuple(int(v) for v in app.resource(Settings).get("window_size", (1280, 800)))
     app.resource(InputState).window_size = size
     vs = app.insert_resource(build_view_state(layout, size))

@@ -97,3 +97,46 @@ def test_attached_camera_looks_along_rotated_plus_z():
 
 def test_scaled_rect_for_hidpi():
     assert Rect(10, 20, 30, 40).scaled(2.0) == Rect(20, 40, 60, 80)
+
+
+def test_a_scene_without_layout_gets_one_orbit_view_framing_every_mesh(tmp_path):
+    import esper
+
+    from components.core import MeshRef, Transform
+    from game.headless import build_app
+    from game.loader import PackResource
+    from systems.view import ViewState
+
+    root = tmp_path / "bare"
+    root.mkdir()
+    (root / "pack.toml").write_text("""
+[pack]
+name = "bare"
+format = 1
+[meshes.ball]
+primitive = "sphere"
+radius = 40.0
+[entities.a.transform]
+position = [500.0, 200.0, 30.0]
+[entities.a.mesh]
+mesh = "ball"
+[entities.b.transform]
+position = [650.0, 260.0, -20.0]
+[entities.b.mesh]
+mesh = "ball"
+""", encoding="utf-8")
+    app = build_app(str(root))
+    try:
+        vs = app.resource(ViewState)
+        assert [v.name for v in vs.viewports] == ["main"]
+        vp = vs.viewports[0]
+        assert vp.kind == "orbit" and vp.rect == Rect(0, 0, 1280, 800)
+        pack = app.resource(PackResource).pack
+        with app.active():
+            for _, (ref, tr) in esper.get_components(MeshRef, Transform):
+                pts = pack.mesh(ref.mesh).vertices + tr.position
+                px = vp.camera.project(pts, vp.rect)
+                assert np.all((px[:, 0] > 0) & (px[:, 0] < 1280) & (px[:, 1] > 0) & (px[:, 1] < 800))
+                assert np.all(np.abs(px[:, 2]) < 1.0)
+    finally:
+        app.close()
