@@ -609,8 +609,6 @@ class StepsSystem:
                 s.links_cut += ev.cut_count
         if st.pending_view:
             apply_view(app, st, st.pending_view)
-            if hud is not None:
-                hud.message(f"{st.pending_view.capitalize()} chosen: the views moved to the best view for it.", 3.0)
             st.pending_view = ""
         draw_tools(st)
         pres: PackResource = app.resource(PackResource)
