@@ -104,27 +104,36 @@ class Workspace:
         self.gen = 0
         self.out_order = np.empty(n, dtype=np.int64)
         self.out_sponsor = np.empty(n, dtype=np.int64)
-        self.q_entry = np.empty(0, dtype=np.int64)   # CSR entry index (gives element and link)
-        self.q_sponsor = np.empty(0, dtype=np.int64)
-        self.q_aux = np.empty(0, dtype=np.int64)     # depth (balanced) or sequence number (Schill)
-        self.q_next = np.empty(0, dtype=np.int64)    # branch linked lists (balanced)
+        self.q_entry = np.empty(0, dtype=np.int32)   # CSR entry index (gives element and link)
+        self.q_sponsor = np.empty(0, dtype=np.int32)
+        self.q_aux = np.empty(0, dtype=np.int32)     # depth (balanced) or sequence number (Schill)
+        self.q_next = np.empty(0, dtype=np.int32)    # branch linked lists (balanced)
         self.q_key = np.empty(0, dtype=np.float64)   # violation (Schill)
         self.branch_head = np.empty(0, dtype=np.int64)
         self.branch_tail = np.empty(0, dtype=np.int64)
 
-    def ensure(self, capacity: int, order: int = ORDER_BALANCED) -> None:
-        """Make the waiting-list buffers hold `capacity` entries for `order` (FIFO needs none)."""
+    def ensure(self, capacity: int, order: int = ORDER_BALANCED, branches: int | None = None) -> None:
+        """Make the waiting-list buffers hold `capacity` entries for `order` (FIFO needs none).
+
+        `capacity` bounds the entries one cascade can queue: the CSR size plus K. Entries are int32
+        while that fits, halving the memory of the balanced and Schill orders on big meshes.
+        `branches` (balanced order) bounds the branches, i.e. the links of the grabbed elements.
+        """
         if order == ORDER_FIFO:
             return
         cap = max(int(capacity), 16)
-        if cap > self.q_entry.shape[0]:
-            self.q_entry = np.empty(cap, dtype=np.int64)
-            self.q_sponsor = np.empty(cap, dtype=np.int64)
-            self.q_aux = np.empty(cap, dtype=np.int64)
-        if order == ORDER_BALANCED and cap > self.q_next.shape[0]:
-            self.q_next = np.empty(cap, dtype=np.int64)
-            self.branch_head = np.empty(cap, dtype=np.int64)
-            self.branch_tail = np.empty(cap, dtype=np.int64)
+        idx = np.int32 if cap < 2**31 - 1 else np.int64
+        if cap > self.q_entry.shape[0] or (idx is np.int64 and self.q_entry.dtype != np.int64):
+            self.q_entry = np.empty(cap, dtype=idx)
+            self.q_sponsor = np.empty(cap, dtype=idx)
+            self.q_aux = np.empty(cap, dtype=idx)
+        if order == ORDER_BALANCED:
+            if cap > self.q_next.shape[0] or self.q_next.dtype != self.q_entry.dtype:
+                self.q_next = np.empty(cap, dtype=self.q_entry.dtype)
+            nb = cap if branches is None else max(int(branches), 16)
+            if nb > self.branch_head.shape[0]:
+                self.branch_head = np.empty(nb, dtype=np.int64)
+                self.branch_tail = np.empty(nb, dtype=np.int64)
         if order == ORDER_SCHILL and cap > self.q_key.shape[0]:
             self.q_key = np.empty(cap, dtype=np.float64)
 
@@ -542,7 +551,12 @@ def cascade(rest, pos, graph: Graph, amin, amax, beta, grabbed, targets, fixed=N
     ws = workspace if workspace is not None else Workspace(n)
     if ws.n != n:
         raise ValueError(f"workspace was made for {ws.n} elements, mesh has {n}")
-    if order != ORDER_FIFO:
+    if order == ORDER_BALANCED:
+        if grabbed.min() < 0 or grabbed.max() >= n:
+            raise ValueError(_START_ERRORS[-1].replace("N)", f"{n})"))
+        branches = int((graph.indptr[grabbed + 1] - graph.indptr[grabbed]).sum())
+        ws.ensure(graph.indices.shape[0] + k, order, branches)
+    elif order == ORDER_SCHILL:
         ws.ensure(graph.indices.shape[0] + k, order)
     gen = ws.next_generation()
     args = (rest, pos, graph.indptr, graph.indices, graph.link, graph.alive, amin, amax, beta,
