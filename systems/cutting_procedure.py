@@ -605,7 +605,7 @@ class StepsSystem:
                 set_wireframe(app, st, bool(on))
         s = esper.component_for_entity(st.scissors, Scissors)
         for ev in st.deformed.read():
-            if ev.cut_count and ev.entity == s.stroke_entity:
+            if ev.cut_count and ev.entity in st.names:  # only the scissors cut in this procedure
                 s.links_cut += ev.cut_count
         if st.pending_view:
             apply_view(app, st, st.pending_view)
