@@ -41,6 +41,21 @@ class RenderTarget:
     scale: float = 1.0  # framebuffer pixels per window pixel
     offscreen: bool = True
     size: tuple[int, int] | None = None  # framebuffer pixels, when fbo.size cannot be trusted (windows)
+    samples: int = 1  # off screen: draw multisampled and resolve into `fbo` (smooth edges in PNGs)
+    msaa: object = None
+
+    def multisampled(self):
+        """The multisampled framebuffer matching `fbo` (off-screen targets with samples > 1)."""
+        if self.msaa is not None and tuple(self.msaa.size) == tuple(self.fbo.size):
+            return self.msaa
+        from game.gl.context import release_framebuffer
+
+        if self.msaa is not None:
+            release_framebuffer(self.ctx, self.msaa)
+        size = tuple(self.fbo.size)
+        self.msaa = self.ctx.framebuffer(color_attachments=[self.ctx.renderbuffer(size, 4, samples=self.samples)],
+                                         depth_attachment=self.ctx.depth_renderbuffer(size, samples=self.samples))
+        return self.msaa
 
     def ensure_size(self, size: tuple[int, int]) -> None:
         """Off-screen targets follow the window layout size."""
@@ -219,7 +234,12 @@ def draw(app):
     with app.active():
         sync_deformables(app)
         frame = collect_frame(app)
-        app.resource(Renderer).render(frame, target.fbo, target.size)
+        if target.offscreen and target.samples > 1:
+            ms = target.multisampled()
+            app.resource(Renderer).render(frame, ms)
+            target.ctx.copy_framebuffer(target.fbo, ms)  # resolves the samples
+        else:
+            app.resource(Renderer).render(frame, target.fbo, target.size)
     return frame
 
 
@@ -279,12 +299,16 @@ def plugin(app) -> None:
     target = app.get_resource(RenderTarget)
     if target is None:
         ctx = egl_context()
-        target = app.insert_resource(RenderTarget(ctx, offscreen_framebuffer(ctx, app.resource(InputState).window_size)))
+        samples = 4 if ctx.max_samples >= 4 else 1
+        target = app.insert_resource(RenderTarget(ctx, offscreen_framebuffer(ctx, app.resource(InputState).window_size),
+                                                  samples=samples))
     renderer = app.insert_resource(Renderer(target.ctx))
 
     def release():
         renderer.release()
         if target.offscreen:
+            if target.msaa is not None:
+                release_framebuffer(target.ctx, target.msaa)
             release_framebuffer(target.ctx, target.fbo)
 
     app.on_close(release)
