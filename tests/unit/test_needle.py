@@ -271,10 +271,16 @@ def test_huge_insertion_step_stops_at_bone_and_bounces_back(run):
     from game.hud import HudState
     from systems.collision import NeedleHit
 
+    from components.needle import Needle
+    from systems.prp_procedure import PrpHandles
+
+    with run.app.active():
+        esper.component_for_entity(run.app.resource(PrpHandles).needle, Needle).max_depth = 1000.0
     run.send(PickPoint("skin", tuple(L1)))
     aim = np.array([0.0, 0.0, PLATE_Z[0]])  # plate between the holes
     run.aim_at(aim)
     run.send(Widget("insert", 200.0), steps=1)  # 200 mm in one step: far past the 4 mm plate
+    assert run.needle.target_depth < 200.0  # the contact cut the jump short
     st = run.needle
     hits = run.emitted(NeedleHit)
     assert [h.object for h in hits] == ["skull"]
