@@ -6,8 +6,10 @@ table; the procedure never deforms tissue itself, it asks `systems.deformation` 
 ReleaseRequest, CutRequest).
 
 Systems:
-  simulation stage, ORDER_KINEMATICS (`tools`): reads Widget, Picked, Dragged and Scroll events and
-      drives the chosen instrument.
+  simulation stage, ORDER_KINEMATICS (`cutting_tools`): reads Widget, Picked, Dragged and Scroll
+      events and drives the chosen instrument. Within one frame the tool choice is applied first, then
+      touches and drags, then pull / push / release. The instruments take over mouse drags from the
+      deformation system (its own drag-to-pull is switched off at build time).
       Forceps: a touch (Picked: a click, or a scripted `pick` event) or the start of a drag on a layer
       grabs that layer's element nearest to the touched point. The tip then follows the hand at most
       `forceps.speed` mm/s, one GrabRequest per fixed step, so a fast hand move becomes a sequence of
@@ -20,16 +22,20 @@ Systems:
       `scissors.min_step` mm further extends the path, and the segment from the previous point is sent
       as a CutRequest for that layer only, so cutting the top layer leaves the one beneath intact. The
       blade's depth direction is the view direction for mouse cuts and the layer's normal for scripted
-      touches. The stroke ends with the drag, `release`, or a change of tool.
+      touches; drag points are carried along the line of sight onto the layer being cut. The stroke ends
+      with the drag, `release`, or a change of tool.
   procedure stage, ORDER_PROCEDURE (`cutting_steps`): tool choice side effects (the frozen controller
-      view and the other views jump to the best view for the tool, 4.5.2), the `wireframe` and `reset`
-      widgets, tool drawing (tip marker, shaft and blade lines, the current cut path), the pack's
+      view jumps to the best view for the tool, 4.5.2; the mouse-driven viewer keeps its own), the
+      `wireframe` and `reset`
+      widgets, tool drawing (tip marker, shaft and blade lines, the current cut path; an idle
+      instrument sits on the tissue point under the cursor, read from MouseMove), the pack's
       [[steps]] (pull, cut, open: each done when what it asks for has happened, in any order, 4.5.2)
       and HUD text.
   procedure stage, ORDER_ASSESSMENT (`cutting_assessment`): game.headless.Assessment values.
 
 Writes: Forceps / Scissors runtime fields, the tools' Transform / Marker / PolyLine, CuttingState
-(resource), HudState, Assessment, viewport cameras (ViewState).
+(resource), HudState, Assessment, viewport cameras (ViewState), the layers' [materials] `wireframe` in
+this run's copy of the pack, DeformationState.drag_type (None).
 """
 
 from __future__ import annotations
@@ -46,7 +52,7 @@ from components.tools import Forceps, Scissors
 from game.app import ORDER_ASSESSMENT, ORDER_KINEMATICS, ORDER_PROCEDURE
 from game.deform_events import CutRequest, Deformed, GrabRequest, ReleaseRequest
 from game.errors import UserError
-from game.input_events import Scroll, Widget
+from game.input_events import MouseMove, Scroll, Widget
 from game.loader import EntityIndex, PackResource
 from game.view_events import Dragged, Picked
 
@@ -91,11 +97,13 @@ class CuttingState:
     path_entity: int = -1  # runtime entity drawing the current cut path
     pending_view: str = ""  # tool whose best view is still to be applied
     drag_origin: tuple | None = None  # (tip, grab point) at the start of a forceps drag
+    hover: np.ndarray | None = None  # world point of the tissue under the cursor (the idle tool sits there)
     # readers (made at build time so no event is missed)
     widgets: object = None
     picks: object = None
     drags: object = None
     scrolls: object = None
+    moves: object = None
     deformed: object = None
     tool_widgets: object = None
     # cached assessment per layer: entity -> (version, alive count, values)
@@ -517,7 +525,9 @@ def draw_tools(st: CuttingState) -> None:
     s = esper.component_for_entity(st.scissors, Scissors)
     lift = np.array([0.0, 0.0, 0.3])  # drawn just above the surface, not inside it
     ftr = esper.component_for_entity(st.forceps, Transform)
-    if f.uses:
+    if f.held_entity < 0 and st.hover is not None:
+        ftr.position = st.hover + lift  # the open forceps hover where the cursor is
+    elif f.uses:
         ftr.position = f.tip.copy()
     shaft = np.array([0.25, 0.45, 1.0])
     shaft /= np.linalg.norm(shaft)
@@ -530,7 +540,9 @@ def draw_tools(st: CuttingState) -> None:
     fl.visible = show_f
     str_ = esper.component_for_entity(st.scissors, Transform)
     along = np.array([0.0, -1.0, 0.0])
-    if len(s.stroke):
+    if s.stroke_entity < 0 and st.hover is not None:
+        str_.position = st.hover + lift
+    elif len(s.stroke):
         str_.position = s.stroke[-1] + lift
         if len(s.stroke) > 1:
             seg = s.stroke[-1] - s.stroke[-2]
@@ -550,6 +562,22 @@ def draw_tools(st: CuttingState) -> None:
     cutting = s.stroke_entity >= 0 and len(s.stroke) > 1
     path.visible = cutting
     path.points = s.stroke + lift if cutting else np.zeros((0, 3))
+
+
+def hover_point(app, st: CuttingState, ev: MouseMove) -> np.ndarray | None:
+    """The tissue point under the cursor in a 3-D view (where the idle instrument is drawn, so the mouse
+    acts as the instrument, 4.5.2), or None off the tissue."""
+    from game.picking import pick
+    from systems.view import ViewState
+
+    vs = app.get_resource(ViewState)
+    vp = vs.at(ev.x, ev.y) if vs is not None else None
+    if vp is None or not vp.is_3d or vp.camera is None:
+        return None
+    hit = pick(app, *vp.camera.ray(ev.x + 0.5, ev.y + 0.5, vp.rect))
+    if hit is None or hit.entity not in st.names:
+        return None
+    return np.asarray(hit.point, dtype=np.float64)
 
 
 def set_wireframe(app, st: CuttingState, on: bool) -> None:
@@ -610,6 +638,9 @@ class StepsSystem:
         if st.pending_view:
             apply_view(app, st, st.pending_view)
             st.pending_view = ""
+        moves = st.moves.read()
+        if moves:
+            st.hover = hover_point(app, st, moves[-1])
         draw_tools(st)
         pres: PackResource = app.resource(PackResource)
         steps = pres.pack.section("steps")
@@ -775,6 +806,7 @@ def plugin(app) -> None:
     st.picks = ev.reader(Picked)
     st.drags = ev.reader(Dragged)
     st.scrolls = ev.reader(Scroll)
+    st.moves = ev.reader(MouseMove)
     st.deformed = ev.reader(Deformed)
     st.tool_widgets = ev.reader(Widget)
     app.insert_resource(st)

@@ -12,11 +12,12 @@ import numpy as np
 import pytest
 
 from components.deformable import Deformable
+from components.core import Transform
 from components.tools import Forceps, Scissors
 from game.errors import UserError
 from game.headless import Assessment, build_app
 from game.hud import HudState
-from game.input_events import MouseButton, MouseDrag, PickPoint, Widget
+from game.input_events import MouseButton, MouseDrag, MouseMove, PickPoint, Widget
 from game.loader import EntityIndex
 from game.resources import PendingInput
 from systems.cutting_procedure import parse_point
@@ -207,6 +208,21 @@ def test_a_mouse_drag_with_the_scissors_cuts_the_top_layer(app):
     assert np.all(np.abs(mid[:, 0] - 0.6) < 2.5) and mid[:, 1].min() > -23.0 and mid[:, 1].max() < 31.0
     s = comp(app, "scissors", Scissors)
     assert s.uses == 1 and s.stroke_entity == -1 and s.path_length > 40.0
+
+
+def test_the_idle_instrument_follows_the_cursor_over_the_tissue(app):
+    app.resource(PendingInput).push(0.0, Widget("scissors"))
+    steps(app, 1)
+    x, y = _pixel(app, "controller", (-10.0, 5.0, 0.0))
+    app.resource(PendingInput).push(app.time.sim_time, MouseMove(x, y))
+    steps(app, 1)
+    pos = comp(app, "scissors", Transform).position
+    assert pos[:2] == pytest.approx([-10.0, 5.0], abs=0.6)  # within a pixel of the cursor
+    assert 0.0 < pos[2] < 1.0  # drawn just above the top layer
+    gone = _pixel(app, "controller", (0.0, 80.0, 0.0))  # off the tissue: the tool stays where it was
+    app.resource(PendingInput).push(app.time.sim_time, MouseMove(*gone))
+    steps(app, 1)
+    assert comp(app, "scissors", Transform).position == pytest.approx(pos)
 
 
 def test_wireframe_switch_changes_only_this_runs_materials(app):
