@@ -139,12 +139,18 @@ def run(args) -> int:
     finally:
         renderer.release()
         release_framebuffer(ctx, fbo)
+    import os
+
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
     info = {"renderer": ctx.info.get("GL_RENDERER", "?"), "gl_version": ctx.info.get("GL_VERSION", "?"),
+            "cpu_count": os.cpu_count(), "load_average_1_5_15": list(load),
             "size": list(args.size), "python": platform.python_version(), "machine": platform.machine(),
             "patch_fraction": args.patch, "rows": rows}
     (out / "results.json").write_text(json.dumps(info, indent=2), encoding="utf-8")
     md = [f"# Render benchmark ({args.size[0]}x{args.size[1]}, {info['renderer']})", "",
-          "Frame time from upload to ctx.finish(); medians over the timed frames.", "",
+          "Frame time from upload to ctx.finish(); medians over the timed frames. "
+          f"{info['cpu_count']} CPUs, load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at the end "
+          "(a software renderer shares those CPUs with everything else running).", "",
           "| triangles | mode | moved vertices | frame median (ms) | frame p90 (ms) | upload median (ms) | fps (median) |",
           "|---:|---|---:|---:|---:|---:|---:|"]
     for r in rows:
