@@ -75,6 +75,8 @@ class Deformable:
                       help="Waiting-list order: fifo (5.2.3), balanced (round robin of Fig. 5.3), schill (largest violation first).")
     depth: int = prop("int", 2, help="Branch depth per turn for the balanced order.", min=1)
     dtype: str = prop("enum", "float64", choices=("float64", "float32"), help="Precision of positions.")
+    drag: bool = prop("bool", False, help="A mouse drag on the body pulls the element nearest the grab point "
+                                          "(off when a procedure's tools do the grabbing).")
 
     # --- runtime state (not manifest keys) -----------------------------------------------------
     pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))

@@ -2,7 +2,8 @@
 
 Stage: simulation (ORDER_DEFORMATION; the scripted puller just before it). Reads GrabRequest,
 ReleaseRequest, CutRequest, AddLinksRequest (game.deform_events), Widget events (to start pulls) and
-the view system's Dragged events (a mouse drag on a body pulls the element nearest the grab point).
+the view system's Dragged events (with `deformable.drag`, a mouse drag on a body pulls the element
+nearest the grab point; off by default so a procedure's own tools are the only hands on the tissue).
 Writes Deformable.pos / dirty / version / held / alive, emits Deformed.
 
 Each grab runs one Generalised ChainMail cascade (thesis 5.2.3) from the grabbed elements, then the
@@ -260,7 +261,7 @@ def _drag_requests(st: DeformationState, ev) -> list:
     """
     ent = ev.entity
     d = esper.try_component(ent, Deformable) if esper.entity_exists(ent) else None
-    if d is None:
+    if d is None or not d.drag:
         return []
     if ev.phase == "start":
         local = _to_local(ent, np.asarray([ev.grab_point], dtype=np.float64), "world")[0]

@@ -273,6 +273,7 @@ def test_mouse_drag_pulls_the_nearest_element_and_releases_it(tmp_path):
     from game.view_events import Dragged
 
     app = build_app(make_pack(tmp_path, SHEET.format(material="medium") + """
+drag = true
 [entities.body.transform]
 position = [0.0, 0.0, 50.0]
 """))
@@ -288,6 +289,21 @@ position = [0.0, 0.0, 50.0]
         app.run_steps(1)
         np.testing.assert_allclose(d.pos[60], d.rest[60] + [0, 0, 5.0])
         assert len(d.held) == 0
+    finally:
+        app.close()
+
+
+def test_mouse_drags_are_ignored_unless_the_body_asks_for_them(tmp_path):
+    from game.view_events import Dragged
+
+    app = build_app(make_pack(tmp_path, SHEET.format(material="medium")))
+    try:
+        ent, d = body(app)
+        p = tuple(d.rest[60])
+        app.events.emit(Dragged("front", ent, "body", "start", 0, p, p))
+        app.events.emit(Dragged("front", ent, "body", "move", 0, p, tuple(d.rest[60] + [0, 0, 4.0])))
+        app.run_steps(1)
+        np.testing.assert_array_equal(d.pos, d.rest)
     finally:
         app.close()
 
