@@ -186,9 +186,9 @@ def collect_frame(app):
         if color[3] <= 0.0:
             continue
         frame.meshes.append(MeshDraw(gm, model, tuple(color), bool(mat.get("wireframe", False)), mat.get("shading", "smooth"), ent))
-        c = (model @ np.r_[gm.center(), 1.0])[:3]
-        lo, hi = np.minimum(lo, c - 1.0), np.maximum(hi, c + 1.0)
-        ext = np.abs(model[:3, :3]) @ (gm.pos.max(axis=0) - gm.pos.min(axis=0)) / 2 if gm.n else np.zeros(3)
+        blo, bhi = gm.box()
+        c = (model @ np.r_[0.5 * (blo + bhi), 1.0])[:3]
+        ext = np.abs(model[:3, :3]) @ (bhi - blo) / 2
         lo, hi = np.minimum(lo, c - ext), np.maximum(hi, c + ext)
     for key in [k for k in renderer.meshes if k not in alive_ents]:
         renderer.forget(key)  # entity removed

@@ -91,13 +91,22 @@ class GpuMesh:
         self.stale = False  # everything must be rewritten
         self.bytes_written = 0  # statistics for benchmarks and tests
         self.vaos: dict[str, object] = {}
-        self._center = None
+        self._box = None
+
+    def box(self) -> tuple[np.ndarray, np.ndarray]:
+        """(low, high) corners of a box holding the mesh, in its own frame. After partial uploads it
+        only grows (cheap and still holds the mesh), which is all sorting and plane sizing need."""
+        if self._box is None:
+            if self.n:
+                self._box = (self.pos.min(axis=0).astype(np.float64), self.pos.max(axis=0).astype(np.float64))
+            else:
+                self._box = (np.zeros(3), np.zeros(3))
+        return self._box
 
     def center(self) -> np.ndarray:
-        """Bounding-box centre in the mesh frame (sorting transparent meshes)."""
-        if self._center is None:
-            self._center = 0.5 * (self.pos.min(axis=0) + self.pos.max(axis=0)).astype(np.float64) if self.n else np.zeros(3)
-        return self._center
+        """Box centre in the mesh frame (sorting transparent meshes)."""
+        lo, hi = self.box()
+        return 0.5 * (lo + hi)
 
     # -- vertex arrays -----------------------------------------------------------------------
     def vao(self, prog, kind: str):
@@ -163,10 +172,12 @@ class GpuMesh:
         if len(ids) == 0:
             return 0
         self.pending[ids] = False
-        self._center = None
         if len(ids) > FULL_FRACTION * self.n:
             return self._upload_all(positions)
         self.pos[ids] = positions[ids]
+        if self._box is not None:
+            moved = self.pos[ids]
+            self._box = (np.minimum(self._box[0], moved.min(axis=0)), np.maximum(self._box[1], moved.max(axis=0)))
         if self._csr is None:
             self._csr = incidence(self.n, self.tris)
         ptr, idx = self._csr
@@ -197,7 +208,7 @@ class GpuMesh:
         return len(ids)
 
     def _upload_all(self, positions: np.ndarray) -> int:
-        self._center = None
+        self._box = None
         self.pos[:] = positions
         self.normals[:] = vertex_normals(self.pos, self.tris)
         self.vbo_pos.write(self.pos.tobytes())
