@@ -671,7 +671,7 @@ def _dead(ent: int) -> int:
 def panel_lines(app, st: CuttingState) -> list[str]:
     v = app.resource(_assessment_type()).values
     f = esper.component_for_entity(st.forceps, Forceps)
-    tool = st.tool or "none"
+    tool = st.tool or "none - take the forceps or the scissors"
     if st.tool == "forceps" and f.held_entity >= 0:
         tool += f" (holding {st.names.get(f.held_entity, '?')})"
     lines = [f"Tool: {tool}"]
@@ -819,6 +819,11 @@ def plugin(app) -> None:
         ds.drag_type = None
     if not app.has_resource(Assessment):
         app.insert_resource(Assessment())
+    from game.hud import HudState
+
+    hud = app.get_resource(HudState)
+    if hud is not None:
+        hud.panel_text = ["Tool: none - take the forceps or the scissors"]
     app.add_system("simulation", ToolsSystem(app, st), order=ORDER_KINEMATICS, name="cutting_tools")
     app.add_system("procedure", StepsSystem(st), order=ORDER_PROCEDURE, name="cutting_steps")
     app.add_system("procedure", AssessmentSystem(st), order=ORDER_ASSESSMENT, name="cutting_assessment")

@@ -129,7 +129,7 @@ def test_pull_leaves_the_fixed_edge_and_the_lower_layer_alone(pulled):
     assert v["elements_moved"] == int((np.linalg.norm(d.pos - d.rest, axis=1) > 0.01).sum())
 
 
-def test_pull_stretches_no_link_beyond_alpha_max(pulled):
+def test_the_straight_lift_stretches_no_link_beyond_alpha_max(pulled):
     d = layer(pulled, "dura")
     links = d.graph.links[d.alive]
     ratio = (np.linalg.norm(d.pos[links[:, 1]] - d.pos[links[:, 0]], axis=1)
