@@ -69,8 +69,11 @@ def run_window(args) -> int:
     from game.inputscript import load_script
     from game.resources import PendingInput, Settings
 
+    from game.commands.run import user_settings
+
     script = load_script(args.input) if getattr(args, "input", None) else None
-    app = build_app(args.pack, pack_paths=args.pack_path, headless=False)
+    settings = user_settings(args)  # --db, --class, --trainee for procedures that save attempts
+    app = build_app(args.pack, pack_paths=args.pack_path, headless=False, settings=settings)
     w, h = (int(x) for x in app.resource(Settings).get("window_size", [1280, 800]))
     try:
         window = _open_window(pyglet, w, h, f"chainsim - {args.pack}")
@@ -113,7 +116,8 @@ def run_window(args) -> int:
 
                 log = app.get_resource(InputLog)
                 write_recording(args.record, pack=args.pack, scene=app.resource(render.PackResource).scene, dt=app.time.dt,
-                                steps=app.time.tick, events=log.items if log else [], digest=world_digest(app), settings=None)
+                                steps=app.time.tick, events=log.items if log else [], digest=world_digest(app),
+                                settings=settings or None)
                 print(f"recording: {args.record}")
         finally:
             # close outside the event dispatch that called us; GL objects go before their context
