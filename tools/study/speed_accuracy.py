@@ -1,0 +1,248 @@
+"""The speed-accuracy study (thesis 6.2, Table 6.5 revisited): every model on every scene and
+resolution, scored against the neo-Hookean FEM ground truth.
+
+Reference field per resolution.  The nonlinear FEM is affordable only on the coarsest mesh of a
+scene (SuperLU on 3-D meshes grows far faster than N).  Finer meshes use the composite reference
+    u_ref = u_lin(fine) + interp(u_nl(coarse) - u_lin(coarse)),
+i.e. linear FEM at the fine resolution plus the coarse mesh's nonlinear correction; the finest mesh
+(where even linear FEM is out of budget) uses the interpolated reference of the mesh below.  The
+report names the reference used in every row.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import warnings
+
+import numpy as np
+
+from . import scenes as sc
+from .chainmail_model import ChainMailModel, ChainMailParams
+from .fem_linear import LinearFEM, LockingWarning
+from .fem_nonlinear import NeoHookeanFEM
+from .mass_spring import MassSpring
+from .metrics import displacement_error, median_time, realtime_size, volume_change
+
+E_STUDY, NU_STUDY = 3000.0, 0.45
+STRAINS = [0.01, 0.05, 0.1, 0.25, 0.5]
+QUICK_STRAINS = [0.01, 0.1, 0.5]
+PARETO_STRAIN = 0.1
+RELAX = [0, 4, 16, 64]
+
+# budgets (nodes): above these a solver is not run at that resolution
+LIMITS = {"full": {"nl": 2000, "lin": 12000, "ms": 12000, "ms_explicit": 2000},
+          "quick": {"nl": 1000, "lin": 2500, "ms": 2500, "ms_explicit": 600}}
+
+
+def log(msg: str) -> None:
+    print(f"[study {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+
+
+def default_chainmail_settings():
+    """Materials compared: the thesis's medium and soft objects (6.2.1, after Gibson) and the
+    preset calibrated for this study's material when the presets file has it."""
+    out = {"thesis-medium": ChainMailParams(0.8, 1.2, 0.1), "thesis-soft": ChainMailParams(0.5, 2.5, 0.3)}
+    try:
+        from .calibrate import load_presets
+        p = load_presets().get("soft-tissue")
+        if p:
+            out["soft-tissue"] = ChainMailParams(p["alpha_min"], p["alpha_max"], p["beta"])
+    except Exception as e:          # a broken presets file must not stop the study
+        log(f"presets not used: {e}")
+    return out
+
+
+def _row(scene, res_n, model, strain, u, ref, ref_name, t, iters, status, extra=None):
+    d = strain * scene.length
+    row = {"scene": scene.name, "resolution": res_n, "nodes": scene.n_nodes,
+           "elements": len(scene.tets), "model": model, "strain": strain, "status": status,
+           "time_ms": t * 1e3, "iterations": iters, "reference": ref_name}
+    if u is not None and ref is not None:
+        rms, mx = displacement_error(u, ref, d)
+        row.update({"rms_error": rms, "max_error": mx})
+    if u is not None:
+        row.update(volume_change(scene.pos, scene.tets, u))
+    if extra:
+        row.update(extra)
+    return row
+
+
+def run_scene(name, resolutions, strains, limits, cm_settings, repeats, rows, timings):
+    prev = None                      # (scene, {strain: ref}, {strain: lin}, {strain: nl})
+    for res_n in resolutions:
+        scene = sc.SCENES[name](res_n)
+        n = scene.n_nodes
+        log(f"{name} n={res_n}: {n} nodes, {len(scene.tets)} tets")
+        c = scene.constrained
+        refs, lins, nls = {}, {}, {}
+        ref_name = None
+        # --- linear FEM -------------------------------------------------------------------
+        if n <= limits["lin"]:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", LockingWarning)
+                lin = LinearFEM(scene.pos, scene.tets, E_STUDY, NU_STUDY, c)
+            timings.append({"scene": name, "nodes": n, "model": "linear FEM (precompute)",
+                            "seconds": lin.t_assemble + lin.t_factor})
+            for s in strains:
+                t, r = median_time(lambda: lin.solve(scene.constrained_disp(s)), repeats)
+                lins[s] = r.u
+            log(f"  linear FEM: assemble {lin.t_assemble:.2f}s factor {lin.t_factor:.2f}s")
+        # --- nonlinear FEM ground truth ----------------------------------------------------
+        if n <= limits["nl"]:
+            stamps = {}
+            t0 = time.thread_time()
+            fem = NeoHookeanFEM(scene.pos, scene.tets, E_STUDY, NU_STUDY, c)
+            res = fem.solve_path(scene.constrained_disp(1.0), strains,
+                                 progress=lambda f: stamps.__setitem__(f, time.thread_time() - t0))
+            log(f"  neo-Hookean FEM: {res.status}, {res.info['newton_total']} Newton iterations, "
+                f"{res.info['time']:.1f}s")
+            nls = res.u
+            for s in strains:
+                if s in nls:
+                    refs[s] = nls[s]
+            ref_name = "neo-Hookean FEM (same mesh)"
+            timings.append({"scene": name, "nodes": n, "model": "neo-Hookean FEM path",
+                            "seconds": res.info["time"], "status": res.status})
+            for s in strains:
+                if s in nls:
+                    rows.append(_row(scene, res_n, "neo-Hookean FEM", s, nls[s], refs.get(s),
+                                     ref_name, stamps.get(s, np.nan), res.newton_iterations.get(s),
+                                     "converged"))
+                else:
+                    rows.append(_row(scene, res_n, "neo-Hookean FEM", s, None, None, ref_name,
+                                     np.nan, None, res.status))
+        elif prev is not None:
+            pscene, prefs, plins, pnls = prev
+            for s in strains:
+                if s not in prefs:
+                    continue
+                if s in lins and s in plins:
+                    corr = pscene.interpolate(prefs[s] - plins[s], scene.pos)
+                    refs[s] = lins[s] + corr
+                    ref_name = f"linear FEM + nonlinear correction from {pscene.n_nodes} nodes"
+                else:
+                    refs[s] = pscene.interpolate(prefs[s], scene.pos)
+                    ref_name = f"interpolated from {pscene.n_nodes}-node reference"
+        if lins:
+            for s in strains:
+                rows.append(_row(scene, res_n, "linear FEM", s, lins[s], refs.get(s), ref_name,
+                                 t, 1, "ok", {"precompute_s": lin.t_assemble + lin.t_factor}))
+        # --- ChainMail ---------------------------------------------------------------------
+        cm = ChainMailModel(scene.pos, scene.links, scene.fixed)
+        warm = ChainMailParams(0.9, 1.1, 0.1, 1)
+        cm.solve(scene.grabbed, scene.grab_disp(0.01), warm)        # compile outside timing
+        for label, p in cm_settings.items():
+            for k in RELAX:
+                params = ChainMailParams(p.alpha_min, p.alpha_max, p.beta, k)
+                for s in strains:
+                    t, (u, info) = median_time(
+                        lambda: cm.solve(scene.grabbed, scene.grab_disp(s), params), repeats)
+                    rows.append(_row(scene, res_n, f"ChainMail {label} r{k}", s, u, refs.get(s),
+                                     ref_name, t, k, "ok", {"moved": info["moved"]}))
+        log(f"  ChainMail: {len(cm_settings) * len(RELAX) * len(strains)} runs")
+        # --- mass-spring -------------------------------------------------------------------
+        ms = MassSpring(scene.pos, scene.tets, E_STUDY, fixed=scene.fixed)
+        if n <= limits["ms"]:
+            for s in strains:
+                r = ms.solve(c, scene.constrained_disp(s), scheme="symplectic")
+                rows.append(_row(scene, res_n, "mass-spring symplectic", s, r.u, refs.get(s),
+                                 ref_name, r.info["t_run"], r.steps, r.status,
+                                 {"t_step_ms": r.info["t_step"] * 1e3, "dt": r.dt,
+                                  "dt_eq22": r.info["dt_eq22"], "dt_bound": r.info["dt_bound"]}))
+            log(f"  mass-spring symplectic: {[row['status'] for row in rows[-len(strains):]]}")
+        if n <= limits["ms_explicit"]:
+            s = PARETO_STRAIN
+            r = ms.solve(c, scene.constrained_disp(s), scheme="explicit", max_steps=50_000)
+            rows.append(_row(scene, res_n, "mass-spring explicit", s, r.u, refs.get(s), ref_name,
+                             r.info["t_run"], r.steps, r.status,
+                             {"t_step_ms": r.info["t_step"] * 1e3, "dt": r.dt}))
+            log(f"  mass-spring explicit: {r.status} after {r.steps} steps")
+        # per-step cost at every size (the frame-rate fit uses it even where equilibrium is not run)
+        from .mass_spring import integrate, SYMPLECTIC
+        x = scene.pos.copy()
+        v = np.zeros_like(x)
+        free = np.ones(n, np.bool_)
+        free[c] = False
+        integrate(x, v, ms.links, ms.rest, ms.k, 1.0 / ms.mass, 1.0, free, 1e-9, 1, SYMPLECTIC, 0.0, 1e30)
+        t, _ = median_time(lambda: integrate(x, v, ms.links, ms.rest, ms.k, 1.0 / ms.mass, 1.0,
+                                             free, 1e-9, 10, SYMPLECTIC, 0.0, 1e30), repeats)
+        timings.append({"scene": name, "nodes": n, "model": "mass-spring step", "seconds": t / 10})
+        prev = (scene, refs, lins, nls)
+
+
+def stability_sweep(strain=0.1, n=8):
+    """Mass-spring time step against stability on a small block: eq. (2.2), the exact linearised
+    bound 2/omega_max, and the largest step observed to converge (bisection)."""
+    scene = sc.block(n)
+    c = scene.constrained
+    ms = MassSpring(scene.pos, scene.tets, E_STUDY, fixed=scene.fixed)
+    disp = scene.constrained_disp(strain)
+    base = ms.solve(c, disp, scheme="symplectic", max_steps=1)
+    dt22, bound = base.info["dt_eq22"], base.info["dt_bound"]
+    sweep = []
+    for scheme in ("symplectic", "explicit"):
+        bnd = bound if scheme == "symplectic" else ms.solve(c, disp, scheme="explicit", max_steps=1).info["dt_bound"]
+        for f in (0.25, 0.5, 0.9, 1.0, 1.1, 1.5, 2.0, 4.0):
+            r = ms.solve(c, disp, scheme=scheme, dt=f * dt22, max_steps=20_000)
+            sweep.append({"scheme": scheme, "dt": f * dt22, "dt_over_eq22": f,
+                          "status": r.status, "steps": r.steps, "residual": r.residual})
+        lo, hi = 0.0, 8.0 * max(dt22, bnd)
+        for _ in range(14):
+            mid = 0.5 * (lo + hi)
+            r = ms.solve(c, disp, scheme=scheme, dt=mid, max_steps=20_000)
+            if r.status == "converged":
+                lo = mid
+            else:
+                hi = mid
+        sweep.append({"scheme": scheme, "observed_critical_dt": lo, "linear_bound": bnd})
+    return {"nodes": scene.n_nodes, "strain": strain, "dt_eq22": dt22, "dt_bound_symplectic": bound,
+            "omega_max": base.info["omega_max"], "gamma": base.info["gamma"], "runs": sweep}
+
+
+def realtime_table(rows, timings):
+    """Largest N per model updated at 30 / 60 Hz (power-law fit over the resolutions measured)."""
+    out = []
+    series = {}
+    for r in rows:
+        if r["strain"] != PARETO_STRAIN or not np.isfinite(r["time_ms"]):
+            continue
+        if r["model"].startswith("ChainMail") and not r["model"].endswith(("r0", "r16")):
+            continue
+        series.setdefault((r["scene"], r["model"]), []).append((r["nodes"], r["time_ms"] / 1e3))
+    for t in timings:
+        if t["model"] in ("mass-spring step",):
+            series.setdefault((t["scene"], t["model"]), []).append((t["nodes"], t["seconds"]))
+    for (scene, model), pts in sorted(series.items()):
+        ns, ts = zip(*pts)
+        out.append({"scene": scene, "model": model, "points": len(pts),
+                    "n_30hz": realtime_size(ns, ts, 30.0), "n_60hz": realtime_size(ns, ts, 60.0),
+                    "measured_max_nodes": max(ns)})
+    return out
+
+
+def run(quick: bool, out_dir, scenes=None) -> dict:
+    import numba
+    # the machine is shared and has 2 cores: kernels run on one thread and every time in the
+    # study is CPU time of the calling thread, which other processes' load does not inflate
+    numba.set_num_threads(1)
+    mode = "quick" if quick else "full"
+    limits = LIMITS[mode]
+    strains = QUICK_STRAINS if quick else STRAINS
+    resolutions = sc.QUICK_RESOLUTIONS if quick else sc.RESOLUTIONS
+    repeats = 3 if quick else 5
+    cm_settings = default_chainmail_settings()
+    rows, timings = [], []
+    t0 = time.thread_time()
+    w0 = time.perf_counter()
+    for name in (scenes or list(sc.SCENES)):
+        run_scene(name, resolutions[name], strains, limits, cm_settings, repeats, rows, timings)
+    log("mass-spring stability sweep")
+    stability = stability_sweep(n=6 if quick else 8)
+    results = {"mode": mode, "material": {"E": E_STUDY, "nu": NU_STUDY}, "strains": strains,
+               "pareto_strain": PARETO_STRAIN, "limits": limits, "rows": rows, "timings": timings,
+               "stability": stability, "realtime": realtime_table(rows, timings),
+               "chainmail_settings": {k: vars(v) for k, v in cm_settings.items()},
+               "elapsed_cpu_s": time.thread_time() - t0, "elapsed_wall_s": time.perf_counter() - w0,
+               "clock": "CPU time of the calling thread (numba kernels single-threaded)"}
+    return results
