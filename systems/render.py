@@ -185,7 +185,8 @@ def collect_frame(app):
             color[3] = min(color[3], XRAY_OPACITY)
         if color[3] <= 0.0:
             continue
-        frame.meshes.append(MeshDraw(gm, model, tuple(color), bool(mat.get("wireframe", False)), mat.get("shading", "smooth"), ent))
+        wire = bool(mat.get("wireframe", False)) or (bool(ref.layer) and ref.layer in vs.wire)
+        frame.meshes.append(MeshDraw(gm, model, tuple(color), wire, mat.get("shading", "smooth"), ent))
         blo, bhi = gm.box()
         c = (model @ np.r_[0.5 * (blo + bhi), 1.0])[:3]
         ext = np.abs(model[:3, :3]) @ (bhi - blo) / 2

@@ -22,7 +22,8 @@ system emits directly on the event queue (not through PendingInput, so a recordi
 once and a replay reproduces the widget events from them). Scripted Widget events, released by the
 input system, go through the same `apply_widget` + layer effects, so both have the same effect.
 Toggle `layer` conventions: "NAME" shows/hides entities of layer NAME (and the pack's [planes] when
-NAME is "planes"); "view:NAME" shows/hides viewport NAME; "xray:NAME" draws layer NAME see-through.
+NAME is "planes"); "view:NAME" shows/hides viewport NAME; "xray:NAME" draws layer NAME see-through;
+"wire:NAME" draws layer NAME as its links (wireframe, thesis Figs 5.6-5.7).
 Key "f1" toggles the help overlay.
 """
 
@@ -80,6 +81,7 @@ class ViewState:
     size: tuple[int, int] = (1280, 800)
     layers: dict[str, bool] = field(default_factory=dict)
     xray: set[str] = field(default_factory=set)
+    wire: set[str] = field(default_factory=set)
     panels: dict[str, list[wd.Placed]] = field(default_factory=dict)
     show_help: bool = False
     hover: str = ""  # widget under the pointer (its `help` is shown in the panel)
@@ -156,6 +158,8 @@ def set_layer(app, layer: str, visible: bool) -> None:
             vp.visible = bool(visible)
     elif layer.startswith("xray:"):
         (vs.xray.add if visible else vs.xray.discard)(layer[5:])
+    elif layer.startswith("wire:"):
+        (vs.wire.add if visible else vs.wire.discard)(layer[5:])
     else:
         vs.layers[layer] = bool(visible)
         for comp_type in (MeshRef, Marker, PolyLine):

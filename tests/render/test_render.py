@@ -486,3 +486,23 @@ def test_hidpi_target_draws_the_same_layout_at_twice_the_pixels(make_pack):
         assert (diff > 40).mean() < 0.05
     finally:
         app.close()
+
+
+def test_wire_toggle_switches_a_layer_to_its_links(make_pack):
+    from game.input_events import Widget
+
+    body = XRAY.replace('layer = "xray:skin"', 'layer = "wire:skin"').replace('name = "xray"', 'name = "wire"')
+    app = open_app(make_pack(body), size=(64, 48))
+    try:
+        _, before = frame_pixels(app)
+        app.resource(PendingInput).extend([(0.0, Widget("wire", True))])
+        app.update(0.0)
+        _, after = frame_pixels(app)
+        assert tuple(before[24, 24, :3]) == (0, 0, 255)  # the blue skin sheet covers the red bone
+        view = after[:, :48, :3].reshape(-1, 3)
+        red = np.all(view == (255, 0, 0), axis=1).mean()
+        blue = np.all(view == (0, 0, 255), axis=1).mean()
+        assert red > 0.5  # now the bone shows between the skin's links
+        assert blue > 0.0  # and the links are drawn
+    finally:
+        app.close()
