@@ -506,3 +506,58 @@ def test_wire_toggle_switches_a_layer_to_its_links(make_pack):
         assert blue > 0.0  # and the links are drawn
     finally:
         app.close()
+
+
+PANEL = """
+[layouts.ctl]
+[[layouts.ctl.viewports]]
+name = "scene"
+kind = "orbit"
+rect = [0.0, 0.0, 0.5, 1.0]
+[[layouts.ctl.viewports]]
+name = "controller"
+kind = "panel"
+rect = [0.5, 0.0, 0.5, 1.0]
+title = "Controller"
+[[layouts.ctl.widgets]]
+name = "bone"
+kind = "light"
+label = "Bone contact"
+[[layouts.ctl.widgets]]
+name = "target"
+kind = "light"
+label = "Foramen ovale"
+[[layouts.ctl.widgets]]
+name = "skin"
+kind = "toggle"
+label = "Show skin"
+value = true
+"""
+
+
+def test_indicator_lights_show_the_hud_state(make_pack):
+    from game.gl.renderer import LIGHT_RGBA
+    from game.hud import HudState
+    from systems.view import ViewState
+
+    app = open_app(make_pack(PANEL), size=(400, 300))
+    try:
+        hud = app.resource(HudState)
+        placed = {p.spec["name"]: p for p in app.resource(ViewState).panels["controller"]}
+
+        def disc(img, name):  # the light's disc sits 10 px in from the widget's left edge
+            r = placed[name].rect
+            return tuple(int(c) for c in img[r.y + r.h // 2, r.x + 10, :3])
+
+        rgb = {k: tuple(round(c * 255) for c in v[:3]) for k, v in LIGHT_RGBA.items()}
+        _, img = frame_pixels(app, strip_overlay=False)
+        assert disc(img, "bone") == rgb["off"] and disc(img, "target") == rgb["off"]
+        hud.set_light("bone", "red")
+        hud.set_light("target", "green")
+        _, img = frame_pixels(app, strip_overlay=False)
+        assert disc(img, "bone") == rgb["red"]
+        assert disc(img, "target") == rgb["green"]
+        with pytest.raises(ValueError):
+            hud.set_light("bone", "blue")
+    finally:
+        app.close()
