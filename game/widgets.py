@@ -121,6 +121,13 @@ def _key_step(w: dict) -> float:
     return (float(w.get("max", 1.0)) - float(w.get("min", 0.0))) / 20.0
 
 
+def stepped(w: dict, current: Any, steps: int) -> float:
+    """A slider/dial value moved by `steps` steps (`step`, or a twentieth of the range), clamped."""
+    size = float(w.get("step") or 0.0) or (float(w.get("max", 1.0)) - float(w.get("min", 0.0))) / 20.0
+    base = float(current) if isinstance(current, (int, float)) and not isinstance(current, bool) else float(w.get("min", 0.0))
+    return _clamp(w, base + steps * size)
+
+
 def key_value(w: dict, current: Any) -> Any:
     """The event value when the widget's shortcut key is pressed."""
     kind = w["kind"]

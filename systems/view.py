@@ -274,6 +274,18 @@ class ViewSystem:
                                           tuple(float(c) for c in hit.point), ev.button))
         vs.active, vs.press, vs.widget, vs.grab, vs.travel = None, None, None, None, 0.0
 
+    def scroll_widget(self, app, vs: ViewState, vp: Viewport, ev: Scroll) -> None:
+        """The wheel over a slider or dial steps it (up = more)."""
+        p = wd.hit(vs.panels.get(vp.name, []), ev.x, ev.y)
+        st: wd.WidgetState = app.resource(wd.WidgetState)
+        if p is None or p.spec["kind"] not in ("slider", "dial") or not st.enabled(p.spec["name"]) or ev.dy == 0:
+            return
+        name = p.spec["name"]
+        cur = st.values.get(name)
+        new = wd.stepped(p.spec, cur, 1 if ev.dy > 0 else -1)
+        if new != cur:
+            self.use_widget(app, name, new)
+
     def pick_point(self, app, ev: PickPoint) -> None:
         from game.picking import snap
 
@@ -315,6 +327,8 @@ class ViewSystem:
                 vp = vs.at(ev.x, ev.y)
                 if vp is not None and vp.mouse_camera and isinstance(vp.camera, OrbitCamera):
                     vp.camera.zoom(ev.dy)
+                elif vp is not None and vp.kind == "panel":
+                    self.scroll_widget(app, vs, vp, ev)
             elif isinstance(ev, Key) and ev.pressed:
                 if ev.key == "f1":
                     vs.show_help = not vs.show_help

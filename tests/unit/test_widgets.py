@@ -156,3 +156,51 @@ def test_pointer_over_a_widget_selects_its_help():
         assert vs.hover == ""
     finally:
         app.close()
+
+
+def test_scroll_over_a_dial_steps_it_and_resize_keeps_the_layout(tmp_path):
+    from game.input_events import Resize, Scroll
+
+    root = tmp_path / "dialpack"
+    root.mkdir()
+    (root / "pack.toml").write_text("""
+[pack]
+name = "dialpack"
+format = 1
+[settings]
+window_size = [800.0, 600.0]
+[layouts.l]
+[[layouts.l.viewports]]
+name = "main"
+kind = "orbit"
+rect = [0.0, 0.0, 0.7, 1.0]
+[[layouts.l.viewports]]
+name = "panel"
+kind = "panel"
+rect = [0.7, 0.0, 0.3, 1.0]
+[[layouts.l.widgets]]
+name = "angle"
+kind = "dial"
+min = -10.0
+max = 10.0
+step = 2.0
+value = 9.0
+""", encoding="utf-8")
+    app = build_app(str(root))
+    try:
+        app.events.log = []
+        vs: ViewState = app.resource(ViewState)
+        p = vs.panels["panel"][0]
+        cx, cy = p.rect.x + p.rect.w / 2, p.rect.y + p.rect.h / 2
+        app.resource(PendingInput).extend([(0.0, Scroll(cx, cy, 1.0)), (0.0, Scroll(cx, cy, -1.0)), (0.0, Scroll(cx, cy, -1.0))])
+        app.update(0.0)
+        assert [e for e in app.events.log if isinstance(e, Widget)] == [Widget("angle", 10.0), Widget("angle", 8.0), Widget("angle", 6.0)]
+        assert app.resource(wd.WidgetState).values["angle"] == 6.0
+        app.resource(PendingInput).extend([(0.0, Resize(400, 300))])
+        app.update(0.0)
+        assert vs.get("main").rect == Rect(0, 0, 280, 300)
+        assert vs.get("panel").rect == Rect(280, 0, 120, 300)
+        q = vs.panels["panel"][0]
+        assert vs.get("panel").rect.x < q.rect.x and q.rect.y + q.rect.h <= 300
+    finally:
+        app.close()
