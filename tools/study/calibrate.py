@@ -57,7 +57,7 @@ def fit(nu: float, E: float | None = None, strain: float | None = None, n: int =
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", LockingWarning)
         fem = NeoHookeanFEM(scene.pos, scene.tets, E or 1.0, nu, scene.constrained)
-        res = fem.solve_path(scene.constrained_disp(s), [s])
+        res = fem.solve_path(scene.constrained_disp(1.0), [s])
     if res.status != "converged":
         raise UserError(f"reference FEM did not converge at strain {s:g} (nu={nu:g})")
     ref = res.u[s]

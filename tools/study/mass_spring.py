@@ -55,9 +55,13 @@ def spring_forces(x, links, rest, k, out):
 
 
 @njit(cache=True)
-def integrate(x, v, links, rest, k, inv_m, gamma, free, dt, max_steps, scheme, tol, blowup):
+def integrate(x, v, links, rest, k, inv_m, gamma, free, dt, max_steps, scheme, tol, blowup,
+              cidx, c0, cdisp, ramp_steps):
     """Step until the free-node force residual falls below `tol` (absolute, 2-norm).
 
+    The constrained nodes `cidx` move from c0 to c0 + cdisp linearly over `ramp_steps` steps (a
+    tool moves gradually; a sudden jump of many link lengths folds springs onto themselves) and
+    convergence is only tested once they have arrived.
     Returns (code, steps, residual): code 0 converged, 1 ran out of steps, 2 diverged (a
     coordinate went non-finite or further than `blowup` from the origin).  x, v updated in place.
     """
@@ -65,6 +69,11 @@ def integrate(x, v, links, rest, k, inv_m, gamma, free, dt, max_steps, scheme, t
     f = np.zeros((n, 3))
     resid = np.inf
     for step in range(1, max_steps + 1):
+        if step <= ramp_steps + 1:
+            w = min(1.0, step / max(ramp_steps, 1))
+            for j in range(cidx.shape[0]):
+                for d in range(3):
+                    x[cidx[j], d] = c0[j, d] + w * cdisp[j, d]
         spring_forces(x, links, rest, k, f)
         resid2 = 0.0
         for i in range(n):
@@ -74,7 +83,7 @@ def integrate(x, v, links, rest, k, inv_m, gamma, free, dt, max_steps, scheme, t
         resid = np.sqrt(resid2)
         if not np.isfinite(resid):
             return 2, step, resid
-        if resid <= tol:
+        if resid <= tol and step > ramp_steps:
             return 0, step - 1, resid
         for i in range(n):
             if not free[i]:
@@ -189,12 +198,14 @@ class MassSpring:
 
     # --- run to equilibrium -----------------------------------------------------------------
     def solve(self, constrained, disp_constrained, scheme="symplectic", dt=None, dt_factor=0.9,
-              damping=None, tol=1e-4, max_steps=200_000, anchored=None) -> DynamicResult:
+              damping=None, tol=1e-4, max_steps=200_000, anchored=None,
+              ramp=1.0) -> DynamicResult:
         """Hold `constrained` nodes at rest + disp and integrate to static equilibrium.
 
         dt defaults to dt_factor times the exact linear stability bound of the chosen scheme;
         damping (gamma = c/m) defaults to twice the slowest-mode frequency estimate.
-        tol is relative to the initial force residual.
+        tol is relative to the force residual of the first step; the grabbed nodes reach their
+        targets over `ramp` slowest-mode periods / (2 pi) (0: at once).
         """
         t0 = time.thread_time()
         c = np.asarray(constrained, dtype=np.int64)
@@ -212,17 +223,22 @@ class MassSpring:
         if dt is None:
             dt = dt_factor * safe
         x = self.pos.copy()
-        x[c] += np.asarray(disp_constrained, dtype=np.float64).reshape(-1, 3)
-        v = np.zeros_like(x)
+        cdisp = np.ascontiguousarray(np.asarray(disp_constrained, dtype=np.float64).reshape(-1, 3))
+        ramp_steps = int(np.ceil(ramp / (w_min * dt))) if ramp > 0 else 0
+        # residual scale: the forces of the fully displaced, not yet relaxed state
+        x[c] += cdisp
         f = np.zeros_like(x)
         spring_forces(x, self.links, self.rest, self.k, f)
         r0 = float(np.linalg.norm(f[free]))
+        x[c] = self.pos[c]
+        v = np.zeros_like(x)
         t_setup = time.thread_time() - t0
         t1 = time.thread_time()
         blowup = 1e3 * (np.abs(self.pos).max() + np.abs(x).max() + 1.0)
         code, steps, resid = integrate(x, v, self.links, self.rest, self.k, 1.0 / self.mass,
                                        gamma, free, float(dt), int(max_steps), SCHEMES[scheme],
-                                       tol * max(r0, 1e-300), blowup)
+                                       tol * max(r0, 1e-300), blowup, c,
+                                       np.ascontiguousarray(self.pos[c]), cdisp, ramp_steps)
         t_run = time.thread_time() - t1
         status = _STATUS[int(code)]
         u = None if status == "diverged" or not np.all(np.isfinite(x)) else x - self.pos
@@ -232,4 +248,5 @@ class MassSpring:
                              {"t_setup": t_setup, "t_run": t_run,
                               "t_step": t_run / max(steps, 1), "dt_bound": bound, "dt_gershgorin": safe,
                               "dt_eq22": self.critical_dt_eq22(), "omega_max": w_max,
-                              "omega_min_est": w_min, "gamma": gamma})
+                              "omega_min_est": w_min, "gamma": gamma,
+                              "ramp_steps": ramp_steps})

@@ -140,6 +140,11 @@ def run_scene(name, resolutions, strains, limits, cm_settings, repeats, rows, ti
                         lambda: cm.solve(scene.grabbed, scene.grab_disp(s), params), repeats)
                     rows.append(_row(scene, res_n, f"ChainMail {label} r{k}", s, u, refs.get(s),
                                      ref_name, t, k, "ok", {"moved": info["moved"]}))
+        # worst case of thesis 6.2 (Fig. 6.4): a rigid object, every element moves in the cascade
+        t, (u, info) = median_time(lambda: cm.solve(scene.grabbed, scene.grab_disp(PARETO_STRAIN),
+                                                    ChainMailParams(1.0, 1.0, 0.0, 0)), repeats)
+        timings.append({"scene": name, "nodes": n, "model": "ChainMail rigid (worst case)",
+                        "seconds": t, "moved": info["moved"]})
         log(f"  ChainMail: {len(cm_settings) * len(RELAX) * len(strains)} runs")
         # --- mass-spring -------------------------------------------------------------------
         ms = MassSpring(scene.pos, scene.tets, E_STUDY, fixed=scene.fixed)
@@ -164,9 +169,13 @@ def run_scene(name, resolutions, strains, limits, cm_settings, repeats, rows, ti
         v = np.zeros_like(x)
         free = np.ones(n, np.bool_)
         free[c] = False
-        integrate(x, v, ms.links, ms.rest, ms.k, 1.0 / ms.mass, 1.0, free, 1e-9, 1, SYMPLECTIC, 0.0, 1e30)
+        noc = np.zeros(0, np.int64)
+        no3 = np.zeros((0, 3))
+        integrate(x, v, ms.links, ms.rest, ms.k, 1.0 / ms.mass, 1.0, free, 1e-9, 1, SYMPLECTIC, 0.0,
+                  1e30, noc, no3, no3, 0)
         t, _ = median_time(lambda: integrate(x, v, ms.links, ms.rest, ms.k, 1.0 / ms.mass, 1.0,
-                                             free, 1e-9, 10, SYMPLECTIC, 0.0, 1e30), repeats)
+                                             free, 1e-9, 10, SYMPLECTIC, 0.0, 1e30, noc, no3, no3, 0),
+                           repeats)
         timings.append({"scene": name, "nodes": n, "model": "mass-spring step", "seconds": t / 10})
         prev = (scene, refs, lins, nls)
 
@@ -211,7 +220,7 @@ def realtime_table(rows, timings):
             continue
         series.setdefault((r["scene"], r["model"]), []).append((r["nodes"], r["time_ms"] / 1e3))
     for t in timings:
-        if t["model"] in ("mass-spring step",):
+        if t["model"] in ("mass-spring step", "ChainMail rigid (worst case)"):
             series.setdefault((t["scene"], t["model"]), []).append((t["nodes"], t["seconds"]))
     for (scene, model), pts in sorted(series.items()):
         ns, ts = zip(*pts)
