@@ -352,3 +352,23 @@ def test_added_links_join_pieces_with_the_body_material(tmp_path):
         np.testing.assert_allclose(d.pos[:, 2], 3.0)  # the stitch carries the pull across the cut
     finally:
         app.close()
+
+
+@pytest.mark.parametrize("extra", ['order = "balanced"', 'order = "schill"', 'dtype = "float32"'])
+def test_orders_and_single_precision_keep_the_grab_and_the_limits(tmp_path, extra):
+    app = build_app(make_pack(tmp_path, SHEET.format(material="medium") + extra + "\n"))
+    try:
+        _, d = body(app)
+        target = d.rest[60].astype(np.float64) + [2.0, 1.0, 4.0]
+        app.events.emit(GrabRequest("body", [60], target, frame="local"))
+        app.run_steps(1)
+        assert d.pos.dtype == (np.float32 if "float32" in extra else np.float64)
+        np.testing.assert_allclose(d.pos[60], target, rtol=1e-6)
+        tol = 1e-5 if "float32" in extra else 1e-9
+        rest, pos = d.rest.astype(np.float64), d.pos.astype(np.float64)
+        for e, s in zip(d.last_order[1:], d.last_sponsor[1:]):
+            lo, hi = _box(rest, pos, e, s, 0.8, 1.2, 0.1)
+            assert np.all(pos[e] >= lo - tol) and np.all(pos[e] <= hi + tol)
+        assert len(d.last_order) > 1
+    finally:
+        app.close()
