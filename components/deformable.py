@@ -10,8 +10,8 @@ material = the mesh's material), so both spellings lead to one component.
 Runtime state lives in the same dataclass: `rest` and `pos` (N, 3) in the entity's local frame, the
 link graph, per-link limits, the fixed mask, the cascade workspace, `dirty` (ids moved since the
 renderer last uploaded; the renderer replaces it with an empty array after uploading) and `version`.
-Only `pos`, `version` and the topology flags (`alive`) count towards the world digest; the rest is
-derived from the pack and is marked digest-neutral.
+Of the runtime state only `pos`, `version`, `alive` (cut links) and `held` count towards the world
+digest; the rest is derived from the pack or is render bookkeeping and is marked digest-neutral.
 
 `pull` scripts a pull on one element (the thesis 5.3 demos): when triggered (at a time, or by a
 widget event), the element is dragged along a path of waypoints at a constant speed.
