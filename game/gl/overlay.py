@@ -13,22 +13,24 @@ import numpy as np
 
 from game.gl import shaders
 
-FIRST, LAST = 32, 126
+#: ASCII, Latin-1 and the punctuation and symbols instructions tend to use; anything else shows as "?"
+CHARS = ([chr(c) for c in range(32, 127)] + [chr(c) for c in range(161, 256)]
+         + list("\u2013\u2014\u2018\u2019\u201c\u201d\u2022\u2026\u2190\u2192\u2191\u2193\u2212\u2264\u2265\u2248\u00b1\u03b1\u03b2\u03bc"))
 
 
 class Font:
-    """Glyph atlas: ASCII 32..126 in a grid of equal cells; the baseline sits `ascent` below a cell top."""
+    """Glyph atlas of CHARS in a grid of equal cells; the baseline sits `ascent` below a cell top."""
 
     def __init__(self, ctx, size_px: int):
         from PIL import Image, ImageDraw, ImageFont
 
         self.font = ImageFont.load_default(size=size_px)
         self.ascent, self.descent = self.font.getmetrics()
-        chars = [chr(c) for c in range(FIRST, LAST + 1)]
+        chars = [ch for ch in CHARS if ch.isprintable()]
         self.advance = {ch: float(self.font.getlength(ch)) for ch in chars}
         self.cell_w = int(max(self.font.getbbox(ch)[2] for ch in chars)) + 2
         self.cell_h = self.ascent + self.descent + 2
-        cols = 16
+        cols = 32
         rows = math.ceil(len(chars) / cols)
         img = Image.new("L", (cols * self.cell_w, rows * self.cell_h), 0)
         draw = ImageDraw.Draw(img)
