@@ -14,7 +14,8 @@ def add_parser(sub):
     p.add_argument("pack", help="PACK or PACK/SCENE")
     p.add_argument("--out", required=True, metavar="PNG", help="image to write")
     p.add_argument("--size", type=_size, default=None, metavar="WxH", help="image size (default: the pack's window_size)")
-    p.add_argument("--steps", type=_nonneg, default=0, help="simulation steps before the picture (default 0)")
+    p.add_argument("--steps", type=_nonneg, default=1,
+                   help="simulation steps before the picture (default 1: every system, procedures included, has run once)")
     p.add_argument("--input", metavar="SCRIPT", help="input script played during the steps")
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     return p
