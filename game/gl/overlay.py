@@ -77,8 +77,9 @@ class Overlay:
         self.font_px = font_px
         self.scale = 1.0
         self.font = Font(ctx, font_px)
+        self.small: dict[int, Font] = {}  # smaller atlases for widgets shorter than a text line
         self.shapes: list[float] = []
-        self.glyphs: list[float] = []
+        self.glyphs: dict[Font, list[float]] = {}
         self.vbo_shapes = ctx.buffer(reserve=1 << 16, dynamic=True)
         self.vbo_glyphs = ctx.buffer(reserve=1 << 16, dynamic=True)
         self.vao_shapes = ctx.vertex_array(self.flat, [(self.vbo_shapes, "2f 4f", "in_pos", "in_color")])
@@ -89,6 +90,9 @@ class Overlay:
         if abs(scale - self.scale) > 1e-6:
             self.scale = scale
             self.font.release()
+            for f in self.small.values():
+                f.release()
+            self.small.clear()
             self.font = Font(self.ctx, max(6, round(self.font_px * scale)))
 
     # -- shapes (framebuffer pixels) ---------------------------------------------------------
@@ -123,23 +127,36 @@ class Overlay:
             self.shapes += [p[i][0], p[i][1], r, g, b, a]
 
     # -- text --------------------------------------------------------------------------------
-    def label(self, text: str, x: float, baseline: float, color=(1, 1, 1, 1), max_w: float | None = None) -> float:
+    def font_for(self, height: float) -> Font:
+        """The main font, or a smaller one when `height` pixels cannot hold a line of it."""
+        if height >= self.font.line_h:
+            return self.font
+        px = max(7, int(self.font_px * self.scale * height / self.font.line_h))
+        if px not in self.small:
+            self.small[px] = Font(self.ctx, px)
+        return self.small[px]
+
+    def label(self, text: str, x: float, baseline: float, color=(1, 1, 1, 1), max_w: float | None = None,
+              font: Font | None = None) -> float:
         """Draw one line with its baseline at `baseline`; returns the pen x after it."""
-        f = self.font
+        f = font or self.font
+        glyphs = self.glyphs.setdefault(f, [])
         if max_w is not None and f.width(text) > max_w:
             while text and f.width(text + "...") > max_w:
                 text = text[:-1]
             text += "..."
         r, g, b, a = color
         pen = float(x)
-        top = baseline + f.ascent + 1
+        # whole pixels: the atlas is sampled nearest, so a fractional offset would drop texel rows
+        top = float(round(baseline)) + f.ascent + 1
         bottom = top - f.cell_h
         for ch in text:
             if ch not in f.uv:
                 ch = "?"
             u0, v0, u1, v1 = f.uv[ch]
-            x0, x1 = pen - 1, pen - 1 + f.cell_w
-            self.glyphs += [x0, bottom, u0, v1, r, g, b, a, x1, bottom, u1, v1, r, g, b, a, x1, top, u1, v0, r, g, b, a,
+            x0 = float(round(pen)) - 1
+            x1 = x0 + f.cell_w
+            glyphs += [x0, bottom, u0, v1, r, g, b, a, x1, bottom, u1, v1, r, g, b, a, x1, top, u1, v0, r, g, b, a,
                             x0, bottom, u0, v1, r, g, b, a, x1, top, u1, v0, r, g, b, a, x0, top, u0, v0, r, g, b, a]
             pen += f.advance[ch]
         return pen
@@ -150,8 +167,9 @@ class Overlay:
         ctx.disable(ctx.DEPTH_TEST | ctx.CULL_FACE)
         ctx.enable(ctx.BLEND)
         ctx.blend_func = ctx.SRC_ALPHA, ctx.ONE_MINUS_SRC_ALPHA
-        for data, vbo, vao, prog, stride in ((self.shapes, self.vbo_shapes, self.vao_shapes, self.flat, 6),
-                                             (self.glyphs, self.vbo_glyphs, self.vao_glyphs, self.text, 8)):
+        batches = [(self.shapes, self.vbo_shapes, self.vao_shapes, self.flat, 6, None)]
+        batches += [(g, self.vbo_glyphs, self.vao_glyphs, self.text, 8, f) for f, g in self.glyphs.items()]
+        for data, vbo, vao, prog, stride, font in batches:
             if not data:
                 continue
             arr = np.asarray(data, np.float32)
@@ -159,8 +177,8 @@ class Overlay:
                 vbo.orphan(arr.nbytes * 2)
             vbo.write(arr.tobytes())
             prog["u_screen"].value = (float(size[0]), float(size[1]))
-            if prog is self.text:
-                self.font.texture.use(0)
+            if font is not None:
+                font.texture.use(0)
                 prog["u_atlas"].value = 0
             vao.render(ctx.TRIANGLES, vertices=len(arr) // stride)
         self.shapes.clear()
@@ -170,3 +188,5 @@ class Overlay:
         for o in (self.vao_shapes, self.vao_glyphs, self.vbo_shapes, self.vbo_glyphs, self.flat, self.text):
             o.release()
         self.font.release()
+        for f in self.small.values():
+            f.release()

@@ -381,10 +381,11 @@ class Renderer:
                 ov.label(t, r.x + 8 * s, r.y + 4 * s + i * f.line_h + f.descent, DIM)
 
     def _widget(self, pl, p: PanelDraw, lights: dict, s: float) -> None:
-        ov, f = self.overlay, self.overlay.font
+        ov = self.overlay
         spec = pl.spec
         name, kind = spec["name"], spec["kind"]
         r = pl.rect.scaled(s)
+        f = ov.font_for(r.h / 2 if kind in ("slider", "dial") else r.h)  # short widgets get a smaller font
         value = p.values.get(name)
         off = name in p.disabled
         fg = DIM if off else TEXT
@@ -395,21 +396,21 @@ class Renderer:
             ov.rect(r.x, r.y, r.w, r.h, (0.20, 0.22, 0.27, 1.0) if off else (0.25, 0.33, 0.45, 1.0))
             ov.frame(r.x, r.y, r.w, r.h, (0.4, 0.45, 0.55, 1.0), s)
             text = label + key
-            ov.label(text, r.x + max((r.w - f.width(text)) / 2, 4 * s), mid, fg, max_w=r.w - 8 * s)
+            ov.label(text, r.x + max((r.w - f.width(text)) / 2, 4 * s), mid, fg, max_w=r.w - 8 * s, font=f)
         elif kind == "toggle":
             bx = 16 * s
             ov.frame(r.x + 2 * s, r.y + (r.h - bx) / 2, bx, bx, fg, s)
             if value:
                 ov.rect(r.x + 5 * s, r.y + (r.h - bx) / 2 + 3 * s, bx - 6 * s, bx - 6 * s, ACCENT if not off else DIM)
-            ov.label(label + key, r.x + bx + 10 * s, mid, fg, max_w=r.w - bx - 12 * s)
+            ov.label(label + key, r.x + bx + 10 * s, mid, fg, max_w=r.w - bx - 12 * s, font=f)
         elif kind in ("slider", "dial"):
             v = float(value) if isinstance(value, (int, float)) else 0.0
             lo, hi = float(spec.get("min", 0.0)), float(spec.get("max", 1.0))
             t = (v - lo) / (hi - lo) if hi != lo else 0.0
             top = r.y + r.h - f.ascent - 2 * s
-            ov.label(label + key, r.x + 2 * s, top, fg, max_w=r.w * 0.65)
+            ov.label(label + key, r.x + 2 * s, top, fg, max_w=r.w * 0.65, font=f)
             vt = f"{v:.3g}"
-            ov.label(vt, r.x + r.w - f.width(vt) - 2 * s, top, ACCENT if not off else DIM)
+            ov.label(vt, r.x + r.w - f.width(vt) - 2 * s, top, ACCENT if not off else DIM, font=f)
             ty = r.y + 8 * s
             if kind == "slider":
                 x0, x1 = r.x + 10 * s, r.x + r.w - 10 * s
@@ -418,18 +419,18 @@ class Renderer:
                 ov.rect(x0 + (x1 - x0) * t - 4 * s, ty - 7 * s, 8 * s, 14 * s, fg)
             else:
                 cx, rad = r.x + r.w / 2, 9 * s
-                ov.label("-", r.x + 6 * s, ty - f.ascent / 2, fg)
-                ov.label("+", r.x + r.w - 14 * s, ty - f.ascent / 2, fg)
+                ov.label("-", r.x + 6 * s, ty - f.ascent / 2, fg, font=f)
+                ov.label("+", r.x + r.w - 14 * s, ty - f.ascent / 2, fg, font=f)
                 ov.disc(cx, ty + 2 * s, rad, (0.3, 0.32, 0.38, 1.0))
                 ang = np.radians(225.0 - 270.0 * t)
                 ov.segment(cx, ty + 2 * s, cx + rad * np.cos(ang), ty + 2 * s + rad * np.sin(ang), ACCENT if not off else DIM, 2 * s)
         elif kind == "light":
             state = lights.get(name, value if value in LIGHT_RGBA else "off")
             ov.disc(r.x + 10 * s, r.y + r.h / 2, 7 * s, LIGHT_RGBA.get(state, LIGHT_RGBA["off"]))
-            ov.label(label, r.x + 24 * s, mid, fg, max_w=r.w - 26 * s)
+            ov.label(label, r.x + 24 * s, mid, fg, max_w=r.w - 26 * s, font=f)
         else:  # text
             shown = label if value in (None, False, "") else f"{label}: {value}" if label else str(value)
-            ov.label(shown, r.x + 2 * s, mid, fg, max_w=r.w - 4 * s)
+            ov.label(shown, r.x + 2 * s, mid, fg, max_w=r.w - 4 * s, font=f)
 
     def release(self) -> None:
         for gm in self.meshes.values():
