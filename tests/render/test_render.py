@@ -561,3 +561,62 @@ def test_indicator_lights_show_the_hud_state(make_pack):
             hud.set_light("bone", "blue")
     finally:
         app.close()
+
+
+PLANES = """
+[meshes.ball]
+primitive = "sphere"
+radius = 20.0
+
+[materials.white]
+color = [1.0, 1.0, 1.0, 1.0]
+shading = "unlit"
+
+[entities.ball.mesh]
+mesh = "ball"
+material = "white"
+
+[planes.axial]
+point = [0.0, 0.0, 0.0]
+normal = [0.0, 0.0, 1.0]
+
+[layouts.l]
+[[layouts.l.viewports]]
+name = "main"
+kind = "fixed"
+rect = [0.0, 0.0, 0.75, 1.0]
+distance = 300.0
+pitch = 60.0
+[[layouts.l.viewports]]
+name = "panel"
+kind = "panel"
+rect = [0.75, 0.0, 0.25, 1.0]
+[[layouts.l.widgets]]
+name = "planes"
+kind = "toggle"
+layer = "planes"
+value = false
+"""
+
+
+def test_reference_planes_appear_when_their_toggle_is_on(make_pack):
+    from game.input_events import Widget
+
+    app = open_app(make_pack(PLANES), size=(160, 120))
+    try:
+        _, off = frame_pixels(app)
+        app.resource(PendingInput).extend([(0.0, Widget("planes", True))])
+        app.update(0.0)
+        _, on = frame_pixels(app)
+        view_off, view_on = off[:, :120, :3].astype(int), on[:, :120, :3].astype(int)
+        tinted = np.abs(view_on - view_off).sum(axis=2) > 10
+        assert tinted.mean() > 0.05  # a translucent square through the ball's centre
+        ys, xs = np.nonzero(tinted)
+        assert abs(xs.mean() - 60) < 6  # centred on the ball in x
+        over_bg = tinted & (view_off.sum(axis=2) == 0)
+        assert over_bg.sum() > 100
+        reds = view_on[over_bg]
+        assert np.all(reds[:, 0] > reds[:, 1])  # the first plane colour is a red tint
+        assert np.all(reds.max(axis=1) < 128)  # translucent: the background shows through
+    finally:
+        app.close()
