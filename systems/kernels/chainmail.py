@@ -35,7 +35,7 @@ ORDER_SCHILL = 2
 _ORDERS = (ORDER_FIFO, ORDER_BALANCED, ORDER_SCHILL)
 
 _NO_FIXED = np.zeros(1, dtype=np.bool_)
-_GEN_LIMIT = 2**62
+_GEN_LIMIT = 2**31 - 2  # int32 stamps: a quarter of a cache line less per element than int64
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -100,7 +100,7 @@ class Workspace:
         if n < 0:
             raise ValueError(f"workspace size must be >= 0, got {n}")
         self.n = n
-        self.stamp = np.zeros(n, dtype=np.int64)
+        self.stamp = np.zeros(n, dtype=np.int32)
         self.gen = 0
         self.out_order = np.empty(n, dtype=np.int64)
         self.out_sponsor = np.empty(n, dtype=np.int64)
