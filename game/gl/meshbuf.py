@@ -10,33 +10,22 @@ from __future__ import annotations
 
 import numpy as np
 
+from game.gl.normals import patch_normals_kernel
+
 #: vertex-id gaps smaller than this are written through rather than split into two writes
 RUN_GAP = 256
 #: above this fraction of moved vertices a full rewrite is cheaper than the bookkeeping
 FULL_FRACTION = 0.3
 
 
-def face_normals(pos: np.ndarray, tris: np.ndarray) -> np.ndarray:
-    """Area-weighted (unnormalised) face normals."""
-    a = pos[tris[:, 0]]
-    return np.cross(pos[tris[:, 1]] - a, pos[tris[:, 2]] - a)
-
-
 def vertex_normals(pos: np.ndarray, tris: np.ndarray) -> np.ndarray:
-    """Unit per-vertex normals: the area-weighted mean of the incident face normals."""
-    n = len(pos)
-    out = np.zeros((n, 3), np.float64)
-    if len(tris):
-        fn = face_normals(pos.astype(np.float64, copy=False), tris)
-        flat = tris.ravel()
-        for c in range(3):
-            out[:, c] = np.bincount(flat, weights=np.repeat(fn[:, c], 3), minlength=n)
-    return _normalise(out)
+    """Unit per-vertex normals: the area-weighted mean of the incident face normals (numba kernel)."""
+    from game.gl.normals import vertex_normals_kernel
 
-
-def _normalise(v: np.ndarray) -> np.ndarray:
-    ln = np.linalg.norm(v, axis=1, keepdims=True)
-    return np.where(ln > 1e-30, v / np.where(ln > 1e-30, ln, 1.0), 0.0)
+    out = np.zeros((len(pos), 3))
+    if len(pos) and len(tris):
+        vertex_normals_kernel(np.ascontiguousarray(pos), np.ascontiguousarray(tris, dtype=np.int64), out)
+    return out
 
 
 def runs(ids: np.ndarray, gap: int = RUN_GAP) -> list[tuple[int, int]]:
@@ -192,21 +181,11 @@ class GpuMesh:
         touched = _unique(gather(ptr, idx, ids))  # triangles with a moved corner
         verts = _unique(self.tris[touched])  # their corners: all get new normals
         around = _unique(gather(ptr, idx, verts))  # every triangle touching those corners
-        corners = self.tris[around]
-        a = self.pos[corners[:, 0]].astype(np.float64)
-        fn = np.cross(self.pos[corners[:, 1]] - a, self.pos[corners[:, 2]] - a)
         if self._local is None:
-            self._local = np.full(self.n, -1, np.int64)  # scratch: vertex id -> row in `acc`
-        local = self._local
-        local[verts] = np.arange(len(verts))
-        acc = np.zeros((len(verts), 3))
-        for c in range(3):
-            li = local[corners[:, c]]
-            keep = li >= 0
-            for k in range(3):
-                acc[:, k] += np.bincount(li[keep], weights=fn[keep, k], minlength=len(verts))
-        local[verts] = -1
-        self.normals[verts] = _normalise(acc).astype(np.float32)
+            self._local = np.full(self.n, -1, np.int64)  # scratch for the kernel: vertex id -> row
+        fresh = np.empty((len(verts), 3))
+        patch_normals_kernel(self.pos, self.tris, around, verts, self._local, fresh)
+        self.normals[verts] = fresh
         for a, b in runs(ids):
             self.vbo_pos.write(self.pos[a:b].tobytes(), offset=a * 12)
             self.bytes_written += (b - a) * 12
