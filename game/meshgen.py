@@ -17,7 +17,11 @@ def unique_links(links: np.ndarray) -> np.ndarray:
     links = links[links[:, 0] != links[:, 1]]
     if len(links) == 0:
         return links.reshape(0, 2)
-    return np.unique(links, axis=0)
+    # one int64 key per pair: sorting keys is far cheaper than np.unique(axis=0) on big meshes
+    n = int(links.max()) + 1
+    keys = np.sort(links[:, 0] * n + links[:, 1])
+    keys = keys[np.concatenate(([True], keys[1:] != keys[:-1]))]
+    return np.stack([keys // n, keys % n], axis=1)
 
 
 def links_from_cells(cells: np.ndarray) -> np.ndarray:
