@@ -66,7 +66,7 @@ def grid(shape: tuple[int, ...], spacing=1.0, dim: int | None = None) -> tuple[n
     dim = d if dim is None else dim
     axes = []
     for a, n in enumerate(shape):
-        if np.ndim(spacing) == 0:
+        if isinstance(spacing, (int, float, np.integer, np.floating)):
             axes.append(np.arange(n) * float(spacing))
         else:
             coords = np.asarray(spacing[a], dtype=np.float64)
