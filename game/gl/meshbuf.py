@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from game.gl.normals import patch_normals_kernel
+from game.gl.normals import moved_normals_kernel
 
 #: vertex-id gaps smaller than this are written through rather than split into two writes
 RUN_GAP = 256
@@ -38,14 +38,6 @@ def runs(ids: np.ndarray, gap: int = RUN_GAP) -> list[tuple[int, int]]:
     return list(zip(starts.tolist(), ends.tolist()))
 
 
-def _unique(a: np.ndarray) -> np.ndarray:
-    """Sorted distinct values (a sort and a diff: quicker than np.unique for these small id lists)."""
-    a = np.sort(a, axis=None)
-    if len(a) == 0:
-        return a
-    return a[np.r_[True, a[1:] != a[:-1]]]
-
-
 def incidence(n: int, tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """CSR vertex -> incident triangles: triangles of v are idx[ptr[v]:ptr[v+1]]."""
     flat = tris.ravel()
@@ -53,16 +45,6 @@ def incidence(n: int, tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ptr = np.zeros(n + 1, np.int64)
     np.cumsum(np.bincount(flat, minlength=n), out=ptr[1:])
     return ptr, (order // 3).astype(np.int64)
-
-
-def gather(ptr: np.ndarray, idx: np.ndarray, ids: np.ndarray) -> np.ndarray:
-    """Concatenated CSR rows of `ids` (may repeat entries)."""
-    counts = ptr[ids + 1] - ptr[ids]
-    total = int(counts.sum())
-    if total == 0:
-        return np.zeros(0, np.int64)
-    starts = np.repeat(ptr[ids] - np.cumsum(np.r_[0, counts[:-1]]), counts)
-    return idx[starts + np.arange(total)]
 
 
 class GpuMesh:
@@ -83,7 +65,7 @@ class GpuMesh:
         self.lbo = None
         self.n_line_indices = 0
         self._csr = None
-        self._local = None
+        self._mark = None
         self.pending = np.zeros(self.n, np.bool_)  # vertices moved since the last upload
         self.stale = False  # everything must be rewritten
         self.bytes_written = 0  # statistics for benchmarks and tests
@@ -178,14 +160,9 @@ class GpuMesh:
         if self._csr is None:
             self._csr = incidence(self.n, self.tris)
         ptr, idx = self._csr
-        touched = _unique(gather(ptr, idx, ids))  # triangles with a moved corner
-        verts = _unique(self.tris[touched])  # their corners: all get new normals
-        around = _unique(gather(ptr, idx, verts))  # every triangle touching those corners
-        if self._local is None:
-            self._local = np.full(self.n, -1, np.int64)  # scratch for the kernel: vertex id -> row
-        fresh = np.empty((len(verts), 3))
-        patch_normals_kernel(self.pos, self.tris, around, verts, self._local, fresh)
-        self.normals[verts] = fresh
+        if self._mark is None:
+            self._mark = np.zeros(self.n, np.bool_)  # scratch for the kernel
+        verts = moved_normals_kernel(self.pos, self.tris, ptr, idx, ids, self._mark, self.normals)
         for a, b in runs(ids):
             self.vbo_pos.write(self.pos[a:b].tobytes(), offset=a * 12)
             self.bytes_written += (b - a) * 12

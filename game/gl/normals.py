@@ -2,7 +2,7 @@
 
 A vertex normal is the area-weighted sum of the face normals around it (the unnormalised cross
 product of two triangle edges), normalised. After a ChainMail move (thesis 5.2.3) only the normals
-of the moved vertices' triangles change; `patch_normals` recomputes just those vertices.
+of the moved vertices' triangles change; `moved_normals_kernel` recomputes just those vertices.
 Pure functions on arrays, float64 accumulation; no GL, no ECS.
 """
 
@@ -51,24 +51,49 @@ def vertex_normals_kernel(pos, tris, out):
 
 
 @njit(cache=True)
-def patch_normals_kernel(pos, tris, around, verts, local, out):
-    """Unit normals of `verts` into `out` (len(verts), 3), from the triangles `around` them.
+def moved_normals_kernel(pos, tris, ptr, idx, ids, mark, normals):
+    """Renew `normals` (N, 3) wherever moving vertices `ids` changed them; returns those vertex ids.
 
-    `around` must hold every triangle touching a vertex of `verts`; `local` is an (N,) int64 scratch
-    filled with -1, returned as it came."""
-    for i in range(verts.shape[0]):
-        local[verts[i]] = i
-    acc = np.zeros((verts.shape[0], 3))
-    for k in range(around.shape[0]):
-        t = around[k]
-        a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
-        nx, ny, nz = _face_normal(pos, a, b, c)
-        for v in (a, b, c):
-            li = local[v]
-            if li >= 0:
-                acc[li, 0] += nx
-                acc[li, 1] += ny
-                acc[li, 2] += nz
-    for i in range(verts.shape[0]):
-        local[verts[i]] = -1
-    _normalise_rows(acc, out)
+    Those are the corners of every triangle with a moved corner; each gets the normalised sum of the
+    face normals of all its triangles, found through the CSR incidence `ptr`/`idx` (triangles of v are
+    idx[ptr[v]:ptr[v+1]]). `mark` is an (N,) bool scratch of False, returned as it came."""
+    bound = 0
+    for i in range(ids.shape[0]):
+        v = ids[i]
+        bound += 3 * (ptr[v + 1] - ptr[v])
+    verts = np.empty(bound + ids.shape[0], np.int64)
+    count = 0
+    for i in range(ids.shape[0]):
+        v = ids[i]
+        if not mark[v]:
+            mark[v] = True
+            verts[count] = v
+            count += 1
+        for j in range(ptr[v], ptr[v + 1]):
+            t = idx[j]
+            for c in range(3):
+                w = tris[t, c]
+                if not mark[w]:
+                    mark[w] = True
+                    verts[count] = w
+                    count += 1
+    for k in range(count):
+        v = verts[k]
+        mark[v] = False
+        sx, sy, sz = 0.0, 0.0, 0.0
+        for j in range(ptr[v], ptr[v + 1]):
+            t = idx[j]
+            nx, ny, nz = _face_normal(pos, tris[t, 0], tris[t, 1], tris[t, 2])
+            sx += nx
+            sy += ny
+            sz += nz
+        ln = np.sqrt(sx * sx + sy * sy + sz * sz)
+        if ln > 1e-30:
+            normals[v, 0] = sx / ln
+            normals[v, 1] = sy / ln
+            normals[v, 2] = sz / ln
+        else:
+            normals[v, 0] = 0.0
+            normals[v, 1] = 0.0
+            normals[v, 2] = 0.0
+    return np.sort(verts[:count])

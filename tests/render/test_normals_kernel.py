@@ -3,7 +3,7 @@
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from game.gl.normals import patch_normals_kernel, vertex_normals_kernel
+from game.gl.normals import moved_normals_kernel, vertex_normals_kernel
 
 
 def reference_normals(pos, tris):
@@ -35,13 +35,19 @@ def test_vertex_normals_match_the_reference(seed, n, f, dtype):
 
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**31 - 1), st.integers(3, 60), st.integers(1, 120), st.integers(1, 10))
-def test_patch_normals_equal_the_full_ones_on_the_patch(seed, n, f, k):
+def test_moved_normals_renew_exactly_the_affected_vertices(seed, n, f, k):
+    from game.gl.meshbuf import incidence
+
     rng = np.random.default_rng(seed)
     pos, tris = random_mesh(rng, n, f)
-    verts = np.unique(rng.choice(n, min(k, n), replace=False))
-    around = np.flatnonzero(np.isin(tris, verts).any(axis=1))
-    local = np.full(n, -1, np.int64)
-    out = np.empty((len(verts), 3))
-    patch_normals_kernel(pos, tris, around, verts, local, out)
-    np.testing.assert_allclose(out, reference_normals(pos, tris)[verts], atol=1e-9)
-    assert np.all(local == -1)  # the scratch comes back as it went in
+    before = reference_normals(pos, tris)
+    ids = np.sort(rng.choice(n, min(k, n), replace=False)).astype(np.int64)
+    pos[ids] += rng.normal(size=(len(ids), 3)) * 3.0
+    normals = before.astype(np.float32)
+    ptr, idx = incidence(n, tris)
+    mark = np.zeros(n, np.bool_)
+    verts = moved_normals_kernel(pos, tris, ptr, idx, ids, mark, normals)
+    affected = np.union1d(ids, tris[np.isin(tris, ids).any(axis=1)].ravel())
+    assert verts.tolist() == affected.tolist()
+    np.testing.assert_allclose(normals, reference_normals(pos, tris), atol=1e-5)  # all correct again
+    assert not mark.any()  # the scratch comes back as it went in
