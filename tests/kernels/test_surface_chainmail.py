@@ -75,8 +75,7 @@ def test_zero_shear_lifts_the_whole_sheet_and_fixed_rim_holds():
 def test_surface_move_on_a_cylinder():
     shape = (12, 6)
     radius = 2.0
-    spacing = np.empty(2, dtype=object)
-    spacing[:] = [np.linspace(0.0, np.pi * radius, 12), np.linspace(0.0, 3.0, 6)]
+    spacing = [np.linspace(0.0, np.pi * radius, 12), np.linspace(0.0, 3.0, 6)]
     uv_rest, links = meshgen.grid(shape, spacing=spacing)
     uv = uv_rest.copy()
     disp = np.zeros(len(uv))
