@@ -190,7 +190,9 @@ class ProcedureSystem:
             ps.finished = False
             if ev.all:
                 self.clear_landmarks(app, ps)
-                ps.aids = dict(ps.aids_now)
+                ps.aids = dict(ps.aids_now)  # a new attempt: its own aids, times and counts
+                ps.step_times = {}
+                ps.elapsed = 0.0
                 self.restart(app, ps, "landmark1")
                 h.message("Landmarks cleared: place landmark 1 again.")
             else:
