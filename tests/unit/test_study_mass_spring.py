@@ -53,3 +53,16 @@ def test_forward_euler_needs_a_much_smaller_step_than_symplectic():
     assert r.status == "diverged" and r.u is None
     r = ms.solve(c, d, scheme="explicit", max_steps=200_000)
     assert r.status == "converged" and np.all(np.isfinite(r.u))
+
+
+def test_youngs_modulus_over_six_orders_changes_time_scale_not_equilibrium():
+    s = block(5)
+    fields, dts = [], []
+    for E in (1e2, 1e8):
+        ms = MassSpring(s.pos, s.tets, E, fixed=s.fixed)
+        r = ms.solve(s.constrained, s.constrained_disp(0.05), tol=1e-8)
+        assert r.status == "converged" and np.all(np.isfinite(r.u))
+        fields.append(r.u)
+        dts.append(ms.critical_dt_eq22())
+    np.testing.assert_allclose(fields[1], fields[0], atol=1e-6)
+    assert np.isclose(dts[0] / dts[1], 1e3)          # dt ~ 1/sqrt(E), eq. (2.2)
