@@ -19,7 +19,7 @@ def add_parser(sub):
     sa.add_argument("--pack-steps", type=int, default=120,
                     help="steps per built-in pack for the frame-cost table (0 skips it)")
     c = s.add_parser("calibrate", help="fit ChainMail alpha_min/alpha_max/beta/relaxation to FEM")
-    c.add_argument("--nu", type=float, required=True, help="Poisson ratio, in (-1, 0.5)")
+    c.add_argument("--nu", type=float, default=None, help="Poisson ratio, in (-1, 0.5) (required unless --shipped)")
     c.add_argument("--E", type=float, default=None,
                    help="Young's modulus [Pa]; sets the strain level a gentle tool traction produces")
     c.add_argument("--strain", type=float, default=None, help="fit at this strain instead")
@@ -67,6 +67,8 @@ def run(args) -> int:
                 else [(args.name, args.E, args.nu)])
         if not args.shipped and not args.name:
             raise UserError("--name is required (the preset's table name), or use --shipped")
+        if not args.shipped and args.nu is None:
+            raise UserError("--nu is required (Poisson ratio in (-1, 0.5)), or use --shipped")
         for name, E, nu in jobs:
             print(f"[calibrate] {name}: nu={nu:g} E={E}", file=sys.stderr, flush=True)
             res = cal.fit(nu, E, None if args.shipped else args.strain,
