@@ -25,6 +25,8 @@ def add_parser(sub):
     c.add_argument("--strain", type=float, default=None, help="fit at this strain instead")
     c.add_argument("--name", required=False, help="preset name (table in the TOML file)")
     c.add_argument("--out", default=None, help="presets TOML file (default assets/presets/materials.toml)")
+    c.add_argument("--block-n", type=int, default=8,
+                   help="nodes per edge of the calibration block (default 8: 512 nodes, ~15 s)")
     c.add_argument("--shipped", action="store_true",
                    help="recompute every preset shipped with the project instead of one")
     p.set_defaults(_study_parser=p)
@@ -65,13 +67,15 @@ def run(args) -> int:
             raise UserError(f"--E must be a positive modulus in Pa, got {args.E}")
         jobs = ([(n, E, nu) for n, E, nu in cal.SHIPPED] if args.shipped
                 else [(args.name, args.E, args.nu)])
+        if not 5 <= args.block_n <= 16:
+            raise UserError(f"--block-n must lie in [5, 16], got {args.block_n}")
         if not args.shipped and not args.name:
             raise UserError("--name is required (the preset's table name), or use --shipped")
         if not args.shipped and args.nu is None:
             raise UserError("--nu is required (Poisson ratio in (-1, 0.5)), or use --shipped")
         for name, E, nu in jobs:
             print(f"[calibrate] {name}: nu={nu:g} E={E}", file=sys.stderr, flush=True)
-            res = cal.fit(nu, E, None if args.shipped else args.strain,
+            res = cal.fit(nu, E, None if args.shipped else args.strain, n=args.block_n,
                           progress=lambda m: print(f"[calibrate]   {m}", file=sys.stderr, flush=True))
             for w in res["warnings"]:
                 print(f"[calibrate]   warning: {w}", file=sys.stderr)
