@@ -173,7 +173,8 @@ class NeoHookeanFEM:
             except RuntimeError:
                 du = -rf
             if not np.all(np.isfinite(du)) or np.dot(du, rf) >= 0:
-                du = -rf * (np.linalg.norm(rf) / max(Kff.diagonal().max(), 1e-300)) / max(np.linalg.norm(rf), 1e-300)
+                # tangent not positive definite here: fall back to a scaled steepest descent
+                du = -rf / max(Kff.diagonal().max(), 1e-300)
             slope = np.dot(du, rf)
             alpha = 1.0
             while alpha > 1e-8:
