@@ -382,6 +382,8 @@ def validate(root: Path, *, load_meshes: bool = True) -> tuple[Pack | None, list
                 key = f"{sec}.{name}"
                 conv = v.table(file_of(key), key, item, schema)
                 if conv is not None:
+                    if sec == "materials" and conv.get("preset"):
+                        _apply_preset(v, file_of(key), key, conv, item)
                     man[sec][name] = conv
         else:
             if not isinstance(val, list):
@@ -501,6 +503,30 @@ def validate(root: Path, *, load_meshes: bool = True) -> tuple[Pack | None, list
     if v.problems:
         return None, v.problems
     return Pack(root=root, manifest=man, texts=v.texts), []
+
+
+PRESET_FILE = BUILTIN_DIR / "presets" / "materials.toml"
+PRESET_KEYS = {"alpha_min": "alpha_min", "alpha_max": "alpha_max", "beta": "beta", "relax": "relax_iterations"}
+
+
+def material_presets() -> dict[str, dict]:
+    """Named ChainMail materials calibrated against FEM (`chainsim study calibrate` writes them)."""
+    try:
+        return tomllib.loads(PRESET_FILE.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return {}
+
+
+def _apply_preset(v: _Validator, file: str, key: str, conv: dict, raw: dict) -> None:
+    """Fill the ChainMail keys the material does not set itself from its named preset."""
+    presets = material_presets()
+    preset = presets.get(conv["preset"])
+    if preset is None:
+        v.add(file, f"{key}.preset", f"unknown preset '{conv['preset']}'; presets: {', '.join(sorted(presets)) or 'none'}")
+        return
+    for mkey, pkey in PRESET_KEYS.items():
+        if mkey not in raw and pkey in preset:
+            conv[mkey] = int(preset[pkey]) if mkey == "relax" else float(preset[pkey])
 
 
 def _check_path(v: _Validator, root: Path, file: str, key: str, rel: str) -> Path | None:
