@@ -8,7 +8,8 @@ Ideal landmarks (thesis 3.3.4, 6.1.5), on the skin of the chosen side: the pack'
     2  the skin point nearest the medial aspect of the pupil
     3  on the skin section by the axial plane through the ear, 30 mm in front of the tragus
 The needle is aimed from landmark 1 at the reference path's target ([paths.<side>], else the
-foramen centre); the two dial angles are computed from that direction exactly as the needle system
+foramen centre); when bone (e.g. the mandible) blocks that line, landmark 1 moves to the skin point
+within 15 mm that has a clear line (with 0.5 mm to spare) and the best landmark-1 score; the two dial angles are computed from that direction exactly as the needle system
 applies them (horizontal: about +Z from the initial heading; vertical: elevation). The skull-hit
 attempt is the same with the vertical angle raised (12 degrees by default) so the tip meets the
 skull base. Both are checked against the obstacle meshes before they are written; --check also runs
@@ -82,6 +83,43 @@ def ideal_landmarks(pack, anat, side):
     l2 = skin.nearest.on_surface([sa.points["pupil"]])[0][0]
     l3 = _section_point(skin, sa.planes["tragus"], sa.points["tragus"], 30.0, lambda p: p[1])
     return np.array([l1, l2, l3]), skin
+
+
+def clear_entry_near(skin, sa, start, targets, obstacles, want, radius=12.0, step=0.5, max_error=0.5):
+    """(entry, target): the skin point within `radius` mm of `start` with the best landmark-1 score
+    (D1 + d1) from which a straight line to one of `targets` meets the foramen first, with 0.25 mm to
+    spare in every direction and a needle error Dist - R below `max_error`; None if there is none."""
+    from components.procedure import landmark_errors
+
+    on = skin.nearest.on_surface([start])
+    normal = skin.face_normals[on[2][0]]
+    a = np.cross(normal, [0.0, 0.0, 1.0])
+    a = a / np.linalg.norm(a) if np.linalg.norm(a) > 1e-9 else np.array([1.0, 0.0, 0.0])
+    b = np.cross(normal, a)
+    k = int(radius / step)
+    offs = np.array([(i * step, j * step) for i in range(-k, k + 1) for j in range(-k, k + 1)
+                     if (i * i + j * j) * step * step <= radius * radius])
+    cand = skin.nearest.on_surface(on[0][0] + offs[:, :1] * a + offs[:, 1:] * b)[0]
+    scores = []
+    for p in cand:
+        lm = np.full((3, 3), np.nan)
+        lm[0] = p
+        e = landmark_errors(sa, lm)
+        scores.append(e["D1"] + e["d1"])
+    jitter = [s * e for e in np.eye(3) for s in (-0.25, 0.25)]
+    for idx in np.argsort(scores, kind="stable"):
+        p = cand[idx]
+        for t in targets:
+            d = t - p
+            name, dist = first_object(obstacles, p, d / np.linalg.norm(d), reach=float(np.linalg.norm(d)) + 20.0)
+            if name != want:
+                continue
+            hit = p + dist * d / np.linalg.norm(d)
+            if np.linalg.norm(hit - sa.foramen_centre) - sa.foramen_radius > max_error:
+                continue
+            if all(first_object(obstacles, p, (t + j - p) / np.linalg.norm(t + j - p))[0] == want for j in jitter):
+                return p, t
+    return None
 
 
 def dial_angles(entry, direction) -> tuple[float, float]:
@@ -176,12 +214,21 @@ def main(argv=None) -> int:
     entry = lms[0]
     d = target - entry
     hit, dist = first_object(obstacles, entry, d / np.linalg.norm(d))
-    if hit != want and sa.path_entry is not None:
-        print(f"aim from the ideal landmark 1 meets {hit or 'nothing'}; using the reference path's entry instead", file=sys.stderr)
-        entry = sa.path_entry
-        lms[0] = entry
-        d = target - entry
-        hit, dist = first_object(obstacles, entry, d / np.linalg.norm(d))
+    if hit != want:
+        # aim points: the foramen centre, then points on the target plug's faces pulled 20 % inward
+        plug = pack.mesh(want)
+        centres = plug.vertices[plug.triangles].mean(axis=1)
+        aims = [target] + list(centres + 0.2 * (plug.vertices.mean(axis=0) - centres))
+        found = clear_entry_near(_skin_mesh, sa, entry, aims, obstacles, want)
+        if found is None and sa.path_entry is not None:
+            found = (sa.path_entry, target)
+        if found is not None:
+            print(f"aim from the ideal landmark 1 meets {hit or 'nothing'}; landmark 1 moved "
+                  f"{np.linalg.norm(found[0] - entry):.1f} mm to the nearest clear entry", file=sys.stderr)
+            entry, target = found
+            lms[0] = entry
+            d = target - entry
+            hit, dist = first_object(obstacles, entry, d / np.linalg.norm(d))
     if hit != want:
         raise SystemExit(f"the straight path from landmark 1 meets {hit or 'nothing'} before {want}")
     yaw, pitch = dial_angles(entry, d)
