@@ -235,10 +235,11 @@ class ProcedureSystem:
         for name in LIGHTS:
             h.set_light(name, self.lights[name] if show else "off")
         self.update_planes(app, ps)
-        # time per step, in simulated seconds
-        sid = ps.step_id
-        ps.step_times[sid] = ps.step_times.get(sid, 0.0) + app.time.frame_dt
-        ps.elapsed += app.time.frame_dt
+        # time per step, in simulated seconds; the clock stops once the needle is in the foramen
+        if not ps.finished:
+            sid = ps.step_id
+            ps.step_times[sid] = ps.step_times.get(sid, 0.0) + app.time.frame_dt
+            ps.elapsed += app.time.frame_dt
 
     def update_planes(self, app, ps: ProcedureState) -> None:
         on = ps.aids_now.get("landmark_planes", False)
