@@ -1,0 +1,195 @@
+"""The shipped prp anatomy (assets/prp): units, foramina, landmarks, skin fit, clear needle paths.
+
+These check the facts a trainee and the procedure code rely on (thesis 3.3.3-3.3.4, 6.1.5), on the
+meshes and anatomy.toml exactly as shipped; nothing here reads the shared source meshes.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+PACK = Path(__file__).resolve().parents[2] / "assets" / "prp"
+MESHES = ("skull", "mandible", "skin", "foramen_ovale_left", "foramen_ovale_right")
+SIDES = ("left", "right")
+SKIN_POINTS = ("oral_commissure", "pupil_medial", "tragus", "landmark1_ideal", "landmark2_ideal", "landmark3_ideal")
+
+
+@pytest.fixture(scope="module")
+def meshes() -> dict[str, trimesh.Trimesh]:
+    return {n: trimesh.load(PACK / "meshes" / f"{n}.ply", force="mesh") for n in MESHES}
+
+
+@pytest.fixture(scope="module")
+def anatomy() -> dict:
+    with open(PACK / "anatomy.toml", "rb") as f:
+        return tomllib.load(f)
+
+
+def first_hit(mesh: trimesh.Trimesh, origin, direction) -> float:
+    d = np.array(direction, float)
+    d = d / np.linalg.norm(d)
+    loc, _, _ = mesh.ray.intersects_location([origin], [d], multiple_hits=True)
+    if len(loc) == 0:
+        return np.inf
+    t = (loc - origin) @ d
+    t = t[t > 1e-9]
+    return float(t.min()) if len(t) else np.inf
+
+
+def test_manifest_has_only_the_tables_the_pack_merges(anatomy):
+    assert set(anatomy) == {"points", "foramina", "planes", "paths"}
+    for side in SIDES:
+        for base in (*SKIN_POINTS, "foramen_ovale"):
+            p = anatomy["points"][f"{base}_{side}"]
+            assert len(p["position"]) == 3 and p["help"]
+        f = anatomy["foramina"][side]
+        assert {"centre", "axis", "width_mm", "height_mm", "radius_mm"} <= set(f)
+        for plane in ("axial_commissure", "sagittal_pupil", "coronal_landmark3", "axial_tragus"):
+            pl = anatomy["planes"][f"{plane}_{side}"]
+            assert np.isclose(np.linalg.norm(pl["normal"]), 1.0) and pl["help"]
+
+
+def test_meshes_are_in_millimetres_in_the_head_frame(meshes):
+    skull = meshes["skull"]
+    width, length, height = skull.extents
+    assert 120 < width < 160  # biparietal breadth of an adult skull
+    assert 160 < length < 215  # glabella to opisthocranion
+    lo, hi = skull.bounds
+    # +Y is the face: the skull reaches much further forward (nasal bones) than the origin.
+    assert hi[1] > 60 and lo[1] < -90
+    # The origin lies between the foramina, at the skull base: vault above, teeth below.
+    assert hi[2] > 100 and lo[2] < -30
+    assert abs(lo[0] + hi[0]) < 10  # roughly symmetric about the midline x = 0
+
+
+def test_surfaces_face_outward_in_the_head_frame(meshes):
+    # The frame mirrors the source data (Y negated), so winding had to be reversed; a renderer or
+    # a ray test relying on normals needs them pointing out of the bone and out of the head.
+    skin = meshes["skin"]
+    assert skin.is_watertight and skin.volume > 0
+    skull = meshes["skull"]
+    top = np.argsort(skull.triangles_center[:, 2])[-50:]
+    assert (skull.face_normals[top, 2] > 0).mean() > 0.9
+    front = np.argsort(skull.triangles_center[:, 1])[-50:]
+    assert (skull.face_normals[front, 1] > 0).mean() > 0.7
+
+
+def test_foramina_have_the_measured_size_and_sit_either_side_of_the_midline(anatomy, meshes):
+    for side, sgn in (("left", 1.0), ("right", -1.0)):
+        f = anatomy["foramina"][side]
+        c = np.array(f["centre"])
+        assert 5.0 <= f["width_mm"] <= 8.0
+        assert 2.0 <= f["height_mm"] <= 4.5
+        assert f["radius_mm"] == pytest.approx(f["width_mm"] / 2, abs=0.01)
+        assert 20.0 <= sgn * c[0] <= 35.0
+        assert np.linalg.norm(f["axis"]) == pytest.approx(1.0, abs=1e-3)
+        assert f["axis"][2] > 0.5  # opens upward, into the middle cranial fossa
+        plug = meshes[f"foramen_ovale_{side}"]
+        assert plug.is_watertight
+        assert plug.contains([c])[0]
+        assert np.allclose(plug.centroid, c, atol=0.2)
+        # Plug dimensions: height along the axis, width across it.
+        ax = np.array(f["axis"])
+        along = (plug.vertices - c) @ ax
+        assert np.ptp(along) == pytest.approx(f["height_mm"], abs=0.05)
+        across = np.linalg.norm((plug.vertices - c) - np.outer(along, ax), axis=1)
+        assert across.max() == pytest.approx(f["width_mm"] / 2, abs=0.05)
+    assert anatomy["points"]["foramen_ovale_left"]["position"] == anatomy["foramina"]["left"]["centre"]
+    mid = 0.5 * (np.array(anatomy["foramina"]["left"]["centre"]) + np.array(anatomy["foramina"]["right"]["centre"]))
+    assert np.allclose(mid, 0.0, atol=1e-2)  # the frame's origin
+
+
+def test_foramen_plug_sits_in_a_hole_of_the_skull(anatomy, meshes):
+    skull = meshes["skull"]
+    for side in SIDES:
+        f = anatomy["foramina"][side]
+        c, ax = np.array(f["centre"]), np.array(f["axis"])
+        # Along the opening's axis there is no bone right at the centre, but bone all around.
+        assert first_hit(skull, c - 20 * ax, ax) > 20 - 2.5
+        helper = np.cross(ax, [1.0, 0.0, 0.0])
+        helper /= np.linalg.norm(helper)
+        ring = 0
+        for ang in np.linspace(0, 2 * np.pi, 8, endpoint=False):
+            d = np.cos(ang) * helper + np.sin(ang) * np.cross(ax, helper)
+            ring += first_hit(skull, c, d) < 8.0
+        assert ring >= 6
+
+
+def test_landmarks_lie_on_the_skin(anatomy, meshes):
+    skin = meshes["skin"]
+    names = [f"{b}_{s}" for b in SKIN_POINTS for s in SIDES]
+    pts = np.array([anatomy["points"][n]["position"] for n in names])
+    _, dist, _ = trimesh.proximity.closest_point(skin, pts)
+    bad = {n: round(float(d), 2) for n, d in zip(names, dist) if d > 1.0}
+    assert not bad
+
+
+def test_landmarks_follow_the_thesis_definitions(anatomy):
+    P = {k: np.array(v["position"]) for k, v in anatomy["points"].items()}
+    for side, sgn in (("left", 1.0), ("right", -1.0)):
+        c, l1 = P[f"oral_commissure_{side}"], P[f"landmark1_ideal_{side}"]
+        assert np.linalg.norm(l1 - c) == pytest.approx(25.0, abs=0.3)
+        assert l1[2] == pytest.approx(c[2], abs=0.3) and sgn * l1[0] > sgn * c[0]
+        t, l3 = P[f"tragus_{side}"], P[f"landmark3_ideal_{side}"]
+        assert np.linalg.norm(l3 - t) == pytest.approx(30.0, abs=0.3)
+        assert l3[2] == pytest.approx(t[2], abs=0.3) and l3[1] > t[1]
+        assert np.allclose(P[f"landmark2_ideal_{side}"], P[f"pupil_medial_{side}"])
+        # Face features in front, ears to the side, each on its own side of the midline.
+        for name in ("oral_commissure", "pupil_medial", "landmark1_ideal"):
+            assert sgn * P[f"{name}_{side}"][0] > 0 and P[f"{name}_{side}"][1] > 40
+        assert 60 < sgn * t[0] < 90
+
+
+def test_reference_planes_pass_through_their_landmarks(anatomy):
+    P = {k: np.array(v["position"]) for k, v in anatomy["points"].items()}
+    for side in SIDES:
+        for plane, point in (("axial_commissure", "oral_commissure"), ("sagittal_pupil", "pupil_medial"),
+                             ("coronal_landmark3", "landmark3_ideal"), ("axial_tragus", "tragus")):
+            pl = anatomy["planes"][f"{plane}_{side}"]
+            d = (P[f"{point}_{side}"] - np.array(pl["point"])) @ np.array(pl["normal"])
+            assert abs(d) < 1e-6
+        assert anatomy["planes"][f"sagittal_pupil_{side}"]["normal"] == [1.0, 0.0, 0.0]
+        assert anatomy["planes"][f"coronal_landmark3_{side}"]["normal"] == [0.0, 1.0, 0.0]
+
+
+def test_stored_correct_paths_reach_the_foramen_before_any_bone(anatomy, meshes):
+    bone = trimesh.util.concatenate([meshes["skull"], meshes["mandible"]])
+    P = {k: np.array(v["position"]) for k, v in anatomy["points"].items()}
+    for side in SIDES:
+        p = anatomy["paths"][side]
+        entry, target = np.array(p["entry"]), np.array(p["target"])
+        assert p["clear"] is True
+        assert np.allclose(target, anatomy["foramina"][side]["centre"])
+        d = target - entry
+        t_plug = first_hit(meshes[f"foramen_ovale_{side}"], entry, d)
+        t_bone = first_hit(bone, entry, d)
+        assert t_plug < np.linalg.norm(d) and t_plug < t_bone
+        # The entry is on the cheek near ideal landmark 1, not somewhere else on the face.
+        assert np.linalg.norm(entry - P[f"landmark1_ideal_{side}"]) <= 15.0
+
+
+def test_skin_encloses_the_skull_with_plausible_facial_tissue(meshes):
+    skin, skull = meshes["skin"], meshes["skull"]
+    v = skull.vertices
+    face = v[(v[:, 1] > 20) & (v[:, 2] > -40)]
+    rng = np.random.default_rng(0)
+    sample = face[rng.choice(len(face), size=min(3000, len(face)), replace=False)]
+    assert skin.contains(sample).mean() > 0.999
+    # Soft tissue over cheek bones and forehead: neither paper thin nor a balloon.
+    s = skin.vertices
+    front = s[(s[:, 1] > 40) & (s[:, 2] > -30) & (s[:, 2] < 70) & (np.abs(s[:, 0]) > 10)]
+    _, d, _ = trimesh.proximity.closest_point(trimesh.util.concatenate([skull, meshes["mandible"]]), front)
+    assert np.percentile(d, 5) > 2.0
+    assert np.median(d) < 25.0
+
+
+def test_pack_meshes_are_small(meshes):
+    total = sum((PACK / "meshes" / f"{n}.ply").stat().st_size for n in MESHES)
+    assert total < 5_000_000
+    for n in MESHES:
+        assert (PACK / "meshes" / f"{n}.ply").read_bytes()[:3] == b"ply"
