@@ -48,10 +48,6 @@ def say(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
-class InputMissing(SystemExit):
-    pass
-
-
 def fail(msg: str) -> None:
     print(f"prepare_prp: error: {msg}", file=sys.stderr)
     raise SystemExit(2)
@@ -289,13 +285,19 @@ def tissue_report(skin, skull, mandible) -> dict:
     tree = cKDTree(np.vstack([pts, bone.vertices]))
     v = skin.vertices
     d, _ = tree.query(v)
+    ax, y, z = np.abs(v[:, 0]), v[:, 1], v[:, 2]
+
+    def box(x0, x1, z0, z1, y0):
+        """Skin in front of y0 with x0 < |x| < x1 and z0 < z < z1 (head frame, mm)."""
+        return (ax > x0) & (ax < x1) & (z > z0) & (z < z1) & (y > y0)
+
     regions = {
-        "forehead": (np.abs(v[:, 0]) < 30) & (v[:, 2] > 45) & (v[:, 2] < 75) & (v[:, 1] > 40),
-        "cheek_zygoma": (np.abs(v[:, 0]) > 30) & (np.abs(v[:, 0]) < 60) & (v[:, 2] > -5) & (v[:, 2] < 15) & (v[:, 1] > 40),
-        "cheek_maxilla": (np.abs(v[:, 0]) > 15) & (np.abs(v[:, 0]) < 40) & (v[:, 2] > -35) & (v[:, 2] < -5) & (v[:, 1] > 45),
-        "buccal_landmark1": (np.abs(v[:, 0]) > 30) & (np.abs(v[:, 0]) < 55) & (v[:, 2] > -60) & (v[:, 2] < -35) & (v[:, 1] > 30),
-        "chin": (np.abs(v[:, 0]) < 12) & (v[:, 2] > -68) & (v[:, 2] < -45) & (v[:, 1] > 60),
-        "vault": v[:, 2] > 80,
+        "forehead": box(-1, 30, 45, 75, 40),
+        "cheek_zygoma": box(30, 60, -5, 15, 40),
+        "cheek_maxilla": box(15, 40, -35, -5, 45),
+        "buccal_landmark1": box(30, 55, -60, -35, 30),
+        "chin": box(-1, 12, -68, -45, 60),
+        "vault": z > 80,
     }
     out = {"skull_vertices_outside": int((~inside).sum()), "skull_vertices": int(len(inside)),
            "outside_where": np.round(skull.vertices[~inside], 1).tolist()[:10]}
@@ -347,10 +349,9 @@ def landmarks_and_paths(skin, skull, mandible, bone, foramina, plugs, orbits) ->
         report["aiming"][side] = {"miss_mm": aim["miss_mm"], "foramen_minus_line_xy_mm": aim["line_offset_mm"]}
         entry, tb, tp, moved = L.clear_entry(skin, bone, plugs[side], lm1, fc)
         paths[side] = {"entry": entry, "target": fc, "clear": bool(tp < tb)}
-        report["paths"][side] = {"from_landmark1_mm": moved, "t_plug_mm": tp, "t_bone_mm": tb,
-                                 "lm1_direct": None}
         tb1, tp1 = L.path_hits(bone, plugs[side], lm1, fc)
-        report["paths"][side]["lm1_direct"] = {"t_plug_mm": tp1, "t_bone_mm": tb1, "clear": bool(tp1 < tb1)}
+        report["paths"][side] = {"from_landmark1_mm": moved, "t_plug_mm": tp, "t_bone_mm": tb,
+                                 "lm1_direct": {"t_plug_mm": tp1, "t_bone_mm": tb1, "clear": bool(tp1 < tb1)}}
         report.setdefault("raw", {})[side] = {"orbit_xz": orbits[side].tolist(), "meatus": meatus[side].tolist()}
     return {"points": points, "planes": planes, "paths": paths, "report": report}
 

@@ -1,7 +1,7 @@
 """Facial landmarks, reference planes, the aiming check and clear needle paths (thesis 3.3.4, 6.1.5).
 
 All inputs are meshes in the prp head frame (mm; +X subject's left, +Y anterior, +Z up). The skin
-points are found on the fitted skin itself: the mouth fissure is traced as a groove in a frontal
+points are found on the fitted skin itself: the closed lips are traced as a ridge in a frontal
 depth map and its lateral ends are the oral commissures; the pupils are taken in front of the
 centres of the bony orbital openings; the tragus is where the skin closes over the bony external
 auditory meatus. The ideal landmarks follow thesis 3.3.4: 25 mm lateral to the commissure in its
@@ -382,7 +382,10 @@ def bony_landmarks(skull: trimesh.Trimesh, mandible: trimesh.Trimesh, orbits: di
         # Gonion: the ramus corner, the point furthest back-and-down on this side.
         g = w[ang][np.argmax(-w[ang][:, 1] - w[ang][:, 2])]
         out.append((f"gonion_{side}", g, sgn * X))
-    return [(n, p, d, TISSUE_DEPTH_MM[n.rsplit("_", 1)[0] if n.endswith(("_left", "_right")) else n]) for n, p, d in out]
+    def depth(name: str) -> float:
+        return TISSUE_DEPTH_MM[name.rsplit("_", 1)[0] if name.endswith(("_left", "_right")) else name]
+
+    return [(n, p, d, depth(n)) for n, p, d in out]
 
 
 def scalp_rays(skull: trimesh.Trimesh, centre: np.ndarray, z_min: float, n_az: int = 12,
