@@ -76,8 +76,12 @@ class PrpAnatomy:
     sides: dict[str, SideAnatomy]
 
     def side_of(self, point) -> str:
-        """Head frame: +X is the subject's left, origin midway between the foramina."""
-        return "left" if float(point[0]) >= 0.0 else "right"
+        """The side whose sagittal half holds the point: the nearer of the two foramina across the
+        midline. Decided from the named anatomy, so it holds whichever way a pack's axes point."""
+        p = np.asarray(point, float)
+        left, right = self.sides["left"].foramen_centre, self.sides["right"].foramen_centre
+        across = right - left
+        return "left" if (p - 0.5 * (left + right)) @ across < 0.0 else "right"
 
 
 def _lookup(table: dict, aliases, side: str):

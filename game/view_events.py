@@ -48,3 +48,10 @@ class LayerChanged:
 
     layer: str
     visible: bool
+
+
+@dataclass(frozen=True, slots=True)
+class WidgetRefused:
+    """A disabled widget was clicked; its state did not change (procedures may say why)."""
+
+    name: str

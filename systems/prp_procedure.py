@@ -12,7 +12,7 @@ HudState (step title and instruction, messages, the red/green lights).
 Steps (the pack's [[steps]], in this order): reading -> landmark1 -> landmark2 -> landmark3 ->
 orient_horizontal -> orient_vertical -> insert -> review. Landmarks are placed by clicks (Picked) on
 the entity "skin", one per click in step order; clicks on anything else are ignored with a message.
-Landmark 1 decides the side (its x sign in the head frame, +X the subject's left) and the needle jumps
+Landmark 1 decides the side (the half of the head it lies in, from the named anatomy) and the needle jumps
 to it (3.3.4: the simulator places the needle so the trainee can concentrate on orienting and
 inserting). Steps only move forward, following what the trainee does (a rotation about the vertical
 axis means orient_horizontal, and so on); time is booked to the step that is current.
@@ -32,6 +32,7 @@ from game.input_events import Widget
 from game.loader import EntityIndex, PackResource
 from systems import needle as needle_sys
 from systems.collision import NeedleHit
+from game.view_events import WidgetRefused
 from systems.needle import InsertRefused, NeedleAction, NeedleReset, RotationRefused
 
 STEP_IDS = ("reading", "landmark1", "landmark2", "landmark3", "orient_horizontal", "orient_vertical", "insert", "review")
@@ -74,6 +75,7 @@ class ProcedureSystem:
         self.actions = app.events.reader(NeedleAction)
         self.resets = app.events.reader(NeedleReset)
         self.refused = app.events.reader(RotationRefused)
+        self.widget_refused = app.events.reader(WidgetRefused)
         self.insert_refused = app.events.reader(InsertRefused)
         self.hits = app.events.reader(NeedleHit)
         pres: PackResource = app.resource(PackResource)
@@ -198,6 +200,9 @@ class ProcedureSystem:
             else:
                 self.restart(app, ps, "orient_horizontal" if ps.placed else "landmark1")
                 h.message("Needle reset to landmark 1; rotation unlocked.")
+        for ev in self.widget_refused.read():
+            if ev.name in ("rotate_horizontal", "rotate_vertical"):
+                h.message("Rotation is locked once the needle is inserted; press Reset to re-aim.")
         for ev in self.refused.read():
             if ev.reason == "locked":
                 h.message("Rotation is locked once the needle is inserted; press Reset to re-aim.")

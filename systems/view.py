@@ -42,7 +42,7 @@ from game.hud import HudState
 from game.input_events import Key, MouseButton, MouseDrag, MouseMove, PickPoint, Resize, Scroll, Widget
 from game.loader import EntityIndex, PackResource
 from game.resources import InputState, Settings
-from game.view_events import Dragged, LayerChanged, Picked
+from game.view_events import Dragged, LayerChanged, Picked, WidgetRefused
 from game.viewports import KINDS_3D, Camera, OrbitCamera, Rect, attached_camera, layout_rects, orbit_from_table
 
 CLICK_PX = 4.0  # a press and release closer than this (total travel) is a click, not a drag
@@ -216,6 +216,8 @@ class ViewSystem:
             if p is not None and ev.button == "left" and st.enabled(p.spec["name"]):
                 vs.widget = p
                 self.use_widget(app, p.spec["name"], wd.click_value(p, ev.x, st.values.get(p.spec["name"])))
+            elif p is not None and ev.button == "left":
+                self.emit(app, WidgetRefused(p.spec["name"]))
         elif vp.picks and vp.camera is not None and not vp.mouse_camera and ev.button == "left":
             from game.picking import pick
 

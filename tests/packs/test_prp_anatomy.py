@@ -68,8 +68,7 @@ def test_meshes_are_in_millimetres_in_the_head_frame(meshes):
 
 
 def test_surfaces_face_outward_in_the_head_frame(meshes):
-    # The frame mirrors the source data (Y negated), so winding had to be reversed; a renderer or
-    # a ray test relying on normals needs them pointing out of the bone and out of the head.
+    # A renderer or a ray test relying on normals needs them pointing out of the bone and the head.
     skin = meshes["skin"]
     assert skin.is_watertight and skin.volume > 0
     skull = meshes["skull"]
@@ -80,7 +79,7 @@ def test_surfaces_face_outward_in_the_head_frame(meshes):
 
 
 def test_foramina_have_the_measured_size_and_sit_either_side_of_the_midline(anatomy, meshes):
-    for side, sgn in (("left", 1.0), ("right", -1.0)):
+    for side, sgn in (("left", -1.0), ("right", 1.0)):  # RAS head frame: the left is -X
         f = anatomy["foramina"][side]
         c = np.array(f["centre"])
         assert 5.0 <= f["width_mm"] <= 8.0
@@ -131,7 +130,7 @@ def test_landmarks_lie_on_the_skin(anatomy, meshes):
 
 def test_landmarks_follow_the_thesis_definitions(anatomy):
     P = {k: np.array(v["position"]) for k, v in anatomy["points"].items()}
-    for side, sgn in (("left", 1.0), ("right", -1.0)):
+    for side, sgn in (("left", -1.0), ("right", 1.0)):  # RAS head frame: the left is -X
         c, l1 = P[f"oral_commissure_{side}"], P[f"landmark1_ideal_{side}"]
         assert np.linalg.norm(l1 - c) == pytest.approx(25.0, abs=0.3)
         assert l1[2] == pytest.approx(c[2], abs=0.3) and sgn * l1[0] > sgn * c[0]
@@ -193,3 +192,13 @@ def test_pack_meshes_are_small(meshes):
     assert total < 5_000_000
     for n in MESHES:
         assert (PACK / "meshes" / f"{n}.ply").read_bytes()[:3] == b"ply"
+
+
+def test_head_frame_is_right_handed_and_unmirrored():
+    """Seen from the front (+Y), the subject's left must be on the viewer's right: with +Z up and a
+    right-handed frame that puts the left side at -X. A mirrored frame would swap the foramina."""
+    anat = tomllib.loads((PACK / "anatomy.toml").read_text())
+    left = np.array(anat["foramina"]["left"]["centre"])
+    right = np.array(anat["foramina"]["right"]["centre"])
+    pupil_l = np.array(anat["points"]["pupil_medial_left"]["position"])
+    assert left[0] < 0 < right[0] and pupil_l[0] < 0

@@ -10,7 +10,6 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 PACK = Path(os.environ.get("CHAINSIM_PRP_TEST_PACK", ROOT / "assets" / "prp"))
-HAVE_ANATOMY = (PACK / "anatomy.toml").is_file()
 
 
 def _write(tmp_path, text: str) -> Path:
@@ -19,7 +18,6 @@ def _write(tmp_path, text: str) -> Path:
     return p
 
 
-@pytest.mark.skipif(not HAVE_ANATOMY, reason="prp anatomy not in this checkout")
 def test_protocol_runs_trials_saves_attempts_and_prints_table(cli, tmp_path):
     from game.records import RecordStore
 
@@ -84,7 +82,6 @@ def test_missing_protocol_file_is_one_line(cli, tmp_path):
     assert code == 2 and "not found" in err and len(err.strip().splitlines()) == 1
 
 
-@pytest.mark.skipif(not HAVE_ANATOMY, reason="prp anatomy not in this checkout")
 def test_missing_script_is_refused_before_anything_is_saved(cli, tmp_path):
     proto = _write(tmp_path, f'format = 1\npack = "{PACK.as_posix()}"\n[[trial]]\ntask = "location"\n'
                              'condition = "x"\nscripts = ["scripts/correct.toml", "scripts/nope.toml"]\n')

@@ -22,7 +22,6 @@ ROOT = Path(__file__).resolve().parents[2]
 PACK = Path(os.environ.get("CHAINSIM_PRP_TEST_PACK", ROOT / "assets" / "prp"))
 SCRIPTS = PACK / "scripts"
 
-pytestmark = pytest.mark.skipif(not (PACK / "anatomy.toml").is_file(), reason="prp anatomy not in this checkout")
 
 
 @pytest.fixture(scope="module")

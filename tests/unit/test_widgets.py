@@ -3,6 +3,8 @@
 import esper
 import numpy as np
 
+from game.view_events import WidgetRefused
+
 from components.core import MeshRef
 from game import widgets as wd
 from game.headless import build_app
@@ -123,6 +125,8 @@ def test_disabled_widget_ignores_clicks():
         app.run_steps(2)
         assert _rod_visible(app) is True
         assert [e for e in app.events.log if isinstance(e, Widget)] == []
+        # the click is answered, so a procedure can say why nothing happened
+        assert [e for e in app.events.log if isinstance(e, WidgetRefused)] == [WidgetRefused("toggle_rod")]
     finally:
         app.close()
 
