@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from game import quaternion
 from game.registry import component, prop
 
 
@@ -28,12 +29,7 @@ class Transform:
 
     def matrix(self) -> np.ndarray:
         """4 x 4 model matrix (column vectors)."""
-        w, x, y, z = self.rotation
-        r = np.array([
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ])
+        r = quaternion.to_matrix(self.rotation)
         m = np.eye(4)
         m[:3, :3] = r * self.scale
         m[:3, 3] = self.position

@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from game import quaternion
+
 KINDS_3D = ("orbit", "attached", "fixed")
 
 
@@ -92,16 +94,6 @@ def perspective(fov_deg: float, aspect: float, near: float, far: float) -> np.nd
     m[2, 3] = 2.0 * far * near / (near - far)
     m[3, 2] = -1.0
     return m
-
-
-def quat_matrix(q) -> np.ndarray:
-    """3 x 3 rotation of a unit quaternion [w, x, y, z]."""
-    w, x, y, z = (float(c) for c in q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
 
 
 # -- cameras -------------------------------------------------------------------------------------
@@ -205,7 +197,7 @@ def orbit_from_table(vp: dict) -> OrbitCamera:
 
 def attached_camera(position, rotation, scale: float, offset, fov: float, near: float, far: float) -> Camera:
     """Camera riding on an entity (convention in the module docstring)."""
-    r = quat_matrix(rotation)
+    r = quaternion.to_matrix(rotation)
     eye = np.asarray(position, float) + r @ (np.asarray(offset, float) * float(scale))
     fwd = r @ np.array([0.0, 0.0, 1.0])
     up = r @ np.array([0.0, 1.0, 0.0])

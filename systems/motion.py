@@ -10,18 +10,8 @@ import esper
 import numpy as np
 
 from components.core import ScriptedMotion, Transform
+from game import quaternion
 from game.app import ORDER_KINEMATICS
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    return np.array([
-        w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-    ])
 
 
 def motion_system(app) -> None:
@@ -56,12 +46,8 @@ def motion_system(app) -> None:
             ang = np.radians(mo.spin) * dt
             for axis in range(3):
                 if ang[axis]:
-                    h = ang[axis] / 2
-                    q = np.zeros(4)
-                    q[0] = np.cos(h)
-                    q[1 + axis] = np.sin(h)
-                    tr.rotation = _quat_mul(q, tr.rotation)
-            tr.rotation = tr.rotation / np.linalg.norm(tr.rotation)
+                    tr.rotation = quaternion.mul(quaternion.from_axis_angle(np.eye(3)[axis], ang[axis]), tr.rotation)
+            tr.rotation = quaternion.normalize(tr.rotation)
 
 
 def plugin(app) -> None:
