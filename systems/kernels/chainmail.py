@@ -111,6 +111,9 @@ class Workspace:
         self.q_key = np.empty(0, dtype=np.float64)   # violation (Schill)
         self.branch_head = np.empty(0, dtype=np.int64)
         self.branch_tail = np.empty(0, dtype=np.int64)
+        # The mesh arrays last checked with this workspace, held (not just their ids) so an identity
+        # match means the very same arrays: interactive dragging re-checks only pos, grabbed, targets.
+        self.checked: tuple = ()
 
     def ensure(self, capacity: int, order: int = ORDER_BALANCED, branches: int | None = None) -> None:
         """Make the waiting-list buffers hold `capacity` entries for `order` (FIFO needs none).
@@ -492,6 +495,22 @@ def _check_points(name, arr, n=None):
         raise ValueError(f"{name} must have {n} rows, got {arr.shape[0]}")
 
 
+def _check_mesh(rest, pos, graph, amin, amax, beta) -> None:
+    """The per-mesh arguments of cascade (skipped when a workspace has seen these very arrays)."""
+    n = pos.shape[0]
+    if type(rest) is not np.ndarray or rest.shape != pos.shape or rest.dtype != pos.dtype:
+        raise ValueError(f"rest must match pos in shape {pos.shape} and dtype {pos.dtype}, got "
+                         f"{getattr(rest, 'shape', type(rest).__name__)} {getattr(rest, 'dtype', '')}")
+    if not rest.flags.c_contiguous:
+        raise ValueError("rest must be C-contiguous")
+    if graph.indptr.shape[0] != n + 1:
+        raise ValueError(f"graph has {graph.indptr.shape[0] - 1} elements but pos has {n}")
+    m = graph.links.shape[0]
+    for name, arr in (("amin", amin), ("amax", amax), ("beta", beta)):
+        if type(arr) is not np.ndarray or arr.shape != (m,) or arr.dtype.char not in "fd":
+            raise ValueError(f"{name} must be a per-link float array of shape ({m},) (see material_arrays)")
+
+
 def cascade(rest, pos, graph: Graph, amin, amax, beta, grabbed, targets, fixed=None,
             order=ORDER_FIFO, workspace: Workspace | None = None, depth: int = 2, copy: bool = True):
     """Move `grabbed` to `targets` and propagate the move through the mesh (5.2.3); pos changes in place.
@@ -509,17 +528,12 @@ def cascade(rest, pos, graph: Graph, amin, amax, beta, grabbed, targets, fixed=N
     """
     _check_points("pos", pos)
     n, dim = pos.shape
-    if type(rest) is not np.ndarray or rest.shape != pos.shape or rest.dtype != pos.dtype:
-        raise ValueError(f"rest must match pos in shape {pos.shape} and dtype {pos.dtype}, got "
-                         f"{getattr(rest, 'shape', type(rest).__name__)} {getattr(rest, 'dtype', '')}")
-    if not rest.flags.c_contiguous:
-        raise ValueError("rest must be C-contiguous")
-    if graph.indptr.shape[0] != n + 1:
-        raise ValueError(f"graph has {graph.indptr.shape[0] - 1} elements but pos has {n}")
-    m = graph.links.shape[0]
-    for name, arr in (("amin", amin), ("amax", amax), ("beta", beta)):
-        if type(arr) is not np.ndarray or arr.shape != (m,) or arr.dtype.char not in "fd":
-            raise ValueError(f"{name} must be a per-link float array of shape ({m},) (see material_arrays)")
+    chk = workspace.checked if workspace is not None else ()
+    if not (chk and chk[0] is rest and chk[1] is graph and chk[2] is amin and chk[3] is amax and chk[4] is beta
+            and rest.shape == pos.shape and rest.dtype == pos.dtype):
+        _check_mesh(rest, pos, graph, amin, amax, beta)
+        if workspace is not None and workspace.n == n:
+            workspace.checked = (rest, graph, amin, amax, beta)
     if type(grabbed) is not np.ndarray or grabbed.dtype != _INT64 or grabbed.ndim != 1:
         grabbed = np.ascontiguousarray(np.atleast_1d(np.asarray(grabbed)), dtype=np.int64)
         if grabbed.ndim != 1:
