@@ -19,6 +19,20 @@ class HudState:
     messages: list[tuple[str, float | None]] = field(default_factory=list)  # (text, seconds left or None)
     lights: dict[str, str] = field(default_factory=dict)  # name -> "red" | "green" | "off"
     panel_text: list[str] = field(default_factory=list)  # e.g. self-assessment lines under the widgets
+    # the pack's docs page reader: procedures name the page for the current step, the `help` widget
+    # (or a `docs:NAME` button) opens and closes it, page keys scroll it
+    doc_name: str = ""
+    doc_open: bool = False
+    doc_scroll: int = 0
+
+    def open_doc(self, name: str | None = None) -> None:
+        if name:
+            self.doc_name = name
+        self.doc_open = bool(self.doc_name)
+        self.doc_scroll = 0
+
+    def close_doc(self) -> None:
+        self.doc_open = False
 
     def message(self, text: str, seconds: float | None = 4.0) -> None:
         """Show `text` for `seconds` of simulated time (None: until removed)."""

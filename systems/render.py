@@ -223,6 +223,10 @@ def collect_frame(app):
     frame.hud_view = (orbit or shown3d)[0].name if shown3d else ""
     if vs.show_help:
         frame.help = help_lines(app)
+    hud = frame.hud
+    if hud is not None and hud.doc_open and hud.doc_name in pack.section("docs"):
+        page = pack.section("docs")[hud.doc_name]
+        frame.doc = (page["title"], pack.doc_text(hud.doc_name), hud.doc_scroll)
     return frame
 
 

@@ -192,6 +192,13 @@ class ViewSystem:
         st: wd.WidgetState = app.resource(wd.WidgetState)
         if not wd.apply_widget(st, name, value):
             return
+        if name == "help" or name.startswith("docs:"):
+            h: HudState = app.resource(HudState)
+            page = name[5:] if name.startswith("docs:") else None
+            if h.doc_open and (page is None or page == h.doc_name):
+                h.close_doc()
+            else:
+                h.open_doc(page)
         spec = st.specs.get(name)
         if spec is not None and spec["kind"] == "toggle" and spec.get("layer"):
             set_layer(app, spec["layer"], bool(st.values[name]))
@@ -334,6 +341,9 @@ class ViewSystem:
             elif isinstance(ev, Key) and ev.pressed:
                 if ev.key == "f1":
                     vs.show_help = not vs.show_help
+                h: HudState = app.resource(HudState)
+                if h.doc_open and ev.key in DOC_SCROLL:
+                    h.doc_scroll = max(0, h.doc_scroll + DOC_SCROLL[ev.key])
                 st: wd.WidgetState = app.resource(wd.WidgetState)
                 for w in layout.get("widgets", []):
                     if w.get("key") and w["key"].lower() == ev.key and w["kind"] in wd.INTERACTIVE:
@@ -344,6 +354,9 @@ class ViewSystem:
             elif isinstance(ev, PickPoint):
                 self.pick_point(app, ev)
         self.own.extend(o for o in own if not any(o is e for e in events))
+
+
+DOC_SCROLL = {"pagedown": 12, "pageup": -12}
 
 
 def default_layout(app) -> dict:

@@ -76,6 +76,7 @@ class Frame:
     hud: Any = None  # game.hud.HudState
     hud_view: str = ""  # viewport that shows the step text and messages
     help: list[str] | None = None  # shown centred when not None
+    doc: tuple[str, str, int] | None = None  # (title, markdown text, first line) of an open docs page
 
 
 def _mat(m: np.ndarray) -> bytes:
@@ -316,6 +317,8 @@ class Renderer:
                 self._hud(frame.hud, r, s)
         for p in frame.panels:
             self._panel(p, frame.hud, s)
+        if frame.doc is not None:
+            self._doc(frame, s)
         if frame.help is not None:
             lines = frame.help
             W, H = frame.size[0] * s, frame.size[1] * s
@@ -326,6 +329,28 @@ class Renderer:
             ov.frame(x0, y0, bw, bh, ACCENT, s)
             for i, t in enumerate(lines):
                 ov.label(t, x0 + 16 * s, y0 + bh - 12 * s - (i + 1) * f.line_h + f.descent, TEXT)
+
+    def _doc(self, frame, s: float) -> None:
+        """A docs page in a box over the views: title, then wrapped text from the scroll line."""
+        ov, f = self.overlay, self.overlay.font
+        title, text, first = frame.doc
+        W, H = frame.size[0] * s, frame.size[1] * s
+        view = next((v.rect for v in frame.views if v.name == frame.hud_view), None)
+        left, width = (view.x * s, view.w * s) if view is not None else (0.0, W)  # stay inside the main view
+        bw, bh = min(width - 48 * s, 760 * s), H * 0.78
+        x0, y0 = left + 24 * s, (H - bh) / 2
+        lines = doc_lines(text, lambda t: f.wrap(t, bw - 32 * s))
+        fit = max(int((bh - 3 * f.line_h - 24 * s) // f.line_h), 1)
+        first = min(first, max(len(lines) - fit, 0))
+        shown = lines[first:first + fit]
+        ov.rect(x0, y0, bw, bh, (0.03, 0.035, 0.05, 0.94))
+        ov.frame(x0, y0, bw, bh, ACCENT, s)
+        top = y0 + bh - 12 * s - f.line_h + f.descent
+        ov.label(title, x0 + 16 * s, top, ACCENT)
+        for i, t in enumerate(shown):
+            ov.label(t, x0 + 16 * s, top - (i + 1.5) * f.line_h, TEXT)
+        more = f"lines {first + 1}-{first + len(shown)} of {len(lines)}; PageUp/PageDown scroll, Help closes"
+        ov.label(more, x0 + 16 * s, y0 + 10 * s, (0.6, 0.65, 0.75, 1.0))
 
     def _hud(self, hud, r: Rect, s: float) -> None:
         ov, f = self.overlay, self.overlay.font
@@ -447,3 +472,20 @@ def _trs(pos, radius: float) -> np.ndarray:
     m[3, 3] = 1.0
     m[:3, 3] = np.asarray(pos, float)
     return m
+
+
+def doc_lines(markdown: str, wrap) -> list[str]:
+    """Markdown as plain wrapped lines: heading marks and emphasis dropped, lists and tables kept."""
+    out = []
+    for raw in markdown.splitlines():
+        t = raw.rstrip()
+        if t.startswith("#"):
+            t = t.lstrip("#").strip().upper()
+        t = t.replace("**", "").replace("`", "")
+        if len(t) > 1 and t[0] == "*" and t[-1] == "*":
+            t = t[1:-1]
+        if t.startswith("|") or not t:
+            out.append(t)
+        else:
+            out.extend(wrap(t) or [""])
+    return out
