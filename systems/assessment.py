@@ -131,6 +131,22 @@ def save(app, v: dict) -> int:
                                   attempt_record(app.resource(PackResource).pack.name, v))
 
 
+def my_attempts(app, limit: int = 6) -> list[str]:
+    """Panel lines for the current trainee's saved attempts, newest last (the View of Fig. 3.11)."""
+    from game.records import RecordStore
+
+    s = app.resource(Settings)
+    cls, who = s.get("class") or DEFAULT_CLASS, s.get("trainee") or DEFAULT_TRAINEE
+    with RecordStore(s.get("db") or None) as store:
+        rows = store.list_attempts(cls, who)
+    lines = [f"Attempts of {who} ({cls}): {len(rows)}"]
+    for r in rows[-limit:]:
+        ne = "-" if r["needle_error_mm"] is None else f"{r['needle_error_mm']:.1f}"
+        lines.append(f"#{r['id']} {r['created_at'][:16]}  landmarks {r['landmark_error_mm']:.1f} mm, "
+                     f"needle {ne} mm, {r['target']}")
+    return lines
+
+
 class AssessmentSystem:
     def __init__(self, app):
         self.widgets = app.events.reader(Widget)
@@ -161,6 +177,13 @@ class AssessmentSystem:
                     s = app.resource(Settings)
                     h.message(f"Attempt {rid} saved for {s.get('trainee') or DEFAULT_TRAINEE} "
                               f"in class {s.get('class') or DEFAULT_CLASS}.")
+            elif ev.name == "my_attempts":
+                try:
+                    h.panel_text = my_attempts(app)
+                except (UserError, OSError):  # nothing saved yet under this class and name
+                    s = app.resource(Settings)
+                    h.panel_text = [f"No saved attempts yet for {s.get('trainee') or DEFAULT_TRAINEE} "
+                                    f"in class {s.get('class') or DEFAULT_CLASS}."]
             elif ev.name == "help":
                 h.panel_text = [
                     "Assessment help (docs page 'assessment'):",
