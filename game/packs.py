@@ -22,8 +22,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from game import manifest_schema as ms
 from game.errors import UserError
 from game.meshes import MeshData, MeshError, load_file, max_mesh_bytes, primitive

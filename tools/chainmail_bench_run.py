@@ -273,7 +273,7 @@ def _fmt_rate(ms: float) -> str:
 
 
 def markdown(results: dict) -> str:
-    out = [f"# Generalised ChainMail benchmark\n",
+    out = ["# Generalised ChainMail benchmark\n",
            f"{results['machine']} - numpy {results['numpy']}, numba {results['numba']}; medians of repeated runs "
            "after warm-up.\n"]
     if results.get("thesis"):
@@ -417,18 +417,10 @@ def run_suite(args) -> int:
 
 
 def run_mesh(args) -> int:
-    from game.commands.chainmail import ORDERS
+    from game.commands.chainmail import ORDERS, check_material_flags
     from game.meshimport import load_graph
 
-    for name, v in (("--alpha-min", args.alpha_min), ("--alpha-max", args.alpha_max), ("--beta", args.beta)):
-        if not math.isfinite(v):
-            raise UserError(f"{name}: must be a finite number, got {v}")
-    if not 0.0 <= args.alpha_min <= 1.0:
-        raise UserError(f"--alpha-min: must be in [0, 1], got {args.alpha_min:g}")
-    if args.alpha_max < 1.0:
-        raise UserError(f"--alpha-max: must be >= 1, got {args.alpha_max:g}")
-    if args.beta < 0.0:
-        raise UserError(f"--beta: must be >= 0, got {args.beta:g}")
+    check_material_flags(args)
     if args.grab is None or args.to is None:
         raise UserError("--mesh needs --grab I and --to X [Y [Z]]")
     if not all(math.isfinite(v) for v in args.to):

@@ -469,7 +469,7 @@ def preview(path: Path, skull, mandible, skin, plugs, anat) -> None:
         ("below", np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])),
     ]
     centre = np.array([0.0, 20.0, 5.0])
-    imgs = [render(layers, d, u, centre, 115.0, size=(400, 400), mirror_x=False) for _, d, u in views]
+    imgs = [render(layers, d, u, centre, 115.0, size=(400, 400)) for _, d, u in views]
     Image.fromarray(np.hstack(imgs)).save(path, optimize=True)
 
 

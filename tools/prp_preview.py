@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from game.viewports import look_at
+
 _VS = """
 #version 330
 uniform mat4 mvp;
@@ -35,19 +37,13 @@ void main() {
 
 def _look(view_dir: np.ndarray, up: np.ndarray, centre: np.ndarray, half: float) -> np.ndarray:
     """Orthographic view-projection looking along view_dir (the direction the camera faces)."""
-    f = view_dir / np.linalg.norm(view_dir)
-    r = np.cross(f, up)
-    r /= np.linalg.norm(r)
-    u = np.cross(r, f)
-    view = np.eye(4)
-    view[0, :3], view[1, :3], view[2, :3] = r, u, -f
-    view[:3, 3] = -view[:3, :3] @ centre
+    view = look_at(centre - view_dir / np.linalg.norm(view_dir), centre, up)
     depth = 4.0 * half
     proj = np.diag([1.0 / half, 1.0 / half, -1.0 / depth, 1.0])
     return proj @ view
 
 
-def render(layers, view_dir, up, centre, half, size=(640, 640), mirror_x: bool = False) -> np.ndarray:
+def render(layers, view_dir, up, centre, half, size=(640, 640)) -> np.ndarray:
     """layers: list of (trimesh.Trimesh, (r, g, b, a)). Returns an RGB uint8 image."""
     import moderngl
 
@@ -58,9 +54,6 @@ def render(layers, view_dir, up, centre, half, size=(640, 640), mirror_x: bool =
         fbo.use()
         ctx.clear(1.0, 1.0, 1.0, 1.0)
         mvp = _look(np.asarray(view_dir, float), np.asarray(up, float), np.asarray(centre, float), half)
-        if mirror_x:
-            # The head frame is left-handed; mirroring the screen x shows the subject unmirrored.
-            mvp = np.diag([-1.0, 1.0, 1.0, 1.0]) @ mvp
         prog["mvp"].write(mvp.T.astype("f4").tobytes())
         light = -np.asarray(view_dir, float) + 0.5 * np.asarray(up, float)
         prog["light"].value = tuple((light / np.linalg.norm(light)).tolist())

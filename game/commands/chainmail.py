@@ -51,21 +51,28 @@ def _finite(name: str, v: float) -> None:
         raise UserError(f"{name}: must be a finite number, got {v}")
 
 
-def check_args(args) -> None:
-    """Checks that need no mesh (so a bad flag costs nothing)."""
+def check_material_flags(args) -> None:
+    """--alpha-min in [0, 1], --alpha-max >= 1, --beta >= 0, all finite (thesis 5.2.2)."""
     from game.errors import UserError
 
-    for name, v in (("--alpha-min", args.alpha_min), ("--alpha-max", args.alpha_max), ("--beta", args.beta),
-                    ("--relax-step", args.relax_step)):
+    for name, v in (("--alpha-min", args.alpha_min), ("--alpha-max", args.alpha_max), ("--beta", args.beta)):
         _finite(name, v)
-    for i, v in enumerate(args.to):
-        _finite("--to", v)
     if not 0.0 <= args.alpha_min <= 1.0:
         raise UserError(f"--alpha-min: must be in [0, 1], got {args.alpha_min:g}")
     if args.alpha_max < 1.0:
         raise UserError(f"--alpha-max: must be >= 1, got {args.alpha_max:g}")
     if args.beta < 0.0:
         raise UserError(f"--beta: must be >= 0, got {args.beta:g}")
+
+
+def check_args(args) -> None:
+    """Checks that need no mesh (so a bad flag costs nothing)."""
+    from game.errors import UserError
+
+    check_material_flags(args)
+    _finite("--relax-step", args.relax_step)
+    for v in args.to:
+        _finite("--to", v)
     if args.relax < 0:
         raise UserError(f"--relax: must be >= 0, got {args.relax}")
     if not 0.0 < args.relax_step <= 1.0:

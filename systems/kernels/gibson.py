@@ -23,6 +23,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .graph import fixed_mask
+
 # list order and (axis, sign) of each direction: right, left, top, bottom, front, back
 _DIR_AXIS = np.array([0, 0, 1, 1, 2, 2], dtype=np.int64)
 _DIR_SIGN = np.array([1, -1, 1, -1, 1, -1], dtype=np.int64)
@@ -173,13 +175,7 @@ def _prepare(pos, shape, grabbed, target, fixed):
     target = np.asarray(target, dtype=np.float64).reshape(-1)
     if target.shape != (dim,) or not np.all(np.isfinite(target)):
         raise ValueError(f"target must be {dim} finite coordinates, got {target}")
-    if fixed is None:
-        fixed_arr, has_fixed = np.zeros(1, dtype=np.bool_), False
-    else:
-        fixed_arr = np.asarray(fixed, dtype=np.bool_)
-        if fixed_arr.shape != (n,):
-            raise ValueError(f"fixed must be a bool array of shape ({n},) or None")
-        has_fixed = True
+    fixed_arr, has_fixed = fixed_mask(fixed, n)
     nx, ny = shape[0], shape[1]
     nz = shape[2] if dim == 3 else 1
     return dim, n, nx, ny, nz, grabbed, target, fixed_arr, has_fixed

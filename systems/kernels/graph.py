@@ -100,3 +100,13 @@ def components(graph: Graph) -> np.ndarray:
     live = graph.links[graph.alive]
     mat = coo_matrix((np.ones(len(live)), (live[:, 0], live[:, 1])), shape=(n, n))
     return connected_components(mat, directed=False)[1]
+
+
+def fixed_mask(fixed, n: int) -> tuple[np.ndarray, bool]:
+    """(bool array of shape (n,), True) for an anchor mask, or a 1-element placeholder and False for None."""
+    if fixed is None:
+        return np.zeros(1, dtype=np.bool_), False
+    arr = np.ascontiguousarray(fixed, dtype=np.bool_)
+    if arr.shape != (n,):
+        raise ValueError(f"fixed must be a bool array of shape ({n},) or None, got {arr.shape}")
+    return arr, True

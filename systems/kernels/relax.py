@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from .graph import Graph
+from .graph import Graph, fixed_mask
 
 
 @njit(cache=True, parallel=True)
@@ -80,13 +80,7 @@ def relax(rest, pos, graph: Graph, active, iterations, step=1.0, fixed=None) -> 
     step = float(step)
     if not (0.0 < step <= 1.0):
         raise ValueError(f"step must lie in (0, 1], got {step}")
-    if fixed is None:
-        fixed_arr, has_fixed = np.zeros(1, dtype=np.bool_), False
-    else:
-        fixed_arr = np.asarray(fixed, dtype=np.bool_)
-        if fixed_arr.shape != (n,):
-            raise ValueError(f"fixed must be a bool array of shape ({n},) or None")
-        has_fixed = True
+    fixed_arr, has_fixed = fixed_mask(fixed, n)
     if active.size == 0 or iterations == 0:
         return
     _relax_kernel(rest, pos, graph.indptr, graph.indices, graph.link, graph.alive, active, iterations,
