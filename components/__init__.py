@@ -1,1 +1,1 @@
-"""Plain-data components. Every module here registers its types with game.registry on import."""
+"""Plain-data components. Every module here registers its types with chainsim.components.registry on import."""

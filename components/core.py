@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from game import quaternion
-from game.registry import component, prop
+from chainsim.engine import quaternion
+from chainsim.components.registry import component, prop
 
 
 @dataclass(slots=True)

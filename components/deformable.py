@@ -4,7 +4,7 @@
 render mesh into a ChainMail object (elements = mesh vertices in the SAME order, links = triangle edges
 for a surface or tetrahedron edges for a volume, 5.2.1 and 5.2.6) with per-link material limits taken
 from a [materials] entry and optional inline overrides. An entity whose `simulation.kind` is "surface"
-or "volume" but has no `deformable` table gets a default one from `systems.deformation` (same fields,
+or "volume" but has no `deformable` table gets a default one from `chainsim.systems.deformation` (same fields,
 material = the mesh's material), so both spellings lead to one component.
 
 Runtime state lives in the same dataclass: `rest` and `pos` (N, 3) in the entity's local frame, the
@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from game.errors import UserError
-from game.registry import component, prop
+from chainsim.engine.errors import UserError
+from chainsim.components.registry import component, prop
 
 ORDERS = ("fifo", "balanced", "schill")
 SOURCES = ("auto", "surface", "volume")
@@ -46,7 +46,7 @@ def build_deformable(d: "Deformable", ctx) -> None:
     """Spawn hook: derive the ChainMail object from the entity's mesh (see `setup_deformable`)."""
     import esper
 
-    from components.core import MeshRef
+    from chainsim.components.core import MeshRef
 
     where = f"entities.{ctx.entity_name}.deformable"
     mesh_ref = esper.try_component(ctx.entity, MeshRef)
@@ -146,7 +146,7 @@ def resolve_material(d: Deformable, materials: dict, mesh_material: str, where: 
 
 def body_links(mesh, source: str, where: str) -> np.ndarray:
     """Links of the ChainMail object for `source` (surface edges or tetrahedron edges)."""
-    from game import meshgen
+    from chainsim.engine import meshgen
 
     has_tets = mesh.tets is not None and len(mesh.tets) > 0
     if source == "auto":
@@ -174,8 +174,8 @@ def boundary_vertices(triangles: np.ndarray) -> np.ndarray:
 
 def setup_deformable(d: Deformable, mesh, materials: dict, mesh_material: str = "", where: str = "deformable") -> Deformable:
     """Fill the runtime state of `d` from a MeshData (positions copied; the pack's mesh is shared)."""
-    from systems.kernels.chainmail import make_workspace, material_arrays
-    from systems.kernels.graph import build_graph
+    from chainsim.engine.kernels.chainmail import make_workspace, material_arrays
+    from chainsim.engine.kernels.graph import build_graph
 
     mat = resolve_material(d, materials, mesh_material, where)
     dtype = np.float32 if d.dtype == "float32" else np.float64

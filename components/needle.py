@@ -6,7 +6,7 @@ needle goes. The pose is kept as an entry point, an orientation quaternion and a
 
     tip = entry + depth * rotate(q, +Z)
 
-Orientation is changed only by concatenated quaternion rotations (game.quaternion), never by
+Orientation is changed only by concatenated quaternion rotations (chainsim.engine.quaternion), never by
 re-deriving angles, as in 3.3.5.
 """
 
@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from game.registry import component, prop
+from chainsim.components.registry import component, prop
 
 
 @component("needle", help="A needle driven by the rhizotomy procedure: rotate (horizontal, then vertical), then insert along its axis.")
@@ -57,7 +57,7 @@ class NeedleState:
     park_rotation: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0, 0.0]))
 
     def direction(self) -> np.ndarray:
-        from game.quaternion import rotate
+        from chainsim.engine.quaternion import rotate
 
         return rotate(self.q, np.array([0.0, 0.0, 1.0]))
 

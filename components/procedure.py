@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from game.errors import UserError
+from chainsim.engine.errors import UserError
 
 SIDES = ("left", "right")
 LANDMARK_COUNT = 3

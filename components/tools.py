@@ -1,6 +1,6 @@
 """Instruments of the cutting trainer (thesis 4.5.2): forceps that grab, pull and push one element of a
 tissue layer, and scissors that cut along a path of touched points. Plain data; the behaviour lives in
-`systems.cutting_procedure`.
+`chainsim.systems.procedures.cutting.procedure`.
 
 The manifest keys set how a tool behaves (speeds, grab reach, blade size); the runtime fields hold what
 it is doing now (which element it holds, where its tip is, the cut path so far) and what it has done
@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from game.registry import component, prop
+from chainsim.components.registry import component, prop
 
 
 def _vec():

@@ -1,3 +1,8 @@
-"""chainsim: the application shell (App, stages, packs, CLI, adapters)."""
+"""chainsim: the application shell (App, stages, packs, CLI, records, window and GL adapters)."""
 
-__version__ = "0.1.0"
+from importlib.metadata import PackageNotFoundError, version
+
+try:  # the version is written once, in pyproject.toml
+    __version__ = version("chainsim")
+except PackageNotFoundError:  # running from a source tree that was never installed
+    __version__ = "0+unknown"

@@ -1,1 +1,1 @@
-"""ECS systems, one module per system; numba kernels live in systems.kernels."""
+"""ECS systems, one module per system; numba kernels live in chainsim.engine.kernels."""

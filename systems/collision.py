@@ -193,8 +193,8 @@ def build_obstacles(app) -> PrpObstacles:
     """Meshes of the obstacle entities, through their Transform (static scenery)."""
     import esper
 
-    from components.core import MeshRef, Transform
-    from game.loader import EntityIndex, PackResource
+    from chainsim.components.core import MeshRef, Transform
+    from chainsim.game.app.loader import EntityIndex, PackResource
 
     pack = app.resource(PackResource).pack
     index: EntityIndex = app.resource(EntityIndex)
@@ -233,9 +233,9 @@ class NeedleHit:
 def collision_system(app) -> None:
     import esper
 
-    from components.needle import Needle, NeedleState
-    from components.procedure import PrpAnatomy
-    from systems.needle import _sync_widgets, apply_pose
+    from chainsim.components.needle import Needle, NeedleState
+    from chainsim.components.procedure import PrpAnatomy
+    from chainsim.systems.needle import _sync_widgets, apply_pose
 
     obs: PrpObstacles = app.resource(PrpObstacles)
     anat: PrpAnatomy = app.resource(PrpAnatomy)
@@ -272,6 +272,6 @@ def collision_system(app) -> None:
 
 def plugin(app) -> None:
     app.insert_resource(build_obstacles(app))
-    from game.app import ORDER_COLLISION
+    from chainsim.game.app.core import ORDER_COLLISION
 
     app.add_system("simulation", collision_system, order=ORDER_COLLISION, name="needle_collision")

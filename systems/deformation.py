@@ -1,7 +1,7 @@
 """Deformation: serves grab / release / cut / add-link requests on deformable bodies with ChainMail.
 
 Stage: simulation (ORDER_DEFORMATION; the scripted puller just before it). Reads GrabRequest,
-ReleaseRequest, CutRequest, AddLinksRequest (game.deform_events), Widget events (to start pulls) and
+ReleaseRequest, CutRequest, AddLinksRequest (chainsim.components.deform_events), Widget events (to start pulls) and
 the view system's Dragged events (with `deformable.drag`, a mouse drag on a body pulls the element
 nearest the grab point; off by default so a procedure's own tools are the only hands on the tissue).
 Writes Deformable.pos / dirty / version / held / alive, emits Deformed.
@@ -22,11 +22,11 @@ from dataclasses import dataclass, field
 import esper
 import numpy as np
 
-from components.deformable import Deformable, Pull, setup_deformable
-from game.app import ORDER_DEFORMATION
-from game.deform_events import (FRAMES, AddLinksRequest, CutRequest, Deformed, GrabRequest, ReleaseRequest,
-                                as_points)
-from game.input_events import Widget
+from chainsim.components.deformable import Deformable, Pull, setup_deformable
+from chainsim.game.app.core import ORDER_DEFORMATION
+from chainsim.components.deform_events import (FRAMES, AddLinksRequest, CutRequest, Deformed, GrabRequest,
+                                               ReleaseRequest, as_points)
+from chainsim.components.input_events import Widget
 
 ORDER_PULL = ORDER_DEFORMATION - 10
 _ORDER_CODES = {"fifo": 0, "balanced": 1, "schill": 2}
@@ -53,7 +53,7 @@ def _to_local(ent: int, pts: np.ndarray, frame: str) -> np.ndarray:
         raise ValueError(f"frame must be one of {', '.join(FRAMES)}, got {frame!r}")
     if frame == "local":
         return pts
-    from components.core import Transform
+    from chainsim.components.core import Transform
 
     tr = esper.try_component(ent, Transform)
     if tr is None:
@@ -63,7 +63,7 @@ def _to_local(ent: int, pts: np.ndarray, frame: str) -> np.ndarray:
 
 
 def _to_world(ent: int, pts: np.ndarray) -> np.ndarray:
-    from components.core import Transform
+    from chainsim.components.core import Transform
 
     tr = esper.try_component(ent, Transform)
     if tr is None:
@@ -74,7 +74,7 @@ def _to_world(ent: int, pts: np.ndarray) -> np.ndarray:
 
 def _entity(app, ref) -> int | None:
     if isinstance(ref, str):
-        from game.loader import EntityIndex
+        from chainsim.game.app.loader import EntityIndex
 
         index = app.get_resource(EntityIndex)
         return index.get(ref) if index is not None else None
@@ -89,10 +89,10 @@ PARALLEL_RELAX_MIN = 100_000
 
 
 def relax_moved(rest, pos, graph, active, iterations: int, step: float = 1.0, fixed=None) -> None:
-    """Relaxation of thesis 5.2.5 over `active` (systems.kernels.relax), serial for small sets."""
+    """Relaxation of thesis 5.2.5 over `active` (chainsim.engine.kernels.relax), serial for small sets."""
     import numba
 
-    from systems.kernels.relax import relax
+    from chainsim.engine.kernels.relax import relax
 
     if len(active) >= PARALLEL_RELAX_MIN:
         relax(rest, pos, graph, active, iterations, step=step, fixed=fixed)
@@ -107,7 +107,7 @@ def relax_moved(rest, pos, graph, active, iterations: int, step: float = 1.0, fi
 
 def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np.ndarray:
     """Move `ids` to local `targets`, cascade and relax; returns the ids that changed."""
-    from systems.kernels.chainmail import cascade
+    from chainsim.engine.kernels.chainmail import cascade
 
     ids = np.atleast_1d(np.asarray(ids, dtype=np.int64))
     n = d.n_elements
@@ -147,7 +147,7 @@ def release(d: Deformable, ids=None) -> None:
 
 def cut(d: Deformable, ent: int, req: CutRequest) -> int:
     """Kill the links a blade crosses (4.5.2); returns how many were cut."""
-    from systems.kernels import topology
+    from chainsim.engine.kernels import topology
 
     before = int(np.count_nonzero(d.alive))
     if req.polyline is not None:
@@ -172,7 +172,7 @@ def _blade_kwargs(ent: int, req: CutRequest) -> dict:
     if req.normal is not None:
         nrm = as_points(req.normal, "CutRequest.normal")[0]
         if req.frame == "world":
-            from components.core import Transform
+            from chainsim.components.core import Transform
 
             tr = esper.try_component(ent, Transform)
             if tr is not None:
@@ -185,8 +185,8 @@ def _blade_kwargs(ent: int, req: CutRequest) -> dict:
 
 def add_links(d: Deformable, links) -> int:
     """Join element pairs with new links carrying the body's material limits; returns how many."""
-    from systems.kernels import topology
-    from systems.kernels.chainmail import material_arrays
+    from chainsim.engine.kernels import topology
+    from chainsim.engine.kernels.chainmail import material_arrays
 
     links = np.asarray(links, dtype=np.int64).reshape(-1, 2)
     m_before = d.graph.n_links
@@ -321,8 +321,8 @@ def pull_system(app) -> None:
 def _pull_element(ent: int, p: Pull, d: Deformable) -> int:
     if p.element >= 0:
         if p.element >= d.n_elements:
-            from components.core import Name
-            from game.errors import UserError
+            from chainsim.components.core import Name
+            from chainsim.engine.errors import UserError
 
             name = esper.try_component(ent, Name)
             raise UserError(f"entities.{name.value if name else ent}.pull.element: {p.element} is not an element id "
@@ -336,8 +336,8 @@ def _pull_element(ent: int, p: Pull, d: Deformable) -> int:
 
 def _default_deformables(app) -> None:
     """Entities with simulation.kind surface/volume and a mesh but no deformable table get one."""
-    from components.core import MeshRef, Name, Simulation
-    from game.loader import PackResource
+    from chainsim.components.core import MeshRef, Name, Simulation
+    from chainsim.game.app.loader import PackResource
 
     pres = app.get_resource(PackResource)
     if pres is None:
@@ -362,7 +362,7 @@ def plugin(app) -> None:
     ev = app.events
     st = DeformationState(ev.reader(None), ev.reader(Widget))
     try:
-        from game.view_events import Dragged
+        from chainsim.components.view_events import Dragged
 
         st.drag_type = Dragged
     except ImportError:  # a build without the view system: drags simply never arrive

@@ -9,9 +9,9 @@ from __future__ import annotations
 import esper
 import numpy as np
 
-from components.core import ScriptedMotion, Transform
-from game import quaternion
-from game.app import ORDER_KINEMATICS
+from chainsim.components.core import ScriptedMotion, Transform
+from chainsim.engine import quaternion
+from chainsim.game.app.core import ORDER_KINEMATICS
 
 
 def motion_system(app) -> None:

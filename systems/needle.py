@@ -36,13 +36,13 @@ from dataclasses import dataclass
 import esper
 import numpy as np
 
-from components.core import Transform
-from components.needle import Needle, NeedleState
-from game import quaternion as Q
-from game.app import ORDER_KINEMATICS
-from game.input_events import Key, Widget
-from game.loader import EntityIndex
-from game.resources import InputState
+from chainsim.components.core import Transform
+from chainsim.components.needle import Needle, NeedleState
+from chainsim.engine import quaternion as Q
+from chainsim.game.app.core import ORDER_KINEMATICS
+from chainsim.components.input_events import Key, Widget
+from chainsim.game.app.loader import EntityIndex
+from chainsim.components.resources import InputState
 
 Z = np.array([0.0, 0.0, 1.0])
 ROTATION_WIDGETS = ("rotate_horizontal", "rotate_vertical")
@@ -167,7 +167,7 @@ def rotate_vertical(st: NeedleState, delta_deg: float, max_pitch: float) -> floa
 
 
 def _widgets(app):
-    from game.widgets import WidgetState
+    from chainsim.systems.ui.widgets import WidgetState
 
     return app.get_resource(WidgetState)
 

@@ -1,7 +1,7 @@
 """Cameras, picking and the control panel: turns pointer and key events into camera moves, `Picked` /
 `Dragged` events and `Widget` events (thesis 3.3.4 linked views and controller; 4.5.2 dragging tissue).
 
-Stage: input (ORDER_VIEW), after systems.input. Reads: every input event on the queue, Transform /
+Stage: input (ORDER_VIEW), after chainsim.systems.input. Reads: every input event on the queue, Transform /
 MeshRef / Deformable (picking, attached cameras), PackResource.layout, Settings. Writes: ViewState
 (viewport rectangles and cameras, resource), WidgetState, HudState (ages messages), the `visible` flag
 of MeshRef / Marker / PolyLine components of a layer switched by a toggle; emits Picked, Dragged,
@@ -34,16 +34,16 @@ from dataclasses import dataclass, field
 import esper
 import numpy as np
 
-from components.core import Marker, MeshRef, PolyLine, Transform
-from game import widgets as wd
-from game.app import ORDER_VIEW
-from game.errors import UserError
-from game.hud import HudState
-from game.input_events import Key, MouseButton, MouseDrag, MouseMove, PickPoint, Resize, Scroll, Widget
-from game.loader import EntityIndex, PackResource
-from game.resources import InputState, Settings
-from game.view_events import Dragged, LayerChanged, Picked, WidgetRefused
-from game.viewports import KINDS_3D, Camera, OrbitCamera, Rect, attached_camera, layout_rects, orbit_from_table
+from chainsim.components.core import Marker, MeshRef, PolyLine, Transform
+from chainsim.systems.ui import widgets as wd
+from chainsim.game.app.core import ORDER_VIEW
+from chainsim.engine.errors import UserError
+from chainsim.components.hud import HudState
+from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, PickPoint, Resize, Scroll, Widget
+from chainsim.game.app.loader import EntityIndex, PackResource
+from chainsim.components.resources import InputState, Settings
+from chainsim.components.view_events import Dragged, LayerChanged, Picked, WidgetRefused
+from chainsim.systems.ui.viewports import KINDS_3D, Camera, OrbitCamera, Rect, attached_camera, layout_rects, orbit_from_table
 
 CLICK_PX = 4.0  # a press and release closer than this (total travel) is a click, not a drag
 
@@ -226,7 +226,7 @@ class ViewSystem:
             elif p is not None and ev.button == "left":
                 self.emit(app, WidgetRefused(p.spec["name"]))
         elif vp.picks and vp.camera is not None and not vp.mouse_camera and ev.button == "left":
-            from game.picking import pick
+            from chainsim.systems.picking import pick
 
             o, d = self.ray(vp, ev.x, ev.y)
             hit = pick(app, o, d)
@@ -274,7 +274,7 @@ class ViewSystem:
                 g = vs.grab
                 self.emit(app, Dragged(vp.name, g[1], g[2], "end", g[3], g[4], self.drag_point(vs, vp, ev.x, ev.y), ev.button))
             if vs.travel <= CLICK_PX and vp.picks:
-                from game.picking import pick
+                from chainsim.systems.picking import pick
 
                 o, d = self.ray(vp, ev.x, ev.y)
                 hit = pick(app, o, d)
@@ -296,7 +296,7 @@ class ViewSystem:
             self.use_widget(app, name, new)
 
     def pick_point(self, app, ev: PickPoint) -> None:
-        from game.picking import snap
+        from chainsim.systems.picking import snap
 
         index: EntityIndex = app.resource(EntityIndex)
         ent = index.get(ev.entity)

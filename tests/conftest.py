@@ -13,7 +13,7 @@ import pytest  # noqa: E402
 @pytest.fixture
 def cli(capsys):
     """Run `chainsim ARGS` in-process; returns (exit code, stdout, stderr)."""
-    from game.cli import main
+    from chainsim.game.cli.main import main
 
     def run(*args: str):
         code = main([str(a) for a in args])

@@ -6,7 +6,7 @@ EGL (Mesa llvmpipe on machines without a GPU) gives the same renderer without a 
 
 from __future__ import annotations
 
-from game.errors import UserError
+from chainsim.engine.errors import UserError
 
 
 class GLUnavailable(UserError):

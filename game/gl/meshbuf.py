@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from game.gl.normals import moved_normals_kernel
+from chainsim.engine.kernels.normals import moved_normals_kernel
 
 #: vertex-id gaps smaller than this are written through rather than split into two writes
 RUN_GAP = 256
@@ -20,7 +20,7 @@ FULL_FRACTION = 0.3
 
 def vertex_normals(pos: np.ndarray, tris: np.ndarray) -> np.ndarray:
     """Unit per-vertex normals: the area-weighted mean of the incident face normals (numba kernel)."""
-    from game.gl.normals import vertex_normals_kernel
+    from chainsim.engine.kernels.normals import vertex_normals_kernel
 
     out = np.zeros((len(pos), 3))
     if len(pos) and len(tris):
@@ -106,7 +106,7 @@ class GpuMesh:
         if self.lbo is None:
             links = self._links
             if links is None:
-                from game.meshgen import links_from_polygons
+                from chainsim.engine.meshgen import links_from_polygons
 
                 links = links_from_polygons(self.tris) if len(self.tris) else np.zeros((0, 2), np.int64)
                 self._links = links

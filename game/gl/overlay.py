@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from game.gl import shaders
+from chainsim.game.gl import shaders
 
 #: ASCII, Latin-1 and the punctuation and symbols instructions tend to use; anything else shows as "?"
 CHARS = ([chr(c) for c in range(32, 127)] + [chr(c) for c in range(161, 256)]

@@ -19,7 +19,7 @@ def write_png(path, rgba: np.ndarray) -> Path:
     """Write (H, W, 4) uint8 pixels atomically (a partial file never replaces a good one)."""
     from PIL import Image
 
-    from game.errors import UserError
+    from chainsim.engine.errors import UserError
 
     path = Path(path)
     try:

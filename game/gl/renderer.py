@@ -6,7 +6,7 @@ and poly-lines with depth testing; then transparent meshes and planes sorted bac
 writes off, each drawn back faces first and front faces second, so a see-through skin over a skull
 blends in the right order. Panels and the HUD are drawn last in window pixels (`Overlay`).
 
-The renderer only sees plain data (`Frame`); `systems.render` gathers it from the world.
+The renderer only sees plain data (`Frame`); `chainsim.game.gl.render_system` gathers it from the world.
 """
 
 from __future__ import annotations
@@ -16,10 +16,10 @@ from typing import Any
 
 import numpy as np
 
-from game.gl import shaders
-from game.gl.meshbuf import GpuMesh
-from game.gl.overlay import Overlay
-from game.viewports import Camera, Rect
+from chainsim.game.gl import shaders
+from chainsim.game.gl.meshbuf import GpuMesh
+from chainsim.game.gl.overlay import Overlay
+from chainsim.systems.ui.viewports import Camera, Rect
 
 SHADING = {"smooth": 0, "flat": 1, "unlit": 2}
 PANEL_BG = (0.13, 0.14, 0.17, 1.0)
@@ -55,7 +55,7 @@ class PanelDraw:
     name: str
     rect: Rect
     title: str
-    placed: list  # game.widgets.Placed
+    placed: list  # chainsim.systems.ui.widgets.Placed
     values: dict
     disabled: set
     hint: str = ""  # help of the widget under the pointer, shown at the bottom
@@ -73,7 +73,7 @@ class Frame:
     planes: list[tuple] = field(default_factory=list)  # (corners (4, 3), RGBA)
     labels: list[tuple] = field(default_factory=list)  # (position, text, RGBA)
     panels: list[PanelDraw] = field(default_factory=list)
-    hud: Any = None  # game.hud.HudState
+    hud: Any = None  # chainsim.components.hud.HudState
     hud_view: str = ""  # viewport that shows the step text and messages
     help: list[str] | None = None  # shown centred when not None
     doc: tuple[str, str, int] | None = None  # (title, markdown text, first line) of an open docs page
@@ -282,7 +282,7 @@ class Renderer:
             ctx.scissor = None
             if previous is not None:
                 previous.use()
-            from game.gl.context import release_framebuffer
+            from chainsim.game.gl.context import release_framebuffer
 
             release_framebuffer(ctx, fbo)
         slot = raw[:, :, 3]
@@ -373,7 +373,7 @@ class Renderer:
             ov.label(t, x0 + pad, top - (i + 1) * f.line_h + f.descent, c, max_w=width - 2 * pad)
 
     def _panel(self, p: PanelDraw, hud, s: float) -> None:
-        from game.widgets import TITLE_PX, below_widgets
+        from chainsim.systems.ui.widgets import TITLE_PX, below_widgets
 
         ov, f = self.overlay, self.overlay.font
         r = p.rect.scaled(s)

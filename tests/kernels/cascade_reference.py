@@ -10,7 +10,7 @@ from collections import deque
 
 import numpy as np
 
-from game import meshgen
+from chainsim.engine import meshgen
 
 
 def adjacency(n, links, alive):

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from cascade_reference import box, random_mesh, ref_cascade
 
-from game import meshgen
-from systems.kernels.chainmail import ORDER_BALANCED, ORDER_FIFO, ORDER_SCHILL, cascade, make_workspace, material_arrays
-from systems.kernels.graph import build_graph, components
+from chainsim.engine import meshgen
+from chainsim.engine.kernels.chainmail import ORDER_BALANCED, ORDER_FIFO, ORDER_SCHILL, cascade, make_workspace, material_arrays
+from chainsim.engine.kernels.graph import build_graph, components
 
 ORDERS = (ORDER_FIFO, ORDER_BALANCED, ORDER_SCHILL)
 

@@ -10,9 +10,9 @@ from cascade_reference import MESH_KINDS, box, random_mesh, ref_cascade
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from systems.kernels.chainmail import (ORDER_BALANCED, ORDER_FIFO, ORDER_SCHILL, cascade, make_workspace,
+from chainsim.engine.kernels.chainmail import (ORDER_BALANCED, ORDER_FIFO, ORDER_SCHILL, cascade, make_workspace,
                                        material_arrays)
-from systems.kernels.graph import build_graph
+from chainsim.engine.kernels.graph import build_graph
 
 SETTINGS = settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

@@ -8,10 +8,10 @@ from cascade_reference import random_mesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from game import meshgen
-from systems.kernels.chainmail import cascade, material_arrays
-from systems.kernels.graph import build_graph, components, degree
-from systems.kernels.topology import add_links, cut_path, cut_plane_strip, cut_segment
+from chainsim.engine import meshgen
+from chainsim.engine.kernels.chainmail import cascade, material_arrays
+from chainsim.engine.kernels.graph import build_graph, components, degree
+from chainsim.engine.kernels.topology import add_links, cut_path, cut_plane_strip, cut_segment
 
 
 def segments_cross(a, b, p, q):

@@ -7,12 +7,12 @@ import esper
 import numpy as np
 import pytest
 
-from components.deformable import Deformable, Pull
-from game import packs
-from game.headless import build_app, run_pack
-from game.inputscript import load_script
-from game.loader import PackResource
-from game.resources import PendingInput
+from chainsim.components.deformable import Deformable, Pull
+from chainsim.game.packs import pack as packs
+from chainsim.game.app.headless import build_app, run_pack
+from chainsim.game.app.inputscript import load_script
+from chainsim.game.app.loader import PackResource
+from chainsim.components.resources import PendingInput
 
 SCENES = ("patch", "brain", "volume")
 STEPS = 240

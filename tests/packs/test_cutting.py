@@ -11,13 +11,13 @@ import esper
 import numpy as np
 import pytest
 
-from components.deformable import Deformable
-from game import packs
-from game.digest import world_digest
-from game.headless import Assessment, build_app
-from game.inputscript import load_script
-from game.loader import EntityIndex
-from game.resources import PendingInput, Settings
+from chainsim.components.deformable import Deformable
+from chainsim.game.packs import pack as packs
+from chainsim.game.app.digest import world_digest
+from chainsim.game.app.headless import Assessment, build_app
+from chainsim.game.app.inputscript import load_script
+from chainsim.game.app.loader import EntityIndex
+from chainsim.components.resources import PendingInput, Settings
 
 PACK = Path(__file__).resolve().parents[2] / "assets" / "cutting"
 SCRIPTS = PACK / "scripts"
@@ -89,7 +89,7 @@ def test_pack_validates_and_names_the_cutting_procedure():
 
 
 def test_meshes_are_what_the_generator_writes():
-    from tools.make_cutting_pack import main
+    from chainsim.game.packbuild.make_cutting_pack import main
 
     assert main(["--check"]) == 0
 

@@ -8,24 +8,24 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from game.headless import build_app
-from game.input_events import Widget
-from game.inputscript import load_script
-from game.resources import PendingInput
+from chainsim.game.app.headless import build_app
+from chainsim.components.input_events import Widget
+from chainsim.game.app.inputscript import load_script
+from chainsim.components.resources import PendingInput
 
 SCRIPT = Path(__file__).resolve().parents[2] / "assets" / "cutting" / "scripts" / "cut-and-open.toml"
 
 
 @pytest.fixture(scope="module")
 def cut_frame():
-    from game.gl.context import GLUnavailable, egl_context
+    from chainsim.game.gl.context import GLUnavailable, egl_context
 
     try:
         egl_context()
     except GLUnavailable as e:
         pytest.skip(f"no EGL OpenGL 3.3 context: {e}")
-    from systems.render import draw, read_pixels
-    from systems.view import ViewState
+    from chainsim.game.gl.render_system import draw, read_pixels
+    from chainsim.systems.view import ViewState
 
     app = build_app("cutting", render=True)
     try:

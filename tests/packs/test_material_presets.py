@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from game import packs
+from chainsim.game.packs import pack as packs
 
 
 def _pack(tmp_path, material: str):

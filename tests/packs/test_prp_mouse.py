@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from game.headless import run_pack
-from game.input_events import MouseButton, MouseDrag, MouseMove
-from game.inputscript import load_script
-from tools.make_prp_mouse_script import SCRIPTS, build
+from chainsim.game.app.headless import run_pack
+from chainsim.components.input_events import MouseButton, MouseDrag, MouseMove
+from chainsim.game.app.inputscript import load_script
+from chainsim.game.packbuild.make_prp_mouse_script import SCRIPTS, build
 
 MOUSE = SCRIPTS / "correct-mouse.toml"
 

@@ -19,7 +19,7 @@ def _write(tmp_path, text: str) -> Path:
 
 
 def test_protocol_runs_trials_saves_attempts_and_prints_table(cli, tmp_path):
-    from game.records import RecordStore
+    from chainsim.game.records.store import RecordStore
 
     proto = _write(tmp_path, f"""
 format = 1

@@ -1,6 +1,6 @@
 """The shipped prp pack: its scripted attempts reach the foramen / hit the skull (thesis 3.3.6, 6.1.5).
 
-These run the real anatomy (assets/prp/anatomy.toml and meshes) headless through game.headless.run_pack,
+These run the real anatomy (assets/prp/anatomy.toml and meshes) headless through chainsim.game.app.headless.run_pack,
 exactly as `chainsim run prp --headless --input FILE --out DIR` does.
 """
 
@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from game import packs
-from game.headless import run_pack
-from game.inputscript import load_script
-from game.input_events import Widget
+from chainsim.game.packs import pack as packs
+from chainsim.game.app.headless import run_pack
+from chainsim.game.app.inputscript import load_script
+from chainsim.components.input_events import Widget
 
 ROOT = Path(__file__).resolve().parents[2]
 PACK = Path(os.environ.get("CHAINSIM_PRP_TEST_PACK", ROOT / "assets" / "prp"))

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from game import packs
+from chainsim.game.packs import pack as packs
 
 BROKEN = Path(__file__).parent / "broken"
 ROOT = Path(__file__).resolve().parents[2]
@@ -114,7 +114,7 @@ def test_loading_a_pack_never_executes_code_from_it(tmp_path, cli):
 
 
 def test_docs_components_lists_every_registered_field(cli):
-    from game.registry import COMPONENTS, SECTIONS
+    from chainsim.components.registry import COMPONENTS, SECTIONS
 
     code, out, _ = cli("docs", "components")
     assert code == 0

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from conftest import frame_pixels, open_app
 
-from game import packs
+from chainsim.game.packs import pack as packs
 
 
 def _scenes():
@@ -21,7 +21,7 @@ def _scenes():
 
 @pytest.mark.parametrize("ref", _scenes())
 def test_scene_renders_a_frame(ref):
-    from systems.view import ViewState
+    from chainsim.systems.view import ViewState
 
     app = open_app(ref, size=(320, 200))
     try:

@@ -3,7 +3,7 @@
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from game.gl.normals import moved_normals_kernel, vertex_normals_kernel
+from chainsim.engine.kernels.normals import moved_normals_kernel, vertex_normals_kernel
 
 
 def reference_normals(pos, tris):
@@ -47,7 +47,7 @@ def test_vertex_normals_match_the_reference(seed, n, f, dtype):
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**31 - 1), st.integers(3, 60), st.integers(1, 120), st.integers(1, 10))
 def test_moved_normals_renew_exactly_the_affected_vertices(seed, n, f, k):
-    from game.gl.meshbuf import incidence
+    from chainsim.game.gl.meshbuf import incidence
 
     rng = np.random.default_rng(seed)
     pos, tris = random_mesh(rng, n, f)

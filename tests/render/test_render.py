@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from conftest import frame_pixels, open_app
 
-from game.input_events import MouseButton
-from game.picking import pick
-from game.resources import PendingInput
-from game.view_events import Picked
+from chainsim.components.input_events import MouseButton
+from chainsim.systems.picking import pick
+from chainsim.components.resources import PendingInput
+from chainsim.components.view_events import Picked
 
 THREE_VIEWS = """
 [layouts.three]
@@ -32,8 +32,8 @@ layout = "three"
 def test_viewport_rectangles_are_where_the_layout_says(make_pack):
     app = open_app(make_pack(THREE_VIEWS), size=(333, 211))
     try:
-        from game.gl.renderer import Renderer
-        from systems.render import RenderTarget, collect_frame
+        from chainsim.game.gl.renderer import Renderer
+        from chainsim.game.gl.render_system import RenderTarget, collect_frame
 
         colours = {"left": (1.0, 0.0, 0.0, 1.0), "top": (0.0, 1.0, 0.0, 1.0), "panel": (0.0, 0.0, 1.0, 1.0)}
         with app.active():
@@ -87,7 +87,7 @@ def test_silhouette_lands_where_the_camera_math_projects_it(make_pack):
     from matplotlib.path import Path as MPath
     from scipy.spatial import ConvexHull
 
-    from systems.view import ViewState
+    from chainsim.systems.view import ViewState
 
     app = open_app(make_pack(BOX), size=(320, 240))
     try:
@@ -97,7 +97,7 @@ def test_silhouette_lands_where_the_camera_math_projects_it(make_pack):
         corners = np.array([[x, y, z] for x in (-20, 20) for y in (-15, 15) for z in (-10, 10)], float)
         import esper
 
-        from components.core import Transform
+        from chainsim.components.core import Transform
 
         with app.active():
             tr = esper.get_component(Transform)[0][1]
@@ -216,8 +216,8 @@ value = false
 
 
 def test_xray_toggle_makes_a_layer_see_through(make_pack):
-    from game.input_events import Widget
-    from systems.render import XRAY_OPACITY
+    from chainsim.components.input_events import Widget
+    from chainsim.game.gl.render_system import XRAY_OPACITY
 
     app = open_app(make_pack(XRAY), size=(64, 48))
     try:
@@ -233,9 +233,9 @@ def test_xray_toggle_makes_a_layer_see_through(make_pack):
 
 
 def test_cpu_pick_returns_the_triangle_the_renderer_shows(gl_ctx):
-    from game.gl.renderer import Renderer
-    from systems.render import RenderTarget
-    from systems.view import ViewState
+    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.gl.render_system import RenderTarget
+    from chainsim.systems.view import ViewState
 
     app = open_app("loop-demo", size=(480, 300))
     try:
@@ -309,9 +309,9 @@ fov = 40.0
 def test_deformed_vertices_are_uploaded_in_place_with_fresh_normals(make_pack):
     import esper
 
-    from components.deformable import Deformable
-    from game.gl.meshbuf import vertex_normals
-    from game.gl.renderer import Renderer
+    from chainsim.components.deformable import Deformable
+    from chainsim.game.gl.meshbuf import vertex_normals
+    from chainsim.game.gl.renderer import Renderer
 
     app = open_app(make_pack(DEFORM), size=(200, 200))
     try:
@@ -344,9 +344,9 @@ def test_deformed_vertices_are_uploaded_in_place_with_fresh_normals(make_pack):
 def test_cut_links_hide_their_triangles_in_drawing_and_picking(make_pack):
     import esper
 
-    from components.deformable import Deformable
-    from game.gl.renderer import Renderer
-    from systems.view import ViewState
+    from chainsim.components.deformable import Deformable
+    from chainsim.game.gl.renderer import Renderer
+    from chainsim.systems.view import ViewState
 
     app = open_app(make_pack(DEFORM), size=(200, 200))
     try:
@@ -386,8 +386,8 @@ def test_wireframe_material_draws_links_not_faces(make_pack):
 def test_partial_uploads_match_a_full_recompute_on_random_patches(gl_ctx):
     from hypothesis import given, settings, strategies as st
 
-    from game.gl.meshbuf import GpuMesh, runs, vertex_normals
-    from game.meshgen import triangulated_grid
+    from chainsim.game.gl.meshbuf import GpuMesh, runs, vertex_normals
+    from chainsim.engine.meshgen import triangulated_grid
 
     pos0, tris, _ = triangulated_grid(15, 12, 2.0, dim=3)
     pos0 = np.asarray(pos0, float)
@@ -470,7 +470,7 @@ def test_attached_view_looks_ahead_of_its_entity_without_drawing_it(make_pack):
 
 
 def test_hidpi_target_draws_the_same_layout_at_twice_the_pixels(make_pack):
-    from systems.render import RenderTarget, draw, read_pixels
+    from chainsim.game.gl.render_system import RenderTarget, draw, read_pixels
 
     app = open_app(make_pack(ATTACHED), size=(200, 100))
     try:
@@ -489,7 +489,7 @@ def test_hidpi_target_draws_the_same_layout_at_twice_the_pixels(make_pack):
 
 
 def test_wire_toggle_switches_a_layer_to_its_links(make_pack):
-    from game.input_events import Widget
+    from chainsim.components.input_events import Widget
 
     body = XRAY.replace('layer = "xray:skin"', 'layer = "wire:skin"').replace('name = "xray"', 'name = "wire"')
     app = open_app(make_pack(body), size=(64, 48))
@@ -536,9 +536,9 @@ value = true
 
 
 def test_indicator_lights_show_the_hud_state(make_pack):
-    from game.gl.renderer import LIGHT_RGBA
-    from game.hud import HudState
-    from systems.view import ViewState
+    from chainsim.game.gl.renderer import LIGHT_RGBA
+    from chainsim.components.hud import HudState
+    from chainsim.systems.view import ViewState
 
     app = open_app(make_pack(PANEL), size=(400, 300))
     try:
@@ -600,7 +600,7 @@ value = false
 
 
 def test_reference_planes_appear_when_their_toggle_is_on(make_pack):
-    from game.input_events import Widget
+    from chainsim.components.input_events import Widget
 
     app = open_app(make_pack(PLANES), size=(160, 120))
     try:

@@ -35,7 +35,7 @@ key = "f1"
 
 @pytest.mark.skipif(shutil.which("xvfb-run") is None, reason="xvfb-run is not installed")
 def test_window_plays_a_script_and_saves_what_it_shows(tmp_path):
-    from game.gl.renderer import ACCENT, PANEL_BG
+    from chainsim.game.gl.renderer import ACCENT, PANEL_BG
 
     script = tmp_path / "s.toml"
     script.write_text(SCRIPT, encoding="utf-8")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import esper
 import pytest
 
-from game.app import ORDER_COLLISION, ORDER_DEFORMATION, ORDER_KINEMATICS, App
+from chainsim.game.app.core import ORDER_COLLISION, ORDER_DEFORMATION, ORDER_KINEMATICS, App
 
 
 class Ping:

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from components.procedure import Plane, SideAnatomy, landmark_errors
-from game.input_events import PickPoint, Widget
+from chainsim.components.procedure import Plane, SideAnatomy, landmark_errors
+from chainsim.components.input_events import PickPoint, Widget
 from test_needle import L1, Run, make_synthetic_pack, on_skin
 
 coord = st.floats(-100.0, 100.0, allow_nan=False)
@@ -69,8 +69,8 @@ def _full_attempt(r: Run):
 
 
 def test_self_assessment_fills_the_panel_and_summary_values(pack_dir):
-    from game.headless import Assessment
-    from game.hud import HudState
+    from chainsim.game.app.headless import Assessment
+    from chainsim.components.hud import HudState
 
     r = Run(pack_dir)
     try:
@@ -92,14 +92,14 @@ def test_self_assessment_fills_the_panel_and_summary_values(pack_dir):
 
 
 def test_save_stores_the_attempt_under_class_and_trainee(pack_dir, tmp_path):
-    from game.records import RecordStore
+    from chainsim.game.records.store import RecordStore
 
     db = tmp_path / "rec.sqlite3"
     r = Run(pack_dir, settings={"db": str(db), "class": "c1", "trainee": "alice"})
     try:
         _full_attempt(r)
         r.send(Widget("save"))
-        a = r.app.resource(__import__("game.headless", fromlist=["Assessment"]).Assessment).values
+        a = r.app.resource(__import__("chainsim.game.app.headless", fromlist=["Assessment"]).Assessment).values
     finally:
         r.close()
     with RecordStore(db) as store:
@@ -113,7 +113,7 @@ def test_save_stores_the_attempt_under_class_and_trainee(pack_dir, tmp_path):
 
 
 def test_a_failing_save_shows_the_error_and_the_session_goes_on(pack_dir, tmp_path):
-    from game.hud import HudState
+    from chainsim.components.hud import HudState
 
     bad = tmp_path / "not-a-db"
     bad.write_text("hello, this is not sqlite")
@@ -131,7 +131,7 @@ def test_a_failing_save_shows_the_error_and_the_session_goes_on(pack_dir, tmp_pa
 
 
 def test_saving_before_the_landmarks_is_refused_with_a_message(pack_dir, tmp_path):
-    from game.hud import HudState
+    from chainsim.components.hud import HudState
 
     r = Run(pack_dir, settings={"db": str(tmp_path / "x.sqlite3")})
     try:

@@ -13,8 +13,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from game import meshgen
-from game.cli import main
+from chainsim.engine import meshgen
+from chainsim.game.cli.main import main
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -234,7 +234,7 @@ def test_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys):
 
 def _subprocess(*args, cwd=ROOT):
     env = dict(os.environ)
-    return subprocess.run([sys.executable, "-m", "game", "chainmail", *map(str, args)], cwd=cwd, env=env,
+    return subprocess.run([sys.executable, "-m", "chainsim.game", "chainmail", *map(str, args)], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=300)
 
 

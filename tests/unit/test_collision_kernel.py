@@ -1,4 +1,4 @@
-"""The swept segment-triangle kernel of systems.collision against a brute-force reference (thesis 3.3.6)."""
+"""The swept segment-triangle kernel of chainsim.systems.collision against a brute-force reference (thesis 3.3.6)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from systems.collision import SegmentTree
+from chainsim.systems.collision import SegmentTree
 
 
 def brute_first_hit(p0, p1, vertices, triangles):

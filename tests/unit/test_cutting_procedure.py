@@ -11,16 +11,16 @@ import esper
 import numpy as np
 import pytest
 
-from components.deformable import Deformable
-from components.core import Transform
-from components.tools import Forceps, Scissors
-from game.errors import UserError
-from game.headless import Assessment, build_app
-from game.hud import HudState
-from game.input_events import MouseButton, MouseDrag, MouseMove, PickPoint, Widget
-from game.loader import EntityIndex
-from game.resources import PendingInput
-from systems.cutting_procedure import parse_point
+from chainsim.components.deformable import Deformable
+from chainsim.components.core import Transform
+from chainsim.components.tools import Forceps, Scissors
+from chainsim.engine.errors import UserError
+from chainsim.game.app.headless import Assessment, build_app
+from chainsim.components.hud import HudState
+from chainsim.components.input_events import MouseButton, MouseDrag, MouseMove, PickPoint, Widget
+from chainsim.game.app.loader import EntityIndex
+from chainsim.components.resources import PendingInput
+from chainsim.systems.procedures.cutting.procedure import parse_point
 
 PACK = Path(__file__).resolve().parents[2] / "assets" / "cutting"
 CORNER = (40.0, 30.0, 0.0)
@@ -139,7 +139,7 @@ def test_reset_restores_both_layers_and_the_steps(app):
 
 
 def test_choosing_a_tool_moves_the_frozen_view_only(app):
-    from systems.view import ViewState
+    from chainsim.systems.view import ViewState
 
     vs = app.resource(ViewState)
     viewer0 = vs.get("viewer").camera.eye.copy()
@@ -160,7 +160,7 @@ def test_choosing_a_tool_moves_the_frozen_view_only(app):
 
 
 def _pixel(app, viewport: str, point):
-    from systems.view import ViewState
+    from chainsim.systems.view import ViewState
 
     vp = app.resource(ViewState).get(viewport)
     x, y, _ = vp.camera.project(np.asarray([point], float), vp.rect)[0]
@@ -228,7 +228,7 @@ def test_the_idle_instrument_follows_the_cursor_over_the_tissue(app):
 def test_wireframe_switch_changes_only_this_runs_materials(app):
     app.resource(PendingInput).push(0.0, Widget("wireframe", True))
     steps(app, 1)
-    from game.loader import PackResource
+    from chainsim.game.app.loader import PackResource
 
     assert app.resource(PackResource).pack.section("materials")["dura"]["wireframe"] is True
     assert app.resource(Assessment).values["wireframe"] is True

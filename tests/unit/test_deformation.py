@@ -10,11 +10,11 @@ import esper
 import numpy as np
 import pytest
 
-from components.deformable import Deformable, Pull
-from game.deform_events import Deformed, GrabRequest, ReleaseRequest
-from game.digest import world_digest
-from game.errors import UserError
-from game.headless import build_app
+from chainsim.components.deformable import Deformable, Pull
+from chainsim.components.deform_events import Deformed, GrabRequest, ReleaseRequest
+from chainsim.game.app.digest import world_digest
+from chainsim.engine.errors import UserError
+from chainsim.game.app.headless import build_app
 
 PACK_HEAD = """
 [pack]
@@ -53,7 +53,7 @@ def make_pack(tmp_path: Path, body: str) -> str:
 
 
 def body(app, name="body") -> tuple[int, Deformable]:
-    from game.loader import EntityIndex
+    from chainsim.game.app.loader import EntityIndex
 
     ent = app.resource(EntityIndex)[name]
     with app.active():
@@ -82,7 +82,7 @@ def test_spawn_builds_the_chainmail_object_from_the_render_mesh(tmp_path):
     try:
         assert "deformation" in app.systems("simulation")
         _, d = body(app)
-        from game.loader import PackResource
+        from chainsim.game.app.loader import PackResource
 
         mesh = app.resource(PackResource).pack.mesh("sheet")
         np.testing.assert_array_equal(d.pos, mesh.vertices)  # same vertex order as the renderer's mesh
@@ -219,8 +219,8 @@ kind = "volume"
 """))
     try:
         _, d = body(app)
-        from game import meshgen
-        from game.loader import PackResource
+        from chainsim.engine import meshgen
+        from chainsim.game.app.loader import PackResource
 
         mesh = app.resource(PackResource).pack.mesh("block")
         assert d.source == "volume"
@@ -270,7 +270,7 @@ def test_bad_tables_are_one_line_user_errors(tmp_path, table, needle):
 
 
 def test_mouse_drag_pulls_the_nearest_element_and_releases_it(tmp_path):
-    from game.view_events import Dragged
+    from chainsim.components.view_events import Dragged
 
     app = build_app(make_pack(tmp_path, SHEET.format(material="medium") + """
 drag = true
@@ -294,7 +294,7 @@ position = [0.0, 0.0, 50.0]
 
 
 def test_mouse_drags_are_ignored_unless_the_body_asks_for_them(tmp_path):
-    from game.view_events import Dragged
+    from chainsim.components.view_events import Dragged
 
     app = build_app(make_pack(tmp_path, SHEET.format(material="medium")))
     try:
@@ -309,7 +309,7 @@ def test_mouse_drags_are_ignored_unless_the_body_asks_for_them(tmp_path):
 
 
 def test_cut_kills_crossed_links_and_the_pieces_move_apart(tmp_path):
-    from game.deform_events import CutRequest
+    from chainsim.components.deform_events import CutRequest
 
     app = build_app(make_pack(tmp_path, SHEET.format(material="rigid")))
     try:
@@ -333,7 +333,7 @@ def test_cut_kills_crossed_links_and_the_pieces_move_apart(tmp_path):
 
 
 def test_added_links_join_pieces_with_the_body_material(tmp_path):
-    from game.deform_events import AddLinksRequest, CutRequest
+    from chainsim.components.deform_events import AddLinksRequest, CutRequest
 
     app = build_app(make_pack(tmp_path, SHEET.format(material="rigid")))
     try:

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from game.headless import build_app
-from game.hud import HudState
-from game.input_events import Key, PickPoint, Widget
-from game.loader import PackResource
-from game.resources import PendingInput
-from game.gl.renderer import doc_lines
+from chainsim.game.app.headless import build_app
+from chainsim.components.hud import HudState
+from chainsim.components.input_events import Key, PickPoint, Widget
+from chainsim.game.app.loader import PackResource
+from chainsim.components.resources import PendingInput
+from chainsim.game.gl.renderer import doc_lines
 
 
 def test_reading_step_opens_its_page_and_help_toggles_it():

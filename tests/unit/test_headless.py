@@ -8,11 +8,11 @@ import esper
 import numpy as np
 import pytest
 
-from components.core import Name, ScriptedMotion, Transform
-from game.errors import UserError
-from game.headless import build_app, run_pack
-from game.input_events import Key, Widget
-from game.inputscript import load_script
+from chainsim.components.core import Name, ScriptedMotion, Transform
+from chainsim.engine.errors import UserError
+from chainsim.game.app.headless import build_app, run_pack
+from chainsim.components.input_events import Key, Widget
+from chainsim.game.app.inputscript import load_script
 
 
 def test_run_writes_summary_with_steps_time_systems_digest(tmp_path):
@@ -80,11 +80,11 @@ def test_scene_selection_spawns_only_its_entities():
 
 
 def test_input_script_events_are_released_at_their_time():
-    from systems.input import InputLog
+    from chainsim.systems.input import InputLog
 
     app = build_app("loop-demo")
     try:
-        from game.resources import PendingInput
+        from chainsim.components.resources import PendingInput
 
         app.resource(PendingInput).extend([(0.05, Key("a", True)), (0.10, Widget("x", 1.0))])
         app.run_steps(6)  # t = 0 .. 0.041: nothing yet

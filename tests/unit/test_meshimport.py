@@ -11,12 +11,12 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from game import meshgen
-from game.errors import UserError
-from game.meshes import MeshData
-from game.meshimport import check_graph, load_graph, load_mesh
-from game.reorder import inverse, morton_permutation, permute_mesh, rcm_permutation, reorder_mesh
-from game.tetra import TetraError, tetrahedralize
+from chainsim.engine import meshgen
+from chainsim.engine.errors import UserError
+from chainsim.engine.meshes import MeshData
+from chainsim.engine.meshimport import check_graph, load_graph, load_mesh
+from chainsim.engine.reorder import inverse, morton_permutation, permute_mesh, rcm_permutation, reorder_mesh
+from chainsim.engine.tetra import TetraError, tetrahedralize
 
 
 def _links_set(links):
@@ -124,7 +124,7 @@ def test_rcm_permutation_is_a_graph_isomorphism(seed, n):
 def test_pack_meshes_with_reorder_true_are_renumbered(tmp_path):
     import meshio
 
-    from game import packs
+    from chainsim.game.packs import pack as packs
 
     p, tets, _ = meshgen.tet_grid(6, 6, 6)
     shuffle = np.random.default_rng(0).permutation(len(p))

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from game.headless import build_app
-from game.hud import HudState
-from game.input_events import Widget
-from game.inputscript import load_script
-from game.resources import PendingInput
-from tools.make_prp_mouse_script import SCRIPTS
+from chainsim.game.app.headless import build_app
+from chainsim.components.hud import HudState
+from chainsim.components.input_events import Widget
+from chainsim.game.app.inputscript import load_script
+from chainsim.components.resources import PendingInput
+from chainsim.game.packbuild.make_prp_mouse_script import SCRIPTS
 
 
 def test_saved_attempts_are_listed_for_the_trainee(tmp_path):

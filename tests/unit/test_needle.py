@@ -15,10 +15,10 @@ import esper
 import numpy as np
 import pytest
 
-from components.needle import NeedleState
-from components.procedure import ProcedureState
-from game.headless import build_app
-from game.input_events import PickPoint, Widget
+from chainsim.components.needle import NeedleState
+from chainsim.components.procedure import ProcedureState
+from chainsim.game.app.headless import build_app
+from chainsim.components.input_events import PickPoint, Widget
 
 ROOT = Path(__file__).resolve().parents[2]
 PACK = ROOT / "assets" / "prp"
@@ -98,7 +98,7 @@ class Run:
         self.t = 0.0
 
     def send(self, *events, steps: int = 2):
-        from game.resources import PendingInput
+        from chainsim.components.resources import PendingInput
 
         pend = self.app.resource(PendingInput)
         for ev in events:
@@ -107,14 +107,14 @@ class Run:
 
     @property
     def needle(self) -> NeedleState:
-        from systems.prp_procedure import PrpHandles
+        from chainsim.systems.procedures.prp.procedure import PrpHandles
 
         with self.app.active():
             return esper.component_for_entity(self.app.resource(PrpHandles).needle, NeedleState)
 
     @property
     def proc(self) -> ProcedureState:
-        from systems.prp_procedure import PrpHandles
+        from chainsim.systems.procedures.prp.procedure import PrpHandles
 
         with self.app.active():
             return esper.component_for_entity(self.app.resource(PrpHandles).procedure, ProcedureState)
@@ -124,7 +124,7 @@ class Run:
 
     def aim_at(self, point):
         """Dial angles that aim the placed needle at `point`, sent as widget events."""
-        from tools.make_prp_scripts import dial_angles
+        from chainsim.game.packbuild.make_prp_scripts import dial_angles
 
         yaw, pitch = dial_angles(self.needle.entry, np.asarray(point, float) - self.needle.entry)
         self.send(Widget("rotate_horizontal", yaw), Widget("rotate_vertical", pitch))
@@ -155,9 +155,9 @@ def test_landmark1_places_needle_level_and_toward_midline(run):
     assert np.allclose(d[:2], toward_axis, atol=1e-12)
     assert run.proc.side == "left"
     # the tip transform is the needle entity's: origin at the tip, local +Z along insertion
-    from components.core import Transform
-    from game import quaternion as Q
-    from systems.prp_procedure import PrpHandles
+    from chainsim.components.core import Transform
+    from chainsim.engine import quaternion as Q
+    from chainsim.systems.procedures.prp.procedure import PrpHandles
 
     with run.app.active():
         tr = esper.component_for_entity(run.app.resource(PrpHandles).needle, Transform)
@@ -180,8 +180,8 @@ def test_dials_are_absolute_and_compose_horizontal_then_vertical(run):
 
 
 def test_rotation_refused_once_inserted_until_reset(run):
-    from game.widgets import WidgetState
-    from systems.needle import RotationRefused
+    from chainsim.systems.ui.widgets import WidgetState
+    from chainsim.systems.needle import RotationRefused
 
     run.send(PickPoint("skin", tuple(L1)))
     run.send(Widget("rotate_horizontal", 12.0))
@@ -194,7 +194,7 @@ def test_rotation_refused_once_inserted_until_reset(run):
     assert run.needle.rotation_refused == 2
     ws = run.app.resource(WidgetState)
     assert {"rotate_horizontal", "rotate_vertical"} <= ws.disabled
-    msgs = [m for m, _ in run.app.resource(__import__("game.hud", fromlist=["HudState"]).HudState).messages]
+    msgs = [m for m, _ in run.app.resource(__import__("chainsim.components.hud", fromlist=["HudState"]).HudState).messages]
     assert any("locked" in m for m in msgs)
     run.send(Widget("reset"), steps=3)
     st = run.needle
@@ -205,7 +205,7 @@ def test_rotation_refused_once_inserted_until_reset(run):
 
 
 def test_picks_off_the_skin_are_ignored_with_a_message(run):
-    from game.hud import HudState
+    from chainsim.components.hud import HudState
 
     run.send(PickPoint("skull", (30.0, 10.0, 2.0)))
     assert run.proc.placed == 0 and not run.needle.placed
@@ -213,8 +213,8 @@ def test_picks_off_the_skin_are_ignored_with_a_message(run):
 
 
 def _marker(run, k):
-    from components.core import Label, Marker, Transform
-    from game.loader import EntityIndex
+    from chainsim.components.core import Label, Marker, Transform
+    from chainsim.game.app.loader import EntityIndex
 
     ent = run.app.resource(EntityIndex)[f"landmark{k}"]
     with run.app.active():
@@ -247,8 +247,8 @@ def test_right_side_entry_is_detected_from_landmark1(run):
 
 
 def test_foramen_entry_is_green_and_scored_dist_minus_r(run):
-    from game.hud import HudState
-    from systems.collision import NeedleHit
+    from chainsim.components.hud import HudState
+    from chainsim.systems.collision import NeedleHit
 
     run.send(PickPoint("skin", tuple(L1)))
     run.aim_at(FORAMEN["left"] + [0.0, 0.0, PLATE_Z[0]])
@@ -260,7 +260,7 @@ def test_foramen_entry_is_green_and_scored_dist_minus_r(run):
     tip = st.tip()
     assert tip[2] < PLATE_Z[0]  # stopped at the plug's lower face
     dist = float(np.linalg.norm(np.asarray(hits[0].point) - FORAMEN["left"]))
-    a = run.app.resource(__import__("game.headless", fromlist=["Assessment"]).Assessment).values
+    a = run.app.resource(__import__("chainsim.game.app.headless", fromlist=["Assessment"]).Assessment).values
     assert a["needle_error_mm"] == pytest.approx(dist - RADIUS)
     assert run.app.resource(HudState).lights["target"] == "green"
     run.send(Widget("insert", 320.0))  # no further once in the foramen
@@ -268,11 +268,11 @@ def test_foramen_entry_is_green_and_scored_dist_minus_r(run):
 
 
 def test_huge_insertion_step_stops_at_bone_and_bounces_back(run):
-    from game.hud import HudState
-    from systems.collision import NeedleHit
+    from chainsim.components.hud import HudState
+    from chainsim.systems.collision import NeedleHit
 
-    from components.needle import Needle
-    from systems.prp_procedure import PrpHandles
+    from chainsim.components.needle import Needle
+    from chainsim.systems.procedures.prp.procedure import PrpHandles
 
     with run.app.active():
         esper.component_for_entity(run.app.resource(PrpHandles).needle, Needle).max_depth = 1000.0
@@ -297,7 +297,7 @@ def test_huge_insertion_step_stops_at_bone_and_bounces_back(run):
 
 
 def test_hidden_collision_signals_are_still_recorded(run):
-    from game.hud import HudState
+    from chainsim.components.hud import HudState
 
     run.send(Widget("collision_signals", False))
     run.send(PickPoint("skin", tuple(L1)))
@@ -305,11 +305,11 @@ def test_hidden_collision_signals_are_still_recorded(run):
     run.send(Widget("insert", 200.0))
     assert run.app.resource(HudState).lights["skull"] == "off"
     assert run.proc.lights["skull"] == "red"
-    assert run.app.resource(__import__("game.headless", fromlist=["Assessment"]).Assessment).values["skull_contacts"] == 1
+    assert run.app.resource(__import__("chainsim.game.app.headless", fromlist=["Assessment"]).Assessment).values["skull_contacts"] == 1
 
 
 def test_keys_rotate_and_insert_by_steps(run):
-    from game.input_events import Key
+    from chainsim.components.input_events import Key
 
     run.send(PickPoint("skin", tuple(L1)))
     run.send(Key("left"), Key("left"), Key("up"))
@@ -319,7 +319,7 @@ def test_keys_rotate_and_insert_by_steps(run):
 
 
 def test_insert_before_landmark_is_refused(run):
-    from systems.needle import InsertRefused
+    from chainsim.systems.needle import InsertRefused
 
     run.send(Widget("insert", 10.0), Widget("rotate_horizontal", 5.0))
     assert not run.needle.placed and run.needle.depth == 0.0

@@ -4,14 +4,14 @@ import esper
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from components.core import Transform
-from game.headless import build_app
-from game.input_events import MouseButton, MouseDrag, PickPoint
-from game.loader import EntityIndex
-from game.picking import closest_on_mesh, pick, ray_mesh, ray_triangles, triangle_links
-from game.resources import PendingInput
-from game.view_events import Picked
-from systems.view import ViewState
+from chainsim.components.core import Transform
+from chainsim.game.app.headless import build_app
+from chainsim.components.input_events import MouseButton, MouseDrag, PickPoint
+from chainsim.game.app.loader import EntityIndex
+from chainsim.systems.picking import closest_on_mesh, pick, ray_mesh, ray_triangles, triangle_links
+from chainsim.components.resources import PendingInput
+from chainsim.components.view_events import Picked
+from chainsim.systems.view import ViewState
 
 
 def _reference_hit(o, d, a, b, c):
@@ -158,7 +158,7 @@ def _pack(tmp_path):
 
 
 def test_drag_on_a_fixed_view_grabs_the_surface_and_follows_the_cursor(tmp_path):
-    from game.view_events import Dragged
+    from chainsim.components.view_events import Dragged
 
     app = build_app(_pack(tmp_path))
     try:
@@ -185,7 +185,7 @@ def test_drag_on_a_fixed_view_grabs_the_surface_and_follows_the_cursor(tmp_path)
 
 
 def test_attached_view_rides_on_its_entity_and_does_not_pick(tmp_path):
-    from systems.view import refresh_cameras
+    from chainsim.systems.view import refresh_cameras
 
     app = build_app(_pack(tmp_path))
     try:

@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from game.commands import records as cmd
-from game.errors import UserError
-from game.records import ENV_VAR, RecordStore
-from game.records_report import CSV_COLUMNS
-from game.records_validate import AIDS
+from chainsim.game.cli.commands import records as cmd
+from chainsim.engine.errors import UserError
+from chainsim.game.records.store import ENV_VAR, RecordStore
+from chainsim.game.records.report import CSV_COLUMNS
+from chainsim.game.records.validate import AIDS
 
 REPO = Path(__file__).resolve().parents[2]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -238,11 +238,11 @@ def test_bad_db_file_is_one_line_and_untouched(tmp_path):
 
 def chainsim(*argv, env=None):
     full_env = dict(os.environ, PYTHONPATH=str(REPO), **(env or {}))
-    return subprocess.run([sys.executable, "-m", "game", *argv], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "chainsim.game", *argv], capture_output=True, text=True,
                           cwd=REPO, env=full_env)
 
 
-needs_cli = pytest.mark.skipif(not (REPO / "game" / "cli.py").exists(), reason="game/cli.py not present")
+needs_cli = pytest.mark.skipif(not (REPO / "game" / "cli" / "main.py").exists(), reason="game/cli/main.py not present")
 
 
 @needs_cli

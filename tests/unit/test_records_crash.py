@@ -17,15 +17,15 @@ from pathlib import Path
 
 import pytest
 
-from game.records import RecordStore
-from game.records_validate import AIDS
+from chainsim.game.records.store import RecordStore
+from chainsim.game.records.validate import AIDS
 
 REPO = Path(__file__).resolve().parents[2]
 
 CHILD = textwrap.dedent(
     """
     import sys
-    from game.records import RecordStore
+    from chainsim.game.records.store import RecordStore
 
     def attempt(i):
         return {"pack": "prp", "created_at": f"2026-04-0{i + 1}T08:00:00Z", "duration_s": 10.0 + i,

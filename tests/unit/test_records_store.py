@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from game.errors import UserError
-from game.records import ENV_VAR, RecordStore, default_path
-from game.records_schema import SCHEMA_VERSION, V1_DDL
-from game.records_validate import AIDS
+from chainsim.engine.errors import UserError
+from chainsim.game.records.store import ENV_VAR, RecordStore, default_path
+from chainsim.game.records.schema import SCHEMA_VERSION, V1_DDL
+from chainsim.game.records.validate import AIDS
 
 
 def sample_attempt(i: int = 0, **over):
@@ -316,7 +316,7 @@ def test_reopening_current_database_is_a_no_op(tmp_path):
 
 
 def test_failed_migration_leaves_database_at_old_version(tmp_path, monkeypatch):
-    import game.records as records
+    import chainsim.game.records.store as records
 
     path = tmp_path / "old.sqlite3"
     make_v1(path)

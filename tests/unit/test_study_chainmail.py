@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from game.errors import UserError
-from tools.study import calibrate as cal
-from tools.study.chainmail_model import ChainMailModel, ChainMailParams
-from tools.study.metrics import displacement_error, pareto_front, realtime_size, volume_change
-from tools.study.scenes import block, sheet
+from chainsim.engine.errors import UserError
+from chainsim.tools.study import calibrate as cal
+from chainsim.tools.study.chainmail_model import ChainMailModel, ChainMailParams
+from chainsim.tools.study.metrics import displacement_error, pareto_front, realtime_size, volume_change
+from chainsim.tools.study.scenes import block, sheet
 
 
 @pytest.mark.parametrize("params", [

@@ -2,7 +2,7 @@
 
 import tomllib
 
-from game.cli import main
+from chainsim.game.cli.main import main
 
 
 def test_bad_poisson_ratio_is_rejected_with_exit_code_2(tmp_path, capsys):

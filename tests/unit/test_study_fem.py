@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from game.errors import UserError
-from game.meshgen import tet_grid
-from tools.study.fem_linear import LinearFEM, LockingWarning, solve_linear
-from tools.study.fem_nonlinear import NeoHookeanFEM
-from tools.study.scenes import block, cantilever
-from tools.study.tetmesh import DegenerateElementsError
+from chainsim.engine.errors import UserError
+from chainsim.engine.meshgen import tet_grid
+from chainsim.tools.study.fem_linear import LinearFEM, LockingWarning, solve_linear
+from chainsim.tools.study.fem_nonlinear import NeoHookeanFEM
+from chainsim.tools.study.scenes import block, cantilever
+from chainsim.tools.study.tetmesh import DegenerateElementsError
 
 
 def jittered_block(n=4, seed=0):

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from tools.study.mass_spring import MassSpring
-from tools.study.scenes import block
+from chainsim.tools.study.mass_spring import MassSpring
+from chainsim.tools.study.scenes import block
 
 
 def setup(n=5, strain=0.05):

@@ -4,8 +4,8 @@ import json
 
 import numba
 
-from tools.study import report, speed_accuracy as sa
-from tools.study.chainmail_model import ChainMailParams
+from chainsim.tools.study import report, speed_accuracy as sa
+from chainsim.tools.study.chainmail_model import ChainMailParams
 
 
 def test_tiny_study_writes_report_plots_and_strict_json(tmp_path, monkeypatch):

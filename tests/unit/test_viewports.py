@@ -5,7 +5,7 @@ import math
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from game.viewports import OrbitCamera, Rect, attached_camera, fraction_rect, layout_rects
+from chainsim.systems.ui.viewports import OrbitCamera, Rect, attached_camera, fraction_rect, layout_rects
 
 
 @settings(max_examples=50, deadline=None)
@@ -102,10 +102,10 @@ def test_scaled_rect_for_hidpi():
 def test_a_scene_without_layout_gets_one_orbit_view_framing_every_mesh(tmp_path):
     import esper
 
-    from components.core import MeshRef, Transform
-    from game.headless import build_app
-    from game.loader import PackResource
-    from systems.view import ViewState
+    from chainsim.components.core import MeshRef, Transform
+    from chainsim.game.app.headless import build_app
+    from chainsim.game.app.loader import PackResource
+    from chainsim.systems.view import ViewState
 
     root = tmp_path / "bare"
     root.mkdir()

@@ -3,15 +3,15 @@
 import esper
 import numpy as np
 
-from game.view_events import WidgetRefused
+from chainsim.components.view_events import WidgetRefused
 
-from components.core import MeshRef
-from game import widgets as wd
-from game.headless import build_app
-from game.input_events import Key, MouseButton, MouseDrag, Widget
-from game.resources import PendingInput
-from game.viewports import Rect
-from systems.view import ViewState
+from chainsim.components.core import MeshRef
+from chainsim.systems.ui import widgets as wd
+from chainsim.game.app.headless import build_app
+from chainsim.components.input_events import Key, MouseButton, MouseDrag, Widget
+from chainsim.components.resources import PendingInput
+from chainsim.systems.ui.viewports import Rect
+from chainsim.systems.view import ViewState
 
 
 def _w(**kw):
@@ -146,7 +146,7 @@ def test_left_drag_in_orbit_viewport_turns_its_camera_only():
 
 
 def test_pointer_over_a_widget_selects_its_help():
-    from game.input_events import MouseMove
+    from chainsim.components.input_events import MouseMove
 
     app = build_app("loop-demo")
     try:
@@ -163,7 +163,7 @@ def test_pointer_over_a_widget_selects_its_help():
 
 
 def test_scroll_over_a_dial_steps_it_and_resize_keeps_the_layout(tmp_path):
-    from game.input_events import Resize, Scroll
+    from chainsim.components.input_events import Resize, Scroll
 
     root = tmp_path / "dialpack"
     root.mkdir()

@@ -13,6 +13,7 @@ preset is only right near the strain level it was fitted at; the preset records 
 
 from __future__ import annotations
 
+from chainsim.assets import ASSETS_DIR
 import itertools
 import os
 import tomllib
@@ -21,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from game.errors import UserError
+from chainsim.engine.errors import UserError
 
 from .chainmail_model import ChainMailModel, ChainMailParams
 from .fem_linear import LockingWarning, check_material
@@ -32,7 +33,7 @@ from .scenes import block
 REFERENCE_TRACTION = 300.0      # Pa: a gentle forceps traction (about 0.03 N over 1 cm^2)
 MIN_STRAIN, MAX_STRAIN = 1e-3, 0.5
 RELAX_OPTIONS = (0, 4, 16, 64)
-PRESETS_PATH = Path(__file__).resolve().parents[2] / "assets" / "presets" / "materials.toml"
+PRESETS_PATH = ASSETS_DIR / "presets" / "materials.toml"
 FIELDS = ("alpha_min", "alpha_max", "beta", "relax_iterations", "fitted_error", "source")
 
 

@@ -23,8 +23,8 @@ class ChainMailParams:
 
 class ChainMailModel:
     def __init__(self, pos, links, fixed_ids=None, order: str = "fifo"):
-        from systems.kernels.chainmail import ORDER_BALANCED, ORDER_FIFO, make_workspace
-        from systems.kernels.graph import build_graph
+        from chainsim.engine.kernels.chainmail import ORDER_BALANCED, ORDER_FIFO, make_workspace
+        from chainsim.engine.kernels.graph import build_graph
         self.rest = np.ascontiguousarray(pos, dtype=np.float64)
         self.n = len(self.rest)
         self.graph = build_graph(self.n, np.asarray(links, dtype=np.int64))
@@ -37,7 +37,7 @@ class ChainMailModel:
         self._mat_key = None
 
     def _materials(self, p: ChainMailParams):
-        from systems.kernels.chainmail import material_arrays
+        from chainsim.engine.kernels.chainmail import material_arrays
         key = (p.alpha_min, p.alpha_max, p.beta)
         if key != self._mat_key:
             self._mat = material_arrays(self.graph.n_links, *key)
@@ -49,8 +49,8 @@ class ChainMailModel:
 
         Returns (u, info) with the cascade and relaxation wall times and the number moved.
         """
-        from systems.kernels.chainmail import cascade
-        from systems.kernels.relax import relax
+        from chainsim.engine.kernels.chainmail import cascade
+        from chainsim.engine.kernels.relax import relax
         amin, amax, beta = self._materials(params)
         grabbed = np.ascontiguousarray(grabbed, dtype=np.int64)
         targets = np.ascontiguousarray(self.rest[grabbed] + np.asarray(disp).reshape(-1, 3))

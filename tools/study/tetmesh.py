@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from game.errors import UserError
+from chainsim.engine.errors import UserError
 
 
 class DegenerateElementsError(UserError):
@@ -74,5 +74,5 @@ def dof_indices(tets: np.ndarray) -> np.ndarray:
 
 def tet_edges(tets: np.ndarray) -> np.ndarray:
     """Unique undirected edges of the tetrahedra (the spring network of a mass-spring model)."""
-    from game.meshgen import links_from_cells
+    from chainsim.engine.meshgen import links_from_cells
     return links_from_cells(tets)

@@ -1,0 +1,80 @@
+"""Spawning a pack's scene into an App: entities with their components, plus pack resources.
+
+Components are built from the validated manifest tables; a component type may declare a `build`
+hook (in its own module, in this codebase) that derives runtime state at spawn, e.g. a deformable
+body's link graph from its mesh. Nothing from the pack is executed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import esper
+
+from chainsim.components.core import Name
+from chainsim.game.packs.pack import Pack
+from chainsim.components.registry import COMPONENTS
+
+
+@dataclass(slots=True)
+class PackResource:
+    """The loaded pack and the scene being run."""
+
+    pack: Pack
+    scene: str
+    scene_spec: dict[str, Any]
+
+    @property
+    def layout_name(self) -> str:
+        return self.scene_spec.get("layout", "")
+
+    @property
+    def layout(self) -> dict[str, Any]:
+        return self.pack.section("layouts").get(self.layout_name, {"viewports": [], "widgets": []})
+
+
+@dataclass(slots=True)
+class EntityIndex:
+    """Entity ids by manifest name."""
+
+    by_name: dict[str, int] = field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> int:
+        return self.by_name[name]
+
+    def get(self, name: str, default=None):
+        return self.by_name.get(name, default)
+
+
+@dataclass(slots=True)
+class SpawnContext:
+    """What a component build hook may use."""
+
+    app: Any
+    pack: Pack
+    entity_name: str
+    entity: int
+
+
+def spawn_scene(app, pack: Pack, scene: str | None = None) -> EntityIndex:
+    scene_name, spec = pack.scene(scene)
+    app.insert_resource(PackResource(pack, scene_name, spec))
+    wanted = spec.get("entities") or list(pack.manifest["entities"])
+    index = EntityIndex()
+    with app.active():
+        for ename in wanted:
+            tables = pack.manifest["entities"][ename]
+            ent = esper.create_entity(Name(ename))
+            index.by_name[ename] = ent
+            built = []
+            for cname, values in tables.items():
+                schema = COMPONENTS[cname]
+                comp = schema.cls(**values)
+                esper.add_component(ent, comp)
+                if schema.build is not None:
+                    built.append((schema.build, comp))
+            for hook, comp in built:
+                hook(comp, SpawnContext(app, pack, ename, ent))
+    app.insert_resource(index)
+    return index

@@ -1,0 +1,29 @@
+"""Frame cost of every built-in pack broken down by system ("model only what a scene requires"):
+each pack is stepped headless through chainsim.game.app.headless.run_pack and its per-system timings kept."""
+
+from __future__ import annotations
+
+import sys
+
+
+def measure(steps: int = 120) -> tuple[list[dict], str]:
+    """Summaries of all built-in packs (those that fail to run are named in the note)."""
+    try:
+        from chainsim.game.app.headless import run_pack
+        from chainsim.game.packs.pack import discover
+    except ImportError as e:
+        return [], f"headless runner not available ({e})"
+    summaries, failed = [], []
+    for found in discover():
+        if found.source != "builtin":
+            continue
+        print(f"[study] pack {found.name}: {steps} steps", file=sys.stderr, flush=True)
+        try:
+            summaries.append(run_pack(found.name, steps))
+        except Exception as e:             # one broken pack must not sink the report
+            failed.append(f"{found.name}: {type(e).__name__}: {e}")
+    note = (f"Each pack stepped {steps} fixed steps headless (no rendering); wall-clock ms per "
+            "system call on a shared machine.")
+    if failed:
+        note += " Packs that could not be run: " + "; ".join(failed)
+    return summaries, note

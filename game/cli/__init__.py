@@ -1,0 +1,1 @@
+"""The `chainsim` command line: the entry point and one module per subcommand in `commands/`."""

@@ -1,0 +1,33 @@
+"""`chainsim bench NAME ...`: benchmarks; each is a module with add_arguments(p) and run(args)."""
+
+from __future__ import annotations
+
+import importlib
+
+from chainsim.engine.errors import UserError
+
+NAME = "bench"
+HELP = "run a benchmark (chainmail, render, ...)"
+
+# name -> module; a benchmark module is imported only to build its sub-parser
+BENCHES = {
+    "chainmail": "chainsim.tools.bench.chainmail",
+    "render": "chainsim.game.gl.bench",
+}
+
+
+def add_parser(sub):
+    p = sub.add_parser(NAME, help=HELP)
+    bsub = p.add_subparsers(dest="bench", metavar="BENCH", parser_class=type(p))
+    for name, modname in BENCHES.items():
+        mod = importlib.import_module(modname)
+        bp = bsub.add_parser(name, help=getattr(mod, "HELP", ""))
+        mod.add_arguments(bp)
+        bp.set_defaults(_bench=mod.run)
+    return p
+
+
+def run(args) -> int:
+    if not getattr(args, "_bench", None):
+        raise UserError(f"name a benchmark: {', '.join(BENCHES)}")
+    return args._bench(args)

@@ -1,0 +1,75 @@
+"""`chainsim docs components`: the modder reference, generated from the one registry."""
+
+from __future__ import annotations
+
+NAME = "docs"
+HELP = "print reference documentation (components: every manifest section and component)"
+
+
+def add_parser(sub):
+    p = sub.add_parser(NAME, help=HELP)
+    p.add_argument("topic", choices=["components"], help="what to print")
+    return p
+
+
+def _fmt_default(f) -> str:
+    import numpy as np
+
+    from chainsim.components.registry import REQUIRED
+
+    if f.default is REQUIRED:
+        return "required"
+    d = f.default
+    if isinstance(d, np.ndarray):
+        d = d.tolist()
+    if isinstance(d, bool):
+        return str(d).lower()
+    if isinstance(d, str):
+        return f'"{d}"'
+    if isinstance(d, float):
+        return f"{d:g}"
+    return str(d)
+
+
+def render_reference() -> str:
+    from chainsim.game.packs import schema  # noqa: F401  (registers sections)
+    from chainsim.components.registry import COMPONENTS, KINDS, SECTION_STYLE, SECTIONS, load_all
+
+    load_all()
+    out = ["# pack.toml reference (format 1)", "",
+           "Generated from chainsim's registry: every key below is checked by `chainsim validate`.", ""]
+
+    def table(schema, heading):
+        out.append(heading)
+        out.append("")
+        out.append(schema.help)
+        out.append("")
+        out.append("| key | type | default | units | meaning |")
+        out.append("|---|---|---|---|---|")
+        for f in schema.fields:
+            kind = KINDS[f.kind] + (f" ({', '.join(c for c in f.choices if c)})" if f.choices else "")
+            rng = ""
+            if f.min is not None or f.max is not None:
+                rng = f" Range {'' if f.min is None else f'{f.min:g}'}..{'' if f.max is None else f'{f.max:g}'}."
+            out.append(f"| `{f.name}` | {kind} | {_fmt_default(f)} | {f.units} | {f.help}{rng} |")
+        out.append("")
+        for f in schema.fields:
+            if f.item is not None:
+                table(f.item, f"#### each entry of `{f.name}`")
+
+    out.append("## Sections")
+    out.append("")
+    for name, schema in SECTIONS.items():
+        style = SECTION_STYLE[name]
+        head = {"table": f"### [{name}]", "named": f"### [{name}.NAME]", "list": f"### [[{name}]]"}[style]
+        table(schema, head)
+    out.append("## Components (`[entities.NAME.COMPONENT]`)")
+    out.append("")
+    for name in sorted(COMPONENTS):
+        table(COMPONENTS[name], f"### {name}")
+    return "\n".join(out)
+
+
+def run(args) -> int:
+    print(render_reference())
+    return 0

@@ -1,0 +1,43 @@
+"""`chainsim play PACK[/SCENE]`: the trainer window. Without a display, exit 2 and point to `run`."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+NAME = "play"
+HELP = "open the simulator window on a pack"
+
+
+def add_parser(sub):
+    p = sub.add_parser(NAME, help=HELP)
+    p.add_argument("pack", nargs="?", default="prp", help="PACK or PACK/SCENE (default: prp)")
+    p.add_argument("--record", metavar="FILE", help="save the session for `chainsim replay`")
+    p.add_argument("--input", metavar="SCRIPT", help="play an input script in the window (demonstrations, tests)")
+    p.add_argument("--exit-after", type=float, default=None, metavar="SECONDS", help="close after this much simulated time")
+    p.add_argument("--screenshot", metavar="PNG", help="save a screenshot of the window when closing")
+    p.add_argument("--db", metavar="PATH", help="trainee records database")
+    p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempts are saved under")
+    p.add_argument("--trainee", metavar="NAME", help="trainee the attempts are saved under")
+    p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
+    return p
+
+
+def has_display() -> bool:
+    if sys.platform.startswith("linux"):
+        return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    return True
+
+
+def run(args) -> int:
+    from chainsim.engine.errors import UserError
+
+    if not has_display():
+        raise UserError(f"no display to open a window on (DISPLAY is not set); run without one: "
+                        f"chainsim run {args.pack} --headless --steps 600 --out DIR")
+    from chainsim.game.packs import pack as packs
+
+    packs.resolve(args.pack, args.pack_path)  # unknown pack: clear error before any window opens
+    from chainsim.game.ui.window import run_window
+
+    return run_window(args)

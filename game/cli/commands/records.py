@@ -1,0 +1,152 @@
+"""`chainsim records`: view, export, plot and delete trainee records (thesis 3.3.4, Fig. 3.11).
+
+The command-line face of the assessment tool: list classes and trainees, show or delete a saved
+attempt, export a selection as CSV, or plot one trainee's progress. The store itself lives in
+``chainsim.game.records.store``; this module only parses arguments and prints.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+NAME = "records"
+HELP = "view, export, plot or delete trainee records (classes, trainees, attempts)"
+
+_EPILOG = """\
+database: --db PATH, else $CHAINSIM_DB, else the user data folder (records.sqlite3).
+examples:
+  chainsim records classes
+  chainsim records list --class c1 --trainee alice
+  chainsim records export --csv c1.csv --class c1
+  chainsim records plot --class c1 --trainee alice --out alice.png
+  chainsim records delete 12 --yes
+"""
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        NAME, help=HELP, description=HELP, epilog=_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    db_help = "records database file (default: $CHAINSIM_DB or user data folder)"
+    p.add_argument("--db", metavar="PATH", help=db_help)
+    # Also accepted after the action (`records list --db x`); SUPPRESS keeps an earlier --db.
+    db_after = argparse.ArgumentParser(add_help=False)
+    db_after.add_argument("--db", metavar="PATH", default=argparse.SUPPRESS, help=db_help)
+    acts = p.add_subparsers(dest="action", metavar="ACTION", required=True)
+
+    def action(name: str, help: str) -> argparse.ArgumentParser:
+        return acts.add_parser(name, help=help, description=help, parents=[db_after])
+
+    action("classes", "list classes with trainee and attempt counts")
+
+    a = action("trainees", "list trainees with attempt counts")
+    a.add_argument("--class", dest="class_name", metavar="C", help="only this class")
+
+    a = action("list", "table of attempts, oldest first")
+    a.add_argument("--class", dest="class_name", metavar="C", help="only this class")
+    a.add_argument("--trainee", metavar="T", help="only this trainee")
+
+    a = action("show", "every field of one attempt")
+    a.add_argument("id", type=_positive_id, help="attempt id (from `list`)")
+
+    a = action("export", "write attempts to a CSV file (atomically)")
+    a.add_argument("--csv", required=True, type=Path, metavar="FILE", help="output CSV file")
+    a.add_argument("--class", dest="class_name", metavar="C", help="only this class")
+    a.add_argument("--trainee", metavar="T", help="only this trainee")
+
+    a = action("delete", "delete one attempt (needs --yes)")
+    a.add_argument("id", type=_positive_id, help="attempt id (from `list`)")
+    a.add_argument("--yes", action="store_true", help="really delete; without it only show what would go")
+
+    a = action("add-class", "create a class")
+    a.add_argument("name", help="class name (1-64 characters)")
+
+    a = action("add-trainee", "add a trainee to a class (created if missing)")
+    a.add_argument("class_name", metavar="CLASS", help="class name")
+    a.add_argument("name", help="trainee name (1-64 characters)")
+
+    a = action("plot", "PNG of one trainee's landmark and needle errors over attempts")
+    a.add_argument("--class", dest="class_name", metavar="C", required=True, help="class name")
+    a.add_argument("--trainee", metavar="T", required=True, help="trainee name")
+    a.add_argument("--out", required=True, type=Path, metavar="FILE.png", help="output PNG file")
+    return p
+
+
+def _positive_id(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"attempt id must be a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"attempt id must be >= 1, got {value}")
+    return value
+
+
+def _summary(a: dict) -> str:
+    needle = "-" if a["needle_error_mm"] is None else f"{a['needle_error_mm']:.2f} mm"
+    return (
+        f"attempt {a['id']}: {a['class_name']}/{a['trainee']} {a['pack']} {a['created_at']} "
+        f"landmark {a['landmark_error_mm']:.2f} mm, needle {needle}, target {a['target']}"
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    import sys
+
+    from chainsim.engine.errors import UserError
+    from chainsim.game.records.store import RecordStore
+    from chainsim.game.records import report as report
+
+    with RecordStore(args.db) as store:
+        act = args.action
+        if act == "classes":
+            rows = store.class_summary()
+            print(report.table(["class", "trainees", "attempts"],
+                               [[r["class_name"], r["trainees"], r["attempts"]] for r in rows]))
+        elif act == "trainees":
+            rows = store.list_trainees(args.class_name)
+            print(report.table(["class", "trainee", "attempts"],
+                               [[r["class_name"], r["trainee"], r["attempts"]] for r in rows]))
+        elif act == "list":
+            rows = store.list_attempts(args.class_name, args.trainee)
+            print(report.table(
+                ["id", "created_at", "class", "trainee", "pack", "time_s", "landmark_mm", "needle_mm",
+                 "target", "contacts", "path_mm"],
+                [[a["id"], a["created_at"], a["class_name"], a["trainee"], a["pack"], a["duration_s"],
+                  a["landmark_error_mm"], a["needle_error_mm"], a["target"], a["skull_contacts"],
+                  a["path_length_mm"]] for a in rows],
+            ))
+        elif act == "show":
+            a = store.get_attempt(args.id)
+            width = max(len(k) for k in a)
+            for key, value in a.items():
+                text = json.dumps(value, sort_keys=True) if isinstance(value, dict) else ("-" if value is None else value)
+                print(f"{key.ljust(width)}  {text}")
+        elif act == "export":
+            rows = store.list_attempts(args.class_name, args.trainee)
+            report.export_csv(rows, args.csv)
+            print(f"wrote {len(rows)} attempt(s) to {args.csv}", file=sys.stderr)
+        elif act == "delete":
+            a = store.get_attempt(args.id)
+            if not args.yes:
+                raise UserError(f"would delete {_summary(a)}; re-run with --yes to delete it")
+            store.delete_attempt(args.id)
+            print(f"deleted {_summary(a)}", file=sys.stderr)
+        elif act == "add-class":
+            store.add_class(args.name)
+            print(f"added class {args.name.strip()!r}", file=sys.stderr)
+        elif act == "add-trainee":
+            created = store.add_trainee(args.class_name, args.name)
+            note = " (new class)" if created else ""
+            print(f"added trainee {args.name.strip()!r} to class {args.class_name.strip()!r}{note}", file=sys.stderr)
+        elif act == "plot":
+            rows = store.list_attempts(args.class_name, args.trainee)
+            title = f"{args.trainee.strip()} ({args.class_name.strip()})"
+            report.plot_progress(rows, args.out, title)
+            print(f"wrote progress plot of {len(rows)} attempt(s) to {args.out}", file=sys.stderr)
+        else:  # argparse guarantees one of the above
+            raise UserError(f"unknown records action {act!r}")
+    return 0

@@ -1,0 +1,36 @@
+"""`chainsim validate PATH`: every problem in a pack at once, one line each; exit 2 if any."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+NAME = "validate"
+HELP = "check a pack folder and report every problem"
+
+
+def add_parser(sub):
+    p = sub.add_parser(NAME, help=HELP)
+    p.add_argument("path", help="pack folder (or its pack.toml), or the name of a known pack")
+    p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
+    return p
+
+
+def run(args) -> int:
+    from chainsim.game.packs import pack as packs
+
+    path = Path(args.path)
+    if path.name == "pack.toml":
+        path = path.parent
+    if not path.exists():
+        path, _ = packs.resolve(args.path, args.pack_path)
+    pack, problems = packs.validate(path)
+    if problems:
+        for p in problems:
+            print(p, file=sys.stderr)
+        print(f"{len(problems)} problem{'s' if len(problems) > 1 else ''} in {path}", file=sys.stderr)
+        return 2
+    m = pack.manifest
+    print(f"{path}: ok ({m['pack']['name']}: {len(m['meshes'])} meshes, {len(m['entities'])} entities, "
+          f"{len(m['scenes'])} scenes, {len(m['steps'])} steps)")
+    return 0

@@ -1,0 +1,195 @@
+"""`chainsim bench render`: off-screen frame time of the renderer for 10k, 100k and 1M triangles.
+
+Each mesh is a wavy triangulated sheet drawn in a window layout (a 3-D viewport at 75 % of the width
+and a control panel) at --size (default 1280x800) on the EGL context. Three modes per size:
+
+    static   nothing changes between frames (draw only)
+    full     every vertex moves every frame: positions + all normals recomputed and rewritten
+    patch    a local patch (--patch, default 1 % of the vertices, around the centre) moves every frame:
+             only those positions and the normals around them are rewritten (the ChainMail case)
+
+A frame is timed from the upload to `ctx.finish()`, so GPU work is included. The three modes take
+turns frame by frame. Medians (and 90th percentiles) over --frames frames per mode after warm-up. Writes results.json, results.md and
+bench-render.png into --out (default runs/bench-render); progress goes to stderr.
+"""
+
+from __future__ import annotations
+
+HELP = "off-screen frame time of the renderer for 10k / 100k / 1M triangles"
+
+DEFAULT_SIZES = (10_000, 100_000, 1_000_000)
+MODES = ("static", "full", "patch")
+
+
+def add_arguments(p) -> None:
+    from chainsim.game.cli.commands.run import _size
+
+    p.add_argument("--out", default="runs/bench-render", metavar="DIR", help="output folder (default runs/bench-render)")
+    p.add_argument("--size", type=_size, default=(1280, 800), metavar="WxH", help="frame size (default 1280x800)")
+    p.add_argument("--triangles", type=int, nargs="+", default=list(DEFAULT_SIZES), metavar="N",
+                   help="approximate triangle counts (default 10000 100000 1000000)")
+    p.add_argument("--frames", type=int, default=30, help="timed frames per case (fewer above 500k triangles; default 30)")
+    p.add_argument("--warmup", type=int, default=3, help="untimed frames first (default 3)")
+    p.add_argument("--patch", type=float, default=0.01, help="fraction of vertices moved in 'patch' mode (default 0.01)")
+
+
+def sheet(n_triangles: int):
+    """A wavy square sheet of about n triangles, 200 mm across; returns (vertices, triangles, side)."""
+    import math
+
+    import numpy as np
+
+    from chainsim.engine.meshgen import triangulated_grid
+
+    side = max(2, int(round(math.sqrt(n_triangles / 2.0))) + 1)
+    pos, tris, _ = triangulated_grid(side, side, 200.0 / (side - 1), dim=3)
+    pos = np.asarray(pos, np.float64)
+    pos[:, :2] -= 100.0
+    pos[:, 2] = 6.0 * np.sin(pos[:, 0] / 15.0) * np.cos(pos[:, 1] / 21.0)
+    return pos, np.asarray(tris, np.int64), side
+
+
+def _frame(gm, size):
+    import numpy as np
+
+    from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, ViewDraw
+    from chainsim.systems.ui.viewports import OrbitCamera, fraction_rect
+    from chainsim.systems.ui.widgets import place
+
+    w, h = size
+    cam = OrbitCamera(target=np.zeros(3), distance=330.0, yaw=25.0, pitch=40.0)
+    main = fraction_rect([0.0, 0.0, 0.75, 1.0], w, h)
+    panel = fraction_rect([0.75, 0.0, 0.25, 1.0], w, h)
+    specs = [{"name": f"w{i}", "kind": k, "label": f"widget {i}", "min": 0.0, "max": 1.0, "key": ""}
+             for i, k in enumerate(("button", "toggle", "slider", "dial", "light", "text"))]
+    values = {"w1": True, "w2": 0.4, "w3": 0.7}
+    return Frame(size=(w, h), views=[ViewDraw("main", "orbit", main, cam, "Scene"), ViewDraw("panel", "panel", panel, None, "Controls")],
+                 meshes=[MeshDraw(gm, np.eye(4), (0.85, 0.7, 0.6, 1.0))],
+                 panels=[PanelDraw("panel", panel, "Controls", place(specs, panel), values, set())])
+
+
+def run(args) -> int:
+    import json
+    import platform
+    import statistics
+    import sys
+    import time
+    from pathlib import Path
+
+    import numpy as np
+
+    from chainsim.engine.errors import UserError
+    from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
+    from chainsim.game.gl.renderer import Renderer
+
+    if args.frames < 1 or args.warmup < 0:
+        raise UserError("--frames must be >= 1 and --warmup >= 0")
+    if not (0.0 < args.patch <= 1.0):
+        raise UserError(f"--patch must be a fraction in (0, 1], got {args.patch}")
+    if any(n < 2 for n in args.triangles):
+        raise UserError("--triangles: each count must be >= 2")
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"--out {out}: cannot create folder ({e.strerror})") from None
+    ctx = egl_context()
+    renderer = Renderer(ctx)
+    fbo = offscreen_framebuffer(ctx, args.size)
+    rows = []
+    try:
+        for n in args.triangles:
+            pos, tris, side = sheet(n)
+            frames = args.frames if len(tris) <= 500_000 else max(5, args.frames // 3)
+            gm = renderer.mesh(("bench", n), pos, tris)
+            frame = _frame(gm, args.size)
+            lifted = pos.copy()
+            lifted[:, 2] += 2.0 * np.cos(pos[:, 0] / 9.0)
+            centre = np.argsort(np.linalg.norm(pos[:, :2], axis=1))[: max(1, int(args.patch * len(pos)))]
+            patch_ids = np.sort(centre)
+            # the modes take turns frame by frame, so a change in machine load hits all three alike
+            print(f"  {len(tris):>9,} triangles ({frames} frames per mode) ...", file=sys.stderr, flush=True)
+            times = {m: [] for m in MODES}
+            uploads = {m: [] for m in MODES}
+            state = [lifted, pos]
+            for i in range(args.warmup + frames):
+                target = state[i % 2]
+                for mode in MODES:
+                    t0 = time.perf_counter()
+                    if mode == "full":
+                        gm.mark(np.arange(gm.n))
+                        gm.upload(target)
+                    elif mode == "patch":  # only the patch ids are read from `target`
+                        gm.mark(patch_ids)
+                        gm.upload(target)
+                    t1 = time.perf_counter()
+                    renderer.render(frame, fbo)
+                    ctx.finish()
+                    t2 = time.perf_counter()
+                    if i >= args.warmup:
+                        times[mode].append((t2 - t0) * 1e3)
+                        uploads[mode].append((t1 - t0) * 1e3)
+            for mode in MODES:
+                rows.append({"triangles": int(len(tris)), "vertices": int(len(pos)), "mode": mode, "frames": frames,
+                             "median_ms": statistics.median(times[mode]), "p90_ms": float(np.percentile(times[mode], 90)),
+                             "upload_median_ms": statistics.median(uploads[mode]),
+                             "moved_vertices": {"static": 0, "full": int(len(pos)), "patch": int(len(patch_ids))}[mode]})
+                r = rows[-1]
+                print(f"    {mode:<6} median {r['median_ms']:.2f} ms (upload {r['upload_median_ms']:.2f} ms)", file=sys.stderr, flush=True)
+            renderer.forget(("bench", n))
+    finally:
+        renderer.release()
+        release_framebuffer(ctx, fbo)
+    import os
+
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
+    info = {"renderer": ctx.info.get("GL_RENDERER", "?"), "gl_version": ctx.info.get("GL_VERSION", "?"),
+            "cpu_count": os.cpu_count(), "load_average_1_5_15": list(load),
+            "size": list(args.size), "python": platform.python_version(), "machine": platform.machine(),
+            "patch_fraction": args.patch, "rows": rows}
+    (out / "results.json").write_text(json.dumps(info, indent=2), encoding="utf-8")
+    md = [f"# Render benchmark ({args.size[0]}x{args.size[1]}, {info['renderer']})", "",
+          "Frame time from upload to ctx.finish(); medians over the timed frames. "
+          f"{info['cpu_count']} CPUs, load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at the end "
+          "(a software renderer shares those CPUs with everything else running).", "",
+          "| triangles | mode | moved vertices | frame median (ms) | frame p90 (ms) | upload median (ms) | fps (median) |",
+          "|---:|---|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        md.append(f"| {r['triangles']:,} | {r['mode']} | {r['moved_vertices']:,} | {r['median_ms']:.2f} | {r['p90_ms']:.2f} | "
+                  f"{r['upload_median_ms']:.2f} | {1000.0 / r['median_ms']:.1f} |")
+    (out / "results.md").write_text("\n".join(md) + "\n", encoding="utf-8")
+    _plot(rows, out / "bench-render.png", info)
+    print("\n".join(md))
+    print(f"\nwrote {out}/results.json, results.md, bench-render.png")
+    return 0
+
+
+def _plot(rows, path, info) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    sizes = sorted({r["triangles"] for r in rows})
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(10, 4.2), dpi=120)
+    width = 0.26
+    x = np.arange(len(sizes))
+    for k, mode in enumerate(MODES):
+        for axis, key in ((ax, "median_ms"), (ax2, "upload_median_ms")):
+            vals = [next((r[key] for r in rows if r["triangles"] == s and r["mode"] == mode), np.nan) for s in sizes]
+            if axis is ax2 and mode == "static":
+                continue  # nothing is uploaded
+            axis.bar(x + (k - 1) * width, vals, width, label=mode, color=f"C{k}")
+    ax.axhline(1000 / 60, color="0.4", lw=0.8, ls="--", label="60 fps")
+    for axis, title in ((ax, "frame time (upload + draw + finish)"), (ax2, "upload of moved vertices + normals")):
+        axis.set_yscale("log")
+        axis.set_xticks(x, [f"{s:,}" for s in sizes])
+        axis.set_xlabel("triangles")
+        axis.set_ylabel("median (ms)")
+        axis.set_title(title, fontsize=9)
+        axis.legend(fontsize=8)
+    fig.suptitle(f"Off-screen renderer, {info['size'][0]}x{info['size'][1]}, {info['renderer'][:48]}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

@@ -1,0 +1,320 @@
+"""Drawing the world: gathers meshes, materials, markers, lines, planes, panels and HUD into a `Frame`
+and hands it to the GL renderer (thesis 3.3.4 linked views and controller; 5.3 Figs 5.6-5.8).
+
+Stage: render (ORDER_RENDER). Installed only when rendering (window, snapshot, --screenshot-every).
+Reads: Transform, MeshRef (+ the pack's [materials]: color, opacity, wireframe, shading), Deformable
+(`pos`, `dirty`, `alive` links), Marker, PolyLine, Label, the pack's [planes], ViewState, WidgetState,
+HudState, Settings, RunInfo. Writes: `Deformable.dirty` (replaced by an empty array once the moved
+vertices are queued for upload), the GPU buffers, PNG frames.
+
+Where it draws: a `RenderTarget` resource inserted before the plugin is built (the window inserts its
+own), else an EGL off-screen framebuffer the size of the window layout. In a window it draws every
+frame; off screen it draws only when a frame is wanted - every `RunInfo.screenshot_every` frames, to
+`OUT/frame_000123.png` (123 = App frame index) - or when `draw()` is called (snapshots, tests).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import esper
+import numpy as np
+
+from chainsim.components.core import Label, Marker, MeshRef, PolyLine, Transform
+from chainsim.game.app.core import ORDER_RENDER
+from chainsim.components.hud import HudState
+from chainsim.game.app.loader import EntityIndex, PackResource
+from chainsim.components.resources import InputState, Settings
+from chainsim.systems.ui.widgets import WidgetState
+
+PLANE_COLORS = ((0.95, 0.35, 0.35, 0.22), (0.35, 0.9, 0.45, 0.22), (0.35, 0.55, 1.0, 0.22), (0.9, 0.8, 0.3, 0.22))
+XRAY_OPACITY = 0.3
+
+
+@dataclass(slots=True)
+class RenderTarget:
+    """Where frames go: a GL context and its framebuffer (window or off-screen)."""
+
+    ctx: object
+    fbo: object
+    scale: float = 1.0  # framebuffer pixels per window pixel
+    offscreen: bool = True
+    size: tuple[int, int] | None = None  # framebuffer pixels, when fbo.size cannot be trusted (windows)
+    samples: int = 1  # off screen: draw multisampled and resolve into `fbo` (smooth edges in PNGs)
+    msaa: object = None
+
+    def multisampled(self):
+        """The multisampled framebuffer matching `fbo` (off-screen targets with samples > 1)."""
+        if self.msaa is not None and tuple(self.msaa.size) == tuple(self.fbo.size):
+            return self.msaa
+        from chainsim.game.gl.context import release_framebuffer
+
+        if self.msaa is not None:
+            release_framebuffer(self.ctx, self.msaa)
+        size = tuple(self.fbo.size)
+        self.msaa = self.ctx.framebuffer(color_attachments=[self.ctx.renderbuffer(size, 4, samples=self.samples)],
+                                         depth_attachment=self.ctx.depth_renderbuffer(size, samples=self.samples))
+        return self.msaa
+
+    def ensure_size(self, size: tuple[int, int]) -> None:
+        """Off-screen targets follow the window layout size."""
+        if not self.offscreen:
+            return
+        want = (max(int(round(size[0] * self.scale)), 1), max(int(round(size[1] * self.scale)), 1))
+        if tuple(self.fbo.size) != want:
+            from chainsim.game.gl.context import offscreen_framebuffer, release_framebuffer
+
+            release_framebuffer(self.ctx, self.fbo)
+            self.fbo = offscreen_framebuffer(self.ctx, want)
+
+
+def _deformable_type():
+    try:
+        from chainsim.components.deformable import Deformable
+    except ImportError:  # pragma: no cover
+        return None
+    return Deformable
+
+
+def _material(pack, name: str) -> dict:
+    mats = pack.section("materials")
+    m = mats.get(name) if name else None
+    if m is None:
+        return {"color": (0.8, 0.8, 0.8, 1.0), "opacity": 1.0, "wireframe": False, "shading": "smooth"}
+    return m
+
+
+def sync_deformables(app) -> None:
+    """Queue moved vertices for upload and clear `dirty` (every render-stage call, drawn or not)."""
+    from chainsim.game.gl.renderer import Renderer
+
+    D = _deformable_type()
+    if D is None:
+        return
+    renderer: Renderer = app.resource(Renderer)
+    empty = np.zeros(0, np.int64)
+    for ent, d in esper.get_component(D):
+        dirty = getattr(d, "dirty", None)
+        gm = renderer.meshes.get(ent)
+        if dirty is None:  # a body that only counts versions: rewrite it whole when the count moves
+            version = getattr(d, "version", 0)
+            if gm is not None and version != getattr(gm, "source_version", version):
+                gm.stale = True
+            if gm is not None:
+                gm.source_version = version
+            continue
+        if len(dirty):
+            if gm is not None:
+                gm.mark(dirty)
+            d.dirty = empty
+
+
+def _plane_quads(pack, half: float) -> list:
+    out = []
+    for i, (name, pl) in enumerate(sorted(pack.section("planes").items())):
+        n = np.asarray(pl["normal"], float)
+        if np.linalg.norm(n) < 1e-12:
+            continue
+        n = n / np.linalg.norm(n)
+        a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        u = np.cross(n, a)
+        u /= np.linalg.norm(u)
+        v = np.cross(n, u)
+        p = np.asarray(pl["point"], float)
+        corners = np.array([p - half * u - half * v, p + half * u - half * v, p + half * u + half * v, p - half * u + half * v])
+        out.append((corners, PLANE_COLORS[i % len(PLANE_COLORS)]))
+    return out
+
+
+def help_lines(app) -> list[str]:
+    lines = ["Mouse: left-drag rotates, right/middle-drag pans, scroll zooms;",
+             "       a click on the scene picks a point.",
+             "Keys:  F1 help   F12 screenshot   Esc quit"]
+    for w in app.resource(PackResource).layout.get("widgets", []):
+        if w.get("key"):
+            lines.append(f"       {w['key']:<8} {w.get('label') or w['name']}" + (f" - {w['help']}" if w.get("help") else ""))
+    return lines
+
+
+def collect_frame(app):
+    """Build the `Frame` for the current world (creates / updates GPU meshes as needed)."""
+    from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
+    from chainsim.systems.picking import surface_cache
+    from chainsim.systems.view import ViewState, refresh_cameras
+
+    renderer: Renderer = app.resource(Renderer)
+    target: RenderTarget = app.resource(RenderTarget)
+    pack = app.resource(PackResource).pack
+    vs: ViewState = app.resource(ViewState)
+    refresh_cameras(app, vs)
+    settings = app.resource(Settings)
+    frame = Frame(size=tuple(app.resource(InputState).window_size), scale=target.scale,
+                  background=tuple(float(c) for c in settings.get("background", (0.08, 0.09, 0.11, 1.0))))
+    D = _deformable_type()
+    cache = surface_cache(app)
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    alive_ents = set()
+    for ent, ref in esper.get_component(MeshRef):
+        alive_ents.add(ent)
+        if not ref.visible:
+            continue
+        md = pack.mesh(ref.mesh)
+        if len(md.triangles) == 0 and md.links is None:
+            continue
+        tr = esper.try_component(ent, Transform)
+        model = tr.matrix() if tr is not None else np.eye(4)
+        d = esper.try_component(ent, D) if D is not None else None
+        local = np.asarray(d.pos) if d is not None and len(getattr(d, "pos", ())) == len(md.vertices) else md.vertices
+        graph = getattr(d, "graph", None) if d is not None else None
+        links = np.asarray(graph.links) if graph is not None else None
+        gm = renderer.mesh(ent, local, md.triangles, links if links is not None else md.links)
+        if d is not None:
+            gm.upload(local)
+            alive = getattr(d, "alive", None)
+            if alive is not None and len(alive) and graph is not None:
+                dead = int(len(alive) - np.count_nonzero(alive))
+                if dead != getattr(gm, "dead_links", 0):
+                    gm.dead_links = dead
+                    gm.set_links(links[alive])
+                    gm.set_triangles(cache.live_triangles(ent, md.triangles, d))
+        mat = _material(pack, ref.material)
+        color = [float(c) for c in mat["color"]]
+        color[3] *= float(mat.get("opacity", 1.0))
+        if ref.layer and ref.layer in vs.xray:
+            color[3] = min(color[3], XRAY_OPACITY)
+        if color[3] <= 0.0:
+            continue
+        wire = bool(mat.get("wireframe", False)) or (bool(ref.layer) and ref.layer in vs.wire)
+        frame.meshes.append(MeshDraw(gm, model, tuple(color), wire, mat.get("shading", "smooth"), ent))
+        blo, bhi = gm.box()
+        c = (model @ np.r_[0.5 * (blo + bhi), 1.0])[:3]
+        ext = np.abs(model[:3, :3]) @ (bhi - blo) / 2
+        lo, hi = np.minimum(lo, c - ext), np.maximum(hi, c + ext)
+    for key in [k for k in renderer.meshes if k not in alive_ents]:
+        renderer.forget(key)  # entity removed
+    for ent, (mk, tr) in esper.get_components(Marker, Transform):
+        if mk.visible:
+            frame.markers.append((np.asarray(tr.position, float), float(mk.radius), tuple(float(c) for c in mk.color), ent))
+    for ent, pl in esper.get_component(PolyLine):
+        if pl.visible and len(pl.points) >= 2:
+            frame.lines.append((np.asarray(pl.points, float).reshape(-1, 3), tuple(float(c) for c in pl.color)))
+    for ent, (lb, tr) in esper.get_components(Label, Transform):
+        frame.labels.append((np.asarray(tr.position, float), lb.text, tuple(float(c) for c in lb.color)))
+    if vs.layer_visible("planes") and pack.section("planes"):
+        half = 0.6 * float(np.linalg.norm(hi - lo)) if np.all(np.isfinite(lo)) else 100.0
+        frame.planes = _plane_quads(pack, max(half, 1.0))
+    st: WidgetState = app.resource(WidgetState)
+    index = app.get_resource(EntityIndex)
+    for vp in vs.viewports:
+        if not vp.visible:
+            continue
+        hide = -1
+        if vp.kind == "attached" and index is not None:  # the camera's own entity would fill the view
+            hide = index.get(vp.spec.get("attach", ""), -1)
+        frame.views.append(ViewDraw(vp.name, vp.kind, vp.rect, vp.camera, vp.spec.get("title", ""), hide_entity=hide))
+        if vp.kind == "panel":
+            placed = vs.panels.get(vp.name, [])
+            hint = next((p.spec.get("help", "") for p in placed if p.spec["name"] == vs.hover), "")
+            frame.panels.append(PanelDraw(vp.name, vp.rect, vp.spec.get("title", ""), placed, st.values, st.disabled, hint))
+    frame.hud = app.get_resource(HudState)
+    shown3d = [v for v in frame.views if v.kind != "panel"]
+    orbit = [v for v in shown3d if v.kind == "orbit"]
+    frame.hud_view = (orbit or shown3d)[0].name if shown3d else ""
+    if vs.show_help:
+        frame.help = help_lines(app)
+    hud = frame.hud
+    if hud is not None and hud.doc_open and hud.doc_name in pack.section("docs"):
+        page = pack.section("docs")[hud.doc_name]
+        frame.doc = (page["title"], pack.doc_text(hud.doc_name), hud.doc_scroll)
+    return frame
+
+
+def draw(app):
+    """Draw the current world into the render target now; returns the Frame drawn."""
+    from chainsim.game.gl.renderer import Renderer
+
+    target: RenderTarget = app.resource(RenderTarget)
+    target.ensure_size(app.resource(InputState).window_size)
+    with app.active():
+        sync_deformables(app)
+        frame = collect_frame(app)
+        if target.offscreen and target.samples > 1:
+            ms = target.multisampled()
+            app.resource(Renderer).render(frame, ms)
+            target.ctx.copy_framebuffer(target.fbo, ms)  # resolves the samples
+        else:
+            app.resource(Renderer).render(frame, target.fbo, target.size)
+    return frame
+
+
+def read_pixels(app) -> np.ndarray:
+    """The render target's pixels, (H, W, 4) uint8, top row first."""
+    from chainsim.game.gl.png import read_rgba
+
+    target: RenderTarget = app.resource(RenderTarget)
+    if target.size is not None:
+        return read_rgba(target.fbo, (0, 0, *target.size))
+    return read_rgba(target.fbo)
+
+
+def screenshot(app, path) -> Path:
+    """Draw now and write a PNG. A window's own framebuffer may be multisampled (not readable), so
+    window screenshots are drawn again into an off-screen framebuffer of the same size."""
+    from chainsim.game.gl.context import offscreen_framebuffer, release_framebuffer
+    from chainsim.game.gl.png import read_rgba, write_png
+
+    target: RenderTarget = app.resource(RenderTarget)
+    if target.offscreen:
+        draw(app)
+        return write_png(path, read_pixels(app))
+    size = target.size or tuple(target.fbo.size)
+    fbo = offscreen_framebuffer(target.ctx, size)
+    window_fbo = target.fbo
+    try:
+        target.fbo = fbo
+        draw(app)
+        rgba = read_rgba(fbo, (0, 0, *size))
+    finally:
+        target.fbo = window_fbo
+        window_fbo.use()
+        release_framebuffer(target.ctx, fbo)
+    return write_png(path, rgba)
+
+
+class RenderSystem:
+    def __call__(self, app) -> None:
+        from chainsim.game.app.headless import RunInfo
+
+        target: RenderTarget = app.resource(RenderTarget)
+        if not target.offscreen:
+            draw(app)
+            return
+        sync_deformables(app)
+        info = app.get_resource(RunInfo)
+        k = info.screenshot_every if info is not None else 0
+        if k and info.out_dir and app.time.frame % k == 0:
+            screenshot(app, Path(info.out_dir) / f"frame_{app.time.frame:06d}.png")
+
+
+def plugin(app) -> None:
+    from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
+    from chainsim.game.gl.renderer import Renderer
+
+    target = app.get_resource(RenderTarget)
+    if target is None:
+        ctx = egl_context()
+        samples = 4 if ctx.max_samples >= 4 else 1
+        target = app.insert_resource(RenderTarget(ctx, offscreen_framebuffer(ctx, app.resource(InputState).window_size),
+                                                  samples=samples))
+    renderer = app.insert_resource(Renderer(target.ctx))
+
+    def release():
+        renderer.release()
+        if target.offscreen:
+            if target.msaa is not None:
+                release_framebuffer(target.ctx, target.msaa)
+            release_framebuffer(target.ctx, target.fbo)
+
+    app.on_close(release)
+    app.add_system("render", RenderSystem(), order=ORDER_RENDER, name="render")

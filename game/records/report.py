@@ -1,0 +1,157 @@
+"""Trainee-record reports: aligned tables, CSV export and the progress plot (thesis 3.3.4, 6.1.5).
+
+The thesis tool lets trainer and trainee look back over saved results to judge progress; here
+that is a text table, a CSV for spreadsheets and a PNG of the two 6.1.5 errors over attempts.
+Files are written to a temporary sibling and renamed into place, so an interrupted export never
+leaves a half-written file under the requested name.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from chainsim.engine.errors import UserError
+from chainsim.game.records.validate import AIDS
+
+CSV_COLUMNS = (
+    "id", "class_name", "trainee", "pack", "created_at", "duration_s", "landmark_error_mm",
+    "needle_error_mm", "target", "skull_contacts", "path_length_mm",
+    *(f"aid_{name}" for name in AIDS),
+    "step_times", "details",
+)
+
+
+def table(headers: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """Left-aligned text columns, numbers right-aligned, one header rule."""
+    cells = [[_cell(v) for v in row] for row in rows]
+    widths = [len(h) for h in headers]
+    for row in cells:
+        widths = [max(w, len(c)) for w, c in zip(widths, row)]
+    numeric = [
+        bool(rows) and all(isinstance(row[i], (int, float)) or row[i] is None for row in rows)
+        for i in range(len(headers))
+    ]
+
+    def line(values: Sequence[str]) -> str:
+        parts = [v.rjust(w) if num else v.ljust(w) for v, w, num in zip(values, widths, numeric)]
+        return "  ".join(parts).rstrip()
+
+    out = [line(headers), line(["-" * w for w in widths])]
+    out += [line(row) for row in cells]
+    return "\n".join(out)
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:.2f}"
+    return str(value)
+
+
+def atomic_write(path: Path, write: Callable[[io.TextIOBase | io.BufferedIOBase], None], *, binary: bool) -> None:
+    """Write via a temp file in the same folder, fsync, then rename over ``path``."""
+    path = Path(path)
+    if path.is_dir():
+        raise UserError(f"output {path} is a directory; expected a file name")
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise UserError(f"output folder {folder} does not exist")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    except OSError as exc:
+        raise UserError(f"cannot write {path}: {exc.strerror}") from None
+    try:
+        mode = "wb" if binary else "w"
+        kwargs = {} if binary else {"encoding": "utf-8", "newline": ""}
+        with os.fdopen(fd, mode, **kwargs) as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        # mkstemp makes the file owner-only; give the result the usual umask-based mode.
+        os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, path)
+    except BaseException as exc:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        if isinstance(exc, OSError):
+            raise UserError(f"cannot write {path}: {exc.strerror or exc}") from None
+        raise
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def csv_rows(attempts: Sequence[dict[str, Any]]) -> list[list[Any]]:
+    rows = []
+    for a in attempts:
+        rows.append([
+            a["id"], a["class_name"], a["trainee"], a["pack"], a["created_at"], a["duration_s"],
+            a["landmark_error_mm"], "" if a["needle_error_mm"] is None else a["needle_error_mm"],
+            a["target"], a["skull_contacts"], a["path_length_mm"],
+            *(int(bool(a["aids"].get(name, False))) for name in AIDS),
+            json.dumps(a["step_times"], sort_keys=True), json.dumps(a["details"], sort_keys=True),
+        ])
+    return rows
+
+
+def export_csv(attempts: Sequence[dict[str, Any]], path: Path) -> None:
+    """One header row then one row per attempt; aids as 0/1 columns, dicts as JSON text."""
+
+    def write(fh: Any) -> None:
+        w = csv.writer(fh)
+        w.writerow(CSV_COLUMNS)
+        w.writerows(csv_rows(attempts))
+
+    atomic_write(path, write, binary=False)
+
+
+def plot_progress(attempts: Sequence[dict[str, Any]], path: Path, title: str) -> None:
+    """PNG of landmark error and needle error against attempt number (Agg, no display)."""
+    if not attempts:
+        raise UserError(f"no attempts to plot for {title}")
+    if Path(path).suffix.lower() != ".png":
+        raise UserError(f"plot output {path} must end in .png")
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    n = list(range(1, len(attempts) + 1))
+    landmark = [a["landmark_error_mm"] for a in attempts]
+    needle = [float("nan") if a["needle_error_mm"] is None else a["needle_error_mm"] for a in attempts]
+
+    fig = Figure(figsize=(7.0, 5.5), dpi=100)
+    FigureCanvasAgg(fig)
+    ax_l, ax_n = fig.subplots(2, 1, sharex=True)
+    ax_l.plot(n, landmark, marker="o", color="tab:blue")
+    ax_l.set_ylabel("landmark error E (mm)")
+    ax_l.set_ylim(bottom=0)
+    ax_l.grid(alpha=0.3)
+    # Attempts with no needle contact have no needle error: join the others, mark the gaps.
+    hit = [(i, v) for i, v in zip(n, needle) if v == v]
+    missing = [i for i, v in zip(n, needle) if v != v]
+    if hit:
+        ax_n.plot([i for i, _ in hit], [v for _, v in hit], marker="s", color="tab:red")
+    for i in missing:
+        ax_n.axvline(i, color="0.7", linestyle=":", linewidth=1)
+    ax_n.axhline(0.0, color="0.4", linewidth=0.8)
+    ax_n.set_ylabel("needle error (mm)")
+    ax_n.set_xlabel("attempt" + (" (dotted: no needle contact)" if missing else ""))
+    ax_n.grid(alpha=0.3)
+    ax_n.set_xticks(n if len(n) <= 20 else n[:: max(1, len(n) // 10)])
+    fig.suptitle(title)
+    fig.tight_layout()
+
+    atomic_write(path, lambda fh: fig.savefig(fh, format="png"), binary=True)

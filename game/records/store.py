@@ -1,0 +1,350 @@
+"""Trainee records: the SQLite store behind the assessment tool of thesis 3.3.4 (Fig. 3.11).
+
+The thesis tool files each attempt under a class and a user name, then lets the trainer view or
+delete it later; the numbers kept are the 6.1.5 metrics. ``RecordStore`` is that store:
+
+    with RecordStore() as store:                       # default file, or $CHAINSIM_DB
+        store.save_attempt("c1", "alice", {...})       # class and trainee made on first save
+        for row in store.list_attempts("c1", "alice"): ...
+
+Names: classes and trainees are created on demand by ``save_attempt`` (the Save button takes
+whatever class and user name are typed) and ``add_trainee`` creates its class when missing;
+``add_class``/``add_trainee`` refuse a name that already exists, so a typo is noticed.
+
+Safety: the database runs in WAL mode with ``synchronous=FULL`` and every write is a single
+``BEGIN IMMEDIATE ... COMMIT``, so killing the process mid-save loses at most the attempt being
+saved and never leaves part of one. A file that is not a records database is refused with one
+line before anything is written to it. Schema and migrations: ``chainsim.game.records.schema``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sqlite3
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Iterator
+
+from chainsim.engine.errors import UserError
+from chainsim.game.records.schema import MIGRATIONS, OWN_TABLES, SCHEMA_VERSION
+from chainsim.game.records.validate import clean_attempt, clean_name, to_json
+
+ENV_VAR = "CHAINSIM_DB"
+DB_FILENAME = "records.sqlite3"
+SQLITE_MAGIC = b"SQLite format 3\x00"
+BUSY_TIMEOUT_MS = 5000
+
+
+def default_path() -> Path:
+    """$CHAINSIM_DB when set, else <user data dir>/chainsim/records.sqlite3."""
+    env = os.environ.get(ENV_VAR, "").strip()
+    if env:
+        return Path(env).expanduser()
+    import platformdirs
+
+    return Path(platformdirs.user_data_dir("chainsim")) / DB_FILENAME
+
+
+def _check_file(path: Path) -> None:
+    """Refuse, without writing, anything at ``path`` that cannot be a records database."""
+    if path.is_dir():
+        raise UserError(f"records database {path} is a directory; expected a .sqlite3 file")
+    if not path.exists():
+        return
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(len(SQLITE_MAGIC))
+    except OSError as exc:
+        raise UserError(f"cannot read records database {path}: {exc.strerror}") from None
+    # SQLite treats a zero-byte file as an empty database; anything else needs the magic header.
+    if head and head != SQLITE_MAGIC:
+        raise UserError(f"{path} is not an SQLite database; expected a chainsim records file")
+    if not head:
+        return
+    # Read-only look first: opening read-write and switching to WAL would rewrite the header of a
+    # file we are about to reject.
+    try:
+        ro = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
+    except sqlite3.Error as exc:
+        raise UserError(f"cannot open records database {path}: {exc}") from None
+    try:
+        ok = ro.execute("PRAGMA quick_check").fetchone()[0]
+        version = ro.execute("PRAGMA user_version").fetchone()[0]
+        tables = {r[0] for r in ro.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    except sqlite3.DatabaseError as exc:
+        raise UserError(f"records database {path} is damaged or not a database ({exc})") from None
+    finally:
+        ro.close()
+    if ok != "ok":
+        raise UserError(f"records database {path} is damaged (integrity check: {ok})")
+    if version > SCHEMA_VERSION:
+        raise UserError(
+            f"records database {path} has schema version {version}; this chainsim reads up to {SCHEMA_VERSION}"
+        )
+    foreign = tables - OWN_TABLES - {"sqlite_sequence"}
+    if version == 0 and foreign:
+        raise UserError(
+            f"{path} is an SQLite database of something else (table {sorted(foreign)[0]!r}); "
+            "expected a chainsim records file"
+        )
+
+
+def migrate(conn: sqlite3.Connection) -> int:
+    """Bring ``conn`` up to SCHEMA_VERSION, one transaction per step; returns the final version."""
+    while True:
+        conn.execute("BEGIN IMMEDIATE")
+        try:
+            version = conn.execute("PRAGMA user_version").fetchone()[0]
+            if version >= SCHEMA_VERSION:
+                conn.execute("COMMIT")
+                return version
+            for statement in MIGRATIONS[version]:
+                conn.execute(statement)
+            conn.execute(f"PRAGMA user_version = {version + 1}")
+            conn.execute("COMMIT")
+        except BaseException:
+            conn.execute("ROLLBACK")
+            raise
+
+
+def _row_to_attempt(row: sqlite3.Row) -> dict[str, Any]:
+    out = {key: row[key] for key in row.keys()}
+    for key in ("aids", "step_times", "details"):
+        out[key] = json.loads(out[key])
+    return out
+
+
+_ATTEMPT_SELECT = """
+    SELECT a.id, c.name AS class_name, t.name AS trainee, a.pack, a.created_at, a.duration_s,
+           a.landmark_error_mm, a.needle_error_mm, a.target, a.skull_contacts, a.path_length_mm,
+           a.aids, a.step_times, a.details
+    FROM attempts a JOIN trainees t ON t.id = a.trainee_id JOIN classes c ON c.id = t.class_id
+"""
+
+
+class RecordStore:
+    """Classes, trainees and their attempts in one SQLite file (see module docstring)."""
+
+    def __init__(self, path: str | os.PathLike[str] | None = None) -> None:
+        self.path = Path(path).expanduser() if path is not None else default_path()
+        _check_file(self.path)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UserError(f"cannot create folder for records database {self.path}: {exc.strerror}") from None
+        try:
+            # isolation_level=None: we issue BEGIN/COMMIT ourselves so each save is exactly one
+            # transaction and DDL is not auto-committed behind our back.
+            self._conn = sqlite3.connect(self.path, isolation_level=None, timeout=BUSY_TIMEOUT_MS / 1000)
+        except sqlite3.Error as exc:
+            raise UserError(f"cannot open records database {self.path}: {exc}") from None
+        try:
+            self._conn.row_factory = sqlite3.Row
+            self._conn.execute("PRAGMA foreign_keys = ON")
+            mode = self._conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
+            if mode.lower() != "wal":
+                raise UserError(f"records database {self.path} cannot use WAL journaling (got {mode})")
+            self._conn.execute("PRAGMA synchronous = FULL")
+            migrate(self._conn)
+        except sqlite3.Error as exc:
+            self._conn.close()
+            raise UserError(f"cannot use records database {self.path}: {exc}") from None
+        except BaseException:
+            self._conn.close()
+            raise
+
+    # -- plumbing -------------------------------------------------------------------------
+
+    def __enter__(self) -> "RecordStore":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        conn, self._conn = getattr(self, "_conn", None), None
+        if conn is not None:
+            conn.close()
+
+    @property
+    def schema_version(self) -> int:
+        return self._db.execute("PRAGMA user_version").fetchone()[0]
+
+    @property
+    def _db(self) -> sqlite3.Connection:
+        if self._conn is None:
+            raise UserError("records store is closed")
+        return self._conn
+
+    @contextmanager
+    def _write(self) -> Iterator[sqlite3.Connection]:
+        """One write transaction; rolled back whole on any error."""
+        conn = self._db
+        # IMMEDIATE takes the write lock up front so a concurrent writer waits instead of failing
+        # half-way through.
+        try:
+            conn.execute("BEGIN IMMEDIATE")
+            yield conn
+            conn.execute("COMMIT")
+        except BaseException as exc:
+            if conn.in_transaction:
+                conn.execute("ROLLBACK")
+            if isinstance(exc, sqlite3.Error):
+                raise UserError(f"records database {self.path}: write failed, nothing changed ({exc})") from None
+            raise
+
+    def _class_id(self, conn: sqlite3.Connection, name: str) -> int | None:
+        row = conn.execute("SELECT id FROM classes WHERE name = ?", (name,)).fetchone()
+        return None if row is None else row[0]
+
+    def _trainee_id(self, conn: sqlite3.Connection, class_id: int, name: str) -> int | None:
+        row = conn.execute(
+            "SELECT id FROM trainees WHERE class_id = ? AND name = ?", (class_id, name)
+        ).fetchone()
+        return None if row is None else row[0]
+
+    def _require_class(self, name: str) -> int:
+        class_id = self._class_id(self._db, name)
+        if class_id is None:
+            known = ", ".join(self.list_classes()) or "none yet"
+            raise UserError(f"no class named {name!r} (classes: {known})")
+        return class_id
+
+    def _require_trainee(self, class_name: str | None, name: str) -> list[int]:
+        rows = self._db.execute(
+            "SELECT t.id FROM trainees t JOIN classes c ON c.id = t.class_id "
+            "WHERE t.name = ? AND (? IS NULL OR c.name = ?)",
+            (name, class_name, class_name),
+        ).fetchall()
+        if not rows:
+            where = f" in class {class_name!r}" if class_name is not None else ""
+            raise UserError(f"no trainee named {name!r}{where}")
+        return [r[0] for r in rows]
+
+    # -- classes and trainees ---------------------------------------------------------------
+
+    def add_class(self, name: str) -> None:
+        """Create a class; a name already in use is an error."""
+        name = clean_name("class", name)
+        with self._write() as conn:
+            if self._class_id(conn, name) is not None:
+                raise UserError(f"class {name!r} already exists")
+            conn.execute("INSERT INTO classes (name) VALUES (?)", (name,))
+
+    def add_trainee(self, class_name: str, name: str) -> bool:
+        """Add a trainee to a class, creating the class if needed; returns True if it did."""
+        class_name = clean_name("class", class_name)
+        name = clean_name("trainee", name)
+        with self._write() as conn:
+            class_id = self._class_id(conn, class_name)
+            created = class_id is None
+            if created:
+                class_id = conn.execute("INSERT INTO classes (name) VALUES (?)", (class_name,)).lastrowid
+            elif self._trainee_id(conn, class_id, name) is not None:
+                raise UserError(f"trainee {name!r} already exists in class {class_name!r}")
+            conn.execute("INSERT INTO trainees (class_id, name) VALUES (?, ?)", (class_id, name))
+        return created
+
+    def list_classes(self) -> list[str]:
+        return [r[0] for r in self._db.execute("SELECT name FROM classes ORDER BY name")]
+
+    def class_summary(self) -> list[dict[str, Any]]:
+        """Per class: name, number of trainees, number of attempts."""
+        rows = self._db.execute(
+            """
+            SELECT c.name AS class_name, COUNT(DISTINCT t.id) AS trainees, COUNT(a.id) AS attempts
+            FROM classes c LEFT JOIN trainees t ON t.class_id = c.id
+                 LEFT JOIN attempts a ON a.trainee_id = t.id
+            GROUP BY c.id ORDER BY c.name
+            """
+        )
+        return [dict(r) for r in rows]
+
+    def list_trainees(self, class_name: str | None = None) -> list[dict[str, Any]]:
+        """Trainees (optionally of one class) as dicts: class_name, trainee, attempts."""
+        if class_name is not None:
+            class_name = clean_name("class", class_name)
+            self._require_class(class_name)
+        rows = self._db.execute(
+            """
+            SELECT c.name AS class_name, t.name AS trainee, COUNT(a.id) AS attempts
+            FROM trainees t JOIN classes c ON c.id = t.class_id
+                 LEFT JOIN attempts a ON a.trainee_id = t.id
+            WHERE ? IS NULL OR c.name = ?
+            GROUP BY t.id ORDER BY c.name, t.name
+            """,
+            (class_name, class_name),
+        )
+        return [dict(r) for r in rows]
+
+    # -- attempts ---------------------------------------------------------------------------
+
+    def save_attempt(self, class_name: str, trainee: str, attempt: dict[str, Any]) -> int:
+        """Validate and store one attempt in one transaction; returns its id.
+
+        The class and trainee are created if missing, in the same transaction, so an interrupted
+        save leaves no empty trainee behind either.
+        """
+        class_name = clean_name("class", class_name)
+        trainee = clean_name("trainee", trainee)
+        a = clean_attempt(attempt)
+        with self._write() as conn:
+            class_id = self._class_id(conn, class_name)
+            if class_id is None:
+                class_id = conn.execute("INSERT INTO classes (name) VALUES (?)", (class_name,)).lastrowid
+            trainee_id = self._trainee_id(conn, class_id, trainee)
+            if trainee_id is None:
+                trainee_id = conn.execute(
+                    "INSERT INTO trainees (class_id, name) VALUES (?, ?)", (class_id, trainee)
+                ).lastrowid
+            cur = conn.execute(
+                """
+                INSERT INTO attempts (trainee_id, pack, created_at, duration_s, landmark_error_mm,
+                    needle_error_mm, target, skull_contacts, path_length_mm, aids, step_times, details)
+                VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
+                """,
+                (
+                    trainee_id, a["pack"], a["created_at"], a["duration_s"], a["landmark_error_mm"],
+                    a["needle_error_mm"], a["target"], a["skull_contacts"], a["path_length_mm"],
+                    to_json(a["aids"]), to_json(a["step_times"]), to_json(a["details"]),
+                ),
+            )
+            return cur.lastrowid
+
+    def list_attempts(self, class_name: str | None = None, trainee: str | None = None) -> list[dict[str, Any]]:
+        """Attempts, oldest first, optionally filtered; naming an unknown class/trainee is an error."""
+        if class_name is not None:
+            class_name = clean_name("class", class_name)
+            self._require_class(class_name)
+        if trainee is not None:
+            trainee = clean_name("trainee", trainee)
+            self._require_trainee(class_name, trainee)
+        rows = self._db.execute(
+            _ATTEMPT_SELECT
+            + """
+            WHERE (? IS NULL OR c.name = ?) AND (? IS NULL OR t.name = ?)
+            ORDER BY c.name, t.name, a.created_at, a.id
+            """,
+            (class_name, class_name, trainee, trainee),
+        )
+        return [_row_to_attempt(r) for r in rows]
+
+    def get_attempt(self, attempt_id: int) -> dict[str, Any]:
+        attempt_id = _attempt_id(attempt_id)
+        row = self._db.execute(_ATTEMPT_SELECT + " WHERE a.id = ?", (attempt_id,)).fetchone()
+        if row is None:
+            raise UserError(f"no attempt with id {attempt_id}")
+        return _row_to_attempt(row)
+
+    def delete_attempt(self, attempt_id: int) -> None:
+        attempt_id = _attempt_id(attempt_id)
+        with self._write() as conn:
+            if conn.execute("DELETE FROM attempts WHERE id = ?", (attempt_id,)).rowcount == 0:
+                raise UserError(f"no attempt with id {attempt_id}")
+
+
+def _attempt_id(value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise UserError(f"attempt id must be a positive whole number, got {value!r}")
+    return value

@@ -1,0 +1,203 @@
+"""Validation of what goes into the trainee-records store (thesis 3.3.4 assessment tool).
+
+Everything a caller hands to ``RecordStore`` passes through here first, so a bad field becomes
+one ``UserError`` line naming the field and what is expected, and nothing malformed (NaN, inf,
+an unknown aid, a misspelt key) ever reaches the database.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import numbers
+import re
+from datetime import datetime, timezone
+from typing import Any
+
+from chainsim.engine.errors import UserError
+
+NAME_MAX = 64
+
+# Aids of 3.3.4 / 6.1.3 whose effect on performance the thesis compares.
+AIDS = ("skin_transparent", "reference_planes", "landmark_planes", "tip_view", "collision_signals")
+
+# What the needle tip ended on; pack-specific objects use the same lower_snake_case form.
+KNOWN_TARGETS = frozenset({"none", "skull", "mandible"})
+TARGET_RE = re.compile(r"[a-z][a-z0-9_]{0,63}")
+STEP_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}")
+
+REQUIRED = (
+    "pack",
+    "duration_s",
+    "landmark_error_mm",
+    "needle_error_mm",
+    "target",
+    "skull_contacts",
+    "path_length_mm",
+)
+OPTIONAL = ("created_at", "aids", "step_times", "details")
+FIELDS = REQUIRED + OPTIONAL
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+
+
+def clean_name(kind: str, value: Any) -> str:
+    """Return ``value`` stripped, or raise if it is not a usable class/trainee/pack name."""
+    if not isinstance(value, str):
+        raise UserError(f"{kind} name must be text, got {type(value).__name__}")
+    name = value.strip()
+    if not name:
+        raise UserError(f"{kind} name is empty; expected 1-{NAME_MAX} characters")
+    if len(name) > NAME_MAX:
+        raise UserError(f"{kind} name {name[:20]!r}... is {len(name)} characters; at most {NAME_MAX} allowed")
+    if _CONTROL.search(name):
+        raise UserError(f"{kind} name {name!r} contains a control character; use printable text")
+    return name
+
+
+def _number(field: str, value: Any, *, minimum: float | None = 0.0) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise UserError(f"attempt field {field!r} must be a number, got {value!r}")
+    x = float(value)
+    if not math.isfinite(x):
+        raise UserError(f"attempt field {field!r} is {x}; expected a finite number")
+    if minimum is not None and x < minimum:
+        raise UserError(f"attempt field {field!r} is {x}; expected a value >= {minimum:g}")
+    return x
+
+
+def _count(field: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise UserError(f"attempt field {field!r} must be a whole number, got {value!r}")
+    n = int(value)
+    if n < 0:
+        raise UserError(f"attempt field {field!r} is {n}; expected a count >= 0")
+    return n
+
+
+def clean_created_at(value: Any) -> str:
+    """ISO-8601 UTC timestamp; stored as the caller wrote it, ``now`` when absent."""
+    if value is None:
+        return datetime.now(timezone.utc).isoformat(timespec="seconds")
+    if isinstance(value, datetime):
+        if value.utcoffset() is None or value.utcoffset().total_seconds() != 0:
+            raise UserError(f"attempt field 'created_at' {value!r} must be a UTC datetime")
+        return value.isoformat()
+    if not isinstance(value, str):
+        raise UserError(f"attempt field 'created_at' must be an ISO-8601 UTC string, got {value!r}")
+    text = value.strip()
+    try:
+        stamp = datetime.fromisoformat(text)
+    except ValueError:
+        raise UserError(
+            f"attempt field 'created_at' {value!r} is not ISO-8601; expected e.g. 2026-01-31T09:15:00Z"
+        ) from None
+    offset = stamp.utcoffset()
+    if offset is None or offset.total_seconds() != 0:
+        raise UserError(
+            f"attempt field 'created_at' {value!r} is not UTC; expected a 'Z' or '+00:00' suffix"
+        )
+    return text
+
+
+def clean_target(value: Any) -> str:
+    if not isinstance(value, str) or not TARGET_RE.fullmatch(value):
+        raise UserError(
+            f"attempt field 'target' is {value!r}; expected one of {', '.join(sorted(KNOWN_TARGETS))}, "
+            "foramen_ovale_<side> or another lower_snake_case object name"
+        )
+    return value
+
+
+def clean_aids(value: Any) -> dict[str, bool]:
+    """All five aids, each a bool; aids the caller leaves out were off."""
+    if value is None:
+        value = {}
+    if not isinstance(value, dict):
+        raise UserError(f"attempt field 'aids' must be an object of booleans, got {value!r}")
+    unknown = sorted(set(value) - set(AIDS), key=str)
+    if unknown:
+        raise UserError(f"attempt field 'aids' has unknown key {unknown[0]!r}; known: {', '.join(AIDS)}")
+    out = {}
+    for key in AIDS:
+        flag = value.get(key, False)
+        if not isinstance(flag, bool):
+            raise UserError(f"aid {key!r} must be true or false, got {flag!r}")
+        out[key] = flag
+    return out
+
+
+def clean_step_times(value: Any) -> dict[str, float]:
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise UserError(f"attempt field 'step_times' must map step ids to seconds, got {value!r}")
+    out = {}
+    for key, seconds in value.items():
+        if not isinstance(key, str) or not STEP_RE.fullmatch(key):
+            raise UserError(f"step id {key!r} in 'step_times' must be 1-64 letters, digits, '_', '.' or '-'")
+        out[key] = _number(f"step_times.{key}", seconds)
+    return out
+
+
+def _plain(path: str, value: Any) -> Any:
+    """JSON-ready copy of a details value; rejects non-finite numbers and non-text keys."""
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, numbers.Integral):
+        return int(value)
+    if isinstance(value, numbers.Real):
+        return _number(path, value, minimum=None)
+    if isinstance(value, dict):
+        out = {}
+        for key, item in value.items():
+            if not isinstance(key, str):
+                raise UserError(f"attempt field {path!r} has a non-text key {key!r}")
+            out[key] = _plain(f"{path}.{key}", item)
+        return out
+    if isinstance(value, (list, tuple)) or hasattr(value, "tolist"):
+        items = value.tolist() if hasattr(value, "tolist") else value
+        if not isinstance(items, list):
+            return _plain(path, items)
+        return [_plain(f"{path}[{i}]", item) for i, item in enumerate(items)]
+    raise UserError(f"attempt field {path!r} holds {type(value).__name__}; expected numbers, text, lists or objects")
+
+
+def clean_details(value: Any) -> dict[str, Any]:
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise UserError(f"attempt field 'details' must be an object, got {value!r}")
+    return _plain("details", value)
+
+
+def clean_attempt(attempt: Any) -> dict[str, Any]:
+    """Validated, normalised copy of an attempt dict, ready to store."""
+    if not isinstance(attempt, dict):
+        raise UserError(f"an attempt must be a dict of fields, got {type(attempt).__name__}")
+    unknown = sorted(set(attempt) - set(FIELDS), key=str)
+    if unknown:
+        raise UserError(f"attempt has unknown field {unknown[0]!r}; known: {', '.join(FIELDS)}")
+    missing = [f for f in REQUIRED if f not in attempt]
+    if missing:
+        raise UserError(f"attempt is missing field {missing[0]!r}; required: {', '.join(REQUIRED)}")
+    needle = attempt["needle_error_mm"]
+    return {
+        "pack": clean_name("pack", attempt["pack"]),
+        "created_at": clean_created_at(attempt.get("created_at")),
+        "duration_s": _number("duration_s", attempt["duration_s"]),
+        "landmark_error_mm": _number("landmark_error_mm", attempt["landmark_error_mm"]),
+        # 6.1.5 scores the needle as distance-to-centre minus the foramen radius, so a tip inside
+        # the opening is legitimately negative; None means the needle never touched anything.
+        "needle_error_mm": None if needle is None else _number("needle_error_mm", needle, minimum=None),
+        "target": clean_target(attempt["target"]),
+        "skull_contacts": _count("skull_contacts", attempt["skull_contacts"]),
+        "path_length_mm": _number("path_length_mm", attempt["path_length_mm"]),
+        "aids": clean_aids(attempt.get("aids")),
+        "step_times": clean_step_times(attempt.get("step_times")),
+        "details": clean_details(attempt.get("details")),
+    }
+
+
+def to_json(value: Any) -> str:
+    return json.dumps(value, sort_keys=True, allow_nan=False, separators=(",", ":"))

@@ -1,0 +1,209 @@
+"""The pyglet window adapter: the pack's layout in a resizable window, fed by the mouse and keyboard.
+
+Only this module (and the GL adapters) import pyglet. Device events become the same input events
+scripts use (`chainsim.components.input_events`), stamped with the App's simulated time and queued in PendingInput,
+so a window session can be recorded (`--record`) and replayed headless. Each redraw (about 60 per
+second where the machine keeps up) advances the App by the wall-clock time since the previous one
+(capped at 0.1 s) and draws through `chainsim.game.gl.render_system` into the window's framebuffer.
+
+HiDPI: layouts, input events and widgets work in window units; the renderer draws at the
+framebuffer's resolution (`RenderTarget.scale` = framebuffer pixels per window unit).
+
+Keys: a widget's `key` (pyglet key names, lower case: "t", "left", "space", "f2"; digits "1".."9")
+uses that widget (held arrow keys repeat); F1 toggles the help overlay, F12 saves a screenshot (chainsim-shot-FRAME.png in the
+current folder), Esc quits. `--input SCRIPT` plays a script, `--exit-after S` closes after S simulated
+seconds, `--screenshot PNG` saves the last frame on closing, `--record FILE` saves the session.
+"""
+
+from __future__ import annotations
+
+import time
+
+from chainsim.engine.errors import UserError
+
+
+def key_name(symbol: int) -> str:
+    """pyglet key symbol -> the name used in input events ('T' -> 't', '_1' -> '1', 'LEFT' -> 'left')."""
+    import pyglet
+
+    name = pyglet.window.key.symbol_string(symbol).lower()
+    if len(name) == 2 and name[0] == "_" and name[1].isdigit():
+        name = name[1]
+    return name
+
+
+def _button(b) -> str:
+    import pyglet
+
+    m = pyglet.window.mouse
+    if b & m.LEFT:
+        return "left"
+    if b & m.RIGHT:
+        return "right"
+    return "middle"
+
+
+def _open_window(pyglet, w: int, h: int, caption: str):
+    """A GL 3.3 core window; multisampled when the display offers it."""
+    base = dict(major_version=3, minor_version=3, forward_compatible=True, double_buffer=True, depth_size=24)
+    last = None
+    for extra in (dict(sample_buffers=1, samples=4), {}):
+        try:
+            config = pyglet.gl.Config(**base, **extra)
+            return pyglet.window.Window(w, h, caption=caption, resizable=True, config=config)
+        except Exception as e:  # no such config on this display: try a plainer one
+            last = e
+    raise last
+
+
+def run_window(args) -> int:
+    try:
+        import pyglet
+    except Exception as e:  # pragma: no cover - pyglet is a dependency
+        raise UserError(f"cannot start the window system ({e})") from None
+    import chainsim.game.gl.render_system as render
+    from chainsim.game.gl.context import window_context
+    from chainsim.game.app.headless import build_app
+    from chainsim.components.hud import HudState
+    from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll
+    from chainsim.game.app.inputscript import load_script
+    from chainsim.components.resources import PendingInput, Settings
+
+    from chainsim.game.cli.commands.run import user_settings
+
+    script = load_script(args.input) if getattr(args, "input", None) else None
+    settings = user_settings(args)  # --db, --class, --trainee for procedures that save attempts
+    app = build_app(args.pack, pack_paths=args.pack_path, headless=False, settings=settings)
+    w, h = (int(x) for x in app.resource(Settings).get("window_size", [1280, 800]))
+    try:
+        window = _open_window(pyglet, w, h, f"chainsim - {args.pack}")
+    except Exception as e:
+        app.close()
+        raise UserError(f"cannot open a window on this display ({type(e).__name__}: {e}); "
+                        f"run headless instead: chainsim run {args.pack} --headless --steps 600 --out DIR") from None
+    try:
+        ctx = window_context()
+    except Exception as e:
+        window.close()
+        app.close()
+        raise UserError(f"this display has no OpenGL 3.3 ({type(e).__name__}: {e}); "
+                        f"render off screen instead: chainsim snapshot {args.pack} --out shot.png") from None
+    fw, fh = window.get_framebuffer_size()
+    target = render.RenderTarget(ctx, ctx.screen, fw / max(w, 1), offscreen=False, size=(fw, fh))
+    app.insert_resource(target)
+    app.add_plugin(render.plugin)
+    pending: PendingInput = app.resource(PendingInput)
+    if script:
+        pending.extend(script)
+    state = {"last": None, "closing": False, "rc": 0}
+
+    def now() -> float:
+        return app.time.sim_time
+
+    def finish() -> None:
+        """Save what was asked for, then close (once)."""
+        if state["closing"]:
+            return
+        state["closing"] = True
+        try:
+            if getattr(args, "screenshot", None):
+                path = render.screenshot(app, args.screenshot)
+                print(f"screenshot: {path}")
+            if getattr(args, "record", None):
+                from chainsim.game.app.digest import world_digest
+                from chainsim.game.app.inputscript import write_recording
+                from chainsim.systems.input import InputLog
+
+                log = app.get_resource(InputLog)
+                write_recording(args.record, pack=args.pack, scene=app.resource(render.PackResource).scene, dt=app.time.dt,
+                                steps=app.time.tick, events=log.items if log else [], digest=world_digest(app),
+                                settings=settings or None)
+                print(f"recording: {args.record}")
+        finally:
+            # close outside the event dispatch that called us; GL objects go before their context
+            def close(_dt):
+                app.close()
+                window.close()
+                pyglet.app.exit()
+
+            pyglet.clock.schedule_once(close, 0.0)
+
+    @window.event
+    def on_mouse_motion(x, y, dx, dy):
+        pending.push(now(), MouseMove(float(x), float(y)))
+
+    @window.event
+    def on_mouse_press(x, y, button, modifiers):
+        pending.push(now(), MouseButton(float(x), float(y), _button(button), True))
+
+    @window.event
+    def on_mouse_release(x, y, button, modifiers):
+        pending.push(now(), MouseButton(float(x), float(y), _button(button), False))
+
+    @window.event
+    def on_mouse_drag(x, y, dx, dy, buttons, modifiers):
+        pending.push(now(), MouseDrag(float(x), float(y), float(dx), float(dy), _button(buttons)))
+
+    @window.event
+    def on_mouse_scroll(x, y, scroll_x, scroll_y):
+        pending.push(now(), Scroll(float(x), float(y), float(scroll_y)))
+
+    @window.event
+    def on_key_press(symbol, modifiers):
+        if symbol == pyglet.window.key.ESCAPE:
+            finish()
+            return pyglet.event.EVENT_HANDLED
+        if symbol == pyglet.window.key.F12:
+            path = render.screenshot(app, f"chainsim-shot-{app.time.frame:06d}.png")
+            app.resource(HudState).message(f"saved {path}", 3.0)
+            return pyglet.event.EVENT_HANDLED
+        if symbol in ARROWS:
+            return pyglet.event.EVENT_HANDLED  # arrives through on_text_motion, with key repeat
+        pending.push(now(), Key(key_name(symbol), True))
+        return pyglet.event.EVENT_HANDLED
+
+    ARROWS = {pyglet.window.key.LEFT: "left", pyglet.window.key.RIGHT: "right",
+              pyglet.window.key.UP: "up", pyglet.window.key.DOWN: "down"}
+    MOTIONS = {pyglet.window.key.MOTION_LEFT: "left", pyglet.window.key.MOTION_RIGHT: "right",
+               pyglet.window.key.MOTION_UP: "up", pyglet.window.key.MOTION_DOWN: "down"}
+
+    @window.event
+    def on_text_motion(motion):
+        # held arrow keys repeat, so a dial on an arrow key keeps turning while it is held
+        if motion in MOTIONS:
+            pending.push(now(), Key(MOTIONS[motion], True))
+
+    @window.event
+    def on_key_release(symbol, modifiers):
+        if symbol not in (pyglet.window.key.ESCAPE, pyglet.window.key.F12):
+            pending.push(now(), Key(key_name(symbol), False))
+
+    @window.event
+    def on_resize(width, height):
+        fbw, fbh = window.get_framebuffer_size()
+        target.size = (int(fbw), int(fbh))
+        target.scale = fbw / max(int(width), 1)
+        pending.push(now(), Resize(max(int(width), 1), max(int(height), 1)))
+        return pyglet.event.EVENT_HANDLED
+
+    @window.event
+    def on_draw():
+        t = time.perf_counter()  # wall clock paces the window only; the App runs on simulated time
+        dt = 0.0 if state["last"] is None else min(t - state["last"], 0.1)
+        state["last"] = t
+        if state["closing"]:
+            return
+        app.update(dt)
+        if args.exit_after is not None and app.time.sim_time >= args.exit_after:
+            finish()
+
+    @window.event
+    def on_close():
+        finish()
+        return pyglet.event.EVENT_HANDLED
+
+    try:
+        pyglet.app.run(1 / 60)
+    finally:
+        app.close()
+    return state["rc"]

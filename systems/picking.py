@@ -1,0 +1,223 @@
+"""Picking without GL: ray -> (entity, triangle, point) on the current (possibly deformed) meshes, and a
+world point -> nearest surface point (thesis 3.3.4: landmarks are placed by clicking on the face).
+
+The ray test is a vectorised, two-sided Moller-Trumbore over every triangle of each candidate mesh
+(after a bounding-sphere cull), on the vertex positions the renderer draws: `Deformable.pos` when the
+entity has one, else the pack mesh, mapped through the entity's Transform. Triangles that lost an edge
+to a cut (a dead ChainMail link, thesis 4.5.2) are neither drawn nor picked.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+EPS = 1e-12
+
+
+@dataclass(slots=True)
+class Hit:
+    entity: int
+    name: str
+    triangle: int
+    point: np.ndarray  # world mm
+    distance: float  # along the ray from its origin
+
+
+# -- geometry ------------------------------------------------------------------------------------
+
+
+def ray_triangles(origin, direction, v0, v1, v2) -> np.ndarray:
+    """Distance along the ray to each triangle (inf where missed); triangles given as (F, 3) corners."""
+    o = np.asarray(origin, float)
+    d = np.asarray(direction, float)
+    e1 = v1 - v0
+    e2 = v2 - v0
+    p = np.cross(d, e2)
+    det = np.einsum("ij,ij->i", e1, p)
+    ok = np.abs(det) > EPS
+    inv = np.zeros_like(det)
+    inv[ok] = 1.0 / det[ok]
+    s = o - v0
+    u = np.einsum("ij,ij->i", s, p) * inv
+    q = np.cross(s, e1)
+    v = (q @ d) * inv
+    t = np.einsum("ij,ij->i", e2, q) * inv
+    hit = ok & (u >= 0.0) & (v >= 0.0) & (u + v <= 1.0) & (t > 0.0)
+    return np.where(hit, t, np.inf)
+
+
+def ray_mesh(origin, direction, vertices: np.ndarray, triangles: np.ndarray, chunk: int = 200_000):
+    """(triangle, distance) of the nearest hit, or None."""
+    if len(triangles) == 0:
+        return None
+    best_t, best_i = np.inf, -1
+    for s in range(0, len(triangles), chunk):
+        tri = triangles[s:s + chunk]
+        t = ray_triangles(origin, direction, vertices[tri[:, 0]], vertices[tri[:, 1]], vertices[tri[:, 2]])
+        i = int(np.argmin(t))
+        if t[i] < best_t:
+            best_t, best_i = float(t[i]), s + i
+    return None if best_i < 0 else (best_i, best_t)
+
+
+def closest_on_mesh(vertices: np.ndarray, triangles: np.ndarray, point) -> tuple[int, np.ndarray]:
+    """(triangle, point) on the mesh surface nearest to `point`."""
+    from trimesh.triangles import closest_point
+
+    p = np.asarray(point, float)
+    corners = vertices[triangles]
+    cp = closest_point(corners, np.broadcast_to(p, (len(triangles), 3)))
+    d2 = np.einsum("ij,ij->i", cp - p, cp - p)
+    i = int(np.argmin(d2))
+    return i, cp[i].copy()
+
+
+def to_world(matrix: np.ndarray, local: np.ndarray) -> np.ndarray:
+    return local @ matrix[:3, :3].T + matrix[:3, 3]
+
+
+def triangle_links(triangles: np.ndarray, links: np.ndarray) -> np.ndarray:
+    """(F, 3) link id of each triangle edge (v0v1, v1v2, v2v0), -1 where the edge is not a link."""
+    if len(links) == 0 or len(triangles) == 0:
+        return np.full((len(triangles), 3), -1, np.int64)
+    n = int(max(triangles.max(), links.max())) + 1
+    lk = np.minimum(links[:, 0], links[:, 1]).astype(np.int64) * n + np.maximum(links[:, 0], links[:, 1])
+    order = np.argsort(lk)
+    lk_sorted = lk[order]
+    out = np.empty((len(triangles), 3), np.int64)
+    for j, (a, b) in enumerate(((0, 1), (1, 2), (2, 0))):
+        ea, eb = triangles[:, a].astype(np.int64), triangles[:, b].astype(np.int64)
+        key = np.minimum(ea, eb) * n + np.maximum(ea, eb)
+        pos = np.clip(np.searchsorted(lk_sorted, key), 0, len(lk_sorted) - 1)
+        found = lk_sorted[pos] == key
+        out[:, j] = np.where(found, order[pos], -1)
+    return out
+
+
+# -- the world -----------------------------------------------------------------------------------
+
+
+@dataclass(slots=True)
+class _Surface:
+    graph_id: int = 0
+    tri_links: np.ndarray | None = None
+    dead: int = -1
+    live: np.ndarray | None = None  # indices of triangles still drawn
+
+
+@dataclass(slots=True)
+class SurfaceCache:
+    """Per-entity triangle lists with cut triangles removed (resource shared by renderer and picking)."""
+
+    items: dict[int, _Surface] = field(default_factory=dict)
+
+    def live_triangles(self, entity: int, triangles: np.ndarray, deformable) -> np.ndarray:
+        """Indices (into `triangles`) of the triangles whose edges are all alive."""
+        graph = getattr(deformable, "graph", None) if deformable is not None else None
+        alive = getattr(deformable, "alive", None) if deformable is not None else None
+        if graph is None or alive is None or len(alive) == 0:
+            return np.arange(len(triangles))
+        s = self.items.get(entity)
+        if s is None or s.graph_id != id(graph):
+            s = _Surface(graph_id=id(graph), tri_links=triangle_links(triangles, np.asarray(graph.links)))
+            self.items[entity] = s
+        dead = int(len(alive) - np.count_nonzero(alive))
+        if dead != s.dead or s.live is None:
+            tl = s.tri_links
+            ok = np.ones(len(triangles), bool)
+            if dead:
+                ok = np.all((tl < 0) | alive[np.maximum(tl, 0)], axis=1)
+            s.live = np.flatnonzero(ok)
+            s.dead = dead
+        return s.live
+
+
+def surface_cache(app) -> SurfaceCache:
+    c = app.get_resource(SurfaceCache)
+    if c is None:
+        c = app.insert_resource(SurfaceCache())
+    return c
+
+
+def entity_surface(app, ent: int, mesh_ref=None, transform=None):
+    """(world vertices, triangles, triangle ids) of an entity's current surface, or None."""
+    import esper
+
+    from chainsim.components.core import MeshRef, Transform
+    from chainsim.game.app.loader import PackResource
+
+    mesh_ref = mesh_ref or esper.try_component(ent, MeshRef)
+    if mesh_ref is None:
+        return None
+    mesh = app.resource(PackResource).pack.mesh(mesh_ref.mesh)
+    if len(mesh.triangles) == 0:
+        return None
+    deform = _deformable(ent)
+    local = np.asarray(deform.pos, float) if deform is not None and len(getattr(deform, "pos", ())) else mesh.vertices
+    transform = transform or esper.try_component(ent, Transform)
+    m = transform.matrix() if transform is not None else np.eye(4)
+    tri_ids = surface_cache(app).live_triangles(ent, mesh.triangles, deform)
+    return to_world(m, local), mesh.triangles, tri_ids
+
+
+def _deformable(ent: int):
+    import esper
+
+    try:
+        from chainsim.components.deformable import Deformable
+    except ImportError:  # pragma: no cover - the deformation module is optional
+        return None
+    return esper.try_component(ent, Deformable)
+
+
+def pick(app, origin, direction) -> Hit | None:
+    """Nearest hit over visible, pickable mesh entities (call inside `app.active()` or a system)."""
+    import esper
+
+    from chainsim.components.core import MeshRef, Name, Transform
+
+    d = np.asarray(direction, float)
+    o = np.asarray(origin, float)
+    best: Hit | None = None
+    for ent, ref in esper.get_component(MeshRef):
+        if not (ref.visible and ref.pickable):
+            continue
+        surf = entity_surface(app, ent, ref, esper.try_component(ent, Transform))
+        if surf is None:
+            continue
+        verts, tris, ids = surf
+        centre = 0.5 * (verts.min(axis=0) + verts.max(axis=0))
+        radius = 0.5 * float(np.linalg.norm(verts.max(axis=0) - verts.min(axis=0)))
+        w = centre - o
+        along = float(w @ d)
+        if float(w @ w) - along * along > radius * radius * (1 + 1e-9) + 1e-9:
+            continue  # the ray misses the bounding sphere
+        if along < -radius:
+            continue
+        if best is not None and along - radius > best.distance:
+            continue
+        found = ray_mesh(o, d, verts, tris[ids])
+        if found is None:
+            continue
+        k, t = found
+        if best is None or t < best.distance:
+            name = esper.try_component(ent, Name)
+            best = Hit(ent, name.value if name else str(ent), int(ids[k]), o + t * d, t)
+    return best
+
+
+def snap(app, entity: int, point) -> Hit | None:
+    """The surface point of `entity` nearest to a world point (scripted PickPoint events)."""
+    import esper
+
+    from chainsim.components.core import Name
+
+    surf = entity_surface(app, entity)
+    if surf is None:
+        return None
+    verts, tris, ids = surf
+    k, p = closest_on_mesh(verts, tris[ids], point)
+    name = esper.try_component(entity, Name)
+    return Hit(entity, name.value if name else str(entity), int(ids[k]), p, float(np.linalg.norm(p - np.asarray(point, float))))

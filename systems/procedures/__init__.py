@@ -1,0 +1,1 @@
+"""Procedure systems: one folder per procedure the app can run (its steps, scoring and feedback)."""

@@ -1,0 +1,1 @@
+"""The cutting trainer (thesis 4.5): instruments on layered tissue."""

@@ -1,0 +1,206 @@
+"""Rhizotomy assessment: the 6.1.5 errors, the attempt record and the assessment tool (thesis 3.3.4, Fig. 3.11).
+
+Stage: procedure (ORDER_ASSESSMENT), after the procedure steps. Reads: ProcedureState, NeedleState,
+PrpAnatomy, Widget events (self_assessment, save, help), Settings ("db", "class", "trainee").
+Writes: chainsim.game.app.headless.Assessment.values (the summary's `assessment`), HudState.panel_text and
+messages; saves attempts to the records store.
+
+Metrics, on the side of landmark 1 (all millimetres):
+    landmark error  E = ((D1 + d1) + (D2 + d2) + (D3 + d3)) / 6 with D1 = |Dist1 - 25|, D2 = Dist2,
+                    D3 = |Dist3 - 30| (distances to the mouth angle, the pupil's medial aspect and the
+                    tragus) and d1, d2, d3 the distances to the axial plane through the mouth angle,
+                    the sagittal plane through the pupil and the axial plane through the ear
+    needle error    E = Dist - R at the last contact: Dist from the tip to the centre of the foramen
+                    ovale, R its radius. Negative when the tip stopped inside the opening's radius;
+                    None while the needle has touched nothing.
+Also: simulated seconds per step, the tip's path length while inserted, skull contacts, refused
+rotations, the aids that were on at any time of the attempt, and the object reached.
+"""
+
+from __future__ import annotations
+
+import esper
+import numpy as np
+
+from chainsim.components.needle import NeedleState
+from chainsim.components.procedure import PrpAnatomy, ProcedureState, landmark_errors
+from chainsim.game.app.core import ORDER_ASSESSMENT
+from chainsim.components.input_events import Widget
+from chainsim.components.resources import Settings
+
+DEFAULT_CLASS = "default"
+DEFAULT_TRAINEE = "anonymous"
+
+
+def _num(x):
+    return None if x is None or not np.isfinite(x) else float(x)
+
+
+def compute(app) -> dict:
+    """The assessment values of the current attempt (JSON-ready)."""
+    from chainsim.systems.procedures.prp.procedure import PrpHandles
+
+    handles: PrpHandles = app.resource(PrpHandles)
+    ps: ProcedureState = esper.component_for_entity(handles.procedure, ProcedureState)
+    st: NeedleState = esper.component_for_entity(handles.needle, NeedleState)
+    anat: PrpAnatomy = app.resource(PrpAnatomy)
+    side = ps.side or "left"
+    sa = anat.sides[side]
+    lm = landmark_errors(sa, ps.landmarks)
+    radius = sa.foramen_radius
+    needle_error = None if not np.isfinite(ps.needle_dist) else ps.needle_dist - radius
+    tip = st.tip() if st.placed else np.full(3, np.nan)
+    out = {
+        "side": ps.side or None,
+        "step": ps.step_id,
+        "landmark_error_mm": lm["landmark_error_mm"],
+        "needle_error_mm": needle_error,
+        "needle_dist_mm": _num(ps.needle_dist),
+        "foramen_radius_mm": radius,
+        "target": ps.target,
+        "target_reached": ps.finished,
+        "skull_contacts": int(st.skull_contacts),
+        "path_length_mm": float(st.path_length),
+        "rotation_refused": int(st.rotation_refused),
+        "step_times": {k: float(v) for k, v in ps.step_times.items()},
+        "aids": {k: bool(v) for k, v in ps.aids.items()},
+        "duration_s": float(ps.elapsed),
+        "landmarks": [None if not np.all(np.isfinite(p)) else [float(c) for c in p] for p in ps.landmarks],
+        "hit_point": None if not np.all(np.isfinite(ps.hit_point)) else [float(c) for c in ps.hit_point],
+        "tip": None if not st.placed else [float(c) for c in tip],
+        "tip_to_target_mm": None if not st.placed else float(np.linalg.norm(tip - sa.foramen_centre)),
+        "depth_mm": float(st.depth),
+        "rotation_horizontal_deg": float(st.yaw),
+        "rotation_vertical_deg": float(st.pitch),
+        "rotation_locked": bool(st.locked),
+        "lights": dict(ps.lights),
+    }
+    for k in (1, 2, 3):
+        out[f"D{k}"] = lm.get(f"D{k}")
+        out[f"d{k}"] = lm.get(f"d{k}")
+        out[f"Dist{k}"] = lm.get(f"Dist{k}")
+    return out
+
+
+def panel_lines(v: dict) -> list[str]:
+    """The self-assessment text (Fig. 3.11's text field)."""
+    def mm(x):
+        return "-" if x is None else f"{x:.1f} mm"
+
+    lines = ["Self assessment" + (f" ({v['side']} side)" if v["side"] else "")]
+    lines.append(f"Landmark error E: {mm(v['landmark_error_mm'])}")
+    for k in (1, 2, 3):
+        lines.append(f"  mark {k}: D{k} {mm(v[f'D{k}'])}, d{k} {mm(v[f'd{k}'])}")
+    lines.append(f"Needle error E = Dist - R: {mm(v['needle_error_mm'])}")
+    lines.append(f"Reached: {v['target'].replace('_', ' ')}; skull contacts: {v['skull_contacts']}")
+    lines.append(f"Path length: {v['path_length_mm']:.1f} mm; time: {v['duration_s']:.1f} s")
+    on = [k.replace("_", " ") for k, x in v["aids"].items() if x]
+    lines.append("Aids used: " + (", ".join(on) if on else "none"))
+    return lines
+
+
+def attempt_record(pack_name: str, v: dict) -> dict:
+    """The records-store attempt (chainsim.game.records.store) for assessment values `v` (as in the summary)."""
+    return {
+        "pack": pack_name,
+        "duration_s": v["duration_s"],
+        "landmark_error_mm": v["landmark_error_mm"],
+        "needle_error_mm": v["needle_error_mm"],
+        "target": v["target"],
+        "skull_contacts": v["skull_contacts"],
+        "path_length_mm": v["path_length_mm"],
+        "aids": v["aids"],
+        "step_times": v["step_times"],
+        "details": {k: v[k] for k in ("side", "D1", "D2", "D3", "d1", "d2", "d3", "landmarks", "hit_point",
+                                      "needle_dist_mm", "foramen_radius_mm", "rotation_refused",
+                                      "rotation_horizontal_deg", "rotation_vertical_deg")},
+    }
+
+
+def save(app, v: dict) -> int:
+    """Save the attempt to the records DB (Settings db/class/trainee); raises UserError on failure."""
+    from chainsim.engine.errors import UserError
+    from chainsim.game.app.loader import PackResource
+    from chainsim.game.records.store import RecordStore
+
+    if v["landmark_error_mm"] is None:
+        raise UserError("place all three landmarks before saving: the landmark error needs them")
+    s = app.resource(Settings)
+    with RecordStore(s.get("db") or None) as store:
+        return store.save_attempt(s.get("class") or DEFAULT_CLASS, s.get("trainee") or DEFAULT_TRAINEE,
+                                  attempt_record(app.resource(PackResource).pack.name, v))
+
+
+def my_attempts(app, limit: int = 6) -> list[str]:
+    """Panel lines for the current trainee's saved attempts, newest last (the View of Fig. 3.11)."""
+    from chainsim.game.records.store import RecordStore
+
+    s = app.resource(Settings)
+    cls, who = s.get("class") or DEFAULT_CLASS, s.get("trainee") or DEFAULT_TRAINEE
+    with RecordStore(s.get("db") or None) as store:
+        rows = store.list_attempts(cls, who)
+    lines = [f"Attempts of {who} ({cls}): {len(rows)}"]
+    for r in rows[-limit:]:
+        ne = "-" if r["needle_error_mm"] is None else f"{r['needle_error_mm']:.1f}"
+        lines.append(f"#{r['id']} {r['created_at'][:16]}  landmarks {r['landmark_error_mm']:.1f} mm, "
+                     f"needle {ne} mm, {r['target']}")
+    return lines
+
+
+class AssessmentSystem:
+    def __init__(self, app):
+        self.widgets = app.events.reader(Widget)
+        self.errors: list[str] = []
+
+    def __call__(self, app) -> None:
+        from chainsim.engine.errors import UserError
+        from chainsim.game.app.headless import Assessment
+        from chainsim.systems.procedures.prp.procedure import PrpHandles, hud
+
+        v = compute(app)
+        for ev in self.widgets.read():
+            h = hud(app)
+            if ev.name == "self_assessment":
+                h.panel_text = panel_lines(v)
+            elif ev.name == "save":
+                try:
+                    rid = save(app, v)
+                except UserError as e:
+                    h.message(f"Not saved: {e}", 8.0)
+                    self.errors.append(str(e))
+                except OSError as e:  # a full disk or a vanished folder must not end the session
+                    h.message(f"Not saved: {e}", 8.0)
+                    self.errors.append(str(e))
+                else:
+                    ps = esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState)
+                    ps.saved.append(rid)
+                    s = app.resource(Settings)
+                    h.message(f"Attempt {rid} saved for {s.get('trainee') or DEFAULT_TRAINEE} "
+                              f"in class {s.get('class') or DEFAULT_CLASS}.")
+            elif ev.name == "my_attempts":
+                try:
+                    h.panel_text = my_attempts(app)
+                except (UserError, OSError):  # nothing saved yet under this class and name
+                    s = app.resource(Settings)
+                    h.panel_text = [f"No saved attempts yet for {s.get('trainee') or DEFAULT_TRAINEE} "
+                                    f"in class {s.get('class') or DEFAULT_CLASS}."]
+            elif ev.name == "help":
+                h.panel_text = [
+                    "Assessment help (docs page 'assessment'):",
+                    "Self assessment shows the landmark error (thesis 6.1.5) and",
+                    "the needle error E = Dist - R at the last contact.",
+                    "Save stores the attempt under your class and name.",
+                    "Reset puts the needle back on landmark 1; shift+Reset clears the landmarks.",
+                ]
+        ps = esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState)
+        v["saved"] = list(ps.saved)
+        v["save_errors"] = list(self.errors)
+        app.resource(Assessment).values = v
+
+
+def plugin(app) -> None:
+    from chainsim.game.app.headless import Assessment
+
+    if not app.has_resource(Assessment):
+        app.insert_resource(Assessment())
+    app.add_system("procedure", AssessmentSystem(app), order=ORDER_ASSESSMENT, name="prp_assessment")

@@ -1,0 +1,204 @@
+"""Viewports and cameras without GL: layout fractions -> pixel rectangles, view/projection matrices,
+world point -> pixel and pixel -> ray (thesis 3.3.4: the linked global, needle-tip and controller views).
+
+Conventions (all matrices are 4 x 4 numpy float64, column vectors, OpenGL clip space):
+
+* Window pixels have their origin at the bottom-left (pyglet and the input events). A pixel with
+  integer index (i, j) covers [i, i+1) x [j, j+1); its centre is (i + 0.5, j + 0.5). `Camera.ray`
+  takes continuous window coordinates, so pass a pixel centre to hit what the renderer shows there.
+* The world is Z-up, millimetres.
+* Orbit / fixed camera: the eye sits `distance` from `target`. With yaw = pitch = 0 the eye is on the
+  +Y side of the target and looks along -Y; yaw turns the eye counter-clockwise about +Z (seen from
+  above), pitch raises it (positive pitch looks down on the target).
+* Attached camera: the eye is at the entity's origin plus `offset` (given in the entity's local frame,
+  scaled and rotated with it) and looks along the entity's rotated local +Z axis, with the rotated
+  local +Y axis as the up hint. A needle whose tip is at its entity origin pointing along local +Z
+  therefore sees what lies ahead of the tip. Attached cameras ignore mouse input.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from chainsim.engine import quaternion
+
+KINDS_3D = ("orbit", "attached", "fixed")
+
+
+@dataclass(frozen=True, slots=True)
+class Rect:
+    """A pixel rectangle, origin bottom-left."""
+
+    x: int
+    y: int
+    w: int
+    h: int
+
+    def contains(self, px: float, py: float) -> bool:
+        return self.x <= px < self.x + self.w and self.y <= py < self.y + self.h
+
+    @property
+    def aspect(self) -> float:
+        return self.w / self.h if self.h > 0 else 1.0
+
+    def scaled(self, sx: float, sy: float | None = None) -> "Rect":
+        """The same rectangle in another pixel grid (framebuffer vs window size on HiDPI screens)."""
+        sy = sx if sy is None else sy
+        x0, y0 = round(self.x * sx), round(self.y * sy)
+        return Rect(x0, y0, round((self.x + self.w) * sx) - x0, round((self.y + self.h) * sy) - y0)
+
+
+def fraction_rect(frac, width: int, height: int) -> Rect:
+    """[x, y, w, h] window fractions -> pixels. Edges are rounded, so neighbouring viewports share
+    their boundary pixel-exactly and tile the window without gaps or overlaps."""
+    fx, fy, fw, fh = (float(v) for v in frac)
+    x0, y0 = round(fx * width), round(fy * height)
+    x1, y1 = round((fx + fw) * width), round((fy + fh) * height)
+    return Rect(x0, y0, max(x1 - x0, 0), max(y1 - y0, 0))
+
+
+def layout_rects(viewports: list[dict], width: int, height: int) -> dict[str, Rect]:
+    """Pixel rectangle of every viewport table of a layout."""
+    return {vp["name"]: fraction_rect(vp["rect"], width, height) for vp in viewports}
+
+
+# -- matrices ------------------------------------------------------------------------------------
+
+
+def look_at(eye, target, up) -> np.ndarray:
+    eye = np.asarray(eye, float)
+    f = np.asarray(target, float) - eye
+    f /= np.linalg.norm(f)
+    up = np.asarray(up, float)
+    s = np.cross(f, up)
+    if np.linalg.norm(s) < 1e-9:  # looking straight along the up hint: pick another
+        alt = np.array([0.0, 1.0, 0.0]) if abs(f[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        s = np.cross(f, alt)
+    s /= np.linalg.norm(s)
+    u = np.cross(s, f)
+    m = np.eye(4)
+    m[0, :3], m[1, :3], m[2, :3] = s, u, -f
+    m[:3, 3] = -m[:3, :3] @ eye
+    return m
+
+
+def perspective(fov_deg: float, aspect: float, near: float, far: float) -> np.ndarray:
+    f = 1.0 / math.tan(math.radians(fov_deg) / 2.0)
+    m = np.zeros((4, 4))
+    m[0, 0] = f / aspect
+    m[1, 1] = f
+    m[2, 2] = (far + near) / (near - far)
+    m[2, 3] = 2.0 * far * near / (near - far)
+    m[3, 2] = -1.0
+    return m
+
+
+# -- cameras -------------------------------------------------------------------------------------
+
+
+@dataclass(slots=True)
+class Camera:
+    """A perspective camera: eye, target, up hint; see the module docstring for conventions."""
+
+    eye: np.ndarray = field(default_factory=lambda: np.array([0.0, 400.0, 0.0]))
+    target: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    fov: float = 40.0
+    near: float = 1.0
+    far: float = 5000.0
+
+    def view(self) -> np.ndarray:
+        return look_at(self.eye, self.target, self.up)
+
+    def projection(self, aspect: float) -> np.ndarray:
+        return perspective(self.fov, aspect, self.near, self.far)
+
+    def view_projection(self, aspect: float) -> np.ndarray:
+        return self.projection(aspect) @ self.view()
+
+    def project(self, points, rect: Rect) -> np.ndarray:
+        """World points (K, 3) -> (K, 3): window x, y (continuous pixels) and NDC depth in [-1, 1]."""
+        p = np.atleast_2d(np.asarray(points, float))
+        clip = np.c_[p, np.ones(len(p))] @ self.view_projection(rect.aspect).T
+        with np.errstate(divide="ignore", invalid="ignore"):  # points in the eye's plane: inf/nan, never drawn
+            ndc = clip[:, :3] / clip[:, 3:4]
+        x = rect.x + (ndc[:, 0] + 1.0) * 0.5 * rect.w
+        y = rect.y + (ndc[:, 1] + 1.0) * 0.5 * rect.h
+        return np.c_[x, y, ndc[:, 2]]
+
+    def ray(self, px: float, py: float, rect: Rect) -> tuple[np.ndarray, np.ndarray]:
+        """Continuous window coordinates -> (origin on the near plane, unit direction), world mm."""
+        nx = 2.0 * (px - rect.x) / rect.w - 1.0
+        ny = 2.0 * (py - rect.y) / rect.h - 1.0
+        inv = np.linalg.inv(self.view_projection(rect.aspect))
+        a = inv @ np.array([nx, ny, -1.0, 1.0])
+        b = inv @ np.array([nx, ny, 1.0, 1.0])
+        a = a[:3] / a[3]
+        b = b[:3] / b[3]
+        d = b - a
+        return a, d / np.linalg.norm(d)
+
+    @property
+    def forward(self) -> np.ndarray:
+        f = np.asarray(self.target, float) - np.asarray(self.eye, float)
+        return f / np.linalg.norm(f)
+
+
+@dataclass(slots=True)
+class OrbitCamera(Camera):
+    """Spherical camera around `target`; rotate / zoom / pan from mouse input."""
+
+    distance: float = 400.0
+    yaw: float = 0.0  # degrees
+    pitch: float = 0.0  # degrees, clamped to (-89.9, 89.9)
+
+    def __post_init__(self) -> None:
+        self.target = np.asarray(self.target, float).copy()
+        self.update_eye()
+
+    def update_eye(self) -> None:
+        cy, sy = math.cos(math.radians(self.yaw)), math.sin(math.radians(self.yaw))
+        cp, sp = math.cos(math.radians(self.pitch)), math.sin(math.radians(self.pitch))
+        self.eye = self.target + self.distance * np.array([-sy * cp, cy * cp, sp])
+        self.up = np.array([0.0, 0.0, 1.0])
+
+    def rotate(self, dx: float, dy: float, deg_per_px: float = 0.4) -> None:
+        """Drag right turns the scene to the right (the eye moves left); drag up tilts it towards the viewer."""
+        self.yaw = (self.yaw - dx * deg_per_px) % 360.0
+        self.pitch = float(np.clip(self.pitch - dy * deg_per_px, -89.9, 89.9))
+        self.update_eye()
+
+    def zoom(self, steps: float, factor: float = 0.9) -> None:
+        """Scroll up (positive) moves the eye closer."""
+        self.distance = float(np.clip(self.distance * factor ** steps, max(self.near * 2, 1e-3), self.far * 0.9))
+        self.update_eye()
+
+    def pan(self, dx: float, dy: float, rect: Rect) -> None:
+        """Move the target so the scene follows the cursor (at the target's depth)."""
+        h = 2.0 * self.distance * math.tan(math.radians(self.fov) / 2.0)
+        mm_per_px = h / max(rect.h, 1)
+        f = self.forward
+        right = np.cross(f, self.up)
+        right /= np.linalg.norm(right)
+        up = np.cross(right, f)
+        self.target = self.target - (right * dx + up * dy) * mm_per_px
+        self.update_eye()
+
+
+def orbit_from_table(vp: dict) -> OrbitCamera:
+    return OrbitCamera(target=np.asarray(vp.get("target", (0, 0, 0)), float), fov=float(vp.get("fov", 40.0)),
+                       near=float(vp.get("near", 1.0)), far=float(vp.get("far", 5000.0)),
+                       distance=float(vp.get("distance", 400.0)), yaw=float(vp.get("yaw", 0.0)),
+                       pitch=float(vp.get("pitch", 0.0)))
+
+
+def attached_camera(position, rotation, scale: float, offset, fov: float, near: float, far: float) -> Camera:
+    """Camera riding on an entity (convention in the module docstring)."""
+    r = quaternion.to_matrix(rotation)
+    eye = np.asarray(position, float) + r @ (np.asarray(offset, float) * float(scale))
+    fwd = r @ np.array([0.0, 0.0, 1.0])
+    up = r @ np.array([0.0, 1.0, 0.0])
+    return Camera(eye=eye, target=eye + fwd, up=up, fov=fov, near=near, far=far)

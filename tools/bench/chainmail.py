@@ -1,0 +1,39 @@
+"""`chainsim bench chainmail`: Generalised ChainMail speed against the thesis (6.2) and at scale.
+
+    chainsim bench chainmail [--quick] [--out DIR]            thesis grids, worst case, scaling
+    chainsim bench chainmail --mesh MESH --grab I --to X Y Z --alpha-min A --alpha-max B --beta C
+                             [--repeat R] [--json]            one cascade on a mesh, from rest
+
+The first form writes results.md, results.json and results.png to DIR (default runs/bench-chainmail)
+and prints the tables; the second prints the timing (JSON with --json). Timings are medians of repeated
+runs after warm-up; the rest state is restored between runs outside the timed region.
+"""
+
+from __future__ import annotations
+
+HELP = "ChainMail speed: thesis 6.2 grids and worst case, scaling to 1M elements, or one mesh (--mesh)"
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--quick", action="store_true", help="a fast subset (smaller meshes, fewer repeats)")
+    p.add_argument("--out", default="runs/bench-chainmail", metavar="DIR", help="folder for results.md/.json/.png")
+    p.add_argument("--repeat", type=int, default=0, metavar="R", help="timed repeats per case (default: by size)")
+    p.add_argument("--max-elements", type=float, default=0, metavar="N", help="largest scaling mesh (default 1e6, quick 1e5)")
+    p.add_argument("--parts", default="thesis,worst,scaling", help="comma-separated parts to run: thesis, worst, scaling")
+    p.add_argument("--mesh", metavar="MESH", help="time one cascade on this mesh (.npz graph or mesh file)")
+    p.add_argument("--grab", type=int, metavar="I", help="(--mesh) element to move")
+    p.add_argument("--to", type=float, nargs="+", metavar="X", help="(--mesh) target coordinates")
+    p.add_argument("--alpha-min", type=float, default=1.0, metavar="A", help="(--mesh) compression limit (default 1)")
+    p.add_argument("--alpha-max", type=float, default=1.0, metavar="B", help="(--mesh) stretch limit (default 1)")
+    p.add_argument("--beta", type=float, default=0.0, metavar="C", help="(--mesh) shear limit (default 0)")
+    p.add_argument("--relax", type=int, default=0, metavar="N", help="(--mesh) relaxation sweeps after the cascade")
+    p.add_argument("--order", choices=("fifo", "balanced", "schill"), default="fifo", help="(--mesh) waiting-list order")
+    p.add_argument("--json", action="store_true", help="(--mesh) print JSON only")
+
+
+def run(args) -> int:
+    from chainsim.tools.bench import run as impl
+
+    if args.mesh:
+        return impl.run_mesh(args)
+    return impl.run_suite(args)

@@ -1,0 +1,448 @@
+"""The ChainMail benchmark suite behind `chainsim bench chainmail` (see tools/bench_chainmail.py).
+
+Parts:
+  thesis   the experiment of thesis 6.2.1: square grids of 11, 25, 51 and 75 elements a side; rigid,
+           medium and soft materials; Gibson's ChainMail (4.2) and Generalised ChainMail (5.2); the
+           highest and lowest update rates, from a small move of the centre element (only its
+           neighbourhood follows) to a large one (every element follows), beside Tables 6.2-6.4.
+           The thesis measured browser frame rates (Java + VRML, AMD-K7); ours are cascade-only updates
+           per second, so the ratio says how much faster the move itself now is, not the whole frame.
+  worst    Fig. 6.4: the centre element of a rigid grid moved at a constant rate 20 times around a
+           40 x 40 square path; every update moves the whole object.
+  scaling  rigid full cascades on tetrahedral blocks and triangle sheets from 10^3 to 10^6 elements,
+           with and without relaxation, in generated order, shuffled (random ids) and shuffled then
+           reordered (reverse Cuthill-McKee, chainsim.engine.reorder); plus a local grab on the largest mesh.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from chainsim.engine.errors import UserError
+
+# Tables 6.2-6.4 (frames/second): size -> (Gibson hi, lo, SurfaceChainMail hi, lo, Generalised hi, lo)
+THESIS = {
+    "rigid": {121: (90.9, 58.82, 90.9, 45.5, 90.9, 58.82), 625: (37, 30.3, 37, 30.3, 45.5, 37),
+              2601: (10.75, 10.36, 11.4, 10.6, 10.8, 10.1), 5625: (5.2, 5.18, 5.2, 4.8, 5.7, 5.1)},
+    "medium": {121: (90.9, 58.82, 90.9, 45.5, 90.9, 58.82), 625: (45.45, 37.03, 45.45, 30.3, 90.9, 37),
+               2601: (37.03, 12.04, 22.7, 13, 45.5, 10.1), 5625: (22.73, 6.99, 20.4, 6.5, 22.7, 6.1)},
+    "soft": {121: (90.9, 58.82, 90.9, 45.5, 90.9, 58.82), 625: (90.9, 37.03, 90.9, 30.3, 90.9, 37),
+             2601: (45.45, 12.04, 30.3, 13.4, 45.5, 10.1), 5625: (26.31, 6.99, 22.7, 6.5, 22.7, 6.5)},
+}
+TABLE_OF = {"rigid": "6.2", "medium": "6.3", "soft": "6.4"}
+# alpha_min, alpha_max as in 6.2.1 (after Gibson 1999); the thesis gives no shear value, these are ours
+MATERIALS = {"rigid": (1.0, 1.0, 0.0), "medium": (0.8, 1.2, 0.1), "soft": (0.5, 2.5, 0.3)}
+SIDES = (11, 25, 51, 75)
+
+
+def _log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+class Times(list):
+    """Wall-clock seconds per call; `.cpu` holds the process CPU seconds of the same calls.
+
+    On a shared machine the wall clock also counts time the process waited for a core; CPU time counts
+    only what it ran (kernels here are single-threaded, so the two agree on an idle machine).
+    """
+
+    cpu: list
+
+
+def time_calls(fn, reset, repeat: int, warmup: int = 2) -> Times:
+    """Seconds per call of fn(), reset() run untimed before each call."""
+    for _ in range(warmup):
+        reset()
+        fn()
+    out = Times()
+    out.cpu = []
+    for _ in range(repeat):
+        reset()
+        c0 = time.process_time()
+        t0 = time.perf_counter()
+        fn()
+        t1 = time.perf_counter()
+        out.cpu.append(time.process_time() - c0)
+        out.append(t1 - t0)
+    return out
+
+
+def cpu_ms(times: Times) -> float:
+    return statistics.median(times.cpu) * 1e3
+
+
+def median_ms(times: list[float]) -> float:
+    return statistics.median(times) * 1e3
+
+
+# -- the generalised kernel, set up once per mesh ----------------------------------------------------
+
+
+class Body:
+    """rest/pos/graph/materials/workspace of one mesh, for timing cascades."""
+
+    def __init__(self, rest, links, amin, amax, beta):
+        from chainsim.engine.kernels.chainmail import make_workspace, material_arrays
+        from chainsim.engine.kernels.graph import build_graph
+
+        self.rest = np.ascontiguousarray(rest, dtype=np.float64)
+        self.pos = self.rest.copy()
+        self.graph = build_graph(len(rest), links)
+        self.mat = material_arrays(self.graph.n_links, amin, amax, beta)
+        self.ws = make_workspace(len(rest))
+        self.moved = 0
+
+    def reset(self) -> None:
+        np.copyto(self.pos, self.rest)
+
+    def move(self, grab: int, target, order: int = 0, relax_n: int = 0) -> None:
+        from chainsim.engine.kernels.chainmail import cascade
+
+        moved, _ = cascade(self.rest, self.pos, self.graph, *self.mat, np.array([grab], dtype=np.int64),
+                           np.asarray(target, dtype=np.float64).reshape(1, -1), order=order,
+                           workspace=self.ws, copy=False)
+        self.moved = len(moved)
+        if relax_n:
+            from chainsim.systems.deformation import relax_moved
+
+            pin = np.zeros(len(self.pos), dtype=np.bool_)
+            pin[grab] = True
+            relax_moved(self.rest, self.pos, self.graph, moved, relax_n, fixed=pin)
+
+
+# -- part a: thesis 6.2 ------------------------------------------------------------------------------
+
+
+def thesis_part(quick: bool, repeat: int) -> list[dict]:
+    from chainsim.engine import meshgen
+    from chainsim.engine.kernels.gibson import gibson_grid_move
+
+    rows = []
+    for side in SIDES:
+        rest, links = meshgen.grid((side, side))
+        n = side * side
+        c = side // 2 + side * (side // 2)
+        reps = repeat or (15 if quick else (60 if n < 3000 else 30))
+        for mname, (amin, amax, beta) in MATERIALS.items():
+            body = Body(rest, links, amin, amax, beta)
+            # small: only the neighbourhood follows; large: past every limit, the whole object follows
+            small = max(1.5 * (amax - 1.0), 0.25)
+            large = 2.0 * side * max(amax, 1.0)
+            row = {"side": side, "elements": n, "material": mname}
+            for label, disp in (("high", small), ("low", large)):
+                target = rest[c] + np.array([disp, disp * 0.5])
+                t = time_calls(lambda: body.move(c, target), body.reset, reps)
+                row[f"gen_{label}_ms"] = median_ms(t)
+                row[f"gen_{label}_cpu_ms"] = cpu_ms(t)
+                row[f"gen_{label}_moved"] = body.moved
+                gpos = rest.copy()
+                result = {}
+
+                def gib():
+                    result["moved"] = gibson_grid_move(gpos, (side, side), c, target, amin, amax, beta)
+
+                t = time_calls(gib, lambda: np.copyto(gpos, rest), reps)
+                row[f"gib_{label}_ms"] = median_ms(t)
+                row[f"gib_{label}_cpu_ms"] = cpu_ms(t)
+                row[f"gib_{label}_moved"] = int(result["moved"])
+            th = THESIS[mname][n]
+            row["thesis"] = {"gibson_high": th[0], "gibson_low": th[1], "surface_high": th[2],
+                             "surface_low": th[3], "generalised_high": th[4], "generalised_low": th[5]}
+            rows.append(row)
+            _log(f"  thesis grid {side}x{side} {mname}: generalised {row['gen_high_ms']:.4f} / {row['gen_low_ms']:.4f} ms")
+    return rows
+
+
+def worst_part(quick: bool) -> list[dict]:
+    """Fig. 6.4: rigid, centre element driven 20 times around a 40 x 40 square, one unit per update."""
+    from chainsim.engine import meshgen
+    from chainsim.engine.kernels.gibson import gibson_grid_move
+
+    loops = 2 if quick else 20
+    edge = np.linspace(-20.0, 20.0, 41)[:-1]
+    square = np.concatenate([
+        np.stack([edge, np.full(40, -20.0)], 1), np.stack([np.full(40, 20.0), edge], 1),
+        np.stack([-edge, np.full(40, 20.0)], 1), np.stack([np.full(40, -20.0), -edge], 1)])
+    rows = []
+    for side in SIDES:
+        rest, links = meshgen.grid((side, side))
+        c = side // 2 + side * (side // 2)
+        path = rest[c] + np.tile(square, (loops, 1))
+        body = Body(rest, links, *MATERIALS["rigid"])
+        body.move(c, path[0])  # warm-up (compilation, caches)
+        body.reset()
+        c0, t0 = time.process_time(), time.perf_counter()
+        for p in path:
+            body.move(c, p)
+        gen, gen_cpu = time.perf_counter() - t0, time.process_time() - c0
+        gpos = rest.copy()
+        gibson_grid_move(gpos, (side, side), c, path[0], 1.0, 1.0, 0.0)
+        np.copyto(gpos, rest)
+        c0, t0 = time.process_time(), time.perf_counter()
+        for p in path:
+            gibson_grid_move(gpos, (side, side), c, p, 1.0, 1.0, 0.0)
+        gib, gib_cpu = time.perf_counter() - t0, time.process_time() - c0
+        rows.append({"side": side, "elements": side * side, "updates": len(path), "loops": loops,
+                     "generalised_total_s": gen, "generalised_ms_per_update": gen / len(path) * 1e3,
+                     "generalised_cpu_ms_per_update": gen_cpu / len(path) * 1e3,
+                     "gibson_total_s": gib, "gibson_ms_per_update": gib / len(path) * 1e3,
+                     "gibson_cpu_ms_per_update": gib_cpu / len(path) * 1e3,
+                     "moved_per_update": body.moved})
+        _log(f"  worst case {side}x{side}: {gen / len(path) * 1e3:.4f} ms/update")
+    return rows
+
+
+# -- part b: scaling ---------------------------------------------------------------------------------
+
+
+def _variants(rest, links, seed=1):
+    """(name, rest, links, id map old->new) for ordered, shuffled and shuffled-then-reordered meshes."""
+    from chainsim.engine.reorder import rcm_permutation
+    from chainsim.tools.bench.meshes import relabel
+
+    n = len(rest)
+    ident = np.arange(n)
+    yield "ordered", rest, links, ident
+    perm = np.random.default_rng(seed).permutation(n)
+    srest, slinks, sinv = relabel(rest, links, perm)
+    yield "shuffled", srest, slinks, sinv
+    rperm = rcm_permutation(n, slinks)
+    rrest, rlinks, rinv = relabel(srest, slinks, rperm)
+    yield "shuffled+rcm", rrest, rlinks, rinv[sinv]
+
+
+def scaling_part(quick: bool, repeat: int, max_elements: float) -> list[dict]:
+    from chainsim.tools.bench.meshes import surface_sheet, tet_cube
+
+    sizes = [s for s in (1e3, 1e4, 1e5, 1e6) if s <= max_elements * 1.01]
+    rows = []
+    for kind, make in (("tet volume", tet_cube), ("triangle sheet", surface_sheet)):
+        for size in sizes:
+            t_build = time.perf_counter()
+            rest, _cells, links = make(int(size))
+            n = len(rest)
+            centre = int(np.argmin(np.sum((rest - rest.mean(axis=0)) ** 2, axis=1)))
+            reps = repeat or (max(5, min(50, int(2e6 / n))) if not quick else max(3, min(20, int(5e5 / n))))
+            _log(f"  {kind} n={n} links={len(links)} built in {time.perf_counter() - t_build:.1f}s, {reps} repeats")
+            base = {}
+            for vname, vrest, vlinks, idmap in _variants(rest, links):
+                body = Body(vrest, vlinks, *MATERIALS["rigid"])
+                g = int(idmap[centre])
+                target = vrest[g] + 0.5
+                row = {"mesh": kind, "elements": n, "links": int(len(links)),
+                       "links_per_element": 2 * len(links) / n, "variant": vname, "repeats": reps}
+                t = time_calls(lambda: body.move(g, target), body.reset, reps)
+                row["rigid_ms"] = median_ms(t)
+                row["rigid_cpu_ms"] = cpu_ms(t)
+                row["rigid_min_ms"] = min(t) * 1e3  # least disturbed run, for loaded machines
+                row["rigid_moved"] = body.moved
+                if vname != "shuffled":
+                    t = time_calls(lambda: body.move(g, target, relax_n=2), body.reset, max(3, reps // 2))
+                    row["rigid_relax2_ms"] = median_ms(t)
+                    row["rigid_relax2_cpu_ms"] = cpu_ms(t)
+                # a local grab: medium material, one spacing of pull; a few hundred elements follow
+                local = Body(vrest, vlinks, *MATERIALS["medium"])
+                ltarget = vrest[g] + np.r_[0.0, 0.0, 1.0][: vrest.shape[1]]
+                t = time_calls(lambda: local.move(g, ltarget), local.reset, max(reps, 20))
+                row["local_ms"] = median_ms(t)
+                row["local_cpu_ms"] = cpu_ms(t)
+                row["local_moved"] = local.moved
+                base[vname] = row["rigid_cpu_ms"]
+                row["ratio_to_ordered"] = row["rigid_cpu_ms"] / base["ordered"]
+                rows.append(row)
+                _log(f"    {vname:13s} rigid {row['rigid_ms']:.3f} ms (cpu {row['rigid_cpu_ms']:.3f})  local {row['local_ms']:.4f} ms "
+                     f"({row['local_moved']} moved)  ratio {row['ratio_to_ordered']:.2f}")
+                del body, local
+    return rows
+
+
+# -- report ------------------------------------------------------------------------------------------
+
+
+def _fmt_rate(ms: float) -> str:
+    return f"{1000.0 / ms:,.0f}" if ms > 0 else "inf"
+
+
+def markdown(results: dict) -> str:
+    out = ["# Generalised ChainMail benchmark\n",
+           f"{results['machine']} - numpy {results['numpy']}, numba {results['numba']}; medians of repeated runs "
+           "after warm-up.\n"]
+    if results.get("thesis"):
+        out.append("## Thesis 6.2: update rates on square grids (updates/s; thesis: browser frames/s)\n")
+        out.append("Ours: cascade-only updates per second (1000 / median ms). Thesis: Java + VRML frame rates on an "
+                   "AMD-K7, Tables 6.2-6.4. 'high' = small move of the centre element, 'low' = a move that every "
+                   "element follows. Moved = elements moved by our generalised run.\n")
+        out.append("Rates from wall-clock medians; in brackets, from CPU-time medians (what the process itself "
+                   "ran; differs only on a busy machine).\n")
+        out.append("| table | material | grid | ours gen. high | thesis gen. high | ratio | ours gen. low | thesis gen. low | ratio | moved low | ours Gibson high | ours Gibson low | thesis Gibson high / low |")
+        out.append("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|")
+        for r in results["thesis"]:
+            th = r["thesis"]
+            hi, lo = 1000 / r["gen_high_ms"], 1000 / r["gen_low_ms"]
+            chi, clo = 1000 / max(r["gen_high_cpu_ms"], 1e-6), 1000 / max(r["gen_low_cpu_ms"], 1e-6)
+            out.append(f"| {TABLE_OF[r['material']]} | {r['material']} | {r['side']}x{r['side']} | {hi:,.0f} ({chi:,.0f}) | "
+                       f"{th['generalised_high']:g} | {hi / th['generalised_high']:,.0f}x ({chi / th['generalised_high']:,.0f}x) | "
+                       f"{lo:,.0f} ({clo:,.0f}) | {th['generalised_low']:g} | {lo / th['generalised_low']:,.0f}x "
+                       f"({clo / th['generalised_low']:,.0f}x) | {r['gen_low_moved']} | "
+                       f"{_fmt_rate(r['gib_high_ms'])} | {_fmt_rate(r['gib_low_ms'])} | "
+                       f"{th['gibson_high']:g} / {th['gibson_low']:g} |")
+        out.append("")
+    if results.get("worst"):
+        out.append("## Fig. 6.4 worst case: rigid grid, centre element 20 times around a 40 x 40 square\n")
+        out.append("| grid | elements | updates | generalised ms/update (cpu) | generalised total s | Gibson ms/update (cpu) | Gibson total s |")
+        out.append("|---|---:|---:|---:|---:|---:|---:|")
+        for r in results["worst"]:
+            out.append(f"| {r['side']}x{r['side']} | {r['elements']} | {r['updates']} | "
+                       f"{r['generalised_ms_per_update']:.4f} ({r['generalised_cpu_ms_per_update']:.4f}) | "
+                       f"{r['generalised_total_s']:.3f} | {r['gibson_ms_per_update']:.4f} "
+                       f"({r['gibson_cpu_ms_per_update']:.4f}) | {r['gibson_total_s']:.3f} |")
+        out.append("")
+    if results.get("scaling"):
+        out.append("## Scaling: rigid full cascade (every element moves), local grab, relaxation\n")
+        out.append("Wall-clock medians, CPU-time medians in brackets; the ratio to the generated order uses CPU time.\n")
+        out.append("| mesh | elements | links/elem | order | rigid ms | with relax(2) ms | ratio to ordered | local grab ms | local moved |")
+        out.append("|---|---:|---:|---|---:|---:|---:|---:|---:|")
+        for r in results["scaling"]:
+            rel = (f"{r['rigid_relax2_ms']:.3f} ({r['rigid_relax2_cpu_ms']:.3f})" if "rigid_relax2_ms" in r else "-")
+            out.append(f"| {r['mesh']} | {r['elements']:,} | {r['links_per_element']:.1f} | {r['variant']} | "
+                       f"{r['rigid_ms']:.3f} ({r['rigid_cpu_ms']:.3f}) | {rel} | {r['ratio_to_ordered']:.2f} | "
+                       f"{r['local_ms']:.4f} ({r['local_cpu_ms']:.4f}) | {r['local_moved']} |")
+        out.append("")
+    return "\n".join(out)
+
+
+def plot(results: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(17, 5))
+    if results.get("thesis"):
+        ax = axes[0]
+        for mname, mk in (("rigid", "o"), ("medium", "s"), ("soft", "^")):
+            rs = [r for r in results["thesis"] if r["material"] == mname]
+            n = [r["elements"] for r in rs]
+            ax.plot(n, [1000 / r["gen_low_ms"] for r in rs], mk + "-", label=f"ours, {mname}, low")
+            ax.plot(n, [r["thesis"]["generalised_low"] for r in rs], mk + "--", color="grey",
+                    label=f"thesis, {mname}, low")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("elements")
+        ax.set_ylabel("updates (frames) per second")
+        ax.set_title("Thesis 6.2 grids: lowest rates")
+        ax.legend(fontsize=7)
+    if results.get("worst"):
+        ax = axes[1]
+        rs = results["worst"]
+        ax.plot([r["elements"] for r in rs], [r["generalised_cpu_ms_per_update"] for r in rs], "o-", label="Generalised")
+        ax.plot([r["elements"] for r in rs], [r["gibson_cpu_ms_per_update"] for r in rs], "s-", label="Gibson")
+        ax.set_xlabel("elements")
+        ax.set_ylabel("CPU ms per update")
+        ax.set_title("Fig. 6.4 worst case (rigid, 40x40 square path)")
+        ax.legend()
+    if results.get("scaling"):
+        ax = axes[2]
+        for kind, ls in (("tet volume", "-"), ("triangle sheet", ":")):
+            for variant, mk in (("ordered", "o"), ("shuffled", "x"), ("shuffled+rcm", "s")):
+                rs = [r for r in results["scaling"] if r["mesh"] == kind and r["variant"] == variant]
+                if rs:
+                    ax.plot([r["elements"] for r in rs], [r["rigid_cpu_ms"] for r in rs], mk + ls,
+                            label=f"{kind}, {variant}")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("elements")
+        ax.set_ylabel("rigid full cascade, CPU ms (median)")
+        ax.set_title("Scaling")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def run_suite(args) -> int:
+    import numba
+
+    parts = {p.strip() for p in args.parts.split(",") if p.strip()}
+    unknown = parts - {"thesis", "worst", "scaling"}
+    if unknown:
+        raise UserError(f"--parts: unknown part(s) {', '.join(sorted(unknown))}; expected thesis, worst, scaling")
+    if args.repeat < 0:
+        raise UserError(f"--repeat: must be >= 0, got {args.repeat}")
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"--out {out}: cannot create folder ({e.strerror})") from None
+    max_el = args.max_elements or (1e5 if args.quick else 1e6)
+    load = ", load average %.1f at start" % os.getloadavg()[0] if hasattr(os, "getloadavg") else ""
+    results = {"machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {platform.system()}{load}",
+               "numpy": np.__version__, "numba": numba.__version__, "quick": bool(args.quick)}
+    t0 = time.perf_counter()
+    if "thesis" in parts:
+        _log("thesis 6.2 grids ...")
+        results["thesis"] = thesis_part(args.quick, args.repeat)
+    if "worst" in parts:
+        _log("worst case (Fig. 6.4) ...")
+        results["worst"] = worst_part(args.quick)
+    if "scaling" in parts:
+        _log("scaling ...")
+        results["scaling"] = scaling_part(args.quick, args.repeat, max_el)
+    results["wall_s"] = time.perf_counter() - t0
+    md = markdown(results)
+    _write_atomic(out / "results.json", json.dumps(results, indent=1))
+    _write_atomic(out / "results.md", md)
+    plot(results, out / "results.png")
+    print(md)
+    print(f"wrote {out / 'results.md'}, results.json, results.png", file=sys.stderr)
+    return 0
+
+
+# -- part c: one mesh --------------------------------------------------------------------------------
+
+
+def run_mesh(args) -> int:
+    from chainsim.game.cli.commands.chainmail import ORDERS, check_material_flags
+    from chainsim.engine.meshimport import load_graph
+
+    check_material_flags(args)
+    if args.grab is None or args.to is None:
+        raise UserError("--mesh needs --grab I and --to X [Y [Z]]")
+    if not all(math.isfinite(v) for v in args.to):
+        raise UserError("--to: coordinates must be finite")
+    if args.repeat < 0:
+        raise UserError(f"--repeat: must be >= 0, got {args.repeat}")
+    pos, links, fixed = load_graph(args.mesh)
+    n, dim = pos.shape
+    if not 0 <= args.grab < n:
+        raise UserError(f"--grab: element id must be in 0..{n - 1}, got {args.grab}")
+    if len(args.to) != dim:
+        raise UserError(f"--to: the mesh is {dim}-D, so give {dim} coordinate(s); got {len(args.to)}")
+    body = Body(pos, links, args.alpha_min, args.alpha_max, args.beta)
+    order = ORDERS.index(args.order)
+    reps = args.repeat or 20
+    times = time_calls(lambda: body.move(args.grab, args.to, order=order, relax_n=args.relax), body.reset, reps)
+    result = {"mesh": str(args.mesh), "elements": n, "links": int(len(links)), "dim": dim,
+              "median_ms": median_ms(times), "min_ms": min(times) * 1e3, "max_ms": max(times) * 1e3,
+              "repeats": reps, "elements_moved": body.moved, "order": args.order, "relax": args.relax}
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"{result['mesh']}: {n} elements, {result['links']} links; one cascade moving "
+              f"{body.moved} elements: median {result['median_ms']:.4f} ms over {reps} runs")
+    return 0
