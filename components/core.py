@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from chainsim.engine import quaternion
 from chainsim.components.registry import component, prop
+from chainsim.engine import quaternion
 
 
 @dataclass(slots=True)
@@ -49,14 +49,20 @@ class MeshRef:
 @component("simulation", help="What the engine models for this entity; systems skip what no entity needs.")
 @dataclass(slots=True)
 class Simulation:
-    kind: str = prop("enum", "rigid", choices=("none", "rigid", "surface", "volume"),
-                     help="none: static scenery; rigid: moves as a whole; surface / volume: ChainMail on the mesh's surface links or tetrahedra.")
+    kind: str = prop(
+        "enum",
+        "rigid",
+        choices=("none", "rigid", "surface", "volume"),
+        help="none: static scenery; rigid: moves as a whole; surface / volume: ChainMail on the mesh's surface links or tetrahedra.",
+    )
 
 
 @component("scripted_motion", help="Moves the entity along waypoints in simulated time (demos, benchmarks).")
 @dataclass(slots=True)
 class ScriptedMotion:
-    waypoints: np.ndarray = prop("float_list", (), units="mm", help="Flat list x0,y0,z0, x1,y1,z1, ... visited in order.")
+    waypoints: np.ndarray = prop(
+        "float_list", (), units="mm", help="Flat list x0,y0,z0, x1,y1,z1, ... visited in order."
+    )
     speed: float = prop("float", 10.0, units="mm/s", help="Speed along the path.", min=0.0)
     loop: bool = prop("bool", True, help="Start over after the last waypoint.")
     spin: np.ndarray = prop("vec3", (0.0, 0.0, 0.0), units="deg/s", help="Constant rotation rate about x, y, z.")

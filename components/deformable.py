@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from chainsim.engine.errors import UserError
 from chainsim.components.registry import component, prop
+from chainsim.engine.errors import UserError
 
 ORDERS = ("fifo", "balanced", "schill")
 SOURCES = ("auto", "surface", "volume")
@@ -42,7 +42,7 @@ def _empty_ids():
     return np.zeros(0, dtype=np.int64)
 
 
-def build_deformable(d: "Deformable", ctx) -> None:
+def build_deformable(d: Deformable, ctx) -> None:
     """Spawn hook: derive the ChainMail object from the entity's mesh (see `setup_deformable`)."""
     import esper
 
@@ -55,28 +55,53 @@ def build_deformable(d: "Deformable", ctx) -> None:
     setup_deformable(d, ctx.pack.mesh(mesh_ref.mesh), ctx.pack.section("materials"), mesh_ref.material, where)
 
 
-@component("deformable", help="Soft body: ChainMail on the entity's mesh (thesis 5.2). Needs a mesh table.",
-           build=build_deformable)
+@component(
+    "deformable",
+    help="Soft body: ChainMail on the entity's mesh (thesis 5.2). Needs a mesh table.",
+    build=build_deformable,
+)
 @dataclass(slots=True)
 class Deformable:
-    material: str = prop("str", "", help="[materials] entry with alpha_min/alpha_max/beta/relax (default: the mesh's material).")
-    source: str = prop("enum", "auto", choices=SOURCES,
-                       help="surface: links are triangle edges; volume: tetrahedron edges; auto: volume when the mesh has tetrahedra.")
+    material: str = prop(
+        "str", "", help="[materials] entry with alpha_min/alpha_max/beta/relax (default: the mesh's material)."
+    )
+    source: str = prop(
+        "enum",
+        "auto",
+        choices=SOURCES,
+        help="surface: links are triangle edges; volume: tetrahedron edges; auto: volume when the mesh has tetrahedra.",
+    )
     alpha_min: float = prop("float", INHERIT, help="Compression limit override, 0..1 (-1: from the material).")
     alpha_max: float = prop("float", INHERIT, help="Stretch limit override, >= 1 (-1: from the material).")
     beta: float = prop("float", INHERIT, help="Shear limit override, >= 0 (-1: from the material).")
     relax: int = prop("int", -1, help="Relaxation iterations after each cascade, thesis 5.2.5 (-1: from the material).")
-    relax_step: float = prop("float", 1.0, help="Fraction of the way to the relaxed position per iteration.", min=0.0, max=1.0)
+    relax_step: float = prop(
+        "float", 1.0, help="Fraction of the way to the relaxed position per iteration.", min=0.0, max=1.0
+    )
     fixed: np.ndarray = prop("int_list", [], help="Element (vertex) ids that never move.")
-    fixed_box: np.ndarray = prop("float_list", [], units="mm",
-                                 help="Elements inside this local box never move: [xmin, ymin, zmin, xmax, ymax, zmax] (empty: none).")
-    fixed_boundary: bool = prop("bool", False, help="Pin the open rim of a surface (vertices on edges used by one triangle).")
-    order: str = prop("enum", "fifo", choices=ORDERS,
-                      help="Waiting-list order: fifo (5.2.3), balanced (round robin of Fig. 5.3), schill (largest violation first).")
+    fixed_box: np.ndarray = prop(
+        "float_list",
+        [],
+        units="mm",
+        help="Elements inside this local box never move: [xmin, ymin, zmin, xmax, ymax, zmax] (empty: none).",
+    )
+    fixed_boundary: bool = prop(
+        "bool", False, help="Pin the open rim of a surface (vertices on edges used by one triangle)."
+    )
+    order: str = prop(
+        "enum",
+        "fifo",
+        choices=ORDERS,
+        help="Waiting-list order: fifo (5.2.3), balanced (round robin of Fig. 5.3), schill (largest violation first).",
+    )
     depth: int = prop("int", 2, help="Branch depth per turn for the balanced order.", min=1)
     dtype: str = prop("enum", "float64", choices=("float64", "float32"), help="Precision of positions.")
-    drag: bool = prop("bool", False, help="A mouse drag on the body pulls the element nearest the grab point "
-                                          "(off when a procedure's tools do the grabbing).")
+    drag: bool = prop(
+        "bool",
+        False,
+        help="A mouse drag on the body pulls the element nearest the grab point "
+        "(off when a procedure's tools do the grabbing).",
+    )
 
     # --- runtime state (not manifest keys) -----------------------------------------------------
     pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -155,8 +180,10 @@ def body_links(mesh, source: str, where: str) -> np.ndarray:
         return np.asarray(mesh.links, dtype=np.int64)
     if source == "volume":
         if not has_tets:
-            raise UserError(f"{where}.source: 'volume' needs a mesh with tetrahedra (a .msh/.vtu/.vtk/.mesh file or "
-                            f"the tet_block primitive); this mesh has only triangles")
+            raise UserError(
+                f"{where}.source: 'volume' needs a mesh with tetrahedra (a .msh/.vtu/.vtk/.mesh file or "
+                f"the tet_block primitive); this mesh has only triangles"
+            )
         return meshgen.links_from_cells(mesh.tets)
     if len(mesh.triangles) == 0:
         raise UserError(f"{where}.source: 'surface' needs a mesh with triangles")
@@ -172,7 +199,9 @@ def boundary_vertices(triangles: np.ndarray) -> np.ndarray:
     return np.unique(uniq[counts == 1].ravel())
 
 
-def setup_deformable(d: Deformable, mesh, materials: dict, mesh_material: str = "", where: str = "deformable") -> Deformable:
+def setup_deformable(
+    d: Deformable, mesh, materials: dict, mesh_material: str = "", where: str = "deformable"
+) -> Deformable:
     """Fill the runtime state of `d` from a MeshData (positions copied; the pack's mesh is shared)."""
     from chainsim.engine.kernels.chainmail import make_workspace, material_arrays
     from chainsim.engine.kernels.graph import build_graph
@@ -213,25 +242,36 @@ def setup_deformable(d: Deformable, mesh, materials: dict, mesh_material: str = 
     return d
 
 
-def build_pull(p: "Pull", ctx) -> None:
+def build_pull(p: Pull, ctx) -> None:
     """Spawn hook: check the path; the element is resolved once the deformable exists."""
     where = f"entities.{ctx.entity_name}.pull"
     pts = np.asarray(p.path, dtype=np.float64)
     if len(pts) == 0 or len(pts) % 3:
-        raise UserError(f"{where}.path: expected a flat list of x, y, z waypoints (3 numbers each), got {len(pts)} numbers")
+        raise UserError(
+            f"{where}.path: expected a flat list of x, y, z waypoints (3 numbers each), got {len(pts)} numbers"
+        )
     p.waypoints = pts.reshape(-1, 3)
 
 
-@component("pull", help="Scripted pull on one element of this entity's deformable (thesis 5.3 demos).", build=build_pull)
+@component(
+    "pull", help="Scripted pull on one element of this entity's deformable (thesis 5.3 demos).", build=build_pull
+)
 @dataclass(slots=True)
 class Pull:
-    path: np.ndarray = prop("float_list", units="mm",
-                            help="Waypoints x0,y0,z0, x1,y1,z1, ...: the element is dragged from its rest position through them.")
+    path: np.ndarray = prop(
+        "float_list",
+        units="mm",
+        help="Waypoints x0,y0,z0, x1,y1,z1, ...: the element is dragged from its rest position through them.",
+    )
     element: int = prop("int", -1, help="Element (vertex) id pulled; -1: the element nearest to `at`.", min=-1)
-    at: np.ndarray = prop("vec3", (0.0, 0.0, 0.0), units="mm", help="Point near the pulled element when `element` is -1.")
+    at: np.ndarray = prop(
+        "vec3", (0.0, 0.0, 0.0), units="mm", help="Point near the pulled element when `element` is -1."
+    )
     frame: str = prop("enum", "local", choices=("local", "world"), help="Frame of `path` and `at`.")
     speed: float = prop("float", 20.0, units="mm/s", help="Speed along the path.", min=1e-9)
-    start: float = prop("float", 0.0, units="s", help="Simulated time the pull starts (ignored when `widget` is set).", min=0.0)
+    start: float = prop(
+        "float", 0.0, units="s", help="Simulated time the pull starts (ignored when `widget` is set).", min=0.0
+    )
     widget: str = prop("str", "", help="Start when this widget event arrives (e.g. a 'pull' button or script event).")
     hold: bool = prop("bool", True, help="Keep holding the element at the end of the path.")
     # runtime state

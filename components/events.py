@@ -9,7 +9,8 @@ frames; a reader that has not run for that long has missed them by design (like 
 from __future__ import annotations
 
 from collections import deque
-from typing import Any, Generic, Iterator, TypeVar
+from collections.abc import Iterator
+from typing import Any, Generic, TypeVar
 
 T = TypeVar("T")
 
@@ -20,7 +21,7 @@ RETAIN_FRAMES = 8
 class EventReader(Generic[T]):
     """A cursor over events of one type (or of every type when `kind` is None)."""
 
-    def __init__(self, queue: "EventQueue", kind: type[T] | None):
+    def __init__(self, queue: EventQueue, kind: type[T] | None):
         self._queue = queue
         self._kind = kind
         self._seen = queue._next_seq - 1

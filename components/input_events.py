@@ -118,7 +118,9 @@ def event_from_dict(d: dict[str, Any], where: str):
     allowed = {f.name for f in fields(cls)}
     extra = set(d) - allowed - {"kind", "t"}
     if extra:
-        raise UserError(f"{where}: unknown key(s) {', '.join(sorted(extra))} for a '{kind}' event; expected {', '.join(sorted(allowed))}")
+        raise UserError(
+            f"{where}: unknown key(s) {', '.join(sorted(extra))} for a '{kind}' event; expected {', '.join(sorted(allowed))}"
+        )
     args = {}
     for f in fields(cls):
         if f.name not in d:

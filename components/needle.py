@@ -19,18 +19,44 @@ import numpy as np
 from chainsim.components.registry import component, prop
 
 
-@component("needle", help="A needle driven by the rhizotomy procedure: rotate (horizontal, then vertical), then insert along its axis.")
+@component(
+    "needle",
+    help="A needle driven by the rhizotomy procedure: rotate (horizontal, then vertical), then insert along its axis.",
+)
 @dataclass(slots=True)
 class Needle:
     length: float = prop("float", 100.0, units="mm", help="Shaft length drawn behind the tip.", min=1.0)
-    shaft: str = prop("entity", "", help="Entity that draws the shaft (moved with the needle; its mesh is a cylinder centred on its origin).")
-    insert_step: float = prop("float", 2.0, units="mm", help="Depth change per insert/withdraw button press or key press.", min=0.0)
+    shaft: str = prop(
+        "entity",
+        "",
+        help="Entity that draws the shaft (moved with the needle; its mesh is a cylinder centred on its origin).",
+    )
+    insert_step: float = prop(
+        "float", 2.0, units="mm", help="Depth change per insert/withdraw button press or key press.", min=0.0
+    )
     rotate_step: float = prop("float", 1.0, units="deg", help="Rotation per arrow-key press.", min=0.0)
     max_depth: float = prop("float", 150.0, units="mm", help="Deepest insertion allowed.", min=0.0)
-    max_pitch: float = prop("float", 80.0, units="deg", help="Largest vertical rotation either way (keeps the horizontal axis defined).", min=0.0, max=89.0)
-    bounce: float = prop("float", 4.0, units="mm", help="How far the needle springs back after touching bone (thesis 3.3.6).", min=0.0)
-    withdraw_speed: float = prop("float", 60.0, units="mm/s", help="Speed of backward motion (bounce and withdrawal); forward insertion is immediate and swept.", min=1e-3)
-    contact_epsilon: float = prop("float", 0.2, units="mm", help="Gap left between the tip and the surface it touched.", min=0.0)
+    max_pitch: float = prop(
+        "float",
+        80.0,
+        units="deg",
+        help="Largest vertical rotation either way (keeps the horizontal axis defined).",
+        min=0.0,
+        max=89.0,
+    )
+    bounce: float = prop(
+        "float", 4.0, units="mm", help="How far the needle springs back after touching bone (thesis 3.3.6).", min=0.0
+    )
+    withdraw_speed: float = prop(
+        "float",
+        60.0,
+        units="mm/s",
+        help="Speed of backward motion (bounce and withdrawal); forward insertion is immediate and swept.",
+        min=1e-3,
+    )
+    contact_epsilon: float = prop(
+        "float", 0.2, units="mm", help="Gap left between the tip and the surface it touched.", min=0.0
+    )
 
 
 @dataclass(slots=True)

@@ -34,8 +34,15 @@ POINT_ALIASES = {
     "tragus": ("tragus_{s}", "eam_{s}", "external_auditory_meatus_{s}", "ear_{s}", "ear_canal_{s}"),
 }
 PLANE_ALIASES = {
-    "mouth": ("axial_mouth_{s}", "mouth_axial_{s}", "axial_oral_commissure_{s}", "axial_commissure_{s}",
-              "axial_mouth", "mouth_axial", "axial_oral_commissure"),
+    "mouth": (
+        "axial_mouth_{s}",
+        "mouth_axial_{s}",
+        "axial_oral_commissure_{s}",
+        "axial_commissure_{s}",
+        "axial_mouth",
+        "mouth_axial",
+        "axial_oral_commissure",
+    ),
     "pupil": ("sagittal_pupil_{s}", "pupil_sagittal_{s}", "saggital_pupil_{s}", "sagittal_{s}"),
     "tragus": ("axial_ear_{s}", "ear_axial_{s}", "axial_tragus_{s}", "axial_eam_{s}", "axial_ear", "axial_tragus"),
 }
@@ -105,7 +112,9 @@ def anatomy_from_pack(pack) -> PrpAnatomy:
             name, spec = _lookup(points, aliases, s)
             if spec is None:
                 want = " or ".join(f"[points.{a.format(s=s)}]" for a in aliases[:2])
-                raise UserError(f"pack '{pack.name}': the rhizotomy procedure needs {want} (known points: {', '.join(sorted(points)) or 'none'})")
+                raise UserError(
+                    f"pack '{pack.name}': the rhizotomy procedure needs {want} (known points: {', '.join(sorted(points)) or 'none'})"
+                )
             pts[role] = np.asarray(spec["position"], dtype=np.float64)
         for role, aliases in PLANE_ALIASES.items():
             name, spec = _lookup(planes, aliases, s)

@@ -13,10 +13,12 @@ import dataclasses
 import importlib
 import math
 import pkgutil
+from collections.abc import Callable
 from dataclasses import MISSING, dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
+
 
 class _Required:
     def __repr__(self) -> str:
@@ -58,7 +60,7 @@ class Field:
     choices: tuple = ()
     min: float | None = None
     max: float | None = None
-    item: "Schema | None" = None  # schema of each table in a table_list
+    item: Schema | None = None  # schema of each table in a table_list
 
     @property
     def required(self) -> bool:
@@ -83,8 +85,16 @@ class Schema:
         return None
 
 
-def prop(kind: str, default: Any = REQUIRED, *, units: str = "", help: str = "", choices: tuple = (),
-         min: float | None = None, max: float | None = None):
+def prop(
+    kind: str,
+    default: Any = REQUIRED,
+    *,
+    units: str = "",
+    help: str = "",
+    choices: tuple = (),
+    min: float | None = None,
+    max: float | None = None,
+):
     """A dataclass field that is also a manifest key (see module docstring)."""
     if kind not in KINDS:
         raise ValueError(f"unknown field kind {kind!r}")

@@ -20,12 +20,19 @@ def _vec():
     return np.zeros(3)
 
 
-@component("forceps", help="Forceps tool of the cutting trainer (thesis 4.5.2): grabs the element nearest to "
-                           "where the tissue is touched and pulls or pushes it; the entity's marker shows the tip.")
+@component(
+    "forceps",
+    help="Forceps tool of the cutting trainer (thesis 4.5.2): grabs the element nearest to "
+    "where the tissue is touched and pulls or pushes it; the entity's marker shows the tip.",
+)
 @dataclass(slots=True)
 class Forceps:
-    speed: float = prop("float", 40.0, units="mm/s", help="Fastest the tip follows the hand (one grab per step).", min=1e-3)
-    reach: float = prop("float", 6.0, units="mm", help="A touch grabs the nearest element within this distance.", min=0.0)
+    speed: float = prop(
+        "float", 40.0, units="mm/s", help="Fastest the tip follows the hand (one grab per step).", min=1e-3
+    )
+    reach: float = prop(
+        "float", 6.0, units="mm", help="A touch grabs the nearest element within this distance.", min=0.0
+    )
     lift: float = prop("float", 12.0, units="mm", help="Height of the drawn shaft above the tip.", min=0.0)
     # runtime state
     held_entity: int = -1  # deformable entity held, -1 when open
@@ -40,16 +47,25 @@ class Forceps:
     time_used: float = 0.0  # seconds spent gripping, all uses
 
 
-@component("scissors", help="Scissors tool of the cutting trainer (thesis 4.5.2): each touched point extends the "
-                            "cut path and links the path crosses are removed from the touched layer only.")
+@component(
+    "scissors",
+    help="Scissors tool of the cutting trainer (thesis 4.5.2): each touched point extends the "
+    "cut path and links the path crosses are removed from the touched layer only.",
+)
 @dataclass(slots=True)
 class Scissors:
-    min_step: float = prop("float", 0.5, units="mm", help="Path points closer than this to the last one are skipped.", min=0.0)
+    min_step: float = prop(
+        "float", 0.5, units="mm", help="Path points closer than this to the last one are skipped.", min=0.0
+    )
     blade: float = prop("float", 10.0, units="mm", help="Length of the drawn blade.", min=0.0)
-    depth: float = prop("float", 4.0, units="mm",
-                        help="How far the blade reaches either side of the path along its depth direction (thin "
-                             "layers: less than the gap to the next layer is not needed, each cut names one layer).",
-                        min=0.0)
+    depth: float = prop(
+        "float",
+        4.0,
+        units="mm",
+        help="How far the blade reaches either side of the path along its depth direction (thin "
+        "layers: less than the gap to the next layer is not needed, each cut names one layer).",
+        min=0.0,
+    )
     # runtime state
     stroke_entity: int = -1  # layer being cut by the current stroke, -1 when the blade is lifted
     stroke: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # world mm, points of the current stroke

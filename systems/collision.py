@@ -135,7 +135,7 @@ class SegmentTree:
     order: np.ndarray  # sorted index -> original triangle index
 
     @classmethod
-    def build(cls, vertices: np.ndarray, triangles: np.ndarray) -> "SegmentTree":
+    def build(cls, vertices: np.ndarray, triangles: np.ndarray) -> SegmentTree:
         vertices = np.asarray(vertices, dtype=np.float64)
         triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
         corners = vertices[triangles]  # (F, 3, 3)
@@ -150,22 +150,32 @@ class SegmentTree:
         chunk_lo = np.empty((n_chunk, 3))
         chunk_hi = np.empty((n_chunk, 3))
         for c in range(n_chunk):
-            chunk_lo[c] = tlo[c * CHUNK:(c + 1) * CHUNK].min(0) - BOX_PAD
-            chunk_hi[c] = thi[c * CHUNK:(c + 1) * CHUNK].max(0) + BOX_PAD
+            chunk_lo[c] = tlo[c * CHUNK : (c + 1) * CHUNK].min(0) - BOX_PAD
+            chunk_hi[c] = thi[c * CHUNK : (c + 1) * CHUNK].max(0) + BOX_PAD
         n_group = (n_chunk + GROUP - 1) // GROUP
         group_lo = np.empty((n_group, 3))
         group_hi = np.empty((n_group, 3))
         for g in range(n_group):
-            group_lo[g] = chunk_lo[g * GROUP:(g + 1) * GROUP].min(0)
-            group_hi[g] = chunk_hi[g * GROUP:(g + 1) * GROUP].max(0)
+            group_lo[g] = chunk_lo[g * GROUP : (g + 1) * GROUP].min(0)
+            group_hi[g] = chunk_hi[g * GROUP : (g + 1) * GROUP].max(0)
         return cls(v0, e1, e2, chunk_lo, chunk_hi, group_lo, group_hi, order.astype(np.int64))
 
     def first_hit(self, p0, p1) -> tuple[float, int]:
         """(t in [0, 1], original triangle index) of the first hit along p0 -> p1, or (inf, -1)."""
         if len(self.v0) == 0:
             return np.inf, -1
-        t, i = segment_first_hit(np.asarray(p0, np.float64), np.asarray(p1, np.float64), self.v0, self.e1,
-                                 self.e2, self.chunk_lo, self.chunk_hi, self.group_lo, self.group_hi, len(self.v0))
+        t, i = segment_first_hit(
+            np.asarray(p0, np.float64),
+            np.asarray(p1, np.float64),
+            self.v0,
+            self.e1,
+            self.e2,
+            self.chunk_lo,
+            self.chunk_hi,
+            self.group_lo,
+            self.group_hi,
+            len(self.v0),
+        )
         return (float(t), int(self.order[i])) if i >= 0 else (np.inf, -1)
 
 

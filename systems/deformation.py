@@ -22,11 +22,18 @@ from dataclasses import dataclass, field
 import esper
 import numpy as np
 
+from chainsim.components.deform_events import (
+    FRAMES,
+    AddLinksRequest,
+    CutRequest,
+    Deformed,
+    GrabRequest,
+    ReleaseRequest,
+    as_points,
+)
 from chainsim.components.deformable import Deformable, Pull, setup_deformable
-from chainsim.game.app.core import ORDER_DEFORMATION
-from chainsim.components.deform_events import (FRAMES, AddLinksRequest, CutRequest, Deformed, GrabRequest,
-                                               ReleaseRequest, as_points)
 from chainsim.components.input_events import Widget
+from chainsim.game.app.core import ORDER_DEFORMATION
 
 ORDER_PULL = ORDER_DEFORMATION - 10
 _ORDER_CODES = {"fifo": 0, "balanced": 1, "schill": 2}
@@ -120,8 +127,20 @@ def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np
         fixed[ids] = d.fixed_mask[ids]
     else:
         fixed = d.fixed_mask
-    order, sponsor = cascade(d.rest, d.pos, d.graph, d.amin, d.amax, d.beta_l, ids, targets.astype(d.pos.dtype),
-                             fixed=fixed, order=_ORDER_CODES[d.order], workspace=d.workspace, depth=d.depth)
+    order, sponsor = cascade(
+        d.rest,
+        d.pos,
+        d.graph,
+        d.amin,
+        d.amax,
+        d.beta_l,
+        ids,
+        targets.astype(d.pos.dtype),
+        fixed=fixed,
+        order=_ORDER_CODES[d.order],
+        workspace=d.workspace,
+        depth=d.depth,
+    )
     d.last_order, d.last_sponsor = order, sponsor
     if hold:
         d.held = np.union1d(d.held, ids)
@@ -193,9 +212,12 @@ def add_links(d: Deformable, links) -> int:
     graph = topology.add_links(d.graph, links)
     added = graph.n_links - m_before
     if added:
-        amin, amax, beta = material_arrays(added, float(d.amin[0]) if m_before else 0.8,
-                                           float(d.amax[0]) if m_before else 1.2,
-                                           float(d.beta_l[0]) if m_before else 0.1)
+        amin, amax, beta = material_arrays(
+            added,
+            float(d.amin[0]) if m_before else 0.8,
+            float(d.amax[0]) if m_before else 1.2,
+            float(d.beta_l[0]) if m_before else 0.1,
+        )
         d.amin = np.concatenate([d.amin, amin])
         d.amax = np.concatenate([d.amax, amax])
         d.beta_l = np.concatenate([d.beta_l, beta])
@@ -266,8 +288,11 @@ def _drag_requests(st: DeformationState, ev) -> list:
     if ev.phase == "start":
         local = _to_local(ent, np.asarray([ev.grab_point], dtype=np.float64), "world")[0]
         v = int(np.argmin(np.sum((d.pos - local) ** 2, axis=1)))
-        st.dragging[ent] = (v, _to_world(ent, d.pos[v][None, :].astype(np.float64))[0],
-                            np.asarray(ev.grab_point, dtype=np.float64))
+        st.dragging[ent] = (
+            v,
+            _to_world(ent, d.pos[v][None, :].astype(np.float64))[0],
+            np.asarray(ev.grab_point, dtype=np.float64),
+        )
         return []
     if ent not in st.dragging:
         return []
@@ -325,8 +350,10 @@ def _pull_element(ent: int, p: Pull, d: Deformable) -> int:
             from chainsim.engine.errors import UserError
 
             name = esper.try_component(ent, Name)
-            raise UserError(f"entities.{name.value if name else ent}.pull.element: {p.element} is not an element id "
-                            f"(0..{d.n_elements - 1})")
+            raise UserError(
+                f"entities.{name.value if name else ent}.pull.element: {p.element} is not an element id "
+                f"(0..{d.n_elements - 1})"
+            )
         return int(p.element)
     at = np.asarray(p.at, dtype=np.float64)[None, :]
     if p.frame == "world":
@@ -345,8 +372,13 @@ def _default_deformables(app) -> None:
     for ent, (sim, mref) in esper.get_components(Simulation, MeshRef):
         if sim.kind in ("surface", "volume") and not esper.has_component(ent, Deformable):
             d = Deformable(source=sim.kind)
-            setup_deformable(d, pres.pack.mesh(mref.mesh), pres.pack.section("materials"), mref.material,
-                             f"entities.{esper.component_for_entity(ent, Name).value}.simulation")
+            setup_deformable(
+                d,
+                pres.pack.mesh(mref.mesh),
+                pres.pack.section("materials"),
+                mref.material,
+                f"entities.{esper.component_for_entity(ent, Name).value}.simulation",
+            )
             esper.add_component(ent, d)
 
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from chainsim.game.app.core import ORDER_INPUT
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll
 from chainsim.components.resources import InputState, PendingInput, Time
+from chainsim.game.app.core import ORDER_INPUT
 
 
 @dataclass(slots=True)

@@ -37,12 +37,12 @@ import esper
 import numpy as np
 
 from chainsim.components.core import Transform
+from chainsim.components.input_events import Key, Widget
 from chainsim.components.needle import Needle, NeedleState
+from chainsim.components.resources import InputState
 from chainsim.engine import quaternion as Q
 from chainsim.game.app.core import ORDER_KINEMATICS
-from chainsim.components.input_events import Key, Widget
 from chainsim.game.app.loader import EntityIndex
-from chainsim.components.resources import InputState
 
 Z = np.array([0.0, 0.0, 1.0])
 ROTATION_WIDGETS = ("rotate_horizontal", "rotate_vertical")
@@ -232,7 +232,11 @@ class NeedleSystem:
             app.events.emit(InsertRefused("not_placed"))
             return
         if name == "withdraw":
-            step = needle.insert_step if (from_key or value is None or isinstance(value, (bool, str))) else abs(float(value))
+            step = (
+                needle.insert_step
+                if (from_key or value is None or isinstance(value, (bool, str)))
+                else abs(float(value))
+            )
             want = st.target_depth - step
         elif from_key or value is None or isinstance(value, (bool, str)):
             want = st.target_depth + needle.insert_step

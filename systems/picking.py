@@ -54,7 +54,7 @@ def ray_mesh(origin, direction, vertices: np.ndarray, triangles: np.ndarray, chu
         return None
     best_t, best_i = np.inf, -1
     for s in range(0, len(triangles), chunk):
-        tri = triangles[s:s + chunk]
+        tri = triangles[s : s + chunk]
         t = ray_triangles(origin, direction, vertices[tri[:, 0]], vertices[tri[:, 1]], vertices[tri[:, 2]])
         i = int(np.argmin(t))
         if t[i] < best_t:
@@ -220,4 +220,6 @@ def snap(app, entity: int, point) -> Hit | None:
     verts, tris, ids = surf
     k, p = closest_on_mesh(verts, tris[ids], point)
     name = esper.try_component(entity, Name)
-    return Hit(entity, name.value if name else str(entity), int(ids[k]), p, float(np.linalg.norm(p - np.asarray(point, float))))
+    return Hit(
+        entity, name.value if name else str(entity), int(ids[k]), p, float(np.linalg.norm(p - np.asarray(point, float)))
+    )

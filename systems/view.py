@@ -35,15 +35,23 @@ import esper
 import numpy as np
 
 from chainsim.components.core import Marker, MeshRef, PolyLine, Transform
-from chainsim.systems.ui import widgets as wd
-from chainsim.game.app.core import ORDER_VIEW
-from chainsim.engine.errors import UserError
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, PickPoint, Resize, Scroll, Widget
-from chainsim.game.app.loader import EntityIndex, PackResource
 from chainsim.components.resources import InputState, Settings
 from chainsim.components.view_events import Dragged, LayerChanged, Picked, WidgetRefused
-from chainsim.systems.ui.viewports import KINDS_3D, Camera, OrbitCamera, Rect, attached_camera, layout_rects, orbit_from_table
+from chainsim.engine.errors import UserError
+from chainsim.game.app.core import ORDER_VIEW
+from chainsim.game.app.loader import EntityIndex, PackResource
+from chainsim.systems.ui import widgets as wd
+from chainsim.systems.ui.viewports import (
+    KINDS_3D,
+    Camera,
+    OrbitCamera,
+    Rect,
+    attached_camera,
+    layout_rects,
+    orbit_from_table,
+)
 
 CLICK_PX = 4.0  # a press and release closer than this (total travel) is a click, not a drag
 
@@ -119,8 +127,9 @@ def relayout(vs: ViewState, widgets: list[dict], width: int, height: int) -> Non
     for vp in vs.viewports:
         vp.rect = rects[vp.name]
     fp = first_panel(vs)
-    vs.panels = {vp.name: wd.place(wd.panel_widgets(widgets, vp.name, fp), vp.rect)
-                 for vp in vs.viewports if vp.kind == "panel"}
+    vs.panels = {
+        vp.name: wd.place(wd.panel_widgets(widgets, vp.name, fp), vp.rect) for vp in vs.viewports if vp.kind == "panel"
+    }
 
 
 def build_view_state(layout: dict, size: tuple[int, int]) -> ViewState:
@@ -128,8 +137,17 @@ def build_view_state(layout: dict, size: tuple[int, int]) -> ViewState:
     for spec in layout.get("viewports", []):
         kind = spec["kind"]
         cam = orbit_from_table(spec) if kind in ("orbit", "fixed", "attached") else None
-        vs.viewports.append(Viewport(spec["name"], kind, spec, Rect(0, 0, 1, 1), cam,
-                                     bool(spec.get("visible", True)), bool(spec.get("interactive", True))))
+        vs.viewports.append(
+            Viewport(
+                spec["name"],
+                kind,
+                spec,
+                Rect(0, 0, 1, 1),
+                cam,
+                bool(spec.get("visible", True)),
+                bool(spec.get("interactive", True)),
+            )
+        )
     relayout(vs, layout.get("widgets", []), *size)
     return vs
 
@@ -144,9 +162,15 @@ def refresh_cameras(app, vs: ViewState) -> None:
         tr = esper.try_component(ent, Transform) if ent is not None else None
         if tr is None:
             continue
-        vp.camera = attached_camera(tr.position, tr.rotation, tr.scale, vp.spec.get("offset", (0, 0, 0)),
-                                    float(vp.spec.get("fov", 40.0)), float(vp.spec.get("near", 1.0)),
-                                    float(vp.spec.get("far", 5000.0)))
+        vp.camera = attached_camera(
+            tr.position,
+            tr.rotation,
+            tr.scale,
+            vp.spec.get("offset", (0, 0, 0)),
+            float(vp.spec.get("fov", 40.0)),
+            float(vp.spec.get("near", 1.0)),
+            float(vp.spec.get("far", 5000.0)),
+        )
 
 
 def set_layer(app, layer: str, visible: bool) -> None:
@@ -258,7 +282,9 @@ class ViewSystem:
                     self.use_widget(app, name, new)
         elif vs.grab is not None:
             g = vs.grab
-            self.emit(app, Dragged(vp.name, g[1], g[2], "move", g[3], g[4], self.drag_point(vs, vp, ev.x, ev.y), ev.button))
+            self.emit(
+                app, Dragged(vp.name, g[1], g[2], "move", g[3], g[4], self.drag_point(vs, vp, ev.x, ev.y), ev.button)
+            )
         elif vp.mouse_camera and isinstance(vp.camera, OrbitCamera):
             if ev.button == "left":
                 vp.camera.rotate(ev.dx, ev.dy)
@@ -272,15 +298,21 @@ class ViewSystem:
         if vp is not None and vp.is_3d and vp.camera is not None:
             if vs.grab is not None:
                 g = vs.grab
-                self.emit(app, Dragged(vp.name, g[1], g[2], "end", g[3], g[4], self.drag_point(vs, vp, ev.x, ev.y), ev.button))
+                self.emit(
+                    app, Dragged(vp.name, g[1], g[2], "end", g[3], g[4], self.drag_point(vs, vp, ev.x, ev.y), ev.button)
+                )
             if vs.travel <= CLICK_PX and vp.picks:
                 from chainsim.systems.picking import pick
 
                 o, d = self.ray(vp, ev.x, ev.y)
                 hit = pick(app, o, d)
                 if hit is not None:
-                    self.emit(app, Picked(vp.name, hit.entity, hit.name, hit.triangle,
-                                          tuple(float(c) for c in hit.point), ev.button))
+                    self.emit(
+                        app,
+                        Picked(
+                            vp.name, hit.entity, hit.name, hit.triangle, tuple(float(c) for c in hit.point), ev.button
+                        ),
+                    )
         vs.active, vs.press, vs.widget, vs.grab, vs.travel = None, None, None, None, 0.0
 
     def scroll_widget(self, app, vs: ViewState, vp: Viewport, ev: Scroll) -> None:
@@ -301,7 +333,9 @@ class ViewSystem:
         index: EntityIndex = app.resource(EntityIndex)
         ent = index.get(ev.entity)
         if ent is None:
-            raise UserError(f"pick event: no entity '{ev.entity}' in this scene; entities: {', '.join(sorted(index.by_name))}")
+            raise UserError(
+                f"pick event: no entity '{ev.entity}' in this scene; entities: {', '.join(sorted(index.by_name))}"
+            )
         hit = snap(app, ent, ev.point)
         if hit is None:
             raise UserError(f"pick event: entity '{ev.entity}' has no triangle mesh to pick on")
@@ -377,9 +411,23 @@ def default_layout(app) -> dict:
     radius = max(float(np.linalg.norm(hi - lo)) / 2, 1.0)
     fov = 40.0
     dist = 1.15 * radius / math.sin(math.radians(fov / 2))
-    vp = {"name": "main", "kind": "orbit", "rect": [0.0, 0.0, 1.0, 1.0], "title": "", "target": (lo + hi) / 2,
-          "distance": dist, "yaw": 30.0, "pitch": 25.0, "fov": fov, "near": max(dist / 1000, 1e-3),
-          "far": dist * 10 + radius, "attach": "", "offset": np.zeros(3), "visible": True, "interactive": True}
+    vp = {
+        "name": "main",
+        "kind": "orbit",
+        "rect": [0.0, 0.0, 1.0, 1.0],
+        "title": "",
+        "target": (lo + hi) / 2,
+        "distance": dist,
+        "yaw": 30.0,
+        "pitch": 25.0,
+        "fov": fov,
+        "near": max(dist / 1000, 1e-3),
+        "far": dist * 10 + radius,
+        "attach": "",
+        "offset": np.zeros(3),
+        "visible": True,
+        "interactive": True,
+    }
     return {"viewports": [vp], "widgets": []}
 
 

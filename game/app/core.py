@@ -17,9 +17,10 @@ from __future__ import annotations
 
 import itertools
 import time as _wallclock  # profiling only: never feeds the simulation
+from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import esper
 
@@ -115,7 +116,7 @@ class App:
         lst.sort(key=lambda e: (e.order, e.seq))
         self.profile.entries.append(entry)
 
-    def add_plugin(self, build: Callable[["App"], None]) -> "App":
+    def add_plugin(self, build: Callable[[App], None]) -> App:
         build(self)
         return self
 
@@ -215,7 +216,7 @@ class App:
             esper.delete_world(self.world)
         self.closed = True
 
-    def __enter__(self) -> "App":
+    def __enter__(self) -> App:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -13,15 +13,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from chainsim.game.packs import pack as packs
-
+from chainsim.components.resources import PendingInput, Settings
+from chainsim.engine.errors import UserError
 from chainsim.game.app import plugins
 from chainsim.game.app.core import App
 from chainsim.game.app.digest import world_digest
-from chainsim.engine.errors import UserError
 from chainsim.game.app.inputscript import load_script, write_recording
 from chainsim.game.app.loader import PackResource, spawn_scene
-from chainsim.components.resources import PendingInput, Settings
+from chainsim.game.packs import pack as packs
 
 
 @dataclass(slots=True)
@@ -44,9 +43,18 @@ class RunInfo:
     screenshot_every: int = 0
 
 
-def build_app(ref: str, *, pack_paths=(), settings: dict | None = None, dt: float | None = None,
-              render: bool = False, headless: bool = True, out_dir: str | None = None,
-              screenshot_every: int = 0, size: tuple[int, int] | None = None) -> App:
+def build_app(
+    ref: str,
+    *,
+    pack_paths=(),
+    settings: dict | None = None,
+    dt: float | None = None,
+    render: bool = False,
+    headless: bool = True,
+    out_dir: str | None = None,
+    screenshot_every: int = 0,
+    size: tuple[int, int] | None = None,
+) -> App:
     root, scene = packs.resolve(ref, pack_paths)
     pack = packs.load(root)
     pack_settings = dict(pack.section("settings"))
@@ -72,10 +80,21 @@ def _progress(done: int, total: int) -> None:
         print(f"\r  step {done}/{total}", end="", file=sys.stderr, flush=True)
 
 
-def run_pack(ref: str, steps: int | None = None, *, script: str | None = None, events=None,
-             record: str | None = None, out: str | None = None, pack_paths=(), settings: dict | None = None,
-             dt: float | None = None, render: bool = False, screenshot_every: int = 0,
-             size: tuple[int, int] | None = None) -> dict[str, Any]:
+def run_pack(
+    ref: str,
+    steps: int | None = None,
+    *,
+    script: str | None = None,
+    events=None,
+    record: str | None = None,
+    out: str | None = None,
+    pack_paths=(),
+    settings: dict | None = None,
+    dt: float | None = None,
+    render: bool = False,
+    screenshot_every: int = 0,
+    size: tuple[int, int] | None = None,
+) -> dict[str, Any]:
     """Run a pack headless for `steps` fixed steps; returns (and writes to OUT/summary.json) the summary."""
     if steps is not None and steps < 0:
         raise UserError(f"--steps must be >= 0, got {steps}")
@@ -87,8 +106,16 @@ def run_pack(ref: str, steps: int | None = None, *, script: str | None = None, e
     timed = list(events or [])
     if script:
         timed = load_script(script)
-    app = build_app(ref, pack_paths=pack_paths, settings=settings, dt=dt, render=render or screenshot_every > 0,
-                    out_dir=out, screenshot_every=screenshot_every, size=size)
+    app = build_app(
+        ref,
+        pack_paths=pack_paths,
+        settings=settings,
+        dt=dt,
+        render=render or screenshot_every > 0,
+        out_dir=out,
+        screenshot_every=screenshot_every,
+        size=size,
+    )
     try:
         pres: PackResource = app.resource(PackResource)
         if not script and events is None and pres.scene_spec.get("script"):
@@ -117,8 +144,16 @@ def run_pack(ref: str, steps: int | None = None, *, script: str | None = None, e
         if assessment:
             summary["assessment"] = _jsonable(assessment)
         if record:
-            write_recording(record, pack=ref, scene=pres.scene, dt=app.time.dt, steps=n,
-                            events=log.items if log else timed, digest=digest, settings=settings)
+            write_recording(
+                record,
+                pack=ref,
+                scene=pres.scene,
+                dt=app.time.dt,
+                steps=n,
+                events=log.items if log else timed,
+                digest=digest,
+                settings=settings,
+            )
         if out:
             tmp = Path(out) / "summary.json.tmp"
             tmp.write_text(json.dumps(summary, indent=2, sort_keys=True), encoding="utf-8")

@@ -22,8 +22,8 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from chainsim.engine.errors import UserError
 from chainsim.components.input_events import event_from_dict, event_to_dict
+from chainsim.engine.errors import UserError
 
 FORMAT = 1
 
@@ -34,7 +34,18 @@ def parse_events(data: dict, where: str) -> list[tuple[float, Any]]:
     fmt = data.get("format")
     if fmt != FORMAT:
         raise UserError(f"{where}: 'format' must be {FORMAT}, got {fmt!r}")
-    unknown = set(data) - {"format", "event", "description", "pack", "scene", "dt", "steps", "digest", "settings", "chainsim"}
+    unknown = set(data) - {
+        "format",
+        "event",
+        "description",
+        "pack",
+        "scene",
+        "dt",
+        "steps",
+        "digest",
+        "settings",
+        "chainsim",
+    }
     if unknown:
         raise UserError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}; expected format, event, description")
     raw = data.get("event", [])
@@ -79,8 +90,9 @@ def load_script(path: str | Path) -> list[tuple[float, Any]]:
     return parse_events(read_file(path), str(path))
 
 
-def write_recording(path: str | Path, *, pack: str, scene: str, dt: float, steps: int, events, digest: str,
-                    settings: dict | None = None) -> None:
+def write_recording(
+    path: str | Path, *, pack: str, scene: str, dt: float, steps: int, events, digest: str, settings: dict | None = None
+) -> None:
     """Write atomically (temp file + rename): an interrupted write never clobbers an old recording."""
     data = {
         "chainsim": "recording",

@@ -13,8 +13,8 @@ from typing import Any
 import esper
 
 from chainsim.components.core import Name
-from chainsim.game.packs.pack import Pack
 from chainsim.components.registry import COMPONENTS
+from chainsim.game.packs.pack import Pack
 
 
 @dataclass(slots=True)

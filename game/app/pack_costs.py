@@ -20,10 +20,12 @@ def measure(steps: int = 120) -> tuple[list[dict], str]:
         print(f"[study] pack {found.name}: {steps} steps", file=sys.stderr, flush=True)
         try:
             summaries.append(run_pack(found.name, steps))
-        except Exception as e:             # one broken pack must not sink the report
+        except Exception as e:  # one broken pack must not sink the report
             failed.append(f"{found.name}: {type(e).__name__}: {e}")
-    note = (f"Each pack stepped {steps} fixed steps headless (no rendering); wall-clock ms per "
-            "system call on a shared machine.")
+    note = (
+        f"Each pack stepped {steps} fixed steps headless (no rendering); wall-clock ms per "
+        "system call on a shared machine."
+    )
     if failed:
         note += " Packs that could not be run: " + "; ".join(failed)
     return summaries, note

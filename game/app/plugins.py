@@ -8,7 +8,7 @@ entity requires (an all-rigid scene gets no deformation system). Procedures name
 from __future__ import annotations
 
 import importlib
-from typing import Callable
+from collections.abc import Callable
 
 # procedure name -> "module:function"
 PROCEDURES: dict[str, str] = {

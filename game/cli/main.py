@@ -1,18 +1,39 @@
-"""The `chainsim` command line: one subcommand per module in game/commands/.
+"""The `chainsim` command line: the table of subcommands and the one place errors become exit codes.
 
-User errors (UserError) print as one line on stderr with exit code 2, never a traceback; argparse
-usage errors also exit 2.
+Each subcommand is a module in `commands/` with NAME, HELP, add_parser(sub) and run(args). Only the
+chosen command's module is imported, so `chainsim --help` and a light command never pay for numba,
+GL or plotting imports. User errors (UserError) print as one line on stderr with exit code 2, never a
+traceback; argparse usage errors also exit 2.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
-import pkgutil
+import logging
+import os
 import sys
 
-from chainsim.game import __version__
 from chainsim.engine.errors import UserError
+from chainsim.game import __version__
+from chainsim.game.app.logs import setup_logging
+
+# name -> one-line help; the module is chainsim.game.cli.commands.<name with - as _>
+COMMANDS: dict[str, str] = {
+    "bench": "run a benchmark (chainmail, render, ...)",
+    "chainmail": "move one element of a mesh with Generalised ChainMail and save the result (.npz)",
+    "docs": "print reference documentation (components: every manifest section and component)",
+    "new-pack": "create a new asset pack folder from a template",
+    "packs": "list the asset packs found and where",
+    "play": "open the simulator window on a pack",
+    "protocol": "run a study protocol of scripted trials, save the attempts, print a Table 6.1-style summary",
+    "records": "view, export, plot or delete trainee records (classes, trainees, attempts)",
+    "replay": "replay a recorded session and compare its final digest",
+    "run": "run a pack without a window and write OUT/summary.json",
+    "snapshot": "render a pack's window layout off screen to a PNG",
+    "study": "speed-accuracy study of ChainMail vs FEM and mass-spring; calibrate ChainMail presets",
+    "validate": "check a pack folder and report every problem",
+}
 
 
 class _Parser(argparse.ArgumentParser):
@@ -20,33 +41,40 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def _commands():
-    import chainsim.game.cli.commands as pkg
-
-    mods = []
-    for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda m: m.name):
-        mod = importlib.import_module(f"chainsim.game.cli.commands.{info.name}")
-        if hasattr(mod, "NAME") and hasattr(mod, "run"):
-            mods.append(mod)
-    return mods
+def command_module(name: str):
+    """The module that implements subcommand `name`."""
+    return importlib.import_module(f"chainsim.game.cli.commands.{name.replace('-', '_')}")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(chosen: str | None = None) -> argparse.ArgumentParser:
+    """The parser; only `chosen` (if it names a command) gets its full arguments."""
     parser = _Parser(prog="chainsim", description="Surgical-training simulator and ChainMail soft-tissue engine.")
     parser.add_argument("--version", action="version", version=f"chainsim {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="say more (-vv: debug)")
+    parser.add_argument("-q", "--quiet", action="store_true", help="say only warnings and errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for mod in _commands():
-        p = mod.add_parser(sub)
-        p.set_defaults(_run=mod.run)
+    for name, help_ in COMMANDS.items():
+        if name == chosen:
+            mod = command_module(name)
+            mod.add_parser(sub).set_defaults(_run=mod.run)
+        else:
+            sub.add_parser(name, help=help_)
     return parser
 
 
+def _chosen(argv: list[str]) -> str | None:
+    """The first argument that names a command (options before it are the top-level ones)."""
+    return next((a for a in argv if a in COMMANDS), None)
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(_chosen(argv))
     try:
         args = parser.parse_args(argv)
     except SystemExit as e:  # usage errors (exit 2), --help and --version (exit 0) return a code here
         return int(e.code or 0)
+    setup_logging(logging.WARNING if args.quiet else (logging.INFO, logging.DEBUG)[min(args.verbose, 1)])
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
@@ -59,8 +87,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"chainsim {args.command}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # output piped into `head` and the like: stop quietly
-        import os
-
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
         return 0

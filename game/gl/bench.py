@@ -24,13 +24,25 @@ MODES = ("static", "full", "patch")
 def add_arguments(p) -> None:
     from chainsim.game.cli.commands.run import _size
 
-    p.add_argument("--out", default="runs/bench-render", metavar="DIR", help="output folder (default runs/bench-render)")
+    p.add_argument(
+        "--out", default="runs/bench-render", metavar="DIR", help="output folder (default runs/bench-render)"
+    )
     p.add_argument("--size", type=_size, default=(1280, 800), metavar="WxH", help="frame size (default 1280x800)")
-    p.add_argument("--triangles", type=int, nargs="+", default=list(DEFAULT_SIZES), metavar="N",
-                   help="approximate triangle counts (default 10000 100000 1000000)")
-    p.add_argument("--frames", type=int, default=30, help="timed frames per case (fewer above 500k triangles; default 30)")
+    p.add_argument(
+        "--triangles",
+        type=int,
+        nargs="+",
+        default=list(DEFAULT_SIZES),
+        metavar="N",
+        help="approximate triangle counts (default 10000 100000 1000000)",
+    )
+    p.add_argument(
+        "--frames", type=int, default=30, help="timed frames per case (fewer above 500k triangles; default 30)"
+    )
     p.add_argument("--warmup", type=int, default=3, help="untimed frames first (default 3)")
-    p.add_argument("--patch", type=float, default=0.01, help="fraction of vertices moved in 'patch' mode (default 0.01)")
+    p.add_argument(
+        "--patch", type=float, default=0.01, help="fraction of vertices moved in 'patch' mode (default 0.01)"
+    )
 
 
 def sheet(n_triangles: int):
@@ -60,12 +72,17 @@ def _frame(gm, size):
     cam = OrbitCamera(target=np.zeros(3), distance=330.0, yaw=25.0, pitch=40.0)
     main = fraction_rect([0.0, 0.0, 0.75, 1.0], w, h)
     panel = fraction_rect([0.75, 0.0, 0.25, 1.0], w, h)
-    specs = [{"name": f"w{i}", "kind": k, "label": f"widget {i}", "min": 0.0, "max": 1.0, "key": ""}
-             for i, k in enumerate(("button", "toggle", "slider", "dial", "light", "text"))]
+    specs = [
+        {"name": f"w{i}", "kind": k, "label": f"widget {i}", "min": 0.0, "max": 1.0, "key": ""}
+        for i, k in enumerate(("button", "toggle", "slider", "dial", "light", "text"))
+    ]
     values = {"w1": True, "w2": 0.4, "w3": 0.7}
-    return Frame(size=(w, h), views=[ViewDraw("main", "orbit", main, cam, "Scene"), ViewDraw("panel", "panel", panel, None, "Controls")],
-                 meshes=[MeshDraw(gm, np.eye(4), (0.85, 0.7, 0.6, 1.0))],
-                 panels=[PanelDraw("panel", panel, "Controls", place(specs, panel), values, set())])
+    return Frame(
+        size=(w, h),
+        views=[ViewDraw("main", "orbit", main, cam, "Scene"), ViewDraw("panel", "panel", panel, None, "Controls")],
+        meshes=[MeshDraw(gm, np.eye(4), (0.85, 0.7, 0.6, 1.0))],
+        panels=[PanelDraw("panel", panel, "Controls", place(specs, panel), values, set())],
+    )
 
 
 def run(args) -> int:
@@ -130,12 +147,24 @@ def run(args) -> int:
                         times[mode].append((t2 - t0) * 1e3)
                         uploads[mode].append((t1 - t0) * 1e3)
             for mode in MODES:
-                rows.append({"triangles": int(len(tris)), "vertices": int(len(pos)), "mode": mode, "frames": frames,
-                             "median_ms": statistics.median(times[mode]), "p90_ms": float(np.percentile(times[mode], 90)),
-                             "upload_median_ms": statistics.median(uploads[mode]),
-                             "moved_vertices": {"static": 0, "full": int(len(pos)), "patch": int(len(patch_ids))}[mode]})
+                rows.append(
+                    {
+                        "triangles": int(len(tris)),
+                        "vertices": int(len(pos)),
+                        "mode": mode,
+                        "frames": frames,
+                        "median_ms": statistics.median(times[mode]),
+                        "p90_ms": float(np.percentile(times[mode], 90)),
+                        "upload_median_ms": statistics.median(uploads[mode]),
+                        "moved_vertices": {"static": 0, "full": int(len(pos)), "patch": int(len(patch_ids))}[mode],
+                    }
+                )
                 r = rows[-1]
-                print(f"    {mode:<6} median {r['median_ms']:.2f} ms (upload {r['upload_median_ms']:.2f} ms)", file=sys.stderr, flush=True)
+                print(
+                    f"    {mode:<6} median {r['median_ms']:.2f} ms (upload {r['upload_median_ms']:.2f} ms)",
+                    file=sys.stderr,
+                    flush=True,
+                )
             renderer.forget(("bench", n))
     finally:
         renderer.release()
@@ -143,20 +172,33 @@ def run(args) -> int:
     import os
 
     load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
-    info = {"renderer": ctx.info.get("GL_RENDERER", "?"), "gl_version": ctx.info.get("GL_VERSION", "?"),
-            "cpu_count": os.cpu_count(), "load_average_1_5_15": list(load),
-            "size": list(args.size), "python": platform.python_version(), "machine": platform.machine(),
-            "patch_fraction": args.patch, "rows": rows}
+    info = {
+        "renderer": ctx.info.get("GL_RENDERER", "?"),
+        "gl_version": ctx.info.get("GL_VERSION", "?"),
+        "cpu_count": os.cpu_count(),
+        "load_average_1_5_15": list(load),
+        "size": list(args.size),
+        "python": platform.python_version(),
+        "machine": platform.machine(),
+        "patch_fraction": args.patch,
+        "rows": rows,
+    }
     (out / "results.json").write_text(json.dumps(info, indent=2), encoding="utf-8")
-    md = [f"# Render benchmark ({args.size[0]}x{args.size[1]}, {info['renderer']})", "",
-          "Frame time from upload to ctx.finish(); medians over the timed frames. "
-          f"{info['cpu_count']} CPUs, load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at the end "
-          "(a software renderer shares those CPUs with everything else running).", "",
-          "| triangles | mode | moved vertices | frame median (ms) | frame p90 (ms) | upload median (ms) | fps (median) |",
-          "|---:|---|---:|---:|---:|---:|---:|"]
+    md = [
+        f"# Render benchmark ({args.size[0]}x{args.size[1]}, {info['renderer']})",
+        "",
+        "Frame time from upload to ctx.finish(); medians over the timed frames. "
+        f"{info['cpu_count']} CPUs, load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at the end "
+        "(a software renderer shares those CPUs with everything else running).",
+        "",
+        "| triangles | mode | moved vertices | frame median (ms) | frame p90 (ms) | upload median (ms) | fps (median) |",
+        "|---:|---|---:|---:|---:|---:|---:|",
+    ]
     for r in rows:
-        md.append(f"| {r['triangles']:,} | {r['mode']} | {r['moved_vertices']:,} | {r['median_ms']:.2f} | {r['p90_ms']:.2f} | "
-                  f"{r['upload_median_ms']:.2f} | {1000.0 / r['median_ms']:.1f} |")
+        md.append(
+            f"| {r['triangles']:,} | {r['mode']} | {r['moved_vertices']:,} | {r['median_ms']:.2f} | {r['p90_ms']:.2f} | "
+            f"{r['upload_median_ms']:.2f} | {1000.0 / r['median_ms']:.1f} |"
+        )
     (out / "results.md").write_text("\n".join(md) + "\n", encoding="utf-8")
     _plot(rows, out / "bench-render.png", info)
     print("\n".join(md))

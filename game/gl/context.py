@@ -26,8 +26,10 @@ def egl_context():
 
         ctx = moderngl.create_standalone_context(backend="egl", require=330)
     except Exception as e:  # missing libEGL, no driver, too old GL
-        raise GLUnavailable(f"off-screen rendering needs EGL with OpenGL 3.3 (e.g. Mesa's libegl1 and "
-                            f"libgl1-mesa-dri); it is not available here ({type(e).__name__}: {e})") from None
+        raise GLUnavailable(
+            f"off-screen rendering needs EGL with OpenGL 3.3 (e.g. Mesa's libegl1 and "
+            f"libgl1-mesa-dri); it is not available here ({type(e).__name__}: {e})"
+        ) from None
     _shared = ctx
     return ctx
 

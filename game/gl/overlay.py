@@ -14,8 +14,13 @@ import numpy as np
 from chainsim.game.gl import shaders
 
 #: ASCII, Latin-1 and the punctuation and symbols instructions tend to use; anything else shows as "?"
-CHARS = ([chr(c) for c in range(32, 127)] + [chr(c) for c in range(161, 256)]
-         + list("\u2013\u2014\u2018\u2019\u201c\u201d\u2022\u2026\u2190\u2192\u2191\u2193\u2212\u2264\u2265\u2248\u00b1\u03b1\u03b2\u03bc"))
+CHARS = (
+    [chr(c) for c in range(32, 127)]
+    + [chr(c) for c in range(161, 256)]
+    + list(
+        "\u2013\u2014\u2018\u2019\u201c\u201d\u2022\u2026\u2190\u2192\u2191\u2193\u2212\u2264\u2265\u2248\u00b1\u03b1\u03b2\u03bc"
+    )
+)
 
 
 class Font:
@@ -99,8 +104,44 @@ class Overlay:
     def rect(self, x, y, w, h, color) -> None:
         r, g, b, a = color
         x1, y1 = x + w, y + h
-        self.shapes += [x, y, r, g, b, a, x1, y, r, g, b, a, x1, y1, r, g, b, a,
-                        x, y, r, g, b, a, x1, y1, r, g, b, a, x, y1, r, g, b, a]
+        self.shapes += [
+            x,
+            y,
+            r,
+            g,
+            b,
+            a,
+            x1,
+            y,
+            r,
+            g,
+            b,
+            a,
+            x1,
+            y1,
+            r,
+            g,
+            b,
+            a,
+            x,
+            y,
+            r,
+            g,
+            b,
+            a,
+            x1,
+            y1,
+            r,
+            g,
+            b,
+            a,
+            x,
+            y1,
+            r,
+            g,
+            b,
+            a,
+        ]
 
     def frame(self, x, y, w, h, color, t=1.0) -> None:
         self.rect(x, y, w, t, color)
@@ -113,9 +154,26 @@ class Overlay:
         for i in range(segments):
             a0 = 2 * math.pi * i / segments
             a1 = 2 * math.pi * (i + 1) / segments
-            self.shapes += [cx, cy, r, g, b, a,
-                            cx + radius * math.cos(a0), cy + radius * math.sin(a0), r, g, b, a,
-                            cx + radius * math.cos(a1), cy + radius * math.sin(a1), r, g, b, a]
+            self.shapes += [
+                cx,
+                cy,
+                r,
+                g,
+                b,
+                a,
+                cx + radius * math.cos(a0),
+                cy + radius * math.sin(a0),
+                r,
+                g,
+                b,
+                a,
+                cx + radius * math.cos(a1),
+                cy + radius * math.sin(a1),
+                r,
+                g,
+                b,
+                a,
+            ]
 
     def segment(self, x0, y0, x1, y1, color, t=1.5) -> None:
         dx, dy = x1 - x0, y1 - y0
@@ -136,8 +194,15 @@ class Overlay:
             self.small[px] = Font(self.ctx, px)
         return self.small[px]
 
-    def label(self, text: str, x: float, baseline: float, color=(1, 1, 1, 1), max_w: float | None = None,
-              font: Font | None = None) -> float:
+    def label(
+        self,
+        text: str,
+        x: float,
+        baseline: float,
+        color=(1, 1, 1, 1),
+        max_w: float | None = None,
+        font: Font | None = None,
+    ) -> float:
         """Draw one line with its baseline at `baseline`; returns the pen x after it."""
         f = font or self.font
         glyphs = self.glyphs.setdefault(f, [])
@@ -156,8 +221,56 @@ class Overlay:
             u0, v0, u1, v1 = f.uv[ch]
             x0 = float(round(pen)) - 1
             x1 = x0 + f.cell_w
-            glyphs += [x0, bottom, u0, v1, r, g, b, a, x1, bottom, u1, v1, r, g, b, a, x1, top, u1, v0, r, g, b, a,
-                            x0, bottom, u0, v1, r, g, b, a, x1, top, u1, v0, r, g, b, a, x0, top, u0, v0, r, g, b, a]
+            glyphs += [
+                x0,
+                bottom,
+                u0,
+                v1,
+                r,
+                g,
+                b,
+                a,
+                x1,
+                bottom,
+                u1,
+                v1,
+                r,
+                g,
+                b,
+                a,
+                x1,
+                top,
+                u1,
+                v0,
+                r,
+                g,
+                b,
+                a,
+                x0,
+                bottom,
+                u0,
+                v1,
+                r,
+                g,
+                b,
+                a,
+                x1,
+                top,
+                u1,
+                v0,
+                r,
+                g,
+                b,
+                a,
+                x0,
+                top,
+                u0,
+                v0,
+                r,
+                g,
+                b,
+                a,
+            ]
             pen += f.advance[ch]
         return pen
 

@@ -22,10 +22,10 @@ import esper
 import numpy as np
 
 from chainsim.components.core import Label, Marker, MeshRef, PolyLine, Transform
-from chainsim.game.app.core import ORDER_RENDER
 from chainsim.components.hud import HudState
-from chainsim.game.app.loader import EntityIndex, PackResource
 from chainsim.components.resources import InputState, Settings
+from chainsim.game.app.core import ORDER_RENDER
+from chainsim.game.app.loader import EntityIndex, PackResource
 from chainsim.systems.ui.widgets import WidgetState
 
 PLANE_COLORS = ((0.95, 0.35, 0.35, 0.22), (0.35, 0.9, 0.45, 0.22), (0.35, 0.55, 1.0, 0.22), (0.9, 0.8, 0.3, 0.22))
@@ -53,8 +53,10 @@ class RenderTarget:
         if self.msaa is not None:
             release_framebuffer(self.ctx, self.msaa)
         size = tuple(self.fbo.size)
-        self.msaa = self.ctx.framebuffer(color_attachments=[self.ctx.renderbuffer(size, 4, samples=self.samples)],
-                                         depth_attachment=self.ctx.depth_renderbuffer(size, samples=self.samples))
+        self.msaa = self.ctx.framebuffer(
+            color_attachments=[self.ctx.renderbuffer(size, 4, samples=self.samples)],
+            depth_attachment=self.ctx.depth_renderbuffer(size, samples=self.samples),
+        )
         return self.msaa
 
     def ensure_size(self, size: tuple[int, int]) -> None:
@@ -122,18 +124,24 @@ def _plane_quads(pack, half: float) -> list:
         u /= np.linalg.norm(u)
         v = np.cross(n, u)
         p = np.asarray(pl["point"], float)
-        corners = np.array([p - half * u - half * v, p + half * u - half * v, p + half * u + half * v, p - half * u + half * v])
+        corners = np.array(
+            [p - half * u - half * v, p + half * u - half * v, p + half * u + half * v, p - half * u + half * v]
+        )
         out.append((corners, PLANE_COLORS[i % len(PLANE_COLORS)]))
     return out
 
 
 def help_lines(app) -> list[str]:
-    lines = ["Mouse: left-drag rotates, right/middle-drag pans, scroll zooms;",
-             "       a click on the scene picks a point.",
-             "Keys:  F1 help   F12 screenshot   Esc quit"]
+    lines = [
+        "Mouse: left-drag rotates, right/middle-drag pans, scroll zooms;",
+        "       a click on the scene picks a point.",
+        "Keys:  F1 help   F12 screenshot   Esc quit",
+    ]
     for w in app.resource(PackResource).layout.get("widgets", []):
         if w.get("key"):
-            lines.append(f"       {w['key']:<8} {w.get('label') or w['name']}" + (f" - {w['help']}" if w.get("help") else ""))
+            lines.append(
+                f"       {w['key']:<8} {w.get('label') or w['name']}" + (f" - {w['help']}" if w.get("help") else "")
+            )
     return lines
 
 
@@ -149,8 +157,11 @@ def collect_frame(app):
     vs: ViewState = app.resource(ViewState)
     refresh_cameras(app, vs)
     settings = app.resource(Settings)
-    frame = Frame(size=tuple(app.resource(InputState).window_size), scale=target.scale,
-                  background=tuple(float(c) for c in settings.get("background", (0.08, 0.09, 0.11, 1.0))))
+    frame = Frame(
+        size=tuple(app.resource(InputState).window_size),
+        scale=target.scale,
+        background=tuple(float(c) for c in settings.get("background", (0.08, 0.09, 0.11, 1.0))),
+    )
     D = _deformable_type()
     cache = surface_cache(app)
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
@@ -195,7 +206,9 @@ def collect_frame(app):
         renderer.forget(key)  # entity removed
     for ent, (mk, tr) in esper.get_components(Marker, Transform):
         if mk.visible:
-            frame.markers.append((np.asarray(tr.position, float), float(mk.radius), tuple(float(c) for c in mk.color), ent))
+            frame.markers.append(
+                (np.asarray(tr.position, float), float(mk.radius), tuple(float(c) for c in mk.color), ent)
+            )
     for ent, pl in esper.get_component(PolyLine):
         if pl.visible and len(pl.points) >= 2:
             frame.lines.append((np.asarray(pl.points, float).reshape(-1, 3), tuple(float(c) for c in pl.color)))
@@ -216,7 +229,9 @@ def collect_frame(app):
         if vp.kind == "panel":
             placed = vs.panels.get(vp.name, [])
             hint = next((p.spec.get("help", "") for p in placed if p.spec["name"] == vs.hover), "")
-            frame.panels.append(PanelDraw(vp.name, vp.rect, vp.spec.get("title", ""), placed, st.values, st.disabled, hint))
+            frame.panels.append(
+                PanelDraw(vp.name, vp.rect, vp.spec.get("title", ""), placed, st.values, st.disabled, hint)
+            )
     frame.hud = app.get_resource(HudState)
     shown3d = [v for v in frame.views if v.kind != "panel"]
     orbit = [v for v in shown3d if v.kind == "orbit"]
@@ -305,8 +320,9 @@ def plugin(app) -> None:
     if target is None:
         ctx = egl_context()
         samples = 4 if ctx.max_samples >= 4 else 1
-        target = app.insert_resource(RenderTarget(ctx, offscreen_framebuffer(ctx, app.resource(InputState).window_size),
-                                                  samples=samples))
+        target = app.insert_resource(
+            RenderTarget(ctx, offscreen_framebuffer(ctx, app.resource(InputState).window_size), samples=samples)
+        )
     renderer = app.insert_resource(Renderer(target.ctx))
 
     def release():

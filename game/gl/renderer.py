@@ -262,7 +262,9 @@ class Renderer:
         r = view.rect.scaled(frame.scale)
         W, H = size
         previous = ctx.fbo
-        fbo = ctx.framebuffer(color_attachments=[ctx.renderbuffer((W, H), 4)], depth_attachment=ctx.depth_renderbuffer((W, H)))
+        fbo = ctx.framebuffer(
+            color_attachments=[ctx.renderbuffer((W, H), 4)], depth_attachment=ctx.depth_renderbuffer((W, H))
+        )
         try:
             fbo.use()
             ctx.scissor = (r.x, r.y, r.w, r.h)
@@ -342,7 +344,7 @@ class Renderer:
         lines = doc_lines(text, lambda t: f.wrap(t, bw - 32 * s))
         fit = max(int((bh - 3 * f.line_h - 24 * s) // f.line_h), 1)
         first = min(first, max(len(lines) - fit, 0))
-        shown = lines[first:first + fit]
+        shown = lines[first : first + fit]
         ov.rect(x0, y0, bw, bh, (0.03, 0.035, 0.05, 0.94))
         ov.frame(x0, y0, bw, bh, ACCENT, s)
         top = y0 + bh - 12 * s - f.line_h + f.descent
@@ -378,7 +380,13 @@ class Renderer:
         ov, f = self.overlay, self.overlay.font
         r = p.rect.scaled(s)
         ov.rect(r.x, r.y + r.h - TITLE_PX * s, r.w, TITLE_PX * s, (0.18, 0.20, 0.25, 1.0))
-        ov.label(p.title or p.name, r.x + 8 * s, r.y + r.h - TITLE_PX * s + (TITLE_PX * s - f.ascent) / 2, TEXT, max_w=r.w - 16 * s)
+        ov.label(
+            p.title or p.name,
+            r.x + 8 * s,
+            r.y + r.h - TITLE_PX * s + (TITLE_PX * s - f.ascent) / 2,
+            TEXT,
+            max_w=r.w - 16 * s,
+        )
         lights = dict(hud.lights) if hud is not None else {}
         shown = set()
         for pl in p.placed:
@@ -448,7 +456,14 @@ class Renderer:
                 ov.label("+", r.x + r.w - 14 * s, ty - f.ascent / 2, fg, font=f)
                 ov.disc(cx, ty + 2 * s, rad, (0.3, 0.32, 0.38, 1.0))
                 ang = np.radians(225.0 - 270.0 * t)
-                ov.segment(cx, ty + 2 * s, cx + rad * np.cos(ang), ty + 2 * s + rad * np.sin(ang), ACCENT if not off else DIM, 2 * s)
+                ov.segment(
+                    cx,
+                    ty + 2 * s,
+                    cx + rad * np.cos(ang),
+                    ty + 2 * s + rad * np.sin(ang),
+                    ACCENT if not off else DIM,
+                    2 * s,
+                )
         elif kind == "light":
             state = lights.get(name, value if value in LIGHT_RGBA else "off")
             ov.disc(r.x + 10 * s, r.y + r.h / 2, 7 * s, LIGHT_RGBA.get(state, LIGHT_RGBA["off"]))

@@ -13,13 +13,14 @@ exactly along a grid line. Rim vertices keep their rim coordinate so the fixed e
 
 from __future__ import annotations
 
-from chainsim.assets import ASSETS_DIR
 import argparse
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from chainsim.assets import ASSETS_DIR
 
 PACK_DIR = ASSETS_DIR / "cutting"
 
@@ -71,9 +72,18 @@ def sheet(layer: Layer) -> tuple[np.ndarray, np.ndarray]:
 
 
 def ply_text(verts: np.ndarray, tris: np.ndarray, comment: str) -> str:
-    lines = ["ply", "format ascii 1.0", f"comment {comment}", f"element vertex {len(verts)}",
-             "property float x", "property float y", "property float z",
-             f"element face {len(tris)}", "property list uchar int vertex_indices", "end_header"]
+    lines = [
+        "ply",
+        "format ascii 1.0",
+        f"comment {comment}",
+        f"element vertex {len(verts)}",
+        "property float x",
+        "property float y",
+        "property float z",
+        f"element face {len(tris)}",
+        "property list uchar int vertex_indices",
+        "end_header",
+    ]
     lines += [f"{v[0]:.4f} {v[1]:.4f} {v[2]:.4f}" for v in verts]
     lines += [f"3 {t[0]} {t[1]} {t[2]}" for t in tris]
     return "\n".join(lines) + "\n"
@@ -83,8 +93,10 @@ def outputs() -> dict[Path, str]:
     out = {}
     for layer in LAYERS:
         v, t = sheet(layer)
-        comment = (f"chainsim cutting pack: {layer.name}, {layer.size[0]:g} x {layer.size[1]:g} mm, "
-                   f"{layer.cells[0]} x {layer.cells[1]} quads, z = {layer.z:g} mm")
+        comment = (
+            f"chainsim cutting pack: {layer.name}, {layer.size[0]:g} x {layer.size[1]:g} mm, "
+            f"{layer.cells[0]} x {layer.cells[1]} quads, z = {layer.z:g} mm"
+        )
         out[PACK_DIR / "meshes" / f"{layer.name}.ply"] = ply_text(v, t, comment)
     return out
 

@@ -18,7 +18,6 @@ Steps (thesis 3.3.3 geometric modelling, 3.3.4 landmarks and reference planes, 6
 
 from __future__ import annotations
 
-from chainsim.assets import ASSETS_DIR
 import argparse
 import dataclasses
 import hashlib
@@ -29,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from chainsim.assets import ASSETS_DIR
 from chainsim.game.packbuild import prp_foramen, prp_landmarks, prp_skin
 
 # the source meshes sit beside the repository in a development checkout
@@ -57,6 +57,7 @@ def fail(msg: str) -> None:
 
 # ---------------------------------------------------------------- frames
 
+
 def bp3d_to_head(points: np.ndarray, origin_bp: np.ndarray) -> np.ndarray:
     """BodyParts3D (mm, +X left, -Y anterior, +Z up) -> head frame (+Y anterior)."""
     p = np.asarray(points, float) - origin_bp
@@ -83,7 +84,7 @@ def mirror_mesh(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     return trimesh.Trimesh(mesh.vertices * MIRROR_X, mesh.faces[:, ::-1], process=False)
 
 
-def mirror_foramen(f: "prp_foramen.Foramen") -> "prp_foramen.Foramen":
+def mirror_foramen(f: prp_foramen.Foramen) -> prp_foramen.Foramen:
     return dataclasses.replace(f, centre=f.centre * MIRROR_X, axis=f.axis * MIRROR_X, major=f.major * MIRROR_X)
 
 
@@ -96,12 +97,15 @@ def mirror_anatomy(anat: dict) -> dict:
         if n[0] < 0 and abs(n[1]) < 1e-12 and abs(n[2]) < 1e-12:
             n = -n  # a sagittal plane keeps a +X normal; the plane is the same
         planes[k] = (np.asarray(p, float) * MIRROR_X, n.tolist())
-    paths = {s: dict(v, entry=np.asarray(v["entry"], float) * MIRROR_X, target=np.asarray(v["target"], float) * MIRROR_X)
-             for s, v in anat["paths"].items()}
+    paths = {
+        s: dict(v, entry=np.asarray(v["entry"], float) * MIRROR_X, target=np.asarray(v["target"], float) * MIRROR_X)
+        for s, v in anat["paths"].items()
+    }
     return dict(anat, points=points, planes=planes, paths=paths)
 
 
 # ---------------------------------------------------------------- meshes
+
 
 def clean(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """Merge coincident vertices, drop degenerate and duplicate faces and unused vertices."""
@@ -175,6 +179,7 @@ def sha256(path: Path) -> str:
 
 # ---------------------------------------------------------------- main
 
+
 def build(shared: Path, out: Path) -> dict:
     say(f"prepare_prp: reading {shared}")
     bones, skin_raw, objs, skin_path = load_inputs(shared)
@@ -190,8 +195,10 @@ def build(shared: Path, out: Path) -> dict:
         f = prp_foramen.measure_foramen(sphenoid, s, up)
         side = "left" if f.centre[0] > 0 else "right"  # BodyParts3D +X is the subject's left
         found[side] = f
-        say(f"  {side}: centre {np.round(f.centre, 2)} (BodyParts3D mm), {f.width_mm:.2f} x {f.height_mm:.2f} mm, "
-            f"axis tilted {f.tilt_deg:.1f} deg from vertical, canal {f.canal_mm:.1f} mm long")
+        say(
+            f"  {side}: centre {np.round(f.centre, 2)} (BodyParts3D mm), {f.width_mm:.2f} x {f.height_mm:.2f} mm, "
+            f"axis tilted {f.tilt_deg:.1f} deg from vertical, canal {f.canal_mm:.1f} mm long"
+        )
     if set(found) != {"left", "right"}:
         raise RuntimeError("the two holes are not one per side")
     origin_bp = 0.5 * (found["left"].centre + found["right"].centre)
@@ -199,8 +206,15 @@ def build(shared: Path, out: Path) -> dict:
     foramina = {}
     for side, f in found.items():
         foramina[side] = prp_foramen.Foramen(
-            bp3d_to_head(f.centre[None], origin_bp)[0], f.axis * flip, f.major * flip,
-            f.width_mm, f.height_mm, f.area_mm2, f.tilt_deg, f.canal_mm)
+            bp3d_to_head(f.centre[None], origin_bp)[0],
+            f.axis * flip,
+            f.major * flip,
+            f.width_mm,
+            f.height_mm,
+            f.area_mm2,
+            f.tilt_deg,
+            f.canal_mm,
+        )
 
     say("[2/6] moving the bones to the head frame, closing the mandible")
     head = {name: clean(reflect_mesh(m, origin_bp)) for name, m in bones.items()}
@@ -215,8 +229,9 @@ def build(shared: Path, out: Path) -> dict:
     say(f"  skull {len(skull.faces)} faces, mandible {len(mandible.faces)} faces")
 
     say("[4/6] cropping and fitting the skin")
-    skin0 = trimesh.Trimesh(bp3d_to_head(hra_to_bp3d(skin_raw.vertices), origin_bp), skin_raw.faces[:, ::-1],
-                            process=False)
+    skin0 = trimesh.Trimesh(
+        bp3d_to_head(hra_to_bp3d(skin_raw.vertices), origin_bp), skin_raw.faces[:, ::-1], process=False
+    )
     skin0.merge_vertices()
     z_chin = float(mandible.vertices[:, 2].min())
     # Crop generously first (the fit moves the skin), then again below the chin once fitted.
@@ -226,8 +241,10 @@ def build(shared: Path, out: Path) -> dict:
     skin = prp_skin.crop_head(skin_fit, z_chin - NECK_BELOW_CHIN_MM)
     thick = tissue_report(skin, skull, mandible)
     fit_info["thickness"] = thick
-    say(f"  skull vertices outside the skin: {thick['skull_vertices_outside']} of {thick['skull_vertices']}"
-        f" {thick['outside_where']}")
+    say(
+        f"  skull vertices outside the skin: {thick['skull_vertices_outside']} of {thick['skull_vertices']}"
+        f" {thick['outside_where']}"
+    )
 
     say("[5/6] landmarks, planes, aiming rule, needle paths")
     plugs = {s: prp_foramen.plug_mesh(foramina[s], PLUG_HEIGHT_MM) for s in ("left", "right")}
@@ -244,18 +261,29 @@ def build(shared: Path, out: Path) -> dict:
     meshes = out / "meshes"
     meshes.mkdir(parents=True, exist_ok=True)
     written = {
-        "skull.ply": skull, "mandible.ply": mandible, "skin.ply": skin,
-        "foramen_ovale_left.ply": plugs["left"], "foramen_ovale_right.ply": plugs["right"],
+        "skull.ply": skull,
+        "mandible.ply": mandible,
+        "skin.ply": skin,
+        "foramen_ovale_left.ply": plugs["left"],
+        "foramen_ovale_right.ply": plugs["right"],
     }
     for name, m in written.items():
         (meshes / name).write_bytes(trimesh.exchange.ply.export_ply(m, encoding="binary", include_attributes=False))
     sizes = {n: (meshes / n).stat().st_size for n in written}
     info = {
         "origin_bp3d_mm": origin_bp.tolist(),
-        "foramina": {s: {"width_mm": f.width_mm, "height_mm_opening": f.height_mm, "area_mm2": f.area_mm2,
-                         "centre": f.centre.tolist(), "axis": f.axis.tolist(), "tilt_deg": f.tilt_deg,
-                         "canal_mm": f.canal_mm}
-                     for s, f in foramina.items()},
+        "foramina": {
+            s: {
+                "width_mm": f.width_mm,
+                "height_mm_opening": f.height_mm,
+                "area_mm2": f.area_mm2,
+                "centre": f.centre.tolist(),
+                "axis": f.axis.tolist(),
+                "tilt_deg": f.tilt_deg,
+                "canal_mm": f.canal_mm,
+            }
+            for s, f in foramina.items()
+        },
         "mandible_closure_deg": jaw_deg,
         "fit": fit_info,
         "sizes": sizes,
@@ -282,26 +310,32 @@ def fit_skin(skin: trimesh.Trimesh, skull: trimesh.Trimesh, mandible: trimesh.Tr
     depths = np.array([m[3] for m in marks])
     t0, _ = prp_skin.skin_depths(skin, origins, dirs)
     params, pivot, res = prp_skin.fit_depths(skin, origins, dirs, depths)
-    say(f"  global fit on {len(marks)} landmark depths: rms {np.sqrt(np.mean(res ** 2)):.2f} mm "
-        f"(rough placement {np.sqrt(np.mean((t0 - depths) ** 2)):.2f} mm)")
+    say(
+        f"  global fit on {len(marks)} landmark depths: rms {np.sqrt(np.mean(res**2)):.2f} mm "
+        f"(rough placement {np.sqrt(np.mean((t0 - depths) ** 2)):.2f} mm)"
+    )
     fitted = skin.copy()
     fitted.vertices = prp_skin.apply_fit(skin.vertices, params, pivot)
     warped, res_w = prp_skin.warp_to_depths(fitted, origins, dirs, depths)
     say(f"  local warp: max landmark residual {np.abs(res_w).max():.3f} mm")
-    enclosed, o2, _, _ = prp_skin.enclose(warped, skull.vertices, origins, dirs, depths,
-                                          L.inside_closed, rounds=8)
+    enclosed, o2, _, _ = prp_skin.enclose(warped, skull.vertices, origins, dirs, depths, L.inside_closed, rounds=8)
     say(f"  enclosure: {len(o2) - len(origins)} extra constraints where bone touched the skin")
     # How far the warp had to move the skin: the part of the body difference a global fit misses.
     moved = np.linalg.norm(enclosed.vertices - fitted.vertices, axis=1)
     info = {
-        "landmarks": {n: {"depth_mm": float(d), "rough_mm": float(a), "global_fit_mm": float(b + d)}
-                      for n, d, a, b in zip(names, depths, t0, res)},
+        "landmarks": {
+            n: {"depth_mm": float(d), "rough_mm": float(a), "global_fit_mm": float(b + d)}
+            for n, d, a, b in zip(names, depths, t0, res)
+        },
         "rough_rms_mm": float(np.sqrt(np.mean((t0 - depths) ** 2))),
-        "global_rms_mm": float(np.sqrt(np.mean(res ** 2))),
+        "global_rms_mm": float(np.sqrt(np.mean(res**2))),
         "global_max_abs_mm": float(np.abs(res).max()),
         "warp_max_residual_mm": float(np.abs(res_w).max()),
-        "warp_displacement_mm": {"median": float(np.median(moved)), "p95": float(np.percentile(moved, 95)),
-                                 "max": float(moved.max())},
+        "warp_displacement_mm": {
+            "median": float(np.median(moved)),
+            "p95": float(np.percentile(moved, 95)),
+            "max": float(moved.max()),
+        },
         "extra_enclosure_constraints": int(len(o2) - len(origins)),
         "scales": np.exp(params[3:6]).tolist(),
         "rotation_deg": float(np.degrees(np.linalg.norm(params[:3]))),
@@ -334,17 +368,31 @@ def tissue_report(skin, skull, mandible) -> dict:
         "chin": box(-1, 12, -68, -45, 60),
         "vault": z > 80,
     }
-    out = {"skull_vertices_outside": int((~inside).sum()), "skull_vertices": int(len(inside)),
-           "outside_where": np.round(skull.vertices[~inside], 1).tolist()[:10]}
+    out = {
+        "skull_vertices_outside": int((~inside).sum()),
+        "skull_vertices": int(len(inside)),
+        "outside_where": np.round(skull.vertices[~inside], 1).tolist()[:10],
+    }
     for k, m in regions.items():
         if m.sum() == 0:
             out[k] = None
             continue
-        out[k] = {"n": int(m.sum()), "min": float(d[m].min()), "p5": float(np.percentile(d[m], 5)),
-                  "median": float(np.median(d[m])), "p95": float(np.percentile(d[m], 95)), "max": float(d[m].max())}
+        out[k] = {
+            "n": int(m.sum()),
+            "min": float(d[m].min()),
+            "p5": float(np.percentile(d[m], 5)),
+            "median": float(np.median(d[m])),
+            "p95": float(np.percentile(d[m], 95)),
+            "max": float(d[m].max()),
+        }
     face = (v[:, 1] > 30) & (v[:, 2] > -70) & (v[:, 2] < 75)
-    out["face_all"] = {"n": int(face.sum()), "min": float(d[face].min()), "p5": float(np.percentile(d[face], 5)),
-                       "median": float(np.median(d[face])), "p95": float(np.percentile(d[face], 95))}
+    out["face_all"] = {
+        "n": int(face.sum()),
+        "min": float(d[face].min()),
+        "p5": float(np.percentile(d[face], 5)),
+        "median": float(np.median(d[face])),
+        "p95": float(np.percentile(d[face], 95)),
+    }
     return out
 
 
@@ -364,10 +412,17 @@ def landmarks_and_paths(skin, skull, mandible, bone, foramina, plugs, orbits) ->
         pupil_med = L.skin_point_in_front(skin, ox - sgn * L.PUPIL_RADIUS_MM, oz)
         m = meatus[side]
         tragus = L.skin_out_from(skin, m - sgn * np.array([5.0, 0, 0]), np.array([sgn, 0.0, 0.0]))
-        lm1 = L.contour_point_at(skin, comm, [0, 0, 1], comm, 25.0,
-                                 lambda p: p[1] if p[0] * sgn > abs(comm[0]) else None)
-        lm3 = L.contour_point_at(skin, tragus, [0, 0, 1], tragus, 30.0,
-                                 lambda p: abs(p[0]) if (p[0] * sgn > 0 and p[1] > tragus[1] + 10) else None)
+        lm1 = L.contour_point_at(
+            skin, comm, [0, 0, 1], comm, 25.0, lambda p: p[1] if p[0] * sgn > abs(comm[0]) else None
+        )
+        lm3 = L.contour_point_at(
+            skin,
+            tragus,
+            [0, 0, 1],
+            tragus,
+            30.0,
+            lambda p: abs(p[0]) if (p[0] * sgn > 0 and p[1] > tragus[1] + 10) else None,
+        )
         points[f"oral_commissure_{side}"] = comm
         points[f"pupil_medial_{side}"] = pupil_med
         points[f"tragus_{side}"] = tragus
@@ -385,8 +440,12 @@ def landmarks_and_paths(skin, skull, mandible, bone, foramina, plugs, orbits) ->
         entry, tb, tp, moved = L.clear_entry(skin, bone, plugs[side], lm1, fc)
         paths[side] = {"entry": entry, "target": fc, "clear": bool(tp < tb)}
         tb1, tp1 = L.path_hits(bone, plugs[side], lm1, fc)
-        report["paths"][side] = {"from_landmark1_mm": moved, "t_plug_mm": tp, "t_bone_mm": tb,
-                                 "lm1_direct": {"t_plug_mm": tp1, "t_bone_mm": tb1, "clear": bool(tp1 < tb1)}}
+        report["paths"][side] = {
+            "from_landmark1_mm": moved,
+            "t_plug_mm": tp,
+            "t_bone_mm": tb,
+            "lm1_direct": {"t_plug_mm": tp1, "t_bone_mm": tb1, "clear": bool(tp1 < tb1)},
+        }
         report.setdefault("raw", {})[side] = {"orbit_xz": orbits[side].tolist(), "meatus": meatus[side].tolist()}
     return {"points": points, "planes": planes, "paths": paths, "report": report}
 
@@ -440,11 +499,21 @@ def write_toml(path: Path, foramina, anat, info) -> None:
         ]
     for name, (p, n) in anat["planes"].items():
         base, side = name.rsplit("_", 1)
-        lines += [f"[planes.{name}]", f"point = {_vec(p)}", f"normal = {_vec(n)}",
-                  f'help = "{PLANE_HELP[base].format(side=side)}"', ""]
+        lines += [
+            f"[planes.{name}]",
+            f"point = {_vec(p)}",
+            f"normal = {_vec(n)}",
+            f'help = "{PLANE_HELP[base].format(side=side)}"',
+            "",
+        ]
     for side, pth in anat["paths"].items():
-        lines += [f"[paths.{side}]", f"entry = {_vec(pth['entry'])}", f"target = {_vec(pth['target'])}",
-                  f"clear = {'true' if pth['clear'] else 'false'}", ""]
+        lines += [
+            f"[paths.{side}]",
+            f"entry = {_vec(pth['entry'])}",
+            f"target = {_vec(pth['target'])}",
+            f"clear = {'true' if pth['clear'] else 'false'}",
+            "",
+        ]
     path.write_text("\n".join(lines))
 
 
@@ -475,7 +544,9 @@ def preview(path: Path, skull, mandible, skin, plugs, anat) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m chainsim.game.packbuild.prepare_prp", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(
+        prog="python -m chainsim.game.packbuild.prepare_prp", description=__doc__.split("\n")[0]
+    )
     ap.add_argument("--shared", type=Path, default=DEFAULT_SHARED, help="the shared anatomy folder")
     ap.add_argument("--out", type=Path, default=ASSETS_DIR / "prp", help="the prp pack folder")
     ap.add_argument("--report", type=Path, default=None, help="also write the fit/measurement report (JSON)")

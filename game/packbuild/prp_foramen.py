@@ -162,8 +162,9 @@ def measure_foramen(mesh: trimesh.Trimesh, seed: np.ndarray, up: np.ndarray, max
     line_point = line_point + ((seed - line_point) @ best_d) * best_d  # level with the bone
     centre, canal = _canal_centre(local, line_point, best_d, width)
     tilt = float(np.degrees(np.arccos(np.clip(best_d @ up, -1, 1))))
-    return Foramen(centre, best_d, major / np.linalg.norm(major), float(width), float(height), float(area_mm2), tilt,
-                   canal)
+    return Foramen(
+        centre, best_d, major / np.linalg.norm(major), float(width), float(height), float(area_mm2), tilt, canal
+    )
 
 
 def _canal_centre(local: trimesh.Trimesh, line_point: np.ndarray, d: np.ndarray, width: float):

@@ -169,7 +169,7 @@ def mouth_corners(skin: trimesh.Trimesh, z_lo: float, z_hi: float, res: float = 
     window = (zs >= z_lo) & (zs <= z_hi)
     j0 = int(np.nanargmax(np.where(window, ridge[i0], -np.inf)))
     mid = np.abs(xs) < 10.0
-    min_ridge_mm = fade * float(np.median(np.nanmax(ridge[mid, max(j0 - 2, 0):j0 + 3], axis=1)))
+    min_ridge_mm = fade * float(np.median(np.nanmax(ridge[mid, max(j0 - 2, 0) : j0 + 3], axis=1)))
     trace = {i0: j0}
     ends = {}
     for step, side in ((1, "left"), (-1, "right")):
@@ -321,7 +321,7 @@ def clear_entry(skin, bone, plug, lm1, target, radius=15.0, step=0.5):
 
     # Nearest first, in small batches: long rays through a dense mesh cost memory.
     for s0 in range(0, len(cand), 64):
-        o, d = cand[s0:s0 + 64], dirs[s0:s0 + 64]
+        o, d = cand[s0 : s0 + 64], dirs[s0 : s0 + 64]
         t_plug = first(plug_rays, o, d)
         t_bone = first(bone_rays, o, d)
         clear = np.flatnonzero(t_plug < t_bone)
@@ -334,9 +334,18 @@ def clear_entry(skin, bone, plug, lm1, target, radius=15.0, step=0.5):
 # Typical adult soft-tissue depths (mm) at craniometric landmarks, rounded from published
 # facial tissue-depth tables; used only to fit the skin of another body to this skull.
 TISSUE_DEPTH_MM = {
-    "vertex": 6.0, "opisthocranion": 6.5, "glabella": 5.5, "nasion": 6.5, "rhinion": 3.0,
-    "supraorbital": 7.0, "infraorbital": 8.5, "zygion": 9.0, "euryon": 7.0,
-    "pogonion": 11.0, "menton": 7.5, "gonion": 14.0,
+    "vertex": 6.0,
+    "opisthocranion": 6.5,
+    "glabella": 5.5,
+    "nasion": 6.5,
+    "rhinion": 3.0,
+    "supraorbital": 7.0,
+    "infraorbital": 8.5,
+    "zygion": 9.0,
+    "euryon": 7.0,
+    "pogonion": 11.0,
+    "menton": 7.5,
+    "gonion": 14.0,
 }
 
 
@@ -378,18 +387,25 @@ def bony_landmarks(skull: trimesh.Trimesh, mandible: trimesh.Trimesh, orbits: di
         out.append((f"zygion_{side}", v[arch][np.argmax(v[arch][:, 0] * sgn)], sgn * X))
         vault = (v[:, 0] * sgn > 0) & (v[:, 2] > 20.0)
         out.append((f"euryon_{side}", v[vault][np.argmax(v[vault][:, 0] * sgn)], sgn * X))
-        ang = (w[:, 0] * sgn > 20.0)
+        ang = w[:, 0] * sgn > 20.0
         # Gonion: the ramus corner, the point furthest back-and-down on this side.
         g = w[ang][np.argmax(-w[ang][:, 1] - w[ang][:, 2])]
         out.append((f"gonion_{side}", g, sgn * X))
+
     def depth(name: str) -> float:
         return TISSUE_DEPTH_MM[name.rsplit("_", 1)[0] if name.endswith(("_left", "_right")) else name]
 
     return [(n, p, d, depth(n)) for n, p, d in out]
 
 
-def scalp_rays(skull: trimesh.Trimesh, centre: np.ndarray, z_min: float, n_az: int = 12,
-               elevations=(5.0, 15.0, 30.0, 45.0, 65.0, 85.0), depth_mm: float = 6.0):
+def scalp_rays(
+    skull: trimesh.Trimesh,
+    centre: np.ndarray,
+    z_min: float,
+    n_az: int = 12,
+    elevations=(5.0, 15.0, 30.0, 45.0, 65.0, 85.0),
+    depth_mm: float = 6.0,
+):
     """Points on the outer cranial vault and forehead with radial outward directions.
 
     Rays leave `centre` at the given elevations (degrees above the axial plane) and azimuths; the
@@ -401,8 +417,9 @@ def scalp_rays(skull: trimesh.Trimesh, centre: np.ndarray, z_min: float, n_az: i
         n = 1 if el >= 85.0 else n_az
         for k in range(n):
             az = 2 * np.pi * k / n
-            d = np.array([np.cos(np.radians(el)) * np.sin(az), np.cos(np.radians(el)) * np.cos(az),
-                          np.sin(np.radians(el))])
+            d = np.array(
+                [np.cos(np.radians(el)) * np.sin(az), np.cos(np.radians(el)) * np.cos(az), np.sin(np.radians(el))]
+            )
             loc, _, _ = inter.intersects_location(centre[None], d[None], multiple_hits=True)
             if len(loc) == 0:
                 continue

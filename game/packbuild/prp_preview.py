@@ -67,7 +67,7 @@ def render(layers, view_dir, up, centre, half, size=(640, 640)) -> np.ndarray:
                 ctx.enable(moderngl.BLEND)
                 ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
                 # Back to front within the translucent mesh so overlapping folds blend sensibly.
-                key = (mesh.triangles_center @ np.asarray(view_dir, float))
+                key = mesh.triangles_center @ np.asarray(view_dir, float)
                 order = np.argsort(-key)
                 tri = mesh.triangles[order].reshape(-1, 3)
                 nrm = np.repeat(mesh.face_normals[order], 3, axis=0)

@@ -104,8 +104,17 @@ def warp_to_depths(
     return out, t - depths
 
 
-def enclose(skin, skull_vertices, origins, directions, depths, inside_fn,
-            min_depth_mm: float = 3.0, rounds: int = 4, cluster_mm: float = 12.0):
+def enclose(
+    skin,
+    skull_vertices,
+    origins,
+    directions,
+    depths,
+    inside_fn,
+    min_depth_mm: float = 3.0,
+    rounds: int = 4,
+    cluster_mm: float = 12.0,
+):
     """Add depth constraints where bone still pokes through the skin, and re-warp, until the
     skull is enclosed (or `rounds` is spent). Returns (skin, origins, directions, depths)."""
     for _ in range(rounds):

@@ -14,7 +14,6 @@ Validation collects every problem at once, each as `file:line: key.path: what is
 
 from __future__ import annotations
 
-from chainsim.assets import ASSETS_DIR
 import difflib
 import os
 import re
@@ -23,10 +22,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from chainsim.game.packs import schema as ms
+from chainsim.assets import ASSETS_DIR
+from chainsim.components.registry import (
+    COMPONENTS,
+    SECTION_STYLE,
+    SECTIONS,
+    FieldError,
+    Schema,
+    convert,
+    default_value,
+    load_all,
+)
 from chainsim.engine.errors import UserError
 from chainsim.engine.meshes import MeshData, MeshError, load_file, max_mesh_bytes, primitive
-from chainsim.components.registry import COMPONENTS, SECTION_STYLE, SECTIONS, FieldError, Schema, convert, default_value, load_all
+from chainsim.game.packs import schema as ms
 
 BUILTIN_DIR = ASSETS_DIR
 ENV_PATH = "CHAINSIM_PACK_PATH"
@@ -212,7 +221,12 @@ class Pack:
     def scene(self, name: str | None) -> tuple[str, dict]:
         scenes = self.section("scenes")
         if not scenes:
-            return "main", {"entities": [], "layout": next(iter(self.section("layouts")), ""), "description": "", "script": ""}
+            return "main", {
+                "entities": [],
+                "layout": next(iter(self.section("layouts")), ""),
+                "description": "",
+                "script": "",
+            }
         if name is None:
             name = self.manifest["pack"].get("default_scene") or next(iter(scenes))
         if name not in scenes:
@@ -232,7 +246,13 @@ class Pack:
 def build_mesh(root: Path, name: str, spec: dict) -> MeshData:
     scale = ms.UNIT_SCALE_TO_MM[spec["units"]]
     if spec["primitive"]:
-        m = primitive(spec["primitive"], extents=spec["extents"], radius=spec["radius"], height=spec["height"], resolution=spec["resolution"])
+        m = primitive(
+            spec["primitive"],
+            extents=spec["extents"],
+            radius=spec["radius"],
+            height=spec["height"],
+            resolution=spec["resolution"],
+        )
         m.vertices = m.vertices * scale
         return m
     path = _inside(root, spec["path"])
@@ -366,7 +386,16 @@ def validate(root: Path, *, load_meshes: bool = True) -> tuple[Pack | None, list
             continue
         if sec not in SECTIONS:
             hint = difflib.get_close_matches(sec, list(SECTIONS) + ["entities"], n=1)
-            v.add(F, sec, "unknown section" + (f" (did you mean '{hint[0]}'?)" if hint else f"; sections: {', '.join(list(SECTIONS) + ['entities'])}"))
+            v.add(
+                F,
+                sec,
+                "unknown section"
+                + (
+                    f" (did you mean '{hint[0]}'?)"
+                    if hint
+                    else f"; sections: {', '.join(list(SECTIONS) + ['entities'])}"
+                ),
+            )
             continue
         style = SECTION_STYLE[sec]
         schema = SECTIONS[sec]
@@ -395,16 +424,28 @@ def validate(root: Path, *, load_meshes: bool = True) -> tuple[Pack | None, list
     pk = man.get("pack") or {}
     if pk:
         if "name" in pk and not NAME_RE.match(pk["name"]):
-            v.add(F, "pack.name", f"'{pk['name']}' is not a valid pack name (letters, digits, - and _; no spaces or slashes)")
+            v.add(
+                F,
+                "pack.name",
+                f"'{pk['name']}' is not a valid pack name (letters, digits, - and _; no spaces or slashes)",
+            )
         if "format" in pk and pk["format"] != ms.FORMAT_VERSION:
-            v.add(F, "pack.format", f"format {pk['format']} is not supported; this chainsim reads format {ms.FORMAT_VERSION}")
+            v.add(
+                F,
+                "pack.format",
+                f"format {pk['format']} is not supported; this chainsim reads format {ms.FORMAT_VERSION}",
+            )
         if pk.get("attribution"):
             _check_path(v, root, F, "pack.attribution", pk["attribution"])
         if pk.get("procedure"):
             from chainsim.game.app.plugins import PROCEDURES
 
             if pk["procedure"] not in PROCEDURES:
-                v.add(F, "pack.procedure", f"unknown procedure '{pk['procedure']}'; built-in procedures: {', '.join(sorted(PROCEDURES))}")
+                v.add(
+                    F,
+                    "pack.procedure",
+                    f"unknown procedure '{pk['procedure']}'; built-in procedures: {', '.join(sorted(PROCEDURES))}",
+                )
     # meshes
     for name, spec in man.get("meshes", {}).items():
         key = f"meshes.{name}"
@@ -419,7 +460,11 @@ def validate(root: Path, *, load_meshes: bool = True) -> tuple[Pack | None, list
             if p is None:
                 continue
             if p.stat().st_size > max_mesh_bytes():
-                v.add(file_of(key), f"{key}.path", f"{spec['path']} is {p.stat().st_size / 1048576:.2f} MB, over the {max_mesh_bytes() / 1048576:.3g} MB mesh limit (CHAINSIM_MAX_MESH_MB)")
+                v.add(
+                    file_of(key),
+                    f"{key}.path",
+                    f"{spec['path']} is {p.stat().st_size / 1048576:.2f} MB, over the {max_mesh_bytes() / 1048576:.3g} MB mesh limit (CHAINSIM_MAX_MESH_MB)",
+                )
                 continue
         if load_meshes:
             try:
@@ -449,7 +494,12 @@ def validate(root: Path, *, load_meshes: bool = True) -> tuple[Pack | None, list
             schema = COMPONENTS.get(cname)
             if schema is None:
                 hint = difflib.get_close_matches(cname, list(COMPONENTS), n=1)
-                v.add(file_of(key), f"{key}.{cname}", "unknown component" + (f" (did you mean '{hint[0]}'?)" if hint else f"; components: {', '.join(sorted(COMPONENTS))}"))
+                v.add(
+                    file_of(key),
+                    f"{key}.{cname}",
+                    "unknown component"
+                    + (f" (did you mean '{hint[0]}'?)" if hint else f"; components: {', '.join(sorted(COMPONENTS))}"),
+                )
                 continue
             conv = v.table(file_of(key), f"{key}.{cname}", ctable, schema)
             if conv is not None:
@@ -487,7 +537,11 @@ def validate(root: Path, *, load_meshes: bool = True) -> tuple[Pack | None, list
         panels = [vp.get("name") for vp in lay.get("viewports", []) if vp.get("kind") == "panel"]
         for i, w in enumerate(lay.get("widgets", [])):
             if w.get("viewport") and w["viewport"] not in panels:
-                v.add(F, f"layouts.{lname}.widgets.{i}.viewport", f"'{w['viewport']}' is not a panel viewport of this layout (panels: {', '.join(panels) or 'none'})")
+                v.add(
+                    F,
+                    f"layouts.{lname}.widgets.{i}.viewport",
+                    f"'{w['viewport']}' is not a panel viewport of this layout (panels: {', '.join(panels) or 'none'})",
+                )
             if lay.get("widgets") and not panels:
                 v.add(F, f"layouts.{lname}.widgets", "widgets need a viewport of kind 'panel'")
                 break
@@ -521,7 +575,9 @@ def _apply_preset(v: _Validator, file: str, key: str, conv: dict, raw: dict) -> 
     presets = material_presets()
     preset = presets.get(conv["preset"])
     if preset is None:
-        v.add(file, f"{key}.preset", f"unknown preset '{conv['preset']}'; presets: {', '.join(sorted(presets)) or 'none'}")
+        v.add(
+            file, f"{key}.preset", f"unknown preset '{conv['preset']}'; presets: {', '.join(sorted(presets)) or 'none'}"
+        )
         return
     for mkey, pkey in PRESET_KEYS.items():
         if mkey not in raw and pkey in preset:

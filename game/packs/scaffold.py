@@ -7,7 +7,7 @@ from pathlib import Path
 
 from chainsim.engine.errors import UserError
 
-PACK_TOML = '''# {title}: a chainsim asset pack. Reference: `chainsim docs components`.
+PACK_TOML = """# {title}: a chainsim asset pack. Reference: `chainsim docs components`.
 [pack]
 name = "{name}"
 format = 1
@@ -84,7 +84,7 @@ docs = "readme"
 [docs.readme]
 title = "About"
 path = "docs/readme.md"
-'''
+"""
 
 
 def create(name: str, parent: Path, title: str | None = None) -> Path:
@@ -96,6 +96,10 @@ def create(name: str, parent: Path, title: str | None = None) -> Path:
     (root / "docs").mkdir(parents=True)
     (root / "meshes").mkdir()
     (root / "scripts").mkdir()
-    (root / "pack.toml").write_text(PACK_TOML.format(name=name, title=title or name.replace("-", " ").title()), encoding="utf-8")
-    (root / "docs" / "readme.md").write_text(f"# {title or name}\n\nWhat this pack teaches, and how to use it.\n", encoding="utf-8")
+    (root / "pack.toml").write_text(
+        PACK_TOML.format(name=name, title=title or name.replace("-", " ").title()), encoding="utf-8"
+    )
+    (root / "docs" / "readme.md").write_text(
+        f"# {title or name}\n\nWhat this pack teaches, and how to use it.\n", encoding="utf-8"
+    )
     return root

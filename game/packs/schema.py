@@ -27,141 +27,285 @@ PRIMITIVES = ("box", "sphere", "cylinder", "capsule", "cone", "grid", "tet_block
 VIEWPORT_KINDS = ("orbit", "attached", "panel", "fixed")
 WIDGET_KINDS = ("button", "toggle", "slider", "dial", "light", "text")
 
-section("pack", "table", "Pack metadata.", [
-    Field("name", "str", help="Pack identifier used on the command line (letters, digits, - and _)."),
-    Field("format", "int", help=f"Manifest format version; this chainsim reads format {FORMAT_VERSION}.", min=1),
-    Field("title", "str", "", help="Human-readable title."),
-    Field("version", "str", "0.1.0", help="The pack's own version."),
-    Field("description", "str", "", help="One paragraph shown in `chainsim packs`."),
-    Field("license", "str", "", help="Licence of the pack's own files (data carries its own, see attribution)."),
-    Field("attribution", "path", "", help="File crediting third-party data in the pack."),
-    Field("authors", "str_list", [], help="Authors of the pack."),
-    Field("includes", "str_list", [], help="Further TOML files in the pack whose tables are merged into this manifest."),
-    Field("default_scene", "str", "", help="Scene run when none is named (default: the first)."),
-    Field("procedure", "str", "", help="Procedure plugin the pack uses (a built-in name, e.g. 'prp'); empty for none."),
-])
+section(
+    "pack",
+    "table",
+    "Pack metadata.",
+    [
+        Field("name", "str", help="Pack identifier used on the command line (letters, digits, - and _)."),
+        Field("format", "int", help=f"Manifest format version; this chainsim reads format {FORMAT_VERSION}.", min=1),
+        Field("title", "str", "", help="Human-readable title."),
+        Field("version", "str", "0.1.0", help="The pack's own version."),
+        Field("description", "str", "", help="One paragraph shown in `chainsim packs`."),
+        Field("license", "str", "", help="Licence of the pack's own files (data carries its own, see attribution)."),
+        Field("attribution", "path", "", help="File crediting third-party data in the pack."),
+        Field("authors", "str_list", [], help="Authors of the pack."),
+        Field(
+            "includes",
+            "str_list",
+            [],
+            help="Further TOML files in the pack whose tables are merged into this manifest.",
+        ),
+        Field("default_scene", "str", "", help="Scene run when none is named (default: the first)."),
+        Field(
+            "procedure", "str", "", help="Procedure plugin the pack uses (a built-in name, e.g. 'prp'); empty for none."
+        ),
+    ],
+)
 
-section("settings", "table", "Run options; every key is declared here.", [
-    Field("dt", "float", 1.0 / 120.0, units="s", help="Fixed simulation step.", min=1e-5, max=0.1),
-    Field("steps", "int", 600, help="Default number of steps for headless runs.", min=0),
-    Field("window_size", "vec2", [1280.0, 800.0], units="px", help="Initial window size."),
-    Field("background", "vec4", [0.08, 0.09, 0.11, 1.0], help="Clear colour (RGBA 0..1)."),
-    Field("deformation_budget_ms", "float", 8.0, units="ms", help="Time a deformation update may take before the HUD warns.", min=0.0),
-])
+section(
+    "settings",
+    "table",
+    "Run options; every key is declared here.",
+    [
+        Field("dt", "float", 1.0 / 120.0, units="s", help="Fixed simulation step.", min=1e-5, max=0.1),
+        Field("steps", "int", 600, help="Default number of steps for headless runs.", min=0),
+        Field("window_size", "vec2", [1280.0, 800.0], units="px", help="Initial window size."),
+        Field("background", "vec4", [0.08, 0.09, 0.11, 1.0], help="Clear colour (RGBA 0..1)."),
+        Field(
+            "deformation_budget_ms",
+            "float",
+            8.0,
+            units="ms",
+            help="Time a deformation update may take before the HUD warns.",
+            min=0.0,
+        ),
+    ],
+)
 
-section("meshes", "named", "A mesh: a file in the pack or a built-in primitive.", [
-    Field("path", "path", "", help="Mesh file (.obj .ply .stl .off .glb for surfaces; .msh .vtk .vtu .mesh for tetrahedra)."),
-    Field("primitive", "enum", "", choices=("",) + PRIMITIVES, help="Built-in shape instead of a file."),
-    Field("units", "enum", "mm", choices=UNITS, help="Units of the file's coordinates; everything is converted to millimetres."),
-    Field("role", "enum", "visual", choices=MESH_ROLES, help="What the mesh is for."),
-    Field("extents", "vec3", [10.0, 10.0, 10.0], units="mm", help="Box size, or grid/tet_block size.", min=0.0),
-    Field("radius", "float", 5.0, units="mm", help="Sphere, cylinder, capsule or cone radius.", min=0.0),
-    Field("height", "float", 10.0, units="mm", help="Cylinder, capsule or cone height (along +Z).", min=0.0),
-    Field("resolution", "vec3", [8.0, 8.0, 1.0], help="Elements per axis for grid / tet_block; sections for round shapes.", min=1.0),
-    Field("merge_vertices", "bool", True, help="Merge duplicate vertices on load (surfaces)."),
-    Field("reorder", "bool", False, help="Reorder vertices for memory locality (reverse Cuthill-McKee) on load."),
-])
+section(
+    "meshes",
+    "named",
+    "A mesh: a file in the pack or a built-in primitive.",
+    [
+        Field(
+            "path",
+            "path",
+            "",
+            help="Mesh file (.obj .ply .stl .off .glb for surfaces; .msh .vtk .vtu .mesh for tetrahedra).",
+        ),
+        Field("primitive", "enum", "", choices=("",) + PRIMITIVES, help="Built-in shape instead of a file."),
+        Field(
+            "units",
+            "enum",
+            "mm",
+            choices=UNITS,
+            help="Units of the file's coordinates; everything is converted to millimetres.",
+        ),
+        Field("role", "enum", "visual", choices=MESH_ROLES, help="What the mesh is for."),
+        Field("extents", "vec3", [10.0, 10.0, 10.0], units="mm", help="Box size, or grid/tet_block size.", min=0.0),
+        Field("radius", "float", 5.0, units="mm", help="Sphere, cylinder, capsule or cone radius.", min=0.0),
+        Field("height", "float", 10.0, units="mm", help="Cylinder, capsule or cone height (along +Z).", min=0.0),
+        Field(
+            "resolution",
+            "vec3",
+            [8.0, 8.0, 1.0],
+            help="Elements per axis for grid / tet_block; sections for round shapes.",
+            min=1.0,
+        ),
+        Field("merge_vertices", "bool", True, help="Merge duplicate vertices on load (surfaces)."),
+        Field("reorder", "bool", False, help="Reorder vertices for memory locality (reverse Cuthill-McKee) on load."),
+    ],
+)
 
-section("materials", "named", "How an entity looks and, if deformable, how soft it is.", [
-    Field("color", "vec4", [0.8, 0.8, 0.8, 1.0], help="RGBA 0..1.", min=0.0, max=1.0),
-    Field("opacity", "float", 1.0, help="1 opaque, 0 invisible; blended back to front.", min=0.0, max=1.0),
-    Field("wireframe", "bool", False, help="Draw the links instead of shaded faces."),
-    Field("shading", "enum", "smooth", choices=("smooth", "flat", "unlit"), help="Lighting model."),
-    Field("preset", "str", "", help="Named ChainMail preset from assets/presets/materials.toml (overridden by explicit values)."),
-    Field("alpha_min", "float", 0.8, help="ChainMail compression limit relative to the rest link (thesis 5.2.2).", min=0.0, max=1.0),
-    Field("alpha_max", "float", 1.2, help="ChainMail stretch limit relative to the rest link.", min=1.0),
-    Field("beta", "float", 0.1, help="ChainMail shear limit relative to the rest link.", min=0.0),
-    Field("relax", "int", 2, help="Relaxation iterations after each cascade (thesis 5.2.5).", min=0),
-])
+section(
+    "materials",
+    "named",
+    "How an entity looks and, if deformable, how soft it is.",
+    [
+        Field("color", "vec4", [0.8, 0.8, 0.8, 1.0], help="RGBA 0..1.", min=0.0, max=1.0),
+        Field("opacity", "float", 1.0, help="1 opaque, 0 invisible; blended back to front.", min=0.0, max=1.0),
+        Field("wireframe", "bool", False, help="Draw the links instead of shaded faces."),
+        Field("shading", "enum", "smooth", choices=("smooth", "flat", "unlit"), help="Lighting model."),
+        Field(
+            "preset",
+            "str",
+            "",
+            help="Named ChainMail preset from assets/presets/materials.toml (overridden by explicit values).",
+        ),
+        Field(
+            "alpha_min",
+            "float",
+            0.8,
+            help="ChainMail compression limit relative to the rest link (thesis 5.2.2).",
+            min=0.0,
+            max=1.0,
+        ),
+        Field("alpha_max", "float", 1.2, help="ChainMail stretch limit relative to the rest link.", min=1.0),
+        Field("beta", "float", 0.1, help="ChainMail shear limit relative to the rest link.", min=0.0),
+        Field("relax", "int", 2, help="Relaxation iterations after each cascade (thesis 5.2.5).", min=0),
+    ],
+)
 
-section("scenes", "named", "A runnable selection of entities with a layout.", [
-    Field("entities", "str_list", [], help="Entities spawned in this scene; empty means all."),
-    Field("layout", "str", "", help="Layout used by the window and snapshots."),
-    Field("description", "str", "", help="Shown in `chainsim packs`."),
-    Field("script", "path", "", help="Input script that drives a headless run when none is given."),
-])
+section(
+    "scenes",
+    "named",
+    "A runnable selection of entities with a layout.",
+    [
+        Field("entities", "str_list", [], help="Entities spawned in this scene; empty means all."),
+        Field("layout", "str", "", help="Layout used by the window and snapshots."),
+        Field("description", "str", "", help="Shown in `chainsim packs`."),
+        Field("script", "path", "", help="Input script that drives a headless run when none is given."),
+    ],
+)
 
-VIEWPORT = Schema("viewport", "One viewport of a layout.", (
-    Field("name", "str", help="Viewport name (unique in the layout)."),
-    Field("kind", "enum", choices=VIEWPORT_KINDS, help="orbit: mouse-driven camera; attached: follows an entity and ignores input; panel: 2-D controls; fixed: a still camera."),
-    Field("rect", "rect", help="Placement [x, y, w, h] as window fractions, origin bottom-left.", min=0.0, max=1.0),
-    Field("title", "str", "", help="Caption drawn in the viewport."),
-    Field("target", "vec3", [0.0, 0.0, 0.0], units="mm", help="Point the camera looks at."),
-    Field("distance", "float", 400.0, units="mm", help="Camera distance from target.", min=0.0),
-    Field("yaw", "float", 0.0, units="deg", help="Camera azimuth about +Z: at 0 the eye is on the +Y side looking along -Y; positive turns counter-clockwise."),
-    Field("pitch", "float", 0.0, units="deg", help="Camera elevation; positive raises the eye.", min=-89.9, max=89.9),
-    Field("fov", "float", 40.0, units="deg", help="Vertical field of view.", min=1.0, max=170.0),
-    Field("near", "float", 1.0, units="mm", help="Near clip distance.", min=1e-6),
-    Field("far", "float", 5000.0, units="mm", help="Far clip distance.", min=1e-3),
-    Field("attach", "entity", "", help="Entity the camera rides on (attached viewports): the eye sits at its origin plus offset and looks along its local +Z, local +Y up."),
-    Field("offset", "vec3", [0.0, 0.0, 0.0], units="mm", help="Camera offset in the attached entity's frame."),
-    Field("visible", "bool", True, help="Shown at start (a toggle widget may change it)."),
-    Field("interactive", "bool", True, help="Whether camera input moves this view."),
-))
+VIEWPORT = Schema(
+    "viewport",
+    "One viewport of a layout.",
+    (
+        Field("name", "str", help="Viewport name (unique in the layout)."),
+        Field(
+            "kind",
+            "enum",
+            choices=VIEWPORT_KINDS,
+            help="orbit: mouse-driven camera; attached: follows an entity and ignores input; panel: 2-D controls; fixed: a still camera.",
+        ),
+        Field("rect", "rect", help="Placement [x, y, w, h] as window fractions, origin bottom-left.", min=0.0, max=1.0),
+        Field("title", "str", "", help="Caption drawn in the viewport."),
+        Field("target", "vec3", [0.0, 0.0, 0.0], units="mm", help="Point the camera looks at."),
+        Field("distance", "float", 400.0, units="mm", help="Camera distance from target.", min=0.0),
+        Field(
+            "yaw",
+            "float",
+            0.0,
+            units="deg",
+            help="Camera azimuth about +Z: at 0 the eye is on the +Y side looking along -Y; positive turns counter-clockwise.",
+        ),
+        Field(
+            "pitch", "float", 0.0, units="deg", help="Camera elevation; positive raises the eye.", min=-89.9, max=89.9
+        ),
+        Field("fov", "float", 40.0, units="deg", help="Vertical field of view.", min=1.0, max=170.0),
+        Field("near", "float", 1.0, units="mm", help="Near clip distance.", min=1e-6),
+        Field("far", "float", 5000.0, units="mm", help="Far clip distance.", min=1e-3),
+        Field(
+            "attach",
+            "entity",
+            "",
+            help="Entity the camera rides on (attached viewports): the eye sits at its origin plus offset and looks along its local +Z, local +Y up.",
+        ),
+        Field("offset", "vec3", [0.0, 0.0, 0.0], units="mm", help="Camera offset in the attached entity's frame."),
+        Field("visible", "bool", True, help="Shown at start (a toggle widget may change it)."),
+        Field("interactive", "bool", True, help="Whether camera input moves this view."),
+    ),
+)
 
-WIDGET = Schema("widget", "One control-panel widget; using it emits a widget input event.", (
-    Field("name", "str", help="Action name carried by the event (e.g. 'insert')."),
-    Field("kind", "enum", choices=WIDGET_KINDS, help="Widget type."),
-    Field("label", "str", "", help="Text on the widget."),
-    Field("viewport", "str", "", help="Panel viewport that holds it (default: the first panel)."),
-    Field("rect", "rect", [0.0, 0.0, 0.0, 0.0], help="Placement in the panel as fractions (0 = automatic column layout)."),
-    Field("value", "any", False, help="Initial value (toggle: true/false; slider/dial: number)."),
-    Field("min", "float", 0.0, help="Slider/dial minimum."),
-    Field("max", "float", 1.0, help="Slider/dial maximum."),
-    Field("step", "float", 0.0, help="Value change per key press or click (0: continuous)."),
-    Field("key", "str", "", help="Keyboard shortcut (pyglet key name, e.g. 'i', 'left')."),
-    Field("key_value", "float", 0.0, help="Value a key press sends (for buttons that step a dial)."),
-    Field("layer", "str", "", help="What a toggle switches: NAME shows/hides that layer ('planes' also the pack's planes), view:NAME a viewport, xray:NAME makes a layer see-through, wire:NAME draws it as links."),
-    Field("help", "str", "", help="Tooltip / HUD help."),
-))
+WIDGET = Schema(
+    "widget",
+    "One control-panel widget; using it emits a widget input event.",
+    (
+        Field("name", "str", help="Action name carried by the event (e.g. 'insert')."),
+        Field("kind", "enum", choices=WIDGET_KINDS, help="Widget type."),
+        Field("label", "str", "", help="Text on the widget."),
+        Field("viewport", "str", "", help="Panel viewport that holds it (default: the first panel)."),
+        Field(
+            "rect",
+            "rect",
+            [0.0, 0.0, 0.0, 0.0],
+            help="Placement in the panel as fractions (0 = automatic column layout).",
+        ),
+        Field("value", "any", False, help="Initial value (toggle: true/false; slider/dial: number)."),
+        Field("min", "float", 0.0, help="Slider/dial minimum."),
+        Field("max", "float", 1.0, help="Slider/dial maximum."),
+        Field("step", "float", 0.0, help="Value change per key press or click (0: continuous)."),
+        Field("key", "str", "", help="Keyboard shortcut (pyglet key name, e.g. 'i', 'left')."),
+        Field("key_value", "float", 0.0, help="Value a key press sends (for buttons that step a dial)."),
+        Field(
+            "layer",
+            "str",
+            "",
+            help="What a toggle switches: NAME shows/hides that layer ('planes' also the pack's planes), view:NAME a viewport, xray:NAME makes a layer see-through, wire:NAME draws it as links.",
+        ),
+        Field("help", "str", "", help="Tooltip / HUD help."),
+    ),
+)
 
-section("layouts", "named", "Viewports and widgets of a window.", [
-    Field("viewports", "table_list", [], help="Array of viewport tables (see 'viewport').", item=VIEWPORT),
-    Field("widgets", "table_list", [], help="Array of widget tables (see 'widget').", item=WIDGET),
-])
+section(
+    "layouts",
+    "named",
+    "Viewports and widgets of a window.",
+    [
+        Field("viewports", "table_list", [], help="Array of viewport tables (see 'viewport').", item=VIEWPORT),
+        Field("widgets", "table_list", [], help="Array of widget tables (see 'widget').", item=WIDGET),
+    ],
+)
 
-section("steps", "list", "Procedure steps, in order.", [
-    Field("id", "str", help="Step identifier."),
-    Field("title", "str", help="Short title shown in the HUD."),
-    Field("instruction", "str", "", help="What the trainee does in this step."),
-    Field("docs", "str", "", help="Docs page shown with this step."),
-])
+section(
+    "steps",
+    "list",
+    "Procedure steps, in order.",
+    [
+        Field("id", "str", help="Step identifier."),
+        Field("title", "str", help="Short title shown in the HUD."),
+        Field("instruction", "str", "", help="What the trainee does in this step."),
+        Field("docs", "str", "", help="Docs page shown with this step."),
+    ],
+)
 
-section("metrics", "named", "A metric the assessment reports.", [
-    Field("label", "str", help="Name shown to trainees and trainers."),
-    Field("units", "str", "", help="Units of the value."),
-    Field("help", "str", "", help="How it is computed (cite the method)."),
-    Field("lower_is_better", "bool", True, help="Direction of improvement."),
-])
+section(
+    "metrics",
+    "named",
+    "A metric the assessment reports.",
+    [
+        Field("label", "str", help="Name shown to trainees and trainers."),
+        Field("units", "str", "", help="Units of the value."),
+        Field("help", "str", "", help="How it is computed (cite the method)."),
+        Field("lower_is_better", "bool", True, help="Direction of improvement."),
+    ],
+)
 
-section("docs", "named", "A documentation page shown in the app.", [
-    Field("title", "str", help="Page title."),
-    Field("path", "path", help="Markdown file in the pack."),
-])
+section(
+    "docs",
+    "named",
+    "A documentation page shown in the app.",
+    [
+        Field("title", "str", help="Page title."),
+        Field("path", "path", help="Markdown file in the pack."),
+    ],
+)
 
-section("points", "named", "A named point (millimetres, pack frame).", [
-    Field("position", "vec3", units="mm", help="Position."),
-    Field("help", "str", "", help="What the point marks."),
-])
+section(
+    "points",
+    "named",
+    "A named point (millimetres, pack frame).",
+    [
+        Field("position", "vec3", units="mm", help="Position."),
+        Field("help", "str", "", help="What the point marks."),
+    ],
+)
 
-section("planes", "named", "A named plane (millimetres, pack frame).", [
-    Field("point", "vec3", units="mm", help="A point on the plane."),
-    Field("normal", "vec3", help="Plane normal (normalised on use)."),
-    Field("help", "str", "", help="What the plane is."),
-])
+section(
+    "planes",
+    "named",
+    "A named plane (millimetres, pack frame).",
+    [
+        Field("point", "vec3", units="mm", help="A point on the plane."),
+        Field("normal", "vec3", help="Plane normal (normalised on use)."),
+        Field("help", "str", "", help="What the plane is."),
+    ],
+)
 
-section("foramina", "named", "A target opening for a needle.", [
-    Field("centre", "vec3", units="mm", help="Centre of the opening."),
-    Field("axis", "vec3", help="Direction through the opening."),
-    Field("width_mm", "float", units="mm", help="Long axis of the opening.", min=0.0),
-    Field("height_mm", "float", units="mm", help="Short axis of the opening.", min=0.0),
-    Field("radius_mm", "float", units="mm", help="Radius R used by the needle error E = Dist - R.", min=0.0),
-    Field("help", "str", "", help="Notes."),
-])
+section(
+    "foramina",
+    "named",
+    "A target opening for a needle.",
+    [
+        Field("centre", "vec3", units="mm", help="Centre of the opening."),
+        Field("axis", "vec3", help="Direction through the opening."),
+        Field("width_mm", "float", units="mm", help="Long axis of the opening.", min=0.0),
+        Field("height_mm", "float", units="mm", help="Short axis of the opening.", min=0.0),
+        Field("radius_mm", "float", units="mm", help="Radius R used by the needle error E = Dist - R.", min=0.0),
+        Field("help", "str", "", help="Notes."),
+    ],
+)
 
-section("paths", "named", "A reference needle path.", [
-    Field("entry", "vec3", units="mm", help="Skin entry point."),
-    Field("target", "vec3", units="mm", help="Point aimed at."),
-    Field("clear", "bool", False, help="Whether the straight path reaches the target before any bone."),
-    Field("help", "str", "", help="Notes."),
-])
+section(
+    "paths",
+    "named",
+    "A reference needle path.",
+    [
+        Field("entry", "vec3", units="mm", help="Skin entry point."),
+        Field("target", "vec3", units="mm", help="Point aimed at."),
+        Field("clear", "bool", False, help="Whether the straight path reaches the target before any bone."),
+        Field("help", "str", "", help="Notes."),
+    ],
+)

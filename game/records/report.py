@@ -13,17 +13,28 @@ import io
 import json
 import os
 import tempfile
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 from chainsim.engine.errors import UserError
 from chainsim.game.records.validate import AIDS
 
 CSV_COLUMNS = (
-    "id", "class_name", "trainee", "pack", "created_at", "duration_s", "landmark_error_mm",
-    "needle_error_mm", "target", "skull_contacts", "path_length_mm",
+    "id",
+    "class_name",
+    "trainee",
+    "pack",
+    "created_at",
+    "duration_s",
+    "landmark_error_mm",
+    "needle_error_mm",
+    "target",
+    "skull_contacts",
+    "path_length_mm",
     *(f"aid_{name}" for name in AIDS),
-    "step_times", "details",
+    "step_times",
+    "details",
 )
 
 
@@ -98,13 +109,24 @@ def _umask() -> int:
 def csv_rows(attempts: Sequence[dict[str, Any]]) -> list[list[Any]]:
     rows = []
     for a in attempts:
-        rows.append([
-            a["id"], a["class_name"], a["trainee"], a["pack"], a["created_at"], a["duration_s"],
-            a["landmark_error_mm"], "" if a["needle_error_mm"] is None else a["needle_error_mm"],
-            a["target"], a["skull_contacts"], a["path_length_mm"],
-            *(int(bool(a["aids"].get(name, False))) for name in AIDS),
-            json.dumps(a["step_times"], sort_keys=True), json.dumps(a["details"], sort_keys=True),
-        ])
+        rows.append(
+            [
+                a["id"],
+                a["class_name"],
+                a["trainee"],
+                a["pack"],
+                a["created_at"],
+                a["duration_s"],
+                a["landmark_error_mm"],
+                "" if a["needle_error_mm"] is None else a["needle_error_mm"],
+                a["target"],
+                a["skull_contacts"],
+                a["path_length_mm"],
+                *(int(bool(a["aids"].get(name, False))) for name in AIDS),
+                json.dumps(a["step_times"], sort_keys=True),
+                json.dumps(a["details"], sort_keys=True),
+            ]
+        )
     return rows
 
 

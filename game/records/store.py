@@ -22,9 +22,10 @@ from __future__ import annotations
 import json
 import os
 import sqlite3
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from chainsim.engine.errors import UserError
 from chainsim.game.records.schema import MIGRATIONS, OWN_TABLES, SCHEMA_VERSION
@@ -156,7 +157,7 @@ class RecordStore:
 
     # -- plumbing -------------------------------------------------------------------------
 
-    def __enter__(self) -> "RecordStore":
+    def __enter__(self) -> RecordStore:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -199,9 +200,7 @@ class RecordStore:
         return None if row is None else row[0]
 
     def _trainee_id(self, conn: sqlite3.Connection, class_id: int, name: str) -> int | None:
-        row = conn.execute(
-            "SELECT id FROM trainees WHERE class_id = ? AND name = ?", (class_id, name)
-        ).fetchone()
+        row = conn.execute("SELECT id FROM trainees WHERE class_id = ? AND name = ?", (class_id, name)).fetchone()
         return None if row is None else row[0]
 
     def _require_class(self, name: str) -> int:
@@ -305,9 +304,18 @@ class RecordStore:
                 VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
                 """,
                 (
-                    trainee_id, a["pack"], a["created_at"], a["duration_s"], a["landmark_error_mm"],
-                    a["needle_error_mm"], a["target"], a["skull_contacts"], a["path_length_mm"],
-                    to_json(a["aids"]), to_json(a["step_times"]), to_json(a["details"]),
+                    trainee_id,
+                    a["pack"],
+                    a["created_at"],
+                    a["duration_s"],
+                    a["landmark_error_mm"],
+                    a["needle_error_mm"],
+                    a["target"],
+                    a["skull_contacts"],
+                    a["path_length_mm"],
+                    to_json(a["aids"]),
+                    to_json(a["step_times"]),
+                    to_json(a["details"]),
                 ),
             )
             return cur.lastrowid

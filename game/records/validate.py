@@ -11,7 +11,7 @@ import json
 import math
 import numbers
 import re
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from typing import Any
 
 from chainsim.engine.errors import UserError
@@ -78,7 +78,7 @@ def _count(field: str, value: Any) -> int:
 def clean_created_at(value: Any) -> str:
     """ISO-8601 UTC timestamp; stored as the caller wrote it, ``now`` when absent."""
     if value is None:
-        return datetime.now(timezone.utc).isoformat(timespec="seconds")
+        return datetime.now(UTC).isoformat(timespec="seconds")
     if isinstance(value, datetime):
         if value.utcoffset() is None or value.utcoffset().total_seconds() != 0:
             raise UserError(f"attempt field 'created_at' {value!r} must be a UTC datetime")
@@ -94,9 +94,7 @@ def clean_created_at(value: Any) -> str:
         ) from None
     offset = stamp.utcoffset()
     if offset is None or offset.total_seconds() != 0:
-        raise UserError(
-            f"attempt field 'created_at' {value!r} is not UTC; expected a 'Z' or '+00:00' suffix"
-        )
+        raise UserError(f"attempt field 'created_at' {value!r} is not UTC; expected a 'Z' or '+00:00' suffix")
     return text
 
 

@@ -62,14 +62,13 @@ def run_window(args) -> int:
     except Exception as e:  # pragma: no cover - pyglet is a dependency
         raise UserError(f"cannot start the window system ({e})") from None
     import chainsim.game.gl.render_system as render
-    from chainsim.game.gl.context import window_context
-    from chainsim.game.app.headless import build_app
     from chainsim.components.hud import HudState
     from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll
-    from chainsim.game.app.inputscript import load_script
     from chainsim.components.resources import PendingInput, Settings
-
+    from chainsim.game.app.headless import build_app
+    from chainsim.game.app.inputscript import load_script
     from chainsim.game.cli.commands.run import user_settings
+    from chainsim.game.gl.context import window_context
 
     script = load_script(args.input) if getattr(args, "input", None) else None
     settings = user_settings(args)  # --db, --class, --trainee for procedures that save attempts
@@ -79,15 +78,19 @@ def run_window(args) -> int:
         window = _open_window(pyglet, w, h, f"chainsim - {args.pack}")
     except Exception as e:
         app.close()
-        raise UserError(f"cannot open a window on this display ({type(e).__name__}: {e}); "
-                        f"run headless instead: chainsim run {args.pack} --headless --steps 600 --out DIR") from None
+        raise UserError(
+            f"cannot open a window on this display ({type(e).__name__}: {e}); "
+            f"run headless instead: chainsim run {args.pack} --headless --steps 600 --out DIR"
+        ) from None
     try:
         ctx = window_context()
     except Exception as e:
         window.close()
         app.close()
-        raise UserError(f"this display has no OpenGL 3.3 ({type(e).__name__}: {e}); "
-                        f"render off screen instead: chainsim snapshot {args.pack} --out shot.png") from None
+        raise UserError(
+            f"this display has no OpenGL 3.3 ({type(e).__name__}: {e}); "
+            f"render off screen instead: chainsim snapshot {args.pack} --out shot.png"
+        ) from None
     fw, fh = window.get_framebuffer_size()
     target = render.RenderTarget(ctx, ctx.screen, fw / max(w, 1), offscreen=False, size=(fw, fh))
     app.insert_resource(target)
@@ -115,9 +118,16 @@ def run_window(args) -> int:
                 from chainsim.systems.input import InputLog
 
                 log = app.get_resource(InputLog)
-                write_recording(args.record, pack=args.pack, scene=app.resource(render.PackResource).scene, dt=app.time.dt,
-                                steps=app.time.tick, events=log.items if log else [], digest=world_digest(app),
-                                settings=settings or None)
+                write_recording(
+                    args.record,
+                    pack=args.pack,
+                    scene=app.resource(render.PackResource).scene,
+                    dt=app.time.dt,
+                    steps=app.time.tick,
+                    events=log.items if log else [],
+                    digest=world_digest(app),
+                    settings=settings or None,
+                )
                 print(f"recording: {args.record}")
         finally:
             # close outside the event dispatch that called us; GL objects go before their context
@@ -162,10 +172,18 @@ def run_window(args) -> int:
         pending.push(now(), Key(key_name(symbol), True))
         return pyglet.event.EVENT_HANDLED
 
-    ARROWS = {pyglet.window.key.LEFT: "left", pyglet.window.key.RIGHT: "right",
-              pyglet.window.key.UP: "up", pyglet.window.key.DOWN: "down"}
-    MOTIONS = {pyglet.window.key.MOTION_LEFT: "left", pyglet.window.key.MOTION_RIGHT: "right",
-               pyglet.window.key.MOTION_UP: "up", pyglet.window.key.MOTION_DOWN: "down"}
+    ARROWS = {
+        pyglet.window.key.LEFT: "left",
+        pyglet.window.key.RIGHT: "right",
+        pyglet.window.key.UP: "up",
+        pyglet.window.key.DOWN: "down",
+    }
+    MOTIONS = {
+        pyglet.window.key.MOTION_LEFT: "left",
+        pyglet.window.key.MOTION_RIGHT: "right",
+        pyglet.window.key.MOTION_UP: "up",
+        pyglet.window.key.MOTION_DOWN: "down",
+    }
 
     @window.event
     def on_text_motion(motion):

@@ -78,7 +78,9 @@ def load_file(path: Path, scale_to_mm: float = 1.0, merge_vertices: bool = True,
     elif ext in SURFACE_EXT:
         mesh = _load_surface(path, merge_vertices, where)
     else:
-        raise MeshError(f"{where}: unsupported mesh type '{ext}'; expected one of {', '.join(SURFACE_EXT + VOLUME_EXT)}")
+        raise MeshError(
+            f"{where}: unsupported mesh type '{ext}'; expected one of {', '.join(SURFACE_EXT + VOLUME_EXT)}"
+        )
     mesh.vertices = mesh.vertices * scale_to_mm
     return _check(mesh, where)
 
@@ -89,7 +91,9 @@ def _load_surface(path: Path, merge_vertices: bool, where: str) -> MeshData:
     try:
         loaded = trimesh.load(str(path), force="mesh", process=merge_vertices)
     except Exception as e:  # trimesh raises many types for bad files
-        raise MeshError(f"{where}: not a readable mesh ({type(e).__name__}: {str(e).splitlines()[0] if str(e) else 'parse error'})") from None
+        raise MeshError(
+            f"{where}: not a readable mesh ({type(e).__name__}: {str(e).splitlines()[0] if str(e) else 'parse error'})"
+        ) from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.vertices) == 0:
         raise MeshError(f"{where}: contains no triangle mesh")
     return MeshData(np.asarray(loaded.vertices, dtype=np.float64), np.asarray(loaded.faces, dtype=np.int64))
@@ -101,7 +105,9 @@ def _load_volume(path: Path, where: str) -> MeshData:
     try:
         m = meshio.read(str(path))
     except (Exception, SystemExit) as e:  # meshio calls sys.exit on some unreadable .msh files
-        raise MeshError(f"{where}: not a readable volume mesh ({type(e).__name__}: {str(e).splitlines()[0] if str(e) else 'parse error'})") from None
+        raise MeshError(
+            f"{where}: not a readable volume mesh ({type(e).__name__}: {str(e).splitlines()[0] if str(e) else 'parse error'})"
+        ) from None
     tets = [c.data for c in m.cells if c.type == "tetra"]
     tris = [c.data for c in m.cells if c.type == "triangle"]
     pts = np.asarray(m.points, dtype=np.float64)
@@ -110,7 +116,11 @@ def _load_volume(path: Path, where: str) -> MeshData:
     if not tets and not tris:
         raise MeshError(f"{where}: has no tetra or triangle cells")
     t4 = np.concatenate(tets).astype(np.int64) if tets else None
-    surf = np.concatenate(tris).astype(np.int64) if tris else (boundary_triangles(t4) if t4 is not None else np.zeros((0, 3), np.int64))
+    surf = (
+        np.concatenate(tris).astype(np.int64)
+        if tris
+        else (boundary_triangles(t4) if t4 is not None else np.zeros((0, 3), np.int64))
+    )
     return MeshData(pts, surf, t4)
 
 

@@ -109,8 +109,7 @@ def tet_grid(nx: int, ny: int, nz: int, spacing: float = 1.0):
     """
     pos, _ = grid((nx, ny, nz), spacing, 3)
     idx = grid_index((nx, ny, nz))
-    c = [idx[i : nx - 1 + i, j : ny - 1 + j, k : nz - 1 + k].ravel()
-         for k in (0, 1) for j in (0, 1) for i in (0, 1)]
+    c = [idx[i : nx - 1 + i, j : ny - 1 + j, k : nz - 1 + k].ravel() for k in (0, 1) for j in (0, 1) for i in (0, 1)]
     # corner numbering: c[i + 2j + 4k]; the six tets around the diagonal c0 -> c7
     paths = [(1, 3), (1, 5), (2, 3), (2, 6), (4, 5), (4, 6)]
     tets = np.concatenate([np.stack([c[0], c[p], c[q], c[7]], 1) for p, q in paths]).astype(np.int64)

@@ -25,8 +25,16 @@ from chainsim.engine.errors import UserError
 GRAPH_EXT = ".npz"
 
 
-def load_mesh(path, *, kind: str = "auto", pitch: float | None = None, cells: int | None = None,
-              reorder: str | None = None, scale_to_mm: float = 1.0, where: str | None = None):
+def load_mesh(
+    path,
+    *,
+    kind: str = "auto",
+    pitch: float | None = None,
+    cells: int | None = None,
+    reorder: str | None = None,
+    scale_to_mm: float = 1.0,
+    where: str | None = None,
+):
     """A MeshData from a mesh file.
 
     kind: "surface" (triangle links), "volume" (tetrahedra; a closed surface is filled with the built-in
@@ -74,7 +82,9 @@ def check_graph(positions, links, fixed=None, where: str = "mesh") -> tuple[np.n
     if pos.ndim == 1:
         pos = pos.reshape(-1, 1)
     if pos.ndim != 2 or pos.shape[0] == 0 or pos.shape[1] not in (1, 2, 3):
-        raise UserError(f"{where}: positions must be an (N, D) array with N >= 1 and D = 1, 2 or 3, got shape {pos.shape}")
+        raise UserError(
+            f"{where}: positions must be an (N, D) array with N >= 1 and D = 1, 2 or 3, got shape {pos.shape}"
+        )
     if not (np.issubdtype(pos.dtype, np.floating) or np.issubdtype(pos.dtype, np.integer)):
         raise UserError(f"{where}: positions must be numbers, got dtype {pos.dtype}")
     pos = np.ascontiguousarray(pos, dtype=np.float64)
@@ -92,7 +102,9 @@ def check_graph(positions, links, fixed=None, where: str = "mesh") -> tuple[np.n
     lk = np.ascontiguousarray(lk, dtype=np.int64)
     if len(lk):
         if lk.min() < 0 or lk.max() >= n:
-            raise UserError(f"{where}: links refer to elements outside 0..{n - 1} (found {int(lk.min())}..{int(lk.max())})")
+            raise UserError(
+                f"{where}: links refer to elements outside 0..{n - 1} (found {int(lk.min())}..{int(lk.max())})"
+            )
         selfl = np.flatnonzero(lk[:, 0] == lk[:, 1])
         if len(selfl):
             raise UserError(f"{where}: link {int(selfl[0])} joins element {int(lk[selfl[0], 0])} to itself")
@@ -100,7 +112,9 @@ def check_graph(positions, links, fixed=None, where: str = "mesh") -> tuple[np.n
         uniq, counts = np.unique(key, axis=0, return_counts=True)
         if np.any(counts > 1):
             dup = uniq[np.flatnonzero(counts > 1)[0]]
-            raise UserError(f"{where}: link {int(dup[0])}-{int(dup[1])} is listed more than once (each undirected pair once)")
+            raise UserError(
+                f"{where}: link {int(dup[0])}-{int(dup[1])} is listed more than once (each undirected pair once)"
+            )
     fx = np.zeros(0, dtype=np.int64) if fixed is None else np.asarray(fixed)
     if fx.size == 0:
         fx = np.zeros(0, dtype=np.int64)
@@ -120,7 +134,9 @@ def load_graph(path, *, kind: str = "auto", reorder: str | None = None) -> tuple
             with np.load(path, allow_pickle=False) as z:
                 missing = [k for k in ("positions", "links") if k not in z.files]
                 if missing:
-                    raise UserError(f"{path}: missing array(s) {', '.join(missing)}; expected positions (N, D) and links (M, 2)")
+                    raise UserError(
+                        f"{path}: missing array(s) {', '.join(missing)}; expected positions (N, D) and links (M, 2)"
+                    )
                 pos, links = z["positions"], z["links"]
                 fixed = z["fixed"] if "fixed" in z.files else None
         except UserError:

@@ -30,8 +30,9 @@ def tet_block(shape: tuple[int, int, int], spacing: float = 1.0, origin=(0.0, 0.
     return MeshData(pos, boundary_triangles(tets), tets)
 
 
-def tetrahedralize(mesh, pitch: float | None = None, cells: int = DEFAULT_CELLS, snap: bool = True,
-                   max_elements: int = 2_000_000):
+def tetrahedralize(
+    mesh, pitch: float | None = None, cells: int = DEFAULT_CELLS, snap: bool = True, max_elements: int = 2_000_000
+):
     """Fill a closed triangle surface (MeshData) with a structured tet grid; returns a MeshData.
 
     pitch: cube size in mesh units (default: longest side / `cells`). snap: move grid nodes that lie
@@ -41,8 +42,9 @@ def tetrahedralize(mesh, pitch: float | None = None, cells: int = DEFAULT_CELLS,
 
     from chainsim.engine.meshes import MeshData, boundary_triangles
 
-    tri = trimesh.Trimesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles, dtype=np.int64),
-                          process=True)
+    tri = trimesh.Trimesh(
+        np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles, dtype=np.int64), process=True
+    )
     if len(tri.faces) == 0:
         raise TetraError("the surface has no triangles")
     if not tri.is_watertight:
@@ -58,7 +60,9 @@ def tetrahedralize(mesh, pitch: float | None = None, cells: int = DEFAULT_CELLS,
     counts = np.maximum(np.ceil(size / pitch).astype(np.int64), 1)
     nodes = counts + 1
     if int(np.prod(nodes)) > max_elements:
-        raise TetraError(f"pitch {pitch:g} gives {int(np.prod(nodes))} grid nodes (limit {max_elements}); use a larger pitch")
+        raise TetraError(
+            f"pitch {pitch:g} gives {int(np.prod(nodes))} grid nodes (limit {max_elements}); use a larger pitch"
+        )
     origin = lo + (size - counts * pitch) / 2  # centre the grid on the shape
     ax = [origin[a] + (np.arange(counts[a]) + 0.5) * pitch for a in range(3)]
     cx, cy, cz = np.meshgrid(*ax, indexing="ij")

@@ -44,7 +44,7 @@ class Rect:
     def aspect(self) -> float:
         return self.w / self.h if self.h > 0 else 1.0
 
-    def scaled(self, sx: float, sy: float | None = None) -> "Rect":
+    def scaled(self, sx: float, sy: float | None = None) -> Rect:
         """The same rectangle in another pixel grid (framebuffer vs window size on HiDPI screens)."""
         sy = sx if sy is None else sy
         x0, y0 = round(self.x * sx), round(self.y * sy)
@@ -173,7 +173,7 @@ class OrbitCamera(Camera):
 
     def zoom(self, steps: float, factor: float = 0.9) -> None:
         """Scroll up (positive) moves the eye closer."""
-        self.distance = float(np.clip(self.distance * factor ** steps, max(self.near * 2, 1e-3), self.far * 0.9))
+        self.distance = float(np.clip(self.distance * factor**steps, max(self.near * 2, 1e-3), self.far * 0.9))
         self.update_eye()
 
     def pan(self, dx: float, dy: float, rect: Rect) -> None:
@@ -189,10 +189,15 @@ class OrbitCamera(Camera):
 
 
 def orbit_from_table(vp: dict) -> OrbitCamera:
-    return OrbitCamera(target=np.asarray(vp.get("target", (0, 0, 0)), float), fov=float(vp.get("fov", 40.0)),
-                       near=float(vp.get("near", 1.0)), far=float(vp.get("far", 5000.0)),
-                       distance=float(vp.get("distance", 400.0)), yaw=float(vp.get("yaw", 0.0)),
-                       pitch=float(vp.get("pitch", 0.0)))
+    return OrbitCamera(
+        target=np.asarray(vp.get("target", (0, 0, 0)), float),
+        fov=float(vp.get("fov", 40.0)),
+        near=float(vp.get("near", 1.0)),
+        far=float(vp.get("far", 5000.0)),
+        distance=float(vp.get("distance", 400.0)),
+        yaw=float(vp.get("yaw", 0.0)),
+        pitch=float(vp.get("pitch", 0.0)),
+    )
 
 
 def attached_camera(position, rotation, scale: float, offset, fov: float, near: float, far: float) -> Camera:

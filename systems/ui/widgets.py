@@ -39,7 +39,7 @@ class WidgetState:
     disabled: set[str] = field(default_factory=set)
 
     @classmethod
-    def from_layout(cls, widgets: list[dict]) -> "WidgetState":
+    def from_layout(cls, widgets: list[dict]) -> WidgetState:
         st = cls()
         for w in widgets:
             st.specs.setdefault(w["name"], w)
@@ -124,7 +124,11 @@ def _key_step(w: dict) -> float:
 def stepped(w: dict, current: Any, steps: int) -> float:
     """A slider/dial value moved by `steps` steps (`step`, or a twentieth of the range), clamped."""
     size = float(w.get("step") or 0.0) or (float(w.get("max", 1.0)) - float(w.get("min", 0.0))) / 20.0
-    base = float(current) if isinstance(current, (int, float)) and not isinstance(current, bool) else float(w.get("min", 0.0))
+    base = (
+        float(current)
+        if isinstance(current, (int, float)) and not isinstance(current, bool)
+        else float(w.get("min", 0.0))
+    )
     return _clamp(w, base + steps * size)
 
 
@@ -217,7 +221,9 @@ def click_value(p: Placed, x: float, current: Any) -> Any:
     if kind == "slider":
         return slider_value(p, x)
     if kind == "dial":  # left half turns down, right half turns up, one step per click
-        step = float(p.spec.get("step") or 0.0) or (float(p.spec.get("max", 1.0)) - float(p.spec.get("min", 0.0))) / 20.0
+        step = (
+            float(p.spec.get("step") or 0.0) or (float(p.spec.get("max", 1.0)) - float(p.spec.get("min", 0.0))) / 20.0
+        )
         sign = -1.0 if x < p.rect.x + p.rect.w / 2 else 1.0
         return _clamp(p.spec, float(current) + sign * step)
     return current

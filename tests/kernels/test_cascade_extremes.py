@@ -8,7 +8,14 @@ import pytest
 from cascade_reference import box, random_mesh, ref_cascade
 
 from chainsim.engine import meshgen
-from chainsim.engine.kernels.chainmail import ORDER_BALANCED, ORDER_FIFO, ORDER_SCHILL, cascade, make_workspace, material_arrays
+from chainsim.engine.kernels.chainmail import (
+    ORDER_BALANCED,
+    ORDER_FIFO,
+    ORDER_SCHILL,
+    cascade,
+    make_workspace,
+    material_arrays,
+)
 from chainsim.engine.kernels.graph import build_graph, components
 
 ORDERS = (ORDER_FIFO, ORDER_BALANCED, ORDER_SCHILL)
@@ -51,8 +58,15 @@ def test_rigid_material_translates_the_whole_connected_mesh(name, order):
     pos = rest.copy()
     grab = 3
     shift = np.linspace(0.7, -1.3, rest.shape[1])
-    moved, _ = cascade(rest, pos, graph, *material_arrays(len(links), 1, 1, 0), np.array([grab]),
-                       (rest[grab] + shift)[None], order=order)
+    moved, _ = cascade(
+        rest,
+        pos,
+        graph,
+        *material_arrays(len(links), 1, 1, 0),
+        np.array([grab]),
+        (rest[grab] + shift)[None],
+        order=order,
+    )
     same = label == label[grab]
     assert set(moved.tolist()) == set(np.flatnonzero(same).tolist())
     np.testing.assert_allclose(pos[same], rest[same] + shift, rtol=0, atol=1e-12)
@@ -100,8 +114,11 @@ def test_zero_length_links_and_duplicate_points():
     # a chain with every element doubled at the same place, linked to its twin by zero-length links
     base = np.arange(6, dtype=np.float64)
     rest = np.stack([np.repeat(base, 2), np.zeros(12)], axis=1)
-    links = [[2 * i, 2 * i + 1] for i in range(6)] + [[2 * i, 2 * i + 2] for i in range(5)] \
+    links = (
+        [[2 * i, 2 * i + 1] for i in range(6)]
+        + [[2 * i, 2 * i + 2] for i in range(5)]
         + [[2 * i + 1, 2 * i + 3] for i in range(5)]
+    )
     links = np.array(links)
     graph = build_graph(12, links)
     for mats in [(1.0, 1.0, 0.0), (0.0, 3.0, 0.5), (0.0, 1e12, 1e12)]:
@@ -135,8 +152,7 @@ def test_float32_rigid_and_extremes():
     graph = build_graph(len(rest), links)
     pos = rest.copy()
     shift = np.array([0.5, 0.25, -1.0], dtype=np.float32)
-    moved, _ = cascade(rest, pos, graph, *material_arrays(len(links), 1, 1, 0), np.array([4]),
-                       (rest[4] + shift)[None])
+    moved, _ = cascade(rest, pos, graph, *material_arrays(len(links), 1, 1, 0), np.array([4]), (rest[4] + shift)[None])
     assert pos.dtype == np.float32 and len(moved) == len(rest)
     np.testing.assert_allclose(pos, rest + shift, atol=1e-5)
     pos = rest.copy()
@@ -160,16 +176,27 @@ def test_hundred_thousand_small_drags_from_the_deformed_state():
     path = rest[60] + np.stack([1.5 * np.cos(angles) - 1.5, 1.5 * np.sin(angles), 0.8 * np.sin(3 * angles)], 1)
     orders = (ORDER_FIFO, ORDER_BALANCED, ORDER_SCHILL)
     for i in range(steps - 1):
-        cascade(rest, pos, graph, amin, amax, beta, grab, path[i][None], fixed=fixed,
-                order=orders[i % 3], workspace=ws, copy=False)
+        cascade(
+            rest,
+            pos,
+            graph,
+            amin,
+            amax,
+            beta,
+            grab,
+            path[i][None],
+            fixed=fixed,
+            order=orders[i % 3],
+            workspace=ws,
+            copy=False,
+        )
     assert np.all(np.isfinite(pos))
     np.testing.assert_array_equal(pos[fixed], rest[fixed])
     np.testing.assert_array_equal(pos[60], path[-2])
     # the last drag, from the accumulated deformation, still agrees with the reference exactly
     before = pos.copy()
     moved, sponsor = cascade(rest, pos, graph, amin, amax, beta, grab, path[-1][None], fixed=fixed, workspace=ws)
-    rp, rmoved, rsponsor = ref_cascade(rest, before, links, graph.alive, amin, amax, beta, grab, path[-1][None],
-                                       fixed)
+    rp, rmoved, rsponsor = ref_cascade(rest, before, links, graph.alive, amin, amax, beta, grab, path[-1][None], fixed)
     np.testing.assert_array_equal(moved, rmoved)
     np.testing.assert_array_equal(sponsor, rsponsor)
     np.testing.assert_array_equal(pos, rp)

@@ -10,8 +10,14 @@ from cascade_reference import MESH_KINDS, box, random_mesh, ref_cascade
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine.kernels.chainmail import (ORDER_BALANCED, ORDER_FIFO, ORDER_SCHILL, cascade, make_workspace,
-                                       material_arrays)
+from chainsim.engine.kernels.chainmail import (
+    ORDER_BALANCED,
+    ORDER_FIFO,
+    ORDER_SCHILL,
+    cascade,
+    make_workspace,
+    material_arrays,
+)
 from chainsim.engine.kernels.graph import build_graph
 
 SETTINGS = settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -32,8 +38,7 @@ def scenarios(draw):
         amax = rng.uniform(1.0, 3.0, m)
         beta = rng.uniform(0.0, 0.6, m)
     else:
-        amin, amax, beta = draw(st.sampled_from([(1.0, 1.0, 0.0), (0.8, 1.2, 0.1), (0.5, 2.5, 0.3),
-                                                 (0.0, 4.0, 1.0)]))
+        amin, amax, beta = draw(st.sampled_from([(1.0, 1.0, 0.0), (0.8, 1.2, 0.1), (0.5, 2.5, 0.3), (0.0, 4.0, 1.0)]))
     # start from the rest shape or from an earlier deformation
     pos = rest.copy() if draw(st.booleans()) else rest + rng.normal(scale=0.3, size=rest.shape)
     k = draw(st.integers(1, 3))
@@ -50,8 +55,9 @@ def run_kernel(rest, pos, links, alive, mats, grabbed, targets, fixed, order, de
     graph.alive[:] = alive
     amin, amax, beta = material_arrays(len(links), *mats)
     p = pos.copy()
-    moved, sponsor = cascade(rest, p, graph, amin, amax, beta, grabbed, targets, fixed=fixed, order=order,
-                             workspace=workspace, depth=depth)
+    moved, sponsor = cascade(
+        rest, p, graph, amin, amax, beta, grabbed, targets, fixed=fixed, order=order, workspace=workspace, depth=depth
+    )
     return p, moved, sponsor
 
 
@@ -61,8 +67,9 @@ def test_kernel_matches_reference(case, order, depth):
     rest, pos, links, alive, mats, grabbed, targets, fixed = case
     p, moved, sponsor = run_kernel(rest, pos, links, alive, mats, grabbed, targets, fixed, order, depth)
     amin, amax, beta = material_arrays(len(links), *mats)
-    rp, rmoved, rsponsor = ref_cascade(rest, pos, links, alive, amin, amax, beta, grabbed, targets, fixed,
-                                       order=order, depth=depth)
+    rp, rmoved, rsponsor = ref_cascade(
+        rest, pos, links, alive, amin, amax, beta, grabbed, targets, fixed, order=order, depth=depth
+    )
     np.testing.assert_array_equal(moved, rmoved)
     np.testing.assert_array_equal(sponsor, rsponsor)
     np.testing.assert_array_equal(p, rp)
@@ -77,8 +84,9 @@ def check_invariants(rest, before, after, links, alive, mats, grabbed, targets, 
     k = len(free_grabbed)
     np.testing.assert_array_equal(moved[:k], free_grabbed)
     assert np.all(sponsor[:k] == -1) and np.all(sponsor[k:] >= 0)
-    np.testing.assert_array_equal(after[moved[:k]], np.asarray(targets, after.dtype)[
-        [list(grabbed).index(g) for g in free_grabbed]])
+    np.testing.assert_array_equal(
+        after[moved[:k]], np.asarray(targets, after.dtype)[[list(grabbed).index(g) for g in free_grabbed]]
+    )
     if fixed is not None:
         assert not np.any(fixed[moved])
     untouched = np.ones(n, bool)
@@ -160,8 +168,7 @@ def test_fifo_spreads_breadth_first_on_a_chain():
     rest, links = np.arange(5, dtype=np.float64).reshape(5, 1), np.array([[i, i + 1] for i in range(4)])
     graph = build_graph(5, links)
     pos = rest.copy()
-    moved, sponsor = cascade(rest, pos, graph, *material_arrays(4, 0.5, 2.0, 0.0), np.array([2]),
-                             np.array([[10.0]]))
+    moved, sponsor = cascade(rest, pos, graph, *material_arrays(4, 0.5, 2.0, 0.0), np.array([2]), np.array([[10.0]]))
     # behind the move the chain stretches to twice its rest gaps, ahead of it it compresses to half
     assert moved.tolist() == [2, 1, 3, 0, 4]
     assert sponsor.tolist() == [-1, 2, 2, 1, 3]
@@ -172,17 +179,23 @@ def test_element_inside_its_region_does_not_move_or_propagate():
     rest = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
     graph = build_graph(3, np.array([[0, 1], [1, 2]]))
     pos = rest.copy()
-    moved, _ = cascade(rest, pos, graph, *material_arrays(2, 0.5, 2.0, 0.5), np.array([0]),
-                       np.array([[0.2, 0.3]]))
+    moved, _ = cascade(rest, pos, graph, *material_arrays(2, 0.5, 2.0, 0.5), np.array([0]), np.array([[0.2, 0.3]]))
     assert moved.tolist() == [0]
     np.testing.assert_array_equal(pos[1:], rest[1:])
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    (dict(alpha_min=1.5), "alpha_min"), (dict(alpha_min=-0.1), "alpha_min"), (dict(alpha_max=0.9), "alpha_max"),
-    (dict(beta=-1.0), "beta"), (dict(beta=float("nan")), "beta"), (dict(alpha_max=float("inf")), "alpha_max"),
-    (dict(alpha_min=np.ones(3)), "alpha_min"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(alpha_min=1.5), "alpha_min"),
+        (dict(alpha_min=-0.1), "alpha_min"),
+        (dict(alpha_max=0.9), "alpha_max"),
+        (dict(beta=-1.0), "beta"),
+        (dict(beta=float("nan")), "beta"),
+        (dict(alpha_max=float("inf")), "alpha_max"),
+        (dict(alpha_min=np.ones(3)), "alpha_min"),
+    ],
+)
 def test_material_validation(kwargs, match):
     args = dict(alpha_min=0.5, alpha_max=2.0, beta=0.1) | kwargs
     with pytest.raises(ValueError, match=match):

@@ -74,8 +74,9 @@ def test_a_cut_across_a_sheet_lets_one_half_move_without_the_other(dim, cut_x):
     p = pos.copy()
     grab = int(np.flatnonzero(right)[0])
     shift = np.full(dim, 2.0)
-    moved, _ = cascade(rest, p, graph, *material_arrays(len(links), 1, 1, 0), np.array([grab]),
-                       (rest[grab] + shift)[None])
+    moved, _ = cascade(
+        rest, p, graph, *material_arrays(len(links), 1, 1, 0), np.array([grab]), (rest[grab] + shift)[None]
+    )
     moved_mask = np.zeros(len(p), bool)
     moved_mask[moved] = True
     np.testing.assert_array_equal(moved_mask, label == label[grab])
@@ -108,8 +109,9 @@ def test_plane_strip_cut_of_a_volume_splits_it_and_respects_depth():
     np.testing.assert_array_equal(np.sort(killed), np.flatnonzero((a < 2.5) != (b < 2.5)))
     # a shallow one-sided blade only reaches the top layer of links
     graph = build_graph(len(pos), links)
-    killed = cut_plane_strip(pos, graph, [2.5, -1.0, 3.0], [2.5, 10.0, 3.0], [0.0, 0.0, -1.0], depth=0.6,
-                             two_sided=False)
+    killed = cut_plane_strip(
+        pos, graph, [2.5, -1.0, 3.0], [2.5, 10.0, 3.0], [0.0, 0.0, -1.0], depth=0.6, two_sided=False
+    )
     za, zb = pos[links[killed, 0], 2], pos[links[killed, 1], 2]
     assert len(killed) > 0 and np.all(np.maximum(za, zb) >= 3.0 - 1e-12) and np.all(np.minimum(za, zb) >= 2.0)
     assert len(np.unique(components(graph))) == 1

@@ -52,14 +52,21 @@ def test_rigid_grid_equals_generalised_chainmail(shape):
     pos_g = rest.copy()
     gibson_grid_move(pos_g, shape, grabbed, target, 1.0, 1.0, 0.0)
     pos_c = rest.copy()
-    cascade(rest, pos_c, build_graph(len(rest), links), *material_arrays(len(links), 1, 1, 0),
-            np.array([grabbed]), target[None])
+    cascade(
+        rest,
+        pos_c,
+        build_graph(len(rest), links),
+        *material_arrays(len(links), 1, 1, 0),
+        np.array([grabbed]),
+        target[None],
+    )
     np.testing.assert_array_equal(pos_g, pos_c)
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.sampled_from(SHAPES), st.integers(0, 2**32 - 1), st.floats(0.3, 1.0), st.floats(1.0, 2.5),
-       st.floats(0.0, 0.8))
+@given(
+    st.sampled_from(SHAPES), st.integers(0, 2**32 - 1), st.floats(0.3, 1.0), st.floats(1.0, 2.5), st.floats(0.0, 0.8)
+)
 def test_absolute_limits_hold_on_every_link(shape, seed, lo, hi, shear):
     rng = np.random.default_rng(seed)
     rest, links = meshgen.grid(shape, spacing=1.0)
@@ -75,8 +82,9 @@ def test_absolute_limits_hold_on_every_link(shape, seed, lo, hi, shear):
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.sampled_from(SHAPES), st.integers(0, 2**32 - 1), st.floats(0.3, 1.0), st.floats(1.0, 2.5),
-       st.floats(0.0, 0.8))
+@given(
+    st.sampled_from(SHAPES), st.integers(0, 2**32 - 1), st.floats(0.3, 1.0), st.floats(1.0, 2.5), st.floats(0.0, 0.8)
+)
 def test_relative_limits_hold_on_a_non_uniform_grid(shape, seed, lo, hi, shear):
     rng = np.random.default_rng(seed)
     spacing = [np.cumsum(rng.uniform(0.2, 3.0, n)) for n in shape]
@@ -107,8 +115,7 @@ def test_soft_material_moves_only_part_of_the_grid_and_fixed_stay():
     pos = rest.copy()
     fixed = np.zeros(len(rest), bool)
     fixed[:9] = True  # bottom row anchored
-    n, moved = gibson_grid_move(pos, shape, 40, rest[40] + [0.3, 0.2], 0.7, 1.3, 0.2, fixed=fixed,
-                                return_moved=True)
+    n, moved = gibson_grid_move(pos, shape, 40, rest[40] + [0.3, 0.2], 0.7, 1.3, 0.2, fixed=fixed, return_moved=True)
     assert 1 < n < len(rest)
     untouched = np.setdiff1d(np.arange(len(rest)), moved)
     np.testing.assert_array_equal(pos[untouched], rest[untouched])

@@ -50,9 +50,13 @@ def test_normal_cascade_matches_reference_and_keeps_the_band(seed, shear, target
     # every follower sits on the edge of the band of an element that moved before it
     rank = {e: i for i, e in enumerate(moved.tolist())}
     for e in moved[1:].tolist():
-        edges = [abs(abs(disp[e] - disp[f]) - shear * rest_len[lid])
-                 for lid, (u, v) in enumerate(links.tolist()) if e in (u, v)
-                 for f in [v if u == e else u] if f in rank and rank[f] < rank[e]]
+        edges = [
+            abs(abs(disp[e] - disp[f]) - shear * rest_len[lid])
+            for lid, (u, v) in enumerate(links.tolist())
+            if e in (u, v)
+            for f in [v if u == e else u]
+            if f in rank and rank[f] < rank[e]
+        ]
         assert min(edges) <= 1e-12 * (1 + abs(target))
 
 
@@ -83,8 +87,7 @@ def test_surface_move_on_a_cylinder():
     before = surface_points(mapping, uv, disp)
     np.testing.assert_allclose(np.linalg.norm(before[:, :2], axis=1), radius)
     grab = 5 + 12 * 3
-    moved_uv, moved_n = surface_move(uv, uv_rest, disp, shape, grab, uv_rest[grab] + [0.3, 0.2], 0.5,
-                                     0.8, 1.2, 0.1)
+    moved_uv, moved_n = surface_move(uv, uv_rest, disp, shape, grab, uv_rest[grab] + [0.3, 0.2], 0.5, 0.8, 1.2, 0.1)
     after = surface_points(mapping, uv, disp)
     assert np.all(np.isfinite(after))
     np.testing.assert_array_equal(uv[grab], uv_rest[grab] + [0.3, 0.2])

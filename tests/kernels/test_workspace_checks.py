@@ -21,8 +21,17 @@ def test_new_arrays_are_checked_even_after_a_good_call_with_the_same_workspace()
         cascade(rest, pos, g, amin[:-1].copy(), amax, beta, np.array([12]), np.array([[2.6, 2.5]]), workspace=ws)
     other_pos, other_links = meshgen.grid((5, 4))
     with pytest.raises(ValueError, match="graph has"):
-        cascade(rest, pos, build_graph(len(other_pos), other_links), amin, amax, beta, np.array([12]),
-                np.array([[2.6, 2.5]]), workspace=ws)
+        cascade(
+            rest,
+            pos,
+            build_graph(len(other_pos), other_links),
+            amin,
+            amax,
+            beta,
+            np.array([12]),
+            np.array([[2.6, 2.5]]),
+            workspace=ws,
+        )
     with pytest.raises(ValueError, match="rest must match pos"):
         cascade(rest.astype(np.float32), pos, g, amin, amax, beta, np.array([12]), np.array([[2.6, 2.5]]), workspace=ws)
     # the remembered mesh still works after the refusals

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from chainsim.components.deformable import Deformable
-from chainsim.game.packs import pack as packs
+from chainsim.components.resources import PendingInput, Settings
 from chainsim.game.app.digest import world_digest
 from chainsim.game.app.headless import Assessment, build_app
 from chainsim.game.app.inputscript import load_script
 from chainsim.game.app.loader import EntityIndex
-from chainsim.components.resources import PendingInput, Settings
+from chainsim.game.packs import pack as packs
 
 PACK = Path(__file__).resolve().parents[2] / "assets" / "cutting"
 SCRIPTS = PACK / "scripts"
@@ -132,8 +132,9 @@ def test_pull_leaves_the_fixed_edge_and_the_lower_layer_alone(pulled):
 def test_the_straight_lift_stretches_no_link_beyond_alpha_max(pulled):
     d = layer(pulled, "dura")
     links = d.graph.links[d.alive]
-    ratio = (np.linalg.norm(d.pos[links[:, 1]] - d.pos[links[:, 0]], axis=1)
-             / np.linalg.norm(d.rest[links[:, 1]] - d.rest[links[:, 0]], axis=1))
+    ratio = np.linalg.norm(d.pos[links[:, 1]] - d.pos[links[:, 0]], axis=1) / np.linalg.norm(
+        d.rest[links[:, 1]] - d.rest[links[:, 0]], axis=1
+    )
     assert ratio.max() > 1.05  # the pull did stretch the tissue
     assert ratio.max() <= d.amax.max() + 1e-9
     assert pulled.resource(Assessment).values["max_stretch_ratio"] == pytest.approx(ratio.max())

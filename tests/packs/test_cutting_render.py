@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from chainsim.game.app.headless import build_app
 from chainsim.components.input_events import Widget
-from chainsim.game.app.inputscript import load_script
 from chainsim.components.resources import PendingInput
+from chainsim.game.app.headless import build_app
+from chainsim.game.app.inputscript import load_script
 
 SCRIPT = Path(__file__).resolve().parents[2] / "assets" / "cutting" / "scripts" / "cut-and-open.toml"
 
@@ -30,7 +30,9 @@ def cut_frame():
     app = build_app("cutting", render=True)
     try:
         # the cut only (the script takes up the forceps at 1.0 s), blade lifted so the red path is hidden
-        app.resource(PendingInput).extend([te for te in load_script(SCRIPT) if te[0] < 0.95] + [(0.9, Widget("release"))])
+        app.resource(PendingInput).extend(
+            [te for te in load_script(SCRIPT) if te[0] < 0.95] + [(0.9, Widget("release"))]
+        )
         for _ in range(114):
             app.update(app.time.dt)
         draw(app)
@@ -50,6 +52,7 @@ def colour_at(rgba, camera, rect, point) -> np.ndarray:
 def test_the_cut_shows_the_layer_beneath(cut_frame):
     rgba, cam, rect = cut_frame
     assert cam.pitch == 75.0  # the scissors' view
+
     # the top layer is tan (more red than blue), the layer beneath pale lilac (more blue than red); under
     # the same light a few millimetres either side, the gap is markedly bluer than the tissue around it
     def blueness(c):

@@ -147,8 +147,12 @@ def test_landmarks_follow_the_thesis_definitions(anatomy):
 def test_reference_planes_pass_through_their_landmarks(anatomy):
     P = {k: np.array(v["position"]) for k, v in anatomy["points"].items()}
     for side in SIDES:
-        for plane, point in (("axial_commissure", "oral_commissure"), ("sagittal_pupil", "pupil_medial"),
-                             ("coronal_landmark3", "landmark3_ideal"), ("axial_tragus", "tragus")):
+        for plane, point in (
+            ("axial_commissure", "oral_commissure"),
+            ("sagittal_pupil", "pupil_medial"),
+            ("coronal_landmark3", "landmark3_ideal"),
+            ("axial_tragus", "tragus"),
+        ):
             pl = anatomy["planes"][f"{plane}_{side}"]
             d = (P[f"{point}_{side}"] - np.array(pl["point"])) @ np.array(pl["normal"])
             assert abs(d) < 1e-6

@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
-from chainsim.game.app.headless import run_pack
 from chainsim.components.input_events import MouseButton, MouseDrag, MouseMove
+from chainsim.game.app.headless import run_pack
 from chainsim.game.app.inputscript import load_script
 from chainsim.game.packbuild.make_prp_mouse_script import SCRIPTS, build
 

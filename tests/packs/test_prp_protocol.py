@@ -21,7 +21,9 @@ def _write(tmp_path, text: str) -> Path:
 def test_protocol_runs_trials_saves_attempts_and_prints_table(cli, tmp_path):
     from chainsim.game.records.store import RecordStore
 
-    proto = _write(tmp_path, f"""
+    proto = _write(
+        tmp_path,
+        f"""
 format = 1
 pack = "{PACK.as_posix()}"
 [[trial]]
@@ -36,7 +38,8 @@ name = "ins"
 task = "insertion"
 condition = "without_clues"
 script = "scripts/skull-hit.toml"
-""")
+""",
+    )
     db = tmp_path / "study.sqlite3"
     code, out, err = cli("protocol", proto, "--db", db, "--class", "s1", "--trainee", "bot", "--out", tmp_path / "o")
     assert code == 0, err
@@ -59,15 +62,33 @@ script = "scripts/skull-hit.toml"
     assert rows[0]["details"]["protocol"]["condition"] == "reference_planes"
 
 
-@pytest.mark.parametrize("body,needle", [
-    ('format = 1\npack = "prp"\ncolour = 1\n[[trial]]\ntask = "location"\ncondition = "x"\nscript = "a.toml"\n', "unknown key 'colour'"),
-    ('format = 1\npack = "prp"\n[[trial]]\ntask = "suturing"\ncondition = "x"\nscript = "a.toml"\n', "'task' must be one of"),
-    ('format = 1\npack = "prp"\n[[trial]]\ntask = "location"\ncondition = "x"\nscript = "a.toml"\n[trial.aids]\nxray = true\n', "unknown aid 'xray'"),
-    ('format = 1\npack = "prp"\n[[trial]]\ntask = "location"\ncondition = "x"\nscript = "a.toml"\nrepeat = 0\n', "'repeat' must be"),
-    ('format = 2\npack = "prp"\n', "'format' must be 1"),
-    ('format = 1\npack = "prp"\n', "at least one [[trial]]"),
-    ('format = 1\npack = "prp"\n[[trial]]\ntask = "location"\ncondition = "x"\nscirpt = "a.toml"\n', "unknown key 'scirpt'"),
-])
+@pytest.mark.parametrize(
+    "body,needle",
+    [
+        (
+            'format = 1\npack = "prp"\ncolour = 1\n[[trial]]\ntask = "location"\ncondition = "x"\nscript = "a.toml"\n',
+            "unknown key 'colour'",
+        ),
+        (
+            'format = 1\npack = "prp"\n[[trial]]\ntask = "suturing"\ncondition = "x"\nscript = "a.toml"\n',
+            "'task' must be one of",
+        ),
+        (
+            'format = 1\npack = "prp"\n[[trial]]\ntask = "location"\ncondition = "x"\nscript = "a.toml"\n[trial.aids]\nxray = true\n',
+            "unknown aid 'xray'",
+        ),
+        (
+            'format = 1\npack = "prp"\n[[trial]]\ntask = "location"\ncondition = "x"\nscript = "a.toml"\nrepeat = 0\n',
+            "'repeat' must be",
+        ),
+        ('format = 2\npack = "prp"\n', "'format' must be 1"),
+        ('format = 1\npack = "prp"\n', "at least one [[trial]]"),
+        (
+            'format = 1\npack = "prp"\n[[trial]]\ntask = "location"\ncondition = "x"\nscirpt = "a.toml"\n',
+            "unknown key 'scirpt'",
+        ),
+    ],
+)
 def test_bad_protocol_is_one_line_exit_2(cli, tmp_path, body, needle):
     db = tmp_path / "never.sqlite3"
     code, out, err = cli("protocol", _write(tmp_path, body), "--db", db)
@@ -83,8 +104,11 @@ def test_missing_protocol_file_is_one_line(cli, tmp_path):
 
 
 def test_missing_script_is_refused_before_anything_is_saved(cli, tmp_path):
-    proto = _write(tmp_path, f'format = 1\npack = "{PACK.as_posix()}"\n[[trial]]\ntask = "location"\n'
-                             'condition = "x"\nscripts = ["scripts/correct.toml", "scripts/nope.toml"]\n')
+    proto = _write(
+        tmp_path,
+        f'format = 1\npack = "{PACK.as_posix()}"\n[[trial]]\ntask = "location"\n'
+        'condition = "x"\nscripts = ["scripts/correct.toml", "scripts/nope.toml"]\n',
+    )
     db = tmp_path / "never.sqlite3"
     code, _, err = cli("protocol", proto, "--db", db)
     assert code == 2 and "nope.toml" in err

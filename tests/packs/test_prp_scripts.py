@@ -13,15 +13,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from chainsim.game.packs import pack as packs
+from chainsim.components.input_events import Widget
 from chainsim.game.app.headless import run_pack
 from chainsim.game.app.inputscript import load_script
-from chainsim.components.input_events import Widget
+from chainsim.game.packs import pack as packs
 
 ROOT = Path(__file__).resolve().parents[2]
 PACK = Path(os.environ.get("CHAINSIM_PRP_TEST_PACK", ROOT / "assets" / "prp"))
 SCRIPTS = PACK / "scripts"
-
 
 
 @pytest.fixture(scope="module")
@@ -85,8 +84,9 @@ def test_rotation_events_after_insertion_are_refused(correct):
 
 
 def test_one_huge_insertion_step_never_passes_the_skull():
-    events = [(t, e) for t, e in load_script(SCRIPTS / "skull-hit.toml")
-              if not (isinstance(e, Widget) and e.name == "insert")]
+    events = [
+        (t, e) for t, e in load_script(SCRIPTS / "skull-hit.toml") if not (isinstance(e, Widget) and e.name == "insert")
+    ]
     events.append((3.0, Widget("insert", 400.0)))  # far past the far side of the head, in one step
     events.sort(key=lambda te: te[0])
     s = run_pack(str(PACK), 480, events=events)

@@ -21,21 +21,31 @@ EXPECTED = {
     "missing-mesh-file": [(6, "meshes.skull.path", "'meshes/skull.ply' not found")],
     "unreadable-mesh": [(6, "meshes.skull.path", "not a readable mesh")],
     "non-finite": [(7, "meshes.ball.radius", "must be finite"), (9, "entities.ball.transform.scale", "must be finite")],
-    "path-escape": [(6, "meshes.secret.path", "escapes the pack folder"), (9, "docs.notes.path", "escapes the pack folder")],
+    "path-escape": [
+        (6, "meshes.secret.path", "escapes the pack folder"),
+        (9, "docs.notes.path", "escapes the pack folder"),
+    ],
     "mesh-too-big": [(6, "meshes.big.path", "over the")],
     "unknown-component": [(7, "entities.ball.transfrom", "did you mean 'transform'")],
-    "bad-reference": [(6, "entities.ball.mesh.mesh", "no mesh named 'ghost'"),
-                      (7, "entities.ball.mesh.material", "no material named 'chrome'"),
-                      (9, "scenes.main.entities", "no entity named 'nobody'"),
-                      (10, "scenes.main.layout", "no layout named 'nowhere'")],
+    "bad-reference": [
+        (6, "entities.ball.mesh.mesh", "no mesh named 'ghost'"),
+        (7, "entities.ball.mesh.material", "no material named 'chrome'"),
+        (9, "scenes.main.entities", "no entity named 'nobody'"),
+        (10, "scenes.main.layout", "no layout named 'nowhere'"),
+    ],
     "unsupported-format": [(3, "pack.format", "format 2 is not supported")],
-    "bad-enum": [(6, "meshes.ball.primitive", "expected one of box"), (7, "meshes.ball.units", "expected one of mm, cm, m")],
-    "bad-layout": [(9, "layouts.main.viewports.0.rect", "must be <= 1"),
-                   (7, "layouts.main.viewports.0.name", "duplicate viewport name"),
-                   (10, "layouts.main.viewports.0.attach", "no entity named 'needle'"),
-                   (7, "layouts.main.viewports.1.name", "duplicate viewport name"),
-                   (16, "layouts.main.viewports.1.far", "greater than 'near'"),
-                   (17, "layouts.main.widgets", "need a viewport of kind 'panel'")],
+    "bad-enum": [
+        (6, "meshes.ball.primitive", "expected one of box"),
+        (7, "meshes.ball.units", "expected one of mm, cm, m"),
+    ],
+    "bad-layout": [
+        (9, "layouts.main.viewports.0.rect", "must be <= 1"),
+        (7, "layouts.main.viewports.0.name", "duplicate viewport name"),
+        (10, "layouts.main.viewports.0.attach", "no entity named 'needle'"),
+        (7, "layouts.main.viewports.1.name", "duplicate viewport name"),
+        (16, "layouts.main.viewports.1.far", "greater than 'near'"),
+        (17, "layouts.main.widgets", "need a viewport of kind 'panel'"),
+    ],
     "unknown-section": [(5, "meshs", "did you mean 'meshes'")],
     "missing-pack": [(None, "", "missing the [pack] table")],
     "bad-include": [(4, "pack.includes", "escapes the pack folder"), (2, "points.chin.position", "array of 3 numbers")],
@@ -63,7 +73,9 @@ def test_broken_pack_reports_each_problem_precisely(name, monkeypatch):
 
 @pytest.mark.parametrize("name", ["wrong-type", "bad-reference", "toml-syntax", "unreadable-mesh"])
 def test_cli_prints_lines_and_exits_2_without_traceback(name):
-    r = subprocess.run([sys.executable, "-m", "game", "validate", str(BROKEN / name)], capture_output=True, text=True, cwd=ROOT)
+    r = subprocess.run(
+        [sys.executable, "-m", "game", "validate", str(BROKEN / name)], capture_output=True, text=True, cwd=ROOT
+    )
     assert r.returncode == 2
     assert "Traceback" not in r.stderr
     lines = r.stderr.strip().splitlines()
@@ -89,8 +101,9 @@ def test_unknown_pack_name_is_one_line(cli):
 def test_user_pack_found_through_pack_path_and_env(tmp_path, cli, monkeypatch):
     user = tmp_path / "mine"
     user.mkdir()
-    (user / "pack.toml").write_text('[pack]\nname = "mine"\nformat = 1\n[meshes.b]\nprimitive = "box"\n'
-                                    '[entities.b.mesh]\nmesh = "b"\n')
+    (user / "pack.toml").write_text(
+        '[pack]\nname = "mine"\nformat = 1\n[meshes.b]\nprimitive = "box"\n[entities.b.mesh]\nmesh = "b"\n'
+    )
     code, out, _ = cli("packs", "--pack-path", tmp_path)
     assert code == 0 and "mine" in out and "pack-path" in out
     monkeypatch.setenv("CHAINSIM_PACK_PATH", str(tmp_path))

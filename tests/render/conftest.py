@@ -62,8 +62,8 @@ def frame_pixels(app, strip_overlay: bool = True):
     """Draw the world (optionally without panel/HUD/titles) and return (frame, RGBA image bottom-up)."""
     import numpy as np
 
-    from chainsim.game.gl.renderer import Renderer
     from chainsim.game.gl.render_system import RenderTarget, collect_frame, sync_deformables
+    from chainsim.game.gl.renderer import Renderer
 
     target = app.resource(RenderTarget)
     with app.active():
@@ -77,4 +77,3 @@ def frame_pixels(app, strip_overlay: bool = True):
     w, h = target.fbo.size
     img = np.frombuffer(target.fbo.read(components=4, alignment=1), np.uint8).reshape(h, w, 4)
     return frame, img
-

@@ -9,8 +9,30 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_bench_render_writes_table_json_and_plot(tmp_path):
-    r = subprocess.run([sys.executable, "-m", "game", "bench", "render", "--out", str(tmp_path), "--triangles", "200", "3000",
-                        "--frames", "2", "--warmup", "0", "--size", "96x64"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "game",
+            "bench",
+            "render",
+            "--out",
+            str(tmp_path),
+            "--triangles",
+            "200",
+            "3000",
+            "--frames",
+            "2",
+            "--warmup",
+            "0",
+            "--size",
+            "96x64",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stderr
     data = json.loads((tmp_path / "results.json").read_text())
     assert [(row["mode"]) for row in data["rows"]] == ["static", "full", "patch"] * 2
@@ -28,7 +50,12 @@ def test_bench_render_writes_table_json_and_plot(tmp_path):
 
 
 def test_bench_render_refuses_bad_arguments(tmp_path):
-    r = subprocess.run([sys.executable, "-m", "game", "bench", "render", "--out", str(tmp_path), "--patch", "2"],
-                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [sys.executable, "-m", "game", "bench", "render", "--out", str(tmp_path), "--patch", "2"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 2
     assert "--patch" in r.stderr and "Traceback" not in r.stderr

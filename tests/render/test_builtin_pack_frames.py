@@ -33,7 +33,7 @@ def test_scene_renders_a_frame(ref):
         assert views
         for v in views:
             r = v.rect
-            region = img[r.y:r.y + r.h, r.x:r.x + r.w].reshape(-1, 3)
+            region = img[r.y : r.y + r.h, r.x : r.x + r.w].reshape(-1, 3)
             drawn = np.any(region != background, axis=1).mean()
             assert drawn > 0.01, f"viewport {v.name} shows only its background"
     finally:

@@ -1,7 +1,8 @@
 """Normal kernels (game/gl/normals.py) against a plain numpy reference on random meshes."""
 
 import numpy as np
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from chainsim.engine.kernels.normals import moved_normals_kernel, vertex_normals_kernel
 

@@ -5,9 +5,9 @@ import pytest
 from conftest import frame_pixels, open_app
 
 from chainsim.components.input_events import MouseButton
-from chainsim.systems.picking import pick
 from chainsim.components.resources import PendingInput
 from chainsim.components.view_events import Picked
+from chainsim.systems.picking import pick
 
 THREE_VIEWS = """
 [layouts.three]
@@ -32,8 +32,8 @@ layout = "three"
 def test_viewport_rectangles_are_where_the_layout_says(make_pack):
     app = open_app(make_pack(THREE_VIEWS), size=(333, 211))
     try:
-        from chainsim.game.gl.renderer import Renderer
         from chainsim.game.gl.render_system import RenderTarget, collect_frame
+        from chainsim.game.gl.renderer import Renderer
 
         colours = {"left": (1.0, 0.0, 0.0, 1.0), "top": (0.0, 1.0, 0.0, 1.0), "panel": (0.0, 0.0, 1.0, 1.0)}
         with app.active():
@@ -233,8 +233,8 @@ def test_xray_toggle_makes_a_layer_see_through(make_pack):
 
 
 def test_cpu_pick_returns_the_triangle_the_renderer_shows(gl_ctx):
-    from chainsim.game.gl.renderer import Renderer
     from chainsim.game.gl.render_system import RenderTarget
+    from chainsim.game.gl.renderer import Renderer
     from chainsim.systems.view import ViewState
 
     app = open_app("loop-demo", size=(480, 300))
@@ -268,8 +268,12 @@ def test_cpu_pick_returns_the_triangle_the_renderer_shows(gl_ctx):
         # and through the whole input path: a click on a shown triangle emits Picked with it
         y, x = ys[k[0]], xs[k[0]]
         app.events.log = []
-        app.resource(PendingInput).extend([(0.0, MouseButton(float(x), float(y), "left", True)),
-                                           (0.0, MouseButton(float(x), float(y), "left", False))])
+        app.resource(PendingInput).extend(
+            [
+                (0.0, MouseButton(float(x), float(y), "left", True)),
+                (0.0, MouseButton(float(x), float(y), "left", False)),
+            ]
+        )
         app.update(0.0)
         picks = [e for e in app.events.log if isinstance(e, Picked)]
         assert [(p.entity, p.triangle) for p in picks] == [(int(ent[y, x]), int(tri[y, x]))]
@@ -384,10 +388,11 @@ def test_wireframe_material_draws_links_not_faces(make_pack):
 
 
 def test_partial_uploads_match_a_full_recompute_on_random_patches(gl_ctx):
-    from hypothesis import given, settings, strategies as st
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
 
-    from chainsim.game.gl.meshbuf import GpuMesh, runs, vertex_normals
     from chainsim.engine.meshgen import triangulated_grid
+    from chainsim.game.gl.meshbuf import GpuMesh, runs, vertex_normals
 
     pos0, tris, _ = triangulated_grid(15, 12, 2.0, dim=3)
     pos0 = np.asarray(pos0, float)
@@ -536,8 +541,8 @@ value = true
 
 
 def test_indicator_lights_show_the_hud_state(make_pack):
-    from chainsim.game.gl.renderer import LIGHT_RGBA
     from chainsim.components.hud import HudState
+    from chainsim.game.gl.renderer import LIGHT_RGBA
     from chainsim.systems.view import ViewState
 
     app = open_app(make_pack(PANEL), size=(400, 300))

@@ -40,9 +40,31 @@ def test_window_plays_a_script_and_saves_what_it_shows(tmp_path):
     script = tmp_path / "s.toml"
     script.write_text(SCRIPT, encoding="utf-8")
     shot, rec = tmp_path / "w.png", tmp_path / "rec.json"
-    r = subprocess.run(["xvfb-run", "-a", "-s", "-screen 0 1400x900x24", sys.executable, "-m", "game", "play", "loop-demo",
-                        "--input", str(script), "--exit-after", "0.8", "--screenshot", str(shot), "--record", str(rec)],
-                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [
+            "xvfb-run",
+            "-a",
+            "-s",
+            "-screen 0 1400x900x24",
+            sys.executable,
+            "-m",
+            "game",
+            "play",
+            "loop-demo",
+            "--input",
+            str(script),
+            "--exit-after",
+            "0.8",
+            "--screenshot",
+            str(shot),
+            "--record",
+            str(rec),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stderr
     img = np.asarray(Image.open(shot).convert("RGB")).astype(int)
     assert img.shape == (800, 1280, 3)
@@ -52,6 +74,8 @@ def test_window_plays_a_script_and_saves_what_it_shows(tmp_path):
     assert np.abs(box - np.round(np.array(ACCENT[:3]) * 255)).max() > 40
     # F1 opened the help box in the middle of the window (dark fill over the scene)
     assert np.median(img[390:410, 600:680].max(axis=2)) < 40
-    r2 = subprocess.run([sys.executable, "-m", "game", "replay", str(rec)], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    r2 = subprocess.run(
+        [sys.executable, "-m", "game", "replay", str(rec)], cwd=ROOT, capture_output=True, text=True, timeout=300
+    )
     assert r2.returncode == 0, r2.stdout + r2.stderr
     assert "matches" in r2.stdout

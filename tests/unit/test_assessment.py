@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from chainsim.components.procedure import Plane, SideAnatomy, landmark_errors
-from chainsim.components.input_events import PickPoint, Widget
 from test_needle import L1, Run, make_synthetic_pack, on_skin
+
+from chainsim.components.input_events import PickPoint, Widget
+from chainsim.components.procedure import Plane, SideAnatomy, landmark_errors
 
 coord = st.floats(-100.0, 100.0, allow_nan=False)
 point = st.tuples(coord, coord, coord)
@@ -25,8 +25,15 @@ def _anat(mouth, pupil, tragus, normals):
 
 
 @settings(max_examples=50, deadline=None)
-@given(point, point, point, point, point, point, st.tuples(point, point, point).filter(
-    lambda ns: all(np.linalg.norm(n) > 1e-3 for n in ns)))
+@given(
+    point,
+    point,
+    point,
+    point,
+    point,
+    point,
+    st.tuples(point, point, point).filter(lambda ns: all(np.linalg.norm(n) > 1e-3 for n in ns)),
+)
 def test_landmark_error_is_the_6_1_5_formula(m, p, t, a, b, c, normals):
     anat = _anat(m, p, t, normals)
     lms = np.array([a, b, c], float)
@@ -69,8 +76,8 @@ def _full_attempt(r: Run):
 
 
 def test_self_assessment_fills_the_panel_and_summary_values(pack_dir):
-    from chainsim.game.app.headless import Assessment
     from chainsim.components.hud import HudState
+    from chainsim.game.app.headless import Assessment
 
     r = Run(pack_dir)
     try:
@@ -81,8 +88,19 @@ def test_self_assessment_fills_the_panel_and_summary_values(pack_dir):
         assert f"{a['landmark_error_mm']:.1f} mm" in text
         assert f"{a['needle_error_mm']:.1f} mm" in text
         assert a["target"] == "foramen_ovale_left" and a["skull_contacts"] == 0
-        for key in ("D1", "D2", "D3", "d1", "d2", "d3", "landmarks", "rotation_refused", "step_times", "aids",
-                    "path_length_mm"):
+        for key in (
+            "D1",
+            "D2",
+            "D3",
+            "d1",
+            "d2",
+            "d3",
+            "landmarks",
+            "rotation_refused",
+            "step_times",
+            "aids",
+            "path_length_mm",
+        ):
             assert key in a
         assert a["path_length_mm"] == pytest.approx(r.needle.depth)
         assert sum(a["step_times"].values()) == pytest.approx(a["duration_s"])

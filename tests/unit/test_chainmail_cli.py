@@ -28,8 +28,23 @@ def save_graph(path: Path, pos, links, fixed=None) -> Path:
 
 
 def run_cli(mesh: Path, out: Path, grab: int, to, amin, amax, beta, *extra) -> int:
-    argv = ["chainmail", str(mesh), "--grab", str(grab), "--to", *map(str, to), "--alpha-min", str(amin),
-            "--alpha-max", str(amax), "--beta", str(beta), "--out", str(out), *extra]
+    argv = [
+        "chainmail",
+        str(mesh),
+        "--grab",
+        str(grab),
+        "--to",
+        *map(str, to),
+        "--alpha-min",
+        str(amin),
+        "--alpha-max",
+        str(amax),
+        "--beta",
+        str(beta),
+        "--out",
+        str(out),
+        *extra,
+    ]
     return main(argv)
 
 
@@ -157,8 +172,14 @@ def test_mesh_files_are_read_through_the_importer(tmp_path):
 
 
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(seed=st.integers(0, 10_000), dim=st.integers(1, 3), amin=st.floats(0.0, 1.0), amax=st.floats(1.0, 3.0),
-       beta=st.floats(0.0, 0.5), order=st.sampled_from(["fifo", "balanced", "schill"]))
+@given(
+    seed=st.integers(0, 10_000),
+    dim=st.integers(1, 3),
+    amin=st.floats(0.0, 1.0),
+    amax=st.floats(1.0, 3.0),
+    beta=st.floats(0.0, 0.5),
+    order=st.sampled_from(["fifo", "balanced", "schill"]),
+)
 def test_random_graphs_and_materials(tmp_path, seed, dim, amin, amax, beta, order):
     rng = np.random.default_rng(seed)
     n = int(rng.integers(2, 60))
@@ -234,26 +255,48 @@ def test_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys):
 
 def _subprocess(*args, cwd=ROOT):
     env = dict(os.environ)
-    return subprocess.run([sys.executable, "-m", "chainsim.game", "chainmail", *map(str, args)], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "chainsim.game", "chainmail", *map(str, args)],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 def test_command_line_success_and_failure(tmp_path):
     pos, links = meshgen.grid((7, 7))
     mesh = save_graph(tmp_path / "g.npz", pos, links)
     out = tmp_path / "out.npz"
-    ok = _subprocess(mesh, "--grab", 24, "--to", 3, 5, "--alpha-min", 0.8, "--alpha-max", 1.2, "--beta", 0.1,
-                     "--out", out)
+    ok = _subprocess(
+        mesh, "--grab", 24, "--to", 3, 5, "--alpha-min", 0.8, "--alpha-max", 1.2, "--beta", 0.1, "--out", out
+    )
     assert ok.returncode == 0, ok.stderr
     check_result(out, pos, links, 24, [3.0, 5.0], 0.8, 1.2, 0.1)
     before = out.read_bytes()
-    bad = _subprocess(mesh, "--grab", 24, "--to", 3, 5, "--alpha-min", 0.8, "--alpha-max", 0.5, "--beta", 0.1,
-                      "--out", out)
+    bad = _subprocess(
+        mesh, "--grab", 24, "--to", 3, 5, "--alpha-min", 0.8, "--alpha-max", 0.5, "--beta", 0.1, "--out", out
+    )
     assert bad.returncode == 2
     assert bad.stderr.strip().count("\n") == 0 and "--alpha-max" in bad.stderr
     assert "Traceback" not in bad.stderr
     assert out.read_bytes() == before, "a refused run leaves an earlier result alone"
-    typo = _subprocess(mesh, "--grab", "x", "--to", 3, 5, "--alpha-min", 0.8, "--alpha-max", 1.2, "--beta", 0.1,
-                       "--out", tmp_path / "never.npz")
+    typo = _subprocess(
+        mesh,
+        "--grab",
+        "x",
+        "--to",
+        3,
+        5,
+        "--alpha-min",
+        0.8,
+        "--alpha-max",
+        1.2,
+        "--beta",
+        0.1,
+        "--out",
+        tmp_path / "never.npz",
+    )
     assert typo.returncode == 2 and "--grab" in typo.stderr and typo.stderr.strip().count("\n") == 0
     assert not (tmp_path / "never.npz").exists()

@@ -13,8 +13,29 @@ from chainsim.game.cli.main import main
 def test_single_mesh_timing_reports_json(tmp_path, capsys):
     pos, tets, links = meshgen.tet_grid(6, 6, 6)
     np.savez(tmp_path / "v.npz", positions=pos, links=links)
-    code = main(["bench", "chainmail", "--mesh", str(tmp_path / "v.npz"), "--grab", "0", "--to", "-1", "-1", "-1",
-                 "--alpha-min", "1", "--alpha-max", "1", "--beta", "0", "--repeat", "3", "--json"])
+    code = main(
+        [
+            "bench",
+            "chainmail",
+            "--mesh",
+            str(tmp_path / "v.npz"),
+            "--grab",
+            "0",
+            "--to",
+            "-1",
+            "-1",
+            "-1",
+            "--alpha-min",
+            "1",
+            "--alpha-max",
+            "1",
+            "--beta",
+            "0",
+            "--repeat",
+            "3",
+            "--json",
+        ]
+    )
     assert code == 0
     out = json.loads(capsys.readouterr().out)
     assert out["elements"] == len(pos) and out["links"] == len(links)
@@ -25,8 +46,11 @@ def test_single_mesh_timing_reports_json(tmp_path, capsys):
 def test_single_mesh_timing_refuses_bad_input(tmp_path, capsys):
     pos, links = meshgen.grid((4, 4))
     np.savez(tmp_path / "g.npz", positions=pos, links=links)
-    for extra, needle in ((["--grab", "99", "--to", "1", "1"], "--grab"), (["--grab", "1", "--to", "1"], "--to"),
-                          (["--grab", "1", "--to", "1", "1", "--beta", "-2"], "--beta")):
+    for extra, needle in (
+        (["--grab", "99", "--to", "1", "1"], "--grab"),
+        (["--grab", "1", "--to", "1"], "--to"),
+        (["--grab", "1", "--to", "1", "1", "--beta", "-2"], "--beta"),
+    ):
         code = main(["bench", "chainmail", "--mesh", str(tmp_path / "g.npz"), *extra])
         err = capsys.readouterr().err
         assert code == 2 and needle in err and len(err.strip().splitlines()) == 1

@@ -19,9 +19,11 @@ def test_play_without_a_display_points_to_the_headless_command(cli, monkeypatch)
 
 
 def test_bad_flag_values_are_one_line_exit_2(cli):
-    for args, words in ((("run", "loop-demo", "--steps", "-5"), "must be >= 0"),
-                        (("run", "loop-demo", "--size", "big"), "WIDTHxHEIGHT"),
-                        (("run", "loop-demo", "--dt", "nan"), "--dt must be")):
+    for args, words in (
+        (("run", "loop-demo", "--steps", "-5"), "must be >= 0"),
+        (("run", "loop-demo", "--size", "big"), "WIDTHxHEIGHT"),
+        (("run", "loop-demo", "--dt", "nan"), "--dt must be"),
+    ):
         code, out, err = cli(*args)
         assert code == 2, args
         assert words in err, (args, err)
@@ -36,5 +38,18 @@ def test_missing_input_script_is_one_line(cli, tmp_path):
 def test_python_dash_m_game_is_the_chainsim_command():
     r = subprocess.run([sys.executable, "-m", "game", "--help"], capture_output=True, text=True, cwd=ROOT)
     assert r.returncode == 0
-    for cmd in ("run", "validate", "packs", "play", "replay", "docs", "chainmail", "bench", "records", "snapshot", "study", "protocol"):
+    for cmd in (
+        "run",
+        "validate",
+        "packs",
+        "play",
+        "replay",
+        "docs",
+        "chainmail",
+        "bench",
+        "records",
+        "snapshot",
+        "study",
+        "protocol",
+    ):
         assert cmd in r.stdout, cmd

@@ -11,15 +11,15 @@ import esper
 import numpy as np
 import pytest
 
-from chainsim.components.deformable import Deformable
 from chainsim.components.core import Transform
+from chainsim.components.deformable import Deformable
+from chainsim.components.hud import HudState
+from chainsim.components.input_events import MouseButton, MouseDrag, MouseMove, PickPoint, Widget
+from chainsim.components.resources import PendingInput
 from chainsim.components.tools import Forceps, Scissors
 from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import Assessment, build_app
-from chainsim.components.hud import HudState
-from chainsim.components.input_events import MouseButton, MouseDrag, MouseMove, PickPoint, Widget
 from chainsim.game.app.loader import EntityIndex
-from chainsim.components.resources import PendingInput
 from chainsim.systems.procedures.cutting.procedure import parse_point
 
 PACK = Path(__file__).resolve().parents[2] / "assets" / "cutting"
@@ -62,8 +62,9 @@ def test_parse_point():
 
 
 def test_forceps_tip_follows_the_hand_at_its_speed(app):
-    app.resource(PendingInput).extend([(0.0, Widget("forceps")), (0.0, PickPoint("dura", CORNER)),
-                                       (0.0, Widget("pull", "40, 30, 30"))])
+    app.resource(PendingInput).extend(
+        [(0.0, Widget("forceps")), (0.0, PickPoint("dura", CORNER)), (0.0, Widget("pull", "40, 30, 30"))]
+    )
     steps(app, 1)
     f = comp(app, "forceps", Forceps)
     d = comp(app, "dura", Deformable)
@@ -76,8 +77,9 @@ def test_forceps_tip_follows_the_hand_at_its_speed(app):
 
 
 def test_push_presses_the_held_element_into_the_tissue_along_its_normal(app):
-    app.resource(PendingInput).extend([(0.0, Widget("forceps")), (0.0, PickPoint("dura", (0.0, 0.0, 0.0))),
-                                       (0.0, Widget("push", 3.0))])
+    app.resource(PendingInput).extend(
+        [(0.0, Widget("forceps")), (0.0, PickPoint("dura", (0.0, 0.0, 0.0))), (0.0, Widget("push", 3.0))]
+    )
     steps(app, 30)
     d = comp(app, "dura", Deformable)
     c = nearest(d, (0.0, 0.0, 0.0))
@@ -89,8 +91,14 @@ def test_push_presses_the_held_element_into_the_tissue_along_its_normal(app):
 
 
 def test_release_leaves_the_tissue_where_it_is(app):
-    app.resource(PendingInput).extend([(0.0, Widget("forceps")), (0.0, PickPoint("dura", CORNER)),
-                                       (0.0, Widget("pull_by", "0, 0, 6")), (0.5, Widget("release"))])
+    app.resource(PendingInput).extend(
+        [
+            (0.0, Widget("forceps")),
+            (0.0, PickPoint("dura", CORNER)),
+            (0.0, Widget("pull_by", "0, 0, 6")),
+            (0.5, Widget("release")),
+        ]
+    )
     steps(app, 80)
     d = comp(app, "dura", Deformable)
     f = comp(app, "forceps", Forceps)
@@ -124,9 +132,16 @@ def test_scissors_cut_only_the_layer_the_stroke_started_on(app):
 
 def test_reset_restores_both_layers_and_the_steps(app):
     app.resource(PendingInput).extend(
-        [(0.0, Widget("scissors")), (0.0, PickPoint("dura", (0.6, 30.0, 0.0))), (0.0, PickPoint("dura", (0.6, 0.0, 0.0))),
-         (0.1, Widget("forceps")), (0.1, PickPoint("dura", CORNER)), (0.1, Widget("pull_by", "0, 0, 12")),
-         (0.6, Widget("reset"))])
+        [
+            (0.0, Widget("scissors")),
+            (0.0, PickPoint("dura", (0.6, 30.0, 0.0))),
+            (0.0, PickPoint("dura", (0.6, 0.0, 0.0))),
+            (0.1, Widget("forceps")),
+            (0.1, PickPoint("dura", CORNER)),
+            (0.1, Widget("pull_by", "0, 0, 12")),
+            (0.6, Widget("reset")),
+        ]
+    )
     steps(app, 80)
     v = app.resource(Assessment).values
     assert v["resets"] == 1
@@ -240,8 +255,9 @@ def test_wireframe_switch_changes_only_this_runs_materials(app):
 
 
 def test_a_bad_pull_target_is_a_user_error(app):
-    app.resource(PendingInput).extend([(0.0, Widget("forceps")), (0.0, PickPoint("dura", CORNER)),
-                                       (0.0, Widget("pull", "40, 30"))])
+    app.resource(PendingInput).extend(
+        [(0.0, Widget("forceps")), (0.0, PickPoint("dura", CORNER)), (0.0, Widget("pull", "40, 30"))]
+    )
     with pytest.raises(UserError, match="widget 'pull'"):
         steps(app, 1)
 

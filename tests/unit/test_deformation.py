@@ -10,10 +10,10 @@ import esper
 import numpy as np
 import pytest
 
-from chainsim.components.deformable import Deformable, Pull
 from chainsim.components.deform_events import Deformed, GrabRequest, ReleaseRequest
-from chainsim.game.app.digest import world_digest
+from chainsim.components.deformable import Deformable, Pull
 from chainsim.engine.errors import UserError
+from chainsim.game.app.digest import world_digest
 from chainsim.game.app.headless import build_app
 
 PACK_HEAD = """
@@ -127,10 +127,16 @@ def _box(rest, pos, e, s, amin, amax, beta):
 
 
 def test_rigid_material_translates_and_world_targets_use_the_transform(tmp_path):
-    app = build_app(make_pack(tmp_path, SHEET.format(material="rigid") + """
+    app = build_app(
+        make_pack(
+            tmp_path,
+            SHEET.format(material="rigid")
+            + """
 [entities.body.transform]
 position = [100.0, 0.0, 0.0]
-"""))
+""",
+        )
+    )
     try:
         _, d = body(app)
         world_target = d.rest[5] + [100.0, 0.0, 3.0]
@@ -142,14 +148,24 @@ position = [100.0, 0.0, 0.0]
 
 
 def test_fixed_box_pins_elements(tmp_path):
-    app = build_app(make_pack(tmp_path, SHEET.format(material="rigid") + """
+    app = build_app(
+        make_pack(
+            tmp_path,
+            SHEET.format(material="rigid")
+            + """
 fixed_box = [-100.0, -100.0, -1.0, -4.0, 100.0, 1.0]
-"""))
+""",
+        )
+    )
     try:
         _, d = body(app)
         pinned = d.rest[:, 0] <= -4.0
         assert pinned.sum() > 0 and np.array_equal(d.fixed_mask, pinned)
-        app.events.emit(GrabRequest("body", [int(np.argmax(d.rest[:, 0]))], d.rest[np.argmax(d.rest[:, 0])] + [0, 0, 5.0], frame="local"))
+        app.events.emit(
+            GrabRequest(
+                "body", [int(np.argmax(d.rest[:, 0]))], d.rest[np.argmax(d.rest[:, 0])] + [0, 0, 5.0], frame="local"
+            )
+        )
         app.run_steps(1)
         np.testing.assert_array_equal(d.pos[pinned], d.rest[pinned])
         assert np.any(d.pos[~pinned] != d.rest[~pinned])
@@ -210,13 +226,18 @@ def test_digest_follows_positions_not_render_bookkeeping(tmp_path):
 
 
 def test_simulation_kind_volume_gets_a_default_deformable(tmp_path):
-    app = build_app(make_pack(tmp_path, """
+    app = build_app(
+        make_pack(
+            tmp_path,
+            """
 [entities.body.mesh]
 mesh = "block"
 material = "medium"
 [entities.body.simulation]
 kind = "volume"
-"""))
+""",
+        )
+    )
     try:
         _, d = body(app)
         from chainsim.engine import meshgen
@@ -231,14 +252,20 @@ kind = "volume"
 
 
 def test_scripted_pull_reaches_its_target(tmp_path):
-    app = build_app(make_pack(tmp_path, SHEET.format(material="medium") + """
+    app = build_app(
+        make_pack(
+            tmp_path,
+            SHEET.format(material="medium")
+            + """
 fixed_boundary = true
 [entities.body.pull]
 at = [0.0, 0.0, 0.0]
 path = [0.0, 0.0, 3.0, 1.0, 0.0, 3.0]
 speed = 40.0
 start = 0.05
-"""))
+""",
+        )
+    )
     try:
         ent, d = body(app)
         with app.active():
@@ -254,15 +281,21 @@ start = 0.05
         app.close()
 
 
-@pytest.mark.parametrize("table, needle", [
-    ("[entities.body.mesh]\nmesh = \"sheet\"\n[entities.body.deformable]\nalpha_min = 1.5\n", "alpha_min"),
-    ("[entities.body.mesh]\nmesh = \"sheet\"\n[entities.body.deformable]\nalpha_max = 0.5\n", "alpha_max"),
-    ("[entities.body.mesh]\nmesh = \"sheet\"\n[entities.body.deformable]\nsource = \"volume\"\n", "tetrahedra"),
-    ("[entities.body.mesh]\nmesh = \"sheet\"\n[entities.body.deformable]\nmaterial = \"jelly\"\n", "jelly"),
-    ("[entities.body.mesh]\nmesh = \"sheet\"\n[entities.body.deformable]\nfixed = [5000]\n", "fixed"),
-    ("[entities.body.deformable]\n", "mesh"),
-    ("[entities.body.mesh]\nmesh = \"sheet\"\n[entities.body.deformable]\n[entities.body.pull]\npath = [1.0, 2.0]\n", "path"),
-])
+@pytest.mark.parametrize(
+    "table, needle",
+    [
+        ('[entities.body.mesh]\nmesh = "sheet"\n[entities.body.deformable]\nalpha_min = 1.5\n', "alpha_min"),
+        ('[entities.body.mesh]\nmesh = "sheet"\n[entities.body.deformable]\nalpha_max = 0.5\n', "alpha_max"),
+        ('[entities.body.mesh]\nmesh = "sheet"\n[entities.body.deformable]\nsource = "volume"\n', "tetrahedra"),
+        ('[entities.body.mesh]\nmesh = "sheet"\n[entities.body.deformable]\nmaterial = "jelly"\n', "jelly"),
+        ('[entities.body.mesh]\nmesh = "sheet"\n[entities.body.deformable]\nfixed = [5000]\n', "fixed"),
+        ("[entities.body.deformable]\n", "mesh"),
+        (
+            '[entities.body.mesh]\nmesh = "sheet"\n[entities.body.deformable]\n[entities.body.pull]\npath = [1.0, 2.0]\n',
+            "path",
+        ),
+    ],
+)
 def test_bad_tables_are_one_line_user_errors(tmp_path, table, needle):
     with pytest.raises(UserError) as err:
         build_app(make_pack(tmp_path, table)).close()
@@ -272,11 +305,17 @@ def test_bad_tables_are_one_line_user_errors(tmp_path, table, needle):
 def test_mouse_drag_pulls_the_nearest_element_and_releases_it(tmp_path):
     from chainsim.components.view_events import Dragged
 
-    app = build_app(make_pack(tmp_path, SHEET.format(material="medium") + """
+    app = build_app(
+        make_pack(
+            tmp_path,
+            SHEET.format(material="medium")
+            + """
 drag = true
 [entities.body.transform]
 position = [0.0, 0.0, 50.0]
-"""))
+""",
+        )
+    )
     try:
         ent, d = body(app)
         grab_world = d.rest[60] + [0.1, 0.0, 50.0]
@@ -316,7 +355,9 @@ def test_cut_kills_crossed_links_and_the_pieces_move_apart(tmp_path):
         ent, d = body(app)
         seen = app.events.reader(Deformed)
         # a blade across the whole sheet at x = 0.5 (between grid columns), pressed along z
-        app.events.emit(CutRequest("body", p0=[0.5, -20.0, 0.0], p1=[0.5, 20.0, 0.0], normal=[0.0, 0.0, 1.0], frame="local"))
+        app.events.emit(
+            CutRequest("body", p0=[0.5, -20.0, 0.0], p1=[0.5, 20.0, 0.0], normal=[0.0, 0.0, 1.0], frame="local")
+        )
         app.run_steps(1)
         cut = [e for e in seen.read() if e.cut_count]
         assert cut and cut[0].cut_count == int((~d.alive).sum()) > 0
@@ -338,7 +379,9 @@ def test_added_links_join_pieces_with_the_body_material(tmp_path):
     app = build_app(make_pack(tmp_path, SHEET.format(material="rigid")))
     try:
         ent, d = body(app)
-        app.events.emit(CutRequest("body", p0=[0.5, -20.0, 0.0], p1=[0.5, 20.0, 0.0], normal=[0.0, 0.0, 1.0], frame="local"))
+        app.events.emit(
+            CutRequest("body", p0=[0.5, -20.0, 0.0], p1=[0.5, 20.0, 0.0], normal=[0.0, 0.0, 1.0], frame="local")
+        )
         app.run_steps(1)
         m = d.graph.n_links
         a = int(np.argmin(np.abs(d.rest[:, 0] - 0.0) + np.abs(d.rest[:, 1])))

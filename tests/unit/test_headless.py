@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from chainsim.components.core import Name, ScriptedMotion, Transform
+from chainsim.components.input_events import Key, Widget
 from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import build_app, run_pack
-from chainsim.components.input_events import Key, Widget
 from chainsim.game.app.inputscript import load_script
 
 
@@ -53,7 +53,9 @@ def test_motion_follows_simulated_time_not_wall_clock():
 def test_record_then_replay_reaches_the_same_digest(tmp_path, cli):
     rec = tmp_path / "session.json"
     script = "assets/loop-demo/scripts/demo.toml"
-    code, out, err = cli("run", "loop-demo", "--headless", "--steps", "400", "--input", script, "--record", rec, "--out", tmp_path / "o")
+    code, out, err = cli(
+        "run", "loop-demo", "--headless", "--steps", "400", "--input", script, "--record", rec, "--out", tmp_path / "o"
+    )
     assert code == 0, err
     data = json.loads(rec.read_text())
     assert data["chainsim"] == "recording" and len(data["event"]) == len(load_script(script))
@@ -97,17 +99,23 @@ def test_input_script_events_are_released_at_their_time():
         app.close()
 
 
-@pytest.mark.parametrize("text,needle", [
-    ("format = 2\n", "'format' must be 1"),
-    ("format = 1\n[[event]]\nt = -1\nkind = 'key'\nkey = 'a'\n", "'t' must be"),
-    ("format = 1\n[[event]]\nt = 1\nkind = 'teleport'\n", "unknown event kind"),
-    ("format = 1\n[[event]]\nt = 1\nkind = 'mouse_move'\nx = nan\ny = 0\n", "'x' must be finite"),
-    ("format = 1\n[[event]]\nt = 1\nkind = 'key'\n", "needs 'key'"),
-    ("format = 1\n[[event]]\nt = 2\nkind = 'key'\nkey = 'a'\n[[event]]\nt = 1\nkind = 'key'\nkey = 'b'\n", "time order"),
-    ("format = 1\n[[event]]\nt = 1\nkind = 'mouse_button'\nx = 1\ny = 1\nbutton = 'fourth'\n", "'button' must be"),
-    ("format = 1\n[[event]]\nt = 1\nkind = 'key'\nkey = 'a'\ncolour = 3\n", "unknown key(s) colour"),
-    ("format = 1\nevent = [\n", "TOML syntax error"),
-])
+@pytest.mark.parametrize(
+    "text,needle",
+    [
+        ("format = 2\n", "'format' must be 1"),
+        ("format = 1\n[[event]]\nt = -1\nkind = 'key'\nkey = 'a'\n", "'t' must be"),
+        ("format = 1\n[[event]]\nt = 1\nkind = 'teleport'\n", "unknown event kind"),
+        ("format = 1\n[[event]]\nt = 1\nkind = 'mouse_move'\nx = nan\ny = 0\n", "'x' must be finite"),
+        ("format = 1\n[[event]]\nt = 1\nkind = 'key'\n", "needs 'key'"),
+        (
+            "format = 1\n[[event]]\nt = 2\nkind = 'key'\nkey = 'a'\n[[event]]\nt = 1\nkind = 'key'\nkey = 'b'\n",
+            "time order",
+        ),
+        ("format = 1\n[[event]]\nt = 1\nkind = 'mouse_button'\nx = 1\ny = 1\nbutton = 'fourth'\n", "'button' must be"),
+        ("format = 1\n[[event]]\nt = 1\nkind = 'key'\nkey = 'a'\ncolour = 3\n", "unknown key(s) colour"),
+        ("format = 1\nevent = [\n", "TOML syntax error"),
+    ],
+)
 def test_bad_input_scripts_give_one_clear_line(tmp_path, text, needle):
     p = tmp_path / "bad.toml"
     p.write_text(text)

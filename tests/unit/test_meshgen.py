@@ -37,9 +37,15 @@ def test_tet_grid_matches_the_thesis_volume():
     pos, tets, links = meshgen.tet_grid(7, 7, 7)
     assert len(pos) == 343  # thesis 5.3: 343 elements, up to 14 neighbours
     assert np.bincount(links.ravel()).max() == 14
-    v = np.einsum("ij,ij->i", pos[tets[:, 1]] - pos[tets[:, 0]],
-                  np.cross(pos[tets[:, 2]] - pos[tets[:, 0]], pos[tets[:, 3]] - pos[tets[:, 0]])) / 6
-    assert np.isclose(np.abs(v).sum(), 6.0 ** 3)  # the tets fill the block exactly
+    v = (
+        np.einsum(
+            "ij,ij->i",
+            pos[tets[:, 1]] - pos[tets[:, 0]],
+            np.cross(pos[tets[:, 2]] - pos[tets[:, 0]], pos[tets[:, 3]] - pos[tets[:, 0]]),
+        )
+        / 6
+    )
+    assert np.isclose(np.abs(v).sum(), 6.0**3)  # the tets fill the block exactly
     assert np.all(np.abs(v) > 0)
 
 

@@ -25,7 +25,8 @@ def _links_set(links):
 
 def test_surface_duplicates_are_merged_and_edges_become_links(tmp_path):
     # two triangles of a square written with their shared corners duplicated (as STL-like exports do)
-    (tmp_path / "sq.obj").write_text(textwrap.dedent("""
+    (tmp_path / "sq.obj").write_text(
+        textwrap.dedent("""
         v 0 0 0
         v 1 0 0
         v 1 1 0
@@ -34,7 +35,8 @@ def test_surface_duplicates_are_merged_and_edges_become_links(tmp_path):
         v 0 1 0
         f 1 2 3
         f 4 5 6
-    """))
+    """)
+    )
     pos, links, fixed = load_graph(tmp_path / "sq.obj")
     assert pos.shape == (4, 3) and len(fixed) == 0
     assert len(links) == 5  # four sides and the diagonal
@@ -97,10 +99,12 @@ def test_reordering_keeps_the_mesh_and_restores_locality(method):
     shuffle = rng.permutation(len(pos))
     shuffled = permute_mesh(MeshData(pos, np.zeros((0, 3), np.int64), tets), shuffle)
     out = reorder_mesh(shuffled, method)
+
     # same shape: link lengths and tetrahedron volumes survive the renumbering
     def lengths(m):
         l = m.edge_links()
         return np.sort(np.linalg.norm(m.vertices[l[:, 0]] - m.vertices[l[:, 1]], axis=1))
+
     np.testing.assert_allclose(lengths(out), lengths(MeshData(pos, np.zeros((0, 3), np.int64), tets)))
     assert sorted(map(tuple, out.vertices.tolist())) == sorted(map(tuple, pos.tolist()))
     assert _spread(out.edge_links()) < _spread(shuffled.edge_links()) / 4
@@ -132,17 +136,22 @@ def test_pack_meshes_with_reorder_true_are_renumbered(tmp_path):
     root = tmp_path / "rp"
     (root / "meshes").mkdir(parents=True)
     meshio.write(root / "meshes" / "v.vtu", meshio.Mesh(p[shuffle], [("tetra", inv[tets])]))
-    (root / "pack.toml").write_text('[pack]\nname = "rp"\nformat = 1\n[meshes.v]\npath = "meshes/v.vtu"\nreorder = true\n')
+    (root / "pack.toml").write_text(
+        '[pack]\nname = "rp"\nformat = 1\n[meshes.v]\npath = "meshes/v.vtu"\nreorder = true\n'
+    )
     mesh = packs.load(root).mesh("v")
     assert _bandwidth(mesh.edge_links()) < _bandwidth(meshgen.unique_links(inv[meshgen.links_from_cells(tets)])) / 4
 
 
-@pytest.mark.parametrize("content, ext, needle", [
-    (b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n", "ply", "bad.ply"),
-    (b"\x00\x01garbage", "stl", "bad.stl"),
-    (b"not a gmsh file", "msh", "bad.msh"),
-    (b"", "obj", "bad.obj"),
-])
+@pytest.mark.parametrize(
+    "content, ext, needle",
+    [
+        (b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n", "ply", "bad.ply"),
+        (b"\x00\x01garbage", "stl", "bad.stl"),
+        (b"not a gmsh file", "msh", "bad.msh"),
+        (b"", "obj", "bad.obj"),
+    ],
+)
 def test_bad_mesh_files_are_one_line_user_errors(tmp_path, content, ext, needle):
     path = tmp_path / f"bad.{ext}"
     path.write_bytes(content)

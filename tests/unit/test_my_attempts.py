@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from chainsim.game.app.headless import build_app
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Widget
-from chainsim.game.app.inputscript import load_script
 from chainsim.components.resources import PendingInput
+from chainsim.game.app.headless import build_app
+from chainsim.game.app.inputscript import load_script
 from chainsim.game.packbuild.make_prp_mouse_script import SCRIPTS
 
 

@@ -15,10 +15,10 @@ import esper
 import numpy as np
 import pytest
 
+from chainsim.components.input_events import PickPoint, Widget
 from chainsim.components.needle import NeedleState
 from chainsim.components.procedure import ProcedureState
 from chainsim.game.app.headless import build_app
-from chainsim.components.input_events import PickPoint, Widget
 
 ROOT = Path(__file__).resolve().parents[2]
 PACK = ROOT / "assets" / "prp"
@@ -54,11 +54,17 @@ def make_synthetic_pack(root: Path) -> Path:
     (root / "ATTRIBUTION.md").write_text("synthetic test anatomy\n")
     hx, hy = HOLE
     z0, z1 = PLATE_Z
-    plate = [((-60, -50, z0), (-25 - hx, 40, z1)), ((-25 + hx, -50, z0), (25 - hx, 40, z1)), ((25 + hx, -50, z0), (60, 40, z1))]
+    plate = [
+        ((-60, -50, z0), (-25 - hx, 40, z1)),
+        ((-25 + hx, -50, z0), (25 - hx, 40, z1)),
+        ((25 + hx, -50, z0), (60, 40, z1)),
+    ]
     for cx in (-25, 25):
         plate += [((cx - hx, -50, z0), (cx + hx, -hy, z1)), ((cx - hx, hy, z0), (cx + hx, 40, z1))]
     _boxes(plate).export(root / "meshes" / "skull.ply")
-    _boxes([((52, -10, -80), (56, 30, -15)), ((-56, -10, -80), (-52, 30, -15))]).export(root / "meshes" / "mandible.ply")
+    _boxes([((52, -10, -80), (56, 30, -15)), ((-56, -10, -80), (-52, 30, -15))]).export(
+        root / "meshes" / "mandible.ply"
+    )
     for side, c in FORAMEN.items():
         _boxes([((c[0] - hx, -hy, z0), (c[0] + hx, hy, z1))]).export(root / "meshes" / f"foramen_ovale_{side}.ply")
     skin = trimesh.creation.icosphere(subdivisions=4, radius=SKIN_R)
@@ -180,8 +186,8 @@ def test_dials_are_absolute_and_compose_horizontal_then_vertical(run):
 
 
 def test_rotation_refused_once_inserted_until_reset(run):
-    from chainsim.systems.ui.widgets import WidgetState
     from chainsim.systems.needle import RotationRefused
+    from chainsim.systems.ui.widgets import WidgetState
 
     run.send(PickPoint("skin", tuple(L1)))
     run.send(Widget("rotate_horizontal", 12.0))
@@ -194,7 +200,9 @@ def test_rotation_refused_once_inserted_until_reset(run):
     assert run.needle.rotation_refused == 2
     ws = run.app.resource(WidgetState)
     assert {"rotate_horizontal", "rotate_vertical"} <= ws.disabled
-    msgs = [m for m, _ in run.app.resource(__import__("chainsim.components.hud", fromlist=["HudState"]).HudState).messages]
+    msgs = [
+        m for m, _ in run.app.resource(__import__("chainsim.components.hud", fromlist=["HudState"]).HudState).messages
+    ]
     assert any("locked" in m for m in msgs)
     run.send(Widget("reset"), steps=3)
     st = run.needle
@@ -218,8 +226,11 @@ def _marker(run, k):
 
     ent = run.app.resource(EntityIndex)[f"landmark{k}"]
     with run.app.active():
-        return (esper.component_for_entity(ent, Marker), esper.component_for_entity(ent, Label),
-                esper.component_for_entity(ent, Transform))
+        return (
+            esper.component_for_entity(ent, Marker),
+            esper.component_for_entity(ent, Label),
+            esper.component_for_entity(ent, Transform),
+        )
 
 
 def test_landmarks_in_order_and_reset_all_clears_them(run):
@@ -269,9 +280,8 @@ def test_foramen_entry_is_green_and_scored_dist_minus_r(run):
 
 def test_huge_insertion_step_stops_at_bone_and_bounces_back(run):
     from chainsim.components.hud import HudState
-    from chainsim.systems.collision import NeedleHit
-
     from chainsim.components.needle import Needle
+    from chainsim.systems.collision import NeedleHit
     from chainsim.systems.procedures.prp.procedure import PrpHandles
 
     with run.app.active():
@@ -305,7 +315,12 @@ def test_hidden_collision_signals_are_still_recorded(run):
     run.send(Widget("insert", 200.0))
     assert run.app.resource(HudState).lights["skull"] == "off"
     assert run.proc.lights["skull"] == "red"
-    assert run.app.resource(__import__("chainsim.game.app.headless", fromlist=["Assessment"]).Assessment).values["skull_contacts"] == 1
+    assert (
+        run.app.resource(__import__("chainsim.game.app.headless", fromlist=["Assessment"]).Assessment).values[
+            "skull_contacts"
+        ]
+        == 1
+    )
 
 
 def test_keys_rotate_and_insert_by_steps(run):

@@ -2,15 +2,16 @@
 
 import esper
 import numpy as np
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from chainsim.components.core import Transform
-from chainsim.game.app.headless import build_app
 from chainsim.components.input_events import MouseButton, MouseDrag, PickPoint
-from chainsim.game.app.loader import EntityIndex
-from chainsim.systems.picking import closest_on_mesh, pick, ray_mesh, ray_triangles, triangle_links
 from chainsim.components.resources import PendingInput
 from chainsim.components.view_events import Picked
+from chainsim.game.app.headless import build_app
+from chainsim.game.app.loader import EntityIndex
+from chainsim.systems.picking import closest_on_mesh, pick, ray_mesh, ray_triangles, triangle_links
 from chainsim.systems.view import ViewState
 
 
@@ -75,8 +76,9 @@ def test_click_on_the_ball_emits_one_picked_event_on_its_surface():
         ent, centre = _ball(app)
         vp = app.resource(ViewState).get("main")
         x, y, _ = vp.camera.project(centre, vp.rect)[0]
-        app.resource(PendingInput).extend([(0.0, MouseButton(int(x), int(y), "left", True)),
-                                           (0.0, MouseButton(int(x), int(y), "left", False))])
+        app.resource(PendingInput).extend(
+            [(0.0, MouseButton(int(x), int(y), "left", True)), (0.0, MouseButton(int(x), int(y), "left", False))]
+        )
         app.update(0.0)  # zero-length frame: the ball has not moved yet
         picks = [e for e in app.events.log if isinstance(e, Picked)]
         assert len(picks) == 1
@@ -94,8 +96,13 @@ def test_drag_is_not_a_pick():
         _, centre = _ball(app)
         vp = app.resource(ViewState).get("main")
         x, y, _ = vp.camera.project(centre, vp.rect)[0]
-        app.resource(PendingInput).extend([(0.0, MouseButton(x, y, "left", True)), (0.0, MouseDrag(x + 30, y, 30, 0, "left")),
-                                           (0.0, MouseButton(x, y, "left", False))])
+        app.resource(PendingInput).extend(
+            [
+                (0.0, MouseButton(x, y, "left", True)),
+                (0.0, MouseDrag(x + 30, y, 30, 0, "left")),
+                (0.0, MouseButton(x, y, "left", False)),
+            ]
+        )
         app.update(0.0)
         assert [e for e in app.events.log if isinstance(e, Picked)] == []
     finally:
@@ -166,8 +173,13 @@ def test_drag_on_a_fixed_view_grabs_the_surface_and_follows_the_cursor(tmp_path)
         vp = app.resource(ViewState).get("controller")
         x, y, _ = vp.camera.project([0.0, 0.0, 0.0], vp.rect)[0]
         x, y = int(x), int(y)
-        app.resource(PendingInput).extend([(0.0, MouseButton(x, y, "left", True)), (0.0, MouseDrag(x + 20, y + 10, 20, 10, "left")),
-                                           (0.0, MouseButton(x + 20, y + 10, "left", False))])
+        app.resource(PendingInput).extend(
+            [
+                (0.0, MouseButton(x, y, "left", True)),
+                (0.0, MouseDrag(x + 20, y + 10, 20, 10, "left")),
+                (0.0, MouseButton(x + 20, y + 10, "left", False)),
+            ]
+        )
         app.update(0.0)
         drags = [e for e in app.events.log if isinstance(e, Dragged)]
         assert [d.phase for d in drags] == ["start", "move", "end"]
@@ -200,7 +212,9 @@ def test_attached_view_rides_on_its_entity_and_does_not_pick(tmp_path):
         with app.active():
             o, d = tip.camera.ray(cx + 0.5, cy + 0.5, tip.rect)
             assert pick(app, o, d) is not None  # the box is right ahead of the probe ...
-        app.resource(PendingInput).extend([(0.0, MouseButton(cx, cy, "left", True)), (0.0, MouseButton(cx, cy, "left", False))])
+        app.resource(PendingInput).extend(
+            [(0.0, MouseButton(cx, cy, "left", True)), (0.0, MouseButton(cx, cy, "left", False))]
+        )
         app.update(0.0)
         assert [e for e in app.events.log if isinstance(e, Picked)] == []  # ... but the needle view only shows
     finally:

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from chainsim.game.cli.commands import records as cmd
 from chainsim.engine.errors import UserError
-from chainsim.game.records.store import ENV_VAR, RecordStore
+from chainsim.game.cli.commands import records as cmd
 from chainsim.game.records.report import CSV_COLUMNS
+from chainsim.game.records.store import ENV_VAR, RecordStore
 from chainsim.game.records.validate import AIDS
 
 REPO = Path(__file__).resolve().parents[2]
@@ -24,11 +24,17 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 def attempt(i: int, **over):
     a = {
-        "pack": "prp", "created_at": f"2026-05-{10 + i:02d}T14:00:00Z", "duration_s": 90.0 - 5 * i,
-        "landmark_error_mm": 6.0 - i, "needle_error_mm": 15.0 - 3 * i, "target": "foramen_ovale_left",
-        "skull_contacts": 3 - i if i < 3 else 0, "path_length_mm": 70.0 + i,
+        "pack": "prp",
+        "created_at": f"2026-05-{10 + i:02d}T14:00:00Z",
+        "duration_s": 90.0 - 5 * i,
+        "landmark_error_mm": 6.0 - i,
+        "needle_error_mm": 15.0 - 3 * i,
+        "target": "foramen_ovale_left",
+        "skull_contacts": 3 - i if i < 3 else 0,
+        "path_length_mm": 70.0 + i,
         "aids": {"tip_view": True, "collision_signals": i == 0},
-        "step_times": {"landmarks": 30.0, "insert": 60.0 - i}, "details": {"D1": 0.5 * i, "d1": 0.1},
+        "step_times": {"landmarks": 30.0, "insert": 60.0 - i},
+        "details": {"D1": 0.5 * i, "d1": 0.1},
     }
     a.update(over)
     return a
@@ -90,10 +96,10 @@ def test_list_is_an_aligned_table_of_the_selection(db, capsys):
     # Right-aligned last column: every line ends at the same place, and columns line up.
     assert len({len(line) for line in lines}) == 1
     col = lines[0].index("landmark_mm") + len("landmark_mm")
-    assert [line[col - 4: col] for line in body] == ["6.00", "5.00", "4.00", "3.00"]
+    assert [line[col - 4 : col] for line in body] == ["6.00", "5.00", "4.00", "3.00"]
     assert call(db, "list", "--class", "c1", "--trainee", "bob") == 0
     bob = capsys.readouterr().out.splitlines()[2]
-    assert bob[lines[0].index("needle_mm"): col + len("  needle_mm")].strip() == "-"
+    assert bob[lines[0].index("needle_mm") : col + len("  needle_mm")].strip() == "-"
 
 
 def test_show_prints_every_field(db, capsys):
@@ -236,10 +242,12 @@ def test_bad_db_file_is_one_line_and_untouched(tmp_path):
 
 # -- through the real entry point -------------------------------------------------------------
 
+
 def chainsim(*argv, env=None):
     full_env = dict(os.environ, PYTHONPATH=str(REPO), **(env or {}))
-    return subprocess.run([sys.executable, "-m", "chainsim.game", *argv], capture_output=True, text=True,
-                          cwd=REPO, env=full_env)
+    return subprocess.run(
+        [sys.executable, "-m", "chainsim.game", *argv], capture_output=True, text=True, cwd=REPO, env=full_env
+    )
 
 
 needs_cli = pytest.mark.skipif(not (REPO / "game" / "cli" / "main.py").exists(), reason="game/cli/main.py not present")

@@ -53,11 +53,19 @@ CHILD = textwrap.dedent(
 
 def expected(i: int) -> dict:
     return {
-        "class_name": "c1", "trainee": "alice", "pack": "prp", "created_at": f"2026-04-0{i + 1}T08:00:00Z",
-        "duration_s": 10.0 + i, "landmark_error_mm": 3.0 + i, "needle_error_mm": None if i == 1 else 2.0 * i,
-        "target": "skull", "skull_contacts": i, "path_length_mm": 40.0 + i,
+        "class_name": "c1",
+        "trainee": "alice",
+        "pack": "prp",
+        "created_at": f"2026-04-0{i + 1}T08:00:00Z",
+        "duration_s": 10.0 + i,
+        "landmark_error_mm": 3.0 + i,
+        "needle_error_mm": None if i == 1 else 2.0 * i,
+        "target": "skull",
+        "skull_contacts": i,
+        "path_length_mm": 40.0 + i,
         "aids": {k: k == "tip_view" and i % 2 == 0 for k in AIDS},
-        "step_times": {"insert": 5.0 + i}, "details": {"i": i},
+        "step_times": {"insert": 5.0 + i},
+        "details": {"i": i},
     }
 
 
@@ -68,7 +76,12 @@ def test_sigkill_mid_save_keeps_earlier_records_and_drops_the_partial_one(tmp_pa
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     child = subprocess.Popen(
         [sys.executable, "-c", CHILD, str(db), str(saved_before), "c2"],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=tmp_path,
     )
     try:
         line = child.stdout.readline().strip()
@@ -99,13 +112,21 @@ def test_sigkill_mid_save_keeps_earlier_records_and_drops_the_partial_one(tmp_pa
         assert "c2" not in store.list_classes()
         assert all(t["trainee"] != "bob" for t in store.list_trainees())
         # Still writable after the crash.
-        store.save_attempt("c2", "bob", {
-            "pack": "prp", "duration_s": 1.0, "landmark_error_mm": 1.0, "needle_error_mm": 1.0,
-            "target": "skull", "skull_contacts": 0, "path_length_mm": 1.0,
-        })
+        store.save_attempt(
+            "c2",
+            "bob",
+            {
+                "pack": "prp",
+                "duration_s": 1.0,
+                "landmark_error_mm": 1.0,
+                "needle_error_mm": 1.0,
+                "target": "skull",
+                "skull_contacts": 0,
+                "path_length_mm": 1.0,
+            },
+        )
 
     conn = sqlite3.connect(db)
     assert conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
     assert conn.execute("SELECT COUNT(*) FROM attempts").fetchone()[0] == saved_before + 1
     conn.close()
-

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import json
 import sqlite3
+from datetime import UTC
 from pathlib import Path
 
 import pytest
 
 from chainsim.engine.errors import UserError
-from chainsim.game.records.store import ENV_VAR, RecordStore, default_path
 from chainsim.game.records.schema import SCHEMA_VERSION, V1_DDL
+from chainsim.game.records.store import ENV_VAR, RecordStore, default_path
 from chainsim.game.records.validate import AIDS
 
 
@@ -46,14 +47,25 @@ def one_line_error(excinfo) -> str:
 
 # -- round trip -------------------------------------------------------------------------------
 
+
 def test_attempt_round_trip_keeps_every_field(store):
     a = sample_attempt(2, needle_error_mm=-1.25, details={"D2": 0.0, "nested": {"ok": True, "n": 3}})
     aid = store.save_attempt(" c1 ", " alice ", a)
     got = store.get_attempt(aid)
     assert got["id"] == aid
     assert got["class_name"] == "c1" and got["trainee"] == "alice"
-    for key in ("pack", "created_at", "duration_s", "landmark_error_mm", "needle_error_mm", "target",
-                "skull_contacts", "path_length_mm", "step_times", "details"):
+    for key in (
+        "pack",
+        "created_at",
+        "duration_s",
+        "landmark_error_mm",
+        "needle_error_mm",
+        "target",
+        "skull_contacts",
+        "path_length_mm",
+        "step_times",
+        "details",
+    ):
         assert got[key] == a[key], key
     # Aids left out were off; all five are always present.
     assert got["aids"] == {name: name in ("tip_view", "reference_planes") for name in AIDS}
@@ -70,17 +82,18 @@ def test_created_at_defaults_to_now_utc(store):
     a = sample_attempt()
     del a["created_at"]
     got = store.get_attempt(store.save_attempt("c1", "alice", a))
-    from datetime import datetime, timezone
+    from datetime import datetime
 
     stamp = datetime.fromisoformat(got["created_at"])
     assert stamp.utcoffset().total_seconds() == 0
-    assert abs((datetime.now(timezone.utc) - stamp).total_seconds()) < 3600
+    assert abs((datetime.now(UTC) - stamp).total_seconds()) < 3600
 
 
 def test_numpy_numbers_are_accepted_as_plain_values(store):
     np = pytest.importorskip("numpy")
-    a = sample_attempt(skull_contacts=np.int64(3), landmark_error_mm=np.float64(2.5),
-                       details={"pos": np.array([1.0, 2.0, 3.0])})
+    a = sample_attempt(
+        skull_contacts=np.int64(3), landmark_error_mm=np.float64(2.5), details={"pos": np.array([1.0, 2.0, 3.0])}
+    )
     got = store.get_attempt(store.save_attempt("c1", "alice", a))
     assert got["skull_contacts"] == 3 and got["landmark_error_mm"] == 2.5
     assert got["details"]["pos"] == [1.0, 2.0, 3.0]
@@ -208,10 +221,17 @@ def test_missing_required_field_is_named(store):
     assert "'target'" in one_line_error(e)
 
 
-@pytest.mark.parametrize("name,why", [
-    ("", "empty"), ("   ", "empty"), ("x" * 65, "65 characters"), ("bad\tname", "control"),
-    ("bell\x07", "control"), (42, "text"),
-])
+@pytest.mark.parametrize(
+    "name,why",
+    [
+        ("", "empty"),
+        ("   ", "empty"),
+        ("x" * 65, "65 characters"),
+        ("bad\tname", "control"),
+        ("bell\x07", "control"),
+        (42, "text"),
+    ],
+)
 def test_bad_names(store, name, why):
     with pytest.raises(UserError) as e:
         store.add_class(name)
@@ -234,6 +254,7 @@ def test_pack_named_targets_accepted(store):
 
 
 # -- where the database lives -----------------------------------------------------------------
+
 
 def test_default_path_uses_user_data_dir_and_creates_folders(tmp_path, monkeypatch):
     import platformdirs
@@ -267,6 +288,7 @@ def test_database_uses_wal(tmp_path):
 
 # -- migrations -------------------------------------------------------------------------------
 
+
 def make_v1(path: Path) -> None:
     conn = sqlite3.connect(path)
     for stmt in V1_DDL:
@@ -278,8 +300,14 @@ def make_v1(path: Path) -> None:
             "INSERT INTO attempts (trainee_id, pack, created_at, duration_s, landmark_error_mm, "
             "needle_error_mm, target, skull_contacts, path_length_mm, aids, step_times) "
             "VALUES (1, 'prp', ?, ?, ?, ?, 'skull', ?, 50.0, ?, '{}')",
-            (f"2025-01-0{i + 1}T10:00:00Z", 30.0 + i, 5.0 - i, None if i == 0 else 8.0 - i, i,
-             json.dumps({name: False for name in AIDS})),
+            (
+                f"2025-01-0{i + 1}T10:00:00Z",
+                30.0 + i,
+                5.0 - i,
+                None if i == 0 else 8.0 - i,
+                i,
+                json.dumps({name: False for name in AIDS}),
+            ),
         )
     conn.execute("PRAGMA user_version = 1")
     conn.commit()
@@ -333,6 +361,7 @@ def test_failed_migration_leaves_database_at_old_version(tmp_path, monkeypatch):
 
 # -- files that are not ours ------------------------------------------------------------------
 
+
 def assert_refused_untouched(path: Path, expect: str) -> None:
     before = path.read_bytes()
     with pytest.raises(UserError) as e:
@@ -360,7 +389,7 @@ def test_corrupted_database_is_refused_untouched(tmp_path):
     data = bytearray(path.read_bytes())
     page = int.from_bytes(data[16:18], "big")
     for p in range(1, len(data) // page):
-        data[p * page: p * page + 12] = b"\xa5" * 12  # wreck each b-tree page header
+        data[p * page : p * page + 12] = b"\xa5" * 12  # wreck each b-tree page header
     path.write_bytes(bytes(data))
     assert_refused_untouched(path, "damaged")
 

@@ -22,10 +22,12 @@ def test_unknown_scene_is_rejected(tmp_path, capsys):
 
 def test_calibrate_writes_named_preset(tmp_path):
     out = tmp_path / "materials.toml"
-    out.write_text('[keep]\nalpha_min = 0.5\nalpha_max = 2.0\nbeta = 0.1\nrelax_iterations = 0\n'
-                   'fitted_error = 0.3\nsource = "hand"\n', encoding="utf-8")
-    assert main(["study", "calibrate", "--nu", "0.3", "--strain", "0.05", "--name", "t",
-                 "--out", str(out)]) == 0
+    out.write_text(
+        "[keep]\nalpha_min = 0.5\nalpha_max = 2.0\nbeta = 0.1\nrelax_iterations = 0\n"
+        'fitted_error = 0.3\nsource = "hand"\n',
+        encoding="utf-8",
+    )
+    assert main(["study", "calibrate", "--nu", "0.3", "--strain", "0.05", "--name", "t", "--out", str(out)]) == 0
     data = tomllib.loads(out.read_text(encoding="utf-8"))
     assert set(data) == {"keep", "t"}
     t = data["t"]

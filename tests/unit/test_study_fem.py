@@ -34,8 +34,7 @@ def test_patch_test_affine_field_is_reproduced_exactly():
 def test_linear_and_neo_hookean_agree_within_two_percent_at_one_percent_strain():
     s = block(6)
     lin = LinearFEM(s.pos, s.tets, 3000.0, 0.45, s.constrained).solve(s.constrained_disp(0.01))
-    nl = NeoHookeanFEM(s.pos, s.tets, 3000.0, 0.45, s.constrained).solve_path(
-        s.constrained_disp(1.0), [0.01])
+    nl = NeoHookeanFEM(s.pos, s.tets, 3000.0, 0.45, s.constrained).solve_path(s.constrained_disp(1.0), [0.01])
     assert nl.status == "converged"
     err = np.linalg.norm(lin.u - nl.u[0.01], axis=1).max() / 0.01
     assert err < 0.02
@@ -49,7 +48,7 @@ def test_neo_hookean_converges_with_block_pulled_half_its_height():
     u = res.u[0.5]
     assert np.all(np.isfinite(u))
     np.testing.assert_allclose(u[s.grabbed, 2], 0.5)
-    assert np.isfinite(fem.energy(u.ravel()))          # no inverted element
+    assert np.isfinite(fem.energy(u.ravel()))  # no inverted element
     r, _ = fem.residual_and_tangent(u.ravel(), want_tangent=False)
     assert np.linalg.norm(r[fem.fdofs]) < 1e-6 * np.linalg.norm(r[fem.cdofs])
 
@@ -57,7 +56,7 @@ def test_neo_hookean_converges_with_block_pulled_half_its_height():
 def test_cantilever_tip_deflection_approaches_beam_theory():
     P, E = 1.0, 1e6
     h = 0.2
-    beam = P / (3 * E * h**4 / 12) + P / (5 / 6 * (E / 2) * h * h)     # bending + shear, nu = 0
+    beam = P / (3 * E * h**4 / 12) + P / (5 / 6 * (E / 2) * h * h)  # bending + shear, nu = 0
     defl = []
     for n in (5, 7):
         s = cantilever(n)
@@ -66,7 +65,7 @@ def test_cantilever_tip_deflection_approaches_beam_theory():
         r = solve_linear(s.pos, s.tets, E, 0.0, s.fixed, forces=f)
         defl.append(-r.u[s.grabbed, 2].mean())
     assert abs(defl[1] - beam) / beam < 0.12
-    assert abs(defl[1] - beam) < abs(defl[0] - beam)          # refinement approaches it
+    assert abs(defl[1] - beam) < abs(defl[0] - beam)  # refinement approaches it
 
 
 def test_nearly_incompressible_material_stays_finite_and_warns_about_locking():
@@ -77,8 +76,7 @@ def test_nearly_incompressible_material_stays_finite_and_warns_about_locking():
     assert r.status == "ok" and np.all(np.isfinite(r.u)) and np.abs(r.u).max() > 0
     assert any("lock" in w for w in r.warnings)
     with pytest.warns(LockingWarning):
-        nl = NeoHookeanFEM(s.pos, s.tets, 3000.0, 0.499, s.constrained).solve_path(
-            s.constrained_disp(1.0), [0.05])
+        nl = NeoHookeanFEM(s.pos, s.tets, 3000.0, 0.499, s.constrained).solve_path(s.constrained_disp(1.0), [0.05])
     assert nl.status == "converged" and np.all(np.isfinite(nl.u[0.05]))
 
 
@@ -93,8 +91,7 @@ def test_youngs_modulus_over_six_orders_of_magnitude():
         free_load = LinearFEM(s.pos, s.tets, E, 0.3, s.fixed).solve(None, f).u
         assert np.all(np.isfinite(free_load))
         forced.append(free_load * E)
-        nl = NeoHookeanFEM(s.pos, s.tets, E, 0.3, s.constrained).solve_path(
-            s.constrained_disp(1.0), [0.05])
+        nl = NeoHookeanFEM(s.pos, s.tets, E, 0.3, s.constrained).solve_path(s.constrained_disp(1.0), [0.05])
         fields.append(nl.u[0.05])
     # displacement-driven: the same field whatever E; force-driven: displacement scales as 1/E
     np.testing.assert_allclose(fields[2], fields[0], rtol=0, atol=1e-10)
@@ -109,7 +106,9 @@ def test_near_zero_volume_tetrahedra_are_reported_by_id():
     pos = pos.copy()
     # flatten the tets around node 13 (the centre) by moving it onto its neighbour's plane
     bad_node = 13
-    pos[bad_node] = pos[tets[np.any(tets == bad_node, axis=1)][0][tets[np.any(tets == bad_node, axis=1)][0] != bad_node][:3]].mean(axis=0)
+    pos[bad_node] = pos[
+        tets[np.any(tets == bad_node, axis=1)][0][tets[np.any(tets == bad_node, axis=1)][0] != bad_node][:3]
+    ].mean(axis=0)
     with pytest.raises(DegenerateElementsError) as exc:
         LinearFEM(pos, tets, 1e3, 0.3, [0])
     ids = exc.value.element_ids

@@ -65,4 +65,4 @@ def test_youngs_modulus_over_six_orders_changes_time_scale_not_equilibrium():
         fields.append(r.u)
         dts.append(ms.critical_dt_eq22())
     np.testing.assert_allclose(fields[1], fields[0], atol=1e-6)
-    assert np.isclose(dts[0] / dts[1], 1e3)          # dt ~ 1/sqrt(E), eq. (2.2)
+    assert np.isclose(dts[0] / dts[1], 1e3)  # dt ~ 1/sqrt(E), eq. (2.2)

@@ -3,7 +3,8 @@
 import math
 
 import numpy as np
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from chainsim.systems.ui.viewports import OrbitCamera, Rect, attached_camera, fraction_rect, layout_rects
 
@@ -11,7 +12,9 @@ from chainsim.systems.ui.viewports import OrbitCamera, Rect, attached_camera, fr
 @settings(max_examples=50, deadline=None)
 @given(st.integers(50, 3000), st.integers(50, 2000), st.floats(0.05, 0.95))
 def test_side_by_side_viewports_tile_the_window(w, h, split):
-    r = layout_rects([{"name": "a", "rect": [0.0, 0.0, split, 1.0]}, {"name": "b", "rect": [split, 0.0, 1.0 - split, 1.0]}], w, h)
+    r = layout_rects(
+        [{"name": "a", "rect": [0.0, 0.0, split, 1.0]}, {"name": "b", "rect": [split, 0.0, 1.0 - split, 1.0]}], w, h
+    )
     assert r["a"].x == 0
     assert r["a"].x + r["a"].w == r["b"].x
     assert r["b"].x + r["b"].w == w
@@ -86,7 +89,9 @@ def test_zoom_pan_rotate():
 def test_attached_camera_looks_along_rotated_plus_z():
     # 90 degrees about +X maps local +Z to world -Y and local +Y to world +Z
     q = np.array([math.cos(math.pi / 4), math.sin(math.pi / 4), 0.0, 0.0])
-    cam = attached_camera(position=[10.0, 20.0, 30.0], rotation=q, scale=2.0, offset=[0.0, 0.0, 5.0], fov=50, near=0.5, far=1000)
+    cam = attached_camera(
+        position=[10.0, 20.0, 30.0], rotation=q, scale=2.0, offset=[0.0, 0.0, 5.0], fov=50, near=0.5, far=1000
+    )
     np.testing.assert_allclose(cam.eye, [10.0, 10.0, 30.0], atol=1e-9)  # offset scaled and rotated
     np.testing.assert_allclose(cam.forward, [0.0, -1.0, 0.0], atol=1e-9)
     np.testing.assert_allclose(cam.up, [0.0, 0.0, 1.0], atol=1e-9)
@@ -109,7 +114,8 @@ def test_a_scene_without_layout_gets_one_orbit_view_framing_every_mesh(tmp_path)
 
     root = tmp_path / "bare"
     root.mkdir()
-    (root / "pack.toml").write_text("""
+    (root / "pack.toml").write_text(
+        """
 [pack]
 name = "bare"
 format = 1
@@ -124,7 +130,9 @@ mesh = "ball"
 position = [650.0, 260.0, -20.0]
 [entities.b.mesh]
 mesh = "ball"
-""", encoding="utf-8")
+""",
+        encoding="utf-8",
+    )
     app = build_app(str(root))
     try:
         vs = app.resource(ViewState)

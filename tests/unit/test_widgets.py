@@ -3,20 +3,32 @@
 import esper
 import numpy as np
 
-from chainsim.components.view_events import WidgetRefused
-
 from chainsim.components.core import MeshRef
-from chainsim.systems.ui import widgets as wd
-from chainsim.game.app.headless import build_app
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, Widget
 from chainsim.components.resources import PendingInput
+from chainsim.components.view_events import WidgetRefused
+from chainsim.game.app.headless import build_app
+from chainsim.systems.ui import widgets as wd
 from chainsim.systems.ui.viewports import Rect
 from chainsim.systems.view import ViewState
 
 
 def _w(**kw):
-    base = {"name": "w", "kind": "button", "label": "", "viewport": "", "rect": [0.0, 0.0, 0.0, 0.0], "value": False,
-            "min": 0.0, "max": 1.0, "step": 0.0, "key": "", "key_value": 0.0, "layer": "", "help": ""}
+    base = {
+        "name": "w",
+        "kind": "button",
+        "label": "",
+        "viewport": "",
+        "rect": [0.0, 0.0, 0.0, 0.0],
+        "value": False,
+        "min": 0.0,
+        "max": 1.0,
+        "step": 0.0,
+        "key": "",
+        "key_value": 0.0,
+        "layer": "",
+        "help": "",
+    }
     base.update(kw)
     return base
 
@@ -68,7 +80,9 @@ def test_key_and_click_values_per_kind():
 
 
 def test_widget_state_applies_and_respects_disabled():
-    st = wd.WidgetState.from_layout([_w(name="t", kind="toggle", value=True), _w(name="d", kind="dial", value=3.0, max=5.0), _w(name="b")])
+    st = wd.WidgetState.from_layout(
+        [_w(name="t", kind="toggle", value=True), _w(name="d", kind="dial", value=3.0, max=5.0), _w(name="b")]
+    )
     assert st.values == {"t": True, "d": 3.0, "b": None}
     assert wd.apply_widget(st, "t", None) and st.values["t"] is False
     assert wd.apply_widget(st, "d", 99.0) and st.values["d"] == 5.0
@@ -100,12 +114,19 @@ def test_click_key_and_script_have_the_same_effect_on_a_layer_toggle():
             vs: ViewState = app.resource(ViewState)
             p = vs.panels["panel"][0]
             cx, cy = p.rect.x + p.rect.w / 2, p.rect.y + p.rect.h / 2
-            ev = {"click": _click_events(cx, cy), "key": [(0.0, Key("t", True))], "script": [(0.0, Widget("toggle_rod", False))]}[how]
+            ev = {
+                "click": _click_events(cx, cy),
+                "key": [(0.0, Key("t", True))],
+                "script": [(0.0, Widget("toggle_rod", False))],
+            }[how]
             assert _rod_visible(app) is True
             app.resource(PendingInput).extend(ev)
             app.run_steps(2)
-            results[how] = (_rod_visible(app), app.resource(wd.WidgetState).values["toggle_rod"],
-                            [e for e in app.events.log if isinstance(e, Widget)])
+            results[how] = (
+                _rod_visible(app),
+                app.resource(wd.WidgetState).values["toggle_rod"],
+                [e for e in app.events.log if isinstance(e, Widget)],
+            )
         finally:
             app.close()
     assert results["click"][:2] == (False, False)
@@ -136,8 +157,13 @@ def test_left_drag_in_orbit_viewport_turns_its_camera_only():
     try:
         cam = app.resource(ViewState).get("main").camera
         yaw0, eye0 = cam.yaw, cam.eye.copy()
-        app.resource(PendingInput).extend([(0.0, MouseButton(300, 300, "left", True)), (0.0, MouseDrag(340, 300, 40, 0, "left")),
-                                           (0.0, MouseButton(340, 300, "left", False))])
+        app.resource(PendingInput).extend(
+            [
+                (0.0, MouseButton(300, 300, "left", True)),
+                (0.0, MouseDrag(340, 300, 40, 0, "left")),
+                (0.0, MouseButton(340, 300, "left", False)),
+            ]
+        )
         app.run_steps(2)
         assert cam.yaw != yaw0
         assert not np.allclose(cam.eye, eye0)
@@ -167,7 +193,8 @@ def test_scroll_over_a_dial_steps_it_and_resize_keeps_the_layout(tmp_path):
 
     root = tmp_path / "dialpack"
     root.mkdir()
-    (root / "pack.toml").write_text("""
+    (root / "pack.toml").write_text(
+        """
 [pack]
 name = "dialpack"
 format = 1
@@ -189,16 +216,24 @@ min = -10.0
 max = 10.0
 step = 2.0
 value = 9.0
-""", encoding="utf-8")
+""",
+        encoding="utf-8",
+    )
     app = build_app(str(root))
     try:
         app.events.log = []
         vs: ViewState = app.resource(ViewState)
         p = vs.panels["panel"][0]
         cx, cy = p.rect.x + p.rect.w / 2, p.rect.y + p.rect.h / 2
-        app.resource(PendingInput).extend([(0.0, Scroll(cx, cy, 1.0)), (0.0, Scroll(cx, cy, -1.0)), (0.0, Scroll(cx, cy, -1.0))])
+        app.resource(PendingInput).extend(
+            [(0.0, Scroll(cx, cy, 1.0)), (0.0, Scroll(cx, cy, -1.0)), (0.0, Scroll(cx, cy, -1.0))]
+        )
         app.update(0.0)
-        assert [e for e in app.events.log if isinstance(e, Widget)] == [Widget("angle", 10.0), Widget("angle", 8.0), Widget("angle", 6.0)]
+        assert [e for e in app.events.log if isinstance(e, Widget)] == [
+            Widget("angle", 10.0),
+            Widget("angle", 8.0),
+            Widget("angle", 6.0),
+        ]
         assert app.resource(wd.WidgetState).values["angle"] == 6.0
         app.resource(PendingInput).extend([(0.0, Resize(400, 300))])
         app.update(0.0)

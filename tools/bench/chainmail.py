@@ -18,8 +18,12 @@ def add_arguments(p) -> None:
     p.add_argument("--quick", action="store_true", help="a fast subset (smaller meshes, fewer repeats)")
     p.add_argument("--out", default="runs/bench-chainmail", metavar="DIR", help="folder for results.md/.json/.png")
     p.add_argument("--repeat", type=int, default=0, metavar="R", help="timed repeats per case (default: by size)")
-    p.add_argument("--max-elements", type=float, default=0, metavar="N", help="largest scaling mesh (default 1e6, quick 1e5)")
-    p.add_argument("--parts", default="thesis,worst,scaling", help="comma-separated parts to run: thesis, worst, scaling")
+    p.add_argument(
+        "--max-elements", type=float, default=0, metavar="N", help="largest scaling mesh (default 1e6, quick 1e5)"
+    )
+    p.add_argument(
+        "--parts", default="thesis,worst,scaling", help="comma-separated parts to run: thesis, worst, scaling"
+    )
     p.add_argument("--mesh", metavar="MESH", help="time one cascade on this mesh (.npz graph or mesh file)")
     p.add_argument("--grab", type=int, metavar="I", help="(--mesh) element to move")
     p.add_argument("--to", type=float, nargs="+", metavar="X", help="(--mesh) target coordinates")
@@ -27,7 +31,9 @@ def add_arguments(p) -> None:
     p.add_argument("--alpha-max", type=float, default=1.0, metavar="B", help="(--mesh) stretch limit (default 1)")
     p.add_argument("--beta", type=float, default=0.0, metavar="C", help="(--mesh) shear limit (default 0)")
     p.add_argument("--relax", type=int, default=0, metavar="N", help="(--mesh) relaxation sweeps after the cascade")
-    p.add_argument("--order", choices=("fifo", "balanced", "schill"), default="fifo", help="(--mesh) waiting-list order")
+    p.add_argument(
+        "--order", choices=("fifo", "balanced", "schill"), default="fifo", help="(--mesh) waiting-list order"
+    )
     p.add_argument("--json", action="store_true", help="(--mesh) print JSON only")
 
 

@@ -39,7 +39,7 @@ def curved_patch(n: int = 345, radius: float = 80.0, width: float = 60.0, seed: 
     remap = np.full(n, -1)
     remap[used] = np.arange(len(used))
     xy, tri = xy[used], remap[tri]
-    z = np.sqrt(radius ** 2 - np.sum(xy ** 2, axis=1)) - radius
+    z = np.sqrt(radius**2 - np.sum(xy**2, axis=1)) - radius
     verts = np.column_stack([xy, z])
     return verts, _orient_up(verts, tri)
 
@@ -58,7 +58,7 @@ def brain_surface(n: int = 1043, radius: float = 40.0, folds: float = 0.07):
 
     k = np.arange(n) + 0.5
     phi = np.arccos(1 - 2 * k / n)
-    th = np.pi * (1 + 5 ** 0.5) * k
+    th = np.pi * (1 + 5**0.5) * k
     unit = np.stack([np.cos(th) * np.sin(phi), np.sin(th) * np.sin(phi), np.cos(phi)], 1)
     hull = ConvexHull(unit)
     tri = hull.simplices.astype(np.int64)
@@ -117,7 +117,7 @@ def fast_tet_grid(nx: int, ny: int, nz: int, spacing: float = 1.0):
     pos[flat, 0] = ii.ravel() * spacing
     pos[flat, 1] = jj.ravel() * spacing
     pos[flat, 2] = kk.ravel() * spacing
-    c = [idx[i: nx - 1 + i, j: ny - 1 + j, k: nz - 1 + k].ravel() for k in (0, 1) for j in (0, 1) for i in (0, 1)]
+    c = [idx[i : nx - 1 + i, j : ny - 1 + j, k : nz - 1 + k].ravel() for k in (0, 1) for j in (0, 1) for i in (0, 1)]
     paths = [(1, 3), (1, 5), (2, 3), (2, 6), (4, 5), (4, 6)]
     tets = np.concatenate([np.stack([c[0], c[p], c[q], c[7]], 1) for p, q in paths]).astype(np.int64)
     return pos, tets, fast_links(len(pos), tets)

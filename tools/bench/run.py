@@ -31,12 +31,24 @@ from chainsim.engine.errors import UserError
 
 # Tables 6.2-6.4 (frames/second): size -> (Gibson hi, lo, SurfaceChainMail hi, lo, Generalised hi, lo)
 THESIS = {
-    "rigid": {121: (90.9, 58.82, 90.9, 45.5, 90.9, 58.82), 625: (37, 30.3, 37, 30.3, 45.5, 37),
-              2601: (10.75, 10.36, 11.4, 10.6, 10.8, 10.1), 5625: (5.2, 5.18, 5.2, 4.8, 5.7, 5.1)},
-    "medium": {121: (90.9, 58.82, 90.9, 45.5, 90.9, 58.82), 625: (45.45, 37.03, 45.45, 30.3, 90.9, 37),
-               2601: (37.03, 12.04, 22.7, 13, 45.5, 10.1), 5625: (22.73, 6.99, 20.4, 6.5, 22.7, 6.1)},
-    "soft": {121: (90.9, 58.82, 90.9, 45.5, 90.9, 58.82), 625: (90.9, 37.03, 90.9, 30.3, 90.9, 37),
-             2601: (45.45, 12.04, 30.3, 13.4, 45.5, 10.1), 5625: (26.31, 6.99, 22.7, 6.5, 22.7, 6.5)},
+    "rigid": {
+        121: (90.9, 58.82, 90.9, 45.5, 90.9, 58.82),
+        625: (37, 30.3, 37, 30.3, 45.5, 37),
+        2601: (10.75, 10.36, 11.4, 10.6, 10.8, 10.1),
+        5625: (5.2, 5.18, 5.2, 4.8, 5.7, 5.1),
+    },
+    "medium": {
+        121: (90.9, 58.82, 90.9, 45.5, 90.9, 58.82),
+        625: (45.45, 37.03, 45.45, 30.3, 90.9, 37),
+        2601: (37.03, 12.04, 22.7, 13, 45.5, 10.1),
+        5625: (22.73, 6.99, 20.4, 6.5, 22.7, 6.1),
+    },
+    "soft": {
+        121: (90.9, 58.82, 90.9, 45.5, 90.9, 58.82),
+        625: (90.9, 37.03, 90.9, 30.3, 90.9, 37),
+        2601: (45.45, 12.04, 30.3, 13.4, 45.5, 10.1),
+        5625: (26.31, 6.99, 22.7, 6.5, 22.7, 6.5),
+    },
 }
 TABLE_OF = {"rigid": "6.2", "medium": "6.3", "soft": "6.4"}
 # alpha_min, alpha_max as in 6.2.1 (after Gibson 1999); the thesis gives no shear value, these are ours
@@ -107,9 +119,17 @@ class Body:
     def move(self, grab: int, target, order: int = 0, relax_n: int = 0) -> None:
         from chainsim.engine.kernels.chainmail import cascade
 
-        moved, _ = cascade(self.rest, self.pos, self.graph, *self.mat, np.array([grab], dtype=np.int64),
-                           np.asarray(target, dtype=np.float64).reshape(1, -1), order=order,
-                           workspace=self.ws, copy=False)
+        moved, _ = cascade(
+            self.rest,
+            self.pos,
+            self.graph,
+            *self.mat,
+            np.array([grab], dtype=np.int64),
+            np.asarray(target, dtype=np.float64).reshape(1, -1),
+            order=order,
+            workspace=self.ws,
+            copy=False,
+        )
         self.moved = len(moved)
         if relax_n:
             from chainsim.systems.deformation import relax_moved
@@ -155,10 +175,18 @@ def thesis_part(quick: bool, repeat: int) -> list[dict]:
                 row[f"gib_{label}_cpu_ms"] = cpu_ms(t)
                 row[f"gib_{label}_moved"] = int(result["moved"])
             th = THESIS[mname][n]
-            row["thesis"] = {"gibson_high": th[0], "gibson_low": th[1], "surface_high": th[2],
-                             "surface_low": th[3], "generalised_high": th[4], "generalised_low": th[5]}
+            row["thesis"] = {
+                "gibson_high": th[0],
+                "gibson_low": th[1],
+                "surface_high": th[2],
+                "surface_low": th[3],
+                "generalised_high": th[4],
+                "generalised_low": th[5],
+            }
             rows.append(row)
-            _log(f"  thesis grid {side}x{side} {mname}: generalised {row['gen_high_ms']:.4f} / {row['gen_low_ms']:.4f} ms")
+            _log(
+                f"  thesis grid {side}x{side} {mname}: generalised {row['gen_high_ms']:.4f} / {row['gen_low_ms']:.4f} ms"
+            )
     return rows
 
 
@@ -169,9 +197,14 @@ def worst_part(quick: bool) -> list[dict]:
 
     loops = 2 if quick else 20
     edge = np.linspace(-20.0, 20.0, 41)[:-1]
-    square = np.concatenate([
-        np.stack([edge, np.full(40, -20.0)], 1), np.stack([np.full(40, 20.0), edge], 1),
-        np.stack([-edge, np.full(40, 20.0)], 1), np.stack([np.full(40, -20.0), -edge], 1)])
+    square = np.concatenate(
+        [
+            np.stack([edge, np.full(40, -20.0)], 1),
+            np.stack([np.full(40, 20.0), edge], 1),
+            np.stack([-edge, np.full(40, 20.0)], 1),
+            np.stack([np.full(40, -20.0), -edge], 1),
+        ]
+    )
     rows = []
     for side in SIDES:
         rest, links = meshgen.grid((side, side))
@@ -191,12 +224,21 @@ def worst_part(quick: bool) -> list[dict]:
         for p in path:
             gibson_grid_move(gpos, (side, side), c, p, 1.0, 1.0, 0.0)
         gib, gib_cpu = time.perf_counter() - t0, time.process_time() - c0
-        rows.append({"side": side, "elements": side * side, "updates": len(path), "loops": loops,
-                     "generalised_total_s": gen, "generalised_ms_per_update": gen / len(path) * 1e3,
-                     "generalised_cpu_ms_per_update": gen_cpu / len(path) * 1e3,
-                     "gibson_total_s": gib, "gibson_ms_per_update": gib / len(path) * 1e3,
-                     "gibson_cpu_ms_per_update": gib_cpu / len(path) * 1e3,
-                     "moved_per_update": body.moved})
+        rows.append(
+            {
+                "side": side,
+                "elements": side * side,
+                "updates": len(path),
+                "loops": loops,
+                "generalised_total_s": gen,
+                "generalised_ms_per_update": gen / len(path) * 1e3,
+                "generalised_cpu_ms_per_update": gen_cpu / len(path) * 1e3,
+                "gibson_total_s": gib,
+                "gibson_ms_per_update": gib / len(path) * 1e3,
+                "gibson_cpu_ms_per_update": gib_cpu / len(path) * 1e3,
+                "moved_per_update": body.moved,
+            }
+        )
         _log(f"  worst case {side}x{side}: {gen / len(path) * 1e3:.4f} ms/update")
     return rows
 
@@ -238,8 +280,14 @@ def scaling_part(quick: bool, repeat: int, max_elements: float) -> list[dict]:
                 body = Body(vrest, vlinks, *MATERIALS["rigid"])
                 g = int(idmap[centre])
                 target = vrest[g] + 0.5
-                row = {"mesh": kind, "elements": n, "links": int(len(links)),
-                       "links_per_element": 2 * len(links) / n, "variant": vname, "repeats": reps}
+                row = {
+                    "mesh": kind,
+                    "elements": n,
+                    "links": int(len(links)),
+                    "links_per_element": 2 * len(links) / n,
+                    "variant": vname,
+                    "repeats": reps,
+                }
                 t = time_calls(lambda: body.move(g, target), body.reset, reps)
                 row["rigid_ms"] = median_ms(t)
                 row["rigid_cpu_ms"] = cpu_ms(t)
@@ -259,8 +307,10 @@ def scaling_part(quick: bool, repeat: int, max_elements: float) -> list[dict]:
                 base[vname] = row["rigid_cpu_ms"]
                 row["ratio_to_ordered"] = row["rigid_cpu_ms"] / base["ordered"]
                 rows.append(row)
-                _log(f"    {vname:13s} rigid {row['rigid_ms']:.3f} ms (cpu {row['rigid_cpu_ms']:.3f})  local {row['local_ms']:.4f} ms "
-                     f"({row['local_moved']} moved)  ratio {row['ratio_to_ordered']:.2f}")
+                _log(
+                    f"    {vname:13s} rigid {row['rigid_ms']:.3f} ms (cpu {row['rigid_cpu_ms']:.3f})  local {row['local_ms']:.4f} ms "
+                    f"({row['local_moved']} moved)  ratio {row['ratio_to_ordered']:.2f}"
+                )
                 del body, local
     return rows
 
@@ -273,49 +323,69 @@ def _fmt_rate(ms: float) -> str:
 
 
 def markdown(results: dict) -> str:
-    out = ["# Generalised ChainMail benchmark\n",
-           f"{results['machine']} - numpy {results['numpy']}, numba {results['numba']}; medians of repeated runs "
-           "after warm-up.\n"]
+    out = [
+        "# Generalised ChainMail benchmark\n",
+        f"{results['machine']} - numpy {results['numpy']}, numba {results['numba']}; medians of repeated runs "
+        "after warm-up.\n",
+    ]
     if results.get("thesis"):
         out.append("## Thesis 6.2: update rates on square grids (updates/s; thesis: browser frames/s)\n")
-        out.append("Ours: cascade-only updates per second (1000 / median ms). Thesis: Java + VRML frame rates on an "
-                   "AMD-K7, Tables 6.2-6.4. 'high' = small move of the centre element, 'low' = a move that every "
-                   "element follows. Moved = elements moved by our generalised run.\n")
-        out.append("Rates from wall-clock medians; in brackets, from CPU-time medians (what the process itself "
-                   "ran; differs only on a busy machine).\n")
-        out.append("| table | material | grid | ours gen. high | thesis gen. high | ratio | ours gen. low | thesis gen. low | ratio | moved low | ours Gibson high | ours Gibson low | thesis Gibson high / low |")
+        out.append(
+            "Ours: cascade-only updates per second (1000 / median ms). Thesis: Java + VRML frame rates on an "
+            "AMD-K7, Tables 6.2-6.4. 'high' = small move of the centre element, 'low' = a move that every "
+            "element follows. Moved = elements moved by our generalised run.\n"
+        )
+        out.append(
+            "Rates from wall-clock medians; in brackets, from CPU-time medians (what the process itself "
+            "ran; differs only on a busy machine).\n"
+        )
+        out.append(
+            "| table | material | grid | ours gen. high | thesis gen. high | ratio | ours gen. low | thesis gen. low | ratio | moved low | ours Gibson high | ours Gibson low | thesis Gibson high / low |"
+        )
         out.append("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|")
         for r in results["thesis"]:
             th = r["thesis"]
             hi, lo = 1000 / r["gen_high_ms"], 1000 / r["gen_low_ms"]
             chi, clo = 1000 / max(r["gen_high_cpu_ms"], 1e-6), 1000 / max(r["gen_low_cpu_ms"], 1e-6)
-            out.append(f"| {TABLE_OF[r['material']]} | {r['material']} | {r['side']}x{r['side']} | {hi:,.0f} ({chi:,.0f}) | "
-                       f"{th['generalised_high']:g} | {hi / th['generalised_high']:,.0f}x ({chi / th['generalised_high']:,.0f}x) | "
-                       f"{lo:,.0f} ({clo:,.0f}) | {th['generalised_low']:g} | {lo / th['generalised_low']:,.0f}x "
-                       f"({clo / th['generalised_low']:,.0f}x) | {r['gen_low_moved']} | "
-                       f"{_fmt_rate(r['gib_high_ms'])} | {_fmt_rate(r['gib_low_ms'])} | "
-                       f"{th['gibson_high']:g} / {th['gibson_low']:g} |")
+            out.append(
+                f"| {TABLE_OF[r['material']]} | {r['material']} | {r['side']}x{r['side']} | {hi:,.0f} ({chi:,.0f}) | "
+                f"{th['generalised_high']:g} | {hi / th['generalised_high']:,.0f}x ({chi / th['generalised_high']:,.0f}x) | "
+                f"{lo:,.0f} ({clo:,.0f}) | {th['generalised_low']:g} | {lo / th['generalised_low']:,.0f}x "
+                f"({clo / th['generalised_low']:,.0f}x) | {r['gen_low_moved']} | "
+                f"{_fmt_rate(r['gib_high_ms'])} | {_fmt_rate(r['gib_low_ms'])} | "
+                f"{th['gibson_high']:g} / {th['gibson_low']:g} |"
+            )
         out.append("")
     if results.get("worst"):
         out.append("## Fig. 6.4 worst case: rigid grid, centre element 20 times around a 40 x 40 square\n")
-        out.append("| grid | elements | updates | generalised ms/update (cpu) | generalised total s | Gibson ms/update (cpu) | Gibson total s |")
+        out.append(
+            "| grid | elements | updates | generalised ms/update (cpu) | generalised total s | Gibson ms/update (cpu) | Gibson total s |"
+        )
         out.append("|---|---:|---:|---:|---:|---:|---:|")
         for r in results["worst"]:
-            out.append(f"| {r['side']}x{r['side']} | {r['elements']} | {r['updates']} | "
-                       f"{r['generalised_ms_per_update']:.4f} ({r['generalised_cpu_ms_per_update']:.4f}) | "
-                       f"{r['generalised_total_s']:.3f} | {r['gibson_ms_per_update']:.4f} "
-                       f"({r['gibson_cpu_ms_per_update']:.4f}) | {r['gibson_total_s']:.3f} |")
+            out.append(
+                f"| {r['side']}x{r['side']} | {r['elements']} | {r['updates']} | "
+                f"{r['generalised_ms_per_update']:.4f} ({r['generalised_cpu_ms_per_update']:.4f}) | "
+                f"{r['generalised_total_s']:.3f} | {r['gibson_ms_per_update']:.4f} "
+                f"({r['gibson_cpu_ms_per_update']:.4f}) | {r['gibson_total_s']:.3f} |"
+            )
         out.append("")
     if results.get("scaling"):
         out.append("## Scaling: rigid full cascade (every element moves), local grab, relaxation\n")
-        out.append("Wall-clock medians, CPU-time medians in brackets; the ratio to the generated order uses CPU time.\n")
-        out.append("| mesh | elements | links/elem | order | rigid ms | with relax(2) ms | ratio to ordered | local grab ms | local moved |")
+        out.append(
+            "Wall-clock medians, CPU-time medians in brackets; the ratio to the generated order uses CPU time.\n"
+        )
+        out.append(
+            "| mesh | elements | links/elem | order | rigid ms | with relax(2) ms | ratio to ordered | local grab ms | local moved |"
+        )
         out.append("|---|---:|---:|---|---:|---:|---:|---:|---:|")
         for r in results["scaling"]:
-            rel = (f"{r['rigid_relax2_ms']:.3f} ({r['rigid_relax2_cpu_ms']:.3f})" if "rigid_relax2_ms" in r else "-")
-            out.append(f"| {r['mesh']} | {r['elements']:,} | {r['links_per_element']:.1f} | {r['variant']} | "
-                       f"{r['rigid_ms']:.3f} ({r['rigid_cpu_ms']:.3f}) | {rel} | {r['ratio_to_ordered']:.2f} | "
-                       f"{r['local_ms']:.4f} ({r['local_cpu_ms']:.4f}) | {r['local_moved']} |")
+            rel = f"{r['rigid_relax2_ms']:.3f} ({r['rigid_relax2_cpu_ms']:.3f})" if "rigid_relax2_ms" in r else "-"
+            out.append(
+                f"| {r['mesh']} | {r['elements']:,} | {r['links_per_element']:.1f} | {r['variant']} | "
+                f"{r['rigid_ms']:.3f} ({r['rigid_cpu_ms']:.3f}) | {rel} | {r['ratio_to_ordered']:.2f} | "
+                f"{r['local_ms']:.4f} ({r['local_cpu_ms']:.4f}) | {r['local_moved']} |"
+            )
         out.append("")
     return "\n".join(out)
 
@@ -333,8 +403,9 @@ def plot(results: dict, path: Path) -> None:
             rs = [r for r in results["thesis"] if r["material"] == mname]
             n = [r["elements"] for r in rs]
             ax.plot(n, [1000 / r["gen_low_ms"] for r in rs], mk + "-", label=f"ours, {mname}, low")
-            ax.plot(n, [r["thesis"]["generalised_low"] for r in rs], mk + "--", color="grey",
-                    label=f"thesis, {mname}, low")
+            ax.plot(
+                n, [r["thesis"]["generalised_low"] for r in rs], mk + "--", color="grey", label=f"thesis, {mname}, low"
+            )
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("elements")
@@ -344,7 +415,9 @@ def plot(results: dict, path: Path) -> None:
     if results.get("worst"):
         ax = axes[1]
         rs = results["worst"]
-        ax.plot([r["elements"] for r in rs], [r["generalised_cpu_ms_per_update"] for r in rs], "o-", label="Generalised")
+        ax.plot(
+            [r["elements"] for r in rs], [r["generalised_cpu_ms_per_update"] for r in rs], "o-", label="Generalised"
+        )
         ax.plot([r["elements"] for r in rs], [r["gibson_cpu_ms_per_update"] for r in rs], "s-", label="Gibson")
         ax.set_xlabel("elements")
         ax.set_ylabel("CPU ms per update")
@@ -356,8 +429,12 @@ def plot(results: dict, path: Path) -> None:
             for variant, mk in (("ordered", "o"), ("shuffled", "x"), ("shuffled+rcm", "s")):
                 rs = [r for r in results["scaling"] if r["mesh"] == kind and r["variant"] == variant]
                 if rs:
-                    ax.plot([r["elements"] for r in rs], [r["rigid_cpu_ms"] for r in rs], mk + ls,
-                            label=f"{kind}, {variant}")
+                    ax.plot(
+                        [r["elements"] for r in rs],
+                        [r["rigid_cpu_ms"] for r in rs],
+                        mk + ls,
+                        label=f"{kind}, {variant}",
+                    )
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("elements")
@@ -391,8 +468,12 @@ def run_suite(args) -> int:
         raise UserError(f"--out {out}: cannot create folder ({e.strerror})") from None
     max_el = args.max_elements or (1e5 if args.quick else 1e6)
     load = ", load average %.1f at start" % os.getloadavg()[0] if hasattr(os, "getloadavg") else ""
-    results = {"machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {platform.system()}{load}",
-               "numpy": np.__version__, "numba": numba.__version__, "quick": bool(args.quick)}
+    results = {
+        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {platform.system()}{load}",
+        "numpy": np.__version__,
+        "numba": numba.__version__,
+        "quick": bool(args.quick),
+    }
     t0 = time.perf_counter()
     if "thesis" in parts:
         _log("thesis 6.2 grids ...")
@@ -417,8 +498,8 @@ def run_suite(args) -> int:
 
 
 def run_mesh(args) -> int:
-    from chainsim.game.cli.commands.chainmail import ORDERS, check_material_flags
     from chainsim.engine.meshimport import load_graph
+    from chainsim.game.cli.commands.chainmail import ORDERS, check_material_flags
 
     check_material_flags(args)
     if args.grab is None or args.to is None:
@@ -437,12 +518,24 @@ def run_mesh(args) -> int:
     order = ORDERS.index(args.order)
     reps = args.repeat or 20
     times = time_calls(lambda: body.move(args.grab, args.to, order=order, relax_n=args.relax), body.reset, reps)
-    result = {"mesh": str(args.mesh), "elements": n, "links": int(len(links)), "dim": dim,
-              "median_ms": median_ms(times), "min_ms": min(times) * 1e3, "max_ms": max(times) * 1e3,
-              "repeats": reps, "elements_moved": body.moved, "order": args.order, "relax": args.relax}
+    result = {
+        "mesh": str(args.mesh),
+        "elements": n,
+        "links": int(len(links)),
+        "dim": dim,
+        "median_ms": median_ms(times),
+        "min_ms": min(times) * 1e3,
+        "max_ms": max(times) * 1e3,
+        "repeats": reps,
+        "elements_moved": body.moved,
+        "order": args.order,
+        "relax": args.relax,
+    }
     if args.json:
         print(json.dumps(result))
     else:
-        print(f"{result['mesh']}: {n} elements, {result['links']} links; one cascade moving "
-              f"{body.moved} elements: median {result['median_ms']:.4f} ms over {reps} runs")
+        print(
+            f"{result['mesh']}: {n} elements, {result['links']} links; one cascade moving "
+            f"{body.moved} elements: median {result['median_ms']:.4f} ms over {reps} runs"
+        )
     return 0

@@ -13,7 +13,6 @@ preset is only right near the strain level it was fitted at; the preset records 
 
 from __future__ import annotations
 
-from chainsim.assets import ASSETS_DIR
 import itertools
 import os
 import tomllib
@@ -22,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from chainsim.assets import ASSETS_DIR
 from chainsim.engine.errors import UserError
 
 from .chainmail_model import ChainMailModel, ChainMailParams
@@ -30,7 +30,7 @@ from .fem_nonlinear import NeoHookeanFEM
 from .metrics import displacement_error
 from .scenes import block
 
-REFERENCE_TRACTION = 300.0      # Pa: a gentle forceps traction (about 0.03 N over 1 cm^2)
+REFERENCE_TRACTION = 300.0  # Pa: a gentle forceps traction (about 0.03 N over 1 cm^2)
 MIN_STRAIN, MAX_STRAIN = 1e-3, 0.5
 RELAX_OPTIONS = (0, 4, 16, 64)
 PRESETS_PATH = ASSETS_DIR / "presets" / "materials.toml"
@@ -47,11 +47,11 @@ def strain_for(E: float | None, strain: float | None = None) -> float:
     return float(np.clip(REFERENCE_TRACTION / E, MIN_STRAIN, MAX_STRAIN))
 
 
-def fit(nu: float, E: float | None = None, strain: float | None = None, n: int = 8,
-        progress=None) -> dict:
+def fit(nu: float, E: float | None = None, strain: float | None = None, n: int = 8, progress=None) -> dict:
     """Best ChainMail parameters on the study block (n^3 nodes) against neo-Hookean FEM."""
     import numba
-    numba.set_num_threads(1)     # many tiny relaxations: thread start-up would dominate
+
+    numba.set_num_threads(1)  # many tiny relaxations: thread start-up would dominate
     check_material(E if E is not None else 1.0, nu)
     s = strain_for(E, strain)
     scene = block(n)
@@ -75,8 +75,7 @@ def fit(nu: float, E: float | None = None, strain: float | None = None, n: int =
     # the stretch slack that matters scales with the strain (the cascade reaches about
     # strain / (alpha_max - 1) of the body), so search it relative to the strain level
     slacks = s * np.geomspace(0.03, 3.0, 12)
-    for k, sl, ratio, bf in itertools.product(RELAX_OPTIONS, slacks, (0.5, 1.0, 2.0),
-                                              (0.0, 0.25, 0.5, 1.0)):
+    for k, sl, ratio, bf in itertools.product(RELAX_OPTIONS, slacks, (0.5, 1.0, 2.0), (0.0, 0.25, 0.5, 1.0)):
         e, p = err(sl, ratio, bf * sl, k)
         if e < best[0]:
             best = (e, p, sl, ratio, bf)
@@ -84,6 +83,7 @@ def fit(nu: float, E: float | None = None, strain: float | None = None, n: int =
         progress(f"grid search: rms {best[0]:.4f}")
     # local refinement of the continuous parameters at the best relaxation count
     from scipy.optimize import minimize
+
     e0, p0, sl0, r0, b0 = best
     k = p0.relax_iterations
 
@@ -96,14 +96,22 @@ def fit(nu: float, E: float | None = None, strain: float | None = None, n: int =
     if opt.fun < e0:
         sl = s * np.exp(opt.x[0])
         e0, p0 = err(sl, abs(opt.x[1]), abs(opt.x[2]) * sl, k)
-    return {"alpha_min": round(float(p0.alpha_min), 6), "alpha_max": round(float(p0.alpha_max), 6),
-            "beta": round(float(p0.beta), 6), "relax_iterations": int(p0.relax_iterations),
-            "fitted_error": round(float(e0), 6),
-            "source": (f"chainsim study calibrate: neo-Hookean FEM, nu={nu:g}"
-                       + (f", E={E:g} Pa" if E is not None else "")
-                       + f", strain {s:g}, block {scene.n_nodes} nodes, RMS error / displacement"),
-            "nu": float(nu), "E": float(E) if E is not None else None, "strain": s,
-            "warnings": [str(w.message) for w in caught]}
+    return {
+        "alpha_min": round(float(p0.alpha_min), 6),
+        "alpha_max": round(float(p0.alpha_max), 6),
+        "beta": round(float(p0.beta), 6),
+        "relax_iterations": int(p0.relax_iterations),
+        "fitted_error": round(float(e0), 6),
+        "source": (
+            f"chainsim study calibrate: neo-Hookean FEM, nu={nu:g}"
+            + (f", E={E:g} Pa" if E is not None else "")
+            + f", strain {s:g}, block {scene.n_nodes} nodes, RMS error / displacement"
+        ),
+        "nu": float(nu),
+        "E": float(E) if E is not None else None,
+        "strain": s,
+        "warnings": [str(w.message) for w in caught],
+    }
 
 
 def load_presets(path: str | os.PathLike | None = None) -> dict:
@@ -131,11 +139,15 @@ def write_preset(name: str, preset: dict, path: str | os.PathLike | None = None)
     p = Path(path) if path else PRESETS_PATH
     presets = load_presets(p)
     presets[name] = {k: preset[k] for k in FIELDS} | {
-        k: preset[k] for k in ("nu", "E", "strain") if preset.get(k) is not None}
-    lines = ["# ChainMail material presets written by `chainsim study calibrate` (see",
-             "# docs/choosing-a-model.md). Each table: alpha_min, alpha_max, beta, relax_iterations,",
-             "# fitted_error (RMS displacement error / imposed displacement vs neo-Hookean FEM) and",
-             "# the fit's source; nu, E and strain record what it was fitted for.", ""]
+        k: preset[k] for k in ("nu", "E", "strain") if preset.get(k) is not None
+    }
+    lines = [
+        "# ChainMail material presets written by `chainsim study calibrate` (see",
+        "# docs/choosing-a-model.md). Each table: alpha_min, alpha_max, beta, relax_iterations,",
+        "# fitted_error (RMS displacement error / imposed displacement vs neo-Hookean FEM) and",
+        "# the fit's source; nu, E and strain record what it was fitted for.",
+        "",
+    ]
     for key in sorted(presets):
         lines.append(f"[{key}]")
         for k, v in presets[key].items():
@@ -152,5 +164,4 @@ def write_preset(name: str, preset: dict, path: str | os.PathLike | None = None)
 
 
 # presets shipped with the project: (name, E [Pa], nu)
-SHIPPED = [("bone-like", 1.0e9, 0.3), ("medium", 3.0e4, 0.4), ("soft-tissue", 3.0e3, 0.45),
-           ("very-soft", 6.0e2, 0.49)]
+SHIPPED = [("bone-like", 1.0e9, 0.3), ("medium", 3.0e4, 0.4), ("soft-tissue", 3.0e3, 0.45), ("very-soft", 6.0e2, 0.49)]

@@ -25,6 +25,7 @@ class ChainMailModel:
     def __init__(self, pos, links, fixed_ids=None, order: str = "fifo"):
         from chainsim.engine.kernels.chainmail import ORDER_BALANCED, ORDER_FIFO, make_workspace
         from chainsim.engine.kernels.graph import build_graph
+
         self.rest = np.ascontiguousarray(pos, dtype=np.float64)
         self.n = len(self.rest)
         self.graph = build_graph(self.n, np.asarray(links, dtype=np.int64))
@@ -38,6 +39,7 @@ class ChainMailModel:
 
     def _materials(self, p: ChainMailParams):
         from chainsim.engine.kernels.chainmail import material_arrays
+
         key = (p.alpha_min, p.alpha_max, p.beta)
         if key != self._mat_key:
             self._mat = material_arrays(self.graph.n_links, *key)
@@ -51,21 +53,33 @@ class ChainMailModel:
         """
         from chainsim.engine.kernels.chainmail import cascade
         from chainsim.engine.kernels.relax import relax
+
         amin, amax, beta = self._materials(params)
         grabbed = np.ascontiguousarray(grabbed, dtype=np.int64)
         targets = np.ascontiguousarray(self.rest[grabbed] + np.asarray(disp).reshape(-1, 3))
         pos = self.rest.copy()
         t0 = time.thread_time()
-        order, _ = cascade(self.rest, pos, self.graph, amin, amax, beta, grabbed, targets,
-                           fixed=self.fixed, order=self.order, workspace=self.ws, copy=False)
+        order, _ = cascade(
+            self.rest,
+            pos,
+            self.graph,
+            amin,
+            amax,
+            beta,
+            grabbed,
+            targets,
+            fixed=self.fixed,
+            order=self.order,
+            workspace=self.ws,
+            copy=False,
+        )
         t1 = time.thread_time()
         moved = len(order)
         if params.relax_iterations > 0 and moved > len(grabbed):
-            active = np.asarray(order[len(grabbed):], dtype=np.int64)
+            active = np.asarray(order[len(grabbed) :], dtype=np.int64)
             if self.fixed is not None:
                 active = active[~self.fixed[active]]
-            relax(self.rest, pos, self.graph, active, int(params.relax_iterations), 1.0,
-                  fixed=self.fixed)
+            relax(self.rest, pos, self.graph, active, int(params.relax_iterations), 1.0, fixed=self.fixed)
         t2 = time.thread_time()
         u = pos - self.rest
         if not np.all(np.isfinite(u)):

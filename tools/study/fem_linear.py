@@ -45,14 +45,13 @@ def lame(E: float, nu: float) -> tuple[float, float]:
 def isotropic_tangent(lam: float, mu: float) -> np.ndarray:
     """C[i,k,j,l] with sigma_ik = C_ikjl du_j/dx_l (small strain)."""
     d = np.eye(3)
-    return (lam * np.einsum("ik,jl->ikjl", d, d)
-            + mu * (np.einsum("ij,kl->ikjl", d, d) + np.einsum("il,kj->ikjl", d, d)))
+    return lam * np.einsum("ik,jl->ikjl", d, d) + mu * (np.einsum("ij,kl->ikjl", d, d) + np.einsum("il,kj->ikjl", d, d))
 
 
 @dataclass
 class StaticResult:
-    u: np.ndarray                      # (N, 3) displacements
-    status: str                        # "ok" | "failed"
+    u: np.ndarray  # (N, 3) displacements
+    status: str  # "ok" | "failed"
     iterations: int = 1
     warnings: list[str] = field(default_factory=list)
     info: dict = field(default_factory=dict)
@@ -71,8 +70,10 @@ class LinearFEM:
         self.warnings: list[str] = []
         lam, mu = lame(E, nu)
         if nu > LOCKING_NU:
-            msg = (f"nu={nu:g} > {LOCKING_NU}: linear P1 tetrahedra lock for nearly incompressible "
-                   "material; displacements stay finite but are too small")
+            msg = (
+                f"nu={nu:g} > {LOCKING_NU}: linear P1 tetrahedra lock for nearly incompressible "
+                "material; displacements stay finite but are too small"
+            )
             warnings.warn(msg, LockingWarning, stacklevel=2)
             self.warnings.append(msg)
         t0 = time.thread_time()
@@ -111,9 +112,13 @@ class LinearFEM:
         status = "ok" if np.all(np.isfinite(u)) else "failed"
         if status != "ok":
             u[~np.isfinite(u)] = 0.0
-        return StaticResult(u.reshape(-1, 3), status, 1, list(self.warnings),
-                            {"t_assemble": self.t_assemble, "t_factor": self.t_factor,
-                             "t_solve": t_solve})
+        return StaticResult(
+            u.reshape(-1, 3),
+            status,
+            1,
+            list(self.warnings),
+            {"t_assemble": self.t_assemble, "t_factor": self.t_factor, "t_solve": t_solve},
+        )
 
 
 def solve_linear(pos, tets, E, nu, constrained, disp_constrained=None, forces=None) -> StaticResult:

@@ -26,7 +26,7 @@ class PathResult:
     """Solutions along a load path; `u[f]` is the (N,3) field at load fraction f."""
 
     u: dict
-    status: str                         # "converged" | "failed"
+    status: str  # "converged" | "failed"
     newton_iterations: dict = field(default_factory=dict)
     load_steps: int = 0
     warnings: list[str] = field(default_factory=list)
@@ -40,8 +40,10 @@ class NeoHookeanFEM:
         self.lam, self.mu = lame(E, nu)
         self.warnings: list[str] = []
         if nu > LOCKING_NU:
-            msg = (f"nu={nu:g} > {LOCKING_NU}: P1 tetrahedra lock for nearly incompressible "
-                   "material; the nonlinear solution stays finite but is too stiff")
+            msg = (
+                f"nu={nu:g} > {LOCKING_NU}: P1 tetrahedra lock for nearly incompressible "
+                "material; the nonlinear solution stays finite but is too stiff"
+            )
             warnings.warn(msg, LockingWarning, stacklevel=2)
             self.warnings.append(msg)
         self.vol, self.grads = shape_gradients(self.pos, self.tets)
@@ -56,8 +58,8 @@ class NeoHookeanFEM:
 
     # --- element kinematics -------------------------------------------------------------
     def _deformation(self, u_flat):
-        x = (self.pos.reshape(-1) + u_flat).reshape(-1, 3)[self.tets]          # (T,4,3)
-        return np.einsum("tai,tak->tik", x, self.grads, optimize=True)          # F_ik
+        x = (self.pos.reshape(-1) + u_flat).reshape(-1, 3)[self.tets]  # (T,4,3)
+        return np.einsum("tai,tak->tik", x, self.grads, optimize=True)  # F_ik
 
     def energy(self, u_flat) -> float:
         F = self._deformation(u_flat)
@@ -72,7 +74,7 @@ class NeoHookeanFEM:
     def residual_and_tangent(self, u_flat, want_tangent=True):
         F = self._deformation(u_flat)
         J = np.linalg.det(F)
-        Finv = np.linalg.inv(F)                                                  # (T,3,3)
+        Finv = np.linalg.inv(F)  # (T,3,3)
         FinvT = np.transpose(Finv, (0, 2, 1))
         lnJ = np.log(J)
         P = self.mu * (F - FinvT) + self.lam * lnJ[:, None, None] * FinvT
@@ -81,16 +83,19 @@ class NeoHookeanFEM:
             return r, None
         d = np.eye(3)
         # A_ikjl = mu d_ij d_kl + (mu - lam lnJ) Finv_li Finv_kj + lam Finv_ki Finv_lj
-        A = (self.mu * np.einsum("ij,kl->ikjl", d, d)[None]
-             + (self.mu - self.lam * lnJ)[:, None, None, None, None]
-             * np.einsum("tli,tkj->tikjl", Finv, Finv, optimize=True)
-             + self.lam * np.einsum("tki,tlj->tikjl", Finv, Finv, optimize=True))
+        A = (
+            self.mu * np.einsum("ij,kl->ikjl", d, d)[None]
+            + (self.mu - self.lam * lnJ)[:, None, None, None, None]
+            * np.einsum("tli,tkj->tikjl", Finv, Finv, optimize=True)
+            + self.lam * np.einsum("tki,tlj->tikjl", Finv, Finv, optimize=True)
+        )
         K = self.pattern.assemble(element_matrices(self.vol, self.grads, A))
         return r, K
 
     # --- solve ---------------------------------------------------------------------------
-    def solve_path(self, disp_constrained, fractions, tol=1e-8, max_newton=30,
-                   max_halvings=8, initial_steps=None, progress=None) -> PathResult:
+    def solve_path(
+        self, disp_constrained, fractions, tol=1e-8, max_newton=30, max_halvings=8, initial_steps=None, progress=None
+    ) -> PathResult:
         """Drive the constrained dofs to `fractions[i] * disp_constrained` in turn.
 
         disp_constrained: (len(constrained), 3) final prescribed displacements (np.unique order).
@@ -130,14 +135,25 @@ class NeoHookeanFEM:
                 else:
                     halvings += 1
                     if halvings > max_halvings:
-                        return PathResult(out, "failed", iters, steps, list(self.warnings),
-                                          {"time": time.thread_time() - t0,
-                                           "newton_total": total_newton, "reached": current})
+                        return PathResult(
+                            out,
+                            "failed",
+                            iters,
+                            steps,
+                            list(self.warnings),
+                            {"time": time.thread_time() - t0, "newton_total": total_newton, "reached": current},
+                        )
                     step *= 0.5
             out[f] = u.reshape(-1, 3).copy()
             iters[f] = n_it_f
-        return PathResult(out, "converged", iters, steps, list(self.warnings),
-                          {"time": time.thread_time() - t0, "newton_total": total_newton})
+        return PathResult(
+            out,
+            "converged",
+            iters,
+            steps,
+            list(self.warnings),
+            {"time": time.thread_time() - t0, "newton_total": total_newton},
+        )
 
     def _newton(self, trial, u_prev, tol, max_newton, scale):
         """Newton on the free dofs with the constrained ones already at their new values."""

@@ -55,8 +55,9 @@ def spring_forces(x, links, rest, k, out):
 
 
 @njit(cache=True)
-def integrate(x, v, links, rest, k, inv_m, gamma, free, dt, max_steps, scheme, tol, blowup,
-              cidx, c0, cdisp, ramp_steps):
+def integrate(
+    x, v, links, rest, k, inv_m, gamma, free, dt, max_steps, scheme, tol, blowup, cidx, c0, cdisp, ramp_steps
+):
     """Step until the free-node force residual falls below `tol` (absolute, 2-norm).
 
     The constrained nodes `cidx` move from c0 to c0 + cdisp linearly over `ramp_steps` steps (a
@@ -90,10 +91,10 @@ def integrate(x, v, links, rest, k, inv_m, gamma, free, dt, max_steps, scheme, t
                 continue
             for d in range(3):
                 acc = f[i, d] * inv_m[i] - gamma * v[i, d]
-                if scheme == 0:          # forward Euler: position uses the old velocity
+                if scheme == 0:  # forward Euler: position uses the old velocity
                     x[i, d] += dt * v[i, d]
                     v[i, d] += dt * acc
-                else:                    # symplectic Euler: position uses the new velocity
+                else:  # symplectic Euler: position uses the new velocity
                     v[i, d] += dt * acc
                     x[i, d] += dt * v[i, d]
                 if not (abs(x[i, d]) < blowup):
@@ -103,8 +104,8 @@ def integrate(x, v, links, rest, k, inv_m, gamma, free, dt, max_steps, scheme, t
 
 @dataclass
 class DynamicResult:
-    u: np.ndarray | None               # (N, 3) or None when the run diverged
-    status: str                        # converged | max_steps | diverged
+    u: np.ndarray | None  # (N, 3) or None when the run diverged
+    status: str  # converged | max_steps | diverged
     steps: int
     residual: float
     dt: float
@@ -115,7 +116,7 @@ class MassSpring:
     def __init__(self, pos, tets, E: float, rho: float = 1000.0, fixed=None):
         self.pos = np.ascontiguousarray(pos, dtype=np.float64)
         self.tets = np.asarray(tets, dtype=np.int64)
-        vol, _ = shape_gradients(self.pos, self.tets)      # also rejects degenerate tets
+        vol, _ = shape_gradients(self.pos, self.tets)  # also rejects degenerate tets
         self.links = np.ascontiguousarray(tet_edges(self.tets))
         self.n = len(self.pos)
         self.rest = np.linalg.norm(self.pos[self.links[:, 1]] - self.pos[self.links[:, 0]], axis=1)
@@ -127,8 +128,7 @@ class MassSpring:
         idx = np.searchsorted(key, key_all)
         w = np.bincount(idx, weights=np.tile(vol / 6.0, 6), minlength=len(key))
         self.k = E * w / self.rest**2
-        self.mass = np.bincount(self.tets.ravel(), weights=np.repeat(rho * vol / 4.0, 4),
-                                minlength=self.n)
+        self.mass = np.bincount(self.tets.ravel(), weights=np.repeat(rho * vol / 4.0, 4), minlength=self.n)
         self.fixed = None if fixed is None else np.unique(np.asarray(fixed, dtype=np.int64))
 
     # --- time-step analysis (thesis eq. 2.2) ----------------------------------------------
@@ -143,12 +143,13 @@ class MassSpring:
         blk = self.k[:, None, None] * nn[:, :, None] * nn[:, None, :]
         a, b = self.links[:, 0], self.links[:, 1]
         rows, cols, vals = [], [], []
-        for (p, q, s) in ((a, a, 1), (b, b, 1), (a, b, -1), (b, a, -1)):
+        for p, q, s in ((a, a, 1), (b, b, 1), (a, b, -1), (b, a, -1)):
             rows.append((3 * p[:, None, None] + np.arange(3)[None, :, None]).repeat(3, 2).ravel())
             cols.append((3 * q[:, None, None] + np.arange(3)[None, None, :]).repeat(3, 1).ravel())
             vals.append((s * blk).ravel())
-        return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                             shape=(3 * self.n, 3 * self.n))
+        return sp.csr_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * self.n, 3 * self.n)
+        )
 
     def omega_max(self, free_mask=None) -> float:
         """Highest angular frequency of the linearised network (free nodes only)."""
@@ -168,10 +169,8 @@ class MassSpring:
         """Rayleigh-quotient estimate of the slowest mode: a quarter sine of the hop distance
         from the anchored nodes, tried along each axis; used to pick near-critical damping."""
         n = self.n
-        adj = sp.coo_matrix((np.ones(len(self.links)), (self.links[:, 0], self.links[:, 1])),
-                            shape=(n, n)).tocsr()
-        dist = csgraph.dijkstra(adj, directed=False, indices=anchored, min_only=True,
-                                unweighted=True)
+        adj = sp.coo_matrix((np.ones(len(self.links)), (self.links[:, 0], self.links[:, 1])), shape=(n, n)).tocsr()
+        dist = csgraph.dijkstra(adj, directed=False, indices=anchored, min_only=True, unweighted=True)
         dist[~np.isfinite(dist)] = 0
         shape = np.sin(0.5 * np.pi * dist / max(dist.max(), 1))
         shape[~free_mask] = 0
@@ -191,15 +190,24 @@ class MassSpring:
         key = (free_mask.tobytes(), np.asarray(anchored).tobytes())
         if getattr(self, "_analysis_key", None) != key:
             w_max = self.omega_max(free_mask)
-            self._analysis = (w_max, self.last_omega_gershgorin,
-                              self.omega_min_estimate(free_mask, anchored))
+            self._analysis = (w_max, self.last_omega_gershgorin, self.omega_min_estimate(free_mask, anchored))
             self._analysis_key = key
         return self._analysis
 
     # --- run to equilibrium -----------------------------------------------------------------
-    def solve(self, constrained, disp_constrained, scheme="symplectic", dt=None, dt_factor=0.9,
-              damping=None, tol=1e-4, max_steps=200_000, anchored=None,
-              ramp=1.0) -> DynamicResult:
+    def solve(
+        self,
+        constrained,
+        disp_constrained,
+        scheme="symplectic",
+        dt=None,
+        dt_factor=0.9,
+        damping=None,
+        tol=1e-4,
+        max_steps=200_000,
+        anchored=None,
+        ramp=1.0,
+    ) -> DynamicResult:
         """Hold `constrained` nodes at rest + disp and integrate to static equilibrium.
 
         dt defaults to dt_factor times the exact linear stability bound of the chosen scheme;
@@ -235,18 +243,46 @@ class MassSpring:
         t_setup = time.thread_time() - t0
         t1 = time.thread_time()
         blowup = 1e3 * (np.abs(self.pos).max() + np.abs(x).max() + 1.0)
-        code, steps, resid = integrate(x, v, self.links, self.rest, self.k, 1.0 / self.mass,
-                                       gamma, free, float(dt), int(max_steps), SCHEMES[scheme],
-                                       tol * max(r0, 1e-300), blowup, c,
-                                       np.ascontiguousarray(self.pos[c]), cdisp, ramp_steps)
+        code, steps, resid = integrate(
+            x,
+            v,
+            self.links,
+            self.rest,
+            self.k,
+            1.0 / self.mass,
+            gamma,
+            free,
+            float(dt),
+            int(max_steps),
+            SCHEMES[scheme],
+            tol * max(r0, 1e-300),
+            blowup,
+            c,
+            np.ascontiguousarray(self.pos[c]),
+            cdisp,
+            ramp_steps,
+        )
         t_run = time.thread_time() - t1
         status = _STATUS[int(code)]
         u = None if status == "diverged" or not np.all(np.isfinite(x)) else x - self.pos
         if u is None:
             status = "diverged"
-        return DynamicResult(u, status, int(steps), float(resid / max(r0, 1e-300)), float(dt),
-                             {"t_setup": t_setup, "t_run": t_run,
-                              "t_step": t_run / max(steps, 1), "dt_bound": bound, "dt_gershgorin": safe,
-                              "dt_eq22": self.critical_dt_eq22(), "omega_max": w_max,
-                              "omega_min_est": w_min, "gamma": gamma,
-                              "ramp_steps": ramp_steps})
+        return DynamicResult(
+            u,
+            status,
+            int(steps),
+            float(resid / max(r0, 1e-300)),
+            float(dt),
+            {
+                "t_setup": t_setup,
+                "t_run": t_run,
+                "t_step": t_run / max(steps, 1),
+                "dt_bound": bound,
+                "dt_gershgorin": safe,
+                "dt_eq22": self.critical_dt_eq22(),
+                "omega_max": w_max,
+                "omega_min_est": w_min,
+                "gamma": gamma,
+                "ramp_steps": ramp_steps,
+            },
+        )

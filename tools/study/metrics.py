@@ -17,10 +17,11 @@ def displacement_error(u, u_ref, scale: float) -> tuple[float, float]:
 
 def volume_change(pos, tets, u) -> dict:
     """Relative change of total volume and the share of inverted tetrahedra."""
+
     def signed(p):
         x = p[tets]
-        return np.einsum("ti,ti->t", x[:, 1] - x[:, 0],
-                         np.cross(x[:, 2] - x[:, 0], x[:, 3] - x[:, 0])) / 6.0
+        return np.einsum("ti,ti->t", x[:, 1] - x[:, 0], np.cross(x[:, 2] - x[:, 0], x[:, 3] - x[:, 0])) / 6.0
+
     v0 = signed(pos)
     v1 = signed(pos + u)
     s = np.sign(v0)

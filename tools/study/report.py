@@ -16,9 +16,13 @@ import numpy as np
 from .metrics import pareto_front
 
 # thesis Table 6.5: nodes deformed in real time by earlier methods (their own platforms)
-THESIS_TABLE_65 = [("Generalised ChainMail (thesis, Java/VRML, AMD K7)", 5600),
-                   ("Monserrat BEM (SGI R4400)", 150), ("Delingette mass-spring (SGI R4400)", 600),
-                   ("Terzopoulos spline (SGI R4400)", 64), ("Nienhuys fast FEM (500 MHz Xeon)", 2000)]
+THESIS_TABLE_65 = [
+    ("Generalised ChainMail (thesis, Java/VRML, AMD K7)", 5600),
+    ("Monserrat BEM (SGI R4400)", 150),
+    ("Delingette mass-spring (SGI R4400)", 600),
+    ("Terzopoulos spline (SGI R4400)", 64),
+    ("Nienhuys fast FEM (500 MHz Xeon)", 2000),
+]
 
 
 def _fmt(v, nd=3):
@@ -42,33 +46,49 @@ def _table(headers, rows):
 
 
 def pareto_rows(results, scene):
-    rows = [r for r in results["rows"] if r["scene"] == scene and r["strain"] == results["pareto_strain"]
-            and r.get("rms_error") is not None and np.isfinite(r["time_ms"])
-            and r["model"] != "neo-Hookean FEM"]
+    rows = [
+        r
+        for r in results["rows"]
+        if r["scene"] == scene
+        and r["strain"] == results["pareto_strain"]
+        and r.get("rms_error") is not None
+        and np.isfinite(r["time_ms"])
+        and r["model"] != "neo-Hookean FEM"
+    ]
     front = pareto_front([(max(r["time_ms"], 1e-4), r["rms_error"]) for r in rows])
     return rows, front
 
 
 def plot_pareto(results, out: Path) -> list[str]:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     files = []
     for scene in sorted({r["scene"] for r in results["rows"]}):
         rows, front = pareto_rows(results, scene)
         if not rows:
             continue
         fig, ax = plt.subplots(figsize=(8, 5.5))
-        fams = sorted({r["model"].split(" r")[0] if r["model"].startswith("ChainMail") else r["model"]
-                       for r in rows})
+        fams = sorted({r["model"].split(" r")[0] if r["model"].startswith("ChainMail") else r["model"] for r in rows})
         markers = dict(zip(sorted({r["nodes"] for r in rows}), "os^D"))
         for i, fam in enumerate(fams):
-            sel = [r for r in rows if (r["model"].split(" r")[0] if r["model"].startswith("ChainMail")
-                                       else r["model"]) == fam]
+            sel = [
+                r
+                for r in rows
+                if (r["model"].split(" r")[0] if r["model"].startswith("ChainMail") else r["model"]) == fam
+            ]
             for r in sel:
-                ax.scatter(max(r["time_ms"], 1e-4), r["rms_error"], color=f"C{i}",
-                           marker=markers[r["nodes"]], s=40, alpha=0.8,
-                           label=fam if r is sel[0] else None)
+                ax.scatter(
+                    max(r["time_ms"], 1e-4),
+                    r["rms_error"],
+                    color=f"C{i}",
+                    marker=markers[r["nodes"]],
+                    s=40,
+                    alpha=0.8,
+                    label=fam if r is sel[0] else None,
+                )
         fx = [max(rows[i]["time_ms"], 1e-4) for i in front]
         fy = [rows[i]["rms_error"] for i in front]
         ax.step(fx, fy, where="post", color="k", lw=1.2, label="Pareto front")
@@ -80,8 +100,7 @@ def plot_pareto(results, out: Path) -> list[str]:
         ax.set_xlabel("CPU time per update [ms] (mass-spring: to equilibrium; linear FEM: prefactored solve)")
         ax.set_ylabel("RMS displacement error / imposed displacement")
         sizes = ", ".join(f"{m}={n} nodes" for n, m in markers.items())
-        ax.set_title(f"{scene}: speed vs accuracy at {results['pareto_strain']:.0%} pull ({sizes})",
-                     fontsize=9)
+        ax.set_title(f"{scene}: speed vs accuracy at {results['pareto_strain']:.0%} pull ({sizes})", fontsize=9)
         ax.legend(fontsize=7, loc="best")
         ax.grid(True, which="both", alpha=0.3)
         f = out / f"pareto_{scene}.png"
@@ -94,22 +113,29 @@ def plot_pareto(results, out: Path) -> list[str]:
 
 def plot_error_vs_strain(results, out: Path) -> list[str]:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     scenes = sorted({r["scene"] for r in results["rows"]})
     fig, axes = plt.subplots(1, len(scenes), figsize=(5 * len(scenes), 4.5), squeeze=False)
     for ax, scene in zip(axes[0], scenes):
         nodes = min(r["nodes"] for r in results["rows"] if r["scene"] == scene)
-        sel = [r for r in results["rows"] if r["scene"] == scene and r["nodes"] == nodes
-               and r.get("rms_error") is not None and r["model"] != "neo-Hookean FEM"]
+        sel = [
+            r
+            for r in results["rows"]
+            if r["scene"] == scene
+            and r["nodes"] == nodes
+            and r.get("rms_error") is not None
+            and r["model"] != "neo-Hookean FEM"
+        ]
         models = sorted({r["model"] for r in sel})
         models = [m for m in models if not m.startswith("ChainMail") or m.endswith(("r0", "r16"))]
         for i, m in enumerate(models):
             pts = sorted((r["strain"], r["rms_error"]) for r in sel if r["model"] == m)
             if len(pts) < 2:
                 continue
-            ax.plot(*zip(*pts), marker="o", ms=3, label=m, color=f"C{i % 10}",
-                    ls="-" if i < 10 else "--")
+            ax.plot(*zip(*pts), marker="o", ms=3, label=m, color=f"C{i % 10}", ls="-" if i < 10 else "--")
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("imposed displacement / length")
@@ -126,22 +152,27 @@ def plot_error_vs_strain(results, out: Path) -> list[str]:
 
 def plot_stability(results, out: Path) -> list[str]:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     st = results["stability"]
     fig, ax = plt.subplots(figsize=(7, 4))
     for i, scheme in enumerate(("symplectic", "explicit")):
         runs = [r for r in st["runs"] if r.get("scheme") == scheme and "dt" in r]
         for r in runs:
             ok = r["status"] == "converged"
-            ax.scatter(r["dt_over_eq22"], i, marker="o" if ok else "x", s=60,
-                       color="C2" if ok else "C3")
+            ax.scatter(r["dt_over_eq22"], i, marker="o" if ok else "x", s=60, color="C2" if ok else "C3")
         crit = [r for r in st["runs"] if r.get("scheme") == scheme and "observed_critical_dt" in r]
         if crit:
             ax.scatter(crit[0]["observed_critical_dt"] / st["dt_eq22"], i, marker="|", s=400, color="k")
     ax.axvline(1.0, color="C0", ls="--", label="eq. (2.2) critical step")
-    ax.axvline(st["dt_bound_symplectic"] / st["dt_eq22"], color="C1", ls=":",
-               label="exact linear bound 2/omega_max (symplectic)")
+    ax.axvline(
+        st["dt_bound_symplectic"] / st["dt_eq22"],
+        color="C1",
+        ls=":",
+        label="exact linear bound 2/omega_max (symplectic)",
+    )
     ax.set_yticks([0, 1], ["symplectic Euler", "explicit Euler"])
     ax.set_xscale("log")
     ticks = [0.25, 0.5, 1, 2, 4]
@@ -172,28 +203,34 @@ def frame_cost_table(summaries: list[dict]) -> str:
         total = sum(v.get("mean_ms", 0.0) for v in systems.values())
         for name, v in sorted(systems.items(), key=lambda kv: -kv[1].get("mean_ms", 0.0)):
             share = v.get("mean_ms", 0.0) / total if total > 0 else 0.0
-            rows.append((s.get("pack", "?"), s.get("scene", "-"), name, v.get("mean_ms"),
-                         v.get("max_ms"), f"{share:.0%}"))
+            rows.append(
+                (s.get("pack", "?"), s.get("scene", "-"), name, v.get("mean_ms"), v.get("max_ms"), f"{share:.0%}")
+            )
         rows.append((s.get("pack", "?"), s.get("scene", "-"), "**total**", total, None, ""))
     return _table(["pack", "scene", "system", "mean ms", "max ms", "share"], rows)
 
 
 def render_markdown(results, files, pack_section: str) -> str:
     r = results
-    L = [f"# Speed-accuracy study ({r['mode']} run)", "",
-         f"Material: E = {r['material']['E']:g} Pa, nu = {r['material']['nu']}. Imposed "
-         f"displacements (strain = displacement / scene length): {', '.join(f'{s:g}' for s in r['strains'])}.",
-         f"Times: {r['clock']}. Study CPU time {r['elapsed_cpu_s']:.0f} s, wall {r.get('elapsed_wall_s', float('nan')):.0f} s.",
-         "",
-         "Errors are RMS (and max) nodal displacement error divided by the imposed displacement, against "
-         "the neo-Hookean FEM ground truth; the `reference` column says how the truth was obtained at "
-         "each resolution (nonlinear FEM only fits the budget on the coarsest mesh; finer meshes use "
-         "linear FEM at that resolution plus the coarse mesh's nonlinear correction, the finest uses the "
-         "interpolated reference). Budgets (nodes): " + json.dumps(r["limits"]), "",
-         "Time per update: ChainMail = one cascade from rest plus k relaxation sweeps (`rK`); linear FEM = "
-         "the two triangular solves with the factorisation precomputed (precompute time listed apart); "
-         "mass-spring = time integrated to static equilibrium (residual 1e-4 of the initial one); "
-         "neo-Hookean FEM = Newton path time up to that load.", ""]
+    L = [
+        f"# Speed-accuracy study ({r['mode']} run)",
+        "",
+        f"Material: E = {r['material']['E']:g} Pa, nu = {r['material']['nu']}. Imposed "
+        f"displacements (strain = displacement / scene length): {', '.join(f'{s:g}' for s in r['strains'])}.",
+        f"Times: {r['clock']}. Study CPU time {r['elapsed_cpu_s']:.0f} s, wall {r.get('elapsed_wall_s', float('nan')):.0f} s.",
+        "",
+        "Errors are RMS (and max) nodal displacement error divided by the imposed displacement, against "
+        "the neo-Hookean FEM ground truth; the `reference` column says how the truth was obtained at "
+        "each resolution (nonlinear FEM only fits the budget on the coarsest mesh; finer meshes use "
+        "linear FEM at that resolution plus the coarse mesh's nonlinear correction, the finest uses the "
+        "interpolated reference). Budgets (nodes): " + json.dumps(r["limits"]),
+        "",
+        "Time per update: ChainMail = one cascade from rest plus k relaxation sweeps (`rK`); linear FEM = "
+        "the two triangular solves with the factorisation precomputed (precompute time listed apart); "
+        "mass-spring = time integrated to static equilibrium (residual 1e-4 of the initial one); "
+        "neo-Hookean FEM = Newton path time up to that load.",
+        "",
+    ]
     for f in files:
         L.append(f"![{f}]({f})")
     L.append("")
@@ -202,48 +239,102 @@ def render_markdown(results, files, pack_section: str) -> str:
         L += [f"## {scene}: Pareto table at {r['pareto_strain']:.0%} pull", ""]
         tab = []
         for i, x in sorted(enumerate(rows), key=lambda ix: (ix[1]["nodes"], ix[1]["time_ms"])):
-            tab.append((x["nodes"], x["model"], x["time_ms"], x["rms_error"], x["max_error"],
-                        x.get("volume_change"), x["iterations"], x["status"],
-                        "yes" if i in front else ""))
-        L.append(_table(["nodes", "model", "ms/update", "RMS err", "max err", "dV/V", "iters",
-                         "status", "Pareto"], tab))
-        refs = sorted({(x["nodes"], x["reference"]) for x in r["rows"] if x["scene"] == scene},
-                      key=lambda t: t[0])
+            tab.append(
+                (
+                    x["nodes"],
+                    x["model"],
+                    x["time_ms"],
+                    x["rms_error"],
+                    x["max_error"],
+                    x.get("volume_change"),
+                    x["iterations"],
+                    x["status"],
+                    "yes" if i in front else "",
+                )
+            )
+        L.append(
+            _table(["nodes", "model", "ms/update", "RMS err", "max err", "dV/V", "iters", "status", "Pareto"], tab)
+        )
+        refs = sorted({(x["nodes"], x["reference"]) for x in r["rows"] if x["scene"] == scene}, key=lambda t: t[0])
         L += ["", "References: " + "; ".join(f"{n} nodes: {ref}" for n, ref in refs), ""]
     L += ["## FEM agreement (linear vs neo-Hookean, coarsest mesh)", ""]
-    tab = [(x["scene"], x["nodes"], x["strain"], x["rms_error"], x["max_error"]) for x in r["rows"]
-           if x["model"] == "linear FEM" and x["reference"] and x["reference"].startswith("neo-Hookean")]
+    tab = [
+        (x["scene"], x["nodes"], x["strain"], x["rms_error"], x["max_error"])
+        for x in r["rows"]
+        if x["model"] == "linear FEM" and x["reference"] and x["reference"].startswith("neo-Hookean")
+    ]
     L.append(_table(["scene", "nodes", "strain", "RMS lin-vs-NL", "max lin-vs-NL"], tab))
     L += ["", "Neo-Hookean solver status per scene (load path to 50 %):", ""]
-    L.append(_table(["scene", "nodes", "status", "CPU s"],
-                    [(t["scene"], t["nodes"], t.get("status"), t["seconds"]) for t in r["timings"]
-                     if t["model"] == "neo-Hookean FEM path"]))
+    L.append(
+        _table(
+            ["scene", "nodes", "status", "CPU s"],
+            [
+                (t["scene"], t["nodes"], t.get("status"), t["seconds"])
+                for t in r["timings"]
+                if t["model"] == "neo-Hookean FEM path"
+            ],
+        )
+    )
     st = r["stability"]
-    L += ["", "## Mass-spring time step (eq. 2.2)", "",
-          f"Block {st['nodes']} nodes, {st['strain']:.0%} pull, damping gamma = {st['gamma']:.3g} 1/s. "
-          f"eq. (2.2) step (stiffest spring, mean mass): {st['dt_eq22']:.4g} s; exact linearised bound "
-          f"2/omega_max: {st['dt_bound_symplectic']:.4g} s.", ""]
+    L += [
+        "",
+        "## Mass-spring time step (eq. 2.2)",
+        "",
+        f"Block {st['nodes']} nodes, {st['strain']:.0%} pull, damping gamma = {st['gamma']:.3g} 1/s. "
+        f"eq. (2.2) step (stiffest spring, mean mass): {st['dt_eq22']:.4g} s; exact linearised bound "
+        f"2/omega_max: {st['dt_bound_symplectic']:.4g} s.",
+        "",
+    ]
     crit = [x for x in st["runs"] if "observed_critical_dt" in x]
-    L.append(_table(["scheme", "observed largest stable dt [s]", "/ eq. (2.2)", "linear bound [s]"],
-                    [(c["scheme"], c["observed_critical_dt"], c["observed_critical_dt"] / st["dt_eq22"],
-                      c["linear_bound"]) for c in crit]))
-    L += ["", _table(["scheme", "dt / eq.(2.2)", "status", "steps"],
-                     [(x["scheme"], x["dt_over_eq22"], x["status"], x["steps"]) for x in st["runs"]
-                      if "dt" in x]), ""]
-    L += ["## Largest mesh updated at 30 Hz / 60 Hz", "",
-          "Power-law fit t = a N^b of the per-update CPU time at "
-          f"{r['pareto_strain']:.0%} pull over the measured resolutions; values beyond the largest "
-          "measured mesh are extrapolations. `mass-spring step` is one integration step (an "
-          "interactive simulator takes several per frame, and needs hundreds to settle).", ""]
+    L.append(
+        _table(
+            ["scheme", "observed largest stable dt [s]", "/ eq. (2.2)", "linear bound [s]"],
+            [
+                (c["scheme"], c["observed_critical_dt"], c["observed_critical_dt"] / st["dt_eq22"], c["linear_bound"])
+                for c in crit
+            ],
+        )
+    )
+    L += [
+        "",
+        _table(
+            ["scheme", "dt / eq.(2.2)", "status", "steps"],
+            [(x["scheme"], x["dt_over_eq22"], x["status"], x["steps"]) for x in st["runs"] if "dt" in x],
+        ),
+        "",
+    ]
+    L += [
+        "## Largest mesh updated at 30 Hz / 60 Hz",
+        "",
+        "Power-law fit t = a N^b of the per-update CPU time at "
+        f"{r['pareto_strain']:.0%} pull over the measured resolutions; values beyond the largest "
+        "measured mesh are extrapolations. `mass-spring step` is one integration step (an "
+        "interactive simulator takes several per frame, and needs hundreds to settle).",
+        "",
+    ]
+
     def shown(v, top):
         # a fit far beyond the measured sizes says only "more than we measured"
         if v is None:
             return None
         return f"> {top} (all measured)" if v > 3 * top else f"{v:.0f}"
-    L.append(_table(["scene", "model", "points", "largest measured", "N at 30 Hz", "N at 60 Hz"],
-                    [(x["scene"], x["model"], x["points"], x["measured_max_nodes"],
-                      shown(x["n_30hz"], x["measured_max_nodes"]),
-                      shown(x["n_60hz"], x["measured_max_nodes"])) for x in r["realtime"]]))
+
+    L.append(
+        _table(
+            ["scene", "model", "points", "largest measured", "N at 30 Hz", "N at 60 Hz"],
+            [
+                (
+                    x["scene"],
+                    x["model"],
+                    x["points"],
+                    x["measured_max_nodes"],
+                    shown(x["n_30hz"], x["measured_max_nodes"]),
+                    shown(x["n_60hz"], x["measured_max_nodes"]),
+                )
+                for x in r["realtime"]
+            ],
+        )
+    )
     L += ["", "Thesis Table 6.5 (published figures, other platforms):", ""]
     L.append(_table(["method", "nodes in real time"], THESIS_TABLE_65))
     L += ["", "## Frame cost of the built-in packs by system", "", pack_section, ""]
@@ -254,11 +345,11 @@ def write(results: dict, out_dir, pack_summaries=None, pack_note: str = "") -> P
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     files = plot_pareto(results, out) + plot_error_vs_strain(results, out) + plot_stability(results, out)
-    section = (frame_cost_table(pack_summaries) if pack_summaries else "_not measured_") + \
-        ("\n\n" + pack_note if pack_note else "")
+    section = (frame_cost_table(pack_summaries) if pack_summaries else "_not measured_") + (
+        "\n\n" + pack_note if pack_note else ""
+    )
     results = dict(results, pack_frame_costs=pack_summaries or [], plots=files)
-    (out / "results.json").write_text(json.dumps(_finite(results), indent=1, default=_json_default),
-                                      encoding="utf-8")
+    (out / "results.json").write_text(json.dumps(_finite(results), indent=1, default=_json_default), encoding="utf-8")
     md = out / "report.md"
     md.write_text(render_markdown(results, files, section), encoding="utf-8")
     return md

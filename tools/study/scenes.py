@@ -20,15 +20,15 @@ from chainsim.engine.meshgen import tet_grid
 @dataclass
 class Scene:
     name: str
-    shape: tuple[int, int, int]         # grid nodes per axis
+    shape: tuple[int, int, int]  # grid nodes per axis
     spacing: float
     pos: np.ndarray
     tets: np.ndarray
     links: np.ndarray
-    fixed: np.ndarray                   # node ids held at rest
-    grabbed: np.ndarray                 # node ids moved by the imposed displacement
-    direction: np.ndarray               # unit vector of the pull
-    length: float                       # displacement = strain * length
+    fixed: np.ndarray  # node ids held at rest
+    grabbed: np.ndarray  # node ids moved by the imposed displacement
+    direction: np.ndarray  # unit vector of the pull
+    length: float  # displacement = strain * length
 
     @property
     def n_nodes(self) -> int:
@@ -67,17 +67,22 @@ def _make(name, shape, spacing, fixed_mask, grab_mask, direction, length):
     if len(grabbed) == 0:
         raise ValueError(f"scene {name}: grab patch holds no node at shape {shape}")
     d = np.asarray(direction, dtype=np.float64)
-    return Scene(name, tuple(shape), spacing, pos, tets, links, fixed, grabbed,
-                 d / np.linalg.norm(d), length)
+    return Scene(name, tuple(shape), spacing, pos, tets, links, fixed, grabbed, d / np.linalg.norm(d), length)
 
 
 def block(n: int) -> Scene:
     """Unit cube, n^3 nodes; base z=0 fixed; top nodes within 0.2 of the top centre pulled up."""
     h = 1.0 / (n - 1)
     eps = 1e-9
-    return _make("block", (n, n, n), h, lambda p: p[:, 2] < eps,
-                 lambda p: (p[:, 2] > 1 - eps) & (np.hypot(p[:, 0] - 0.5, p[:, 1] - 0.5) <= 0.2 + eps),
-                 (0, 0, 1), 1.0)
+    return _make(
+        "block",
+        (n, n, n),
+        h,
+        lambda p: p[:, 2] < eps,
+        lambda p: (p[:, 2] > 1 - eps) & (np.hypot(p[:, 0] - 0.5, p[:, 1] - 0.5) <= 0.2 + eps),
+        (0, 0, 1),
+        1.0,
+    )
 
 
 def sheet(n: int) -> Scene:
@@ -85,9 +90,15 @@ def sheet(n: int) -> Scene:
     (1, 1) (radius 0.1, through the thickness) pulled in-plane away from the fixed edge."""
     h = 1.0 / (n - 1)
     eps = 1e-9
-    return _make("sheet", (n, n, 2), h, lambda p: p[:, 1] < eps,
-                 lambda p: np.hypot(p[:, 0] - 1.0, p[:, 1] - 1.0) <= max(0.1, 1.01 * h) + eps,
-                 (0, 1, 0), 1.0)
+    return _make(
+        "sheet",
+        (n, n, 2),
+        h,
+        lambda p: p[:, 1] < eps,
+        lambda p: np.hypot(p[:, 0] - 1.0, p[:, 1] - 1.0) <= max(0.1, 1.01 * h) + eps,
+        (0, 1, 0),
+        1.0,
+    )
 
 
 def cantilever(n: int) -> Scene:
@@ -95,8 +106,7 @@ def cantilever(n: int) -> Scene:
     h = 0.2 / (n - 1)
     eps = 1e-9
     nx = 5 * (n - 1) + 1
-    return _make("cantilever", (nx, n, n), h, lambda p: p[:, 0] < eps,
-                 lambda p: p[:, 0] > 1.0 - eps, (0, 0, -1), 1.0)
+    return _make("cantilever", (nx, n, n), h, lambda p: p[:, 0] < eps, lambda p: p[:, 0] > 1.0 - eps, (0, 0, -1), 1.0)
 
 
 SCENES = {"block": block, "sheet": sheet, "cantilever": cantilever}

@@ -31,8 +31,10 @@ PARETO_STRAIN = 0.1
 RELAX = [0, 4, 16, 64]
 
 # budgets (nodes): above these a solver is not run at that resolution
-LIMITS = {"full": {"nl": 2000, "lin": 12000, "ms": 12000, "ms_explicit": 2000},
-          "quick": {"nl": 1000, "lin": 2500, "ms": 2500, "ms_explicit": 600}}
+LIMITS = {
+    "full": {"nl": 2000, "lin": 12000, "ms": 12000, "ms_explicit": 2000},
+    "quick": {"nl": 1000, "lin": 2500, "ms": 2500, "ms_explicit": 600},
+}
 
 
 def log(msg: str) -> None:
@@ -45,19 +47,29 @@ def default_chainmail_settings():
     out = {"thesis-medium": ChainMailParams(0.8, 1.2, 0.1), "thesis-soft": ChainMailParams(0.5, 2.5, 0.3)}
     try:
         from .calibrate import load_presets
+
         p = load_presets().get("soft-tissue")
         if p:
             out["soft-tissue"] = ChainMailParams(p["alpha_min"], p["alpha_max"], p["beta"])
-    except Exception as e:          # a broken presets file must not stop the study
+    except Exception as e:  # a broken presets file must not stop the study
         log(f"presets not used: {e}")
     return out
 
 
 def _row(scene, res_n, model, strain, u, ref, ref_name, t, iters, status, extra=None):
     d = strain * scene.length
-    row = {"scene": scene.name, "resolution": res_n, "nodes": scene.n_nodes,
-           "elements": len(scene.tets), "model": model, "strain": strain, "status": status,
-           "time_ms": t * 1e3, "iterations": iters, "reference": ref_name}
+    row = {
+        "scene": scene.name,
+        "resolution": res_n,
+        "nodes": scene.n_nodes,
+        "elements": len(scene.tets),
+        "model": model,
+        "strain": strain,
+        "status": status,
+        "time_ms": t * 1e3,
+        "iterations": iters,
+        "reference": ref_name,
+    }
     if u is not None and ref is not None:
         rms, mx = displacement_error(u, ref, d)
         row.update({"rms_error": rms, "max_error": mx})
@@ -69,7 +81,7 @@ def _row(scene, res_n, model, strain, u, ref, ref_name, t, iters, status, extra=
 
 
 def run_scene(name, resolutions, strains, limits, cm_settings, repeats, rows, timings):
-    prev = None                      # (scene, {strain: ref}, {strain: lin}, {strain: nl})
+    prev = None  # (scene, {strain: ref}, {strain: lin}, {strain: nl})
     for res_n in resolutions:
         scene = sc.SCENES[name](res_n)
         n = scene.n_nodes
@@ -82,8 +94,14 @@ def run_scene(name, resolutions, strains, limits, cm_settings, repeats, rows, ti
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", LockingWarning)
                 lin = LinearFEM(scene.pos, scene.tets, E_STUDY, NU_STUDY, c)
-            timings.append({"scene": name, "nodes": n, "model": "linear FEM (precompute)",
-                            "seconds": lin.t_assemble + lin.t_factor})
+            timings.append(
+                {
+                    "scene": name,
+                    "nodes": n,
+                    "model": "linear FEM (precompute)",
+                    "seconds": lin.t_assemble + lin.t_factor,
+                }
+            )
             lin_t = {}
             for s in strains:
                 lin_t[s], r = median_time(lambda: lin.solve(scene.constrained_disp(s)), repeats)
@@ -94,25 +112,47 @@ def run_scene(name, resolutions, strains, limits, cm_settings, repeats, rows, ti
             stamps = {}
             t0 = time.thread_time()
             fem = NeoHookeanFEM(scene.pos, scene.tets, E_STUDY, NU_STUDY, c)
-            res = fem.solve_path(scene.constrained_disp(1.0), strains,
-                                 progress=lambda f: stamps.__setitem__(f, time.thread_time() - t0))
-            log(f"  neo-Hookean FEM: {res.status}, {res.info['newton_total']} Newton iterations, "
-                f"{res.info['time']:.1f}s")
+            res = fem.solve_path(
+                scene.constrained_disp(1.0), strains, progress=lambda f: stamps.__setitem__(f, time.thread_time() - t0)
+            )
+            log(
+                f"  neo-Hookean FEM: {res.status}, {res.info['newton_total']} Newton iterations, "
+                f"{res.info['time']:.1f}s"
+            )
             nls = res.u
             for s in strains:
                 if s in nls:
                     refs[s] = nls[s]
             ref_name = "neo-Hookean FEM (same mesh)"
-            timings.append({"scene": name, "nodes": n, "model": "neo-Hookean FEM path",
-                            "seconds": res.info["time"], "status": res.status})
+            timings.append(
+                {
+                    "scene": name,
+                    "nodes": n,
+                    "model": "neo-Hookean FEM path",
+                    "seconds": res.info["time"],
+                    "status": res.status,
+                }
+            )
             for s in strains:
                 if s in nls:
-                    rows.append(_row(scene, res_n, "neo-Hookean FEM", s, nls[s], refs.get(s),
-                                     ref_name, stamps.get(s, np.nan), res.newton_iterations.get(s),
-                                     "converged"))
+                    rows.append(
+                        _row(
+                            scene,
+                            res_n,
+                            "neo-Hookean FEM",
+                            s,
+                            nls[s],
+                            refs.get(s),
+                            ref_name,
+                            stamps.get(s, np.nan),
+                            res.newton_iterations.get(s),
+                            "converged",
+                        )
+                    )
                 else:
-                    rows.append(_row(scene, res_n, "neo-Hookean FEM", s, None, None, ref_name,
-                                     np.nan, None, res.status))
+                    rows.append(
+                        _row(scene, res_n, "neo-Hookean FEM", s, None, None, ref_name, np.nan, None, res.status)
+                    )
         elif prev is not None:
             pscene, prefs, plins, pnls = prev
             for s in strains:
@@ -127,56 +167,132 @@ def run_scene(name, resolutions, strains, limits, cm_settings, repeats, rows, ti
                     ref_name = f"interpolated from {pscene.n_nodes}-node reference"
         if lins:
             for s in strains:
-                rows.append(_row(scene, res_n, "linear FEM", s, lins[s], refs.get(s), ref_name,
-                                 lin_t[s], 1, "ok", {"precompute_s": lin.t_assemble + lin.t_factor}))
+                rows.append(
+                    _row(
+                        scene,
+                        res_n,
+                        "linear FEM",
+                        s,
+                        lins[s],
+                        refs.get(s),
+                        ref_name,
+                        lin_t[s],
+                        1,
+                        "ok",
+                        {"precompute_s": lin.t_assemble + lin.t_factor},
+                    )
+                )
         # --- ChainMail ---------------------------------------------------------------------
         cm = ChainMailModel(scene.pos, scene.links, scene.fixed)
         warm = ChainMailParams(0.9, 1.1, 0.1, 1)
-        cm.solve(scene.grabbed, scene.grab_disp(0.01), warm)        # compile outside timing
+        cm.solve(scene.grabbed, scene.grab_disp(0.01), warm)  # compile outside timing
         for label, p in cm_settings.items():
             for k in RELAX:
                 params = ChainMailParams(p.alpha_min, p.alpha_max, p.beta, k)
                 for s in strains:
-                    t, (u, info) = median_time(
-                        lambda: cm.solve(scene.grabbed, scene.grab_disp(s), params), repeats)
-                    rows.append(_row(scene, res_n, f"ChainMail {label} r{k}", s, u, refs.get(s),
-                                     ref_name, t, k, "ok", {"moved": info["moved"]}))
+                    t, (u, info) = median_time(lambda: cm.solve(scene.grabbed, scene.grab_disp(s), params), repeats)
+                    rows.append(
+                        _row(
+                            scene,
+                            res_n,
+                            f"ChainMail {label} r{k}",
+                            s,
+                            u,
+                            refs.get(s),
+                            ref_name,
+                            t,
+                            k,
+                            "ok",
+                            {"moved": info["moved"]},
+                        )
+                    )
         # worst case of thesis 6.2 (Fig. 6.4): a rigid object, every element moves in the cascade
-        t, (u, info) = median_time(lambda: cm.solve(scene.grabbed, scene.grab_disp(PARETO_STRAIN),
-                                                    ChainMailParams(1.0, 1.0, 0.0, 0)), repeats)
-        timings.append({"scene": name, "nodes": n, "model": "ChainMail rigid (worst case)",
-                        "seconds": t, "moved": info["moved"]})
+        t, (u, info) = median_time(
+            lambda: cm.solve(scene.grabbed, scene.grab_disp(PARETO_STRAIN), ChainMailParams(1.0, 1.0, 0.0, 0)), repeats
+        )
+        timings.append(
+            {"scene": name, "nodes": n, "model": "ChainMail rigid (worst case)", "seconds": t, "moved": info["moved"]}
+        )
         log(f"  ChainMail: {len(cm_settings) * len(RELAX) * len(strains)} runs")
         # --- mass-spring -------------------------------------------------------------------
         ms = MassSpring(scene.pos, scene.tets, E_STUDY, fixed=scene.fixed)
         if n <= limits["ms"]:
             for s in strains:
                 r = ms.solve(c, scene.constrained_disp(s), scheme="symplectic")
-                rows.append(_row(scene, res_n, "mass-spring symplectic", s, r.u, refs.get(s),
-                                 ref_name, r.info["t_run"], r.steps, r.status,
-                                 {"t_step_ms": r.info["t_step"] * 1e3, "dt": r.dt,
-                                  "dt_eq22": r.info["dt_eq22"], "dt_bound": r.info["dt_bound"]}))
-            log(f"  mass-spring symplectic: {[row['status'] for row in rows[-len(strains):]]}")
+                rows.append(
+                    _row(
+                        scene,
+                        res_n,
+                        "mass-spring symplectic",
+                        s,
+                        r.u,
+                        refs.get(s),
+                        ref_name,
+                        r.info["t_run"],
+                        r.steps,
+                        r.status,
+                        {
+                            "t_step_ms": r.info["t_step"] * 1e3,
+                            "dt": r.dt,
+                            "dt_eq22": r.info["dt_eq22"],
+                            "dt_bound": r.info["dt_bound"],
+                        },
+                    )
+                )
+            log(f"  mass-spring symplectic: {[row['status'] for row in rows[-len(strains) :]]}")
         if n <= limits["ms_explicit"]:
             s = PARETO_STRAIN
             r = ms.solve(c, scene.constrained_disp(s), scheme="explicit", max_steps=50_000)
-            rows.append(_row(scene, res_n, "mass-spring explicit", s, r.u, refs.get(s), ref_name,
-                             r.info["t_run"], r.steps, r.status,
-                             {"t_step_ms": r.info["t_step"] * 1e3, "dt": r.dt}))
+            rows.append(
+                _row(
+                    scene,
+                    res_n,
+                    "mass-spring explicit",
+                    s,
+                    r.u,
+                    refs.get(s),
+                    ref_name,
+                    r.info["t_run"],
+                    r.steps,
+                    r.status,
+                    {"t_step_ms": r.info["t_step"] * 1e3, "dt": r.dt},
+                )
+            )
             log(f"  mass-spring explicit: {r.status} after {r.steps} steps")
         # per-step cost at every size (the frame-rate fit uses it even where equilibrium is not run)
-        from .mass_spring import integrate, SYMPLECTIC
+        from .mass_spring import SYMPLECTIC, integrate
+
         x = scene.pos.copy()
         v = np.zeros_like(x)
         free = np.ones(n, np.bool_)
         free[c] = False
         noc = np.zeros(0, np.int64)
         no3 = np.zeros((0, 3))
-        integrate(x, v, ms.links, ms.rest, ms.k, 1.0 / ms.mass, 1.0, free, 1e-9, 1, SYMPLECTIC, 0.0,
-                  1e30, noc, no3, no3, 0)
-        t, _ = median_time(lambda: integrate(x, v, ms.links, ms.rest, ms.k, 1.0 / ms.mass, 1.0,
-                                             free, 1e-9, 10, SYMPLECTIC, 0.0, 1e30, noc, no3, no3, 0),
-                           repeats)
+        integrate(
+            x, v, ms.links, ms.rest, ms.k, 1.0 / ms.mass, 1.0, free, 1e-9, 1, SYMPLECTIC, 0.0, 1e30, noc, no3, no3, 0
+        )
+        t, _ = median_time(
+            lambda: integrate(
+                x,
+                v,
+                ms.links,
+                ms.rest,
+                ms.k,
+                1.0 / ms.mass,
+                1.0,
+                free,
+                1e-9,
+                10,
+                SYMPLECTIC,
+                0.0,
+                1e30,
+                noc,
+                no3,
+                no3,
+                0,
+            ),
+            repeats,
+        )
         timings.append({"scene": name, "nodes": n, "model": "mass-spring step", "seconds": t / 10})
         prev = (scene, refs, lins, nls)
 
@@ -195,8 +311,16 @@ def stability_sweep(strain=0.1, n=8):
         bnd = bound if scheme == "symplectic" else ms.solve(c, disp, scheme="explicit", max_steps=1).info["dt_bound"]
         for f in (0.25, 0.5, 0.9, 1.0, 1.1, 1.5, 2.0, 4.0):
             r = ms.solve(c, disp, scheme=scheme, dt=f * dt22, max_steps=20_000)
-            sweep.append({"scheme": scheme, "dt": f * dt22, "dt_over_eq22": f,
-                          "status": r.status, "steps": r.steps, "residual": r.residual})
+            sweep.append(
+                {
+                    "scheme": scheme,
+                    "dt": f * dt22,
+                    "dt_over_eq22": f,
+                    "status": r.status,
+                    "steps": r.steps,
+                    "residual": r.residual,
+                }
+            )
         lo, hi = 0.0, 8.0 * max(dt22, bnd)
         for _ in range(14):
             mid = 0.5 * (lo + hi)
@@ -206,8 +330,15 @@ def stability_sweep(strain=0.1, n=8):
             else:
                 hi = mid
         sweep.append({"scheme": scheme, "observed_critical_dt": lo, "linear_bound": bnd})
-    return {"nodes": scene.n_nodes, "strain": strain, "dt_eq22": dt22, "dt_bound_symplectic": bound,
-            "omega_max": base.info["omega_max"], "gamma": base.info["gamma"], "runs": sweep}
+    return {
+        "nodes": scene.n_nodes,
+        "strain": strain,
+        "dt_eq22": dt22,
+        "dt_bound_symplectic": bound,
+        "omega_max": base.info["omega_max"],
+        "gamma": base.info["gamma"],
+        "runs": sweep,
+    }
 
 
 def realtime_table(rows, timings):
@@ -225,14 +356,22 @@ def realtime_table(rows, timings):
             series.setdefault((t["scene"], t["model"]), []).append((t["nodes"], t["seconds"]))
     for (scene, model), pts in sorted(series.items()):
         ns, ts = zip(*pts)
-        out.append({"scene": scene, "model": model, "points": len(pts),
-                    "n_30hz": realtime_size(ns, ts, 30.0), "n_60hz": realtime_size(ns, ts, 60.0),
-                    "measured_max_nodes": max(ns)})
+        out.append(
+            {
+                "scene": scene,
+                "model": model,
+                "points": len(pts),
+                "n_30hz": realtime_size(ns, ts, 30.0),
+                "n_60hz": realtime_size(ns, ts, 60.0),
+                "measured_max_nodes": max(ns),
+            }
+        )
     return out
 
 
 def run(quick: bool, out_dir, scenes=None) -> dict:
     import numba
+
     # the machine is shared and has 2 cores: kernels run on one thread and every time in the
     # study is CPU time of the calling thread, which other processes' load does not inflate
     numba.set_num_threads(1)
@@ -245,14 +384,23 @@ def run(quick: bool, out_dir, scenes=None) -> dict:
     rows, timings = [], []
     t0 = time.thread_time()
     w0 = time.perf_counter()
-    for name in (scenes or list(sc.SCENES)):
+    for name in scenes or list(sc.SCENES):
         run_scene(name, resolutions[name], strains, limits, cm_settings, repeats, rows, timings)
     log("mass-spring stability sweep")
     stability = stability_sweep(n=6 if quick else 8)
-    results = {"mode": mode, "material": {"E": E_STUDY, "nu": NU_STUDY}, "strains": strains,
-               "pareto_strain": PARETO_STRAIN, "limits": limits, "rows": rows, "timings": timings,
-               "stability": stability, "realtime": realtime_table(rows, timings),
-               "chainmail_settings": {k: vars(v) for k, v in cm_settings.items()},
-               "elapsed_cpu_s": time.thread_time() - t0, "elapsed_wall_s": time.perf_counter() - w0,
-               "clock": "CPU time of the calling thread (numba kernels single-threaded)"}
+    results = {
+        "mode": mode,
+        "material": {"E": E_STUDY, "nu": NU_STUDY},
+        "strains": strains,
+        "pareto_strain": PARETO_STRAIN,
+        "limits": limits,
+        "rows": rows,
+        "timings": timings,
+        "stability": stability,
+        "realtime": realtime_table(rows, timings),
+        "chainmail_settings": {k: vars(v) for k, v in cm_settings.items()},
+        "elapsed_cpu_s": time.thread_time() - t0,
+        "elapsed_wall_s": time.perf_counter() - w0,
+        "clock": "CPU time of the calling thread (numba kernels single-threaded)",
+    }
     return results

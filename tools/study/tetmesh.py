@@ -21,7 +21,8 @@ class DegenerateElementsError(UserError):
         super().__init__(
             f"mesh has {len(self.element_ids)} near-zero-volume tetrahedra "
             f"(|volume| < {rel_tol:g} * mean_edge^3): element ids {shown}{more}; "
-            "remove or repair them before solving")
+            "remove or repair them before solving"
+        )
 
 
 def edge_matrices(pos: np.ndarray, tets: np.ndarray) -> np.ndarray:
@@ -43,7 +44,7 @@ def degenerate_elements(pos: np.ndarray, tets: np.ndarray, rel_tol: float = 1e-6
     """
     vol = np.abs(np.linalg.det(edge_matrices(pos, tets))) / 6.0
     h = mean_edge_length(pos, tets)
-    bad = ~(vol > rel_tol * h**3)          # also catches NaN coordinates
+    bad = ~(vol > rel_tol * h**3)  # also catches NaN coordinates
     return np.flatnonzero(bad)
 
 
@@ -60,7 +61,7 @@ def shape_gradients(pos: np.ndarray, tets: np.ndarray, rel_tol: float = 1e-6):
         raise DegenerateElementsError(bad, rel_tol)
     dm = edge_matrices(pos, tets)
     vol = np.abs(np.linalg.det(dm)) / 6.0
-    inv = np.linalg.inv(dm)                 # rows are gradients of N1, N2, N3
+    inv = np.linalg.inv(dm)  # rows are gradients of N1, N2, N3
     grads = np.empty((len(tets), 4, 3))
     grads[:, 1:, :] = inv
     grads[:, 0, :] = -inv.sum(axis=1)
@@ -75,4 +76,5 @@ def dof_indices(tets: np.ndarray) -> np.ndarray:
 def tet_edges(tets: np.ndarray) -> np.ndarray:
     """Unique undirected edges of the tetrahedra (the spring network of a mass-spring model)."""
     from chainsim.engine.meshgen import links_from_cells
+
     return links_from_cells(tets)

@@ -26,20 +26,27 @@ HELP = "move one element of a mesh with Generalised ChainMail and save the resul
 ORDERS = ("fifo", "balanced", "schill")
 
 
-
 def add_parser(sub):
     p = sub.add_parser(NAME, help=HELP, description=HELP)
-    p.add_argument("mesh", metavar="MESH", help=".npz with positions/links[/fixed], or a mesh file (.obj .ply .stl .msh .vtu ...)")
+    p.add_argument(
+        "mesh", metavar="MESH", help=".npz with positions/links[/fixed], or a mesh file (.obj .ply .stl .msh .vtu ...)"
+    )
     p.add_argument("--grab", type=int, required=True, metavar="I", help="id of the element to move")
     p.add_argument("--to", type=float, nargs="+", required=True, metavar="X", help="target position: D coordinates")
     p.add_argument("--alpha-min", type=float, required=True, metavar="A", help="compression limit in [0, 1]")
     p.add_argument("--alpha-max", type=float, required=True, metavar="B", help="stretch limit >= 1")
     p.add_argument("--beta", type=float, required=True, metavar="C", help="shear limit >= 0")
-    p.add_argument("--relax", type=int, default=0, metavar="N", help="relaxation sweeps after the cascade (default 0: raw cascade)")
+    p.add_argument(
+        "--relax", type=int, default=0, metavar="N", help="relaxation sweeps after the cascade (default 0: raw cascade)"
+    )
     p.add_argument("--relax-step", type=float, default=1.0, metavar="S", help="relaxation step in (0, 1] (default 1)")
     p.add_argument("--order", choices=ORDERS, default="fifo", help="waiting-list order (default fifo)")
-    p.add_argument("--kind", choices=("auto", "surface", "volume"), default="auto",
-                   help="for mesh files: surface links, tetrahedron links (closed surfaces are filled), or as the file is")
+    p.add_argument(
+        "--kind",
+        choices=("auto", "surface", "volume"),
+        default="auto",
+        help="for mesh files: surface links, tetrahedron links (closed surfaces are filled), or as the file is",
+    )
     p.add_argument("--out", required=True, metavar="OUT.npz", help="result file (written atomically)")
     return p
 
@@ -87,12 +94,20 @@ def check_args(args) -> None:
         raise UserError(f"--out: folder {parent} does not exist")
 
 
-def simulate(positions, links, fixed_ids, grab: int, target, alpha_min, alpha_max, beta, relax_n=0,
-             relax_step=1.0, order="fifo"):
+def simulate(
+    positions, links, fixed_ids, grab: int, target, alpha_min, alpha_max, beta, relax_n=0, relax_step=1.0, order="fifo"
+):
     """Run one move; returns (positions, order, sponsor (N,))."""
     import numpy as np
 
-    from chainsim.engine.kernels.chainmail import ORDER_BALANCED, ORDER_FIFO, ORDER_SCHILL, cascade, make_workspace, material_arrays
+    from chainsim.engine.kernels.chainmail import (
+        ORDER_BALANCED,
+        ORDER_FIFO,
+        ORDER_SCHILL,
+        cascade,
+        make_workspace,
+        material_arrays,
+    )
     from chainsim.engine.kernels.graph import build_graph
 
     pos = np.array(positions, dtype=np.float64, copy=True, order="C")
@@ -105,9 +120,19 @@ def simulate(positions, links, fixed_ids, grab: int, target, alpha_min, alpha_ma
         fixed = np.zeros(n, dtype=np.bool_)
         fixed[fixed_ids] = True
     code = {"fifo": ORDER_FIFO, "balanced": ORDER_BALANCED, "schill": ORDER_SCHILL}[order]
-    moved, sponsors = cascade(rest, pos, graph, amin, amax, bet, np.array([grab], dtype=np.int64),
-                              np.asarray(target, dtype=np.float64).reshape(1, -1), fixed=fixed, order=code,
-                              workspace=make_workspace(n))
+    moved, sponsors = cascade(
+        rest,
+        pos,
+        graph,
+        amin,
+        amax,
+        bet,
+        np.array([grab], dtype=np.int64),
+        np.asarray(target, dtype=np.float64).reshape(1, -1),
+        fixed=fixed,
+        order=code,
+        workspace=make_workspace(n),
+    )
     if relax_n > 0 and len(moved) > 1:
         from chainsim.systems.deformation import relax_moved
 
@@ -155,8 +180,19 @@ def run(args) -> int:
     if len(args.to) != dim:
         raise UserError(f"--to: the mesh is {dim}-D, so give {dim} coordinate(s); got {len(args.to)}")
     try:
-        pos, order, sponsor = simulate(positions, links, fixed, args.grab, args.to, args.alpha_min, args.alpha_max,
-                                       args.beta, args.relax, args.relax_step, args.order)
+        pos, order, sponsor = simulate(
+            positions,
+            links,
+            fixed,
+            args.grab,
+            args.to,
+            args.alpha_min,
+            args.alpha_max,
+            args.beta,
+            args.relax,
+            args.relax_step,
+            args.order,
+        )
     except ValueError as e:  # the kernels' own checks, if anything slipped past ours
         raise UserError(f"{args.mesh}: {e}") from None
     write_result(Path(args.out), pos, order, sponsor)

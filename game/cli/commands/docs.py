@@ -32,12 +32,16 @@ def _fmt_default(f) -> str:
 
 
 def render_reference() -> str:
-    from chainsim.game.packs import schema  # noqa: F401  (registers sections)
     from chainsim.components.registry import COMPONENTS, KINDS, SECTION_STYLE, SECTIONS, load_all
+    from chainsim.game.packs import schema  # noqa: F401  (registers sections)
 
     load_all()
-    out = ["# pack.toml reference (format 1)", "",
-           "Generated from chainsim's registry: every key below is checked by `chainsim validate`.", ""]
+    out = [
+        "# pack.toml reference (format 1)",
+        "",
+        "Generated from chainsim's registry: every key below is checked by `chainsim validate`.",
+        "",
+    ]
 
     def table(schema, heading):
         out.append(heading)

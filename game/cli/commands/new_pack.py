@@ -17,8 +17,8 @@ def add_parser(sub):
 def run(args) -> int:
     from pathlib import Path
 
-    from chainsim.game.packs import pack as packs
     from chainsim.engine.errors import UserError
+    from chainsim.game.packs import pack as packs
     from chainsim.game.packs.scaffold import create
 
     if not Path(args.dir).is_dir():

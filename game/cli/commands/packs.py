@@ -7,7 +7,11 @@ HELP = "list the asset packs found and where"
 
 
 def add_parser(sub):
-    p = sub.add_parser(NAME, help=HELP, description="List packs: --pack-path folders, CHAINSIM_PACK_PATH, pip-installed (entry points), built-in.")
+    p = sub.add_parser(
+        NAME,
+        help=HELP,
+        description="List packs: --pack-path folders, CHAINSIM_PACK_PATH, pip-installed (entry points), built-in.",
+    )
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR", help="extra folder of packs (repeatable)")
     return p
 
@@ -23,7 +27,9 @@ def run(args) -> int:
         seen.add(f.name)
         pack, problems = packs.validate(f.path, load_meshes=False)
         if problems:
-            status = f"INVALID ({len(problems)} problem{'s' if len(problems) > 1 else ''}; run chainsim validate {f.path})"
+            status = (
+                f"INVALID ({len(problems)} problem{'s' if len(problems) > 1 else ''}; run chainsim validate {f.path})"
+            )
             scenes = ""
         else:
             status = pack.manifest["pack"].get("title") or ""

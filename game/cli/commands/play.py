@@ -14,7 +14,9 @@ def add_parser(sub):
     p.add_argument("pack", nargs="?", default="prp", help="PACK or PACK/SCENE (default: prp)")
     p.add_argument("--record", metavar="FILE", help="save the session for `chainsim replay`")
     p.add_argument("--input", metavar="SCRIPT", help="play an input script in the window (demonstrations, tests)")
-    p.add_argument("--exit-after", type=float, default=None, metavar="SECONDS", help="close after this much simulated time")
+    p.add_argument(
+        "--exit-after", type=float, default=None, metavar="SECONDS", help="close after this much simulated time"
+    )
     p.add_argument("--screenshot", metavar="PNG", help="save a screenshot of the window when closing")
     p.add_argument("--db", metavar="PATH", help="trainee records database")
     p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempts are saved under")
@@ -33,8 +35,10 @@ def run(args) -> int:
     from chainsim.engine.errors import UserError
 
     if not has_display():
-        raise UserError(f"no display to open a window on (DISPLAY is not set); run without one: "
-                        f"chainsim run {args.pack} --headless --steps 600 --out DIR")
+        raise UserError(
+            f"no display to open a window on (DISPLAY is not set); run without one: "
+            f"chainsim run {args.pack} --headless --steps 600 --out DIR"
+        )
     from chainsim.game.packs import pack as packs
 
     packs.resolve(args.pack, args.pack_path)  # unknown pack: clear error before any window opens

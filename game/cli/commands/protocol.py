@@ -50,8 +50,16 @@ def add_parser(sub):
     p = sub.add_parser(NAME, help=HELP, description=HELP)
     p.add_argument("protocol", help="protocol TOML file (e.g. assets/prp/protocols/table61.toml)")
     p.add_argument("--db", metavar="PATH", help="records database (default: $CHAINSIM_DB or the user data folder)")
-    p.add_argument("--class", dest="class_name", default="study", metavar="NAME", help="class the attempts are saved under (default: study)")
-    p.add_argument("--trainee", default="scripted", metavar="NAME", help="trainee the attempts are saved under (default: scripted)")
+    p.add_argument(
+        "--class",
+        dest="class_name",
+        default="study",
+        metavar="NAME",
+        help="class the attempts are saved under (default: study)",
+    )
+    p.add_argument(
+        "--trainee", default="scripted", metavar="NAME", help="trainee the attempts are saved under (default: scripted)"
+    )
     p.add_argument("--out", metavar="DIR", help="folder for each trial's summary.json, results.json and table61.png")
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     return p
@@ -129,8 +137,17 @@ def load_protocol(path: str | Path) -> dict:
                 raise _err(w, f"unknown aid '{k}'; aids are {', '.join(AIDS)}")
             if not isinstance(v, bool):
                 raise _err(w, f"aid '{k}' must be true or false, got {v!r}")
-        out.append({"name": name, "task": task, "condition": cond, "scripts": scripts, "repeat": repeat,
-                    "steps": steps, "aids": {a: bool(aids.get(a, False)) for a in AIDS}})
+        out.append(
+            {
+                "name": name,
+                "task": task,
+                "condition": cond,
+                "scripts": scripts,
+                "repeat": repeat,
+                "steps": steps,
+                "aids": {a: bool(aids.get(a, False)) for a in AIDS},
+            }
+        )
     return {"path": path, "pack": data["pack"], "title": data.get("title", ""), "trials": out}
 
 
@@ -161,10 +178,10 @@ def mean_table(results: list[dict]) -> dict:
 def format_table(table: dict) -> str:
     cols = []
     for task in TASKS:
-        for (t, c) in table:
+        for t, c in table:
             if t == task and (t, c) not in cols:
                 cols.append((t, c))
-        for (t, c) in THESIS_MM:
+        for t, c in THESIS_MM:
             if t == task and (t, c) in table and (t, c) not in cols:
                 cols.append((t, c))
     width = 18
@@ -185,9 +202,15 @@ def format_table(table: dict) -> str:
         count += f"{used}/{total}".center(width)
         th = THESIS_MM.get(key)
         thesis += (f"{th:.1f}" if th is not None else "-").center(width)
-    lines = ["Performance test results (after thesis Table 6.1; location: landmark error, rotation and "
-             "insertion: needle error E = Dist - R)", head1.rstrip(), head2.rstrip(), row.rstrip(), count.rstrip(),
-             thesis.rstrip()]
+    lines = [
+        "Performance test results (after thesis Table 6.1; location: landmark error, rotation and "
+        "insertion: needle error E = Dist - R)",
+        head1.rstrip(),
+        head2.rstrip(),
+        row.rstrip(),
+        count.rstrip(),
+        thesis.rstrip(),
+    ]
     return "\n".join(lines)
 
 
@@ -213,11 +236,11 @@ def _plot(table: dict, path: Path) -> None:
 def run(args) -> int:
     import json
 
-    from chainsim.game.packs import pack as packs
+    from chainsim.components.input_events import Widget
     from chainsim.engine.errors import UserError
     from chainsim.game.app.headless import run_pack
     from chainsim.game.app.inputscript import load_script
-    from chainsim.components.input_events import Widget
+    from chainsim.game.packs import pack as packs
     from chainsim.game.records.store import RecordStore
     from chainsim.systems.procedures.prp.assessment import attempt_record
 
@@ -242,12 +265,16 @@ def run(args) -> int:
     results = []
     try:
         for i, (t, path, events, r) in enumerate(plan, 1):
-            print(f"[{i}/{len(plan)}] {t['name']}: {path.name} ({', '.join(a for a, v in t['aids'].items() if v) or 'no aids'})",
-                  file=sys.stderr, flush=True)
+            print(
+                f"[{i}/{len(plan)}] {t['name']}: {path.name} ({', '.join(a for a, v in t['aids'].items() if v) or 'no aids'})",
+                file=sys.stderr,
+                flush=True,
+            )
             aid_events = [(0.0, Widget(a, v)) for a, v in t["aids"].items()]
             trial_out = str(out / f"{i:02d}-{t['name']}") if out is not None else None
-            summary = run_pack(str(root), t["steps"], events=aid_events + list(events), out=trial_out,
-                               pack_paths=args.pack_path)
+            summary = run_pack(
+                str(root), t["steps"], events=aid_events + list(events), out=trial_out, pack_paths=args.pack_path
+            )
             a = summary.get("assessment")
             if not a:
                 raise UserError(f"pack '{pack.name}' produced no assessment; protocols need a procedure pack")
@@ -255,12 +282,28 @@ def run(args) -> int:
             saved = None
             if a.get("landmark_error_mm") is not None:
                 rec = attempt_record(pack.name, a)
-                rec["details"]["protocol"] = {"trial": t["name"], "task": t["task"], "condition": t["condition"],
-                                              "script": path.name, "repeat": r + 1}
+                rec["details"]["protocol"] = {
+                    "trial": t["name"],
+                    "task": t["task"],
+                    "condition": t["condition"],
+                    "script": path.name,
+                    "repeat": r + 1,
+                }
                 saved = store.save_attempt(args.class_name, args.trainee, rec)
-            results.append({"trial": t["name"], "task": t["task"], "condition": t["condition"], "script": path.name,
-                            "repeat": r + 1, "error_mm": err, "target": a.get("target"),
-                            "skull_contacts": a.get("skull_contacts"), "aids": t["aids"], "attempt_id": saved})
+            results.append(
+                {
+                    "trial": t["name"],
+                    "task": t["task"],
+                    "condition": t["condition"],
+                    "script": path.name,
+                    "repeat": r + 1,
+                    "error_mm": err,
+                    "target": a.get("target"),
+                    "skull_contacts": a.get("skull_contacts"),
+                    "aids": t["aids"],
+                    "attempt_id": saved,
+                }
+            )
     finally:
         store.close()
     table = mean_table(results)
@@ -269,9 +312,22 @@ def run(args) -> int:
     print(f"{len(results)} attempts saved to {store.path} (class {args.class_name}, trainee {args.trainee})")
     print("Scripted trials: aids change only what a person sees, so conditions differ only through their scripts.")
     if out is not None:
-        data = {"protocol": str(proto["path"]), "pack": pack.name, "results": results,
-                "table": [{"task": k[0], "condition": k[1], "mean_error_mm": v[0], "scored": v[1], "runs": v[2],
-                           "thesis_mm": THESIS_MM.get(k)} for k, v in table.items()]}
+        data = {
+            "protocol": str(proto["path"]),
+            "pack": pack.name,
+            "results": results,
+            "table": [
+                {
+                    "task": k[0],
+                    "condition": k[1],
+                    "mean_error_mm": v[0],
+                    "scored": v[1],
+                    "runs": v[2],
+                    "thesis_mm": THESIS_MM.get(k),
+                }
+                for k, v in table.items()
+            ],
+        }
         (out / "results.json").write_text(json.dumps(data, indent=2, allow_nan=False), encoding="utf-8")
         (out / "table61.txt").write_text(text + "\n", encoding="utf-8")
         _plot(table, out / "table61.png")

@@ -27,7 +27,10 @@ examples:
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser(
-        NAME, help=HELP, description=HELP, epilog=_EPILOG,
+        NAME,
+        help=HELP,
+        description=HELP,
+        epilog=_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     db_help = "records database file (default: $CHAINSIM_DB or user data folder)"
@@ -97,33 +100,67 @@ def run(args: argparse.Namespace) -> int:
     import sys
 
     from chainsim.engine.errors import UserError
-    from chainsim.game.records.store import RecordStore
     from chainsim.game.records import report as report
+    from chainsim.game.records.store import RecordStore
 
     with RecordStore(args.db) as store:
         act = args.action
         if act == "classes":
             rows = store.class_summary()
-            print(report.table(["class", "trainees", "attempts"],
-                               [[r["class_name"], r["trainees"], r["attempts"]] for r in rows]))
+            print(
+                report.table(
+                    ["class", "trainees", "attempts"], [[r["class_name"], r["trainees"], r["attempts"]] for r in rows]
+                )
+            )
         elif act == "trainees":
             rows = store.list_trainees(args.class_name)
-            print(report.table(["class", "trainee", "attempts"],
-                               [[r["class_name"], r["trainee"], r["attempts"]] for r in rows]))
+            print(
+                report.table(
+                    ["class", "trainee", "attempts"], [[r["class_name"], r["trainee"], r["attempts"]] for r in rows]
+                )
+            )
         elif act == "list":
             rows = store.list_attempts(args.class_name, args.trainee)
-            print(report.table(
-                ["id", "created_at", "class", "trainee", "pack", "time_s", "landmark_mm", "needle_mm",
-                 "target", "contacts", "path_mm"],
-                [[a["id"], a["created_at"], a["class_name"], a["trainee"], a["pack"], a["duration_s"],
-                  a["landmark_error_mm"], a["needle_error_mm"], a["target"], a["skull_contacts"],
-                  a["path_length_mm"]] for a in rows],
-            ))
+            print(
+                report.table(
+                    [
+                        "id",
+                        "created_at",
+                        "class",
+                        "trainee",
+                        "pack",
+                        "time_s",
+                        "landmark_mm",
+                        "needle_mm",
+                        "target",
+                        "contacts",
+                        "path_mm",
+                    ],
+                    [
+                        [
+                            a["id"],
+                            a["created_at"],
+                            a["class_name"],
+                            a["trainee"],
+                            a["pack"],
+                            a["duration_s"],
+                            a["landmark_error_mm"],
+                            a["needle_error_mm"],
+                            a["target"],
+                            a["skull_contacts"],
+                            a["path_length_mm"],
+                        ]
+                        for a in rows
+                    ],
+                )
+            )
         elif act == "show":
             a = store.get_attempt(args.id)
             width = max(len(k) for k in a)
             for key, value in a.items():
-                text = json.dumps(value, sort_keys=True) if isinstance(value, dict) else ("-" if value is None else value)
+                text = (
+                    json.dumps(value, sort_keys=True) if isinstance(value, dict) else ("-" if value is None else value)
+                )
                 print(f"{key.ljust(width)}  {text}")
         elif act == "export":
             rows = store.list_attempts(args.class_name, args.trainee)

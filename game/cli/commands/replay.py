@@ -33,9 +33,12 @@ def run(args) -> int:
     settings = data.get("settings") or {}
     if not isinstance(settings, dict):
         raise UserError(f"{args.file}: field 'settings' must be a table")
-    summary = run_pack(ref, data["steps"], events=events, out=args.out, pack_paths=args.pack_path,
-                       dt=data["dt"], settings=settings)
+    summary = run_pack(
+        ref, data["steps"], events=events, out=args.out, pack_paths=args.pack_path, dt=data["dt"], settings=settings
+    )
     same = summary["digest"] == data["digest"]
-    print(f"replayed {data['steps']} steps of {ref}: digest {summary['digest'][:16]} "
-          + ("matches the recording" if same else f"DIFFERS from the recording ({data['digest'][:16]})"))
+    print(
+        f"replayed {data['steps']} steps of {ref}: digest {summary['digest'][:16]} "
+        + ("matches the recording" if same else f"DIFFERS from the recording ({data['digest'][:16]})")
+    )
     return 0 if same else 1

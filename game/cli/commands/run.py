@@ -46,12 +46,16 @@ def add_parser(sub):
     p = sub.add_parser(NAME, help=HELP)
     p.add_argument("pack", help="PACK or PACK/SCENE (a pack name or folder)")
     p.add_argument("--headless", action="store_true", help="no window (the only mode of `run`; accepted for clarity)")
-    p.add_argument("--steps", type=_nonneg, default=None, help="fixed simulation steps (default: the pack's settings.steps)")
+    p.add_argument(
+        "--steps", type=_nonneg, default=None, help="fixed simulation steps (default: the pack's settings.steps)"
+    )
     p.add_argument("--input", metavar="SCRIPT", help="input script (.toml or .json), see docs/input-scripts.md")
     p.add_argument("--record", metavar="FILE", help="save the session (events, digest) for `chainsim replay`")
     p.add_argument("--out", metavar="DIR", help="folder for summary.json (and frames)")
     p.add_argument("--dt", type=float, default=None, help="override the fixed step (seconds)")
-    p.add_argument("--screenshot-every", type=_nonneg, default=0, metavar="K", help="write a PNG every K frames (needs EGL)")
+    p.add_argument(
+        "--screenshot-every", type=_nonneg, default=0, metavar="K", help="write a PNG every K frames (needs EGL)"
+    )
     p.add_argument("--size", type=_size, default=None, metavar="WxH", help="off-screen frame size for screenshots")
     p.add_argument("--db", metavar="PATH", help="trainee records database (procedures that save attempts)")
     p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempt is saved under")
@@ -71,14 +75,25 @@ def run(args) -> int:
         raise UserError(f"--dt must be a number of seconds in (0, 1), got {args.dt}")
     if args.screenshot_every and not args.out:
         raise UserError("--screenshot-every needs --out DIR for the frames")
-    summary = run_pack(args.pack, args.steps, script=args.input, record=args.record, out=args.out,
-                       pack_paths=args.pack_path, dt=args.dt, screenshot_every=args.screenshot_every, size=args.size,
-                       settings=user_settings(args))
+    summary = run_pack(
+        args.pack,
+        args.steps,
+        script=args.input,
+        record=args.record,
+        out=args.out,
+        pack_paths=args.pack_path,
+        dt=args.dt,
+        screenshot_every=args.screenshot_every,
+        size=args.size,
+        settings=user_settings(args),
+    )
     if args.json:
         print(json.dumps(summary, indent=2, sort_keys=True))
     else:
-        print(f"{summary['pack']}/{summary['scene']}: {summary['steps']} steps, "
-              f"{summary['simulated_time_s']:.3f} s simulated, digest {summary['digest'][:16]}")
+        print(
+            f"{summary['pack']}/{summary['scene']}: {summary['steps']} steps, "
+            f"{summary['simulated_time_s']:.3f} s simulated, digest {summary['digest'][:16]}"
+        )
         if "assessment" in summary:
             for k, v in summary["assessment"].items():
                 if not isinstance(v, (dict, list)):

@@ -13,9 +13,15 @@ def add_parser(sub):
     p = sub.add_parser(NAME, help=HELP)
     p.add_argument("pack", help="PACK or PACK/SCENE")
     p.add_argument("--out", required=True, metavar="PNG", help="image to write")
-    p.add_argument("--size", type=_size, default=None, metavar="WxH", help="image size (default: the pack's window_size)")
-    p.add_argument("--steps", type=_nonneg, default=1,
-                   help="simulation steps before the picture (default 1: every system, procedures included, has run once)")
+    p.add_argument(
+        "--size", type=_size, default=None, metavar="WxH", help="image size (default: the pack's window_size)"
+    )
+    p.add_argument(
+        "--steps",
+        type=_nonneg,
+        default=1,
+        help="simulation steps before the picture (default 1: every system, procedures included, has run once)",
+    )
     p.add_argument("--input", metavar="SCRIPT", help="input script played during the steps")
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     return p
@@ -30,9 +36,9 @@ def run(args) -> int:
     if not args.out.lower().endswith(".png"):
         raise UserError(f"--out {args.out}: expected a file name ending in .png")
     egl_context()  # no EGL: one clear line and exit 2 before any work
+    from chainsim.components.resources import PendingInput
     from chainsim.game.app.headless import build_app
     from chainsim.game.app.inputscript import load_script
-    from chainsim.components.resources import PendingInput
     from chainsim.game.gl.render_system import screenshot
 
     app = build_app(args.pack, pack_paths=args.pack_path, render=True, headless=True, size=args.size)

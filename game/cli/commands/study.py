@@ -14,43 +14,52 @@ def add_parser(sub):
     sa = s.add_parser("speed-accuracy", help="run the study; writes report.md, PNG plots, results.json")
     sa.add_argument("--quick", action="store_true", help="small meshes and fewer loads (< 3 min)")
     sa.add_argument("--out", required=True, help="output folder")
-    sa.add_argument("--scenes", default=None,
-                    help="comma-separated subset of block,sheet,cantilever (default: all)")
-    sa.add_argument("--pack-steps", type=int, default=120,
-                    help="steps per built-in pack for the frame-cost table (0 skips it)")
+    sa.add_argument("--scenes", default=None, help="comma-separated subset of block,sheet,cantilever (default: all)")
+    sa.add_argument(
+        "--pack-steps", type=int, default=120, help="steps per built-in pack for the frame-cost table (0 skips it)"
+    )
     c = s.add_parser("calibrate", help="fit ChainMail alpha_min/alpha_max/beta/relaxation to FEM")
     c.add_argument("--nu", type=float, default=None, help="Poisson ratio, in (-1, 0.5) (required unless --shipped)")
-    c.add_argument("--E", type=float, default=None,
-                   help="Young's modulus [Pa]; sets the strain level a gentle tool traction produces")
+    c.add_argument(
+        "--E",
+        type=float,
+        default=None,
+        help="Young's modulus [Pa]; sets the strain level a gentle tool traction produces",
+    )
     c.add_argument("--strain", type=float, default=None, help="fit at this strain instead")
     c.add_argument("--name", required=False, help="preset name (table in the TOML file)")
     c.add_argument("--out", default=None, help="presets TOML file (default assets/presets/materials.toml)")
-    c.add_argument("--block-n", type=int, default=8,
-                   help="nodes per edge of the calibration block (default 8: 512 nodes, ~15 s)")
-    c.add_argument("--shipped", action="store_true",
-                   help="recompute every preset shipped with the project instead of one")
+    c.add_argument(
+        "--block-n", type=int, default=8, help="nodes per edge of the calibration block (default 8: 512 nodes, ~15 s)"
+    )
+    c.add_argument(
+        "--shipped", action="store_true", help="recompute every preset shipped with the project instead of one"
+    )
     p.set_defaults(_study_parser=p)
     return p
 
 
 def run(args) -> int:
     from chainsim.engine.errors import UserError
+
     cmd = getattr(args, "study_cmd", None)
     if cmd == "speed-accuracy":
         from chainsim.game.app import pack_costs
         from chainsim.tools.study import report, speed_accuracy
+
         scenes = None
         if args.scenes:
             from chainsim.tools.study.scenes import SCENES
+
             scenes = [x.strip() for x in args.scenes.split(",") if x.strip()]
             bad = [x for x in scenes if x not in SCENES]
             if bad:
-                raise UserError(f"--scenes: unknown scene(s) {', '.join(bad)}; expected some of "
-                                f"{', '.join(SCENES)}")
+                raise UserError(f"--scenes: unknown scene(s) {', '.join(bad)}; expected some of {', '.join(SCENES)}")
         if args.pack_steps < 0:
             raise UserError(f"--pack-steps must be >= 0, got {args.pack_steps}")
         try:
             from pathlib import Path
+
             Path(args.out).mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise UserError(f"--out {args.out}: cannot create folder ({e.strerror})") from None
@@ -64,10 +73,10 @@ def run(args) -> int:
         return 0
     if cmd == "calibrate":
         from chainsim.tools.study import calibrate as cal
+
         if args.E is not None and not args.E > 0:
             raise UserError(f"--E must be a positive modulus in Pa, got {args.E}")
-        jobs = ([(n, E, nu) for n, E, nu in cal.SHIPPED] if args.shipped
-                else [(args.name, args.E, args.nu)])
+        jobs = [(n, E, nu) for n, E, nu in cal.SHIPPED] if args.shipped else [(args.name, args.E, args.nu)]
         if not 5 <= args.block_n <= 16:
             raise UserError(f"--block-n must lie in [5, 16], got {args.block_n}")
         if not args.shipped and not args.name:
@@ -76,13 +85,20 @@ def run(args) -> int:
             raise UserError("--nu is required (Poisson ratio in (-1, 0.5)), or use --shipped")
         for name, E, nu in jobs:
             print(f"[calibrate] {name}: nu={nu:g} E={E}", file=sys.stderr, flush=True)
-            res = cal.fit(nu, E, None if args.shipped else args.strain, n=args.block_n,
-                          progress=lambda m: print(f"[calibrate]   {m}", file=sys.stderr, flush=True))
+            res = cal.fit(
+                nu,
+                E,
+                None if args.shipped else args.strain,
+                n=args.block_n,
+                progress=lambda m: print(f"[calibrate]   {m}", file=sys.stderr, flush=True),
+            )
             for w in res["warnings"]:
                 print(f"[calibrate]   warning: {w}", file=sys.stderr)
             path = cal.write_preset(name, res, args.out)
-            print(f"{name}: alpha_min={res['alpha_min']} alpha_max={res['alpha_max']} "
-                  f"beta={res['beta']} relax_iterations={res['relax_iterations']} "
-                  f"fitted_error={res['fitted_error']} -> {path}")
+            print(
+                f"{name}: alpha_min={res['alpha_min']} alpha_max={res['alpha_max']} "
+                f"beta={res['beta']} relax_iterations={res['relax_iterations']} "
+                f"fitted_error={res['fitted_error']} -> {path}"
+            )
         return 0
     raise UserError("study needs a subcommand: speed-accuracy or calibrate")

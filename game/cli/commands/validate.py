@@ -31,6 +31,8 @@ def run(args) -> int:
         print(f"{len(problems)} problem{'s' if len(problems) > 1 else ''} in {path}", file=sys.stderr)
         return 2
     m = pack.manifest
-    print(f"{path}: ok ({m['pack']['name']}: {len(m['meshes'])} meshes, {len(m['entities'])} entities, "
-          f"{len(m['scenes'])} scenes, {len(m['steps'])} steps)")
+    print(
+        f"{path}: ok ({m['pack']['name']}: {len(m['meshes'])} meshes, {len(m['entities'])} entities, "
+        f"{len(m['scenes'])} scenes, {len(m['steps'])} steps)"
+    )
     return 0

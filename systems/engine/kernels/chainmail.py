@@ -60,8 +60,7 @@ def material_arrays(n_links, alpha_min, alpha_max, beta, dtype=np.float64):
         if arr.ndim == 0:
             arr = np.full(n_links, float(arr))
         elif arr.shape != (n_links,):
-            raise ValueError(f"{name} must be a scalar or have one value per link ({n_links},), "
-                             f"got shape {arr.shape}")
+            raise ValueError(f"{name} must be a scalar or have one value per link ({n_links},), got shape {arr.shape}")
         else:
             arr = arr.copy()
         if not np.all(np.isfinite(arr)):
@@ -79,8 +78,11 @@ def material_arrays(n_links, alpha_min, alpha_max, beta, dtype=np.float64):
         if np.any(mask):
             bad = int(np.flatnonzero(mask)[0])
             raise ValueError(f"{name} {why}, got {arr[bad]} (link {bad})")
-    return (np.ascontiguousarray(amin, dtype=dtype), np.ascontiguousarray(amax, dtype=dtype),
-            np.ascontiguousarray(bet, dtype=dtype))
+    return (
+        np.ascontiguousarray(amin, dtype=dtype),
+        np.ascontiguousarray(amax, dtype=dtype),
+        np.ascontiguousarray(bet, dtype=dtype),
+    )
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -104,11 +106,11 @@ class Workspace:
         self.gen = 0
         self.out_order = np.empty(n, dtype=np.int64)
         self.out_sponsor = np.empty(n, dtype=np.int64)
-        self.q_entry = np.empty(0, dtype=np.int32)   # CSR entry index (gives element and link)
+        self.q_entry = np.empty(0, dtype=np.int32)  # CSR entry index (gives element and link)
         self.q_sponsor = np.empty(0, dtype=np.int32)
-        self.q_aux = np.empty(0, dtype=np.int32)     # depth (balanced) or sequence number (Schill)
-        self.q_next = np.empty(0, dtype=np.int32)    # branch linked lists (balanced)
-        self.q_key = np.empty(0, dtype=np.float64)   # violation (Schill)
+        self.q_aux = np.empty(0, dtype=np.int32)  # depth (balanced) or sequence number (Schill)
+        self.q_next = np.empty(0, dtype=np.int32)  # branch linked lists (balanced)
+        self.q_key = np.empty(0, dtype=np.float64)  # violation (Schill)
         self.branch_head = np.empty(0, dtype=np.int64)
         self.branch_tail = np.empty(0, dtype=np.int64)
         # The mesh arrays last checked with this workspace, held (not just their ids) so an identity
@@ -283,8 +285,25 @@ def _start(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_s
 
 
 @njit(cache=True)
-def _cascade_fifo(rest, pos, indptr, indices, link, alive, amin, amax, beta, grabbed, targets,
-                  fixed, has_fixed, stamp, gen, out_order, out_sponsor):
+def _cascade_fifo(
+    rest,
+    pos,
+    indptr,
+    indices,
+    link,
+    alive,
+    amin,
+    amax,
+    beta,
+    grabbed,
+    targets,
+    fixed,
+    has_fixed,
+    stamp,
+    gen,
+    out_order,
+    out_sponsor,
+):
     # With a FIFO waiting list the first queued entry for an element that violates its box is the one
     # that moves it: neither its position nor its (already moved) sponsor's changes before that entry
     # is served. So the move can be made when the entry is queued, and the output list doubles as the
@@ -310,9 +329,32 @@ def _cascade_fifo(rest, pos, indptr, indices, link, alive, amin, amax, beta, gra
 
 
 @njit(cache=True)
-def _cascade_balanced(rest, pos, indptr, indices, link, alive, amin, amax, beta, grabbed, targets,
-                      fixed, has_fixed, stamp, gen, depth, q_entry, q_sponsor, q_depth, q_next,
-                      head, tail, out_order, out_sponsor):
+def _cascade_balanced(
+    rest,
+    pos,
+    indptr,
+    indices,
+    link,
+    alive,
+    amin,
+    amax,
+    beta,
+    grabbed,
+    targets,
+    fixed,
+    has_fixed,
+    stamp,
+    gen,
+    depth,
+    q_entry,
+    q_sponsor,
+    q_depth,
+    q_next,
+    head,
+    tail,
+    out_order,
+    out_sponsor,
+):
     count = _start(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
     if count < 0:
         return count
@@ -431,8 +473,29 @@ def _heap_pop(q_entry, q_sponsor, key, seq, size):
 
 
 @njit(cache=True)
-def _cascade_schill(rest, pos, indptr, indices, link, alive, amin, amax, beta, grabbed, targets,
-                    fixed, has_fixed, stamp, gen, q_entry, q_sponsor, key, seq, out_order, out_sponsor):
+def _cascade_schill(
+    rest,
+    pos,
+    indptr,
+    indices,
+    link,
+    alive,
+    amin,
+    amax,
+    beta,
+    grabbed,
+    targets,
+    fixed,
+    has_fixed,
+    stamp,
+    gen,
+    q_entry,
+    q_sponsor,
+    key,
+    seq,
+    out_order,
+    out_sponsor,
+):
     count = _start(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
     if count < 0:
         return count
@@ -477,8 +540,11 @@ def _cascade_schill(rest, pos, indptr, indices, link, alive, amin, amax, beta, g
 # Python entry point
 
 
-_START_ERRORS = {-1: "grabbed ids must be element ids in [0, N)", -2: "grabbed ids must be distinct",
-                 -3: "targets must be finite (no NaN or inf)"}
+_START_ERRORS = {
+    -1: "grabbed ids must be element ids in [0, N)",
+    -2: "grabbed ids must be distinct",
+    -3: "targets must be finite (no NaN or inf)",
+}
 _INT64 = np.dtype(np.int64)
 _BOOL = np.dtype(np.bool_)
 
@@ -499,8 +565,10 @@ def _check_mesh(rest, pos, graph, amin, amax, beta) -> None:
     """The per-mesh arguments of cascade (skipped when a workspace has seen these very arrays)."""
     n = pos.shape[0]
     if type(rest) is not np.ndarray or rest.shape != pos.shape or rest.dtype != pos.dtype:
-        raise ValueError(f"rest must match pos in shape {pos.shape} and dtype {pos.dtype}, got "
-                         f"{getattr(rest, 'shape', type(rest).__name__)} {getattr(rest, 'dtype', '')}")
+        raise ValueError(
+            f"rest must match pos in shape {pos.shape} and dtype {pos.dtype}, got "
+            f"{getattr(rest, 'shape', type(rest).__name__)} {getattr(rest, 'dtype', '')}"
+        )
     if not rest.flags.c_contiguous:
         raise ValueError("rest must be C-contiguous")
     if graph.indptr.shape[0] != n + 1:
@@ -511,8 +579,21 @@ def _check_mesh(rest, pos, graph, amin, amax, beta) -> None:
             raise ValueError(f"{name} must be a per-link float array of shape ({m},) (see material_arrays)")
 
 
-def cascade(rest, pos, graph: Graph, amin, amax, beta, grabbed, targets, fixed=None,
-            order=ORDER_FIFO, workspace: Workspace | None = None, depth: int = 2, copy: bool = True):
+def cascade(
+    rest,
+    pos,
+    graph: Graph,
+    amin,
+    amax,
+    beta,
+    grabbed,
+    targets,
+    fixed=None,
+    order=ORDER_FIFO,
+    workspace: Workspace | None = None,
+    depth: int = 2,
+    copy: bool = True,
+):
     """Move `grabbed` to `targets` and propagate the move through the mesh (5.2.3); pos changes in place.
 
     rest, pos: (N, D) float64, or both float32, D in 1..3. graph: from build_graph. amin/amax/beta:
@@ -529,8 +610,16 @@ def cascade(rest, pos, graph: Graph, amin, amax, beta, grabbed, targets, fixed=N
     _check_points("pos", pos)
     n, dim = pos.shape
     chk = workspace.checked if workspace is not None else ()
-    if not (chk and chk[0] is rest and chk[1] is graph and chk[2] is amin and chk[3] is amax and chk[4] is beta
-            and rest.shape == pos.shape and rest.dtype == pos.dtype):
+    if not (
+        chk
+        and chk[0] is rest
+        and chk[1] is graph
+        and chk[2] is amin
+        and chk[3] is amax
+        and chk[4] is beta
+        and rest.shape == pos.shape
+        and rest.dtype == pos.dtype
+    ):
         _check_mesh(rest, pos, graph, amin, amax, beta)
         if workspace is not None and workspace.n == n:
             workspace.checked = (rest, graph, amin, amax, beta)
@@ -573,16 +662,40 @@ def cascade(rest, pos, graph: Graph, amin, amax, beta, grabbed, targets, fixed=N
     elif order == ORDER_SCHILL:
         ws.ensure(graph.indices.shape[0] + k, order)
     gen = ws.next_generation()
-    args = (rest, pos, graph.indptr, graph.indices, graph.link, graph.alive, amin, amax, beta,
-            grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen)
+    args = (
+        rest,
+        pos,
+        graph.indptr,
+        graph.indices,
+        graph.link,
+        graph.alive,
+        amin,
+        amax,
+        beta,
+        grabbed,
+        targets,
+        fixed_arr,
+        has_fixed,
+        ws.stamp,
+        gen,
+    )
     if order == ORDER_FIFO:
         count = _cascade_fifo(*args, ws.out_order, ws.out_sponsor)
     elif order == ORDER_BALANCED:
-        count = _cascade_balanced(*args, int(depth), ws.q_entry, ws.q_sponsor, ws.q_aux, ws.q_next,
-                                  ws.branch_head, ws.branch_tail, ws.out_order, ws.out_sponsor)
+        count = _cascade_balanced(
+            *args,
+            int(depth),
+            ws.q_entry,
+            ws.q_sponsor,
+            ws.q_aux,
+            ws.q_next,
+            ws.branch_head,
+            ws.branch_tail,
+            ws.out_order,
+            ws.out_sponsor,
+        )
     else:
-        count = _cascade_schill(*args, ws.q_entry, ws.q_sponsor, ws.q_key, ws.q_aux,
-                                ws.out_order, ws.out_sponsor)
+        count = _cascade_schill(*args, ws.q_entry, ws.q_sponsor, ws.q_key, ws.q_aux, ws.out_order, ws.out_sponsor)
     if count < 0:
         raise ValueError(_START_ERRORS[count].replace("N)", f"{n})"))
     moved = ws.out_order[:count]

@@ -67,8 +67,24 @@ def _push(lst, cand, spons, nxt, head, tail, n_used, c, s):
 
 
 @njit(cache=True)
-def _grid_kernel(pos, rest, relative, nx, ny, nz, grabbed, target, lim_min, lim_max, lim_shear,
-                 fixed, has_fixed, dir_axis, dir_sign, out):
+def _grid_kernel(
+    pos,
+    rest,
+    relative,
+    nx,
+    ny,
+    nz,
+    grabbed,
+    target,
+    lim_min,
+    lim_max,
+    lim_shear,
+    fixed,
+    has_fixed,
+    dir_axis,
+    dir_sign,
+    out,
+):
     dim = pos.shape[1]
     n_dirs = 2 * dim
     n = pos.shape[0]
@@ -181,8 +197,7 @@ def _prepare(pos, shape, grabbed, target, fixed):
     return dim, n, nx, ny, nz, grabbed, target, fixed_arr, has_fixed
 
 
-def gibson_grid_move(pos, shape, grabbed, target, min_dx, max_dx, max_shear, fixed=None,
-                     return_moved=False):
+def gibson_grid_move(pos, shape, grabbed, target, min_dx, max_dx, max_shear, fixed=None, return_moved=False):
     """Gibson's ChainMail (4.2.2) with absolute limits: move `grabbed` to `target`, propagate, in place.
 
     pos: float64 (N, D) with D = len(shape) = 2 or 3. grabbed: one element id; target: (D,).
@@ -193,18 +208,19 @@ def gibson_grid_move(pos, shape, grabbed, target, min_dx, max_dx, max_shear, fix
     return_moved is True, moved_ids in the order they moved.
     """
     dim, n, nx, ny, nz, grabbed, target, fixed_arr, has_fixed = _prepare(pos, shape, grabbed, target, fixed)
-    lo, hi, sh = (_limits("min_dx", min_dx, dim), _limits("max_dx", max_dx, dim),
-                  _limits("max_shear", max_shear, dim))
+    lo, hi, sh = (_limits("min_dx", min_dx, dim), _limits("max_dx", max_dx, dim), _limits("max_shear", max_shear, dim))
     if np.any(lo[:dim] > hi[:dim]) or np.any(sh[:dim] < 0):
         raise ValueError(f"need min_dx <= max_dx and max_shear >= 0, got {min_dx}, {max_dx}, {max_shear}")
     out = np.empty(n, dtype=np.int64)
-    count = _grid_kernel(pos, pos, False, nx, ny, nz, grabbed, target, lo, hi, sh, fixed_arr, has_fixed,
-                         _DIR_AXIS, _DIR_SIGN, out)
+    count = _grid_kernel(
+        pos, pos, False, nx, ny, nz, grabbed, target, lo, hi, sh, fixed_arr, has_fixed, _DIR_AXIS, _DIR_SIGN, out
+    )
     return (count, out[:count].copy()) if return_moved else count
 
 
-def relative_grid_move(pos, rest, shape, grabbed, target, min_rel, max_rel, max_rel_shear, fixed=None,
-                       return_moved=False):
+def relative_grid_move(
+    pos, rest, shape, grabbed, target, min_rel, max_rel, max_rel_shear, fixed=None, return_moved=False
+):
     """Gibson's ChainMail with limits relative to each link's rest length (4.3), for non-uniform grids.
 
     As gibson_grid_move, but a link of rest length L along axis a allows an along-axis offset in
@@ -215,12 +231,17 @@ def relative_grid_move(pos, rest, shape, grabbed, target, min_rel, max_rel, max_
     if not isinstance(rest, np.ndarray) or rest.shape != pos.shape or rest.dtype != np.float64:
         raise ValueError(f"rest must be a float64 array of shape {pos.shape}")
     rest = np.ascontiguousarray(rest)
-    lo, hi, sh = (_limits("min_rel", min_rel, dim), _limits("max_rel", max_rel, dim),
-                  _limits("max_rel_shear", max_rel_shear, dim))
+    lo, hi, sh = (
+        _limits("min_rel", min_rel, dim),
+        _limits("max_rel", max_rel, dim),
+        _limits("max_rel_shear", max_rel_shear, dim),
+    )
     if np.any(lo[:dim] < 0) or np.any(lo[:dim] > hi[:dim]) or np.any(sh[:dim] < 0):
-        raise ValueError(f"need 0 <= min_rel <= max_rel and max_rel_shear >= 0, got {min_rel}, {max_rel}, "
-                         f"{max_rel_shear}")
+        raise ValueError(
+            f"need 0 <= min_rel <= max_rel and max_rel_shear >= 0, got {min_rel}, {max_rel}, {max_rel_shear}"
+        )
     out = np.empty(n, dtype=np.int64)
-    count = _grid_kernel(pos, rest, True, nx, ny, nz, grabbed, target, lo, hi, sh, fixed_arr, has_fixed,
-                         _DIR_AXIS, _DIR_SIGN, out)
+    count = _grid_kernel(
+        pos, rest, True, nx, ny, nz, grabbed, target, lo, hi, sh, fixed_arr, has_fixed, _DIR_AXIS, _DIR_SIGN, out
+    )
     return (count, out[:count].copy()) if return_moved else count

@@ -50,8 +50,7 @@ def _check_links(n: int, links) -> np.ndarray:
         raise ValueError(f"links must hold integer element ids, got dtype {links.dtype}")
     links = np.ascontiguousarray(links, dtype=np.int64)
     if links.min() < 0 or links.max() >= n:
-        raise ValueError(f"link endpoints must be element ids in [0, {n}), got range "
-                         f"[{links.min()}, {links.max()}]")
+        raise ValueError(f"link endpoints must be element ids in [0, {n}), got range [{links.min()}, {links.max()}]")
     if np.any(links[:, 0] == links[:, 1]):
         bad = int(np.flatnonzero(links[:, 0] == links[:, 1])[0])
         raise ValueError(f"link {bad} joins element {links[bad, 0]} to itself; self-links are not allowed")

@@ -83,5 +83,6 @@ def relax(rest, pos, graph: Graph, active, iterations, step=1.0, fixed=None) -> 
     fixed_arr, has_fixed = fixed_mask(fixed, n)
     if active.size == 0 or iterations == 0:
         return
-    _relax_kernel(rest, pos, graph.indptr, graph.indices, graph.link, graph.alive, active, iterations,
-                  step, fixed_arr, has_fixed)
+    _relax_kernel(
+        rest, pos, graph.indptr, graph.indices, graph.link, graph.alive, active, iterations, step, fixed_arr, has_fixed
+    )

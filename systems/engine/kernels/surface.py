@@ -20,8 +20,7 @@ from .graph import Graph
 
 
 @njit(cache=True)
-def _normal_kernel(disp, indptr, indices, link, alive, rest_len, grabbed, target, shear, fixed, has_fixed,
-                   stamp, out):
+def _normal_kernel(disp, indptr, indices, link, alive, rest_len, grabbed, target, shear, fixed, has_fixed, stamp, out):
     for k in range(grabbed.shape[0]):
         g = grabbed[k]
         if stamp[g] == 1:
@@ -91,8 +90,21 @@ def normal_cascade(disp, graph: Graph, rest_len, grabbed, target, max_rel_shear,
         raise ValueError(f"fixed must be a bool array of shape ({n},) or None")
     stamp = np.zeros(n, dtype=np.int8)
     out = np.empty(n, dtype=np.int64)
-    count = _normal_kernel(disp, graph.indptr, graph.indices, graph.link, graph.alive, rest_len, grabbed,
-                           target, shear, fixed_arr, fixed is not None, stamp, out)
+    count = _normal_kernel(
+        disp,
+        graph.indptr,
+        graph.indices,
+        graph.link,
+        graph.alive,
+        rest_len,
+        grabbed,
+        target,
+        shear,
+        fixed_arr,
+        fixed is not None,
+        stamp,
+        out,
+    )
     if count < 0:
         raise ValueError("grabbed ids must be distinct")
     return out[:count].copy()
@@ -119,8 +131,20 @@ def surface_points(mapping, uv, disp) -> np.ndarray:
     return pts + np.asarray(disp, dtype=np.float64)[:, None] * normals
 
 
-def surface_move(uv_pos, uv_rest, disp, shape, grabbed, target_uv, target_disp, min_rel, max_rel,
-                 max_rel_shear, fixed=None, graph: Graph | None = None):
+def surface_move(
+    uv_pos,
+    uv_rest,
+    disp,
+    shape,
+    grabbed,
+    target_uv,
+    target_disp,
+    min_rel,
+    max_rel,
+    max_rel_shear,
+    fixed=None,
+    graph: Graph | None = None,
+):
     """One SurfaceChainMail move: tangential part on the (u, v) grid, normal part along normals (4.4).
 
     uv_pos, uv_rest: (N, 2) float64 grid parameters (element (i, j) has id i + nx*j, shape = (nx, ny));
@@ -131,11 +155,13 @@ def surface_move(uv_pos, uv_rest, disp, shape, grabbed, target_uv, target_disp, 
 
     from .graph import build_graph
 
-    _, moved_uv = relative_grid_move(uv_pos, uv_rest, shape, grabbed, target_uv, min_rel, max_rel,
-                                     max_rel_shear, fixed=fixed, return_moved=True)
+    _, moved_uv = relative_grid_move(
+        uv_pos, uv_rest, shape, grabbed, target_uv, min_rel, max_rel, max_rel_shear, fixed=fixed, return_moved=True
+    )
     if graph is None:
         graph = build_graph(len(uv_rest), grid(tuple(shape))[1])
     rest_len = np.linalg.norm(uv_rest[graph.links[:, 1]] - uv_rest[graph.links[:, 0]], axis=1)
-    moved_n = normal_cascade(disp, graph, rest_len, np.array([int(grabbed)]), np.array([float(target_disp)]),
-                             max_rel_shear, fixed=fixed)
+    moved_n = normal_cascade(
+        disp, graph, rest_len, np.array([int(grabbed)]), np.array([float(target_disp)]), max_rel_shear, fixed=fixed
+    )
     return moved_uv, moved_n

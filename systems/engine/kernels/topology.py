@@ -93,8 +93,9 @@ def cut_path(pos, graph: Graph, points, normal=None, depth=None) -> np.ndarray:
     points = np.asarray(points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != dim or len(points) < 2:
         raise ValueError(f"points must be a polyline of shape (K >= 2, {dim}), got {points.shape}")
-    killed = [cut_segment(pos, graph, points[i], points[i + 1], normal=normal, depth=depth)
-              for i in range(len(points) - 1)]
+    killed = [
+        cut_segment(pos, graph, points[i], points[i + 1], normal=normal, depth=depth) for i in range(len(points) - 1)
+    ]
     return np.concatenate(killed) if killed else np.zeros(0, dtype=np.int64)
 
 
@@ -127,7 +128,7 @@ def cut_plane_strip(pos, graph: Graph, p0, p1, normal, depth=None, two_sided: bo
         if not (depth > 0.0) or not np.isfinite(depth):
             raise ValueError(f"depth must be a positive finite length or None, got {depth}")
     t_hi = np.inf if depth is None else depth
-    t_lo = (-t_hi if two_sided else 0.0)
+    t_lo = -t_hi if two_sided else 0.0
     plane_n = np.cross(u, n)
     # bounding box of the blade (unbounded along n when depth is None)
     lo = np.minimum(p0, p1)
@@ -149,12 +150,15 @@ def cut_plane_strip(pos, graph: Graph, p0, p1, normal, depth=None, two_sided: bo
     cross = (ha >= 0.0) != (hb >= 0.0)
     t = ha / np.where(cross, ha - hb, 1.0)
     x = a + t[:, None] * (b - a) - p0
-    s_coord = (x @ u) / uu      # u and n are orthogonal, so coordinates are plain projections
+    s_coord = (x @ u) / uu  # u and n are orthogonal, so coordinates are plain projections
     t_coord = x @ n
     eps = 1e-12
-    inside = ((s_coord >= -eps) & (s_coord <= 1.0 + eps)
-              & (t_coord >= t_lo - eps * abs(t_lo if np.isfinite(t_lo) else 0.0))
-              & (t_coord <= t_hi + eps * abs(t_hi if np.isfinite(t_hi) else 0.0)))
+    inside = (
+        (s_coord >= -eps)
+        & (s_coord <= 1.0 + eps)
+        & (t_coord >= t_lo - eps * abs(t_lo if np.isfinite(t_lo) else 0.0))
+        & (t_coord <= t_hi + eps * abs(t_hi if np.isfinite(t_hi) else 0.0))
+    )
     killed = cand[cross & inside]
     graph.alive[killed] = False
     return killed
@@ -171,8 +175,9 @@ def add_links(graph: Graph, new_links) -> Graph:
     if new_links.size == 0:
         new_links = np.zeros((0, 2), dtype=np.int64)
     if new_links.ndim != 2 or new_links.shape[1] != 2 or not np.issubdtype(new_links.dtype, np.integer):
-        raise ValueError(f"new_links must be integer element-id pairs of shape (K, 2), got "
-                         f"{new_links.dtype} {new_links.shape}")
+        raise ValueError(
+            f"new_links must be integer element-id pairs of shape (K, 2), got {new_links.dtype} {new_links.shape}"
+        )
     links = np.concatenate([graph.links, new_links.astype(np.int64)])
     alive = np.concatenate([graph.alive, np.ones(len(links) - len(graph.links), dtype=np.bool_)])
     return build_graph(n, links, alive=alive)

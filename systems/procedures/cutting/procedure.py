@@ -47,14 +47,14 @@ import esper
 import numpy as np
 
 from chainsim.components.core import Marker, MeshRef, Name, PolyLine, Transform
-from chainsim.components.deformable import Deformable
-from chainsim.components.tools import Forceps, Scissors
-from chainsim.game.app.core import ORDER_ASSESSMENT, ORDER_KINEMATICS, ORDER_PROCEDURE
 from chainsim.components.deform_events import CutRequest, Deformed, GrabRequest, ReleaseRequest
-from chainsim.engine.errors import UserError
+from chainsim.components.deformable import Deformable
 from chainsim.components.input_events import MouseMove, Scroll, Widget
-from chainsim.game.app.loader import EntityIndex, PackResource
+from chainsim.components.tools import Forceps, Scissors
 from chainsim.components.view_events import Dragged, Picked
+from chainsim.engine.errors import UserError
+from chainsim.game.app.core import ORDER_ASSESSMENT, ORDER_KINEMATICS, ORDER_PROCEDURE
+from chainsim.game.app.loader import EntityIndex, PackResource
 
 TOOLS = ("forceps", "scissors")
 STEP_IDS = ("pull", "cut", "open")
@@ -152,13 +152,13 @@ def parse_point(value, where: str) -> np.ndarray:
     elif isinstance(value, (list, tuple)):
         parts = list(value)
     else:
-        raise UserError(f"{where}: expected \"x, y, z\" in millimetres, got {value!r}")
+        raise UserError(f'{where}: expected "x, y, z" in millimetres, got {value!r}')
     try:
         p = np.array([float(c) for c in parts], dtype=np.float64)
     except (TypeError, ValueError):
-        raise UserError(f"{where}: expected \"x, y, z\" in millimetres, got {value!r}") from None
+        raise UserError(f'{where}: expected "x, y, z" in millimetres, got {value!r}') from None
     if p.shape != (3,) or not np.all(np.isfinite(p)):
-        raise UserError(f"{where}: expected three finite numbers \"x, y, z\" in millimetres, got {value!r}")
+        raise UserError(f'{where}: expected three finite numbers "x, y, z" in millimetres, got {value!r}')
     return p
 
 
@@ -262,8 +262,9 @@ class ToolsSystem:
             f.moving = False
         else:
             f.tip = f.tip + delta * (step / dist)
-        app.events.emit(GrabRequest(f.held_entity, np.array([f.held_element]), f.tip[None, :].copy(),
-                                    frame="world", hold=True))
+        app.events.emit(
+            GrabRequest(f.held_entity, np.array([f.held_element]), f.tip[None, :].copy(), frame="world", hold=True)
+        )
 
     # scissors --------------------------------------------------------------------------------
     def touch(self, app, ent: int, point, normal=None) -> None:
@@ -290,8 +291,16 @@ class ToolsSystem:
             # a scripted touch has no view direction: cut through the layer along its normal there
             elem, _ = nearest_element(s.stroke_entity, d, 0.5 * (p + last))
             normal = element_normal(app, s.stroke_entity, d, elem)
-        app.events.emit(CutRequest(s.stroke_entity, p0=last.copy(), p1=p.copy(),
-                                   normal=np.asarray(normal, dtype=np.float64), depth=float(s.depth), frame="world"))
+        app.events.emit(
+            CutRequest(
+                s.stroke_entity,
+                p0=last.copy(),
+                p1=p.copy(),
+                normal=np.asarray(normal, dtype=np.float64),
+                depth=float(s.depth),
+                frame="world",
+            )
+        )
         s.stroke = np.vstack([s.stroke, p[None, :]])
         s.path_length += step
         st.cut_length += step
@@ -677,10 +686,12 @@ def panel_lines(app, st: CuttingState) -> list[str]:
     lines = [f"Tool: {tool}"]
     if v:
         cut = ", ".join(v["layers_cut"]) or "none"
-        lines += [f"Links cut: {v['links_cut']} (layers: {cut})",
-                  f"Cut path: {v['cut_length_mm']:.1f} mm",
-                  f"Largest stretch: {v['max_stretch_ratio']:.2f} x rest",
-                  f"Elements displaced: {v['elements_moved']}"]
+        lines += [
+            f"Links cut: {v['links_cut']} (layers: {cut})",
+            f"Cut path: {v['cut_length_mm']:.1f} mm",
+            f"Largest stretch: {v['max_stretch_ratio']:.2f} x rest",
+            f"Elements displaced: {v['elements_moved']}",
+        ]
     return lines
 
 
@@ -775,27 +786,37 @@ def plugin(app) -> None:
         for comp, key in ((Forceps, "forceps"), (Scissors, "scissors")):
             ents = sorted(e for e, _ in esper.get_component(comp))
             if len(ents) != 1:
-                raise UserError(f"pack '{pack.name}': the cutting procedure needs exactly one entity with a "
-                                f"[{key}] table in scene '{pres.scene}', found {len(ents)}")
+                raise UserError(
+                    f"pack '{pack.name}': the cutting procedure needs exactly one entity with a "
+                    f"[{key}] table in scene '{pres.scene}', found {len(ents)}"
+                )
             setattr(st, key, ents[0])
         layers = sorted(e for e, _ in esper.get_component(Deformable))
         if not layers:
-            raise UserError(f"pack '{pack.name}': the cutting procedure needs at least one tissue layer (an entity "
-                            f"with a [deformable] table) in scene '{pres.scene}'")
+            raise UserError(
+                f"pack '{pack.name}': the cutting procedure needs at least one tissue layer (an entity "
+                f"with a [deformable] table) in scene '{pres.scene}'"
+            )
         # top layer first: the highest at rest (ties by entity id, so the order is reproducible)
-        heights = {e: float(np.mean(world_positions(e, esper.component_for_entity(e, Deformable))[:, 2])) for e in layers}
+        heights = {
+            e: float(np.mean(world_positions(e, esper.component_for_entity(e, Deformable))[:, 2])) for e in layers
+        }
         st.layers = sorted(layers, key=lambda e: (-heights[e], e))
         st.top = st.layers[0]
         st.names = {e: esper.component_for_entity(e, Name).value for e in st.layers}
         step_ids = [s["id"] for s in pack.section("steps")]
         unknown = [s for s in step_ids if s not in STEP_IDS]
         if unknown:
-            raise UserError(f"pack '{pack.name}': step '{unknown[0]}' is not a cutting-trainer step; steps are "
-                            f"{', '.join(STEP_IDS)}")
+            raise UserError(
+                f"pack '{pack.name}': step '{unknown[0]}' is not a cutting-trainer step; steps are "
+                f"{', '.join(STEP_IDS)}"
+            )
         st.step_ids = step_ids
         for ent, color in ((st.forceps, (0.3, 0.85, 0.95, 1.0)), (st.scissors, (0.95, 0.85, 0.25, 1.0))):
             esper.add_component(ent, PolyLine(np.zeros((0, 3)), color, False, "tools"))
-        st.path_entity = esper.create_entity(Name("cut_path"), PolyLine(np.zeros((0, 3)), (1.0, 0.25, 0.2, 1.0), False, "tools"))
+        st.path_entity = esper.create_entity(
+            Name("cut_path"), PolyLine(np.zeros((0, 3)), (1.0, 0.25, 0.2, 1.0), False, "tools")
+        )
         index.by_name.setdefault("cut_path", st.path_entity)
         f = esper.component_for_entity(st.forceps, Forceps)
         f.tip = np.array(esper.component_for_entity(st.forceps, Transform).position, dtype=np.float64)

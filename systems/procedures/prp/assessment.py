@@ -22,11 +22,11 @@ from __future__ import annotations
 import esper
 import numpy as np
 
-from chainsim.components.needle import NeedleState
-from chainsim.components.procedure import PrpAnatomy, ProcedureState, landmark_errors
-from chainsim.game.app.core import ORDER_ASSESSMENT
 from chainsim.components.input_events import Widget
+from chainsim.components.needle import NeedleState
+from chainsim.components.procedure import ProcedureState, PrpAnatomy, landmark_errors
 from chainsim.components.resources import Settings
+from chainsim.game.app.core import ORDER_ASSESSMENT
 
 DEFAULT_CLASS = "default"
 DEFAULT_TRAINEE = "anonymous"
@@ -84,6 +84,7 @@ def compute(app) -> dict:
 
 def panel_lines(v: dict) -> list[str]:
     """The self-assessment text (Fig. 3.11's text field)."""
+
     def mm(x):
         return "-" if x is None else f"{x:.1f} mm"
 
@@ -111,9 +112,25 @@ def attempt_record(pack_name: str, v: dict) -> dict:
         "path_length_mm": v["path_length_mm"],
         "aids": v["aids"],
         "step_times": v["step_times"],
-        "details": {k: v[k] for k in ("side", "D1", "D2", "D3", "d1", "d2", "d3", "landmarks", "hit_point",
-                                      "needle_dist_mm", "foramen_radius_mm", "rotation_refused",
-                                      "rotation_horizontal_deg", "rotation_vertical_deg")},
+        "details": {
+            k: v[k]
+            for k in (
+                "side",
+                "D1",
+                "D2",
+                "D3",
+                "d1",
+                "d2",
+                "d3",
+                "landmarks",
+                "hit_point",
+                "needle_dist_mm",
+                "foramen_radius_mm",
+                "rotation_refused",
+                "rotation_horizontal_deg",
+                "rotation_vertical_deg",
+            )
+        },
     }
 
 
@@ -127,8 +144,11 @@ def save(app, v: dict) -> int:
         raise UserError("place all three landmarks before saving: the landmark error needs them")
     s = app.resource(Settings)
     with RecordStore(s.get("db") or None) as store:
-        return store.save_attempt(s.get("class") or DEFAULT_CLASS, s.get("trainee") or DEFAULT_TRAINEE,
-                                  attempt_record(app.resource(PackResource).pack.name, v))
+        return store.save_attempt(
+            s.get("class") or DEFAULT_CLASS,
+            s.get("trainee") or DEFAULT_TRAINEE,
+            attempt_record(app.resource(PackResource).pack.name, v),
+        )
 
 
 def my_attempts(app, limit: int = 6) -> list[str]:
@@ -142,8 +162,10 @@ def my_attempts(app, limit: int = 6) -> list[str]:
     lines = [f"Attempts of {who} ({cls}): {len(rows)}"]
     for r in rows[-limit:]:
         ne = "-" if r["needle_error_mm"] is None else f"{r['needle_error_mm']:.1f}"
-        lines.append(f"#{r['id']} {r['created_at'][:16]}  landmarks {r['landmark_error_mm']:.1f} mm, "
-                     f"needle {ne} mm, {r['target']}")
+        lines.append(
+            f"#{r['id']} {r['created_at'][:16]}  landmarks {r['landmark_error_mm']:.1f} mm, "
+            f"needle {ne} mm, {r['target']}"
+        )
     return lines
 
 
@@ -175,15 +197,19 @@ class AssessmentSystem:
                     ps = esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState)
                     ps.saved.append(rid)
                     s = app.resource(Settings)
-                    h.message(f"Attempt {rid} saved for {s.get('trainee') or DEFAULT_TRAINEE} "
-                              f"in class {s.get('class') or DEFAULT_CLASS}.")
+                    h.message(
+                        f"Attempt {rid} saved for {s.get('trainee') or DEFAULT_TRAINEE} "
+                        f"in class {s.get('class') or DEFAULT_CLASS}."
+                    )
             elif ev.name == "my_attempts":
                 try:
                     h.panel_text = my_attempts(app)
                 except (UserError, OSError):  # nothing saved yet under this class and name
                     s = app.resource(Settings)
-                    h.panel_text = [f"No saved attempts yet for {s.get('trainee') or DEFAULT_TRAINEE} "
-                                    f"in class {s.get('class') or DEFAULT_CLASS}."]
+                    h.panel_text = [
+                        f"No saved attempts yet for {s.get('trainee') or DEFAULT_TRAINEE} "
+                        f"in class {s.get('class') or DEFAULT_CLASS}."
+                    ]
             elif ev.name == "help":
                 h.panel_text = [
                     "Assessment help (docs page 'assessment'):",

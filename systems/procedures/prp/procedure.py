@@ -24,18 +24,27 @@ import esper
 import numpy as np
 
 from chainsim.components.core import Label, Marker, MeshRef, Name, Transform
+from chainsim.components.input_events import Widget
 from chainsim.components.needle import Needle, NeedleState
 from chainsim.components.procedure import LANDMARK_COUNT, ProcedureState, anatomy_from_pack
+from chainsim.components.view_events import WidgetRefused
 from chainsim.engine import quaternion as Q
 from chainsim.game.app.core import ORDER_PROCEDURE
-from chainsim.components.input_events import Widget
 from chainsim.game.app.loader import EntityIndex, PackResource
 from chainsim.systems import needle as needle_sys
 from chainsim.systems.collision import NeedleHit
-from chainsim.components.view_events import WidgetRefused
 from chainsim.systems.needle import InsertRefused, NeedleAction, NeedleReset, RotationRefused
 
-STEP_IDS = ("reading", "landmark1", "landmark2", "landmark3", "orient_horizontal", "orient_vertical", "insert", "review")
+STEP_IDS = (
+    "reading",
+    "landmark1",
+    "landmark2",
+    "landmark3",
+    "orient_horizontal",
+    "orient_vertical",
+    "insert",
+    "review",
+)
 AIDS = ("skin_transparent", "reference_planes", "landmark_planes", "tip_view", "collision_signals")
 LIGHTS = ("skull", "target")
 SKIN = "skin"
@@ -174,8 +183,11 @@ class ProcedureSystem:
         ws = widget_state(app)
         # aids: an aid counts for the attempt if it was on at any time (the trainee had it)
         for name in AIDS:
-            on = bool(ws.values.get(name, False)) if ws is not None and name in ws.values else bool(
-                self.layout_widgets.get(name, {}).get("value", False))
+            on = (
+                bool(ws.values.get(name, False))
+                if ws is not None and name in ws.values
+                else bool(self.layout_widgets.get(name, {}).get("value", False))
+            )
             ps.aids[name] = ps.aids.get(name, False) or on
             ps.aids_now[name] = on
         if self.picks is not None:
@@ -239,8 +251,14 @@ class ProcedureSystem:
                 self.goto(app, ps, "review")
             else:
                 self.lights["skull"], self.lights["target"] = "red", "off"
-                what = "the skull" if ev.object == "skull" else ("the mandible" if ev.object == "mandible" else ev.object.replace("_", " "))
-                h.message(f"The needle hit {what}, {ev.distance_to_target_mm:.1f} mm from the foramen ovale; it springs back.")
+                what = (
+                    "the skull"
+                    if ev.object == "skull"
+                    else ("the mandible" if ev.object == "mandible" else ev.object.replace("_", " "))
+                )
+                h.message(
+                    f"The needle hit {what}, {ev.distance_to_target_mm:.1f} mm from the foramen ovale; it springs back."
+                )
         ps.lights = dict(self.lights)
         show = ps.aids_now.get("collision_signals", True)
         for name in LIGHTS:
@@ -299,8 +317,8 @@ def _hide_markers(markers: list) -> None:
 
 def plugin(app) -> None:
     from chainsim.engine.errors import UserError
-    from chainsim.systems.procedures.prp import assessment
     from chainsim.systems import collision
+    from chainsim.systems.procedures.prp import assessment
 
     pres: PackResource = app.resource(PackResource)
     pack = pres.pack
@@ -309,13 +327,19 @@ def plugin(app) -> None:
     with app.active():
         needles = [ent for ent, _ in esper.get_component(Needle)]
         if len(needles) != 1:
-            raise UserError(f"pack '{pack.name}': the rhizotomy procedure needs exactly one entity with a [needle] table, found {len(needles)}")
+            raise UserError(
+                f"pack '{pack.name}': the rhizotomy procedure needs exactly one entity with a [needle] table, found {len(needles)}"
+            )
         if index.get(SKIN) is None:
-            raise UserError(f"pack '{pack.name}': the rhizotomy procedure needs an entity named '{SKIN}' (landmarks are clicked on it)")
+            raise UserError(
+                f"pack '{pack.name}': the rhizotomy procedure needs an entity named '{SKIN}' (landmarks are clicked on it)"
+            )
         step_ids = [s["id"] for s in pack.section("steps")]
         unknown = [s for s in step_ids if s not in STEP_IDS]
         if unknown:
-            raise UserError(f"pack '{pack.name}': step '{unknown[0]}' is not a rhizotomy step; steps are {', '.join(STEP_IDS)}")
+            raise UserError(
+                f"pack '{pack.name}': step '{unknown[0]}' is not a rhizotomy step; steps are {', '.join(STEP_IDS)}"
+            )
         ps = ProcedureState(step_ids=step_ids or list(STEP_IDS))
         proc = esper.create_entity(Name("procedure"), ps)
         index.by_name["procedure"] = proc

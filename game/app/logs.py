@@ -1,0 +1,22 @@
+"""How the program speaks: `logging` set up once for the command line (messages on stderr).
+
+Command output (tables, summaries, paths) goes to stdout with print; everything else (what a job is
+doing, warnings, timings) goes through loggers named after their module, configured here.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+
+
+def setup_logging(level: int = logging.INFO) -> None:
+    """Route every chainsim logger to stderr as plain lines; `level` from -v / -q."""
+    root = logging.getLogger("chainsim")
+    root.setLevel(level)
+    if not any(getattr(h, "_chainsim", False) for h in root.handlers):
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        handler._chainsim = True  # so a second call (tests run main() many times) adds no duplicate
+        root.addHandler(handler)
+    root.propagate = False
