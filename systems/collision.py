@@ -204,7 +204,7 @@ def build_obstacles(app) -> PrpObstacles:
     import esper
 
     from chainsim.components.core import MeshRef, Transform
-    from chainsim.game.app.loader import EntityIndex, PackResource
+    from chainsim.components.resources import EntityIndex, PackResource
 
     pack = app.resource(PackResource).pack
     index: EntityIndex = app.resource(EntityIndex)
@@ -282,6 +282,6 @@ def collision_system(app) -> None:
 
 def plugin(app) -> None:
     app.insert_resource(build_obstacles(app))
-    from chainsim.game.app.core import ORDER_COLLISION
+    from chainsim.systems.stages import ORDER_COLLISION
 
     app.add_system("simulation", collision_system, order=ORDER_COLLISION, name="needle_collision")

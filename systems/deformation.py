@@ -33,7 +33,7 @@ from chainsim.components.deform_events import (
 )
 from chainsim.components.deformable import Deformable, Pull, setup_deformable
 from chainsim.components.input_events import Widget
-from chainsim.game.app.core import ORDER_DEFORMATION
+from chainsim.systems.stages import ORDER_DEFORMATION
 
 ORDER_PULL = ORDER_DEFORMATION - 10
 _ORDER_CODES = {"fifo": 0, "balanced": 1, "schill": 2}
@@ -81,7 +81,7 @@ def _to_world(ent: int, pts: np.ndarray) -> np.ndarray:
 
 def _entity(app, ref) -> int | None:
     if isinstance(ref, str):
-        from chainsim.game.app.loader import EntityIndex
+        from chainsim.components.resources import EntityIndex
 
         index = app.get_resource(EntityIndex)
         return index.get(ref) if index is not None else None
@@ -364,7 +364,7 @@ def _pull_element(ent: int, p: Pull, d: Deformable) -> int:
 def _default_deformables(app) -> None:
     """Entities with simulation.kind surface/volume and a mesh but no deformable table get one."""
     from chainsim.components.core import MeshRef, Name, Simulation
-    from chainsim.game.app.loader import PackResource
+    from chainsim.components.resources import PackResource
 
     pres = app.get_resource(PackResource)
     if pres is None:

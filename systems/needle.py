@@ -39,10 +39,9 @@ import numpy as np
 from chainsim.components.core import Transform
 from chainsim.components.input_events import Key, Widget
 from chainsim.components.needle import Needle, NeedleState
-from chainsim.components.resources import InputState
+from chainsim.components.resources import EntityIndex, InputState
 from chainsim.engine import quaternion as Q
-from chainsim.game.app.core import ORDER_KINEMATICS
-from chainsim.game.app.loader import EntityIndex
+from chainsim.systems.stages import ORDER_KINEMATICS
 
 Z = np.array([0.0, 0.0, 1.0])
 ROTATION_WIDGETS = ("rotate_horizontal", "rotate_vertical")

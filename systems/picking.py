@@ -146,7 +146,7 @@ def entity_surface(app, ent: int, mesh_ref=None, transform=None):
     import esper
 
     from chainsim.components.core import MeshRef, Transform
-    from chainsim.game.app.loader import PackResource
+    from chainsim.components.resources import PackResource
 
     mesh_ref = mesh_ref or esper.try_component(ent, MeshRef)
     if mesh_ref is None:

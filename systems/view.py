@@ -37,11 +37,10 @@ import numpy as np
 from chainsim.components.core import Marker, MeshRef, PolyLine, Transform
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, PickPoint, Resize, Scroll, Widget
-from chainsim.components.resources import InputState, Settings
+from chainsim.components.resources import EntityIndex, InputState, PackResource, Settings
 from chainsim.components.view_events import Dragged, LayerChanged, Picked, WidgetRefused
 from chainsim.engine.errors import UserError
-from chainsim.game.app.core import ORDER_VIEW
-from chainsim.game.app.loader import EntityIndex, PackResource
+from chainsim.systems.stages import ORDER_VIEW
 from chainsim.systems.ui import widgets as wd
 from chainsim.systems.ui.viewports import (
     KINDS_3D,

@@ -23,9 +23,8 @@ import numpy as np
 
 from chainsim.components.core import Label, Marker, MeshRef, PolyLine, Transform
 from chainsim.components.hud import HudState
-from chainsim.components.resources import InputState, Settings
-from chainsim.game.app.core import ORDER_RENDER
-from chainsim.game.app.loader import EntityIndex, PackResource
+from chainsim.components.resources import EntityIndex, InputState, PackResource, Settings
+from chainsim.systems.stages import ORDER_RENDER
 from chainsim.systems.ui.widgets import WidgetState
 
 PLANE_COLORS = ((0.95, 0.35, 0.35, 0.22), (0.35, 0.9, 0.45, 0.22), (0.35, 0.55, 1.0, 0.22), (0.9, 0.8, 0.3, 0.22))
@@ -299,7 +298,7 @@ def screenshot(app, path) -> Path:
 
 class RenderSystem:
     def __call__(self, app) -> None:
-        from chainsim.game.app.headless import RunInfo
+        from chainsim.components.resources import RunInfo
 
         target: RenderTarget = app.resource(RenderTarget)
         if not target.offscreen:

@@ -8,10 +8,9 @@ import numpy as np
 import pytest
 
 from chainsim.components.deformable import Deformable, Pull
-from chainsim.components.resources import PendingInput
+from chainsim.components.resources import PackResource, PendingInput
 from chainsim.game.app.headless import build_app, run_pack
 from chainsim.game.app.inputscript import load_script
-from chainsim.game.app.loader import PackResource
 from chainsim.game.packs import pack as packs
 
 SCENES = ("patch", "brain", "volume")

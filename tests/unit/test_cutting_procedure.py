@@ -15,11 +15,10 @@ from chainsim.components.core import Transform
 from chainsim.components.deformable import Deformable
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import MouseButton, MouseDrag, MouseMove, PickPoint, Widget
-from chainsim.components.resources import PendingInput
+from chainsim.components.resources import Assessment, EntityIndex, PendingInput
 from chainsim.components.tools import Forceps, Scissors
 from chainsim.engine.errors import UserError
-from chainsim.game.app.headless import Assessment, build_app
-from chainsim.game.app.loader import EntityIndex
+from chainsim.game.app.headless import build_app
 from chainsim.systems.procedures.cutting.procedure import parse_point
 
 PACK = Path(__file__).resolve().parents[2] / "assets" / "cutting"
@@ -243,7 +242,7 @@ def test_the_idle_instrument_follows_the_cursor_over_the_tissue(app):
 def test_wireframe_switch_changes_only_this_runs_materials(app):
     app.resource(PendingInput).push(0.0, Widget("wireframe", True))
     steps(app, 1)
-    from chainsim.game.app.loader import PackResource
+    from chainsim.components.resources import PackResource
 
     assert app.resource(PackResource).pack.section("materials")["dura"]["wireframe"] is True
     assert app.resource(Assessment).values["wireframe"] is True

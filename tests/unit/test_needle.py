@@ -222,7 +222,7 @@ def test_picks_off_the_skin_are_ignored_with_a_message(run):
 
 def _marker(run, k):
     from chainsim.components.core import Label, Marker, Transform
-    from chainsim.game.app.loader import EntityIndex
+    from chainsim.components.resources import EntityIndex
 
     ent = run.app.resource(EntityIndex)[f"landmark{k}"]
     with run.app.active():

@@ -498,10 +498,10 @@ def run_suite(args) -> int:
 
 
 def run_mesh(args) -> int:
+    from chainsim.engine.chainmail_params import ORDERS, check_material
     from chainsim.engine.meshimport import load_graph
-    from chainsim.game.cli.commands.chainmail import ORDERS, check_material_flags
 
-    check_material_flags(args)
+    check_material(args.alpha_min, args.alpha_max, args.beta)
     if args.grab is None or args.to is None:
         raise UserError("--mesh needs --grab I and --to X [Y [Z]]")
     if not all(math.isfinite(v) for v in args.to):

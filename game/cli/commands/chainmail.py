@@ -20,10 +20,10 @@ import os
 import sys
 from pathlib import Path
 
+from chainsim.engine.chainmail_params import ORDERS, check_material
+
 NAME = "chainmail"
 HELP = "move one element of a mesh with Generalised ChainMail and save the result (.npz)"
-
-ORDERS = ("fifo", "balanced", "schill")
 
 
 def add_parser(sub):
@@ -60,16 +60,7 @@ def _finite(name: str, v: float) -> None:
 
 def check_material_flags(args) -> None:
     """--alpha-min in [0, 1], --alpha-max >= 1, --beta >= 0, all finite (thesis 5.2.2)."""
-    from chainsim.engine.errors import UserError
-
-    for name, v in (("--alpha-min", args.alpha_min), ("--alpha-max", args.alpha_max), ("--beta", args.beta)):
-        _finite(name, v)
-    if not 0.0 <= args.alpha_min <= 1.0:
-        raise UserError(f"--alpha-min: must be in [0, 1], got {args.alpha_min:g}")
-    if args.alpha_max < 1.0:
-        raise UserError(f"--alpha-max: must be >= 1, got {args.alpha_max:g}")
-    if args.beta < 0.0:
-        raise UserError(f"--beta: must be >= 0, got {args.beta:g}")
+    check_material(args.alpha_min, args.alpha_max, args.beta)
 
 
 def check_args(args) -> None:

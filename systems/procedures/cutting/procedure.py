@@ -50,11 +50,11 @@ from chainsim.components.core import Marker, MeshRef, Name, PolyLine, Transform
 from chainsim.components.deform_events import CutRequest, Deformed, GrabRequest, ReleaseRequest
 from chainsim.components.deformable import Deformable
 from chainsim.components.input_events import MouseMove, Scroll, Widget
+from chainsim.components.resources import EntityIndex, PackResource
 from chainsim.components.tools import Forceps, Scissors
 from chainsim.components.view_events import Dragged, Picked
 from chainsim.engine.errors import UserError
-from chainsim.game.app.core import ORDER_ASSESSMENT, ORDER_KINEMATICS, ORDER_PROCEDURE
-from chainsim.game.app.loader import EntityIndex, PackResource
+from chainsim.systems.stages import ORDER_ASSESSMENT, ORDER_KINEMATICS, ORDER_PROCEDURE
 
 TOOLS = ("forceps", "scissors")
 STEP_IDS = ("pull", "cut", "open")
@@ -696,7 +696,7 @@ def panel_lines(app, st: CuttingState) -> list[str]:
 
 
 def _assessment_type():
-    from chainsim.game.app.headless import Assessment
+    from chainsim.components.resources import Assessment
 
     return Assessment
 
@@ -776,7 +776,7 @@ class AssessmentSystem:
 
 def plugin(app) -> None:
     """Install the cutting trainer for a spawned pack (see the module docstring)."""
-    from chainsim.game.app.headless import Assessment
+    from chainsim.components.resources import Assessment
 
     pres: PackResource = app.resource(PackResource)
     pack = pres.pack

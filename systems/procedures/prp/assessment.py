@@ -25,8 +25,9 @@ import numpy as np
 from chainsim.components.input_events import Widget
 from chainsim.components.needle import NeedleState
 from chainsim.components.procedure import ProcedureState, PrpAnatomy, landmark_errors
-from chainsim.components.resources import Settings
-from chainsim.game.app.core import ORDER_ASSESSMENT
+from chainsim.components.resources import PackResource, Records, Settings
+from chainsim.engine.errors import UserError
+from chainsim.systems.stages import ORDER_ASSESSMENT
 
 DEFAULT_CLASS = "default"
 DEFAULT_TRAINEE = "anonymous"
@@ -135,30 +136,22 @@ def attempt_record(pack_name: str, v: dict) -> dict:
 
 
 def save(app, v: dict) -> int:
-    """Save the attempt to the records DB (Settings db/class/trainee); raises UserError on failure."""
-    from chainsim.engine.errors import UserError
-    from chainsim.game.app.loader import PackResource
-    from chainsim.game.records.store import RecordStore
-
+    """Save the attempt through the Records resource (Settings class/trainee); raises UserError on failure."""
     if v["landmark_error_mm"] is None:
         raise UserError("place all three landmarks before saving: the landmark error needs them")
     s = app.resource(Settings)
-    with RecordStore(s.get("db") or None) as store:
-        return store.save_attempt(
-            s.get("class") or DEFAULT_CLASS,
-            s.get("trainee") or DEFAULT_TRAINEE,
-            attempt_record(app.resource(PackResource).pack.name, v),
-        )
+    return app.resource(Records).save_attempt(
+        s.get("class") or DEFAULT_CLASS,
+        s.get("trainee") or DEFAULT_TRAINEE,
+        attempt_record(app.resource(PackResource).pack.name, v),
+    )
 
 
 def my_attempts(app, limit: int = 6) -> list[str]:
     """Panel lines for the current trainee's saved attempts, newest last (the View of Fig. 3.11)."""
-    from chainsim.game.records.store import RecordStore
-
     s = app.resource(Settings)
     cls, who = s.get("class") or DEFAULT_CLASS, s.get("trainee") or DEFAULT_TRAINEE
-    with RecordStore(s.get("db") or None) as store:
-        rows = store.list_attempts(cls, who)
+    rows = app.resource(Records).list_attempts(cls, who)
     lines = [f"Attempts of {who} ({cls}): {len(rows)}"]
     for r in rows[-limit:]:
         ne = "-" if r["needle_error_mm"] is None else f"{r['needle_error_mm']:.1f}"
@@ -175,8 +168,8 @@ class AssessmentSystem:
         self.errors: list[str] = []
 
     def __call__(self, app) -> None:
+        from chainsim.components.resources import Assessment
         from chainsim.engine.errors import UserError
-        from chainsim.game.app.headless import Assessment
         from chainsim.systems.procedures.prp.procedure import PrpHandles, hud
 
         v = compute(app)
@@ -225,7 +218,7 @@ class AssessmentSystem:
 
 
 def plugin(app) -> None:
-    from chainsim.game.app.headless import Assessment
+    from chainsim.components.resources import Assessment
 
     if not app.has_resource(Assessment):
         app.insert_resource(Assessment())

@@ -27,13 +27,13 @@ from chainsim.components.core import Label, Marker, MeshRef, Name, Transform
 from chainsim.components.input_events import Widget
 from chainsim.components.needle import Needle, NeedleState
 from chainsim.components.procedure import LANDMARK_COUNT, ProcedureState, anatomy_from_pack
+from chainsim.components.resources import EntityIndex, PackResource
 from chainsim.components.view_events import WidgetRefused
 from chainsim.engine import quaternion as Q
-from chainsim.game.app.core import ORDER_PROCEDURE
-from chainsim.game.app.loader import EntityIndex, PackResource
 from chainsim.systems import needle as needle_sys
 from chainsim.systems.collision import NeedleHit
 from chainsim.systems.needle import InsertRefused, NeedleAction, NeedleReset, RotationRefused
+from chainsim.systems.stages import ORDER_PROCEDURE
 
 STEP_IDS = (
     "reading",
