@@ -7,8 +7,9 @@ nearest the grab point; off by default so a procedure's own tools are the only h
 Writes Deformable.pos / dirty / version / held / alive, emits Deformed.
 
 Each grab runs one Generalised ChainMail cascade (thesis 5.2.3) from the grabbed elements, then the
-relaxation of 5.2.5 over the elements that moved (grabbed, held and fixed elements stay put). Cuts
-mark links dead (thesis 4.5.2); the renderer sees moved vertices through `dirty`.
+relaxation of 5.2.5 over the elements that moved (grabbed, held and fixed elements stay put), then, for
+a material with `exact = true`, the exact-limit pass (chainsim.engine.kernels.exact). Cuts mark links
+dead (thesis 4.5.2); the renderer sees moved vertices through `dirty`.
 
 Installed only when some entity is deformable: a `deformable` table, or `simulation.kind` "surface" /
 "volume" on a mesh entity (which gets a default `deformable`, material = its mesh material). A scene
@@ -20,8 +21,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import esper
+import numba
 import numpy as np
 
+from chainsim.components.core import MeshRef, Name, Simulation, Transform
 from chainsim.components.deform_events import (
     FRAMES,
     AddLinksRequest,
@@ -33,10 +36,16 @@ from chainsim.components.deform_events import (
 )
 from chainsim.components.deformable import Deformable, Pull, setup_deformable
 from chainsim.components.input_events import Widget
+from chainsim.components.resources import EntityIndex, PackResource
+from chainsim.engine.chainmail_params import order_code
+from chainsim.engine.errors import UserError
+from chainsim.engine.kernels import topology
+from chainsim.engine.kernels.chainmail import cascade, material_arrays
+from chainsim.engine.kernels.exact import exact_limits
+from chainsim.engine.kernels.relax import relax
 from chainsim.systems.stages import ORDER_DEFORMATION
 
 ORDER_PULL = ORDER_DEFORMATION - 10
-_ORDER_CODES = {"fifo": 0, "balanced": 1, "schill": 2}
 
 
 @dataclass(slots=True)
@@ -60,8 +69,6 @@ def _to_local(ent: int, pts: np.ndarray, frame: str) -> np.ndarray:
         raise ValueError(f"frame must be one of {', '.join(FRAMES)}, got {frame!r}")
     if frame == "local":
         return pts
-    from chainsim.components.core import Transform
-
     tr = esper.try_component(ent, Transform)
     if tr is None:
         return pts
@@ -70,8 +77,6 @@ def _to_local(ent: int, pts: np.ndarray, frame: str) -> np.ndarray:
 
 
 def _to_world(ent: int, pts: np.ndarray) -> np.ndarray:
-    from chainsim.components.core import Transform
-
     tr = esper.try_component(ent, Transform)
     if tr is None:
         return pts
@@ -81,8 +86,6 @@ def _to_world(ent: int, pts: np.ndarray) -> np.ndarray:
 
 def _entity(app, ref) -> int | None:
     if isinstance(ref, str):
-        from chainsim.components.resources import EntityIndex
-
         index = app.get_resource(EntityIndex)
         return index.get(ref) if index is not None else None
     return int(ref)
@@ -97,10 +100,6 @@ PARALLEL_RELAX_MIN = 100_000
 
 def relax_moved(rest, pos, graph, active, iterations: int, step: float = 1.0, fixed=None) -> None:
     """Relaxation of thesis 5.2.5 over `active` (chainsim.engine.kernels.relax), serial for small sets."""
-    import numba
-
-    from chainsim.engine.kernels.relax import relax
-
     if len(active) >= PARALLEL_RELAX_MIN:
         relax(rest, pos, graph, active, iterations, step=step, fixed=fixed)
         return
@@ -113,9 +112,8 @@ def relax_moved(rest, pos, graph, active, iterations: int, step: float = 1.0, fi
 
 
 def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np.ndarray:
-    """Move `ids` to local `targets`, cascade and relax; returns the ids that changed."""
-    from chainsim.engine.kernels.chainmail import cascade
-
+    """Move `ids` to local `targets`, cascade, relax (and keep every link inside its limits with an exact
+    material); returns the ids that changed."""
     ids = np.atleast_1d(np.asarray(ids, dtype=np.int64))
     n = d.n_elements
     if len(ids) == 0 or ids.min() < 0 or ids.max() >= n:
@@ -137,7 +135,7 @@ def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np
         ids,
         targets.astype(d.pos.dtype),
         fixed=fixed,
-        order=_ORDER_CODES[d.order],
+        order=order_code(d.order),
         workspace=d.workspace,
         depth=d.depth,
     )
@@ -151,6 +149,11 @@ def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np
         if len(d.held):
             pin[d.held] = True
         relax_moved(d.rest, d.pos, d.graph, order, d.relax_iterations, step=d.relax_step, fixed=pin)
+    if d.exact_limits:
+        res = exact_limits(d.rest, d.pos, d.graph, d.amin, d.amax, d.beta_l, order, ids, targets, fixed, d.workspace)
+        d.last_shortfall = res.shortfall
+        if len(res.changed):
+            changed = np.union1d(changed, res.changed)
     if len(changed):
         d.mark_dirty(changed)
         d.version += 1
@@ -166,8 +169,6 @@ def release(d: Deformable, ids=None) -> None:
 
 def cut(d: Deformable, ent: int, req: CutRequest) -> int:
     """Kill the links a blade crosses (4.5.2); returns how many were cut."""
-    from chainsim.engine.kernels import topology
-
     before = int(np.count_nonzero(d.alive))
     if req.polyline is not None:
         pts = _to_local(ent, as_points(req.polyline, "CutRequest.polyline"), req.frame)
@@ -191,8 +192,6 @@ def _blade_kwargs(ent: int, req: CutRequest) -> dict:
     if req.normal is not None:
         nrm = as_points(req.normal, "CutRequest.normal")[0]
         if req.frame == "world":
-            from chainsim.components.core import Transform
-
             tr = esper.try_component(ent, Transform)
             if tr is not None:
                 nrm = np.linalg.inv(tr.matrix()[:3, :3]).dot(nrm)
@@ -204,9 +203,6 @@ def _blade_kwargs(ent: int, req: CutRequest) -> dict:
 
 def add_links(d: Deformable, links) -> int:
     """Join element pairs with new links carrying the body's material limits; returns how many."""
-    from chainsim.engine.kernels import topology
-    from chainsim.engine.kernels.chainmail import material_arrays
-
     links = np.asarray(links, dtype=np.int64).reshape(-1, 2)
     m_before = d.graph.n_links
     graph = topology.add_links(d.graph, links)
@@ -346,9 +342,6 @@ def pull_system(app) -> None:
 def _pull_element(ent: int, p: Pull, d: Deformable) -> int:
     if p.element >= 0:
         if p.element >= d.n_elements:
-            from chainsim.components.core import Name
-            from chainsim.engine.errors import UserError
-
             name = esper.try_component(ent, Name)
             raise UserError(
                 f"entities.{name.value if name else ent}.pull.element: {p.element} is not an element id "
@@ -363,9 +356,6 @@ def _pull_element(ent: int, p: Pull, d: Deformable) -> int:
 
 def _default_deformables(app) -> None:
     """Entities with simulation.kind surface/volume and a mesh but no deformable table get one."""
-    from chainsim.components.core import MeshRef, Name, Simulation
-    from chainsim.components.resources import PackResource
-
     pres = app.get_resource(PackResource)
     if pres is None:
         return
@@ -394,7 +384,7 @@ def plugin(app) -> None:
     ev = app.events
     st = DeformationState(ev.reader(None), ev.reader(Widget))
     try:
-        from chainsim.components.view_events import Dragged
+        from chainsim.components.view_events import Dragged  # noqa: PLC0415 - absent from builds without views
 
         st.drag_type = Dragged
     except ImportError:  # a build without the view system: drags simply never arrive
