@@ -26,6 +26,7 @@ from chainsim.components.hud import HudState
 from chainsim.components.resources import InputState, Settings
 from chainsim.game.app.core import ORDER_RENDER
 from chainsim.game.app.loader import EntityIndex, PackResource
+from chainsim.systems.ui import docbox
 from chainsim.systems.ui.widgets import WidgetState
 
 PLANE_COLORS = ((0.95, 0.35, 0.35, 0.22), (0.35, 0.9, 0.45, 0.22), (0.35, 0.55, 1.0, 0.22), (0.9, 0.8, 0.3, 0.22))
@@ -131,18 +132,29 @@ def _plane_quads(pack, half: float) -> list:
     return out
 
 
-def help_lines(app) -> list[str]:
-    lines = [
-        "Mouse: left-drag rotates, right/middle-drag pans, scroll zooms;",
-        "       a click on the scene picks a point.",
-        "Keys:  F1 help   F12 screenshot   Esc quit",
-    ]
-    for w in app.resource(PackResource).layout.get("widgets", []):
-        if w.get("key"):
-            lines.append(
-                f"       {w['key']:<8} {w.get('label') or w['name']}" + (f" - {w['help']}" if w.get("help") else "")
-            )
-    return lines
+def page(app):
+    """The open page as (title, markdown, footer buttons) or None: a docs page of the pack, the key
+    overlay, or a notice (a question, a progress line) which takes the box over both."""
+    from chainsim.game.ui import keyhelp
+
+    hud = app.get_resource(HudState)
+    if hud is None:
+        return None
+    pack = app.resource(PackResource).pack
+    if hud.notice:
+        return ("", hud.notice, None)
+    if not hud.doc_open:
+        return None
+    if hud.doc_name == keyhelp.NAME:
+        text = keyhelp.keys_markdown(app.resource(PackResource).layout.get("widgets", []), hud.key_rows)
+        return (keyhelp.TITLE, text, {"close": True})
+    docs = pack.section("docs")
+    if hud.doc_name not in docs:
+        return None
+    names = list(docs)
+    k = names.index(hud.doc_name)
+    buttons = {"prev": k > 0, "next": k + 1 < len(names), "close": True}
+    return (docs[hud.doc_name]["title"], pack.doc_text(hud.doc_name), buttons)
 
 
 def collect_frame(app):
@@ -236,12 +248,11 @@ def collect_frame(app):
     shown3d = [v for v in frame.views if v.kind != "panel"]
     orbit = [v for v in shown3d if v.kind == "orbit"]
     frame.hud_view = (orbit or shown3d)[0].name if shown3d else ""
-    if vs.show_help:
-        frame.help = help_lines(app)
-    hud = frame.hud
-    if hud is not None and hud.doc_open and hud.doc_name in pack.section("docs"):
-        page = pack.section("docs")[hud.doc_name]
-        frame.doc = (page["title"], pack.doc_text(hud.doc_name), hud.doc_scroll)
+    shown = page(app)
+    if shown is not None and frame.hud_view:
+        title, text, buttons = shown
+        frame.doc = (title, text, 0 if frame.hud.notice else frame.hud.doc_scroll, buttons)
+        frame.doc_box = docbox.box(vs.get(frame.hud_view).rect)
     return frame
 
 
@@ -260,6 +271,9 @@ def draw(app):
             target.ctx.copy_framebuffer(target.fbo, ms)  # resolves the samples
         else:
             app.resource(Renderer).render(frame, target.fbo, target.size)
+        hud = app.get_resource(HudState)
+        if frame.doc_shown is not None and hud is not None and not hud.notice:
+            hud.doc_scroll = frame.doc_shown[0]  # scrolled past the end: back to the last screenful
     return frame
 
 

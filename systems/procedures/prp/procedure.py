@@ -119,7 +119,8 @@ class ProcedureSystem:
         h = hud(app)
         h.step_title = spec.get("title", ps.step_id)
         h.step_instruction = spec.get("instruction", "")
-        h.doc_name = spec.get("docs", "") or h.doc_name
+        h.step_doc = spec.get("docs", "") or h.step_doc
+        h.doc_name = h.step_doc or h.doc_name
         # the reading step opens its page in the app (thesis 3.4); later steps keep it a Help press away
         if ps.step_id == "reading":
             h.open_doc()
