@@ -119,7 +119,7 @@ def _row_to_attempt(row: sqlite3.Row) -> dict[str, Any]:
 _ATTEMPT_SELECT = """
     SELECT a.id, c.name AS class_name, t.name AS trainee, a.pack, a.created_at, a.duration_s,
            a.landmark_error_mm, a.needle_error_mm, a.target, a.skull_contacts, a.path_length_mm,
-           a.aids, a.step_times, a.details
+           a.redirections, a.aids, a.step_times, a.details
     FROM attempts a JOIN trainees t ON t.id = a.trainee_id JOIN classes c ON c.id = t.class_id
 """
 
@@ -300,8 +300,9 @@ class RecordStore:
             cur = conn.execute(
                 """
                 INSERT INTO attempts (trainee_id, pack, created_at, duration_s, landmark_error_mm,
-                    needle_error_mm, target, skull_contacts, path_length_mm, aids, step_times, details)
-                VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
+                    needle_error_mm, target, skull_contacts, path_length_mm, redirections, aids, step_times,
+                    details)
+                VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
                 """,
                 (
                     trainee_id,
@@ -313,6 +314,7 @@ class RecordStore:
                     a["target"],
                     a["skull_contacts"],
                     a["path_length_mm"],
+                    a["redirections"],
                     to_json(a["aids"]),
                     to_json(a["step_times"]),
                     to_json(a["details"]),
