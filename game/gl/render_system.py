@@ -31,6 +31,7 @@ from chainsim.systems.ui.widgets import WidgetState
 
 PLANE_COLORS = ((0.95, 0.35, 0.35, 0.22), (0.35, 0.9, 0.45, 0.22), (0.35, 0.55, 1.0, 0.22), (0.9, 0.8, 0.3, 0.22))
 XRAY_OPACITY = 0.3
+PLANE_PATCH_MM = 22.0  # half the side of a reference-plane patch
 
 
 @dataclass(slots=True)
@@ -225,10 +226,13 @@ def collect_frame(app):
         if pl.visible and len(pl.points) >= 2:
             frame.lines.append((np.asarray(pl.points, float).reshape(-1, 3), tuple(float(c) for c in pl.color)))
     for ent, (lb, tr) in esper.get_components(Label, Transform):
-        frame.labels.append((np.asarray(tr.position, float), lb.text, tuple(float(c) for c in lb.color)))
+        if lb.text:
+            frame.labels.append((np.asarray(tr.position, float), lb.text, tuple(float(c) for c in lb.color)))
     if vs.layer_visible("planes") and pack.section("planes"):
-        half = 0.6 * float(np.linalg.norm(hi - lo)) if np.all(np.isfinite(lo)) else 100.0
-        frame.planes = _plane_quads(pack, max(half, 1.0))
+        # small patches with an outline around each plane's point, not quads across the whole view
+        frame.planes = _plane_quads(pack, PLANE_PATCH_MM)
+        for corners, color in frame.planes:
+            frame.lines.append((np.vstack([corners, corners[:1]]), (*color[:3], 0.9)))
     st: WidgetState = app.resource(WidgetState)
     index = app.get_resource(EntityIndex)
     for vp in vs.viewports:

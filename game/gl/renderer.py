@@ -121,6 +121,7 @@ class Renderer:
         self.dyn_vao = ctx.vertex_array(self.line_prog, [(self.dyn, "3f", "in_pos")])
         self.overlay = Overlay(ctx)
         self.pages = PageView(self.overlay)
+        self._labels_seen: dict[tuple, list[bool]] = {}  # viewport rect -> label in sight (this frame)
 
     # -- meshes ------------------------------------------------------------------------------
     def mesh(self, key, vertices: np.ndarray, triangles: np.ndarray, links: np.ndarray | None = None) -> GpuMesh:
@@ -147,6 +148,7 @@ class Renderer:
         s = frame.scale
         ctx.scissor = None
         ctx.viewport = (0, 0, W, H)
+        self._labels_seen.clear()
         covered = sum(v.rect.scaled(s).w * v.rect.scaled(s).h for v in frame.views)
         if covered < W * H:  # viewports clear their own rectangles; clear the rest only when some shows
             fbo.clear(*frame.background, depth=1.0)
@@ -200,6 +202,28 @@ class Renderer:
         _set(self.line_prog, "u_color", tuple(float(c) for c in color))
         self.dyn_vao.render(mode, vertices=len(pts))
 
+    def _label_queries(self, frame: Frame, vp, eye, r: Rect) -> None:
+        """Which labels the opaque scene leaves in sight: a small sphere at each label's point is drawn
+        without colour or depth writes inside an occlusion query (before markers, which would hide it),
+        so a label behind the skull is not drawn over it."""
+        ctx = self.ctx
+        seen = self._labels_seen[(r.x, r.y, r.w, r.h)] = []
+        if not frame.labels:
+            return
+        fbo = ctx.fbo
+        fbo.color_mask = (False, False, False, False)
+        fbo.depth_mask = False
+        try:
+            for pos, _text, _color in frame.labels:
+                q = ctx.query(samples=True)
+                with q:
+                    self._draw_mesh(MeshDraw(self.sphere, _trs(pos, 1.2), (1, 1, 1, 1)), vp, eye)
+                seen.append(q.samples > 0)
+                q.mglo.release() if hasattr(q.mglo, "release") else None
+        finally:
+            fbo.color_mask = (True, True, True, True)
+            fbo.depth_mask = True
+
     def _scene(self, frame: Frame, cam: Camera, r: Rect, fbo, hide: int = -1) -> None:
         ctx = self.ctx
         vp = cam.view_projection(r.aspect)
@@ -215,6 +239,7 @@ class Renderer:
                 see_through.append(("mesh", m))
             else:
                 self._draw_mesh(m, vp, eye)
+        self._label_queries(frame, vp, eye, r)
         for pos, radius, color, ent in frame.markers:
             if hide >= 0 and ent == hide:
                 continue
@@ -317,7 +342,10 @@ class Renderer:
             if view.title:
                 panelview.view_title(ov, view.title, r, s)
             if view.camera is not None:
-                for pos, text, color in frame.labels:
+                seen = self._labels_seen.get((r.x, r.y, r.w, r.h), [])
+                for k, (pos, text, color) in enumerate(frame.labels):
+                    if k < len(seen) and not seen[k]:
+                        continue  # behind bone or skin
                     x, y, z = view.camera.project(pos, r)[0]
                     if -1 < z < 1 and r.contains(x, y):
                         ov.label(text, x + 4 * s, y + 4 * s, color)
