@@ -45,6 +45,7 @@ class RenderTarget:
     size: tuple[int, int] | None = None  # framebuffer pixels, when fbo.size cannot be trusted (windows)
     samples: int = 1  # off screen: draw multisampled and resolve into `fbo` (smooth edges in PNGs)
     msaa: object = None
+    hold: bool = False  # a window frame runs several fixed steps: draw only after the last one
 
     def multisampled(self):
         """The multisampled framebuffer matching `fbo` (off-screen targets with samples > 1)."""
@@ -321,7 +322,10 @@ class RenderSystem:
 
         target: RenderTarget = app.resource(RenderTarget)
         if not target.offscreen:
-            draw(app)
+            if target.hold:
+                sync_deformables(app)
+            else:
+                draw(app)
             return
         sync_deformables(app)
         info = app.get_resource(RunInfo)

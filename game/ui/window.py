@@ -3,8 +3,8 @@
 Only this module (and the GL adapters) import pyglet. Device events become the same input events
 scripts use (`chainsim.components.input_events`), stamped with the App's simulated time and queued in PendingInput,
 so a window session can be recorded (`--record`) and replayed headless. Each redraw (about 60 per
-second where the machine keeps up) advances the App by the wall-clock time since the previous one
-(capped at 0.1 s) and draws through `chainsim.game.gl.render_system` into the window's framebuffer.
+second where the machine keeps up) runs the whole fixed steps the wall-clock time since the previous
+one holds, one App.update each (chainsim.game.ui.frameloop), and draws through `chainsim.game.gl.render_system` into the window's framebuffer.
 
 HiDPI: layouts, input events and widgets work in window units; the renderer draws at the
 framebuffer's resolution (`RenderTarget.scale` = framebuffer pixels per window unit).
@@ -20,6 +20,7 @@ from __future__ import annotations
 import time
 
 from chainsim.engine.errors import UserError
+from chainsim.game.ui.frameloop import FixedStepper
 
 
 def key_name(symbol: int) -> str:
@@ -204,14 +205,17 @@ def run_window(args) -> int:
         pending.push(now(), Resize(max(int(width), 1), max(int(height), 1)))
         return pyglet.event.EVENT_HANDLED
 
+    stepper = FixedStepper(app, target)
+
     @window.event
     def on_draw():
         t = time.perf_counter()  # wall clock paces the window only; the App runs on simulated time
-        dt = 0.0 if state["last"] is None else min(t - state["last"], 0.1)
+        dt = 0.0 if state["last"] is None else t - state["last"]
         state["last"] = t
         if state["closing"]:
             return
-        app.update(dt)
+        if stepper.advance(dt) == 0:
+            render.draw(app)  # no whole step yet: show the same state again
         if args.exit_after is not None and app.time.sim_time >= args.exit_after:
             finish()
 
