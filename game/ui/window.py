@@ -10,17 +10,26 @@ HiDPI: layouts, input events and widgets work in window units; the renderer draw
 framebuffer's resolution (`RenderTarget.scale` = framebuffer pixels per window unit).
 
 Keys: a widget's `key` (pyglet key names, lower case: "t", "left", "space", "f2"; digits "1".."9")
-uses that widget (held arrow keys repeat); F1 toggles the help overlay, F12 saves a screenshot (chainsim-shot-FRAME.png in the
-current folder), Esc quits. `--input SCRIPT` plays a script, `--exit-after S` closes after S simulated
+uses that widget (held arrow keys repeat); F1 opens the key page, F12 saves a screenshot
+(chainsim-shot-FRAME.png in the current folder). Esc closes an open page; with none open it quits,
+asking first when the attempt is not saved. Packs with a `sign_in` button ask for class and name at
+start (chainsim.game.ui.signin) unless --class and --trainee are given or a script is played. `--input SCRIPT` plays a script, `--exit-after S` closes after S simulated
 seconds, `--screenshot PNG` saves the last frame on closing, `--record FILE` saves the session.
 """
 
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 from chainsim.engine.errors import UserError
 from chainsim.game.ui.frameloop import FixedStepper
+
+
+QUIT_QUESTION = (
+    "# Quit without saving?\n\nThis attempt is not saved. Press **Esc** again to quit, or any other key to "
+    "go back and press **Save attempt** first.\n"
+)
 
 
 def key_name(symbol: int) -> str:
@@ -66,7 +75,10 @@ def run_window(args) -> int:
     from chainsim.components.hud import HudState
     from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll
     from chainsim.components.resources import PendingInput, Settings
-    from chainsim.game.app.headless import build_app
+    from chainsim.components.input_events import Widget
+    from chainsim.game.app.headless import Assessment, build_app
+    from chainsim.game.records.store import default_path as default_records_path
+    from chainsim.game.ui.signin import SignInForm, remember, remembered, status_line
     from chainsim.game.app.inputscript import load_script
     from chainsim.game.cli.commands.run import user_settings
     from chainsim.game.gl.context import window_context
@@ -99,7 +111,36 @@ def run_window(args) -> int:
     pending: PendingInput = app.resource(PendingInput)
     if script:
         pending.extend(script)
-    state = {"last": None, "closing": False, "rc": 0}
+    state = {"last": None, "closing": False, "rc": 0, "confirm": False}
+    hud: HudState = app.resource(HudState)
+    values = app.resource(Settings).values
+    records_path = Path(values["db"]).expanduser() if values.get("db") else default_records_path()
+    hud.status = status_line(values, records_path)
+    widget_events = app.events.reader(Widget)
+    layout_names = {w["name"] for w in app.resource(render.PackResource).layout.get("widgets", [])}
+    form: dict = {"open": None}
+
+    def open_sign_in() -> None:
+        given = {k: values.get(k) or remembered().get(k, "") for k in ("class", "trainee")}
+        form["open"] = SignInForm(given, records_path)
+        hud.notice = form["open"].markdown()
+
+    def form_changed() -> None:
+        f = form["open"]
+        if f.done:
+            values["class"], values["trainee"] = f.values["class"], f.values["trainee"]
+            settings["class"], settings["trainee"] = f.values["class"], f.values["trainee"]
+            remember(f.values)
+            hud.status = status_line(values, records_path)
+            hud.message(f"Signed in as {f.values['trainee']}, class {f.values['class']}.")
+            hud.notice = ""
+            form["open"] = None
+        else:
+            hud.notice = f.markdown()
+
+    # the trainer asks who is training, unless --class and --trainee said so
+    if "sign_in" in layout_names and not (values.get("class") and values.get("trainee")) and not script:
+        open_sign_in()
 
     def now() -> float:
         return app.time.sim_time
@@ -160,9 +201,39 @@ def run_window(args) -> int:
         pending.push(now(), Scroll(float(x), float(y), float(scroll_y)))
 
     @window.event
+    def on_text(text):
+        if form["open"] is not None:
+            form["open"].text(text)
+            form_changed()
+            return pyglet.event.EVENT_HANDLED
+
+    @window.event
     def on_key_press(symbol, modifiers):
+        if form["open"] is not None:  # typing a name: no key reaches the controller
+            if symbol == pyglet.window.key.ESCAPE:
+                if values.get("trainee"):
+                    form["open"] = None
+                    hud.notice = ""
+                else:
+                    finish()
+            else:
+                form["open"].key(key_name(symbol))
+                form_changed()
+            return pyglet.event.EVENT_HANDLED
+        if state["confirm"]:
+            state["confirm"] = False
+            hud.notice = ""
+            if symbol == pyglet.window.key.ESCAPE:
+                finish()
+            return pyglet.event.EVENT_HANDLED
         if symbol == pyglet.window.key.ESCAPE:
-            finish()
+            if hud.doc_open:
+                pending.push(now(), Key("escape", True))  # closes the page (the view system)
+            elif app.resource(Assessment).values.get("unsaved"):
+                state["confirm"] = True
+                hud.notice = QUIT_QUESTION
+            else:
+                finish()
             return pyglet.event.EVENT_HANDLED
         if symbol == pyglet.window.key.F12:
             path = render.screenshot(app, f"chainsim-shot-{app.time.frame:06d}.png")
@@ -216,6 +287,9 @@ def run_window(args) -> int:
             return
         if stepper.advance(dt) == 0:
             render.draw(app)  # no whole step yet: show the same state again
+        for ev in widget_events.read():
+            if ev.name == "sign_in" and form["open"] is None:
+                open_sign_in()
         if args.exit_after is not None and app.time.sim_time >= args.exit_after:
             finish()
 
