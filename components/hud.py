@@ -80,4 +80,4 @@ class HudState:
 
     def shown_messages(self) -> list[str]:
         """The messages as drawn: a repeated one carries its count."""
-        return [t if self.counts.get(t, 1) <= 1 else f"{t} (\u00d7{self.counts[t]})" for t, _ in self.messages]
+        return [t if self.counts.get(t, 1) <= 1 else f"{t} (x{self.counts[t]})" for t, _ in self.messages]
