@@ -53,16 +53,27 @@ def _button(b) -> str:
     return "middle"
 
 
+SOFTWARE_GL = ("llvmpipe", "softpipe", "swrast")
+
+
 def _open_window(pyglet, w: int, h: int, caption: str):
-    """A GL 3.3 core window; multisampled when the display offers it."""
+    """A GL 3.3 core window; multisampled when the display offers it on a GPU. Software renderers
+    (Mesa's llvmpipe) get no multisampling: it multiplies their rasterising time about five-fold
+    (`chainsim bench render --pack prp`), which costs more than smooth edges are worth."""
     base = dict(major_version=3, minor_version=3, forward_compatible=True, double_buffer=True, depth_size=24)
     last = None
     for extra in (dict(sample_buffers=1, samples=4), {}):
         try:
             config = pyglet.gl.Config(**base, **extra)
-            return pyglet.window.Window(w, h, caption=caption, resizable=True, config=config)
+            window = pyglet.window.Window(w, h, caption=caption, resizable=True, config=config)
         except Exception as e:  # no such config on this display: try a plainer one
             last = e
+            continue
+        renderer = (pyglet.gl.gl_info.get_renderer() or "").lower()
+        if extra and any(name in renderer for name in SOFTWARE_GL):
+            window.close()
+            continue
+        return window
     raise last
 
 
