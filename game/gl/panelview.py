@@ -121,7 +121,8 @@ def panel(ov: Overlay, p, h, s: float) -> None:
         widget(ov, pl, p, lights, s)
         shown.add(pl.spec["name"])
     y = below_widgets(p.placed, p.rect) * s
-    status = f.wrap(h.status, r.w - 16 * s) if h is not None and h.status else []
+    # the status line gives way to panel text (an assessment needs the room)
+    status = f.wrap(h.status, r.w - 16 * s) if h is not None and h.status and not h.panel_text else []
     hint = f.wrap(p.hint, r.w - 16 * s) if p.hint else []
     bottom = hint or status  # the hint of the widget under the pointer replaces the status line
     floor = r.y + (len(bottom) * f.line_h + 8 * s if bottom else 0)

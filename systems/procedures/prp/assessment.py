@@ -27,6 +27,7 @@ from chainsim.components.needle import NeedleState
 from chainsim.components.procedure import ProcedureState, PrpAnatomy, landmark_errors
 from chainsim.components.resources import Settings
 from chainsim.game.app.core import ORDER_ASSESSMENT
+from chainsim.systems.ui.widgets import format_value
 
 DEFAULT_CLASS = "default"
 DEFAULT_TRAINEE = "anonymous"
@@ -89,15 +90,20 @@ def panel_lines(v: dict) -> list[str]:
     """The self-assessment text (Fig. 3.11's text field), each term said in words."""
 
     def mm(x):
-        return "-" if x is None else f"{x:.1f} mm"
+        return "-" if x is None else f"{format_value(x)} mm"
 
-    lines = [f"Self assessment, attempt {v.get('attempt', 1)}" + (f" ({v['side']} side)" if v["side"] else "")]
-    lines.append(f"Landmark error {mm(v['landmark_error_mm'])}: mean of the six distances below")
-    for k, what in ((1, "mouth corner - 25 mm"), (2, "pupil"), (3, "tragus - 30 mm")):
-        lines.append(f"  mark {k}: to the {what} D{k} {mm(v[f'D{k}'])}, to its plane d{k} {mm(v[f'd{k}'])}")
-    dist = v.get("needle_dist_mm")
+    lines = [
+        f"Self assessment, attempt {v.get('attempt', 1)}" + (f" ({v['side']} side)" if v["side"] else "")
+        + f": landmark error {mm(v['landmark_error_mm'])}, needle error {mm(v['needle_error_mm'])}"
+    ]
+    ds = " / ".join(mm(v[f"D{k}"]) for k in (1, 2, 3))
+    dp = " / ".join(mm(v[f"d{k}"]) for k in (1, 2, 3))
     lines.append(
-        f"Needle error {mm(v['needle_error_mm'])}: tip to foramen centre {mm(dist)} minus its radius "
+        f"Landmark error: mean of D1-D3 {ds} (to mouth corner - 25 mm, pupil, tragus - 30 mm) "
+        f"and d1-d3 {dp} (to their planes)"
+    )
+    lines.append(
+        f"Needle error: tip to foramen centre {mm(v.get('needle_dist_mm'))} minus its radius "
         f"{mm(v.get('foramen_radius_mm'))}, at the last contact"
     )
     lines.append(
