@@ -20,8 +20,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import esper
 import numpy as np
 from numba import njit
+
+from chainsim.components.core import MeshRef, Transform
+from chainsim.components.needle import Needle, NeedleState
+from chainsim.components.procedure import PrpAnatomy
+from chainsim.components.resources import EntityIndex, PackResource
+from chainsim.systems.needle import _sync_widgets, apply_pose
+from chainsim.systems.stages import ORDER_COLLISION
 
 CHUNK = 16
 GROUP = 16
@@ -201,10 +209,6 @@ OBSTACLES = ("skull", "mandible", "foramen_ovale_left", "foramen_ovale_right")
 
 def build_obstacles(app) -> PrpObstacles:
     """Meshes of the obstacle entities, through their Transform (static scenery)."""
-    import esper
-
-    from chainsim.components.core import MeshRef, Transform
-    from chainsim.components.resources import EntityIndex, PackResource
 
     pack = app.resource(PackResource).pack
     index: EntityIndex = app.resource(EntityIndex)
@@ -241,11 +245,6 @@ class NeedleHit:
 
 
 def collision_system(app) -> None:
-    import esper
-
-    from chainsim.components.needle import Needle, NeedleState
-    from chainsim.components.procedure import PrpAnatomy
-    from chainsim.systems.needle import _sync_widgets, apply_pose
 
     obs: PrpObstacles = app.resource(PrpObstacles)
     anat: PrpAnatomy = app.resource(PrpAnatomy)
@@ -282,6 +281,5 @@ def collision_system(app) -> None:
 
 def plugin(app) -> None:
     app.insert_resource(build_obstacles(app))
-    from chainsim.systems.stages import ORDER_COLLISION
 
     app.add_system("simulation", collision_system, order=ORDER_COLLISION, name="needle_collision")

@@ -42,6 +42,7 @@ from chainsim.components.needle import Needle, NeedleState
 from chainsim.components.resources import EntityIndex, InputState
 from chainsim.engine import quaternion as Q
 from chainsim.systems.stages import ORDER_KINEMATICS
+from chainsim.systems.ui.widgets import WidgetState
 
 Z = np.array([0.0, 0.0, 1.0])
 ROTATION_WIDGETS = ("rotate_horizontal", "rotate_vertical")
@@ -166,7 +167,6 @@ def rotate_vertical(st: NeedleState, delta_deg: float, max_pitch: float) -> floa
 
 
 def _widgets(app):
-    from chainsim.systems.ui.widgets import WidgetState
 
     return app.get_resource(WidgetState)
 
@@ -286,7 +286,7 @@ class NeedleSystem:
 def init_state(app) -> None:
     """Give every needle its runtime state, remembering where the pack parked it."""
     with app.active():
-        for ent, needle in esper.get_component(Needle):
+        for ent, _needle in esper.get_component(Needle):
             if esper.has_component(ent, NeedleState):
                 continue
             st = NeedleState()

@@ -11,7 +11,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import esper
 import numpy as np
+from trimesh.triangles import closest_point
+
+from chainsim.components.core import MeshRef, Name, Transform
+from chainsim.components.deformable import Deformable
+from chainsim.components.resources import PackResource
 
 EPS = 1e-12
 
@@ -64,7 +70,6 @@ def ray_mesh(origin, direction, vertices: np.ndarray, triangles: np.ndarray, chu
 
 def closest_on_mesh(vertices: np.ndarray, triangles: np.ndarray, point) -> tuple[int, np.ndarray]:
     """(triangle, point) on the mesh surface nearest to `point`."""
-    from trimesh.triangles import closest_point
 
     p = np.asarray(point, float)
     corners = vertices[triangles]
@@ -143,10 +148,6 @@ def surface_cache(app) -> SurfaceCache:
 
 def entity_surface(app, ent: int, mesh_ref=None, transform=None):
     """(world vertices, triangles, triangle ids) of an entity's current surface, or None."""
-    import esper
-
-    from chainsim.components.core import MeshRef, Transform
-    from chainsim.components.resources import PackResource
 
     mesh_ref = mesh_ref or esper.try_component(ent, MeshRef)
     if mesh_ref is None:
@@ -163,20 +164,11 @@ def entity_surface(app, ent: int, mesh_ref=None, transform=None):
 
 
 def _deformable(ent: int):
-    import esper
-
-    try:
-        from chainsim.components.deformable import Deformable
-    except ImportError:  # pragma: no cover - the deformation module is optional
-        return None
     return esper.try_component(ent, Deformable)
 
 
 def pick(app, origin, direction) -> Hit | None:
     """Nearest hit over visible, pickable mesh entities (call inside `app.active()` or a system)."""
-    import esper
-
-    from chainsim.components.core import MeshRef, Name, Transform
 
     d = np.asarray(direction, float)
     o = np.asarray(origin, float)
@@ -210,9 +202,6 @@ def pick(app, origin, direction) -> Hit | None:
 
 def snap(app, entity: int, point) -> Hit | None:
     """The surface point of `entity` nearest to a world point (scripted PickPoint events)."""
-    import esper
-
-    from chainsim.components.core import Name
 
     surf = entity_surface(app, entity)
     if surf is None:

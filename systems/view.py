@@ -29,6 +29,7 @@ Key "f1" toggles the help overlay.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import esper
@@ -40,6 +41,7 @@ from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseM
 from chainsim.components.resources import EntityIndex, InputState, PackResource, Settings
 from chainsim.components.view_events import Dragged, LayerChanged, Picked, WidgetRefused
 from chainsim.engine.errors import UserError
+from chainsim.systems.picking import pick, snap
 from chainsim.systems.stages import ORDER_VIEW
 from chainsim.systems.ui import widgets as wd
 from chainsim.systems.ui.viewports import (
@@ -249,8 +251,6 @@ class ViewSystem:
             elif p is not None and ev.button == "left":
                 self.emit(app, WidgetRefused(p.spec["name"]))
         elif vp.picks and vp.camera is not None and not vp.mouse_camera and ev.button == "left":
-            from chainsim.systems.picking import pick
-
             o, d = self.ray(vp, ev.x, ev.y)
             hit = pick(app, o, d)
             if hit is not None:
@@ -301,8 +301,6 @@ class ViewSystem:
                     app, Dragged(vp.name, g[1], g[2], "end", g[3], g[4], self.drag_point(vs, vp, ev.x, ev.y), ev.button)
                 )
             if vs.travel <= CLICK_PX and vp.picks:
-                from chainsim.systems.picking import pick
-
                 o, d = self.ray(vp, ev.x, ev.y)
                 hit = pick(app, o, d)
                 if hit is not None:
@@ -327,7 +325,6 @@ class ViewSystem:
             self.use_widget(app, name, new)
 
     def pick_point(self, app, ev: PickPoint) -> None:
-        from chainsim.systems.picking import snap
 
         index: EntityIndex = app.resource(EntityIndex)
         ent = index.get(ev.entity)
@@ -394,7 +391,6 @@ DOC_SCROLL = {"pagedown": 12, "pageup": -12}
 
 def default_layout(app) -> dict:
     """One orbit viewport framing every mesh, for scenes that name no layout."""
-    import math
 
     pack = app.resource(PackResource).pack
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)

@@ -15,6 +15,27 @@ bench-render.png into --out (default runs/bench-render); progress goes to stderr
 
 from __future__ import annotations
 
+import json
+import math
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+
+from chainsim.engine.errors import UserError
+from chainsim.engine.meshgen import triangulated_grid
+from chainsim.game.cli.commands.run import _size
+from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
+from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
+from chainsim.systems.ui.viewports import OrbitCamera, fraction_rect
+from chainsim.systems.ui.widgets import place
+
 HELP = "off-screen frame time of the renderer for 10k / 100k / 1M triangles"
 
 DEFAULT_SIZES = (10_000, 100_000, 1_000_000)
@@ -22,7 +43,6 @@ MODES = ("static", "full", "patch")
 
 
 def add_arguments(p) -> None:
-    from chainsim.game.cli.commands.run import _size
 
     p.add_argument(
         "--out", default="runs/bench-render", metavar="DIR", help="output folder (default runs/bench-render)"
@@ -47,11 +67,6 @@ def add_arguments(p) -> None:
 
 def sheet(n_triangles: int):
     """A wavy square sheet of about n triangles, 200 mm across; returns (vertices, triangles, side)."""
-    import math
-
-    import numpy as np
-
-    from chainsim.engine.meshgen import triangulated_grid
 
     side = max(2, int(round(math.sqrt(n_triangles / 2.0))) + 1)
     pos, tris, _ = triangulated_grid(side, side, 200.0 / (side - 1), dim=3)
@@ -62,11 +77,6 @@ def sheet(n_triangles: int):
 
 
 def _frame(gm, size):
-    import numpy as np
-
-    from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, ViewDraw
-    from chainsim.systems.ui.viewports import OrbitCamera, fraction_rect
-    from chainsim.systems.ui.widgets import place
 
     w, h = size
     cam = OrbitCamera(target=np.zeros(3), distance=330.0, yaw=25.0, pitch=40.0)
@@ -86,18 +96,6 @@ def _frame(gm, size):
 
 
 def run(args) -> int:
-    import json
-    import platform
-    import statistics
-    import sys
-    import time
-    from pathlib import Path
-
-    import numpy as np
-
-    from chainsim.engine.errors import UserError
-    from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
-    from chainsim.game.gl.renderer import Renderer
 
     if args.frames < 1 or args.warmup < 0:
         raise UserError("--frames must be >= 1 and --warmup >= 0")
@@ -169,7 +167,6 @@ def run(args) -> int:
     finally:
         renderer.release()
         release_framebuffer(ctx, fbo)
-    import os
 
     load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
     info = {
@@ -207,11 +204,8 @@ def run(args) -> int:
 
 
 def _plot(rows, path, info) -> None:
-    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
 
     sizes = sorted({r["triangles"] for r in rows})
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(10, 4.2), dpi=120)

@@ -15,11 +15,14 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import trimesh
 
 from chainsim.game.gl import shaders
+from chainsim.game.gl.context import release_framebuffer
 from chainsim.game.gl.meshbuf import GpuMesh
 from chainsim.game.gl.overlay import Overlay
 from chainsim.systems.ui.viewports import Camera, Rect
+from chainsim.systems.ui.widgets import TITLE_PX, below_widgets
 
 SHADING = {"smooth": 0, "flat": 1, "unlit": 2}
 PANEL_BG = (0.13, 0.14, 0.17, 1.0)
@@ -94,7 +97,6 @@ def _set(prog, name: str, value) -> None:
 
 
 def icosphere(subdiv: int = 2) -> tuple[np.ndarray, np.ndarray]:
-    import trimesh
 
     s = trimesh.creation.icosphere(subdivisions=subdiv, radius=1.0)
     return np.asarray(s.vertices), np.asarray(s.faces)
@@ -284,8 +286,6 @@ class Renderer:
             ctx.scissor = None
             if previous is not None:
                 previous.use()
-            from chainsim.game.gl.context import release_framebuffer
-
             release_framebuffer(ctx, fbo)
         slot = raw[:, :, 3]
         prim = raw[:, :, 0] | (raw[:, :, 1] << 8) | (raw[:, :, 2] << 16)
@@ -375,7 +375,6 @@ class Renderer:
             ov.label(t, x0 + pad, top - (i + 1) * f.line_h + f.descent, c, max_w=width - 2 * pad)
 
     def _panel(self, p: PanelDraw, hud, s: float) -> None:
-        from chainsim.systems.ui.widgets import TITLE_PX, below_widgets
 
         ov, f = self.overlay, self.overlay.font
         r = p.rect.scaled(s)

@@ -19,12 +19,23 @@ from __future__ import annotations
 
 import time
 
+import pyglet
+
+import chainsim.game.gl.render_system as render
+from chainsim.components.hud import HudState
+from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll
+from chainsim.components.resources import PendingInput, Settings
 from chainsim.engine.errors import UserError
+from chainsim.game.app.digest import world_digest
+from chainsim.game.app.headless import build_app
+from chainsim.game.app.inputscript import load_script, write_recording
+from chainsim.game.cli.commands.run import user_settings
+from chainsim.game.gl.context import window_context
+from chainsim.systems.input import InputLog
 
 
 def key_name(symbol: int) -> str:
     """pyglet key symbol -> the name used in input events ('T' -> 't', '_1' -> '1', 'LEFT' -> 'left')."""
-    import pyglet
 
     name = pyglet.window.key.symbol_string(symbol).lower()
     if len(name) == 2 and name[0] == "_" and name[1].isdigit():
@@ -33,7 +44,6 @@ def key_name(symbol: int) -> str:
 
 
 def _button(b) -> str:
-    import pyglet
 
     m = pyglet.window.mouse
     if b & m.LEFT:
@@ -57,19 +67,6 @@ def _open_window(pyglet, w: int, h: int, caption: str):
 
 
 def run_window(args) -> int:
-    try:
-        import pyglet
-    except Exception as e:  # pragma: no cover - pyglet is a dependency
-        raise UserError(f"cannot start the window system ({e})") from None
-    import chainsim.game.gl.render_system as render
-    from chainsim.components.hud import HudState
-    from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll
-    from chainsim.components.resources import PendingInput, Settings
-    from chainsim.game.app.headless import build_app
-    from chainsim.game.app.inputscript import load_script
-    from chainsim.game.cli.commands.run import user_settings
-    from chainsim.game.gl.context import window_context
-
     script = load_script(args.input) if getattr(args, "input", None) else None
     settings = user_settings(args)  # --db, --class, --trainee for procedures that save attempts
     app = build_app(args.pack, pack_paths=args.pack_path, headless=False, settings=settings)
@@ -113,10 +110,6 @@ def run_window(args) -> int:
                 path = render.screenshot(app, args.screenshot)
                 print(f"screenshot: {path}")
             if getattr(args, "record", None):
-                from chainsim.game.app.digest import world_digest
-                from chainsim.game.app.inputscript import write_recording
-                from chainsim.systems.input import InputLog
-
                 log = app.get_resource(InputLog)
                 write_recording(
                     args.record,

@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import argparse
 import json
+import math
+
+from chainsim.engine.errors import UserError
+from chainsim.game.app.headless import run_pack
 
 NAME = "run"
 HELP = "run a pack without a window and write OUT/summary.json"
 
 
 def _size(text: str):
-    import argparse
 
     try:
         w, h = (int(x) for x in text.lower().split("x"))
@@ -21,7 +25,6 @@ def _size(text: str):
 
 
 def _nonneg(text: str) -> int:
-    import argparse
 
     try:
         v = int(text)
@@ -66,10 +69,6 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    import math
-
-    from chainsim.engine.errors import UserError
-    from chainsim.game.app.headless import run_pack
 
     if args.dt is not None and not (math.isfinite(args.dt) and 0 < args.dt < 1):
         raise UserError(f"--dt must be a number of seconds in (0, 1), got {args.dt}")

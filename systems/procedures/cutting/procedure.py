@@ -49,12 +49,18 @@ import numpy as np
 from chainsim.components.core import Marker, MeshRef, Name, PolyLine, Transform
 from chainsim.components.deform_events import CutRequest, Deformed, GrabRequest, ReleaseRequest
 from chainsim.components.deformable import Deformable
+from chainsim.components.hud import HudState
 from chainsim.components.input_events import MouseMove, Scroll, Widget
-from chainsim.components.resources import EntityIndex, PackResource
+from chainsim.components.resources import Assessment, EntityIndex, PackResource
 from chainsim.components.tools import Forceps, Scissors
 from chainsim.components.view_events import Dragged, Picked
 from chainsim.engine.errors import UserError
+from chainsim.systems.deformation import DeformationState
+from chainsim.systems.picking import entity_surface, pick, ray_mesh
 from chainsim.systems.stages import ORDER_ASSESSMENT, ORDER_KINEMATICS, ORDER_PROCEDURE
+from chainsim.systems.ui.viewports import OrbitCamera
+from chainsim.systems.ui.widgets import WidgetState
+from chainsim.systems.view import ViewState
 
 TOOLS = ("forceps", "scissors")
 STEP_IDS = ("pull", "cut", "open")
@@ -183,7 +189,6 @@ class ToolsSystem:
         self.st = st
 
     def hud(self, app):
-        from chainsim.components.hud import HudState
 
         return app.get_resource(HudState)
 
@@ -399,7 +404,6 @@ class ToolsSystem:
         """Where the line of sight through a drag point meets the layer being cut (the drag point itself
         lies on a plane facing the camera, which leaves the tissue as the cursor moves away): on the
         layer's live surface, else on the plane through the path's last point along the layer."""
-        from chainsim.systems.picking import entity_surface, ray_mesh
 
         eye = np.asarray(eye, dtype=np.float64)
         ray = np.asarray(point, dtype=np.float64) - eye
@@ -419,7 +423,6 @@ class ToolsSystem:
         return eye + float((last - eye) @ n) / denom * ray
 
     def on_scroll(self, app, ev: Scroll) -> None:
-        from chainsim.systems.view import ViewState
 
         vs = app.get_resource(ViewState)
         vp = vs.at(ev.x, ev.y) if vs is not None else None
@@ -454,7 +457,6 @@ class ToolsSystem:
 
 
 def _camera(app, viewport: str):
-    from chainsim.systems.view import ViewState
 
     vs = app.get_resource(ViewState)
     vp = vs.get(viewport) if vs is not None and viewport else None
@@ -475,8 +477,6 @@ def apply_view(app, st: CuttingState, tool: str) -> None:
     near top-down view for the scissors, so a drag across the screen runs across the tissue. The
     mouse-driven viewer keeps the trainee's own viewpoint; a layout without a frozen view has its orbit
     views moved instead."""
-    from chainsim.systems.ui.viewports import OrbitCamera
-    from chainsim.systems.view import ViewState
 
     vs = app.get_resource(ViewState)
     if vs is None or tool not in VIEWS:
@@ -576,8 +576,6 @@ def draw_tools(st: CuttingState) -> None:
 def hover_point(app, st: CuttingState, ev: MouseMove) -> np.ndarray | None:
     """The tissue point under the cursor in a 3-D view (where the idle instrument is drawn, so the mouse
     acts as the instrument, 4.5.2), or None off the tissue."""
-    from chainsim.systems.picking import pick
-    from chainsim.systems.view import ViewState
 
     vs = app.get_resource(ViewState)
     vp = vs.at(ev.x, ev.y) if vs is not None else None
@@ -626,8 +624,6 @@ class StepsSystem:
         return False
 
     def __call__(self, app) -> None:
-        from chainsim.components.hud import HudState
-        from chainsim.systems.ui.widgets import WidgetState
 
         st = self.st
         hud = app.get_resource(HudState)
@@ -696,7 +692,6 @@ def panel_lines(app, st: CuttingState) -> list[str]:
 
 
 def _assessment_type():
-    from chainsim.components.resources import Assessment
 
     return Assessment
 
@@ -763,7 +758,6 @@ class AssessmentSystem:
             "resets": st.resets,
             "wireframe": st.wireframe,
         }
-        from chainsim.systems.deformation import DeformationState
 
         ds = app.get_resource(DeformationState)
         if ds is not None and ds.errors:
@@ -776,7 +770,6 @@ class AssessmentSystem:
 
 def plugin(app) -> None:
     """Install the cutting trainer for a spawned pack (see the module docstring)."""
-    from chainsim.components.resources import Assessment
 
     pres: PackResource = app.resource(PackResource)
     pack = pres.pack
@@ -831,7 +824,6 @@ def plugin(app) -> None:
     st.deformed = ev.reader(Deformed)
     st.tool_widgets = ev.reader(Widget)
     app.insert_resource(st)
-    from chainsim.systems.deformation import DeformationState
 
     ds = app.get_resource(DeformationState)
     if ds is not None:
@@ -840,7 +832,6 @@ def plugin(app) -> None:
         ds.drag_type = None
     if not app.has_resource(Assessment):
         app.insert_resource(Assessment())
-    from chainsim.components.hud import HudState
 
     hud = app.get_resource(HudState)
     if hud is not None:

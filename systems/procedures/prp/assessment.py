@@ -25,8 +25,9 @@ import numpy as np
 from chainsim.components.input_events import Widget
 from chainsim.components.needle import NeedleState
 from chainsim.components.procedure import ProcedureState, PrpAnatomy, landmark_errors
-from chainsim.components.resources import PackResource, Records, Settings
+from chainsim.components.resources import Assessment, PackResource, Records, Settings
 from chainsim.engine.errors import UserError
+from chainsim.systems.procedures.prp.handles import PrpHandles, hud
 from chainsim.systems.stages import ORDER_ASSESSMENT
 
 DEFAULT_CLASS = "default"
@@ -39,7 +40,6 @@ def _num(x):
 
 def compute(app) -> dict:
     """The assessment values of the current attempt (JSON-ready)."""
-    from chainsim.systems.procedures.prp.procedure import PrpHandles
 
     handles: PrpHandles = app.resource(PrpHandles)
     ps: ProcedureState = esper.component_for_entity(handles.procedure, ProcedureState)
@@ -168,9 +168,6 @@ class AssessmentSystem:
         self.errors: list[str] = []
 
     def __call__(self, app) -> None:
-        from chainsim.components.resources import Assessment
-        from chainsim.engine.errors import UserError
-        from chainsim.systems.procedures.prp.procedure import PrpHandles, hud
 
         v = compute(app)
         for ev in self.widgets.read():
@@ -218,7 +215,6 @@ class AssessmentSystem:
 
 
 def plugin(app) -> None:
-    from chainsim.components.resources import Assessment
 
     if not app.has_resource(Assessment):
         app.insert_resource(Assessment())
