@@ -31,6 +31,7 @@ from chainsim.components.deform_events import (
     Deformed,
     GrabRequest,
     ReleaseRequest,
+    ResetRequest,
     as_points,
 )
 from chainsim.components.deformable import Deformable, Pull, setup_deformable
@@ -226,6 +227,19 @@ def add_links(d: Deformable, links) -> int:
 # -- systems -------------------------------------------------------------------------------------
 
 
+def reset(d: Deformable) -> int:
+    """Rest shape, all links alive, nothing held; returns how many elements were displaced."""
+    moved = int(np.count_nonzero(np.any(d.pos != d.rest, axis=1)))
+    d.pos[:] = d.rest
+    d.graph.alive[:] = True
+    if d.alive is not d.graph.alive:
+        d.alive[:] = True
+    d.held = np.zeros(0, dtype=np.int64)
+    d.mark_dirty(np.arange(d.n_elements))
+    d.version += 1
+    return moved
+
+
 def deformation_system(app) -> None:
     """Serve every request in the order it was emitted (a release after a grab undoes that grab's hold)."""
     st: DeformationState = app.resource(DeformationState)
@@ -243,7 +257,7 @@ def deformation_system(app) -> None:
     del st.errors[:-20]  # keep the last few for summaries and tests
 
 
-REQUESTS = (GrabRequest, ReleaseRequest, CutRequest, AddLinksRequest)
+REQUESTS = (GrabRequest, ReleaseRequest, CutRequest, AddLinksRequest, ResetRequest)
 
 
 def _serve(app, st: DeformationState, req, counts: dict) -> None:
@@ -264,6 +278,8 @@ def _serve(app, st: DeformationState, req, counts: dict) -> None:
             release(d, req.ids)
         elif isinstance(req, CutRequest):
             c[1] += cut(d, ent, req)
+        elif isinstance(req, ResetRequest):
+            c[0] += reset(d)
         else:
             c[2] += add_links(d, req.links)
     except ValueError as e:

@@ -21,7 +21,7 @@ from pathlib import Path
 import esper
 import numpy as np
 
-from chainsim.components.core import Label, Marker, MeshRef, PolyLine, Transform
+from chainsim.components.core import Label, Marker, MeshRef, PolyLine, Transform, Wireframe
 from chainsim.components.deformable import Deformable
 from chainsim.components.hud import HudState
 from chainsim.components.resources import EntityIndex, InputState, PackResource, RunInfo, Settings
@@ -190,7 +190,11 @@ def collect_frame(app):
             color[3] = min(color[3], XRAY_OPACITY)
         if color[3] <= 0.0:
             continue
-        wire = bool(mat.get("wireframe", False)) or (bool(ref.layer) and ref.layer in vs.wire)
+        wire = (
+            bool(mat.get("wireframe", False))
+            or (bool(ref.layer) and ref.layer in vs.wire)
+            or esper.has_component(ent, Wireframe)
+        )
         frame.meshes.append(MeshDraw(gm, model, tuple(color), wire, mat.get("shading", "smooth"), ent))
         blo, bhi = gm.box()
         c = (model @ np.r_[0.5 * (blo + bhi), 1.0])[:3]
