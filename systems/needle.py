@@ -129,7 +129,7 @@ def reset(app, ent: int, needle: Needle, st: NeedleState) -> None:
     st.locked = st.done = False
     st.contact = ""
     st.contact_point = np.full(3, np.nan)
-    _sync_widgets(app, st)
+    sync_widgets(app, st)
     if st.placed:
         apply_pose(app, ent, needle, st)
 
@@ -171,7 +171,8 @@ def _widgets(app):
     return app.get_resource(WidgetState)
 
 
-def _sync_widgets(app, st: NeedleState) -> None:
+def sync_widgets(app, st: NeedleState) -> None:
+    """Mirror the needle's pose and lock state on the controller's dials (also after a collision)."""
     ws = _widgets(app)
     if ws is None:
         return
@@ -223,7 +224,7 @@ class NeedleSystem:
         else:
             rotate_vertical(st, delta, needle.max_pitch)
         apply_pose(app, ent, needle, st)
-        _sync_widgets(app, st)
+        sync_widgets(app, st)
         app.events.emit(NeedleAction(name, st.yaw if name == "rotate_horizontal" else st.pitch))
 
     def insert(self, app, ent, needle, st, name, value, from_key) -> None:
@@ -249,7 +250,7 @@ class NeedleSystem:
         st.target_depth = min(max(want, 0.0), needle.max_depth)
         if st.target_depth > 0.0 and not st.locked:
             st.locked = True  # thesis 3.3.4: no rotation once the insertion has begun
-        _sync_widgets(app, st)
+        sync_widgets(app, st)
         app.events.emit(NeedleAction(name, st.target_depth))
 
     def __call__(self, app) -> None:

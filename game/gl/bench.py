@@ -30,7 +30,7 @@ import numpy as np
 
 from chainsim.engine.errors import UserError
 from chainsim.engine.meshgen import triangulated_grid
-from chainsim.game.cli.commands.run import _size
+from chainsim.game.app.options import window_size
 from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
 from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
 from chainsim.systems.ui.viewports import OrbitCamera, fraction_rect
@@ -47,7 +47,7 @@ def add_arguments(p) -> None:
     p.add_argument(
         "--out", default="runs/bench-render", metavar="DIR", help="output folder (default runs/bench-render)"
     )
-    p.add_argument("--size", type=_size, default=(1280, 800), metavar="WxH", help="frame size (default 1280x800)")
+    p.add_argument("--size", type=window_size, default=(1280, 800), metavar="WxH", help="frame size (default 1280x800)")
     p.add_argument(
         "--triangles",
         type=int,

@@ -30,9 +30,10 @@ from chainsim.assets import ASSETS_DIR
 from chainsim.components.core import Transform
 from chainsim.components.procedure import anatomy_from_pack, landmark_errors
 from chainsim.components.registry import load_all
+from chainsim.engine.segment_tree import SegmentTree
 from chainsim.game.app.headless import run_pack
 from chainsim.game.packs import pack as packs
-from chainsim.systems.collision import OBSTACLES, PrpObstacles, SegmentTree
+from chainsim.systems.collision import OBSTACLES, PrpObstacles
 from chainsim.systems.needle import initial_direction
 
 HIGH_DEG = 12.0

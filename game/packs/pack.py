@@ -38,8 +38,8 @@ from chainsim.components.registry import (
 from chainsim.engine.errors import UserError
 from chainsim.engine.meshes import MeshData, MeshError, load_file, max_mesh_bytes, primitive
 from chainsim.engine.reorder import reorder_mesh
-from chainsim.game.app.plugins import PROCEDURES
 from chainsim.game.packs import schema as ms
+from chainsim.systems.procedures import PROCEDURES
 
 BUILTIN_DIR = ASSETS_DIR
 ENV_PATH = "CHAINSIM_PACK_PATH"

@@ -29,7 +29,7 @@ from chainsim.engine.errors import UserError
 from chainsim.game.app.digest import world_digest
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script, write_recording
-from chainsim.game.cli.commands.run import user_settings
+from chainsim.game.app.options import user_settings
 from chainsim.game.gl.context import window_context
 from chainsim.systems.input import InputLog
 

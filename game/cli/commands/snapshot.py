@@ -9,7 +9,8 @@ from chainsim.components.resources import PendingInput
 from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script
-from chainsim.game.cli.commands.run import _nonneg, _size
+from chainsim.game.app.options import window_size
+from chainsim.game.cli.commands.run import _nonneg
 from chainsim.game.gl.context import egl_context
 from chainsim.game.gl.render_system import screenshot
 
@@ -23,7 +24,7 @@ def add_parser(sub):
     p.add_argument("pack", help="PACK or PACK/SCENE")
     p.add_argument("--out", required=True, metavar="PNG", help="image to write")
     p.add_argument(
-        "--size", type=_size, default=None, metavar="WxH", help="image size (default: the pack's window_size)"
+        "--size", type=window_size, default=None, metavar="WxH", help="image size (default: the pack's window_size)"
     )
     p.add_argument(
         "--steps",

@@ -16,7 +16,8 @@ from chainsim.components.input_events import Scroll, Widget
 from chainsim.components.tools import Forceps, Scissors
 from chainsim.components.view_events import Dragged, Picked
 from chainsim.engine.errors import UserError
-from chainsim.systems.picking import entity_surface, ray_mesh
+from chainsim.engine.raycast import ray_mesh
+from chainsim.systems.picking import entity_surface
 from chainsim.systems.procedures.cutting.state import (
     PUSH_BUTTON_MM,
     SCROLL_MM,
