@@ -53,3 +53,12 @@ def test_licence_expression_covers_the_shipped_data():
     assert "MIT" in project["license"] and "CC-BY-4.0" in project["license"] and "CC-BY-SA" in project["license"]
     for f in project["license-files"]:
         assert (REPO / f).is_file(), f
+
+
+def test_architecture_doc_names_every_package_folder():
+    doc = (REPO / "docs" / "architecture.md").read_text()
+    setup = PYPROJECT["tool"]["setuptools"]
+    for pkg in setup["packages"]:
+        folder = _folder_of(pkg, setup["package-dir"]).relative_to(REPO)
+        leaf = folder.name + "/"
+        assert f"{folder.as_posix()}/" in doc or f"`{leaf}" in doc or leaf in doc, f"docs/architecture.md: {folder}"
