@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from chainsim.components.registry import component, prop
+from chainsim.engine.quaternion import rotate
 
 
 @component(
@@ -85,7 +86,6 @@ class NeedleState:
     park_rotation: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0, 0.0]))
 
     def direction(self) -> np.ndarray:
-        from chainsim.engine.quaternion import rotate
 
         return rotate(self.q, np.array([0.0, 0.0, 1.0]))
 

@@ -43,10 +43,10 @@ import numpy as np
 from chainsim.components.core import Transform
 from chainsim.components.input_events import Key, Widget
 from chainsim.components.needle import Needle, NeedleState
-from chainsim.components.resources import InputState
+from chainsim.components.resources import EntityIndex, InputState
 from chainsim.engine import quaternion as Q
-from chainsim.game.app.core import ORDER_KINEMATICS
-from chainsim.game.app.loader import EntityIndex
+from chainsim.systems.stages import ORDER_KINEMATICS
+from chainsim.systems.ui.widgets import WidgetState
 
 Z = np.array([0.0, 0.0, 1.0])
 ROTATION_WIDGETS = ("rotate_horizontal", "rotate_vertical")
@@ -153,7 +153,7 @@ def reset(app, ent: int, needle: Needle, st: NeedleState) -> None:
     st.locked = st.done = st.withdrawn = False
     st.contact = ""
     st.contact_point = np.full(3, np.nan)
-    _sync_widgets(app, st)
+    sync_widgets(app, st)
     if st.placed:
         apply_pose(app, ent, needle, st)
 
@@ -202,12 +202,12 @@ def _shift(app) -> bool:
 
 
 def _widgets(app):
-    from chainsim.systems.ui.widgets import WidgetState
 
     return app.get_resource(WidgetState)
 
 
-def _sync_widgets(app, st: NeedleState) -> None:
+def sync_widgets(app, st: NeedleState) -> None:
+    """Mirror the needle's pose and lock state on the controller's dials (also after a collision)."""
     ws = _widgets(app)
     if ws is None:
         return
@@ -264,7 +264,7 @@ class NeedleSystem:
         else:
             rotate_vertical(st, delta, needle.max_pitch)
         apply_pose(app, ent, needle, st)
-        _sync_widgets(app, st)
+        sync_widgets(app, st)
         app.events.emit(NeedleAction(name, st.yaw if name == "rotate_horizontal" else st.pitch))
 
     def insert(self, app, ent, needle, st, name, value, from_key) -> None:
@@ -287,7 +287,7 @@ class NeedleSystem:
         st.target_depth = min(max(want, 0.0), needle.max_depth)
         if st.target_depth > 0.0 and not st.locked:
             st.locked = True  # thesis 3.3.4: no rotation once the insertion has begun
-        _sync_widgets(app, st)
+        sync_widgets(app, st)
         app.events.emit(NeedleAction(name, st.target_depth))
 
     def __call__(self, app) -> None:
@@ -330,7 +330,7 @@ class NeedleSystem:
 def init_state(app) -> None:
     """Give every needle its runtime state, remembering where the pack parked it."""
     with app.active():
-        for ent, needle in esper.get_component(Needle):
+        for ent, _needle in esper.get_component(Needle):
             if esper.has_component(ent, NeedleState):
                 continue
             st = NeedleState()

@@ -38,6 +38,7 @@ the subject's left, again for the right), below (from under the chin), or back t
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import esper
@@ -46,11 +47,11 @@ import numpy as np
 from chainsim.components.core import Marker, MeshRef, PolyLine, Transform
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, PickPoint, Resize, Scroll, Widget
-from chainsim.components.resources import InputState, Settings
+from chainsim.components.resources import EntityIndex, InputState, PackResource, Settings
 from chainsim.components.view_events import Dragged, LayerChanged, Picked, WidgetRefused
 from chainsim.engine.errors import UserError
-from chainsim.game.app.core import ORDER_VIEW
-from chainsim.game.app.loader import EntityIndex, PackResource
+from chainsim.systems.picking import pick, snap
+from chainsim.systems.stages import ORDER_VIEW
 from chainsim.systems.ui import docbox
 from chainsim.systems.ui import widgets as wd
 from chainsim.systems.ui.viewports import (
@@ -332,8 +333,6 @@ class ViewSystem:
             elif p is not None and ev.button == "left":
                 self.emit(app, WidgetRefused(p.spec["name"]))
         elif vp.picks and vp.camera is not None and not vp.mouse_camera and ev.button == "left":
-            from chainsim.systems.picking import pick
-
             o, d = self.ray(vp, ev.x, ev.y)
             hit = pick(app, o, d)
             if hit is not None:
@@ -389,8 +388,6 @@ class ViewSystem:
                     app, Dragged(vp.name, g[1], g[2], "end", g[3], g[4], self.drag_point(vs, vp, ev.x, ev.y), ev.button)
                 )
             if vs.travel <= CLICK_PX and vp.picks:
-                from chainsim.systems.picking import pick
-
                 o, d = self.ray(vp, ev.x, ev.y)
                 hit = pick(app, o, d)
                 if hit is not None:
@@ -415,7 +412,6 @@ class ViewSystem:
             self.use_widget(app, name, new)
 
     def pick_point(self, app, ev: PickPoint) -> None:
-        from chainsim.systems.picking import snap
 
         index: EntityIndex = app.resource(EntityIndex)
         ent = index.get(ev.entity)
@@ -495,7 +491,6 @@ PAGE = "\x00page"  # ViewState.active while the page box holds the pointer
 
 def default_layout(app) -> dict:
     """One orbit viewport framing every mesh, for scenes that name no layout."""
-    import math
 
     pack = app.resource(PackResource).pack
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)

@@ -15,6 +15,27 @@ bench-render.png into --out (default runs/bench-render); progress goes to stderr
 
 from __future__ import annotations
 
+import json
+import math
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+
+from chainsim.engine.errors import UserError
+from chainsim.engine.meshgen import triangulated_grid
+from chainsim.game.app.options import window_size
+from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
+from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
+from chainsim.systems.ui.viewports import OrbitCamera, fraction_rect
+from chainsim.systems.ui.widgets import place
+
 HELP = "off-screen frame time of the renderer for 10k / 100k / 1M triangles"
 
 DEFAULT_SIZES = (10_000, 100_000, 1_000_000)
@@ -22,12 +43,11 @@ MODES = ("static", "full", "patch")
 
 
 def add_arguments(p) -> None:
-    from chainsim.game.cli.commands.run import _size
 
     p.add_argument(
         "--out", default="runs/bench-render", metavar="DIR", help="output folder (default runs/bench-render)"
     )
-    p.add_argument("--size", type=_size, default=(1280, 800), metavar="WxH", help="frame size (default 1280x800)")
+    p.add_argument("--size", type=window_size, default=(1280, 800), metavar="WxH", help="frame size (default 1280x800)")
     p.add_argument(
         "--triangles",
         type=int,
@@ -53,11 +73,6 @@ def add_arguments(p) -> None:
 
 def sheet(n_triangles: int):
     """A wavy square sheet of about n triangles, 200 mm across; returns (vertices, triangles, side)."""
-    import math
-
-    import numpy as np
-
-    from chainsim.engine.meshgen import triangulated_grid
 
     side = max(2, int(round(math.sqrt(n_triangles / 2.0))) + 1)
     pos, tris, _ = triangulated_grid(side, side, 200.0 / (side - 1), dim=3)
@@ -68,11 +83,6 @@ def sheet(n_triangles: int):
 
 
 def _frame(gm, size):
-    import numpy as np
-
-    from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, ViewDraw
-    from chainsim.systems.ui.viewports import OrbitCamera, fraction_rect
-    from chainsim.systems.ui.widgets import place
 
     w, h = size
     cam = OrbitCamera(target=np.zeros(3), distance=330.0, yaw=25.0, pitch=40.0)
@@ -98,8 +108,6 @@ def run(args) -> int:
 
 
 def _median_ms(fn, frames: int, warmup: int) -> float:
-    import statistics
-    import time
 
     out = []
     for i in range(warmup + frames):
@@ -113,12 +121,9 @@ def _median_ms(fn, frames: int, warmup: int) -> float:
 def run_pack(args) -> int:
     """The pack's window layout, drawn off screen at --size after its scene script has played:
     median frame time of App.update + draw + finish, and the same frame with parts left out."""
-    import json
     import os
-    from pathlib import Path
 
     from chainsim.components.resources import PendingInput
-    from chainsim.engine.errors import UserError
     from chainsim.game.app.headless import build_app
     from chainsim.game.app.inputscript import load_script
     from chainsim.game.app.loader import PackResource
@@ -194,17 +199,13 @@ def run_pack(args) -> int:
 
 
 def run_sheets(args) -> int:
-    import json
-    import platform
     import statistics
-    import sys
     import time
     from pathlib import Path
 
     import numpy as np
 
     from chainsim.engine.errors import UserError
-    from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
     from chainsim.game.gl.renderer import Renderer
 
     if args.frames < 1 or args.warmup < 0:
@@ -277,7 +278,6 @@ def run_sheets(args) -> int:
     finally:
         renderer.release()
         release_framebuffer(ctx, fbo)
-    import os
 
     load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
     info = {
@@ -315,11 +315,8 @@ def run_sheets(args) -> int:
 
 
 def _plot(rows, path, info) -> None:
-    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
 
     sizes = sorted({r["triangles"] for r in rows})
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(10, 4.2), dpi=120)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from PIL import Image, ImageDraw, ImageFont
 
 from chainsim.game.gl import shaders
 
@@ -27,7 +28,6 @@ class Font:
     """Glyph atlas of CHARS in a grid of equal cells; the baseline sits `ascent` below a cell top."""
 
     def __init__(self, ctx, size_px: int):
-        from PIL import Image, ImageDraw, ImageFont
 
         self.font = ImageFont.load_default(size=size_px)
         self.ascent, self.descent = self.font.getmetrics()

@@ -21,13 +21,18 @@ from pathlib import Path
 import esper
 import numpy as np
 
-from chainsim.components.core import Label, Marker, MeshRef, PolyLine, Transform
+from chainsim.components.core import Label, Marker, MeshRef, PolyLine, Transform, Wireframe
+from chainsim.components.deformable import Deformable
 from chainsim.components.hud import HudState
-from chainsim.components.resources import InputState, Settings
-from chainsim.game.app.core import ORDER_RENDER
-from chainsim.game.app.loader import EntityIndex, PackResource
+from chainsim.components.resources import EntityIndex, InputState, PackResource, RunInfo, Settings
+from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
+from chainsim.game.gl.png import read_rgba, write_png
+from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
+from chainsim.systems.picking import surface_cache
+from chainsim.systems.stages import ORDER_RENDER
 from chainsim.systems.ui import docbox
 from chainsim.systems.ui.widgets import WidgetState
+from chainsim.systems.view import ViewState, refresh_cameras
 
 PLANE_COLORS = ((0.95, 0.35, 0.35, 0.22), (0.35, 0.9, 0.45, 0.22), (0.35, 0.55, 1.0, 0.22), (0.9, 0.8, 0.3, 0.22))
 XRAY_OPACITY = 0.3
@@ -51,7 +56,6 @@ class RenderTarget:
         """The multisampled framebuffer matching `fbo` (off-screen targets with samples > 1)."""
         if self.msaa is not None and tuple(self.msaa.size) == tuple(self.fbo.size):
             return self.msaa
-        from chainsim.game.gl.context import release_framebuffer
 
         if self.msaa is not None:
             release_framebuffer(self.ctx, self.msaa)
@@ -68,17 +72,11 @@ class RenderTarget:
             return
         want = (max(int(round(size[0] * self.scale)), 1), max(int(round(size[1] * self.scale)), 1))
         if tuple(self.fbo.size) != want:
-            from chainsim.game.gl.context import offscreen_framebuffer, release_framebuffer
-
             release_framebuffer(self.ctx, self.fbo)
             self.fbo = offscreen_framebuffer(self.ctx, want)
 
 
 def _deformable_type():
-    try:
-        from chainsim.components.deformable import Deformable
-    except ImportError:  # pragma: no cover
-        return None
     return Deformable
 
 
@@ -92,7 +90,6 @@ def _material(pack, name: str) -> dict:
 
 def sync_deformables(app) -> None:
     """Queue moved vertices for upload and clear `dirty` (every render-stage call, drawn or not)."""
-    from chainsim.game.gl.renderer import Renderer
 
     D = _deformable_type()
     if D is None:
@@ -117,7 +114,7 @@ def sync_deformables(app) -> None:
 
 def _plane_quads(pack, half: float) -> list:
     out = []
-    for i, (name, pl) in enumerate(sorted(pack.section("planes").items())):
+    for i, (_name, pl) in enumerate(sorted(pack.section("planes").items())):
         n = np.asarray(pl["normal"], float)
         if np.linalg.norm(n) < 1e-12:
             continue
@@ -161,9 +158,6 @@ def page(app):
 
 def collect_frame(app):
     """Build the `Frame` for the current world (creates / updates GPU meshes as needed)."""
-    from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
-    from chainsim.systems.picking import surface_cache
-    from chainsim.systems.view import ViewState, refresh_cameras
 
     renderer: Renderer = app.resource(Renderer)
     target: RenderTarget = app.resource(RenderTarget)
@@ -210,7 +204,11 @@ def collect_frame(app):
             color[3] = min(color[3], XRAY_OPACITY)
         if color[3] <= 0.0:
             continue
-        wire = bool(mat.get("wireframe", False)) or (bool(ref.layer) and ref.layer in vs.wire)
+        wire = (
+            bool(mat.get("wireframe", False))
+            or (bool(ref.layer) and ref.layer in vs.wire)
+            or esper.has_component(ent, Wireframe)
+        )
         frame.meshes.append(MeshDraw(gm, model, tuple(color), wire, mat.get("shading", "smooth"), ent))
         blo, bhi = gm.box()
         c = (model @ np.r_[0.5 * (blo + bhi), 1.0])[:3]
@@ -263,7 +261,6 @@ def collect_frame(app):
 
 def draw(app):
     """Draw the current world into the render target now; returns the Frame drawn."""
-    from chainsim.game.gl.renderer import Renderer
 
     target: RenderTarget = app.resource(RenderTarget)
     target.ensure_size(app.resource(InputState).window_size)
@@ -284,7 +281,6 @@ def draw(app):
 
 def read_pixels(app) -> np.ndarray:
     """The render target's pixels, (H, W, 4) uint8, top row first."""
-    from chainsim.game.gl.png import read_rgba
 
     target: RenderTarget = app.resource(RenderTarget)
     if target.size is not None:
@@ -295,8 +291,6 @@ def read_pixels(app) -> np.ndarray:
 def screenshot(app, path) -> Path:
     """Draw now and write a PNG. A window's own framebuffer may be multisampled (not readable), so
     window screenshots are drawn again into an off-screen framebuffer of the same size."""
-    from chainsim.game.gl.context import offscreen_framebuffer, release_framebuffer
-    from chainsim.game.gl.png import read_rgba, write_png
 
     target: RenderTarget = app.resource(RenderTarget)
     if target.offscreen:
@@ -318,7 +312,6 @@ def screenshot(app, path) -> Path:
 
 class RenderSystem:
     def __call__(self, app) -> None:
-        from chainsim.game.app.headless import RunInfo
 
         target: RenderTarget = app.resource(RenderTarget)
         if not target.offscreen:
@@ -335,8 +328,6 @@ class RenderSystem:
 
 
 def plugin(app) -> None:
-    from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
-    from chainsim.game.gl.renderer import Renderer
 
     target = app.get_resource(RenderTarget)
     if target is None:

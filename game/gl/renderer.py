@@ -15,11 +15,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import trimesh
 
-from chainsim.game.gl import shaders
-from chainsim.game.gl.meshbuf import GpuMesh
-from chainsim.game.gl import panelview
+from chainsim.game.gl import panelview, shaders
+from chainsim.game.gl.context import release_framebuffer
 from chainsim.game.gl.docview import PageView
+from chainsim.game.gl.meshbuf import GpuMesh
 from chainsim.game.gl.overlay import Overlay
 from chainsim.systems.ui.viewports import Camera, Rect
 
@@ -100,7 +101,6 @@ def _set(prog, name: str, value) -> None:
 
 
 def icosphere(subdiv: int = 2) -> tuple[np.ndarray, np.ndarray]:
-    import trimesh
 
     s = trimesh.creation.icosphere(subdivisions=subdiv, radius=1.0)
     return np.asarray(s.vertices), np.asarray(s.faces)
@@ -316,8 +316,6 @@ class Renderer:
             ctx.scissor = None
             if previous is not None:
                 previous.use()
-            from chainsim.game.gl.context import release_framebuffer
-
             release_framebuffer(ctx, fbo)
         slot = raw[:, :, 3]
         prim = raw[:, :, 0] | (raw[:, :, 1] << 8) | (raw[:, :, 2] << 16)

@@ -22,7 +22,9 @@ from chainsim.assets import ASSETS_DIR
 from chainsim.components.input_events import PickPoint, Widget
 from chainsim.game.app.headless import build_app, run_pack
 from chainsim.game.app.inputscript import load_script
+from chainsim.systems.ui import docbox
 from chainsim.systems.ui import widgets as wd
+from chainsim.systems.view import ViewState
 
 SCRIPTS = ASSETS_DIR / "prp" / "scripts"
 
@@ -51,8 +53,6 @@ def _press_release(t: float, x: float, y: float, drag_dx: float | None = None) -
 
 def build(source: Path) -> str:
     """Mouse events reproducing `source` (a script of picks and widget events) in the default window."""
-    from chainsim.systems.ui import docbox
-    from chainsim.systems.view import ViewState, main_view
 
     app = build_app("prp")
     try:

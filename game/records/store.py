@@ -27,6 +27,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import platformdirs
+
+from chainsim.components.resources import Records
 from chainsim.engine.errors import UserError
 from chainsim.game.records.schema import MIGRATIONS, OWN_TABLES, SCHEMA_VERSION
 from chainsim.game.records.validate import clean_attempt, clean_name, to_json
@@ -42,7 +45,6 @@ def default_path() -> Path:
     env = os.environ.get(ENV_VAR, "").strip()
     if env:
         return Path(env).expanduser()
-    import platformdirs
 
     return Path(platformdirs.user_data_dir("chainsim")) / DB_FILENAME
 
@@ -358,3 +360,25 @@ def _attempt_id(value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise UserError(f"attempt id must be a positive whole number, got {value!r}")
     return value
+
+
+def local_records(db: str | os.PathLike[str] | None = None) -> Records:
+    """The Records resource over a local SQLite store; each call opens and closes the database."""
+
+    def save_attempt(class_name: str, trainee: str, record: dict) -> int:
+        with RecordStore(db) as store:
+            return store.save_attempt(class_name, trainee, record)
+
+    def list_attempts(class_name: str, trainee: str) -> list[dict]:
+        with RecordStore(db) as store:
+            return store.list_attempts(class_name, trainee)
+
+    def delete_attempt(class_name: str, trainee: str, attempt_id: int) -> None:
+        with RecordStore(db) as store:
+            a = store.get_attempt(attempt_id)
+            if (a["class_name"], a["trainee"]) != (class_name, trainee):
+                raise UserError(f"attempt {attempt_id} is not yours")
+            store.delete_attempt(attempt_id)
+
+    where = str(Path(db).expanduser() if db else default_path())
+    return Records(save_attempt=save_attempt, list_attempts=list_attempts, where=where, delete_attempt=delete_attempt)

@@ -22,9 +22,20 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from chainsim.engine.errors import UserError
-from chainsim.game.ui.frameloop import FixedStepper
+import pyglet
 
+import chainsim.game.gl.render_system as render
+from chainsim.components.hud import HudState
+from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll
+from chainsim.components.resources import PendingInput, Settings
+from chainsim.engine.errors import UserError
+from chainsim.game.app.digest import world_digest
+from chainsim.game.app.headless import build_app
+from chainsim.game.app.inputscript import load_script, write_recording
+from chainsim.game.app.options import user_settings
+from chainsim.game.gl.context import window_context
+from chainsim.game.ui.frameloop import FixedStepper
+from chainsim.systems.input import InputLog
 
 QUIT_QUESTION = (
     "# Quit without saving?\n\nThis attempt is not saved. Press **Esc** again to quit, or any other key to "
@@ -34,7 +45,6 @@ QUIT_QUESTION = (
 
 def key_name(symbol: int) -> str:
     """pyglet key symbol -> the name used in input events ('T' -> 't', '_1' -> '1', 'LEFT' -> 'left')."""
-    import pyglet
 
     name = pyglet.window.key.symbol_string(symbol).lower()
     if len(name) == 2 and name[0] == "_" and name[1].isdigit():
@@ -43,7 +53,6 @@ def key_name(symbol: int) -> str:
 
 
 def _button(b) -> str:
-    import pyglet
 
     m = pyglet.window.mouse
     if b & m.LEFT:
@@ -82,17 +91,8 @@ def run_window(args) -> int:
         import pyglet
     except Exception as e:  # pragma: no cover - pyglet is a dependency
         raise UserError(f"cannot start the window system ({e})") from None
-    import chainsim.game.gl.render_system as render
-    from chainsim.components.hud import HudState
-    from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll
-    from chainsim.components.resources import PendingInput, Settings
-    from chainsim.components.input_events import Widget
-    from chainsim.game.app.headless import Assessment, build_app
-    from chainsim.game.records.store import default_path as default_records_path
-    from chainsim.game.ui.signin import SignInForm, remember, remembered, status_line
-    from chainsim.game.app.inputscript import load_script
-    from chainsim.game.cli.commands.run import user_settings
-    from chainsim.game.gl.context import window_context
+    from chainsim.game.records.store import default_path as default_records_path  # noqa: PLC0415 - as above
+    from chainsim.game.ui.signin import SignInForm, remember, remembered, status_line  # noqa: PLC0415
 
     script = load_script(args.input) if getattr(args, "input", None) else None
     settings = user_settings(args)  # --db, --class, --trainee for procedures that save attempts
@@ -166,10 +166,6 @@ def run_window(args) -> int:
                 path = render.screenshot(app, args.screenshot)
                 print(f"screenshot: {path}")
             if getattr(args, "record", None):
-                from chainsim.game.app.digest import world_digest
-                from chainsim.game.app.inputscript import write_recording
-                from chainsim.systems.input import InputLog
-
                 log = app.get_resource(InputLog)
                 write_recording(
                     args.record,

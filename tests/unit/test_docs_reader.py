@@ -4,9 +4,8 @@ from __future__ import annotations
 
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, PickPoint, Widget
-from chainsim.components.resources import PendingInput
+from chainsim.components.resources import PackResource, PendingInput
 from chainsim.game.app.headless import build_app
-from chainsim.game.app.loader import PackResource
 
 
 def test_reading_step_opens_its_page_and_help_toggles_it():

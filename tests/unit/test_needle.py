@@ -113,14 +113,14 @@ class Run:
 
     @property
     def needle(self) -> NeedleState:
-        from chainsim.systems.procedures.prp.procedure import PrpHandles
+        from chainsim.systems.procedures.prp.handles import PrpHandles
 
         with self.app.active():
             return esper.component_for_entity(self.app.resource(PrpHandles).needle, NeedleState)
 
     @property
     def proc(self) -> ProcedureState:
-        from chainsim.systems.procedures.prp.procedure import PrpHandles
+        from chainsim.systems.procedures.prp.handles import PrpHandles
 
         with self.app.active():
             return esper.component_for_entity(self.app.resource(PrpHandles).procedure, ProcedureState)
@@ -163,7 +163,7 @@ def test_landmark1_places_needle_level_and_toward_midline(run):
     # the tip transform is the needle entity's: origin at the tip, local +Z along insertion
     from chainsim.components.core import Transform
     from chainsim.engine import quaternion as Q
-    from chainsim.systems.procedures.prp.procedure import PrpHandles
+    from chainsim.systems.procedures.prp.handles import PrpHandles
 
     with run.app.active():
         tr = esper.component_for_entity(run.app.resource(PrpHandles).needle, Transform)
@@ -222,7 +222,7 @@ def test_picks_off_the_skin_are_ignored_with_a_message(run):
 
 def _marker(run, k):
     from chainsim.components.core import Label, Marker, Transform
-    from chainsim.game.app.loader import EntityIndex
+    from chainsim.components.resources import EntityIndex
 
     ent = run.app.resource(EntityIndex)[f"landmark{k}"]
     with run.app.active():
@@ -282,7 +282,7 @@ def test_huge_insertion_step_stops_at_bone_and_bounces_back(run):
     from chainsim.components.hud import HudState
     from chainsim.components.needle import Needle
     from chainsim.systems.collision import NeedleHit
-    from chainsim.systems.procedures.prp.procedure import PrpHandles
+    from chainsim.systems.procedures.prp.handles import PrpHandles
 
     with run.app.active():
         esper.component_for_entity(run.app.resource(PrpHandles).needle, Needle).max_depth = 1000.0

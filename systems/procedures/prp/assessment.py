@@ -25,8 +25,10 @@ import numpy as np
 from chainsim.components.input_events import Widget
 from chainsim.components.needle import NeedleState
 from chainsim.components.procedure import ProcedureState, PrpAnatomy, landmark_errors
-from chainsim.components.resources import Settings
-from chainsim.game.app.core import ORDER_ASSESSMENT
+from chainsim.components.resources import Assessment, PackResource, Records, Settings
+from chainsim.engine.errors import UserError
+from chainsim.systems.procedures.prp.handles import PrpHandles, hud
+from chainsim.systems.stages import ORDER_ASSESSMENT
 from chainsim.systems.ui.widgets import format_value
 
 DEFAULT_CLASS = "default"
@@ -39,7 +41,6 @@ def _num(x):
 
 def compute(app) -> dict:
     """The assessment values of the current attempt (JSON-ready)."""
-    from chainsim.systems.procedures.prp.procedure import PrpHandles
 
     handles: PrpHandles = app.resource(PrpHandles)
     ps: ProcedureState = esper.component_for_entity(handles.procedure, ProcedureState)
@@ -151,30 +152,22 @@ def attempt_record(pack_name: str, v: dict) -> dict:
 
 
 def save(app, v: dict) -> int:
-    """Save the attempt to the records DB (Settings db/class/trainee); raises UserError on failure."""
-    from chainsim.engine.errors import UserError
-    from chainsim.game.app.loader import PackResource
-    from chainsim.game.records.store import RecordStore
-
+    """Save the attempt through the Records resource (Settings class/trainee); raises UserError on failure."""
     if v["landmark_error_mm"] is None:
         raise UserError("place all three landmarks before saving: the landmark error needs them")
     s = app.resource(Settings)
-    with RecordStore(s.get("db") or None) as store:
-        return store.save_attempt(
-            s.get("class") or DEFAULT_CLASS,
-            s.get("trainee") or DEFAULT_TRAINEE,
-            attempt_record(app.resource(PackResource).pack.name, v),
-        )
+    return app.resource(Records).save_attempt(
+        s.get("class") or DEFAULT_CLASS,
+        s.get("trainee") or DEFAULT_TRAINEE,
+        attempt_record(app.resource(PackResource).pack.name, v),
+    )
 
 
 def my_attempts(app, limit: int = 6) -> list[str]:
     """Panel lines for the current trainee's saved attempts, newest last (the View of Fig. 3.11)."""
-    from chainsim.game.records.store import RecordStore
-
     s = app.resource(Settings)
     cls, who = s.get("class") or DEFAULT_CLASS, s.get("trainee") or DEFAULT_TRAINEE
-    with RecordStore(s.get("db") or None) as store:
-        rows = store.list_attempts(cls, who)
+    rows = app.resource(Records).list_attempts(cls, who)
     lines = [f"Attempts of {who} ({cls}): {len(rows)}"]
     for r in rows[-limit:]:
         ne = "-" if r["needle_error_mm"] is None else f"{r['needle_error_mm']:.1f}"
@@ -187,29 +180,26 @@ def my_attempts(app, limit: int = 6) -> list[str]:
     return lines
 
 
+def _who(app) -> tuple[str, str]:
+    s = app.resource(Settings)
+    return s.get("class") or DEFAULT_CLASS, s.get("trainee") or DEFAULT_TRAINEE
+
+
 def newest_own(app) -> int | None:
     """Id of the signed-in trainee's newest saved attempt, if any."""
-    from chainsim.game.records.store import RecordStore
-
-    s = app.resource(Settings)
-    cls, who = s.get("class") or DEFAULT_CLASS, s.get("trainee") or DEFAULT_TRAINEE
-    with RecordStore(s.get("db") or None) as store:
-        rows = store.list_attempts(cls, who)
+    try:
+        rows = app.resource(Records).list_attempts(*_who(app))
+    except UserError:  # nothing saved yet under this class and name
+        return None
     return rows[-1]["id"] if rows else None
 
 
 def delete_own(app, attempt_id: int) -> None:
     """Delete one of the signed-in trainee's attempts (never someone else's)."""
-    from chainsim.engine.errors import UserError
-    from chainsim.game.records.store import RecordStore
-
-    s = app.resource(Settings)
-    cls, who = s.get("class") or DEFAULT_CLASS, s.get("trainee") or DEFAULT_TRAINEE
-    with RecordStore(s.get("db") or None) as store:
-        a = store.get_attempt(attempt_id)
-        if (a["class_name"], a["trainee"]) != (cls, who):
-            raise UserError(f"attempt {attempt_id} is not yours")
-        store.delete_attempt(attempt_id)
+    rec = app.resource(Records)
+    if rec.delete_attempt is None:
+        raise UserError("these records cannot be deleted from the trainer; ask your trainer")
+    rec.delete_attempt(*_who(app), attempt_id)
 
 
 class AssessmentSystem:
@@ -219,9 +209,6 @@ class AssessmentSystem:
         self.delete_armed: int | None = None  # the attempt a first Delete press chose
 
     def __call__(self, app) -> None:
-        from chainsim.engine.errors import UserError
-        from chainsim.game.app.headless import Assessment
-        from chainsim.systems.procedures.prp.procedure import PrpHandles, hud
 
         v = compute(app)
         for ev in self.widgets.read():
@@ -286,7 +273,6 @@ class AssessmentSystem:
 
 
 def plugin(app) -> None:
-    from chainsim.game.app.headless import Assessment
 
     if not app.has_resource(Assessment):
         app.insert_resource(Assessment())

@@ -35,14 +35,19 @@ import numpy as np
 from chainsim.components.core import Label, Marker, MeshRef, Name, Transform
 from chainsim.components.input_events import Widget
 from chainsim.components.needle import Needle, NeedleState
-from chainsim.components.procedure import LANDMARK_COUNT, ProcedureState, anatomy_from_pack
-from chainsim.components.view_events import WidgetRefused
+from chainsim.components.procedure import LANDMARK_COUNT, ProcedureState, PrpAnatomy, anatomy_from_pack
+from chainsim.components.resources import EntityIndex, PackResource
+from chainsim.components.view_events import Picked, WidgetRefused
 from chainsim.engine import quaternion as Q
-from chainsim.game.app.core import ORDER_PROCEDURE
-from chainsim.game.app.loader import EntityIndex, PackResource
+from chainsim.engine.errors import UserError
+from chainsim.systems import collision
 from chainsim.systems import needle as needle_sys
 from chainsim.systems.collision import NeedleHit
 from chainsim.systems.needle import InsertRefused, NeedleAction, NeedleReset, RotationRefused
+from chainsim.systems.procedures.prp import assessment
+from chainsim.systems.procedures.prp.handles import PrpHandles, hud
+from chainsim.systems.stages import ORDER_PROCEDURE
+from chainsim.systems.ui.widgets import WidgetState
 
 STEP_IDS = (
     "reading",
@@ -62,33 +67,13 @@ SKIN = "skin"
 LANDMARK_PLANE_NORMALS = ((0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
 
 
-def hud(app):
-    """The HUD resource (the view plugin's); one is made when running without it."""
-    from chainsim.components.hud import HudState
-
-    h = app.get_resource(HudState)
-    if h is None:
-        h = app.insert_resource(HudState())
-    return h
-
-
 def widget_state(app):
-    try:
-        from chainsim.systems.ui.widgets import WidgetState
-    except ImportError:  # pragma: no cover - the view layer is part of every build
-        return None
     return app.get_resource(WidgetState)
 
 
 class ProcedureSystem:
     def __init__(self, app):
-        self.picks = None
-        try:
-            from chainsim.components.view_events import Picked
-
-            self.picks = app.events.reader(Picked)
-        except ImportError:  # pragma: no cover
-            pass
+        self.picks = app.events.reader(Picked)
         self.widgets = app.events.reader(Widget)
         self.actions = app.events.reader(NeedleAction)
         self.resets = app.events.reader(NeedleReset)
@@ -376,20 +361,8 @@ def ps_lights(ps: ProcedureState) -> dict:
 
 
 def _side(app, p) -> str:
-    from chainsim.components.procedure import PrpAnatomy
 
     return app.resource(PrpAnatomy).side_of(p)
-
-
-class PrpHandles:
-    """Entity ids the procedure systems use (resource)."""
-
-    def __init__(self, needle: int, procedure: int, markers: list, planes: list, labels: list):
-        self.needle = needle
-        self.procedure = procedure
-        self.markers = markers
-        self.planes = planes
-        self.labels = labels  # the markers' label texts, shown once a landmark is placed
 
 
 def _hide_markers(markers: list) -> None:
@@ -406,9 +379,6 @@ def _hide_markers(markers: list) -> None:
 
 
 def plugin(app) -> None:
-    from chainsim.engine.errors import UserError
-    from chainsim.systems import collision
-    from chainsim.systems.procedures.prp import assessment
 
     pres: PackResource = app.resource(PackResource)
     pack = pres.pack
