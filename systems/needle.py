@@ -323,7 +323,7 @@ class NeedleSystem:
             # back at the skin: the dials unlock where they are (withdraw and redirect)
             st.locked = st.done = False
             st.withdrawn = True
-            _sync_widgets(app, st)
+            sync_widgets(app, st)
             app.events.emit(NeedleAction("withdrawn", 0.0))
 
 
