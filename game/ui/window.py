@@ -26,8 +26,8 @@ import pyglet
 
 import chainsim.game.gl.render_system as render
 from chainsim.components.hud import HudState
-from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll
-from chainsim.components.resources import PendingInput, Settings
+from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll, Widget
+from chainsim.components.resources import Assessment, PendingInput, Settings
 from chainsim.engine.errors import UserError
 from chainsim.game.app.digest import world_digest
 from chainsim.game.app.headless import build_app
