@@ -80,6 +80,8 @@ class NeedleState:
     skull_contacts: int = 0
     rotation_refused: int = 0
     path_length: float = 0.0  # mm travelled by the tip while inserted (forward and back)
+    redirections: int = 0  # times the needle was withdrawn to the skin and turned again
+    withdrawn: bool = False  # back at the skin after an insertion: the next turn is a redirection
     park_position: np.ndarray = field(default_factory=lambda: np.zeros(3))
     park_rotation: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0, 0.0]))
 

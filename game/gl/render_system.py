@@ -30,11 +30,13 @@ from chainsim.game.gl.png import read_rgba, write_png
 from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
 from chainsim.systems.picking import surface_cache
 from chainsim.systems.stages import ORDER_RENDER
+from chainsim.systems.ui import docbox
 from chainsim.systems.ui.widgets import WidgetState
 from chainsim.systems.view import ViewState, refresh_cameras
 
 PLANE_COLORS = ((0.95, 0.35, 0.35, 0.22), (0.35, 0.9, 0.45, 0.22), (0.35, 0.55, 1.0, 0.22), (0.9, 0.8, 0.3, 0.22))
 XRAY_OPACITY = 0.3
+PLANE_PATCH_MM = 22.0  # half the side of a reference-plane patch
 
 
 @dataclass(slots=True)
@@ -48,6 +50,7 @@ class RenderTarget:
     size: tuple[int, int] | None = None  # framebuffer pixels, when fbo.size cannot be trusted (windows)
     samples: int = 1  # off screen: draw multisampled and resolve into `fbo` (smooth edges in PNGs)
     msaa: object = None
+    hold: bool = False  # a window frame runs several fixed steps: draw only after the last one
 
     def multisampled(self):
         """The multisampled framebuffer matching `fbo` (off-screen targets with samples > 1)."""
@@ -128,18 +131,29 @@ def _plane_quads(pack, half: float) -> list:
     return out
 
 
-def help_lines(app) -> list[str]:
-    lines = [
-        "Mouse: left-drag rotates, right/middle-drag pans, scroll zooms;",
-        "       a click on the scene picks a point.",
-        "Keys:  F1 help   F12 screenshot   Esc quit",
-    ]
-    for w in app.resource(PackResource).layout.get("widgets", []):
-        if w.get("key"):
-            lines.append(
-                f"       {w['key']:<8} {w.get('label') or w['name']}" + (f" - {w['help']}" if w.get("help") else "")
-            )
-    return lines
+def page(app):
+    """The open page as (title, markdown, footer buttons) or None: a docs page of the pack, the key
+    overlay, or a notice (a question, a progress line) which takes the box over both."""
+    from chainsim.game.ui import keyhelp
+
+    hud = app.get_resource(HudState)
+    if hud is None:
+        return None
+    pack = app.resource(PackResource).pack
+    if hud.notice:
+        return ("", hud.notice, None)
+    if not hud.doc_open:
+        return None
+    if hud.doc_name == keyhelp.NAME:
+        text = keyhelp.keys_markdown(app.resource(PackResource).layout.get("widgets", []), hud.key_rows)
+        return (keyhelp.TITLE, text, {"close": True})
+    docs = pack.section("docs")
+    if hud.doc_name not in docs:
+        return None
+    names = list(docs)
+    k = names.index(hud.doc_name)
+    buttons = {"prev": k > 0, "next": k + 1 < len(names), "close": True}
+    return (docs[hud.doc_name]["title"], pack.doc_text(hud.doc_name), buttons)
 
 
 def collect_frame(app):
@@ -211,10 +225,13 @@ def collect_frame(app):
         if pl.visible and len(pl.points) >= 2:
             frame.lines.append((np.asarray(pl.points, float).reshape(-1, 3), tuple(float(c) for c in pl.color)))
     for ent, (lb, tr) in esper.get_components(Label, Transform):
-        frame.labels.append((np.asarray(tr.position, float), lb.text, tuple(float(c) for c in lb.color)))
+        if lb.text:
+            frame.labels.append((np.asarray(tr.position, float), lb.text, tuple(float(c) for c in lb.color)))
     if vs.layer_visible("planes") and pack.section("planes"):
-        half = 0.6 * float(np.linalg.norm(hi - lo)) if np.all(np.isfinite(lo)) else 100.0
-        frame.planes = _plane_quads(pack, max(half, 1.0))
+        # small patches with an outline around each plane's point, not quads across the whole view
+        frame.planes = _plane_quads(pack, PLANE_PATCH_MM)
+        for corners, color in frame.planes:
+            frame.lines.append((np.vstack([corners, corners[:1]]), (*color[:3], 0.9)))
     st: WidgetState = app.resource(WidgetState)
     index = app.get_resource(EntityIndex)
     for vp in vs.viewports:
@@ -234,12 +251,11 @@ def collect_frame(app):
     shown3d = [v for v in frame.views if v.kind != "panel"]
     orbit = [v for v in shown3d if v.kind == "orbit"]
     frame.hud_view = (orbit or shown3d)[0].name if shown3d else ""
-    if vs.show_help:
-        frame.help = help_lines(app)
-    hud = frame.hud
-    if hud is not None and hud.doc_open and hud.doc_name in pack.section("docs"):
-        page = pack.section("docs")[hud.doc_name]
-        frame.doc = (page["title"], pack.doc_text(hud.doc_name), hud.doc_scroll)
+    shown = page(app)
+    if shown is not None and frame.hud_view:
+        title, text, buttons = shown
+        frame.doc = (title, text, 0 if frame.hud.notice else frame.hud.doc_scroll, buttons)
+        frame.doc_box = docbox.box(vs.get(frame.hud_view).rect)
     return frame
 
 
@@ -257,6 +273,9 @@ def draw(app):
             target.ctx.copy_framebuffer(target.fbo, ms)  # resolves the samples
         else:
             app.resource(Renderer).render(frame, target.fbo, target.size)
+        hud = app.get_resource(HudState)
+        if frame.doc_shown is not None and hud is not None and not hud.notice:
+            hud.doc_scroll = frame.doc_shown[0]  # scrolled past the end: back to the last screenful
     return frame
 
 
@@ -296,7 +315,10 @@ class RenderSystem:
 
         target: RenderTarget = app.resource(RenderTarget)
         if not target.offscreen:
-            draw(app)
+            if target.hold:
+                sync_deformables(app)
+            else:
+                draw(app)
             return
         sync_deformables(app)
         info = app.get_resource(RunInfo)

@@ -135,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
                         "target",
                         "contacts",
                         "path_mm",
+                        "redirect",
                     ],
                     [
                         [
@@ -149,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
                             a["target"],
                             a["skull_contacts"],
                             a["path_length_mm"],
+                            a["redirections"],
                         ]
                         for a in rows
                     ],
