@@ -40,7 +40,8 @@ from dataclasses import dataclass
 import esper
 import numpy as np
 
-from chainsim.components.core import Transform
+from chainsim.components.core import MeshRef, Transform
+from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, Widget
 from chainsim.components.needle import Needle, NeedleState
 from chainsim.components.resources import EntityIndex, InputState
@@ -126,7 +127,6 @@ def apply_pose(app, ent: int, needle: Needle, st: NeedleState) -> None:
 
 def show(app, ent: int, needle: Needle, visible: bool) -> None:
     """Show or hide the needle (tip and shaft): it is not drawn before landmark 1 places it."""
-    from chainsim.components.core import MeshRef
 
     index = app.get_resource(EntityIndex)
     ents = [ent] + ([index.get(needle.shaft)] if needle.shaft and index is not None else [])
@@ -342,7 +342,6 @@ def init_state(app) -> None:
 
 
 def plugin(app) -> None:
-    from chainsim.components.hud import HudState
 
     init_state(app)
     with app.active():

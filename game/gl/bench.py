@@ -28,13 +28,18 @@ import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
 
+from chainsim.components.resources import PendingInput
 from chainsim.engine.errors import UserError
 from chainsim.engine.meshgen import triangulated_grid
+from chainsim.game.app.headless import build_app
+from chainsim.game.app.inputscript import load_script
+from chainsim.game.app.loader import PackResource
 from chainsim.game.app.options import window_size
+from chainsim.game.gl import render_system as render
 from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
 from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
 from chainsim.systems.ui.viewports import OrbitCamera, fraction_rect
-from chainsim.systems.ui.widgets import place
+from chainsim.systems.ui.widgets import WidgetState, place
 
 HELP = "off-screen frame time of the renderer for 10k / 100k / 1M triangles"
 
@@ -121,15 +126,6 @@ def _median_ms(fn, frames: int, warmup: int) -> float:
 def run_pack(args) -> int:
     """The pack's window layout, drawn off screen at --size after its scene script has played:
     median frame time of App.update + draw + finish, and the same frame with parts left out."""
-    import os
-
-    from chainsim.components.resources import PendingInput
-    from chainsim.game.app.headless import build_app
-    from chainsim.game.app.inputscript import load_script
-    from chainsim.game.app.loader import PackResource
-    from chainsim.game.gl import render_system as render
-    from chainsim.game.gl.renderer import Renderer
-    from chainsim.systems.ui.widgets import WidgetState
 
     if args.frames < 1 or args.warmup < 0:
         raise UserError("--frames must be >= 1 and --warmup >= 0")
@@ -165,12 +161,16 @@ def run_pack(args) -> int:
         had = dict(st.values)
         for name in ("skin_transparent",):
             if name in st.values:
-                app.resource(PendingInput).push(app.time.sim_time, __import__(
-                    "chainsim.components.input_events", fromlist=["Widget"]).Widget(name, True))
+                app.resource(PendingInput).push(
+                    app.time.sim_time,
+                    __import__("chainsim.components.input_events", fromlist=["Widget"]).Widget(name, True),
+                )
                 app.update(app.time.dt)
                 rows["draw, skin transparent (two sorted passes)"] = _median_ms(draw_only, args.frames, 2)
-                app.resource(PendingInput).push(app.time.sim_time, __import__(
-                    "chainsim.components.input_events", fromlist=["Widget"]).Widget(name, had[name]))
+                app.resource(PendingInput).push(
+                    app.time.sim_time,
+                    __import__("chainsim.components.input_events", fromlist=["Widget"]).Widget(name, had[name]),
+                )
                 app.update(app.time.dt)
         real_render = renderer._scene
         renderer._scene = lambda *a, **k: None
@@ -199,14 +199,6 @@ def run_pack(args) -> int:
 
 
 def run_sheets(args) -> int:
-    import statistics
-    import time
-    from pathlib import Path
-
-    import numpy as np
-
-    from chainsim.engine.errors import UserError
-    from chainsim.game.gl.renderer import Renderer
 
     if args.frames < 1 or args.warmup < 0:
         raise UserError("--frames must be >= 1 and --warmup >= 0")

@@ -1,4 +1,4 @@
-"""Drawing a page box: a docs page or the key overlay, laid out by chainsim.game.ui.markdown.
+"""Drawing a page box: a docs page or the key overlay, laid out by chainsim.systems.ui.markdown.
 
 Headings are larger and accent-coloured, bold is drawn twice a pixel apart, italic leans, code is
 tinted, tables get a shaded header row and a grid. The box geometry (and the footer buttons the view
@@ -9,8 +9,8 @@ an open page costs only its glyph quads per frame.
 from __future__ import annotations
 
 from chainsim.game.gl.overlay import Overlay
-from chainsim.game.ui import markdown as md
 from chainsim.systems.ui import docbox
+from chainsim.systems.ui import markdown as md
 from chainsim.systems.ui.viewports import Rect
 
 BOX_BG = (0.03, 0.035, 0.05, 0.96)

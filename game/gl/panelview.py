@@ -190,7 +190,12 @@ def widget(ov: Overlay, pl, p, lights: dict, s: float) -> None:
             ov.disc(cx, ty + 2 * s, rad, (0.3, 0.32, 0.38, 1.0))
             ang = np.radians(225.0 - 270.0 * t)
             ov.segment(
-                cx, ty + 2 * s, cx + rad * np.cos(ang), ty + 2 * s + rad * np.sin(ang), ACCENT if not off else DIM, 2 * s
+                cx,
+                ty + 2 * s,
+                cx + rad * np.cos(ang),
+                ty + 2 * s + rad * np.sin(ang),
+                ACCENT if not off else DIM,
+                2 * s,
             )
     elif kind == "light":
         state = lights.get(name, value if value in LIGHT_RGBA else "off")

@@ -30,7 +30,7 @@ from chainsim.game.gl.png import read_rgba, write_png
 from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
 from chainsim.systems.picking import surface_cache
 from chainsim.systems.stages import ORDER_RENDER
-from chainsim.systems.ui import docbox
+from chainsim.systems.ui import docbox, keyhelp
 from chainsim.systems.ui.widgets import WidgetState
 from chainsim.systems.view import ViewState, refresh_cameras
 
@@ -134,7 +134,6 @@ def _plane_quads(pack, half: float) -> list:
 def page(app):
     """The open page as (title, markdown, footer buttons) or None: a docs page of the pack, the key
     overlay, or a notice (a question, a progress line) which takes the box over both."""
-    from chainsim.game.ui import keyhelp
 
     hud = app.get_resource(HudState)
     if hud is None:

@@ -375,4 +375,3 @@ def _trs(pos, radius: float) -> np.ndarray:
     m[3, 3] = 1.0
     m[:3, 3] = np.asarray(pos, float)
     return m
-

@@ -24,7 +24,7 @@ from chainsim.game.app.headless import build_app, run_pack
 from chainsim.game.app.inputscript import load_script
 from chainsim.systems.ui import docbox
 from chainsim.systems.ui import widgets as wd
-from chainsim.systems.view import ViewState
+from chainsim.systems.view import ViewState, main_view
 
 SCRIPTS = ASSETS_DIR / "prp" / "scripts"
 

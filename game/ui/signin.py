@@ -15,6 +15,8 @@ import logging
 import os
 from pathlib import Path
 
+import platformdirs
+
 from chainsim.engine.errors import UserError
 from chainsim.game.records.validate import clean_name
 
@@ -25,7 +27,6 @@ FIELDS = (("class", "Class"), ("trainee", "Your name"))
 
 def remembered_path() -> Path:
     """<user config dir>/chainsim/signin.json ($XDG_CONFIG_HOME is honoured on Linux)."""
-    import platformdirs
 
     return Path(platformdirs.user_config_dir("chainsim")) / "signin.json"
 

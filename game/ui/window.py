@@ -34,7 +34,9 @@ from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script, write_recording
 from chainsim.game.app.options import user_settings
 from chainsim.game.gl.context import window_context
+from chainsim.game.records.store import default_path as default_records_path
 from chainsim.game.ui.frameloop import FixedStepper
+from chainsim.game.ui.signin import SignInForm, remember, remembered, status_line
 from chainsim.systems.input import InputLog
 
 QUIT_QUESTION = (
@@ -87,12 +89,6 @@ def _open_window(pyglet, w: int, h: int, caption: str):
 
 
 def run_window(args) -> int:
-    try:
-        import pyglet
-    except Exception as e:  # pragma: no cover - pyglet is a dependency
-        raise UserError(f"cannot start the window system ({e})") from None
-    from chainsim.game.records.store import default_path as default_records_path  # noqa: PLC0415 - as above
-    from chainsim.game.ui.signin import SignInForm, remember, remembered, status_line  # noqa: PLC0415
 
     script = load_script(args.input) if getattr(args, "input", None) else None
     settings = user_settings(args)  # --db, --class, --trainee for procedures that save attempts

@@ -29,4 +29,3 @@ def test_reading_step_opens_its_page_and_help_toggles_it():
         assert not h.doc_open and h.doc_name == "howto"
     finally:
         app.close()
-

@@ -94,7 +94,8 @@ def panel_lines(v: dict) -> list[str]:
         return "-" if x is None else f"{format_value(x)} mm"
 
     lines = [
-        f"Self assessment, attempt {v.get('attempt', 1)}" + (f" ({v['side']} side)" if v["side"] else "")
+        f"Self assessment, attempt {v.get('attempt', 1)}"
+        + (f" ({v['side']} side)" if v["side"] else "")
         + f": landmark error {mm(v['landmark_error_mm'])}, needle error {mm(v['needle_error_mm'])}"
     ]
     ds = " / ".join(mm(v[f"D{k}"]) for k in (1, 2, 3))
@@ -251,10 +252,8 @@ class AssessmentSystem:
         v["save_errors"] = list(self.errors)
         app.resource(Assessment).values = v
 
-
     def delete(self, app, h) -> None:
         """Delete the trainee's newest attempt: the first press names it, the second deletes it."""
-        from chainsim.engine.errors import UserError
 
         try:
             newest = newest_own(app)

@@ -322,7 +322,6 @@ class ProcedureSystem:
 
     def update_aim(self, app, ps: ProcedureState) -> None:
         """The tip view's aiming aid: the entry side's foramen ovale and the tip's distance to it."""
-        from chainsim.components.procedure import PrpAnatomy
 
         h = hud(app)
         h.aim_view = self.tip_view
@@ -333,6 +332,7 @@ class ProcedureSystem:
         centre = app.resource(PrpAnatomy).sides[ps.side or "left"].foramen_centre
         h.aim_target = tuple(float(c) for c in centre)
         h.aim_note = f"{float(np.linalg.norm(st.tip() - centre)):.1f} mm"
+
     def update_planes(self, app, ps: ProcedureState) -> None:
         on = ps.aids_now.get("landmark_planes", False)
         handles: PrpHandles = app.resource(PrpHandles)
@@ -349,7 +349,6 @@ LOCKED = (
 
 
 def _radius(app, ps: ProcedureState) -> float:
-    from chainsim.components.procedure import PrpAnatomy
 
     return float(app.resource(PrpAnatomy).sides[ps.side or "left"].foramen_radius)
 
