@@ -50,6 +50,7 @@ def _empty_ids():
 
 def build_deformable(d: Deformable, ctx) -> None:
     """Spawn hook: derive the ChainMail object from the entity's mesh (see `setup_deformable`)."""
+
     where = f"entities.{ctx.entity_name}.deformable"
     mesh_ref = esper.try_component(ctx.entity, MeshRef)
     if mesh_ref is None:
@@ -176,6 +177,7 @@ def resolve_material(d: Deformable, materials: dict, mesh_material: str, where: 
 
 def body_links(mesh, source: str, where: str) -> np.ndarray:
     """Links of the ChainMail object for `source` (surface edges or tetrahedron edges)."""
+
     has_tets = mesh.tets is not None and len(mesh.tets) > 0
     if source == "auto":
         source = "volume" if has_tets else "surface"
@@ -206,6 +208,7 @@ def setup_deformable(
     d: Deformable, mesh, materials: dict, mesh_material: str = "", where: str = "deformable"
 ) -> Deformable:
     """Fill the runtime state of `d` from a MeshData (positions copied; the pack's mesh is shared)."""
+
     mat = resolve_material(d, materials, mesh_material, where)
     dtype = np.float32 if d.dtype == "float32" else np.float64
     verts = np.ascontiguousarray(mesh.vertices, dtype=dtype)

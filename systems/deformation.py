@@ -32,11 +32,13 @@ from chainsim.components.deform_events import (
     Deformed,
     GrabRequest,
     ReleaseRequest,
+    ResetRequest,
     as_points,
 )
 from chainsim.components.deformable import Deformable, Pull, setup_deformable
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import EntityIndex, PackResource
+from chainsim.components.view_events import Dragged
 from chainsim.engine.chainmail_params import order_code
 from chainsim.engine.errors import UserError
 from chainsim.engine.kernels import topology
@@ -69,6 +71,7 @@ def _to_local(ent: int, pts: np.ndarray, frame: str) -> np.ndarray:
         raise ValueError(f"frame must be one of {', '.join(FRAMES)}, got {frame!r}")
     if frame == "local":
         return pts
+
     tr = esper.try_component(ent, Transform)
     if tr is None:
         return pts
@@ -77,6 +80,7 @@ def _to_local(ent: int, pts: np.ndarray, frame: str) -> np.ndarray:
 
 
 def _to_world(ent: int, pts: np.ndarray) -> np.ndarray:
+
     tr = esper.try_component(ent, Transform)
     if tr is None:
         return pts
@@ -100,6 +104,7 @@ PARALLEL_RELAX_MIN = 100_000
 
 def relax_moved(rest, pos, graph, active, iterations: int, step: float = 1.0, fixed=None) -> None:
     """Relaxation of thesis 5.2.5 over `active` (chainsim.engine.kernels.relax), serial for small sets."""
+
     if len(active) >= PARALLEL_RELAX_MIN:
         relax(rest, pos, graph, active, iterations, step=step, fixed=fixed)
         return
@@ -169,6 +174,7 @@ def release(d: Deformable, ids=None) -> None:
 
 def cut(d: Deformable, ent: int, req: CutRequest) -> int:
     """Kill the links a blade crosses (4.5.2); returns how many were cut."""
+
     before = int(np.count_nonzero(d.alive))
     if req.polyline is not None:
         pts = _to_local(ent, as_points(req.polyline, "CutRequest.polyline"), req.frame)
@@ -203,6 +209,7 @@ def _blade_kwargs(ent: int, req: CutRequest) -> dict:
 
 def add_links(d: Deformable, links) -> int:
     """Join element pairs with new links carrying the body's material limits; returns how many."""
+
     links = np.asarray(links, dtype=np.int64).reshape(-1, 2)
     m_before = d.graph.n_links
     graph = topology.add_links(d.graph, links)
@@ -227,6 +234,19 @@ def add_links(d: Deformable, links) -> int:
 # -- systems -------------------------------------------------------------------------------------
 
 
+def reset(d: Deformable) -> int:
+    """Rest shape, all links alive, nothing held; returns how many elements were displaced."""
+    moved = int(np.count_nonzero(np.any(d.pos != d.rest, axis=1)))
+    d.pos[:] = d.rest
+    d.graph.alive[:] = True
+    if d.alive is not d.graph.alive:
+        d.alive[:] = True
+    d.held = np.zeros(0, dtype=np.int64)
+    d.mark_dirty(np.arange(d.n_elements))
+    d.version += 1
+    return moved
+
+
 def deformation_system(app) -> None:
     """Serve every request in the order it was emitted (a release after a grab undoes that grab's hold)."""
     st: DeformationState = app.resource(DeformationState)
@@ -244,7 +264,7 @@ def deformation_system(app) -> None:
     del st.errors[:-20]  # keep the last few for summaries and tests
 
 
-REQUESTS = (GrabRequest, ReleaseRequest, CutRequest, AddLinksRequest)
+REQUESTS = (GrabRequest, ReleaseRequest, CutRequest, AddLinksRequest, ResetRequest)
 
 
 def _serve(app, st: DeformationState, req, counts: dict) -> None:
@@ -265,6 +285,8 @@ def _serve(app, st: DeformationState, req, counts: dict) -> None:
             release(d, req.ids)
         elif isinstance(req, CutRequest):
             c[1] += cut(d, ent, req)
+        elif isinstance(req, ResetRequest):
+            c[0] += reset(d)
         else:
             c[2] += add_links(d, req.links)
     except ValueError as e:
@@ -356,6 +378,7 @@ def _pull_element(ent: int, p: Pull, d: Deformable) -> int:
 
 def _default_deformables(app) -> None:
     """Entities with simulation.kind surface/volume and a mesh but no deformable table get one."""
+
     pres = app.get_resource(PackResource)
     if pres is None:
         return
@@ -383,12 +406,7 @@ def plugin(app) -> None:
         return
     ev = app.events
     st = DeformationState(ev.reader(None), ev.reader(Widget))
-    try:
-        from chainsim.components.view_events import Dragged  # noqa: PLC0415 - absent from builds without views
-
-        st.drag_type = Dragged
-    except ImportError:  # a build without the view system: drags simply never arrive
-        pass
+    st.drag_type = Dragged
     app.insert_resource(st)
     if pulls:
         app.add_system("simulation", pull_system, order=ORDER_PULL, name="pull")

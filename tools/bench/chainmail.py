@@ -14,6 +14,7 @@ outside the timed region.
 from __future__ import annotations
 
 from chainsim.engine.chainmail_params import ORDER_CHOICES
+from chainsim.tools.bench import run as impl
 
 HELP = "ChainMail speed: thesis 6.2 grids and worst case, scaling to 1M elements, or one mesh (--mesh)"
 
@@ -52,7 +53,6 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from chainsim.tools.bench import run as impl  # noqa: PLC0415 - loads the numba kernels; building the parser must not
 
     if args.mesh:
         return impl.run_mesh(args)

@@ -30,6 +30,8 @@ import time
 from functools import partial
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numba
 import numpy as np
 
@@ -326,7 +328,7 @@ def scaling_part(quick: bool, repeat: int, max_elements: float) -> list[dict]:
                     f"local {row['local_ms']:.4f} ms "
                     f"({row['local_moved']} moved)  ratio {row['ratio_to_ordered']:.2f}"
                 )
-                del body, local
+                body = local = None  # free this variant's bodies before building the next
     return rows
 
 
@@ -480,10 +482,8 @@ def markdown(results: dict) -> str:
 
 
 def plot(results: dict, path: Path) -> None:
-    import matplotlib  # noqa: PLC0415 - plotting loads only when the suite writes its figure
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
 
     fig, axes = plt.subplots(1, 3, figsize=(17, 5))
     if results.get("thesis"):
@@ -542,6 +542,7 @@ def _write_atomic(path: Path, text: str) -> None:
 
 
 def run_suite(args) -> int:
+
     parts = {p.strip() for p in args.parts.split(",") if p.strip()}
     if args.exact:
         parts.add("exact")
@@ -590,6 +591,7 @@ def run_suite(args) -> int:
 
 
 def run_mesh(args) -> int:
+
     check_material(args.alpha_min, args.alpha_max, args.beta)
     if args.grab is None or args.to is None:
         raise UserError("--mesh needs --grab I and --to X [Y [Z]]")

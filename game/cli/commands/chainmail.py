@@ -94,6 +94,7 @@ def check_material_flags(args) -> None:
 
 def check_args(args) -> None:
     """Checks that need no mesh (so a bad flag costs nothing)."""
+
     check_material_flags(args)
     _finite("--relax-step", args.relax_step)
     for v in args.to:
@@ -187,6 +188,7 @@ def simulate(
 
 def write_result(out: Path, positions, order, sponsor, **extra) -> None:
     """Write OUT.npz atomically: a temporary file in the same folder, renamed when complete."""
+
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
     try:
         with open(tmp, "wb") as fh:
