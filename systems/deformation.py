@@ -238,9 +238,8 @@ def reset(d: Deformable) -> int:
     """Rest shape, all links alive, nothing held; returns how many elements were displaced."""
     moved = int(np.count_nonzero(np.any(d.pos != d.rest, axis=1)))
     d.pos[:] = d.rest
-    d.graph.alive[:] = True
-    if d.alive is not d.graph.alive:
-        d.alive[:] = True
+    d.graph.revive()
+    d.alive = d.graph.alive
     d.held = np.zeros(0, dtype=np.int64)
     d.mark_dirty(np.arange(d.n_elements))
     d.version += 1
