@@ -618,25 +618,25 @@ def cascade(
     views into the workspace, valid until its next cascade. Raises ValueError on bad arguments (pos is
     then left untouched).
     """
-    if type(pos) is not np.ndarray or pos.ndim != 2 or not pos.flags.c_contiguous or pos.shape[1] > 3:
-        _check_points("pos", pos)
-    n, dim = pos.shape
     chk = workspace.checked if workspace is not None else ()
-    if not (
+    if (
         chk
-        and chk[0] is rest
-        and chk[1] is graph
-        and chk[2] is amin
-        and chk[3] is amax
-        and chk[4] is beta
-        and chk[5] is graph.amin
-        and rest.shape == pos.shape
-        and rest.dtype == pos.dtype
+        and chk[0] is pos
+        and chk[1] is rest
+        and chk[2] is graph
+        and chk[3] is amin
+        and chk[4] is amax
+        and chk[5] is beta
+        and chk[6] is graph.entry_amin
     ):
+        kargs = chk[7]  # the very arrays checked before: interactive dragging skips straight to the move
+    else:
         _check_points("pos", pos)
         _check_mesh(rest, pos, graph, amin, amax, beta)
-        if workspace is not None and workspace.n == n:
-            workspace.checked = (rest, graph, amin, amax, beta, graph.amin)
+        kargs = graph.kernel_args
+        if workspace is not None and workspace.n == pos.shape[0]:
+            workspace.checked = (pos, rest, graph, amin, amax, beta, graph.entry_amin, kargs)
+    n, dim = pos.shape
     if type(grabbed) is not np.ndarray or grabbed.dtype != _INT64 or grabbed.ndim != 1:
         grabbed = np.ascontiguousarray(np.atleast_1d(np.asarray(grabbed)), dtype=np.int64)
         if grabbed.ndim != 1:
@@ -681,7 +681,7 @@ def cascade(
     elif order in (ORDER_SCHILL, ORDER_DEPTH_FIRST):
         ws.ensure(graph.indices.shape[0] + k, order)
     gen = ws.next_generation()
-    args = (rest, pos, *graph.kernel_args, grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen)
+    args = (rest, pos, *kargs, grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen)
     if order == ORDER_BREADTH_FIRST:
         if parallel:
             count = waves.cascade_waves(*args, ws)
