@@ -28,8 +28,9 @@ from pathlib import Path
 from typing import Any
 
 from chainsim.engine.errors import UserError
+from chainsim.game.records.backend import PgConnection, db_errors, is_postgres, redact, schema_version, set_schema_version
 from chainsim.game.records.schema import MIGRATIONS, OWN_TABLES, SCHEMA_VERSION
-from chainsim.game.records.validate import clean_attempt, clean_name, to_json
+from chainsim.game.records.validate import clean_attempt, clean_key, clean_name, to_json
 
 ENV_VAR = "CHAINSIM_DB"
 DB_FILENAME = "records.sqlite3"
@@ -96,13 +97,13 @@ def migrate(conn: sqlite3.Connection) -> int:
     while True:
         conn.execute("BEGIN IMMEDIATE")
         try:
-            version = conn.execute("PRAGMA user_version").fetchone()[0]
+            version = schema_version(conn)
             if version >= SCHEMA_VERSION:
                 conn.execute("COMMIT")
                 return version
             for statement in MIGRATIONS[version]:
                 conn.execute(statement)
-            conn.execute(f"PRAGMA user_version = {version + 1}")
+            set_schema_version(conn, version + 1)
             conn.execute("COMMIT")
         except BaseException:
             conn.execute("ROLLBACK")
@@ -128,6 +129,21 @@ class RecordStore:
     """Classes, trainees and their attempts in one SQLite file (see module docstring)."""
 
     def __init__(self, path: str | os.PathLike[str] | None = None) -> None:
+        if path is None and is_postgres(os.environ.get(ENV_VAR, "").strip()):
+            path = os.environ[ENV_VAR].strip()
+        if is_postgres(path):
+            # A PostgreSQL URL (chainsim.game.records.backend): same schema, same migrations.
+            self.path = redact(path)
+            self._conn = PgConnection(path)
+            try:
+                migrate(self._conn)
+            except db_errors() as exc:
+                self._conn.close()
+                raise UserError(f"cannot use records database {self.path}: {exc}") from None
+            except BaseException:
+                self._conn.close()
+                raise
+            return
         self.path = Path(path).expanduser() if path is not None else default_path()
         _check_file(self.path)
         try:
@@ -170,7 +186,7 @@ class RecordStore:
 
     @property
     def schema_version(self) -> int:
-        return self._db.execute("PRAGMA user_version").fetchone()[0]
+        return schema_version(self._db)
 
     @property
     def _db(self) -> sqlite3.Connection:
@@ -191,7 +207,7 @@ class RecordStore:
         except BaseException as exc:
             if conn.in_transaction:
                 conn.execute("ROLLBACK")
-            if isinstance(exc, sqlite3.Error):
+            if isinstance(exc, db_errors()):
                 raise UserError(f"records database {self.path}: write failed, nothing changed ({exc})") from None
             raise
 
@@ -271,7 +287,7 @@ class RecordStore:
             FROM trainees t JOIN classes c ON c.id = t.class_id
                  LEFT JOIN attempts a ON a.trainee_id = t.id
             WHERE ? IS NULL OR c.name = ?
-            GROUP BY t.id ORDER BY c.name, t.name
+            GROUP BY t.id, c.name ORDER BY c.name, t.name
             """,
             (class_name, class_name),
         )
@@ -279,16 +295,22 @@ class RecordStore:
 
     # -- attempts ---------------------------------------------------------------------------
 
-    def save_attempt(self, class_name: str, trainee: str, attempt: dict[str, Any]) -> int:
+    def save_attempt(self, class_name: str, trainee: str, attempt: dict[str, Any], *, key: str | None = None) -> int:
         """Validate and store one attempt in one transaction; returns its id.
 
         The class and trainee are created if missing, in the same transaction, so an interrupted
-        save leaves no empty trainee behind either.
+        save leaves no empty trainee behind either. ``key`` (an idempotency key, see
+        ``attempt_id_for_key``) makes a resend return the first save's id instead of a copy.
         """
         class_name = clean_name("class", class_name)
         trainee = clean_name("trainee", trainee)
         a = clean_attempt(attempt)
+        key = None if key is None else clean_key(key)
         with self._write() as conn:
+            if key is not None:
+                row = conn.execute("SELECT id FROM attempts WHERE idem_key = ?", (key,)).fetchone()
+                if row is not None:
+                    return row[0]
             class_id = self._class_id(conn, class_name)
             if class_id is None:
                 class_id = conn.execute("INSERT INTO classes (name) VALUES (?)", (class_name,)).lastrowid
@@ -300,8 +322,8 @@ class RecordStore:
             cur = conn.execute(
                 """
                 INSERT INTO attempts (trainee_id, pack, created_at, duration_s, landmark_error_mm,
-                    needle_error_mm, target, skull_contacts, path_length_mm, aids, step_times, details)
-                VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
+                    needle_error_mm, target, skull_contacts, path_length_mm, aids, step_times, details, idem_key)
+                VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
                 """,
                 (
                     trainee_id,
@@ -316,6 +338,7 @@ class RecordStore:
                     to_json(a["aids"]),
                     to_json(a["step_times"]),
                     to_json(a["details"]),
+                    key,
                 ),
             )
             return cur.lastrowid
@@ -350,6 +373,21 @@ class RecordStore:
         with self._write() as conn:
             if conn.execute("DELETE FROM attempts WHERE id = ?", (attempt_id,)).rowcount == 0:
                 raise UserError(f"no attempt with id {attempt_id}")
+
+    def attempt_id_for_key(self, key: str) -> int | None:
+        """The attempt saved with idempotency key ``key``, or None if none was."""
+        row = self._db.execute("SELECT id FROM attempts WHERE idem_key = ?", (clean_key(key),)).fetchone()
+        return None if row is None else row[0]
+
+    # -- for modules that keep their own tables in this database (server accounts, outbox) --
+
+    def transaction(self):
+        """Context manager: one write transaction on the store's connection (see ``_write``)."""
+        return self._write()
+
+    def query(self, sql: str, params: tuple = ()) -> list[Any]:
+        """Rows of one read statement (``?`` parameters), readable by index and column name."""
+        return list(self._db.execute(sql, params))
 
 
 def _attempt_id(value: Any) -> int:
