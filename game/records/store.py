@@ -38,6 +38,10 @@ SQLITE_MAGIC = b"SQLite format 3\x00"
 BUSY_TIMEOUT_MS = 5000
 
 
+class WriteFailed(UserError):
+    """The database refused a write (locked, gone, full); nothing changed and it may be retried."""
+
+
 def default_path() -> Path:
     """$CHAINSIM_DB when set, else <user data dir>/chainsim/records.sqlite3."""
     env = os.environ.get(ENV_VAR, "").strip()
@@ -208,7 +212,7 @@ class RecordStore:
             if conn.in_transaction:
                 conn.execute("ROLLBACK")
             if isinstance(exc, db_errors()):
-                raise UserError(f"records database {self.path}: write failed, nothing changed ({exc})") from None
+                raise WriteFailed(f"records database {self.path}: write failed, nothing changed ({exc})") from None
             raise
 
     def _class_id(self, conn: sqlite3.Connection, name: str) -> int | None:
