@@ -118,6 +118,7 @@ V3_DDL: tuple[str, ...] = (
         id        INTEGER PRIMARY KEY,
         server    TEXT NOT NULL UNIQUE,
         user_name TEXT NOT NULL,
+        role      TEXT NOT NULL,
         token     TEXT NOT NULL,
         saved_at  TEXT NOT NULL
     )

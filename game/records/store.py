@@ -52,24 +52,25 @@ def default_path() -> Path:
     return Path(platformdirs.user_data_dir("chainsim")) / DB_FILENAME
 
 
+def _header(path: Path) -> bytes:
+    try:
+        with path.open("rb") as fh:
+            return fh.read(len(SQLITE_MAGIC))
+    except OSError as exc:
+        raise UserError(f"cannot read records database {path}: {exc.strerror}") from None
+
+
 def _check_file(path: Path) -> None:
     """Refuse, without writing, anything at ``path`` that cannot be a records database."""
     if path.is_dir():
         raise UserError(f"records database {path} is a directory; expected a .sqlite3 file")
     if not path.exists():
         return
-    try:
-        with path.open("rb") as fh:
-            head = fh.read(len(SQLITE_MAGIC))
-    except OSError as exc:
-        raise UserError(f"cannot read records database {path}: {exc.strerror}") from None
-    # SQLite treats a zero-byte file as an empty database; anything else needs the magic header.
-    if head and head != SQLITE_MAGIC:
-        raise UserError(f"{path} is not an SQLite database; expected a chainsim records file")
-    if not head:
-        return
-    # Read-only look first: opening read-write and switching to WAL would rewrite the header of a
-    # file we are about to reject.
+    # Read-only look through SQLite first: opening read-write and switching to WAL would rewrite
+    # the header of a file we are about to reject. The file is never opened with a plain handle
+    # while it may be in use here: closing any descriptor of a file drops every POSIX lock this
+    # process holds on it, those of live connections included, and another process could then
+    # reset the WAL under them. The header is read only after SQLite refused the file, to say why.
     try:
         ro = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
     except sqlite3.Error as exc:
@@ -79,6 +80,9 @@ def _check_file(path: Path) -> None:
         version = ro.execute("PRAGMA user_version").fetchone()[0]
         tables = {r[0] for r in ro.execute("SELECT name FROM sqlite_master WHERE type='table'")}
     except sqlite3.DatabaseError as exc:
+        ro.close()
+        if _header(path) not in (b"", SQLITE_MAGIC):
+            raise UserError(f"{path} is not an SQLite database; expected a chainsim records file") from None
         raise UserError(f"records database {path} is damaged or not a database ({exc})") from None
     finally:
         ro.close()

@@ -21,6 +21,7 @@ def add_parser(sub):
     p.add_argument("--db", metavar="PATH", help="trainee records database")
     p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempts are saved under")
     p.add_argument("--trainee", metavar="NAME", help="trainee the attempts are saved under")
+    p.add_argument("--records", metavar="URL", help="save attempts to this records server (queued in --db when offline)")
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     return p
 
@@ -29,6 +30,18 @@ def has_display() -> bool:
     if sys.platform.startswith("linux"):
         return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
     return True
+
+
+def _send_quietly(server, db) -> None:
+    import logging
+
+    from chainsim.engine.errors import UserError
+    from chainsim.game.cli.commands.run import send_waiting_attempts
+
+    try:
+        send_waiting_attempts(server, db)
+    except UserError as exc:
+        logging.getLogger(__name__).warning("records: %s", exc)
 
 
 def run(args) -> int:
@@ -42,6 +55,14 @@ def run(args) -> int:
     from chainsim.game.packs import pack as packs
 
     packs.resolve(args.pack, args.pack_path)  # unknown pack: clear error before any window opens
+    if args.records:
+        import threading
+
+        from chainsim.game.records.remote import server_url
+
+        server_url(args.records)  # a malformed address is one line now, not a failed save later
+        # The queue drains while the window opens; a slow or absent server never delays it.
+        threading.Thread(target=_send_quietly, args=(args.records, args.db), daemon=True).start()
     from chainsim.game.ui.window import run_window
 
     return run_window(args)

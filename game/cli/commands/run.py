@@ -33,13 +33,29 @@ def _nonneg(text: str) -> int:
 
 
 def user_settings(args) -> dict:
-    """Settings a user gives on the command line (records database, class, trainee)."""
+    """Settings a user gives on the command line (records database or server, class, trainee)."""
     out = {}
-    for key, attr in (("db", "db"), ("class", "class_name"), ("trainee", "trainee")):
+    for key, attr in (("db", "db"), ("records", "records"), ("class", "class_name"), ("trainee", "trainee")):
         v = getattr(args, attr, None)
         if v is not None:
             out[key] = v
     return out
+
+
+def send_waiting_attempts(server: str, db) -> None:
+    """Attempts an earlier session left in the local queue go to the server now (or wait again)."""
+    import logging
+
+    from chainsim.game.records import remote
+    from chainsim.game.records.store import RecordStore
+
+    log = logging.getLogger(__name__)
+    with RecordStore(db) as store:
+        result = remote.sync(store, remote.server_url(server))
+    if result["sent"]:
+        log.info("sent %d queued attempt(s) to %s", result["sent"], server)
+    for line in result["problems"]:
+        log.warning("records: %s", line)
 
 
 def add_parser(sub):
@@ -60,6 +76,7 @@ def add_parser(sub):
     p.add_argument("--db", metavar="PATH", help="trainee records database (procedures that save attempts)")
     p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempt is saved under")
     p.add_argument("--trainee", metavar="NAME", help="trainee the attempt is saved under")
+    p.add_argument("--records", metavar="URL", help="save attempts to this records server (queued in --db when offline)")
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     return p
@@ -75,6 +92,8 @@ def run(args) -> int:
         raise UserError(f"--dt must be a number of seconds in (0, 1), got {args.dt}")
     if args.screenshot_every and not args.out:
         raise UserError("--screenshot-every needs --out DIR for the frames")
+    if args.records:
+        send_waiting_attempts(args.records, args.db)
     summary = run_pack(
         args.pack,
         args.steps,

@@ -138,12 +138,12 @@ def save(app, v: dict) -> int:
     """Save the attempt to the records DB (Settings db/class/trainee); raises UserError on failure."""
     from chainsim.engine.errors import UserError
     from chainsim.game.app.loader import PackResource
-    from chainsim.game.records.store import RecordStore
+    from chainsim.game.records.remote import open_records
 
     if v["landmark_error_mm"] is None:
         raise UserError("place all three landmarks before saving: the landmark error needs them")
     s = app.resource(Settings)
-    with RecordStore(s.get("db") or None) as store:
+    with open_records(s) as store:
         return store.save_attempt(
             s.get("class") or DEFAULT_CLASS,
             s.get("trainee") or DEFAULT_TRAINEE,
@@ -153,11 +153,11 @@ def save(app, v: dict) -> int:
 
 def my_attempts(app, limit: int = 6) -> list[str]:
     """Panel lines for the current trainee's saved attempts, newest last (the View of Fig. 3.11)."""
-    from chainsim.game.records.store import RecordStore
+    from chainsim.game.records.remote import open_records
 
     s = app.resource(Settings)
     cls, who = s.get("class") or DEFAULT_CLASS, s.get("trainee") or DEFAULT_TRAINEE
-    with RecordStore(s.get("db") or None) as store:
+    with open_records(s) as store:
         rows = store.list_attempts(cls, who)
     lines = [f"Attempts of {who} ({cls}): {len(rows)}"]
     for r in rows[-limit:]:
@@ -176,6 +176,7 @@ class AssessmentSystem:
 
     def __call__(self, app) -> None:
         from chainsim.engine.errors import UserError
+        from chainsim.game.records.remote import KeptOffline
         from chainsim.game.app.headless import Assessment
         from chainsim.systems.procedures.prp.procedure import PrpHandles, hud
 
@@ -187,6 +188,8 @@ class AssessmentSystem:
             elif ev.name == "save":
                 try:
                     rid = save(app, v)
+                except KeptOffline as e:  # safe on this computer; the server gets it later
+                    h.message(f"Saved on this computer: {e}", 8.0)
                 except UserError as e:
                     h.message(f"Not saved: {e}", 8.0)
                     self.errors.append(str(e))
