@@ -52,8 +52,8 @@ class Redirect(Exception):
         self.location = location
 
 
-def render(template: str, status: int = 200, **context: Any) -> HTMLResponse:
-    return HTMLResponse(templates.get_template(template).render(**context), status_code=status)
+def render(template: str, code: int = 200, /, **context: Any) -> HTMLResponse:
+    return HTMLResponse(templates.get_template(template).render(**context), status_code=code)
 
 
 def _secure(request: Request) -> bool:
