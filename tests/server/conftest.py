@@ -76,8 +76,8 @@ class Server:
         return self.proc.poll() is None and call(self, "GET", "/api/health")[0] == 200
 
 
-def start_server(db: str, log: Path) -> Server:
-    port = free_port()
+def start_server(db: str, log: Path, port: int | None = None) -> Server:
+    port = port or free_port()
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     fh = log.open("ab")
     proc = subprocess.Popen(
