@@ -46,8 +46,9 @@ def iso_duration(seconds: float) -> str:
         out += f"{int(hours)}H"
     if minutes:
         out += f"{int(minutes)}M"
-    text = f"{secs:.2f}".rstrip("0").rstrip(".")
-    return out + f"{text}S"
+    if secs or out == "PT":
+        out += f"{secs:.2f}".rstrip("0").rstrip(".") + "S"
+    return out
 
 
 def _base(homepage: str) -> str:
@@ -107,6 +108,7 @@ def statement(attempt: dict[str, Any], homepage: str = DEFAULT_HOMEPAGE) -> dict
 
 
 def statements(attempts: Sequence[dict[str, Any]], homepage: str = DEFAULT_HOMEPAGE) -> list[dict[str, Any]]:
+    _base(homepage)  # a bad home page is an error even when there is nothing to export
     return [statement(a, homepage) for a in attempts]
 
 
