@@ -9,38 +9,22 @@ from __future__ import annotations
 import json
 import os
 import sys
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from chainsim.components.resources import PendingInput, Settings
+import numpy as np
+
+from chainsim.components.resources import Assessment, PackResource, PendingInput, RunInfo, Settings
 from chainsim.engine.errors import UserError
 from chainsim.game.app import plugins
 from chainsim.game.app.core import App
 from chainsim.game.app.digest import world_digest
 from chainsim.game.app.inputscript import load_script, write_recording
-from chainsim.game.app.loader import PackResource, spawn_scene
+from chainsim.game.app.loader import spawn_scene
 from chainsim.game.packs import pack as packs
-
-
-@dataclass(slots=True)
-class Assessment:
-    """Procedure results for the summary: plugins fill `values` (JSON-serialisable)."""
-
-    values: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass(slots=True)
-class RunInfo:
-    """How this App was started (front ends and procedures may read it)."""
-
-    pack_ref: str
-    pack_name: str
-    scene: str
-    headless: bool
-    render: bool
-    out_dir: str | None = None
-    screenshot_every: int = 0
+from chainsim.game.records.remote import remote_records
+from chainsim.game.records.store import local_records
+from chainsim.systems.input import InputLog
 
 
 def build_app(
@@ -68,6 +52,10 @@ def build_app(
         scene_name = app.resource(PackResource).scene
         app.insert_resource(RunInfo(ref, pack.name, scene_name, headless, render, out_dir, screenshot_every))
         app.insert_resource(Assessment())
+        if pack_settings.get("records"):  # a records server (queueing in the local store when offline)
+            app.insert_resource(remote_records(pack_settings["records"], pack_settings.get("db") or None))
+        else:
+            app.insert_resource(local_records(pack_settings.get("db") or None))
         plugins.install(app, pack.manifest["pack"].get("procedure", ""), render=render)
     except BaseException:
         app.close()
@@ -126,8 +114,6 @@ def run_pack(
             app.update(app.time.dt)
             _progress(i + 1, n)
         digest = world_digest(app)
-        from chainsim.systems.input import InputLog
-
         log = app.get_resource(InputLog)
         summary = {
             "pack": pres.pack.name,
@@ -164,7 +150,6 @@ def run_pack(
 
 
 def _jsonable(v):
-    import numpy as np
 
     if isinstance(v, dict):
         return {str(k): _jsonable(x) for k, x in v.items()}

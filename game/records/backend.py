@@ -24,6 +24,7 @@ from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
 from chainsim.engine.errors import UserError
+from chainsim.game.records.schema import OWN_TABLES, SCHEMA_VERSION
 
 PG_SCHEMES = ("postgresql", "postgres")
 VERSION_TABLE = "chainsim_schema"
@@ -172,8 +173,6 @@ class PgConnection:
 
     def _prepare(self) -> None:
         """Create the version table in an empty database; refuse a database of something else."""
-        from chainsim.game.records.schema import OWN_TABLES, SCHEMA_VERSION  # noqa: PLC0415 - schema imports nothing back
-
         self.execute("BEGIN IMMEDIATE")
         try:
             tables = {

@@ -24,6 +24,7 @@ from datetime import UTC, datetime
 from typing import Any
 from urllib.parse import urlencode, urlsplit
 
+from chainsim.components.resources import Records, SavedLocally
 from chainsim.engine.errors import UserError
 from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import clean_attempt, clean_name, to_json
@@ -34,7 +35,7 @@ TOKEN_ENV = "CHAINSIM_RECORDS_TOKEN"
 TIMEOUT_S = 5.0
 
 
-class KeptOffline(UserError):
+class KeptOffline(SavedLocally):
     """The attempt is safe in the local queue but not on the server yet (message says why)."""
 
     def __init__(self, message: str, local_id: int) -> None:
@@ -61,7 +62,11 @@ def server_url(text: str) -> str:
 
 
 def request(
-    url: str, method: str = "GET", body: Any = None, token: str | None = None, headers: dict | None = None,
+    url: str,
+    method: str = "GET",
+    body: Any = None,
+    token: str | None = None,
+    headers: dict | None = None,
     timeout: float = TIMEOUT_S,
 ) -> Any:
     """One JSON request; returns the decoded answer, raises ServerError (HTTP) or OSError (network)."""
@@ -264,6 +269,18 @@ class RemoteRecords:
         except UserError as exc:
             logger.warning("records sync: %s", exc)
 
+    def delete_attempt(self, attempt_id: int) -> None:
+        """Delete on the server; it refuses (403) an attempt that is not the account's."""
+        token = token_for(self.local, self.server)
+        if token is None:
+            raise UserError(f"not signed in to {self.server}: chainsim records login {self.server} NAME")
+        try:
+            request(f"{self.server}/api/attempts/{int(attempt_id)}", "DELETE", token=token)
+        except ServerError as exc:
+            raise UserError(f"{self.server}: {exc}") from None
+        except OSError as exc:
+            raise UserError(str(exc)) from None
+
     def list_attempts(self, class_name: str | None = None, trainee: str | None = None) -> list[dict[str, Any]]:
         token = token_for(self.local, self.server)
         if token is None:
@@ -280,8 +297,34 @@ class RemoteRecords:
             raise UserError(str(exc)) from None
 
 
-def open_records(settings: Any) -> RecordStore | RemoteRecords:
-    """The records a procedure saves to: the server of settings["records"], else the local store."""
-    if settings.get("records"):
-        return RemoteRecords(settings.get("records"), settings.get("db") or None)
-    return RecordStore(settings.get("db") or None)
+def remote_records(server: str, db: str | os.PathLike[str] | None = None) -> Records:
+    """The Records resource on a records server, queueing in the local store ``db`` (see module doc)."""
+    server = server_url(server)
+
+    def save_attempt(class_name: str, trainee: str, record: dict) -> int:
+        with RemoteRecords(server, db) as rr:
+            return rr.save_attempt(class_name, trainee, record)
+
+    def list_attempts(class_name: str, trainee: str) -> list[dict]:
+        with RemoteRecords(server, db) as rr:
+            return rr.list_attempts(class_name, trainee)
+
+    def delete_attempt(class_name: str, trainee: str, attempt_id: int) -> None:
+        with RemoteRecords(server, db) as rr:
+            rr.delete_attempt(attempt_id)
+
+    return Records(save_attempt, list_attempts, f"records server {server}", delete_attempt)
+
+
+def sync_quietly(server: str, db: str | os.PathLike[str] | None = None) -> None:
+    """Send what earlier sessions left in the queue for ``server``; problems are logged, not raised."""
+    try:
+        with RecordStore(db) as store:
+            result = sync(store, server_url(server))
+    except UserError as exc:
+        logger.warning("records: %s", exc)
+        return
+    if result["sent"]:
+        logger.info("sent %d queued attempt(s) to %s", result["sent"], server)
+    for line in result["problems"]:
+        logger.warning("records: %s", line)

@@ -53,12 +53,16 @@ V2_DDL: tuple[str, ...] = (
     "CREATE INDEX attempts_by_trainee ON attempts (trainee_id, created_at, id)",
 )
 
-# Version 3: the records server (docs/records-server.md). Accounts with a role; a trainee
+# Version 3: redirections per attempt (times the needle was withdrawn to the skin and turned again);
+# attempts saved before it keep their rows with 0.
+V3_DDL: tuple[str, ...] = ("ALTER TABLE attempts ADD COLUMN redirections INTEGER NOT NULL DEFAULT 0",)
+
+# Version 4: the records server (docs/records-server.md). Accounts with a role; a trainee
 # account is one trainee row, a trainer account teaches classes. Web sessions and API tokens
 # are kept as SHA-256 hashes of their secrets, expiry as Unix seconds. ``idem_key`` makes a
 # resent attempt (the simulator's offline queue) land once. ``outbox`` is that queue, kept in
 # the simulator's local file; ``server_logins`` the tokens it signed in with.
-V3_DDL: tuple[str, ...] = (
+V4_DDL: tuple[str, ...] = (
     "ALTER TABLE attempts ADD COLUMN idem_key TEXT",
     "CREATE UNIQUE INDEX attempts_by_key ON attempts (idem_key)",
     """
@@ -125,11 +129,20 @@ V3_DDL: tuple[str, ...] = (
     """,
 )
 
-MIGRATIONS: tuple[tuple[str, ...], ...] = (V1_DDL, V2_DDL, V3_DDL)
+MIGRATIONS: tuple[tuple[str, ...], ...] = (V1_DDL, V2_DDL, V3_DDL, V4_DDL)
 SCHEMA_VERSION = len(MIGRATIONS)
 
 # Tables a records database owns; a version-0 file holding anything else is not ours.
 OWN_TABLES = frozenset(
-    {"classes", "trainees", "attempts", "users", "trainer_classes", "api_tokens", "web_sessions", "outbox",
-     "server_logins"}
+    {
+        "classes",
+        "trainees",
+        "attempts",
+        "users",
+        "trainer_classes",
+        "api_tokens",
+        "web_sessions",
+        "outbox",
+        "server_logins",
+    }
 )

@@ -62,11 +62,7 @@ def statement(attempt: dict[str, Any], homepage: str = DEFAULT_HOMEPAGE) -> dict
     """The xAPI statement of one attempt record (as ``RecordStore.list_attempts`` returns it)."""
     home = _base(homepage)
     ext = f"{home}/xapi/extensions"
-    metrics = {
-        f"{ext}/{key}": value
-        for key, value in attempt.items()
-        if key not in _NOT_METRICS and value is not None
-    }
+    metrics = {f"{ext}/{key}": value for key, value in attempt.items() if key not in _NOT_METRICS and value is not None}
     result: dict[str, Any] = {
         "success": attempt["target"] not in KNOWN_TARGETS,
         "completion": True,

@@ -131,8 +131,13 @@ def serve(
     import uvicorn  # noqa: PLC0415 - only `chainsim serve` needs the server
 
     app = build_app(db)
-    logger.info("records server on %s://%s:%d, database %s", "https" if certfile else "http", host, port,
-                app.state.storage.where)
+    logger.info(
+        "records server on %s://%s:%d, database %s",
+        "https" if certfile else "http",
+        host,
+        port,
+        app.state.storage.where,
+    )
     uvicorn.run(
         app,
         host=host,

@@ -68,7 +68,9 @@ class Storage:
         except self._errors as exc:
             logger.warning("records database error: %s", exc)
             self._drop()
-            raise Unavailable(f"records database error: {str(exc).strip().splitlines()[0] if str(exc) else exc}") from None
+            raise Unavailable(
+                f"records database error: {str(exc).strip().splitlines()[0] if str(exc) else exc}"
+            ) from None
 
     async def run(self, fn: Callable[..., T], *args: Any) -> T:
         """``fn(store, *args)`` on a worker thread's store."""

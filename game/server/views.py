@@ -224,9 +224,7 @@ async def plot_image(request: Request) -> Response:
     metric, _, fmt = request.path_params["image"].rpartition(".")
     if fmt not in plots.FORMATS or not metric:
         raise HTTPError(404, f"plots are .svg or .png, got {request.path_params['image']!r}")
-    data = await request.app.state.storage.run(
-        trainee_plot, user, _int_param(request, "trainee_id"), metric, fmt
-    )
+    data = await request.app.state.storage.run(trainee_plot, user, _int_param(request, "trainee_id"), metric, fmt)
     return Response(data, media_type=plots.FORMATS[fmt], headers={"Cache-Control": "private, no-store"})
 
 
@@ -236,9 +234,7 @@ async def attempt_page(request: Request) -> Response:
     a = d["attempt"]
     scalars = {k: v for k, v in a.items() if not isinstance(v, (dict, list))}
     nested = {k: v for k, v in a.items() if isinstance(v, (dict, list)) and k not in ("step_times", "aids")}
-    return render(
-        "attempt.html", user=user, csrf=csrf, a=a, trainee_id=d["trainee_id"], scalars=scalars, nested=nested
-    )
+    return render("attempt.html", user=user, csrf=csrf, a=a, trainee_id=d["trainee_id"], scalars=scalars, nested=nested)
 
 
 async def attempt_delete(request: Request) -> Response:

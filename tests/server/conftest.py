@@ -82,7 +82,9 @@ def start_server(db: str, log: Path, port: int | None = None) -> Server:
     fh = log.open("ab")
     proc = subprocess.Popen(
         [sys.executable, "-m", "chainsim.game", "serve", "--db", db, "--port", str(port)],
-        stdout=fh, stderr=subprocess.STDOUT, env=env,
+        stdout=fh,
+        stderr=subprocess.STDOUT,
+        env=env,
     )
     fh.close()
     server = Server(f"http://127.0.0.1:{port}", db, proc, log)

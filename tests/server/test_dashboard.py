@@ -201,7 +201,7 @@ def test_trainee_cannot_delete_anothers_attempt_by_form(site):
     assert count_attempts(site.db) == before
 
 
-@pytest.mark.parametrize("name", ["<script>alert(1)</script>", "\" onmouseover=\"x", "a&b'c"])
+@pytest.mark.parametrize("name", ["<script>alert(1)</script>", '" onmouseover="x', "a&b'c"])
 def test_names_are_escaped_in_pages(site, name):
     aid_status, answer, _ = call(
         site, "POST", "/api/attempts", dict(attempt(1), class_name="c1", trainee=name), site.tokens["tina"]

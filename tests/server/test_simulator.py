@@ -113,7 +113,11 @@ def test_refused_attempt_stays_in_the_queue_with_the_reason(site, tmp_path):
 def chainsim(*args, env=None, stdin=None):
     full = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""), **(env or {}))
     return subprocess.run(
-        [sys.executable, "-m", "chainsim.game", *args], capture_output=True, text=True, env=full, input=stdin,
+        [sys.executable, "-m", "chainsim.game", *args],
+        capture_output=True,
+        text=True,
+        env=full,
+        input=stdin,
         timeout=300,
     )
 

@@ -56,8 +56,9 @@ def test_postgres_database_of_something_else_is_refused_untouched(postgres_serve
         RecordStore(url)
     assert "invoices" in str(e.value) and "\n" not in str(e.value)
     with psycopg.connect(url, autocommit=True) as conn:
-        tables = {r[0] for r in conn.execute("SELECT table_name FROM information_schema.tables "
-                                             "WHERE table_schema = 'public'")}
+        tables = {
+            r[0] for r in conn.execute("SELECT table_name FROM information_schema.tables WHERE table_schema = 'public'")
+        }
     assert tables == {"invoices"}
 
 

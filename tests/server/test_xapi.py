@@ -62,8 +62,18 @@ def test_export_writes_valid_statements_with_every_metric(records_db, tmp_path, 
         ids = [store.save_attempt("c 1", "Zoë O'Neil", attempt(i)) for i in range(3)]
         store.save_attempt("c 1", "Zoë O'Neil", attempt(3, needle_error_mm=None, target="none"))
     out = tmp_path / "x.json"
-    code, _, err = cli("records", "--db", records_db, "export", "--format", "xapi", "--out", out,
-                       "--homepage", "https://training.example.org")
+    code, _, err = cli(
+        "records",
+        "--db",
+        records_db,
+        "export",
+        "--format",
+        "xapi",
+        "--out",
+        out,
+        "--homepage",
+        "https://training.example.org",
+    )
     assert code == 0, err
     stmts = json.loads(out.read_text())
     assert len(stmts) == 4
@@ -80,8 +90,18 @@ def test_export_writes_valid_statements_with_every_metric(records_db, tmp_path, 
     assert [s["result"]["success"] for s in stmts] == [False, True, False, False]  # skull / foramen / ... / none
     assert "score" not in stmts[3]["result"]  # no needle contact: no needle score
     # exporting again gives the same statement ids, so an LRS stores each attempt once
-    code, _, _ = cli("records", "--db", records_db, "export", "--format", "xapi", "--out", tmp_path / "y.json",
-                     "--homepage", "https://training.example.org")
+    code, _, _ = cli(
+        "records",
+        "--db",
+        records_db,
+        "export",
+        "--format",
+        "xapi",
+        "--out",
+        tmp_path / "y.json",
+        "--homepage",
+        "https://training.example.org",
+    )
     assert [s["id"] for s in json.loads((tmp_path / "y.json").read_text())] == [s["id"] for s in stmts]
     assert len(set(s["id"] for s in stmts)) == 4 and ids
 

@@ -4,6 +4,12 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
+
+from chainsim.engine.errors import UserError
+from chainsim.game.packs import pack as packs
+from chainsim.game.records import remote
+from chainsim.game.ui.window import run_window
 
 NAME = "play"
 HELP = "open the simulator window on a pack"
@@ -21,7 +27,9 @@ def add_parser(sub):
     p.add_argument("--db", metavar="PATH", help="trainee records database")
     p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempts are saved under")
     p.add_argument("--trainee", metavar="NAME", help="trainee the attempts are saved under")
-    p.add_argument("--records", metavar="URL", help="save attempts to this records server (queued in --db when offline)")
+    p.add_argument(
+        "--records", metavar="URL", help="save attempts to this records server (queued in --db when offline)"
+    )
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     return p
 
@@ -32,37 +40,16 @@ def has_display() -> bool:
     return True
 
 
-def _send_quietly(server, db) -> None:
-    import logging
-
-    from chainsim.engine.errors import UserError
-    from chainsim.game.cli.commands.run import send_waiting_attempts
-
-    try:
-        send_waiting_attempts(server, db)
-    except UserError as exc:
-        logging.getLogger(__name__).warning("records: %s", exc)
-
-
 def run(args) -> int:
-    from chainsim.engine.errors import UserError
-
     if not has_display():
         raise UserError(
             f"no display to open a window on (DISPLAY is not set); run without one: "
             f"chainsim run {args.pack} --headless --steps 600 --out DIR"
         )
-    from chainsim.game.packs import pack as packs
 
     packs.resolve(args.pack, args.pack_path)  # unknown pack: clear error before any window opens
     if args.records:
-        import threading
-
-        from chainsim.game.records.remote import server_url
-
-        server_url(args.records)  # a malformed address is one line now, not a failed save later
+        remote.server_url(args.records)  # a malformed address is one line now, not a failed save later
         # The queue drains while the window opens; a slow or absent server never delays it.
-        threading.Thread(target=_send_quietly, args=(args.records, args.db), daemon=True).start()
-    from chainsim.game.ui.window import run_window
-
+        threading.Thread(target=remote.sync_quietly, args=(args.records, args.db), daemon=True).start()
     return run_window(args)

@@ -18,6 +18,8 @@ import sys
 from pathlib import Path
 
 from chainsim.engine.errors import UserError
+from chainsim.game.records import remote, report, xapi
+from chainsim.game.server import accounts
 
 ACTIONS = ("user", "login", "sync")
 LRS_AUTH_ENV = "CHAINSIM_LRS_AUTH"
@@ -30,7 +32,11 @@ def add_actions(action) -> None:
     a = users.add_parser("add", help="create an account", description="create an account")
     a.add_argument("--role", choices=("trainer", "trainee"), required=True)
     a.add_argument(
-        "--class", dest="classes", action="append", default=[], metavar="C",
+        "--class",
+        dest="classes",
+        action="append",
+        default=[],
+        metavar="C",
         help="a trainee's class (one), or a class a trainer teaches (repeat for more)",
     )
     a.add_argument("--password-stdin", action="store_true", help="read the password from the first line of stdin")
@@ -59,7 +65,9 @@ def add_export_options(export: argparse.ArgumentParser) -> None:
     export.add_argument("--format", choices=("csv", "xapi"), default=None, help="csv (default) or xapi statements")
     export.add_argument("--out", type=Path, metavar="FILE", help="output file (--csv FILE is the same for csv)")
     export.add_argument("--homepage", default=None, metavar="URL", help="xAPI: the programme's home page for accounts")
-    export.add_argument("--lrs", metavar="URL", help=f"xAPI: also POST the statements to this LRS (auth: ${LRS_AUTH_ENV})")
+    export.add_argument(
+        "--lrs", metavar="URL", help=f"xAPI: also POST the statements to this LRS (auth: ${LRS_AUTH_ENV})"
+    )
 
 
 def _password(args, confirm: bool = True) -> str:
@@ -77,9 +85,6 @@ def _password(args, confirm: bool = True) -> str:
 
 
 def run(args, store) -> int:
-    from chainsim.game.records import remote  # noqa: PLC0415 - urllib client, only for these actions
-    from chainsim.game.server import accounts  # noqa: PLC0415 - hashlib.scrypt and account tables
-
     act = args.action
     if act == "user":
         sub = args.user_action
@@ -87,8 +92,6 @@ def run(args, store) -> int:
             user = accounts.add_user(store, args.name, args.role, _password(args), args.classes)
             print(f"added {user.role} {user.name!r} ({', '.join(user.classes)})", file=sys.stderr)
         elif sub == "list":
-            from chainsim.game.records import report  # noqa: PLC0415 - table layout only
-
             rows = [[u.name, u.role, ", ".join(u.classes)] for u in accounts.list_users(store)]
             print(report.table(["name", "role", "classes"], rows))
         elif sub == "token":
@@ -122,8 +125,6 @@ def run(args, store) -> int:
 
 
 def export_xapi(args, rows) -> None:
-    from chainsim.game.records import report, xapi  # noqa: PLC0415 - only for --format xapi
-
     stmts = xapi.statements(rows, args.homepage or xapi.DEFAULT_HOMEPAGE)
     if args.out is None and args.lrs is None:
         raise UserError("--format xapi needs --out FILE, --lrs URL or both")

@@ -2,26 +2,20 @@
 
 from __future__ import annotations
 
+import argparse
 import json
+import math
+
+from chainsim.engine.errors import UserError
+from chainsim.game.app.headless import run_pack
+from chainsim.game.app.options import user_settings, window_size
+from chainsim.game.records import remote
 
 NAME = "run"
 HELP = "run a pack without a window and write OUT/summary.json"
 
 
-def _size(text: str):
-    import argparse
-
-    try:
-        w, h = (int(x) for x in text.lower().split("x"))
-        if w <= 0 or h <= 0 or w > 16384 or h > 16384:
-            raise ValueError
-        return w, h
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 1280x800, got {text!r}") from None
-
-
 def _nonneg(text: str) -> int:
-    import argparse
 
     try:
         v = int(text)
@@ -30,32 +24,6 @@ def _nonneg(text: str) -> int:
     if v < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
     return v
-
-
-def user_settings(args) -> dict:
-    """Settings a user gives on the command line (records database or server, class, trainee)."""
-    out = {}
-    for key, attr in (("db", "db"), ("records", "records"), ("class", "class_name"), ("trainee", "trainee")):
-        v = getattr(args, attr, None)
-        if v is not None:
-            out[key] = v
-    return out
-
-
-def send_waiting_attempts(server: str, db) -> None:
-    """Attempts an earlier session left in the local queue go to the server now (or wait again)."""
-    import logging
-
-    from chainsim.game.records import remote
-    from chainsim.game.records.store import RecordStore
-
-    log = logging.getLogger(__name__)
-    with RecordStore(db) as store:
-        result = remote.sync(store, remote.server_url(server))
-    if result["sent"]:
-        log.info("sent %d queued attempt(s) to %s", result["sent"], server)
-    for line in result["problems"]:
-        log.warning("records: %s", line)
 
 
 def add_parser(sub):
@@ -72,28 +40,28 @@ def add_parser(sub):
     p.add_argument(
         "--screenshot-every", type=_nonneg, default=0, metavar="K", help="write a PNG every K frames (needs EGL)"
     )
-    p.add_argument("--size", type=_size, default=None, metavar="WxH", help="off-screen frame size for screenshots")
+    p.add_argument(
+        "--size", type=window_size, default=None, metavar="WxH", help="off-screen frame size for screenshots"
+    )
     p.add_argument("--db", metavar="PATH", help="trainee records database (procedures that save attempts)")
     p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempt is saved under")
     p.add_argument("--trainee", metavar="NAME", help="trainee the attempt is saved under")
-    p.add_argument("--records", metavar="URL", help="save attempts to this records server (queued in --db when offline)")
+    p.add_argument(
+        "--records", metavar="URL", help="save attempts to this records server (queued in --db when offline)"
+    )
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     return p
 
 
 def run(args) -> int:
-    import math
-
-    from chainsim.engine.errors import UserError
-    from chainsim.game.app.headless import run_pack
 
     if args.dt is not None and not (math.isfinite(args.dt) and 0 < args.dt < 1):
         raise UserError(f"--dt must be a number of seconds in (0, 1), got {args.dt}")
     if args.screenshot_every and not args.out:
         raise UserError("--screenshot-every needs --out DIR for the frames")
     if args.records:
-        send_waiting_attempts(args.records, args.db)
+        remote.sync_quietly(args.records, args.db)  # what an earlier session left in the queue
     summary = run_pack(
         args.pack,
         args.steps,

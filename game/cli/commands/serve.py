@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import argparse
+import logging
+
+from chainsim.engine.errors import UserError
+from chainsim.game.server.app import serve
+
 NAME = "serve"
 HELP = "run the records server: trainers' dashboard and JSON API over the records database"
 
@@ -15,8 +21,6 @@ examples:
 
 
 def _port(text: str) -> int:
-    import argparse
-
     try:
         value = int(text)
     except ValueError:
@@ -27,8 +31,6 @@ def _port(text: str) -> int:
 
 
 def add_parser(sub):
-    import argparse
-
     p = sub.add_parser(
         NAME, help=HELP, description=HELP, epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -41,11 +43,6 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    import logging
-
-    from chainsim.engine.errors import UserError
-    from chainsim.game.server.app import serve
-
     if bool(args.certfile) != bool(args.keyfile):
         raise UserError("--certfile and --keyfile go together")
     if args.host not in ("127.0.0.1", "localhost", "::1") and not args.certfile:
