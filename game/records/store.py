@@ -433,5 +433,5 @@ def local_records(db: str | os.PathLike[str] | None = None) -> Records:
                 raise UserError(f"attempt {attempt_id} is not yours")
             store.delete_attempt(attempt_id)
 
-    where = str(Path(db).expanduser() if db else default_path())
+    where = redact(db) if is_postgres(db) else str(Path(db).expanduser() if db else default_path())
     return Records(save_attempt=save_attempt, list_attempts=list_attempts, where=where, delete_attempt=delete_attempt)
