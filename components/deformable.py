@@ -27,16 +27,17 @@ import numpy as np
 from chainsim.components.core import MeshRef
 from chainsim.components.registry import component, prop
 from chainsim.engine import meshgen
+from chainsim.engine.chainmail_params import ORDER_CHOICES, order_name
 from chainsim.engine.errors import UserError
 from chainsim.engine.kernels.chainmail import make_workspace, material_arrays
 from chainsim.engine.kernels.graph import build_graph
 
-ORDERS = ("fifo", "balanced", "schill")
+ORDERS = ORDER_CHOICES  # breadth-first, balanced, schill, depth-first; fifo = breadth-first
 SOURCES = ("auto", "surface", "volume")
 INHERIT = -1.0  # an inline material value of -1 means "take it from the material"
 
 #: [materials] defaults when an entity names no material (the manifest's own defaults)
-DEFAULT_MATERIAL = {"alpha_min": 0.8, "alpha_max": 1.2, "beta": 0.1, "relax": 2}
+DEFAULT_MATERIAL = {"alpha_min": 0.8, "alpha_max": 1.2, "beta": 0.1, "relax": 2, "exact": False}
 
 
 def _nodigest(factory):
@@ -92,9 +93,10 @@ class Deformable:
     )
     order: str = prop(
         "enum",
-        "fifo",
+        "breadth-first",
         choices=ORDERS,
-        help="Waiting-list order: fifo (5.2.3), balanced (round robin of Fig. 5.3), schill (largest violation first).",
+        help="Waiting-list order: breadth-first (a queue; fifo is the same), depth-first (5.2.3 as written: new "
+        "neighbours at the front), balanced (round robin of Fig. 5.3), schill (largest violation first).",
     )
     depth: int = prop("int", 2, help="Branch depth per turn for the balanced order.", min=1)
     dtype: str = prop("enum", "float64", choices=("float64", "float32"), help="Precision of positions.")
@@ -117,6 +119,8 @@ class Deformable:
     beta_l: np.ndarray = _nodigest(lambda: np.zeros(0))
     fixed_mask: np.ndarray = _nodigest(lambda: np.zeros(0, dtype=np.bool_))
     relax_iterations: int = field(default=0, metadata={"digest": False})
+    exact_limits: bool = field(default=False, metadata={"digest": False})  # the material's `exact`
+    last_shortfall: float = field(default=0.0, metadata={"digest": False})  # of the last grab (exact only)
     workspace: object = field(default=None, metadata={"digest": False})
     dirty: np.ndarray = _nodigest(_empty_ids)
     last_order: np.ndarray = _nodigest(_empty_ids)
@@ -145,7 +149,7 @@ class Deformable:
 
 
 def resolve_material(d: Deformable, materials: dict, mesh_material: str, where: str) -> dict:
-    """alpha_min/alpha_max/beta/relax from the named material and the inline overrides; checked."""
+    """alpha_min/alpha_max/beta/relax/exact from the named material and the inline overrides; checked."""
     name = d.material or mesh_material
     if name:
         if name not in materials:
@@ -232,6 +236,8 @@ def setup_deformable(
     d.amin, d.amax, d.beta_l = amin, amax, beta
     d.fixed_mask = fixed
     d.relax_iterations = int(mat["relax"])
+    d.exact_limits = bool(mat["exact"])
+    d.order = order_name(d.order)  # fifo is stored as breadth-first
     d.workspace = make_workspace(n)
     d.dirty = _empty_ids()
     d._dirty_mask = np.zeros(n, dtype=np.bool_)

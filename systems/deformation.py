@@ -7,8 +7,9 @@ nearest the grab point; off by default so a procedure's own tools are the only h
 Writes Deformable.pos / dirty / version / held / alive, emits Deformed.
 
 Each grab runs one Generalised ChainMail cascade (thesis 5.2.3) from the grabbed elements, then the
-relaxation of 5.2.5 over the elements that moved (grabbed, held and fixed elements stay put). Cuts
-mark links dead (thesis 4.5.2); the renderer sees moved vertices through `dirty`.
+relaxation of 5.2.5 over the elements that moved (grabbed, held and fixed elements stay put), then, for
+a material with `exact = true`, the exact-limit pass (chainsim.engine.kernels.exact). Cuts mark links
+dead (thesis 4.5.2); the renderer sees moved vertices through `dirty`.
 
 Installed only when some entity is deformable: a `deformable` table, or `simulation.kind` "surface" /
 "volume" on a mesh entity (which gets a default `deformable`, material = its mesh material). A scene
@@ -38,14 +39,15 @@ from chainsim.components.deformable import Deformable, Pull, setup_deformable
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import EntityIndex, PackResource
 from chainsim.components.view_events import Dragged
+from chainsim.engine.chainmail_params import order_code
 from chainsim.engine.errors import UserError
 from chainsim.engine.kernels import topology
 from chainsim.engine.kernels.chainmail import cascade, material_arrays
+from chainsim.engine.kernels.exact import exact_limits
 from chainsim.engine.kernels.relax import relax
 from chainsim.systems.stages import ORDER_DEFORMATION
 
 ORDER_PULL = ORDER_DEFORMATION - 10
-_ORDER_CODES = {"fifo": 0, "balanced": 1, "schill": 2}
 
 
 @dataclass(slots=True)
@@ -115,8 +117,8 @@ def relax_moved(rest, pos, graph, active, iterations: int, step: float = 1.0, fi
 
 
 def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np.ndarray:
-    """Move `ids` to local `targets`, cascade and relax; returns the ids that changed."""
-
+    """Move `ids` to local `targets`, cascade, relax (and keep every link inside its limits with an exact
+    material); returns the ids that changed."""
     ids = np.atleast_1d(np.asarray(ids, dtype=np.int64))
     n = d.n_elements
     if len(ids) == 0 or ids.min() < 0 or ids.max() >= n:
@@ -138,7 +140,7 @@ def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np
         ids,
         targets.astype(d.pos.dtype),
         fixed=fixed,
-        order=_ORDER_CODES[d.order],
+        order=order_code(d.order),
         workspace=d.workspace,
         depth=d.depth,
     )
@@ -152,6 +154,11 @@ def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np
         if len(d.held):
             pin[d.held] = True
         relax_moved(d.rest, d.pos, d.graph, order, d.relax_iterations, step=d.relax_step, fixed=pin)
+    if d.exact_limits:
+        res = exact_limits(d.rest, d.pos, d.graph, d.amin, d.amax, d.beta_l, order, ids, targets, fixed, d.workspace)
+        d.last_shortfall = res.shortfall
+        if len(res.changed):
+            changed = np.union1d(changed, res.changed)
     if len(changed):
         d.mark_dirty(changed)
         d.version += 1

@@ -134,6 +134,13 @@ section(
         Field("alpha_max", "float", 1.2, help="ChainMail stretch limit relative to the rest link.", min=1.0),
         Field("beta", "float", 0.1, help="ChainMail shear limit relative to the rest link.", min=0.0),
         Field("relax", "int", 2, help="Relaxation iterations after each cascade (thesis 5.2.5).", min=0),
+        Field(
+            "exact",
+            "bool",
+            False,
+            help="After each cascade and relaxation put every link back inside its limits (a pull past what the "
+            "limits allow from the fixed elements stops at the nearest reachable point).",
+        ),
     ],
 )
 
@@ -158,7 +165,8 @@ VIEWPORT = Schema(
             "kind",
             "enum",
             choices=VIEWPORT_KINDS,
-            help="orbit: mouse-driven camera; attached: follows an entity and ignores input; panel: 2-D controls; fixed: a still camera.",
+            help="orbit: mouse-driven camera; attached: follows an entity and ignores input; panel: 2-D controls; "
+            "fixed: a still camera.",
         ),
         Field("rect", "rect", help="Placement [x, y, w, h] as window fractions, origin bottom-left.", min=0.0, max=1.0),
         Field("title", "str", "", help="Caption drawn in the viewport."),
@@ -169,7 +177,8 @@ VIEWPORT = Schema(
             "float",
             0.0,
             units="deg",
-            help="Camera azimuth about +Z: at 0 the eye is on the +Y side looking along -Y; positive turns counter-clockwise.",
+            help="Camera azimuth about +Z: at 0 the eye is on the +Y side looking along -Y; positive turns "
+            "counter-clockwise.",
         ),
         Field(
             "pitch", "float", 0.0, units="deg", help="Camera elevation; positive raises the eye.", min=-89.9, max=89.9
@@ -181,7 +190,8 @@ VIEWPORT = Schema(
             "attach",
             "entity",
             "",
-            help="Entity the camera rides on (attached viewports): the eye sits at its origin plus offset and looks along its local +Z, local +Y up.",
+            help="Entity the camera rides on (attached viewports): the eye sits at its origin plus offset and looks "
+            "along its local +Z, local +Y up.",
         ),
         Field("offset", "vec3", [0.0, 0.0, 0.0], units="mm", help="Camera offset in the attached entity's frame."),
         Field("visible", "bool", True, help="Shown at start (a toggle widget may change it)."),
@@ -213,7 +223,8 @@ WIDGET = Schema(
             "layer",
             "str",
             "",
-            help="What a toggle switches: NAME shows/hides that layer ('planes' also the pack's planes), view:NAME a viewport, xray:NAME makes a layer see-through, wire:NAME draws it as links.",
+            help="What a toggle switches: NAME shows/hides that layer ('planes' also the pack's planes), view:NAME a "
+            "viewport, xray:NAME makes a layer see-through, wire:NAME draws it as links.",
         ),
         Field("help", "str", "", help="Tooltip / HUD help."),
     ),
