@@ -53,7 +53,7 @@ def tet_sweep(x, w, tets, dm_inv, vol, active, mu, lam, gamma, h2, lam_d, lam_h)
                 F[r, col] = e1 * dm_inv[t, 0, col] + e2 * dm_inv[t, 1, col] + e3 * dm_inv[t, 2, col]
         # -- deviatoric: C = |F|, dC/dF = F / |F|
         nf = np.sqrt(np.sum(F * F))
-        if nf > 1e-12 and mu > 0.0:
+        if nf > 1e-12 and mu * vol[t] * h2 > 0.0:
             P = F / nf
             _grads(P, dm_inv[t], g)
             den = w[a] * _sq(g, 0) + w[b] * _sq(g, 1) + w[c] * _sq(g, 2) + w[d] * _sq(g, 3)
@@ -85,8 +85,9 @@ def tet_sweep(x, w, tets, dm_inv, vol, active, mu, lam, gamma, h2, lam_d, lam_h)
         _grads(P, dm_inv[t], g)
         den = w[a] * _sq(g, 0) + w[b] * _sq(g, 1) + w[c] * _sq(g, 2) + w[d] * _sq(g, 3)
         C = J - gamma
-        alpha = 1.0 / (lam * vol[t] * h2)
-        if den + alpha > 0.0:
+        kv = lam * vol[t] * h2
+        alpha = 1.0 / kv if kv > 0.0 else np.inf
+        if kv > 0.0 and den + alpha > 0.0:
             dl = (-C - alpha * lam_h[t]) / (den + alpha)
             lam_h[t] += dl
             _apply(x, w, ids, g, dl)
@@ -206,7 +207,7 @@ def stvk_sweep(x, w, tets, dm_inv, vol, active, mu, lam, h2):
                 _grads(P, dm_inv[t], g)
                 den = w[ids[0]] * _sq(g, 0) + w[ids[1]] * _sq(g, 1) + w[ids[2]] * _sq(g, 2) + w[ids[3]] * _sq(g, 3)
                 k = 2.0 * mu * vol[t] if i == j else 4.0 * mu * vol[t]
-                if k <= 0.0:
+                if k * h2 <= 0.0:
                     continue
                 alpha = 1.0 / (k * h2)
                 if den + alpha > 0.0:
@@ -217,7 +218,7 @@ def stvk_sweep(x, w, tets, dm_inv, vol, active, mu, lam, h2):
             - F[0, 1] * (F[1, 0] * F[2, 2] - F[1, 2] * F[2, 0])
             + F[0, 2] * (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0])
         )
-        if lam > 0.0:
+        if lam * vol[t] * h2 > 0.0:  # a volume stiffness that underflows to 0 has no constraint to enforce
             for r in range(3):
                 r1 = (r + 1) % 3
                 r2 = (r + 2) % 3
