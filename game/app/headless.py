@@ -22,6 +22,7 @@ from chainsim.game.app.digest import world_digest
 from chainsim.game.app.inputscript import load_script, write_recording
 from chainsim.game.app.loader import spawn_scene
 from chainsim.game.packs import pack as packs
+from chainsim.game.records.remote import remote_records
 from chainsim.game.records.store import local_records
 from chainsim.systems.input import InputLog
 
@@ -51,7 +52,10 @@ def build_app(
         scene_name = app.resource(PackResource).scene
         app.insert_resource(RunInfo(ref, pack.name, scene_name, headless, render, out_dir, screenshot_every))
         app.insert_resource(Assessment())
-        app.insert_resource(local_records(pack_settings.get("db") or None))
+        if pack_settings.get("records"):  # a records server (queueing in the local store when offline)
+            app.insert_resource(remote_records(pack_settings["records"], pack_settings.get("db") or None))
+        else:
+            app.insert_resource(local_records(pack_settings.get("db") or None))
         plugins.install(app, pack.manifest["pack"].get("procedure", ""), render=render)
     except BaseException:
         app.close()

@@ -17,9 +17,9 @@ def window_size(text: str) -> tuple[int, int]:
 
 
 def user_settings(args) -> dict:
-    """Settings a user gives on the command line (records database, class, trainee)."""
+    """Settings a user gives on the command line (records database or server, class, trainee)."""
     out = {}
-    for key, attr in (("db", "db"), ("class", "class_name"), ("trainee", "trainee")):
+    for key, attr in (("db", "db"), ("records", "records"), ("class", "class_name"), ("trainee", "trainee")):
         v = getattr(args, attr, None)
         if v is not None:
             out[key] = v
