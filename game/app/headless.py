@@ -12,8 +12,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import esper
 import numpy as np
 
+from chainsim.components.core import Name
+from chainsim.components.deformable import Deformable
 from chainsim.components.resources import Assessment, PackResource, PendingInput, RunInfo, Settings
 from chainsim.engine.errors import UserError
 from chainsim.game.app import plugins
@@ -126,6 +129,9 @@ def run_pack(
             "digest": digest,
             "events_applied": len(log.items) if log else 0,
         }
+        models = body_models(app)
+        if models:
+            summary["models"] = models
         assessment = app.resource(Assessment).values
         if assessment:
             summary["assessment"] = _jsonable(assessment)
@@ -147,6 +153,15 @@ def run_pack(
         return summary
     finally:
         app.close()
+
+
+def body_models(app) -> dict:
+    """Which deformation model each soft body runs, and why (the pack, --model, or the auto choice)."""
+    with app.active():
+        return {
+            esper.component_for_entity(ent, Name).value: {"model": d.model_used, "why": d.model_reason}
+            for ent, d in esper.get_component(Deformable)
+        }
 
 
 def _jsonable(v):

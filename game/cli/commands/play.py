@@ -7,6 +7,7 @@ import sys
 import threading
 
 from chainsim.engine.errors import UserError
+from chainsim.game.app.options import MODEL_FLAG_CHOICES, MODEL_FLAG_HELP
 from chainsim.game.packs import pack as packs
 from chainsim.game.records import remote
 from chainsim.game.ui.window import run_window
@@ -24,6 +25,7 @@ def add_parser(sub):
         "--exit-after", type=float, default=None, metavar="SECONDS", help="close after this much simulated time"
     )
     p.add_argument("--screenshot", metavar="PNG", help="save a screenshot of the window when closing")
+    p.add_argument("--model", choices=MODEL_FLAG_CHOICES, help=MODEL_FLAG_HELP)
     p.add_argument("--db", metavar="PATH", help="trainee records database")
     p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempts are saved under")
     p.add_argument("--trainee", metavar="NAME", help="trainee the attempts are saved under")

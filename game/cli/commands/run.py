@@ -8,7 +8,7 @@ import math
 
 from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import run_pack
-from chainsim.game.app.options import user_settings, window_size
+from chainsim.game.app.options import MODEL_FLAG_CHOICES, MODEL_FLAG_HELP, user_settings, window_size
 from chainsim.game.records import remote
 
 NAME = "run"
@@ -43,6 +43,7 @@ def add_parser(sub):
     p.add_argument(
         "--size", type=window_size, default=None, metavar="WxH", help="off-screen frame size for screenshots"
     )
+    p.add_argument("--model", choices=MODEL_FLAG_CHOICES, help=MODEL_FLAG_HELP)
     p.add_argument("--db", metavar="PATH", help="trainee records database (procedures that save attempts)")
     p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempt is saved under")
     p.add_argument("--trainee", metavar="NAME", help="trainee the attempt is saved under")
