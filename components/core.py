@@ -53,7 +53,8 @@ class Simulation:
         "enum",
         "rigid",
         choices=("none", "rigid", "surface", "volume"),
-        help="none: static scenery; rigid: moves as a whole; surface / volume: ChainMail on the mesh's surface links or tetrahedra.",
+        help="none: static scenery; rigid: moves as a whole; surface / volume: ChainMail on the mesh's surface "
+        "links or tetrahedra.",
     )
 
 

@@ -119,7 +119,8 @@ def event_from_dict(d: dict[str, Any], where: str):
     extra = set(d) - allowed - {"kind", "t"}
     if extra:
         raise UserError(
-            f"{where}: unknown key(s) {', '.join(sorted(extra))} for a '{kind}' event; expected {', '.join(sorted(allowed))}"
+            f"{where}: unknown key(s) {', '.join(sorted(extra))} for a '{kind}' event; "
+            f"expected {', '.join(sorted(allowed))}"
         )
     args = {}
     for f in fields(cls):

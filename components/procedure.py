@@ -113,7 +113,8 @@ def anatomy_from_pack(pack) -> PrpAnatomy:
             if spec is None:
                 want = " or ".join(f"[points.{a.format(s=s)}]" for a in aliases[:2])
                 raise UserError(
-                    f"pack '{pack.name}': the rhizotomy procedure needs {want} (known points: {', '.join(sorted(points)) or 'none'})"
+                    f"pack '{pack.name}': the rhizotomy procedure needs {want} "
+                    f"(known points: {', '.join(sorted(points)) or 'none'})"
                 )
             pts[role] = np.asarray(spec["position"], dtype=np.float64)
         for role, aliases in PLANE_ALIASES.items():

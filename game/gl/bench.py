@@ -9,7 +9,8 @@ and a control panel) at --size (default 1280x800) on the EGL context. Three mode
              only those positions and the normals around them are rewritten (the ChainMail case)
 
 A frame is timed from the upload to `ctx.finish()`, so GPU work is included. The three modes take
-turns frame by frame. Medians (and 90th percentiles) over --frames frames per mode after warm-up. Writes results.json, results.md and
+turns frame by frame. Medians (and 90th percentiles) over --frames frames per mode after warm-up. Writes
+results.json, results.md and
 bench-render.png into --out (default runs/bench-render); progress goes to stderr.
 """
 
@@ -291,12 +292,14 @@ def run_sheets(args) -> int:
         f"{info['cpu_count']} CPUs, load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at the end "
         "(a software renderer shares those CPUs with everything else running).",
         "",
-        "| triangles | mode | moved vertices | frame median (ms) | frame p90 (ms) | upload median (ms) | fps (median) |",
+        "| triangles | mode | moved vertices | frame median (ms) | frame p90 (ms) | upload median (ms) | fps "
+        "(median) |",
         "|---:|---|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         md.append(
-            f"| {r['triangles']:,} | {r['mode']} | {r['moved_vertices']:,} | {r['median_ms']:.2f} | {r['p90_ms']:.2f} | "
+            f"| {r['triangles']:,} | {r['mode']} | {r['moved_vertices']:,} | {r['median_ms']:.2f} | "
+            f"{r['p90_ms']:.2f} | "
             f"{r['upload_median_ms']:.2f} | {1000.0 / r['median_ms']:.1f} |"
         )
     (out / "results.md").write_text("\n".join(md) + "\n", encoding="utf-8")

@@ -220,10 +220,10 @@ def collect_frame(app):
             frame.markers.append(
                 (np.asarray(tr.position, float), float(mk.radius), tuple(float(c) for c in mk.color), ent)
             )
-    for ent, pl in esper.get_component(PolyLine):
+    for _ent, pl in esper.get_component(PolyLine):
         if pl.visible and len(pl.points) >= 2:
             frame.lines.append((np.asarray(pl.points, float).reshape(-1, 3), tuple(float(c) for c in pl.color)))
-    for ent, (lb, tr) in esper.get_components(Label, Transform):
+    for _ent, (lb, tr) in esper.get_components(Label, Transform):
         if lb.text:
             frame.labels.append((np.asarray(tr.position, float), lb.text, tuple(float(c) for c in lb.color)))
     if vs.layer_visible("planes") and pack.section("planes"):

@@ -9,7 +9,8 @@ Ideal landmarks (thesis 3.3.4, 6.1.5), on the skin of the chosen side: the pack'
     3  on the skin section by the axial plane through the ear, 30 mm in front of the tragus
 The needle is aimed from landmark 1 at the reference path's target ([paths.<side>], else the
 foramen centre); when bone (e.g. the mandible) blocks that line, landmark 1 moves to the skin point
-within 15 mm that has a clear line (with 0.5 mm to spare) and the best landmark-1 score; the two dial angles are computed from that direction exactly as the needle system
+within 15 mm that has a clear line (with 0.5 mm to spare) and the best landmark-1 score; the two dial angles are
+computed from that direction exactly as the needle system
 applies them (horizontal: about +Z from the initial heading; vertical: elevation). The skull-hit
 attempt is the same with the vertical angle raised (12 degrees by default) so the tip meets the
 skull base. Both are checked against the obstacle meshes before they are written; --check also runs

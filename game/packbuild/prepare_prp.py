@@ -453,10 +453,12 @@ def landmarks_and_paths(skin, skull, mandible, bone, foramina, plugs, orbits) ->
 
 HELP = {
     "oral_commissure": "corner of the mouth on the skin ({side})",
-    "pupil_medial": "medial aspect of the {side} pupil, on the closed eyelid; pupil centre in front of the orbit centre",
+    "pupil_medial": "medial aspect of the {side} pupil, on the closed eyelid; pupil centre in front of the orbit "
+    "centre",
     "tragus": "{side} tragus: the skin over the bony external acoustic meatus",
     "foramen_ovale": "centre of the {side} foramen ovale (needle target)",
-    "landmark1_ideal": "ideal landmark 1 ({side}): skin 25 mm lateral to the oral commissure in its axial plane; needle entry",
+    "landmark1_ideal": "ideal landmark 1 ({side}): skin 25 mm lateral to the oral commissure in its axial plane; "
+    "needle entry",
     "landmark2_ideal": "ideal landmark 2 ({side}): skin at the medial aspect of the pupil",
     "landmark3_ideal": "ideal landmark 3 ({side}): skin 30 mm anterior to the tragus in its axial plane",
 }

@@ -461,7 +461,8 @@ def validate(root: Path, *, load_meshes: bool = True) -> tuple[Pack | None, list
                 v.add(
                     file_of(key),
                     f"{key}.path",
-                    f"{spec['path']} is {p.stat().st_size / 1048576:.2f} MB, over the {max_mesh_bytes() / 1048576:.3g} MB mesh limit (CHAINSIM_MAX_MESH_MB)",
+                    f"{spec['path']} is {p.stat().st_size / 1048576:.2f} MB, "
+                    f"over the {max_mesh_bytes() / 1048576:.3g} MB mesh limit (CHAINSIM_MAX_MESH_MB)",
                 )
                 continue
         if load_meshes:

@@ -4,7 +4,8 @@ Only this module (and the GL adapters) import pyglet. Device events become the s
 scripts use (`chainsim.components.input_events`), stamped with the App's simulated time and queued in PendingInput,
 so a window session can be recorded (`--record`) and replayed headless. Each redraw (about 60 per
 second where the machine keeps up) runs the whole fixed steps the wall-clock time since the previous
-one holds, one App.update each (chainsim.game.ui.frameloop), and draws through `chainsim.game.gl.render_system` into the window's framebuffer.
+one holds, one App.update each (chainsim.game.ui.frameloop), and draws through `chainsim.game.gl.render_system` into
+the window's framebuffer.
 
 HiDPI: layouts, input events and widgets work in window units; the renderer draws at the
 framebuffer's resolution (`RenderTarget.scale` = framebuffer pixels per window unit).
@@ -13,7 +14,8 @@ Keys: a widget's `key` (pyglet key names, lower case: "t", "left", "space", "f2"
 uses that widget (held arrow keys repeat); F1 opens the key page, F12 saves a screenshot
 (chainsim-shot-FRAME.png in the current folder). Esc closes an open page; with none open it quits,
 asking first when the attempt is not saved. Packs with a `sign_in` button ask for class and name at
-start (chainsim.game.ui.signin) unless --class and --trainee are given or a script is played. `--input SCRIPT` plays a script, `--exit-after S` closes after S simulated
+start (chainsim.game.ui.signin) unless --class and --trainee are given or a script is played. `--input SCRIPT` plays
+a script, `--exit-after S` closes after S simulated
 seconds, `--screenshot PNG` saves the last frame on closing, `--record FILE` saves the session.
 """
 

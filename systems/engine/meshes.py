@@ -106,7 +106,8 @@ def _load_volume(path: Path, where: str) -> MeshData:
         m = meshio.read(str(path))
     except (Exception, SystemExit) as e:  # meshio calls sys.exit on some unreadable .msh files
         raise MeshError(
-            f"{where}: not a readable volume mesh ({type(e).__name__}: {str(e).splitlines()[0] if str(e) else 'parse error'})"
+            f"{where}: not a readable volume mesh "
+            f"({type(e).__name__}: {str(e).splitlines()[0] if str(e) else 'parse error'})"
         ) from None
     tets = [c.data for c in m.cells if c.type == "tetra"]
     tris = [c.data for c in m.cells if c.type == "triangle"]

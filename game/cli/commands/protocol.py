@@ -199,7 +199,7 @@ def format_table(table: dict) -> str:
         n = sum(1 for t, _ in cols if t == task)
         if n:
             head1 += TASK_TITLE[task].center(width * n)
-    for t, c in cols:
+    for _t, c in cols:
         head2 += c.replace("_", " ").center(width)
     row = f"{'Mean error, this run (mm)':26}"
     count = f"{'  attempts scored / run':26}"
@@ -263,7 +263,8 @@ def run(args) -> int:
     try:
         for i, (t, path, events, r) in enumerate(plan, 1):
             print(
-                f"[{i}/{len(plan)}] {t['name']}: {path.name} ({', '.join(a for a, v in t['aids'].items() if v) or 'no aids'})",
+                f"[{i}/{len(plan)}] {t['name']}: {path.name} "
+                f"({', '.join(a for a, v in t['aids'].items() if v) or 'no aids'})",
                 file=sys.stderr,
                 flush=True,
             )
