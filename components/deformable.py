@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from chainsim.components.registry import component, prop
+from chainsim.engine import limits
 from chainsim.engine.errors import UserError
 
 ORDERS = ("fifo", "balanced", "schill")
@@ -74,11 +75,19 @@ class Deformable:
     alpha_min: float = prop("float", INHERIT, help="Compression limit override, 0..1 (-1: from the material).")
     alpha_max: float = prop("float", INHERIT, help="Stretch limit override, >= 1 (-1: from the material).")
     beta: float = prop("float", INHERIT, help="Shear limit override, >= 0 (-1: from the material).")
-    relax: int = prop("int", -1, help="Relaxation iterations after each cascade, thesis 5.2.5 (-1: from the material).")
+    relax: int = prop(
+        "int",
+        -1,
+        help="Relaxation iterations after each cascade, thesis 5.2.5 (-1: from the material).",
+        min=-1,
+        max=limits.MAX_RELAX,
+    )
     relax_step: float = prop(
         "float", 1.0, help="Fraction of the way to the relaxed position per iteration.", min=0.0, max=1.0
     )
-    fixed: np.ndarray = prop("int_list", [], help="Element (vertex) ids that never move.")
+    fixed: np.ndarray = prop(
+        "int_list", [], help="Element (vertex) ids that never move.", min=0, max=limits.MAX_VERTICES - 1
+    )
     fixed_box: np.ndarray = prop(
         "float_list",
         [],
@@ -94,7 +103,9 @@ class Deformable:
         choices=ORDERS,
         help="Waiting-list order: fifo (5.2.3), balanced (round robin of Fig. 5.3), schill (largest violation first).",
     )
-    depth: int = prop("int", 2, help="Branch depth per turn for the balanced order.", min=1)
+    depth: int = prop(
+        "int", 2, help="Branch depth per turn for the balanced order.", min=1, max=limits.MAX_BRANCH_DEPTH
+    )
     dtype: str = prop("enum", "float64", choices=("float64", "float32"), help="Precision of positions.")
     drag: bool = prop(
         "bool",
@@ -251,6 +262,16 @@ def build_pull(p: Pull, ctx) -> None:
             f"{where}.path: expected a flat list of x, y, z waypoints (3 numbers each), got {len(pts)} numbers"
         )
     p.waypoints = pts.reshape(-1, 3)
+    if p.element >= 0:  # checked at spawn (so `validate` reports it), not when the pull starts
+        import esper  # noqa: PLC0415  (as in build_deformable: the ECS is only needed at spawn)
+
+        from chainsim.components.core import MeshRef  # noqa: PLC0415  (core imports this module's registry)
+
+        mesh_ref = esper.try_component(ctx.entity, MeshRef)
+        if mesh_ref is not None:
+            n = len(ctx.pack.mesh(mesh_ref.mesh).vertices)
+            if p.element >= n:
+                raise UserError(f"{where}.element: {p.element} is not an element id of the mesh (0..{n - 1})")
 
 
 @component(
@@ -262,8 +283,15 @@ class Pull:
         "float_list",
         units="mm",
         help="Waypoints x0,y0,z0, x1,y1,z1, ...: the element is dragged from its rest position through them.",
+        stride=3,
     )
-    element: int = prop("int", -1, help="Element (vertex) id pulled; -1: the element nearest to `at`.", min=-1)
+    element: int = prop(
+        "int",
+        -1,
+        help="Element (vertex) id pulled; -1: the element nearest to `at`.",
+        min=-1,
+        max=limits.MAX_VERTICES - 1,
+    )
     at: np.ndarray = prop(
         "vec3", (0.0, 0.0, 0.0), units="mm", help="Point near the pulled element when `element` is -1."
     )
