@@ -74,3 +74,15 @@ class PendingInput:
     @property
     def exhausted(self) -> bool:
         return self.cursor >= len(self.items)
+
+
+@dataclass(slots=True)
+class FailedSaves:
+    """Saves the user asked for that did not happen, one message each.
+
+    A procedure that cannot save (a bad records database, a full disk) shows the message in the
+    window and appends it here; a headless run that ends with any ends with exit code 2, after
+    writing its summary, so a save that did not happen is never a silent success.
+    """
+
+    messages: list[str] = field(default_factory=list)

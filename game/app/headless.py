@@ -2,25 +2,35 @@
 
 `build_app` is the one way every front end (headless run, replay, window, snapshot, tests) turns
 `PACK[/SCENE]` into a running App: validate the pack, spawn the scene, install the plugins it needs.
+`start_problems` starts each scene of a pack the same way without stepping, which is how `validate`
+knows that a pack it passes will run. Settings a user gives (records database, class, trainee) are
+checked before anything runs (`check_user_settings`), and a run whose save failed ends with exit 2.
 """
 
 from __future__ import annotations
 
 import json
-import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from chainsim.components.resources import PendingInput, Settings
+from chainsim.components.input_events import PickPoint
+from chainsim.components.resources import FailedSaves, PendingInput, Settings
+from chainsim.engine import limits
 from chainsim.engine.errors import UserError
 from chainsim.game.app import plugins
 from chainsim.game.app.core import App
 from chainsim.game.app.digest import world_digest
 from chainsim.game.app.inputscript import load_script, write_recording
-from chainsim.game.app.loader import PackResource, spawn_scene
+from chainsim.game.app.loader import EntityIndex, PackResource, spawn_scene
+from chainsim.game.app.outputs import check_output_file, prepare_output_dir, write_text_atomic
 from chainsim.game.packs import pack as packs
+from chainsim.game.records import store as records
+from chainsim.game.records.validate import clean_name
+
+#: settings a user (or a recording) may give on top of the pack's own: name -> type
+USER_SETTINGS = {"db": str, "class": str, "trainee": str, "save_records": bool}
 
 
 @dataclass(slots=True)
@@ -43,10 +53,44 @@ class RunInfo:
     screenshot_every: int = 0
 
 
-def build_app(
-    ref: str,
+def check_user_settings(settings: dict | None, where: str = "settings") -> dict:
+    """The user's settings, checked: known keys and types, class/trainee names, a usable database path.
+
+    Nothing is created or written here; a database that does not exist yet must have an existing,
+    writable folder (it is created, with a warning, when the first attempt is saved).
+    """
+    out: dict = {}
+    if settings is None:
+        return out
+    if not isinstance(settings, dict):
+        raise UserError(f"{where}: expected a table of settings, got {type(settings).__name__}")
+    for key, value in settings.items():
+        kind = USER_SETTINGS.get(key)
+        if kind is None:
+            raise UserError(f"{where}: unknown setting {key!r}; known: {', '.join(USER_SETTINGS)}")
+        if not isinstance(value, kind):
+            raise UserError(f"{where}: setting {key!r} must be {kind.__name__}, got {type(value).__name__}")
+        if key in ("class", "trainee"):
+            value = clean_name(key, value)
+        elif key == "db":
+            records.check_target(value)
+        out[key] = value
+    return out
+
+
+def check_dt(dt, where: str = "--dt") -> float:
+    """A fixed step within [MIN_DT, MAX_DT] seconds."""
+    try:
+        return limits.number(dt, limits.MIN_DT, limits.MAX_DT)
+    except limits.LimitError as e:
+        raise UserError(f"{where}: the fixed step in seconds {e}") from None
+
+
+def app_for_pack(
+    pack: packs.Pack,
+    scene: str | None,
     *,
-    pack_paths=(),
+    ref: str | None = None,
     settings: dict | None = None,
     dt: float | None = None,
     render: bool = False,
@@ -55,24 +99,69 @@ def build_app(
     screenshot_every: int = 0,
     size: tuple[int, int] | None = None,
 ) -> App:
-    root, scene = packs.resolve(ref, pack_paths)
-    pack = packs.load(root)
+    """A started App for a validated pack's scene: spawned, plugins installed, not stepped."""
     pack_settings = dict(pack.section("settings"))
-    pack_settings.update(settings or {})
+    pack_settings.update(check_user_settings(settings))
     if size is not None:
         pack_settings["window_size"] = [float(size[0]), float(size[1])]
-    step = dt if dt is not None else float(pack_settings.get("dt", 1.0 / 120.0))
+    step = check_dt(dt) if dt is not None else float(pack_settings.get("dt", 1.0 / 120.0))
     app = App(dt=step, settings=pack_settings, name=pack.name)
     try:
+        app.insert_resource(FailedSaves())
         spawn_scene(app, pack, scene)
         scene_name = app.resource(PackResource).scene
-        app.insert_resource(RunInfo(ref, pack.name, scene_name, headless, render, out_dir, screenshot_every))
+        app.insert_resource(
+            RunInfo(ref or pack.name, pack.name, scene_name, headless, render, out_dir, screenshot_every)
+        )
         app.insert_resource(Assessment())
         plugins.install(app, pack.manifest["pack"].get("procedure", ""), render=render)
     except BaseException:
         app.close()
         raise
     return app
+
+
+def build_app(ref: str, *, pack_paths=(), **kwargs) -> App:
+    """`PACK[/SCENE]` -> a started App (see `app_for_pack` for the keyword arguments)."""
+    root, scene = packs.resolve(ref, pack_paths)
+    return app_for_pack(packs.load(root), scene, ref=ref, **kwargs)
+
+
+def check_events(app: App, events, where: str) -> None:
+    """Events that name things of the scene (picks name an entity) must name what the scene has."""
+    index: EntityIndex = app.resource(EntityIndex)
+    for t, ev in events:
+        if isinstance(ev, PickPoint) and index.get(ev.entity) is None:
+            raise UserError(
+                f"{where}: pick event at t={t:g} names entity '{ev.entity}', which is not in scene "
+                f"'{app.resource(PackResource).scene}' (entities: {', '.join(sorted(index.by_name))})"
+            )
+
+
+def start_problems(pack: packs.Pack) -> list[tuple[str, str]]:
+    """(scene, message) for every scene that `run` would refuse to start, and for its script."""
+    out = []
+    for scene in pack.scene_names() or [None]:
+        name = scene or "main"
+        try:
+            app = app_for_pack(pack, scene)
+        except UserError as e:
+            out.append((name, str(e)))
+            continue
+        try:
+            spec = app.resource(PackResource).scene_spec
+            if spec.get("script"):
+                where = f"scenes.{name}.script"
+                try:
+                    events = load_script(pack.file(spec["script"]))
+                except UserError as e:
+                    raise UserError(f"{where}: {e}") from None
+                check_events(app, events, where)
+        except UserError as e:
+            out.append((name, str(e)))
+        finally:
+            app.close()
+    return out
 
 
 def _progress(done: int, total: int) -> None:
@@ -96,13 +185,16 @@ def run_pack(
     size: tuple[int, int] | None = None,
 ) -> dict[str, Any]:
     """Run a pack headless for `steps` fixed steps; returns (and writes to OUT/summary.json) the summary."""
-    if steps is not None and steps < 0:
-        raise UserError(f"--steps must be >= 0, got {steps}")
-    if out:
+    if steps is not None:
         try:
-            Path(out).mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise UserError(f"--out {out}: cannot create folder ({e.strerror})") from None
+            steps = limits.whole(steps, 0, limits.MAX_STEPS)
+        except limits.LimitError as e:
+            raise UserError(f"--steps {e} (docs/limits.md)") from None
+    # every output is checked before the run, so a long run never ends in an unwritable path
+    if record:
+        check_output_file(record, "--record")
+    if out:
+        prepare_output_dir(out, "--out")
     timed = list(events or [])
     if script:
         timed = load_script(script)
@@ -120,6 +212,7 @@ def run_pack(
         pres: PackResource = app.resource(PackResource)
         if not script and events is None and pres.scene_spec.get("script"):
             timed = load_script(pres.pack.file(pres.scene_spec["script"]))
+        check_events(app, timed, script or "input")
         app.resource(PendingInput).extend(timed)
         n = int(steps if steps is not None else app.resource(Settings).get("steps", 600))
         for i in range(n):
@@ -154,10 +247,14 @@ def run_pack(
                 digest=digest,
                 settings=settings,
             )
+        failed = app.resource(FailedSaves).messages
+        if failed:
+            summary["save_errors"] = list(failed)
         if out:
-            tmp = Path(out) / "summary.json.tmp"
-            tmp.write_text(json.dumps(summary, indent=2, sort_keys=True), encoding="utf-8")
-            os.replace(tmp, Path(out) / "summary.json")
+            write_text_atomic(Path(out) / "summary.json", json.dumps(summary, indent=2, sort_keys=True), "--out")
+        if failed:
+            more = f" (and {len(failed) - 1} more)" if len(failed) > 1 else ""
+            raise UserError(f"the attempt was not saved: {failed[0]}{more}")
         return summary
     finally:
         app.close()
