@@ -184,7 +184,9 @@ class ProcedureState:
     hit_point: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     started_at: float = 0.0
     finished: bool = False
-    saved: list[int] = field(default_factory=list)
+    # ids the records store gave to saved attempts: a side effect outside the simulation, so not part
+    # of the world digest (a replay, which never saves, must reach the recorded digest)
+    saved: list[int] = field(default_factory=list, metadata={"digest": False})
 
     @property
     def step_id(self) -> str:

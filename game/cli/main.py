@@ -17,12 +17,13 @@ import sys
 from chainsim.engine.errors import UserError
 from chainsim.game import __version__
 from chainsim.game.app.logs import setup_logging
+from chainsim.game.cli.argtypes import NEGATIVE_NUMBER
 
 # name -> one-line help; the module is chainsim.game.cli.commands.<name with - as _>
 COMMANDS: dict[str, str] = {
     "bench": "run a benchmark (chainmail, render, ...)",
     "chainmail": "move one element of a mesh with Generalised ChainMail and save the result (.npz)",
-    "docs": "print reference documentation (components: every manifest section and component)",
+    "docs": "print reference documentation (components: every manifest key; limits: every input limit)",
     "new-pack": "create a new asset pack folder from a template",
     "packs": "list the asset packs found and where",
     "play": "open the simulator window on a pack",
@@ -37,6 +38,11 @@ COMMANDS: dict[str, str] = {
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # `--to -1e3 0 0`: a negative number in e-notation is a value, not an option
+        self._negative_number_matcher = NEGATIVE_NUMBER
+
     def error(self, message: str):  # one line, exit 2
         self.exit(2, f"{self.prog}: error: {message}\n")
 

@@ -22,26 +22,37 @@ MODES = ("static", "full", "patch")
 
 
 def add_arguments(p) -> None:
-    from chainsim.game.cli.commands.run import _size
+    from chainsim.engine import limits
+    from chainsim.game.cli import argtypes
 
     p.add_argument(
         "--out", default="runs/bench-render", metavar="DIR", help="output folder (default runs/bench-render)"
     )
-    p.add_argument("--size", type=_size, default=(1280, 800), metavar="WxH", help="frame size (default 1280x800)")
+    p.add_argument(
+        "--size", type=argtypes.size, default=(1280, 800), metavar="WxH", help="frame size (default 1280x800)"
+    )
     p.add_argument(
         "--triangles",
-        type=int,
+        type=argtypes.count(2, limits.MAX_BENCH_ELEMENTS),
         nargs="+",
         default=list(DEFAULT_SIZES),
         metavar="N",
         help="approximate triangle counts (default 10000 100000 1000000)",
     )
     p.add_argument(
-        "--frames", type=int, default=30, help="timed frames per case (fewer above 500k triangles; default 30)"
+        "--frames",
+        type=argtypes.frames,
+        default=30,
+        help="timed frames per case (fewer above 500k triangles; default 30)",
     )
-    p.add_argument("--warmup", type=int, default=3, help="untimed frames first (default 3)")
     p.add_argument(
-        "--patch", type=float, default=0.01, help="fraction of vertices moved in 'patch' mode (default 0.01)"
+        "--warmup", type=argtypes.count(0, limits.MAX_FRAMES), default=3, help="untimed frames first (default 3)"
+    )
+    p.add_argument(
+        "--patch",
+        type=argtypes.real(0.0, 1.0, low_open=True),
+        default=0.01,
+        help="fraction of vertices moved in 'patch' mode (default 0.01)",
     )
 
 

@@ -1,14 +1,18 @@
-"""`chainsim docs components`: the modder reference, generated from the one registry."""
+"""`chainsim docs components|limits`: the modder reference and the limits, generated from the code.
+
+`components` is every manifest section and component, from the one registry; `limits` is every
+limit on user input, from chainsim.engine.limits (the text of docs/limits.md).
+"""
 
 from __future__ import annotations
 
 NAME = "docs"
-HELP = "print reference documentation (components: every manifest section and component)"
+HELP = "print reference documentation (components: every manifest key; limits: every input limit)"
 
 
 def add_parser(sub):
     p = sub.add_parser(NAME, help=HELP)
-    p.add_argument("topic", choices=["components"], help="what to print")
+    p.add_argument("topic", choices=["components", "limits"], help="what to print")
     return p
 
 
@@ -75,5 +79,10 @@ def render_reference() -> str:
 
 
 def run(args) -> int:
+    if args.topic == "limits":
+        from chainsim.engine import limits
+
+        print(limits.markdown(), end="")
+        return 0
     print(render_reference())
     return 0

@@ -5,6 +5,9 @@ from __future__ import annotations
 import os
 import sys
 
+from chainsim.game.cli import argtypes
+from chainsim.game.cli.commands.run import add_records_arguments
+
 NAME = "play"
 HELP = "open the simulator window on a pack"
 
@@ -15,12 +18,14 @@ def add_parser(sub):
     p.add_argument("--record", metavar="FILE", help="save the session for `chainsim replay`")
     p.add_argument("--input", metavar="SCRIPT", help="play an input script in the window (demonstrations, tests)")
     p.add_argument(
-        "--exit-after", type=float, default=None, metavar="SECONDS", help="close after this much simulated time"
+        "--exit-after",
+        type=argtypes.real(0.0, argtypes.limits.MAX_TIME),
+        default=None,
+        metavar="SECONDS",
+        help="close after this much simulated time",
     )
     p.add_argument("--screenshot", metavar="PNG", help="save a screenshot of the window when closing")
-    p.add_argument("--db", metavar="PATH", help="trainee records database")
-    p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempts are saved under")
-    p.add_argument("--trainee", metavar="NAME", help="trainee the attempts are saved under")
+    add_records_arguments(p)
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     return p
 

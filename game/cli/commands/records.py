@@ -11,8 +11,14 @@ import argparse
 import json
 from pathlib import Path
 
+from chainsim.engine import limits
+from chainsim.game.cli import argtypes
+from chainsim.game.records.validate import printable
+
 NAME = "records"
 HELP = "view, export, plot or delete trainee records (classes, trainees, attempts)"
+#: actions that only read (or delete): they never create a database
+READ_ONLY = ("classes", "trainees", "list", "show", "export", "plot", "delete")
 
 _EPILOG = """\
 database: --db PATH, else $CHAINSIM_DB, else the user data folder (records.sqlite3).
@@ -64,12 +70,12 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     a.add_argument("id", type=_positive_id, help="attempt id (from `list`)")
     a.add_argument("--yes", action="store_true", help="really delete; without it only show what would go")
 
-    a = action("add-class", "create a class")
-    a.add_argument("name", help="class name (1-64 characters)")
+    a = action("add-class", "create a class (and the database, if new)")
+    a.add_argument("name", help=f"class name (1-{limits.MAX_NAME_LENGTH} characters)")
 
     a = action("add-trainee", "add a trainee to a class (created if missing)")
     a.add_argument("class_name", metavar="CLASS", help="class name")
-    a.add_argument("name", help="trainee name (1-64 characters)")
+    a.add_argument("name", help=f"trainee name (1-{limits.MAX_NAME_LENGTH} characters)")
 
     a = action("plot", "PNG of one trainee's landmark and needle errors over attempts")
     a.add_argument("--class", dest="class_name", metavar="C", required=True, help="class name")
@@ -78,20 +84,14 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
-def _positive_id(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"attempt id must be a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"attempt id must be >= 1, got {value}")
-    return value
+_positive_id = argtypes.count(1, limits.MAX_ATTEMPT_ID)
 
 
 def _summary(a: dict) -> str:
     needle = "-" if a["needle_error_mm"] is None else f"{a['needle_error_mm']:.2f} mm"
     return (
-        f"attempt {a['id']}: {a['class_name']}/{a['trainee']} {a['pack']} {a['created_at']} "
+        f"attempt {a['id']}: {printable(a['class_name'])}/{printable(a['trainee'])} {printable(a['pack'])} "
+        f"{printable(a['created_at'])} "
         f"landmark {a['landmark_error_mm']:.2f} mm, needle {needle}, target {a['target']}"
     )
 
@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     from chainsim.game.records import report as report
     from chainsim.game.records.store import RecordStore
 
-    with RecordStore(args.db) as store:
+    with RecordStore(args.db, create=args.action not in READ_ONLY) as store:
         act = args.action
         if act == "classes":
             rows = store.class_summary()
@@ -161,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
                 text = (
                     json.dumps(value, sort_keys=True) if isinstance(value, dict) else ("-" if value is None else value)
                 )
-                print(f"{key.ljust(width)}  {text}")
+                print(f"{key.ljust(width)}  {printable(str(text))}")
         elif act == "export":
             rows = store.list_attempts(args.class_name, args.trainee)
             report.export_csv(rows, args.csv)

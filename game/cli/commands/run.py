@@ -4,32 +4,25 @@ from __future__ import annotations
 
 import json
 
+from chainsim.game.cli import argtypes
+
 NAME = "run"
 HELP = "run a pack without a window and write OUT/summary.json"
 
 
-def _size(text: str):
-    import argparse
-
-    try:
-        w, h = (int(x) for x in text.lower().split("x"))
-        if w <= 0 or h <= 0 or w > 16384 or h > 16384:
-            raise ValueError
-        return w, h
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 1280x800, got {text!r}") from None
-
-
-def _nonneg(text: str) -> int:
-    import argparse
-
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
-    return v
+def add_records_arguments(p) -> None:
+    """--db, --class and --trainee, for commands whose procedures save attempts."""
+    p.add_argument("--db", metavar="PATH", help="trainee records database (procedures that save attempts)")
+    p.add_argument(
+        "--class",
+        dest="class_name",
+        type=argtypes.name("class"),
+        metavar="NAME",
+        help="class the attempt is saved under",
+    )
+    p.add_argument(
+        "--trainee", type=argtypes.name("trainee"), metavar="NAME", help="trainee the attempt is saved under"
+    )
 
 
 def user_settings(args) -> dict:
@@ -47,32 +40,28 @@ def add_parser(sub):
     p.add_argument("pack", help="PACK or PACK/SCENE (a pack name or folder)")
     p.add_argument("--headless", action="store_true", help="no window (the only mode of `run`; accepted for clarity)")
     p.add_argument(
-        "--steps", type=_nonneg, default=None, help="fixed simulation steps (default: the pack's settings.steps)"
+        "--steps", type=argtypes.steps, default=None, help="fixed simulation steps (default: the pack's settings.steps)"
     )
     p.add_argument("--input", metavar="SCRIPT", help="input script (.toml or .json), see docs/input-scripts.md")
     p.add_argument("--record", metavar="FILE", help="save the session (events, digest) for `chainsim replay`")
     p.add_argument("--out", metavar="DIR", help="folder for summary.json (and frames)")
-    p.add_argument("--dt", type=float, default=None, help="override the fixed step (seconds)")
+    p.add_argument("--dt", type=argtypes.dt, default=None, help="override the fixed step (seconds)")
     p.add_argument(
-        "--screenshot-every", type=_nonneg, default=0, metavar="K", help="write a PNG every K frames (needs EGL)"
+        "--screenshot-every", type=argtypes.steps, default=0, metavar="K", help="write a PNG every K frames (needs EGL)"
     )
-    p.add_argument("--size", type=_size, default=None, metavar="WxH", help="off-screen frame size for screenshots")
-    p.add_argument("--db", metavar="PATH", help="trainee records database (procedures that save attempts)")
-    p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempt is saved under")
-    p.add_argument("--trainee", metavar="NAME", help="trainee the attempt is saved under")
+    p.add_argument(
+        "--size", type=argtypes.size, default=None, metavar="WxH", help="off-screen frame size for screenshots"
+    )
+    add_records_arguments(p)
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     return p
 
 
 def run(args) -> int:
-    import math
-
     from chainsim.engine.errors import UserError
     from chainsim.game.app.headless import run_pack
 
-    if args.dt is not None and not (math.isfinite(args.dt) and 0 < args.dt < 1):
-        raise UserError(f"--dt must be a number of seconds in (0, 1), got {args.dt}")
     if args.screenshot_every and not args.out:
         raise UserError("--screenshot-every needs --out DIR for the frames")
     summary = run_pack(

@@ -3,22 +3,22 @@
 
 from __future__ import annotations
 
+from chainsim.game.cli import argtypes
+
 NAME = "snapshot"
 HELP = "render a pack's window layout off screen to a PNG"
 
 
 def add_parser(sub):
-    from chainsim.game.cli.commands.run import _nonneg, _size
-
     p = sub.add_parser(NAME, help=HELP)
     p.add_argument("pack", help="PACK or PACK/SCENE")
     p.add_argument("--out", required=True, metavar="PNG", help="image to write")
     p.add_argument(
-        "--size", type=_size, default=None, metavar="WxH", help="image size (default: the pack's window_size)"
+        "--size", type=argtypes.size, default=None, metavar="WxH", help="image size (default: the pack's window_size)"
     )
     p.add_argument(
         "--steps",
-        type=_nonneg,
+        type=argtypes.steps,
         default=1,
         help="simulation steps before the picture (default 1: every system, procedures included, has run once)",
     )

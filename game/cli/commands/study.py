@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import sys
 
+from chainsim.engine import limits
+from chainsim.game.cli import argtypes
+
 NAME = "study"
 HELP = "speed-accuracy study of ChainMail vs FEM and mass-spring; calibrate ChainMail presets"
 
@@ -16,21 +19,34 @@ def add_parser(sub):
     sa.add_argument("--out", required=True, help="output folder")
     sa.add_argument("--scenes", default=None, help="comma-separated subset of block,sheet,cantilever (default: all)")
     sa.add_argument(
-        "--pack-steps", type=int, default=120, help="steps per built-in pack for the frame-cost table (0 skips it)"
+        "--pack-steps",
+        type=argtypes.steps,
+        default=120,
+        help="steps per built-in pack for the frame-cost table (0 skips it)",
     )
     c = s.add_parser("calibrate", help="fit ChainMail alpha_min/alpha_max/beta/relaxation to FEM")
-    c.add_argument("--nu", type=float, default=None, help="Poisson ratio, in (-1, 0.5) (required unless --shipped)")
+    c.add_argument(
+        "--nu",
+        type=argtypes.real(-1.0, 0.5, low_open=True, high_open=True, what="a Poisson ratio"),
+        default=None,
+        help="Poisson ratio, in (-1, 0.5) (required unless --shipped)",
+    )
     c.add_argument(
         "--E",
-        type=float,
+        type=argtypes.real(0.0, 1e15, low_open=True),
         default=None,
         help="Young's modulus [Pa]; sets the strain level a gentle tool traction produces",
     )
-    c.add_argument("--strain", type=float, default=None, help="fit at this strain instead")
+    c.add_argument(
+        "--strain", type=argtypes.real(0.0, 1.0, low_open=True), default=None, help="fit at this strain instead"
+    )
     c.add_argument("--name", required=False, help="preset name (table in the TOML file)")
     c.add_argument("--out", default=None, help="presets TOML file (default assets/presets/materials.toml)")
     c.add_argument(
-        "--block-n", type=int, default=8, help="nodes per edge of the calibration block (default 8: 512 nodes, ~15 s)"
+        "--block-n",
+        type=argtypes.count(5, limits.MAX_STUDY_BLOCK),
+        default=8,
+        help="nodes per edge of the calibration block (default 8: 512 nodes, ~15 s)",
     )
     c.add_argument(
         "--shipped", action="store_true", help="recompute every preset shipped with the project instead of one"
