@@ -14,12 +14,17 @@ whatever class and user name are typed) and ``add_trainee`` creates its class wh
 Safety: the database runs in WAL mode with ``synchronous=FULL`` and every write is a single
 ``BEGIN IMMEDIATE ... COMMIT``, so killing the process mid-save loses at most the attempt being
 saved and never leaves part of one. A file that is not a records database is refused with one
-line before anything is written to it. Schema and migrations: ``chainsim.game.records.schema``.
+line before anything is written to it: another program's SQLite file (any table, view, index or
+trigger that is not ours) is never written into. A database is created only when an attempt, class
+or trainee is saved (``create=True``), only in a folder that exists (the default location's folder
+excepted), and with a warning naming the file, so a mistyped path is noticed; reading never creates
+one. Schema and migrations: ``chainsim.game.records.schema``.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
 import sqlite3
 from collections.abc import Iterator
@@ -27,6 +32,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from chainsim.engine import limits
 from chainsim.engine.errors import UserError
 from chainsim.game.records.schema import MIGRATIONS, OWN_TABLES, SCHEMA_VERSION
 from chainsim.game.records.validate import clean_attempt, clean_name, to_json
@@ -35,6 +41,7 @@ ENV_VAR = "CHAINSIM_DB"
 DB_FILENAME = "records.sqlite3"
 SQLITE_MAGIC = b"SQLite format 3\x00"
 BUSY_TIMEOUT_MS = 5000
+logger = logging.getLogger(__name__)
 
 
 def default_path() -> Path:
@@ -72,7 +79,12 @@ def _check_file(path: Path) -> None:
     try:
         ok = ro.execute("PRAGMA quick_check").fetchone()[0]
         version = ro.execute("PRAGMA user_version").fetchone()[0]
-        tables = {r[0] for r in ro.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        objects = ro.execute("SELECT type, name FROM sqlite_master WHERE name NOT LIKE 'sqlite_%'").fetchall()
+        columns = {
+            name: {r[1] for r in ro.execute(f"PRAGMA table_info({name})")}
+            for kind, name in objects
+            if kind == "table" and name in OWN_TABLES and name.isidentifier()
+        }
     except sqlite3.DatabaseError as exc:
         raise UserError(f"records database {path} is damaged or not a database ({exc})") from None
     finally:
@@ -83,12 +95,40 @@ def _check_file(path: Path) -> None:
         raise UserError(
             f"records database {path} has schema version {version}; this chainsim reads up to {SCHEMA_VERSION}"
         )
-    foreign = tables - OWN_TABLES - {"sqlite_sequence"}
-    if version == 0 and foreign:
+    own = _own_schema()
+    strange = sorted(name for kind, name in objects if (kind, name) not in own["objects"])
+    if strange or any(not cols <= own["columns"][name] for name, cols in columns.items()):
+        what = f"{strange[0]!r}" if strange else "tables with other columns"
         raise UserError(
-            f"{path} is an SQLite database of something else (table {sorted(foreign)[0]!r}); "
-            "expected a chainsim records file"
+            f"{path} is an SQLite database of something else ({what}); expected a chainsim records file "
+            "(another program's database is never written into)"
         )
+    missing = {"classes", "trainees", "attempts"} - {name for kind, name in objects if kind == "table"}
+    if version >= 1 and missing:  # the first migration made these three
+        raise UserError(f"records database {path} lacks table(s) {', '.join(sorted(missing))}; it is damaged")
+
+
+_OWN: dict = {}
+
+
+def _own_schema() -> dict:
+    """Tables, indexes and columns a records database may hold: those the migrations create."""
+    if not _OWN:
+        mem = sqlite3.connect(":memory:")
+        try:
+            for step in MIGRATIONS:
+                for statement in step:
+                    mem.execute(statement)
+            objects = set(mem.execute("SELECT type, name FROM sqlite_master WHERE name NOT LIKE 'sqlite_%'"))
+            _OWN["objects"] = objects
+            _OWN["columns"] = {
+                name: {r[1] for r in mem.execute(f"PRAGMA table_info({name})")}
+                for kind, name in objects
+                if kind == "table"
+            }
+        finally:
+            mem.close()
+    return _OWN
 
 
 def migrate(conn: sqlite3.Connection) -> int:
@@ -124,16 +164,55 @@ _ATTEMPT_SELECT = """
 """
 
 
+def check_target(path: str | os.PathLike[str] | None) -> Path:
+    """Check, without creating or writing anything, that attempts can be saved at ``path``.
+
+    An existing file must be a records database we may write; a new one needs an existing, writable
+    folder (a mistyped folder is an error, not a new database somewhere unexpected).
+    """
+    p = _path(path)
+    _check_file(p)
+    if p.exists():
+        if not os.access(p, os.W_OK):
+            raise UserError(f"records database {p} is read-only; nothing could be saved")
+        folder = p.parent
+    else:
+        folder = p.parent
+        if path is not None and not folder.is_dir():
+            raise UserError(f"records database {p}: folder {folder} does not exist (is the path mistyped?)")
+    if folder.is_dir() and not os.access(folder, os.W_OK | os.X_OK):
+        raise UserError(f"records database {p}: folder {folder} is not writable; nothing could be saved")
+    return p
+
+
+def _path(path: str | os.PathLike[str] | None) -> Path:
+    if path is None:
+        return default_path()
+    text = os.fspath(path)
+    if not text.strip() or "\x00" in text:
+        raise UserError(f"records database path {text!r} is not usable")
+    return Path(text).expanduser()
+
+
 class RecordStore:
     """Classes, trainees and their attempts in one SQLite file (see module docstring)."""
 
-    def __init__(self, path: str | os.PathLike[str] | None = None) -> None:
-        self.path = Path(path).expanduser() if path is not None else default_path()
+    def __init__(self, path: str | os.PathLike[str] | None = None, *, create: bool = True) -> None:
+        self.path = _path(path)
         _check_file(self.path)
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise UserError(f"cannot create folder for records database {self.path}: {exc.strerror}") from None
+        created = not self.path.exists()
+        if created and not create:
+            raise UserError(f"no records database at {self.path} (nothing has been saved there)")
+        if created:
+            if path is None:  # the default location: its folder is ours to make
+                try:
+                    self.path.parent.mkdir(parents=True, exist_ok=True)
+                except OSError as exc:
+                    raise UserError(f"cannot create folder for records database {self.path}: {exc.strerror}") from None
+            elif not self.path.parent.is_dir():
+                raise UserError(
+                    f"records database {self.path}: folder {self.path.parent} does not exist (is the path mistyped?)"
+                )
         try:
             # isolation_level=None: we issue BEGIN/COMMIT ourselves so each save is exactly one
             # transaction and DDL is not auto-committed behind our back.
@@ -154,6 +233,8 @@ class RecordStore:
         except BaseException:
             self._conn.close()
             raise
+        if created:
+            logger.warning("created a new records database at %s", self.path)
 
     # -- plumbing -------------------------------------------------------------------------
 
@@ -353,6 +434,7 @@ class RecordStore:
 
 
 def _attempt_id(value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise UserError(f"attempt id must be a positive whole number, got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= limits.MAX_ATTEMPT_ID:
+        shown = repr(value) if len(repr(value)) < 30 else f"a {len(repr(value))}-digit number"
+        raise UserError(f"attempt id must be a whole number from 1 to {limits.MAX_ATTEMPT_ID}, got {shown}")
     return value

@@ -11,12 +11,14 @@ import json
 import math
 import numbers
 import re
+import unicodedata
 from datetime import UTC, datetime
 from typing import Any
 
+from chainsim.engine import limits
 from chainsim.engine.errors import UserError
 
-NAME_MAX = 64
+NAME_MAX = limits.MAX_NAME_LENGTH
 
 # Aids of 3.3.4 / 6.1.3 whose effect on performance the thesis compares.
 AIDS = ("skin_transparent", "reference_planes", "landmark_planes", "tip_view", "collision_signals")
@@ -38,20 +40,34 @@ REQUIRED = (
 OPTIONAL = ("created_at", "aids", "step_times", "details")
 FIELDS = REQUIRED + OPTIONAL
 
-_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+# Unicode categories a name may not hold: controls (Cc), format characters (Cf: right-to-left and
+# other bidi overrides, zero-width joiners, the BOM), surrogates, private use, unassigned, and line or
+# paragraph separators. They let a name display as something it is not.
+_HIDDEN = frozenset({"Cc", "Cf", "Cs", "Co", "Cn", "Zl", "Zp"})
+
+
+def printable(text: str) -> str:
+    """``text`` with every hidden or control character shown as a \\u escape (for display)."""
+    return "".join(c if unicodedata.category(c) not in _HIDDEN else f"\\u{ord(c):04x}" for c in text)
 
 
 def clean_name(kind: str, value: Any) -> str:
-    """Return ``value`` stripped, or raise if it is not a usable class/trainee/pack name."""
+    """Return ``value`` stripped and NFC-normalised, or raise if it is not a usable class/trainee/pack name."""
     if not isinstance(value, str):
         raise UserError(f"{kind} name must be text, got {type(value).__name__}")
-    name = value.strip()
+    name = unicodedata.normalize("NFC", value.strip())
     if not name:
         raise UserError(f"{kind} name is empty; expected 1-{NAME_MAX} characters")
     if len(name) > NAME_MAX:
-        raise UserError(f"{kind} name {name[:20]!r}... is {len(name)} characters; at most {NAME_MAX} allowed")
-    if _CONTROL.search(name):
-        raise UserError(f"{kind} name {name!r} contains a control character; use printable text")
+        raise UserError(
+            f"{kind} name '{printable(name[:20])}...' is {len(name)} characters; at most {NAME_MAX} allowed"
+        )
+    bad = next((c for c in name if unicodedata.category(c) in _HIDDEN), None)
+    if bad is not None:
+        raise UserError(
+            f"{kind} name '{printable(name)}' contains the invisible or control character "
+            f"U+{ord(bad):04X} ({unicodedata.name(bad, unicodedata.category(bad))}); use printable text"
+        )
     return name
 
 

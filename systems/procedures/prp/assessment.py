@@ -1,7 +1,8 @@
 """Rhizotomy assessment: the 6.1.5 errors, the attempt record and the assessment tool (thesis 3.3.4, Fig. 3.11).
 
 Stage: procedure (ORDER_ASSESSMENT), after the procedure steps. Reads: ProcedureState, NeedleState,
-PrpAnatomy, Widget events (self_assessment, save, help), Settings ("db", "class", "trainee").
+PrpAnatomy, Widget events (self_assessment, save, help), Settings ("db", "class", "trainee",
+"save_records": false in replays and protocol trials, which never save).
 Writes: chainsim.game.app.headless.Assessment.values (the summary's `assessment`), HudState.panel_text and
 messages; saves attempts to the records store.
 
@@ -25,7 +26,7 @@ import numpy as np
 from chainsim.components.input_events import Widget
 from chainsim.components.needle import NeedleState
 from chainsim.components.procedure import ProcedureState, PrpAnatomy, landmark_errors
-from chainsim.components.resources import Settings
+from chainsim.components.resources import FailedSaves, Settings
 from chainsim.game.app.core import ORDER_ASSESSMENT
 
 DEFAULT_CLASS = "default"
@@ -157,7 +158,7 @@ def my_attempts(app, limit: int = 6) -> list[str]:
 
     s = app.resource(Settings)
     cls, who = s.get("class") or DEFAULT_CLASS, s.get("trainee") or DEFAULT_TRAINEE
-    with RecordStore(s.get("db") or None) as store:
+    with RecordStore(s.get("db") or None, create=False) as store:  # looking never creates a database
         rows = store.list_attempts(cls, who)
     lines = [f"Attempts of {who} ({cls}): {len(rows)}"]
     for r in rows[-limit:]:
@@ -185,14 +186,17 @@ class AssessmentSystem:
             if ev.name == "self_assessment":
                 h.panel_text = panel_lines(v)
             elif ev.name == "save":
+                if app.resource(Settings).get("save_records") is False:
+                    h.message("Not saved: a replay or a protocol trial never saves attempts.", 8.0)
+                    continue
                 try:
                     rid = save(app, v)
-                except UserError as e:
+                except (UserError, OSError) as e:  # a full disk or a vanished folder must not end the session
                     h.message(f"Not saved: {e}", 8.0)
                     self.errors.append(str(e))
-                except OSError as e:  # a full disk or a vanished folder must not end the session
-                    h.message(f"Not saved: {e}", 8.0)
-                    self.errors.append(str(e))
+                    failed = app.get_resource(FailedSaves)
+                    if failed is not None:  # a headless run then ends with exit 2
+                        failed.messages.append(str(e))
                 else:
                     ps = esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState)
                     ps.saved.append(rid)
