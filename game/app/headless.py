@@ -83,7 +83,7 @@ def check_dt(dt, where: str = "--dt") -> float:
     try:
         return limits.number(dt, limits.MIN_DT, limits.MAX_DT)
     except limits.LimitError as e:
-        raise UserError(f"{where}: the fixed step in seconds {e}") from None
+        raise UserError(f"{where}: the fixed step in seconds: {e}") from None
 
 
 def app_for_pack(
@@ -189,7 +189,7 @@ def run_pack(
         try:
             steps = limits.whole(steps, 0, limits.MAX_STEPS)
         except limits.LimitError as e:
-            raise UserError(f"--steps {e} (docs/limits.md)") from None
+            raise UserError(f"--steps: {e} (docs/limits.md)") from None
     # every output is checked before the run, so a long run never ends in an unwritable path
     if record:
         check_output_file(record, "--record")

@@ -14,7 +14,7 @@ import logging
 import os
 import sys
 
-from chainsim.engine.errors import UserError
+from chainsim.engine.errors import UserError, printable
 from chainsim.game import __version__
 from chainsim.game.app.logs import setup_logging
 from chainsim.game.cli.argtypes import NEGATIVE_NUMBER
@@ -44,7 +44,7 @@ class _Parser(argparse.ArgumentParser):
         self._negative_number_matcher = NEGATIVE_NUMBER
 
     def error(self, message: str):  # one line, exit 2
-        self.exit(2, f"{self.prog}: error: {message}\n")
+        self.exit(2, f"{self.prog}: error: {printable(message)}\n")
 
 
 def command_module(name: str):
@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         code = args._run(args)
     except UserError as e:
-        print(f"chainsim {args.command}: {e}", file=sys.stderr)
+        print(f"chainsim {args.command}: " + "\n".join(e.lines()), file=sys.stderr)
         return e.exit_code
     except KeyboardInterrupt:
         print(f"chainsim {args.command}: interrupted", file=sys.stderr)

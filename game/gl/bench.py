@@ -15,6 +15,10 @@ bench-render.png into --out (default runs/bench-render); progress goes to stderr
 
 from __future__ import annotations
 
+from chainsim.engine import limits
+from chainsim.game.app.outputs import prepare_output_dir
+from chainsim.game.cli import argtypes
+
 HELP = "off-screen frame time of the renderer for 10k / 100k / 1M triangles"
 
 DEFAULT_SIZES = (10_000, 100_000, 1_000_000)
@@ -22,9 +26,6 @@ MODES = ("static", "full", "patch")
 
 
 def add_arguments(p) -> None:
-    from chainsim.engine import limits
-    from chainsim.game.cli import argtypes
-
     p.add_argument(
         "--out", default="runs/bench-render", metavar="DIR", help="output folder (default runs/bench-render)"
     )
@@ -116,11 +117,7 @@ def run(args) -> int:
         raise UserError(f"--patch must be a fraction in (0, 1], got {args.patch}")
     if any(n < 2 for n in args.triangles):
         raise UserError("--triangles: each count must be >= 2")
-    out = Path(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise UserError(f"--out {out}: cannot create folder ({e.strerror})") from None
+    out = prepare_output_dir(args.out, "--out")
     ctx = egl_context()
     renderer = Renderer(ctx)
     fbo = offscreen_framebuffer(ctx, args.size)

@@ -1,689 +1,55 @@
-"""Asset packs: discovery, manifest parsing and validation, and the loaded `Pack`.
+"""Asset packs: the public face of finding, validating and loading them.
 
 A pack is a folder with `pack.toml`, meshes and docs. Packs are data only: nothing in a pack is
-ever imported or executed. They are found, in this order of precedence:
+ever imported or executed. This module holds `validate` and `load`; the parts live beside it:
 
-    1. folders given with --pack-path DIR (a pack folder, or a folder of pack folders)
-    2. folders in the CHAINSIM_PACK_PATH environment variable (os.pathsep separated)
-    3. packs installed with pip, through the `chainsim.packs` entry-point group (each entry point's
-       value names a package; the pack is that package's folder, found among the distribution's
-       recorded files or on sys.path and read as data: nothing is imported, so no code of an
-       installed package runs)
-    4. the built-in packs in `assets/`
+    discovery   where packs are found (--pack-path, CHAINSIM_PACK_PATH, installed, built-in)
+    model       the loaded Pack, its meshes and files
+    checks      the per-part checks `validate` runs, and the Problem lines it reports
+    schema      the declaration of every manifest section and key
 
-Validation collects every problem at once, each as `file:line: key.path: what is wrong`. It runs one
-small check per part of the manifest (`_check_*` below) and then starts each scene the way `run`
-does, so whatever `run` refuses `validate` reports first. Every value is bounded (docs/limits.md).
+Validation collects every problem at once, each as `file:line: key.path: what is wrong`, then starts
+each scene the way `run` does, so whatever `run` refuses `validate` reports first. Every value is
+bounded (docs/limits.md).
 """
 
 from __future__ import annotations
 
-import difflib
-import os
-import re
-import sys
-import tomllib
-from dataclasses import dataclass, field
-from importlib.metadata import entry_points
 from pathlib import Path
-from typing import Any
 
-from chainsim.assets import ASSETS_DIR
-from chainsim.components.registry import (
-    COMPONENTS,
-    SECTION_STYLE,
-    SECTIONS,
-    FieldError,
-    Schema,
-    convert,
-    default_value,
-    load_all,
+from chainsim.components.registry import load_all
+from chainsim.game.packs import checks
+from chainsim.game.packs.checks import PackError, Problem, Validator
+from chainsim.game.packs.discovery import (
+    BUILTIN_DIR,
+    ENTRY_POINT_GROUP,
+    ENV_PATH,
+    MANIFEST,
+    NAME_RE,
+    Found,
+    discover,
+    resolve,
 )
-from chainsim.engine import limits
-from chainsim.engine.errors import UserError
-from chainsim.engine.meshes import (
-    MeshData,
-    MeshError,
-    check_mesh,
-    check_primitive,
-    load_file,
-    max_mesh_bytes,
-    primitive,
-)
-from chainsim.game.app import datafile
-from chainsim.game.app.plugins import PROCEDURES
-from chainsim.game.packs import schema as ms
-
-BUILTIN_DIR = ASSETS_DIR
-ENV_PATH = "CHAINSIM_PACK_PATH"
-ENTRY_POINT_GROUP = "chainsim.packs"
-NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]*$")
-MANIFEST = "pack.toml"
-_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
-
-
-# -- problems ----------------------------------------------------------------------------------
-
-
-@dataclass(slots=True)
-class Problem:
-    file: str
-    key: str
-    message: str
-    line: int | None = None
-
-    def __str__(self) -> str:
-        loc = f"{self.file}:{self.line}" if self.line else self.file
-        return f"{loc}: {self.key}: {self.message}" if self.key else f"{loc}: {self.message}"
-
-
-class PackError(UserError):
-    """A pack that failed validation; `problems` lists them all."""
-
-    def __init__(self, problems: list[Problem]):
-        self.problems = problems
-        super().__init__("\n".join(str(p) for p in problems))
-
-
-def _line_of(text: str, keypath: str) -> int | None:
-    """Best-effort line number of a dotted key in TOML text (tables, arrays of tables, inline keys)."""
-    parts = keypath.split(".")
-    lines = text.splitlines()
-    header: list[str] = []
-    best = None
-    for i, raw in enumerate(lines, 1):
-        s = raw.strip()
-        if not s or s.startswith("#"):
-            continue
-        m = re.match(r"^\[\[?\s*([^\]]+?)\s*\]\]?", s)
-        if m:
-            header = [p.strip().strip('"') for p in m.group(1).split(".")]
-            if header == parts:
-                return i
-            if header[: len(parts)] == parts and best is None:
-                best = i  # the first sub-table of the section in question
-            continue
-        m = re.match(r'^("?[A-Za-z0-9_\-]+"?)\s*=', s)
-        if m:
-            key = m.group(1).strip('"')
-            full = header + [key]
-            # arrays of tables have a numeric index in keypath: drop indices when comparing
-            kp = [p for p in parts if not p.isdigit()]
-            if full == kp:
-                return i
-            if kp[: len(full)] == full and best is None:
-                best = i  # a nested inline table holds the key
-    return best
-
-
-# -- discovery ---------------------------------------------------------------------------------
-
-
-@dataclass(slots=True)
-class Found:
-    name: str
-    path: Path
-    source: str  # "builtin", "pack-path", "env", "installed"
-
-
-def _scan(folder: Path, source: str) -> list[Found]:
-    out = []
-    try:
-        if (folder / MANIFEST).is_file():
-            return [Found(_pack_name(folder), folder, source)]
-        if folder.is_dir():
-            for sub in sorted(folder.iterdir()):
-                if (sub / MANIFEST).is_file():
-                    out.append(Found(_pack_name(sub), sub, source))
-    except OSError:  # an unreadable folder on a search path holds no packs we can use
-        return out
-    return out
-
-
-def _pack_name(folder: Path) -> str:
-    """[pack] name from the manifest, else the folder's name (a broken manifest is reported by validate)."""
-    try:
-        text = datafile.read_text(folder / MANIFEST, max_bytes=limits.MAX_MANIFEST_BYTES, what="manifest")
-        name = datafile.parse_toml(text, MANIFEST).get("pack", {}).get("name")
-        if isinstance(name, str) and NAME_RE.match(name) and len(name) <= limits.MAX_KEY_LENGTH:
-            return name
-    except (UserError, AttributeError):
-        pass
-    return folder.name
-
-
-def _package_folders(ep) -> list[Path]:
-    """Folders of the package an entry point names, found as files: never imported.
-
-    importlib's find_spec would import every parent of a dotted name (running its __init__.py), so
-    the folder is looked up among the distribution's recorded files, else on sys.path.
-    """
-    module = ep.value.partition(":")[0].strip()
-    parts = module.split(".")
-    if not module or not all(p.isidentifier() for p in parts):
-        return []
-    found: list[Path] = []
-    dist = getattr(ep, "dist", None)
-    for f in (dist.files or []) if dist is not None else []:
-        if f.parts[: len(parts)] == tuple(parts) and f.name == MANIFEST and len(f.parts) == len(parts) + 1:
-            found.append(Path(dist.locate_file(f)).parent)
-    if not found:  # editable installs and distributions without a RECORD
-        for entry in sys.path:
-            folder = Path(entry or ".").joinpath(*parts)
-            if (folder / MANIFEST).is_file():
-                found.append(folder)
-                break
-    return found
-
-
-def _installed() -> list[Found]:
-    out = []
-    for ep in entry_points(group=ENTRY_POINT_GROUP):
-        for folder in _package_folders(ep):
-            out.extend(_scan(folder, "installed"))
-    return out
-
-
-def discover(pack_paths: list[str] | tuple = ()) -> list[Found]:
-    """All packs found, highest precedence first; a later pack with the same name is shadowed."""
-    found: list[Found] = []
-    for p in pack_paths:
-        path = Path(p)
-        if not path.is_dir():
-            raise UserError(f"--pack-path {p}: not a folder")
-        found.extend(_scan(path, "pack-path"))
-    for p in filter(None, os.environ.get(ENV_PATH, "").split(os.pathsep)):
-        found.extend(_scan(Path(p), "env"))
-    found.extend(_installed())
-    found.extend(_scan(BUILTIN_DIR, "builtin"))
-    return found
-
-
-def resolve(ref: str, pack_paths=()) -> tuple[Path, str | None]:
-    """`PACK[/SCENE]` or a folder path -> (pack folder, scene name or None)."""
-    p = Path(ref)
-    if (p / "pack.toml").is_file():
-        return p, None
-    if p.name == "pack.toml" and p.is_file():
-        return p.parent, None
-    name, _, scene = ref.partition("/")
-    if (Path(name) / "pack.toml").is_file() and scene:
-        return Path(name), scene
-    seen = {}
-    for f in discover(pack_paths):
-        seen.setdefault(f.name, f)
-    if name in seen:
-        return seen[name].path, (scene or None)
-    known = ", ".join(sorted(seen)) or "none"
-    raise UserError(f"pack '{name}' not found; known packs: {known} (add folders with --pack-path or {ENV_PATH})")
-
-
-# -- parsing and validation --------------------------------------------------------------------
-
-
-def _inside(root: Path, rel: str) -> Path | None:
-    """The resolved path of `rel` if it stays inside `root` (symlinks followed), else None."""
-    if os.path.isabs(rel):
-        return None
-    target = (root / rel).resolve()
-    try:
-        target.relative_to(root.resolve())
-    except ValueError:
-        return None
-    return target
-
-
-@dataclass
-class Pack:
-    """A validated pack: converted manifest sections and lazily loaded meshes."""
-
-    root: Path
-    manifest: dict[str, Any]
-    texts: dict[str, str] = field(default_factory=dict)
-    _meshes: dict[str, MeshData] = field(default_factory=dict)
-
-    @property
-    def name(self) -> str:
-        return self.manifest["pack"]["name"]
-
-    def section(self, name: str) -> Any:
-        return self.manifest.get(name, {} if SECTION_STYLE[name] != "list" else [])
-
-    def mesh(self, name: str) -> MeshData:
-        if name not in self._meshes:
-            self._meshes[name] = build_mesh(self.root, name, self.manifest["meshes"][name])
-        return self._meshes[name]
-
-    def scene_names(self) -> list[str]:
-        return list(self.section("scenes"))
-
-    def scene(self, name: str | None) -> tuple[str, dict]:
-        scenes = self.section("scenes")
-        if not scenes:
-            return "main", {
-                "entities": [],
-                "layout": next(iter(self.section("layouts")), ""),
-                "description": "",
-                "script": "",
-            }
-        if name is None:
-            name = self.manifest["pack"].get("default_scene") or next(iter(scenes))
-        if name not in scenes:
-            raise UserError(f"pack '{self.name}' has no scene '{name}'; scenes: {', '.join(scenes)}")
-        return name, scenes[name]
-
-    def doc_text(self, name: str) -> str:
-        return _inside(self.root, self.section("docs")[name]["path"]).read_text(encoding="utf-8")
-
-    def file(self, rel: str) -> Path:
-        p = _inside(self.root, rel)
-        if p is None:
-            raise UserError(f"{rel}: path escapes the pack folder {self.root}")
-        return p
-
-
-def build_mesh(root: Path, name: str, spec: dict) -> MeshData:
-    """The mesh of a [meshes] entry in millimetres; MeshError (naming the file or entry) if unusable."""
-    scale = ms.UNIT_SCALE_TO_MM[spec["units"]]
-    if spec["primitive"]:
-        m = primitive(
-            spec["primitive"],
-            extents=spec["extents"],
-            radius=spec["radius"],
-            height=spec["height"],
-            resolution=spec["resolution"],
-        )
-        m.vertices = m.vertices * scale
-        return check_mesh(m, f"meshes.{name}")
-    path = _inside(root, spec["path"])
-    m = load_file(path, scale, spec["merge_vertices"], label=spec["path"])
-    if spec.get("reorder"):
-        from chainsim.engine.reorder import reorder_mesh  # noqa: PLC0415  (locality reordering, optional module)
-
-        m = reorder_mesh(m)
-    return m
-
-
-class _Validator:
-    """Collects problems while the per-section checks below walk one pack."""
-
-    def __init__(self, root: Path):
-        self.root = root
-        self.problems: list[Problem] = []
-        self.texts: dict[str, str] = {}
-        self.origin: dict[str, str] = {}  # "section.name" -> the manifest file that defines it
-
-    def add(self, file: str, key: str, msg: str) -> None:
-        line = _line_of(self.texts.get(file, ""), key) if key else None
-        self.problems.append(Problem(file, key, msg, line))
-
-    def file_of(self, key: str) -> str:
-        return self.origin.get(".".join(key.split(".")[:2]), MANIFEST)
-
-    def has_problem(self, key: str) -> bool:
-        return any(p.key == key or p.key.startswith(key + ".") for p in self.problems)
-
-    def read_toml(self, rel: str) -> dict | None:
-        path = _inside(self.root, rel)
-        if path is None:
-            self.add(MANIFEST, "pack.includes", f"'{rel}' escapes the pack folder")
-            return None
-        try:
-            text = datafile.read_text(path, max_bytes=limits.MAX_MANIFEST_BYTES, what="manifest file")
-        except datafile.DataError as e:
-            self.problems.append(Problem(rel, "", e.detail, e.line))
-            return None
-        self.texts[rel] = text
-        try:
-            return datafile.parse_toml(text, rel)
-        except datafile.DataError as e:
-            line = e.line or (_line_of(text, e.key) if e.key else None)
-            self.problems.append(Problem(rel, e.key, e.detail, line))
-            return None
-
-    def table(self, file: str, key: str, raw: Any, schema: Schema) -> dict | None:
-        """Check one table against a schema; returns converted values with defaults filled in."""
-        if not isinstance(raw, dict):
-            self.add(file, key, f"expected a table, got {type(raw).__name__}")
-            return None
-        out: dict[str, Any] = {}
-        names = [f.name for f in schema.fields]
-        for k, v in raw.items():
-            f = schema.field(k)
-            if f is None:
-                if schema.open_keys:
-                    out[k] = v
-                    continue
-                hint = difflib.get_close_matches(k, names, n=1)
-                extra = f" (did you mean '{hint[0]}'?)" if hint else f"; known keys: {', '.join(names)}"
-                self.add(file, f"{key}.{k}", f"unknown key{extra}")
-                continue
-            try:
-                out[k] = convert(f, v)
-            except FieldError as e:
-                self.add(file, f"{key}.{k}", str(e))
-                continue
-            if f.kind == "table_list" and f.item is not None:
-                out[k] = [self.table(file, f"{key}.{k}.{i}", item, f.item) or {} for i, item in enumerate(v)]
-        for f in schema.fields:
-            if f.name not in raw:
-                if f.required:
-                    self.add(file, key, f"missing required key '{f.name}' ({f.help})")
-                else:
-                    out[f.name] = default_value(f)
-        return out
-
-    def path(self, file: str, key: str, rel: str) -> Path | None:
-        """The file a pack path names, if it stays inside the pack and is a readable file."""
-        p = _inside(self.root, rel)
-        if p is None:
-            self.add(file, key, f"'{rel}' escapes the pack folder (paths must stay inside {self.root.name}/)")
-            return None
-        if not p.exists():
-            self.add(file, key, f"file '{rel}' not found")
-            return None
-        if not p.is_file() or not os.access(p, os.R_OK):
-            self.add(file, key, f"'{rel}' is not a readable file")
-            return None
-        return p
-
-
-def _merge(into: dict, other: dict, v: _Validator, file: str) -> None:
-    for sec, val in other.items():
-        if sec == "pack":
-            v.add(file, "pack", "an included file cannot redefine [pack]")
-            continue
-        if sec in into and isinstance(into[sec], dict) and isinstance(val, dict):
-            for k, item in val.items():
-                if k in into[sec]:
-                    v.add(file, f"{sec}.{k}", "already defined in another manifest file")
-                else:
-                    into[sec][k] = item
-        elif sec in into and isinstance(into[sec], list) and isinstance(val, list):
-            into[sec].extend(val)
-        elif sec in into:
-            v.add(file, sec, "conflicts with the same section elsewhere")
-        else:
-            into[sec] = val
-
-
-# -- the checks, one per part of the manifest -------------------------------------------------------
-#
-# `validate` runs them in order; each adds Problems and returns what later checks need. The last,
-# `_check_start`, starts every scene the way `run` does (without stepping), so whatever `run` would
-# refuse at start `validate` has already reported.
-
-
-def _read_manifest(v: _Validator) -> dict | None:
-    """pack.toml with its includes merged in; records which file defines each named table."""
-    raw = v.read_toml(MANIFEST)
-    if raw is None:
-        return None
-    if "pack" not in raw:
-        v.add(MANIFEST, "", "missing the [pack] table (name and format)")
-    incs = raw.get("pack", {}).get("includes", []) if isinstance(raw.get("pack"), dict) else []
-    if isinstance(incs, list):
-        for inc in incs:
-            if isinstance(inc, str) and not _CONTROL.search(inc):
-                sub = v.read_toml(inc)
-                if sub is not None:
-                    _merge(raw, sub, v, inc)
-    for rel, text in v.texts.items():
-        for sec in SECTION_STYLE:
-            for m in re.finditer(rf"^\[{sec}\.([A-Za-z0-9_\-]+)", text, re.M):
-                v.origin.setdefault(f"{sec}.{m.group(1)}", rel)
-    return raw
-
-
-def _check_name(v: _Validator, key: str, name: str) -> bool:
-    """A table name (mesh, material, entity, scene ...) within the length limit, without control characters."""
-    if len(name) > limits.MAX_KEY_LENGTH:
-        v.add(v.file_of(key), key, f"a name of {len(name)} characters is over the {limits.MAX_KEY_LENGTH} limit")
-        return False
-    if _CONTROL.search(name):
-        v.add(v.file_of(key), key, f"name {name[:40]!r} contains a control character")
-        return False
-    return True
-
-
-def _check_sections(v: _Validator, raw: dict) -> dict[str, Any]:
-    """Every section against its schema; returns the converted manifest (entities not yet)."""
-    man: dict[str, Any] = {}
-    known = list(SECTIONS) + ["entities"]
-    for sec, val in raw.items():
-        if sec == "entities":
-            continue
-        if sec not in SECTIONS:
-            hint = difflib.get_close_matches(sec, known, n=1)
-            v.add(
-                MANIFEST,
-                sec,
-                "unknown section" + (f" (did you mean '{hint[0]}'?)" if hint else f"; sections: {', '.join(known)}"),
-            )
-            continue
-        style, schema = SECTION_STYLE[sec], SECTIONS[sec]
-        if style == "table":
-            man[sec] = v.table(MANIFEST, sec, val, schema) or {}
-        elif style == "named":
-            if not isinstance(val, dict):
-                v.add(MANIFEST, sec, f"expected named tables [{sec}.NAME]")
-                continue
-            man[sec] = {}
-            for name, item in val.items():
-                key = f"{sec}.{name}"
-                if not _check_name(v, key, name):
-                    continue
-                conv = v.table(v.file_of(key), key, item, schema)
-                if conv is not None:
-                    if sec == "materials" and conv.get("preset"):
-                        _apply_preset(v, v.file_of(key), key, conv, item)
-                    man[sec][name] = conv
-        else:
-            if not isinstance(val, list):
-                v.add(MANIFEST, sec, f"expected an array of tables [[{sec}]]")
-                continue
-            man[sec] = [v.table(MANIFEST, f"{sec}.{i}", item, schema) or {} for i, item in enumerate(val)]
-    for sec, style in SECTION_STYLE.items():
-        if sec not in man and sec != "pack":
-            man[sec] = (
-                v.table(MANIFEST, sec, {}, SECTIONS[sec]) if style == "table" else ([] if style == "list" else {})
-            )
-    return man
-
-
-def _check_pack_table(v: _Validator, man: dict) -> None:
-    """[pack]: name, format version, attribution file, procedure."""
-    pk = man.get("pack") or {}
-    if not pk:
-        return
-    if "name" in pk and not NAME_RE.match(pk["name"]):
-        v.add(
-            MANIFEST,
-            "pack.name",
-            f"'{pk['name'][:60]}' is not a valid pack name (letters, digits, - and _; no spaces or slashes)",
-        )
-    elif "name" in pk and len(pk["name"]) > limits.MAX_KEY_LENGTH:
-        v.add(
-            MANIFEST, "pack.name", f"a name of {len(pk['name'])} characters is over the {limits.MAX_KEY_LENGTH} limit"
-        )
-    if "format" in pk and pk["format"] != ms.FORMAT_VERSION:
-        v.add(
-            MANIFEST,
-            "pack.format",
-            f"format {pk['format']} is not supported; this chainsim reads format {ms.FORMAT_VERSION}",
-        )
-    if pk.get("attribution"):
-        v.path(MANIFEST, "pack.attribution", pk["attribution"])
-    if pk.get("procedure") and pk["procedure"] not in PROCEDURES:
-        v.add(
-            MANIFEST,
-            "pack.procedure",
-            f"unknown procedure '{pk['procedure']}'; built-in procedures: {', '.join(sorted(PROCEDURES))}",
-        )
-
-
-def _check_meshes(v: _Validator, man: dict, load_meshes: bool) -> None:
-    """[meshes]: one of path or primitive, size and declared counts within the limits, and (optionally) loaded."""
-    for name, spec in man.get("meshes", {}).items():
-        key = f"meshes.{name}"
-        file = v.file_of(key)
-        if v.has_problem(key):
-            continue  # its table is already wrong; checking the file would only repeat that
-        has_path, has_prim = bool(spec.get("path")), bool(spec.get("primitive"))
-        if has_path == has_prim:
-            v.add(file, key, "give exactly one of 'path' or 'primitive'")
-            continue
-        if has_prim:
-            try:
-                check_primitive(spec["primitive"], spec["resolution"], key)
-            except MeshError as e:
-                v.add(file, f"{key}.resolution", str(e).removeprefix(f"{key}: "))
-                continue
-        else:
-            p = v.path(file, f"{key}.path", spec["path"])
-            if p is None:
-                continue
-            limit = max_mesh_bytes()
-            if p.stat().st_size > limit:
-                v.add(
-                    file,
-                    f"{key}.path",
-                    f"{spec['path']} is {p.stat().st_size / 1048576:.2f} MB, over the {limit / 1048576:.3g} MB "
-                    "mesh limit (CHAINSIM_MAX_MESH_MB)",
-                )
-                continue
-        if load_meshes:
-            try:
-                build_mesh(v.root, name, spec)
-            except MeshError as e:
-                v.add(file, f"{key}.path" if has_path else key, str(e))
-
-
-def _check_files(v: _Validator, man: dict) -> None:
-    """[docs] pages and scene scripts: files inside the pack."""
-    for name, spec in man.get("docs", {}).items():
-        if "path" in spec:
-            v.path(v.file_of(f"docs.{name}"), f"docs.{name}.path", spec["path"])
-    for name, spec in man.get("scenes", {}).items():
-        if spec.get("script"):
-            v.path(MANIFEST, f"scenes.{name}.script", spec["script"])
-
-
-def _check_entities(v: _Validator, raw: dict, man: dict) -> dict[str, dict[str, Any]]:
-    """[entities.NAME.COMPONENT]: known components, each table against its schema, mesh/material names."""
-    ents_raw = raw.get("entities", {})
-    entities: dict[str, dict[str, Any]] = {}
-    if not isinstance(ents_raw, dict):
-        v.add(MANIFEST, "entities", "expected named tables [entities.NAME]")
-        return entities
-    for ename, comps in ents_raw.items():
-        key = f"entities.{ename}"
-        if not _check_name(v, key, ename):
-            continue
-        if not isinstance(comps, dict):
-            v.add(MANIFEST, key, "expected a table of components")
-            continue
-        file = v.file_of(key)
-        entities[ename] = {}
-        for cname, ctable in comps.items():
-            schema = COMPONENTS.get(cname)
-            if schema is None:
-                hint = difflib.get_close_matches(cname, list(COMPONENTS), n=1)
-                v.add(
-                    file,
-                    f"{key}.{cname}",
-                    "unknown component"
-                    + (f" (did you mean '{hint[0]}'?)" if hint else f"; components: {', '.join(sorted(COMPONENTS))}"),
-                )
-                continue
-            conv = v.table(file, f"{key}.{cname}", ctable, schema)
-            if conv is None:
-                continue
-            entities[ename][cname] = conv
-            for f in schema.fields:
-                ref = conv.get(f.name)
-                if f.kind == "mesh" and ref and ref not in man.get("meshes", {}):
-                    v.add(file, f"{key}.{cname}.{f.name}", f"no mesh named '{ref}' in [meshes]")
-                if f.kind == "material" and ref and ref not in man.get("materials", {}):
-                    v.add(file, f"{key}.{cname}.{f.name}", f"no material named '{ref}' in [materials]")
-    for ename, comps in entities.items():
-        for cname, conv in comps.items():
-            for f in COMPONENTS[cname].fields:
-                if f.kind == "entity" and conv.get(f.name) and conv[f.name] not in entities:
-                    v.add(MANIFEST, f"entities.{ename}.{cname}.{f.name}", f"no entity named '{conv[f.name]}'")
-    return entities
-
-
-def _check_scenes(v: _Validator, man: dict) -> None:
-    """[scenes]: entities and layout exist."""
-    for sname, sc in man.get("scenes", {}).items():
-        for e in sc.get("entities", []):
-            if e not in man["entities"]:
-                v.add(MANIFEST, f"scenes.{sname}.entities", f"no entity named '{e}'")
-        if sc.get("layout") and sc["layout"] not in man.get("layouts", {}):
-            v.add(MANIFEST, f"scenes.{sname}.layout", f"no layout named '{sc['layout']}'")
-
-
-def _check_layouts(v: _Validator, man: dict) -> None:
-    """[layouts]: unique viewport names, attached viewports on entities, clip planes, widget panels."""
-    for lname, lay in man.get("layouts", {}).items():
-        key = f"layouts.{lname}"
-        vps = lay.get("viewports", [])
-        names = [vp.get("name") for vp in vps]
-        for i, vp in enumerate(vps):
-            if names.count(vp.get("name")) > 1:
-                v.add(MANIFEST, f"{key}.viewports.{i}.name", f"duplicate viewport name '{vp.get('name')}'")
-            if vp.get("kind") == "attached" and not vp.get("attach"):
-                v.add(MANIFEST, f"{key}.viewports.{i}", "an attached viewport needs 'attach' (an entity name)")
-            if vp.get("attach") and vp["attach"] not in man["entities"]:
-                v.add(MANIFEST, f"{key}.viewports.{i}.attach", f"no entity named '{vp['attach']}'")
-            if "far" in vp and "near" in vp and vp["far"] <= vp["near"]:
-                v.add(MANIFEST, f"{key}.viewports.{i}.far", "must be greater than 'near'")
-        panels = [vp.get("name") for vp in vps if vp.get("kind") == "panel"]
-        for i, w in enumerate(lay.get("widgets", [])):
-            if w.get("viewport") and w["viewport"] not in panels:
-                v.add(
-                    MANIFEST,
-                    f"{key}.widgets.{i}.viewport",
-                    f"'{w['viewport']}' is not a panel viewport of this layout (panels: {', '.join(panels) or 'none'})",
-                )
-            if lay.get("widgets") and not panels:
-                v.add(MANIFEST, f"{key}.widgets", "widgets need a viewport of kind 'panel'")
-                break
-            if w.get("min", 0.0) > w.get("max", 1.0):
-                v.add(MANIFEST, f"{key}.widgets.{i}.max", "must be >= 'min'")
-
-
-def _check_steps(v: _Validator, man: dict) -> None:
-    """[[steps]]: docs pages exist, ids unique."""
-    for i, st in enumerate(man.get("steps", [])):
-        if st.get("docs") and st["docs"] not in man.get("docs", {}):
-            v.add(MANIFEST, f"steps.{i}.docs", f"no docs page named '{st['docs']}'")
-    ids = [st.get("id") for st in man.get("steps", [])]
-    for i, sid in enumerate(ids):
-        if sid is not None and ids.count(sid) > 1:
-            v.add(MANIFEST, f"steps.{i}.id", f"duplicate step id '{sid}'")
-            break
-
-
-_KEY_PREFIX = re.compile(
-    r"^((?:entities|meshes|materials|scenes|layouts|settings|pack|points|planes|foramina|paths)"
-    r"(?:\.[A-Za-z0-9_\-]+)+): (.*)$",
-    re.S,
-)
-
-
-def _check_start(v: _Validator, pack: Pack) -> None:
-    """Start every scene as `run` does (spawn, plugins, its script), without stepping."""
-    # game.app builds on this module; a pack is started here only to check it
-    from chainsim.game.app.headless import start_problems  # noqa: PLC0415
-
-    for scene, message in start_problems(pack):
-        m = _KEY_PREFIX.match(message)
-        if m:
-            v.add(v.file_of(m.group(1)), m.group(1), m.group(2))
-        else:
-            v.add(MANIFEST, f"scenes.{scene}" if scene in pack.section("scenes") else "", message)
+from chainsim.game.packs.model import PRESET_FILE, Pack, build_mesh, material_presets
+
+__all__ = [
+    "BUILTIN_DIR",
+    "ENTRY_POINT_GROUP",
+    "ENV_PATH",
+    "MANIFEST",
+    "NAME_RE",
+    "PRESET_FILE",
+    "Found",
+    "Pack",
+    "PackError",
+    "Problem",
+    "build_mesh",
+    "discover",
+    "load",
+    "material_presets",
+    "resolve",
+    "validate",
+]
 
 
 def validate(root: Path, *, load_meshes: bool = True, start: bool | None = None) -> tuple[Pack | None, list[Problem]]:
@@ -696,57 +62,34 @@ def validate(root: Path, *, load_meshes: bool = True, start: bool | None = None)
     root = Path(root)
     if not root.is_dir():
         return None, [Problem(str(root), "", "not a folder")]
-    v = _Validator(root)
-    raw = _read_manifest(v)
+    v = Validator(root)
+    raw = checks.read_manifest(v)
     if raw is None:
         return None, v.problems
-    man = _check_sections(v, raw)
-    _check_pack_table(v, man)
-    _check_meshes(v, man, load_meshes)
-    _check_files(v, man)
-    man["entities"] = _check_entities(v, raw, man)
-    _check_scenes(v, man)
-    _check_layouts(v, man)
-    _check_steps(v, man)
+    man = checks.check_sections(v, raw)
+    checks.check_pack_table(v, man)
+    meshes = checks.check_meshes(v, man, load_meshes)
+    checks.check_files(v, man)
+    man["entities"] = checks.check_entities(v, raw, man)
+    checks.check_scenes(v, man)
+    checks.check_layouts(v, man)
+    checks.check_steps(v, man)
     if v.problems:
         return None, v.problems
-    pack = Pack(root=root, manifest=man, texts=v.texts)
+    pack = Pack(root=root, manifest=man, texts=v.texts, _meshes=meshes)
     if load_meshes if start is None else start:
-        _check_start(v, pack)
+        checks.check_start(v, pack)
         if v.problems:
             return None, v.problems
     return pack, []
 
 
-PRESET_FILE = BUILTIN_DIR / "presets" / "materials.toml"
-PRESET_KEYS = {"alpha_min": "alpha_min", "alpha_max": "alpha_max", "beta": "beta", "relax": "relax_iterations"}
-
-
-def material_presets() -> dict[str, dict]:
-    """Named ChainMail materials calibrated against FEM (`chainsim study calibrate` writes them)."""
-    try:
-        return tomllib.loads(PRESET_FILE.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        return {}
-
-
-def _apply_preset(v: _Validator, file: str, key: str, conv: dict, raw: dict) -> None:
-    """Fill the ChainMail keys the material does not set itself from its named preset."""
-    presets = material_presets()
-    preset = presets.get(conv["preset"])
-    if preset is None:
-        v.add(
-            file, f"{key}.preset", f"unknown preset '{conv['preset']}'; presets: {', '.join(sorted(presets)) or 'none'}"
-        )
-        return
-    for mkey, pkey in PRESET_KEYS.items():
-        if mkey not in raw and pkey in preset:
-            conv[mkey] = int(preset[pkey]) if mkey == "relax" else float(preset[pkey])
-
-
 def load(root: Path) -> Pack:
-    """Validate and return the pack, or raise PackError listing every problem."""
-    pack, problems = validate(root, load_meshes=False, start=False)
+    """Validate (meshes loaded, as `validate` does) and return the pack, or raise PackError listing every problem.
+
+    The scenes are not started here: the caller starts the one it runs.
+    """
+    pack, problems = validate(root, start=False)
     if problems:
         raise PackError(problems)
     return pack

@@ -86,6 +86,9 @@ def _check_file(path: Path) -> None:
             if kind == "table" and name in OWN_TABLES and name.isidentifier()
         }
     except sqlite3.DatabaseError as exc:
+        if not (os.access(path, os.W_OK) and os.access(path.parent, os.W_OK | os.X_OK)):
+            # a WAL database cannot be read without writing its shared-memory file beside it
+            raise UserError(f"records database {path} is read-only for this user ({exc})") from None
         raise UserError(f"records database {path} is damaged or not a database ({exc})") from None
     finally:
         ro.close()
@@ -171,17 +174,14 @@ def check_target(path: str | os.PathLike[str] | None) -> Path:
     folder (a mistyped folder is an error, not a new database somewhere unexpected).
     """
     p = _path(path)
-    _check_file(p)
-    if p.exists():
-        if not os.access(p, os.W_OK):
-            raise UserError(f"records database {p} is read-only; nothing could be saved")
-        folder = p.parent
-    else:
-        folder = p.parent
-        if path is not None and not folder.is_dir():
-            raise UserError(f"records database {p}: folder {folder} does not exist (is the path mistyped?)")
+    folder = p.parent
+    if p.is_file() and not os.access(p, os.W_OK):
+        raise UserError(f"records database {p} is read-only; nothing could be saved")
+    if not p.exists() and path is not None and not folder.is_dir():
+        raise UserError(f"records database {p}: folder {folder} does not exist (is the path mistyped?)")
     if folder.is_dir() and not os.access(folder, os.W_OK | os.X_OK):
         raise UserError(f"records database {p}: folder {folder} is not writable; nothing could be saved")
+    _check_file(p)
     return p
 
 

@@ -16,7 +16,7 @@ from datetime import UTC, datetime
 from typing import Any
 
 from chainsim.engine import limits
-from chainsim.engine.errors import UserError
+from chainsim.engine.errors import HIDDEN_CATEGORIES, UserError, printable
 
 NAME_MAX = limits.MAX_NAME_LENGTH
 
@@ -40,15 +40,12 @@ REQUIRED = (
 OPTIONAL = ("created_at", "aids", "step_times", "details")
 FIELDS = REQUIRED + OPTIONAL
 
-# Unicode categories a name may not hold: controls (Cc), format characters (Cf: right-to-left and
-# other bidi overrides, zero-width joiners, the BOM), surrogates, private use, unassigned, and line or
-# paragraph separators. They let a name display as something it is not.
-_HIDDEN = frozenset({"Cc", "Cf", "Cs", "Co", "Cn", "Zl", "Zp"})
-
-
-def printable(text: str) -> str:
-    """``text`` with every hidden or control character shown as a \\u escape (for display)."""
-    return "".join(c if unicodedata.category(c) not in _HIDDEN else f"\\u{ord(c):04x}" for c in text)
+# Unicode categories a name may not hold (chainsim.engine.errors.HIDDEN_CATEGORIES): controls,
+# format characters (right-to-left and other bidi overrides, zero-width joiners, the BOM),
+# surrogates, private use, unassigned, line and paragraph separators. They let a name display as
+# something it is not. `printable` (re-exported here) shows them escaped.
+_HIDDEN = HIDDEN_CATEGORIES
+__all__ = ["printable"]
 
 
 def clean_name(kind: str, value: Any) -> str:

@@ -286,5 +286,15 @@ def markdown() -> str:
         f"- `{MESH_ENV}`: mesh size limit in megabytes, a number in (0, {MAX_MESH_MB:g}]; anything else",
         "  (text, `nan`, `inf`, zero or negative) is refused with one line.",
         "",
+        "## How the limits are tested",
+        "",
+        "`tests/hardening/` throws bad input at every entry point (broken packs, hostile mesh files, bad",
+        "flags, malformed scripts and recordings, damaged and foreign databases, unwritable output paths)",
+        "and checks for one line, exit 2, no traceback, nothing written; for packs, that `validate` fails",
+        "exactly when `run` does. `tests/hardening/test_fuzz.py` fuzzes the pack loader and the mesh",
+        "importers with hypothesis for a bounded time in CI; before a release, run it longer:",
+        "",
+        "    CHAINSIM_FUZZ_EXAMPLES=5000 python -m pytest -q tests/hardening/test_fuzz.py",
+        "",
     ]
     return "\n".join(out)

@@ -114,8 +114,13 @@ class _Blocks:
         if len(raw) < 3 * self.size:
             raise MeshCheckError("a compressed data array has a truncated header")
         nblocks, bsize, last = struct.unpack_from(f"{self.order}3{self.fmt}", raw)
-        if min(nblocks, bsize, last) < 0 or nblocks > limits.MAX_CELLS or bsize > self.max_bytes:
+        if min(nblocks, bsize, last) < 0 or nblocks > limits.MAX_CELLS:
             raise MeshCheckError(f"a compressed data array declares {nblocks:,} blocks of {bsize:,} bytes")
+        if bsize > self.max_bytes:
+            raise MeshCheckError(
+                f"a compressed data array declares blocks of {_mb(bsize)}, over the {_mb(self.max_bytes)} "
+                "mesh limit (CHAINSIM_MAX_MESH_MB)"
+            )
         hlen = (3 + nblocks) * self.size
         if len(raw) < hlen:
             raise MeshCheckError("a compressed data array has a truncated header")

@@ -10,6 +10,9 @@ brings an inf or a NaN into the world and a primitive's resolution can never ask
 
 from __future__ import annotations
 
+import contextlib
+import io
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -100,6 +103,19 @@ def load_file(path: Path, scale_to_mm: float = 1.0, merge_vertices: bool = True,
     return _check(mesh, where)
 
 
+@contextlib.contextmanager
+def _quiet():
+    """Parsers warn (numpy casts of garbage) and print (meshio); a bad file gets our one line instead."""
+    with (
+        warnings.catch_warnings(),
+        np.errstate(all="ignore"),
+        contextlib.redirect_stdout(io.StringIO()),
+        contextlib.redirect_stderr(io.StringIO()),
+    ):
+        warnings.simplefilter("ignore")
+        yield
+
+
 def _why(e: BaseException) -> str:
     text = str(e).splitlines()[0] if str(e).strip() else "parse error"
     return f"{type(e).__name__}: {text[:200]}"
@@ -110,7 +126,8 @@ def _load_surface(path: Path, merge_vertices: bool, where: str, scale: float) ->
 
     try:
         # unprocessed first: processing silently drops NaN/inf vertices, which must be refused instead
-        loaded = trimesh.load(str(path), force="mesh", process=False)
+        with _quiet():
+            loaded = trimesh.load(str(path), force="mesh", process=False)
     except Exception as e:  # trimesh raises many types for bad files
         raise MeshError(f"{where}: not a readable mesh ({_why(e)})") from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.vertices) == 0:
@@ -118,7 +135,8 @@ def _load_surface(path: Path, merge_vertices: bool, where: str, scale: float) ->
     _check_vertices(np.asarray(loaded.vertices, dtype=np.float64) * scale, where)
     if merge_vertices:
         try:
-            loaded.process()
+            with _quiet():
+                loaded.process()
         except Exception as e:
             raise MeshError(f"{where}: not a usable mesh ({_why(e)})") from None
     verts = np.asarray(loaded.vertices, dtype=np.float64) * scale
@@ -129,7 +147,8 @@ def _load_volume(path: Path, where: str, scale: float) -> MeshData:
     import meshio  # noqa: PLC0415  (heavy; only volume files need it)
 
     try:
-        m = meshio.read(str(path))
+        with _quiet():
+            m = meshio.read(str(path))
     except (Exception, SystemExit) as e:  # meshio calls sys.exit on some unreadable .msh files
         raise MeshError(f"{where}: not a readable volume mesh ({_why(e)})") from None
     tets = [c.data for c in m.cells if c.type == "tetra"]

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from chainsim.engine.errors import UserError
+from chainsim.game.app.outputs import prepare_output_dir
 
 # Tables 6.2-6.4 (frames/second): size -> (Gibson hi, lo, SurfaceChainMail hi, lo, Generalised hi, lo)
 THESIS = {
@@ -461,11 +462,7 @@ def run_suite(args) -> int:
         raise UserError(f"--parts: unknown part(s) {', '.join(sorted(unknown))}; expected thesis, worst, scaling")
     if args.repeat < 0:
         raise UserError(f"--repeat: must be >= 0, got {args.repeat}")
-    out = Path(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise UserError(f"--out {out}: cannot create folder ({e.strerror})") from None
+    out = prepare_output_dir(args.out, "--out")
     max_el = args.max_elements or (1e5 if args.quick else 1e6)
     load = ", load average %.1f at start" % os.getloadavg()[0] if hasattr(os, "getloadavg") else ""
     results = {

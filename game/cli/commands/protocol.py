@@ -131,13 +131,13 @@ def load_protocol(path: str | Path) -> dict:
         try:
             repeat = limits.whole(t.get("repeat", 1), 1, limits.MAX_REPEAT)
         except limits.LimitError as e:
-            raise _err(w, f"'repeat' {e} (docs/limits.md)") from None
+            raise _err(w, f"'repeat': {e} (docs/limits.md)") from None
         steps = t.get("steps")
         if steps is not None:
             try:
                 steps = limits.whole(steps, 1, limits.MAX_STEPS)
             except limits.LimitError as e:
-                raise _err(w, f"'steps' {e} (docs/limits.md)") from None
+                raise _err(w, f"'steps': {e} (docs/limits.md)") from None
         aids = t.get("aids", {})
         if not isinstance(aids, dict):
             raise _err(w, "'aids' must be a table of true/false")

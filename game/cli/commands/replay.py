@@ -38,11 +38,11 @@ def check_recording(data, where: str) -> dict:
     try:
         steps = limits.whole(data.get("steps"), 0, limits.MAX_STEPS)
     except limits.LimitError as e:
-        raise UserError(f"{where}: field 'steps' {e} (docs/limits.md)") from None
+        raise UserError(f"{where}: field 'steps': {e} (docs/limits.md)") from None
     try:
         dt = limits.number(data.get("dt"), limits.MIN_DT, limits.MAX_DT)
     except limits.LimitError as e:
-        raise UserError(f"{where}: field 'dt' (the fixed step in seconds) {e}") from None
+        raise UserError(f"{where}: field 'dt' (the fixed step in seconds): {e}") from None
     settings = data.get("settings") or {}
     if not isinstance(settings, dict):
         raise UserError(f"{where}: field 'settings' must be a table")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 
 from chainsim.engine import limits
+from chainsim.game.app.outputs import prepare_output_dir
 from chainsim.game.cli import argtypes
 
 NAME = "study"
@@ -71,14 +72,7 @@ def run(args) -> int:
             bad = [x for x in scenes if x not in SCENES]
             if bad:
                 raise UserError(f"--scenes: unknown scene(s) {', '.join(bad)}; expected some of {', '.join(SCENES)}")
-        if args.pack_steps < 0:
-            raise UserError(f"--pack-steps must be >= 0, got {args.pack_steps}")
-        try:
-            from pathlib import Path
-
-            Path(args.out).mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise UserError(f"--out {args.out}: cannot create folder ({e.strerror})") from None
+        prepare_output_dir(args.out, "--out")
         results = speed_accuracy.run(args.quick, args.out, scenes)
         summaries, note = ([], "skipped (--pack-steps 0)")
         if args.pack_steps:
