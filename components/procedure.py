@@ -187,6 +187,9 @@ class ProcedureState:
     # ids the records store gave to saved attempts: a side effect outside the simulation, so not part
     # of the world digest (a replay, which never saves, must reach the recorded digest)
     saved: list[int] = field(default_factory=list, metadata={"digest": False})
+    attempt: int = 1  # attempts begun in this session
+    closed: bool = False  # the attempt was saved: its clock stops, the next action begins another
+    touched: bool = False  # anything done in this attempt (an unsaved attempt worth asking about)
 
     @property
     def step_id(self) -> str:

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+import chainsim.components
 from chainsim.engine import limits
 
 
@@ -163,7 +164,6 @@ def load_all() -> None:
     global _loaded
     if _loaded:
         return
-    import chainsim.components
 
     for mod in pkgutil.iter_modules(chainsim.components.__path__):
         importlib.import_module(f"chainsim.components.{mod.name}")

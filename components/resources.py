@@ -6,6 +6,7 @@ fixed-step loop, never read from a clock, so a run is a pure function of its pac
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -74,6 +75,76 @@ class PendingInput:
     @property
     def exhausted(self) -> bool:
         return self.cursor >= len(self.items)
+
+
+@dataclass(slots=True)
+class PackResource:
+    """The loaded pack and the scene being run (`pack` is a chainsim.game.packs.pack.Pack)."""
+
+    pack: Any
+    scene: str
+    scene_spec: dict[str, Any]
+
+    @property
+    def layout_name(self) -> str:
+        return self.scene_spec.get("layout", "")
+
+    @property
+    def layout(self) -> dict[str, Any]:
+        return self.pack.section("layouts").get(self.layout_name, {"viewports": [], "widgets": []})
+
+
+@dataclass(slots=True)
+class EntityIndex:
+    """Entity ids by manifest name."""
+
+    by_name: dict[str, int] = field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> int:
+        return self.by_name[name]
+
+    def get(self, name: str, default=None):
+        return self.by_name.get(name, default)
+
+
+@dataclass(slots=True)
+class Assessment:
+    """Procedure results for the summary: plugins fill `values` (JSON-serialisable)."""
+
+    values: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(slots=True)
+class RunInfo:
+    """How this App was started (front ends and procedures may read it)."""
+
+    pack_ref: str
+    pack_name: str
+    scene: str
+    headless: bool
+    render: bool
+    out_dir: str | None = None
+    screenshot_every: int = 0
+
+
+@dataclass(slots=True)
+class Records:
+    """Where attempts are kept, as the shell chose it (a local store or a records server).
+
+    Procedures save and list attempts through this resource and never open a store themselves, so a
+    replay can insert one that refuses to write. `save_attempt(class, trainee, record) -> id` raises
+    UserError when the save did not happen; `list_attempts(class, trainee) -> rows`.
+    """
+
+    save_attempt: Callable[[str, str, dict], int]
+    list_attempts: Callable[[str, str], list[dict]]
+    where: str = ""  # shown to the trainee: the database file or server address
+    # delete_attempt(class, trainee, id): a trainee deletes one of their own attempts; None where the
+    # store does not allow it
+    delete_attempt: Callable[[str, str, int], None] | None = None
+    # why these Records never save (a replay, a protocol trial), or "": a Save then says so and is no
+    # failure, since nothing was meant to be saved
+    refuses: str = ""
 
 
 @dataclass(slots=True)

@@ -11,7 +11,7 @@ import numpy as np
 
 from chainsim.components.core import ScriptedMotion, Transform
 from chainsim.engine import quaternion
-from chainsim.game.app.core import ORDER_KINEMATICS
+from chainsim.systems.stages import ORDER_KINEMATICS
 
 
 def motion_system(app) -> None:

@@ -26,18 +26,7 @@ import esper
 
 from chainsim.components.events import EventQueue
 from chainsim.components.resources import InputState, PendingInput, Settings, Time
-
-STAGES = ("input", "simulation", "procedure", "render")
-
-# Positions within a stage; systems with equal order run in the order they were added.
-ORDER_INPUT = 0
-ORDER_VIEW = 50  # cameras, picking, widgets (input stage)
-ORDER_KINEMATICS = 100  # needle / tool pose (simulation stage)
-ORDER_COLLISION = 200
-ORDER_DEFORMATION = 300
-ORDER_PROCEDURE = 100  # procedure steps (procedure stage)
-ORDER_ASSESSMENT = 200
-ORDER_RENDER = 100
+from chainsim.systems.stages import STAGES
 
 #: at most this many fixed steps per frame, so a stalled frame cannot spiral
 MAX_STEPS_PER_FRAME = 32

@@ -11,46 +11,38 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from chainsim.components.input_events import PickPoint
-from chainsim.components.resources import FailedSaves, PendingInput, Settings
+from chainsim.components.resources import (
+    Assessment,
+    EntityIndex,
+    FailedSaves,
+    PackResource,
+    PendingInput,
+    Records,
+    RunInfo,
+    Settings,
+)
 from chainsim.engine import limits
 from chainsim.engine.errors import UserError
 from chainsim.game.app import plugins
 from chainsim.game.app.core import App
 from chainsim.game.app.digest import world_digest
 from chainsim.game.app.inputscript import load_script, write_recording
-from chainsim.game.app.loader import EntityIndex, PackResource, spawn_scene
+from chainsim.game.app.loader import spawn_scene
 from chainsim.game.app.outputs import check_output_file, prepare_output_dir, write_text_atomic
 from chainsim.game.packs import pack as packs
 from chainsim.game.records import store as records
+from chainsim.game.records.store import local_records
 from chainsim.game.records.validate import clean_name
+from chainsim.systems.input import InputLog
 
 #: settings a user (or a recording) may give on top of the pack's own: name -> type
-USER_SETTINGS = {"db": str, "class": str, "trainee": str, "save_records": bool}
-
-
-@dataclass(slots=True)
-class Assessment:
-    """Procedure results for the summary: plugins fill `values` (JSON-serialisable)."""
-
-    values: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass(slots=True)
-class RunInfo:
-    """How this App was started (front ends and procedures may read it)."""
-
-    pack_ref: str
-    pack_name: str
-    scene: str
-    headless: bool
-    render: bool
-    out_dir: str | None = None
-    screenshot_every: int = 0
+USER_SETTINGS = {"db": str, "class": str, "trainee": str}
 
 
 def check_user_settings(settings: dict | None, where: str = "settings") -> dict:
@@ -98,8 +90,13 @@ def app_for_pack(
     out_dir: str | None = None,
     screenshot_every: int = 0,
     size: tuple[int, int] | None = None,
+    save: str = "",
 ) -> App:
-    """A started App for a validated pack's scene: spawned, plugins installed, not stepped."""
+    """A started App for a validated pack's scene: spawned, plugins installed, not stepped.
+
+    `save`, when given, is why this run saves nothing (a replay, a protocol trial): its Records then
+    refuse every write and list no attempts, and the records database is never opened.
+    """
     pack_settings = dict(pack.section("settings"))
     pack_settings.update(check_user_settings(settings))
     if size is not None:
@@ -114,11 +111,21 @@ def app_for_pack(
             RunInfo(ref or pack.name, pack.name, scene_name, headless, render, out_dir, screenshot_every)
         )
         app.insert_resource(Assessment())
+        app.insert_resource(refusing_records(save) if save else local_records(pack_settings.get("db") or None))
         plugins.install(app, pack.manifest["pack"].get("procedure", ""), render=render)
     except BaseException:
         app.close()
         raise
     return app
+
+
+def refusing_records(reason: str) -> Records:
+    """Records that save nothing and list nothing, saying `reason` (replays, protocol trials)."""
+
+    def save_attempt(class_name: str, trainee: str, record: dict) -> int:
+        raise UserError(f"not saved: {reason}")
+
+    return Records(save_attempt=save_attempt, list_attempts=lambda c, t: [], where="nowhere", refuses=reason)
 
 
 def build_app(ref: str, *, pack_paths=(), **kwargs) -> App:
@@ -138,13 +145,24 @@ def check_events(app: App, events, where: str) -> None:
             )
 
 
+def validate_pack(root) -> tuple[packs.Pack | None, list[packs.Problem]]:
+    """Everything `run` would refuse, as `chainsim validate` reports it: the pack's manifest and files
+    (chainsim.game.packs.pack.validate), then every scene started as `run` starts it, without stepping.
+    """
+    pack, problems = packs.validate(root)
+    if pack is None:
+        return None, problems
+    problems = [packs.problem_at(pack, scene, message) for scene, message in start_problems(pack)]
+    return (None, problems) if problems else (pack, [])
+
+
 def start_problems(pack: packs.Pack) -> list[tuple[str, str]]:
     """(scene, message) for every scene that `run` would refuse to start, and for its script."""
     out = []
     for scene in pack.scene_names() or [None]:
         name = scene or "main"
         try:
-            app = app_for_pack(pack, scene)
+            app = app_for_pack(pack, scene, save="validation saves nothing")
         except UserError as e:
             out.append((name, str(e)))
             continue
@@ -183,8 +201,12 @@ def run_pack(
     render: bool = False,
     screenshot_every: int = 0,
     size: tuple[int, int] | None = None,
+    save: str = "",
 ) -> dict[str, Any]:
-    """Run a pack headless for `steps` fixed steps; returns (and writes to OUT/summary.json) the summary."""
+    """Run a pack headless for `steps` fixed steps; returns (and writes to OUT/summary.json) the summary.
+
+    `save`: why this run saves nothing ("" saves to the records database; see `app_for_pack`).
+    """
     if steps is not None:
         try:
             steps = limits.whole(steps, 0, limits.MAX_STEPS)
@@ -207,6 +229,7 @@ def run_pack(
         out_dir=out,
         screenshot_every=screenshot_every,
         size=size,
+        save=save,
     )
     try:
         pres: PackResource = app.resource(PackResource)
@@ -219,8 +242,6 @@ def run_pack(
             app.update(app.time.dt)
             _progress(i + 1, n)
         digest = world_digest(app)
-        from chainsim.systems.input import InputLog
-
         log = app.get_resource(InputLog)
         summary = {
             "pack": pres.pack.name,
@@ -261,7 +282,6 @@ def run_pack(
 
 
 def _jsonable(v):
-    import numpy as np
 
     if isinstance(v, dict):
         return {str(k): _jsonable(x) for k, x in v.items()}

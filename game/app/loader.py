@@ -7,44 +7,15 @@ body's link graph from its mesh. Nothing from the pack is executed.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import esper
 
 from chainsim.components.core import Name
 from chainsim.components.registry import COMPONENTS
+from chainsim.components.resources import EntityIndex, PackResource
 from chainsim.game.packs.pack import Pack
-
-
-@dataclass(slots=True)
-class PackResource:
-    """The loaded pack and the scene being run."""
-
-    pack: Pack
-    scene: str
-    scene_spec: dict[str, Any]
-
-    @property
-    def layout_name(self) -> str:
-        return self.scene_spec.get("layout", "")
-
-    @property
-    def layout(self) -> dict[str, Any]:
-        return self.pack.section("layouts").get(self.layout_name, {"viewports": [], "widgets": []})
-
-
-@dataclass(slots=True)
-class EntityIndex:
-    """Entity ids by manifest name."""
-
-    by_name: dict[str, int] = field(default_factory=dict)
-
-    def __getitem__(self, name: str) -> int:
-        return self.by_name[name]
-
-    def get(self, name: str, default=None):
-        return self.by_name.get(name, default)
 
 
 @dataclass(slots=True)

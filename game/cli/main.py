@@ -14,10 +14,10 @@ import logging
 import os
 import sys
 
+from chainsim.engine.argtypes import NEGATIVE_NUMBER
 from chainsim.engine.errors import UserError, printable
 from chainsim.game import __version__
 from chainsim.game.app.logs import setup_logging
-from chainsim.game.cli.argtypes import NEGATIVE_NUMBER
 
 # name -> one-line help; the module is chainsim.game.cli.commands.<name with - as _>
 COMMANDS: dict[str, str] = {

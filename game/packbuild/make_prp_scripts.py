@@ -24,16 +24,22 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
 from chainsim.assets import ASSETS_DIR
+from chainsim.components.core import Transform
+from chainsim.components.procedure import anatomy_from_pack, landmark_errors
+from chainsim.components.registry import load_all
+from chainsim.engine.segment_tree import SegmentTree
+from chainsim.game.app.headless import run_pack
+from chainsim.game.packs import pack as packs
+from chainsim.systems.collision import OBSTACLES, PrpObstacles
+from chainsim.systems.needle import initial_direction
 
 HIGH_DEG = 12.0
 
 
 def _skin(pack):
-    import trimesh
-
-    from chainsim.components.registry import load_all
 
     load_all()
     ent = pack.manifest["entities"]["skin"]
@@ -41,8 +47,6 @@ def _skin(pack):
     tr = ent.get("transform")
     v = mesh.vertices
     if tr is not None:
-        from chainsim.components.core import Transform
-
         m = Transform(np.asarray(tr["position"]), np.asarray(tr["rotation"]), float(tr["scale"])).matrix()
         v = v @ m[:3, :3].T + m[:3, 3]
     return trimesh.Trimesh(v, mesh.triangles, process=False)
@@ -50,7 +54,6 @@ def _skin(pack):
 
 def _section_point(skin, plane, centre, radius, prefer) -> np.ndarray:
     """The point of the skin's section by `plane` at `radius` from `centre` that maximises `prefer`."""
-    import trimesh
 
     segs = trimesh.intersections.mesh_plane(skin, plane.normal, plane.point)
     if len(segs) == 0:
@@ -90,7 +93,6 @@ def clear_entry_near(skin, sa, start, targets, obstacles, want, radius=12.0, ste
     """(entry, target): the skin point within `radius` mm of `start` with the best landmark-1 score
     (D1 + d1) from which a straight line to one of `targets` meets the foramen first, with 0.25 mm to
     spare in every direction and a needle error Dist - R below `max_error`; None if there is none."""
-    from chainsim.components.procedure import landmark_errors
 
     on = skin.nearest.on_surface([start])
     normal = skin.face_normals[on[2][0]]
@@ -131,7 +133,6 @@ def clear_entry_near(skin, sa, start, targets, obstacles, want, radius=12.0, ste
 
 def dial_angles(entry, direction) -> tuple[float, float]:
     """(horizontal, vertical) dial degrees that turn the initial heading into `direction`."""
-    from chainsim.systems.needle import initial_direction
 
     d = np.asarray(direction, float) / np.linalg.norm(direction)
     d0 = initial_direction(entry)
@@ -142,7 +143,6 @@ def dial_angles(entry, direction) -> tuple[float, float]:
 
 
 def direction_of(yaw, pitch, entry):
-    from chainsim.systems.needle import initial_direction
 
     d0 = initial_direction(entry)
     az = math.atan2(d0[1], d0[0]) + math.radians(yaw)
@@ -206,10 +206,6 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=61, help="seed of the variants' landmark and aim errors")
     ap.add_argument("--check", action="store_true", help="run the scripts headless and print the assessment")
     args = ap.parse_args(argv)
-
-    from chainsim.components.procedure import anatomy_from_pack
-    from chainsim.game.packs import pack as packs
-    from chainsim.systems.collision import OBSTACLES, PrpObstacles, SegmentTree
 
     pack = packs.load(Path(args.pack))
     anat = anatomy_from_pack(pack)
@@ -314,8 +310,6 @@ def main(argv=None) -> int:
         names.append(f"variant-{k}")
     print(f"wrote {', '.join(n + '.toml' for n in names)} in {out}", file=sys.stderr)
     if args.check:
-        from chainsim.game.app.headless import run_pack
-
         for name in names:
             s = run_pack(str(Path(args.pack)), script=str(out / f"{name}.toml"))
             a = s["assessment"]

@@ -27,9 +27,12 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from PIL import Image
+from scipy.spatial import cKDTree
 
 from chainsim.assets import ASSETS_DIR
 from chainsim.game.packbuild import prp_foramen, prp_landmarks, prp_skin
+from chainsim.game.packbuild.prp_preview import marker, render
 
 # the source meshes sit beside the repository in a development checkout
 DEFAULT_SHARED = ASSETS_DIR.parent.parent / "shared" / "data" / "anatomy"
@@ -132,7 +135,6 @@ def close_mandible(mandible: trimesh.Trimesh, maxillae: trimesh.Trimesh, gap_mm:
     axis /= np.linalg.norm(axis)
     front = v[:, 1] > c_left[1] + 45.0
     tree_pts, _ = trimesh.sample.sample_surface(maxillae, 60_000, seed=3)
-    from scipy.spatial import cKDTree
 
     tree = cKDTree(np.vstack([tree_pts, maxillae.vertices]))
 
@@ -348,7 +350,6 @@ def tissue_report(skin, skull, mandible) -> dict:
     """Soft-tissue depth (skin to nearest bone) over face regions, and skull containment."""
     inside = prp_landmarks.inside_closed(skin, skull.vertices)
     bone = trimesh.util.concatenate([skull, mandible])
-    from scipy.spatial import cKDTree
 
     pts, _ = trimesh.sample.sample_surface(bone, 300_000, seed=11)
     tree = cKDTree(np.vstack([pts, bone.vertices]))
@@ -518,18 +519,12 @@ def write_toml(path: Path, foramina, anat, info) -> None:
 
 
 def preview(path: Path, skull, mandible, skin, plugs, anat) -> None:
-    try:
-        from PIL import Image
-
-        from chainsim.game.packbuild.prp_preview import marker, render
-    except ImportError:  # pragma: no cover - pillow/moderngl are project dependencies
-        return
     layers = [(skull, (0.92, 0.88, 0.78, 1.0)), (mandible, (0.85, 0.82, 0.72, 1.0))]
     layers += [(p, (0.1, 0.8, 0.2, 1.0)) for p in plugs.values()]
     for name, p in anat["points"].items():
         if not name.startswith("foramen"):
             layers.append((marker(p, 2.0), (0.9, 0.1, 0.1, 1.0) if "ideal" in name else (0.1, 0.3, 0.9, 1.0)))
-    for side, pth in anat["paths"].items():
+    for _side, pth in anat["paths"].items():
         seg = trimesh.creation.cylinder(radius=0.6, segment=[pth["entry"], pth["target"]])
         layers.append((seg, (0.2, 0.2, 0.2, 1.0)))
     layers.append((skin, (0.95, 0.72, 0.62, 0.28)))

@@ -1,11 +1,11 @@
 """Validation of a pack manifest: one small check per part, every problem collected at once.
 
-`Validator` reads the manifest files (chainsim.game.app.datafile: size, nesting and number limits)
+`Validator` reads the manifest files (chainsim.engine.datafile: size, nesting and number limits)
 and checks tables against their schemas (chainsim.components.registry: every value bounded); the
 `check_*` functions each own one part of the manifest and are run in order by
-`chainsim.game.packs.pack.validate`. `check_start` finally starts every scene as `run` does
-(without stepping), so a pack that validates is a pack that runs. Problems read
-`file:line: key.path: what is wrong`, one line each.
+`chainsim.game.packs.pack.validate`. Problems read `file:line: key.path: what is wrong`, one line
+each; `problem_at` places a message about a validated pack (from starting its scenes, which the app
+does: chainsim.game.app.headless.validate_pack) the same way.
 """
 
 from __future__ import annotations
@@ -26,14 +26,13 @@ from chainsim.components.registry import (
     convert,
     default_value,
 )
-from chainsim.engine import limits
+from chainsim.engine import datafile, limits
 from chainsim.engine.errors import UserError, printable
 from chainsim.engine.meshes import MeshData, MeshError, check_primitive, max_mesh_bytes
-from chainsim.game.app import datafile
-from chainsim.game.app.plugins import PROCEDURES
 from chainsim.game.packs import schema as ms
 from chainsim.game.packs.discovery import MANIFEST, NAME_RE
 from chainsim.game.packs.model import PRESET_KEYS, Pack, build_mesh, inside, material_presets
+from chainsim.systems.procedures import PROCEDURES
 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 
@@ -472,17 +471,15 @@ _KEY_PREFIX = re.compile(
 )
 
 
-def check_start(v: Validator, pack: Pack) -> None:
-    """Start every scene as `run` does (spawn, plugins, its script), without stepping."""
-    # game.app builds on this module; a pack is started here only to check it
-    from chainsim.game.app.headless import start_problems  # noqa: PLC0415
-
-    for scene, message in start_problems(pack):
-        m = _KEY_PREFIX.match(message)
-        if m:
-            v.add(v.file_of(m.group(1)), m.group(1), m.group(2))
-        else:
-            v.add(MANIFEST, f"scenes.{scene}" if scene in pack.section("scenes") else "", message)
+def problem_at(pack: Pack, scene: str, message: str) -> Problem:
+    """A Problem for a message about a validated pack (from starting `scene`), placed at the key it names."""
+    m = _KEY_PREFIX.match(message)
+    key, text = (
+        (m.group(1), m.group(2)) if m else (f"scenes.{scene}" if scene in pack.section("scenes") else "", message)
+    )
+    file = pack.origin.get(".".join(key.split(".")[:2]), MANIFEST)
+    line = _line_of(pack.texts.get(file, ""), key) if key else None
+    return Problem(file, key, text, line)
 
 
 def _apply_preset(v: Validator, file: str, key: str, conv: dict, raw: dict) -> None:

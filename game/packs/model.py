@@ -18,6 +18,7 @@ from chainsim.assets import ASSETS_DIR
 from chainsim.components.registry import SECTION_STYLE
 from chainsim.engine.errors import UserError
 from chainsim.engine.meshes import MeshData, check_mesh, load_file, primitive
+from chainsim.engine.reorder import reorder_mesh
 from chainsim.game.packs import schema as ms
 
 PRESET_FILE = ASSETS_DIR / "presets" / "materials.toml"
@@ -43,6 +44,7 @@ class Pack:
     root: Path
     manifest: dict[str, Any]
     texts: dict[str, str] = field(default_factory=dict)
+    origin: dict[str, str] = field(default_factory=dict)  # "section.name" -> the manifest file defining it
     _meshes: dict[str, MeshData] = field(default_factory=dict)
 
     @property
@@ -101,8 +103,6 @@ def build_mesh(root: Path, name: str, spec: dict) -> MeshData:
     path = inside(root, spec["path"])
     m = load_file(path, scale, spec["merge_vertices"], label=spec["path"])
     if spec.get("reorder"):
-        from chainsim.engine.reorder import reorder_mesh  # noqa: PLC0415  (locality reordering, optional module)
-
         m = reorder_mesh(m)
     return m
 

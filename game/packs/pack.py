@@ -8,9 +8,9 @@ ever imported or executed. This module holds `validate` and `load`; the parts li
     checks      the per-part checks `validate` runs, and the Problem lines it reports
     schema      the declaration of every manifest section and key
 
-Validation collects every problem at once, each as `file:line: key.path: what is wrong`, then starts
-each scene the way `run` does, so whatever `run` refuses `validate` reports first. Every value is
-bounded (docs/limits.md).
+Validation collects every problem at once, each as `file:line: key.path: what is wrong`; every
+value is bounded (docs/limits.md). Starting each scene the way `run` does, so that whatever `run`
+refuses `chainsim validate` reports first, is the app's part: chainsim.game.app.headless.validate_pack.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from pathlib import Path
 
 from chainsim.components.registry import load_all
 from chainsim.game.packs import checks
-from chainsim.game.packs.checks import PackError, Problem, Validator
+from chainsim.game.packs.checks import PackError, Problem, Validator, problem_at
 from chainsim.game.packs.discovery import (
     BUILTIN_DIR,
     ENTRY_POINT_GROUP,
@@ -47,16 +47,17 @@ __all__ = [
     "discover",
     "load",
     "material_presets",
+    "problem_at",
     "resolve",
     "validate",
 ]
 
 
-def validate(root: Path, *, load_meshes: bool = True, start: bool | None = None) -> tuple[Pack | None, list[Problem]]:
-    """Validate a pack folder; returns (pack or None, every problem found).
+def validate(root: Path, *, load_meshes: bool = True) -> tuple[Pack | None, list[Problem]]:
+    """Validate a pack folder's manifest and files; returns (pack or None, every problem found).
 
-    With `start` (default: when meshes are loaded) each scene is also started as `run` starts it, so
-    a pack that validates is a pack that runs.
+    This checks everything that needs no running App; chainsim.game.app.headless.validate_pack
+    also starts each scene as `run` does (what `chainsim validate` reports).
     """
     load_all()
     root = Path(root)
@@ -76,12 +77,7 @@ def validate(root: Path, *, load_meshes: bool = True, start: bool | None = None)
     checks.check_steps(v, man)
     if v.problems:
         return None, v.problems
-    pack = Pack(root=root, manifest=man, texts=v.texts, _meshes=meshes)
-    if load_meshes if start is None else start:
-        checks.check_start(v, pack)
-        if v.problems:
-            return None, v.problems
-    return pack, []
+    return Pack(root=root, manifest=man, texts=v.texts, origin=v.origin, _meshes=meshes), []
 
 
 def load(root: Path) -> Pack:
@@ -89,7 +85,7 @@ def load(root: Path) -> Pack:
 
     The scenes are not started here: the caller starts the one it runs.
     """
-    pack, problems = validate(root, start=False)
+    pack, problems = validate(root)
     if problems:
         raise PackError(problems)
     return pack

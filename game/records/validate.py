@@ -37,7 +37,7 @@ REQUIRED = (
     "skull_contacts",
     "path_length_mm",
 )
-OPTIONAL = ("created_at", "aids", "step_times", "details")
+OPTIONAL = ("created_at", "aids", "step_times", "details", "redirections")
 FIELDS = REQUIRED + OPTIONAL
 
 # Unicode categories a name may not hold (chainsim.engine.errors.HIDDEN_CATEGORIES): controls,
@@ -204,6 +204,7 @@ def clean_attempt(attempt: Any) -> dict[str, Any]:
         "target": clean_target(attempt["target"]),
         "skull_contacts": _count("skull_contacts", attempt["skull_contacts"]),
         "path_length_mm": _number("path_length_mm", attempt["path_length_mm"]),
+        "redirections": _count("redirections", attempt.get("redirections", 0)),
         "aids": clean_aids(attempt.get("aids")),
         "step_times": clean_step_times(attempt.get("step_times")),
         "details": clean_details(attempt.get("details")),

@@ -12,8 +12,8 @@ prefix the key, flag or file the value came from and raise their own error type.
 from __future__ import annotations
 
 import math
-import os
 import numbers
+import os
 from dataclasses import dataclass
 
 import numpy as np

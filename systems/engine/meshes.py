@@ -16,7 +16,9 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import meshio
 import numpy as np
+import trimesh
 
 from chainsim.engine import limits, meshcheck, meshgen
 from chainsim.engine.limits import max_mesh_bytes  # noqa: F401  (the mesh size limit, re-exported)
@@ -122,8 +124,6 @@ def _why(e: BaseException) -> str:
 
 
 def _load_surface(path: Path, merge_vertices: bool, where: str, scale: float) -> MeshData:
-    import trimesh  # noqa: PLC0415  (heavy; only mesh files need it)
-
     try:
         # unprocessed first: processing silently drops NaN/inf vertices, which must be refused instead
         with _quiet():
@@ -144,8 +144,6 @@ def _load_surface(path: Path, merge_vertices: bool, where: str, scale: float) ->
 
 
 def _load_volume(path: Path, where: str, scale: float) -> MeshData:
-    import meshio  # noqa: PLC0415  (heavy; only volume files need it)
-
     try:
         with _quiet():
             m = meshio.read(str(path))
@@ -218,8 +216,6 @@ def check_primitive(kind: str, resolution, where: str = "primitive") -> None:
 
 def primitive(kind: str, *, extents, radius: float, height: float, resolution) -> MeshData:
     """Built-in shapes so packs can have tools and test bodies without mesh files."""
-    import trimesh  # noqa: PLC0415  (heavy; only packs with primitives need it)
-
     check_primitive(kind, resolution)
     res = [max(1, int(round(r))) for r in resolution]
     if kind == "box":

@@ -24,11 +24,10 @@ from chainsim.components.input_events import (
     Scroll,
     Widget,
 )
-from chainsim.components.resources import PendingInput
+from chainsim.components.resources import EntityIndex, PackResource, PendingInput
 from chainsim.engine import limits
 from chainsim.game.app.digest import world_digest
 from chainsim.game.app.headless import build_app
-from chainsim.game.app.loader import EntityIndex
 
 BIG = limits.MAX_COORD
 
@@ -77,7 +76,7 @@ def test_extreme_events_leave_every_number_finite(pack):
     try:
         index: EntityIndex = app.resource(EntityIndex)
         pick = sorted(index.by_name)[0]
-        layout = app.resource(__import__("chainsim.game.app.loader", fromlist=["PackResource"]).PackResource).layout
+        layout = app.resource(PackResource).layout
         widgets = [w["name"] for w in layout.get("widgets", []) if w.get("name") != "save"]
         app.resource(PendingInput).extend(_events(pick, widgets))
         for _ in range(240):

@@ -34,7 +34,7 @@ from chainsim.engine import limits
 from chainsim.engine.errors import UserError
 from chainsim.engine.meshes import MeshError, load_file
 from chainsim.engine.meshimport import load_graph
-from chainsim.game.packs import pack as packs
+from chainsim.game.app.headless import validate_pack
 
 from .conftest import BASE_PACK
 
@@ -159,7 +159,7 @@ def _toml(man: dict) -> str | None:
 
 def _check_validate(folder: Path) -> None:
     with time_limit(PER_EXAMPLE_S):
-        pack, problems = packs.validate(folder)
+        pack, problems = validate_pack(folder)
     assert (pack is None) == bool(problems)
     for p in problems:
         assert "\n" not in str(p) and str(p).strip()

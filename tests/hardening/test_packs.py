@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from chainsim.game.packs import pack as packs
+from chainsim.game.app.headless import validate_pack
 
 from .badfiles import npz_arrays, ply_declaring, vtu_bomb
 from .conftest import BASE_PACK, assert_one_line_error, chainsim, write_pack
@@ -240,7 +240,7 @@ def test_every_issue_example_is_in_the_table():
 def test_validate_names_the_problem_and_run_refuses_it_too(case, tmp_path, cli):
     folder = _make(tmp_path, case)
     words = CASES[case][2]
-    pack, problems = packs.validate(folder)
+    pack, problems = validate_pack(folder)
     assert pack is None and problems, case
     text = "\n".join(str(p) for p in problems)
     for w in words:
@@ -331,7 +331,7 @@ def test_a_preset_with_an_unbounded_count_is_refused(tmp_path, monkeypatch):
     presets.write_text("[runaway]\nalpha_min = 0.9\nalpha_max = 1.1\nbeta = 0.05\nrelax_iterations = 1099511627776\n")
     monkeypatch.setattr(model, "PRESET_FILE", presets)
     folder = write_pack(tmp_path / "p", _sub("relax = 2", 'preset = "runaway"').replace("alpha_min = 0.8\n", ""))
-    pack, problems = packs.validate(folder)
+    pack, problems = validate_pack(folder)
     assert pack is None
     assert any(
         "materials.soft.preset" in str(p) and "relax_iterations" in str(p) and "<= 1000" in str(p) for p in problems

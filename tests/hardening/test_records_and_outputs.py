@@ -199,7 +199,7 @@ def test_output_paths_that_name_the_wrong_thing_are_one_line(cli, tmp_path):
         ),
         (("records", "--db", db, "export", "--csv", a_dir), ("is a directory",)),
         (("records", "--db", db, "export", "--csv", tmp_path / "missing" / "r.csv"), ("does not exist",)),
-        (("bench", "chainmail", "--quick", "--parts", "thesis", "--out", a_file), ("--out", "is a file")),
+        (("bench", "chainmail", "--quick", "--parts", "thesis", "--out", a_file), ("--out", "cannot create folder")),
     ):
         code, out, err = cli(*args)
         assert_one_line_error(code, err, *words)

@@ -8,10 +8,9 @@ import numpy as np
 import pytest
 
 from chainsim.components.deformable import Deformable, Pull
-from chainsim.components.resources import PendingInput
+from chainsim.components.resources import PackResource, PendingInput
 from chainsim.game.app.headless import build_app, run_pack
 from chainsim.game.app.inputscript import load_script
-from chainsim.game.app.loader import PackResource
 from chainsim.game.packs import pack as packs
 
 SCENES = ("patch", "brain", "volume")
@@ -67,7 +66,7 @@ def test_raw_cascade_keeps_every_moved_element_in_its_sponsors_region(scene):
     try:
         order, sponsor = d.last_order, d.last_sponsor
         assert order[0] == p.resolved and len(order) > 1
-        for e, s, k in zip(order[1:], sponsor[1:], range(1, len(order))):
+        for e, s, _k in zip(order[1:], sponsor[1:], range(1, len(order))):
             lid = _link_id(d, e, s)
             lo, hi = _box(d.rest, d.pos, e, s, d.amin[lid], d.amax[lid], d.beta_l[lid])
             assert np.all(d.pos[e] >= lo - 1e-9) and np.all(d.pos[e] <= hi + 1e-9), (scene, e, s)

@@ -5,7 +5,8 @@ from __future__ import annotations
 import esper
 import pytest
 
-from chainsim.game.app.core import ORDER_COLLISION, ORDER_DEFORMATION, ORDER_KINEMATICS, App
+from chainsim.game.app.core import App
+from chainsim.systems.stages import ORDER_COLLISION, ORDER_DEFORMATION, ORDER_KINEMATICS
 
 
 class Ping:

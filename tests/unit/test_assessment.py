@@ -77,7 +77,7 @@ def _full_attempt(r: Run):
 
 def test_self_assessment_fills_the_panel_and_summary_values(pack_dir):
     from chainsim.components.hud import HudState
-    from chainsim.game.app.headless import Assessment
+    from chainsim.components.resources import Assessment
 
     r = Run(pack_dir)
     try:

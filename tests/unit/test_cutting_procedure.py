@@ -15,12 +15,11 @@ from chainsim.components.core import Transform
 from chainsim.components.deformable import Deformable
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import MouseButton, MouseDrag, MouseMove, PickPoint, Widget
-from chainsim.components.resources import PendingInput
+from chainsim.components.resources import Assessment, EntityIndex, PendingInput
 from chainsim.components.tools import Forceps, Scissors
 from chainsim.engine.errors import UserError
-from chainsim.game.app.headless import Assessment, build_app
-from chainsim.game.app.loader import EntityIndex
-from chainsim.systems.procedures.cutting.procedure import parse_point
+from chainsim.game.app.headless import build_app
+from chainsim.systems.procedures.cutting.state import parse_point
 
 PACK = Path(__file__).resolve().parents[2] / "assets" / "cutting"
 CORNER = (40.0, 30.0, 0.0)
@@ -240,18 +239,21 @@ def test_the_idle_instrument_follows_the_cursor_over_the_tissue(app):
     assert comp(app, "scissors", Transform).position == pytest.approx(pos)
 
 
-def test_wireframe_switch_changes_only_this_runs_materials(app):
+def test_wireframe_switch_draws_links_and_leaves_the_pack_alone(app):
+    from chainsim.components.core import Wireframe
+    from chainsim.components.resources import PackResource
+
+    dura = app.resource(EntityIndex)["dura"]
     app.resource(PendingInput).push(0.0, Widget("wireframe", True))
     steps(app, 1)
-    from chainsim.game.app.loader import PackResource
-
-    assert app.resource(PackResource).pack.section("materials")["dura"]["wireframe"] is True
+    with app.active():
+        assert esper.has_component(dura, Wireframe)
     assert app.resource(Assessment).values["wireframe"] is True
-    other = make()
-    try:
-        assert other.resource(PackResource).pack.section("materials")["dura"].get("wireframe", False) is False
-    finally:
-        other.close()
+    assert app.resource(PackResource).pack.section("materials")["dura"].get("wireframe", False) is False
+    app.resource(PendingInput).push(app.time.sim_time, Widget("wireframe", False))
+    steps(app, 1)
+    with app.active():
+        assert not esper.has_component(dura, Wireframe)
 
 
 def test_a_bad_pull_target_is_a_user_error(app):

@@ -53,7 +53,7 @@ def make_pack(tmp_path: Path, body: str) -> str:
 
 
 def body(app, name="body") -> tuple[int, Deformable]:
-    from chainsim.game.app.loader import EntityIndex
+    from chainsim.components.resources import EntityIndex
 
     ent = app.resource(EntityIndex)[name]
     with app.active():
@@ -82,7 +82,7 @@ def test_spawn_builds_the_chainmail_object_from_the_render_mesh(tmp_path):
     try:
         assert "deformation" in app.systems("simulation")
         _, d = body(app)
-        from chainsim.game.app.loader import PackResource
+        from chainsim.components.resources import PackResource
 
         mesh = app.resource(PackResource).pack.mesh("sheet")
         np.testing.assert_array_equal(d.pos, mesh.vertices)  # same vertex order as the renderer's mesh
@@ -240,8 +240,8 @@ kind = "volume"
     )
     try:
         _, d = body(app)
+        from chainsim.components.resources import PackResource
         from chainsim.engine import meshgen
-        from chainsim.game.app.loader import PackResource
 
         mesh = app.resource(PackResource).pack.mesh("block")
         assert d.source == "volume"

@@ -108,8 +108,8 @@ def test_a_scene_without_layout_gets_one_orbit_view_framing_every_mesh(tmp_path)
     import esper
 
     from chainsim.components.core import MeshRef, Transform
+    from chainsim.components.resources import PackResource
     from chainsim.game.app.headless import build_app
-    from chainsim.game.app.loader import PackResource
     from chainsim.systems.view import ViewState
 
     root = tmp_path / "bare"

@@ -20,13 +20,26 @@ import os
 import sys
 from pathlib import Path
 
+import numpy as np
+
+from chainsim.engine import argtypes
+from chainsim.engine.chainmail_params import ORDERS, check_material
+from chainsim.engine.errors import UserError
+from chainsim.engine.kernels.chainmail import (
+    ORDER_BALANCED,
+    ORDER_FIFO,
+    ORDER_SCHILL,
+    cascade,
+    make_workspace,
+    material_arrays,
+)
+from chainsim.engine.kernels.graph import build_graph
+from chainsim.engine.meshimport import load_graph
 from chainsim.game.app.outputs import check_output_file
-from chainsim.game.cli import argtypes
+from chainsim.systems.deformation import relax_moved
 
 NAME = "chainmail"
 HELP = "move one element of a mesh with Generalised ChainMail and save the result (.npz)"
-
-ORDERS = ("fifo", "balanced", "schill")
 
 
 def add_parser(sub):
@@ -70,28 +83,16 @@ def add_parser(sub):
 
 def _finite(name: str, v: float) -> None:
     if not math.isfinite(v):
-        from chainsim.engine.errors import UserError
-
         raise UserError(f"{name}: must be a finite number, got {v}")
 
 
 def check_material_flags(args) -> None:
     """--alpha-min in [0, 1], --alpha-max >= 1, --beta >= 0, all finite (thesis 5.2.2)."""
-    from chainsim.engine.errors import UserError
-
-    for name, v in (("--alpha-min", args.alpha_min), ("--alpha-max", args.alpha_max), ("--beta", args.beta)):
-        _finite(name, v)
-    if not 0.0 <= args.alpha_min <= 1.0:
-        raise UserError(f"--alpha-min: must be in [0, 1], got {args.alpha_min:g}")
-    if args.alpha_max < 1.0:
-        raise UserError(f"--alpha-max: must be >= 1, got {args.alpha_max:g}")
-    if args.beta < 0.0:
-        raise UserError(f"--beta: must be >= 0, got {args.beta:g}")
+    check_material(args.alpha_min, args.alpha_max, args.beta)
 
 
 def check_args(args) -> None:
     """Checks that need no mesh (so a bad flag costs nothing)."""
-    from chainsim.engine.errors import UserError
 
     check_material_flags(args)
     _finite("--relax-step", args.relax_step)
@@ -113,17 +114,6 @@ def simulate(
     positions, links, fixed_ids, grab: int, target, alpha_min, alpha_max, beta, relax_n=0, relax_step=1.0, order="fifo"
 ):
     """Run one move; returns (positions, order, sponsor (N,))."""
-    import numpy as np
-
-    from chainsim.engine.kernels.chainmail import (
-        ORDER_BALANCED,
-        ORDER_FIFO,
-        ORDER_SCHILL,
-        cascade,
-        make_workspace,
-        material_arrays,
-    )
-    from chainsim.engine.kernels.graph import build_graph
 
     pos = np.array(positions, dtype=np.float64, copy=True, order="C")
     rest = np.array(positions, dtype=np.float64, copy=True, order="C")
@@ -149,8 +139,6 @@ def simulate(
         workspace=make_workspace(n),
     )
     if relax_n > 0 and len(moved) > 1:
-        from chainsim.systems.deformation import relax_moved
-
         pin = np.zeros(n, dtype=np.bool_) if fixed is None else fixed.copy()
         pin[grab] = True  # the user holds the grabbed element where it was put
         relax_moved(rest, pos, graph, moved, relax_n, step=relax_step, fixed=pin)
@@ -161,7 +149,6 @@ def simulate(
 
 def write_result(out: Path, positions, order, sponsor) -> None:
     """Write OUT.npz atomically: a temporary file in the same folder, renamed when complete."""
-    import numpy as np
 
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
     try:
@@ -171,8 +158,6 @@ def write_result(out: Path, positions, order, sponsor) -> None:
             os.fsync(fh.fileno())
         os.replace(tmp, out)
     except OSError as e:
-        from chainsim.engine.errors import UserError
-
         try:
             tmp.unlink()
         except OSError:
@@ -184,8 +169,6 @@ def write_result(out: Path, positions, order, sponsor) -> None:
 
 
 def run(args) -> int:
-    from chainsim.engine.errors import UserError
-    from chainsim.engine.meshimport import load_graph
 
     check_args(args)
     positions, links, fixed = load_graph(args.mesh, kind=args.kind)

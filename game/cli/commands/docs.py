@@ -6,6 +6,12 @@ limit on user input, from chainsim.engine.limits (the text of docs/limits.md).
 
 from __future__ import annotations
 
+import numpy as np
+
+import chainsim.game.packs.schema  # noqa: F401  (importing it registers the manifest sections)
+from chainsim.components.registry import COMPONENTS, KINDS, REQUIRED, SECTION_STYLE, SECTIONS, load_all
+from chainsim.engine import limits
+
 NAME = "docs"
 HELP = "print reference documentation (components: every manifest key; limits: every input limit)"
 
@@ -17,9 +23,6 @@ def add_parser(sub):
 
 
 def _fmt_default(f) -> str:
-    import numpy as np
-
-    from chainsim.components.registry import REQUIRED
 
     if f.default is REQUIRED:
         return "required"
@@ -36,9 +39,6 @@ def _fmt_default(f) -> str:
 
 
 def render_reference() -> str:
-    from chainsim.components.registry import COMPONENTS, KINDS, SECTION_STYLE, SECTIONS, load_all
-    from chainsim.game.packs import schema  # noqa: F401  (registers sections)
-
     load_all()
     out = [
         "# pack.toml reference (format 1)",
@@ -80,8 +80,6 @@ def render_reference() -> str:
 
 def run(args) -> int:
     if args.topic == "limits":
-        from chainsim.engine import limits
-
         print(limits.markdown(), end="")
         return 0
     print(render_reference())

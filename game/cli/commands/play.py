@@ -5,8 +5,12 @@ from __future__ import annotations
 import os
 import sys
 
-from chainsim.game.cli import argtypes
-from chainsim.game.cli.commands.run import add_records_arguments
+from chainsim.engine import argtypes, limits
+from chainsim.engine.errors import UserError
+from chainsim.game.app.options import add_records_arguments
+from chainsim.game.app.outputs import check_output_file
+from chainsim.game.packs import pack as packs
+from chainsim.game.ui.window import run_window
 
 NAME = "play"
 HELP = "open the simulator window on a pack"
@@ -19,7 +23,7 @@ def add_parser(sub):
     p.add_argument("--input", metavar="SCRIPT", help="play an input script in the window (demonstrations, tests)")
     p.add_argument(
         "--exit-after",
-        type=argtypes.real(0.0, argtypes.limits.MAX_TIME),
+        type=argtypes.real(0.0, limits.MAX_TIME),
         default=None,
         metavar="SECONDS",
         help="close after this much simulated time",
@@ -37,16 +41,17 @@ def has_display() -> bool:
 
 
 def run(args) -> int:
-    from chainsim.engine.errors import UserError
 
     if not has_display():
         raise UserError(
             f"no display to open a window on (DISPLAY is not set); run without one: "
             f"chainsim run {args.pack} --headless --steps 600 --out DIR"
         )
-    from chainsim.game.packs import pack as packs
 
     packs.resolve(args.pack, args.pack_path)  # unknown pack: clear error before any window opens
-    from chainsim.game.ui.window import run_window
+    if args.record:  # outputs too: a session must not end in an unwritable path
+        check_output_file(args.record, "--record")
+    if args.screenshot:
+        check_output_file(args.screenshot, "--screenshot")
 
     return run_window(args)

@@ -28,12 +28,25 @@ first run. Attempts are saved by the protocol itself: a Save pressed inside a sc
 
 from __future__ import annotations
 
+import json
 import math
 import sys
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
+
+from chainsim.components.input_events import Widget
 from chainsim.engine import limits
-from chainsim.game.cli import argtypes
+from chainsim.engine.errors import UserError
+from chainsim.engine import datafile
+from chainsim.game.app.headless import run_pack
+from chainsim.game.app.inputscript import load_script
+from chainsim.game.app.options import name
+from chainsim.game.app.outputs import prepare_output_dir, write_text_atomic
+from chainsim.game.packs import pack as packs
+from chainsim.game.records.store import RecordStore, check_target
+from chainsim.systems.procedures.prp.assessment import attempt_record
 
 NAME = "protocol"
 HELP = "run a study protocol of scripted trials, save the attempts, print a Table 6.1-style summary"
@@ -60,14 +73,14 @@ def add_parser(sub):
     p.add_argument(
         "--class",
         dest="class_name",
-        type=argtypes.name("class"),
+        type=name("class"),
         default="study",
         metavar="NAME",
         help="class the attempts are saved under (default: study)",
     )
     p.add_argument(
         "--trainee",
-        type=argtypes.name("trainee"),
+        type=name("trainee"),
         default="scripted",
         metavar="NAME",
         help="trainee the attempts are saved under (default: scripted)",
@@ -78,14 +91,12 @@ def add_parser(sub):
 
 
 def _err(where: str, msg: str):
-    from chainsim.engine.errors import UserError
 
     return UserError(f"{where}: {msg}")
 
 
 def load_protocol(path: str | Path) -> dict:
     """Read and check a protocol; every problem is a one-line UserError naming the key."""
-    from chainsim.game.app import datafile
 
     path = Path(path)
     data = datafile.parse_toml(
@@ -131,13 +142,13 @@ def load_protocol(path: str | Path) -> dict:
         try:
             repeat = limits.whole(t.get("repeat", 1), 1, limits.MAX_REPEAT)
         except limits.LimitError as e:
-            raise _err(w, f"'repeat': {e} (docs/limits.md)") from None
+            raise _err(w, f"'repeat' {e} (docs/limits.md)") from None
         steps = t.get("steps")
         if steps is not None:
             try:
                 steps = limits.whole(steps, 1, limits.MAX_STEPS)
             except limits.LimitError as e:
-                raise _err(w, f"'steps': {e} (docs/limits.md)") from None
+                raise _err(w, f"'steps' {e} (docs/limits.md)") from None
         aids = t.get("aids", {})
         if not isinstance(aids, dict):
             raise _err(w, "'aids' must be a table of true/false")
@@ -164,7 +175,6 @@ def load_protocol(path: str | Path) -> dict:
 
 
 def _script_path(proto: dict, pack_root: Path, rel: str, where: str) -> Path:
-    from chainsim.engine.errors import UserError
 
     p = Path(rel)
     if p.is_absolute() and p.is_file():
@@ -227,10 +237,8 @@ def format_table(table: dict) -> str:
 
 
 def _plot(table: dict, path: Path) -> None:
-    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     keys = [k for k in table if table[k][0] is not None]
     fig, ax = plt.subplots(figsize=(7, 3.5))
@@ -246,16 +254,6 @@ def _plot(table: dict, path: Path) -> None:
 
 
 def run(args) -> int:
-    import json
-
-    from chainsim.components.input_events import Widget
-    from chainsim.engine.errors import UserError
-    from chainsim.game.app.headless import run_pack
-    from chainsim.game.app.inputscript import load_script
-    from chainsim.game.app.outputs import prepare_output_dir, write_text_atomic
-    from chainsim.game.packs import pack as packs
-    from chainsim.game.records.store import RecordStore, check_target
-    from chainsim.systems.procedures.prp.assessment import attempt_record
 
     proto = load_protocol(args.protocol)
     root, _scene = packs.resolve(proto["pack"], args.pack_path)
@@ -287,7 +285,7 @@ def run(args) -> int:
                 events=aid_events + list(events),
                 out=trial_out,
                 pack_paths=args.pack_path,
-                settings={"save_records": False},  # the protocol saves each attempt itself, below
+                save="the protocol saves each attempt itself",
             )
             a = summary.get("assessment")
             if not a:

@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
-from chainsim.engine import limits
-from chainsim.game.cli import argtypes
+from chainsim.engine import argtypes, limits
+from chainsim.engine.errors import UserError
+from chainsim.game.records import report as report
+from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import printable
 
 NAME = "records"
@@ -97,11 +100,6 @@ def _summary(a: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    import sys
-
-    from chainsim.engine.errors import UserError
-    from chainsim.game.records import report as report
-    from chainsim.game.records.store import RecordStore
 
     with RecordStore(args.db, create=args.action not in READ_ONLY) as store:
         act = args.action
@@ -135,6 +133,7 @@ def run(args: argparse.Namespace) -> int:
                         "target",
                         "contacts",
                         "path_mm",
+                        "redirect",
                     ],
                     [
                         [
@@ -149,6 +148,7 @@ def run(args: argparse.Namespace) -> int:
                             a["target"],
                             a["skull_contacts"],
                             a["path_length_mm"],
+                            a["redirections"],
                         ]
                         for a in rows
                     ],

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from chainsim.engine import limits
 from chainsim.engine.errors import UserError
+from chainsim.game.app.headless import run_pack
+from chainsim.game.app.inputscript import parse_events, read_file
 
 NAME = "replay"
 HELP = "replay a recorded session and compare its final digest"
@@ -53,7 +55,6 @@ def check_recording(data, where: str) -> dict:
         if not isinstance(value, str):
             raise UserError(f"{where}: setting {key!r} must be text, got {type(value).__name__}")
     kept = {k: v for k, v in settings.items() if k != "db"}
-    kept["save_records"] = False
     return {
         "pack": data["pack"],
         "scene": data["scene"],
@@ -65,9 +66,6 @@ def check_recording(data, where: str) -> dict:
 
 
 def run(args) -> int:
-    from chainsim.game.app.headless import run_pack
-    from chainsim.game.app.inputscript import parse_events, read_file
-
     data = read_file(args.file)
     rec = check_recording(data, args.file)
     events = parse_events(data, args.file)
@@ -80,6 +78,7 @@ def run(args) -> int:
         pack_paths=args.pack_path,
         dt=rec["dt"],
         settings=rec["settings"],
+        save="a replay never saves attempts",
     )
     same = summary["digest"] == rec["digest"]
     print(

@@ -4,35 +4,13 @@ from __future__ import annotations
 
 import json
 
-from chainsim.game.cli import argtypes
+from chainsim.engine import argtypes
+from chainsim.engine.errors import UserError
+from chainsim.game.app.headless import run_pack
+from chainsim.game.app.options import add_records_arguments, user_settings, window_size
 
 NAME = "run"
 HELP = "run a pack without a window and write OUT/summary.json"
-
-
-def add_records_arguments(p) -> None:
-    """--db, --class and --trainee, for commands whose procedures save attempts."""
-    p.add_argument("--db", metavar="PATH", help="trainee records database (procedures that save attempts)")
-    p.add_argument(
-        "--class",
-        dest="class_name",
-        type=argtypes.name("class"),
-        metavar="NAME",
-        help="class the attempt is saved under",
-    )
-    p.add_argument(
-        "--trainee", type=argtypes.name("trainee"), metavar="NAME", help="trainee the attempt is saved under"
-    )
-
-
-def user_settings(args) -> dict:
-    """Settings a user gives on the command line (records database, class, trainee)."""
-    out = {}
-    for key, attr in (("db", "db"), ("class", "class_name"), ("trainee", "trainee")):
-        v = getattr(args, attr, None)
-        if v is not None:
-            out[key] = v
-    return out
 
 
 def add_parser(sub):
@@ -50,7 +28,7 @@ def add_parser(sub):
         "--screenshot-every", type=argtypes.steps, default=0, metavar="K", help="write a PNG every K frames (needs EGL)"
     )
     p.add_argument(
-        "--size", type=argtypes.size, default=None, metavar="WxH", help="off-screen frame size for screenshots"
+        "--size", type=window_size, default=None, metavar="WxH", help="off-screen frame size for screenshots"
     )
     add_records_arguments(p)
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
@@ -59,9 +37,6 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    from chainsim.engine.errors import UserError
-    from chainsim.game.app.headless import run_pack
-
     if args.screenshot_every and not args.out:
         raise UserError("--screenshot-every needs --out DIR for the frames")
     summary = run_pack(

@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import sys
 
-from chainsim.engine import limits
+from chainsim.engine import argtypes, limits
+from chainsim.engine.errors import UserError
+from chainsim.game.app import pack_costs
 from chainsim.game.app.outputs import prepare_output_dir
-from chainsim.game.cli import argtypes
+from chainsim.tools.study import calibrate as cal
+from chainsim.tools.study import report, speed_accuracy
+from chainsim.tools.study.scenes import SCENES
 
 NAME = "study"
 HELP = "speed-accuracy study of ChainMail vs FEM and mass-spring; calibrate ChainMail presets"
@@ -57,17 +61,11 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    from chainsim.engine.errors import UserError
 
     cmd = getattr(args, "study_cmd", None)
     if cmd == "speed-accuracy":
-        from chainsim.game.app import pack_costs
-        from chainsim.tools.study import report, speed_accuracy
-
         scenes = None
         if args.scenes:
-            from chainsim.tools.study.scenes import SCENES
-
             scenes = [x.strip() for x in args.scenes.split(",") if x.strip()]
             bad = [x for x in scenes if x not in SCENES]
             if bad:
@@ -82,8 +80,6 @@ def run(args) -> int:
         print(md)
         return 0
     if cmd == "calibrate":
-        from chainsim.tools.study import calibrate as cal
-
         if args.E is not None and not args.E > 0:
             raise UserError(f"--E must be a positive modulus in Pa, got {args.E}")
         jobs = [(n, E, nu) for n, E, nu in cal.SHIPPED] if args.shipped else [(args.name, args.E, args.nu)]

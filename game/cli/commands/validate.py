@@ -1,9 +1,16 @@
-"""`chainsim validate PATH`: every problem in a pack at once, one line each; exit 2 if any."""
+"""`chainsim validate PATH`: every problem in a pack at once, one line each; exit 2 if any.
+
+It reports whatever `chainsim run` would refuse: the manifest and files are checked, then each
+scene is started as `run` starts it (chainsim.game.app.headless.validate_pack).
+"""
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
+
+from chainsim.game.app.headless import validate_pack
+from chainsim.game.packs import pack as packs
 
 NAME = "validate"
 HELP = "check a pack folder and report every problem"
@@ -17,14 +24,13 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    from chainsim.game.packs import pack as packs
 
     path = Path(args.path)
     if path.name == "pack.toml":
         path = path.parent
     if not path.exists():
         path, _ = packs.resolve(args.path, args.pack_path)
-    pack, problems = packs.validate(path)
+    pack, problems = validate_pack(path)
     if problems:
         for p in problems:
             print(p, file=sys.stderr)

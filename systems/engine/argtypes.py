@@ -1,10 +1,11 @@
 """Argument types of the command line: every number a flag takes is parsed and bounded here.
 
-One set of argparse types for every command, so a flag can never hand the program a NaN, an inf,
-a negative count or a count that would run for ever: `real(lo, hi)` (finite floats in a range,
-default +-MAX_COORD), `count(lo, hi)` (whole numbers in a range), `size` (WIDTHxHEIGHT within
-MAX_PIXELS) and `name(kind)` (class/trainee names, as the records store takes them). The bounds come
-from chainsim.engine.limits (docs/limits.md). A bad value is argparse's one-line usage error, exit 2.
+One set of argparse types for every command and benchmark, so a flag can never hand the program a
+NaN, an inf, a negative count or a count that would run for ever: `real(lo, hi)` (finite floats in
+a range, default +-MAX_COORD), `count(lo, hi)` (whole numbers in a range) and `size` (WIDTHxHEIGHT
+within MAX_PIXELS). The bounds come from chainsim.engine.limits (docs/limits.md). A bad value is
+argparse's one-line usage error, exit 2. (Names of classes and trainees are the records' own type:
+chainsim.game.app.options.name.)
 
 `NEGATIVE_NUMBER` is what the parser takes for a negative number rather than an option, so
 `--to -1e3 0 0` works (argparse on its own knows only -12 and -1.5).
@@ -17,8 +18,6 @@ import math
 import re
 
 from chainsim.engine import limits
-from chainsim.engine.errors import UserError
-from chainsim.game.records.validate import clean_name
 
 NEGATIVE_NUMBER = re.compile(r"^-(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$|^-(?:inf|infinity|nan)$", re.I)
 
@@ -84,19 +83,6 @@ def size(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(
             f"expected WIDTHxHEIGHT such as 1280x800 (each 1 to {limits.MAX_PIXELS}), got {text[:40]!r}"
         ) from None
-
-
-def name(kind: str):
-    """A class or trainee name: 1 to MAX_NAME_LENGTH printable characters."""
-
-    def parse(text: str) -> str:
-        try:
-            return clean_name(kind, text)
-        except UserError as e:
-            raise argparse.ArgumentTypeError(str(e)) from None
-
-    parse.__name__ = f"{kind} name"
-    return parse
 
 
 # the ranges the commands share
