@@ -253,3 +253,31 @@ def test_read_only_places_as_an_unprivileged_user(as_nobody, shared_tmp):
     assert (ok / "run" / "summary.json").stat().st_uid == 65534
     assert list(ro.iterdir()) == []
     assert _sha(db) == before
+
+
+@pytest.mark.parametrize(
+    "content",
+    [
+        '{"class": "c1", "trainee": "eve\\u202egnp.exe"}',  # a right-to-left override
+        '{"class": "c1", "trainee": "' + "t" * 200 + '"}',  # too long
+        "[" * 100000 + "]" * 100000,  # nested past the parser's stack
+        '{"class": ["c1"], "trainee": 5}',  # wrong types
+        "\x00\xff not json",
+    ],
+)
+def test_a_damaged_remembered_sign_in_gives_empty_names(content, tmp_path, monkeypatch):
+    from chainsim.game.ui import signin
+
+    monkeypatch.setattr(signin, "remembered_path", lambda: tmp_path / "signin.json")
+    (tmp_path / "signin.json").write_text(content, encoding="utf-8", errors="surrogateescape")
+    values = signin.remembered()
+    assert values["trainee"] == ""
+    assert values["class"] in ("", "c1")
+
+
+def test_a_good_remembered_sign_in_is_kept(tmp_path, monkeypatch):
+    from chainsim.game.ui import signin
+
+    monkeypatch.setattr(signin, "remembered_path", lambda: tmp_path / "signin.json")
+    (tmp_path / "signin.json").write_text('{"class": "c1", "trainee": "Zoë"}', encoding="utf-8")
+    assert signin.remembered() == {"class": "c1", "trainee": "Zoë"}
