@@ -36,13 +36,15 @@ from chainsim.game.app.inputscript import load_script, write_recording
 from chainsim.game.app.loader import spawn_scene
 from chainsim.game.app.outputs import check_output_file, prepare_output_dir, write_text_atomic
 from chainsim.game.packs import pack as packs
+from chainsim.game.records import remote
 from chainsim.game.records import store as records
+from chainsim.game.records.remote import remote_records
 from chainsim.game.records.store import local_records
 from chainsim.game.records.validate import clean_name
 from chainsim.systems.input import InputLog
 
 #: settings a user (or a recording) may give on top of the pack's own: name -> type
-USER_SETTINGS = {"db": str, "class": str, "trainee": str}
+USER_SETTINGS = {"db": str, "records": str, "class": str, "trainee": str}
 
 
 def check_user_settings(settings: dict | None, where: str = "settings") -> dict:
@@ -66,6 +68,8 @@ def check_user_settings(settings: dict | None, where: str = "settings") -> dict:
             value = clean_name(key, value)
         elif key == "db":
             records.check_target(value)
+        elif key == "records":
+            value = remote.server_url(value)
         out[key] = value
     return out
 
@@ -111,7 +115,12 @@ def app_for_pack(
             RunInfo(ref or pack.name, pack.name, scene_name, headless, render, out_dir, screenshot_every)
         )
         app.insert_resource(Assessment())
-        app.insert_resource(refusing_records(save) if save else local_records(pack_settings.get("db") or None))
+        if save:
+            app.insert_resource(refusing_records(save))
+        elif pack_settings.get("records"):  # a records server (queueing in the local store when offline)
+            app.insert_resource(remote_records(pack_settings["records"], pack_settings.get("db") or None))
+        else:
+            app.insert_resource(local_records(pack_settings.get("db") or None))
         plugins.install(app, pack.manifest["pack"].get("procedure", ""), render=render)
     except BaseException:
         app.close()

@@ -31,8 +31,11 @@ def name(kind: str):
 
 
 def add_records_arguments(p: argparse.ArgumentParser) -> None:
-    """--db, --class and --trainee, for commands whose procedures save attempts."""
+    """--db, --records, --class and --trainee, for commands whose procedures save attempts."""
     p.add_argument("--db", metavar="PATH", help="trainee records database (procedures that save attempts)")
+    p.add_argument(
+        "--records", metavar="URL", help="save attempts to this records server (queued in --db when offline)"
+    )
     p.add_argument(
         "--class", dest="class_name", type=name("class"), metavar="NAME", help="class the attempt is saved under"
     )
@@ -40,9 +43,9 @@ def add_records_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def user_settings(args) -> dict:
-    """Settings a user gives on the command line (records database, class, trainee)."""
+    """Settings a user gives on the command line (records database or server, class, trainee)."""
     out = {}
-    for key, attr in (("db", "db"), ("class", "class_name"), ("trainee", "trainee")):
+    for key, attr in (("db", "db"), ("records", "records"), ("class", "class_name"), ("trainee", "trainee")):
         v = getattr(args, attr, None)
         if v is not None:
             out[key] = v

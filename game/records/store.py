@@ -15,10 +15,11 @@ Safety: the database runs in WAL mode with ``synchronous=FULL`` and every write 
 ``BEGIN IMMEDIATE ... COMMIT``, so killing the process mid-save loses at most the attempt being
 saved and never leaves part of one. A file that is not a records database is refused with one
 line before anything is written to it: another program's SQLite file (any table, view, index or
-trigger that is not ours) is never written into. A database is created only when an attempt, class
-or trainee is saved (``create=True``), only in a folder that exists (the default location's folder
-excepted), and with a warning naming the file, so a mistyped path is noticed; reading never creates
-one. Schema and migrations: ``chainsim.game.records.schema``.
+trigger that is not ours) is never written into. A new database file is made by the first write,
+not by opening (a command that fails first leaves nothing; reads until then see an empty store),
+only in a folder that exists (the default location's folder excepted), and with a warning naming
+the file, so a mistyped path is noticed; ``create=False`` refuses a path with no database at all.
+Schema and migrations: ``chainsim.game.records.schema``.
 """
 
 from __future__ import annotations
@@ -37,14 +38,30 @@ import platformdirs
 from chainsim.components.resources import Records
 from chainsim.engine import limits
 from chainsim.engine.errors import UserError
+from chainsim.game.records.backend import (
+    PgConnection,
+    db_errors,
+    is_postgres,
+    redact,
+    schema_version,
+    set_schema_version,
+)
 from chainsim.game.records.schema import MIGRATIONS, OWN_TABLES, SCHEMA_VERSION
-from chainsim.game.records.validate import clean_attempt, clean_name, to_json
+from chainsim.game.records.validate import clean_attempt, clean_key, clean_name, to_json
 
 ENV_VAR = "CHAINSIM_DB"
 DB_FILENAME = "records.sqlite3"
 SQLITE_MAGIC = b"SQLite format 3\x00"
 BUSY_TIMEOUT_MS = 5000
 logger = logging.getLogger(__name__)
+
+
+class NoDatabase(UserError):
+    """Reading (``create=False``) a records database that does not exist: nothing was ever saved there."""
+
+
+class WriteFailed(UserError):
+    """The database refused a write (locked, gone, full); nothing changed and it may be retried."""
 
 
 def default_path() -> Path:
@@ -56,24 +73,25 @@ def default_path() -> Path:
     return Path(platformdirs.user_data_dir("chainsim")) / DB_FILENAME
 
 
+def _header(path: Path) -> bytes:
+    try:
+        with path.open("rb") as fh:
+            return fh.read(len(SQLITE_MAGIC))
+    except OSError as exc:
+        raise UserError(f"cannot read records database {path}: {exc.strerror}") from None
+
+
 def _check_file(path: Path) -> None:
     """Refuse, without writing, anything at ``path`` that cannot be a records database."""
     if path.is_dir():
         raise UserError(f"records database {path} is a directory; expected a .sqlite3 file")
     if not path.exists():
         return
-    try:
-        with path.open("rb") as fh:
-            head = fh.read(len(SQLITE_MAGIC))
-    except OSError as exc:
-        raise UserError(f"cannot read records database {path}: {exc.strerror}") from None
-    # SQLite treats a zero-byte file as an empty database; anything else needs the magic header.
-    if head and head != SQLITE_MAGIC:
-        raise UserError(f"{path} is not an SQLite database; expected a chainsim records file")
-    if not head:
-        return
-    # Read-only look first: opening read-write and switching to WAL would rewrite the header of a
-    # file we are about to reject.
+    # Read-only look through SQLite first: opening read-write and switching to WAL would rewrite
+    # the header of a file we are about to reject. The file is never opened with a plain handle
+    # while it may be in use here: closing any descriptor of a file drops every POSIX lock this
+    # process holds on it, those of live connections included, and another process could then
+    # reset the WAL under them. The header is read only after SQLite refused the file, to say why.
     try:
         ro = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
     except sqlite3.Error as exc:
@@ -88,6 +106,9 @@ def _check_file(path: Path) -> None:
             if kind == "table" and name in OWN_TABLES and name.isidentifier()
         }
     except sqlite3.DatabaseError as exc:
+        ro.close()
+        if _header(path) not in (b"", SQLITE_MAGIC):
+            raise UserError(f"{path} is not an SQLite database; expected a chainsim records file") from None
         if not (os.access(path, os.W_OK) and os.access(path.parent, os.W_OK | os.X_OK)):
             # a WAL database cannot be read without writing its shared-memory file beside it
             raise UserError(f"records database {path} is read-only for this user ({exc})") from None
@@ -141,13 +162,13 @@ def migrate(conn: sqlite3.Connection) -> int:
     while True:
         conn.execute("BEGIN IMMEDIATE")
         try:
-            version = conn.execute("PRAGMA user_version").fetchone()[0]
+            version = schema_version(conn)
             if version >= SCHEMA_VERSION:
                 conn.execute("COMMIT")
                 return version
             for statement in MIGRATIONS[version]:
                 conn.execute(statement)
-            conn.execute(f"PRAGMA user_version = {version + 1}")
+            set_schema_version(conn, version + 1)
             conn.execute("COMMIT")
         except BaseException:
             conn.execute("ROLLBACK")
@@ -169,12 +190,14 @@ _ATTEMPT_SELECT = """
 """
 
 
-def check_target(path: str | os.PathLike[str] | None) -> Path:
+def check_target(path: str | os.PathLike[str] | None) -> Path | str | None:
     """Check, without creating or writing anything, that attempts can be saved at ``path``.
 
     An existing file must be a records database we may write; a new one needs an existing, writable
     folder (a mistyped folder is an error, not a new database somewhere unexpected).
     """
+    if is_postgres(path) or (path is None and is_postgres(os.environ.get(ENV_VAR, "").strip())):
+        return path  # a PostgreSQL server answers for itself when connected to
     p = _path(path)
     folder = p.parent
     if p.is_file() and not os.access(p, os.W_OK):
@@ -200,11 +223,26 @@ class RecordStore:
     """Classes, trainees and their attempts in one SQLite file (see module docstring)."""
 
     def __init__(self, path: str | os.PathLike[str] | None = None, *, create: bool = True) -> None:
+        if path is None and is_postgres(os.environ.get(ENV_VAR, "").strip()):
+            path = os.environ[ENV_VAR].strip()
+        if is_postgres(path):
+            # A PostgreSQL URL (chainsim.game.records.backend): same schema, same migrations.
+            self.path = redact(path)
+            self._conn = PgConnection(path)
+            try:
+                migrate(self._conn)
+            except db_errors() as exc:
+                self._conn.close()
+                raise UserError(f"cannot use records database {self.path}: {exc}") from None
+            except BaseException:
+                self._conn.close()
+                raise
+            return
         self.path = _path(path)
         _check_file(self.path)
         created = not self.path.exists()
         if created and not create:
-            raise UserError(f"no records database at {self.path} (nothing has been saved there)")
+            raise NoDatabase(f"no records database at {self.path} (nothing has been saved there)")
         if created:
             if path is None:  # the default location: its folder is ours to make
                 try:
@@ -215,28 +253,38 @@ class RecordStore:
                 raise UserError(
                     f"records database {self.path}: folder {self.path.parent} does not exist (is the path mistyped?)"
                 )
+            # The file is made by the first write, not now: a command that fails before writing leaves
+            # nothing behind, and reads until then see an empty store (an in-memory one).
+            self._conn = None
+            self._memory: sqlite3.Connection | None = None
+            self._unmade = True
+            return
+        self._unmade = False
+        self._conn = self._open_file()
+
+    def _open_file(self) -> sqlite3.Connection:
+        """Connect to the SQLite file (made if missing), in WAL mode, migrated to SCHEMA_VERSION."""
         try:
             # isolation_level=None: we issue BEGIN/COMMIT ourselves so each save is exactly one
             # transaction and DDL is not auto-committed behind our back.
-            self._conn = sqlite3.connect(self.path, isolation_level=None, timeout=BUSY_TIMEOUT_MS / 1000)
+            conn = sqlite3.connect(self.path, isolation_level=None, timeout=BUSY_TIMEOUT_MS / 1000)
         except sqlite3.Error as exc:
             raise UserError(f"cannot open records database {self.path}: {exc}") from None
         try:
-            self._conn.row_factory = sqlite3.Row
-            self._conn.execute("PRAGMA foreign_keys = ON")
-            mode = self._conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
+            conn.row_factory = sqlite3.Row
+            conn.execute("PRAGMA foreign_keys = ON")
+            mode = conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
             if mode.lower() != "wal":
                 raise UserError(f"records database {self.path} cannot use WAL journaling (got {mode})")
-            self._conn.execute("PRAGMA synchronous = FULL")
-            migrate(self._conn)
+            conn.execute("PRAGMA synchronous = FULL")
+            migrate(conn)
         except sqlite3.Error as exc:
-            self._conn.close()
+            conn.close()
             raise UserError(f"cannot use records database {self.path}: {exc}") from None
         except BaseException:
-            self._conn.close()
+            conn.close()
             raise
-        if created:
-            logger.warning("created a new records database at %s", self.path)
+        return conn
 
     # -- plumbing -------------------------------------------------------------------------
 
@@ -248,22 +296,39 @@ class RecordStore:
 
     def close(self) -> None:
         conn, self._conn = getattr(self, "_conn", None), None
-        if conn is not None:
-            conn.close()
+        memory, self._memory = getattr(self, "_memory", None), None
+        self._unmade = False
+        for c in (conn, memory):
+            if c is not None:
+                c.close()
 
     @property
     def schema_version(self) -> int:
-        return self._db.execute("PRAGMA user_version").fetchone()[0]
+        return schema_version(self._db)
 
     @property
     def _db(self) -> sqlite3.Connection:
         if self._conn is None:
+            if getattr(self, "_unmade", False) and self.path.exists():  # another store made it meanwhile
+                self._conn = self._open_file()
+                self._unmade = False
+                return self._conn
+            if getattr(self, "_unmade", False):  # not made yet: reads see an empty store
+                if self._memory is None:
+                    self._memory = sqlite3.connect(":memory:", isolation_level=None)
+                    self._memory.row_factory = sqlite3.Row
+                    migrate(self._memory)
+                return self._memory
             raise UserError("records store is closed")
         return self._conn
 
     @contextmanager
     def _write(self) -> Iterator[sqlite3.Connection]:
-        """One write transaction; rolled back whole on any error."""
+        """One write transaction; rolled back whole on any error. The first one makes a new file."""
+        if self._conn is None and getattr(self, "_unmade", False):
+            self._conn = self._open_file()
+            self._unmade = False
+            logger.warning("created a new records database at %s", self.path)
         conn = self._db
         # IMMEDIATE takes the write lock up front so a concurrent writer waits instead of failing
         # half-way through.
@@ -274,8 +339,8 @@ class RecordStore:
         except BaseException as exc:
             if conn.in_transaction:
                 conn.execute("ROLLBACK")
-            if isinstance(exc, sqlite3.Error):
-                raise UserError(f"records database {self.path}: write failed, nothing changed ({exc})") from None
+            if isinstance(exc, db_errors()):
+                raise WriteFailed(f"records database {self.path}: write failed, nothing changed ({exc})") from None
             raise
 
     def _class_id(self, conn: sqlite3.Connection, name: str) -> int | None:
@@ -354,7 +419,7 @@ class RecordStore:
             FROM trainees t JOIN classes c ON c.id = t.class_id
                  LEFT JOIN attempts a ON a.trainee_id = t.id
             WHERE ? IS NULL OR c.name = ?
-            GROUP BY t.id ORDER BY c.name, t.name
+            GROUP BY t.id, c.name ORDER BY c.name, t.name
             """,
             (class_name, class_name),
         )
@@ -362,16 +427,22 @@ class RecordStore:
 
     # -- attempts ---------------------------------------------------------------------------
 
-    def save_attempt(self, class_name: str, trainee: str, attempt: dict[str, Any]) -> int:
+    def save_attempt(self, class_name: str, trainee: str, attempt: dict[str, Any], *, key: str | None = None) -> int:
         """Validate and store one attempt in one transaction; returns its id.
 
         The class and trainee are created if missing, in the same transaction, so an interrupted
-        save leaves no empty trainee behind either.
+        save leaves no empty trainee behind either. ``key`` (an idempotency key, see
+        ``attempt_id_for_key``) makes a resend return the first save's id instead of a copy.
         """
         class_name = clean_name("class", class_name)
         trainee = clean_name("trainee", trainee)
         a = clean_attempt(attempt)
+        key = None if key is None else clean_key(key)
         with self._write() as conn:
+            if key is not None:
+                row = conn.execute("SELECT id FROM attempts WHERE idem_key = ?", (key,)).fetchone()
+                if row is not None:
+                    return row[0]
             class_id = self._class_id(conn, class_name)
             if class_id is None:
                 class_id = conn.execute("INSERT INTO classes (name) VALUES (?)", (class_name,)).lastrowid
@@ -384,8 +455,8 @@ class RecordStore:
                 """
                 INSERT INTO attempts (trainee_id, pack, created_at, duration_s, landmark_error_mm,
                     needle_error_mm, target, skull_contacts, path_length_mm, redirections, aids, step_times,
-                    details)
-                VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
+                    details, idem_key)
+                VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
                 """,
                 (
                     trainee_id,
@@ -401,6 +472,7 @@ class RecordStore:
                     to_json(a["aids"]),
                     to_json(a["step_times"]),
                     to_json(a["details"]),
+                    key,
                 ),
             )
             return cur.lastrowid
@@ -436,6 +508,21 @@ class RecordStore:
             if conn.execute("DELETE FROM attempts WHERE id = ?", (attempt_id,)).rowcount == 0:
                 raise UserError(f"no attempt with id {attempt_id}")
 
+    def attempt_id_for_key(self, key: str) -> int | None:
+        """The attempt saved with idempotency key ``key``, or None if none was."""
+        row = self._db.execute("SELECT id FROM attempts WHERE idem_key = ?", (clean_key(key),)).fetchone()
+        return None if row is None else row[0]
+
+    # -- for modules that keep their own tables in this database (server accounts, outbox) --
+
+    def transaction(self):
+        """Context manager: one write transaction on the store's connection (see ``_write``)."""
+        return self._write()
+
+    def query(self, sql: str, params: tuple = ()) -> list[Any]:
+        """Rows of one read statement (``?`` parameters), readable by index and column name."""
+        return list(self._db.execute(sql, params))
+
 
 def _attempt_id(value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= limits.MAX_ATTEMPT_ID:
@@ -462,5 +549,5 @@ def local_records(db: str | os.PathLike[str] | None = None) -> Records:
                 raise UserError(f"attempt {attempt_id} is not yours")
             store.delete_attempt(attempt_id)
 
-    where = str(Path(db).expanduser() if db else default_path())
+    where = redact(db) if is_postgres(db) else str(Path(db).expanduser() if db else default_path())
     return Records(save_attempt=save_attempt, list_attempts=list_attempts, where=where, delete_attempt=delete_attempt)

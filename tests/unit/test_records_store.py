@@ -1,4 +1,7 @@
-"""RecordStore: round trips, names, validation, default location, migrations, refused files."""
+"""RecordStore: round trips, names, validation, default location, migrations, refused files.
+
+Tests taking ``records_db`` run on an SQLite file and on a real PostgreSQL database (tests/records_db.py).
+"""
 
 from __future__ import annotations
 
@@ -34,8 +37,8 @@ def sample_attempt(i: int = 0, **over):
 
 
 @pytest.fixture
-def store(tmp_path):
-    with RecordStore(tmp_path / "records.sqlite3") as s:
+def store(records_db):
+    with RecordStore(records_db) as s:
         yield s
 
 
@@ -165,9 +168,8 @@ def test_unknown_filters_are_errors_not_empty_lists(store):
         store.list_trainees("nope")
 
 
-def test_second_connection_sees_saves_and_closed_store_refuses(tmp_path):
-    path = tmp_path / "r.sqlite3"
-    with RecordStore(path) as a, RecordStore(path) as b:
+def test_second_connection_sees_saves_and_closed_store_refuses(records_db):
+    with RecordStore(records_db) as a, RecordStore(records_db) as b:
         aid = a.save_attempt("c1", "alice", sample_attempt())
         assert b.get_attempt(aid)["trainee"] == "alice"
     with pytest.raises(UserError):
@@ -281,6 +283,9 @@ def test_env_var_overrides_default(tmp_path, monkeypatch):
 def test_database_uses_wal(tmp_path):
     with RecordStore(tmp_path / "r.sqlite3"):
         pass
+    assert not (tmp_path / "r.sqlite3").exists()  # made by the first write, not by opening
+    with RecordStore(tmp_path / "r.sqlite3") as s:
+        s.add_class("c1")
     conn = sqlite3.connect(tmp_path / "r.sqlite3")
     assert conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     conn.close()
@@ -318,7 +323,7 @@ def test_v1_database_is_migrated_in_place_with_rows_intact(tmp_path):
     path = tmp_path / "old.sqlite3"
     make_v1(path)
     with RecordStore(path) as s:
-        assert s.schema_version == SCHEMA_VERSION == 3
+        assert s.schema_version == SCHEMA_VERSION == 4
         rows = s.list_attempts()
         assert [r["created_at"] for r in rows] == [f"2025-01-0{i + 1}T10:00:00Z" for i in range(3)]
         assert [r["needle_error_mm"] for r in rows] == [None, 7.0, 6.0]
@@ -349,7 +354,7 @@ def test_v2_database_keeps_its_rows_and_gains_redirections(tmp_path):
     before = [tuple(r) for r in conn.execute("SELECT * FROM attempts ORDER BY id")]
     conn.close()
     with RecordStore(path) as s:
-        assert s.schema_version == 3
+        assert s.schema_version == SCHEMA_VERSION
         rows = s.list_attempts()
         assert [r["redirections"] for r in rows] == [0, 0, 0]
         assert rows[1]["details"] == {"D1": 2.5}

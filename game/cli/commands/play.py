@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 
 from chainsim.engine import argtypes, limits
 from chainsim.engine.errors import UserError
 from chainsim.game.app.options import add_records_arguments
 from chainsim.game.app.outputs import check_output_file
 from chainsim.game.packs import pack as packs
+from chainsim.game.records import remote
 from chainsim.game.ui.window import run_window
 
 NAME = "play"
@@ -41,7 +43,6 @@ def has_display() -> bool:
 
 
 def run(args) -> int:
-
     if not has_display():
         raise UserError(
             f"no display to open a window on (DISPLAY is not set); run without one: "
@@ -53,5 +54,8 @@ def run(args) -> int:
         check_output_file(args.record, "--record")
     if args.screenshot:
         check_output_file(args.screenshot, "--screenshot")
-
+    if args.records:
+        remote.server_url(args.records)  # a malformed address is one line now, not a failed save later
+        # The queue drains while the window opens; a slow or absent server never delays it.
+        threading.Thread(target=remote.sync_quietly, args=(args.records, args.db), daemon=True).start()
     return run_window(args)

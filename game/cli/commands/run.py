@@ -8,6 +8,7 @@ from chainsim.engine import argtypes
 from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import run_pack
 from chainsim.game.app.options import add_records_arguments, user_settings, window_size
+from chainsim.game.records import remote
 
 NAME = "run"
 HELP = "run a pack without a window and write OUT/summary.json"
@@ -39,6 +40,8 @@ def add_parser(sub):
 def run(args) -> int:
     if args.screenshot_every and not args.out:
         raise UserError("--screenshot-every needs --out DIR for the frames")
+    if args.records:
+        remote.sync_quietly(args.records, args.db)  # what an earlier session left in the queue
     summary = run_pack(
         args.pack,
         args.steps,

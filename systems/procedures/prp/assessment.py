@@ -27,7 +27,7 @@ import numpy as np
 from chainsim.components.input_events import Widget
 from chainsim.components.needle import NeedleState
 from chainsim.components.procedure import ProcedureState, PrpAnatomy, landmark_errors
-from chainsim.components.resources import Assessment, FailedSaves, PackResource, Records, Settings
+from chainsim.components.resources import Assessment, FailedSaves, PackResource, Records, SavedLocally, Settings
 from chainsim.engine.errors import UserError
 from chainsim.systems.procedures.prp.handles import PrpHandles, hud
 from chainsim.systems.stages import ORDER_ASSESSMENT
@@ -227,6 +227,9 @@ class AssessmentSystem:
             elif ev.name == "save":
                 try:
                     rid = save(app, v)
+                except SavedLocally as e:  # safe on this computer; the records server gets it later
+                    h.message(f"Saved on this computer: {e}", 8.0)
+                    esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState).closed = True
                 except (UserError, OSError) as e:  # a full disk or a vanished folder must not end the session
                     h.message(f"Not saved: {e}", 8.0)
                     self.errors.append(str(e))
