@@ -24,9 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from chainsim.components.input_events import event_from_dict, event_to_dict
-from chainsim.engine import limits
+from chainsim.engine import datafile, limits
 from chainsim.engine.errors import UserError
-from chainsim.engine import datafile
 from chainsim.game.app.outputs import write_text_atomic
 
 FORMAT = 1

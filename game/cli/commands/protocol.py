@@ -37,9 +37,8 @@ import matplotlib
 import matplotlib.pyplot as plt
 
 from chainsim.components.input_events import Widget
-from chainsim.engine import limits
+from chainsim.engine import datafile, limits
 from chainsim.engine.errors import UserError
-from chainsim.engine import datafile
 from chainsim.game.app.headless import run_pack
 from chainsim.game.app.inputscript import load_script
 from chainsim.game.app.options import name
