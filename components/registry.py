@@ -215,7 +215,8 @@ def _num(v, f: Field | None = None) -> float:
         raise FieldError(f"must be >= {lo:g}, got {x:g}")
     if hi is not None and x > hi:
         raise FieldError(f"must be <= {hi:g}, got {x:g}")
-    if abs(x) > limits.MAX_COORD:
+    # a side the field leaves open is bounded by MAX_COORD (a declared bound replaces it: a modulus in Pa)
+    if (hi is None and x > limits.MAX_COORD) or (lo is None and x < -limits.MAX_COORD):
         raise FieldError(f"must be within +-{limits.MAX_COORD:g} (docs/limits.md), got {x:g}")
     return x
 

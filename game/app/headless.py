@@ -14,8 +14,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import esper
 import numpy as np
 
+from chainsim.components.core import Name
+from chainsim.components.deformable import Deformable
 from chainsim.components.input_events import PickPoint
 from chainsim.components.resources import (
     Assessment,
@@ -34,6 +37,7 @@ from chainsim.game.app.core import App
 from chainsim.game.app.digest import world_digest
 from chainsim.game.app.inputscript import load_script, write_recording
 from chainsim.game.app.loader import spawn_scene
+from chainsim.game.app.options import MODEL_FLAG_CHOICES
 from chainsim.game.app.outputs import check_output_file, prepare_output_dir, write_text_atomic
 from chainsim.game.packs import pack as packs
 from chainsim.game.records import remote
@@ -44,7 +48,7 @@ from chainsim.game.records.validate import clean_name
 from chainsim.systems.input import InputLog
 
 #: settings a user (or a recording) may give on top of the pack's own: name -> type
-USER_SETTINGS = {"db": str, "records": str, "class": str, "trainee": str}
+USER_SETTINGS = {"db": str, "records": str, "class": str, "trainee": str, "model": str}
 
 
 def check_user_settings(settings: dict | None, where: str = "settings") -> dict:
@@ -70,6 +74,8 @@ def check_user_settings(settings: dict | None, where: str = "settings") -> dict:
             records.check_target(value)
         elif key == "records":
             value = remote.server_url(value)
+        elif key == "model" and value not in MODEL_FLAG_CHOICES:
+            raise UserError(f"{where}: setting 'model' must be one of {', '.join(MODEL_FLAG_CHOICES)}, got {value!r}")
         out[key] = value
     return out
 
@@ -263,6 +269,9 @@ def run_pack(
             "digest": digest,
             "events_applied": len(log.items) if log else 0,
         }
+        models = body_models(app)
+        if models:
+            summary["models"] = models
         assessment = app.resource(Assessment).values
         if assessment:
             summary["assessment"] = _jsonable(assessment)
@@ -288,6 +297,15 @@ def run_pack(
         return summary
     finally:
         app.close()
+
+
+def body_models(app) -> dict:
+    """Which deformation model each soft body runs, and why (the pack, --model, or the auto choice)."""
+    with app.active():
+        return {
+            esper.component_for_entity(ent, Name).value: {"model": d.model_used, "why": d.model_reason}
+            for ent, d in esper.get_component(Deformable)
+        }
 
 
 def _jsonable(v):

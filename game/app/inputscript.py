@@ -98,7 +98,8 @@ def write_recording(
         "scene": scene,
         "dt": dt,
         "steps": steps,
-        "settings": {k: v for k, v in (settings or {}).items() if k != "db"},  # a replay never saves
+        # where attempts were saved is the recorder's own business: a replay never saves
+        "settings": {k: v for k, v in (settings or {}).items() if k not in ("db", "records")},
         "digest": digest,
         "event": [dict(t=t, **event_to_dict(ev)) for t, ev in events],
     }

@@ -154,6 +154,13 @@ section(
             min=0,
             max=limits.MAX_RELAX,
         ),
+        Field(
+            "exact",
+            "bool",
+            False,
+            help="After each cascade and relaxation put every link back inside its limits (a pull past what the "
+            "limits allow from the fixed elements stops at the nearest reachable point).",
+        ),
     ],
 )
 
@@ -178,7 +185,8 @@ VIEWPORT = Schema(
             "kind",
             "enum",
             choices=VIEWPORT_KINDS,
-            help="orbit: mouse-driven camera; attached: follows an entity and ignores input; panel: 2-D controls; fixed: a still camera.",
+            help="orbit: mouse-driven camera; attached: follows an entity and ignores input; panel: 2-D controls; "
+            "fixed: a still camera.",
         ),
         Field("rect", "rect", help="Placement [x, y, w, h] as window fractions, origin bottom-left.", min=0.0, max=1.0),
         Field("title", "str", "", help="Caption drawn in the viewport."),
@@ -189,7 +197,8 @@ VIEWPORT = Schema(
             "float",
             0.0,
             units="deg",
-            help="Camera azimuth about +Z: at 0 the eye is on the +Y side looking along -Y; positive turns counter-clockwise.",
+            help="Camera azimuth about +Z: at 0 the eye is on the +Y side looking along -Y; positive turns "
+            "counter-clockwise.",
         ),
         Field(
             "pitch", "float", 0.0, units="deg", help="Camera elevation; positive raises the eye.", min=-89.9, max=89.9
@@ -201,7 +210,8 @@ VIEWPORT = Schema(
             "attach",
             "entity",
             "",
-            help="Entity the camera rides on (attached viewports): the eye sits at its origin plus offset and looks along its local +Z, local +Y up.",
+            help="Entity the camera rides on (attached viewports): the eye sits at its origin plus offset and looks "
+            "along its local +Z, local +Y up.",
         ),
         Field("offset", "vec3", [0.0, 0.0, 0.0], units="mm", help="Camera offset in the attached entity's frame."),
         Field("visible", "bool", True, help="Shown at start (a toggle widget may change it)."),
@@ -233,7 +243,8 @@ WIDGET = Schema(
             "layer",
             "str",
             "",
-            help="What a toggle switches: NAME shows/hides that layer ('planes' also the pack's planes), view:NAME a viewport, xray:NAME makes a layer see-through, wire:NAME draws it as links.",
+            help="What a toggle switches: NAME shows/hides that layer ('planes' also the pack's planes), view:NAME a "
+            "viewport, xray:NAME makes a layer see-through, wire:NAME draws it as links.",
         ),
         Field("help", "str", "", help="Tooltip / HUD help."),
     ),

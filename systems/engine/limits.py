@@ -90,7 +90,7 @@ MAX_COORD = _limit(
     "mm",
     "Numbers and coordinates",
     "Largest magnitude of a coordinate (mesh vertices after unit conversion, positions, waypoints, picks, "
-    "`--to`) and, unless its key states a narrower range, of any number in a pack, script or recording. "
+    "`--to`) and, on any side its key leaves open, of any number in a pack, script or recording. "
     "Squares and sums of such numbers stay far from overflow, so nothing derived becomes inf or NaN.",
 )
 MAX_TIME = _limit(

@@ -8,7 +8,7 @@ import threading
 
 from chainsim.engine import argtypes, limits
 from chainsim.engine.errors import UserError
-from chainsim.game.app.options import add_records_arguments
+from chainsim.game.app.options import MODEL_FLAG_CHOICES, MODEL_FLAG_HELP, add_records_arguments
 from chainsim.game.app.outputs import check_output_file
 from chainsim.game.packs import pack as packs
 from chainsim.game.records import remote
@@ -31,6 +31,7 @@ def add_parser(sub):
         help="close after this much simulated time",
     )
     p.add_argument("--screenshot", metavar="PNG", help="save a screenshot of the window when closing")
+    p.add_argument("--model", choices=MODEL_FLAG_CHOICES, help=MODEL_FLAG_HELP)
     add_records_arguments(p)
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     return p

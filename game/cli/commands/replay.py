@@ -17,8 +17,8 @@ from chainsim.game.app.inputscript import parse_events, read_file
 NAME = "replay"
 HELP = "replay a recorded session and compare its final digest"
 
-#: settings a recording may carry; the records database it names is ignored (a replay never saves)
-REPLAY_SETTINGS = ("db", "class", "trainee")
+#: settings a recording may carry; the records database or server it names is ignored (a replay never saves)
+REPLAY_SETTINGS = ("db", "records", "class", "trainee", "model")
 
 
 def add_parser(sub):
@@ -54,7 +54,7 @@ def check_recording(data, where: str) -> dict:
     for key, value in settings.items():
         if not isinstance(value, str):
             raise UserError(f"{where}: setting {key!r} must be text, got {type(value).__name__}")
-    kept = {k: v for k, v in settings.items() if k != "db"}
+    kept = {k: v for k, v in settings.items() if k not in ("db", "records")}
     return {
         "pack": data["pack"],
         "scene": data["scene"],

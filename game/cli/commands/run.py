@@ -7,7 +7,13 @@ import json
 from chainsim.engine import argtypes
 from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import run_pack
-from chainsim.game.app.options import add_records_arguments, user_settings, window_size
+from chainsim.game.app.options import (
+    MODEL_FLAG_CHOICES,
+    MODEL_FLAG_HELP,
+    add_records_arguments,
+    user_settings,
+    window_size,
+)
 from chainsim.game.records import remote
 
 NAME = "run"
@@ -31,6 +37,7 @@ def add_parser(sub):
     p.add_argument(
         "--size", type=window_size, default=None, metavar="WxH", help="off-screen frame size for screenshots"
     )
+    p.add_argument("--model", choices=MODEL_FLAG_CHOICES, help=MODEL_FLAG_HELP)
     add_records_arguments(p)
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
