@@ -283,6 +283,9 @@ def test_env_var_overrides_default(tmp_path, monkeypatch):
 def test_database_uses_wal(tmp_path):
     with RecordStore(tmp_path / "r.sqlite3"):
         pass
+    assert not (tmp_path / "r.sqlite3").exists()  # made by the first write, not by opening
+    with RecordStore(tmp_path / "r.sqlite3") as s:
+        s.add_class("c1")
     conn = sqlite3.connect(tmp_path / "r.sqlite3")
     assert conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     conn.close()

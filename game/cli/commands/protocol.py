@@ -20,6 +20,10 @@ thesis's own values beside it. Format:
 
 Scripted attempts do not learn or tire, and aids change what a person sees, not what a script does:
 the numbers measure the scripts. The protocol is the harness a study with people would use.
+
+Limits (docs/limits.md): repeat <= MAX_REPEAT, steps <= MAX_STEPS, and at most MAX_PROTOCOL_RUNS
+runs in all; everything, scripts, names and the records database included, is checked before the
+first run. Attempts are saved by the protocol itself: a Save pressed inside a script saves nothing.
 """
 
 from __future__ import annotations
@@ -27,18 +31,20 @@ from __future__ import annotations
 import json
 import math
 import sys
-import tomllib
 from pathlib import Path
 
 import matplotlib
 import matplotlib.pyplot as plt
 
 from chainsim.components.input_events import Widget
+from chainsim.engine import datafile, limits
 from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import run_pack
 from chainsim.game.app.inputscript import load_script
+from chainsim.game.app.options import name
+from chainsim.game.app.outputs import prepare_output_dir, write_text_atomic
 from chainsim.game.packs import pack as packs
-from chainsim.game.records.store import RecordStore
+from chainsim.game.records.store import RecordStore, check_target
 from chainsim.systems.procedures.prp.assessment import attempt_record
 
 NAME = "protocol"
@@ -66,12 +72,17 @@ def add_parser(sub):
     p.add_argument(
         "--class",
         dest="class_name",
+        type=name("class"),
         default="study",
         metavar="NAME",
         help="class the attempts are saved under (default: study)",
     )
     p.add_argument(
-        "--trainee", default="scripted", metavar="NAME", help="trainee the attempts are saved under (default: scripted)"
+        "--trainee",
+        type=name("trainee"),
+        default="scripted",
+        metavar="NAME",
+        help="trainee the attempts are saved under (default: scripted)",
     )
     p.add_argument("--out", metavar="DIR", help="folder for each trial's summary.json, results.json and table61.png")
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
@@ -87,14 +98,9 @@ def load_protocol(path: str | Path) -> dict:
     """Read and check a protocol; every problem is a one-line UserError naming the key."""
 
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise UserError(f"{path}: protocol file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise UserError(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
-    except tomllib.TOMLDecodeError as e:
-        raise UserError(f"{path}: TOML syntax error: {e}") from None
+    data = datafile.parse_toml(
+        datafile.read_text(path, max_bytes=limits.MAX_SCRIPT_BYTES, what="protocol file"), str(path)
+    )
     where = str(path)
     extra = sorted(set(data) - TOP_KEYS)
     if extra:
@@ -132,12 +138,16 @@ def load_protocol(path: str | Path) -> dict:
         scripts = t.get("scripts", [t["script"]] if "script" in t else None)
         if not isinstance(scripts, list) or not scripts or not all(isinstance(s, str) and s for s in scripts):
             raise _err(w, "'scripts' must be a non-empty array of script paths")
-        repeat = t.get("repeat", 1)
-        if isinstance(repeat, bool) or not isinstance(repeat, int) or repeat < 1:
-            raise _err(w, f"'repeat' must be a whole number >= 1, got {repeat!r}")
+        try:
+            repeat = limits.whole(t.get("repeat", 1), 1, limits.MAX_REPEAT)
+        except limits.LimitError as e:
+            raise _err(w, f"'repeat' {e} (docs/limits.md)") from None
         steps = t.get("steps")
-        if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
-            raise _err(w, f"'steps' must be a whole number >= 1, got {steps!r}")
+        if steps is not None:
+            try:
+                steps = limits.whole(steps, 1, limits.MAX_STEPS)
+            except limits.LimitError as e:
+                raise _err(w, f"'steps' {e} (docs/limits.md)") from None
         aids = t.get("aids", {})
         if not isinstance(aids, dict):
             raise _err(w, "'aids' must be a table of true/false")
@@ -157,6 +167,9 @@ def load_protocol(path: str | Path) -> dict:
                 "aids": {a: bool(aids.get(a, False)) for a in AIDS},
             }
         )
+    runs = sum(len(t["scripts"]) * t["repeat"] for t in out)
+    if runs > limits.MAX_PROTOCOL_RUNS:
+        raise _err(where, f"asks for {runs:,} runs, over the {limits.MAX_PROTOCOL_RUNS:,} limit (docs/limits.md)")
     return {"path": path, "pack": data["pack"], "title": data.get("title", ""), "trials": out}
 
 
@@ -244,12 +257,8 @@ def run(args) -> int:
     proto = load_protocol(args.protocol)
     root, _scene = packs.resolve(proto["pack"], args.pack_path)
     pack = packs.load(root)
-    out = Path(args.out) if args.out else None
-    if out is not None:
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise UserError(f"--out {out}: cannot create folder ({e.strerror})") from None
+    check_target(args.db)  # a mistyped or read-only database is refused before the first trial
+    out = prepare_output_dir(args.out, "--out") if args.out else None
     # check every script before anything runs or is saved
     plan = []
     for t in proto["trials"]:
@@ -271,7 +280,12 @@ def run(args) -> int:
             aid_events = [(0.0, Widget(a, v)) for a, v in t["aids"].items()]
             trial_out = str(out / f"{i:02d}-{t['name']}") if out is not None else None
             summary = run_pack(
-                str(root), t["steps"], events=aid_events + list(events), out=trial_out, pack_paths=args.pack_path
+                str(root),
+                t["steps"],
+                events=aid_events + list(events),
+                out=trial_out,
+                pack_paths=args.pack_path,
+                save="the protocol saves each attempt itself",
             )
             a = summary.get("assessment")
             if not a:
@@ -326,8 +340,8 @@ def run(args) -> int:
                 for k, v in table.items()
             ],
         }
-        (out / "results.json").write_text(json.dumps(data, indent=2, allow_nan=False), encoding="utf-8")
-        (out / "table61.txt").write_text(text + "\n", encoding="utf-8")
+        write_text_atomic(out / "results.json", json.dumps(data, indent=2, allow_nan=False), "--out")
+        write_text_atomic(out / "table61.txt", text + "\n", "--out")
         _plot(table, out / "table61.png")
         print(f"results: {out / 'results.json'}, {out / 'table61.png'}")
     if any(v[0] is not None and not math.isfinite(v[0]) for v in table.values()):  # pragma: no cover
