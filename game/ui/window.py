@@ -31,6 +31,7 @@ from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll, Widget
 from chainsim.components.resources import Assessment, PendingInput, Settings
 from chainsim.engine.errors import UserError
+from chainsim.engine.warmup import warm_up
 from chainsim.game.app.digest import world_digest
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script, write_recording
@@ -91,7 +92,8 @@ def _open_window(pyglet, w: int, h: int, caption: str):
 
 
 def run_window(args) -> int:
-
+    # every kernel compiled (or loaded from numba's cache) before the window takes any input
+    warm_up()
     script = load_script(args.input) if getattr(args, "input", None) else None
     settings = user_settings(args)  # --db, --class, --trainee for procedures that save attempts
     app = build_app(args.pack, pack_paths=args.pack_path, headless=False, settings=settings)
