@@ -95,3 +95,8 @@ class PolyLine:
     color: tuple = (1.0, 1.0, 0.2, 1.0)
     visible: bool = True
     layer: str = ""
+
+
+@dataclass(slots=True)
+class Wireframe:
+    """Runtime only (not a manifest table): draw this entity's mesh as its links, e.g. to show stretch."""

@@ -42,6 +42,13 @@ class ReleaseRequest:
 
 
 @dataclass(frozen=True, slots=True)
+class ResetRequest:
+    """Put the body back at rest: rest positions, every link restored, nothing held."""
+
+    entity: Any
+
+
+@dataclass(frozen=True, slots=True)
 class CutRequest:
     """Cut links crossed by a blade (thesis 4.5.2).
 

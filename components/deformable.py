@@ -21,10 +21,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import esper
 import numpy as np
 
+from chainsim.components.core import MeshRef
 from chainsim.components.registry import component, prop
+from chainsim.engine import meshgen
 from chainsim.engine.errors import UserError
+from chainsim.engine.kernels.chainmail import make_workspace, material_arrays
+from chainsim.engine.kernels.graph import build_graph
 
 ORDERS = ("fifo", "balanced", "schill")
 SOURCES = ("auto", "surface", "volume")
@@ -44,9 +49,6 @@ def _empty_ids():
 
 def build_deformable(d: Deformable, ctx) -> None:
     """Spawn hook: derive the ChainMail object from the entity's mesh (see `setup_deformable`)."""
-    import esper
-
-    from chainsim.components.core import MeshRef
 
     where = f"entities.{ctx.entity_name}.deformable"
     mesh_ref = esper.try_component(ctx.entity, MeshRef)
@@ -171,7 +173,6 @@ def resolve_material(d: Deformable, materials: dict, mesh_material: str, where: 
 
 def body_links(mesh, source: str, where: str) -> np.ndarray:
     """Links of the ChainMail object for `source` (surface edges or tetrahedron edges)."""
-    from chainsim.engine import meshgen
 
     has_tets = mesh.tets is not None and len(mesh.tets) > 0
     if source == "auto":
@@ -203,8 +204,6 @@ def setup_deformable(
     d: Deformable, mesh, materials: dict, mesh_material: str = "", where: str = "deformable"
 ) -> Deformable:
     """Fill the runtime state of `d` from a MeshData (positions copied; the pack's mesh is shared)."""
-    from chainsim.engine.kernels.chainmail import make_workspace, material_arrays
-    from chainsim.engine.kernels.graph import build_graph
 
     mat = resolve_material(d, materials, mesh_material, where)
     dtype = np.float32 if d.dtype == "float32" else np.float64

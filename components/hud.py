@@ -17,17 +17,31 @@ class HudState:
     step_title: str = ""
     step_instruction: str = ""
     messages: list[tuple[str, float | None]] = field(default_factory=list)  # (text, seconds left or None)
+    counts: dict[str, int] = field(default_factory=dict)  # text -> times said while shown (drawn as "x3")
     lights: dict[str, str] = field(default_factory=dict)  # name -> "red" | "green" | "off"
     panel_text: list[str] = field(default_factory=list)  # e.g. self-assessment lines under the widgets
     # the pack's docs page reader: procedures name the page for the current step, the `help` widget
     # (or a `docs:NAME` button) opens and closes it, page keys scroll it
     doc_name: str = ""
+    step_doc: str = ""  # the current step's page: what Help opens when another page was shown last
     doc_open: bool = False
     doc_scroll: int = 0
+    # aiming aid drawn over an attached view: the target's world position and a note ("34.2 mm")
+    aim_view: str = ""
+    aim_target: tuple | None = None
+    aim_note: str = ""
+    # rows of the key overlay (F1) that no widget shows: (keys, what they do); procedures add theirs
+    key_rows: list[tuple[str, str]] = field(default_factory=list)
+    # one line along the bottom of the panel: who is signed in and where records are kept
+    status: str = ""
+    # a question or notice in the page box (quit with an unsaved attempt, preparing the model); "" none
+    notice: str = ""
 
     def open_doc(self, name: str | None = None) -> None:
         if name:
             self.doc_name = name
+        elif self.step_doc:
+            self.doc_name = self.step_doc
         self.doc_open = bool(self.doc_name)
         self.doc_scroll = 0
 
@@ -35,8 +49,16 @@ class HudState:
         self.doc_open = False
 
     def message(self, text: str, seconds: float | None = 4.0) -> None:
-        """Show `text` for `seconds` of simulated time (None: until removed)."""
+        """Show `text` for `seconds` of simulated time (None: until removed). Saying the same thing
+        again while it is shown restarts its time and counts it, instead of adding another line."""
+        for i, (t, left) in enumerate(self.messages):
+            if t == text:
+                del self.messages[i]
+                self.messages.append((text, None if (seconds is None or left is None) else max(seconds, left)))
+                self.counts[text] = self.counts.get(text, 1) + 1
+                return
         self.messages.append((text, seconds))
+        self.counts[text] = 1
 
     def set_light(self, name: str, state: str) -> None:
         if state not in LIGHT_STATES:
@@ -52,3 +74,10 @@ class HudState:
             elif left - dt > 0:
                 kept.append((text, left - dt))
         self.messages = kept
+        if len(self.counts) != len(kept):
+            shown = {t for t, _ in kept}
+            self.counts = {t: n for t, n in self.counts.items() if t in shown}
+
+    def shown_messages(self) -> list[str]:
+        """The messages as drawn: a repeated one carries its count."""
+        return [t if self.counts.get(t, 1) <= 1 else f"{t} (x{self.counts[t]})" for t, _ in self.messages]

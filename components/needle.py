@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from chainsim.components.registry import component, prop
+from chainsim.engine.quaternion import rotate
 
 
 @component(
@@ -79,11 +80,12 @@ class NeedleState:
     skull_contacts: int = 0
     rotation_refused: int = 0
     path_length: float = 0.0  # mm travelled by the tip while inserted (forward and back)
+    redirections: int = 0  # times the needle was withdrawn to the skin and turned again
+    withdrawn: bool = False  # back at the skin after an insertion: the next turn is a redirection
     park_position: np.ndarray = field(default_factory=lambda: np.zeros(3))
     park_rotation: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0, 0.0]))
 
     def direction(self) -> np.ndarray:
-        from chainsim.engine.quaternion import rotate
 
         return rotate(self.q, np.array([0.0, 0.0, 1.0]))
 

@@ -185,6 +185,9 @@ class ProcedureState:
     started_at: float = 0.0
     finished: bool = False
     saved: list[int] = field(default_factory=list)
+    attempt: int = 1  # attempts begun in this session
+    closed: bool = False  # the attempt was saved: its clock stops, the next action begins another
+    touched: bool = False  # anything done in this attempt (an unsaved attempt worth asking about)
 
     @property
     def step_id(self) -> str:

@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 
+import chainsim.components
+
 
 class _Required:
     def __repr__(self) -> str:
@@ -156,7 +158,6 @@ def load_all() -> None:
     global _loaded
     if _loaded:
         return
-    import chainsim.components
 
     for mod in pkgutil.iter_modules(chainsim.components.__path__):
         importlib.import_module(f"chainsim.components.{mod.name}")

@@ -139,3 +139,6 @@ class Records:
     save_attempt: Callable[[str, str, dict], int]
     list_attempts: Callable[[str, str], list[dict]]
     where: str = ""  # shown to the trainee: the database file or server address
+    # delete_attempt(class, trainee, id): a trainee deletes one of their own attempts; None where the
+    # store does not allow it
+    delete_attempt: Callable[[str, str, int], None] | None = None

@@ -20,8 +20,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import esper
+import numba
 import numpy as np
 
+from chainsim.components.core import MeshRef, Name, Simulation, Transform
 from chainsim.components.deform_events import (
     FRAMES,
     AddLinksRequest,
@@ -29,10 +31,17 @@ from chainsim.components.deform_events import (
     Deformed,
     GrabRequest,
     ReleaseRequest,
+    ResetRequest,
     as_points,
 )
 from chainsim.components.deformable import Deformable, Pull, setup_deformable
 from chainsim.components.input_events import Widget
+from chainsim.components.resources import EntityIndex, PackResource
+from chainsim.components.view_events import Dragged
+from chainsim.engine.errors import UserError
+from chainsim.engine.kernels import topology
+from chainsim.engine.kernels.chainmail import cascade, material_arrays
+from chainsim.engine.kernels.relax import relax
 from chainsim.systems.stages import ORDER_DEFORMATION
 
 ORDER_PULL = ORDER_DEFORMATION - 10
@@ -60,7 +69,6 @@ def _to_local(ent: int, pts: np.ndarray, frame: str) -> np.ndarray:
         raise ValueError(f"frame must be one of {', '.join(FRAMES)}, got {frame!r}")
     if frame == "local":
         return pts
-    from chainsim.components.core import Transform
 
     tr = esper.try_component(ent, Transform)
     if tr is None:
@@ -70,7 +78,6 @@ def _to_local(ent: int, pts: np.ndarray, frame: str) -> np.ndarray:
 
 
 def _to_world(ent: int, pts: np.ndarray) -> np.ndarray:
-    from chainsim.components.core import Transform
 
     tr = esper.try_component(ent, Transform)
     if tr is None:
@@ -81,8 +88,6 @@ def _to_world(ent: int, pts: np.ndarray) -> np.ndarray:
 
 def _entity(app, ref) -> int | None:
     if isinstance(ref, str):
-        from chainsim.components.resources import EntityIndex
-
         index = app.get_resource(EntityIndex)
         return index.get(ref) if index is not None else None
     return int(ref)
@@ -97,9 +102,6 @@ PARALLEL_RELAX_MIN = 100_000
 
 def relax_moved(rest, pos, graph, active, iterations: int, step: float = 1.0, fixed=None) -> None:
     """Relaxation of thesis 5.2.5 over `active` (chainsim.engine.kernels.relax), serial for small sets."""
-    import numba
-
-    from chainsim.engine.kernels.relax import relax
 
     if len(active) >= PARALLEL_RELAX_MIN:
         relax(rest, pos, graph, active, iterations, step=step, fixed=fixed)
@@ -114,7 +116,6 @@ def relax_moved(rest, pos, graph, active, iterations: int, step: float = 1.0, fi
 
 def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np.ndarray:
     """Move `ids` to local `targets`, cascade and relax; returns the ids that changed."""
-    from chainsim.engine.kernels.chainmail import cascade
 
     ids = np.atleast_1d(np.asarray(ids, dtype=np.int64))
     n = d.n_elements
@@ -166,7 +167,6 @@ def release(d: Deformable, ids=None) -> None:
 
 def cut(d: Deformable, ent: int, req: CutRequest) -> int:
     """Kill the links a blade crosses (4.5.2); returns how many were cut."""
-    from chainsim.engine.kernels import topology
 
     before = int(np.count_nonzero(d.alive))
     if req.polyline is not None:
@@ -191,8 +191,6 @@ def _blade_kwargs(ent: int, req: CutRequest) -> dict:
     if req.normal is not None:
         nrm = as_points(req.normal, "CutRequest.normal")[0]
         if req.frame == "world":
-            from chainsim.components.core import Transform
-
             tr = esper.try_component(ent, Transform)
             if tr is not None:
                 nrm = np.linalg.inv(tr.matrix()[:3, :3]).dot(nrm)
@@ -204,8 +202,6 @@ def _blade_kwargs(ent: int, req: CutRequest) -> dict:
 
 def add_links(d: Deformable, links) -> int:
     """Join element pairs with new links carrying the body's material limits; returns how many."""
-    from chainsim.engine.kernels import topology
-    from chainsim.engine.kernels.chainmail import material_arrays
 
     links = np.asarray(links, dtype=np.int64).reshape(-1, 2)
     m_before = d.graph.n_links
@@ -231,6 +227,19 @@ def add_links(d: Deformable, links) -> int:
 # -- systems -------------------------------------------------------------------------------------
 
 
+def reset(d: Deformable) -> int:
+    """Rest shape, all links alive, nothing held; returns how many elements were displaced."""
+    moved = int(np.count_nonzero(np.any(d.pos != d.rest, axis=1)))
+    d.pos[:] = d.rest
+    d.graph.alive[:] = True
+    if d.alive is not d.graph.alive:
+        d.alive[:] = True
+    d.held = np.zeros(0, dtype=np.int64)
+    d.mark_dirty(np.arange(d.n_elements))
+    d.version += 1
+    return moved
+
+
 def deformation_system(app) -> None:
     """Serve every request in the order it was emitted (a release after a grab undoes that grab's hold)."""
     st: DeformationState = app.resource(DeformationState)
@@ -248,7 +257,7 @@ def deformation_system(app) -> None:
     del st.errors[:-20]  # keep the last few for summaries and tests
 
 
-REQUESTS = (GrabRequest, ReleaseRequest, CutRequest, AddLinksRequest)
+REQUESTS = (GrabRequest, ReleaseRequest, CutRequest, AddLinksRequest, ResetRequest)
 
 
 def _serve(app, st: DeformationState, req, counts: dict) -> None:
@@ -269,6 +278,8 @@ def _serve(app, st: DeformationState, req, counts: dict) -> None:
             release(d, req.ids)
         elif isinstance(req, CutRequest):
             c[1] += cut(d, ent, req)
+        elif isinstance(req, ResetRequest):
+            c[0] += reset(d)
         else:
             c[2] += add_links(d, req.links)
     except ValueError as e:
@@ -346,9 +357,6 @@ def pull_system(app) -> None:
 def _pull_element(ent: int, p: Pull, d: Deformable) -> int:
     if p.element >= 0:
         if p.element >= d.n_elements:
-            from chainsim.components.core import Name
-            from chainsim.engine.errors import UserError
-
             name = esper.try_component(ent, Name)
             raise UserError(
                 f"entities.{name.value if name else ent}.pull.element: {p.element} is not an element id "
@@ -363,8 +371,6 @@ def _pull_element(ent: int, p: Pull, d: Deformable) -> int:
 
 def _default_deformables(app) -> None:
     """Entities with simulation.kind surface/volume and a mesh but no deformable table get one."""
-    from chainsim.components.core import MeshRef, Name, Simulation
-    from chainsim.components.resources import PackResource
 
     pres = app.get_resource(PackResource)
     if pres is None:
@@ -393,12 +399,7 @@ def plugin(app) -> None:
         return
     ev = app.events
     st = DeformationState(ev.reader(None), ev.reader(Widget))
-    try:
-        from chainsim.components.view_events import Dragged
-
-        st.drag_type = Dragged
-    except ImportError:  # a build without the view system: drags simply never arrive
-        pass
+    st.drag_type = Dragged
     app.insert_resource(st)
     if pulls:
         app.add_system("simulation", pull_system, order=ORDER_PULL, name="pull")

@@ -8,11 +8,13 @@ NeedleAction and NeedleReset.
 Controls (documented for trainees in the pack's how-to page):
 
     rotate_horizontal  dial, ABSOLUTE degrees turned about the vertical (+Z) axis since the needle was
-                       placed; positive turns counter-clockwise seen from above. Keys left/right step it.
+                       placed; positive turns counter-clockwise seen from above. Right arrow raises
+                       it, left lowers it (as the dial's "+" on the right and a drag to the right).
     rotate_vertical    dial, ABSOLUTE degrees of tilt about the needle's own horizontal axis (d x Z);
-                       positive raises the tip. Keys up/down step it.
+                       positive raises the tip. Up arrow raises it, down lowers it.
     insert             slider: ABSOLUTE depth in mm along the needle axis; as a button (no value) it
                        advances one step. Key i advances, key o withdraws one step.
+                       Shift held with an arrow, i or o: a fine step (FINE of the normal one).
     withdraw           button: back one step (or by its value in mm)
     reset              needle back to landmark 1 and unlocked; value "all" (or shift held) also clears
                        the landmarks (the procedure system does that part)
@@ -21,7 +23,9 @@ A dial value is turned into the increment from the current angle, and that incre
 quaternion product (eq. 3.1 and the product formula of 3.3.5): horizontal rotations about world +Z,
 vertical ones about the needle's current horizontal axis, so the tilt is kept when turning and the
 heading is kept when tilting. Once the needle has been inserted (target depth > 0) rotation is locked,
-as in the thesis, until a reset.
+as in the thesis, until the needle is withdrawn back to the skin (depth 0) - the dials then unlock
+where they are, as a surgeon withdraws and redirects, and the next turn counts as a redirection -
+or until a reset (which also zeroes the dials). The needle is hidden until landmark 1 places it.
 
 Forward insertion reaches the requested depth within one step; the collision system that runs next
 tests the whole swept segment, so a jump of any length cannot pass through bone. Backward motion
@@ -36,24 +40,33 @@ from dataclasses import dataclass
 import esper
 import numpy as np
 
-from chainsim.components.core import Transform
+from chainsim.components.core import MeshRef, Transform
+from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, Widget
 from chainsim.components.needle import Needle, NeedleState
 from chainsim.components.resources import EntityIndex, InputState
 from chainsim.engine import quaternion as Q
 from chainsim.systems.stages import ORDER_KINEMATICS
+from chainsim.systems.ui.widgets import WidgetState
 
 Z = np.array([0.0, 0.0, 1.0])
 ROTATION_WIDGETS = ("rotate_horizontal", "rotate_vertical")
 KEY_ACTIONS = {
-    "left": ("rotate_horizontal", +1.0),
-    "right": ("rotate_horizontal", -1.0),
+    "left": ("rotate_horizontal", -1.0),
+    "right": ("rotate_horizontal", +1.0),
     "up": ("rotate_vertical", +1.0),
     "down": ("rotate_vertical", -1.0),
     "i": ("insert", +1.0),
     "o": ("withdraw", +1.0),
 }
 SHIFT_KEYS = {"lshift", "rshift", "shift"}
+FINE = 0.25  # a shifted key moves a quarter of the normal step (0.25 degree, 0.5 mm)
+KEY_ROWS = [
+    ("`Right` / `Left` arrow", "horizontal turn up / down by the dial's step (1.0 degree)"),
+    ("`Up` / `Down` arrow", "vertical tilt up / down (1.0 degree)"),
+    ("`i` / `o`", "insert / withdraw the needle one step (2.0 mm)"),
+    ("`Shift` + arrow, `i` or `o`", "a fine step: a quarter of the normal one"),
+]
 
 
 @dataclass(frozen=True, slots=True)
@@ -112,6 +125,17 @@ def apply_pose(app, ent: int, needle: Needle, st: NeedleState) -> None:
             str_.rotation = st.q.copy()
 
 
+def show(app, ent: int, needle: Needle, visible: bool) -> None:
+    """Show or hide the needle (tip and shaft): it is not drawn before landmark 1 places it."""
+
+    index = app.get_resource(EntityIndex)
+    ents = [ent] + ([index.get(needle.shaft)] if needle.shaft and index is not None else [])
+    for e in ents:
+        ref = esper.try_component(e, MeshRef) if e is not None else None
+        if ref is not None:
+            ref.visible = bool(visible)
+
+
 def place(app, ent: int, needle: Needle, st: NeedleState, entry) -> None:
     """Put the tip at `entry` (landmark 1) pointing along `initial_direction`, unlocked, not inserted."""
     st.entry = np.asarray(entry, dtype=np.float64).copy()
@@ -119,16 +143,17 @@ def place(app, ent: int, needle: Needle, st: NeedleState, entry) -> None:
     reset(app, ent, needle, st)
     st.placed = True
     apply_pose(app, ent, needle, st)
+    show(app, ent, needle, True)
 
 
 def reset(app, ent: int, needle: Needle, st: NeedleState) -> None:
     st.q = st.q0.copy()
     st.yaw = st.pitch = 0.0
     st.depth = st.target_depth = st.prev_depth = 0.0
-    st.locked = st.done = False
+    st.locked = st.done = st.withdrawn = False
     st.contact = ""
     st.contact_point = np.full(3, np.nan)
-    _sync_widgets(app, st)
+    sync_widgets(app, st)
     if st.placed:
         apply_pose(app, ent, needle, st)
 
@@ -137,13 +162,20 @@ def park(app, ent: int, needle: Needle, st: NeedleState) -> None:
     """Back to where the pack placed the needle, before any landmark."""
     reset(app, ent, needle, st)
     st.placed = False
-    st.skull_contacts = 0
-    st.rotation_refused = 0
-    st.path_length = 0.0
+    new_attempt(st)
     tr = esper.try_component(ent, Transform)
     if tr is not None:
         tr.position = st.park_position.copy()
         tr.rotation = st.park_rotation.copy()
+    show(app, ent, needle, False)
+
+
+def new_attempt(st: NeedleState) -> None:
+    """Zero what an attempt counts (a saved attempt is closed; the next one counts afresh)."""
+    st.skull_contacts = 0
+    st.rotation_refused = 0
+    st.redirections = 0
+    st.path_length = 0.0
 
 
 def rotate_horizontal(st: NeedleState, delta_deg: float) -> None:
@@ -165,13 +197,17 @@ def rotate_vertical(st: NeedleState, delta_deg: float, max_pitch: float) -> floa
     return delta
 
 
+def _shift(app) -> bool:
+    return bool(app.resource(InputState).keys & SHIFT_KEYS)
+
+
 def _widgets(app):
-    from chainsim.systems.ui.widgets import WidgetState
 
     return app.get_resource(WidgetState)
 
 
-def _sync_widgets(app, st: NeedleState) -> None:
+def sync_widgets(app, st: NeedleState) -> None:
+    """Mirror the needle's pose and lock state on the controller's dials (also after a collision)."""
     ws = _widgets(app)
     if ws is None:
         return
@@ -213,32 +249,34 @@ class NeedleSystem:
             return
         current = st.yaw if name == "rotate_horizontal" else st.pitch
         if from_key:
-            delta = float(value) * needle.rotate_step
+            delta = float(value) * needle.rotate_step * (FINE if _shift(app) else 1.0)
         elif isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
             delta = float(value) - current
         else:
             return
+        if delta == 0.0:
+            return
+        if st.withdrawn:  # turned after coming back to the skin: a redirection
+            st.withdrawn = False
+            st.redirections += 1
         if name == "rotate_horizontal":
             rotate_horizontal(st, delta)
         else:
             rotate_vertical(st, delta, needle.max_pitch)
         apply_pose(app, ent, needle, st)
-        _sync_widgets(app, st)
+        sync_widgets(app, st)
         app.events.emit(NeedleAction(name, st.yaw if name == "rotate_horizontal" else st.pitch))
 
     def insert(self, app, ent, needle, st, name, value, from_key) -> None:
         if not st.placed:
             app.events.emit(InsertRefused("not_placed"))
             return
+        key_step = needle.insert_step * (FINE if from_key and _shift(app) else 1.0)
         if name == "withdraw":
-            step = (
-                needle.insert_step
-                if (from_key or value is None or isinstance(value, (bool, str)))
-                else abs(float(value))
-            )
+            step = key_step if (from_key or value is None or isinstance(value, (bool, str))) else abs(float(value))
             want = st.target_depth - step
         elif from_key or value is None or isinstance(value, (bool, str)):
-            want = st.target_depth + needle.insert_step
+            want = st.target_depth + key_step
         else:
             want = float(value)
         if st.done and want > st.depth:
@@ -249,7 +287,7 @@ class NeedleSystem:
         st.target_depth = min(max(want, 0.0), needle.max_depth)
         if st.target_depth > 0.0 and not st.locked:
             st.locked = True  # thesis 3.3.4: no rotation once the insertion has begun
-        _sync_widgets(app, st)
+        sync_widgets(app, st)
         app.events.emit(NeedleAction(name, st.target_depth))
 
     def __call__(self, app) -> None:
@@ -281,12 +319,18 @@ class NeedleSystem:
         if st.depth != st.prev_depth:
             st.path_length += abs(st.depth - st.prev_depth)
             apply_pose(app, ent, needle, st)
+        if st.locked and st.depth <= 0.0 and st.target_depth <= 0.0:
+            # back at the skin: the dials unlock where they are (withdraw and redirect)
+            st.locked = st.done = False
+            st.withdrawn = True
+            sync_widgets(app, st)
+            app.events.emit(NeedleAction("withdrawn", 0.0))
 
 
 def init_state(app) -> None:
     """Give every needle its runtime state, remembering where the pack parked it."""
     with app.active():
-        for ent, needle in esper.get_component(Needle):
+        for ent, _needle in esper.get_component(Needle):
             if esper.has_component(ent, NeedleState):
                 continue
             st = NeedleState()
@@ -298,5 +342,12 @@ def init_state(app) -> None:
 
 
 def plugin(app) -> None:
+
     init_state(app)
+    with app.active():
+        for ent, needle in esper.get_component(Needle):
+            show(app, ent, needle, False)
+    h = app.get_resource(HudState)
+    if h is not None:
+        h.key_rows[:0] = KEY_ROWS
     app.add_system("simulation", NeedleSystem(app), order=ORDER_KINEMATICS, name="needle")

@@ -24,11 +24,21 @@ input system, go through the same `apply_widget` + layer effects, so both have t
 Toggle `layer` conventions: "NAME" shows/hides entities of layer NAME (and the pack's [planes] when
 NAME is "planes"); "view:NAME" shows/hides viewport NAME; "xray:NAME" draws layer NAME see-through;
 "wire:NAME" draws layer NAME as its links (wireframe, thesis Figs 5.6-5.7).
-Key "f1" toggles the help overlay.
+Key "f1" opens or closes the key page, "escape" closes an open page.
+
+Pages (chainsim.systems.ui.docbox): while a page, the key overlay or a notice is open over the main
+view, the box takes the pointer - its footer buttons turn pages or close it, the wheel scrolls it -
+and a click on the main view around it does nothing, so nothing lands on the face underneath.
+The panel and the other views keep working.
+
+Camera presets: a button named "camera:front", "camera:side", "camera:below" or "camera:reset"
+(with a key, like any widget) moves the main orbit view: front (facing +Y, the face), side (from
+the subject's left, again for the right), below (from under the chin), or back to the layout's view.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import esper
@@ -40,7 +50,9 @@ from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseM
 from chainsim.components.resources import EntityIndex, InputState, PackResource, Settings
 from chainsim.components.view_events import Dragged, LayerChanged, Picked, WidgetRefused
 from chainsim.engine.errors import UserError
+from chainsim.systems.picking import pick, snap
 from chainsim.systems.stages import ORDER_VIEW
+from chainsim.systems.ui import docbox
 from chainsim.systems.ui import widgets as wd
 from chainsim.systems.ui.viewports import (
     KINDS_3D,
@@ -90,7 +102,7 @@ class ViewState:
     xray: set[str] = field(default_factory=set)
     wire: set[str] = field(default_factory=set)
     panels: dict[str, list[wd.Placed]] = field(default_factory=dict)
-    show_help: bool = False
+    show_help: bool = False  # the key page is open (kept in step with HudState)
     hover: str = ""  # widget under the pointer (its `help` is shown in the panel)
     # pointer capture (runtime)
     active: str | None = None
@@ -114,6 +126,45 @@ class ViewState:
 
     def layer_visible(self, layer: str) -> bool:
         return self.layers.get(layer, True)
+
+
+def main_view(vs: ViewState) -> Viewport | None:
+    """The view that shows the step text, messages and pages: the first visible orbit view, else the
+    first visible 3-D view."""
+    shown = [vp for vp in vs.viewports if vp.visible and vp.is_3d]
+    orbit = [vp for vp in shown if vp.kind == "orbit"]
+    return (orbit or shown or [None])[0]
+
+
+CAMERA_PRESETS = ("front", "side", "below", "reset")
+
+
+def camera_preset(vp: Viewport, preset: str) -> None:
+    """Move an orbit camera to a preset around the layout's target (see the module docstring)."""
+    cam = vp.camera
+    if not isinstance(cam, OrbitCamera):
+        return
+    spec = vp.spec
+    cam.target = np.asarray(spec.get("target", (0, 0, 0)), float).copy()
+    cam.distance = float(spec.get("distance", cam.distance))
+    if preset == "front":
+        cam.yaw, cam.pitch = 0.0, 0.0
+    elif preset == "side":  # from the subject's left (eye at -X); pressed again, from the right
+        cam.yaw, cam.pitch = (270.0 if abs(cam.yaw - 90.0) < 1e-6 and abs(cam.pitch) < 1e-6 else 90.0), 0.0
+    elif preset == "below":  # from under the chin, looking up at the skull base
+        cam.yaw, cam.pitch = 0.0, -80.0
+    else:
+        cam.yaw, cam.pitch = float(spec.get("yaw", 0.0)), float(spec.get("pitch", 0.0))
+    cam.update_eye()
+
+
+def page_buttons(h: HudState) -> tuple[str, ...]:
+    """The footer buttons of what the page box shows now (as chainsim.game.gl.render_system draws them)."""
+    if h.notice:
+        return ()
+    if h.doc_name == "keys":
+        return ("close",)
+    return docbox.PAGE_BUTTONS
 
 
 def first_panel(vs: ViewState) -> str:
@@ -222,6 +273,10 @@ class ViewSystem:
                 h.close_doc()
             else:
                 h.open_doc(page)
+        if name.startswith("camera:") and name[7:] in CAMERA_PRESETS:
+            vp = main_view(app.resource(ViewState))
+            if vp is not None:
+                camera_preset(vp, name[7:])
         spec = st.specs.get(name)
         if spec is not None and spec["kind"] == "toggle" and spec.get("layer"):
             set_layer(app, spec["layer"], bool(st.values[name]))
@@ -230,6 +285,28 @@ class ViewSystem:
     def ray(self, vp: Viewport, x: float, y: float):
         # window events carry whole pixels: aim through the pixel centre, as the renderer samples it
         return vp.camera.ray(x + 0.5, y + 0.5, vp.rect)
+
+    # -- the page box ----------------------------------------------------------------------------
+    def page_open(self, app) -> bool:
+        h = app.resource(HudState)
+        return bool(h.notice) or h.doc_open
+
+    def page_box(self, app, vs: ViewState):
+        main = main_view(vs)
+        return docbox.box(main.rect) if main is not None and self.page_open(app) else None
+
+    def page_button(self, app, name: str) -> None:
+        h: HudState = app.resource(HudState)
+        if name == "close":
+            h.close_doc()
+            vs = app.resource(ViewState)
+            vs.show_help = False
+            return
+        names = list(app.resource(PackResource).pack.section("docs"))
+        if h.doc_name in names:
+            k = names.index(h.doc_name) + (1 if name == "next" else -1)
+            if 0 <= k < len(names):
+                h.open_doc(names[k])
 
     def press(self, app, vs: ViewState, ev: MouseButton) -> None:
         vp = vs.at(ev.x, ev.y)
@@ -240,6 +317,13 @@ class ViewSystem:
         vs.grab = None
         if vp is None:
             return
+        b = self.page_box(app, vs)
+        if b is not None and vp is main_view(vs):  # the page takes the pointer over the main view
+            vs.active = PAGE
+            hit = docbox.button_at(b, ev.x, ev.y, page_buttons(app.resource(HudState)))
+            if hit is not None and ev.button == "left":
+                self.page_button(app, hit)
+            return
         if vp.kind == "panel":
             p = wd.hit(vs.panels.get(vp.name, []), ev.x, ev.y)
             st: wd.WidgetState = app.resource(wd.WidgetState)
@@ -249,8 +333,6 @@ class ViewSystem:
             elif p is not None and ev.button == "left":
                 self.emit(app, WidgetRefused(p.spec["name"]))
         elif vp.picks and vp.camera is not None and not vp.mouse_camera and ev.button == "left":
-            from chainsim.systems.picking import pick
-
             o, d = self.ray(vp, ev.x, ev.y)
             hit = pick(app, o, d)
             if hit is not None:
@@ -268,6 +350,8 @@ class ViewSystem:
 
     def drag(self, app, vs: ViewState, ev: MouseDrag) -> None:
         vs.travel += abs(ev.dx) + abs(ev.dy)
+        if vs.active == PAGE:
+            return
         vp = vs.get(vs.active) if vs.active else None
         if vp is None:
             return
@@ -291,6 +375,9 @@ class ViewSystem:
                 vp.camera.pan(ev.dx, ev.dy, vp.rect)
 
     def release(self, app, vs: ViewState, ev: MouseButton) -> None:
+        if vs.active == PAGE:
+            vs.active, vs.press, vs.widget, vs.grab, vs.travel = None, None, None, None, 0.0
+            return
         vp = vs.get(vs.active) if vs.active else None
         if vs.press is not None:
             vs.travel = max(vs.travel, abs(ev.x - vs.press[0]) + abs(ev.y - vs.press[1]))
@@ -301,8 +388,6 @@ class ViewSystem:
                     app, Dragged(vp.name, g[1], g[2], "end", g[3], g[4], self.drag_point(vs, vp, ev.x, ev.y), ev.button)
                 )
             if vs.travel <= CLICK_PX and vp.picks:
-                from chainsim.systems.picking import pick
-
                 o, d = self.ray(vp, ev.x, ev.y)
                 hit = pick(app, o, d)
                 if hit is not None:
@@ -327,7 +412,6 @@ class ViewSystem:
             self.use_widget(app, name, new)
 
     def pick_point(self, app, ev: PickPoint) -> None:
-        from chainsim.systems.picking import snap
 
         index: EntityIndex = app.resource(EntityIndex)
         ent = index.get(ev.entity)
@@ -367,14 +451,26 @@ class ViewSystem:
                 vs.hover = under.spec["name"] if under is not None else ""
             elif isinstance(ev, Scroll):
                 vp = vs.at(ev.x, ev.y)
-                if vp is not None and vp.mouse_camera and isinstance(vp.camera, OrbitCamera):
+                b = self.page_box(app, vs)
+                if b is not None and vp is main_view(vs):
+                    h = app.resource(HudState)
+                    if b.contains(ev.x, ev.y) and not h.notice and ev.dy:
+                        h.doc_scroll = max(0, h.doc_scroll + (-3 if ev.dy > 0 else 3))
+                elif vp is not None and vp.mouse_camera and isinstance(vp.camera, OrbitCamera):
                     vp.camera.zoom(ev.dy)
                 elif vp is not None and vp.kind == "panel":
                     self.scroll_widget(app, vs, vp, ev)
             elif isinstance(ev, Key) and ev.pressed:
-                if ev.key == "f1":
-                    vs.show_help = not vs.show_help
                 h: HudState = app.resource(HudState)
+                if ev.key == "f1":
+                    if h.doc_open and h.doc_name == "keys":
+                        h.close_doc()
+                    else:
+                        h.open_doc("keys")
+                    vs.show_help = h.doc_open
+                elif ev.key == "escape" and h.doc_open:
+                    h.close_doc()
+                    vs.show_help = False
                 if h.doc_open and ev.key in DOC_SCROLL:
                     h.doc_scroll = max(0, h.doc_scroll + DOC_SCROLL[ev.key])
                 st: wd.WidgetState = app.resource(wd.WidgetState)
@@ -390,11 +486,11 @@ class ViewSystem:
 
 
 DOC_SCROLL = {"pagedown": 12, "pageup": -12}
+PAGE = "\x00page"  # ViewState.active while the page box holds the pointer
 
 
 def default_layout(app) -> dict:
     """One orbit viewport framing every mesh, for scenes that name no layout."""
-    import math
 
     pack = app.resource(PackResource).pack
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)

@@ -12,6 +12,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from chainsim.components.resources import Assessment, PackResource, PendingInput, RunInfo, Settings
 from chainsim.engine.errors import UserError
 from chainsim.game.app import plugins
@@ -21,6 +23,7 @@ from chainsim.game.app.inputscript import load_script, write_recording
 from chainsim.game.app.loader import spawn_scene
 from chainsim.game.packs import pack as packs
 from chainsim.game.records.store import local_records
+from chainsim.systems.input import InputLog
 
 
 def build_app(
@@ -107,8 +110,6 @@ def run_pack(
             app.update(app.time.dt)
             _progress(i + 1, n)
         digest = world_digest(app)
-        from chainsim.systems.input import InputLog
-
         log = app.get_resource(InputLog)
         summary = {
             "pack": pres.pack.name,
@@ -145,7 +146,6 @@ def run_pack(
 
 
 def _jsonable(v):
-    import numpy as np
 
     if isinstance(v, dict):
         return {str(k): _jsonable(x) for k, x in v.items()}

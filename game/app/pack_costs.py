@@ -5,14 +5,12 @@ from __future__ import annotations
 
 import sys
 
+from chainsim.game.app.headless import run_pack
+from chainsim.game.packs.pack import discover
+
 
 def measure(steps: int = 120) -> tuple[list[dict], str]:
     """Summaries of all built-in packs (those that fail to run are named in the note)."""
-    try:
-        from chainsim.game.app.headless import run_pack
-        from chainsim.game.packs.pack import discover
-    except ImportError as e:
-        return [], f"headless runner not available ({e})"
     summaries, failed = [], []
     for found in discover():
         if found.source != "builtin":

@@ -10,11 +10,7 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 
-# procedure name -> "module:function"
-PROCEDURES: dict[str, str] = {
-    "prp": "chainsim.systems.procedures.prp.procedure:plugin",
-    "cutting": "chainsim.systems.procedures.cutting.procedure:plugin",
-}
+from chainsim.systems.procedures import PROCEDURES
 
 # always considered, in this order; each decides for itself whether the scene needs it
 CORE: list[str] = [

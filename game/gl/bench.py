@@ -15,6 +15,32 @@ bench-render.png into --out (default runs/bench-render); progress goes to stderr
 
 from __future__ import annotations
 
+import json
+import math
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+
+from chainsim.components.resources import PendingInput
+from chainsim.engine.errors import UserError
+from chainsim.engine.meshgen import triangulated_grid
+from chainsim.game.app.headless import build_app
+from chainsim.game.app.inputscript import load_script
+from chainsim.game.app.loader import PackResource
+from chainsim.game.app.options import window_size
+from chainsim.game.gl import render_system as render
+from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
+from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
+from chainsim.systems.ui.viewports import OrbitCamera, fraction_rect
+from chainsim.systems.ui.widgets import WidgetState, place
+
 HELP = "off-screen frame time of the renderer for 10k / 100k / 1M triangles"
 
 DEFAULT_SIZES = (10_000, 100_000, 1_000_000)
@@ -22,12 +48,11 @@ MODES = ("static", "full", "patch")
 
 
 def add_arguments(p) -> None:
-    from chainsim.game.cli.commands.run import _size
 
     p.add_argument(
         "--out", default="runs/bench-render", metavar="DIR", help="output folder (default runs/bench-render)"
     )
-    p.add_argument("--size", type=_size, default=(1280, 800), metavar="WxH", help="frame size (default 1280x800)")
+    p.add_argument("--size", type=window_size, default=(1280, 800), metavar="WxH", help="frame size (default 1280x800)")
     p.add_argument(
         "--triangles",
         type=int,
@@ -43,15 +68,16 @@ def add_arguments(p) -> None:
     p.add_argument(
         "--patch", type=float, default=0.01, help="fraction of vertices moved in 'patch' mode (default 0.01)"
     )
+    p.add_argument(
+        "--pack",
+        metavar="PACK",
+        help="instead of sheets: frame time of this pack's real window layout after its scene script "
+        "(App update + draw + finish), with where the time goes",
+    )
 
 
 def sheet(n_triangles: int):
     """A wavy square sheet of about n triangles, 200 mm across; returns (vertices, triangles, side)."""
-    import math
-
-    import numpy as np
-
-    from chainsim.engine.meshgen import triangulated_grid
 
     side = max(2, int(round(math.sqrt(n_triangles / 2.0))) + 1)
     pos, tris, _ = triangulated_grid(side, side, 200.0 / (side - 1), dim=3)
@@ -62,11 +88,6 @@ def sheet(n_triangles: int):
 
 
 def _frame(gm, size):
-    import numpy as np
-
-    from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, ViewDraw
-    from chainsim.systems.ui.viewports import OrbitCamera, fraction_rect
-    from chainsim.systems.ui.widgets import place
 
     w, h = size
     cam = OrbitCamera(target=np.zeros(3), distance=330.0, yaw=25.0, pitch=40.0)
@@ -86,18 +107,98 @@ def _frame(gm, size):
 
 
 def run(args) -> int:
-    import json
-    import platform
-    import statistics
-    import sys
-    import time
-    from pathlib import Path
+    if getattr(args, "pack", None):
+        return run_pack(args)
+    return run_sheets(args)
 
-    import numpy as np
 
-    from chainsim.engine.errors import UserError
-    from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
-    from chainsim.game.gl.renderer import Renderer
+def _median_ms(fn, frames: int, warmup: int) -> float:
+
+    out = []
+    for i in range(warmup + frames):
+        t0 = time.perf_counter()
+        fn()
+        if i >= warmup:
+            out.append((time.perf_counter() - t0) * 1e3)
+    return statistics.median(out)
+
+
+def run_pack(args) -> int:
+    """The pack's window layout, drawn off screen at --size after its scene script has played:
+    median frame time of App.update + draw + finish, and the same frame with parts left out."""
+
+    if args.frames < 1 or args.warmup < 0:
+        raise UserError("--frames must be >= 1 and --warmup >= 0")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    app = build_app(args.pack, render=True, size=args.size)
+    rows = {}
+    try:
+        pres = app.resource(PackResource)
+        if pres.scene_spec.get("script"):
+            app.resource(PendingInput).extend(load_script(pres.pack.file(pres.scene_spec["script"])))
+        app.run_steps(int(4.0 / app.time.dt))
+        target = app.resource(render.RenderTarget)
+        ctx = target.ctx
+        renderer: Renderer = app.resource(Renderer)
+
+        def frame():
+            app.update(app.time.dt)
+            render.draw(app)
+            ctx.finish()
+
+        def draw_only():
+            render.draw(app)
+            ctx.finish()
+
+        for samples in sorted({1, min(4, ctx.max_samples)}):
+            target.samples = samples
+            rows[f"frame (update + draw), MSAA x{samples}"] = _median_ms(frame, args.frames, args.warmup)
+        target.samples = 1
+        rows["App.update alone (one fixed step)"] = _median_ms(lambda: app.update(app.time.dt), args.frames, 2)
+        rows["draw alone"] = _median_ms(draw_only, args.frames, 2)
+        st = app.resource(WidgetState)
+        had = dict(st.values)
+        for name in ("skin_transparent",):
+            if name in st.values:
+                app.resource(PendingInput).push(
+                    app.time.sim_time,
+                    __import__("chainsim.components.input_events", fromlist=["Widget"]).Widget(name, True),
+                )
+                app.update(app.time.dt)
+                rows["draw, skin transparent (two sorted passes)"] = _median_ms(draw_only, args.frames, 2)
+                app.resource(PendingInput).push(
+                    app.time.sim_time,
+                    __import__("chainsim.components.input_events", fromlist=["Widget"]).Widget(name, had[name]),
+                )
+                app.update(app.time.dt)
+        real_render = renderer._scene
+        renderer._scene = lambda *a, **k: None
+        try:
+            rows["draw without the 3-D scenes (panels, text, clears)"] = _median_ms(draw_only, args.frames, 2)
+        finally:
+            renderer._scene = real_render
+        n_tri = sum(int(gm.n_indices) // 3 for gm in renderer.meshes.values())
+    finally:
+        app.close()
+    info = {
+        "pack": args.pack,
+        "size": list(args.size),
+        "renderer": ctx.info.get("GL_RENDERER", "?"),
+        "cpu_count": os.cpu_count(),
+        "triangles_uploaded": n_tri,
+        "median_ms": rows,
+    }
+    (out / "results-pack.json").write_text(json.dumps(info, indent=2), encoding="utf-8")
+    print(f"# {args.pack} window layout, {args.size[0]}x{args.size[1]}, {info['renderer']}, {n_tri:,} triangles")
+    print("| part | median (ms) | fps |")
+    print("|---|---:|---:|")
+    for k, v in rows.items():
+        print(f"| {k} | {v:.1f} | {1000.0 / v:.1f} |")
+    return 0
+
+
+def run_sheets(args) -> int:
 
     if args.frames < 1 or args.warmup < 0:
         raise UserError("--frames must be >= 1 and --warmup >= 0")
@@ -169,7 +270,6 @@ def run(args) -> int:
     finally:
         renderer.release()
         release_framebuffer(ctx, fbo)
-    import os
 
     load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
     info = {
@@ -207,11 +307,8 @@ def run(args) -> int:
 
 
 def _plot(rows, path, info) -> None:
-    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
 
     sizes = sorted({r["triangles"] for r in rows})
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(10, 4.2), dpi=120)

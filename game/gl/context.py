@@ -6,6 +6,8 @@ EGL (Mesa llvmpipe on machines without a GPU) gives the same renderer without a 
 
 from __future__ import annotations
 
+import moderngl
+
 from chainsim.engine.errors import UserError
 
 
@@ -22,8 +24,6 @@ def egl_context():
     if _shared is not None:
         return _shared
     try:
-        import moderngl
-
         ctx = moderngl.create_standalone_context(backend="egl", require=330)
     except Exception as e:  # missing libEGL, no driver, too old GL
         raise GLUnavailable(
@@ -36,7 +36,6 @@ def egl_context():
 
 def window_context():
     """A moderngl context on the GL context current in this thread (a pyglet window's)."""
-    import moderngl
 
     return moderngl.create_context(require=330)
 

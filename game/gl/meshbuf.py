@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from chainsim.engine.kernels.normals import moved_normals_kernel
+from chainsim.engine.kernels.normals import moved_normals_kernel, vertex_normals_kernel
+from chainsim.engine.meshgen import links_from_polygons
 
 #: vertex-id gaps smaller than this are written through rather than split into two writes
 RUN_GAP = 256
@@ -20,7 +21,6 @@ FULL_FRACTION = 0.3
 
 def vertex_normals(pos: np.ndarray, tris: np.ndarray) -> np.ndarray:
     """Unit per-vertex normals: the area-weighted mean of the incident face normals (numba kernel)."""
-    from chainsim.engine.kernels.normals import vertex_normals_kernel
 
     out = np.zeros((len(pos), 3))
     if len(pos) and len(tris):
@@ -106,8 +106,6 @@ class GpuMesh:
         if self.lbo is None:
             links = self._links
             if links is None:
-                from chainsim.engine.meshgen import links_from_polygons
-
                 links = links_from_polygons(self.tris) if len(self.tris) else np.zeros((0, 2), np.int64)
                 self._links = links
             self.lbo = self.ctx.buffer(links.astype(np.uint32).tobytes() or b"\0" * 8, dynamic=True)

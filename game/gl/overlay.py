@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from PIL import Image, ImageDraw, ImageFont
 
 from chainsim.game.gl import shaders
 
@@ -27,7 +28,6 @@ class Font:
     """Glyph atlas of CHARS in a grid of equal cells; the baseline sits `ascent` below a cell top."""
 
     def __init__(self, ctx, size_px: int):
-        from PIL import Image, ImageDraw, ImageFont
 
         self.font = ImageFont.load_default(size=size_px)
         self.ascent, self.descent = self.font.getmetrics()
@@ -194,6 +194,20 @@ class Overlay:
             self.small[px] = Font(self.ctx, px)
         return self.small[px]
 
+    @property
+    def font_px_base(self) -> float:
+        """The main font's size in framebuffer pixels."""
+        return self.font_px * self.scale
+
+    def font_sized(self, px: float) -> Font:
+        """A font of about `px` framebuffer pixels (headings, small print); atlases are cached by size."""
+        px = max(7, int(round(px)))
+        if px == self.font.font.size:
+            return self.font
+        if px not in self.small:
+            self.small[px] = Font(self.ctx, px)
+        return self.small[px]
+
     def label(
         self,
         text: str,
@@ -202,8 +216,15 @@ class Overlay:
         color=(1, 1, 1, 1),
         max_w: float | None = None,
         font: Font | None = None,
+        bold: bool = False,
+        slant: float = 0.0,
     ) -> float:
-        """Draw one line with its baseline at `baseline`; returns the pen x after it."""
+        """Draw one line with its baseline at `baseline`; returns the pen x after it.
+
+        `bold` draws the glyphs twice one pixel apart (the bundled font has no bold face); `slant`
+        leans the glyph tops right by that fraction of the line height (italic)."""
+        if bold:
+            self.label(text, x + max(1.0, round(self.scale)), baseline, color, max_w, font, False, slant)
         f = font or self.font
         glyphs = self.glyphs.setdefault(f, [])
         if max_w is not None and f.width(text) > max_w:
@@ -221,6 +242,7 @@ class Overlay:
             u0, v0, u1, v1 = f.uv[ch]
             x0 = float(round(pen)) - 1
             x1 = x0 + f.cell_w
+            lean = slant * f.cell_h
             glyphs += [
                 x0,
                 bottom,
@@ -238,7 +260,7 @@ class Overlay:
                 g,
                 b,
                 a,
-                x1,
+                x1 + lean,
                 top,
                 u1,
                 v0,
@@ -254,7 +276,7 @@ class Overlay:
                 g,
                 b,
                 a,
-                x1,
+                x1 + lean,
                 top,
                 u1,
                 v0,
@@ -262,7 +284,7 @@ class Overlay:
                 g,
                 b,
                 a,
-                x0,
+                x0 + lean,
                 top,
                 u0,
                 v0,

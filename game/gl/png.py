@@ -6,6 +6,9 @@ import os
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
+
+from chainsim.engine.errors import UserError
 
 
 def read_rgba(fbo, viewport=None) -> np.ndarray:
@@ -17,9 +20,6 @@ def read_rgba(fbo, viewport=None) -> np.ndarray:
 
 def write_png(path, rgba: np.ndarray) -> Path:
     """Write (H, W, 4) uint8 pixels atomically (a partial file never replaces a good one)."""
-    from PIL import Image
-
-    from chainsim.engine.errors import UserError
 
     path = Path(path)
     try:

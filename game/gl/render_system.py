@@ -21,14 +21,22 @@ from pathlib import Path
 import esper
 import numpy as np
 
-from chainsim.components.core import Label, Marker, MeshRef, PolyLine, Transform
+from chainsim.components.core import Label, Marker, MeshRef, PolyLine, Transform, Wireframe
+from chainsim.components.deformable import Deformable
 from chainsim.components.hud import HudState
-from chainsim.components.resources import EntityIndex, InputState, PackResource, Settings
+from chainsim.components.resources import EntityIndex, InputState, PackResource, RunInfo, Settings
+from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
+from chainsim.game.gl.png import read_rgba, write_png
+from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
+from chainsim.systems.picking import surface_cache
 from chainsim.systems.stages import ORDER_RENDER
+from chainsim.systems.ui import docbox, keyhelp
 from chainsim.systems.ui.widgets import WidgetState
+from chainsim.systems.view import ViewState, refresh_cameras
 
 PLANE_COLORS = ((0.95, 0.35, 0.35, 0.22), (0.35, 0.9, 0.45, 0.22), (0.35, 0.55, 1.0, 0.22), (0.9, 0.8, 0.3, 0.22))
 XRAY_OPACITY = 0.3
+PLANE_PATCH_MM = 22.0  # half the side of a reference-plane patch
 
 
 @dataclass(slots=True)
@@ -42,12 +50,12 @@ class RenderTarget:
     size: tuple[int, int] | None = None  # framebuffer pixels, when fbo.size cannot be trusted (windows)
     samples: int = 1  # off screen: draw multisampled and resolve into `fbo` (smooth edges in PNGs)
     msaa: object = None
+    hold: bool = False  # a window frame runs several fixed steps: draw only after the last one
 
     def multisampled(self):
         """The multisampled framebuffer matching `fbo` (off-screen targets with samples > 1)."""
         if self.msaa is not None and tuple(self.msaa.size) == tuple(self.fbo.size):
             return self.msaa
-        from chainsim.game.gl.context import release_framebuffer
 
         if self.msaa is not None:
             release_framebuffer(self.ctx, self.msaa)
@@ -64,17 +72,11 @@ class RenderTarget:
             return
         want = (max(int(round(size[0] * self.scale)), 1), max(int(round(size[1] * self.scale)), 1))
         if tuple(self.fbo.size) != want:
-            from chainsim.game.gl.context import offscreen_framebuffer, release_framebuffer
-
             release_framebuffer(self.ctx, self.fbo)
             self.fbo = offscreen_framebuffer(self.ctx, want)
 
 
 def _deformable_type():
-    try:
-        from chainsim.components.deformable import Deformable
-    except ImportError:  # pragma: no cover
-        return None
     return Deformable
 
 
@@ -88,7 +90,6 @@ def _material(pack, name: str) -> dict:
 
 def sync_deformables(app) -> None:
     """Queue moved vertices for upload and clear `dirty` (every render-stage call, drawn or not)."""
-    from chainsim.game.gl.renderer import Renderer
 
     D = _deformable_type()
     if D is None:
@@ -113,7 +114,7 @@ def sync_deformables(app) -> None:
 
 def _plane_quads(pack, half: float) -> list:
     out = []
-    for i, (name, pl) in enumerate(sorted(pack.section("planes").items())):
+    for i, (_name, pl) in enumerate(sorted(pack.section("planes").items())):
         n = np.asarray(pl["normal"], float)
         if np.linalg.norm(n) < 1e-12:
             continue
@@ -130,25 +131,32 @@ def _plane_quads(pack, half: float) -> list:
     return out
 
 
-def help_lines(app) -> list[str]:
-    lines = [
-        "Mouse: left-drag rotates, right/middle-drag pans, scroll zooms;",
-        "       a click on the scene picks a point.",
-        "Keys:  F1 help   F12 screenshot   Esc quit",
-    ]
-    for w in app.resource(PackResource).layout.get("widgets", []):
-        if w.get("key"):
-            lines.append(
-                f"       {w['key']:<8} {w.get('label') or w['name']}" + (f" - {w['help']}" if w.get("help") else "")
-            )
-    return lines
+def page(app):
+    """The open page as (title, markdown, footer buttons) or None: a docs page of the pack, the key
+    overlay, or a notice (a question, a progress line) which takes the box over both."""
+
+    hud = app.get_resource(HudState)
+    if hud is None:
+        return None
+    pack = app.resource(PackResource).pack
+    if hud.notice:
+        return ("", hud.notice, None)
+    if not hud.doc_open:
+        return None
+    if hud.doc_name == keyhelp.NAME:
+        text = keyhelp.keys_markdown(app.resource(PackResource).layout.get("widgets", []), hud.key_rows)
+        return (keyhelp.TITLE, text, {"close": True})
+    docs = pack.section("docs")
+    if hud.doc_name not in docs:
+        return None
+    names = list(docs)
+    k = names.index(hud.doc_name)
+    buttons = {"prev": k > 0, "next": k + 1 < len(names), "close": True}
+    return (docs[hud.doc_name]["title"], pack.doc_text(hud.doc_name), buttons)
 
 
 def collect_frame(app):
     """Build the `Frame` for the current world (creates / updates GPU meshes as needed)."""
-    from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
-    from chainsim.systems.picking import surface_cache
-    from chainsim.systems.view import ViewState, refresh_cameras
 
     renderer: Renderer = app.resource(Renderer)
     target: RenderTarget = app.resource(RenderTarget)
@@ -195,7 +203,11 @@ def collect_frame(app):
             color[3] = min(color[3], XRAY_OPACITY)
         if color[3] <= 0.0:
             continue
-        wire = bool(mat.get("wireframe", False)) or (bool(ref.layer) and ref.layer in vs.wire)
+        wire = (
+            bool(mat.get("wireframe", False))
+            or (bool(ref.layer) and ref.layer in vs.wire)
+            or esper.has_component(ent, Wireframe)
+        )
         frame.meshes.append(MeshDraw(gm, model, tuple(color), wire, mat.get("shading", "smooth"), ent))
         blo, bhi = gm.box()
         c = (model @ np.r_[0.5 * (blo + bhi), 1.0])[:3]
@@ -212,10 +224,13 @@ def collect_frame(app):
         if pl.visible and len(pl.points) >= 2:
             frame.lines.append((np.asarray(pl.points, float).reshape(-1, 3), tuple(float(c) for c in pl.color)))
     for ent, (lb, tr) in esper.get_components(Label, Transform):
-        frame.labels.append((np.asarray(tr.position, float), lb.text, tuple(float(c) for c in lb.color)))
+        if lb.text:
+            frame.labels.append((np.asarray(tr.position, float), lb.text, tuple(float(c) for c in lb.color)))
     if vs.layer_visible("planes") and pack.section("planes"):
-        half = 0.6 * float(np.linalg.norm(hi - lo)) if np.all(np.isfinite(lo)) else 100.0
-        frame.planes = _plane_quads(pack, max(half, 1.0))
+        # small patches with an outline around each plane's point, not quads across the whole view
+        frame.planes = _plane_quads(pack, PLANE_PATCH_MM)
+        for corners, color in frame.planes:
+            frame.lines.append((np.vstack([corners, corners[:1]]), (*color[:3], 0.9)))
     st: WidgetState = app.resource(WidgetState)
     index = app.get_resource(EntityIndex)
     for vp in vs.viewports:
@@ -235,18 +250,16 @@ def collect_frame(app):
     shown3d = [v for v in frame.views if v.kind != "panel"]
     orbit = [v for v in shown3d if v.kind == "orbit"]
     frame.hud_view = (orbit or shown3d)[0].name if shown3d else ""
-    if vs.show_help:
-        frame.help = help_lines(app)
-    hud = frame.hud
-    if hud is not None and hud.doc_open and hud.doc_name in pack.section("docs"):
-        page = pack.section("docs")[hud.doc_name]
-        frame.doc = (page["title"], pack.doc_text(hud.doc_name), hud.doc_scroll)
+    shown = page(app)
+    if shown is not None and frame.hud_view:
+        title, text, buttons = shown
+        frame.doc = (title, text, 0 if frame.hud.notice else frame.hud.doc_scroll, buttons)
+        frame.doc_box = docbox.box(vs.get(frame.hud_view).rect)
     return frame
 
 
 def draw(app):
     """Draw the current world into the render target now; returns the Frame drawn."""
-    from chainsim.game.gl.renderer import Renderer
 
     target: RenderTarget = app.resource(RenderTarget)
     target.ensure_size(app.resource(InputState).window_size)
@@ -259,12 +272,14 @@ def draw(app):
             target.ctx.copy_framebuffer(target.fbo, ms)  # resolves the samples
         else:
             app.resource(Renderer).render(frame, target.fbo, target.size)
+        hud = app.get_resource(HudState)
+        if frame.doc_shown is not None and hud is not None and not hud.notice:
+            hud.doc_scroll = frame.doc_shown[0]  # scrolled past the end: back to the last screenful
     return frame
 
 
 def read_pixels(app) -> np.ndarray:
     """The render target's pixels, (H, W, 4) uint8, top row first."""
-    from chainsim.game.gl.png import read_rgba
 
     target: RenderTarget = app.resource(RenderTarget)
     if target.size is not None:
@@ -275,8 +290,6 @@ def read_pixels(app) -> np.ndarray:
 def screenshot(app, path) -> Path:
     """Draw now and write a PNG. A window's own framebuffer may be multisampled (not readable), so
     window screenshots are drawn again into an off-screen framebuffer of the same size."""
-    from chainsim.game.gl.context import offscreen_framebuffer, release_framebuffer
-    from chainsim.game.gl.png import read_rgba, write_png
 
     target: RenderTarget = app.resource(RenderTarget)
     if target.offscreen:
@@ -298,11 +311,13 @@ def screenshot(app, path) -> Path:
 
 class RenderSystem:
     def __call__(self, app) -> None:
-        from chainsim.components.resources import RunInfo
 
         target: RenderTarget = app.resource(RenderTarget)
         if not target.offscreen:
-            draw(app)
+            if target.hold:
+                sync_deformables(app)
+            else:
+                draw(app)
             return
         sync_deformables(app)
         info = app.get_resource(RunInfo)
@@ -312,8 +327,6 @@ class RenderSystem:
 
 
 def plugin(app) -> None:
-    from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
-    from chainsim.game.gl.renderer import Renderer
 
     target = app.get_resource(RenderTarget)
     if target is None:

@@ -15,18 +15,23 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import trimesh
 
-from chainsim.game.gl import shaders
+from chainsim.game.gl import panelview, shaders
+from chainsim.game.gl.context import release_framebuffer
+from chainsim.game.gl.docview import PageView
 from chainsim.game.gl.meshbuf import GpuMesh
 from chainsim.game.gl.overlay import Overlay
 from chainsim.systems.ui.viewports import Camera, Rect
 
 SHADING = {"smooth": 0, "flat": 1, "unlit": 2}
-PANEL_BG = (0.13, 0.14, 0.17, 1.0)
-TEXT = (0.92, 0.93, 0.95, 1.0)
-DIM = (0.55, 0.57, 0.62, 1.0)
-ACCENT = (0.30, 0.62, 0.95, 1.0)
-LIGHT_RGBA = {"red": (0.92, 0.18, 0.16, 1.0), "green": (0.20, 0.85, 0.30, 1.0), "off": (0.30, 0.30, 0.32, 1.0)}
+PANEL_BG, TEXT, DIM, ACCENT, LIGHT_RGBA = (
+    panelview.PANEL_BG,
+    panelview.TEXT,
+    panelview.DIM,
+    panelview.ACCENT,
+    panelview.LIGHT_RGBA,
+)
 
 
 @dataclass(slots=True)
@@ -75,8 +80,10 @@ class Frame:
     panels: list[PanelDraw] = field(default_factory=list)
     hud: Any = None  # chainsim.components.hud.HudState
     hud_view: str = ""  # viewport that shows the step text and messages
-    help: list[str] | None = None  # shown centred when not None
-    doc: tuple[str, str, int] | None = None  # (title, markdown text, first line) of an open docs page
+    # an open page: (title, markdown text, first line, footer buttons name -> enabled) in `doc_box`
+    doc: tuple[str, str, int, dict | None] | None = None
+    doc_box: Rect | None = None
+    doc_shown: tuple[int, int] | None = None  # after drawing: (first line shown, last first line)
 
 
 def _mat(m: np.ndarray) -> bytes:
@@ -94,7 +101,6 @@ def _set(prog, name: str, value) -> None:
 
 
 def icosphere(subdiv: int = 2) -> tuple[np.ndarray, np.ndarray]:
-    import trimesh
 
     s = trimesh.creation.icosphere(subdivisions=subdiv, radius=1.0)
     return np.asarray(s.vertices), np.asarray(s.faces)
@@ -114,6 +120,8 @@ class Renderer:
         self.dyn = ctx.buffer(reserve=1 << 14, dynamic=True)
         self.dyn_vao = ctx.vertex_array(self.line_prog, [(self.dyn, "3f", "in_pos")])
         self.overlay = Overlay(ctx)
+        self.pages = PageView(self.overlay)
+        self._labels_seen: dict[tuple, list[bool]] = {}  # viewport rect -> label in sight (this frame)
 
     # -- meshes ------------------------------------------------------------------------------
     def mesh(self, key, vertices: np.ndarray, triangles: np.ndarray, links: np.ndarray | None = None) -> GpuMesh:
@@ -140,6 +148,7 @@ class Renderer:
         s = frame.scale
         ctx.scissor = None
         ctx.viewport = (0, 0, W, H)
+        self._labels_seen.clear()
         covered = sum(v.rect.scaled(s).w * v.rect.scaled(s).h for v in frame.views)
         if covered < W * H:  # viewports clear their own rectangles; clear the rest only when some shows
             fbo.clear(*frame.background, depth=1.0)
@@ -193,6 +202,28 @@ class Renderer:
         _set(self.line_prog, "u_color", tuple(float(c) for c in color))
         self.dyn_vao.render(mode, vertices=len(pts))
 
+    def _label_queries(self, frame: Frame, vp, eye, r: Rect) -> None:
+        """Which labels the opaque scene leaves in sight: a small sphere at each label's point is drawn
+        without colour or depth writes inside an occlusion query (before markers, which would hide it),
+        so a label behind the skull is not drawn over it."""
+        ctx = self.ctx
+        seen = self._labels_seen[(r.x, r.y, r.w, r.h)] = []
+        if not frame.labels:
+            return
+        fbo = ctx.fbo
+        fbo.color_mask = (False, False, False, False)
+        fbo.depth_mask = False
+        try:
+            for pos, _text, _color in frame.labels:
+                q = ctx.query(samples=True)
+                with q:
+                    self._draw_mesh(MeshDraw(self.sphere, _trs(pos, 1.2), (1, 1, 1, 1)), vp, eye)
+                seen.append(q.samples > 0)
+                q.mglo.release() if hasattr(q.mglo, "release") else None
+        finally:
+            fbo.color_mask = (True, True, True, True)
+            fbo.depth_mask = True
+
     def _scene(self, frame: Frame, cam: Camera, r: Rect, fbo, hide: int = -1) -> None:
         ctx = self.ctx
         vp = cam.view_projection(r.aspect)
@@ -208,6 +239,7 @@ class Renderer:
                 see_through.append(("mesh", m))
             else:
                 self._draw_mesh(m, vp, eye)
+        self._label_queries(frame, vp, eye, r)
         for pos, radius, color, ent in frame.markers:
             if hide >= 0 and ent == hide:
                 continue
@@ -284,8 +316,6 @@ class Renderer:
             ctx.scissor = None
             if previous is not None:
                 previous.use()
-            from chainsim.game.gl.context import release_framebuffer
-
             release_framebuffer(ctx, fbo)
         slot = raw[:, :, 3]
         prim = raw[:, :, 0] | (raw[:, :, 1] << 8) | (raw[:, :, 2] << 16)
@@ -299,178 +329,36 @@ class Renderer:
 
     # -- 2-D ---------------------------------------------------------------------------------
     def _overlay(self, frame: Frame) -> None:
+        """Two layers: captions, labels, HUD, aiming aid and panels first; the page box over them, so
+        nothing of the scene (a landmark label) shows through an open page."""
         ov = self.overlay
         s = frame.scale
-        f = ov.font
         for view in frame.views:
             r = view.rect.scaled(s)
             if view.kind == "panel" or r.w <= 0:
                 continue
             if view.title:
-                w = f.width(view.title) + 12 * s
-                ov.rect(r.x, r.y + r.h - f.line_h - 6 * s, w, f.line_h + 6 * s, (0, 0, 0, 0.45))
-                ov.label(view.title, r.x + 6 * s, r.y + r.h - f.ascent - 3 * s, DIM)
+                panelview.view_title(ov, view.title, r, s)
             if view.camera is not None:
-                for pos, text, color in frame.labels:
+                seen = self._labels_seen.get((r.x, r.y, r.w, r.h), [])
+                for k, (pos, text, color) in enumerate(frame.labels):
+                    if k < len(seen) and not seen[k]:
+                        continue  # behind bone or skin
                     x, y, z = view.camera.project(pos, r)[0]
                     if -1 < z < 1 and r.contains(x, y):
                         ov.label(text, x + 4 * s, y + 4 * s, color)
-            if frame.hud is not None and view.name == frame.hud_view:
-                self._hud(frame.hud, r, s)
+            hud = frame.hud
+            if hud is not None and view.name == hud.aim_view and view.camera is not None:
+                panelview.aim(ov, view.camera, r, hud.aim_target, hud.aim_note, s)
+            if hud is not None and view.name == frame.hud_view:
+                panelview.hud(ov, hud, r, s)
         for p in frame.panels:
-            self._panel(p, frame.hud, s)
+            panelview.panel(ov, p, frame.hud, s)
         if frame.doc is not None:
-            self._doc(frame, s)
-        if frame.help is not None:
-            lines = frame.help
             W, H = frame.size[0] * s, frame.size[1] * s
-            bw = max((f.width(t) for t in lines), default=0) + 32 * s
-            bh = len(lines) * f.line_h + 24 * s
-            x0, y0 = (W - bw) / 2, (H - bh) / 2
-            ov.rect(x0, y0, bw, bh, (0.02, 0.02, 0.03, 0.88))
-            ov.frame(x0, y0, bw, bh, ACCENT, s)
-            for i, t in enumerate(lines):
-                ov.label(t, x0 + 16 * s, y0 + bh - 12 * s - (i + 1) * f.line_h + f.descent, TEXT)
-
-    def _doc(self, frame, s: float) -> None:
-        """A docs page in a box over the views: title, then wrapped text from the scroll line."""
-        ov, f = self.overlay, self.overlay.font
-        title, text, first = frame.doc
-        W, H = frame.size[0] * s, frame.size[1] * s
-        view = next((v.rect for v in frame.views if v.name == frame.hud_view), None)
-        left, width = (view.x * s, view.w * s) if view is not None else (0.0, W)  # stay inside the main view
-        bw, bh = min(width - 48 * s, 760 * s), H * 0.78
-        x0, y0 = left + 24 * s, (H - bh) / 2
-        lines = doc_lines(text, lambda t: f.wrap(t, bw - 32 * s))
-        fit = max(int((bh - 3 * f.line_h - 24 * s) // f.line_h), 1)
-        first = min(first, max(len(lines) - fit, 0))
-        shown = lines[first : first + fit]
-        ov.rect(x0, y0, bw, bh, (0.03, 0.035, 0.05, 0.94))
-        ov.frame(x0, y0, bw, bh, ACCENT, s)
-        top = y0 + bh - 12 * s - f.line_h + f.descent
-        ov.label(title, x0 + 16 * s, top, ACCENT)
-        for i, t in enumerate(shown):
-            ov.label(t, x0 + 16 * s, top - (i + 1.5) * f.line_h, TEXT)
-        more = f"lines {first + 1}-{first + len(shown)} of {len(lines)}; PageUp/PageDown scroll, Help closes"
-        ov.label(more, x0 + 16 * s, y0 + 10 * s, (0.6, 0.65, 0.75, 1.0))
-
-    def _hud(self, hud, r: Rect, s: float) -> None:
-        ov, f = self.overlay, self.overlay.font
-        pad = 8 * s
-        width = min(r.w - 2 * pad, 640 * s)
-        lines = []
-        if hud.step_title:
-            lines.append((hud.step_title, ACCENT))
-        if hud.step_instruction:
-            lines += [(t, TEXT) for t in f.wrap(hud.step_instruction, width - 2 * pad)]
-        for text, _left in hud.messages:
-            lines += [(t, (1.0, 0.85, 0.3, 1.0)) for t in f.wrap(text, width - 2 * pad)]
-        if not lines:
-            return
-        top = r.y + r.h - f.line_h - 14 * s  # under the viewport title
-        bh = len(lines) * f.line_h + pad
-        x0 = r.x + pad
-        ov.rect(x0, top - bh, width, bh, (0.0, 0.0, 0.0, 0.55))
-        for i, (t, c) in enumerate(lines):
-            ov.label(t, x0 + pad, top - (i + 1) * f.line_h + f.descent, c, max_w=width - 2 * pad)
-
-    def _panel(self, p: PanelDraw, hud, s: float) -> None:
-        from chainsim.systems.ui.widgets import TITLE_PX, below_widgets
-
-        ov, f = self.overlay, self.overlay.font
-        r = p.rect.scaled(s)
-        ov.rect(r.x, r.y + r.h - TITLE_PX * s, r.w, TITLE_PX * s, (0.18, 0.20, 0.25, 1.0))
-        ov.label(
-            p.title or p.name,
-            r.x + 8 * s,
-            r.y + r.h - TITLE_PX * s + (TITLE_PX * s - f.ascent) / 2,
-            TEXT,
-            max_w=r.w - 16 * s,
-        )
-        lights = dict(hud.lights) if hud is not None else {}
-        shown = set()
-        for pl in p.placed:
-            self._widget(pl, p, lights, s)
-            shown.add(pl.spec["name"])
-        y = below_widgets(p.placed, p.rect) * s
-        hint = f.wrap(p.hint, r.w - 16 * s) if p.hint else []
-        floor = r.y + (len(hint) * f.line_h + 8 * s if hint else 0)
-        for name, state in [(n, v) for n, v in lights.items() if n not in shown]:
-            y -= 22 * s
-            if y < floor:
-                break
-            ov.disc(r.x + 18 * s, y + 8 * s, 7 * s, LIGHT_RGBA.get(state, LIGHT_RGBA["off"]))
-            ov.label(name, r.x + 32 * s, y + 3 * s, TEXT, max_w=r.w - 40 * s)
-        if hud is not None and hud.panel_text:
-            y -= 6 * s
-            for t in [t for line in hud.panel_text for t in f.wrap(line, r.w - 16 * s)]:
-                y -= f.line_h
-                if y < floor:
-                    break
-                ov.label(t, r.x + 8 * s, y + f.descent, TEXT)
-        if hint:  # the help of the widget under the pointer, along the bottom
-            ov.rect(r.x, r.y, r.w, floor - r.y, (0.08, 0.09, 0.11, 1.0))
-            for i, t in enumerate(reversed(hint)):
-                ov.label(t, r.x + 8 * s, r.y + 4 * s + i * f.line_h + f.descent, DIM)
-
-    def _widget(self, pl, p: PanelDraw, lights: dict, s: float) -> None:
-        ov = self.overlay
-        spec = pl.spec
-        name, kind = spec["name"], spec["kind"]
-        r = pl.rect.scaled(s)
-        f = ov.font_for(r.h / 2 if kind in ("slider", "dial") else r.h)  # short widgets get a smaller font
-        value = p.values.get(name)
-        off = name in p.disabled
-        fg = DIM if off else TEXT
-        label = spec.get("label") or name
-        key = f" [{spec['key']}]" if spec.get("key") else ""
-        mid = r.y + (r.h - f.ascent) / 2 + 1
-        if kind == "button":
-            ov.rect(r.x, r.y, r.w, r.h, (0.20, 0.22, 0.27, 1.0) if off else (0.25, 0.33, 0.45, 1.0))
-            ov.frame(r.x, r.y, r.w, r.h, (0.4, 0.45, 0.55, 1.0), s)
-            text = label + key
-            ov.label(text, r.x + max((r.w - f.width(text)) / 2, 4 * s), mid, fg, max_w=r.w - 8 * s, font=f)
-        elif kind == "toggle":
-            bx = 16 * s
-            ov.frame(r.x + 2 * s, r.y + (r.h - bx) / 2, bx, bx, fg, s)
-            if value:
-                ov.rect(r.x + 5 * s, r.y + (r.h - bx) / 2 + 3 * s, bx - 6 * s, bx - 6 * s, ACCENT if not off else DIM)
-            ov.label(label + key, r.x + bx + 10 * s, mid, fg, max_w=r.w - bx - 12 * s, font=f)
-        elif kind in ("slider", "dial"):
-            v = float(value) if isinstance(value, (int, float)) else 0.0
-            lo, hi = float(spec.get("min", 0.0)), float(spec.get("max", 1.0))
-            t = (v - lo) / (hi - lo) if hi != lo else 0.0
-            top = r.y + r.h - f.ascent - 2 * s
-            ov.label(label + key, r.x + 2 * s, top, fg, max_w=r.w * 0.65, font=f)
-            vt = f"{v:.3g}"
-            ov.label(vt, r.x + r.w - f.width(vt) - 2 * s, top, ACCENT if not off else DIM, font=f)
-            ty = r.y + 8 * s
-            if kind == "slider":
-                x0, x1 = r.x + 10 * s, r.x + r.w - 10 * s
-                ov.rect(x0, ty - 2 * s, x1 - x0, 4 * s, (0.3, 0.32, 0.38, 1.0))
-                ov.rect(x0, ty - 2 * s, (x1 - x0) * t, 4 * s, ACCENT if not off else DIM)
-                ov.rect(x0 + (x1 - x0) * t - 4 * s, ty - 7 * s, 8 * s, 14 * s, fg)
-            else:
-                cx, rad = r.x + r.w / 2, 9 * s
-                ov.label("-", r.x + 6 * s, ty - f.ascent / 2, fg, font=f)
-                ov.label("+", r.x + r.w - 14 * s, ty - f.ascent / 2, fg, font=f)
-                ov.disc(cx, ty + 2 * s, rad, (0.3, 0.32, 0.38, 1.0))
-                ang = np.radians(225.0 - 270.0 * t)
-                ov.segment(
-                    cx,
-                    ty + 2 * s,
-                    cx + rad * np.cos(ang),
-                    ty + 2 * s + rad * np.sin(ang),
-                    ACCENT if not off else DIM,
-                    2 * s,
-                )
-        elif kind == "light":
-            state = lights.get(name, value if value in LIGHT_RGBA else "off")
-            ov.disc(r.x + 10 * s, r.y + r.h / 2, 7 * s, LIGHT_RGBA.get(state, LIGHT_RGBA["off"]))
-            ov.label(label, r.x + 24 * s, mid, fg, max_w=r.w - 26 * s, font=f)
-        else:  # text
-            shown = label if value in (None, False, "") else f"{label}: {value}" if label else str(value)
-            ov.label(shown, r.x + 2 * s, mid, fg, max_w=r.w - 4 * s, font=f)
+            ov.flush((W, H))
+            title, text, first, buttons = frame.doc
+            frame.doc_shown = self.pages.draw(frame.doc_box, s, title, text, first, buttons)
 
     def release(self) -> None:
         for gm in self.meshes.values():
@@ -487,20 +375,3 @@ def _trs(pos, radius: float) -> np.ndarray:
     m[3, 3] = 1.0
     m[:3, 3] = np.asarray(pos, float)
     return m
-
-
-def doc_lines(markdown: str, wrap) -> list[str]:
-    """Markdown as plain wrapped lines: heading marks and emphasis dropped, lists and tables kept."""
-    out = []
-    for raw in markdown.splitlines():
-        t = raw.rstrip()
-        if t.startswith("#"):
-            t = t.lstrip("#").strip().upper()
-        t = t.replace("**", "").replace("`", "")
-        if len(t) > 1 and t[0] == "*" and t[-1] == "*":
-            t = t[1:-1]
-        if t.startswith("|") or not t:
-            out.append(t)
-        else:
-            out.extend(wrap(t) or [""])
-    return out

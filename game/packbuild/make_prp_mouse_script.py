@@ -22,7 +22,9 @@ from chainsim.assets import ASSETS_DIR
 from chainsim.components.input_events import PickPoint, Widget
 from chainsim.game.app.headless import build_app, run_pack
 from chainsim.game.app.inputscript import load_script
+from chainsim.systems.ui import docbox
 from chainsim.systems.ui import widgets as wd
+from chainsim.systems.view import ViewState, main_view
 
 SCRIPTS = ASSETS_DIR / "prp" / "scripts"
 
@@ -51,7 +53,6 @@ def _press_release(t: float, x: float, y: float, drag_dx: float | None = None) -
 
 def build(source: Path) -> str:
     """Mouse events reproducing `source` (a script of picks and widget events) in the default window."""
-    from chainsim.systems.view import ViewState
 
     app = build_app("prp")
     try:
@@ -65,6 +66,9 @@ def build(source: Path) -> str:
             "format = 1\n"
             'description = "the correct attempt, with mouse clicks and drags only"\n'
         ]
+        # the reading step opens its page over the face: close it first, as a trainee does
+        close = docbox.buttons(docbox.box(main_view(vs).rect))["close"]
+        parts += _press_release(0.05, close.x + close.w / 2, close.y + close.h / 2)
         for t, ev in load_script(source):
             if isinstance(ev, PickPoint):
                 # window events carry whole pixels and aim through pixel centres: click the pixel holding the point

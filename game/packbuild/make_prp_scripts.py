@@ -31,15 +31,17 @@ from chainsim.assets import ASSETS_DIR
 from chainsim.components.core import Transform
 from chainsim.components.procedure import anatomy_from_pack, landmark_errors
 from chainsim.components.registry import load_all
+from chainsim.engine.segment_tree import SegmentTree
 from chainsim.game.app.headless import run_pack
 from chainsim.game.packs import pack as packs
-from chainsim.systems.collision import OBSTACLES, PrpObstacles, SegmentTree
+from chainsim.systems.collision import OBSTACLES, PrpObstacles
 from chainsim.systems.needle import initial_direction
 
 HIGH_DEG = 12.0
 
 
 def _skin(pack):
+
     load_all()
     ent = pack.manifest["entities"]["skin"]
     mesh = pack.mesh(ent["mesh"]["mesh"])
@@ -53,6 +55,7 @@ def _skin(pack):
 
 def _section_point(skin, plane, centre, radius, prefer) -> np.ndarray:
     """The point of the skin's section by `plane` at `radius` from `centre` that maximises `prefer`."""
+
     segs = trimesh.intersections.mesh_plane(skin, plane.normal, plane.point)
     if len(segs) == 0:
         raise SystemExit(f"the skin does not cross the plane through {centre}")
@@ -91,6 +94,7 @@ def clear_entry_near(skin, sa, start, targets, obstacles, want, radius=12.0, ste
     """(entry, target): the skin point within `radius` mm of `start` with the best landmark-1 score
     (D1 + d1) from which a straight line to one of `targets` meets the foramen first, with 0.25 mm to
     spare in every direction and a needle error Dist - R below `max_error`; None if there is none."""
+
     on = skin.nearest.on_surface([start])
     normal = skin.face_normals[on[2][0]]
     a = np.cross(normal, [0.0, 0.0, 1.0])
@@ -130,6 +134,7 @@ def clear_entry_near(skin, sa, start, targets, obstacles, want, radius=12.0, ste
 
 def dial_angles(entry, direction) -> tuple[float, float]:
     """(horizontal, vertical) dial degrees that turn the initial heading into `direction`."""
+
     d = np.asarray(direction, float) / np.linalg.norm(direction)
     d0 = initial_direction(entry)
     yaw = math.degrees(math.atan2(d[1], d[0]) - math.atan2(d0[1], d0[0]))
@@ -139,6 +144,7 @@ def dial_angles(entry, direction) -> tuple[float, float]:
 
 
 def direction_of(yaw, pitch, entry):
+
     d0 = initial_direction(entry)
     az = math.atan2(d0[1], d0[0]) + math.radians(yaw)
     p = math.radians(pitch)

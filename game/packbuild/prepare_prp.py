@@ -32,10 +32,12 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from PIL import Image
 from scipy.spatial import cKDTree
 
 from chainsim.assets import ASSETS_DIR
 from chainsim.game.packbuild import prp_face, prp_foramen, prp_landmarks, prp_skin
+from chainsim.game.packbuild.prp_preview import marker, render
 
 # the source meshes sit beside the repository in a development checkout
 DEFAULT_SHARED = ASSETS_DIR.parent.parent / "shared" / "data" / "anatomy"
@@ -730,12 +732,6 @@ def write_toml(path: Path, foramina, anat, info) -> None:
 
 
 def preview(path: Path, skull, mandible, skin, plugs, anat, face) -> None:
-    try:
-        from PIL import Image  # noqa: PLC0415 - the picture is optional; the build works without it
-
-        from chainsim.game.packbuild.prp_preview import marker, render  # noqa: PLC0415 - loads GL
-    except ImportError:  # pragma: no cover - pillow/moderngl are project dependencies
-        return
     layers = [(skull, (0.92, 0.88, 0.78, 1.0)), (mandible, (0.85, 0.82, 0.72, 1.0))]
     layers += [(p, (0.1, 0.8, 0.2, 1.0)) for p in plugs.values()]
     for name, p in anat["points"].items():

@@ -8,6 +8,7 @@ translucent sorted back to front per mesh). Needs an EGL context (Mesa llvmpipe 
 
 from __future__ import annotations
 
+import moderngl
 import numpy as np
 import trimesh
 
@@ -45,7 +46,6 @@ def _look(view_dir: np.ndarray, up: np.ndarray, centre: np.ndarray, half: float)
 
 def render(layers, view_dir, up, centre, half, size=(640, 640)) -> np.ndarray:
     """layers: list of (trimesh.Trimesh, (r, g, b, a)). Returns an RGB uint8 image."""
-    import moderngl
 
     ctx = moderngl.create_standalone_context(backend="egl")
     try:

@@ -19,6 +19,8 @@ import os
 import re
 import tomllib
 from dataclasses import dataclass, field
+from importlib.metadata import entry_points
+from importlib.util import find_spec
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +37,9 @@ from chainsim.components.registry import (
 )
 from chainsim.engine.errors import UserError
 from chainsim.engine.meshes import MeshData, MeshError, load_file, max_mesh_bytes, primitive
+from chainsim.engine.reorder import reorder_mesh
 from chainsim.game.packs import schema as ms
+from chainsim.systems.procedures import PROCEDURES
 
 BUILTIN_DIR = ASSETS_DIR
 ENV_PATH = "CHAINSIM_PACK_PATH"
@@ -130,8 +134,6 @@ def _pack_name(folder: Path) -> str:
 
 
 def _installed() -> list[Found]:
-    from importlib.metadata import entry_points
-    from importlib.util import find_spec
 
     out = []
     for ep in entry_points(group=ENTRY_POINT_GROUP):
@@ -258,8 +260,6 @@ def build_mesh(root: Path, name: str, spec: dict) -> MeshData:
     path = _inside(root, spec["path"])
     m = load_file(path, scale, spec["merge_vertices"], label=spec["path"])
     if spec.get("reorder"):
-        from chainsim.engine.reorder import reorder_mesh  # locality reordering (optional module)
-
         m = reorder_mesh(m)
     return m
 
@@ -438,8 +438,6 @@ def validate(root: Path, *, load_meshes: bool = True) -> tuple[Pack | None, list
         if pk.get("attribution"):
             _check_path(v, root, F, "pack.attribution", pk["attribution"])
         if pk.get("procedure"):
-            from chainsim.game.app.plugins import PROCEDURES
-
             if pk["procedure"] not in PROCEDURES:
                 v.add(
                     F,

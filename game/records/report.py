@@ -17,6 +17,9 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
 from chainsim.engine.errors import UserError
 from chainsim.game.records.validate import AIDS
 
@@ -32,6 +35,7 @@ CSV_COLUMNS = (
     "target",
     "skull_contacts",
     "path_length_mm",
+    "redirections",
     *(f"aid_{name}" for name in AIDS),
     "step_times",
     "details",
@@ -122,6 +126,7 @@ def csv_rows(attempts: Sequence[dict[str, Any]]) -> list[list[Any]]:
                 a["target"],
                 a["skull_contacts"],
                 a["path_length_mm"],
+                a.get("redirections", 0),
                 *(int(bool(a["aids"].get(name, False))) for name in AIDS),
                 json.dumps(a["step_times"], sort_keys=True),
                 json.dumps(a["details"], sort_keys=True),
@@ -147,8 +152,6 @@ def plot_progress(attempts: Sequence[dict[str, Any]], path: Path, title: str) ->
         raise UserError(f"no attempts to plot for {title}")
     if Path(path).suffix.lower() != ".png":
         raise UserError(f"plot output {path} must end in .png")
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
 
     n = list(range(1, len(attempts) + 1))
     landmark = [a["landmark_error_mm"] for a in attempts]

@@ -53,7 +53,11 @@ V2_DDL: tuple[str, ...] = (
     "CREATE INDEX attempts_by_trainee ON attempts (trainee_id, created_at, id)",
 )
 
-MIGRATIONS: tuple[tuple[str, ...], ...] = (V1_DDL, V2_DDL)
+# Version 3: redirections per attempt (times the needle was withdrawn to the skin and turned again);
+# attempts saved before it keep their rows with 0.
+V3_DDL: tuple[str, ...] = ("ALTER TABLE attempts ADD COLUMN redirections INTEGER NOT NULL DEFAULT 0",)
+
+MIGRATIONS: tuple[tuple[str, ...], ...] = (V1_DDL, V2_DDL, V3_DDL)
 SCHEMA_VERSION = len(MIGRATIONS)
 
 # Tables a records database owns; a version-0 file holding anything else is not ours.

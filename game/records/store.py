@@ -27,6 +27,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import platformdirs
+
 from chainsim.components.resources import Records
 from chainsim.engine.errors import UserError
 from chainsim.game.records.schema import MIGRATIONS, OWN_TABLES, SCHEMA_VERSION
@@ -43,7 +45,6 @@ def default_path() -> Path:
     env = os.environ.get(ENV_VAR, "").strip()
     if env:
         return Path(env).expanduser()
-    import platformdirs
 
     return Path(platformdirs.user_data_dir("chainsim")) / DB_FILENAME
 
@@ -120,7 +121,7 @@ def _row_to_attempt(row: sqlite3.Row) -> dict[str, Any]:
 _ATTEMPT_SELECT = """
     SELECT a.id, c.name AS class_name, t.name AS trainee, a.pack, a.created_at, a.duration_s,
            a.landmark_error_mm, a.needle_error_mm, a.target, a.skull_contacts, a.path_length_mm,
-           a.aids, a.step_times, a.details
+           a.redirections, a.aids, a.step_times, a.details
     FROM attempts a JOIN trainees t ON t.id = a.trainee_id JOIN classes c ON c.id = t.class_id
 """
 
@@ -301,8 +302,9 @@ class RecordStore:
             cur = conn.execute(
                 """
                 INSERT INTO attempts (trainee_id, pack, created_at, duration_s, landmark_error_mm,
-                    needle_error_mm, target, skull_contacts, path_length_mm, aids, step_times, details)
-                VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
+                    needle_error_mm, target, skull_contacts, path_length_mm, redirections, aids, step_times,
+                    details)
+                VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
                 """,
                 (
                     trainee_id,
@@ -314,6 +316,7 @@ class RecordStore:
                     a["target"],
                     a["skull_contacts"],
                     a["path_length_mm"],
+                    a["redirections"],
                     to_json(a["aids"]),
                     to_json(a["step_times"]),
                     to_json(a["details"]),
@@ -370,5 +373,12 @@ def local_records(db: str | os.PathLike[str] | None = None) -> Records:
         with RecordStore(db) as store:
             return store.list_attempts(class_name, trainee)
 
+    def delete_attempt(class_name: str, trainee: str, attempt_id: int) -> None:
+        with RecordStore(db) as store:
+            a = store.get_attempt(attempt_id)
+            if (a["class_name"], a["trainee"]) != (class_name, trainee):
+                raise UserError(f"attempt {attempt_id} is not yours")
+            store.delete_attempt(attempt_id)
+
     where = str(Path(db).expanduser() if db else default_path())
-    return Records(save_attempt=save_attempt, list_attempts=list_attempts, where=where)
+    return Records(save_attempt=save_attempt, list_attempts=list_attempts, where=where, delete_attempt=delete_attempt)

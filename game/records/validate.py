@@ -35,7 +35,7 @@ REQUIRED = (
     "skull_contacts",
     "path_length_mm",
 )
-OPTIONAL = ("created_at", "aids", "step_times", "details")
+OPTIONAL = ("created_at", "aids", "step_times", "details", "redirections")
 FIELDS = REQUIRED + OPTIONAL
 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
@@ -191,6 +191,7 @@ def clean_attempt(attempt: Any) -> dict[str, Any]:
         "target": clean_target(attempt["target"]),
         "skull_contacts": _count("skull_contacts", attempt["skull_contacts"]),
         "path_length_mm": _number("path_length_mm", attempt["path_length_mm"]),
+        "redirections": _count("redirections", attempt.get("redirections", 0)),
         "aids": clean_aids(attempt.get("aids")),
         "step_times": clean_step_times(attempt.get("step_times")),
         "details": clean_details(attempt.get("details")),

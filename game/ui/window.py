@@ -3,28 +3,50 @@
 Only this module (and the GL adapters) import pyglet. Device events become the same input events
 scripts use (`chainsim.components.input_events`), stamped with the App's simulated time and queued in PendingInput,
 so a window session can be recorded (`--record`) and replayed headless. Each redraw (about 60 per
-second where the machine keeps up) advances the App by the wall-clock time since the previous one
-(capped at 0.1 s) and draws through `chainsim.game.gl.render_system` into the window's framebuffer.
+second where the machine keeps up) runs the whole fixed steps the wall-clock time since the previous
+one holds, one App.update each (chainsim.game.ui.frameloop), and draws through `chainsim.game.gl.render_system` into the window's framebuffer.
 
 HiDPI: layouts, input events and widgets work in window units; the renderer draws at the
 framebuffer's resolution (`RenderTarget.scale` = framebuffer pixels per window unit).
 
 Keys: a widget's `key` (pyglet key names, lower case: "t", "left", "space", "f2"; digits "1".."9")
-uses that widget (held arrow keys repeat); F1 toggles the help overlay, F12 saves a screenshot (chainsim-shot-FRAME.png in the
-current folder), Esc quits. `--input SCRIPT` plays a script, `--exit-after S` closes after S simulated
+uses that widget (held arrow keys repeat); F1 opens the key page, F12 saves a screenshot
+(chainsim-shot-FRAME.png in the current folder). Esc closes an open page; with none open it quits,
+asking first when the attempt is not saved. Packs with a `sign_in` button ask for class and name at
+start (chainsim.game.ui.signin) unless --class and --trainee are given or a script is played. `--input SCRIPT` plays a script, `--exit-after S` closes after S simulated
 seconds, `--screenshot PNG` saves the last frame on closing, `--record FILE` saves the session.
 """
 
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
+import pyglet
+
+import chainsim.game.gl.render_system as render
+from chainsim.components.hud import HudState
+from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll, Widget
+from chainsim.components.resources import Assessment, PendingInput, Settings
 from chainsim.engine.errors import UserError
+from chainsim.game.app.digest import world_digest
+from chainsim.game.app.headless import build_app
+from chainsim.game.app.inputscript import load_script, write_recording
+from chainsim.game.app.options import user_settings
+from chainsim.game.gl.context import window_context
+from chainsim.game.records.store import default_path as default_records_path
+from chainsim.game.ui.frameloop import FixedStepper
+from chainsim.game.ui.signin import SignInForm, remember, remembered, status_line
+from chainsim.systems.input import InputLog
+
+QUIT_QUESTION = (
+    "# Quit without saving?\n\nThis attempt is not saved. Press **Esc** again to quit, or any other key to "
+    "go back and press **Save attempt** first.\n"
+)
 
 
 def key_name(symbol: int) -> str:
     """pyglet key symbol -> the name used in input events ('T' -> 't', '_1' -> '1', 'LEFT' -> 'left')."""
-    import pyglet
 
     name = pyglet.window.key.symbol_string(symbol).lower()
     if len(name) == 2 and name[0] == "_" and name[1].isdigit():
@@ -33,7 +55,6 @@ def key_name(symbol: int) -> str:
 
 
 def _button(b) -> str:
-    import pyglet
 
     m = pyglet.window.mouse
     if b & m.LEFT:
@@ -43,32 +64,31 @@ def _button(b) -> str:
     return "middle"
 
 
+SOFTWARE_GL = ("llvmpipe", "softpipe", "swrast")
+
+
 def _open_window(pyglet, w: int, h: int, caption: str):
-    """A GL 3.3 core window; multisampled when the display offers it."""
+    """A GL 3.3 core window; multisampled when the display offers it on a GPU. Software renderers
+    (Mesa's llvmpipe) get no multisampling: it multiplies their rasterising time about five-fold
+    (`chainsim bench render --pack prp`), which costs more than smooth edges are worth."""
     base = dict(major_version=3, minor_version=3, forward_compatible=True, double_buffer=True, depth_size=24)
     last = None
     for extra in (dict(sample_buffers=1, samples=4), {}):
         try:
             config = pyglet.gl.Config(**base, **extra)
-            return pyglet.window.Window(w, h, caption=caption, resizable=True, config=config)
+            window = pyglet.window.Window(w, h, caption=caption, resizable=True, config=config)
         except Exception as e:  # no such config on this display: try a plainer one
             last = e
+            continue
+        renderer = (pyglet.gl.gl_info.get_renderer() or "").lower()
+        if extra and any(name in renderer for name in SOFTWARE_GL):
+            window.close()
+            continue
+        return window
     raise last
 
 
 def run_window(args) -> int:
-    try:
-        import pyglet
-    except Exception as e:  # pragma: no cover - pyglet is a dependency
-        raise UserError(f"cannot start the window system ({e})") from None
-    import chainsim.game.gl.render_system as render
-    from chainsim.components.hud import HudState
-    from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll
-    from chainsim.components.resources import PendingInput, Settings
-    from chainsim.game.app.headless import build_app
-    from chainsim.game.app.inputscript import load_script
-    from chainsim.game.cli.commands.run import user_settings
-    from chainsim.game.gl.context import window_context
 
     script = load_script(args.input) if getattr(args, "input", None) else None
     settings = user_settings(args)  # --db, --class, --trainee for procedures that save attempts
@@ -98,7 +118,36 @@ def run_window(args) -> int:
     pending: PendingInput = app.resource(PendingInput)
     if script:
         pending.extend(script)
-    state = {"last": None, "closing": False, "rc": 0}
+    state = {"last": None, "closing": False, "rc": 0, "confirm": False}
+    hud: HudState = app.resource(HudState)
+    values = app.resource(Settings).values
+    records_path = Path(values["db"]).expanduser() if values.get("db") else default_records_path()
+    hud.status = status_line(values, records_path)
+    widget_events = app.events.reader(Widget)
+    layout_names = {w["name"] for w in app.resource(render.PackResource).layout.get("widgets", [])}
+    form: dict = {"open": None}
+
+    def open_sign_in() -> None:
+        given = {k: values.get(k) or remembered().get(k, "") for k in ("class", "trainee")}
+        form["open"] = SignInForm(given, records_path)
+        hud.notice = form["open"].markdown()
+
+    def form_changed() -> None:
+        f = form["open"]
+        if f.done:
+            values["class"], values["trainee"] = f.values["class"], f.values["trainee"]
+            settings["class"], settings["trainee"] = f.values["class"], f.values["trainee"]
+            remember(f.values)
+            hud.status = status_line(values, records_path)
+            hud.message(f"Signed in as {f.values['trainee']}, class {f.values['class']}.")
+            hud.notice = ""
+            form["open"] = None
+        else:
+            hud.notice = f.markdown()
+
+    # the trainer asks who is training, unless --class and --trainee said so
+    if "sign_in" in layout_names and not (values.get("class") and values.get("trainee")) and not script:
+        open_sign_in()
 
     def now() -> float:
         return app.time.sim_time
@@ -113,10 +162,6 @@ def run_window(args) -> int:
                 path = render.screenshot(app, args.screenshot)
                 print(f"screenshot: {path}")
             if getattr(args, "record", None):
-                from chainsim.game.app.digest import world_digest
-                from chainsim.game.app.inputscript import write_recording
-                from chainsim.systems.input import InputLog
-
                 log = app.get_resource(InputLog)
                 write_recording(
                     args.record,
@@ -159,9 +204,39 @@ def run_window(args) -> int:
         pending.push(now(), Scroll(float(x), float(y), float(scroll_y)))
 
     @window.event
+    def on_text(text):
+        if form["open"] is not None:
+            form["open"].text(text)
+            form_changed()
+            return pyglet.event.EVENT_HANDLED
+
+    @window.event
     def on_key_press(symbol, modifiers):
+        if form["open"] is not None:  # typing a name: no key reaches the controller
+            if symbol == pyglet.window.key.ESCAPE:
+                if values.get("trainee"):
+                    form["open"] = None
+                    hud.notice = ""
+                else:
+                    finish()
+            else:
+                form["open"].key(key_name(symbol))
+                form_changed()
+            return pyglet.event.EVENT_HANDLED
+        if state["confirm"]:
+            state["confirm"] = False
+            hud.notice = ""
+            if symbol == pyglet.window.key.ESCAPE:
+                finish()
+            return pyglet.event.EVENT_HANDLED
         if symbol == pyglet.window.key.ESCAPE:
-            finish()
+            if hud.doc_open:
+                pending.push(now(), Key("escape", True))  # closes the page (the view system)
+            elif app.resource(Assessment).values.get("unsaved"):
+                state["confirm"] = True
+                hud.notice = QUIT_QUESTION
+            else:
+                finish()
             return pyglet.event.EVENT_HANDLED
         if symbol == pyglet.window.key.F12:
             path = render.screenshot(app, f"chainsim-shot-{app.time.frame:06d}.png")
@@ -204,14 +279,20 @@ def run_window(args) -> int:
         pending.push(now(), Resize(max(int(width), 1), max(int(height), 1)))
         return pyglet.event.EVENT_HANDLED
 
+    stepper = FixedStepper(app, target)
+
     @window.event
     def on_draw():
         t = time.perf_counter()  # wall clock paces the window only; the App runs on simulated time
-        dt = 0.0 if state["last"] is None else min(t - state["last"], 0.1)
+        dt = 0.0 if state["last"] is None else t - state["last"]
         state["last"] = t
         if state["closing"]:
             return
-        app.update(dt)
+        if stepper.advance(dt) == 0:
+            render.draw(app)  # no whole step yet: show the same state again
+        for ev in widget_events.read():
+            if ev.name == "sign_in" and form["open"] is None:
+                open_sign_in()
         if args.exit_after is not None and app.time.sim_time >= args.exit_after:
             finish()
 

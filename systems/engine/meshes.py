@@ -11,7 +11,9 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import meshio
 import numpy as np
+import trimesh
 
 from chainsim.engine import meshgen
 
@@ -86,7 +88,6 @@ def load_file(path: Path, scale_to_mm: float = 1.0, merge_vertices: bool = True,
 
 
 def _load_surface(path: Path, merge_vertices: bool, where: str) -> MeshData:
-    import trimesh
 
     try:
         loaded = trimesh.load(str(path), force="mesh", process=merge_vertices)
@@ -100,7 +101,6 @@ def _load_surface(path: Path, merge_vertices: bool, where: str) -> MeshData:
 
 
 def _load_volume(path: Path, where: str) -> MeshData:
-    import meshio
 
     try:
         m = meshio.read(str(path))
@@ -134,7 +134,6 @@ def boundary_triangles(tets: np.ndarray) -> np.ndarray:
 
 def primitive(kind: str, *, extents, radius: float, height: float, resolution) -> MeshData:
     """Built-in shapes so packs can have tools and test bodies without mesh files."""
-    import trimesh
 
     res = [max(1, int(round(r))) for r in resolution]
     if kind == "box":

@@ -20,7 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
+from chainsim.engine import reorder as ro
 from chainsim.engine.errors import UserError
+from chainsim.engine.meshes import MeshData, MeshError, load_file
+from chainsim.engine.reorder import reorder_mesh
+from chainsim.engine.tetra import TetraError, tetrahedralize
 
 GRAPH_EXT = ".npz"
 
@@ -41,7 +45,6 @@ def load_mesh(
     tetrahedraliser, cube size `pitch` or `cells` along the longest side), or "auto" (as the file is).
     reorder: None, "rcm" or "morton" (chainsim.engine.reorder).
     """
-    from chainsim.engine.meshes import MeshError, load_file
 
     where = where or str(path)
     try:
@@ -56,19 +59,13 @@ def load_mesh(
         raise UserError(f"{where}: kind must be auto, surface or volume, got {kind!r}")
     has_tets = mesh.tets is not None and len(mesh.tets) > 0
     if kind == "volume" and not has_tets:
-        from chainsim.engine.tetra import TetraError, tetrahedralize
-
         try:
             mesh = tetrahedralize(mesh, pitch=pitch, **({"cells": cells} if cells else {}))
         except TetraError as e:
             raise UserError(f"{where}: cannot fill with tetrahedra: {e}") from None
     elif kind == "surface" and has_tets:
-        from chainsim.engine.meshes import MeshData
-
         mesh = MeshData(mesh.vertices, mesh.triangles, None, mesh.links)
     if reorder:
-        from chainsim.engine.reorder import reorder_mesh
-
         try:
             mesh = reorder_mesh(mesh, reorder)
         except ValueError as e:
@@ -147,8 +144,6 @@ def load_graph(path, *, kind: str = "auto", reorder: str | None = None) -> tuple
             raise UserError(f"{path}: not a readable .npz file ({type(e).__name__})") from None
         pos, links, fixed = check_graph(pos, links, fixed, str(path))
         if reorder:
-            from chainsim.engine import reorder as ro
-
             perm = ro.rcm_permutation(len(pos), links) if reorder == "rcm" else ro.morton_permutation(pos)
             inv = ro.inverse(perm)
             pos, links, fixed = pos[perm], ro.permute_links(links, inv), np.sort(inv[fixed])

@@ -14,14 +14,17 @@ triangles / tetrahedra / links mapped to the new ids and the cells sorted by the
 from __future__ import annotations
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+from chainsim.engine import meshgen
+from chainsim.engine.meshes import MeshData
 
 METHODS = ("rcm", "morton")
 
 
 def rcm_permutation(n: int, links: np.ndarray) -> np.ndarray:
     """New-to-old order (perm[new] = old) from reverse Cuthill-McKee on the undirected links."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import reverse_cuthill_mckee
 
     links = np.asarray(links, dtype=np.int64).reshape(-1, 2)
     if n == 0:
@@ -75,14 +78,12 @@ def _cells(cells: np.ndarray | None, inv: np.ndarray) -> np.ndarray | None:
 
 
 def permute_links(links: np.ndarray, inv: np.ndarray) -> np.ndarray:
-    from chainsim.engine import meshgen
 
     return meshgen.unique_links(inv[np.asarray(links, dtype=np.int64)])
 
 
 def permute_mesh(mesh, perm: np.ndarray):
     """MeshData renumbered by `perm` (new-to-old)."""
-    from chainsim.engine.meshes import MeshData
 
     perm = np.asarray(perm, dtype=np.int64)
     n = len(mesh.vertices)

@@ -10,8 +10,10 @@ that stick out of the surface back onto it, so the volume stays inside the shape
 from __future__ import annotations
 
 import numpy as np
+import trimesh
 
 from chainsim.engine import meshgen
+from chainsim.engine.meshes import MeshData, boundary_triangles
 
 #: default number of cells along the longest side when no pitch is given
 DEFAULT_CELLS = 16
@@ -23,7 +25,6 @@ class TetraError(ValueError):
 
 def tet_block(shape: tuple[int, int, int], spacing: float = 1.0, origin=(0.0, 0.0, 0.0)):
     """Structured block of nx*ny*nz elements as a MeshData (tets + outward boundary triangles)."""
-    from chainsim.engine.meshes import MeshData, boundary_triangles
 
     pos, tets, _ = meshgen.tet_grid(*shape, spacing=spacing)
     pos = pos + np.asarray(origin, dtype=np.float64)
@@ -38,9 +39,6 @@ def tetrahedralize(
     pitch: cube size in mesh units (default: longest side / `cells`). snap: move grid nodes that lie
     outside the surface to the nearest surface point.
     """
-    import trimesh
-
-    from chainsim.engine.meshes import MeshData, boundary_triangles
 
     tri = trimesh.Trimesh(
         np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles, dtype=np.int64), process=True

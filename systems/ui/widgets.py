@@ -65,6 +65,12 @@ class WidgetState:
         self.disabled.difference_update(names)
 
 
+def format_value(v: float) -> str:
+    """The one number format of the interface (dials, sliders, text widgets): one decimal place."""
+    t = f"{float(v):.1f}"
+    return "0.0" if t == "-0.0" else t
+
+
 def initial_value(w: dict) -> Any:
     kind, v = w["kind"], w.get("value", False)
     if kind == "toggle":

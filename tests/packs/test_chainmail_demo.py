@@ -66,7 +66,7 @@ def test_raw_cascade_keeps_every_moved_element_in_its_sponsors_region(scene):
     try:
         order, sponsor = d.last_order, d.last_sponsor
         assert order[0] == p.resolved and len(order) > 1
-        for e, s, k in zip(order[1:], sponsor[1:], range(1, len(order))):
+        for e, s, _k in zip(order[1:], sponsor[1:], range(1, len(order))):
             lid = _link_id(d, e, s)
             lo, hi = _box(d.rest, d.pos, e, s, d.amin[lid], d.amax[lid], d.beta_l[lid])
             assert np.all(d.pos[e] >= lo - 1e-9) and np.all(d.pos[e] <= hi + 1e-9), (scene, e, s)

@@ -615,13 +615,13 @@ def test_reference_planes_appear_when_their_toggle_is_on(make_pack):
         _, on = frame_pixels(app)
         view_off, view_on = off[:, :120, :3].astype(int), on[:, :120, :3].astype(int)
         tinted = np.abs(view_on - view_off).sum(axis=2) > 10
-        assert tinted.mean() > 0.05  # a translucent square through the ball's centre
+        # a small outlined patch around the plane's point, not a quad across the whole view
+        assert 0.005 < tinted.mean() < 0.3
         ys, xs = np.nonzero(tinted)
         assert abs(xs.mean() - 60) < 6  # centred on the ball in x
         over_bg = tinted & (view_off.sum(axis=2) == 0)
-        assert over_bg.sum() > 100
+        assert over_bg.sum() > 20
         reds = view_on[over_bg]
         assert np.all(reds[:, 0] > reds[:, 1])  # the first plane colour is a red tint
-        assert np.all(reds.max(axis=1) < 128)  # translucent: the background shows through
     finally:
         app.close()

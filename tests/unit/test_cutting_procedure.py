@@ -19,7 +19,7 @@ from chainsim.components.resources import Assessment, EntityIndex, PendingInput
 from chainsim.components.tools import Forceps, Scissors
 from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import build_app
-from chainsim.systems.procedures.cutting.procedure import parse_point
+from chainsim.systems.procedures.cutting.state import parse_point
 
 PACK = Path(__file__).resolve().parents[2] / "assets" / "cutting"
 CORNER = (40.0, 30.0, 0.0)
@@ -239,18 +239,21 @@ def test_the_idle_instrument_follows_the_cursor_over_the_tissue(app):
     assert comp(app, "scissors", Transform).position == pytest.approx(pos)
 
 
-def test_wireframe_switch_changes_only_this_runs_materials(app):
-    app.resource(PendingInput).push(0.0, Widget("wireframe", True))
-    steps(app, 1)
+def test_wireframe_switch_draws_links_and_leaves_the_pack_alone(app):
+    from chainsim.components.core import Wireframe
     from chainsim.components.resources import PackResource
 
-    assert app.resource(PackResource).pack.section("materials")["dura"]["wireframe"] is True
+    dura = app.resource(EntityIndex)["dura"]
+    app.resource(PendingInput).push(0.0, Widget("wireframe", True))
+    steps(app, 1)
+    with app.active():
+        assert esper.has_component(dura, Wireframe)
     assert app.resource(Assessment).values["wireframe"] is True
-    other = make()
-    try:
-        assert other.resource(PackResource).pack.section("materials")["dura"].get("wireframe", False) is False
-    finally:
-        other.close()
+    assert app.resource(PackResource).pack.section("materials")["dura"].get("wireframe", False) is False
+    app.resource(PendingInput).push(app.time.sim_time, Widget("wireframe", False))
+    steps(app, 1)
+    with app.active():
+        assert not esper.has_component(dura, Wireframe)
 
 
 def test_a_bad_pull_target_is_a_user_error(app):

@@ -6,7 +6,6 @@ from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, PickPoint, Widget
 from chainsim.components.resources import PackResource, PendingInput
 from chainsim.game.app.headless import build_app
-from chainsim.game.gl.renderer import doc_lines
 
 
 def test_reading_step_opens_its_page_and_help_toggles_it():
@@ -30,11 +29,3 @@ def test_reading_step_opens_its_page_and_help_toggles_it():
         assert not h.doc_open and h.doc_name == "howto"
     finally:
         app.close()
-
-
-def test_doc_lines_drop_markdown_marks_and_wrap():
-    text = "# Title\n\n*Note.*\nSome **bold** `code` words here\n| a | b |"
-    lines = doc_lines(text, lambda t: [t[i : i + 10] for i in range(0, len(t), 10)])
-    assert lines[0] == "TITLE" and lines[1] == "" and lines[2] == "Note."
-    assert "".join(lines[3:-1]) == "Some bold code words here"
-    assert lines[-1] == "| a | b |"

@@ -69,6 +69,11 @@ def make_synthetic_pack(root: Path) -> Path:
         _boxes([((c[0] - hx, -hy, z0), (c[0] + hx, hy, z1))]).export(root / "meshes" / f"foramen_ovale_{side}.ply")
     skin = trimesh.creation.icosphere(subdivisions=4, radius=SKIN_R)
     skin.export(root / "meshes" / "skin.ply")
+    # the painted eyes and lips: small flat patches just in front of the sphere (drawn, never picked)
+    for k, name in enumerate(("eyes", "irises", "pupils", "lips", "lip_line")):
+        _boxes([((-10 + 4 * k, SKIN_R + 0.2, -1), (-8 + 4 * k, SKIN_R + 0.3, 1))]).export(
+            root / "meshes" / f"{name}.ply"
+        )
     lines = []
     for side, sx in (("left", 1.0), ("right", -1.0)):
         lines += [
@@ -113,14 +118,14 @@ class Run:
 
     @property
     def needle(self) -> NeedleState:
-        from chainsim.systems.procedures.prp.procedure import PrpHandles
+        from chainsim.systems.procedures.prp.handles import PrpHandles
 
         with self.app.active():
             return esper.component_for_entity(self.app.resource(PrpHandles).needle, NeedleState)
 
     @property
     def proc(self) -> ProcedureState:
-        from chainsim.systems.procedures.prp.procedure import PrpHandles
+        from chainsim.systems.procedures.prp.handles import PrpHandles
 
         with self.app.active():
             return esper.component_for_entity(self.app.resource(PrpHandles).procedure, ProcedureState)
@@ -163,7 +168,7 @@ def test_landmark1_places_needle_level_and_toward_midline(run):
     # the tip transform is the needle entity's: origin at the tip, local +Z along insertion
     from chainsim.components.core import Transform
     from chainsim.engine import quaternion as Q
-    from chainsim.systems.procedures.prp.procedure import PrpHandles
+    from chainsim.systems.procedures.prp.handles import PrpHandles
 
     with run.app.active():
         tr = esper.component_for_entity(run.app.resource(PrpHandles).needle, Transform)
@@ -282,7 +287,7 @@ def test_huge_insertion_step_stops_at_bone_and_bounces_back(run):
     from chainsim.components.hud import HudState
     from chainsim.components.needle import Needle
     from chainsim.systems.collision import NeedleHit
-    from chainsim.systems.procedures.prp.procedure import PrpHandles
+    from chainsim.systems.procedures.prp.handles import PrpHandles
 
     with run.app.active():
         esper.component_for_entity(run.app.resource(PrpHandles).needle, Needle).max_depth = 1000.0
@@ -327,10 +332,50 @@ def test_keys_rotate_and_insert_by_steps(run):
     from chainsim.components.input_events import Key
 
     run.send(PickPoint("skin", tuple(L1)))
-    run.send(Key("left"), Key("left"), Key("up"))
+    # the right arrow raises the horizontal dial, as its "+" on the right and a drag to the right do
+    run.send(Key("right"), Key("right"), Key("up"))
     assert run.needle.yaw == pytest.approx(2.0) and run.needle.pitch == pytest.approx(1.0)
+    run.send(Key("left"))
+    assert run.needle.yaw == pytest.approx(1.0)
     run.send(Key("i"), Key("i"))
     assert run.needle.depth == pytest.approx(4.0) and run.needle.locked
+
+
+def test_shift_gives_fine_steps(run):
+    from chainsim.components.input_events import Key
+
+    run.send(PickPoint("skin", tuple(L1)))
+    run.send(Key("lshift", True), Key("right"), Key("right"), Key("down"), Key("i"))
+    assert run.needle.yaw == pytest.approx(0.5) and run.needle.pitch == pytest.approx(-0.25)
+    assert run.needle.target_depth == pytest.approx(0.5)
+    run.send(Key("lshift", False), Key("i"))
+    assert run.needle.target_depth == pytest.approx(2.5)
+
+
+def test_full_withdrawal_unlocks_the_dials_where_they_are_and_counts_a_redirection(run):
+    run.send(PickPoint("skin", tuple(L1)))
+    run.send(Widget("rotate_horizontal", 7.0), Widget("rotate_vertical", 3.0), Widget("insert", 6.0))
+    assert run.needle.locked
+    run.send(Widget("rotate_horizontal", 9.0))
+    assert run.needle.yaw == pytest.approx(7.0)  # locked while inserted
+    run.send(Widget("insert", 0.0), steps=40)  # withdrawal runs at withdraw_speed
+    st = run.needle
+    assert st.depth == 0.0 and not st.locked
+    assert st.yaw == pytest.approx(7.0) and st.pitch == pytest.approx(3.0)  # not zeroed
+    run.send(Widget("rotate_horizontal", 9.0))
+    assert st.yaw == pytest.approx(9.0) and st.redirections == 1
+    run.send(Widget("rotate_vertical", 4.0))
+    assert st.redirections == 1  # one redirection per withdrawal, however many turns
+
+
+def test_needle_is_hidden_until_landmark_1_places_it(run):
+    from chainsim.components.core import MeshRef
+
+    with run.app.active():
+        refs = [ref for _, ref in __import__("esper").get_component(MeshRef) if ref.layer == "needle"]
+        assert refs and not any(r.visible for r in refs)
+        run.send(PickPoint("skin", tuple(L1)))
+        assert all(r.visible for r in refs)
 
 
 def test_insert_before_landmark_is_refused(run):

@@ -9,8 +9,9 @@ from chainsim.components.core import Transform
 from chainsim.components.input_events import MouseButton, MouseDrag, PickPoint
 from chainsim.components.resources import EntityIndex, PendingInput
 from chainsim.components.view_events import Picked
+from chainsim.engine.raycast import closest_on_mesh, ray_mesh, ray_triangles, triangle_links
 from chainsim.game.app.headless import build_app
-from chainsim.systems.picking import closest_on_mesh, pick, ray_mesh, ray_triangles, triangle_links
+from chainsim.systems.picking import pick
 from chainsim.systems.view import ViewState
 
 

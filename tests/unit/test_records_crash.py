@@ -63,6 +63,7 @@ def expected(i: int) -> dict:
         "target": "skull",
         "skull_contacts": i,
         "path_length_mm": 40.0 + i,
+        "redirections": 0,
         "aids": {k: k == "tip_view" and i % 2 == 0 for k in AIDS},
         "step_times": {"insert": 5.0 + i},
         "details": {"i": i},

@@ -318,7 +318,7 @@ def test_v1_database_is_migrated_in_place_with_rows_intact(tmp_path):
     path = tmp_path / "old.sqlite3"
     make_v1(path)
     with RecordStore(path) as s:
-        assert s.schema_version == SCHEMA_VERSION == 2
+        assert s.schema_version == SCHEMA_VERSION == 3
         rows = s.list_attempts()
         assert [r["created_at"] for r in rows] == [f"2025-01-0{i + 1}T10:00:00Z" for i in range(3)]
         assert [r["needle_error_mm"] for r in rows] == [None, 7.0, 6.0]
@@ -332,6 +332,34 @@ def test_v1_database_is_migrated_in_place_with_rows_intact(tmp_path):
     assert conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
     conn.close()
     assert "details" in cols and "attempts_by_trainee" in indexes
+
+
+def test_v2_database_keeps_its_rows_and_gains_redirections(tmp_path):
+    """Version 3 adds redirections per attempt; attempts saved by an older chainsim keep every field."""
+    from chainsim.game.records.schema import V2_DDL
+
+    path = tmp_path / "v2.sqlite3"
+    make_v1(path)
+    conn = sqlite3.connect(path)
+    for stmt in V2_DDL:
+        conn.execute(stmt)
+    conn.execute("UPDATE attempts SET details = '{\"D1\": 2.5}' WHERE id = 2")
+    conn.execute("PRAGMA user_version = 2")
+    conn.commit()
+    before = [tuple(r) for r in conn.execute("SELECT * FROM attempts ORDER BY id")]
+    conn.close()
+    with RecordStore(path) as s:
+        assert s.schema_version == 3
+        rows = s.list_attempts()
+        assert [r["redirections"] for r in rows] == [0, 0, 0]
+        assert rows[1]["details"] == {"D1": 2.5}
+        assert [r["duration_s"] for r in rows] == [30.0, 31.0, 32.0]
+        new = s.save_attempt("c1", "alice", {**sample_attempt(), "redirections": 2})
+        assert s.get_attempt(new)["redirections"] == 2
+    conn = sqlite3.connect(path)
+    after = [tuple(r)[: len(before[0])] for r in conn.execute("SELECT * FROM attempts WHERE id <= 3 ORDER BY id")]
+    conn.close()
+    assert after == before
 
 
 def test_reopening_current_database_is_a_no_op(tmp_path):

@@ -87,7 +87,7 @@ def test_strain_level_follows_modulus_and_is_bounded():
 
 def test_shipped_presets_file_is_complete():
     presets = cal.load_presets()
-    for name, E, nu in cal.SHIPPED:
+    for name, _E, _nu in cal.SHIPPED:
         p = presets[name]
         for key in cal.FIELDS:
             assert key in p

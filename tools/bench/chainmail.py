@@ -11,6 +11,8 @@ runs after warm-up; the rest state is restored between runs outside the timed re
 
 from __future__ import annotations
 
+from chainsim.tools.bench import run as impl
+
 HELP = "ChainMail speed: thesis 6.2 grids and worst case, scaling to 1M elements, or one mesh (--mesh)"
 
 
@@ -38,7 +40,6 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from chainsim.tools.bench import run as impl
 
     if args.mesh:
         return impl.run_mesh(args)

@@ -14,14 +14,16 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import meshio
 import numpy as np
+import trimesh
+from scipy.spatial import ConvexHull, Delaunay
 
 from chainsim.engine import meshgen
 
 
 def curved_patch(n: int = 345, radius: float = 80.0, width: float = 60.0, seed: int = 7):
     """(vertices (n, 3), triangles) of a jittered-disc Delaunay patch lifted onto a sphere cap."""
-    from scipy.spatial import Delaunay
 
     rng = np.random.default_rng(seed)
     # golden-angle disc gives an even but irregular spacing; a little jitter breaks the symmetry
@@ -54,7 +56,6 @@ def _orient_up(verts, tri):
 
 def brain_surface(n: int = 1043, radius: float = 40.0, folds: float = 0.07):
     """(vertices, triangles) of a closed fibonacci-sphere surface with folded (gyri-like) relief."""
-    from scipy.spatial import ConvexHull
 
     k = np.arange(n) + 0.5
     phi = np.arccos(1 - 2 * k / n)
@@ -139,8 +140,6 @@ def fast_links(n: int, cells: np.ndarray) -> np.ndarray:
 
 
 def write_demo_meshes(out: Path) -> None:
-    import meshio
-    import trimesh
 
     out.mkdir(parents=True, exist_ok=True)
     v, t = curved_patch()

@@ -25,9 +25,21 @@ import sys
 import time
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
+import numba
 import numpy as np
 
+from chainsim.engine import meshgen
+from chainsim.engine.chainmail_params import ORDERS, check_material
 from chainsim.engine.errors import UserError
+from chainsim.engine.kernels.chainmail import cascade, make_workspace, material_arrays
+from chainsim.engine.kernels.gibson import gibson_grid_move
+from chainsim.engine.kernels.graph import build_graph
+from chainsim.engine.meshimport import load_graph
+from chainsim.engine.reorder import rcm_permutation
+from chainsim.systems.deformation import relax_moved
+from chainsim.tools.bench.meshes import relabel, surface_sheet, tet_cube
 
 # Tables 6.2-6.4 (frames/second): size -> (Gibson hi, lo, SurfaceChainMail hi, lo, Generalised hi, lo)
 THESIS = {
@@ -103,8 +115,6 @@ class Body:
     """rest/pos/graph/materials/workspace of one mesh, for timing cascades."""
 
     def __init__(self, rest, links, amin, amax, beta):
-        from chainsim.engine.kernels.chainmail import make_workspace, material_arrays
-        from chainsim.engine.kernels.graph import build_graph
 
         self.rest = np.ascontiguousarray(rest, dtype=np.float64)
         self.pos = self.rest.copy()
@@ -117,7 +127,6 @@ class Body:
         np.copyto(self.pos, self.rest)
 
     def move(self, grab: int, target, order: int = 0, relax_n: int = 0) -> None:
-        from chainsim.engine.kernels.chainmail import cascade
 
         moved, _ = cascade(
             self.rest,
@@ -132,8 +141,6 @@ class Body:
         )
         self.moved = len(moved)
         if relax_n:
-            from chainsim.systems.deformation import relax_moved
-
             pin = np.zeros(len(self.pos), dtype=np.bool_)
             pin[grab] = True
             relax_moved(self.rest, self.pos, self.graph, moved, relax_n, fixed=pin)
@@ -143,8 +150,6 @@ class Body:
 
 
 def thesis_part(quick: bool, repeat: int) -> list[dict]:
-    from chainsim.engine import meshgen
-    from chainsim.engine.kernels.gibson import gibson_grid_move
 
     rows = []
     for side in SIDES:
@@ -192,8 +197,6 @@ def thesis_part(quick: bool, repeat: int) -> list[dict]:
 
 def worst_part(quick: bool) -> list[dict]:
     """Fig. 6.4: rigid, centre element driven 20 times around a 40 x 40 square, one unit per update."""
-    from chainsim.engine import meshgen
-    from chainsim.engine.kernels.gibson import gibson_grid_move
 
     loops = 2 if quick else 20
     edge = np.linspace(-20.0, 20.0, 41)[:-1]
@@ -248,8 +251,6 @@ def worst_part(quick: bool) -> list[dict]:
 
 def _variants(rest, links, seed=1):
     """(name, rest, links, id map old->new) for ordered, shuffled and shuffled-then-reordered meshes."""
-    from chainsim.engine.reorder import rcm_permutation
-    from chainsim.tools.bench.meshes import relabel
 
     n = len(rest)
     ident = np.arange(n)
@@ -263,7 +264,6 @@ def _variants(rest, links, seed=1):
 
 
 def scaling_part(quick: bool, repeat: int, max_elements: float) -> list[dict]:
-    from chainsim.tools.bench.meshes import surface_sheet, tet_cube
 
     sizes = [s for s in (1e3, 1e4, 1e5, 1e6) if s <= max_elements * 1.01]
     rows = []
@@ -311,7 +311,7 @@ def scaling_part(quick: bool, repeat: int, max_elements: float) -> list[dict]:
                     f"    {vname:13s} rigid {row['rigid_ms']:.3f} ms (cpu {row['rigid_cpu_ms']:.3f})  local {row['local_ms']:.4f} ms "
                     f"({row['local_moved']} moved)  ratio {row['ratio_to_ordered']:.2f}"
                 )
-                del body, local
+                body = local = None  # free this variant's bodies before building the next
     return rows
 
 
@@ -391,10 +391,8 @@ def markdown(results: dict) -> str:
 
 
 def plot(results: dict, path: Path) -> None:
-    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(17, 5))
     if results.get("thesis"):
@@ -453,7 +451,6 @@ def _write_atomic(path: Path, text: str) -> None:
 
 
 def run_suite(args) -> int:
-    import numba
 
     parts = {p.strip() for p in args.parts.split(",") if p.strip()}
     unknown = parts - {"thesis", "worst", "scaling"}
@@ -498,8 +495,6 @@ def run_suite(args) -> int:
 
 
 def run_mesh(args) -> int:
-    from chainsim.engine.chainmail_params import ORDERS, check_material
-    from chainsim.engine.meshimport import load_graph
 
     check_material(args.alpha_min, args.alpha_max, args.beta)
     if args.grab is None or args.to is None:

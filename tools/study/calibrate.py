@@ -19,7 +19,9 @@ import tomllib
 import warnings
 from pathlib import Path
 
+import numba
 import numpy as np
+from scipy.optimize import minimize
 
 from chainsim.assets import ASSETS_DIR
 from chainsim.engine.errors import UserError
@@ -49,7 +51,6 @@ def strain_for(E: float | None, strain: float | None = None) -> float:
 
 def fit(nu: float, E: float | None = None, strain: float | None = None, n: int = 8, progress=None) -> dict:
     """Best ChainMail parameters on the study block (n^3 nodes) against neo-Hookean FEM."""
-    import numba
 
     numba.set_num_threads(1)  # many tiny relaxations: thread start-up would dominate
     check_material(E if E is not None else 1.0, nu)
@@ -82,7 +83,6 @@ def fit(nu: float, E: float | None = None, strain: float | None = None, n: int =
     if progress:
         progress(f"grid search: rms {best[0]:.4f}")
     # local refinement of the continuous parameters at the best relaxation count
-    from scipy.optimize import minimize
 
     e0, p0, sl0, r0, b0 = best
     k = p0.relax_iterations

@@ -12,6 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from chainsim.engine.kernels.chainmail import ORDER_BALANCED, ORDER_FIFO, cascade, make_workspace, material_arrays
+from chainsim.engine.kernels.graph import build_graph
+from chainsim.engine.kernels.relax import relax
+
 
 @dataclass
 class ChainMailParams:
@@ -23,8 +27,6 @@ class ChainMailParams:
 
 class ChainMailModel:
     def __init__(self, pos, links, fixed_ids=None, order: str = "fifo"):
-        from chainsim.engine.kernels.chainmail import ORDER_BALANCED, ORDER_FIFO, make_workspace
-        from chainsim.engine.kernels.graph import build_graph
 
         self.rest = np.ascontiguousarray(pos, dtype=np.float64)
         self.n = len(self.rest)
@@ -38,7 +40,6 @@ class ChainMailModel:
         self._mat_key = None
 
     def _materials(self, p: ChainMailParams):
-        from chainsim.engine.kernels.chainmail import material_arrays
 
         key = (p.alpha_min, p.alpha_max, p.beta)
         if key != self._mat_key:
@@ -51,8 +52,6 @@ class ChainMailModel:
 
         Returns (u, info) with the cascade and relaxation wall times and the number moved.
         """
-        from chainsim.engine.kernels.chainmail import cascade
-        from chainsim.engine.kernels.relax import relax
 
         amin, amax, beta = self._materials(params)
         grabbed = np.ascontiguousarray(grabbed, dtype=np.int64)

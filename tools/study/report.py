@@ -11,6 +11,8 @@ import json
 import math
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
 from .metrics import pareto_front
@@ -60,10 +62,8 @@ def pareto_rows(results, scene):
 
 
 def plot_pareto(results, out: Path) -> list[str]:
-    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     files = []
     for scene in sorted({r["scene"] for r in results["rows"]}):
@@ -112,10 +112,8 @@ def plot_pareto(results, out: Path) -> list[str]:
 
 
 def plot_error_vs_strain(results, out: Path) -> list[str]:
-    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     scenes = sorted({r["scene"] for r in results["rows"]})
     fig, axes = plt.subplots(1, len(scenes), figsize=(5 * len(scenes), 4.5), squeeze=False)
@@ -151,10 +149,8 @@ def plot_error_vs_strain(results, out: Path) -> list[str]:
 
 
 def plot_stability(results, out: Path) -> list[str]:
-    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     st = results["stability"]
     fig, ax = plt.subplots(figsize=(7, 4))

@@ -15,13 +15,16 @@ import sys
 import time
 import warnings
 
+import numba
 import numpy as np
+
+from chainsim.tools.study.calibrate import load_presets
 
 from . import scenes as sc
 from .chainmail_model import ChainMailModel, ChainMailParams
 from .fem_linear import LinearFEM, LockingWarning
 from .fem_nonlinear import NeoHookeanFEM
-from .mass_spring import MassSpring
+from .mass_spring import SYMPLECTIC, MassSpring, integrate
 from .metrics import displacement_error, median_time, realtime_size, volume_change
 
 E_STUDY, NU_STUDY = 3000.0, 0.45
@@ -46,8 +49,6 @@ def default_chainmail_settings():
     preset calibrated for this study's material when the presets file has it."""
     out = {"thesis-medium": ChainMailParams(0.8, 1.2, 0.1), "thesis-soft": ChainMailParams(0.5, 2.5, 0.3)}
     try:
-        from .calibrate import load_presets
-
         p = load_presets().get("soft-tissue")
         if p:
             out["soft-tissue"] = ChainMailParams(p["alpha_min"], p["alpha_max"], p["beta"])
@@ -260,7 +261,6 @@ def run_scene(name, resolutions, strains, limits, cm_settings, repeats, rows, ti
             )
             log(f"  mass-spring explicit: {r.status} after {r.steps} steps")
         # per-step cost at every size (the frame-rate fit uses it even where equilibrium is not run)
-        from .mass_spring import SYMPLECTIC, integrate
 
         x = scene.pos.copy()
         v = np.zeros_like(x)
@@ -370,7 +370,6 @@ def realtime_table(rows, timings):
 
 
 def run(quick: bool, out_dir, scenes=None) -> dict:
-    import numba
 
     # the machine is shared and has 2 cores: kernels run on one thread and every time in the
     # study is CPU time of the calling thread, which other processes' load does not inflate

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from chainsim.engine.errors import UserError
+from chainsim.engine.meshgen import links_from_cells
 
 
 class DegenerateElementsError(UserError):
@@ -75,6 +76,5 @@ def dof_indices(tets: np.ndarray) -> np.ndarray:
 
 def tet_edges(tets: np.ndarray) -> np.ndarray:
     """Unique undirected edges of the tetrahedra (the spring network of a mass-spring model)."""
-    from chainsim.engine.meshgen import links_from_cells
 
     return links_from_cells(tets)

@@ -20,7 +20,21 @@ import os
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from chainsim.engine.chainmail_params import ORDERS, check_material
+from chainsim.engine.errors import UserError
+from chainsim.engine.kernels.chainmail import (
+    ORDER_BALANCED,
+    ORDER_FIFO,
+    ORDER_SCHILL,
+    cascade,
+    make_workspace,
+    material_arrays,
+)
+from chainsim.engine.kernels.graph import build_graph
+from chainsim.engine.meshimport import load_graph
+from chainsim.systems.deformation import relax_moved
 
 NAME = "chainmail"
 HELP = "move one element of a mesh with Generalised ChainMail and save the result (.npz)"
@@ -53,8 +67,6 @@ def add_parser(sub):
 
 def _finite(name: str, v: float) -> None:
     if not math.isfinite(v):
-        from chainsim.engine.errors import UserError
-
         raise UserError(f"{name}: must be a finite number, got {v}")
 
 
@@ -65,7 +77,6 @@ def check_material_flags(args) -> None:
 
 def check_args(args) -> None:
     """Checks that need no mesh (so a bad flag costs nothing)."""
-    from chainsim.engine.errors import UserError
 
     check_material_flags(args)
     _finite("--relax-step", args.relax_step)
@@ -89,17 +100,6 @@ def simulate(
     positions, links, fixed_ids, grab: int, target, alpha_min, alpha_max, beta, relax_n=0, relax_step=1.0, order="fifo"
 ):
     """Run one move; returns (positions, order, sponsor (N,))."""
-    import numpy as np
-
-    from chainsim.engine.kernels.chainmail import (
-        ORDER_BALANCED,
-        ORDER_FIFO,
-        ORDER_SCHILL,
-        cascade,
-        make_workspace,
-        material_arrays,
-    )
-    from chainsim.engine.kernels.graph import build_graph
 
     pos = np.array(positions, dtype=np.float64, copy=True, order="C")
     rest = np.array(positions, dtype=np.float64, copy=True, order="C")
@@ -125,8 +125,6 @@ def simulate(
         workspace=make_workspace(n),
     )
     if relax_n > 0 and len(moved) > 1:
-        from chainsim.systems.deformation import relax_moved
-
         pin = np.zeros(n, dtype=np.bool_) if fixed is None else fixed.copy()
         pin[grab] = True  # the user holds the grabbed element where it was put
         relax_moved(rest, pos, graph, moved, relax_n, step=relax_step, fixed=pin)
@@ -137,7 +135,6 @@ def simulate(
 
 def write_result(out: Path, positions, order, sponsor) -> None:
     """Write OUT.npz atomically: a temporary file in the same folder, renamed when complete."""
-    import numpy as np
 
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
     try:
@@ -147,8 +144,6 @@ def write_result(out: Path, positions, order, sponsor) -> None:
             os.fsync(fh.fileno())
         os.replace(tmp, out)
     except OSError as e:
-        from chainsim.engine.errors import UserError
-
         try:
             tmp.unlink()
         except OSError:
@@ -160,8 +155,6 @@ def write_result(out: Path, positions, order, sponsor) -> None:
 
 
 def run(args) -> int:
-    from chainsim.engine.errors import UserError
-    from chainsim.engine.meshimport import load_graph
 
     check_args(args)
     positions, links, fixed = load_graph(args.mesh, kind=args.kind)

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import numpy as np
+
+import chainsim.game.packs.schema  # noqa: F401  (importing it registers the manifest sections)
+from chainsim.components.registry import COMPONENTS, KINDS, REQUIRED, SECTION_STYLE, SECTIONS, load_all
+
 NAME = "docs"
 HELP = "print reference documentation (components: every manifest section and component)"
 
@@ -13,9 +18,6 @@ def add_parser(sub):
 
 
 def _fmt_default(f) -> str:
-    import numpy as np
-
-    from chainsim.components.registry import REQUIRED
 
     if f.default is REQUIRED:
         return "required"
@@ -32,9 +34,6 @@ def _fmt_default(f) -> str:
 
 
 def render_reference() -> str:
-    from chainsim.components.registry import COMPONENTS, KINDS, SECTION_STYLE, SECTIONS, load_all
-    from chainsim.game.packs import schema  # noqa: F401  (registers sections)
-
     load_all()
     out = [
         "# pack.toml reference (format 1)",

@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
+from chainsim.engine.errors import UserError
+from chainsim.game.packs import pack as packs
+from chainsim.game.packs.scaffold import create
+
 NAME = "new-pack"
 HELP = "create a new asset pack folder from a template"
 
@@ -15,11 +21,6 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    from pathlib import Path
-
-    from chainsim.engine.errors import UserError
-    from chainsim.game.packs import pack as packs
-    from chainsim.game.packs.scaffold import create
 
     if not Path(args.dir).is_dir():
         raise UserError(f"--dir {args.dir}: not a folder")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from chainsim.game.packs import pack as packs
+
 NAME = "packs"
 HELP = "list the asset packs found and where"
 
@@ -17,7 +19,6 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    from chainsim.game.packs import pack as packs
 
     found = packs.discover(args.pack_path)
     seen = set()

@@ -5,6 +5,10 @@ from __future__ import annotations
 import os
 import sys
 
+from chainsim.engine.errors import UserError
+from chainsim.game.packs import pack as packs
+from chainsim.game.ui.window import run_window
+
 NAME = "play"
 HELP = "open the simulator window on a pack"
 
@@ -32,16 +36,13 @@ def has_display() -> bool:
 
 
 def run(args) -> int:
-    from chainsim.engine.errors import UserError
 
     if not has_display():
         raise UserError(
             f"no display to open a window on (DISPLAY is not set); run without one: "
             f"chainsim run {args.pack} --headless --steps 600 --out DIR"
         )
-    from chainsim.game.packs import pack as packs
 
     packs.resolve(args.pack, args.pack_path)  # unknown pack: clear error before any window opens
-    from chainsim.game.ui.window import run_window
 
     return run_window(args)

@@ -24,9 +24,22 @@ the numbers measure the scripts. The protocol is the harness a study with people
 
 from __future__ import annotations
 
+import json
 import math
 import sys
+import tomllib
 from pathlib import Path
+
+import matplotlib
+import matplotlib.pyplot as plt
+
+from chainsim.components.input_events import Widget
+from chainsim.engine.errors import UserError
+from chainsim.game.app.headless import run_pack
+from chainsim.game.app.inputscript import load_script
+from chainsim.game.packs import pack as packs
+from chainsim.game.records.store import RecordStore
+from chainsim.systems.procedures.prp.assessment import attempt_record
 
 NAME = "protocol"
 HELP = "run a study protocol of scripted trials, save the attempts, print a Table 6.1-style summary"
@@ -66,16 +79,12 @@ def add_parser(sub):
 
 
 def _err(where: str, msg: str):
-    from chainsim.engine.errors import UserError
 
     return UserError(f"{where}: {msg}")
 
 
 def load_protocol(path: str | Path) -> dict:
     """Read and check a protocol; every problem is a one-line UserError naming the key."""
-    import tomllib
-
-    from chainsim.engine.errors import UserError
 
     path = Path(path)
     try:
@@ -152,7 +161,6 @@ def load_protocol(path: str | Path) -> dict:
 
 
 def _script_path(proto: dict, pack_root: Path, rel: str, where: str) -> Path:
-    from chainsim.engine.errors import UserError
 
     p = Path(rel)
     if p.is_absolute() and p.is_file():
@@ -215,10 +223,8 @@ def format_table(table: dict) -> str:
 
 
 def _plot(table: dict, path: Path) -> None:
-    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     keys = [k for k in table if table[k][0] is not None]
     fig, ax = plt.subplots(figsize=(7, 3.5))
@@ -234,15 +240,6 @@ def _plot(table: dict, path: Path) -> None:
 
 
 def run(args) -> int:
-    import json
-
-    from chainsim.components.input_events import Widget
-    from chainsim.engine.errors import UserError
-    from chainsim.game.app.headless import run_pack
-    from chainsim.game.app.inputscript import load_script
-    from chainsim.game.packs import pack as packs
-    from chainsim.game.records.store import RecordStore
-    from chainsim.systems.procedures.prp.assessment import attempt_record
 
     proto = load_protocol(args.protocol)
     root, _scene = packs.resolve(proto["pack"], args.pack_path)

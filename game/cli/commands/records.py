@@ -9,7 +9,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
+
+from chainsim.engine.errors import UserError
+from chainsim.game.records import report as report
+from chainsim.game.records.store import RecordStore
 
 NAME = "records"
 HELP = "view, export, plot or delete trainee records (classes, trainees, attempts)"
@@ -97,11 +102,6 @@ def _summary(a: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    import sys
-
-    from chainsim.engine.errors import UserError
-    from chainsim.game.records import report as report
-    from chainsim.game.records.store import RecordStore
 
     with RecordStore(args.db) as store:
         act = args.action
@@ -135,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
                         "target",
                         "contacts",
                         "path_mm",
+                        "redirect",
                     ],
                     [
                         [
@@ -149,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
                             a["target"],
                             a["skull_contacts"],
                             a["path_length_mm"],
+                            a["redirections"],
                         ]
                         for a in rows
                     ],

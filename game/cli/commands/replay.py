@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import math
+
+from chainsim.engine.errors import UserError
+from chainsim.game.app.headless import run_pack
+from chainsim.game.app.inputscript import parse_events, read_file
+
 NAME = "replay"
 HELP = "replay a recorded session and compare its final digest"
 
@@ -15,11 +21,6 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    import math
-
-    from chainsim.engine.errors import UserError
-    from chainsim.game.app.headless import run_pack
-    from chainsim.game.app.inputscript import parse_events, read_file
 
     data = read_file(args.file)
     if not isinstance(data, dict) or data.get("chainsim") != "recording":

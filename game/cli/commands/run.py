@@ -2,26 +2,19 @@
 
 from __future__ import annotations
 
+import argparse
 import json
+import math
+
+from chainsim.engine.errors import UserError
+from chainsim.game.app.headless import run_pack
+from chainsim.game.app.options import user_settings, window_size
 
 NAME = "run"
 HELP = "run a pack without a window and write OUT/summary.json"
 
 
-def _size(text: str):
-    import argparse
-
-    try:
-        w, h = (int(x) for x in text.lower().split("x"))
-        if w <= 0 or h <= 0 or w > 16384 or h > 16384:
-            raise ValueError
-        return w, h
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 1280x800, got {text!r}") from None
-
-
 def _nonneg(text: str) -> int:
-    import argparse
 
     try:
         v = int(text)
@@ -30,16 +23,6 @@ def _nonneg(text: str) -> int:
     if v < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
     return v
-
-
-def user_settings(args) -> dict:
-    """Settings a user gives on the command line (records database, class, trainee)."""
-    out = {}
-    for key, attr in (("db", "db"), ("class", "class_name"), ("trainee", "trainee")):
-        v = getattr(args, attr, None)
-        if v is not None:
-            out[key] = v
-    return out
 
 
 def add_parser(sub):
@@ -56,7 +39,9 @@ def add_parser(sub):
     p.add_argument(
         "--screenshot-every", type=_nonneg, default=0, metavar="K", help="write a PNG every K frames (needs EGL)"
     )
-    p.add_argument("--size", type=_size, default=None, metavar="WxH", help="off-screen frame size for screenshots")
+    p.add_argument(
+        "--size", type=window_size, default=None, metavar="WxH", help="off-screen frame size for screenshots"
+    )
     p.add_argument("--db", metavar="PATH", help="trainee records database (procedures that save attempts)")
     p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempt is saved under")
     p.add_argument("--trainee", metavar="NAME", help="trainee the attempt is saved under")
@@ -66,10 +51,6 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    import math
-
-    from chainsim.engine.errors import UserError
-    from chainsim.game.app.headless import run_pack
 
     if args.dt is not None and not (math.isfinite(args.dt) and 0 < args.dt < 1):
         raise UserError(f"--dt must be a number of seconds in (0, 1), got {args.dt}")

@@ -3,18 +3,28 @@
 
 from __future__ import annotations
 
+import sys
+
+from chainsim.components.resources import PendingInput
+from chainsim.engine.errors import UserError
+from chainsim.game.app.headless import build_app
+from chainsim.game.app.inputscript import load_script
+from chainsim.game.app.options import window_size
+from chainsim.game.cli.commands.run import _nonneg
+from chainsim.game.gl.context import egl_context
+from chainsim.game.gl.render_system import screenshot
+
 NAME = "snapshot"
 HELP = "render a pack's window layout off screen to a PNG"
 
 
 def add_parser(sub):
-    from chainsim.game.cli.commands.run import _nonneg, _size
 
     p = sub.add_parser(NAME, help=HELP)
     p.add_argument("pack", help="PACK or PACK/SCENE")
     p.add_argument("--out", required=True, metavar="PNG", help="image to write")
     p.add_argument(
-        "--size", type=_size, default=None, metavar="WxH", help="image size (default: the pack's window_size)"
+        "--size", type=window_size, default=None, metavar="WxH", help="image size (default: the pack's window_size)"
     )
     p.add_argument(
         "--steps",
@@ -28,18 +38,10 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    import sys
-
-    from chainsim.engine.errors import UserError
-    from chainsim.game.gl.context import egl_context
 
     if not args.out.lower().endswith(".png"):
         raise UserError(f"--out {args.out}: expected a file name ending in .png")
     egl_context()  # no EGL: one clear line and exit 2 before any work
-    from chainsim.components.resources import PendingInput
-    from chainsim.game.app.headless import build_app
-    from chainsim.game.app.inputscript import load_script
-    from chainsim.game.gl.render_system import screenshot
 
     app = build_app(args.pack, pack_paths=args.pack_path, render=True, headless=True, size=args.size)
     try:

@@ -3,6 +3,13 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
+
+from chainsim.engine.errors import UserError
+from chainsim.game.app import pack_costs
+from chainsim.tools.study import calibrate as cal
+from chainsim.tools.study import report, speed_accuracy
+from chainsim.tools.study.scenes import SCENES
 
 NAME = "study"
 HELP = "speed-accuracy study of ChainMail vs FEM and mass-spring; calibrate ChainMail presets"
@@ -40,17 +47,11 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    from chainsim.engine.errors import UserError
 
     cmd = getattr(args, "study_cmd", None)
     if cmd == "speed-accuracy":
-        from chainsim.game.app import pack_costs
-        from chainsim.tools.study import report, speed_accuracy
-
         scenes = None
         if args.scenes:
-            from chainsim.tools.study.scenes import SCENES
-
             scenes = [x.strip() for x in args.scenes.split(",") if x.strip()]
             bad = [x for x in scenes if x not in SCENES]
             if bad:
@@ -58,8 +59,6 @@ def run(args) -> int:
         if args.pack_steps < 0:
             raise UserError(f"--pack-steps must be >= 0, got {args.pack_steps}")
         try:
-            from pathlib import Path
-
             Path(args.out).mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise UserError(f"--out {args.out}: cannot create folder ({e.strerror})") from None
@@ -72,8 +71,6 @@ def run(args) -> int:
         print(md)
         return 0
     if cmd == "calibrate":
-        from chainsim.tools.study import calibrate as cal
-
         if args.E is not None and not args.E > 0:
             raise UserError(f"--E must be a positive modulus in Pa, got {args.E}")
         jobs = [(n, E, nu) for n, E, nu in cal.SHIPPED] if args.shipped else [(args.name, args.E, args.nu)]

@@ -5,6 +5,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from chainsim.game.packs import pack as packs
+
 NAME = "validate"
 HELP = "check a pack folder and report every problem"
 
@@ -17,7 +19,6 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    from chainsim.game.packs import pack as packs
 
     path = Path(args.path)
     if path.name == "pack.toml":

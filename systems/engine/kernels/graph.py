@@ -11,6 +11,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 
 class Graph(NamedTuple):
@@ -92,8 +94,6 @@ def degree(graph: Graph) -> np.ndarray:
 
 def components(graph: Graph) -> np.ndarray:
     """Connected-component label of every element over live links (scipy sparse graph)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
 
     n = graph.n_elements
     live = graph.links[graph.alive]

@@ -15,8 +15,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from chainsim.engine.meshgen import grid
+
 from .gibson import relative_grid_move
-from .graph import Graph
+from .graph import Graph, build_graph
 
 
 @njit(cache=True)
@@ -151,9 +153,6 @@ def surface_move(
     disp: (N,) normal offsets. Both change in place. graph: the grid's link graph (built from the grid
     when None). Returns (moved in the tangent plane, moved along the normal) as id arrays.
     """
-    from chainsim.engine.meshgen import grid  # the grid's links, built once per call when no graph is given
-
-    from .graph import build_graph
 
     _, moved_uv = relative_grid_move(
         uv_pos, uv_rest, shape, grabbed, target_uv, min_rel, max_rel, max_rel_shear, fixed=fixed, return_moved=True

@@ -25,9 +25,11 @@ import numpy as np
 from chainsim.components.input_events import Widget
 from chainsim.components.needle import NeedleState
 from chainsim.components.procedure import ProcedureState, PrpAnatomy, landmark_errors
-from chainsim.components.resources import PackResource, Records, Settings
+from chainsim.components.resources import Assessment, PackResource, Records, Settings
 from chainsim.engine.errors import UserError
+from chainsim.systems.procedures.prp.handles import PrpHandles, hud
 from chainsim.systems.stages import ORDER_ASSESSMENT
+from chainsim.systems.ui.widgets import format_value
 
 DEFAULT_CLASS = "default"
 DEFAULT_TRAINEE = "anonymous"
@@ -39,7 +41,6 @@ def _num(x):
 
 def compute(app) -> dict:
     """The assessment values of the current attempt (JSON-ready)."""
-    from chainsim.systems.procedures.prp.procedure import PrpHandles
 
     handles: PrpHandles = app.resource(PrpHandles)
     ps: ProcedureState = esper.component_for_entity(handles.procedure, ProcedureState)
@@ -63,6 +64,9 @@ def compute(app) -> dict:
         "skull_contacts": int(st.skull_contacts),
         "path_length_mm": float(st.path_length),
         "rotation_refused": int(st.rotation_refused),
+        "redirections": int(st.redirections),
+        "attempt": int(ps.attempt),
+        "unsaved": bool(ps.touched and not ps.closed),
         "step_times": {k: float(v) for k, v in ps.step_times.items()},
         "aids": {k: bool(v) for k, v in ps.aids.items()},
         "duration_s": float(ps.elapsed),
@@ -84,18 +88,30 @@ def compute(app) -> dict:
 
 
 def panel_lines(v: dict) -> list[str]:
-    """The self-assessment text (Fig. 3.11's text field)."""
+    """The self-assessment text (Fig. 3.11's text field), each term said in words."""
 
     def mm(x):
-        return "-" if x is None else f"{x:.1f} mm"
+        return "-" if x is None else f"{format_value(x)} mm"
 
-    lines = ["Self assessment" + (f" ({v['side']} side)" if v["side"] else "")]
-    lines.append(f"Landmark error E: {mm(v['landmark_error_mm'])}")
-    for k in (1, 2, 3):
-        lines.append(f"  mark {k}: D{k} {mm(v[f'D{k}'])}, d{k} {mm(v[f'd{k}'])}")
-    lines.append(f"Needle error E = Dist - R: {mm(v['needle_error_mm'])}")
-    lines.append(f"Reached: {v['target'].replace('_', ' ')}; skull contacts: {v['skull_contacts']}")
-    lines.append(f"Path length: {v['path_length_mm']:.1f} mm; time: {v['duration_s']:.1f} s")
+    lines = [
+        f"Self assessment, attempt {v.get('attempt', 1)}"
+        + (f" ({v['side']} side)" if v["side"] else "")
+        + f": landmark error {mm(v['landmark_error_mm'])}, needle error {mm(v['needle_error_mm'])}"
+    ]
+    ds = " / ".join(mm(v[f"D{k}"]) for k in (1, 2, 3))
+    dp = " / ".join(mm(v[f"d{k}"]) for k in (1, 2, 3))
+    lines.append(
+        f"Landmark error: mean of D1-D3 {ds} (to mouth corner - 25 mm, pupil, tragus - 30 mm) "
+        f"and d1-d3 {dp} (to their planes)"
+    )
+    lines.append(
+        f"Needle error: tip to foramen centre {mm(v.get('needle_dist_mm'))} minus its radius "
+        f"{mm(v.get('foramen_radius_mm'))}, at the last contact"
+    )
+    lines.append(
+        f"Reached {v['target'].replace('_', ' ')}; bone contacts {v['skull_contacts']}; "
+        f"redirections {v.get('redirections', 0)}; path {v['path_length_mm']:.1f} mm; time {v['duration_s']:.1f} s"
+    )
     on = [k.replace("_", " ") for k, x in v["aids"].items() if x]
     lines.append("Aids used: " + (", ".join(on) if on else "none"))
     return lines
@@ -111,6 +127,7 @@ def attempt_record(pack_name: str, v: dict) -> dict:
         "target": v["target"],
         "skull_contacts": v["skull_contacts"],
         "path_length_mm": v["path_length_mm"],
+        "redirections": v.get("redirections", 0),
         "aids": v["aids"],
         "step_times": v["step_times"],
         "details": {
@@ -156,21 +173,43 @@ def my_attempts(app, limit: int = 6) -> list[str]:
     for r in rows[-limit:]:
         ne = "-" if r["needle_error_mm"] is None else f"{r['needle_error_mm']:.1f}"
         lines.append(
-            f"#{r['id']} {r['created_at'][:16]}  landmarks {r['landmark_error_mm']:.1f} mm, "
-            f"needle {ne} mm, {r['target']}"
+            f"#{r['id']} {r['created_at'][:16]}  {r['duration_s']:.1f} s, landmarks "
+            f"{r['landmark_error_mm']:.1f} mm, needle {ne} mm, {r['target']}"
         )
+    if rows:
+        lines.append(f"Delete attempt (press twice) removes #{rows[-1]['id']}, the newest.")
     return lines
+
+
+def _who(app) -> tuple[str, str]:
+    s = app.resource(Settings)
+    return s.get("class") or DEFAULT_CLASS, s.get("trainee") or DEFAULT_TRAINEE
+
+
+def newest_own(app) -> int | None:
+    """Id of the signed-in trainee's newest saved attempt, if any."""
+    try:
+        rows = app.resource(Records).list_attempts(*_who(app))
+    except UserError:  # nothing saved yet under this class and name
+        return None
+    return rows[-1]["id"] if rows else None
+
+
+def delete_own(app, attempt_id: int) -> None:
+    """Delete one of the signed-in trainee's attempts (never someone else's)."""
+    rec = app.resource(Records)
+    if rec.delete_attempt is None:
+        raise UserError("these records cannot be deleted from the trainer; ask your trainer")
+    rec.delete_attempt(*_who(app), attempt_id)
 
 
 class AssessmentSystem:
     def __init__(self, app):
         self.widgets = app.events.reader(Widget)
         self.errors: list[str] = []
+        self.delete_armed: int | None = None  # the attempt a first Delete press chose
 
     def __call__(self, app) -> None:
-        from chainsim.components.resources import Assessment
-        from chainsim.engine.errors import UserError
-        from chainsim.systems.procedures.prp.procedure import PrpHandles, hud
 
         v = compute(app)
         for ev in self.widgets.read():
@@ -189,11 +228,14 @@ class AssessmentSystem:
                 else:
                     ps = esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState)
                     ps.saved.append(rid)
+                    ps.closed = True  # this attempt is done; the next action begins another
                     s = app.resource(Settings)
                     h.message(
                         f"Attempt {rid} saved for {s.get('trainee') or DEFAULT_TRAINEE} "
-                        f"in class {s.get('class') or DEFAULT_CLASS}."
+                        f"in class {s.get('class') or DEFAULT_CLASS}. Reset (r) to try again."
                     )
+            elif ev.name == "delete_attempt":
+                self.delete(app, h)
             elif ev.name == "my_attempts":
                 try:
                     h.panel_text = my_attempts(app)
@@ -203,22 +245,33 @@ class AssessmentSystem:
                         f"No saved attempts yet for {s.get('trainee') or DEFAULT_TRAINEE} "
                         f"in class {s.get('class') or DEFAULT_CLASS}."
                     ]
-            elif ev.name == "help":
-                h.panel_text = [
-                    "Assessment help (docs page 'assessment'):",
-                    "Self assessment shows the landmark error (thesis 6.1.5) and",
-                    "the needle error E = Dist - R at the last contact.",
-                    "Save stores the attempt under your class and name.",
-                    "Reset puts the needle back on landmark 1; shift+Reset clears the landmarks.",
-                ]
+            if ev.name != "delete_attempt":
+                self.delete_armed = None
         ps = esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState)
         v["saved"] = list(ps.saved)
         v["save_errors"] = list(self.errors)
         app.resource(Assessment).values = v
 
+    def delete(self, app, h) -> None:
+        """Delete the trainee's newest attempt: the first press names it, the second deletes it."""
+
+        try:
+            newest = newest_own(app)
+            if newest is None:
+                h.message("You have no saved attempts to delete.")
+            elif self.delete_armed != newest:
+                self.delete_armed = newest
+                h.message(f"Press Delete attempt again to delete your attempt {newest}.", 6.0)
+            else:
+                delete_own(app, newest)
+                self.delete_armed = None
+                h.message(f"Attempt {newest} deleted.")
+                h.panel_text = my_attempts(app)
+        except (UserError, OSError) as e:
+            h.message(f"Not deleted: {e}", 8.0)
+
 
 def plugin(app) -> None:
-    from chainsim.components.resources import Assessment
 
     if not app.has_resource(Assessment):
         app.insert_resource(Assessment())

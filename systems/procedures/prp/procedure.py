@@ -15,7 +15,16 @@ the entity "skin", one per click in step order; clicks on anything else are igno
 Landmark 1 decides the side (the half of the head it lies in, from the named anatomy) and the needle jumps
 to it (3.3.4: the simulator places the needle so the trainee can concentrate on orienting and
 inserting). Steps only move forward, following what the trainee does (a rotation about the vertical
-axis means orient_horizontal, and so on); time is booked to the step that is current.
+axis means orient_horizontal, and so on); Next cannot skip a landmark that is not placed (the HUD
+says which click is missing). Time is booked per fixed simulation step to the step that is current,
+so a session gives the same times whatever the frame rate it ran at.
+
+Attempts: an attempt has its own clock, path length, contacts, redirections and step times. Saving
+closes it (its clock stops); the next action - a reset, a turn, an insertion, a landmark - begins the
+next attempt from zero, keeping the landmarks unless shift+Reset clears them.
+
+Aiming aid: every frame the HUD gets the entry side's foramen ovale centre and the tip's distance to
+it, which the needle-tip view draws with a crosshair (chainsim.game.gl.panelview.aim).
 """
 
 from __future__ import annotations
@@ -26,14 +35,19 @@ import numpy as np
 from chainsim.components.core import Label, Marker, MeshRef, Name, Transform
 from chainsim.components.input_events import Widget
 from chainsim.components.needle import Needle, NeedleState
-from chainsim.components.procedure import LANDMARK_COUNT, ProcedureState, anatomy_from_pack
+from chainsim.components.procedure import LANDMARK_COUNT, ProcedureState, PrpAnatomy, anatomy_from_pack
 from chainsim.components.resources import EntityIndex, PackResource
-from chainsim.components.view_events import WidgetRefused
+from chainsim.components.view_events import Picked, WidgetRefused
 from chainsim.engine import quaternion as Q
+from chainsim.engine.errors import UserError
+from chainsim.systems import collision
 from chainsim.systems import needle as needle_sys
 from chainsim.systems.collision import NeedleHit
 from chainsim.systems.needle import InsertRefused, NeedleAction, NeedleReset, RotationRefused
+from chainsim.systems.procedures.prp import assessment
+from chainsim.systems.procedures.prp.handles import PrpHandles, hud
 from chainsim.systems.stages import ORDER_PROCEDURE
+from chainsim.systems.ui.widgets import WidgetState
 
 STEP_IDS = (
     "reading",
@@ -53,33 +67,13 @@ SKIN = "skin"
 LANDMARK_PLANE_NORMALS = ((0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
 
 
-def hud(app):
-    """The HUD resource (the view plugin's); one is made when running without it."""
-    from chainsim.components.hud import HudState
-
-    h = app.get_resource(HudState)
-    if h is None:
-        h = app.insert_resource(HudState())
-    return h
-
-
 def widget_state(app):
-    try:
-        from chainsim.systems.ui.widgets import WidgetState
-    except ImportError:  # pragma: no cover - the view layer is part of every build
-        return None
     return app.get_resource(WidgetState)
 
 
 class ProcedureSystem:
     def __init__(self, app):
-        self.picks = None
-        try:
-            from chainsim.components.view_events import Picked
-
-            self.picks = app.events.reader(Picked)
-        except ImportError:  # pragma: no cover
-            pass
+        self.picks = app.events.reader(Picked)
         self.widgets = app.events.reader(Widget)
         self.actions = app.events.reader(NeedleAction)
         self.resets = app.events.reader(NeedleReset)
@@ -90,6 +84,15 @@ class ProcedureSystem:
         pres: PackResource = app.resource(PackResource)
         self.steps = {s["id"]: s for s in pres.pack.section("steps")}
         self.layout_widgets = {w["name"]: w for w in pres.layout.get("widgets", [])}
+        self.last_tick = app.time.tick
+        self.lights = {name: "off" for name in LIGHTS}
+        # the attached view that rides on the needle shows the aiming aid
+        needle_name = next(
+            (n for n, e in app.resource(EntityIndex).by_name.items() if e == app.resource(PrpHandles).needle), ""
+        )
+        self.tip_view = next(
+            (v["name"] for v in pres.layout.get("viewports", []) if v.get("attach") == needle_name), ""
+        )
 
     # -- helpers --------------------------------------------------------------------------------
     def state(self, app) -> ProcedureState:
@@ -119,7 +122,8 @@ class ProcedureSystem:
         h = hud(app)
         h.step_title = spec.get("title", ps.step_id)
         h.step_instruction = spec.get("instruction", "")
-        h.doc_name = spec.get("docs", "") or h.doc_name
+        h.step_doc = spec.get("docs", "") or h.step_doc
+        h.doc_name = h.step_doc or h.doc_name
         # the reading step opens its page in the app (thesis 3.4); later steps keep it a Help press away
         if ps.step_id == "reading":
             h.open_doc()
@@ -127,6 +131,27 @@ class ProcedureSystem:
             h.close_doc()
 
     # -- landmarks ------------------------------------------------------------------------------
+    def begin_attempt(self, app, ps: ProcedureState) -> None:
+        """After a saved attempt, the first action starts a new one with its own clock and counts."""
+        if not ps.closed:
+            ps.touched = True
+            return
+        _ent, _needle, st = self.needle(app)
+        needle_sys.new_attempt(st)
+        ps.closed = False
+        ps.touched = True
+        ps.attempt += 1
+        ps.elapsed = 0.0
+        ps.step_times = {}
+        ps.aids = dict(ps.aids_now)
+        ps.finished = False
+        ps.target = "none"
+        ps.needle_dist = float("nan")
+        ps.hit_point = np.full(3, np.nan)
+        self.lights["skull"] = self.lights["target"] = "off"
+        hud(app).panel_text = []
+        hud(app).message(f"Attempt {ps.attempt} begins: its time, path and contacts count from zero.")
+
     def place_landmark(self, app, ps: ProcedureState, point) -> None:
         h = hud(app)
         if ps.placed >= LANDMARK_COUNT:
@@ -197,12 +222,15 @@ class ProcedureSystem:
                     continue
                 if ps.step_id == "reading":
                     self.goto(app, ps, "landmark1")
+                if ps.placed < LANDMARK_COUNT:
+                    self.begin_attempt(app, ps)
                 self.place_landmark(app, ps, ev.point)
         for ev in self.widgets.read():
             if ev.name == "next":
-                if ps.step + 1 < len(ps.step_ids):
-                    self.goto(app, ps, ps.step_ids[ps.step + 1])
+                self.next_step(app, ps)
         for ev in self.resets.read():
+            self.begin_attempt(app, ps)
+            h.panel_text = []
             self.lights["skull"] = self.lights["target"] = "off"
             ps.target = "none"
             ps.needle_dist = float("nan")
@@ -213,17 +241,18 @@ class ProcedureSystem:
                 ps.aids = dict(ps.aids_now)  # a new attempt: its own aids, times and counts
                 ps.step_times = {}
                 ps.elapsed = 0.0
+                ps.finished = False
                 self.restart(app, ps, "landmark1")
                 h.message("Landmarks cleared: place landmark 1 again.")
             else:
                 self.restart(app, ps, "orient_horizontal" if ps.placed else "landmark1")
-                h.message("Needle reset to landmark 1; rotation unlocked.")
+                h.message("Needle reset to landmark 1, dials at zero, rotation unlocked.")
         for ev in self.widget_refused.read():
             if ev.name in ("rotate_horizontal", "rotate_vertical"):
-                h.message("Rotation is locked once the needle is inserted; press Reset to re-aim.")
+                h.message(LOCKED)
         for ev in self.refused.read():
             if ev.reason == "locked":
-                h.message("Rotation is locked once the needle is inserted; press Reset to re-aim.")
+                h.message(LOCKED)
             else:
                 h.message("Place landmark 1 on the cheek first: the needle starts there.")
         for ev in self.insert_refused.read():
@@ -234,6 +263,10 @@ class ProcedureSystem:
             elif ev.reason == "max_depth":
                 h.message("That is as deep as the needle goes.")
         for ev in self.actions.read():
+            if ev.kind == "withdrawn":
+                h.message("The needle is back at the skin: the dials are free; turn them to redirect.")
+                continue
+            self.begin_attempt(app, ps)
             if ev.kind == "rotate_horizontal":
                 self.goto(app, ps, "orient_horizontal")
             elif ev.kind == "rotate_vertical":
@@ -256,19 +289,49 @@ class ProcedureSystem:
                     if ev.object == "skull"
                     else ("the mandible" if ev.object == "mandible" else ev.object.replace("_", " "))
                 )
+                radius = _radius(app, ps)
                 h.message(
-                    f"The needle hit {what}, {ev.distance_to_target_mm:.1f} mm from the foramen ovale; it springs back."
+                    f"The needle hit {what} with its tip {ev.distance_to_target_mm:.1f} mm from the centre of the "
+                    f"foramen ovale (needle error {ev.distance_to_target_mm - radius:.1f} mm: that distance minus "
+                    f"the opening's radius, {radius:.1f} mm); it springs back."
                 )
         ps.lights = dict(self.lights)
         show = ps.aids_now.get("collision_signals", True)
         for name in LIGHTS:
             h.set_light(name, self.lights[name] if show else "off")
         self.update_planes(app, ps)
-        # time per step, in simulated seconds; the clock stops once the needle is in the foramen
-        if not ps.finished:
+        self.update_aim(app, ps)
+        # time per step, in fixed simulation steps (never the frame's length, which depends on the
+        # machine); the clock stops once the needle is in the foramen or the attempt is saved
+        ticks, self.last_tick = app.time.tick - self.last_tick, app.time.tick
+        if not ps.finished and not ps.closed and ticks > 0:
             sid = ps.step_id
-            ps.step_times[sid] = ps.step_times.get(sid, 0.0) + app.time.frame_dt
-            ps.elapsed += app.time.frame_dt
+            ps.step_times[sid] = ps.step_times.get(sid, 0.0) + ticks * app.time.dt
+            ps.elapsed += ticks * app.time.dt
+
+    def next_step(self, app, ps: ProcedureState) -> None:
+        """Next moves on one step, except past a landmark that is not placed yet."""
+        sid = ps.step_id
+        if sid.startswith("landmark") and ps.placed < int(sid[-1]):
+            k = ps.placed + 1
+            where = self.steps.get(f"landmark{k}", {}).get("instruction", "")
+            hud(app).message(f"Landmark {k} is not placed yet: the steps go in order. {where}")
+            return
+        if ps.step + 1 < len(ps.step_ids):
+            self.goto(app, ps, ps.step_ids[ps.step + 1])
+
+    def update_aim(self, app, ps: ProcedureState) -> None:
+        """The tip view's aiming aid: the entry side's foramen ovale and the tip's distance to it."""
+
+        h = hud(app)
+        h.aim_view = self.tip_view
+        _ent, _needle, st = self.needle(app)
+        if not st.placed:
+            h.aim_target, h.aim_note = None, "place landmark 1 first"
+            return
+        centre = app.resource(PrpAnatomy).sides[ps.side or "left"].foramen_centre
+        h.aim_target = tuple(float(c) for c in centre)
+        h.aim_note = f"{float(np.linalg.norm(st.tip() - centre)):.1f} mm"
 
     def update_planes(self, app, ps: ProcedureState) -> None:
         on = ps.aids_now.get("landmark_planes", False)
@@ -279,6 +342,17 @@ class ProcedureSystem:
                 ref.visible = bool(on and k < ps.placed)
 
 
+LOCKED = (
+    "The dials are locked while the needle is in: withdraw it to the skin (o, or the depth slider to 0) "
+    "to turn it again, or press Reset."
+)
+
+
+def _radius(app, ps: ProcedureState) -> float:
+
+    return float(app.resource(PrpAnatomy).sides[ps.side or "left"].foramen_radius)
+
+
 def ps_lights(ps: ProcedureState) -> dict:
     out = {name: "off" for name in LIGHTS}
     out.update(ps.lights)
@@ -286,20 +360,8 @@ def ps_lights(ps: ProcedureState) -> dict:
 
 
 def _side(app, p) -> str:
-    from chainsim.components.procedure import PrpAnatomy
 
     return app.resource(PrpAnatomy).side_of(p)
-
-
-class PrpHandles:
-    """Entity ids the procedure systems use (resource)."""
-
-    def __init__(self, needle: int, procedure: int, markers: list, planes: list, labels: list):
-        self.needle = needle
-        self.procedure = procedure
-        self.markers = markers
-        self.planes = planes
-        self.labels = labels  # the markers' label texts, shown once a landmark is placed
 
 
 def _hide_markers(markers: list) -> None:
@@ -316,9 +378,6 @@ def _hide_markers(markers: list) -> None:
 
 
 def plugin(app) -> None:
-    from chainsim.engine.errors import UserError
-    from chainsim.systems import collision
-    from chainsim.systems.procedures.prp import assessment
 
     pres: PackResource = app.resource(PackResource)
     pack = pres.pack

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from chainsim.systems.collision import SegmentTree
+from chainsim.engine.segment_tree import SegmentTree
 
 
 def brute_first_hit(p0, p1, vertices, triangles):

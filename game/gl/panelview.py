@@ -1,0 +1,208 @@
+"""Drawing the 2-D parts of a frame in window pixels: view captions, 3-D labels, the HUD, the aiming
+aid of an attached view, and the control panel with its widgets (thesis 3.3.4 controller).
+
+Widget placement and values come from chainsim.systems.ui.widgets (no GL); this module only turns
+them into Overlay shapes and text. Numbers are shown with `widgets.format_value`, one format for
+every dial, slider and text.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from chainsim.game.gl.overlay import Overlay
+from chainsim.systems.ui.viewports import Rect
+from chainsim.systems.ui.widgets import TITLE_PX, below_widgets, format_value
+
+PANEL_BG = (0.13, 0.14, 0.17, 1.0)
+TEXT = (0.92, 0.93, 0.95, 1.0)
+DIM = (0.55, 0.57, 0.62, 1.0)
+ACCENT = (0.30, 0.62, 0.95, 1.0)
+MESSAGE = (1.0, 0.85, 0.3, 1.0)
+AIM = (0.35, 1.0, 0.45, 1.0)
+CROSS = (1.0, 1.0, 1.0, 0.85)
+LIGHT_RGBA = {"red": (0.92, 0.18, 0.16, 1.0), "green": (0.20, 0.85, 0.30, 1.0), "off": (0.30, 0.30, 0.32, 1.0)}
+
+
+def view_title(ov: Overlay, title: str, r: Rect, s: float) -> None:
+    f = ov.font
+    w = f.width(title) + 12 * s
+    ov.rect(r.x, r.y + r.h - f.line_h - 6 * s, w, f.line_h + 6 * s, (0, 0, 0, 0.45))
+    ov.label(title, r.x + 6 * s, r.y + r.h - f.ascent - 3 * s, DIM)
+
+
+def hud(ov: Overlay, h, r: Rect, s: float) -> None:
+    """Step title, instruction and messages in a dark band at the top of the main view."""
+    f = ov.font
+    pad = 8 * s
+    width = min(r.w - 2 * pad, 640 * s)
+    lines = []
+    if h.step_title:
+        lines.append((h.step_title, ACCENT))
+    if h.step_instruction:
+        lines += [(t, TEXT) for t in f.wrap(h.step_instruction, width - 2 * pad)]
+    for text in h.shown_messages()[-3:]:  # the newest three; older ones are still counted
+        lines += [(t, MESSAGE) for t in f.wrap(text, width - 2 * pad)]
+    if not lines:
+        return
+    top = r.y + r.h - f.line_h - 14 * s  # under the viewport title
+    bh = len(lines) * f.line_h + pad
+    x0 = r.x + pad
+    ov.rect(x0, top - bh, width, bh, (0.0, 0.0, 0.0, 0.55))
+    for i, (t, c) in enumerate(lines):
+        ov.label(t, x0 + pad, top - (i + 1) * f.line_h + f.descent, c, max_w=width - 2 * pad)
+
+
+def aim(ov: Overlay, camera, r: Rect, target, note: str, s: float) -> None:
+    """Crosshair at the centre of an attached view (where the needle points) and the target's
+    projected position: a ring with its distance, or an arrow at the edge when it is out of view."""
+    cx, cy = r.x + r.w / 2, r.y + r.h / 2
+    arm, gap = 14 * s, 4 * s
+    for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        ov.segment(cx + dx * gap, cy + dy * gap, cx + dx * arm, cy + dy * arm, CROSS, 1.5 * s)
+    if target is None or camera is None:
+        return
+    eye = np.asarray(camera.eye, float)
+    ahead = float((np.asarray(target, float) - eye) @ camera.forward)
+    x, y, _z = camera.project(target, r)[0]
+    f = ov.font
+    inside = ahead > 0 and r.x + 6 * s <= x <= r.x + r.w - 6 * s and r.y + 6 * s <= y <= r.y + r.h - 6 * s
+    if inside:
+        ring(ov, x, y, 9 * s, AIM, 2 * s)
+        ov.label(note, min(x + 12 * s, r.x + r.w - f.width(note) - 4 * s), y + 6 * s, AIM)
+        return
+    # out of view (or behind): an arrow on the edge pointing the way to turn
+    dx, dy = (x - cx, y - cy) if ahead > 0 else (cx - x, cy - y)
+    n = math.hypot(dx, dy) or 1.0
+    dx, dy = dx / n, dy / n
+    k = min((r.w / 2 - 18 * s) / max(abs(dx), 1e-6), (r.h / 2 - 18 * s) / max(abs(dy), 1e-6))
+    ex, ey = cx + dx * k, cy + dy * k
+    tail = 16 * s
+    ov.segment(ex - dx * tail, ey - dy * tail, ex, ey, AIM, 3 * s)
+    px, py = -dy, dx
+    ov.segment(ex, ey, ex - dx * 8 * s + px * 6 * s, ey - dy * 8 * s + py * 6 * s, AIM, 3 * s)
+    ov.segment(ex, ey, ex - dx * 8 * s - px * 6 * s, ey - dy * 8 * s - py * 6 * s, AIM, 3 * s)
+    text = f"target {note}" if ahead > 0 else f"target behind, {note}"
+    tx = min(max(ex - f.width(text) / 2, r.x + 4 * s), r.x + r.w - f.width(text) - 4 * s)
+    ty = min(max(ey - dy * 30 * s, r.y + 6 * s), r.y + r.h - 2 * f.line_h)
+    ov.label(text, tx, ty, AIM)
+
+
+def ring(ov: Overlay, cx: float, cy: float, radius: float, color, width: float, segments: int = 24) -> None:
+    for i in range(segments):
+        a0, a1 = 2 * math.pi * i / segments, 2 * math.pi * (i + 1) / segments
+        ov.segment(
+            cx + radius * math.cos(a0),
+            cy + radius * math.sin(a0),
+            cx + radius * math.cos(a1),
+            cy + radius * math.sin(a1),
+            color,
+            width,
+        )
+
+
+def panel(ov: Overlay, p, h, s: float) -> None:
+    """A control panel: caption, widgets, lights without a widget, panel text, status and hint."""
+    f = ov.font
+    r = p.rect.scaled(s)
+    ov.rect(r.x, r.y + r.h - TITLE_PX * s, r.w, TITLE_PX * s, (0.18, 0.20, 0.25, 1.0))
+    ov.label(
+        p.title or p.name,
+        r.x + 8 * s,
+        r.y + r.h - TITLE_PX * s + (TITLE_PX * s - f.ascent) / 2,
+        TEXT,
+        max_w=r.w - 16 * s,
+    )
+    lights = dict(h.lights) if h is not None else {}
+    shown = set()
+    for pl in p.placed:
+        widget(ov, pl, p, lights, s)
+        shown.add(pl.spec["name"])
+    y = below_widgets(p.placed, p.rect) * s
+    # the status line gives way to panel text (an assessment needs the room)
+    status = f.wrap(h.status, r.w - 16 * s) if h is not None and h.status and not h.panel_text else []
+    hint = f.wrap(p.hint, r.w - 16 * s) if p.hint else []
+    bottom = hint or status  # the hint of the widget under the pointer replaces the status line
+    floor = r.y + (len(bottom) * f.line_h + 8 * s if bottom else 0)
+    for name, state in [(n, v) for n, v in lights.items() if n not in shown]:
+        y -= 22 * s
+        if y < floor:
+            break
+        ov.disc(r.x + 18 * s, y + 8 * s, 7 * s, LIGHT_RGBA.get(state, LIGHT_RGBA["off"]))
+        ov.label(name, r.x + 32 * s, y + 3 * s, TEXT, max_w=r.w - 40 * s)
+    if h is not None and h.panel_text:
+        y -= 6 * s
+        for t in [t for line in h.panel_text for t in f.wrap(line, r.w - 16 * s)]:
+            y -= f.line_h
+            if y < floor:
+                break
+            ov.label(t, r.x + 8 * s, y + f.descent, TEXT)
+    if bottom:
+        ov.rect(r.x, r.y, r.w, floor - r.y, (0.08, 0.09, 0.11, 1.0))
+        for i, t in enumerate(reversed(bottom)):
+            ov.label(t, r.x + 8 * s, r.y + 4 * s + i * f.line_h + f.descent, DIM if hint else TEXT)
+
+
+def widget(ov: Overlay, pl, p, lights: dict, s: float) -> None:
+    spec = pl.spec
+    name, kind = spec["name"], spec["kind"]
+    r = pl.rect.scaled(s)
+    f = ov.font_for(r.h / 2 if kind in ("slider", "dial") else r.h)  # short widgets get a smaller font
+    value = p.values.get(name)
+    off = name in p.disabled
+    fg = DIM if off else TEXT
+    label = spec.get("label") or name
+    key = f" [{spec['key']}]" if spec.get("key") else ""
+    mid = r.y + (r.h - f.ascent) / 2 + 1
+    if kind == "button":
+        ov.rect(r.x, r.y, r.w, r.h, (0.20, 0.22, 0.27, 1.0) if off else (0.25, 0.33, 0.45, 1.0))
+        ov.frame(r.x, r.y, r.w, r.h, (0.4, 0.45, 0.55, 1.0), s)
+        text = label + key
+        if f.width(text) > r.w - 8 * s:
+            text = label
+        ov.label(text, r.x + max((r.w - f.width(text)) / 2, 4 * s), mid, fg, max_w=r.w - 8 * s, font=f)
+    elif kind == "toggle":
+        bx = 16 * s
+        ov.frame(r.x + 2 * s, r.y + (r.h - bx) / 2, bx, bx, fg, s)
+        if value:
+            ov.rect(r.x + 5 * s, r.y + (r.h - bx) / 2 + 3 * s, bx - 6 * s, bx - 6 * s, ACCENT if not off else DIM)
+        ov.label(label + key, r.x + bx + 10 * s, mid, fg, max_w=r.w - bx - 12 * s, font=f)
+    elif kind in ("slider", "dial"):
+        v = float(value) if isinstance(value, (int, float)) else 0.0
+        lo, hi = float(spec.get("min", 0.0)), float(spec.get("max", 1.0))
+        t = (v - lo) / (hi - lo) if hi != lo else 0.0
+        top = r.y + r.h - f.ascent - 2 * s
+        vt = format_value(v)
+        ov.label(label + key, r.x + 2 * s, top, fg, max_w=r.w - f.width(vt) - 10 * s, font=f)
+        ov.label(vt, r.x + r.w - f.width(vt) - 2 * s, top, ACCENT if not off else DIM, font=f)
+        ty = r.y + 8 * s
+        if kind == "slider":
+            x0, x1 = r.x + 10 * s, r.x + r.w - 10 * s
+            ov.rect(x0, ty - 2 * s, x1 - x0, 4 * s, (0.3, 0.32, 0.38, 1.0))
+            ov.rect(x0, ty - 2 * s, (x1 - x0) * t, 4 * s, ACCENT if not off else DIM)
+            ov.rect(x0 + (x1 - x0) * t - 4 * s, ty - 7 * s, 8 * s, 14 * s, fg)
+        else:
+            cx, rad = r.x + r.w / 2, 9 * s
+            ov.label("-", r.x + 6 * s, ty - f.ascent / 2, fg, font=f)
+            ov.label("+", r.x + r.w - 14 * s, ty - f.ascent / 2, fg, font=f)
+            ov.disc(cx, ty + 2 * s, rad, (0.3, 0.32, 0.38, 1.0))
+            ang = np.radians(225.0 - 270.0 * t)
+            ov.segment(
+                cx,
+                ty + 2 * s,
+                cx + rad * np.cos(ang),
+                ty + 2 * s + rad * np.sin(ang),
+                ACCENT if not off else DIM,
+                2 * s,
+            )
+    elif kind == "light":
+        state = lights.get(name, value if value in LIGHT_RGBA else "off")
+        ov.disc(r.x + 10 * s, r.y + r.h / 2, 7 * s, LIGHT_RGBA.get(state, LIGHT_RGBA["off"]))
+        ov.label(label, r.x + 24 * s, mid, fg, max_w=r.w - 26 * s, font=f)
+    else:  # text
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            value = format_value(value)
+        shown = label if value in (None, False, "") else f"{label}: {value}" if label else str(value)
+        ov.label(shown, r.x + 2 * s, mid, fg, max_w=r.w - 4 * s, font=f)

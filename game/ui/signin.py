@@ -1,0 +1,119 @@
+"""Signing in at the window: class and trainee typed into a form shown in the page box, remembered
+for the next start, and the line that says who is signed in and where the records are kept.
+
+The thesis' assessment tool files attempts under a class and a user name (3.3.4, Fig. 3.11); a
+trainee who starts `chainsim play prp` without --class/--trainee is asked here instead of being
+saved as "anonymous". The form lives in the window layer (typing is not simulation input, so it is
+neither recorded nor able to press the keys of the controller); what it decides goes into the App's
+Settings, where the assessment reads it when saving.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from pathlib import Path
+
+import platformdirs
+
+from chainsim.engine.errors import UserError
+from chainsim.game.records.validate import clean_name
+
+logger = logging.getLogger(__name__)
+
+FIELDS = (("class", "Class"), ("trainee", "Your name"))
+
+
+def remembered_path() -> Path:
+    """<user config dir>/chainsim/signin.json ($XDG_CONFIG_HOME is honoured on Linux)."""
+
+    return Path(platformdirs.user_config_dir("chainsim")) / "signin.json"
+
+
+def remembered() -> dict[str, str]:
+    """The class and trainee of the last sign-in, or empty strings."""
+    try:
+        data = json.loads(remembered_path().read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {"class": "", "trainee": ""}
+    return {k: str(data.get(k, "")) if isinstance(data, dict) else "" for k, _ in FIELDS}
+
+
+def remember(values: dict[str, str]) -> None:
+    path = remembered_path()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps({k: values[k] for k, _ in FIELDS}), encoding="utf-8")
+        os.replace(tmp, path)
+    except OSError as e:  # not remembering is no reason to stop
+        logger.warning("could not remember the sign-in in %s: %s", path, e.strerror)
+
+
+def status_line(settings: dict, records_path) -> str:
+    who = settings.get("trainee") or "nobody (attempts go to anonymous)"
+    cls = settings.get("class") or "default"
+    return f"Signed in: {who}, class {cls}. Records: {records_path}"
+
+
+class SignInForm:
+    """Two text fields; `text` types, `key` handles tab / backspace / return; `done` when accepted."""
+
+    def __init__(self, values: dict[str, str], records_path):
+        self.values = {k: str(values.get(k) or "") for k, _ in FIELDS}
+        self.focus = "class" if not self.values["class"] else "trainee"
+        self.records_path = records_path
+        self.error = ""
+        self.done = False
+
+    def text(self, typed: str) -> None:
+        typed = "".join(ch for ch in typed if ch.isprintable())
+        if typed:
+            self.values[self.focus] = (self.values[self.focus] + typed)[:64]
+            self.error = ""
+
+    def key(self, name: str) -> None:
+        if name == "tab":
+            self.focus = "trainee" if self.focus == "class" else "class"
+        elif name == "backspace":
+            self.values[self.focus] = self.values[self.focus][:-1]
+        elif name in ("return", "enter"):
+            self.submit()
+
+    def submit(self) -> None:
+        try:
+            for k, label in FIELDS:
+                self.values[k] = clean_name(label.lower(), self.values[k])
+        except UserError as e:
+            self.error = str(e)
+            for k, _ in FIELDS:
+                if not self.values[k].strip():
+                    self.focus = k
+                    break
+            return
+        self.done = True
+
+    def markdown(self) -> str:
+        rows = []
+        for k, label in FIELDS:
+            v = self.values[k].replace("|", "\\|")
+            cursor = "_" if self.focus == k else ""
+            rows.append(f"| {'**' + label + '**' if self.focus == k else label} | `{v}{cursor}` |")
+        out = [
+            "# Sign in",
+            "",
+            "Your attempts are saved under your class and name, so you and your trainer can find them.",
+            "",
+            "| Field | Typed |",
+            "|---|---|",
+            *rows,
+            "",
+            "Type, **Tab** moves to the other field, **Backspace** deletes, **Enter** signs in. "
+            "The names are remembered for the next start.",
+            "",
+            f"Records are kept in `{self.records_path}`.",
+        ]
+        if self.error:
+            out += ["", f"**Not yet:** {self.error}"]
+        return "\n".join(out) + "\n"

@@ -1,0 +1,130 @@
+"""What the cutting trainer's systems share (thesis 4.5.2): its constants, run state and tissue geometry helpers."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import esper
+import numpy as np
+
+from chainsim.components.core import MeshRef, Transform
+from chainsim.components.deformable import Deformable
+from chainsim.components.resources import PackResource
+from chainsim.engine.errors import UserError
+
+TOOLS = ("forceps", "scissors")
+STEP_IDS = ("pull", "cut", "open")
+PUSH_BUTTON_MM = 2.0  # depth of one press of the Push button
+SCROLL_MM = 1.0  # forceps travel along the normal per scroll notch
+MOVED_MM = 0.01  # an element this far from rest counts as displaced
+PULL_DONE_MM = 5.0  # 'pull' is done once a grip has carried tissue this far
+CUT_DONE_MM = 20.0  # 'cut' is done after this much cut path that removed links
+OPEN_DONE_MM = 10.0  # 'open' is done once a grip on a cut layer has carried it this far
+#: best views for each tool (4.5.2), relative to the tissue's bounding sphere
+VIEWS = {"forceps": dict(yaw=30.0, pitch=35.0, zoom=0.8), "scissors": dict(yaw=0.0, pitch=75.0, zoom=0.75)}
+
+
+@dataclass(slots=True)
+class ToolUse:
+    tool: str
+    layer: str
+    start_s: float
+    duration_s: float = 0.0
+
+
+@dataclass(slots=True)
+class CuttingState:
+    """What the trainer is doing: the chosen tool, step progress, per-layer cut counts, tool uses."""
+
+    tool: str = ""
+    forceps: int = -1  # entity ids of the instruments
+    scissors: int = -1
+    layers: list = field(default_factory=list)  # deformable entity ids, top layer first
+    top: int = -1
+    names: dict = field(default_factory=dict)  # entity id -> name
+    step_ids: list = field(default_factory=list)
+    steps_done: list = field(default_factory=list)  # in the order they were done
+    links_cut: dict = field(default_factory=dict)  # layer name -> links cut since the last reset
+    cut_length: float = 0.0  # mm since the last reset
+    wireframe: bool = False
+    resets: int = 0
+    uses: list = field(default_factory=list)  # ToolUse, in order
+    open_use: ToolUse | None = None
+    path_entity: int = -1  # runtime entity drawing the current cut path
+    pending_view: str = ""  # tool whose best view is still to be applied
+    drag_origin: tuple | None = None  # (tip, grab point) at the start of a forceps drag
+    hover: np.ndarray | None = None  # world point of the tissue under the cursor (the idle tool sits there)
+    # readers (made at build time so no event is missed)
+    widgets: object = None
+    picks: object = None
+    drags: object = None
+    scrolls: object = None
+    moves: object = None
+    deformed: object = None
+    tool_widgets: object = None
+    # cached assessment per layer: entity -> (version, alive count, values)
+    cache: dict = field(default_factory=dict)
+
+
+# -- geometry helpers ------------------------------------------------------------------------------
+
+
+def _matrix(ent: int) -> np.ndarray:
+    tr = esper.try_component(ent, Transform)
+    return tr.matrix() if tr is not None else np.eye(4)
+
+
+def world_positions(ent: int, d: Deformable) -> np.ndarray:
+    m = _matrix(ent)
+    return np.asarray(d.pos, dtype=np.float64) @ m[:3, :3].T + m[:3, 3]
+
+
+def nearest_element(ent: int, d: Deformable, point) -> tuple[int, float]:
+    """(element id, distance in mm) of the element of `d` nearest to a world point."""
+    w = world_positions(ent, d)
+    d2 = np.sum((w - np.asarray(point, dtype=np.float64)) ** 2, axis=1)
+    i = int(np.argmin(d2))
+    return i, math.sqrt(float(d2[i]))
+
+
+def element_normal(app, ent: int, d: Deformable, element: int) -> np.ndarray:
+    """Unit world normal of a layer at an element: the area-weighted mean of its triangles' normals
+    (the side the triangles wind counter-clockwise around, i.e. away from the layers beneath)."""
+    pres: PackResource = app.resource(PackResource)
+    tris = pres.pack.mesh(esper.component_for_entity(ent, MeshRef).mesh).triangles
+    around = tris[np.any(tris == element, axis=1)]
+    w = world_positions(ent, d)
+    if len(around) == 0:
+        return np.array([0.0, 0.0, 1.0])
+    n = np.cross(w[around[:, 1]] - w[around[:, 0]], w[around[:, 2]] - w[around[:, 0]]).sum(axis=0)
+    norm = float(np.linalg.norm(n))
+    return n / norm if norm > 1e-12 else np.array([0.0, 0.0, 1.0])
+
+
+def parse_point(value, where: str) -> np.ndarray:
+    """A point from a widget value: "x, y, z" (commas or spaces) or a list of 3 numbers."""
+    if isinstance(value, str):
+        parts = value.replace(",", " ").split()
+    elif isinstance(value, (list, tuple)):
+        parts = list(value)
+    else:
+        raise UserError(f'{where}: expected "x, y, z" in millimetres, got {value!r}')
+    try:
+        p = np.array([float(c) for c in parts], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise UserError(f'{where}: expected "x, y, z" in millimetres, got {value!r}') from None
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise UserError(f'{where}: expected three finite numbers "x, y, z" in millimetres, got {value!r}')
+    return p
+
+
+def link_stretch(d: Deformable) -> float:
+    """Largest current / rest length over the live links of a body (1.0 when nothing is stretched)."""
+    links = d.graph.links[d.alive]
+    if len(links) == 0:
+        return 1.0
+    cur = np.linalg.norm(d.pos[links[:, 1]] - d.pos[links[:, 0]], axis=1)
+    rest = np.linalg.norm(d.rest[links[:, 1]] - d.rest[links[:, 0]], axis=1)
+    ok = rest > 1e-12
+    return float(np.max(cur[ok] / rest[ok])) if np.any(ok) else 1.0

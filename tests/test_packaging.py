@@ -1,0 +1,64 @@
+"""Packaging: every code folder is importable under `chainsim` through pyproject's package mapping."""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+PYPROJECT = tomllib.loads((REPO / "pyproject.toml").read_text())
+
+
+def _folder_of(package: str, mapping: dict[str, str]) -> Path:
+    """The folder a dotted package name maps to (longest mapped prefix wins)."""
+    parts = package.split(".")
+    for k in range(len(parts), 0, -1):
+        head = ".".join(parts[:k])
+        if head in mapping:
+            return REPO / mapping[head] / Path(*parts[k:])
+    raise AssertionError(f"{package} has no package-dir mapping")
+
+
+def test_every_package_folder_is_listed_and_every_listed_package_exists():
+    setup = PYPROJECT["tool"]["setuptools"]
+    mapping, listed = setup["package-dir"], set(setup["packages"])
+    for pkg in listed:
+        assert (_folder_of(pkg, mapping) / "__init__.py").is_file(), f"{pkg} is listed but has no __init__.py"
+    # every folder with an __init__.py under a mapped root is listed (the engine is its own root)
+    for pkg, folder in mapping.items():
+        for init in (REPO / folder).rglob("__init__.py"):
+            rel = init.parent.relative_to(REPO / folder)
+            name = ".".join([pkg, *rel.parts]) if rel.parts else pkg
+            owner = max(
+                (p for p in mapping if (REPO / mapping[p]) in [init.parent, *init.parent.parents]),
+                key=lambda p: len(mapping[p]),
+            )
+            if owner != pkg:
+                continue  # a folder mapped under another name (systems/engine -> chainsim.engine)
+            assert name in listed, f"{init.parent.relative_to(REPO)} is a package but {name} is not in pyproject"
+
+
+def test_version_is_written_once():
+    import chainsim.game
+
+    assert PYPROJECT["project"]["version"] == chainsim.game.__version__
+    numbered = re.compile(r"__version__\s*=\s*[\"']\d")
+    hits = [p for p in REPO.glob("[gsct]*/**/*.py") if numbered.search(p.read_text())]
+    assert not hits, f"a second version string in {hits}"
+
+
+def test_licence_expression_covers_the_shipped_data():
+    project = PYPROJECT["project"]
+    assert "MIT" in project["license"] and "CC-BY-4.0" in project["license"] and "CC-BY-SA" in project["license"]
+    for f in project["license-files"]:
+        assert (REPO / f).is_file(), f
+
+
+def test_architecture_doc_names_every_package_folder():
+    doc = (REPO / "docs" / "architecture.md").read_text()
+    setup = PYPROJECT["tool"]["setuptools"]
+    for pkg in setup["packages"]:
+        folder = _folder_of(pkg, setup["package-dir"]).relative_to(REPO)
+        leaf = folder.name + "/"
+        assert f"{folder.as_posix()}/" in doc or f"`{leaf}" in doc or leaf in doc, f"docs/architecture.md: {folder}"
