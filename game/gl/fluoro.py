@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
+from chainsim.game.gl.context import release_framebuffer
 from chainsim.systems.ui.viewports import Camera, Rect
 
 IMAGE_PX = 512
@@ -149,7 +150,6 @@ class FluoroRenderer:
     def capture(self, meshes: list[XrayMesh], camera: Camera) -> np.ndarray:
         """Attenuation image (size x size, float32, rows top first) of `meshes` seen by `camera`."""
         ctx = self.ctx
-        previous = ctx.fbo
         vp = camera.view_projection(1.0)
         try:
             self.fbo.use()
@@ -174,8 +174,7 @@ class FluoroRenderer:
         finally:
             ctx.disable(ctx.BLEND)
             ctx.blend_func = ctx.SRC_ALPHA, ctx.ONE_MINUS_SRC_ALPHA
-            if previous is not None:
-                previous.use()
+        # the image's framebuffer stays bound: whoever draws next binds its own target first
         return np.ascontiguousarray(raw[::-1])
 
     def update(self, draw: FluoroDraw) -> bool:
@@ -211,5 +210,6 @@ class FluoroRenderer:
         return np.dstack([g, g, g])
 
     def release(self) -> None:
-        for o in (self.quad_vao, self.quad, self.fbo, self.target, self.display, self.acc, self.show):
+        release_framebuffer(self.ctx, self.fbo)  # parks the binding first if it is the bound one
+        for o in (self.quad_vao, self.quad, self.target, self.display, self.acc, self.show):
             o.release()

@@ -164,6 +164,25 @@ def _fmt(v) -> str:
     return repr(round(float(v), 6))
 
 
+def xray_checks(depth: float) -> list:
+    """The C-arm images of a careful attempt: a submental-oblique image once aimed (does the needle
+    point at the foramen ovale?), a lateral one halfway in (how deep along the skull base?) and a
+    submental-oblique one at the end (is the tip in the oval?), at the script's insertion times."""
+    n_ins = math.ceil(depth / 10.0)
+    # each button press lies clear of the next event (a mouse click takes 0.03 s; insertion steps are
+    # 0.1 s apart), so the arm is turned lateral before the insertion begins
+    halfway = 3.0 + 0.1 * (n_ins // 2) + 0.04
+    end = 3.0 + 0.1 * n_ins + 0.2
+    return [
+        (2.8, dict(kind="widget", name="xray_submental")),
+        (2.85, dict(kind="widget", name="xray_take")),
+        (2.9, dict(kind="widget", name="xray_lateral")),
+        (round(halfway, 3), dict(kind="widget", name="xray_take")),
+        (round(end, 3), dict(kind="widget", name="xray_submental")),
+        (round(end + 0.05, 3), dict(kind="widget", name="xray_take")),
+    ]
+
+
 def script_text(description, landmarks, yaw, pitch, depth, extra=()) -> str:
     ev = [
         (0.5, dict(kind="pick", entity="skin", point=landmarks[0])),
@@ -264,11 +283,13 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     (out / "correct.toml").write_text(
         script_text(
-            "ideal landmarks, needle aimed along the clear reference path, inserted into the foramen ovale",
+            "ideal landmarks, needle aimed along the clear reference path, inserted into the foramen ovale; "
+            "three X-ray images as a surgeon takes them (submental before, lateral halfway, submental at the end)",
             lms,
             yaw,
             pitch,
             depth,
+            xray_checks(depth),
         ),
         encoding="utf-8",
     )
