@@ -185,10 +185,13 @@ def save(app, v: dict) -> int:
     if v["landmark_error_mm"] is None:
         raise UserError("place all three landmarks before saving: the landmark error needs them")
     s = app.resource(Settings)
+    rec = attempt_record(app.resource(PackResource).pack.name, v)
+    if isinstance(s.get("protocol"), dict):  # a study trial (chainsim protocol): which one, in its details
+        rec["details"]["protocol"] = dict(s.get("protocol"))
     return app.resource(Records).save_attempt(
         s.get("class") or DEFAULT_CLASS,
         s.get("trainee") or DEFAULT_TRAINEE,
-        attempt_record(app.resource(PackResource).pack.name, v),
+        rec,
     )
 
 
