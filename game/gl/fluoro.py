@@ -179,7 +179,7 @@ class FluoroRenderer:
 
     def update(self, draw: FluoroDraw) -> bool:
         """Make a new image if the C-arm took one since the last; True when it did."""
-        if draw.image_id == self.image_id:
+        if draw.image_id == self.image_id or draw.image_id <= 0:  # no new image (0: none taken yet)
             return False
         path = self.capture(draw.meshes, draw.camera)
         g = grey(path)

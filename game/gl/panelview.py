@@ -38,7 +38,7 @@ def fluoro_status(ov: Overlay, status: str, live: bool, has_image: bool, r: Rect
     and how to make the first image before there is one."""
     f = ov.font
     if not has_image:
-        msg = "No image yet: Take X-ray (x), or hold f"
+        msg = "No image yet: Take X-ray (x)"
         ov.label(msg, r.x + max((r.w - f.width(msg)) / 2, 4 * s), r.y + r.h / 2, DIM, max_w=r.w - 8 * s)
     if status:
         ov.rect(r.x, r.y, r.w, f.line_h + 4 * s, (0, 0, 0, 0.55))

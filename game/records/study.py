@@ -114,10 +114,42 @@ def ratings(questionnaires: Iterable[dict[str, Any]], study: str) -> dict[str, d
 
 
 def format_ratings(rates: dict[str, dict[str, Any]], labels: dict[str, str], thesis: dict[str, float]) -> str:
+    """The mean post-session ratings as text, in the order of `labels` (then any others)."""
     if not rates:
         return "Post-session ratings: none yet"
     lines = ["Post-session ratings (1 = poor, 10 = very good)", f"{'':58}{'mean':>6}{'n':>4}{'thesis':>8}"]
-    for k, v in rates.items():
+    keys = [k for k in labels if k in rates] + [k for k in rates if k not in labels]
+    for k in keys:
+        v = rates[k]
         th = thesis.get(k)
         lines.append(f"{labels.get(k, k)[:57]:58}{v['mean']:6.1f}{v['answers']:4d}{(f'{th:.1f}' if th else '-'):>8}")
     return "\n".join(lines)
+
+
+def markdown_table(tab: dict[tuple[str, str], dict[str, Any]]) -> str:
+    """Table 6.1 as a Markdown table for the window's page box: one row per task and condition."""
+    rows = [
+        "| Task | Condition | Mean error, mm | Scored | People | Thesis, mm |",
+        "|---|---|---|---|---|---|",
+    ]
+    for task in TASKS:
+        for (t, c), v in tab.items():
+            if t != task:
+                continue
+            mean = f"{v['mean_error_mm']:.2f}" if v["mean_error_mm"] is not None else "-"
+            th = f"{v['thesis_mm']:.1f}" if v["thesis_mm"] is not None else "-"
+            rows.append(
+                f"| {TASK_TITLE[t]} | {c.replace('_', ' ')} | {mean} | {v['scored']}/{v['attempts']} | "
+                f"{v['participants']} | {th} |"
+            )
+    return "\n".join(rows)
+
+
+def markdown_ratings(rates: dict[str, dict[str, Any]], labels: dict[str, str], thesis: dict[str, float]) -> str:
+    """The mean post-session ratings as a Markdown table, in the order of `labels`."""
+    rows = ["| Feature | Mean | n | Thesis |", "|---|---|---|---|"]
+    for k, label in labels.items():
+        if k in rates:
+            th = thesis.get(k)
+            rows.append(f"| {label} | {rates[k]['mean']:.1f} | {rates[k]['answers']} | {f'{th:.1f}' if th else '-'} |")
+    return "\n".join(rows) if len(rows) > 2 else "No ratings yet."

@@ -144,14 +144,14 @@ class Questionnaire:
             return " / ".join(f"**[{o}]**" if v is not None and i == int(v) else o for i, o in enumerate(q.options))
         if q.kind == "rating":
             return f"**{v}** of 10" if v is not None else "- of 10"
-        return f"`{v or ''}`"
+        return f"**{v}**" if v else "-"
 
     def markdown(self) -> str:
         rows = []
         for i, q in enumerate(self.questions):
             mark = "> " if i == self.focus else ""
             text = f"**{q.text}**" if i == self.focus else q.text
-            cursor = "_" if i == self.focus and q.kind in ("text", "number") else ""
+            cursor = " _" if i == self.focus and q.kind in ("text", "number") else ""
             rows.append(f"| {mark}{text} | {self._shown(q)}{cursor} |")
         return (
             "\n".join(

@@ -260,7 +260,12 @@ class StudySession:
         self.ratings = rates
         self.state = "summary"
         self.form = Notice(
-            f"# Study '{self.study}': all participants so far\n\n```\n{self.summary}\n```\n\n"
+            f"# Study '{self.study}': all participants so far\n\n"
+            "Mean error per task and condition over every participant's attempts (thesis Table 6.1: location "
+            "scored by the landmark error, rotation and insertion by the needle error E = Dist - R).\n\n"
+            f"{results.markdown_table(tab)}\n\n"
+            "Post-session ratings, 1 = poor, 10 = very good:\n\n"
+            f"{results.markdown_ratings(rates, labels, THESIS_RATINGS)}\n\n"
             "Thank you for taking part.",
             enter="Enter",
         )

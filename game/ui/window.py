@@ -225,7 +225,8 @@ def run_window(args, session=None) -> int:
 
     @window.event
     def on_key_press(symbol, modifiers):
-        if study is not None and study.form is not None:  # a questionnaire or a study page: keys are its own
+        if study is not None and study.form is not None and symbol != pyglet.window.key.F12:
+            # a questionnaire or a study page: the keys are its own (F12 still takes a screenshot)
             if symbol == pyglet.window.key.ESCAPE:
                 finish()  # leave the study; what was saved stays saved
             else:
@@ -281,7 +282,10 @@ def run_window(args, session=None) -> int:
 
     @window.event
     def on_text_motion(motion):
-        # held arrow keys repeat, so a dial on an arrow key keeps turning while it is held
+        # held arrow keys repeat, so a dial on an arrow key keeps turning while it is held; not while a
+        # form or study page has the keyboard (it took the arrow in on_key_press)
+        if form["open"] is not None or (study is not None and study.form is not None):
+            return pyglet.event.EVENT_HANDLED
         if motion in MOTIONS:
             pending.push(now(), Key(MOTIONS[motion], True))
 
