@@ -24,19 +24,26 @@ from dataclasses import dataclass, field
 import esper
 import numpy as np
 
+from chainsim.assets import ASSETS_DIR
 from chainsim.components.core import MeshRef
 from chainsim.components.registry import component, prop
+from chainsim.components.resources import Settings
 from chainsim.engine import meshgen
+from chainsim.engine.bodies.factory import choose_model, load_table, make_body
+from chainsim.engine.chainmail_params import ORDER_CHOICES, order_name
 from chainsim.engine.errors import UserError
 from chainsim.engine.kernels.chainmail import make_workspace, material_arrays
 from chainsim.engine.kernels.graph import build_graph
 
-ORDERS = ("fifo", "balanced", "schill")
+ORDERS = ORDER_CHOICES  # breadth-first, balanced, schill, depth-first; fifo = breadth-first
+MODEL_CHOICES = ("chainmail", "xpbd", "projective", "auto")
+#: the speed-accuracy table `model = "auto"` chooses from (written by `chainsim study speed-accuracy`)
+MODEL_TABLE = ASSETS_DIR / "presets" / "models.toml"
 SOURCES = ("auto", "surface", "volume")
 INHERIT = -1.0  # an inline material value of -1 means "take it from the material"
 
 #: [materials] defaults when an entity names no material (the manifest's own defaults)
-DEFAULT_MATERIAL = {"alpha_min": 0.8, "alpha_max": 1.2, "beta": 0.1, "relax": 2}
+DEFAULT_MATERIAL = {"alpha_min": 0.8, "alpha_max": 1.2, "beta": 0.1, "relax": 2, "exact": False}
 
 
 def _nodigest(factory):
@@ -54,7 +61,10 @@ def build_deformable(d: Deformable, ctx) -> None:
     mesh_ref = esper.try_component(ctx.entity, MeshRef)
     if mesh_ref is None:
         raise UserError(f"{where}: a deformable entity needs a mesh table ([entities.{ctx.entity_name}.mesh])")
-    setup_deformable(d, ctx.pack.mesh(mesh_ref.mesh), ctx.pack.section("materials"), mesh_ref.material, where)
+    override = ctx.app.resource(Settings).get("model", "") if ctx.app is not None else ""
+    setup_deformable(
+        d, ctx.pack.mesh(mesh_ref.mesh), ctx.pack.section("materials"), mesh_ref.material, where, model=override
+    )
 
 
 @component(
@@ -92,9 +102,10 @@ class Deformable:
     )
     order: str = prop(
         "enum",
-        "fifo",
+        "breadth-first",
         choices=ORDERS,
-        help="Waiting-list order: fifo (5.2.3), balanced (round robin of Fig. 5.3), schill (largest violation first).",
+        help="Waiting-list order: breadth-first (a queue; fifo is the same), depth-first (5.2.3 as written: new "
+        "neighbours at the front), balanced (round robin of Fig. 5.3), schill (largest violation first).",
     )
     depth: int = prop("int", 2, help="Branch depth per turn for the balanced order.", min=1)
     dtype: str = prop("enum", "float64", choices=("float64", "float32"), help="Precision of positions.")
@@ -104,6 +115,33 @@ class Deformable:
         help="A mouse drag on the body pulls the element nearest the grab point "
         "(off when a procedure's tools do the grabbing).",
     )
+    model: str = prop(
+        "enum",
+        "chainmail",
+        choices=MODEL_CHOICES,
+        help="Deformation model: chainmail (thesis 5.2), xpbd, projective (volumes only), or auto "
+        "(the cheapest meeting error_budget / time_budget_ms in the study's table).",
+    )
+    E: float = prop("float", 3000.0, units="Pa", help="xpbd/projective: Young's modulus.", min=1e-6, max=1e12)
+    nu: float = prop("float", 0.45, help="xpbd/projective: Poisson's ratio, 0 <= nu < 0.5.", min=0.0, max=0.4999)
+    density: float = prop("float", 1000.0, units="kg/m^3", help="xpbd/projective: mass density.", min=1e-6, max=1e6)
+    damping: float = prop("float", 0.05, help="xpbd/projective: velocity damping per step, 0..0.99.", min=0.0, max=0.99)
+    substeps: int = prop("int", 8, help="xpbd: substeps per simulation step.", min=1, max=1000)
+    iterations: int = prop(
+        "int",
+        0,
+        help="xpbd: iterations per substep (0: 1); projective: local-global iterations (0: 10).",
+        min=0,
+        max=1000,
+    )
+    unit: float = prop(
+        "float", 0.001, units="m", help="xpbd/projective: metres per mesh length unit.", min=1e-9, max=1e3
+    )
+    thickness: float = prop("float", 1.0, units="mesh units", help="xpbd surfaces: sheet thickness.", min=1e-9, max=1e6)
+    error_budget: float = prop(
+        "float", 0.0, help="auto: largest RMS error / imposed displacement allowed (0: no limit).", min=0.0, max=10.0
+    )
+    time_budget_ms: float = prop("float", 0.0, units="ms", help="auto: CPU per update allowed (0: none).", min=0.0)
 
     # --- runtime state (not manifest keys) -----------------------------------------------------
     pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -117,8 +155,16 @@ class Deformable:
     beta_l: np.ndarray = _nodigest(lambda: np.zeros(0))
     fixed_mask: np.ndarray = _nodigest(lambda: np.zeros(0, dtype=np.bool_))
     relax_iterations: int = field(default=0, metadata={"digest": False})
+    exact_limits: bool = field(default=False, metadata={"digest": False})  # the material's `exact`
+    last_shortfall: float = field(default=0.0, metadata={"digest": False})  # of the last grab (exact only)
     workspace: object = field(default=None, metadata={"digest": False})
     dirty: np.ndarray = _nodigest(_empty_ids)
+    body: object = field(default=None, metadata={"digest": False})  # an XPBD / projective body, if any
+    model_used: str = field(default="chainmail", metadata={"digest": False})
+    model_reason: str = field(default="", metadata={"digest": False})
+    mesh_data: object = field(default=None, metadata={"digest": False})  # to rebuild on a model switch
+    held_targets: np.ndarray = _nodigest(lambda: np.zeros((0, 3)))
+    transient: np.ndarray = _nodigest(_empty_ids)  # grabbed for one step only (a GrabRequest without hold)
     last_order: np.ndarray = _nodigest(_empty_ids)
     last_sponsor: np.ndarray = _nodigest(_empty_ids)
     _dirty_mask: np.ndarray = _nodigest(lambda: np.zeros(0, dtype=np.bool_))
@@ -145,7 +191,7 @@ class Deformable:
 
 
 def resolve_material(d: Deformable, materials: dict, mesh_material: str, where: str) -> dict:
-    """alpha_min/alpha_max/beta/relax from the named material and the inline overrides; checked."""
+    """alpha_min/alpha_max/beta/relax/exact from the named material and the inline overrides; checked."""
     name = d.material or mesh_material
     if name:
         if name not in materials:
@@ -201,7 +247,7 @@ def boundary_vertices(triangles: np.ndarray) -> np.ndarray:
 
 
 def setup_deformable(
-    d: Deformable, mesh, materials: dict, mesh_material: str = "", where: str = "deformable"
+    d: Deformable, mesh, materials: dict, mesh_material: str = "", where: str = "deformable", model: str = ""
 ) -> Deformable:
     """Fill the runtime state of `d` from a MeshData (positions copied; the pack's mesh is shared)."""
 
@@ -232,13 +278,69 @@ def setup_deformable(
     d.amin, d.amax, d.beta_l = amin, amax, beta
     d.fixed_mask = fixed
     d.relax_iterations = int(mat["relax"])
+    d.exact_limits = bool(mat["exact"])
+    d.order = order_name(d.order)  # fifo is stored as breadth-first
     d.workspace = make_workspace(n)
     d.dirty = _empty_ids()
     d._dirty_mask = np.zeros(n, dtype=np.bool_)
     d._dirty_seen = d.dirty
     d.held = _empty_ids()
     d.version = 0
+    d.mesh_data = mesh
+    use_model(d, model or d.model, where, initial=True)
     return d
+
+
+def use_model(d: Deformable, model: str, where: str = "deformable", initial: bool = False) -> None:
+    """Put `d` under `model` from its rest shape: ChainMail state stays; xpbd/projective get a body
+    whose positions array is `d.pos`, so drawing, picking and tools see one set of positions."""
+    if model not in MODEL_CHOICES:
+        raise UserError(f"{where}.model: expected one of {', '.join(MODEL_CHOICES)}, got {model!r}")
+    mesh = d.mesh_data
+    tets = mesh.tets if mesh is not None and mesh.tets is not None and len(mesh.tets) else None
+    reason = ""
+    if model == "auto":
+        choice = choose_model(
+            load_table(MODEL_TABLE),
+            scene="block" if tets is not None else "sheet",
+            nodes=d.n_elements,
+            error_budget=d.error_budget,
+            time_budget_ms=d.time_budget_ms,
+        )
+        model, reason = choice.model, f"auto: {choice.model} ({choice.setting}), {choice.reason}"
+    d.pos[:] = d.rest
+    d.body = None
+    d.held = _empty_ids()
+    d.held_targets = np.zeros((0, 3))
+    if model != "chainmail":
+        settings = {
+            "E": d.E,
+            "nu": d.nu,
+            "density": d.density,
+            "damping": d.damping,
+            "unit": d.unit,
+            "thickness": d.thickness,
+        }
+        if model == "xpbd":
+            settings.update(substeps=d.substeps, iterations=d.iterations or 1)
+        else:
+            settings.update(iterations=d.iterations or 10)
+        try:
+            body = make_body(
+                model, d.rest.astype(np.float64), tets=tets, triangles=mesh.triangles, fixed=d.fixed_mask, **settings
+            )
+        except UserError as e:
+            raise UserError(f"{where}: {e}") from None
+        body.positions = d.pos if d.pos.dtype == np.float64 else d.pos.astype(np.float64)
+        d.pos = body.positions
+        d.body = body
+        d.graph = body.graph
+        d.alive = body.graph.alive
+    d.model_used = model
+    d.model_reason = reason or f"{model} (as the pack or --model asks)"
+    if not initial:  # a switch at run time: everything is redrawn
+        d.mark_dirty(np.arange(d.n_elements))
+        d.version += 1
 
 
 def build_pull(p: Pull, ctx) -> None:

@@ -10,6 +10,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from chainsim.engine.errors import UserError
+
 
 @dataclass(slots=True)
 class Time:
@@ -127,13 +129,19 @@ class RunInfo:
     screenshot_every: int = 0
 
 
+class SavedLocally(UserError):
+    """A Records save that is kept on this computer but not yet where it goes (an unreachable
+    records server); the message says why and how it will be sent."""
+
+
 @dataclass(slots=True)
 class Records:
     """Where attempts are kept, as the shell chose it (a local store or a records server).
 
     Procedures save and list attempts through this resource and never open a store themselves, so a
     replay can insert one that refuses to write. `save_attempt(class, trainee, record) -> id` raises
-    UserError when the save did not happen; `list_attempts(class, trainee) -> rows`.
+    UserError when the save did not happen (SavedLocally when it is queued on this computer);
+    `list_attempts(class, trainee) -> rows`.
     """
 
     save_attempt: Callable[[str, str, dict], int]

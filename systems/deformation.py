@@ -7,8 +7,9 @@ nearest the grab point; off by default so a procedure's own tools are the only h
 Writes Deformable.pos / dirty / version / held / alive, emits Deformed.
 
 Each grab runs one Generalised ChainMail cascade (thesis 5.2.3) from the grabbed elements, then the
-relaxation of 5.2.5 over the elements that moved (grabbed, held and fixed elements stay put). Cuts
-mark links dead (thesis 4.5.2); the renderer sees moved vertices through `dirty`.
+relaxation of 5.2.5 over the elements that moved (grabbed, held and fixed elements stay put), then, for
+a material with `exact = true`, the exact-limit pass (chainsim.engine.kernels.exact). Cuts mark links
+dead (thesis 4.5.2); the renderer sees moved vertices through `dirty`.
 
 Installed only when some entity is deformable: a `deformable` table, or `simulation.kind` "surface" /
 "volume" on a mesh entity (which gets a default `deformable`, material = its mesh material). A scene
@@ -34,18 +35,19 @@ from chainsim.components.deform_events import (
     ResetRequest,
     as_points,
 )
-from chainsim.components.deformable import Deformable, Pull, setup_deformable
+from chainsim.components.deformable import Deformable, Pull, setup_deformable, use_model
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import EntityIndex, PackResource
 from chainsim.components.view_events import Dragged
+from chainsim.engine.chainmail_params import order_code
 from chainsim.engine.errors import UserError
 from chainsim.engine.kernels import topology
 from chainsim.engine.kernels.chainmail import cascade, material_arrays
+from chainsim.engine.kernels.exact import exact_limits
 from chainsim.engine.kernels.relax import relax
 from chainsim.systems.stages import ORDER_DEFORMATION
 
 ORDER_PULL = ORDER_DEFORMATION - 10
-_ORDER_CODES = {"fifo": 0, "balanced": 1, "schill": 2}
 
 
 @dataclass(slots=True)
@@ -57,6 +59,7 @@ class DeformationState:
     drag_type: type | None = None  # view_events.Dragged, when the view system is part of the build
     dragging: dict = field(default_factory=dict)  # entity -> (element, its local start, world grab point)
     cascades: int = 0
+    switches: int = 0
     moved_total: int = 0
     errors: list = field(default_factory=list)
 
@@ -115,13 +118,15 @@ def relax_moved(rest, pos, graph, active, iterations: int, step: float = 1.0, fi
 
 
 def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np.ndarray:
-    """Move `ids` to local `targets`, cascade and relax; returns the ids that changed."""
-
+    """Move `ids` to local `targets`, cascade, relax (and keep every link inside its limits with an exact
+    material); returns the ids that changed."""
     ids = np.atleast_1d(np.asarray(ids, dtype=np.int64))
     n = d.n_elements
     if len(ids) == 0 or ids.min() < 0 or ids.max() >= n:
         raise ValueError(f"element ids must be in 0..{n - 1}")
     targets = np.asarray(targets_local, dtype=np.float64).reshape(len(ids), 3)
+    if d.body is not None:
+        return _grab_body(d, ids, targets, hold)
     if len(d.held):
         fixed = d.fixed_mask.copy()
         fixed[d.held] = True  # what a tool already holds stays where it is
@@ -138,7 +143,7 @@ def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np
         ids,
         targets.astype(d.pos.dtype),
         fixed=fixed,
-        order=_ORDER_CODES[d.order],
+        order=order_code(d.order),
         workspace=d.workspace,
         depth=d.depth,
     )
@@ -152,6 +157,11 @@ def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np
         if len(d.held):
             pin[d.held] = True
         relax_moved(d.rest, d.pos, d.graph, order, d.relax_iterations, step=d.relax_step, fixed=pin)
+    if d.exact_limits:
+        res = exact_limits(d.rest, d.pos, d.graph, d.amin, d.amax, d.beta_l, order, ids, targets, fixed, d.workspace)
+        d.last_shortfall = res.shortfall
+        if len(res.changed):
+            changed = np.union1d(changed, res.changed)
     if len(changed):
         d.mark_dirty(changed)
         d.version += 1
@@ -160,15 +170,49 @@ def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np
 
 def release(d: Deformable, ids=None) -> None:
     if ids is None:
-        d.held = np.zeros(0, dtype=np.int64)
+        keep = np.zeros(len(d.held), dtype=np.bool_)
     else:
-        d.held = np.setdiff1d(d.held, np.asarray(ids, dtype=np.int64))
+        keep = ~np.isin(d.held, np.asarray(ids, dtype=np.int64))
+    if d.body is not None and len(d.held_targets) == len(d.held):
+        d.held_targets = d.held_targets[keep]
+        d.body.grab(d.held[keep], d.held_targets) if keep.any() else d.body.release()
+    d.held = d.held[keep]
+
+
+def _grab_body(d: Deformable, ids: np.ndarray, targets: np.ndarray, hold: bool) -> np.ndarray:
+    """xpbd / projective: the elements are held at their targets; the body moves on its next step."""
+    old = ~np.isin(d.held, ids)
+    d.held = np.concatenate([d.held[old], ids])
+    d.held_targets = np.concatenate([d.held_targets[old], targets])
+    d.body.grab(d.held, d.held_targets)
+    if not hold:  # a one-off move: held for the next step only
+        d.transient = np.union1d(d.transient, ids)
+    return np.zeros(0, dtype=np.int64)
+
+
+def step_body(d: Deformable, dt: float) -> int:
+    """Advance an xpbd / projective body one simulation step; returns how many elements moved."""
+    try:
+        d.body.step(dt)
+    except UserError as e:  # diverged: positions were restored; say so once and let go of the grab
+        release(d)
+        raise ValueError(str(e)) from None
+    if len(d.transient):
+        release(d, d.transient)
+        d.transient = np.zeros(0, dtype=np.int64)
+    moved = d.body.moved
+    if len(moved):
+        d.mark_dirty(moved)
+        d.version += 1
+    return len(moved)
 
 
 def cut(d: Deformable, ent: int, req: CutRequest) -> int:
     """Kill the links a blade crosses (4.5.2); returns how many were cut."""
 
     before = int(np.count_nonzero(d.alive))
+    if d.body is not None:
+        return _cut_body(d, ent, req)
     if req.polyline is not None:
         pts = _to_local(ent, as_points(req.polyline, "CutRequest.polyline"), req.frame)
         if len(pts) < 2:
@@ -184,6 +228,25 @@ def cut(d: Deformable, ent: int, req: CutRequest) -> int:
     if cut_count:
         d.version += 1
     return cut_count
+
+
+def _cut_body(d: Deformable, ent: int, req: CutRequest) -> int:
+    """xpbd / projective: the blade removes the links it crosses and the constraints built on them."""
+    kw = _blade_kwargs(ent, req)
+    if req.polyline is not None:
+        pts = _to_local(ent, as_points(req.polyline, "CutRequest.polyline"), req.frame)
+        if len(pts) < 2:
+            raise ValueError("CutRequest.polyline: needs at least 2 points")
+        n = d.body.cut_path(pts, **kw)
+    else:
+        if req.p0 is None or req.p1 is None:
+            raise ValueError("CutRequest: give p0 and p1, or a polyline")
+        p0 = _to_local(ent, as_points(req.p0, "CutRequest.p0"), req.frame)[0]
+        p1 = _to_local(ent, as_points(req.p1, "CutRequest.p1"), req.frame)[0]
+        n = d.body.cut(p0, p1, **kw)
+    if n:
+        d.version += 1
+    return n
 
 
 def _blade_kwargs(ent: int, req: CutRequest) -> dict:
@@ -203,6 +266,8 @@ def _blade_kwargs(ent: int, req: CutRequest) -> dict:
 def add_links(d: Deformable, links) -> int:
     """Join element pairs with new links carrying the body's material limits; returns how many."""
 
+    if d.body is not None:
+        raise ValueError(f"adding links needs a ChainMail body; this one runs {d.model_used}")
     links = np.asarray(links, dtype=np.int64).reshape(-1, 2)
     m_before = d.graph.n_links
     graph = topology.add_links(d.graph, links)
@@ -230,6 +295,9 @@ def add_links(d: Deformable, links) -> int:
 def reset(d: Deformable) -> int:
     """Rest shape, all links alive, nothing held; returns how many elements were displaced."""
     moved = int(np.count_nonzero(np.any(d.pos != d.rest, axis=1)))
+    if d.body is not None:
+        use_model(d, d.model_used)  # a fresh body: rest shape, every constraint back
+        return moved
     d.pos[:] = d.rest
     d.graph.alive[:] = True
     if d.alive is not d.graph.alive:
@@ -251,6 +319,14 @@ def deformation_system(app) -> None:
                 _serve(app, st, req, counts)
         elif isinstance(ev, REQUESTS):
             _serve(app, st, ev, counts)
+        elif isinstance(ev, Widget) and ev.name == "model":
+            switch_models(app, st, str(ev.value))
+    for ent, d in esper.get_component(Deformable):
+        if d.body is not None:
+            try:
+                counts.setdefault(ent, [0, 0, 0])[0] += step_body(d, app.time.dt)
+            except ValueError as e:
+                st.errors.append(f"{d.model_used} body {ent}: {e}")
     for ent, (m, c, a) in counts.items():
         if m or c or a:
             app.events.emit(Deformed(ent, m, c, a))
@@ -258,6 +334,26 @@ def deformation_system(app) -> None:
 
 
 REQUESTS = (GrabRequest, ReleaseRequest, CutRequest, AddLinksRequest, ResetRequest)
+
+#: the order the model switch (Widget "model" with value "next", key m in the packs) walks
+SWITCH_ORDER = ("chainmail", "xpbd", "projective")
+
+
+def switch_models(app, st: DeformationState, value: str) -> None:
+    """Put every deformable body under another model, from rest: `value` names one or is "next"."""
+    for _ent, d in esper.get_component(Deformable):
+        choices = list(SWITCH_ORDER)
+        if value not in SWITCH_ORDER:  # the button (True) or "next": the next model in turn
+            cur = d.model_used if d.model_used in choices else choices[0]
+            model = choices[(choices.index(cur) + 1) % len(choices)]
+        else:
+            model = value
+        try:
+            use_model(d, model)
+        except UserError as e:
+            st.errors.append(f"model switch: {e}")
+        else:
+            st.switches += 1
 
 
 def _serve(app, st: DeformationState, req, counts: dict) -> None:

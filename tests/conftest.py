@@ -9,6 +9,9 @@ os.environ.pop("CHAINSIM_PACK_PATH", None)
 
 import pytest  # noqa: E402
 
+# records_db / postgres_server: each records test on an SQLite file and on a real PostgreSQL server
+pytest_plugins = ["records_db"]
+
 
 @pytest.fixture
 def cli(capsys):

@@ -12,8 +12,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import esper
 import numpy as np
 
+from chainsim.components.core import Name
+from chainsim.components.deformable import Deformable
 from chainsim.components.resources import Assessment, PackResource, PendingInput, RunInfo, Settings
 from chainsim.engine.errors import UserError
 from chainsim.game.app import plugins
@@ -22,6 +25,7 @@ from chainsim.game.app.digest import world_digest
 from chainsim.game.app.inputscript import load_script, write_recording
 from chainsim.game.app.loader import spawn_scene
 from chainsim.game.packs import pack as packs
+from chainsim.game.records.remote import remote_records
 from chainsim.game.records.store import local_records
 from chainsim.systems.input import InputLog
 
@@ -51,7 +55,10 @@ def build_app(
         scene_name = app.resource(PackResource).scene
         app.insert_resource(RunInfo(ref, pack.name, scene_name, headless, render, out_dir, screenshot_every))
         app.insert_resource(Assessment())
-        app.insert_resource(local_records(pack_settings.get("db") or None))
+        if pack_settings.get("records"):  # a records server (queueing in the local store when offline)
+            app.insert_resource(remote_records(pack_settings["records"], pack_settings.get("db") or None))
+        else:
+            app.insert_resource(local_records(pack_settings.get("db") or None))
         plugins.install(app, pack.manifest["pack"].get("procedure", ""), render=render)
     except BaseException:
         app.close()
@@ -122,6 +129,9 @@ def run_pack(
             "digest": digest,
             "events_applied": len(log.items) if log else 0,
         }
+        models = body_models(app)
+        if models:
+            summary["models"] = models
         assessment = app.resource(Assessment).values
         if assessment:
             summary["assessment"] = _jsonable(assessment)
@@ -143,6 +153,15 @@ def run_pack(
         return summary
     finally:
         app.close()
+
+
+def body_models(app) -> dict:
+    """Which deformation model each soft body runs, and why (the pack, --model, or the auto choice)."""
+    with app.active():
+        return {
+            esper.component_for_entity(ent, Name).value: {"model": d.model_used, "why": d.model_reason}
+            for ent, d in esper.get_component(Deformable)
+        }
 
 
 def _jsonable(v):

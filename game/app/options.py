@@ -17,10 +17,15 @@ def window_size(text: str) -> tuple[int, int]:
 
 
 def user_settings(args) -> dict:
-    """Settings a user gives on the command line (records database, class, trainee)."""
+    """Settings a user gives on the command line (records database or server, class, trainee)."""
     out = {}
-    for key, attr in (("db", "db"), ("class", "class_name"), ("trainee", "trainee")):
+    pairs = (("db", "db"), ("records", "records"), ("class", "class_name"), ("trainee", "trainee"), ("model", "model"))
+    for key, attr in pairs:
         v = getattr(args, attr, None)
         if v is not None:
             out[key] = v
     return out
+
+
+MODEL_FLAG_HELP = "deformation model for every soft body: chainmail, xpbd, projective or auto (overrides the pack)"
+MODEL_FLAG_CHOICES = ("chainmail", "xpbd", "projective", "auto")

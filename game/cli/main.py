@@ -30,6 +30,7 @@ COMMANDS: dict[str, str] = {
     "records": "view, export, plot or delete trainee records (classes, trainees, attempts)",
     "replay": "replay a recorded session and compare its final digest",
     "run": "run a pack without a window and write OUT/summary.json",
+    "serve": "run the records server: trainers' dashboard and JSON API over the records database",
     "snapshot": "render a pack's window layout off screen to a PNG",
     "study": "speed-accuracy study of ChainMail vs FEM and mass-spring; calibrate ChainMail presets",
     "validate": "check a pack folder and report every problem",

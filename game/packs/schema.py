@@ -122,7 +122,7 @@ section(
             "float",
             0.0,
             units="1/mm",
-            help="X-ray linear attenuation coefficient: how dark a closed mesh of it shows in the C-arm view (0: unseen).",
+            help="X-ray linear attenuation coefficient: how dark a closed mesh shows in the C-arm view (0: unseen).",
             min=0.0,
         ),
         Field(
@@ -142,6 +142,13 @@ section(
         Field("alpha_max", "float", 1.2, help="ChainMail stretch limit relative to the rest link.", min=1.0),
         Field("beta", "float", 0.1, help="ChainMail shear limit relative to the rest link.", min=0.0),
         Field("relax", "int", 2, help="Relaxation iterations after each cascade (thesis 5.2.5).", min=0),
+        Field(
+            "exact",
+            "bool",
+            False,
+            help="After each cascade and relaxation put every link back inside its limits (a pull past what the "
+            "limits allow from the fixed elements stops at the nearest reachable point).",
+        ),
     ],
 )
 
@@ -180,7 +187,8 @@ VIEWPORT = Schema(
             "float",
             0.0,
             units="deg",
-            help="Camera azimuth about +Z: at 0 the eye is on the +Y side looking along -Y; positive turns counter-clockwise.",
+            help="Camera azimuth about +Z: at 0 the eye is on the +Y side looking along -Y; positive turns "
+            "counter-clockwise.",
         ),
         Field(
             "pitch", "float", 0.0, units="deg", help="Camera elevation; positive raises the eye.", min=-89.9, max=89.9
@@ -192,7 +200,8 @@ VIEWPORT = Schema(
             "attach",
             "entity",
             "",
-            help="Entity the camera rides on (attached viewports): the eye sits at its origin plus offset and looks along its local +Z, local +Y up.",
+            help="Entity the camera rides on (attached viewports): the eye sits at its origin plus offset and looks "
+            "along its local +Z, local +Y up.",
         ),
         Field("offset", "vec3", [0.0, 0.0, 0.0], units="mm", help="Camera offset in the attached entity's frame."),
         Field("visible", "bool", True, help="Shown at start (a toggle widget may change it)."),
@@ -224,7 +233,8 @@ WIDGET = Schema(
             "layer",
             "str",
             "",
-            help="What a toggle switches: NAME shows/hides that layer ('planes' also the pack's planes), view:NAME a viewport, xray:NAME makes a layer see-through, wire:NAME draws it as links.",
+            help="What a toggle switches: NAME shows/hides that layer ('planes' also the pack's planes), view:NAME a "
+            "viewport, xray:NAME makes a layer see-through, wire:NAME draws it as links.",
         ),
         Field("help", "str", "", help="Tooltip / HUD help."),
     ),

@@ -57,10 +57,82 @@ V2_DDL: tuple[str, ...] = (
 # attempts saved before it keep their rows with 0.
 V3_DDL: tuple[str, ...] = ("ALTER TABLE attempts ADD COLUMN redirections INTEGER NOT NULL DEFAULT 0",)
 
-# Version 4: what the X-ray cost per attempt (single images, seconds of exposure, estimated entrance
+# Version 4: the records server (docs/records-server.md). Accounts with a role; a trainee
+# account is one trainee row, a trainer account teaches classes. Web sessions and API tokens
+# are kept as SHA-256 hashes of their secrets, expiry as Unix seconds. ``idem_key`` makes a
+# resent attempt (the simulator's offline queue) land once. ``outbox`` is that queue, kept in
+# the simulator's local file; ``server_logins`` the tokens it signed in with.
+V4_DDL: tuple[str, ...] = (
+    "ALTER TABLE attempts ADD COLUMN idem_key TEXT",
+    "CREATE UNIQUE INDEX attempts_by_key ON attempts (idem_key)",
+    """
+    CREATE TABLE users (
+        id            INTEGER PRIMARY KEY,
+        name          TEXT NOT NULL UNIQUE,
+        role          TEXT NOT NULL CHECK (role IN ('trainer', 'trainee')),
+        password_hash TEXT NOT NULL,
+        trainee_id    INTEGER UNIQUE REFERENCES trainees(id) ON DELETE SET NULL,
+        created_at    TEXT NOT NULL
+    )
+    """,
+    """
+    CREATE TABLE trainer_classes (
+        id       INTEGER PRIMARY KEY,
+        user_id  INTEGER NOT NULL REFERENCES users(id) ON DELETE CASCADE,
+        class_id INTEGER NOT NULL REFERENCES classes(id) ON DELETE CASCADE,
+        UNIQUE (user_id, class_id)
+    )
+    """,
+    """
+    CREATE TABLE api_tokens (
+        id         INTEGER PRIMARY KEY,
+        user_id    INTEGER NOT NULL REFERENCES users(id) ON DELETE CASCADE,
+        token_hash TEXT NOT NULL UNIQUE,
+        label      TEXT NOT NULL,
+        created_at REAL NOT NULL,
+        expires_at REAL NOT NULL
+    )
+    """,
+    """
+    CREATE TABLE web_sessions (
+        id           INTEGER PRIMARY KEY,
+        user_id      INTEGER NOT NULL REFERENCES users(id) ON DELETE CASCADE,
+        session_hash TEXT NOT NULL UNIQUE,
+        csrf         TEXT NOT NULL,
+        created_at   REAL NOT NULL,
+        expires_at   REAL NOT NULL
+    )
+    """,
+    """
+    CREATE TABLE outbox (
+        id         INTEGER PRIMARY KEY,
+        server     TEXT NOT NULL,
+        idem_key   TEXT NOT NULL UNIQUE,
+        class_name TEXT NOT NULL,
+        trainee    TEXT NOT NULL,
+        attempt    TEXT NOT NULL,
+        queued_at  TEXT NOT NULL,
+        sent_at    TEXT,
+        remote_id  INTEGER,
+        last_error TEXT
+    )
+    """,
+    """
+    CREATE TABLE server_logins (
+        id        INTEGER PRIMARY KEY,
+        server    TEXT NOT NULL UNIQUE,
+        user_name TEXT NOT NULL,
+        role      TEXT NOT NULL,
+        token     TEXT NOT NULL,
+        saved_at  TEXT NOT NULL
+    )
+    """,
+)
+
+# Version 5: what the X-ray cost per attempt (single images, seconds of exposure, estimated entrance
 # dose; thesis 3.2.3) - attempts saved before it keep their rows with 0 - and the study questionnaires
 # of thesis 6.1.2/6.1.4 (a pre-session background form and a post-session rating form per session).
-V4_DDL: tuple[str, ...] = (
+V5_DDL: tuple[str, ...] = (
     "ALTER TABLE attempts ADD COLUMN xray_shots INTEGER NOT NULL DEFAULT 0",
     "ALTER TABLE attempts ADD COLUMN exposure_s REAL NOT NULL DEFAULT 0",
     "ALTER TABLE attempts ADD COLUMN dose_mgy REAL NOT NULL DEFAULT 0",
@@ -76,8 +148,21 @@ V4_DDL: tuple[str, ...] = (
     """,
 )
 
-MIGRATIONS: tuple[tuple[str, ...], ...] = (V1_DDL, V2_DDL, V3_DDL, V4_DDL)
+MIGRATIONS: tuple[tuple[str, ...], ...] = (V1_DDL, V2_DDL, V3_DDL, V4_DDL, V5_DDL)
 SCHEMA_VERSION = len(MIGRATIONS)
 
 # Tables a records database owns; a version-0 file holding anything else is not ours.
-OWN_TABLES = frozenset({"classes", "trainees", "attempts", "questionnaires"})
+OWN_TABLES = frozenset(
+    {
+        "classes",
+        "trainees",
+        "attempts",
+        "users",
+        "trainer_classes",
+        "api_tokens",
+        "web_sessions",
+        "outbox",
+        "server_logins",
+        "questionnaires",
+    }
+)

@@ -31,13 +31,32 @@ import platformdirs
 
 from chainsim.components.resources import Records
 from chainsim.engine.errors import UserError
+from chainsim.game.records.backend import (
+    PgConnection,
+    db_errors,
+    is_postgres,
+    redact,
+    schema_version,
+    set_schema_version,
+)
 from chainsim.game.records.schema import MIGRATIONS, OWN_TABLES, SCHEMA_VERSION
-from chainsim.game.records.validate import clean_attempt, clean_created_at, clean_name, clean_questionnaire, to_json
+from chainsim.game.records.validate import (
+    clean_attempt,
+    clean_created_at,
+    clean_key,
+    clean_name,
+    clean_questionnaire,
+    to_json,
+)
 
 ENV_VAR = "CHAINSIM_DB"
 DB_FILENAME = "records.sqlite3"
 SQLITE_MAGIC = b"SQLite format 3\x00"
 BUSY_TIMEOUT_MS = 5000
+
+
+class WriteFailed(UserError):
+    """The database refused a write (locked, gone, full); nothing changed and it may be retried."""
 
 
 def default_path() -> Path:
@@ -49,24 +68,25 @@ def default_path() -> Path:
     return Path(platformdirs.user_data_dir("chainsim")) / DB_FILENAME
 
 
+def _header(path: Path) -> bytes:
+    try:
+        with path.open("rb") as fh:
+            return fh.read(len(SQLITE_MAGIC))
+    except OSError as exc:
+        raise UserError(f"cannot read records database {path}: {exc.strerror}") from None
+
+
 def _check_file(path: Path) -> None:
     """Refuse, without writing, anything at ``path`` that cannot be a records database."""
     if path.is_dir():
         raise UserError(f"records database {path} is a directory; expected a .sqlite3 file")
     if not path.exists():
         return
-    try:
-        with path.open("rb") as fh:
-            head = fh.read(len(SQLITE_MAGIC))
-    except OSError as exc:
-        raise UserError(f"cannot read records database {path}: {exc.strerror}") from None
-    # SQLite treats a zero-byte file as an empty database; anything else needs the magic header.
-    if head and head != SQLITE_MAGIC:
-        raise UserError(f"{path} is not an SQLite database; expected a chainsim records file")
-    if not head:
-        return
-    # Read-only look first: opening read-write and switching to WAL would rewrite the header of a
-    # file we are about to reject.
+    # Read-only look through SQLite first: opening read-write and switching to WAL would rewrite
+    # the header of a file we are about to reject. The file is never opened with a plain handle
+    # while it may be in use here: closing any descriptor of a file drops every POSIX lock this
+    # process holds on it, those of live connections included, and another process could then
+    # reset the WAL under them. The header is read only after SQLite refused the file, to say why.
     try:
         ro = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
     except sqlite3.Error as exc:
@@ -76,6 +96,9 @@ def _check_file(path: Path) -> None:
         version = ro.execute("PRAGMA user_version").fetchone()[0]
         tables = {r[0] for r in ro.execute("SELECT name FROM sqlite_master WHERE type='table'")}
     except sqlite3.DatabaseError as exc:
+        ro.close()
+        if _header(path) not in (b"", SQLITE_MAGIC):
+            raise UserError(f"{path} is not an SQLite database; expected a chainsim records file") from None
         raise UserError(f"records database {path} is damaged or not a database ({exc})") from None
     finally:
         ro.close()
@@ -98,13 +121,13 @@ def migrate(conn: sqlite3.Connection) -> int:
     while True:
         conn.execute("BEGIN IMMEDIATE")
         try:
-            version = conn.execute("PRAGMA user_version").fetchone()[0]
+            version = schema_version(conn)
             if version >= SCHEMA_VERSION:
                 conn.execute("COMMIT")
                 return version
             for statement in MIGRATIONS[version]:
                 conn.execute(statement)
-            conn.execute(f"PRAGMA user_version = {version + 1}")
+            set_schema_version(conn, version + 1)
             conn.execute("COMMIT")
         except BaseException:
             conn.execute("ROLLBACK")
@@ -130,6 +153,21 @@ class RecordStore:
     """Classes, trainees and their attempts in one SQLite file (see module docstring)."""
 
     def __init__(self, path: str | os.PathLike[str] | None = None) -> None:
+        if path is None and is_postgres(os.environ.get(ENV_VAR, "").strip()):
+            path = os.environ[ENV_VAR].strip()
+        if is_postgres(path):
+            # A PostgreSQL URL (chainsim.game.records.backend): same schema, same migrations.
+            self.path = redact(path)
+            self._conn = PgConnection(path)
+            try:
+                migrate(self._conn)
+            except db_errors() as exc:
+                self._conn.close()
+                raise UserError(f"cannot use records database {self.path}: {exc}") from None
+            except BaseException:
+                self._conn.close()
+                raise
+            return
         self.path = Path(path).expanduser() if path is not None else default_path()
         _check_file(self.path)
         try:
@@ -172,7 +210,7 @@ class RecordStore:
 
     @property
     def schema_version(self) -> int:
-        return self._db.execute("PRAGMA user_version").fetchone()[0]
+        return schema_version(self._db)
 
     @property
     def _db(self) -> sqlite3.Connection:
@@ -193,8 +231,8 @@ class RecordStore:
         except BaseException as exc:
             if conn.in_transaction:
                 conn.execute("ROLLBACK")
-            if isinstance(exc, sqlite3.Error):
-                raise UserError(f"records database {self.path}: write failed, nothing changed ({exc})") from None
+            if isinstance(exc, db_errors()):
+                raise WriteFailed(f"records database {self.path}: write failed, nothing changed ({exc})") from None
             raise
 
     def _class_id(self, conn: sqlite3.Connection, name: str) -> int | None:
@@ -273,7 +311,7 @@ class RecordStore:
             FROM trainees t JOIN classes c ON c.id = t.class_id
                  LEFT JOIN attempts a ON a.trainee_id = t.id
             WHERE ? IS NULL OR c.name = ?
-            GROUP BY t.id ORDER BY c.name, t.name
+            GROUP BY t.id, c.name ORDER BY c.name, t.name
             """,
             (class_name, class_name),
         )
@@ -281,16 +319,22 @@ class RecordStore:
 
     # -- attempts ---------------------------------------------------------------------------
 
-    def save_attempt(self, class_name: str, trainee: str, attempt: dict[str, Any]) -> int:
+    def save_attempt(self, class_name: str, trainee: str, attempt: dict[str, Any], *, key: str | None = None) -> int:
         """Validate and store one attempt in one transaction; returns its id.
 
         The class and trainee are created if missing, in the same transaction, so an interrupted
-        save leaves no empty trainee behind either.
+        save leaves no empty trainee behind either. ``key`` (an idempotency key, see
+        ``attempt_id_for_key``) makes a resend return the first save's id instead of a copy.
         """
         class_name = clean_name("class", class_name)
         trainee = clean_name("trainee", trainee)
         a = clean_attempt(attempt)
+        key = None if key is None else clean_key(key)
         with self._write() as conn:
+            if key is not None:
+                row = conn.execute("SELECT id FROM attempts WHERE idem_key = ?", (key,)).fetchone()
+                if row is not None:
+                    return row[0]
             class_id = self._class_id(conn, class_name)
             if class_id is None:
                 class_id = conn.execute("INSERT INTO classes (name) VALUES (?)", (class_name,)).lastrowid
@@ -303,8 +347,8 @@ class RecordStore:
                 """
                 INSERT INTO attempts (trainee_id, pack, created_at, duration_s, landmark_error_mm,
                     needle_error_mm, target, skull_contacts, path_length_mm, redirections, xray_shots,
-                    exposure_s, dose_mgy, aids, step_times, details)
-                VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
+                    exposure_s, dose_mgy, aids, step_times, details, idem_key)
+                VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
                 """,
                 (
                     trainee_id,
@@ -323,6 +367,7 @@ class RecordStore:
                     to_json(a["aids"]),
                     to_json(a["step_times"]),
                     to_json(a["details"]),
+                    key,
                 ),
             )
             return cur.lastrowid
@@ -398,6 +443,21 @@ class RecordStore:
             out.append(d)
         return out
 
+    def attempt_id_for_key(self, key: str) -> int | None:
+        """The attempt saved with idempotency key ``key``, or None if none was."""
+        row = self._db.execute("SELECT id FROM attempts WHERE idem_key = ?", (clean_key(key),)).fetchone()
+        return None if row is None else row[0]
+
+    # -- for modules that keep their own tables in this database (server accounts, outbox) --
+
+    def transaction(self):
+        """Context manager: one write transaction on the store's connection (see ``_write``)."""
+        return self._write()
+
+    def query(self, sql: str, params: tuple = ()) -> list[Any]:
+        """Rows of one read statement (``?`` parameters), readable by index and column name."""
+        return list(self._db.execute(sql, params))
+
 
 def _attempt_id(value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -423,5 +483,5 @@ def local_records(db: str | os.PathLike[str] | None = None) -> Records:
                 raise UserError(f"attempt {attempt_id} is not yours")
             store.delete_attempt(attempt_id)
 
-    where = str(Path(db).expanduser() if db else default_path())
+    where = redact(db) if is_postgres(db) else str(Path(db).expanduser() if db else default_path())
     return Records(save_attempt=save_attempt, list_attempts=list_attempts, where=where, delete_attempt=delete_attempt)

@@ -230,5 +230,16 @@ def clean_questionnaire(kind: Any, session: Any, answers: Any) -> tuple[str, str
     return kind, session, out
 
 
+KEY_RE = re.compile(r"[A-Za-z0-9_\-]{8,128}")
+
+
+def clean_key(value: Any) -> str:
+    """An idempotency key: 8-128 letters, digits, '_' or '-' (a UUID fits)."""
+    if not isinstance(value, str) or not KEY_RE.fullmatch(value):
+        shown = value[:40] + "..." if isinstance(value, str) and len(value) > 40 else value
+        raise UserError(f"idempotency key {shown!r} must be 8-128 letters, digits, '_' or '-'")
+    return value
+
+
 def to_json(value: Any) -> str:
     return json.dumps(value, sort_keys=True, allow_nan=False, separators=(",", ":"))

@@ -7,7 +7,24 @@ import math
 from chainsim.engine.errors import UserError
 
 #: waiting-list orders by name, in the kernels' code order (chainsim.engine.kernels.chainmail ORDER_*)
-ORDERS = ("fifo", "balanced", "schill")
+ORDERS = ("breadth-first", "balanced", "schill", "depth-first")
+#: older names still accepted wherever an order is named
+ORDER_ALIASES = {"fifo": "breadth-first"}
+#: every name a user may give: the orders, then their aliases
+ORDER_CHOICES = ORDERS + tuple(ORDER_ALIASES)
+
+
+def order_name(name: str) -> str:
+    """The order's own name for `name` (an alias such as fifo becomes breadth-first)."""
+    name = ORDER_ALIASES.get(name, name)
+    if name not in ORDERS:
+        raise UserError(f"order: expected one of {', '.join(ORDER_CHOICES)}, got {name!r}")
+    return name
+
+
+def order_code(name: str) -> int:
+    """The kernels' ORDER_* code for an order name or alias."""
+    return ORDERS.index(order_name(name))
 
 
 def check_finite(name: str, v: float) -> None:

@@ -63,7 +63,9 @@ def violation(rest, pos, e, s, amin, amax, beta):
 
 
 def ref_cascade(rest, pos, links, alive, amin, amax, beta, grabbed, targets, fixed=None, order=0, depth=2):
-    """Returns (new positions, order list, sponsor list). order: 0 FIFO, 1 balanced, 2 Schill."""
+    """Returns (new positions, order list, sponsor list).
+
+    order: 0 breadth-first, 1 balanced, 2 Schill, 3 depth-first (5.2.3's "front of the waiting list")."""
     pos = pos.copy()
     n = len(pos)
     fixed = np.zeros(n, bool) if fixed is None else fixed
@@ -95,6 +97,13 @@ def ref_cascade(rest, pos, links, alive, amin, amax, beta, grabbed, targets, fix
             e, s, lid = waiting.popleft()
             if accept(e, s, lid):
                 waiting.extend((f, e, l2) for f, l2 in candidates(e))
+    elif order == 3:
+        waiting = deque((e, s, lid) for s in list(out) for e, lid in candidates(s))
+        while waiting:
+            e, s, lid = waiting.popleft()
+            if accept(e, s, lid):
+                # the new block goes to the front, in its listed order
+                waiting.extendleft(reversed([(f, e, l2) for f, l2 in candidates(e)]))
     elif order == 1:
         branches = [deque([(e, s, lid, 1)]) for s in list(out) for e, lid in candidates(s)]
         limit = depth

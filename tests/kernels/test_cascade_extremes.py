@@ -10,7 +10,8 @@ from cascade_reference import box, random_mesh, ref_cascade
 from chainsim.engine import meshgen
 from chainsim.engine.kernels.chainmail import (
     ORDER_BALANCED,
-    ORDER_FIFO,
+    ORDER_BREADTH_FIRST,
+    ORDER_DEPTH_FIRST,
     ORDER_SCHILL,
     cascade,
     make_workspace,
@@ -18,7 +19,7 @@ from chainsim.engine.kernels.chainmail import (
 )
 from chainsim.engine.kernels.graph import build_graph, components
 
-ORDERS = (ORDER_FIFO, ORDER_BALANCED, ORDER_SCHILL)
+ORDERS = (ORDER_BREADTH_FIRST, ORDER_BALANCED, ORDER_SCHILL, ORDER_DEPTH_FIRST)
 
 
 def meshes():
@@ -174,7 +175,7 @@ def test_hundred_thousand_small_drags_from_the_deformed_state():
     steps = 100_000
     angles = np.linspace(0.0, 40 * np.pi, steps)
     path = rest[60] + np.stack([1.5 * np.cos(angles) - 1.5, 1.5 * np.sin(angles), 0.8 * np.sin(3 * angles)], 1)
-    orders = (ORDER_FIFO, ORDER_BALANCED, ORDER_SCHILL)
+    orders = ORDERS
     for i in range(steps - 1):
         cascade(
             rest,
@@ -186,7 +187,7 @@ def test_hundred_thousand_small_drags_from_the_deformed_state():
             grab,
             path[i][None],
             fixed=fixed,
-            order=orders[i % 3],
+            order=orders[i % len(orders)],
             workspace=ws,
             copy=False,
         )

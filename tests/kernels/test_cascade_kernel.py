@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 
 from chainsim.engine.kernels.chainmail import (
     ORDER_BALANCED,
-    ORDER_FIFO,
+    ORDER_BREADTH_FIRST,
+    ORDER_DEPTH_FIRST,
     ORDER_SCHILL,
     cascade,
     make_workspace,
@@ -22,7 +23,7 @@ from chainsim.engine.kernels.graph import build_graph
 
 SETTINGS = settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
-ORDERS = (ORDER_FIFO, ORDER_BALANCED, ORDER_SCHILL)
+ORDERS = (ORDER_BREADTH_FIRST, ORDER_BALANCED, ORDER_SCHILL, ORDER_DEPTH_FIRST)
 
 
 @st.composite
@@ -122,7 +123,7 @@ def test_float32_mode_matches_reference_in_float32(case):
     rest32 = rest.astype(np.float32)
     pos32 = pos.astype(np.float32)
     t32 = targets.astype(np.float32)
-    p, moved, sponsor = run_kernel(rest32, pos32, links, alive, mats, grabbed, t32, fixed, ORDER_FIFO)
+    p, moved, sponsor = run_kernel(rest32, pos32, links, alive, mats, grabbed, t32, fixed, ORDER_BREADTH_FIRST)
     assert p.dtype == np.float32
     amin, amax, beta = material_arrays(len(links), *mats)
     rp, rmoved, rsponsor = ref_cascade(rest32, pos32, links, alive, amin, amax, beta, grabbed, t32, fixed)
@@ -225,3 +226,18 @@ def test_bad_cascade_arguments_raise():
         cascade(rest, rest.copy(), graph, np.ones(5), *mats[1:], np.array([0]), np.zeros((1, 2)))
     with pytest.raises(ValueError, match="order"):
         cascade(rest, rest.copy(), graph, *mats, np.array([0]), np.zeros((1, 2)), order=7)
+
+
+def test_depth_first_puts_new_neighbours_at_the_front():
+    """5.2.3 step 3.3 read literally: a moved element's neighbours go to the front of the waiting list,
+    so the first branch runs to its end before the grabbed element's second neighbour is checked."""
+    rest, links = np.arange(5, dtype=np.float64).reshape(5, 1), np.array([[i, i + 1] for i in range(4)])
+    graph = build_graph(5, links)
+    mats = material_arrays(4, 0.5, 2.0, 0.0)
+    pos = rest.copy()
+    moved, sponsor = cascade(rest, pos, graph, *mats, np.array([2]), np.array([[10.0]]), order=ORDER_DEPTH_FIRST)
+    assert moved.tolist() == [2, 1, 0, 3, 4]
+    assert sponsor.tolist() == [-1, 2, 1, 2, 3]
+    pos_bf = rest.copy()
+    cascade(rest, pos_bf, graph, *mats, np.array([2]), np.array([[10.0]]), order=ORDER_BREADTH_FIRST)
+    np.testing.assert_array_equal(pos, pos_bf)  # on a chain only the visiting order differs

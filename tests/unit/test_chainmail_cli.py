@@ -79,7 +79,7 @@ def check_result(out: Path, rest, links, grab, target, amin, amax, beta, fixed=(
     assert not moved[list(fixed)].any() if len(fixed) else True
     unmoved = ~moved
     np.testing.assert_array_equal(pos[unmoved], rest[unmoved])
-    linkset = {tuple(sorted(l)) for l in links.tolist()}
+    linkset = {tuple(sorted(pair)) for pair in links.tolist()}
     rank = np.full(n, -1)
     rank[order] = np.arange(len(order))
     for e in order[1:]:
@@ -300,3 +300,64 @@ def test_command_line_success_and_failure(tmp_path):
     )
     assert typo.returncode == 2 and "--grab" in typo.stderr and typo.stderr.strip().count("\n") == 0
     assert not (tmp_path / "never.npz").exists()
+
+
+# -- orders, conformance and --exact -------------------------------------------------------------
+
+
+def test_fifo_is_the_breadth_first_order(tmp_path):
+    pos, links = meshgen.grid((9, 9))
+    mesh = save_graph(tmp_path / "m.npz", pos, links)
+    a, b = tmp_path / "a.npz", tmp_path / "b.npz"
+    target = pos[40] + [2.5, -1.0]
+    assert run_cli(mesh, a, 40, target, 0.8, 1.2, 0.1, "--order", "fifo") == 0
+    assert run_cli(mesh, b, 40, target, 0.8, 1.2, 0.1, "--order", "breadth-first") == 0
+    with np.load(a) as za, np.load(b) as zb:
+        assert za.files == zb.files == ["positions", "order", "sponsor"]  # no exact-pass arrays without --exact
+        for k in za.files:
+            np.testing.assert_array_equal(za[k], zb[k])
+
+
+@pytest.mark.parametrize("order", ["breadth-first", "balanced", "schill", "depth-first"])
+def test_without_exact_the_cli_is_the_plain_cascade(tmp_path, order):
+    """Conformance: the CLI's result is the cascade kernel's, bit for bit (the kernel itself is checked
+    against the thesis-rule reference in tests/kernels)."""
+    from chainsim.engine.chainmail_params import order_code
+    from chainsim.engine.kernels.chainmail import cascade, material_arrays
+    from chainsim.engine.kernels.graph import build_graph
+
+    pos, _, links = meshgen.triangulated_grid(10, 10, dim=3)
+    fixed = np.arange(10)
+    mesh = save_graph(tmp_path / "m.npz", pos, links, fixed=fixed)
+    out = tmp_path / "o.npz"
+    target = pos[55] + [3.0, 1.0, 4.0]
+    assert run_cli(mesh, out, 55, target, 0.8, 1.2, 0.1, "--order", order) == 0
+    graph = build_graph(len(pos), links)
+    mask = np.zeros(len(pos), bool)
+    mask[fixed] = True
+    p = pos.copy()
+    moved, _ = cascade(
+        pos,
+        p,
+        graph,
+        *material_arrays(len(links), 0.8, 1.2, 0.1),
+        [55],
+        target[None],
+        fixed=mask,
+        order=order_code(order),
+    )
+    with np.load(out) as z:
+        np.testing.assert_array_equal(z["positions"], p)
+        np.testing.assert_array_equal(z["order"], moved)
+
+
+def test_exact_writes_residual_shortfall_and_changed(tmp_path):
+    pos, links = meshgen.chain(6, 1.0, dim=1)
+    mesh = save_graph(tmp_path / "m.npz", pos, links, fixed=np.array([0]))
+    out = tmp_path / "o.npz"
+    assert run_cli(mesh, out, 5, [10.0], 0.8, 1.2, 0.0, "--exact") == 0
+    with np.load(out) as z:
+        np.testing.assert_allclose(z["positions"][:, 0], 1.2 * np.arange(6), atol=1e-12)
+        assert float(z["shortfall"]) == pytest.approx(4.0)
+        assert float(z["residual"]) <= 1e-12
+        assert 5 in z["changed"].tolist()

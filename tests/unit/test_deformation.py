@@ -415,3 +415,48 @@ def test_orders_and_single_precision_keep_the_grab_and_the_limits(tmp_path, extr
         assert len(d.last_order) > 1
     finally:
         app.close()
+
+
+def test_exact_material_keeps_every_link_inside_while_dragging(tmp_path):
+    """`exact = true` in a material: after each grab of a drag (relaxation included), no link of the body is
+    outside its limits, held and fixed elements stay, and the pass's moves reach the renderer as dirty ids."""
+    from chainsim.engine.kernels.exact import violations
+
+    pack = make_pack(
+        tmp_path,
+        """
+[materials.exact]
+alpha_min = 0.8
+alpha_max = 1.2
+beta = 0.1
+relax = 2
+exact = true
+"""
+        + SHEET.format(material="exact")
+        + """
+fixed_box = [-100.0, -100.0, -1.0, -4.0, 100.0, 1.0]
+order = "fifo"
+""",
+    )
+    app = build_app(pack)
+    try:
+        _, d = body(app)
+        assert d.exact_limits and d.order == "breadth-first"
+        app.events.emit(GrabRequest("body", [0], d.rest[0] + [0, 0, 1.5], frame="local"))  # held by a tool
+        app.run_steps(1)
+        held = d.pos[0].copy()
+        g = int(np.argmax(d.rest[:, 0]))
+        for k in range(1, 8):
+            d.dirty = np.zeros(0, dtype=np.int64)
+            before = d.pos.copy()
+            app.events.emit(GrabRequest("body", [g], d.rest[g] + [0.0, 1.5 * k, 2.5 * k], frame="local"))
+            app.run_steps(1)
+            v = violations(d.rest, d.pos, d.graph, d.amin, d.amax, d.beta_l)
+            assert v.outside == 0 and v.worst <= 1e-6, (k, v)
+            np.testing.assert_array_equal(d.pos[d.fixed_mask], d.rest[d.fixed_mask])
+            np.testing.assert_array_equal(d.pos[0], held)
+            changed = np.flatnonzero(np.any(d.pos != before, axis=1))
+            assert set(changed.tolist()) <= set(d.dirty.tolist())  # (none once the pull is past reach)
+        assert d.last_shortfall > 0  # the last pulls go further than the limits allow from the fixed edge
+    finally:
+        app.close()

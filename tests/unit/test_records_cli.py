@@ -41,8 +41,8 @@ def attempt(i: int, **over):
 
 
 @pytest.fixture
-def db(tmp_path):
-    path = tmp_path / "records.sqlite3"
+def db(records_db):  # an SQLite file and a PostgreSQL database (tests/records_db.py)
+    path = records_db
     with RecordStore(path) as s:
         for i in range(4):
             s.save_attempt("c1", "alice", attempt(i))

@@ -1,4 +1,7 @@
-"""RecordStore: round trips, names, validation, default location, migrations, refused files."""
+"""RecordStore: round trips, names, validation, default location, migrations, refused files.
+
+Tests taking ``records_db`` run on an SQLite file and on a real PostgreSQL database (tests/records_db.py).
+"""
 
 from __future__ import annotations
 
@@ -34,8 +37,8 @@ def sample_attempt(i: int = 0, **over):
 
 
 @pytest.fixture
-def store(tmp_path):
-    with RecordStore(tmp_path / "records.sqlite3") as s:
+def store(records_db):
+    with RecordStore(records_db) as s:
         yield s
 
 
@@ -165,9 +168,8 @@ def test_unknown_filters_are_errors_not_empty_lists(store):
         store.list_trainees("nope")
 
 
-def test_second_connection_sees_saves_and_closed_store_refuses(tmp_path):
-    path = tmp_path / "r.sqlite3"
-    with RecordStore(path) as a, RecordStore(path) as b:
+def test_second_connection_sees_saves_and_closed_store_refuses(records_db):
+    with RecordStore(records_db) as a, RecordStore(records_db) as b:
         aid = a.save_attempt("c1", "alice", sample_attempt())
         assert b.get_attempt(aid)["trainee"] == "alice"
     with pytest.raises(UserError):
@@ -318,7 +320,7 @@ def test_v1_database_is_migrated_in_place_with_rows_intact(tmp_path):
     path = tmp_path / "old.sqlite3"
     make_v1(path)
     with RecordStore(path) as s:
-        assert s.schema_version == SCHEMA_VERSION == 4
+        assert s.schema_version == SCHEMA_VERSION == 5
         rows = s.list_attempts()
         assert [r["created_at"] for r in rows] == [f"2025-01-0{i + 1}T10:00:00Z" for i in range(3)]
         assert [r["needle_error_mm"] for r in rows] == [None, 7.0, 6.0]
@@ -362,23 +364,23 @@ def test_v2_database_keeps_its_rows_and_gains_redirections(tmp_path):
     assert after == before
 
 
-def test_v3_database_keeps_its_rows_and_gains_xray_costs_and_questionnaires(tmp_path):
-    """Version 4 adds the X-ray each attempt cost and the study questionnaires; rows saved before it keep
+def test_v4_database_keeps_its_rows_and_gains_xray_costs_and_questionnaires(tmp_path):
+    """Version 5 adds the X-ray each attempt cost and the study questionnaires; rows saved before it keep
     every field and read as attempts without X-ray."""
-    from chainsim.game.records.schema import V2_DDL, V3_DDL
+    from chainsim.game.records.schema import V2_DDL, V3_DDL, V4_DDL
 
-    path = tmp_path / "v3.sqlite3"
+    path = tmp_path / "v4.sqlite3"
     make_v1(path)
     conn = sqlite3.connect(path)
-    for stmt in V2_DDL + V3_DDL:
+    for stmt in V2_DDL + V3_DDL + V4_DDL:
         conn.execute(stmt)
     conn.execute("UPDATE attempts SET redirections = 2 WHERE id = 3")
-    conn.execute("PRAGMA user_version = 3")
+    conn.execute("PRAGMA user_version = 4")
     conn.commit()
     before = [tuple(r) for r in conn.execute("SELECT * FROM attempts ORDER BY id")]
     conn.close()
     with RecordStore(path) as s:
-        assert s.schema_version == 4
+        assert s.schema_version == 5
         rows = s.list_attempts()
         assert [(r["xray_shots"], r["exposure_s"], r["dose_mgy"]) for r in rows] == [(0, 0.0, 0.0)] * 3
         assert [r["redirections"] for r in rows] == [0, 0, 2]

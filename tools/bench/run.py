@@ -12,6 +12,10 @@ Parts:
   scaling  rigid full cascades on tetrahedral blocks and triangle sheets from 10^3 to 10^6 elements,
            with and without relaxation, in generated order, shuffled (random ids) and shuffled then
            reordered (reverse Cuthill-McKee, chainsim.engine.reorder); plus a local grab on the largest mesh.
+  exact    the pulls of tools/bench/exact_cases.py (the prp face pulled 8, 22 and 46 mm, rim fixed or
+           not; the face filled with tetrahedra; a tet block) in every waiting-list order: the links the
+           plain cascade leaves outside their limits, and the exact-limit pass's cost, residual and
+           shortfall beside it.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import platform
 import statistics
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import matplotlib
@@ -31,14 +36,16 @@ import numba
 import numpy as np
 
 from chainsim.engine import meshgen
-from chainsim.engine.chainmail_params import ORDERS, check_material
+from chainsim.engine.chainmail_params import ORDERS, check_material, order_code, order_name
 from chainsim.engine.errors import UserError
 from chainsim.engine.kernels.chainmail import cascade, make_workspace, material_arrays
+from chainsim.engine.kernels.exact import exact_limits, violations
 from chainsim.engine.kernels.gibson import gibson_grid_move
 from chainsim.engine.kernels.graph import build_graph
 from chainsim.engine.meshimport import load_graph
 from chainsim.engine.reorder import rcm_permutation
 from chainsim.systems.deformation import relax_moved
+from chainsim.tools.bench import exact_cases
 from chainsim.tools.bench.meshes import relabel, surface_sheet, tet_cube
 
 # Tables 6.2-6.4 (frames/second): size -> (Gibson hi, lo, SurfaceChainMail hi, lo, Generalised hi, lo)
@@ -66,6 +73,7 @@ TABLE_OF = {"rigid": "6.2", "medium": "6.3", "soft": "6.4"}
 # alpha_min, alpha_max as in 6.2.1 (after Gibson 1999); the thesis gives no shear value, these are ours
 MATERIALS = {"rigid": (1.0, 1.0, 0.0), "medium": (0.8, 1.2, 0.1), "soft": (0.5, 2.5, 0.3)}
 SIDES = (11, 25, 51, 75)
+PARTS = ("thesis", "worst", "scaling", "exact")
 
 
 def _log(msg: str) -> None:
@@ -114,36 +122,46 @@ def median_ms(times: list[float]) -> float:
 class Body:
     """rest/pos/graph/materials/workspace of one mesh, for timing cascades."""
 
-    def __init__(self, rest, links, amin, amax, beta):
-
+    def __init__(self, rest, links, amin, amax, beta, fixed=None):
         self.rest = np.ascontiguousarray(rest, dtype=np.float64)
         self.pos = self.rest.copy()
         self.graph = build_graph(len(rest), links)
         self.mat = material_arrays(self.graph.n_links, amin, amax, beta)
         self.ws = make_workspace(len(rest))
+        self.fixed = None if fixed is None or not np.any(fixed) else np.ascontiguousarray(fixed, dtype=np.bool_)
         self.moved = 0
+        self.exact = None  # the last move's ExactResult
 
     def reset(self) -> None:
         np.copyto(self.pos, self.rest)
 
-    def move(self, grab: int, target, order: int = 0, relax_n: int = 0) -> None:
-
+    def move(self, grab: int, target, order: int = 0, relax_n: int = 0, exact: bool = False) -> None:
+        grabbed = np.array([grab], dtype=np.int64)
+        target = np.asarray(target, dtype=np.float64).reshape(1, -1)
         moved, _ = cascade(
             self.rest,
             self.pos,
             self.graph,
             *self.mat,
-            np.array([grab], dtype=np.int64),
-            np.asarray(target, dtype=np.float64).reshape(1, -1),
+            grabbed,
+            target,
+            fixed=self.fixed,
             order=order,
             workspace=self.ws,
             copy=False,
         )
         self.moved = len(moved)
         if relax_n:
-            pin = np.zeros(len(self.pos), dtype=np.bool_)
+            pin = np.zeros(len(self.pos), dtype=np.bool_) if self.fixed is None else self.fixed.copy()
             pin[grab] = True
             relax_moved(self.rest, self.pos, self.graph, moved, relax_n, fixed=pin)
+        if exact:
+            self.exact = exact_limits(
+                self.rest, self.pos, self.graph, *self.mat, moved, grabbed, target, self.fixed, self.ws
+            )
+
+    def violations(self):
+        return violations(self.rest, self.pos, self.graph, *self.mat)
 
 
 # -- part a: thesis 6.2 ------------------------------------------------------------------------------
@@ -165,20 +183,17 @@ def thesis_part(quick: bool, repeat: int) -> list[dict]:
             row = {"side": side, "elements": n, "material": mname}
             for label, disp in (("high", small), ("low", large)):
                 target = rest[c] + np.array([disp, disp * 0.5])
-                t = time_calls(lambda: body.move(c, target), body.reset, reps)
+                t = time_calls(partial(body.move, c, target), body.reset, reps)
                 row[f"gen_{label}_ms"] = median_ms(t)
                 row[f"gen_{label}_cpu_ms"] = cpu_ms(t)
                 row[f"gen_{label}_moved"] = body.moved
                 gpos = rest.copy()
-                result = {}
-
-                def gib():
-                    result["moved"] = gibson_grid_move(gpos, (side, side), c, target, amin, amax, beta)
-
-                t = time_calls(gib, lambda: np.copyto(gpos, rest), reps)
+                gib = partial(gibson_grid_move, gpos, (side, side), c, target, amin, amax, beta)
+                t = time_calls(gib, partial(np.copyto, gpos, rest), reps)
                 row[f"gib_{label}_ms"] = median_ms(t)
                 row[f"gib_{label}_cpu_ms"] = cpu_ms(t)
-                row[f"gib_{label}_moved"] = int(result["moved"])
+                np.copyto(gpos, rest)
+                row[f"gib_{label}_moved"] = int(gib())  # one more move from rest, for its count
             th = THESIS[mname][n]
             row["thesis"] = {
                 "gibson_high": th[0],
@@ -190,7 +205,8 @@ def thesis_part(quick: bool, repeat: int) -> list[dict]:
             }
             rows.append(row)
             _log(
-                f"  thesis grid {side}x{side} {mname}: generalised {row['gen_high_ms']:.4f} / {row['gen_low_ms']:.4f} ms"
+                f"  thesis grid {side}x{side} {mname}: generalised {row['gen_high_ms']:.4f} / "
+                f"{row['gen_low_ms']:.4f} ms"
             )
     return rows
 
@@ -288,19 +304,19 @@ def scaling_part(quick: bool, repeat: int, max_elements: float) -> list[dict]:
                     "variant": vname,
                     "repeats": reps,
                 }
-                t = time_calls(lambda: body.move(g, target), body.reset, reps)
+                t = time_calls(partial(body.move, g, target), body.reset, reps)
                 row["rigid_ms"] = median_ms(t)
                 row["rigid_cpu_ms"] = cpu_ms(t)
                 row["rigid_min_ms"] = min(t) * 1e3  # least disturbed run, for loaded machines
                 row["rigid_moved"] = body.moved
                 if vname != "shuffled":
-                    t = time_calls(lambda: body.move(g, target, relax_n=2), body.reset, max(3, reps // 2))
+                    t = time_calls(partial(body.move, g, target, relax_n=2), body.reset, max(3, reps // 2))
                     row["rigid_relax2_ms"] = median_ms(t)
                     row["rigid_relax2_cpu_ms"] = cpu_ms(t)
                 # a local grab: medium material, one spacing of pull; a few hundred elements follow
                 local = Body(vrest, vlinks, *MATERIALS["medium"])
                 ltarget = vrest[g] + np.r_[0.0, 0.0, 1.0][: vrest.shape[1]]
-                t = time_calls(lambda: local.move(g, ltarget), local.reset, max(reps, 20))
+                t = time_calls(partial(local.move, g, ltarget), local.reset, max(reps, 20))
                 row["local_ms"] = median_ms(t)
                 row["local_cpu_ms"] = cpu_ms(t)
                 row["local_moved"] = local.moved
@@ -308,10 +324,61 @@ def scaling_part(quick: bool, repeat: int, max_elements: float) -> list[dict]:
                 row["ratio_to_ordered"] = row["rigid_cpu_ms"] / base["ordered"]
                 rows.append(row)
                 _log(
-                    f"    {vname:13s} rigid {row['rigid_ms']:.3f} ms (cpu {row['rigid_cpu_ms']:.3f})  local {row['local_ms']:.4f} ms "
+                    f"    {vname:13s} rigid {row['rigid_ms']:.3f} ms (cpu {row['rigid_cpu_ms']:.3f})  "
+                    f"local {row['local_ms']:.4f} ms "
                     f"({row['local_moved']} moved)  ratio {row['ratio_to_ordered']:.2f}"
                 )
                 body = local = None  # free this variant's bodies before building the next
+    return rows
+
+
+# -- part: exact limits ------------------------------------------------------------------------------
+
+
+def exact_part(quick: bool, repeat: int) -> list[dict]:
+    """Per case, pull and order: the plain cascade (time, moved, links left outside their limits) and
+    the cascade followed by the exact-limit pass (time, residual, shortfall)."""
+    rows = []
+    for case in exact_cases.cases(quick):
+        reps = repeat or (7 if quick else 25)
+        _log(f"  {case.name}: {len(case.rest)} elements, {len(case.links)} links")
+        body = Body(case.rest, case.links, *exact_cases.MATERIAL, fixed=case.fixed)
+        for mm in case.pulls:
+            target = case.rest[case.grab] + mm * case.direction
+            for name in ORDERS:
+                code = order_code(name)
+                t = time_calls(partial(body.move, case.grab, target, code), body.reset, reps)
+                v = body.violations()
+                row = {
+                    "case": case.name,
+                    "elements": len(case.rest),
+                    "pull_mm": mm,
+                    "order": name,
+                    "plain_ms": median_ms(t),
+                    "plain_cpu_ms": cpu_ms(t),
+                    "moved": body.moved,
+                    "outside_share": v.share,
+                    "outside_worst": v.worst,
+                }
+                t = time_calls(partial(body.move, case.grab, target, code, exact=True), body.reset, reps)
+                e = body.exact
+                after = body.violations()
+                row |= {
+                    "exact_ms": median_ms(t),
+                    "exact_cpu_ms": cpu_ms(t),
+                    "exact_ratio": cpu_ms(t) / max(row["plain_cpu_ms"], 1e-9),
+                    "exact_changed": len(e.changed),
+                    "exact_visits": e.visits,
+                    "residual": max(e.residual, after.worst),
+                    "exact_outside": after.outside,
+                    "shortfall_mm": e.shortfall,
+                }
+                rows.append(row)
+                _log(
+                    f"    {mm:4.0f} mm {name:13s} plain {row['plain_ms']:.4f} ms, {100 * v.share:5.2f} % outside "
+                    f"(worst {v.worst:.2f}); exact {row['exact_ms']:.4f} ms ({row['exact_ratio']:.1f}x), residual "
+                    f"{row['residual']:.1e}, short {e.shortfall:.2f} mm"
+                )
     return rows
 
 
@@ -340,7 +407,8 @@ def markdown(results: dict) -> str:
             "ran; differs only on a busy machine).\n"
         )
         out.append(
-            "| table | material | grid | ours gen. high | thesis gen. high | ratio | ours gen. low | thesis gen. low | ratio | moved low | ours Gibson high | ours Gibson low | thesis Gibson high / low |"
+            "| table | material | grid | ours gen. high | thesis gen. high | ratio | ours gen. low | thesis gen. low "
+            "| ratio | moved low | ours Gibson high | ours Gibson low | thesis Gibson high / low |"
         )
         out.append("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|")
         for r in results["thesis"]:
@@ -349,7 +417,8 @@ def markdown(results: dict) -> str:
             chi, clo = 1000 / max(r["gen_high_cpu_ms"], 1e-6), 1000 / max(r["gen_low_cpu_ms"], 1e-6)
             out.append(
                 f"| {TABLE_OF[r['material']]} | {r['material']} | {r['side']}x{r['side']} | {hi:,.0f} ({chi:,.0f}) | "
-                f"{th['generalised_high']:g} | {hi / th['generalised_high']:,.0f}x ({chi / th['generalised_high']:,.0f}x) | "
+                f"{th['generalised_high']:g} | {hi / th['generalised_high']:,.0f}x "
+                f"({chi / th['generalised_high']:,.0f}x) | "
                 f"{lo:,.0f} ({clo:,.0f}) | {th['generalised_low']:g} | {lo / th['generalised_low']:,.0f}x "
                 f"({clo / th['generalised_low']:,.0f}x) | {r['gen_low_moved']} | "
                 f"{_fmt_rate(r['gib_high_ms'])} | {_fmt_rate(r['gib_low_ms'])} | "
@@ -359,7 +428,8 @@ def markdown(results: dict) -> str:
     if results.get("worst"):
         out.append("## Fig. 6.4 worst case: rigid grid, centre element 20 times around a 40 x 40 square\n")
         out.append(
-            "| grid | elements | updates | generalised ms/update (cpu) | generalised total s | Gibson ms/update (cpu) | Gibson total s |"
+            "| grid | elements | updates | generalised ms/update (cpu) | generalised total s "
+            "| Gibson ms/update (cpu) | Gibson total s |"
         )
         out.append("|---|---:|---:|---:|---:|---:|---:|")
         for r in results["worst"]:
@@ -376,7 +446,8 @@ def markdown(results: dict) -> str:
             "Wall-clock medians, CPU-time medians in brackets; the ratio to the generated order uses CPU time.\n"
         )
         out.append(
-            "| mesh | elements | links/elem | order | rigid ms | with relax(2) ms | ratio to ordered | local grab ms | local moved |"
+            "| mesh | elements | links/elem | order | rigid ms | with relax(2) ms | ratio to ordered "
+            "| local grab ms | local moved |"
         )
         out.append("|---|---:|---:|---|---:|---:|---:|---:|---:|")
         for r in results["scaling"]:
@@ -385,6 +456,26 @@ def markdown(results: dict) -> str:
                 f"| {r['mesh']} | {r['elements']:,} | {r['links_per_element']:.1f} | {r['variant']} | "
                 f"{r['rigid_ms']:.3f} ({r['rigid_cpu_ms']:.3f}) | {rel} | {r['ratio_to_ordered']:.2f} | "
                 f"{r['local_ms']:.4f} ({r['local_cpu_ms']:.4f}) | {r['local_moved']} |"
+            )
+        out.append("")
+    if results.get("exact"):
+        out.append("## Exact limits: links the cascade leaves outside, and the exact-limit pass\n")
+        out.append(
+            "Material 0.8 / 1.2, beta 0.1 (tools/bench/exact_cases.py). Plain: one cascade from rest; outside: "
+            "share of all links outside their box after it, and the worst distance from a box in rest lengths. "
+            "Exact: the same cascade followed by the exact-limit pass; ratio: its CPU time over the plain "
+            "cascade's; residual: the worst distance from a box after it (rest lengths); short: how far the "
+            "grabbed element stopped from its target (0: reached).\n"
+        )
+        out.append(
+            "| case | pull mm | order | moved | plain ms | outside | worst | exact ms | ratio | residual | short mm |"
+        )
+        out.append("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+        for r in results["exact"]:
+            out.append(
+                f"| {r['case']} | {r['pull_mm']:g} | {r['order']} | {r['moved']} | {r['plain_ms']:.3f} | "
+                f"{100 * r['outside_share']:.2f} % | {r['outside_worst']:.2f} | {r['exact_ms']:.3f} | "
+                f"{r['exact_ratio']:.1f}x | {r['residual']:.1e} | {r['shortfall_mm']:.2f} |"
             )
         out.append("")
     return "\n".join(out)
@@ -453,9 +544,11 @@ def _write_atomic(path: Path, text: str) -> None:
 def run_suite(args) -> int:
 
     parts = {p.strip() for p in args.parts.split(",") if p.strip()}
-    unknown = parts - {"thesis", "worst", "scaling"}
+    if args.exact:
+        parts.add("exact")
+    unknown = parts - set(PARTS)
     if unknown:
-        raise UserError(f"--parts: unknown part(s) {', '.join(sorted(unknown))}; expected thesis, worst, scaling")
+        raise UserError(f"--parts: unknown part(s) {', '.join(sorted(unknown))}; expected {', '.join(PARTS)}")
     if args.repeat < 0:
         raise UserError(f"--repeat: must be >= 0, got {args.repeat}")
     out = Path(args.out)
@@ -464,7 +557,7 @@ def run_suite(args) -> int:
     except OSError as e:
         raise UserError(f"--out {out}: cannot create folder ({e.strerror})") from None
     max_el = args.max_elements or (1e5 if args.quick else 1e6)
-    load = ", load average %.1f at start" % os.getloadavg()[0] if hasattr(os, "getloadavg") else ""
+    load = f", load average {os.getloadavg()[0]:.1f} at start" if hasattr(os, "getloadavg") else ""
     results = {
         "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {platform.system()}{load}",
         "numpy": np.__version__,
@@ -481,6 +574,9 @@ def run_suite(args) -> int:
     if "scaling" in parts:
         _log("scaling ...")
         results["scaling"] = scaling_part(args.quick, args.repeat, max_el)
+    if "exact" in parts:
+        _log("exact limits ...")
+        results["exact"] = exact_part(args.quick, args.repeat)
     results["wall_s"] = time.perf_counter() - t0
     md = markdown(results)
     _write_atomic(out / "results.json", json.dumps(results, indent=1))
@@ -503,14 +599,16 @@ def run_mesh(args) -> int:
         raise UserError("--to: coordinates must be finite")
     if args.repeat < 0:
         raise UserError(f"--repeat: must be >= 0, got {args.repeat}")
-    pos, links, fixed = load_graph(args.mesh)
+    pos, links, fixed_ids = load_graph(args.mesh)
     n, dim = pos.shape
     if not 0 <= args.grab < n:
         raise UserError(f"--grab: element id must be in 0..{n - 1}, got {args.grab}")
     if len(args.to) != dim:
         raise UserError(f"--to: the mesh is {dim}-D, so give {dim} coordinate(s); got {len(args.to)}")
-    body = Body(pos, links, args.alpha_min, args.alpha_max, args.beta)
-    order = ORDERS.index(args.order)
+    fixed = np.zeros(n, dtype=np.bool_)
+    fixed[fixed_ids] = True
+    body = Body(pos, links, args.alpha_min, args.alpha_max, args.beta, fixed=fixed)
+    order = order_code(args.order)
     reps = args.repeat or 20
     times = time_calls(lambda: body.move(args.grab, args.to, order=order, relax_n=args.relax), body.reset, reps)
     result = {
@@ -518,19 +616,53 @@ def run_mesh(args) -> int:
         "elements": n,
         "links": int(len(links)),
         "dim": dim,
+        "fixed": int(len(fixed_ids)),
         "median_ms": median_ms(times),
         "min_ms": min(times) * 1e3,
         "max_ms": max(times) * 1e3,
         "repeats": reps,
         "elements_moved": body.moved,
-        "order": args.order,
+        "order": order_name(args.order),
         "relax": args.relax,
     }
+    if args.exact:
+        t = time_calls(
+            lambda: body.move(args.grab, args.to, order=order, relax_n=args.relax, exact=True), body.reset, reps
+        )
+        e = body.exact
+        result["exact"] = {
+            "median_ms": median_ms(t),
+            "ratio": median_ms(t) / max(result["median_ms"], 1e-12),
+            "residual": e.residual,
+            "shortfall": e.shortfall,
+            "changed": int(len(e.changed)),
+            "visits": e.visits,
+            "complete": e.complete,
+        }
+    # the links each order's plain cascade leaves outside their limits (off the sponsor chains)
+    result["violations"] = {}
+    for name in ORDERS:
+        body.reset()
+        body.move(args.grab, args.to, order=order_code(name), relax_n=args.relax)
+        v = body.violations()
+        result["violations"][name] = {"moved": body.moved, "outside_share": v.share, "worst": v.worst}
     if args.json:
         print(json.dumps(result))
-    else:
+        return 0
+    print(
+        f"{result['mesh']}: {n} elements, {result['links']} links; one {result['order']} cascade moving "
+        f"{result['elements_moved']} elements: median {result['median_ms']:.4f} ms over {reps} runs"
+    )
+    if args.exact:
+        e = result["exact"]
         print(
-            f"{result['mesh']}: {n} elements, {result['links']} links; one cascade moving "
-            f"{body.moved} elements: median {result['median_ms']:.4f} ms over {reps} runs"
+            f"with the exact-limit pass: median {e['median_ms']:.4f} ms ({e['ratio']:.2f}x the plain cascade), "
+            f"worst residual {e['residual']:.2g} rest lengths, shortfall {e['shortfall']:.6g}"
+        )
+    print("links left outside their limits by a plain cascade:")
+    for name, v in result["violations"].items():
+        print(
+            f"  {name:14s} {v['moved']:8d} moved  {100 * v['outside_share']:6.2f} % outside, "
+            f"worst {v['worst']:.3g} rest lengths"
         )
     return 0

@@ -13,6 +13,7 @@ HELP = "run a benchmark (chainmail, render, ...)"
 BENCHES = {
     "chainmail": "chainsim.tools.bench.chainmail",
     "render": "chainsim.game.gl.bench",
+    "records": "chainsim.game.server.bench",
 }
 
 

@@ -1,13 +1,21 @@
 """`chainsim chainmail`: one Generalised ChainMail move on a mesh file, for conformance checks (thesis 5.2).
 
     chainsim chainmail MESH --grab I --to X [Y [Z]] --alpha-min A --alpha-max B --beta C
-                       [--relax N] [--order fifo|balanced|schill] [--fixed-as-given] --out OUT.npz
+                       [--relax N] [--order breadth-first|depth-first|balanced|schill] [--exact]
+                       [--stats] --out OUT.npz
 
 MESH is a .npz (positions (N, D), links (M, 2), optional fixed (K,)) or any mesh file the importer
 reads (chainsim.engine.meshimport). OUT.npz holds positions (N, D) after the move, order (the ids that moved, in
 the order they moved, grabbed first, each once) and sponsor (N,: the element whose move made each
 element move; -1 for the grabbed element and for elements that did not move). --relax 0 gives the raw
 cascade; N > 0 runs N relaxation sweeps (5.2.5) over the moved elements afterwards.
+
+--exact then puts every link back inside its limits (chainsim.engine.kernels.exact); fixed elements stay,
+and a grabbed element whose target the limits cannot reach stops at the reachable position nearest
+it. OUT.npz then also holds changed (ids the pass moved), residual (worst distance of a link from its
+box, in rest lengths) and shortfall (how far the grabbed element stopped from its target). Without
+--exact the result is the thesis cascade, unchanged. --stats prints how many links end outside their
+limits, for this result and for a plain cascade in every order.
 
 Every input is checked before anything runs; a bad one is a one-line error (exit 2) and nothing is
 written. The result is written to a temporary file and renamed into place only when complete.
@@ -19,19 +27,14 @@ import math
 import os
 import sys
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
-from chainsim.engine.chainmail_params import ORDERS, check_material
+from chainsim.engine.chainmail_params import ORDER_CHOICES, ORDERS, check_material, order_code, order_name
 from chainsim.engine.errors import UserError
-from chainsim.engine.kernels.chainmail import (
-    ORDER_BALANCED,
-    ORDER_FIFO,
-    ORDER_SCHILL,
-    cascade,
-    make_workspace,
-    material_arrays,
-)
+from chainsim.engine.kernels.chainmail import cascade, make_workspace, material_arrays
+from chainsim.engine.kernels.exact import ExactResult, exact_limits, violations
 from chainsim.engine.kernels.graph import build_graph
 from chainsim.engine.meshimport import load_graph
 from chainsim.systems.deformation import relax_moved
@@ -54,7 +57,21 @@ def add_parser(sub):
         "--relax", type=int, default=0, metavar="N", help="relaxation sweeps after the cascade (default 0: raw cascade)"
     )
     p.add_argument("--relax-step", type=float, default=1.0, metavar="S", help="relaxation step in (0, 1] (default 1)")
-    p.add_argument("--order", choices=ORDERS, default="fifo", help="waiting-list order (default fifo)")
+    p.add_argument(
+        "--order",
+        choices=ORDER_CHOICES,
+        default="breadth-first",
+        help="waiting-list order (default breadth-first; fifo is the same order)",
+    )
+    p.add_argument(
+        "--exact",
+        action="store_true",
+        help="afterwards put every link back inside its limits (a target out of reach is approached as near as "
+        "the limits allow)",
+    )
+    p.add_argument(
+        "--stats", action="store_true", help="print the links left outside their limits, for this and every order"
+    )
     p.add_argument(
         "--kind",
         choices=("auto", "surface", "volume"),
@@ -96,50 +113,86 @@ def check_args(args) -> None:
         raise UserError(f"--out: folder {parent} does not exist")
 
 
-def simulate(
-    positions, links, fixed_ids, grab: int, target, alpha_min, alpha_max, beta, relax_n=0, relax_step=1.0, order="fifo"
-):
-    """Run one move; returns (positions, order, sponsor (N,))."""
+class Move(NamedTuple):
+    """One move's result: positions (N, D), order (moved ids), sponsor (N,), exact (ExactResult or None)."""
 
-    pos = np.array(positions, dtype=np.float64, copy=True, order="C")
+    positions: np.ndarray
+    order: np.ndarray
+    sponsor: np.ndarray
+    exact: ExactResult | None
+
+
+class Body(NamedTuple):
+    """The arrays one mesh needs for moves (built once, reused for every order in --stats)."""
+
+    rest: np.ndarray
+    graph: object
+    mat: tuple
+    fixed: np.ndarray | None
+
+
+def make_body(positions, links, fixed_ids, alpha_min, alpha_max, beta) -> Body:
     rest = np.array(positions, dtype=np.float64, copy=True, order="C")
-    n = len(pos)
+    n = len(rest)
     graph = build_graph(n, links)
-    amin, amax, bet = material_arrays(graph.n_links, alpha_min, alpha_max, beta)
     fixed = None
     if len(fixed_ids):
         fixed = np.zeros(n, dtype=np.bool_)
         fixed[fixed_ids] = True
-    code = {"fifo": ORDER_FIFO, "balanced": ORDER_BALANCED, "schill": ORDER_SCHILL}[order]
+    return Body(rest, graph, material_arrays(graph.n_links, alpha_min, alpha_max, beta), fixed)
+
+
+def move(body: Body, grab: int, target, relax_n=0, relax_step=1.0, order="breadth-first", exact=False) -> Move:
+    """Cascade (then relaxation, then the exact pass) from the rest shape."""
+    pos = body.rest.copy()
+    n = len(pos)
+    target = np.asarray(target, dtype=np.float64).reshape(1, -1)
+    grabbed = np.array([grab], dtype=np.int64)
+    ws = make_workspace(n)
     moved, sponsors = cascade(
-        rest,
-        pos,
-        graph,
-        amin,
-        amax,
-        bet,
-        np.array([grab], dtype=np.int64),
-        np.asarray(target, dtype=np.float64).reshape(1, -1),
-        fixed=fixed,
-        order=code,
-        workspace=make_workspace(n),
+        body.rest, pos, body.graph, *body.mat, grabbed, target, fixed=body.fixed, order=order_code(order), workspace=ws
     )
     if relax_n > 0 and len(moved) > 1:
-        pin = np.zeros(n, dtype=np.bool_) if fixed is None else fixed.copy()
+        pin = np.zeros(n, dtype=np.bool_) if body.fixed is None else body.fixed.copy()
         pin[grab] = True  # the user holds the grabbed element where it was put
-        relax_moved(rest, pos, graph, moved, relax_n, step=relax_step, fixed=pin)
+        relax_moved(body.rest, pos, body.graph, moved, relax_n, step=relax_step, fixed=pin)
+    result = None
+    if exact:
+        result = exact_limits(body.rest, pos, body.graph, *body.mat, moved, grabbed, target, body.fixed, ws)
     sponsor = np.full(n, -1, dtype=np.int64)
     sponsor[moved] = sponsors
-    return pos, moved.astype(np.int64), sponsor
+    return Move(pos, moved.astype(np.int64), sponsor, result)
 
 
-def write_result(out: Path, positions, order, sponsor) -> None:
+def simulate(
+    positions,
+    links,
+    fixed_ids,
+    grab: int,
+    target,
+    alpha_min,
+    alpha_max,
+    beta,
+    relax_n=0,
+    relax_step=1.0,
+    order="breadth-first",
+    exact=False,
+):
+    """Run one move; returns (positions, order, sponsor (N,)), plus the ExactResult with exact=True."""
+    body = make_body(positions, links, fixed_ids, alpha_min, alpha_max, beta)
+    m = move(body, grab, target, relax_n, relax_step, order, exact)
+    if exact:
+        return m.positions, m.order, m.sponsor, m.exact
+    return m.positions, m.order, m.sponsor
+
+
+def write_result(out: Path, positions, order, sponsor, **extra) -> None:
     """Write OUT.npz atomically: a temporary file in the same folder, renamed when complete."""
 
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
     try:
         with open(tmp, "wb") as fh:
-            np.savez(fh, positions=positions, order=order, sponsor=sponsor)
+            np.savez(fh, positions=positions, order=order, sponsor=sponsor, **extra)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, out)
@@ -154,8 +207,32 @@ def write_result(out: Path, positions, order, sponsor) -> None:
             tmp.unlink()
 
 
-def run(args) -> int:
+def stats_lines(body: Body, m: Move, args) -> list[str]:
+    """The --stats report: this result's links outside their limits, then a plain cascade per order."""
+    v = violations(body.rest, m.positions, body.graph, *body.mat)
+    name = order_name(args.order)
+    how = f"{name}{', relax ' + str(args.relax) if args.relax else ''}{', exact' if args.exact else ''}"
+    lines = [
+        f"result ({how}): {len(m.order)} moved, {v.outside} of {v.links} links outside their limits "
+        f"({100 * v.share:.2f} %), worst {v.worst:.3g} rest lengths out"
+    ]
+    if m.exact is not None:
+        e = m.exact
+        lines.append(
+            f"exact: {len(e.changed)} elements moved again, worst residual {e.residual:.3g} rest lengths, "
+            f"shortfall {e.shortfall:.6g} ({'target reached' if e.shortfall == 0 else 'target out of reach'})"
+            + ("" if e.complete else "; stopped at the visit cap")
+        )
+    relax = f", relax {args.relax}" if args.relax else ""
+    lines.append(f"plain cascade{relax}, by order:   moved   links outside   worst (rest lengths)")
+    for order in ORDERS:
+        p = move(body, args.grab, args.to, args.relax, args.relax_step, order)
+        pv = violations(body.rest, p.positions, body.graph, *body.mat)
+        lines.append(f"  {order:14s} {len(p.order):16d}   {100 * pv.share:10.2f} %   {pv.worst:12.3g}")
+    return lines
 
+
+def run(args) -> int:
     check_args(args)
     positions, links, fixed = load_graph(args.mesh, kind=args.kind)
     n, dim = positions.shape
@@ -164,21 +241,16 @@ def run(args) -> int:
     if len(args.to) != dim:
         raise UserError(f"--to: the mesh is {dim}-D, so give {dim} coordinate(s); got {len(args.to)}")
     try:
-        pos, order, sponsor = simulate(
-            positions,
-            links,
-            fixed,
-            args.grab,
-            args.to,
-            args.alpha_min,
-            args.alpha_max,
-            args.beta,
-            args.relax,
-            args.relax_step,
-            args.order,
-        )
+        body = make_body(positions, links, fixed, args.alpha_min, args.alpha_max, args.beta)
+        m = move(body, args.grab, args.to, args.relax, args.relax_step, args.order, args.exact)
     except ValueError as e:  # the kernels' own checks, if anything slipped past ours
         raise UserError(f"{args.mesh}: {e}") from None
-    write_result(Path(args.out), pos, order, sponsor)
-    print(f"moved {len(order)} of {n} elements; wrote {args.out}", file=sys.stderr)
+    extra = {}
+    if m.exact is not None:
+        extra = {"changed": m.exact.changed, "residual": m.exact.residual, "shortfall": m.exact.shortfall}
+    write_result(Path(args.out), m.positions, m.order, m.sponsor, **extra)
+    if args.stats:
+        print("\n".join(stats_lines(body, m, args)))
+    short = f"; {m.exact.shortfall:.6g} short of the target" if m.exact is not None and m.exact.shortfall else ""
+    print(f"moved {len(m.order)} of {n} elements{short}; wrote {args.out}", file=sys.stderr)
     return 0

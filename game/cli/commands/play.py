@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 
 from chainsim.engine.errors import UserError
+from chainsim.game.app.options import MODEL_FLAG_CHOICES, MODEL_FLAG_HELP
 from chainsim.game.packs import pack as packs
+from chainsim.game.records import remote
 from chainsim.game.ui.window import run_window
 
 NAME = "play"
@@ -22,9 +25,13 @@ def add_parser(sub):
         "--exit-after", type=float, default=None, metavar="SECONDS", help="close after this much simulated time"
     )
     p.add_argument("--screenshot", metavar="PNG", help="save a screenshot of the window when closing")
+    p.add_argument("--model", choices=MODEL_FLAG_CHOICES, help=MODEL_FLAG_HELP)
     p.add_argument("--db", metavar="PATH", help="trainee records database")
     p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempts are saved under")
     p.add_argument("--trainee", metavar="NAME", help="trainee the attempts are saved under")
+    p.add_argument(
+        "--records", metavar="URL", help="save attempts to this records server (queued in --db when offline)"
+    )
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     return p
 
@@ -36,7 +43,6 @@ def has_display() -> bool:
 
 
 def run(args) -> int:
-
     if not has_display():
         raise UserError(
             f"no display to open a window on (DISPLAY is not set); run without one: "
@@ -44,5 +50,8 @@ def run(args) -> int:
         )
 
     packs.resolve(args.pack, args.pack_path)  # unknown pack: clear error before any window opens
-
+    if args.records:
+        remote.server_url(args.records)  # a malformed address is one line now, not a failed save later
+        # The queue drains while the window opens; a slow or absent server never delays it.
+        threading.Thread(target=remote.sync_quietly, args=(args.records, args.db), daemon=True).start()
     return run_window(args)

@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from chainsim.engine.errors import UserError
+from chainsim.game.cli.commands import records_server
 from chainsim.game.records import report as report
 from chainsim.game.records.store import RecordStore
 
@@ -20,13 +21,16 @@ NAME = "records"
 HELP = "view, export, plot or delete trainee records (classes, trainees, attempts)"
 
 _EPILOG = """\
-database: --db PATH, else $CHAINSIM_DB, else the user data folder (records.sqlite3).
+database: --db PATH or postgresql:// URL, else $CHAINSIM_DB, else the user data folder (records.sqlite3).
 examples:
   chainsim records classes
   chainsim records list --class c1 --trainee alice
   chainsim records export --csv c1.csv --class c1
   chainsim records plot --class c1 --trainee alice --out alice.png
   chainsim records delete 12 --yes
+  chainsim records export --format xapi --out c1.xapi.json --class c1
+  chainsim records user add --role trainer --class c1 dr_jones
+  chainsim records login http://127.0.0.1:8000 alice ; chainsim records sync
 """
 
 
@@ -60,10 +64,12 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     a = action("show", "every field of one attempt")
     a.add_argument("id", type=_positive_id, help="attempt id (from `list`)")
 
-    a = action("export", "write attempts to a CSV file (atomically)")
-    a.add_argument("--csv", required=True, type=Path, metavar="FILE", help="output CSV file")
+    a = action("export", "write attempts to a CSV file or as xAPI statements (atomically)")
+    a.add_argument("--csv", type=Path, metavar="FILE", help="output CSV file")
     a.add_argument("--class", dest="class_name", metavar="C", help="only this class")
     a.add_argument("--trainee", metavar="T", help="only this trainee")
+    records_server.add_export_options(a)
+    records_server.add_actions(action)
 
     a = action("delete", "delete one attempt (needs --yes)")
     a.add_argument("id", type=_positive_id, help="attempt id (from `list`)")
@@ -105,6 +111,8 @@ def run(args: argparse.Namespace) -> int:
 
     with RecordStore(args.db) as store:
         act = args.action
+        if act in records_server.ACTIONS:
+            return records_server.run(args, store)
         if act == "classes":
             rows = store.class_summary()
             print(
@@ -169,9 +177,17 @@ def run(args: argparse.Namespace) -> int:
                 )
                 print(f"{key.ljust(width)}  {text}")
         elif act == "export":
+            fmt = args.format or "csv"
+            if fmt == "csv" and (args.csv or args.out) is None:
+                raise UserError("export needs --csv FILE (or --format xapi --out FILE)")
+            if fmt == "xapi" and args.csv is not None:
+                raise UserError("--csv writes CSV; with --format xapi use --out FILE")
             rows = store.list_attempts(args.class_name, args.trainee)
-            report.export_csv(rows, args.csv)
-            print(f"wrote {len(rows)} attempt(s) to {args.csv}", file=sys.stderr)
+            if fmt == "xapi":
+                records_server.export_xapi(args, rows)
+            else:
+                report.export_csv(rows, args.csv or args.out)
+                print(f"wrote {len(rows)} attempt(s) to {args.csv or args.out}", file=sys.stderr)
         elif act == "delete":
             a = store.get_attempt(args.id)
             if not args.yes:

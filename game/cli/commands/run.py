@@ -8,7 +8,8 @@ import math
 
 from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import run_pack
-from chainsim.game.app.options import user_settings, window_size
+from chainsim.game.app.options import MODEL_FLAG_CHOICES, MODEL_FLAG_HELP, user_settings, window_size
+from chainsim.game.records import remote
 
 NAME = "run"
 HELP = "run a pack without a window and write OUT/summary.json"
@@ -42,9 +43,13 @@ def add_parser(sub):
     p.add_argument(
         "--size", type=window_size, default=None, metavar="WxH", help="off-screen frame size for screenshots"
     )
+    p.add_argument("--model", choices=MODEL_FLAG_CHOICES, help=MODEL_FLAG_HELP)
     p.add_argument("--db", metavar="PATH", help="trainee records database (procedures that save attempts)")
     p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempt is saved under")
     p.add_argument("--trainee", metavar="NAME", help="trainee the attempt is saved under")
+    p.add_argument(
+        "--records", metavar="URL", help="save attempts to this records server (queued in --db when offline)"
+    )
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     return p
@@ -56,6 +61,8 @@ def run(args) -> int:
         raise UserError(f"--dt must be a number of seconds in (0, 1), got {args.dt}")
     if args.screenshot_every and not args.out:
         raise UserError("--screenshot-every needs --out DIR for the frames")
+    if args.records:
+        remote.sync_quietly(args.records, args.db)  # what an earlier session left in the queue
     summary = run_pack(
         args.pack,
         args.steps,

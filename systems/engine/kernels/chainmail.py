@@ -7,12 +7,18 @@ propagate; one outside is clamped to the nearest point of the box, and its neigh
 with it as sponsor (5.2.3). Every element moves at most once per cascade (termination, 5.2.4), and an
 element that has not moved may be checked again by a later sponsor.
 
-Three orders for the waiting list:
-  ORDER_FIFO      a plain queue;
-  ORDER_BALANCED  the round robin of 5.2.3 (Fig. 5.3): one branch per candidate enqueued by the grabbed
-                  elements, each branch advanced `depth` levels per turn, then paused while the others go;
-  ORDER_SCHILL    largest constraint violation first (binary heap), the inhomogeneous-material ordering
-                  that 4.2.2 attributes to Schill et al.; pairs with per-link materials.
+Four orders for the waiting list:
+  ORDER_BREADTH_FIRST  a plain queue (ORDER_FIFO is the same order under its older name);
+  ORDER_DEPTH_FIRST    the list exactly as 5.2.3 words it: a moved element's neighbours go to the FRONT of
+                       the waiting list, in their listed order, so one branch runs to its leaves first;
+  ORDER_BALANCED       the round robin of 5.2.3 (Fig. 5.3): one branch per candidate enqueued by the grabbed
+                       elements, each branch advanced `depth` levels per turn, then paused while the others go;
+  ORDER_SCHILL         largest constraint violation first (binary heap), the inhomogeneous-material ordering
+                       that 4.2.2 attributes to Schill et al.; pairs with per-link materials.
+
+Whatever the order, a link is only guaranteed inside its box against the sponsor that moved its element:
+5.2.4 bounds the link between two elements moved by one sponsor by a WIDENED box, not by the link's own
+box, and says nothing of elements moved by different sponsors. kernels.exact puts every link back inside.
 
 Cost follows what moves: the "already moved" flag is a generation stamp in a reusable Workspace, so
 nothing of size N is cleared or allocated per cascade.
@@ -29,10 +35,12 @@ from numba import njit
 
 from .graph import Graph
 
-ORDER_FIFO = 0
+ORDER_BREADTH_FIRST = 0
+ORDER_FIFO = ORDER_BREADTH_FIRST  # the older name of the same order
 ORDER_BALANCED = 1
 ORDER_SCHILL = 2
-_ORDERS = (ORDER_FIFO, ORDER_BALANCED, ORDER_SCHILL)
+ORDER_DEPTH_FIRST = 3
+_ORDERS = (ORDER_BREADTH_FIRST, ORDER_BALANCED, ORDER_SCHILL, ORDER_DEPTH_FIRST)
 
 _NO_FIXED = np.zeros(1, dtype=np.bool_)
 _GEN_LIMIT = 2**31 - 2  # int32 stamps: a quarter of a cache line less per element than int64
@@ -94,7 +102,7 @@ class Workspace:
 
     stamp[i] == gen means element i has moved in the current cascade; bumping `gen` clears every flag
     at once. The output buffers are N long; the waiting-list buffers of the balanced and Schill orders
-    are grown on demand (to the CSR size plus K) and then kept. The FIFO order needs no queue.
+    are grown on demand (to the CSR size plus K) and then kept. The breadth-first order needs no queue.
     """
 
     def __init__(self, n: int):
@@ -118,13 +126,13 @@ class Workspace:
         self.checked: tuple = ()
 
     def ensure(self, capacity: int, order: int = ORDER_BALANCED, branches: int | None = None) -> None:
-        """Make the waiting-list buffers hold `capacity` entries for `order` (FIFO needs none).
+        """Make the waiting-list buffers hold `capacity` entries for `order` (breadth-first needs none).
 
         `capacity` bounds the entries one cascade can queue: the CSR size plus K. Entries are int32
-        while that fits, halving the memory of the balanced and Schill orders on big meshes.
+        while that fits, halving the memory of the queued orders on big meshes.
         `branches` (balanced order) bounds the branches, i.e. the links of the grabbed elements.
         """
-        if order == ORDER_FIFO:
+        if order == ORDER_BREADTH_FIRST:
             return
         cap = max(int(capacity), 16)
         idx = np.int32 if cap < 2**31 - 1 else np.int64
@@ -319,12 +327,72 @@ def _cascade_fifo(
             e = indices[j]
             if stamp[e] == gen or not alive[link[j]] or (has_fixed and fixed[e]):
                 continue
-            l = link[j]
-            if _try_move(rest, pos, e, s, amin[l], amax[l], beta[l]):
+            lk = link[j]
+            if _try_move(rest, pos, e, s, amin[lk], amax[lk], beta[lk]):
                 stamp[e] = gen
                 out_order[count] = e
                 out_sponsor[count] = s
                 count += 1
+    return count
+
+
+@njit(cache=True)
+def _cascade_depth_first(
+    rest,
+    pos,
+    indptr,
+    indices,
+    link,
+    alive,
+    amin,
+    amax,
+    beta,
+    grabbed,
+    targets,
+    fixed,
+    has_fixed,
+    stamp,
+    gen,
+    q_entry,
+    q_sponsor,
+    out_order,
+    out_sponsor,
+):
+    # 5.2.3 step 3.3 literally: a moved element's neighbours go to the front of the waiting list, so the
+    # list is a stack. Each block is pushed in reverse so that it is served in its listed order (the
+    # first neighbour first, as in the walk-through of Fig. 5.2).
+    count = _start(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
+    if count < 0:
+        return count
+    top = 0
+    for k in range(count - 1, -1, -1):
+        g = out_order[k]
+        for j in range(indptr[g + 1] - 1, indptr[g] - 1, -1):
+            nb = indices[j]
+            if stamp[nb] != gen and alive[link[j]] and not (has_fixed and fixed[nb]):
+                q_entry[top] = j
+                q_sponsor[top] = g
+                top += 1
+    while top > 0:
+        top -= 1
+        j = q_entry[top]
+        s = q_sponsor[top]
+        e = indices[j]
+        if stamp[e] == gen:
+            continue
+        lk = link[j]
+        if not _try_move(rest, pos, e, s, amin[lk], amax[lk], beta[lk]):
+            continue
+        stamp[e] = gen
+        out_order[count] = e
+        out_sponsor[count] = s
+        count += 1
+        for jj in range(indptr[e + 1] - 1, indptr[e] - 1, -1):
+            nb = indices[jj]
+            if stamp[nb] != gen and alive[link[jj]] and not (has_fixed and fixed[nb]):
+                q_entry[top] = jj
+                q_sponsor[top] = e
+                top += 1
     return count
 
 
@@ -390,8 +458,8 @@ def _cascade_balanced(
                 e = indices[j]
                 if stamp[e] == gen:
                     continue
-                l = link[j]
-                if not _try_move(rest, pos, e, s, amin[l], amax[l], beta[l]):
+                lk = link[j]
+                if not _try_move(rest, pos, e, s, amin[lk], amax[lk], beta[lk]):
                     continue
                 stamp[e] = gen
                 out_order[count] = e
@@ -506,8 +574,8 @@ def _cascade_schill(
         for j in range(indptr[g], indptr[g + 1]):
             nb = indices[j]
             if stamp[nb] != gen and alive[link[j]] and not (has_fixed and fixed[nb]):
-                l = link[j]
-                v = _violation(rest, pos, nb, g, amin[l], amax[l], beta[l])
+                lk = link[j]
+                v = _violation(rest, pos, nb, g, amin[lk], amax[lk], beta[lk])
                 if v > 0.0:
                     size = _heap_push(q_entry, q_sponsor, key, seq, size, j, g, v, pushed)
                     pushed += 1
@@ -518,8 +586,8 @@ def _cascade_schill(
         e = indices[j]
         if stamp[e] == gen:
             continue
-        l = link[j]
-        if not _try_move(rest, pos, e, s, amin[l], amax[l], beta[l]):
+        lk = link[j]
+        if not _try_move(rest, pos, e, s, amin[lk], amax[lk], beta[lk]):
             continue
         stamp[e] = gen
         out_order[count] = e
@@ -589,7 +657,7 @@ def cascade(
     grabbed,
     targets,
     fixed=None,
-    order=ORDER_FIFO,
+    order=ORDER_BREADTH_FIRST,
     workspace: Workspace | None = None,
     depth: int = 2,
     copy: bool = True,
@@ -599,7 +667,8 @@ def cascade(
     rest, pos: (N, D) float64, or both float32, D in 1..3. graph: from build_graph. amin/amax/beta:
     per-link arrays from material_arrays. grabbed: int64 (K,) distinct ids; targets (K, D). fixed:
     bool (N,) anchors that never move (a grabbed anchor stays put and is left out of the result), or
-    None. order: ORDER_FIFO, ORDER_BALANCED (branch depth `depth`) or ORDER_SCHILL. workspace: reuse
+    None. order: ORDER_BREADTH_FIRST, ORDER_DEPTH_FIRST, ORDER_BALANCED (branch depth `depth`) or
+    ORDER_SCHILL. workspace: reuse
     one per mesh so a cascade costs what moves, not N (without one, a temporary of size N is made).
 
     Returns (order, sponsor_of_moved): the ids that moved in the order they moved (grabbed first), each
@@ -647,7 +716,10 @@ def cascade(
                 raise ValueError(f"fixed must be a bool array of shape ({n},) or None, got {fixed_arr.shape}")
         has_fixed = True
     if order not in _ORDERS:
-        raise ValueError(f"order must be ORDER_FIFO (0), ORDER_BALANCED (1) or ORDER_SCHILL (2), got {order!r}")
+        raise ValueError(
+            "order must be ORDER_BREADTH_FIRST (0), ORDER_BALANCED (1), ORDER_SCHILL (2) or ORDER_DEPTH_FIRST (3), "
+            f"got {order!r}"
+        )
     if order == ORDER_BALANCED and depth < 1:
         raise ValueError(f"depth must be >= 1, got {depth}")
 
@@ -659,7 +731,7 @@ def cascade(
             raise ValueError(_START_ERRORS[-1].replace("N)", f"{n})"))
         branches = int((graph.indptr[grabbed + 1] - graph.indptr[grabbed]).sum())
         ws.ensure(graph.indices.shape[0] + k, order, branches)
-    elif order == ORDER_SCHILL:
+    elif order in (ORDER_SCHILL, ORDER_DEPTH_FIRST):
         ws.ensure(graph.indices.shape[0] + k, order)
     gen = ws.next_generation()
     args = (
@@ -679,8 +751,10 @@ def cascade(
         ws.stamp,
         gen,
     )
-    if order == ORDER_FIFO:
+    if order == ORDER_BREADTH_FIRST:
         count = _cascade_fifo(*args, ws.out_order, ws.out_sponsor)
+    elif order == ORDER_DEPTH_FIRST:
+        count = _cascade_depth_first(*args, ws.q_entry, ws.q_sponsor, ws.out_order, ws.out_sponsor)
     elif order == ORDER_BALANCED:
         count = _cascade_balanced(
             *args,

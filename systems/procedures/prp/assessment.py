@@ -28,7 +28,7 @@ from chainsim.components.fluoro import CArm
 from chainsim.components.input_events import Widget
 from chainsim.components.needle import NeedleState
 from chainsim.components.procedure import ProcedureState, PrpAnatomy, landmark_errors
-from chainsim.components.resources import Assessment, EntityIndex, PackResource, Records, Settings
+from chainsim.components.resources import Assessment, EntityIndex, PackResource, Records, SavedLocally, Settings
 from chainsim.engine.errors import UserError
 from chainsim.systems.procedures.prp.handles import PrpHandles, hud
 from chainsim.systems.stages import ORDER_ASSESSMENT
@@ -250,6 +250,9 @@ class AssessmentSystem:
             elif ev.name == "save":
                 try:
                     rid = save(app, v)
+                except SavedLocally as e:  # safe on this computer; the records server gets it later
+                    h.message(f"Saved on this computer: {e}", 8.0)
+                    esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState).closed = True
                 except UserError as e:
                     h.message(f"Not saved: {e}", 8.0)
                     self.errors.append(str(e))

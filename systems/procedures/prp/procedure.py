@@ -387,11 +387,13 @@ def plugin(app) -> None:
         needles = [ent for ent, _ in esper.get_component(Needle)]
         if len(needles) != 1:
             raise UserError(
-                f"pack '{pack.name}': the rhizotomy procedure needs exactly one entity with a [needle] table, found {len(needles)}"
+                f"pack '{pack.name}': the rhizotomy procedure needs exactly one entity with a [needle] table, "
+                f"found {len(needles)}"
             )
         if index.get(SKIN) is None:
             raise UserError(
-                f"pack '{pack.name}': the rhizotomy procedure needs an entity named '{SKIN}' (landmarks are clicked on it)"
+                f"pack '{pack.name}': the rhizotomy procedure needs an entity named '{SKIN}' "
+                "(landmarks are clicked on it)"
             )
         step_ids = [s["id"] for s in pack.section("steps")]
         unknown = [s for s in step_ids if s not in STEP_IDS]

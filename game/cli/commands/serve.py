@@ -1,0 +1,63 @@
+"""`chainsim serve`: run the records server (dashboard and JSON API) over a records database."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+from chainsim.engine.errors import UserError
+from chainsim.game.server.app import serve
+
+NAME = "serve"
+HELP = "run the records server: trainers' dashboard and JSON API over the records database"
+
+_EPILOG = """\
+database: --db PATH or postgresql://USER@HOST/DBNAME, else $CHAINSIM_DB, else the user data folder.
+accounts: chainsim records user add --role trainer --class C NAME (see docs/records-server.md).
+examples:
+  chainsim serve --db programme.sqlite3 --port 8000
+  chainsim serve --db postgresql://chainsim@db.example.org/records --host 0.0.0.0 --certfile c.pem --keyfile k.pem
+"""
+
+
+def _port(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"port must be a whole number, got {text!r}") from None
+    if not 1 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"port must be 1-65535, got {value}")
+    return value
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        NAME, help=HELP, description=HELP, epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("--db", metavar="PATH|URL", help="records database: SQLite file or postgresql:// URL")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    p.add_argument("--port", type=_port, default=8000, help="port (default 8000)")
+    p.add_argument("--certfile", metavar="PEM", help="TLS certificate: serve https (needed off this machine)")
+    p.add_argument("--keyfile", metavar="PEM", help="TLS private key for --certfile")
+    return p
+
+
+def run(args) -> int:
+    if bool(args.certfile) != bool(args.keyfile):
+        raise UserError("--certfile and --keyfile go together")
+    if args.host not in ("127.0.0.1", "localhost", "::1") and not args.certfile:
+        logging.getLogger(__name__).warning(
+            "listening on %s without TLS: passwords and cookies cross the network in clear; "
+            "use --certfile/--keyfile or a TLS proxy in front",
+            args.host,
+        )
+    level = logging.getLogger().getEffectiveLevel()
+    serve(
+        args.db,
+        args.host,
+        args.port,
+        certfile=args.certfile,
+        keyfile=args.keyfile,
+        log_level="warning" if level >= logging.WARNING else "info",
+    )
+    return 0

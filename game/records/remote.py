@@ -1,0 +1,330 @@
+"""Saving attempts to a records server, with an offline queue in the local store.
+
+``chainsim play PACK --records http://HOST:PORT`` files attempts on the programme's server
+(``chainsim serve``) instead of the local file. Every attempt goes first into the ``outbox``
+table of the local SQLite store, committed, with a fresh idempotency key; then it is sent. If the
+server answers, the row is marked sent with the server's id; if it cannot be reached the row
+waits and ``chainsim records sync`` (or the next start of the simulator) sends it. The server
+stores a key once, so an attempt whose answer was lost and is sent again is not stored twice:
+never lost, never sent twice.
+
+Sign-in: ``chainsim records login URL NAME`` asks for the password and keeps the API token in the
+local store (``server_logins``); $CHAINSIM_RECORDS_TOKEN overrides it (scripts, CI).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import urllib.error
+import urllib.request
+import uuid
+from datetime import UTC, datetime
+from typing import Any
+from urllib.parse import urlencode, urlsplit
+
+from chainsim.components.resources import Records, SavedLocally
+from chainsim.engine.errors import UserError
+from chainsim.game.records.store import RecordStore
+from chainsim.game.records.validate import clean_attempt, clean_name, to_json
+
+logger = logging.getLogger(__name__)
+
+TOKEN_ENV = "CHAINSIM_RECORDS_TOKEN"
+TIMEOUT_S = 5.0
+
+
+class KeptOffline(SavedLocally):
+    """The attempt is safe in the local queue but not on the server yet (message says why)."""
+
+    def __init__(self, message: str, local_id: int) -> None:
+        super().__init__(message)
+        self.local_id = local_id
+
+
+class ServerError(Exception):
+    """An HTTP answer from the server that is not success: ``status`` and its one-line message."""
+
+    def __init__(self, status: int, message: str) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+def server_url(text: str) -> str:
+    """``http(s)://host[:port][/prefix]`` without a trailing slash, or one clear error."""
+    parts = urlsplit(text.strip()) if isinstance(text, str) else None
+    if parts is None or parts.scheme not in ("http", "https") or not parts.hostname:
+        raise UserError(f"records server {text!r} must be an address like http://127.0.0.1:8000")
+    if parts.query or parts.fragment or parts.username:
+        raise UserError(f"records server {text!r}: give only scheme, host, port (and a path prefix)")
+    return f"{parts.scheme}://{parts.netloc}{parts.path.rstrip('/')}"
+
+
+def request(
+    url: str,
+    method: str = "GET",
+    body: Any = None,
+    token: str | None = None,
+    headers: dict | None = None,
+    timeout: float = TIMEOUT_S,
+) -> Any:
+    """One JSON request; returns the decoded answer, raises ServerError (HTTP) or OSError (network)."""
+    data = None if body is None else json.dumps(body, allow_nan=False).encode()
+    req = urllib.request.Request(url, data=data, method=method)
+    req.add_header("Accept", "application/json")
+    if data is not None:
+        req.add_header("Content-Type", "application/json")
+    if token:
+        req.add_header("Authorization", f"Bearer {token}")
+    for k, v in (headers or {}).items():
+        req.add_header(k, v)
+    try:
+        with urllib.request.urlopen(req, timeout=timeout) as resp:
+            raw = resp.read()
+    except urllib.error.HTTPError as exc:
+        try:
+            message = json.loads(exc.read(4096) or b"{}").get("error") or exc.reason
+        except (ValueError, AttributeError):
+            message = exc.reason
+        raise ServerError(exc.code, str(message)) from None
+    except urllib.error.URLError as exc:
+        raise OSError(f"cannot reach {url}: {exc.reason}") from None
+    return json.loads(raw) if raw else None
+
+
+# -- sign-in ----------------------------------------------------------------------------------
+
+
+def login(store: RecordStore, server: str, name: str, password: str) -> dict:
+    """Sign in to ``server`` and keep its token in ``store``; returns the account."""
+    server = server_url(server)
+    try:
+        answer = request(f"{server}/api/login", "POST", {"name": name, "password": password, "label": "simulator"})
+    except ServerError as exc:
+        raise UserError(f"{server} refused the sign-in: {exc}") from None
+    except OSError as exc:
+        raise UserError(str(exc)) from None
+    now = datetime.now(UTC).isoformat(timespec="seconds")
+    with store.transaction() as conn:
+        conn.execute("DELETE FROM server_logins WHERE server = ?", (server,))
+        conn.execute(
+            "INSERT INTO server_logins (server, user_name, role, token, saved_at) VALUES (?, ?, ?, ?, ?)",
+            (server, answer["user"]["name"], answer["user"]["role"], answer["token"], now),
+        )
+    return answer["user"]
+
+
+def token_for(store: RecordStore, server: str) -> str | None:
+    env = os.environ.get(TOKEN_ENV, "").strip()
+    if env:
+        return env
+    rows = store.query("SELECT token FROM server_logins WHERE server = ?", (server,))
+    return rows[0][0] if rows else None
+
+
+def role_for(store: RecordStore, server: str, token: str) -> str:
+    """The role of the account behind ``token`` (kept at sign-in, else asked of the server)."""
+    rows = store.query("SELECT role FROM server_logins WHERE server = ? AND token = ?", (server, token))
+    if rows:
+        return rows[0][0]
+    return request(f"{server}/api/me", token=token)["role"]
+
+
+# -- the queue --------------------------------------------------------------------------------
+
+
+def enqueue(store: RecordStore, server: str, class_name: str, trainee: str, attempt: dict) -> int:
+    """Validate the attempt and commit it to the outbox; returns the outbox row id."""
+    record = clean_attempt(attempt)  # a bad attempt is refused now, not after a round trip
+    with store.transaction() as conn:
+        return conn.execute(
+            "INSERT INTO outbox (server, idem_key, class_name, trainee, attempt, queued_at) VALUES (?, ?, ?, ?, ?, ?)",
+            (
+                server,
+                uuid.uuid4().hex,
+                clean_name("class", class_name),
+                clean_name("trainee", trainee),
+                to_json(record),
+                datetime.now(UTC).isoformat(timespec="seconds"),
+            ),
+        ).lastrowid
+
+
+def pending(store: RecordStore, server: str | None = None) -> list[Any]:
+    return store.query(
+        "SELECT id, server, idem_key, class_name, trainee, attempt FROM outbox "
+        "WHERE sent_at IS NULL AND (? IS NULL OR server = ?) ORDER BY id",
+        (server, server),
+    )
+
+
+def _send(store: RecordStore, row: Any, token: str) -> int:
+    """POST one outbox row; on success mark it sent and return the server's id."""
+    body = json.loads(row["attempt"])
+    # A trainee's attempts go under the signed-in account whatever the window's name fields say;
+    # a trainer files for a trainee of their class by naming them.
+    if role_for(store, row["server"], token) == "trainer":
+        body["class_name"], body["trainee"] = row["class_name"], row["trainee"]
+    answer = request(f"{row['server']}/api/attempts", "POST", body, token, {"Idempotency-Key": row["idem_key"]})
+    with store.transaction() as conn:
+        conn.execute(
+            "UPDATE outbox SET sent_at = ?, remote_id = ?, last_error = NULL WHERE id = ?",
+            (datetime.now(UTC).isoformat(timespec="seconds"), int(answer["id"]), row["id"]),
+        )
+    return int(answer["id"])
+
+
+def _note_error(store: RecordStore, row_id: int, message: str) -> None:
+    with store.transaction() as conn:
+        conn.execute("UPDATE outbox SET last_error = ? WHERE id = ?", (message[:500], row_id))
+
+
+def sync(store: RecordStore, server: str | None = None) -> dict[str, Any]:
+    """Send every waiting attempt (of ``server``, or all). Returns counts and one line per problem.
+
+    Stops sending to a server at the first network failure or refused token (the rest wait);
+    an attempt the server refuses (4xx) stays in the queue with the reason, never dropped.
+    """
+    sent, problems, skipped = 0, [], set()
+    for row in pending(store, None if server is None else server_url(server)):
+        srv = row["server"]
+        if srv in skipped:
+            continue
+        token = token_for(store, srv)
+        if token is None:
+            skipped.add(srv)
+            problems.append(f"{srv}: not signed in; run: chainsim records login {srv} NAME")
+            continue
+        try:
+            _send(store, row, token)
+            sent += 1
+        except OSError as exc:
+            skipped.add(srv)
+            problems.append(f"{srv}: unreachable ({exc}); attempts kept for the next sync")
+        except ServerError as exc:
+            _note_error(store, row["id"], f"HTTP {exc.status}: {exc}")
+            if exc.status == 401:
+                skipped.add(srv)
+                problems.append(f"{srv}: sign-in expired or refused ({exc}); run: chainsim records login {srv} NAME")
+            elif exc.status >= 500:
+                skipped.add(srv)
+                problems.append(f"{srv}: server error {exc.status} ({exc}); attempts kept for the next sync")
+            else:
+                problems.append(f"{srv}: attempt {row['id']} refused (HTTP {exc.status}: {exc}); kept in the queue")
+    left = len(pending(store, None if server is None else server_url(server)))
+    return {"sent": sent, "waiting": left, "problems": problems}
+
+
+# -- what the simulator uses ------------------------------------------------------------------
+
+
+class RemoteRecords:
+    """``save_attempt``/``list_attempts`` like ``RecordStore``, on a records server via the outbox."""
+
+    def __init__(self, server: str, local_db: str | os.PathLike[str] | None = None) -> None:
+        self.server = server_url(server)
+        self.local = RecordStore(local_db)
+        self.where = f"records server {self.server}"
+
+    def __enter__(self) -> RemoteRecords:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self.local.close()
+
+    def save_attempt(self, class_name: str, trainee: str, attempt: dict[str, Any]) -> int:
+        """The server's id of the saved attempt; KeptOffline when it waits in the local queue."""
+        local_id = enqueue(self.local, self.server, class_name, trainee, attempt)
+        token = token_for(self.local, self.server)
+        why = None
+        if token is None:
+            why = f"not signed in to {self.server} (chainsim records login {self.server} NAME)"
+        else:
+            row = next(r for r in pending(self.local, self.server) if r["id"] == local_id)
+            try:
+                remote_id = _send(self.local, row, token)
+            except OSError:
+                why = f"{self.server} is unreachable"
+            except ServerError as exc:
+                _note_error(self.local, local_id, f"HTTP {exc.status}: {exc}")
+                if exc.status < 500 and exc.status != 401:
+                    raise UserError(f"{self.server} refused the attempt: {exc} (kept in the local queue)") from None
+                why = f"{self.server} answered {exc.status} ({exc})"
+            else:
+                self._flush_quietly()
+                return remote_id
+        raise KeptOffline(
+            f"{why}; attempt kept on this computer and sent by `chainsim records sync` or the next start",
+            local_id,
+        )
+
+    def _flush_quietly(self) -> None:
+        """The server answered: send what earlier saves left in the queue too."""
+        try:
+            sync(self.local, self.server)
+        except UserError as exc:
+            logger.warning("records sync: %s", exc)
+
+    def delete_attempt(self, attempt_id: int) -> None:
+        """Delete on the server; it refuses (403) an attempt that is not the account's."""
+        token = token_for(self.local, self.server)
+        if token is None:
+            raise UserError(f"not signed in to {self.server}: chainsim records login {self.server} NAME")
+        try:
+            request(f"{self.server}/api/attempts/{int(attempt_id)}", "DELETE", token=token)
+        except ServerError as exc:
+            raise UserError(f"{self.server}: {exc}") from None
+        except OSError as exc:
+            raise UserError(str(exc)) from None
+
+    def list_attempts(self, class_name: str | None = None, trainee: str | None = None) -> list[dict[str, Any]]:
+        token = token_for(self.local, self.server)
+        if token is None:
+            raise UserError(f"not signed in to {self.server}: chainsim records login {self.server} NAME")
+        try:
+            if role_for(self.local, self.server, token) != "trainer":
+                class_name = trainee = None  # a trainee account lists its own attempts, whatever the names typed
+            query = {k: v for k, v in (("class", class_name), ("trainee", trainee)) if v is not None}
+            url = f"{self.server}/api/attempts" + (f"?{urlencode(query)}" if query else "")
+            return request(url, token=token)["attempts"]
+        except ServerError as exc:
+            raise UserError(f"{self.server}: {exc}") from None
+        except OSError as exc:
+            raise UserError(str(exc)) from None
+
+
+def remote_records(server: str, db: str | os.PathLike[str] | None = None) -> Records:
+    """The Records resource on a records server, queueing in the local store ``db`` (see module doc)."""
+    server = server_url(server)
+
+    def save_attempt(class_name: str, trainee: str, record: dict) -> int:
+        with RemoteRecords(server, db) as rr:
+            return rr.save_attempt(class_name, trainee, record)
+
+    def list_attempts(class_name: str, trainee: str) -> list[dict]:
+        with RemoteRecords(server, db) as rr:
+            return rr.list_attempts(class_name, trainee)
+
+    def delete_attempt(class_name: str, trainee: str, attempt_id: int) -> None:
+        with RemoteRecords(server, db) as rr:
+            rr.delete_attempt(attempt_id)
+
+    return Records(save_attempt, list_attempts, f"records server {server}", delete_attempt)
+
+
+def sync_quietly(server: str, db: str | os.PathLike[str] | None = None) -> None:
+    """Send what earlier sessions left in the queue for ``server``; problems are logged, not raised."""
+    try:
+        with RecordStore(db) as store:
+            result = sync(store, server_url(server))
+    except UserError as exc:
+        logger.warning("records: %s", exc)
+        return
+    if result["sent"]:
+        logger.info("sent %d queued attempt(s) to %s", result["sent"], server)
+    for line in result["problems"]:
+        logger.warning("records: %s", line)

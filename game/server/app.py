@@ -1,0 +1,152 @@
+"""The records server as one ASGI app (Starlette), and ``serve`` to run it with uvicorn.
+
+Routes come from ``api`` (JSON under /api) and ``views`` (the dashboard); static files from the
+package's ``static`` folder. Every error leaves as one line: JSON ``{"error": ...}`` under /api,
+a short page elsewhere; a database that cannot serve a request answers 503 (retry), never a
+traceback. Every response gets headers that keep the pages to this origin (no scripts, styles or
+images from elsewhere, no framing).
+"""
+
+from __future__ import annotations
+
+import logging
+from contextlib import asynccontextmanager
+
+from starlette.applications import Starlette
+from starlette.datastructures import MutableHeaders
+from starlette.exceptions import HTTPException
+from starlette.middleware import Middleware
+from starlette.requests import Request
+from starlette.responses import JSONResponse, RedirectResponse, Response
+from starlette.routing import Mount
+from starlette.staticfiles import StaticFiles
+
+from chainsim.engine.errors import UserError
+from chainsim.game.server import api, views
+from chainsim.game.server.auth import HTTPError
+from chainsim.game.server.storage import Storage, Unavailable
+
+logger = logging.getLogger(__name__)
+
+SECURITY_HEADERS = {
+    "Content-Security-Policy": (
+        "default-src 'self'; img-src 'self'; style-src 'self'; script-src 'none'; "
+        "frame-ancestors 'none'; form-action 'self'; base-uri 'none'"
+    ),
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "same-origin",
+    "X-Frame-Options": "DENY",
+}
+
+
+def _error(request: Request, status: int, message: str, headers: dict[str, str] | None = None) -> Response:
+    if request.url.path.startswith("/api/") or request.url.path == "/api":
+        return JSONResponse({"error": message}, status_code=status, headers=headers)
+    return views.render("error.html", status, status=status, message=message)
+
+
+async def _http_error(request: Request, exc: HTTPError) -> Response:
+    return _error(request, exc.status, exc.message, exc.headers)
+
+
+async def _starlette_error(request: Request, exc: HTTPException) -> Response:
+    return _error(request, exc.status_code, exc.detail or "error", dict(exc.headers or {}))
+
+
+async def _redirect(request: Request, exc: views.Redirect) -> Response:
+    return RedirectResponse(exc.location, status_code=303)
+
+
+async def _unavailable(request: Request, exc: Unavailable) -> Response:
+    return _error(request, 503, f"records database busy or unreachable; try again ({exc})", {"Retry-After": "1"})
+
+
+async def _user_error(request: Request, exc: UserError) -> Response:
+    return _error(request, 422, str(exc))
+
+
+def build_app(db: str | None) -> Starlette:
+    """The app over the records database ``db`` (a path, a postgresql:// URL, or None: default file)."""
+    storage = Storage(db)
+
+    @asynccontextmanager
+    async def lifespan(app: Starlette):
+        yield
+        storage.close()
+
+    app = Starlette(
+        routes=[
+            *api.routes,
+            *views.routes,
+            Mount("/static", app=StaticFiles(packages=[("chainsim.game.server", "static")]), name="static"),
+        ],
+        exception_handlers={
+            HTTPError: _http_error,
+            HTTPException: _starlette_error,
+            views.Redirect: _redirect,
+            Unavailable: _unavailable,
+            UserError: _user_error,
+        },
+        middleware=[Middleware(SecurityHeaders)],
+        lifespan=lifespan,
+    )
+    app.state.storage = storage
+    return app
+
+
+class SecurityHeaders:
+    """ASGI middleware adding SECURITY_HEADERS (and no-store outside /static) to every response."""
+
+    def __init__(self, app) -> None:
+        self.app = app
+
+    async def __call__(self, scope, receive, send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        static = scope.get("path", "").startswith("/static/")
+
+        async def send_with_headers(message) -> None:
+            if message["type"] == "http.response.start":
+                headers = MutableHeaders(scope=message)
+                for key, value in SECURITY_HEADERS.items():
+                    headers.setdefault(key, value)
+                if not static:
+                    headers.setdefault("Cache-Control", "no-store")
+            await send(message)
+
+        await self.app(scope, receive, send_with_headers)
+
+
+def serve(
+    db: str | None,
+    host: str = "127.0.0.1",
+    port: int = 8000,
+    *,
+    certfile: str | None = None,
+    keyfile: str | None = None,
+    log_level: str = "info",
+) -> None:
+    """Run the server until interrupted (uvicorn, one process)."""
+    import uvicorn  # noqa: PLC0415 - only `chainsim serve` needs the server
+
+    app = build_app(db)
+    logger.info(
+        "records server on %s://%s:%d, database %s",
+        "https" if certfile else "http",
+        host,
+        port,
+        app.state.storage.where,
+    )
+    uvicorn.run(
+        app,
+        host=host,
+        port=port,
+        log_level=log_level,
+        ssl_certfile=certfile,
+        ssl_keyfile=keyfile,
+        access_log=False,
+        # behind a TLS proxy the scheme comes from X-Forwarded-Proto, only trusted from localhost
+        proxy_headers=True,
+        forwarded_allow_ips="127.0.0.1",
+    )

@@ -1,0 +1,102 @@
+"""Progress plots for the dashboard: one metric of one trainee over attempts, with the class median.
+
+The thesis tool lets a trainer judge a trainee's progress from saved results (3.3.4); against
+the class it also shows whether a trainee is ahead or behind. The k-th point of the median line
+is the median over the class's trainees of their k-th attempt, so both lines share the x axis
+"attempt number". Rendered on the server with matplotlib's Agg/SVG canvases (no pyplot, no
+display, safe from worker threads), so the page needs no JavaScript.
+
+Metrics are the numeric fields of the attempt record (whatever ``RecordStore`` returns), so a
+field added to the record gets its plot without a change here.
+"""
+
+from __future__ import annotations
+
+import io
+import numbers
+import statistics
+from collections.abc import Sequence
+from typing import Any
+
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.backends.backend_svg import FigureCanvasSVG
+from matplotlib.figure import Figure
+
+FORMATS = {"svg": "image/svg+xml", "png": "image/png"}
+_NOT_METRICS = {"id"}
+_UNITS = {"_mm": "mm", "_s": "s", "_deg": "deg"}
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def metrics(attempts: Sequence[dict[str, Any]]) -> list[str]:
+    """Numeric fields of the records, in record order (None allowed: no value that time)."""
+    if not attempts:
+        return []
+    out = []
+    for key in attempts[0]:
+        if key in _NOT_METRICS:
+            continue
+        values = [a.get(key) for a in attempts]
+        if all(v is None or _is_number(v) for v in values) and any(_is_number(v) for v in values):
+            out.append(key)
+    return out
+
+
+def label(metric: str) -> str:
+    """``landmark_error_mm`` -> ``landmark error (mm)``."""
+    for suffix, unit in _UNITS.items():
+        if metric.endswith(suffix):
+            return f"{metric[: -len(suffix)].replace('_', ' ')} ({unit})"
+    return metric.replace("_", " ")
+
+
+def class_median(by_trainee: Sequence[Sequence[dict[str, Any]]], metric: str) -> list[float | None]:
+    """Per attempt number k (from 1), the median of the trainees' k-th values that exist."""
+    longest = max((len(rows) for rows in by_trainee), default=0)
+    out: list[float | None] = []
+    for k in range(longest):
+        values = [rows[k].get(metric) for rows in by_trainee if len(rows) > k]
+        values = [float(v) for v in values if _is_number(v)]
+        out.append(statistics.median(values) if values else None)
+    return out
+
+
+def render(
+    attempts: Sequence[dict[str, Any]],
+    median: Sequence[float | None],
+    metric: str,
+    title: str,
+    fmt: str = "svg",
+) -> bytes:
+    """The plot as SVG or PNG bytes."""
+    fig = Figure(figsize=(6.4, 3.2), dpi=100)
+    canvas = (FigureCanvasSVG if fmt == "svg" else FigureCanvasAgg)(fig)
+    ax = fig.subplots()
+    xs = list(range(1, len(attempts) + 1))
+    own = [(x, float(a[metric])) for x, a in zip(xs, attempts) if _is_number(a.get(metric))]
+    if own:
+        ax.plot([x for x, _ in own], [y for _, y in own], marker="o", color="tab:blue", label="this trainee")
+    med = [(k + 1, v) for k, v in enumerate(median) if v is not None]
+    if med:
+        ax.plot(
+            [x for x, _ in med], [y for _, y in med], linestyle="--", color="0.45", marker=".", label="class median"
+        )
+    ax.set_xlabel("attempt")
+    ax.set_ylabel(label(metric))
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+    if own or med:
+        ax.legend(loc="best", fontsize=8)
+    if len(xs) <= 20 and xs:
+        ax.set_xticks(xs)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    if fmt == "svg":
+        # No date in the metadata: the same attempts give the same bytes.
+        fig.savefig(buf, format="svg", metadata={"Date": None})
+    else:
+        canvas.print_png(buf)
+    return buf.getvalue()

@@ -1,0 +1,296 @@
+"""The trainers' dashboard: sign in, classes, trainees, progress plots, one attempt, exports.
+
+Plain HTML forms and links rendered on the server (Jinja2, autoescaped), one stylesheet served
+from the package, plots as server-rendered SVG/PNG images: everything works without JavaScript
+and nothing is loaded from another site. A trainer sees the classes they teach; a trainee lands
+on their own page and can open nothing else (403).
+
+    GET  /login, POST /login, POST /logout
+    GET  /                                  a trainer's classes (a trainee: their own page)
+    GET  /classes/{id}                      trainees of a class with attempt counts
+    GET  /trainees/{id}                     attempts and one progress plot per metric
+    GET  /trainees/{id}/plot/{metric}.svg   (or .png) the plot, with the class median
+    GET  /attempts/{id}                     every field of one attempt; POST .../delete removes it
+    GET  /export/attempts.csv, /export/attempts.xapi.json   ?class=C&trainee=T
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from typing import Any
+
+from jinja2 import Environment, PackageLoader, select_autoescape
+from starlette.requests import Request
+from starlette.responses import HTMLResponse, RedirectResponse, Response
+from starlette.routing import Route
+
+from chainsim.game.records import report, xapi
+from chainsim.game.records.store import RecordStore
+from chainsim.game.server import accounts, plots
+from chainsim.game.server.accounts import User
+from chainsim.game.server.api import delete_attempt, readable_attempt, visible_attempts
+from chainsim.game.server.auth import (
+    LOGIN_CSRF_COOKIE,
+    SESSION_COOKIE,
+    HTTPError,
+    check_csrf,
+    new_login_csrf,
+    page_or_api_user,
+    read_form,
+    session,
+)
+
+templates = Environment(loader=PackageLoader("chainsim.game.server", "templates"), autoescape=select_autoescape())
+templates.filters["tojson_pretty"] = lambda v: json.dumps(v, indent=2, sort_keys=True)
+
+
+class Redirect(Exception):
+    def __init__(self, location: str) -> None:
+        super().__init__(location)
+        self.location = location
+
+
+def render(template: str, code: int = 200, /, **context: Any) -> HTMLResponse:
+    return HTMLResponse(templates.get_template(template).render(**context), status_code=code)
+
+
+def _secure(request: Request) -> bool:
+    return request.url.scheme == "https"
+
+
+async def page_user(request: Request) -> tuple[User, str]:
+    found = await session(request)
+    if found is None:
+        raise Redirect("/login")
+    return found
+
+
+# -- store work (storage worker threads) --------------------------------------------------------
+
+
+def class_list(store: RecordStore, user: User) -> list[dict]:
+    if not user.classes:
+        return []
+    marks = ",".join("?" for _ in user.classes)
+    rows = store.query(
+        f"""
+        SELECT c.id, c.name, COUNT(DISTINCT t.id) AS trainees, COUNT(a.id) AS attempts
+        FROM classes c LEFT JOIN trainees t ON t.class_id = c.id LEFT JOIN attempts a ON a.trainee_id = t.id
+        WHERE c.name IN ({marks}) GROUP BY c.id, c.name ORDER BY c.name
+        """,
+        tuple(user.classes),
+    )
+    return [dict(r) for r in rows]
+
+
+def class_detail(store: RecordStore, user: User, class_id: int) -> dict:
+    rows = store.query("SELECT id, name FROM classes WHERE id = ?", (class_id,))
+    if not rows:
+        raise HTTPError(404, f"no class with id {class_id}")
+    name = rows[0]["name"]
+    if not user.is_trainer or name not in user.classes:
+        raise HTTPError(403, f"you do not teach class {name!r}")
+    trainees = store.query(
+        """
+        SELECT t.id, t.name, COUNT(a.id) AS attempts, MAX(a.created_at) AS last
+        FROM trainees t LEFT JOIN attempts a ON a.trainee_id = t.id
+        WHERE t.class_id = ? GROUP BY t.id, t.name ORDER BY t.name
+        """,
+        (class_id,),
+    )
+    return {"id": class_id, "name": name, "trainees": [dict(r) for r in trainees]}
+
+
+def trainee_detail(store: RecordStore, user: User, trainee_id: int) -> dict:
+    rows = store.query(
+        "SELECT t.id, t.name, c.id AS class_id, c.name AS class_name FROM trainees t "
+        "JOIN classes c ON c.id = t.class_id WHERE t.id = ?",
+        (trainee_id,),
+    )
+    if not rows:
+        raise HTTPError(404, f"no trainee with id {trainee_id}")
+    t = dict(rows[0])
+    if not user.can_see(t["class_name"], t["name"]):
+        raise HTTPError(403, "these attempts are not yours to see")
+    t["attempts"] = store.list_attempts(t["class_name"], t["name"])
+    t["metrics"] = plots.metrics(t["attempts"])
+    return t
+
+
+def trainee_plot(store: RecordStore, user: User, trainee_id: int, metric: str, fmt: str) -> bytes:
+    t = trainee_detail(store, user, trainee_id)
+    if metric not in t["metrics"]:
+        raise HTTPError(404, f"no metric {metric!r} in these attempts; known: {', '.join(t['metrics']) or 'none'}")
+    by_trainee: dict[str, list[dict]] = {}
+    for a in store.list_attempts(t["class_name"]):  # oldest first within each trainee
+        by_trainee.setdefault(a["trainee"], []).append(a)
+    median = plots.class_median(list(by_trainee.values()), metric)
+    title = f"{t['name']} ({t['class_name']}): {plots.label(metric)}"
+    return plots.render(t["attempts"], median, metric, title, fmt)
+
+
+def attempt_detail(store: RecordStore, user: User, attempt_id: int) -> dict:
+    a = readable_attempt(store, user, attempt_id)
+    rows = store.query(
+        "SELECT t.id FROM trainees t JOIN classes c ON c.id = t.class_id WHERE c.name = ? AND t.name = ?",
+        (a["class_name"], a["trainee"]),
+    )
+    return {"attempt": a, "trainee_id": rows[0][0] if rows else None}
+
+
+# -- routes -----------------------------------------------------------------------------------
+
+
+def _int_param(request: Request, name: str) -> int:
+    value = int(request.path_params[name])
+    if not 1 <= value < 2**63:
+        raise HTTPError(404, f"no such {name.split('_')[0]}")
+    return value
+
+
+async def login_page(request: Request) -> Response:
+    if await session(request) is not None:
+        return RedirectResponse("/", status_code=303)
+    token = new_login_csrf()
+    resp = render("login.html", csrf=token, error=None, name="")
+    resp.set_cookie(LOGIN_CSRF_COOKIE, token, httponly=True, samesite="strict", secure=_secure(request))
+    return resp
+
+
+async def login_submit(request: Request) -> Response:
+    form = await read_form(request)
+    cookie = request.cookies.get(LOGIN_CSRF_COOKIE)
+    if not cookie:
+        raise HTTPError(403, "sign-in form expired or forged (no CSRF cookie); reload the sign-in page")
+    check_csrf(request, form, cookie)
+    storage = request.app.state.storage
+    user = await storage.run(accounts.check_login, form.get("name", ""), form.get("password", ""))
+    if user is None:
+        token = new_login_csrf()
+        resp = render("login.html", 401, csrf=token, error="Name or password is wrong.", name=form.get("name", "")[:64])
+        resp.set_cookie(LOGIN_CSRF_COOKIE, token, httponly=True, samesite="strict", secure=_secure(request))
+        return resp
+    sid, _ = await storage.run(accounts.start_session, user)
+    resp = RedirectResponse("/", status_code=303)
+    resp.set_cookie(
+        SESSION_COOKIE,
+        sid,
+        max_age=accounts.SESSION_TTL_S,
+        httponly=True,
+        samesite="lax",
+        secure=_secure(request),
+    )
+    resp.delete_cookie(LOGIN_CSRF_COOKIE)
+    return resp
+
+
+async def logout(request: Request) -> Response:
+    user, csrf = await page_user(request)
+    check_csrf(request, await read_form(request), csrf)
+    await request.app.state.storage.run(accounts.end_session, request.cookies[SESSION_COOKIE])
+    resp = RedirectResponse("/login", status_code=303)
+    resp.delete_cookie(SESSION_COOKIE)
+    return resp
+
+
+async def home(request: Request) -> Response:
+    user, csrf = await page_user(request)
+    storage = request.app.state.storage
+    if not user.is_trainer:
+        if user.trainee_id is None:
+            raise HTTPError(403, "this trainee account has no trainee record; ask your trainer")
+        return RedirectResponse(f"/trainees/{user.trainee_id}", status_code=303)
+    classes = await storage.run(class_list, user)
+    return render("home.html", user=user, csrf=csrf, classes=classes)
+
+
+async def class_page(request: Request) -> Response:
+    user, csrf = await page_user(request)
+    cls = await request.app.state.storage.run(class_detail, user, _int_param(request, "class_id"))
+    return render("class.html", user=user, csrf=csrf, cls=cls)
+
+
+async def trainee_page(request: Request) -> Response:
+    user, csrf = await page_user(request)
+    t = await request.app.state.storage.run(trainee_detail, user, _int_param(request, "trainee_id"))
+    labels = {m: plots.label(m) for m in t["metrics"]}
+    return render("trainee.html", user=user, csrf=csrf, t=t, labels=labels)
+
+
+async def plot_image(request: Request) -> Response:
+    user, _ = await page_user(request)
+    metric, _, fmt = request.path_params["image"].rpartition(".")
+    if fmt not in plots.FORMATS or not metric:
+        raise HTTPError(404, f"plots are .svg or .png, got {request.path_params['image']!r}")
+    data = await request.app.state.storage.run(trainee_plot, user, _int_param(request, "trainee_id"), metric, fmt)
+    return Response(data, media_type=plots.FORMATS[fmt], headers={"Cache-Control": "private, no-store"})
+
+
+async def attempt_page(request: Request) -> Response:
+    user, csrf = await page_user(request)
+    d = await request.app.state.storage.run(attempt_detail, user, _int_param(request, "attempt_id"))
+    a = d["attempt"]
+    scalars = {k: v for k, v in a.items() if not isinstance(v, (dict, list))}
+    nested = {k: v for k, v in a.items() if isinstance(v, (dict, list)) and k not in ("step_times", "aids")}
+    return render("attempt.html", user=user, csrf=csrf, a=a, trainee_id=d["trainee_id"], scalars=scalars, nested=nested)
+
+
+async def attempt_delete(request: Request) -> Response:
+    user, csrf = await page_user(request)
+    check_csrf(request, await read_form(request), csrf)
+    gone = await request.app.state.storage.run(delete_attempt, user, _int_param(request, "attempt_id"))
+    d = await request.app.state.storage.run(
+        lambda store: store.query(
+            "SELECT t.id FROM trainees t JOIN classes c ON c.id = t.class_id WHERE c.name = ? AND t.name = ?",
+            (gone["class_name"], gone["trainee"]),
+        )
+    )
+    return RedirectResponse(f"/trainees/{d[0][0]}" if d else "/", status_code=303)
+
+
+async def _export_rows(request: Request) -> list[dict]:
+    user = await page_or_api_user(request)
+    if user is None:
+        raise Redirect("/login")
+    q = request.query_params
+    return await request.app.state.storage.run(visible_attempts, user, q.get("class"), q.get("trainee"))
+
+
+async def export_csv(request: Request) -> Response:
+    rows = await _export_rows(request)
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(report.CSV_COLUMNS)
+    w.writerows(report.csv_rows(rows))
+    return Response(
+        buf.getvalue(),
+        media_type="text/csv; charset=utf-8",
+        headers={"Content-Disposition": 'attachment; filename="attempts.csv"'},
+    )
+
+
+async def export_xapi(request: Request) -> Response:
+    rows = await _export_rows(request)
+    home = str(request.base_url).rstrip("/")
+    return Response(
+        xapi.dumps(xapi.statements(rows, home)),
+        media_type="application/json",
+        headers={"Content-Disposition": 'attachment; filename="attempts.xapi.json"'},
+    )
+
+
+routes = [
+    Route("/login", login_page, methods=["GET"]),
+    Route("/login", login_submit, methods=["POST"]),
+    Route("/logout", logout, methods=["POST"]),
+    Route("/", home, methods=["GET"]),
+    Route("/classes/{class_id:int}", class_page, methods=["GET"]),
+    Route("/trainees/{trainee_id:int}", trainee_page, methods=["GET"]),
+    Route("/trainees/{trainee_id:int}/plot/{image}", plot_image, methods=["GET"]),
+    Route("/attempts/{attempt_id:int}", attempt_page, methods=["GET"]),
+    Route("/attempts/{attempt_id:int}/delete", attempt_delete, methods=["POST"]),
+    Route("/export/attempts.csv", export_csv, methods=["GET"]),
+    Route("/export/attempts.xapi.json", export_xapi, methods=["GET"]),
+]

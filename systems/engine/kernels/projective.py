@@ -1,0 +1,138 @@
+"""Projective dynamics local step (numba): per-tetrahedron rotations and volume targets, scattered.
+
+For each live tetrahedron, F = X D (X the 3x4 corner positions, D the 4x3 rest operator). The
+as-rigid-as-possible target is F's rotation R, found by Mueller et al.'s iterative extraction
+(quaternion updates, warm-started from the last frame's rotation, so one or two iterations suffice
+between frames); the volume target is F scaled to unit determinant (R for an inverted element). The
+right-hand side gathers D (w_a R + w_v P)^T per tetrahedron into its four corners.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def _quat_to_mat(q, R):
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    R[0, 0] = 1 - 2 * (y * y + z * z)
+    R[0, 1] = 2 * (x * y - w * z)
+    R[0, 2] = 2 * (x * z + w * y)
+    R[1, 0] = 2 * (x * y + w * z)
+    R[1, 1] = 1 - 2 * (x * x + z * z)
+    R[1, 2] = 2 * (y * z - w * x)
+    R[2, 0] = 2 * (x * z - w * y)
+    R[2, 1] = 2 * (y * z + w * x)
+    R[2, 2] = 1 - 2 * (x * x + y * y)
+
+
+@njit(cache=True)
+def extract_rotation(A, q, iterations):
+    """Rotation of A (3x3) by Mueller et al. 2016, refining unit quaternion q (w, x, y, z) in place."""
+    R = np.zeros((3, 3))
+    for _ in range(iterations):
+        _quat_to_mat(q, R)
+        # omega = sum_i r_i x a_i / (|sum_i r_i . a_i| + eps)
+        ox = oy = oz = 0.0
+        dot = 0.0
+        for i in range(3):
+            rx, ry, rz = R[0, i], R[1, i], R[2, i]
+            ax, ay, az = A[0, i], A[1, i], A[2, i]
+            ox += ry * az - rz * ay
+            oy += rz * ax - rx * az
+            oz += rx * ay - ry * ax
+            dot += rx * ax + ry * ay + rz * az
+        s = 1.0 / (abs(dot) + 1e-9)
+        ox *= s
+        oy *= s
+        oz *= s
+        angle = np.sqrt(ox * ox + oy * oy + oz * oz)
+        if angle < 1e-9:
+            break
+        ha = 0.5 * angle
+        sn = np.sin(ha) / angle
+        dw, dx, dy, dz = np.cos(ha), ox * sn, oy * sn, oz * sn
+        w, x, y, z = q[0], q[1], q[2], q[3]
+        q[0] = dw * w - dx * x - dy * y - dz * z
+        q[1] = dw * x + dx * w + dy * z - dz * y
+        q[2] = dw * y - dx * z + dy * w + dz * x
+        q[3] = dw * z + dx * y - dy * x + dz * w
+        nq = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+        for k in range(4):
+            q[k] /= nq
+    _quat_to_mat(q, R)
+    return R
+
+
+@njit(cache=True)
+def local_step(x, tets, D, active, w_arap, w_vol, quats, rot_iterations, rhs):
+    """Project every live tet and accumulate the elastic right-hand side (rhs (N,3), overwritten)."""
+    rhs[:] = 0.0
+    F = np.zeros((3, 3))
+    for t in range(tets.shape[0]):
+        if not active[t]:
+            continue
+        for r in range(3):
+            for c in range(3):
+                acc = 0.0
+                for k in range(4):
+                    acc += x[tets[t, k], r] * D[t, k, c]
+                F[r, c] = acc
+        R = extract_rotation(F, quats[t], rot_iterations)
+        J = (
+            F[0, 0] * (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1])
+            - F[0, 1] * (F[1, 0] * F[2, 2] - F[1, 2] * F[2, 0])
+            + F[0, 2] * (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0])
+        )
+        if J > 1e-12:
+            s = J ** (-1.0 / 3.0)
+        else:
+            s = 0.0  # inverted or flat: the volume target is the rotation itself
+        for k in range(4):
+            i = tets[t, k]
+            for r in range(3):
+                acc = 0.0
+                for c in range(3):
+                    P = F[r, c] * s if s > 0.0 else R[r, c]
+                    acc += D[t, k, c] * (w_arap[t] * R[r, c] + w_vol[t] * P)
+                rhs[i, r] += acc
+    return rhs
+
+
+@njit(cache=True)
+def local_step_tri(x, tris, D, active, w_arap, rhs):
+    """Membrane triangles: project F (3x2) onto its nearest orthonormal-column matrix R = F (F^T F)^-1/2
+    and accumulate D (w R)^T into the corners (rhs (N,3), overwritten)."""
+    rhs[:] = 0.0
+    F = np.zeros((3, 2))
+    R = np.zeros((3, 2))
+    for t in range(tris.shape[0]):
+        if not active[t]:
+            continue
+        for r in range(3):
+            for c in range(2):
+                acc = 0.0
+                for k in range(3):
+                    acc += x[tris[t, k], r] * D[t, k, c]
+                F[r, c] = acc
+        a = F[0, 0] * F[0, 0] + F[1, 0] * F[1, 0] + F[2, 0] * F[2, 0]
+        b = F[0, 0] * F[0, 1] + F[1, 0] * F[1, 1] + F[2, 0] * F[2, 1]
+        d = F[0, 1] * F[0, 1] + F[1, 1] * F[1, 1] + F[2, 1] * F[2, 1]
+        det = a * d - b * b
+        if det <= 1e-30:
+            continue  # a collapsed triangle has no direction to restore: it contributes nothing
+        s = np.sqrt(det)
+        tau = np.sqrt(a + d + 2.0 * s)
+        # sqrt(C) = (C + s I) / tau for 2x2 SPD C; its inverse by the 2x2 formula
+        m00, m01, m11 = (a + s) / tau, b / tau, (d + s) / tau
+        idet = 1.0 / (m00 * m11 - m01 * m01)
+        i00, i01, i11 = m11 * idet, -m01 * idet, m00 * idet
+        for r in range(3):
+            R[r, 0] = F[r, 0] * i00 + F[r, 1] * i01
+            R[r, 1] = F[r, 0] * i01 + F[r, 1] * i11
+        for k in range(3):
+            i = tris[t, k]
+            for r in range(3):
+                rhs[i, r] += w_arap[t] * (D[t, k, 0] * R[r, 0] + D[t, k, 1] * R[r, 1])
+    return rhs

@@ -1,0 +1,159 @@
+"""A real records server for the tests: `chainsim serve` in a subprocess over SQLite or PostgreSQL.
+
+``site`` (one per backend per test session) is a server with a small programme in it: trainer
+``tina`` teaches c1, trainer ``tom`` teaches c2; trainees ``alice`` and ``bob`` are in c1,
+``carol`` in c2. Every account's password is ``PASSWORD`` and each has an API token in
+``site.tokens``. Tests that need a server of their own (kill -9, restarts) use ``start_server``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+
+from chainsim.game.records.store import RecordStore
+from chainsim.game.server import accounts
+
+REPO = Path(__file__).resolve().parents[2]
+PASSWORD = "correct horse 42"
+PEOPLE = (
+    ("tina", "trainer", ["c1"]),
+    ("tom", "trainer", ["c2"]),
+    ("alice", "trainee", ["c1"]),
+    ("bob", "trainee", ["c1"]),
+    ("carol", "trainee", ["c2"]),
+)
+
+from records_db import free_port  # noqa: E402  (tests/records_db.py, loaded by tests/conftest.py)
+
+
+def attempt(i: int = 0, **over) -> dict:
+    a = {
+        "pack": "prp",
+        "created_at": f"2026-06-{1 + i % 28:02d}T10:00:00Z",
+        "duration_s": 80.0 - 3 * i,
+        "landmark_error_mm": 5.0 - 0.4 * i,
+        "needle_error_mm": 9.0 - i,
+        "target": "foramen_ovale_left" if i % 2 else "skull",
+        "skull_contacts": max(0, 4 - i),
+        "path_length_mm": 60.0 + i,
+        "aids": {"tip_view": True},
+        "step_times": {"landmarks": 30.0 - i, "insert": 50.0 - 2 * i},
+        "details": {"D1": 0.5, "side": "left"},
+    }
+    a.update(over)
+    return a
+
+
+@dataclass
+class Server:
+    url: str
+    db: str
+    proc: subprocess.Popen
+    log: Path
+    tokens: dict[str, str] = field(default_factory=dict)
+
+    def stop(self, sig: int = signal.SIGTERM) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None and call(self, "GET", "/api/health")[0] == 200
+
+
+def start_server(db: str, log: Path, port: int | None = None) -> Server:
+    port = port or free_port()
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    fh = log.open("ab")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "chainsim.game", "serve", "--db", db, "--port", str(port)],
+        stdout=fh,
+        stderr=subprocess.STDOUT,
+        env=env,
+    )
+    fh.close()
+    server = Server(f"http://127.0.0.1:{port}", db, proc, log)
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"chainsim serve exited {proc.returncode}: {log.read_text()}")
+        try:
+            if call(server, "GET", "/api/health")[0] == 200:
+                return server
+        except OSError:
+            pass
+        time.sleep(0.1)
+    server.stop()
+    raise RuntimeError(f"chainsim serve did not answer in 30 s: {log.read_text()}")
+
+
+def call(server: Server, method: str, path: str, body=None, token: str | None = None, headers=None, raw=None):
+    """(status, decoded JSON or text, headers) of one request; never raises on HTTP errors."""
+    data = raw if raw is not None else (None if body is None else json.dumps(body).encode())
+    req = urllib.request.Request(server.url + path, data=data, method=method)
+    if data is not None and not any(k.lower() == "content-type" for k in (headers or {})):
+        req.add_header("Content-Type", "application/json")
+    if token:
+        req.add_header("Authorization", f"Bearer {token}")
+    for k, v in (headers or {}).items():
+        req.add_header(k, v)
+    opener = urllib.request.build_opener(NoRedirect)
+    try:
+        with opener.open(req, timeout=30) as resp:
+            status, text, hdrs = resp.status, resp.read(), resp.headers
+    except urllib.error.HTTPError as exc:
+        status, text, hdrs = exc.code, exc.read(), exc.headers
+    try:
+        decoded = json.loads(text) if text else None
+    except ValueError:
+        decoded = text.decode("utf-8", "replace")
+    return status, decoded, hdrs
+
+
+class NoRedirect(urllib.request.HTTPRedirectHandler):
+    def redirect_request(self, *args, **kwargs):
+        return None
+
+
+def populate(db: str) -> None:
+    with RecordStore(db) as store:
+        for name, role, classes in PEOPLE:
+            accounts.add_user(store, name, role, PASSWORD, classes)
+
+
+@pytest.fixture(scope="session", params=("sqlite", "postgresql"))
+def site(request, tmp_path_factory):
+    """A running server with the PEOPLE accounts, one per backend for the whole session."""
+    folder = tmp_path_factory.mktemp(f"site-{request.param}")
+    if request.param == "sqlite":
+        db = str(folder / "programme.sqlite3")
+    else:
+        db = request.getfixturevalue("postgres_server").new_database()
+    populate(db)
+    server = start_server(db, folder / "serve.log")
+    for name, _, _ in PEOPLE:
+        status, answer, _ = call(server, "POST", "/api/login", {"name": name, "password": PASSWORD})
+        assert status == 201, answer
+        server.tokens[name] = answer["token"]
+    yield server
+    server.stop()
+
+
+def count_attempts(db: str) -> int:
+    with RecordStore(db) as store:
+        return len(store.list_attempts())

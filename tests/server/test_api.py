@@ -1,0 +1,238 @@
+"""The JSON API of `chainsim serve` as a client sees it, on SQLite and PostgreSQL: create, list,
+read, delete, idempotent resend, who may see what, and every kind of bad request answered 4xx
+with the server still up and nothing written."""
+
+from __future__ import annotations
+
+import json
+import secrets
+import time
+import uuid
+
+import pytest
+from conftest import PASSWORD, attempt, call, count_attempts
+
+from chainsim.game.records.store import RecordStore
+from chainsim.game.server import accounts
+
+
+def save(site, who: str, a: dict, key: str | None = None):
+    headers = {"Idempotency-Key": key} if key else None
+    return call(site, "POST", "/api/attempts", a, site.tokens[who], headers)
+
+
+# -- the ordinary path --------------------------------------------------------------------------
+
+
+def test_trainee_saves_lists_reads_and_deletes_own_attempt(site):
+    status, answer, hdrs = save(site, "alice", attempt(1))
+    assert status == 201, answer
+    aid = answer["id"]
+    assert hdrs["Location"] == f"/api/attempts/{aid}"
+    stored = answer["attempt"]
+    assert (stored["class_name"], stored["trainee"]) == ("c1", "alice")  # filed under the account
+    for key, value in attempt(1).items():
+        if key != "aids":
+            assert stored[key] == value, key
+    status, listed, _ = call(site, "GET", "/api/attempts", token=site.tokens["alice"])
+    assert status == 200 and aid in [a["id"] for a in listed["attempts"]]
+    assert {(a["class_name"], a["trainee"]) for a in listed["attempts"]} == {("c1", "alice")}
+    assert call(site, "GET", f"/api/attempts/{aid}", token=site.tokens["alice"])[1] == stored
+    assert call(site, "DELETE", f"/api/attempts/{aid}", token=site.tokens["alice"])[0] == 204
+    assert call(site, "GET", f"/api/attempts/{aid}", token=site.tokens["alice"])[0] == 404
+
+
+def test_resend_with_same_key_is_stored_once(site):
+    key = uuid.uuid4().hex
+    before = count_attempts(site.db)
+    first = save(site, "bob", attempt(2), key)
+    again = save(site, "bob", attempt(2), key)
+    assert (first[0], again[0]) == (201, 200)
+    assert first[1]["id"] == again[1]["id"]
+    assert count_attempts(site.db) == before + 1
+    # The key belongs to bob's attempt: alice reusing it learns nothing and writes nothing.
+    stolen = save(site, "alice", attempt(3), key)
+    assert stolen[0] == 409 and "id" not in stolen[1]
+    assert count_attempts(site.db) == before + 1
+
+
+def test_trainer_sees_taught_classes_only_and_files_for_a_trainee(site):
+    status, answer, _ = save(site, "tina", dict(attempt(4), class_name="c1", trainee="bob"))
+    assert status == 201 and answer["attempt"]["trainee"] == "bob"
+    carol = save(site, "carol", attempt(5))[1]["id"]
+    listed = call(site, "GET", "/api/attempts", token=site.tokens["tina"])[1]["attempts"]
+    assert {a["class_name"] for a in listed} == {"c1"}
+    assert call(site, "GET", f"/api/attempts/{carol}", token=site.tokens["tina"])[0] == 403
+    assert call(site, "GET", f"/api/attempts/{carol}", token=site.tokens["tom"])[0] == 200
+    assert call(site, "GET", "/api/attempts?class=c2", token=site.tokens["tina"])[0] == 403
+    assert save(site, "tina", dict(attempt(4), class_name="c2", trainee="carol"))[0] == 403
+    assert save(site, "tina", attempt(4))[0] == 422  # a trainer must say whose attempt it is
+
+
+# -- who may see what -----------------------------------------------------------------------------
+
+
+def test_trainee_cannot_read_list_delete_or_file_another_trainees_attempts(site):
+    bobs = save(site, "bob", attempt(6))[1]["id"]
+    before = count_attempts(site.db)
+    alice = site.tokens["alice"]
+    status, answer, _ = call(site, "GET", f"/api/attempts/{bobs}", token=alice)
+    assert status == 403 and "not yours" in answer["error"]
+    assert call(site, "DELETE", f"/api/attempts/{bobs}", token=alice)[0] == 403
+    assert call(site, "GET", "/api/attempts?trainee=bob", token=alice)[0] == 403
+    assert call(site, "GET", "/api/attempts?class=c2", token=alice)[0] == 403
+    assert save(site, "alice", dict(attempt(1), trainee="bob"))[0] == 403
+    assert save(site, "alice", dict(attempt(1), class_name="c2"))[0] == 403
+    assert count_attempts(site.db) == before
+    assert call(site, "GET", f"/api/attempts/{bobs}", token=site.tokens["bob"])[0] == 200
+    # a trainer of another class cannot delete it either
+    assert call(site, "DELETE", f"/api/attempts/{bobs}", token=site.tokens["tom"])[0] == 403
+    assert count_attempts(site.db) == before
+
+
+# -- credentials -----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "header",
+    [
+        None,
+        "Bearer",
+        "Bearer ",
+        "Basic YWxpY2U6c2VjcmV0",
+        "Bearer cst_" + "A" * 43,  # well-formed, never issued
+        "Bearer " + "x" * 5000,
+        "Bearer cst_' OR '1'='1",
+    ],
+    ids=["missing", "empty", "blank", "basic", "forged", "huge", "injection"],
+)
+def test_missing_or_forged_token_is_401(site, header):
+    before = count_attempts(site.db)
+    headers = {"Authorization": header} if header else {}
+    status, answer, hdrs = call(site, "GET", "/api/attempts", headers=headers)
+    assert status == 401 and "error" in answer and "Bearer" in hdrs["WWW-Authenticate"]
+    assert call(site, "POST", "/api/attempts", attempt(), headers=headers)[0] == 401
+    assert count_attempts(site.db) == before
+
+
+def test_expired_and_revoked_tokens_are_401(site):
+    with RecordStore(site.db) as store:
+        alice = next(u for u in accounts.list_users(store) if u.name == "alice")
+        expired, _ = accounts.issue_token(store, alice, "test", ttl_s=-1.0)
+        revoked, _ = accounts.issue_token(store, alice, "test")
+    assert call(site, "GET", "/api/me", token=revoked)[0] == 200
+    with RecordStore(site.db) as store:
+        accounts.revoke_token(store, revoked)
+    for token in (expired, revoked):
+        status, answer, _ = call(site, "GET", "/api/me", token=token)
+        assert status == 401 and "expired" in answer["error"]
+
+
+def test_session_cookie_is_not_accepted_by_the_api(site):
+    status, _, _ = call(site, "GET", "/api/attempts", headers={"Cookie": "chainsim_session=" + "a" * 43})
+    assert status == 401
+
+
+def test_login_answers_the_same_for_unknown_name_and_wrong_password(site):
+    wrong = call(site, "POST", "/api/login", {"name": "alice", "password": "nope-nope-nope"})
+    unknown = call(site, "POST", "/api/login", {"name": "mallory", "password": PASSWORD})
+    huge = call(site, "POST", "/api/login", {"name": "x" * 10_000, "password": "y" * 10_000})
+    typed = call(site, "POST", "/api/login", {"name": ["alice"], "password": {"a": 1}})
+    for status, answer, _ in (wrong, unknown, huge, typed):
+        assert status == 401 and answer == {"error": "name or password is wrong"}
+
+
+# -- bad input: 4xx, server up, nothing written ---------------------------------------------------
+
+
+BAD_BODIES = [
+    ("malformed", b'{"pack": "prp", ', "application/json", 400),
+    ("not utf-8", b'{"pack": "\xff\xfe"}', "application/json", 400),
+    ("NaN literal", b'{"duration_s": NaN}', "application/json", 400),
+    ("array", b"[1, 2, 3]", "application/json", 422),
+    ("empty", b"", "application/json", 400),
+    ("deep nesting", b"[" * 100_000 + b"]" * 100_000, "application/json", 400),
+    ("oversized", b'{"details": {"x": "' + b"a" * (2 << 20) + b'"}}', "application/json", 413),
+    ("form instead of JSON", b"pack=prp", "application/x-www-form-urlencoded", 415),
+]
+
+
+@pytest.mark.parametrize("what,raw,ctype,expected", BAD_BODIES, ids=[b[0] for b in BAD_BODIES])
+def test_bad_bodies_are_4xx_and_write_nothing(site, what, raw, ctype, expected):
+    before = count_attempts(site.db)
+    status, answer, _ = call(
+        site, "POST", "/api/attempts", raw=raw, token=site.tokens["alice"], headers={"Content-Type": ctype}
+    )
+    assert status == expected, answer
+    assert isinstance(answer, dict) and "\n" not in answer["error"]
+    assert site.alive()
+    assert count_attempts(site.db) == before
+
+
+BAD_FIELDS = [
+    ({"duration_s": -1.0}, "duration_s"),
+    ({"landmark_error_mm": "3"}, "landmark_error_mm"),
+    ({"target": "Robert'); DROP TABLE attempts;--"}, "target"),
+    ({"pack": "p" * 10_000}, "10000 characters"),
+    ({"aids": {"x_ray": True}}, "x_ray"),
+    ({"step_times": {"insert": -2.0}}, "step_times.insert"),
+    ({"details": "not an object"}, "details"),
+    ({"unknown_field": 1}, "unknown_field"),
+]
+
+
+@pytest.mark.parametrize("change,named", BAD_FIELDS, ids=[n for _, n in BAD_FIELDS])
+def test_bad_fields_are_422_naming_the_field(site, change, named):
+    before = count_attempts(site.db)
+    status, answer, _ = save(site, "alice", attempt(0, **change))
+    assert status in (400, 422), answer
+    assert named in answer["error"] and "\n" not in answer["error"]
+    assert count_attempts(site.db) == before
+    assert site.alive()
+
+
+def test_injection_shaped_and_huge_names(site):
+    nasty = "x'); DROP TABLE attempts;--"
+    status, answer, _ = save(site, "tina", dict(attempt(7), class_name="c1", trainee=nasty))
+    assert status == 201 and answer["attempt"]["trainee"] == nasty  # stored as text, nothing run
+    q = "?trainee=" + urllib_quote(nasty)
+    listed = call(site, "GET", "/api/attempts" + q, token=site.tokens["tina"])[1]["attempts"]
+    assert [a["trainee"] for a in listed] == [nasty]
+    before = count_attempts(site.db)
+    assert save(site, "tina", dict(attempt(7), class_name="c1", trainee="n" * 10_000))[0] == 422
+    assert call(site, "GET", "/api/attempts?class=" + "c" * 10_000, token=site.tokens["tina"])[0] == 400
+    assert call(site, "GET", "/api/attempts/" + "9" * 40, token=site.tokens["tina"])[0] == 404
+    assert call(site, "GET", "/api/attempts/-1", token=site.tokens["tina"])[0] == 404
+    assert save(site, "alice", attempt(0), key="k" * 10_000)[0] == 422
+    assert save(site, "alice", attempt(0), key="bad key!")[0] == 422
+    assert count_attempts(site.db) == before
+    assert site.alive()
+
+
+def urllib_quote(text: str) -> str:
+    from urllib.parse import quote
+
+    return quote(text, safe="")
+
+
+def test_errors_are_json_and_pages_carry_security_headers(site):
+    status, answer, hdrs = call(site, "GET", "/api/nothing-here")
+    assert status == 404 and isinstance(answer, dict)
+    status, _, hdrs = call(site, "GET", "/login")
+    csp = hdrs["Content-Security-Policy"]
+    assert status == 200 and "default-src 'self'" in csp and "frame-ancestors 'none'" in csp
+    assert hdrs["X-Content-Type-Options"] == "nosniff"
+
+
+def test_many_concurrent_saves_all_land(site):
+    from concurrent.futures import ThreadPoolExecutor
+
+    before = count_attempts(site.db)
+    keys = [secrets.token_hex(8) for _ in range(40)]
+    with ThreadPoolExecutor(8) as pool:
+        results = list(pool.map(lambda k: save(site, "carol", attempt(int(k[:2], 16) % 9), k), keys))
+    assert all(r[0] == 201 for r in results)
+    assert len({r[1]["id"] for r in results}) == 40
+    assert count_attempts(site.db) == before + 40
+    time.sleep(0)  # (nothing to wait for: every save was acknowledged after commit)
+    assert json.dumps(results[0][1]["attempt"])  # what came back is plain JSON

@@ -1,0 +1,82 @@
+"""`chainsim serve` and `chainsim records user ...` from the command line, as the README shows them:
+the sign-in page answers, /api/attempts without credentials is 401, a trainee's token cannot read
+another trainee's attempt (403); accounts are made with one clear line per mistake."""
+
+from __future__ import annotations
+
+import io
+import sys
+
+from conftest import PASSWORD, attempt, call, start_server
+
+from chainsim.game.records.store import RecordStore
+from chainsim.game.server import accounts
+
+
+def add_user(cli, monkeypatch, db, *args, password=PASSWORD):
+    monkeypatch.setattr(sys, "stdin", io.StringIO(password + "\n"))
+    return cli("records", "--db", db, "user", "add", "--password-stdin", *args)
+
+
+def test_serve_acceptance(records_db, tmp_path, cli, monkeypatch):
+    assert add_user(cli, monkeypatch, records_db, "--role", "trainer", "--class", "c1", "tina")[0] == 0
+    assert add_user(cli, monkeypatch, records_db, "--role", "trainee", "--class", "c1", "alice")[0] == 0
+    assert add_user(cli, monkeypatch, records_db, "--role", "trainee", "--class", "c1", "bob")[0] == 0
+    code, out, _ = cli("records", "--db", records_db, "user", "token", "alice")
+    alice = out.strip()
+    code, out, _ = cli("records", "--db", records_db, "user", "token", "bob")
+    bob = out.strip()
+    server = start_server(records_db, tmp_path / "serve.log")
+    try:
+        status, page, _ = call(server, "GET", "/login")
+        assert status == 200 and '<form method="post" action="/login"' in page
+        assert call(server, "GET", "/api/attempts")[0] == 401
+        bobs = call(server, "POST", "/api/attempts", attempt(1), bob)[1]["id"]
+        assert call(server, "GET", f"/api/attempts/{bobs}", token=alice)[0] == 403
+        assert call(server, "GET", f"/api/attempts/{bobs}", token=bob)[0] == 200
+        # a new password revokes every token of the account
+        monkeypatch.setattr(sys, "stdin", io.StringIO("another password\n"))
+        assert cli("records", "--db", records_db, "user", "passwd", "--password-stdin", "bob")[0] == 0
+        assert call(server, "GET", "/api/me", token=bob)[0] == 401
+    finally:
+        server.stop()
+    code, out, _ = cli("records", "--db", records_db, "user", "list")
+    assert code == 0 and "tina" in out and "trainer" in out and "alice" in out
+
+
+def test_user_add_mistakes_are_one_line(tmp_path, cli, monkeypatch):
+    db = tmp_path / "r.sqlite3"
+    cases = [
+        (("--role", "trainee", "--class", "c1", "--class", "c2", "zed"), "exactly one class"),
+        (("--role", "trainer", "zed"), "at least one class"),
+        (("--role", "trainee", "--class", "c1", "z" * 10_000), "characters"),
+    ]
+    for args, message in cases:
+        code, _, err = add_user(cli, monkeypatch, db, *args)
+        assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    code, _, err = add_user(cli, monkeypatch, db, "--role", "trainee", "--class", "c1", "zed", password="short")
+    assert code == 2 and "at least 8" in err
+    assert add_user(cli, monkeypatch, db, "--role", "trainee", "--class", "c1", "zed")[0] == 0
+    code, _, err = add_user(cli, monkeypatch, db, "--role", "trainer", "--class", "c1", "zed")
+    assert code == 2 and "already exists" in err
+    monkeypatch.setattr(sys, "stdin", io.StringIO(""))
+    code, _, err = cli("records", "--db", db, "user", "add", "--role", "trainee", "--class", "c1", "yan")
+    assert code == 2 and "--password-stdin" in err
+    code, _, err = cli("records", "--db", db, "user", "remove", "zed")
+    assert code == 2 and "--yes" in err
+    assert cli("records", "--db", db, "user", "remove", "zed", "--yes")[0] == 0
+    with RecordStore(db) as store:
+        assert accounts.list_users(store) == []
+        assert store.list_trainees("c1")[0]["trainee"] == "zed"  # the records stay
+
+
+def test_serve_refuses_bad_database_and_flags(tmp_path, cli):
+    bad = tmp_path / "notes.sqlite3"
+    bad.write_text("not a database")
+    code, _, err = cli("serve", "--db", bad, "--port", "8123")
+    assert code == 2 and "not an SQLite database" in err
+    assert bad.read_text() == "not a database"
+    code, _, err = cli("serve", "--port", "70000")
+    assert code == 2 and "1-65535" in err
+    code, _, err = cli("serve", "--db", tmp_path / "x.sqlite3", "--certfile", "c.pem")
+    assert code == 2 and "go together" in err

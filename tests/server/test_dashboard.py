@@ -1,0 +1,216 @@
+"""The dashboard over plain HTTP (no browser), on SQLite and PostgreSQL: sign-in with CSRF,
+session cookies (missing, forged, expired), pages a trainer and a trainee may open, plots with the
+class median, CSV and xAPI downloads, deletion forms and their CSRF checks, escaped names."""
+
+from __future__ import annotations
+
+import csv
+import io
+import re
+import time
+import urllib.parse
+
+import pytest
+from conftest import PASSWORD, attempt, call, count_attempts
+
+from chainsim.game.records.report import CSV_COLUMNS
+from chainsim.game.records.store import RecordStore
+
+
+class Browser:
+    """Cookies and form posts by hand, as a browser without JavaScript sends them."""
+
+    def __init__(self, site) -> None:
+        self.site = site
+        self.cookies: dict[str, str] = {}
+
+    def _headers(self, extra=None) -> dict:
+        h = dict(extra or {})
+        if self.cookies:
+            h["Cookie"] = "; ".join(f"{k}={v}" for k, v in self.cookies.items())
+        return h
+
+    def _keep(self, hdrs) -> None:
+        for value in hdrs.get_all("set-cookie") or []:
+            name, _, rest = value.partition("=")
+            val = rest.split(";")[0]
+            if val in ("", '""') or "max-age=0" in value.lower():
+                self.cookies.pop(name, None)
+            else:
+                self.cookies[name] = val
+
+    def get(self, path: str):
+        status, body, hdrs = call(self.site, "GET", path, headers=self._headers())
+        self._keep(hdrs)
+        return status, body, hdrs
+
+    def post(self, path: str, form: dict, headers=None):
+        raw = urllib.parse.urlencode(form).encode()
+        h = self._headers({"Content-Type": "application/x-www-form-urlencoded", **(headers or {})})
+        status, body, hdrs = call(self.site, "POST", path, raw=raw, headers=h)
+        self._keep(hdrs)
+        return status, body, hdrs
+
+    def sign_in(self, name: str, password: str = PASSWORD):
+        status, page, _ = self.get("/login")
+        assert status == 200
+        return self.post("/login", {"name": name, "password": password, "csrf": csrf_of(page)})
+
+
+def csrf_of(page: str) -> str:
+    return re.search(r'name="csrf" value="([^"]+)"', page).group(1)
+
+
+def trainee_id(site, name: str) -> int:
+    with RecordStore(site.db) as store:
+        return store.query("SELECT id FROM trainees WHERE name = ?", (name,))[0][0]
+
+
+def save(site, who: str, a: dict):
+    status, answer, _ = call(site, "POST", "/api/attempts", a, site.tokens[who])
+    assert status == 201, answer
+    return answer["id"]
+
+
+def test_sign_in_pages_and_sign_out(site):
+    b = Browser(site)
+    assert b.get("/")[0] == 303  # not signed in: to the sign-in page
+    status, _, hdrs = b.sign_in("tina")
+    assert status == 303 and hdrs["Location"] == "/"
+    cookie = [c for c in hdrs.get_all("set-cookie") if c.startswith("chainsim_session=")][0].lower()
+    assert "httponly" in cookie and "samesite=lax" in cookie
+    status, page, _ = b.get("/")
+    assert status == 200 and ">c1</a>" in page and "c2" not in page
+    status, page, _ = b.post("/logout", {"csrf": csrf_of(page)})
+    assert status == 303 and b.get("/")[0] == 303
+
+
+def test_wrong_password_and_missing_login_csrf(site):
+    b = Browser(site)
+    status, page, _ = b.sign_in("tina", "wrong password")
+    assert status == 401 and "Name or password is wrong." in page
+    fresh = Browser(site)  # never loaded the sign-in page: no CSRF cookie
+    status, page, _ = fresh.post("/login", {"name": "tina", "password": PASSWORD, "csrf": "x" * 32})
+    assert status == 403 and "chainsim_session" not in fresh.cookies
+
+
+def test_forged_and_expired_session_cookies(site):
+    b = Browser(site)
+    b.cookies["chainsim_session"] = "forged-" + "a" * 40
+    assert b.get("/")[0] == 303 and b.get(f"/trainees/{trainee_id(site, 'alice')}")[0] == 303
+    b = Browser(site)
+    b.sign_in("tina")
+    assert b.get("/")[0] == 200
+    with RecordStore(site.db) as store, store.transaction() as conn:
+        conn.execute("UPDATE web_sessions SET expires_at = ?", (time.time() - 1,))
+    assert b.get("/")[0] == 303
+    assert b.get("/export/attempts.csv?class=c1")[0] == 303
+
+
+def test_trainer_opens_trainee_progress_plots_with_class_median(site):
+    for i in range(3):
+        save(site, "alice", attempt(i))
+        save(site, "bob", attempt(i + 3))
+    b = Browser(site)
+    b.sign_in("tina")
+    status, page, _ = b.get("/")
+    class_link = re.search(r'href="(/classes/\d+)">c1<', page).group(1)
+    status, page, _ = b.get(class_link)
+    assert status == 200 and ">alice</a>" in page and ">bob</a>" in page
+    alice = trainee_id(site, "alice")
+    status, page, _ = b.get(f"/trainees/{alice}")
+    assert status == 200
+    plots = re.findall(r'<img src="([^"]+\.svg)"', page)
+    names = {p.rsplit("/", 1)[1] for p in plots}
+    # one plot per numeric field of the record
+    assert {"duration_s.svg", "landmark_error_mm.svg", "needle_error_mm.svg", "skull_contacts.svg"} <= names
+    status, svg, hdrs = b.get(plots[0])
+    assert status == 200 and hdrs["Content-Type"].startswith("image/svg+xml")
+    assert "<svg" in svg and "class median" in svg and "this trainee" in svg
+    status, png, hdrs = b.get(plots[0].replace(".svg", ".png"))
+    assert status == 200 and hdrs["Content-Type"] == "image/png"
+    assert b.get(f"/trainees/{alice}/plot/no_such_metric.svg")[0] == 404
+    assert b.get(f"/trainees/{alice}/plot/duration_s.gif")[0] == 404
+
+
+def test_trainee_sees_only_own_pages(site):
+    save(site, "alice", attempt(1))
+    bob_attempt = save(site, "bob", attempt(2))
+    b = Browser(site)
+    b.sign_in("alice")
+    status, _, hdrs = b.get("/")
+    assert status == 303 and hdrs["Location"] == f"/trainees/{trainee_id(site, 'alice')}"
+    assert b.get(f"/trainees/{trainee_id(site, 'alice')}")[0] == 200
+    status, page, _ = b.get(f"/attempts/{bob_attempt}")
+    assert status == 403 and "not yours" in page
+    assert b.get(f"/trainees/{trainee_id(site, 'bob')}")[0] == 403
+    assert b.get(f"/trainees/{trainee_id(site, 'bob')}/plot/duration_s.svg")[0] == 403
+    assert b.get("/classes/1")[0] in (403, 404)
+    status, text, _ = b.get("/export/attempts.csv")
+    rows = list(csv.DictReader(io.StringIO(text)))
+    assert rows and {r["trainee"] for r in rows} == {"alice"}
+    assert b.get("/export/attempts.csv?trainee=bob")[0] == 403
+
+
+def test_csv_and_xapi_downloads(site):
+    aid = save(site, "carol", attempt(4))
+    b = Browser(site)
+    b.sign_in("tom")
+    status, text, hdrs = b.get("/export/attempts.csv?class=c2&trainee=carol")
+    assert status == 200 and "attachment" in hdrs["Content-Disposition"]
+    rows = list(csv.reader(io.StringIO(text)))
+    assert tuple(rows[0]) == CSV_COLUMNS
+    assert str(aid) in [r[0] for r in rows[1:]]
+    status, stmts, _ = b.get("/export/attempts.xapi.json?class=c2")
+    assert status == 200 and all(s["actor"]["account"]["homePage"] == site.url for s in stmts)
+    assert any(s["result"]["extensions"][f"{site.url}/xapi/extensions/duration_s"] == 68.0 for s in stmts)
+    # the same downloads with an API token (scripts)
+    assert call(site, "GET", "/export/attempts.csv?class=c2", token=site.tokens["tom"])[0] == 200
+    assert call(site, "GET", "/export/attempts.csv?class=c1", token=site.tokens["tom"])[0] == 403
+
+
+def test_delete_form_needs_the_session_csrf_token_and_same_origin(site):
+    aid = save(site, "bob", attempt(5))
+    b = Browser(site)
+    b.sign_in("tina")
+    status, page, _ = b.get(f"/attempts/{aid}")
+    assert status == 200 and "Delete this attempt" in page
+    token = csrf_of(page)
+    before = count_attempts(site.db)
+    assert b.post(f"/attempts/{aid}/delete", {})[0] == 403
+    assert b.post(f"/attempts/{aid}/delete", {"csrf": "forged" + token[6:]})[0] == 403
+    assert b.post(f"/attempts/{aid}/delete", {"csrf": token}, {"Origin": "http://evil.example"})[0] == 403
+    # another account's CSRF token does not work on this session
+    other = Browser(site)
+    other.sign_in("tom")
+    other_token = csrf_of(other.get("/")[1])
+    assert b.post(f"/attempts/{aid}/delete", {"csrf": other_token})[0] == 403
+    assert count_attempts(site.db) == before
+    status, _, hdrs = b.post(f"/attempts/{aid}/delete", {"csrf": token})
+    assert status == 303 and hdrs["Location"] == f"/trainees/{trainee_id(site, 'bob')}"
+    assert count_attempts(site.db) == before - 1
+
+
+def test_trainee_cannot_delete_anothers_attempt_by_form(site):
+    aid = save(site, "bob", attempt(6))
+    b = Browser(site)
+    b.sign_in("alice")
+    token = csrf_of(b.get(f"/trainees/{trainee_id(site, 'alice')}")[1])
+    before = count_attempts(site.db)
+    assert b.post(f"/attempts/{aid}/delete", {"csrf": token})[0] == 403
+    assert count_attempts(site.db) == before
+
+
+@pytest.mark.parametrize("name", ["<script>alert(1)</script>", '" onmouseover="x', "a&b'c"])
+def test_names_are_escaped_in_pages(site, name):
+    aid_status, answer, _ = call(
+        site, "POST", "/api/attempts", dict(attempt(1), class_name="c1", trainee=name), site.tokens["tina"]
+    )
+    assert aid_status == 201
+    b = Browser(site)
+    b.sign_in("tina")
+    class_page = b.get(re.search(r'href="(/classes/\d+)">c1<', b.get("/")[1]).group(1))[1]
+    detail = b.get(f"/attempts/{answer['id']}")[1]
+    for page in (class_page, detail):
+        assert name not in page
+    assert "&lt;script&gt;" in class_page or "&#34;" in class_page or "&amp;" in class_page

@@ -1,0 +1,140 @@
+"""The simulator saving to a records server: online, offline (queued, sent later), lost answers
+(sent again, stored once), and the command line (`run --records`, `records login`, `records sync`)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+from conftest import PASSWORD, REPO, attempt, call, count_attempts, populate, start_server
+from records_db import free_port
+
+from chainsim.components.hud import HudState
+from chainsim.components.input_events import Widget
+from chainsim.components.resources import PendingInput
+from chainsim.game.app.headless import build_app
+from chainsim.game.app.inputscript import load_script
+from chainsim.game.packbuild.make_prp_mouse_script import SCRIPTS
+from chainsim.game.records import remote
+from chainsim.game.records.store import RecordStore
+
+
+def play_and_save(settings: dict) -> list[str]:
+    """Run the scripted correct attempt, press Save then My attempts; the HUD messages and panel."""
+    app = build_app("prp", settings=settings)
+    try:
+        events = load_script(SCRIPTS / "correct.toml")
+        app.resource(PendingInput).extend(
+            [(t + 0.2, e) for t, e in events] + [(5.5, Widget("save")), (6.0, Widget("my_attempts"))]
+        )
+        app.run_steps(int(6.5 * 120))
+        hud = app.resource(HudState)
+        return [m[0] if isinstance(m, tuple) else str(m) for m in getattr(hud, "messages", [])] + list(hud.panel_text)
+    finally:
+        app.close()
+
+
+def test_window_save_goes_to_the_server_and_my_attempts_lists_it(site, tmp_path):
+    local = str(tmp_path / "local.sqlite3")
+    with RecordStore(local) as store:
+        assert remote.login(store, site.url, "alice", PASSWORD)["role"] == "trainee"
+    before = count_attempts(site.db)
+    text = play_and_save({"db": local, "records": site.url, "class": "c1", "trainee": "alice"})
+    assert count_attempts(site.db) == before + 1
+    with RecordStore(site.db) as store:
+        newest = store.list_attempts("c1", "alice")[-1]
+    assert newest["target"] == "foramen_ovale_left" and newest["pack"] == "prp"
+    assert any(line.startswith("Attempts of alice (c1):") for line in text)
+    with RecordStore(local) as store:
+        assert remote.pending(store) == []
+        assert store.query("SELECT remote_id FROM outbox")[0][0] == newest["id"]
+
+
+def test_offline_save_is_queued_then_synced_once(tmp_path, records_db):
+    populate(records_db)
+    port = free_port()
+    url = f"http://127.0.0.1:{port}"
+    local = str(tmp_path / "local.sqlite3")
+    server = start_server(records_db, tmp_path / "serve.log", port)
+    with RecordStore(local) as store:
+        remote.login(store, url, "bob", PASSWORD)
+    server.stop()  # the server goes away before the trainee saves
+    rr = remote.RemoteRecords(url, local)
+    try:
+        try:
+            rr.save_attempt("c1", "bob", attempt(1))
+            raise AssertionError("saved to a server that is down")
+        except remote.KeptOffline as exc:
+            assert "unreachable" in str(exc) and "records sync" in str(exc)
+    finally:
+        rr.close()
+    with RecordStore(local) as store:
+        assert len(remote.pending(store)) == 1
+        result = remote.sync(store)
+        assert result["sent"] == 0 and result["waiting"] == 1 and "unreachable" in result["problems"][0]
+    server = start_server(records_db, tmp_path / "serve2.log", port)
+    try:
+        with RecordStore(local) as store:
+            assert remote.sync(store) == {"sent": 1, "waiting": 0, "problems": []}
+            assert remote.sync(store) == {"sent": 0, "waiting": 0, "problems": []}
+        assert count_attempts(records_db) == 1
+    finally:
+        server.stop()
+
+
+def test_lost_answer_is_sent_again_and_stored_once(site, tmp_path):
+    local = str(tmp_path / "local.sqlite3")
+    with RecordStore(local) as store:
+        remote.login(store, site.url, "carol", PASSWORD)
+        row_id = remote.enqueue(store, site.url, "c2", "carol", attempt(2))
+        row = [r for r in remote.pending(store) if r["id"] == row_id][0]
+        # the server stored it but the answer never came back (the simulator crashed before marking)
+        status, first, _ = call(
+            site, "POST", "/api/attempts", attempt(2), site.tokens["carol"], {"Idempotency-Key": row["idem_key"]}
+        )
+        assert status == 201
+        before = count_attempts(site.db)
+        assert remote.sync(store)["sent"] == 1
+        assert count_attempts(site.db) == before
+        assert store.query("SELECT remote_id FROM outbox WHERE id = ?", (row_id,))[0][0] == first["id"]
+
+
+def test_refused_attempt_stays_in_the_queue_with_the_reason(site, tmp_path):
+    local = str(tmp_path / "local.sqlite3")
+    with RecordStore(local) as store:
+        remote.login(store, site.url, "tina", PASSWORD)  # a trainer may not file for class c2
+        remote.enqueue(store, site.url, "c2", "carol", attempt(1))
+        result = remote.sync(store)
+        assert result["sent"] == 0 and result["waiting"] == 1 and "403" in result["problems"][0]
+        assert "teach" in store.query("SELECT last_error FROM outbox")[0][0]
+
+
+def chainsim(*args, env=None, stdin=None):
+    full = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""), **(env or {}))
+    return subprocess.run(
+        [sys.executable, "-m", "chainsim.game", *args],
+        capture_output=True,
+        text=True,
+        env=full,
+        input=stdin,
+        timeout=300,
+    )
+
+
+def test_command_line_run_login_and_sync(site, tmp_path):
+    script = tmp_path / "save.toml"
+    script.write_text((SCRIPTS / "correct.toml").read_text() + '\n[[event]]\nt = 5.0\nkind = "widget"\nname = "save"\n')
+    local = str(tmp_path / "local.sqlite3")
+    r = chainsim("records", "--db", local, "login", site.url, "alice", "--password-stdin", stdin="wrong password\n")
+    assert r.returncode == 2 and "refused the sign-in" in r.stderr and "Traceback" not in r.stderr
+    r = chainsim("records", "--db", local, "login", site.url, "alice", "--password-stdin", stdin=PASSWORD + "\n")
+    assert r.returncode == 0, r.stderr
+    before = count_attempts(site.db)
+    r = chainsim("run", "prp", "--steps", "720", "--input", str(script), "--db", local, "--records", site.url, "--json")
+    assert r.returncode == 0, r.stderr
+    assert count_attempts(site.db) == before + 1
+    r = chainsim("records", "--db", local, "sync")
+    assert r.returncode == 0 and "sent 0 attempt(s); 0 waiting" in r.stdout
+    r = chainsim("run", "prp", "--steps", "1", "--records", "ftp://nowhere", "--db", local)
+    assert r.returncode == 2 and "http://127.0.0.1:8000" in r.stderr
