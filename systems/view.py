@@ -14,9 +14,9 @@ release within CLICK_PX) picks. `interactive = false` freezes an orbit camera (i
 fixed one). Clicks pick in orbit and fixed viewports; attached viewports (the needle-tip view) neither
 move with the mouse nor pick. A drag in a "fluoro" viewport (an image of its own, the C-arm view)
 becomes a `ViewTurned` event for the system that owns the image. In orbit/fixed viewports whose
-camera the mouse does not move, a left press on a surface starts a `Dragged` sequence (grabbing tissue, thesis 4.5.2). Procedures may move
-any camera themselves: `ViewState.get(name).camera` is an OrbitCamera (set yaw/pitch/distance/target,
-then call `update_eye()`).
+camera the mouse does not move, a left press on a surface starts a `Dragged` sequence (grabbing
+tissue, thesis 4.5.2). Procedures may move any camera themselves: `ViewState.get(name).camera` is an
+OrbitCamera (set yaw/pitch/distance/target, then call `update_eye()`).
 
 Widgets: clicks, drags and shortcut keys on the panel produce `Widget(name, value)` events that this
 system emits directly on the event queue (not through PendingInput, so a recording holds the clicks

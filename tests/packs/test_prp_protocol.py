@@ -81,7 +81,8 @@ script = "scripts/skull-hit.toml"
             "'task' must be one of",
         ),
         (
-            'format = 1\npack = "prp"\n[[trial]]\ntask = "location"\ncondition = "x"\nscript = "a.toml"\n[trial.aids]\nxray = true\n',
+            'format = 1\npack = "prp"\n[[trial]]\ntask = "location"\ncondition = "x"\nscript = "a.toml"\n'
+            "[trial.aids]\nxray = true\n",
             "unknown aid 'xray'",
         ),
         (
