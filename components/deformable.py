@@ -29,6 +29,7 @@ from chainsim.components.core import MeshRef
 from chainsim.components.registry import component, prop
 from chainsim.components.resources import Settings
 from chainsim.engine import meshgen
+from chainsim.engine.bodies.chainmail import ChainMailBody
 from chainsim.engine.bodies.factory import choose_model, load_table, make_body
 from chainsim.engine.chainmail_params import ORDER_CHOICES, order_name
 from chainsim.engine.errors import UserError
@@ -159,7 +160,8 @@ class Deformable:
     last_shortfall: float = field(default=0.0, metadata={"digest": False})  # of the last grab (exact only)
     workspace: object = field(default=None, metadata={"digest": False})
     dirty: np.ndarray = _nodigest(_empty_ids)
-    body: object = field(default=None, metadata={"digest": False})  # an XPBD / projective body, if any
+    body: object = field(default=None, metadata={"digest": False})  # the ChainMail, XPBD or projective body
+    chainmail_links: np.ndarray = _nodigest(lambda: np.zeros((0, 2), dtype=np.int64))
     model_used: str = field(default="chainmail", metadata={"digest": False})
     model_reason: str = field(default="", metadata={"digest": False})
     mesh_data: object = field(default=None, metadata={"digest": False})  # to rebuild on a model switch
@@ -287,8 +289,39 @@ def setup_deformable(
     d.held = _empty_ids()
     d.version = 0
     d.mesh_data = mesh
+    d.chainmail_links = links
     use_model(d, model or d.model, where, initial=True)
     return d
+
+
+def chainmail_body(d: Deformable) -> ChainMailBody:
+    """A fresh ChainMail body from `d`'s rest shape, links and limits; `d` mirrors its arrays."""
+    body = ChainMailBody(
+        d.rest,
+        d.chainmail_links,
+        d.amin[0] if len(d.amin) else 0.8,
+        d.amax[0] if len(d.amax) else 1.2,
+        d.beta_l[0] if len(d.beta_l) else 0.1,
+        relax=d.relax_iterations,
+        relax_step=d.relax_step,
+        order=d.order,
+        depth=d.depth,
+        exact=d.exact_limits,
+        fixed=d.fixed_mask,
+        dtype=d.rest.dtype,
+    )
+    mirror_chainmail(d, body)
+    return body
+
+
+def mirror_chainmail(d: Deformable, body: ChainMailBody) -> None:
+    """The component's ChainMail fields are the body's arrays (renderer, picking and digest read them)."""
+    d.pos = body.positions
+    d.graph = body.graph
+    d.alive = body.graph.alive  # the same array the kernels read: cutting flips it in place
+    d.amin, d.amax, d.beta_l = body.amin, body.amax, body.beta
+    d.workspace = body.workspace
+    d.held = body.held
 
 
 def use_model(d: Deformable, model: str, where: str = "deformable", initial: bool = False) -> None:
@@ -308,11 +341,12 @@ def use_model(d: Deformable, model: str, where: str = "deformable", initial: boo
             time_budget_ms=d.time_budget_ms,
         )
         model, reason = choice.model, f"auto: {choice.model} ({choice.setting}), {choice.reason}"
-    d.pos[:] = d.rest
-    d.body = None
-    d.held = _empty_ids()
     d.held_targets = np.zeros((0, 3))
-    if model != "chainmail":
+    if model == "chainmail":
+        d.body = chainmail_body(d)
+    else:
+        d.pos = d.rest.copy()
+        d.held = _empty_ids()
         settings = {
             "E": d.E,
             "nu": d.nu,

@@ -36,15 +36,13 @@ import numba
 import numpy as np
 
 from chainsim.engine import meshgen
+from chainsim.engine.bodies.chainmail import ChainMailBody
 from chainsim.engine.chainmail_params import ORDERS, check_material, order_code, order_name
 from chainsim.engine.errors import UserError
-from chainsim.engine.kernels.chainmail import cascade, make_workspace, material_arrays
-from chainsim.engine.kernels.exact import exact_limits, violations
+from chainsim.engine.kernels.exact import violations
 from chainsim.engine.kernels.gibson import gibson_grid_move
-from chainsim.engine.kernels.graph import build_graph
 from chainsim.engine.meshimport import load_graph
 from chainsim.engine.reorder import rcm_permutation
-from chainsim.systems.deformation import relax_moved
 from chainsim.tools.bench import exact_cases
 from chainsim.tools.bench.meshes import relabel, surface_sheet, tet_cube
 
@@ -120,15 +118,16 @@ def median_ms(times: list[float]) -> float:
 
 
 class Body:
-    """rest/pos/graph/materials/workspace of one mesh, for timing cascades."""
+    """One mesh's ChainMail body (chainsim.engine.bodies.ChainMailBody), for timing cascades from rest."""
 
     def __init__(self, rest, links, amin, amax, beta, fixed=None):
-        self.rest = np.ascontiguousarray(rest, dtype=np.float64)
-        self.pos = self.rest.copy()
-        self.graph = build_graph(len(rest), links)
-        self.mat = material_arrays(self.graph.n_links, amin, amax, beta)
-        self.ws = make_workspace(len(rest))
-        self.fixed = None if fixed is None or not np.any(fixed) else np.ascontiguousarray(fixed, dtype=np.bool_)
+        self.cm = ChainMailBody(rest, links, amin, amax, beta, fixed=fixed)
+        self.rest = self.cm.rest
+        self.pos = self.cm.positions
+        self.graph = self.cm.graph
+        self.mat = (self.cm.amin, self.cm.amax, self.cm.beta)
+        self.ws = self.cm.workspace
+        self.fixed = None if fixed is None or not np.any(fixed) else self.cm.fixed
         self.moved = 0
         self.exact = None  # the last move's ExactResult
 
@@ -136,29 +135,11 @@ class Body:
         np.copyto(self.pos, self.rest)
 
     def move(self, grab: int, target, order: int = 0, relax_n: int = 0, exact: bool = False) -> None:
-        grabbed = np.array([grab], dtype=np.int64)
-        target = np.asarray(target, dtype=np.float64).reshape(1, -1)
-        moved, _ = cascade(
-            self.rest,
-            self.pos,
-            self.graph,
-            *self.mat,
-            grabbed,
-            target,
-            fixed=self.fixed,
-            order=order,
-            workspace=self.ws,
-            copy=False,
-        )
-        self.moved = len(moved)
-        if relax_n:
-            pin = np.zeros(len(self.pos), dtype=np.bool_) if self.fixed is None else self.fixed.copy()
-            pin[grab] = True
-            relax_moved(self.rest, self.pos, self.graph, moved, relax_n, fixed=pin)
-        if exact:
-            self.exact = exact_limits(
-                self.rest, self.pos, self.graph, *self.mat, moved, grabbed, target, self.fixed, self.ws
-            )
+        cm = self.cm
+        cm.order, cm.relax_iterations, cm.exact = ORDERS[order], relax_n, exact
+        cm.move([grab], np.asarray(target, dtype=np.float64).reshape(1, -1), hold=False)
+        self.moved = len(cm.last_order)
+        self.exact = cm.last_exact if exact else None
 
     def violations(self):
         return violations(self.rest, self.pos, self.graph, *self.mat)

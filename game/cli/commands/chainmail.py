@@ -31,13 +31,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from chainsim.engine.chainmail_params import ORDER_CHOICES, ORDERS, check_material, order_code, order_name
+from chainsim.engine.bodies.chainmail import ChainMailBody
+from chainsim.engine.chainmail_params import ORDER_CHOICES, ORDERS, check_material, order_name
 from chainsim.engine.errors import UserError
-from chainsim.engine.kernels.chainmail import cascade, make_workspace, material_arrays
-from chainsim.engine.kernels.exact import ExactResult, exact_limits, violations
+from chainsim.engine.kernels.chainmail import material_arrays
+from chainsim.engine.kernels.exact import ExactResult, violations
 from chainsim.engine.kernels.graph import build_graph
 from chainsim.engine.meshimport import load_graph
-from chainsim.systems.deformation import relax_moved
 
 NAME = "chainmail"
 HELP = "move one element of a mesh with Generalised ChainMail and save the result (.npz)"
@@ -143,25 +143,23 @@ def make_body(positions, links, fixed_ids, alpha_min, alpha_max, beta) -> Body:
 
 
 def move(body: Body, grab: int, target, relax_n=0, relax_step=1.0, order="breadth-first", exact=False) -> Move:
-    """Cascade (then relaxation, then the exact pass) from the rest shape."""
-    pos = body.rest.copy()
-    n = len(pos)
-    target = np.asarray(target, dtype=np.float64).reshape(1, -1)
-    grabbed = np.array([grab], dtype=np.int64)
-    ws = make_workspace(n)
-    moved, sponsors = cascade(
-        body.rest, pos, body.graph, *body.mat, grabbed, target, fixed=body.fixed, order=order_code(order), workspace=ws
+    """Cascade (then relaxation, then the exact pass) from the rest shape, through the engine's body."""
+    cm = ChainMailBody(
+        body.rest,
+        body.graph,
+        *body.mat,
+        relax=relax_n,
+        relax_step=relax_step,
+        order=order,
+        exact=exact,
+        fixed=body.fixed,
+        dtype=body.rest.dtype,
     )
-    if relax_n > 0 and len(moved) > 1:
-        pin = np.zeros(n, dtype=np.bool_) if body.fixed is None else body.fixed.copy()
-        pin[grab] = True  # the user holds the grabbed element where it was put
-        relax_moved(body.rest, pos, body.graph, moved, relax_n, step=relax_step, fixed=pin)
-    result = None
-    if exact:
-        result = exact_limits(body.rest, pos, body.graph, *body.mat, moved, grabbed, target, body.fixed, ws)
-    sponsor = np.full(n, -1, dtype=np.int64)
-    sponsor[moved] = sponsors
-    return Move(pos, moved.astype(np.int64), sponsor, result)
+    target = np.asarray(target, dtype=np.float64).reshape(1, -1)
+    cm.move([grab], target, hold=False)
+    sponsor = np.full(cm.n, -1, dtype=np.int64)
+    sponsor[cm.last_order] = cm.last_sponsor
+    return Move(cm.positions, cm.last_order.astype(np.int64), sponsor, cm.last_exact if exact else None)
 
 
 def simulate(
