@@ -28,7 +28,7 @@ from chainsim.assets import ASSETS_DIR
 from chainsim.components.core import MeshRef
 from chainsim.components.registry import component, prop
 from chainsim.components.resources import Settings
-from chainsim.engine import meshgen
+from chainsim.engine import limits, meshgen
 from chainsim.engine.bodies.chainmail import ChainMailBody
 from chainsim.engine.bodies.factory import choose_model, load_table, make_body
 from chainsim.engine.chainmail_params import ORDER_CHOICES, order_name
@@ -87,11 +87,19 @@ class Deformable:
     alpha_min: float = prop("float", INHERIT, help="Compression limit override, 0..1 (-1: from the material).")
     alpha_max: float = prop("float", INHERIT, help="Stretch limit override, >= 1 (-1: from the material).")
     beta: float = prop("float", INHERIT, help="Shear limit override, >= 0 (-1: from the material).")
-    relax: int = prop("int", -1, help="Relaxation iterations after each cascade, thesis 5.2.5 (-1: from the material).")
+    relax: int = prop(
+        "int",
+        -1,
+        help="Relaxation iterations after each cascade, thesis 5.2.5 (-1: from the material).",
+        min=-1,
+        max=limits.MAX_RELAX,
+    )
     relax_step: float = prop(
         "float", 1.0, help="Fraction of the way to the relaxed position per iteration.", min=0.0, max=1.0
     )
-    fixed: np.ndarray = prop("int_list", [], help="Element (vertex) ids that never move.")
+    fixed: np.ndarray = prop(
+        "int_list", [], help="Element (vertex) ids that never move.", min=0, max=limits.MAX_VERTICES - 1
+    )
     fixed_box: np.ndarray = prop(
         "float_list",
         [],
@@ -108,7 +116,9 @@ class Deformable:
         help="Waiting-list order: breadth-first (a queue; fifo is the same), depth-first (5.2.3 as written: new "
         "neighbours at the front), balanced (round robin of Fig. 5.3), schill (largest violation first).",
     )
-    depth: int = prop("int", 2, help="Branch depth per turn for the balanced order.", min=1)
+    depth: int = prop(
+        "int", 2, help="Branch depth per turn for the balanced order.", min=1, max=limits.MAX_BRANCH_DEPTH
+    )
     dtype: str = prop("enum", "float64", choices=("float64", "float32"), help="Precision of positions.")
     drag: bool = prop(
         "bool",
@@ -386,6 +396,12 @@ def build_pull(p: Pull, ctx) -> None:
             f"{where}.path: expected a flat list of x, y, z waypoints (3 numbers each), got {len(pts)} numbers"
         )
     p.waypoints = pts.reshape(-1, 3)
+    if p.element >= 0:  # checked at spawn (so `validate` reports it), not when the pull starts
+        mesh_ref = esper.try_component(ctx.entity, MeshRef)
+        if mesh_ref is not None:
+            n = len(ctx.pack.mesh(mesh_ref.mesh).vertices)
+            if p.element >= n:
+                raise UserError(f"{where}.element: {p.element} is not an element id of the mesh (0..{n - 1})")
 
 
 @component(
@@ -397,8 +413,15 @@ class Pull:
         "float_list",
         units="mm",
         help="Waypoints x0,y0,z0, x1,y1,z1, ...: the element is dragged from its rest position through them.",
+        stride=3,
     )
-    element: int = prop("int", -1, help="Element (vertex) id pulled; -1: the element nearest to `at`.", min=-1)
+    element: int = prop(
+        "int",
+        -1,
+        help="Element (vertex) id pulled; -1: the element nearest to `at`.",
+        min=-1,
+        max=limits.MAX_VERTICES - 1,
+    )
     at: np.ndarray = prop(
         "vec3", (0.0, 0.0, 0.0), units="mm", help="Point near the pulled element when `element` is -1."
     )

@@ -18,6 +18,7 @@ The layout of a manifest:
 from __future__ import annotations
 
 from chainsim.components.registry import Field, Schema, section
+from chainsim.engine import limits
 
 FORMAT_VERSION = 1
 UNITS = ("mm", "cm", "m")
@@ -58,10 +59,20 @@ section(
     "table",
     "Run options; every key is declared here.",
     [
-        Field("dt", "float", 1.0 / 120.0, units="s", help="Fixed simulation step.", min=1e-5, max=0.1),
-        Field("steps", "int", 600, help="Default number of steps for headless runs.", min=0),
-        Field("window_size", "vec2", [1280.0, 800.0], units="px", help="Initial window size."),
-        Field("background", "vec4", [0.08, 0.09, 0.11, 1.0], help="Clear colour (RGBA 0..1)."),
+        Field(
+            "dt", "float", 1.0 / 120.0, units="s", help="Fixed simulation step.", min=limits.MIN_DT, max=limits.MAX_DT
+        ),
+        Field("steps", "int", 600, help="Default number of steps for headless runs.", min=0, max=limits.MAX_STEPS),
+        Field(
+            "window_size",
+            "vec2",
+            [1280.0, 800.0],
+            units="px",
+            help="Initial window size.",
+            min=1.0,
+            max=limits.MAX_PIXELS,
+        ),
+        Field("background", "vec4", [0.08, 0.09, 0.11, 1.0], help="Clear colour (RGBA 0..1).", min=0.0, max=1.0),
         Field(
             "deformation_budget_ms",
             "float",
@@ -100,8 +111,10 @@ section(
             "resolution",
             "vec3",
             [8.0, 8.0, 1.0],
-            help="Elements per axis for grid / tet_block; sections for round shapes.",
+            help="Elements per axis for grid / tet_block; sections for round shapes (the vertex count is "
+            "checked against the mesh limits at validation).",
             min=1.0,
+            max=limits.MAX_RESOLUTION,
         ),
         Field("merge_vertices", "bool", True, help="Merge duplicate vertices on load (surfaces)."),
         Field("reorder", "bool", False, help="Reorder vertices for memory locality (reverse Cuthill-McKee) on load."),
@@ -141,7 +154,14 @@ section(
         ),
         Field("alpha_max", "float", 1.2, help="ChainMail stretch limit relative to the rest link.", min=1.0),
         Field("beta", "float", 0.1, help="ChainMail shear limit relative to the rest link.", min=0.0),
-        Field("relax", "int", 2, help="Relaxation iterations after each cascade (thesis 5.2.5).", min=0),
+        Field(
+            "relax",
+            "int",
+            2,
+            help="Relaxation iterations after each cascade (thesis 5.2.5).",
+            min=0,
+            max=limits.MAX_RELAX,
+        ),
         Field(
             "exact",
             "bool",
@@ -181,7 +201,7 @@ VIEWPORT = Schema(
         Field("rect", "rect", help="Placement [x, y, w, h] as window fractions, origin bottom-left.", min=0.0, max=1.0),
         Field("title", "str", "", help="Caption drawn in the viewport."),
         Field("target", "vec3", [0.0, 0.0, 0.0], units="mm", help="Point the camera looks at."),
-        Field("distance", "float", 400.0, units="mm", help="Camera distance from target.", min=0.0),
+        Field("distance", "float", 400.0, units="mm", help="Camera distance from target.", min=1e-3),
         Field(
             "yaw",
             "float",

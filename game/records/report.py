@@ -22,7 +22,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from chainsim.engine.errors import UserError
-from chainsim.game.records.validate import AIDS
+from chainsim.game.records.validate import AIDS, printable
 
 CSV_COLUMNS = (
     "id",
@@ -73,7 +73,7 @@ def _cell(value: Any) -> str:
         return "yes" if value else "no"
     if isinstance(value, float):
         return f"{value:.2f}"
-    return str(value)
+    return printable(str(value))  # a name stored by an older version shows its hidden characters
 
 
 def atomic_write(path: Path, write: Callable[[io.TextIOBase | io.BufferedIOBase], None], *, binary: bool) -> None:

@@ -11,12 +11,14 @@ import json
 import math
 import numbers
 import re
+import unicodedata
 from datetime import UTC, datetime
 from typing import Any
 
-from chainsim.engine.errors import UserError
+from chainsim.engine import limits
+from chainsim.engine.errors import HIDDEN_CATEGORIES, UserError, printable
 
-NAME_MAX = 64
+NAME_MAX = limits.MAX_NAME_LENGTH
 
 # Aids of 3.3.4 / 6.1.3 whose effect on performance the thesis compares.
 AIDS = ("skin_transparent", "reference_planes", "landmark_planes", "tip_view", "collision_signals")
@@ -38,20 +40,31 @@ REQUIRED = (
 OPTIONAL = ("created_at", "aids", "step_times", "details", "redirections", "xray_shots", "exposure_s", "dose_mgy")
 FIELDS = REQUIRED + OPTIONAL
 
-_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+# Unicode categories a name may not hold (chainsim.engine.errors.HIDDEN_CATEGORIES): controls,
+# format characters (right-to-left and other bidi overrides, zero-width joiners, the BOM),
+# surrogates, private use, unassigned, line and paragraph separators. They let a name display as
+# something it is not. `printable` (re-exported here) shows them escaped.
+_HIDDEN = HIDDEN_CATEGORIES
+__all__ = ["printable"]
 
 
 def clean_name(kind: str, value: Any) -> str:
-    """Return ``value`` stripped, or raise if it is not a usable class/trainee/pack name."""
+    """Return ``value`` stripped and NFC-normalised, or raise if it is not a usable class/trainee/pack name."""
     if not isinstance(value, str):
         raise UserError(f"{kind} name must be text, got {type(value).__name__}")
-    name = value.strip()
+    name = unicodedata.normalize("NFC", value.strip())
     if not name:
         raise UserError(f"{kind} name is empty; expected 1-{NAME_MAX} characters")
     if len(name) > NAME_MAX:
-        raise UserError(f"{kind} name {name[:20]!r}... is {len(name)} characters; at most {NAME_MAX} allowed")
-    if _CONTROL.search(name):
-        raise UserError(f"{kind} name {name!r} contains a control character; use printable text")
+        raise UserError(
+            f"{kind} name '{printable(name[:20])}...' is {len(name)} characters; at most {NAME_MAX} allowed"
+        )
+    bad = next((c for c in name if unicodedata.category(c) in _HIDDEN), None)
+    if bad is not None:
+        raise UserError(
+            f"{kind} name '{printable(name)}' contains the invisible or control character "
+            f"U+{ord(bad):04X} ({unicodedata.name(bad, unicodedata.category(bad))}); use printable text"
+        )
     return name
 
 
@@ -222,7 +235,8 @@ def clean_questionnaire(kind: Any, session: Any, answers: Any) -> tuple[str, str
         elif isinstance(value, numbers.Real):
             out[key] = _number(f"answers.{key}", value, minimum=None)
         elif isinstance(value, str):
-            if len(value) > ANSWER_MAX or _CONTROL.search(value.replace("\n", " ")):
+            hidden = any(unicodedata.category(c) in _HIDDEN for c in value if c != "\n")
+            if len(value) > ANSWER_MAX or hidden:
                 raise UserError(f"answer {key!r} must be printable text of at most {ANSWER_MAX} characters")
             out[key] = value
         else:

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import platformdirs
 
+from chainsim.engine import datafile
 from chainsim.engine.errors import UserError
 from chainsim.game.records.validate import clean_name
 
@@ -32,12 +33,20 @@ def remembered_path() -> Path:
 
 
 def remembered() -> dict[str, str]:
-    """The class and trainee of the last sign-in, or empty strings."""
+    """The class and trainee of the last sign-in, or empty strings (also for a damaged file or a name
+    the records would refuse, e.g. one holding a right-to-left override)."""
     try:
-        data = json.loads(remembered_path().read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {"class": "", "trainee": ""}
-    return {k: str(data.get(k, "")) if isinstance(data, dict) else "" for k, _ in FIELDS}
+        data = datafile.load(remembered_path(), max_bytes=64 * 1024, what="sign-in file")
+    except UserError:
+        data = {}
+    out = {}
+    for k, _ in FIELDS:
+        v = data.get(k, "") if isinstance(data, dict) else ""
+        try:
+            out[k] = clean_name(k, v) if v else ""
+        except UserError:
+            out[k] = ""
+    return out
 
 
 def remember(values: dict[str, str]) -> None:

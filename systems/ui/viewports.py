@@ -173,6 +173,7 @@ class OrbitCamera(Camera):
 
     def zoom(self, steps: float, factor: float = 0.9) -> None:
         """Scroll up (positive) moves the eye closer."""
+        steps = float(np.clip(steps, -1000.0, 1000.0))  # beyond this the clip below decides anyway; no overflow
         self.distance = float(np.clip(self.distance * factor**steps, max(self.near * 2, 1e-3), self.far * 0.9))
         self.update_eye()
 

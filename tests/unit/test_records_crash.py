@@ -53,7 +53,11 @@ CHILD = textwrap.dedent(
                 sys.stdin.readline()
             return self.conn.execute(sql, *params)
 
-    store._conn = FreezeBeforeCommit(store._conn)
+    if store._conn is not None:
+        store._conn = FreezeBeforeCommit(store._conn)
+    else:  # a new database file is made by the first write
+        open_file = store._open_file
+        store._open_file = lambda: FreezeBeforeCommit(open_file())
     # A new class and trainee as well, so a half-done save would also leave them behind.
     store.save_attempt(sys.argv[3], "bob", attempt(8))
     print("SAVE-RETURNED", flush=True)

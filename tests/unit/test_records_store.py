@@ -283,6 +283,9 @@ def test_env_var_overrides_default(tmp_path, monkeypatch):
 def test_database_uses_wal(tmp_path):
     with RecordStore(tmp_path / "r.sqlite3"):
         pass
+    assert not (tmp_path / "r.sqlite3").exists()  # made by the first write, not by opening
+    with RecordStore(tmp_path / "r.sqlite3") as s:
+        s.add_class("c1")
     conn = sqlite3.connect(tmp_path / "r.sqlite3")
     assert conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     conn.close()
@@ -420,6 +423,8 @@ def test_questionnaires_refuse_bad_kinds_and_answers(tmp_path):
             s.save_questionnaire("c1", "alice", "pre", "s1", {"q1": [1, 2]})
         with pytest.raises(UserError, match="'answers.q1' is inf"):
             s.save_questionnaire("c1", "alice", "pre", "s1", {"q1": float("inf")})
+        with pytest.raises(UserError, match="answer 'q1' must be printable text"):
+            s.save_questionnaire("c1", "alice", "pre", "s1", {"q1": "ok\x1b[2J"})
         assert s.list_classes() == []
 
 

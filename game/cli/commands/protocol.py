@@ -26,6 +26,11 @@ Format:
     steps = 1200                       # --scripted only; default: the pack's settings.steps
     [trial.aids]                       # aids not named are off
     reference_planes = true
+
+Limits (docs/limits.md): repeat <= MAX_REPEAT, steps <= MAX_STEPS, and at most MAX_PROTOCOL_RUNS
+runs (or trials) in all; everything, scripts, names and the records database included, is checked
+before the first run. Scripted attempts are saved by the protocol itself: a Save pressed inside a
+script saves nothing.
 """
 
 from __future__ import annotations
@@ -33,7 +38,6 @@ from __future__ import annotations
 import json
 import math
 import sys
-import tomllib
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -41,11 +45,14 @@ import matplotlib
 import matplotlib.pyplot as plt
 
 from chainsim.components.input_events import Widget
+from chainsim.engine import datafile, limits
 from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import run_pack
 from chainsim.game.app.inputscript import load_script
+from chainsim.game.app.options import name
+from chainsim.game.app.outputs import prepare_output_dir, write_text_atomic
 from chainsim.game.packs import pack as packs
-from chainsim.game.records.store import RecordStore
+from chainsim.game.records.store import RecordStore, check_target
 from chainsim.game.records.study import (
     TASK_METRIC,
     TASK_TITLE,
@@ -73,19 +80,23 @@ def add_parser(sub):
     p = sub.add_parser(NAME, help=HELP, description=HELP)
     p.add_argument("protocol", help="protocol TOML file (e.g. assets/prp/protocols/table61.toml)")
     mode = p.add_mutually_exclusive_group()
-    mode.add_argument("--participant", metavar="NAME", help="run the session for this person in the window")
+    mode.add_argument(
+        "--participant", type=name("trainee"), metavar="NAME", help="run the session for this person in the window"
+    )
     mode.add_argument("--scripted", action="store_true", help="run the trials' scripts headless (a smoke test)")
     mode.add_argument("--summary", action="store_true", help="print the study's results over all participants")
     p.add_argument("--db", metavar="PATH", help="records database (default: $CHAINSIM_DB or the user data folder)")
     p.add_argument(
         "--class",
         dest="class_name",
+        type=name("class"),
         default="study",
         metavar="NAME",
         help="class the study's attempts are saved under (default: study)",
     )
     p.add_argument(
         "--trainee",
+        type=name("trainee"),
         default="scripted",
         metavar="NAME",
         help="--scripted: trainee the attempts are saved under (default: scripted)",
@@ -105,14 +116,9 @@ def load_protocol(path: str | Path) -> dict:
     """Read and check a protocol; every problem is a one-line UserError naming the key."""
 
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise UserError(f"{path}: protocol file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise UserError(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
-    except tomllib.TOMLDecodeError as e:
-        raise UserError(f"{path}: TOML syntax error: {e}") from None
+    data = datafile.parse_toml(
+        datafile.read_text(path, max_bytes=limits.MAX_SCRIPT_BYTES, what="protocol file"), str(path)
+    )
     where = str(path)
     extra = sorted(set(data) - TOP_KEYS)
     if extra:
@@ -150,12 +156,16 @@ def load_protocol(path: str | Path) -> dict:
         scripts = t.get("scripts", [t["script"]] if "script" in t else [])
         if not isinstance(scripts, list) or not all(isinstance(s, str) and s for s in scripts):
             raise _err(w, "'scripts' must be an array of script paths")
-        repeat = t.get("repeat", 1)
-        if isinstance(repeat, bool) or not isinstance(repeat, int) or repeat < 1:
-            raise _err(w, f"'repeat' must be a whole number >= 1, got {repeat!r}")
+        try:
+            repeat = limits.whole(t.get("repeat", 1), 1, limits.MAX_REPEAT)
+        except limits.LimitError as e:
+            raise _err(w, f"'repeat' {e} (docs/limits.md)") from None
         steps = t.get("steps")
-        if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
-            raise _err(w, f"'steps' must be a whole number >= 1, got {steps!r}")
+        if steps is not None:
+            try:
+                steps = limits.whole(steps, 1, limits.MAX_STEPS)
+            except limits.LimitError as e:
+                raise _err(w, f"'steps' {e} (docs/limits.md)") from None
         aids = t.get("aids", {})
         if not isinstance(aids, dict):
             raise _err(w, "'aids' must be a table of true/false")
@@ -175,6 +185,9 @@ def load_protocol(path: str | Path) -> dict:
                 "aids": {a: bool(aids.get(a, False)) for a in AIDS},
             }
         )
+    runs = sum(max(len(t["scripts"]), 1) * t["repeat"] for t in out)
+    if runs > limits.MAX_PROTOCOL_RUNS:
+        raise _err(where, f"asks for {runs:,} runs, over the {limits.MAX_PROTOCOL_RUNS:,} limit (docs/limits.md)")
     return {"path": path, "pack": data["pack"], "title": data.get("title", ""), "trials": out}
 
 
@@ -214,20 +227,14 @@ def _write_out(out: Path | None, proto: dict, pack_name: str, tab: dict, text: s
         **extra,
         "table": [{"task": k[0], "condition": k[1], **v} for k, v in tab.items()],
     }
-    (out / "results.json").write_text(json.dumps(data, indent=2, allow_nan=False), encoding="utf-8")
-    (out / "table61.txt").write_text(text + "\n", encoding="utf-8")
+    write_text_atomic(out / "results.json", json.dumps(data, indent=2, allow_nan=False), "--out")
+    write_text_atomic(out / "table61.txt", text + "\n", "--out")
     _plot(tab, out / "table61.png", label)
     print(f"results: {out / 'results.json'}, {out / 'table61.png'}")
 
 
 def _out_dir(args) -> Path | None:
-    out = Path(args.out) if args.out else None
-    if out is not None:
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise UserError(f"--out {out}: cannot create folder ({e.strerror})") from None
-    return out
+    return prepare_output_dir(args.out, "--out") if args.out else None
 
 
 def run(args) -> int:
@@ -274,6 +281,7 @@ def run_people(args, proto: dict) -> int:
     """The session of chainsim.game.ui.study in the trainer window; Table 6.1 over everyone at the end."""
     from chainsim.game.ui.window import run_window  # noqa: PLC0415 - pyglet: only when a window is wanted
 
+    check_target(args.db)  # a mistyped or read-only database is refused before the window opens
     out = _out_dir(args)
     db = args.db
     holder: dict = {}
@@ -315,6 +323,7 @@ def run_scripted(args, proto: dict) -> int:
     """The smoke test: every trial's scripts headless, saved and tabled - and labelled as scripted."""
     root, _scene = packs.resolve(proto["pack"], args.pack_path)
     pack = packs.load(root)
+    check_target(args.db)  # a mistyped or read-only database is refused before the first trial
     out = _out_dir(args)
     # check every script before anything runs or is saved
     plan = []
@@ -337,7 +346,12 @@ def run_scripted(args, proto: dict) -> int:
             aid_events = [(0.0, Widget(a, v)) for a, v in t["aids"].items()]
             trial_out = str(out / f"{i:02d}-{t['name']}") if out is not None else None
             summary = run_pack(
-                str(root), t["steps"], events=aid_events + list(events), out=trial_out, pack_paths=args.pack_path
+                str(root),
+                t["steps"],
+                events=aid_events + list(events),
+                out=trial_out,
+                pack_paths=args.pack_path,
+                save="the protocol saves each attempt itself",
             )
             a = summary.get("assessment")
             if not a:

@@ -10,11 +10,12 @@ from __future__ import annotations
 import sys
 
 from chainsim.components.resources import PackResource, PendingInput
+from chainsim.engine import argtypes
 from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script
 from chainsim.game.app.options import window_size
-from chainsim.game.cli.commands.run import _nonneg
+from chainsim.game.app.outputs import check_output_file
 from chainsim.game.gl.context import egl_context
 from chainsim.game.gl.render_system import screenshot
 
@@ -23,7 +24,6 @@ HELP = "render a pack's window layout off screen to a PNG"
 
 
 def add_parser(sub):
-
     p = sub.add_parser(NAME, help=HELP)
     p.add_argument("pack", help="PACK or PACK/SCENE")
     p.add_argument("--out", required=True, metavar="PNG", help="image to write")
@@ -32,7 +32,7 @@ def add_parser(sub):
     )
     p.add_argument(
         "--steps",
-        type=_nonneg,
+        type=argtypes.steps,
         default=1,
         help="simulation steps before the picture (default 1: every system, procedures included, has run once)",
     )
@@ -50,6 +50,7 @@ def run(args) -> int:
 
     if not args.out.lower().endswith(".png"):
         raise UserError(f"--out {args.out}: expected a file name ending in .png")
+    check_output_file(args.out, "--out")
     egl_context()  # no EGL: one clear line and exit 2 before any work
 
     target = args.pack

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
+from chainsim.engine import argtypes, limits
 from chainsim.engine.errors import UserError
 from chainsim.game.app import pack_costs
+from chainsim.game.app.outputs import prepare_output_dir
 from chainsim.tools.study import calibrate as cal
 from chainsim.tools.study import report, speed_accuracy
 from chainsim.tools.study.scenes import SCENES
@@ -23,21 +24,34 @@ def add_parser(sub):
     sa.add_argument("--out", required=True, help="output folder")
     sa.add_argument("--scenes", default=None, help="comma-separated subset of block,sheet,cantilever (default: all)")
     sa.add_argument(
-        "--pack-steps", type=int, default=120, help="steps per built-in pack for the frame-cost table (0 skips it)"
+        "--pack-steps",
+        type=argtypes.steps,
+        default=120,
+        help="steps per built-in pack for the frame-cost table (0 skips it)",
     )
     c = s.add_parser("calibrate", help="fit ChainMail alpha_min/alpha_max/beta/relaxation to FEM")
-    c.add_argument("--nu", type=float, default=None, help="Poisson ratio, in (-1, 0.5) (required unless --shipped)")
+    c.add_argument(
+        "--nu",
+        type=argtypes.real(-1.0, 0.5, low_open=True, high_open=True, what="a Poisson ratio"),
+        default=None,
+        help="Poisson ratio, in (-1, 0.5) (required unless --shipped)",
+    )
     c.add_argument(
         "--E",
-        type=float,
+        type=argtypes.real(0.0, 1e15, low_open=True),
         default=None,
         help="Young's modulus [Pa]; sets the strain level a gentle tool traction produces",
     )
-    c.add_argument("--strain", type=float, default=None, help="fit at this strain instead")
+    c.add_argument(
+        "--strain", type=argtypes.real(0.0, 1.0, low_open=True), default=None, help="fit at this strain instead"
+    )
     c.add_argument("--name", required=False, help="preset name (table in the TOML file)")
     c.add_argument("--out", default=None, help="presets TOML file (default assets/presets/materials.toml)")
     c.add_argument(
-        "--block-n", type=int, default=8, help="nodes per edge of the calibration block (default 8: 512 nodes, ~15 s)"
+        "--block-n",
+        type=argtypes.count(5, limits.MAX_STUDY_BLOCK),
+        default=8,
+        help="nodes per edge of the calibration block (default 8: 512 nodes, ~15 s)",
     )
     c.add_argument(
         "--shipped", action="store_true", help="recompute every preset shipped with the project instead of one"
@@ -56,12 +70,7 @@ def run(args) -> int:
             bad = [x for x in scenes if x not in SCENES]
             if bad:
                 raise UserError(f"--scenes: unknown scene(s) {', '.join(bad)}; expected some of {', '.join(SCENES)}")
-        if args.pack_steps < 0:
-            raise UserError(f"--pack-steps must be >= 0, got {args.pack_steps}")
-        try:
-            Path(args.out).mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise UserError(f"--out {args.out}: cannot create folder ({e.strerror})") from None
+        prepare_output_dir(args.out, "--out")
         results = speed_accuracy.run(args.quick, args.out, scenes)
         summaries, note = ([], "skipped (--pack-steps 0)")
         if args.pack_steps:

@@ -1,7 +1,9 @@
 """Rhizotomy assessment: the 6.1.5 errors, the attempt record and the assessment tool (thesis 3.3.4, Fig. 3.11).
 
 Stage: procedure (ORDER_ASSESSMENT), after the procedure steps. Reads: ProcedureState, NeedleState,
-PrpAnatomy, Widget events (self_assessment, save, help), Settings ("db", "class", "trainee").
+PrpAnatomy, Widget events (self_assessment, save, help), Settings ("class", "trainee"), Records (where
+attempts go; a replay's refuse every save, which then closes the attempt without storing it).
+A save that did not happen is shown and appended to FailedSaves (a headless run then exits 2).
 Writes: chainsim.game.app.headless.Assessment.values (the summary's `assessment`), HudState.panel_text and
 messages; saves attempts to the records store.
 
@@ -28,7 +30,15 @@ from chainsim.components.fluoro import CArm
 from chainsim.components.input_events import Widget
 from chainsim.components.needle import NeedleState
 from chainsim.components.procedure import ProcedureState, PrpAnatomy, landmark_errors
-from chainsim.components.resources import Assessment, EntityIndex, PackResource, Records, SavedLocally, Settings
+from chainsim.components.resources import (
+    Assessment,
+    EntityIndex,
+    FailedSaves,
+    PackResource,
+    Records,
+    SavedLocally,
+    Settings,
+)
 from chainsim.engine.errors import UserError
 from chainsim.systems.procedures.prp.handles import PrpHandles, hud
 from chainsim.systems.stages import ORDER_ASSESSMENT
@@ -180,10 +190,16 @@ def attempt_record(pack_name: str, v: dict) -> dict:
     }
 
 
-def save(app, v: dict) -> int:
-    """Save the attempt through the Records resource (Settings class/trainee); raises UserError on failure."""
+def save(app, v: dict) -> int | None:
+    """Save the attempt through the Records resource (Settings class/trainee); raises UserError on failure.
+
+    Returns None, storing nothing, when the Records refuse all saves (a replay): the attempt is then
+    closed exactly as the recorded session closed it, so the replay reaches the same state.
+    """
     if v["landmark_error_mm"] is None:
         raise UserError("place all three landmarks before saving: the landmark error needs them")
+    if app.resource(Records).refuses:
+        return None
     s = app.resource(Settings)
     rec = attempt_record(app.resource(PackResource).pack.name, v)
     if isinstance(s.get("protocol"), dict):  # a study trial (chainsim protocol): which one, in its details
@@ -253,21 +269,24 @@ class AssessmentSystem:
                 except SavedLocally as e:  # safe on this computer; the records server gets it later
                     h.message(f"Saved on this computer: {e}", 8.0)
                     esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState).closed = True
-                except UserError as e:
+                except (UserError, OSError) as e:  # a full disk or a vanished folder must not end the session
                     h.message(f"Not saved: {e}", 8.0)
                     self.errors.append(str(e))
-                except OSError as e:  # a full disk or a vanished folder must not end the session
-                    h.message(f"Not saved: {e}", 8.0)
-                    self.errors.append(str(e))
+                    failed = app.get_resource(FailedSaves)
+                    if failed is not None:  # a headless run then ends with exit 2
+                        failed.messages.append(str(e))
                 else:
                     ps = esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState)
-                    ps.saved.append(rid)
                     ps.closed = True  # this attempt is done; the next action begins another
                     s = app.resource(Settings)
-                    h.message(
-                        f"Attempt {rid} saved for {s.get('trainee') or DEFAULT_TRAINEE} "
-                        f"in class {s.get('class') or DEFAULT_CLASS}. Reset (r) to try again."
-                    )
+                    if rid is None:
+                        h.message(f"Not saved: {app.resource(Records).refuses}. Reset (r) to try again.")
+                    else:
+                        ps.saved.append(rid)
+                        h.message(
+                            f"Attempt {rid} saved for {s.get('trainee') or DEFAULT_TRAINEE} "
+                            f"in class {s.get('class') or DEFAULT_CLASS}. Reset (r) to try again."
+                        )
             elif ev.name == "delete_attempt":
                 self.delete(app, h)
             elif ev.name == "my_attempts":
