@@ -120,6 +120,8 @@ def resolve(ref: str, pack_paths=()) -> tuple[Path, str | None]:
         return p, None
     if p.name == "pack.toml" and p.is_file():
         return p.parent, None
+    if str(p.parent) not in ("", ".") and (p.parent / "pack.toml").is_file() and not p.exists():
+        return p.parent, p.name  # a pack folder path and a scene: assets/prp/fluoro
     name, _, scene = ref.partition("/")
     if (Path(name) / "pack.toml").is_file() and scene:
         return Path(name), scene

@@ -25,7 +25,7 @@ UNITS = ("mm", "cm", "m")
 UNIT_SCALE_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
 MESH_ROLES = ("visual", "collision", "deformable", "tool", "target")
 PRIMITIVES = ("box", "sphere", "cylinder", "capsule", "cone", "grid", "tet_block")
-VIEWPORT_KINDS = ("orbit", "attached", "panel", "fixed")
+VIEWPORT_KINDS = ("orbit", "attached", "panel", "fixed", "fluoro")
 WIDGET_KINDS = ("button", "toggle", "slider", "dial", "light", "text")
 
 section(
@@ -131,6 +131,14 @@ section(
         Field("wireframe", "bool", False, help="Draw the links instead of shaded faces."),
         Field("shading", "enum", "smooth", choices=("smooth", "flat", "unlit"), help="Lighting model."),
         Field(
+            "attenuation",
+            "float",
+            0.0,
+            units="1/mm",
+            help="X-ray linear attenuation coefficient: how dark a closed mesh shows in the C-arm view (0: unseen).",
+            min=0.0,
+        ),
+        Field(
             "preset",
             "str",
             "",
@@ -185,8 +193,10 @@ VIEWPORT = Schema(
             "kind",
             "enum",
             choices=VIEWPORT_KINDS,
-            help="orbit: mouse-driven camera; attached: follows an entity and ignores input; panel: 2-D controls; "
-            "fixed: a still camera.",
+            help=(
+                "orbit: mouse-driven camera; attached: follows an entity and ignores input; panel: 2-D controls; "
+                "fixed: a still camera; fluoro: the C-arm's radiograph (a drag turns the C-arm)."
+            ),
         ),
         Field("rect", "rect", help="Placement [x, y, w, h] as window fractions, origin bottom-left.", min=0.0, max=1.0),
         Field("title", "str", "", help="Caption drawn in the viewport."),

@@ -47,7 +47,14 @@ from chainsim.game.records.backend import (
     set_schema_version,
 )
 from chainsim.game.records.schema import MIGRATIONS, OWN_TABLES, SCHEMA_VERSION
-from chainsim.game.records.validate import clean_attempt, clean_key, clean_name, to_json
+from chainsim.game.records.validate import (
+    clean_attempt,
+    clean_created_at,
+    clean_key,
+    clean_name,
+    clean_questionnaire,
+    to_json,
+)
 
 ENV_VAR = "CHAINSIM_DB"
 DB_FILENAME = "records.sqlite3"
@@ -185,7 +192,7 @@ def _row_to_attempt(row: sqlite3.Row) -> dict[str, Any]:
 _ATTEMPT_SELECT = """
     SELECT a.id, c.name AS class_name, t.name AS trainee, a.pack, a.created_at, a.duration_s,
            a.landmark_error_mm, a.needle_error_mm, a.target, a.skull_contacts, a.path_length_mm,
-           a.redirections, a.aids, a.step_times, a.details
+           a.redirections, a.xray_shots, a.exposure_s, a.dose_mgy, a.aids, a.step_times, a.details
     FROM attempts a JOIN trainees t ON t.id = a.trainee_id JOIN classes c ON c.id = t.class_id
 """
 
@@ -454,9 +461,9 @@ class RecordStore:
             cur = conn.execute(
                 """
                 INSERT INTO attempts (trainee_id, pack, created_at, duration_s, landmark_error_mm,
-                    needle_error_mm, target, skull_contacts, path_length_mm, redirections, aids, step_times,
-                    details, idem_key)
-                VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
+                    needle_error_mm, target, skull_contacts, path_length_mm, redirections, xray_shots,
+                    exposure_s, dose_mgy, aids, step_times, details, idem_key)
+                VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
                 """,
                 (
                     trainee_id,
@@ -469,6 +476,9 @@ class RecordStore:
                     a["skull_contacts"],
                     a["path_length_mm"],
                     a["redirections"],
+                    a["xray_shots"],
+                    a["exposure_s"],
+                    a["dose_mgy"],
                     to_json(a["aids"]),
                     to_json(a["step_times"]),
                     to_json(a["details"]),
@@ -507,6 +517,46 @@ class RecordStore:
         with self._write() as conn:
             if conn.execute("DELETE FROM attempts WHERE id = ?", (attempt_id,)).rowcount == 0:
                 raise UserError(f"no attempt with id {attempt_id}")
+
+    def save_questionnaire(self, class_name: str, trainee: str, kind: str, session: str, answers: dict) -> int:
+        """Store a study questionnaire ('pre' or 'post') of one session; the trainee is created if missing."""
+        class_name = clean_name("class", class_name)
+        trainee = clean_name("trainee", trainee)
+        kind, session, answers = clean_questionnaire(kind, session, answers)
+        with self._write() as conn:
+            class_id = self._class_id(conn, class_name)
+            if class_id is None:
+                class_id = conn.execute("INSERT INTO classes (name) VALUES (?)", (class_name,)).lastrowid
+            trainee_id = self._trainee_id(conn, class_id, trainee)
+            if trainee_id is None:
+                trainee_id = conn.execute(
+                    "INSERT INTO trainees (class_id, name) VALUES (?, ?)", (class_id, trainee)
+                ).lastrowid
+            return conn.execute(
+                "INSERT INTO questionnaires (trainee_id, kind, session, created_at, answers) VALUES (?, ?, ?, ?, ?)",
+                (trainee_id, kind, session, clean_created_at(None), to_json(answers)),
+            ).lastrowid
+
+    def list_questionnaires(self, class_name: str | None = None) -> list[dict[str, Any]]:
+        """Questionnaires, oldest first, optionally of one class."""
+        if class_name is not None:
+            class_name = clean_name("class", class_name)
+            self._require_class(class_name)
+        rows = self._db.execute(
+            """
+            SELECT q.id, c.name AS class_name, t.name AS trainee, q.kind, q.session, q.created_at, q.answers
+            FROM questionnaires q JOIN trainees t ON t.id = q.trainee_id JOIN classes c ON c.id = t.class_id
+            WHERE (? IS NULL OR c.name = ?)
+            ORDER BY q.created_at, q.id
+            """,
+            (class_name, class_name),
+        )
+        out = []
+        for r in rows:
+            d = {k: r[k] for k in r.keys()}
+            d["answers"] = json.loads(d["answers"])
+            out.append(d)
+        return out
 
     def attempt_id_for_key(self, key: str) -> int | None:
         """The attempt saved with idempotency key ``key``, or None if none was."""

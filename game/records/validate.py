@@ -37,7 +37,7 @@ REQUIRED = (
     "skull_contacts",
     "path_length_mm",
 )
-OPTIONAL = ("created_at", "aids", "step_times", "details", "redirections")
+OPTIONAL = ("created_at", "aids", "step_times", "details", "redirections", "xray_shots", "exposure_s", "dose_mgy")
 FIELDS = REQUIRED + OPTIONAL
 
 # Unicode categories a name may not hold (chainsim.engine.errors.HIDDEN_CATEGORIES): controls,
@@ -205,10 +205,43 @@ def clean_attempt(attempt: Any) -> dict[str, Any]:
         "skull_contacts": _count("skull_contacts", attempt["skull_contacts"]),
         "path_length_mm": _number("path_length_mm", attempt["path_length_mm"]),
         "redirections": _count("redirections", attempt.get("redirections", 0)),
+        "xray_shots": _count("xray_shots", attempt.get("xray_shots", 0)),
+        "exposure_s": _number("exposure_s", attempt.get("exposure_s", 0.0)),
+        "dose_mgy": _number("dose_mgy", attempt.get("dose_mgy", 0.0)),
         "aids": clean_aids(attempt.get("aids")),
         "step_times": clean_step_times(attempt.get("step_times")),
         "details": clean_details(attempt.get("details")),
     }
+
+
+QUESTIONNAIRE_KINDS = ("pre", "post")
+ANSWER_MAX = 500
+
+
+def clean_questionnaire(kind: Any, session: Any, answers: Any) -> tuple[str, str, dict[str, Any]]:
+    """A study questionnaire: its kind ('pre' or 'post'), its session label and the answers (question id ->
+    a number, a short text or None for no answer)."""
+    if kind not in QUESTIONNAIRE_KINDS:
+        raise UserError(f"questionnaire kind is {kind!r}; expected one of {', '.join(QUESTIONNAIRE_KINDS)}")
+    session = clean_name("session", session)
+    if not isinstance(answers, dict):
+        raise UserError(f"questionnaire answers must be an object, got {type(answers).__name__}")
+    out: dict[str, Any] = {}
+    for key, value in answers.items():
+        if not isinstance(key, str) or not STEP_RE.fullmatch(key):
+            raise UserError(f"question id {key!r} must be 1-64 letters, digits, '_', '.' or '-'")
+        if value is None or isinstance(value, bool):
+            out[key] = value
+        elif isinstance(value, numbers.Real):
+            out[key] = _number(f"answers.{key}", value, minimum=None)
+        elif isinstance(value, str):
+            hidden = any(unicodedata.category(c) in _HIDDEN for c in value if c != "\n")
+            if len(value) > ANSWER_MAX or hidden:
+                raise UserError(f"answer {key!r} must be printable text of at most {ANSWER_MAX} characters")
+            out[key] = value
+        else:
+            raise UserError(f"answer {key!r} holds {type(value).__name__}; expected a number, text or nothing")
+    return kind, session, out
 
 
 KEY_RE = re.compile(r"[A-Za-z0-9_\-]{8,128}")

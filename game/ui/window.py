@@ -4,8 +4,8 @@ Only this module (and the GL adapters) import pyglet. Device events become the s
 scripts use (`chainsim.components.input_events`), stamped with the App's simulated time and queued in PendingInput,
 so a window session can be recorded (`--record`) and replayed headless. Each redraw (about 60 per
 second where the machine keeps up) runs the whole fixed steps the wall-clock time since the previous
-one holds, one App.update each (chainsim.game.ui.frameloop), and draws through `chainsim.game.gl.render_system` into
-the window's framebuffer.
+one holds, one App.update each (chainsim.game.ui.frameloop), and draws through
+`chainsim.game.gl.render_system` into the window's framebuffer.
 
 HiDPI: layouts, input events and widgets work in window units; the renderer draws at the
 framebuffer's resolution (`RenderTarget.scale` = framebuffer pixels per window unit).
@@ -14,9 +14,11 @@ Keys: a widget's `key` (pyglet key names, lower case: "t", "left", "space", "f2"
 uses that widget (held arrow keys repeat); F1 opens the key page, F12 saves a screenshot
 (chainsim-shot-FRAME.png in the current folder). Esc closes an open page; with none open it quits,
 asking first when the attempt is not saved. Packs with a `sign_in` button ask for class and name at
-start (chainsim.game.ui.signin) unless --class and --trainee are given or a script is played. `--input SCRIPT` plays
-a script, `--exit-after S` closes after S simulated
-seconds, `--screenshot PNG` saves the last frame on closing, `--record FILE` saves the session.
+start (chainsim.game.ui.signin) unless --class and --trainee are given or a script is played.
+`chainsim protocol --participant NAME` runs a study session in the window (chainsim.game.ui.study):
+its questionnaires and trial pages take the keyboard while they are shown. `--input SCRIPT` plays a
+script, `--exit-after S` closes after S simulated seconds, `--screenshot PNG` saves the last frame
+on closing, `--record FILE` saves the session.
 """
 
 from __future__ import annotations
@@ -91,7 +93,10 @@ def _open_window(pyglet, w: int, h: int, caption: str):
     raise last
 
 
-def run_window(args) -> int:
+def run_window(args, session=None) -> int:
+    """The window on `args.pack`. `session`, when given, is called with the App and returns a study
+    session (chainsim.game.ui.study) that takes the keyboard while it shows a form and is updated
+    once per frame; the window closes when the session has finished."""
     # every kernel compiled (or loaded from numba's cache) before the window takes any input
     warm_up()
     script = load_script(args.input) if getattr(args, "input", None) else None
@@ -149,8 +154,11 @@ def run_window(args) -> int:
         else:
             hud.notice = f.markdown()
 
-    # the trainer asks who is training, unless --class and --trainee said so
-    if "sign_in" in layout_names and not (values.get("class") and values.get("trainee")) and not script:
+    study = session(app) if session is not None else None
+    if study is not None:
+        study.start()
+    # the trainer asks who is training, unless --class and --trainee said so (or a study names them)
+    elif "sign_in" in layout_names and not (values.get("class") and values.get("trainee")) and not script:
         open_sign_in()
 
     def now() -> float:
@@ -209,6 +217,9 @@ def run_window(args) -> int:
 
     @window.event
     def on_text(text):
+        if study is not None and study.form is not None:
+            study.text(text)
+            return pyglet.event.EVENT_HANDLED
         if form["open"] is not None:
             form["open"].text(text)
             form_changed()
@@ -216,6 +227,13 @@ def run_window(args) -> int:
 
     @window.event
     def on_key_press(symbol, modifiers):
+        if study is not None and study.form is not None and symbol != pyglet.window.key.F12:
+            # a questionnaire or a study page: the keys are its own (F12 still takes a screenshot)
+            if symbol == pyglet.window.key.ESCAPE:
+                finish()  # leave the study; what was saved stays saved
+            else:
+                study.key(key_name(symbol))
+            return pyglet.event.EVENT_HANDLED
         if form["open"] is not None:  # typing a name: no key reaches the controller
             if symbol == pyglet.window.key.ESCAPE:
                 if values.get("trainee"):
@@ -266,7 +284,10 @@ def run_window(args) -> int:
 
     @window.event
     def on_text_motion(motion):
-        # held arrow keys repeat, so a dial on an arrow key keeps turning while it is held
+        # held arrow keys repeat, so a dial on an arrow key keeps turning while it is held; not while a
+        # form or study page has the keyboard (it took the arrow in on_key_press)
+        if form["open"] is not None or (study is not None and study.form is not None):
+            return pyglet.event.EVENT_HANDLED
         if motion in MOTIONS:
             pending.push(now(), Key(MOTIONS[motion], True))
 
@@ -295,8 +316,12 @@ def run_window(args) -> int:
         if stepper.advance(dt) == 0:
             render.draw(app)  # no whole step yet: show the same state again
         for ev in widget_events.read():
-            if ev.name == "sign_in" and form["open"] is None:
+            if ev.name == "sign_in" and form["open"] is None and study is None:
                 open_sign_in()
+        if study is not None:
+            study.update()
+            if study.finished:
+                finish()
         if args.exit_after is not None and app.time.sim_time >= args.exit_after:
             finish()
 

@@ -32,6 +32,7 @@ CHILD = textwrap.dedent(
         return {"pack": "prp", "created_at": f"2026-04-0{i + 1}T08:00:00Z", "duration_s": 10.0 + i,
                 "landmark_error_mm": 3.0 + i, "needle_error_mm": None if i == 1 else 2.0 * i,
                 "target": "skull", "skull_contacts": i, "path_length_mm": 40.0 + i,
+                "xray_shots": i, "exposure_s": 0.3 * i, "dose_mgy": 0.06 * i,
                 "aids": {"tip_view": i % 2 == 0}, "step_times": {"insert": 5.0 + i}, "details": {"i": i}}
 
     store = RecordStore(sys.argv[1])
@@ -77,6 +78,9 @@ def expected(i: int) -> dict:
         "skull_contacts": i,
         "path_length_mm": 40.0 + i,
         "redirections": 0,
+        "xray_shots": i,
+        "exposure_s": 0.3 * i,
+        "dose_mgy": 0.06 * i,
         "aids": {k: k == "tip_view" and i % 2 == 0 for k in AIDS},
         "step_times": {"insert": 5.0 + i},
         "details": {"i": i},

@@ -142,6 +142,8 @@ def run(args: argparse.Namespace) -> int:
                         "contacts",
                         "path_mm",
                         "redirect",
+                        "xrays",
+                        "exposure_s",
                     ],
                     [
                         [
@@ -157,6 +159,8 @@ def run(args: argparse.Namespace) -> int:
                             a["skull_contacts"],
                             a["path_length_mm"],
                             a["redirections"],
+                            a["xray_shots"],
+                            a["exposure_s"],
                         ]
                         for a in rows
                     ],
