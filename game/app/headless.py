@@ -10,7 +10,6 @@ checked before anything runs (`check_user_settings`), and a run whose save faile
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +31,7 @@ from chainsim.components.resources import (
 )
 from chainsim.engine import limits
 from chainsim.engine.errors import UserError
+from chainsim.engine.progress import progress
 from chainsim.game.app import plugins
 from chainsim.game.app.core import App
 from chainsim.game.app.digest import world_digest
@@ -197,9 +197,9 @@ def start_problems(pack: packs.Pack) -> list[tuple[str, str]]:
     return out
 
 
-def _progress(done: int, total: int) -> None:
-    if sys.stderr.isatty() and total >= 2000 and done % max(total // 20, 1) == 0:
-        print(f"\r  step {done}/{total}", end="", file=sys.stderr, flush=True)
+def _steps(total: int):
+    """The steps of a run; long runs show a progress bar (chainsim.engine.progress) that ends its line."""
+    return progress(range(total), desc="steps", unit="step") if total >= 2000 else range(total)
 
 
 def run_pack(
@@ -253,9 +253,8 @@ def run_pack(
         check_events(app, timed, script or "input")
         app.resource(PendingInput).extend(timed)
         n = int(steps if steps is not None else app.resource(Settings).get("steps", 600))
-        for i in range(n):
+        for _ in _steps(n):
             app.update(app.time.dt)
-            _progress(i + 1, n)
         digest = world_digest(app)
         log = app.get_resource(InputLog)
         summary = {

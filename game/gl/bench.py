@@ -17,6 +17,7 @@ bench-render.png into --out (default runs/bench-render); progress goes to stderr
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import platform
@@ -42,6 +43,8 @@ from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release
 from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
 from chainsim.systems.ui.viewports import OrbitCamera, fraction_rect
 from chainsim.systems.ui.widgets import WidgetState, place
+
+logger = logging.getLogger(__name__)
 
 HELP = "off-screen frame time of the renderer for 10k / 100k / 1M triangles"
 
@@ -230,7 +233,7 @@ def run_sheets(args) -> int:
             centre = np.argsort(np.linalg.norm(pos[:, :2], axis=1))[: max(1, int(args.patch * len(pos)))]
             patch_ids = np.sort(centre)
             # the modes take turns frame by frame, so a change in machine load hits all three alike
-            print(f"  {len(tris):>9,} triangles ({frames} frames per mode) ...", file=sys.stderr, flush=True)
+            logger.info(f"  {len(tris):>9,} triangles ({frames} frames per mode) ...")
             times = {m: [] for m in MODES}
             uploads = {m: [] for m in MODES}
             state = [lifted, pos]

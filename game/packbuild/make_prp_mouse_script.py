@@ -13,7 +13,7 @@ writes assets/prp/scripts/correct-mouse.toml from assets/prp/scripts/correct.tom
 from __future__ import annotations
 
 import argparse
-import sys
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +25,8 @@ from chainsim.game.app.inputscript import load_script
 from chainsim.systems.ui import docbox
 from chainsim.systems.ui import widgets as wd
 from chainsim.systems.view import ViewState, main_view
+
+logger = logging.getLogger(__name__)
 
 SCRIPTS = ASSETS_DIR / "prp" / "scripts"
 
@@ -114,7 +116,7 @@ def main(argv=None) -> int:
     ap.add_argument("--check", action="store_true", help="run the written script headless and print its assessment")
     args = ap.parse_args(argv)
     args.out.write_text(build(args.source), encoding="utf-8")
-    print(f"wrote {args.out}", file=sys.stderr)
+    logger.info(f"wrote {args.out}")
     if args.check:
         s = run_pack("prp", 720, script=str(args.out))
         a = s["assessment"]

@@ -20,6 +20,7 @@ they are written; --check also runs them headless and prints the assessment.
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import sys
 from pathlib import Path
@@ -36,6 +37,8 @@ from chainsim.game.app.headless import run_pack
 from chainsim.game.packs import pack as packs
 from chainsim.systems.collision import OBSTACLES, PrpObstacles
 from chainsim.systems.needle import initial_direction
+
+logger = logging.getLogger(__name__)
 
 HIGH_DEG = 12.0
 
@@ -278,7 +281,7 @@ def main(argv=None) -> int:
         raise SystemExit(
             f"aiming {args.high} degrees too high meets {hhit or 'nothing'}, not the skull; try another --high"
         )
-    print(f"skull-hit: vertical {high:.3f} deg meets {hhit} at {hdist:.1f} mm", file=sys.stderr)
+    logger.info(f"skull-hit: vertical {high:.3f} deg meets {hhit} at {hdist:.1f} mm")
     out = Path(args.out) if args.out else Path(args.pack) / "scripts"
     out.mkdir(parents=True, exist_ok=True)
     (out / "correct.toml").write_text(
@@ -331,7 +334,7 @@ def main(argv=None) -> int:
             encoding="utf-8",
         )
         names.append(f"variant-{k}")
-    print(f"wrote {', '.join(n + '.toml' for n in names)} in {out}", file=sys.stderr)
+    logger.info(f"wrote {', '.join(n + '.toml' for n in names)} in {out}")
     if args.check:
         for name in names:
             s = run_pack(str(Path(args.pack)), script=str(out / f"{name}.toml"))

@@ -26,6 +26,7 @@ import argparse
 import dataclasses
 import hashlib
 import json
+import logging
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +39,8 @@ from scipy.spatial import cKDTree
 from chainsim.assets import ASSETS_DIR
 from chainsim.game.packbuild import prp_face, prp_foramen, prp_landmarks, prp_skin
 from chainsim.game.packbuild.prp_preview import marker, render
+
+logger = logging.getLogger(__name__)
 
 # the source meshes sit beside the repository in a development checkout
 DEFAULT_SHARED = ASSETS_DIR.parent.parent / "shared" / "data" / "anatomy"
@@ -72,7 +75,7 @@ class BuildParams:
 
 
 def say(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
+    logger.info(msg)
 
 
 def fail(msg: str) -> None:

@@ -23,7 +23,6 @@ from chainsim.engine import limits
 FORMAT_VERSION = 1
 UNITS = ("mm", "cm", "m")
 UNIT_SCALE_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
-MESH_ROLES = ("visual", "collision", "deformable", "tool", "target")
 PRIMITIVES = ("box", "sphere", "cylinder", "capsule", "cone", "grid", "tet_block")
 VIEWPORT_KINDS = ("orbit", "attached", "panel", "fixed", "fluoro")
 WIDGET_KINDS = ("button", "toggle", "slider", "dial", "light", "text")
@@ -73,14 +72,6 @@ section(
             max=limits.MAX_PIXELS,
         ),
         Field("background", "vec4", [0.08, 0.09, 0.11, 1.0], help="Clear colour (RGBA 0..1).", min=0.0, max=1.0),
-        Field(
-            "deformation_budget_ms",
-            "float",
-            8.0,
-            units="ms",
-            help="Time a deformation update may take before the HUD warns.",
-            min=0.0,
-        ),
     ],
 )
 
@@ -103,7 +94,6 @@ section(
             choices=UNITS,
             help="Units of the file's coordinates; everything is converted to millimetres.",
         ),
-        Field("role", "enum", "visual", choices=MESH_ROLES, help="What the mesh is for."),
         Field("extents", "vec3", [10.0, 10.0, 10.0], units="mm", help="Box size, or grid/tet_block size.", min=0.0),
         Field("radius", "float", 5.0, units="mm", help="Sphere, cylinder, capsule or cone radius.", min=0.0),
         Field("height", "float", 10.0, units="mm", help="Cylinder, capsule or cone height (along +Z).", min=0.0),

@@ -21,6 +21,7 @@ Parts:
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import platform
@@ -45,6 +46,8 @@ from chainsim.engine.meshimport import load_graph
 from chainsim.engine.reorder import rcm_permutation
 from chainsim.tools.bench import exact_cases
 from chainsim.tools.bench.meshes import relabel, surface_sheet, tet_cube
+
+logger = logging.getLogger(__name__)
 
 # Tables 6.2-6.4 (frames/second): size -> (Gibson hi, lo, SurfaceChainMail hi, lo, Generalised hi, lo)
 THESIS = {
@@ -75,7 +78,7 @@ PARTS = ("thesis", "worst", "scaling", "exact")
 
 
 def _log(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
+    logger.info(msg)
 
 
 class Times(list):

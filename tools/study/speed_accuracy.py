@@ -11,7 +11,7 @@ report names the reference used in every row.
 
 from __future__ import annotations
 
-import sys
+import logging
 import time
 import warnings
 
@@ -28,6 +28,8 @@ from .live_models import LIVE, baseline_blend, baseline_patch, settle
 from .mass_spring import SYMPLECTIC, MassSpring, integrate
 from .metrics import displacement_error, median_time, realtime_size, volume_change
 
+logger = logging.getLogger(__name__)
+
 E_STUDY, NU_STUDY = 3000.0, 0.45
 STRAINS = [0.01, 0.05, 0.1, 0.25, 0.5]
 QUICK_STRAINS = [0.01, 0.1, 0.5]
@@ -42,7 +44,7 @@ LIMITS = {
 
 
 def log(msg: str) -> None:
-    print(f"[study {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+    logger.info(f"study {time.strftime('%H:%M:%S')}: {msg}")
 
 
 def default_chainmail_settings():

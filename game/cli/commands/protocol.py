@@ -36,8 +36,8 @@ script saves nothing.
 from __future__ import annotations
 
 import json
+import logging
 import math
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -67,6 +67,8 @@ from chainsim.game.records.study import (
 from chainsim.game.ui.questionnaire import POST, THESIS_RATINGS
 from chainsim.game.ui.study import StudySession, study_name
 from chainsim.systems.procedures.prp.assessment import attempt_record
+
+logger = logging.getLogger(__name__)
 
 NAME = "protocol"
 HELP = "run a study protocol with a participant at the window (or scripted), print Table 6.1 over all participants"
@@ -304,7 +306,7 @@ def run_people(args, proto: dict) -> int:
     rc = run_window(window_args, session=make_session)
     session = holder.get("session")
     if session is None or not session.summary:
-        print(f"session of {args.participant} ended early; what was done is saved", file=sys.stderr)
+        logger.warning(f"session of {args.participant} ended early; what was done is saved")
         return rc
     print(session.summary)
     _write_out(
@@ -336,13 +338,13 @@ def run_scripted(args, proto: dict) -> int:
             for r in range(t["repeat"]):
                 plan.append((t, path, events, r))
     study = study_name(proto)
-    print("SCRIPTED smoke test: input scripts, not people, make these attempts.", file=sys.stderr)
+    logger.warning("SCRIPTED smoke test: input scripts, not people, make these attempts.")
     store = RecordStore(args.db)
     results = []
     try:
         for i, (t, path, events, r) in enumerate(plan, 1):
             aids = ", ".join(a for a, v in t["aids"].items() if v) or "no aids"
-            print(f"[{i}/{len(plan)}] {t['name']}: {path.name} ({aids})", file=sys.stderr, flush=True)
+            logger.info(f"[{i}/{len(plan)}] {t['name']}: {path.name} ({aids})")
             aid_events = [(0.0, Widget(a, v)) for a, v in t["aids"].items()]
             trial_out = str(out / f"{i:02d}-{t['name']}") if out is not None else None
             summary = run_pack(

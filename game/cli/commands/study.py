@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import sys
+import logging
 
 from chainsim.engine import argtypes, limits
 from chainsim.engine.errors import UserError
@@ -11,6 +11,8 @@ from chainsim.game.app.outputs import prepare_output_dir
 from chainsim.tools.study import calibrate as cal
 from chainsim.tools.study import report, speed_accuracy
 from chainsim.tools.study.scenes import SCENES
+
+logger = logging.getLogger(__name__)
 
 NAME = "study"
 HELP = "speed-accuracy study of ChainMail vs FEM and mass-spring; calibrate ChainMail presets"
@@ -46,7 +48,12 @@ def add_parser(sub):
         "--strain", type=argtypes.real(0.0, 1.0, low_open=True), default=None, help="fit at this strain instead"
     )
     c.add_argument("--name", required=False, help="preset name (table in the TOML file)")
-    c.add_argument("--out", default=None, help="presets TOML file (default assets/presets/materials.toml)")
+    c.add_argument(
+        "--out",
+        default="materials.toml",
+        help="presets TOML file to add the preset to (default ./materials.toml; the shipped presets are "
+        "assets/presets/materials.toml in a source checkout)",
+    )
     c.add_argument(
         "--block-n",
         type=argtypes.count(5, limits.MAX_STUDY_BLOCK),
@@ -76,7 +83,7 @@ def run(args) -> int:
         if args.pack_steps:
             summaries, note = pack_costs.measure(args.pack_steps)
         md = report.write(results, args.out, summaries, note)
-        print(f"wrote {md}", file=sys.stderr)
+        logger.info(f"wrote {md}")
         print(md)
         return 0
     if cmd == "calibrate":
@@ -90,16 +97,16 @@ def run(args) -> int:
         if not args.shipped and args.nu is None:
             raise UserError("--nu is required (Poisson ratio in (-1, 0.5)), or use --shipped")
         for name, E, nu in jobs:
-            print(f"[calibrate] {name}: nu={nu:g} E={E}", file=sys.stderr, flush=True)
+            logger.info(f"calibrate {name}: nu={nu:g} E={E}")
             res = cal.fit(
                 nu,
                 E,
                 None if args.shipped else args.strain,
                 n=args.block_n,
-                progress=lambda m: print(f"[calibrate]   {m}", file=sys.stderr, flush=True),
+                progress=lambda m: logger.info(f"calibrate   {m}"),
             )
             for w in res["warnings"]:
-                print(f"[calibrate]   warning: {w}", file=sys.stderr)
+                logger.warning(f"calibrate: {w}")
             path = cal.write_preset(name, res, args.out)
             print(
                 f"{name}: alpha_min={res['alpha_min']} alpha_max={res['alpha_max']} "
