@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import math
 import re
+from collections.abc import Callable
 
 from chainsim.engine import limits
 
@@ -33,7 +34,7 @@ def real(
     low_open: bool = False,
     high_open: bool = False,
     what: str = "",
-):
+) -> Callable[[str], float]:
     """A finite number in [lo, hi]; low_open / high_open leave out an end; `what` names it in messages."""
     what = f"{what} " if what else ""
 
@@ -53,7 +54,7 @@ def real(
     return parse
 
 
-def count(lo: int = 0, hi: int = limits.MAX_INT):
+def count(lo: int = 0, hi: int = limits.MAX_INT) -> Callable[[str], int]:
     """A whole number in [lo, hi]."""
 
     def parse(text: str) -> int:

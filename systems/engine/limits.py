@@ -17,6 +17,7 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from chainsim.engine.errors import UserError
 
@@ -203,7 +204,7 @@ def _fmt(x) -> str:
     return f"{x:g}" if isinstance(x, float) else str(x)
 
 
-def whole(value, lo: int, hi: int) -> int:
+def whole(value: ArrayLike, lo: int, hi: int) -> int:
     """`value` as an int in [lo, hi]; refuses bools, fractions and anything out of range."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise LimitError(f"expected a whole number from {lo} to {hi}, got {value!r}")
@@ -214,7 +215,7 @@ def whole(value, lo: int, hi: int) -> int:
     return v
 
 
-def number(value, lo: float = -MAX_COORD, hi: float = MAX_COORD) -> float:
+def number(value: ArrayLike, lo: float = -MAX_COORD, hi: float = MAX_COORD) -> float:
     """`value` as a finite float in [lo, hi]; refuses bools, text and non-finite values."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise LimitError(f"expected a number, got {value!r}")
@@ -229,7 +230,7 @@ def number(value, lo: float = -MAX_COORD, hi: float = MAX_COORD) -> float:
     return x
 
 
-def coordinates(arr, bound: float = MAX_COORD) -> np.ndarray:
+def coordinates(arr: ArrayLike, bound: float = MAX_COORD) -> np.ndarray:
     """Check an array of coordinates: all finite and within +-bound; returns it unchanged."""
     a = np.asarray(arr)
     if a.size == 0:

@@ -19,6 +19,7 @@ from pathlib import Path
 import meshio
 import numpy as np
 import trimesh
+from numpy.typing import ArrayLike
 
 from chainsim.engine import limits, meshcheck, meshgen
 from chainsim.engine.limits import max_mesh_bytes  # noqa: F401  (the mesh size limit, re-exported)
@@ -189,7 +190,7 @@ def check_mesh(mesh: MeshData, where: str) -> MeshData:
     return _check(mesh, where)
 
 
-def primitive_size(kind: str, resolution) -> tuple[int, int]:
+def primitive_size(kind: str, resolution: ArrayLike) -> tuple[int, int]:
     """(vertices, cells) a primitive of this resolution has, computed without building it."""
     r = [max(1, int(round(min(float(x), 1e12)))) for x in resolution]
     if kind == "grid":
@@ -204,7 +205,7 @@ def primitive_size(kind: str, resolution) -> tuple[int, int]:
     return 8, 12
 
 
-def check_primitive(kind: str, resolution, where: str = "primitive") -> None:
+def check_primitive(kind: str, resolution: ArrayLike, where: str = "primitive") -> None:
     """Refuse a resolution whose mesh would be over MAX_VERTICES or MAX_CELLS (before building it)."""
     nv, nc = primitive_size(kind, resolution)
     if nv > limits.MAX_VERTICES or nc > limits.MAX_CELLS:
@@ -214,7 +215,7 @@ def check_primitive(kind: str, resolution, where: str = "primitive") -> None:
         )
 
 
-def primitive(kind: str, *, extents, radius: float, height: float, resolution) -> MeshData:
+def primitive(kind: str, *, extents: ArrayLike, radius: float, height: float, resolution: ArrayLike) -> MeshData:
     """Built-in shapes so packs can have tools and test bodies without mesh files."""
     check_primitive(kind, resolution)
     res = [max(1, int(round(r))) for r in resolution]

@@ -18,11 +18,13 @@ from __future__ import annotations
 
 import contextlib
 import io
+import os
 import zipfile
 import zlib
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from chainsim.engine import limits, meshcheck
 from chainsim.engine import reorder as ro
@@ -35,7 +37,7 @@ GRAPH_EXT = ".npz"
 
 
 def load_mesh(
-    path,
+    path: str | os.PathLike,
     *,
     kind: str = "auto",
     pitch: float | None = None,
@@ -43,7 +45,7 @@ def load_mesh(
     reorder: str | None = None,
     scale_to_mm: float = 1.0,
     where: str | None = None,
-):
+) -> MeshData:
     """A MeshData from a mesh file.
 
     kind: "surface" (triangle links), "volume" (tetrahedra; a closed surface is filled with the built-in
@@ -77,7 +79,9 @@ def load_mesh(
     return mesh
 
 
-def check_graph(positions, links, fixed=None, where: str = "mesh") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def check_graph(
+    positions: ArrayLike, links: ArrayLike, fixed: ArrayLike | None = None, where: str = "mesh"
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Validate the flat arrays of a ChainMail object; returns (positions float64, links int64, fixed int64)."""
     pos = np.asarray(positions)
     if pos.ndim == 1:
@@ -134,7 +138,9 @@ def check_graph(positions, links, fixed=None, where: str = "mesh") -> tuple[np.n
     return pos, lk, fx
 
 
-def load_graph(path, *, kind: str = "auto", reorder: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def load_graph(
+    path: str | os.PathLike, *, kind: str = "auto", reorder: str | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(positions (N, D), links (M, 2), fixed (K,)) from a .npz graph or any mesh file load_mesh reads."""
     path = Path(path)
     if "\x00" in str(path):

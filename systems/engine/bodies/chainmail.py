@@ -12,6 +12,7 @@ import time
 
 import numba
 import numpy as np
+from numpy.typing import ArrayLike
 
 from chainsim.engine.bodies.base import Body, StepStats, check_ids
 from chainsim.engine.chainmail_params import order_code
@@ -27,7 +28,15 @@ from chainsim.engine.kernels.relax import relax
 PARALLEL_RELAX_MIN = 100_000
 
 
-def relax_moved(rest, pos, graph, active, iterations: int, step: float = 1.0, fixed=None) -> None:
+def relax_moved(
+    rest: ArrayLike,
+    pos: ArrayLike,
+    graph: Graph,
+    active: ArrayLike,
+    iterations: int,
+    step: float = 1.0,
+    fixed: ArrayLike | None = None,
+) -> None:
     """Relaxation of thesis 5.2.5 over `active` (chainsim.engine.kernels.relax), serial for small sets."""
     if len(active) >= PARALLEL_RELAX_MIN:
         relax(rest, pos, graph, active, iterations, step=step, fixed=fixed)
@@ -47,19 +56,19 @@ class ChainMailBody(Body):
 
     def __init__(
         self,
-        rest,
-        links,
-        alpha_min=0.8,
-        alpha_max=1.2,
-        beta=0.1,
+        rest: ArrayLike,
+        links: ArrayLike,
+        alpha_min: ArrayLike = 0.8,
+        alpha_max: ArrayLike = 1.2,
+        beta: ArrayLike = 0.1,
         *,
         relax: int = 0,
         relax_step: float = 1.0,
         order: str = "breadth-first",
         depth: int = 2,
         exact: bool = False,
-        fixed=None,
-        dtype=np.float64,
+        fixed: ArrayLike | None = None,
+        dtype: type | np.dtype = np.float64,
     ) -> None:
         r = np.ascontiguousarray(rest, dtype=dtype)
         if r.ndim != 2 or r.shape[1] not in (1, 2, 3):
@@ -96,7 +105,7 @@ class ChainMailBody(Body):
         self.last_shortfall = 0.0
         self.stats = StepStats()
 
-    def move(self, ids, targets, hold: bool = True) -> np.ndarray:
+    def move(self, ids: ArrayLike, targets: ArrayLike, hold: bool = True) -> np.ndarray:
         """Move `ids` to `targets` from the current shape; returns the ids that changed (5.2.3-5.2.5)."""
         t0 = time.perf_counter()
         ids = np.atleast_1d(np.asarray(ids, dtype=np.int64))
@@ -158,10 +167,10 @@ class ChainMailBody(Body):
         return changed
 
     # -- the body API ---------------------------------------------------------------------------
-    def grab(self, ids, targets) -> None:
+    def grab(self, ids: ArrayLike, targets: ArrayLike) -> None:
         self.move(ids, targets, hold=True)
 
-    def release(self, ids=None) -> None:
+    def release(self, ids: ArrayLike | None = None) -> None:
         if ids is None:
             self.held = np.zeros(0, dtype=np.int64)
         else:
@@ -180,14 +189,14 @@ class ChainMailBody(Body):
             kw["depth"] = depth
         return int(len(topology.cut_segment(self.positions, self.graph, p0, p1, **kw)))
 
-    def cut(self, p0, p1, normal=None, depth=None) -> int:
+    def cut(self, p0: ArrayLike, p1: ArrayLike, normal: ArrayLike | None = None, depth: float | None = None) -> int:
         return self._cut(np.asarray(p0, float), np.asarray(p1, float), normal, depth)
 
-    def cut_path(self, points, normal=None, depth=None) -> int:
+    def cut_path(self, points: ArrayLike, normal: ArrayLike | None = None, depth: float | None = None) -> int:
         kw = {k: v for k, v in (("normal", normal), ("depth", depth)) if v is not None}
         return int(len(topology.cut_path(self.positions, self.graph, np.asarray(points, float), **kw)))
 
-    def add_links(self, links) -> int:
+    def add_links(self, links: ArrayLike) -> int:
         """Join element pairs with new links carrying the first link's limits; returns how many."""
         links = np.asarray(links, dtype=np.int64).reshape(-1, 2)
         m_before = self.graph.n_links

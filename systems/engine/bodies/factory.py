@@ -1,6 +1,6 @@
 """Making a body by model name, and choosing a model for a budget from the study's table.
 
-`make_body("xpbd" | "projective", rest, tets=..., triangles=..., **settings)` builds one through the
+`make_body("xpbd" | "projective", rest, tets=..., triangles=..., **settings: float)` builds one through the
 body API; `choose_model(...)` reads the speed-accuracy table the study writes (thesis 6.2 extended)
 and picks the cheapest model and setting that meets an error and/or time budget for the nearest
 scene and mesh size, saying why.
@@ -14,7 +14,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from chainsim.engine.bodies.base import Body
 from chainsim.engine.bodies.projective import ProjectiveBody
 from chainsim.engine.bodies.xpbd import XPBDBody
 from chainsim.engine.errors import UserError
@@ -22,7 +24,15 @@ from chainsim.engine.errors import UserError
 MODELS = ("chainmail", "xpbd", "projective")
 
 
-def make_body(model: str, rest, *, tets=None, triangles=None, fixed=None, **settings):
+def make_body(
+    model: str,
+    rest: ArrayLike,
+    *,
+    tets: ArrayLike | None = None,
+    triangles: ArrayLike | None = None,
+    fixed: ArrayLike | None = None,
+    **settings: float,
+) -> Body:
     """An XPBD or projective-dynamics body on `tets` (or, for XPBD, surface `triangles`)."""
     has_tets = tets is not None and len(tets) > 0
     if model == "xpbd":

@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import ArrayLike
 from scipy.sparse.linalg import splu
 
 from chainsim.engine import meshgen
@@ -34,9 +35,9 @@ class ProjectiveBody(Body):
 
     def __init__(
         self,
-        rest,
-        tets=None,
-        triangles=None,
+        rest: ArrayLike,
+        tets: ArrayLike | None = None,
+        triangles: ArrayLike | None = None,
         *,
         E: float = 3000.0,
         nu: float = 0.45,
@@ -47,7 +48,7 @@ class ProjectiveBody(Body):
         dynamic: bool = True,
         unit: float = 1.0,
         thickness: float = 1.0,
-        fixed=None,
+        fixed: ArrayLike | None = None,
     ) -> None:
         super().__init__(rest, fixed)
         self.mu, self.lam = check_elastic(E, nu, density)
@@ -130,7 +131,7 @@ class ProjectiveBody(Body):
         return self._positions
 
     @positions.setter
-    def positions(self, value) -> None:
+    def positions(self, value: ArrayLike) -> None:
         self._positions = value
         if hasattr(self, "x"):
             self.x[:] = np.asarray(value) * self.unit
