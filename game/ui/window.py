@@ -33,6 +33,7 @@ from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll, Widget
 from chainsim.components.resources import Assessment, PendingInput, Settings
 from chainsim.engine.errors import UserError
+from chainsim.engine.warmup import warm_up
 from chainsim.game.app.digest import world_digest
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script, write_recording
@@ -96,7 +97,8 @@ def run_window(args, session=None) -> int:
     """The window on `args.pack`. `session`, when given, is called with the App and returns a study
     session (chainsim.game.ui.study) that takes the keyboard while it shows a form and is updated
     once per frame; the window closes when the session has finished."""
-
+    # every kernel compiled (or loaded from numba's cache) before the window takes any input
+    warm_up()
     script = load_script(args.input) if getattr(args, "input", None) else None
     settings = user_settings(args)  # --db, --class, --trainee for procedures that save attempts
     app = build_app(args.pack, pack_paths=args.pack_path, headless=False, settings=settings)
