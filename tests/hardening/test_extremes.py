@@ -14,6 +14,7 @@ import esper
 import numpy as np
 import pytest
 
+from chainsim.components.core import MeshRef
 from chainsim.components.input_events import (
     Key,
     MouseButton,
@@ -75,7 +76,8 @@ def test_extreme_events_leave_every_number_finite(pack):
     app = build_app(pack)
     try:
         index: EntityIndex = app.resource(EntityIndex)
-        pick = sorted(index.by_name)[0]
+        with app.active():  # the first entity with a mesh to pick on (runtime entities have none)
+            pick = next(n for n in sorted(index.by_name) if esper.try_component(index.by_name[n], MeshRef))
         layout = app.resource(PackResource).layout
         widgets = [w["name"] for w in layout.get("widgets", []) if w.get("name") != "save"]
         app.resource(PendingInput).extend(_events(pick, widgets))

@@ -165,7 +165,7 @@ def _protocol(*extras: str) -> str:
 def test_protocol_refuses_before_the_first_trial(text, args, words, cli, tmp_path):
     proto = tmp_path / "p.toml"
     proto.write_text(text)
-    code, out, err = cli("protocol", proto, "--db", tmp_path / "r.sqlite3", *args)
+    code, out, err = cli("protocol", proto, "--scripted", "--db", tmp_path / "r.sqlite3", *args)
     assert_one_line_error(code, err, *words)
     assert "[1/" not in err  # no trial ran
     assert not (tmp_path / "r.sqlite3").exists()
@@ -174,7 +174,7 @@ def test_protocol_refuses_before_the_first_trial(text, args, words, cli, tmp_pat
 def test_protocol_with_a_mistyped_database_folder_runs_nothing(cli, tmp_path):
     proto = tmp_path / "p.toml"
     proto.write_text(_protocol(""))
-    code, out, err = cli("protocol", proto, "--db", tmp_path / "nowhere" / "r.sqlite3")
+    code, out, err = cli("protocol", proto, "--scripted", "--db", tmp_path / "nowhere" / "r.sqlite3")
     assert_one_line_error(code, err, "does not exist")
     assert "[1/" not in err
 
