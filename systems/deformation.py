@@ -248,6 +248,7 @@ def reset(d: Deformable) -> int:
         return moved
     d.body.reset()
     d.held = d.body.held
+    d.alive = d.graph.alive
     d.mark_dirty(np.arange(d.n_elements))
     d.version += 1
     return moved

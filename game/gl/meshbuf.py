@@ -1,16 +1,18 @@
 """GPU buffers of one mesh: positions and normals (float32), triangle and link index buffers.
 
 A deformed mesh is updated in place: only the vertices the deformation moved are written, as a few
-contiguous ranges (`buffer.write` with an offset), and normals are recomputed only around them - the
-moved vertices and the other corners of their triangles, from the triangles touching those. ChainMail
-moves a local patch per pull (thesis 5.2.3), so an update costs in proportion to the patch, not the mesh.
+contiguous ranges (`buffer.write` with an offset, straight from the arrays, no byte copies), and normals
+are recomputed only around them - the moved vertices and the other corners of their triangles, from
+the triangles touching those. ChainMail moves a local patch per pull (thesis 5.2.3), so an update costs
+in proportion to the patch, not the mesh. When most of the mesh moved, everything is rewritten and the
+normals are recomputed on all threads where there are several (chainsim.engine.kernels.normals).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from chainsim.engine.kernels.normals import moved_normals_kernel, vertex_normals_kernel
+from chainsim.engine.kernels.normals import moved_normals_kernel, normals_into, vertex_normals_kernel
 from chainsim.engine.meshgen import links_from_polygons
 
 #: vertex-id gaps smaller than this are written through rather than split into two writes
@@ -162,19 +164,22 @@ class GpuMesh:
             self._mark = np.zeros(self.n, np.bool_)  # scratch for the kernel
         verts = moved_normals_kernel(self.pos, self.tris, ptr, idx, ids, self._mark, self.normals)
         for a, b in runs(ids):
-            self.vbo_pos.write(self.pos[a:b].tobytes(), offset=a * 12)
+            self.vbo_pos.write(self.pos[a:b], offset=a * 12)
             self.bytes_written += (b - a) * 12
         for a, b in runs(verts):
-            self.vbo_nrm.write(self.normals[a:b].tobytes(), offset=a * 12)
+            self.vbo_nrm.write(self.normals[a:b], offset=a * 12)
             self.bytes_written += (b - a) * 12
         return len(ids)
 
     def _upload_all(self, positions: np.ndarray) -> int:
         self._box = None
         self.pos[:] = positions
-        self.normals[:] = vertex_normals(self.pos, self.tris)
-        self.vbo_pos.write(self.pos.tobytes())
-        self.vbo_nrm.write(self.normals.tobytes())
+        if self.n and len(self.tris):
+            if self._csr is None:
+                self._csr = incidence(self.n, self.tris)
+            normals_into(self.pos, self.tris, *self._csr, self.normals)
+        self.vbo_pos.write(self.pos)
+        self.vbo_nrm.write(self.normals)
         self.bytes_written += self.n * 24
         return self.n
 

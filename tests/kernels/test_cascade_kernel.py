@@ -53,7 +53,7 @@ def scenarios(draw):
 
 def run_kernel(rest, pos, links, alive, mats, grabbed, targets, fixed, order, depth=2, workspace=None):
     graph = build_graph(len(rest), links)
-    graph.alive[:] = alive
+    graph.set_alive(~np.asarray(alive, bool), False)
     amin, amax, beta = material_arrays(len(links), *mats)
     p = pos.copy()
     moved, sponsor = cascade(
@@ -152,11 +152,11 @@ def test_dead_links_and_anchors_stop_the_cascade():
     graph = build_graph(6, links)
     mats = material_arrays(5, 1.0, 1.0, 0.0)
     pos = rest.copy()
-    graph.alive[2] = False  # link 2-3
+    graph.cut([2])  # link 2-3
     moved, _ = cascade(rest, pos, graph, *mats, np.array([0]), np.array([[-1.0]]))
     assert sorted(moved.tolist()) == [0, 1, 2]
     np.testing.assert_array_equal(pos[:, 0], [-1, 0, 1, 3, 4, 5])
-    graph.alive[2] = True
+    graph.set_alive([2], True)
     pos = rest.copy()
     fixed = np.zeros(6, bool)
     fixed[4] = True

@@ -29,7 +29,7 @@ def test_cut_segment_kills_exactly_the_crossing_links(seed, kind):
     rng = np.random.default_rng(seed)
     pos, links = random_mesh(kind, 2, rng, size=6)
     graph = build_graph(len(pos), links)
-    graph.alive[rng.random(len(links)) < 0.1] = False
+    graph.cut(rng.random(len(links)) < 0.1)
     alive_before = graph.alive.copy()
     lo, hi = pos.min(axis=0) - 1, pos.max(axis=0) + 1
     p0, p1 = rng.uniform(lo, hi), rng.uniform(lo, hi)

@@ -60,7 +60,7 @@ def step(rest, pos, graph, mats, grabbed, targets, fixed, order, ws):
 def setup(case):
     rest, links, alive, mats, fixed, grabbed, targets, order, warm, rng = case
     graph = build_graph(len(rest), links)
-    graph.alive[:] = alive
+    graph.cut(~np.asarray(alive, bool))
     mats = material_arrays(len(links), *mats)
     ws = make_workspace(len(rest))
     pos = rest.copy()

@@ -63,3 +63,47 @@ def test_moved_normals_renew_exactly_the_affected_vertices(seed, n, f, k):
     assert verts.tolist() == affected.tolist()
     assert_normals(normals, pos, tris, 1e-5)  # all correct again
     assert not mark.any()  # the scratch comes back as it went in
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(3, 60), st.integers(1, 120), st.sampled_from([np.float32, np.float64]))
+def test_gathered_normals_match_the_reference_and_the_serial_kernel(seed, n, f, dtype):
+    """The gathering kernel (each vertex sums its own faces: the parallel path for whole-mesh uploads)
+    against the plain reference, and bit for bit against the serial kernel: same sums in the same order."""
+    from chainsim.engine.kernels.normals import _gather
+    from chainsim.game.gl.meshbuf import incidence
+
+    rng = np.random.default_rng(seed)
+    pos, tris = random_mesh(rng, n, f)
+    pos = pos.astype(dtype)
+    got = np.empty((n, 3), np.float32)
+    _gather(pos, tris, *incidence(n, tris), got, 0, n)
+    assert_normals(got, pos, tris, 1e-9 if dtype == np.float64 else 1e-5)
+    serial = np.empty((n, 3))
+    vertex_normals_kernel(pos, tris, serial)
+    np.testing.assert_array_equal(got, serial.astype(np.float32))
+
+
+def test_parallel_normals_are_the_same_for_any_thread_count(monkeypatch):
+    import numba
+
+    from chainsim.engine.kernels import normals
+    from chainsim.game.gl.meshbuf import incidence
+
+    monkeypatch.setattr(normals, "PARALLEL_TRIANGLES", 0)
+    monkeypatch.setattr(normals, "PARALLEL_THREADS", 2)
+    rng = np.random.default_rng(3)
+    pos, tris = random_mesh(rng, 400, 1500)
+    csr = incidence(400, tris)
+    outs = []
+    previous = numba.get_num_threads()
+    try:
+        for threads in (1, numba.config.NUMBA_NUM_THREADS):
+            numba.set_num_threads(threads)
+            out = np.empty((400, 3))
+            normals.normals_into(pos, tris, *csr, out)
+            outs.append(out)
+    finally:
+        numba.set_num_threads(previous)
+    np.testing.assert_array_equal(outs[0], outs[1])
+    assert_normals(outs[0], pos, tris, 1e-9)

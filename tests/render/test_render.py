@@ -361,7 +361,7 @@ def test_cut_links_hide_their_triangles_in_drawing_and_picking(make_pack):
         centre = np.array([0.0, 0.0, 0.0])
         mid = 0.5 * (d.pos[links[:, 0]] + d.pos[links[:, 1]])
         near = np.linalg.norm(mid - centre, axis=1) < 12.0
-        d.alive[near] = False
+        d.graph.cut(near)
         _, holed = frame_pixels(app)
         gm = app.resource(Renderer).meshes[ent]
         assert len(gm.tri_ids) < len(gm.tris)

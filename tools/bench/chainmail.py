@@ -13,6 +13,8 @@ outside the timed region.
 
 from __future__ import annotations
 
+import os
+
 from chainsim.engine import argtypes, limits
 from chainsim.engine.chainmail_params import ORDER_CHOICES
 from chainsim.tools.bench import run as impl
@@ -70,6 +72,9 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    # numba's OpenMP threads otherwise spin between parallel regions, taking a core from the serial
+    # kernels timed next on a machine with few cores (read when the first parallel region starts)
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
     if args.mesh:
         return impl.run_mesh(args)

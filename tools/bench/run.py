@@ -21,7 +21,6 @@ Parts:
 from __future__ import annotations
 
 import json
-import logging
 import math
 import os
 import platform
@@ -37,17 +36,18 @@ import numba
 import numpy as np
 
 from chainsim.engine import meshgen
-from chainsim.engine.bodies.chainmail import ChainMailBody
 from chainsim.engine.chainmail_params import ORDERS, check_material, order_code, order_name
 from chainsim.engine.errors import UserError
-from chainsim.engine.kernels.exact import violations
+from chainsim.engine.kernels.chainmail import cascade, make_workspace, material_arrays
+from chainsim.engine.kernels.exact import exact_limits, violations
 from chainsim.engine.kernels.gibson import gibson_grid_move
+from chainsim.engine.kernels.graph import build_graph
+from chainsim.engine.kernels.lean import LeanWorkspace, lean_move
 from chainsim.engine.meshimport import load_graph
 from chainsim.engine.reorder import rcm_permutation
+from chainsim.systems.deformation import relax_moved
 from chainsim.tools.bench import exact_cases
 from chainsim.tools.bench.meshes import relabel, surface_sheet, tet_cube
-
-logger = logging.getLogger(__name__)
 
 # Tables 6.2-6.4 (frames/second): size -> (Gibson hi, lo, SurfaceChainMail hi, lo, Generalised hi, lo)
 THESIS = {
@@ -78,7 +78,7 @@ PARTS = ("thesis", "worst", "scaling", "exact")
 
 
 def _log(msg: str) -> None:
-    logger.info(msg)
+    print(msg, file=sys.stderr, flush=True)
 
 
 class Times(list):
@@ -109,6 +109,28 @@ def time_calls(fn, reset, repeat: int, warmup: int = 2) -> Times:
     return out
 
 
+def time_interleaved(fns, reset, repeat: int, warmup: int = 2) -> list[Times]:
+    """Like time_calls for several functions, alternating them call by call, so a shared, noisy machine
+    loads each the same way; one Times per function."""
+    for _ in range(warmup):
+        for fn in fns:
+            reset()
+            fn()
+    out = [Times() for _ in fns]
+    for t in out:
+        t.cpu = []
+    for _ in range(repeat):
+        for fn, t in zip(fns, out):
+            reset()
+            c0 = time.process_time()
+            t0 = time.perf_counter()
+            fn()
+            t1 = time.perf_counter()
+            t.cpu.append(time.process_time() - c0)
+            t.append(t1 - t0)
+    return out
+
+
 def cpu_ms(times: Times) -> float:
     return statistics.median(times.cpu) * 1e3
 
@@ -121,28 +143,79 @@ def median_ms(times: list[float]) -> float:
 
 
 class Body:
-    """One mesh's ChainMail body (chainsim.engine.bodies.ChainMailBody), for timing cascades from rest."""
+    """rest/pos/graph/materials/workspace of one mesh, for timing cascades (and the lean yardstick)."""
 
     def __init__(self, rest, links, amin, amax, beta, fixed=None):
-        self.cm = ChainMailBody(rest, links, amin, amax, beta, fixed=fixed)
-        self.rest = self.cm.rest
-        self.pos = self.cm.positions
-        self.graph = self.cm.graph
-        self.mat = (self.cm.amin, self.cm.amax, self.cm.beta)
-        self.ws = self.cm.workspace
-        self.fixed = None if fixed is None or not np.any(fixed) else self.cm.fixed
+        self.rest = np.ascontiguousarray(rest, dtype=np.float64)
+        self.pos = self.rest.copy()
+        self.graph = build_graph(len(rest), links)
+        self.mat = material_arrays(self.graph.n_links, amin, amax, beta)
+        self.scalar = (float(amin), float(amax), float(beta)) if np.ndim(amin) == 0 else None
+        self.ws = make_workspace(len(rest))
+        self.lean_ws = LeanWorkspace(len(rest))
+        self.fixed = None if fixed is None or not np.any(fixed) else np.ascontiguousarray(fixed, dtype=np.bool_)
         self.moved = 0
         self.exact = None  # the last move's ExactResult
+        self.touched = None  # ids moved since the last reset (None: unknown, reset everything)
 
     def reset(self) -> None:
-        np.copyto(self.pos, self.rest)
+        """Back to rest: only the elements the last move touched are copied back (as an interactive
+        drag would leave the rest of the mesh, and its caches, alone)."""
+        ids = self.touched
+        if ids is None:
+            np.copyto(self.pos, self.rest)
+        elif len(ids):
+            self.pos[ids] = self.rest[ids]
+        self.touched = np.zeros(0, dtype=np.int64)
 
-    def move(self, grab: int, target, order: int = 0, relax_n: int = 0, exact: bool = False) -> None:
-        cm = self.cm
-        cm.order, cm.relax_iterations, cm.exact = ORDERS[order], relax_n, exact
-        cm.move([grab], np.asarray(target, dtype=np.float64).reshape(1, -1), hold=False)
-        self.moved = len(cm.last_order)
-        self.exact = cm.last_exact if exact else None
+    def call(self, grab: int, target, **kw):
+        """move() with its arguments made once (so a timing loop times the move, not array building)."""
+        grabbed = np.array([grab], dtype=np.int64)
+        target = np.ascontiguousarray(target, dtype=np.float64).reshape(1, -1)
+        return partial(self.move, grabbed, target, **kw)
+
+    def lean_call(self, grab: int, target):
+        """The lean cascade (kernels.lean) for the same move: one material, no anchors, no cuts."""
+        target = np.ascontiguousarray(target, dtype=np.float64).reshape(-1)
+        return partial(self._lean, int(grab), target)
+
+    def _lean(self, grab, target) -> None:
+        g = self.graph
+        self.moved = lean_move(self.rest, self.pos, g.indptr, g.indices, grab, target, *self.scalar, self.lean_ws)
+        self._touch(self.lean_ws.order[: self.moved])
+
+    def _touch(self, ids) -> None:
+        if self.touched is not None:
+            self.touched = np.concatenate([self.touched, ids]) if len(self.touched) else ids.copy()
+
+    def move(self, grab, target, order: int = 0, relax_n: int = 0, exact: bool = False, parallel: bool = False):
+        grabbed = grab if isinstance(grab, np.ndarray) else np.array([grab], dtype=np.int64)
+        if not isinstance(target, np.ndarray) or target.ndim != 2:
+            target = np.asarray(target, dtype=np.float64).reshape(1, -1)
+        moved, _ = cascade(
+            self.rest,
+            self.pos,
+            self.graph,
+            *self.mat,
+            grabbed,
+            target,
+            fixed=self.fixed,
+            order=order,
+            workspace=self.ws,
+            copy=False,
+            parallel=parallel,
+        )
+        self.moved = len(moved)
+        self._touch(moved)
+        if relax_n:
+            pin = np.zeros(len(self.pos), dtype=np.bool_) if self.fixed is None else self.fixed.copy()
+            pin[grabbed] = True
+            relax_moved(self.rest, self.pos, self.graph, moved, relax_n, fixed=pin)
+        if exact:
+            self.exact = exact_limits(
+                self.rest, self.pos, self.graph, *self.mat, moved, grabbed, target, self.fixed, self.ws
+            )
+            self._touch(self.exact.changed)
 
     def violations(self):
         return violations(self.rest, self.pos, self.graph, *self.mat)
@@ -167,9 +240,10 @@ def thesis_part(quick: bool, repeat: int) -> list[dict]:
             row = {"side": side, "elements": n, "material": mname}
             for label, disp in (("high", small), ("low", large)):
                 target = rest[c] + np.array([disp, disp * 0.5])
-                t = time_calls(partial(body.move, c, target), body.reset, reps)
+                t, tl = time_interleaved([body.call(c, target), body.lean_call(c, target)], body.reset, reps)
                 row[f"gen_{label}_ms"] = median_ms(t)
                 row[f"gen_{label}_cpu_ms"] = cpu_ms(t)
+                row[f"lean_{label}_ms"] = median_ms(tl)
                 row[f"gen_{label}_moved"] = body.moved
                 gpos = rest.copy()
                 gib = partial(gibson_grid_move, gpos, (side, side), c, target, amin, amax, beta)
@@ -288,19 +362,26 @@ def scaling_part(quick: bool, repeat: int, max_elements: float) -> list[dict]:
                     "variant": vname,
                     "repeats": reps,
                 }
-                t = time_calls(partial(body.move, g, target), body.reset, reps)
+                t, tl = time_interleaved([body.call(g, target), body.lean_call(g, target)], body.reset, reps)
+                # after, not interleaved: idle worker threads that spin between parallel regions would
+                # otherwise be timed as part of the serial kernels' runs
+                tp = time_calls(body.call(g, target, parallel=True), body.reset, reps)
                 row["rigid_ms"] = median_ms(t)
                 row["rigid_cpu_ms"] = cpu_ms(t)
                 row["rigid_min_ms"] = min(t) * 1e3  # least disturbed run, for loaded machines
+                row["lean_ms"] = median_ms(tl)
+                row["lean_ratio"] = median_ms(t) / median_ms(tl)
+                row["parallel_ms"] = median_ms(tp)
+                row["threads"] = numba.get_num_threads()
                 row["rigid_moved"] = body.moved
                 if vname != "shuffled":
-                    t = time_calls(partial(body.move, g, target, relax_n=2), body.reset, max(3, reps // 2))
+                    t = time_calls(body.call(g, target, relax_n=2), body.reset, max(3, reps // 2))
                     row["rigid_relax2_ms"] = median_ms(t)
                     row["rigid_relax2_cpu_ms"] = cpu_ms(t)
                 # a local grab: medium material, one spacing of pull; a few hundred elements follow
                 local = Body(vrest, vlinks, *MATERIALS["medium"])
                 ltarget = vrest[g] + np.r_[0.0, 0.0, 1.0][: vrest.shape[1]]
-                t = time_calls(partial(local.move, g, ltarget), local.reset, max(reps, 20))
+                t = time_calls(local.call(g, ltarget), local.reset, max(reps, 20))
                 row["local_ms"] = median_ms(t)
                 row["local_cpu_ms"] = cpu_ms(t)
                 row["local_moved"] = local.moved
@@ -308,8 +389,9 @@ def scaling_part(quick: bool, repeat: int, max_elements: float) -> list[dict]:
                 row["ratio_to_ordered"] = row["rigid_cpu_ms"] / base["ordered"]
                 rows.append(row)
                 _log(
-                    f"    {vname:13s} rigid {row['rigid_ms']:.3f} ms (cpu {row['rigid_cpu_ms']:.3f})  "
-                    f"local {row['local_ms']:.4f} ms "
+                    f"    {vname:13s} rigid {row['rigid_ms']:.3f} ms (cpu {row['rigid_cpu_ms']:.3f}), lean "
+                    f"{row['lean_ms']:.3f} ms ({row['lean_ratio']:.2f}x), level-parallel {row['parallel_ms']:.3f} ms "
+                    f"({row['threads']} threads)  local {row['local_ms']:.4f} ms "
                     f"({row['local_moved']} moved)  ratio {row['ratio_to_ordered']:.2f}"
                 )
                 body = local = None  # free this variant's bodies before building the next
@@ -331,7 +413,7 @@ def exact_part(quick: bool, repeat: int) -> list[dict]:
             target = case.rest[case.grab] + mm * case.direction
             for name in ORDERS:
                 code = order_code(name)
-                t = time_calls(partial(body.move, case.grab, target, code), body.reset, reps)
+                t = time_calls(body.call(case.grab, target, order=code), body.reset, reps)
                 v = body.violations()
                 row = {
                     "case": case.name,
@@ -344,7 +426,7 @@ def exact_part(quick: bool, repeat: int) -> list[dict]:
                     "outside_share": v.share,
                     "outside_worst": v.worst,
                 }
-                t = time_calls(partial(body.move, case.grab, target, code, exact=True), body.reset, reps)
+                t = time_calls(body.call(case.grab, target, order=code, exact=True), body.reset, reps)
                 e = body.exact
                 after = body.violations()
                 row |= {
@@ -384,7 +466,8 @@ def markdown(results: dict) -> str:
         out.append(
             "Ours: cascade-only updates per second (1000 / median ms). Thesis: Java + VRML frame rates on an "
             "AMD-K7, Tables 6.2-6.4. 'high' = small move of the centre element, 'low' = a move that every "
-            "element follows. Moved = elements moved by our generalised run.\n"
+            "element follows. Moved = elements moved by our generalised run. Low vs lean: its time over the lean "
+            "cascade's (chainsim.engine.kernels.lean) for the same move, timed alternately in the same run.\n"
         )
         out.append(
             "Rates from wall-clock medians; in brackets, from CPU-time medians (what the process itself "
@@ -392,9 +475,9 @@ def markdown(results: dict) -> str:
         )
         out.append(
             "| table | material | grid | ours gen. high | thesis gen. high | ratio | ours gen. low | thesis gen. low "
-            "| ratio | moved low | ours Gibson high | ours Gibson low | thesis Gibson high / low |"
+            "| ratio | moved low | low vs lean | ours Gibson high | ours Gibson low | thesis Gibson high / low |"
         )
-        out.append("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|")
+        out.append("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|")
         for r in results["thesis"]:
             th = r["thesis"]
             hi, lo = 1000 / r["gen_high_ms"], 1000 / r["gen_low_ms"]
@@ -405,7 +488,8 @@ def markdown(results: dict) -> str:
                 f"({chi / th['generalised_high']:,.0f}x) | "
                 f"{lo:,.0f} ({clo:,.0f}) | {th['generalised_low']:g} | {lo / th['generalised_low']:,.0f}x "
                 f"({clo / th['generalised_low']:,.0f}x) | {r['gen_low_moved']} | "
-                f"{_fmt_rate(r['gib_high_ms'])} | {_fmt_rate(r['gib_low_ms'])} | "
+                f"{r['gen_low_ms'] / r['lean_low_ms']:.2f} | {_fmt_rate(r['gib_high_ms'])} | "
+                f"{_fmt_rate(r['gib_low_ms'])} | "
                 f"{th['gibson_high']:g} / {th['gibson_low']:g} |"
             )
         out.append("")
@@ -427,18 +511,22 @@ def markdown(results: dict) -> str:
     if results.get("scaling"):
         out.append("## Scaling: rigid full cascade (every element moves), local grab, relaxation\n")
         out.append(
-            "Wall-clock medians, CPU-time medians in brackets; the ratio to the generated order uses CPU time.\n"
+            "Wall-clock medians, CPU-time medians in brackets; the ratio to the generated order uses CPU time. "
+            "Lean: the lean cascade (chainsim.engine.kernels.lean: one material, no anchors, no cuts), and "
+            "level-parallel: the breadth-first cascade wave by wave on numba's threads (same result), both timed "
+            "alternately with the rigid cascade in the same run; vs lean = rigid / lean.\n"
         )
         out.append(
-            "| mesh | elements | links/elem | order | rigid ms | with relax(2) ms | ratio to ordered "
-            "| local grab ms | local moved |"
+            "| mesh | elements | links/elem | order | rigid ms | lean ms | vs lean | level-parallel ms (threads) "
+            "| with relax(2) ms | ratio to ordered | local grab ms | local moved |"
         )
-        out.append("|---|---:|---:|---|---:|---:|---:|---:|---:|")
+        out.append("|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|")
         for r in results["scaling"]:
             rel = f"{r['rigid_relax2_ms']:.3f} ({r['rigid_relax2_cpu_ms']:.3f})" if "rigid_relax2_ms" in r else "-"
             out.append(
                 f"| {r['mesh']} | {r['elements']:,} | {r['links_per_element']:.1f} | {r['variant']} | "
-                f"{r['rigid_ms']:.3f} ({r['rigid_cpu_ms']:.3f}) | {rel} | {r['ratio_to_ordered']:.2f} | "
+                f"{r['rigid_ms']:.3f} ({r['rigid_cpu_ms']:.3f}) | {r['lean_ms']:.3f} | {r['lean_ratio']:.2f} | "
+                f"{r['parallel_ms']:.3f} ({r['threads']}) | {rel} | {r['ratio_to_ordered']:.2f} | "
                 f"{r['local_ms']:.4f} ({r['local_cpu_ms']:.4f}) | {r['local_moved']} |"
             )
         out.append("")
@@ -594,7 +682,11 @@ def run_mesh(args) -> int:
     body = Body(pos, links, args.alpha_min, args.alpha_max, args.beta, fixed=fixed)
     order = order_code(args.order)
     reps = args.repeat or 20
-    times = time_calls(lambda: body.move(args.grab, args.to, order=order, relax_n=args.relax), body.reset, reps)
+    times, lean_t = time_interleaved(
+        [body.call(args.grab, args.to, order=order, relax_n=args.relax), body.lean_call(args.grab, args.to)],
+        body.reset,
+        reps,
+    )
     result = {
         "mesh": str(args.mesh),
         "elements": n,
@@ -605,14 +697,14 @@ def run_mesh(args) -> int:
         "min_ms": min(times) * 1e3,
         "max_ms": max(times) * 1e3,
         "repeats": reps,
+        "lean_median_ms": median_ms(lean_t),
+        "lean_ratio": median_ms(times) / max(median_ms(lean_t), 1e-12),
         "elements_moved": body.moved,
         "order": order_name(args.order),
         "relax": args.relax,
     }
     if args.exact:
-        t = time_calls(
-            lambda: body.move(args.grab, args.to, order=order, relax_n=args.relax, exact=True), body.reset, reps
-        )
+        t = time_calls(body.call(args.grab, args.to, order=order, relax_n=args.relax, exact=True), body.reset, reps)
         e = body.exact
         result["exact"] = {
             "median_ms": median_ms(t),
@@ -635,7 +727,8 @@ def run_mesh(args) -> int:
         return 0
     print(
         f"{result['mesh']}: {n} elements, {result['links']} links; one {result['order']} cascade moving "
-        f"{result['elements_moved']} elements: median {result['median_ms']:.4f} ms over {reps} runs"
+        f"{result['elements_moved']} elements: median {result['median_ms']:.4f} ms over {reps} runs; the lean "
+        f"cascade {result['lean_median_ms']:.4f} ms (ratio {result['lean_ratio']:.2f})"
     )
     if args.exact:
         e = result["exact"]

@@ -215,5 +215,5 @@ class ChainMailBody(Body):
     def reset(self) -> None:
         """Rest shape, every link alive, nothing held."""
         self.positions[:] = self.rest
-        self.graph.alive[:] = True
+        self.graph.revive()
         self.held = np.zeros(0, dtype=np.int64)

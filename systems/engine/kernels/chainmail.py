@@ -25,7 +25,9 @@ nothing of size N is cleared or allocated per cascade.
 
 Material limits are per link (arrays of length M), so inhomogeneous tissue is just different numbers on
 different links. With d = rest[B] - rest[A] and o_a the sum of |d_b| over the other axes, the box on axis
-a is [A*_a + amin|d_a| - beta o_a, A*_a + amax|d_a| + beta o_a] when d_a >= 0, mirrored when d_a < 0.
+a is [A*_a + amin|d_a| - beta o_a, A*_a + amax|d_a| + beta o_a] when d_a >= 0, mirrored when d_a < 0
+(kernels.boxes). The kernels read the alive flags and materials in CSR entry order from the Graph, which
+owns them (one value per material when every link shares it), so they stream with the neighbour ids.
 """
 
 from __future__ import annotations
@@ -33,6 +35,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from . import waves
+from .boxes import start_cascade, try_move, violation
 from .graph import Graph
 
 ORDER_BREADTH_FIRST = 0
@@ -164,132 +168,7 @@ def make_workspace(n: int) -> Workspace:
 
 
 # ----------------------------------------------------------------------------------------------------
-# kernels
-
-
-@njit(cache=True, inline="always")
-def _box(rest, pos, e, s, a, amin_l, amax_l, beta_l):
-    """Valid interval of element e on axis a w.r.t. sponsor s (5.2.2, 5.2.6)."""
-    d = np.float64(rest[e, a]) - np.float64(rest[s, a])
-    ad = abs(d)
-    o = 0.0
-    for b in range(rest.shape[1]):
-        if b != a:
-            o += abs(np.float64(rest[e, b]) - np.float64(rest[s, b]))
-    base = np.float64(pos[s, a])
-    if d >= 0.0:
-        lo = base + (amin_l * ad - beta_l * o)
-        hi = base + (amax_l * ad + beta_l * o)
-    else:
-        lo = base - (amax_l * ad + beta_l * o)
-        hi = base - (amin_l * ad - beta_l * o)
-    return lo, hi
-
-
-@njit(cache=True, inline="always")
-def _clamp_axis(pos, e, a, base, d, o, amin_l, amax_l, beta_l):
-    """Clamp coordinate a of e into its interval; True when the stored value changed."""
-    ad = abs(d)
-    if d >= 0.0:
-        lo = base + (amin_l * ad - beta_l * o)
-        hi = base + (amax_l * ad + beta_l * o)
-    else:
-        lo = base - (amax_l * ad + beta_l * o)
-        hi = base - (amin_l * ad - beta_l * o)
-    x = np.float64(pos[e, a])
-    if x < lo:
-        c = lo
-    elif x > hi:
-        c = hi
-    else:
-        return False
-    old = pos[e, a]
-    pos[e, a] = c  # cast to pos's dtype here, so float32 meshes compare what they store
-    return pos[e, a] != old
-
-
-@njit(cache=True, inline="always")
-def _try_move(rest, pos, e, s, amin_l, amax_l, beta_l):
-    """Clamp e into its box w.r.t. s, in place; True when e actually changed.
-
-    Written out per dimension (same arithmetic, same order as _box) because this is the inner loop.
-    """
-    dim = pos.shape[1]
-    if dim == 3:
-        d0 = np.float64(rest[e, 0]) - np.float64(rest[s, 0])
-        d1 = np.float64(rest[e, 1]) - np.float64(rest[s, 1])
-        d2 = np.float64(rest[e, 2]) - np.float64(rest[s, 2])
-        a0 = abs(d0)
-        a1 = abs(d1)
-        a2 = abs(d2)
-        m0 = _clamp_axis(pos, e, 0, np.float64(pos[s, 0]), d0, a1 + a2, amin_l, amax_l, beta_l)
-        m1 = _clamp_axis(pos, e, 1, np.float64(pos[s, 1]), d1, a0 + a2, amin_l, amax_l, beta_l)
-        m2 = _clamp_axis(pos, e, 2, np.float64(pos[s, 2]), d2, a0 + a1, amin_l, amax_l, beta_l)
-        return m0 or m1 or m2
-    if dim == 2:
-        d0 = np.float64(rest[e, 0]) - np.float64(rest[s, 0])
-        d1 = np.float64(rest[e, 1]) - np.float64(rest[s, 1])
-        m0 = _clamp_axis(pos, e, 0, np.float64(pos[s, 0]), d0, abs(d1), amin_l, amax_l, beta_l)
-        m1 = _clamp_axis(pos, e, 1, np.float64(pos[s, 1]), d1, abs(d0), amin_l, amax_l, beta_l)
-        return m0 or m1
-    moved = False
-    for a in range(dim):
-        lo, hi = _box(rest, pos, e, s, a, amin_l, amax_l, beta_l)
-        x = np.float64(pos[e, a])
-        if x < lo:
-            c = lo
-        elif x > hi:
-            c = hi
-        else:
-            continue
-        old = pos[e, a]
-        pos[e, a] = c
-        if pos[e, a] != old:
-            moved = True
-    return moved
-
-
-@njit(cache=True, inline="always")
-def _violation(rest, pos, e, s, amin_l, amax_l, beta_l):
-    """Euclidean distance from e to its box w.r.t. s (0 when inside)."""
-    v = 0.0
-    for a in range(pos.shape[1]):
-        lo, hi = _box(rest, pos, e, s, a, amin_l, amax_l, beta_l)
-        x = np.float64(pos[e, a])
-        if x < lo:
-            v += (lo - x) * (lo - x)
-        elif x > hi:
-            v += (x - hi) * (x - hi)
-    return np.sqrt(v)
-
-
-@njit(cache=True, inline="always")
-def _start(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor):
-    """Move the grabbed elements to their targets; returns how many moved (fixed ones stay), or a
-    negative error code before anything moves: -1 id out of range, -2 repeated id, -3 target not finite.
-    Checking here keeps the per-call Python cost independent of K."""
-    n = pos.shape[0]
-    for k in range(grabbed.shape[0]):
-        g = grabbed[k]
-        if g < 0 or g >= n:
-            return -1
-        if stamp[g] == gen:
-            return -2
-        stamp[g] = gen
-        for a in range(pos.shape[1]):
-            if not np.isfinite(targets[k, a]):
-                return -3
-    count = 0
-    for k in range(grabbed.shape[0]):
-        g = grabbed[k]
-        if has_fixed and fixed[g]:
-            continue
-        for a in range(pos.shape[1]):
-            pos[g, a] = targets[k, a]
-        out_order[count] = g
-        out_sponsor[count] = -1
-        count += 1
-    return count
+# kernels (the valid region and the move into it: kernels.boxes)
 
 
 @njit(cache=True)
@@ -298,11 +177,11 @@ def _cascade_fifo(
     pos,
     indptr,
     indices,
-    link,
-    alive,
-    amin,
-    amax,
-    beta,
+    ealive,
+    eamin,
+    eamax,
+    ebeta,
+    ms,
     grabbed,
     targets,
     fixed,
@@ -316,19 +195,81 @@ def _cascade_fifo(
     # that moves it: neither its position nor its (already moved) sponsor's changes before that entry
     # is served. So the move can be made when the entry is queued, and the output list doubles as the
     # queue: each element is queued at most once, like a breadth-first search.
-    count = _start(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
+    count = start_cascade(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
     if count < 0:
         return count
     head = 0
+    dim = pos.shape[1]
     while head < count:
         s = out_order[head]
         head += 1
+        if dim == 3:
+            # the sponsor's rows loaded once per sponsor; the same arithmetic as try_move otherwise
+            r0 = np.float64(rest[s, 0])
+            r1 = np.float64(rest[s, 1])
+            r2 = np.float64(rest[s, 2])
+            b0 = np.float64(pos[s, 0])
+            b1 = np.float64(pos[s, 1])
+            b2 = np.float64(pos[s, 2])
+            for j in range(indptr[s], indptr[s + 1]):
+                e = indices[j]
+                if stamp[e] == gen or not ealive[j] or (has_fixed and fixed[e]):
+                    continue
+                am = eamin[j * ms]
+                ax = eamax[j * ms]
+                be = ebeta[j * ms]
+                d0 = np.float64(rest[e, 0]) - r0
+                d1 = np.float64(rest[e, 1]) - r1
+                d2 = np.float64(rest[e, 2]) - r2
+                a0 = abs(d0)
+                a1 = abs(d1)
+                a2 = abs(d2)
+                # clamp_axis for the three axes, written out (numba inlines it poorly here)
+                moved = False
+                if d0 >= 0.0:
+                    lo = b0 + (am * a0 - be * (a1 + a2))
+                    hi = b0 + (ax * a0 + be * (a1 + a2))
+                else:
+                    lo = b0 - (ax * a0 + be * (a1 + a2))
+                    hi = b0 - (am * a0 - be * (a1 + a2))
+                x = np.float64(pos[e, 0])
+                if x < lo or x > hi:
+                    old = pos[e, 0]
+                    pos[e, 0] = lo if x < lo else hi
+                    moved = pos[e, 0] != old
+                if d1 >= 0.0:
+                    lo = b1 + (am * a1 - be * (a0 + a2))
+                    hi = b1 + (ax * a1 + be * (a0 + a2))
+                else:
+                    lo = b1 - (ax * a1 + be * (a0 + a2))
+                    hi = b1 - (am * a1 - be * (a0 + a2))
+                x = np.float64(pos[e, 1])
+                if x < lo or x > hi:
+                    old = pos[e, 1]
+                    pos[e, 1] = lo if x < lo else hi
+                    moved = moved or pos[e, 1] != old
+                if d2 >= 0.0:
+                    lo = b2 + (am * a2 - be * (a0 + a1))
+                    hi = b2 + (ax * a2 + be * (a0 + a1))
+                else:
+                    lo = b2 - (ax * a2 + be * (a0 + a1))
+                    hi = b2 - (am * a2 - be * (a0 + a1))
+                x = np.float64(pos[e, 2])
+                if x < lo or x > hi:
+                    old = pos[e, 2]
+                    pos[e, 2] = lo if x < lo else hi
+                    moved = moved or pos[e, 2] != old
+                if moved:
+                    stamp[e] = gen
+                    out_order[count] = e
+                    out_sponsor[count] = s
+                    count += 1
+            continue
         for j in range(indptr[s], indptr[s + 1]):
             e = indices[j]
-            if stamp[e] == gen or not alive[link[j]] or (has_fixed and fixed[e]):
+            if stamp[e] == gen or not ealive[j] or (has_fixed and fixed[e]):
                 continue
-            lk = link[j]
-            if _try_move(rest, pos, e, s, amin[lk], amax[lk], beta[lk]):
+            if try_move(rest, pos, e, s, eamin[j * ms], eamax[j * ms], ebeta[j * ms]):
                 stamp[e] = gen
                 out_order[count] = e
                 out_sponsor[count] = s
@@ -342,11 +283,11 @@ def _cascade_depth_first(
     pos,
     indptr,
     indices,
-    link,
-    alive,
-    amin,
-    amax,
-    beta,
+    ealive,
+    eamin,
+    eamax,
+    ebeta,
+    ms,
     grabbed,
     targets,
     fixed,
@@ -361,7 +302,7 @@ def _cascade_depth_first(
     # 5.2.3 step 3.3 literally: a moved element's neighbours go to the front of the waiting list, so the
     # list is a stack. Each block is pushed in reverse so that it is served in its listed order (the
     # first neighbour first, as in the walk-through of Fig. 5.2).
-    count = _start(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
+    count = start_cascade(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
     if count < 0:
         return count
     top = 0
@@ -369,7 +310,7 @@ def _cascade_depth_first(
         g = out_order[k]
         for j in range(indptr[g + 1] - 1, indptr[g] - 1, -1):
             nb = indices[j]
-            if stamp[nb] != gen and alive[link[j]] and not (has_fixed and fixed[nb]):
+            if stamp[nb] != gen and ealive[j] and not (has_fixed and fixed[nb]):
                 q_entry[top] = j
                 q_sponsor[top] = g
                 top += 1
@@ -380,8 +321,7 @@ def _cascade_depth_first(
         e = indices[j]
         if stamp[e] == gen:
             continue
-        lk = link[j]
-        if not _try_move(rest, pos, e, s, amin[lk], amax[lk], beta[lk]):
+        if not try_move(rest, pos, e, s, eamin[j * ms], eamax[j * ms], ebeta[j * ms]):
             continue
         stamp[e] = gen
         out_order[count] = e
@@ -389,7 +329,7 @@ def _cascade_depth_first(
         count += 1
         for jj in range(indptr[e + 1] - 1, indptr[e] - 1, -1):
             nb = indices[jj]
-            if stamp[nb] != gen and alive[link[jj]] and not (has_fixed and fixed[nb]):
+            if stamp[nb] != gen and ealive[jj] and not (has_fixed and fixed[nb]):
                 q_entry[top] = jj
                 q_sponsor[top] = e
                 top += 1
@@ -402,11 +342,11 @@ def _cascade_balanced(
     pos,
     indptr,
     indices,
-    link,
-    alive,
-    amin,
-    amax,
-    beta,
+    ealive,
+    eamin,
+    eamax,
+    ebeta,
+    ms,
     grabbed,
     targets,
     fixed,
@@ -423,7 +363,7 @@ def _cascade_balanced(
     out_order,
     out_sponsor,
 ):
-    count = _start(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
+    count = start_cascade(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
     if count < 0:
         return count
     n_entries = 0
@@ -432,7 +372,7 @@ def _cascade_balanced(
         g = out_order[k]
         for j in range(indptr[g], indptr[g + 1]):
             nb = indices[j]
-            if stamp[nb] != gen and alive[link[j]] and not (has_fixed and fixed[nb]):
+            if stamp[nb] != gen and ealive[j] and not (has_fixed and fixed[nb]):
                 q_entry[n_entries] = j
                 q_sponsor[n_entries] = g
                 q_depth[n_entries] = 1
@@ -458,8 +398,7 @@ def _cascade_balanced(
                 e = indices[j]
                 if stamp[e] == gen:
                     continue
-                lk = link[j]
-                if not _try_move(rest, pos, e, s, amin[lk], amax[lk], beta[lk]):
+                if not try_move(rest, pos, e, s, eamin[j * ms], eamax[j * ms], ebeta[j * ms]):
                     continue
                 stamp[e] = gen
                 out_order[count] = e
@@ -467,7 +406,7 @@ def _cascade_balanced(
                 count += 1
                 for jj in range(indptr[e], indptr[e + 1]):
                     nb = indices[jj]
-                    if stamp[nb] != gen and alive[link[jj]] and not (has_fixed and fixed[nb]):
+                    if stamp[nb] != gen and ealive[jj] and not (has_fixed and fixed[nb]):
                         q_entry[n_entries] = jj
                         q_sponsor[n_entries] = e
                         q_depth[n_entries] = dep + 1
@@ -546,11 +485,11 @@ def _cascade_schill(
     pos,
     indptr,
     indices,
-    link,
-    alive,
-    amin,
-    amax,
-    beta,
+    ealive,
+    eamin,
+    eamax,
+    ebeta,
+    ms,
     grabbed,
     targets,
     fixed,
@@ -564,7 +503,7 @@ def _cascade_schill(
     out_order,
     out_sponsor,
 ):
-    count = _start(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
+    count = start_cascade(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
     if count < 0:
         return count
     size = 0
@@ -573,9 +512,8 @@ def _cascade_schill(
         g = out_order[k]
         for j in range(indptr[g], indptr[g + 1]):
             nb = indices[j]
-            if stamp[nb] != gen and alive[link[j]] and not (has_fixed and fixed[nb]):
-                lk = link[j]
-                v = _violation(rest, pos, nb, g, amin[lk], amax[lk], beta[lk])
+            if stamp[nb] != gen and ealive[j] and not (has_fixed and fixed[nb]):
+                v = violation(rest, pos, nb, g, eamin[j * ms], eamax[j * ms], ebeta[j * ms])
                 if v > 0.0:
                     size = _heap_push(q_entry, q_sponsor, key, seq, size, j, g, v, pushed)
                     pushed += 1
@@ -586,8 +524,7 @@ def _cascade_schill(
         e = indices[j]
         if stamp[e] == gen:
             continue
-        lk = link[j]
-        if not _try_move(rest, pos, e, s, amin[lk], amax[lk], beta[lk]):
+        if not try_move(rest, pos, e, s, eamin[j * ms], eamax[j * ms], ebeta[j * ms]):
             continue
         stamp[e] = gen
         out_order[count] = e
@@ -595,9 +532,8 @@ def _cascade_schill(
         count += 1
         for jj in range(indptr[e], indptr[e + 1]):
             nb = indices[jj]
-            if stamp[nb] != gen and alive[link[jj]] and not (has_fixed and fixed[nb]):
-                ll = link[jj]
-                v = _violation(rest, pos, nb, e, amin[ll], amax[ll], beta[ll])
+            if stamp[nb] != gen and ealive[jj] and not (has_fixed and fixed[nb]):
+                v = violation(rest, pos, nb, e, eamin[jj * ms], eamax[jj * ms], ebeta[jj * ms])
                 if v > 0.0:
                     size = _heap_push(q_entry, q_sponsor, key, seq, size, jj, e, v, pushed)
                     pushed += 1
@@ -630,7 +566,8 @@ def _check_points(name, arr, n=None):
 
 
 def _check_mesh(rest, pos, graph, amin, amax, beta) -> None:
-    """The per-mesh arguments of cascade (skipped when a workspace has seen these very arrays)."""
+    """The per-mesh arguments of cascade (skipped when a workspace has seen these very arrays); binds the
+    materials to the graph (which keeps their CSR-order copy)."""
     n = pos.shape[0]
     if type(rest) is not np.ndarray or rest.shape != pos.shape or rest.dtype != pos.dtype:
         raise ValueError(
@@ -639,12 +576,14 @@ def _check_mesh(rest, pos, graph, amin, amax, beta) -> None:
         )
     if not rest.flags.c_contiguous:
         raise ValueError("rest must be C-contiguous")
+    if not isinstance(graph, Graph):
+        raise ValueError(f"graph must be a Graph (build_graph), got {type(graph).__name__}")
     if graph.indptr.shape[0] != n + 1:
         raise ValueError(f"graph has {graph.indptr.shape[0] - 1} elements but pos has {n}")
-    m = graph.links.shape[0]
-    for name, arr in (("amin", amin), ("amax", amax), ("beta", beta)):
-        if type(arr) is not np.ndarray or arr.shape != (m,) or arr.dtype.char not in "fd":
-            raise ValueError(f"{name} must be a per-link float array of shape ({m},) (see material_arrays)")
+    if amin is None and amax is None and beta is None:
+        graph.kernel_args  # noqa: B018 - raises when no materials are bound
+    else:
+        graph.bind_materials(amin, amax, beta)
 
 
 def cascade(
@@ -661,37 +600,43 @@ def cascade(
     workspace: Workspace | None = None,
     depth: int = 2,
     copy: bool = True,
+    parallel: bool = False,
 ):
     """Move `grabbed` to `targets` and propagate the move through the mesh (5.2.3); pos changes in place.
 
     rest, pos: (N, D) float64, or both float32, D in 1..3. graph: from build_graph. amin/amax/beta:
-    per-link arrays from material_arrays. grabbed: int64 (K,) distinct ids; targets (K, D). fixed:
-    bool (N,) anchors that never move (a grabbed anchor stays put and is left out of the result), or
-    None. order: ORDER_BREADTH_FIRST, ORDER_DEPTH_FIRST, ORDER_BALANCED (branch depth `depth`) or
-    ORDER_SCHILL. workspace: reuse
-    one per mesh so a cascade costs what moves, not N (without one, a temporary of size N is made).
+    per-link arrays from material_arrays, bound to the graph on first use (and frozen: bind new arrays
+    to change a material), or all None for the materials already bound. grabbed: int64 (K,) distinct
+    ids; targets (K, D). fixed: bool (N,) anchors that never move (a grabbed anchor stays put and is
+    left out of the result), or None. order: ORDER_BREADTH_FIRST, ORDER_DEPTH_FIRST, ORDER_BALANCED
+    (branch depth `depth`) or ORDER_SCHILL. workspace: reuse one per mesh so a cascade costs what moves,
+    not N (without one, a temporary of size N is made). parallel: breadth-first only, each wave's
+    candidates checked on numba's threads (chainsim.engine.kernels.waves); the result is the same.
 
     Returns (order, sponsor_of_moved): the ids that moved in the order they moved (grabbed first), each
     once, and for each the element whose move made it move (-1 for grabbed). With copy=False these are
     views into the workspace, valid until its next cascade. Raises ValueError on bad arguments (pos is
     then left untouched).
     """
-    _check_points("pos", pos)
-    n, dim = pos.shape
     chk = workspace.checked if workspace is not None else ()
-    if not (
+    if (
         chk
-        and chk[0] is rest
-        and chk[1] is graph
-        and chk[2] is amin
-        and chk[3] is amax
-        and chk[4] is beta
-        and rest.shape == pos.shape
-        and rest.dtype == pos.dtype
+        and chk[0] is pos
+        and chk[1] is rest
+        and chk[2] is graph
+        and chk[3] is amin
+        and chk[4] is amax
+        and chk[5] is beta
+        and chk[6] is graph.entry_amin
     ):
+        kargs = chk[7]  # the very arrays checked before: interactive dragging skips straight to the move
+    else:
+        _check_points("pos", pos)
         _check_mesh(rest, pos, graph, amin, amax, beta)
-        if workspace is not None and workspace.n == n:
-            workspace.checked = (rest, graph, amin, amax, beta)
+        kargs = graph.kernel_args
+        if workspace is not None and workspace.n == pos.shape[0]:
+            workspace.checked = (pos, rest, graph, amin, amax, beta, graph.entry_amin, kargs)
+    n, dim = pos.shape
     if type(grabbed) is not np.ndarray or grabbed.dtype != _INT64 or grabbed.ndim != 1:
         grabbed = np.ascontiguousarray(np.atleast_1d(np.asarray(grabbed)), dtype=np.int64)
         if grabbed.ndim != 1:
@@ -722,6 +667,8 @@ def cascade(
         )
     if order == ORDER_BALANCED and depth < 1:
         raise ValueError(f"depth must be >= 1, got {depth}")
+    if parallel and order != ORDER_BREADTH_FIRST:
+        raise ValueError("parallel=True runs the breadth-first order only")
 
     ws = workspace if workspace is not None else Workspace(n)
     if ws.n != n:
@@ -734,25 +681,12 @@ def cascade(
     elif order in (ORDER_SCHILL, ORDER_DEPTH_FIRST):
         ws.ensure(graph.indices.shape[0] + k, order)
     gen = ws.next_generation()
-    args = (
-        rest,
-        pos,
-        graph.indptr,
-        graph.indices,
-        graph.link,
-        graph.alive,
-        amin,
-        amax,
-        beta,
-        grabbed,
-        targets,
-        fixed_arr,
-        has_fixed,
-        ws.stamp,
-        gen,
-    )
+    args = (rest, pos, *kargs, grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen)
     if order == ORDER_BREADTH_FIRST:
-        count = _cascade_fifo(*args, ws.out_order, ws.out_sponsor)
+        if parallel:
+            count = waves.cascade_waves(*args, ws)
+        else:
+            count = _cascade_fifo(*args, ws.out_order, ws.out_sponsor)
     elif order == ORDER_DEPTH_FIRST:
         count = _cascade_depth_first(*args, ws.q_entry, ws.q_sponsor, ws.out_order, ws.out_sponsor)
     elif order == ORDER_BALANCED:

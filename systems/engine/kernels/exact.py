@@ -170,11 +170,11 @@ def _walk(
     pos,
     indptr,
     indices,
-    link,
-    alive,
-    amin,
-    amax,
-    beta,
+    ealive,
+    eamin,
+    eamax,
+    ebeta,
+    ms,
     fixed,
     has_fixed,
     pin,
@@ -231,8 +231,7 @@ def _walk(
         visits += 1
         again = False
         for jj in range(indptr[i], indptr[i + 1]):
-            lk = link[jj]
-            if not alive[lk]:
+            if not ealive[jj]:
                 continue
             j = indices[jj]
             if dim == 3:
@@ -245,9 +244,9 @@ def _walk(
                 a2 = abs(d2)
                 l1 = a0 + a1 + a2
                 eps = eps_rel * l1 + eps_abs
-                mid = 0.5 * (amin[lk] + amax[lk])
-                half = 0.5 * (amax[lk] - amin[lk])
-                b = beta[lk]
+                mid = 0.5 * (eamin[jj * ms] + eamax[jj * ms])
+                half = 0.5 * (eamax[jj * ms] - eamin[jj * ms])
+                b = ebeta[jj * ms]
                 # signed offset from the centre of the interval, and distance beyond its half-width
                 s0 = np.float64(pos[j, 0]) - np.float64(pos[i, 0]) - mid * d0
                 s1 = np.float64(pos[j, 1]) - np.float64(pos[i, 1]) - mid * d1
@@ -269,7 +268,14 @@ def _walk(
                     sd = s0 if a == 0 else (s1 if a == 1 else s2)
                 else:
                     d = np.float64(rest[j, a]) - np.float64(rest[i, a])
-                    ex, sd = _excess(np.float64(pos[j, a]) - np.float64(pos[i, a]), d, l1, amin[lk], amax[lk], beta[lk])
+                    ex, sd = _excess(
+                        np.float64(pos[j, a]) - np.float64(pos[i, a]),
+                        d,
+                        l1,
+                        eamin[jj * ms],
+                        eamax[jj * ms],
+                        ebeta[jj * ms],
+                    )
                 if ex <= eps:
                     continue
                 # u above its interval (sd > 0): lower j or raise i; below: lower i or raise j
@@ -331,11 +337,11 @@ def _reach(
     pos,
     indptr,
     indices,
-    link,
-    alive,
-    amin,
-    amax,
-    beta,
+    ealive,
+    eamin,
+    eamax,
+    ebeta,
+    ms,
     fixed,
     has_fixed,
     pin,
@@ -399,8 +405,7 @@ def _reach(
                     best[k] = c
             continue
         for jj in range(indptr[v], indptr[v + 1]):
-            lk = link[jj]
-            if not alive[lk]:
+            if not ealive[jj]:
                 continue
             u = indices[jj]
             l1 = 0.0
@@ -410,14 +415,14 @@ def _reach(
             # slack of the link on axis a, up: as u -> v, a bound on x_v - x_u (its rest offset dv[a]);
             # down: as v -> u (offset -dv[a]). With m, h the centre and half-width factors of _excess,
             # bound - offset = (m - 1) offset + h |offset| + beta o, >= 0 since amin <= 1 <= amax.
-            mid1 = 0.5 * (amin[lk] + amax[lk]) - 1.0
-            half = 0.5 * (amax[lk] - amin[lk])
+            mid1 = 0.5 * (eamin[jj * ms] + eamax[jj * ms]) - 1.0
+            half = 0.5 * (eamax[jj * ms] - eamin[jj * ms])
             improved = False
             for q in range(nact):
                 k = act[q]
                 d = dv[k // 2] if k % 2 == 0 else -dv[k // 2]
                 ad = abs(d)
-                w = mid1 * d + half * ad + beta[lk] * (l1 - ad)
+                w = mid1 * d + half * ad + ebeta[jj * ms] * (l1 - ad)
                 nd = dist[v, k] + (w if w > 0.0 else 0.0)
                 if nd + zb[k] >= best[k] or nd + zb[k] >= limit[k]:
                     continue  # no pin beyond this can bind on this side
@@ -444,11 +449,11 @@ def _settle_targets(
     pos,
     indptr,
     indices,
-    link,
-    alive,
-    amin,
-    amax,
-    beta,
+    ealive,
+    eamin,
+    eamax,
+    ebeta,
+    ms,
     fixed,
     has_fixed,
     pin,
@@ -495,7 +500,7 @@ def _settle_targets(
                 limit[2 * a + 1] = r - np.float64(targets[k, a])
             dgen += 1
             visits += _reach(
-                rest, pos, indptr, indices, link, alive, amin, amax, beta, fixed, has_fixed, pin, gen, g, limit,
+                rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, pin, gen, g, limit,
                 zb, best, dist, dstamp, dgen, queue, inq,
             )  # fmt: skip
             for a in range(dim):
@@ -521,7 +526,7 @@ def _restore(pos, log_ids, x0, nlog):
 
 
 @njit(cache=True)
-def _residual(rest, pos, indptr, indices, link, alive, amin, amax, beta, seeds, n1, seeds2, n2, region, rgen, tol):
+def _residual(rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, seeds, n1, seeds2, n2, region, rgen, tol):
     """Worst distance outside the box over the live links touching seeds[:n1] and seeds2[:n2], relative
     to rest length; also how many are outside by more than tol and how many were checked (each once)."""
     # region[i] == rgen: in the region, links not yet counted; == -rgen: in the region, counted
@@ -538,14 +543,13 @@ def _residual(rest, pos, indptr, indices, link, alive, amin, amax, beta, seeds, 
             continue
         region[i] = -rgen
         for jj in range(indptr[i], indptr[i + 1]):
-            lk = link[jj]
             j = indices[jj]
-            if not alive[lk] or region[j] == -rgen:  # dead, or counted from j already
+            if not ealive[jj] or region[j] == -rgen:  # dead, or counted from j already
                 continue
             checked += 1
-            mid = 0.5 * (amin[lk] + amax[lk])
-            half = 0.5 * (amax[lk] - amin[lk])
-            b = beta[lk]
+            mid = 0.5 * (eamin[jj * ms] + eamax[jj * ms])
+            half = 0.5 * (eamax[jj * ms] - eamin[jj * ms])
+            b = ebeta[jj * ms]
             if dim == 3:  # unrolled, as in _walk
                 d0 = np.float64(rest[j, 0]) - np.float64(rest[i, 0])
                 d1 = np.float64(rest[j, 1]) - np.float64(rest[i, 1])
@@ -596,11 +600,11 @@ def _exact(
     pos,
     indptr,
     indices,
-    link,
-    alive,
-    amin,
-    amax,
-    beta,
+    ealive,
+    eamin,
+    eamax,
+    ebeta,
+    ms,
     fixed,
     has_fixed,
     moved,
@@ -674,7 +678,7 @@ def _exact(
         for k in range(moved.shape[0]):
             i = moved[k]
             for jj in range(indptr[i], indptr[i + 1]):
-                if fixed[indices[jj]] and alive[link[jj]]:
+                if fixed[indices[jj]] and ealive[jj]:
                     touching = True
                     break
             if touching:
@@ -683,7 +687,7 @@ def _exact(
             for k in range(grabbed.shape[0]):
                 pin[grabbed[k]] = gen - 1  # pinned again one by one as they are settled
             v, dgen, clamped = _settle_targets(
-                rest, pos, indptr, indices, link, alive, amin, amax, beta, fixed, has_fixed, pin, gen, grabbed,
+                rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, pin, gen, grabbed,
                 targets, dist, dstamp, dgen, queue, inq,
             )  # fmt: skip
             visits += v
@@ -691,7 +695,7 @@ def _exact(
     for attempt in range(2):
         lgen = gen + attempt
         v, _, at_fixed, nlog, nflag, ok = _walk(
-            rest, pos, indptr, indices, link, alive, amin, amax, beta, fixed, has_fixed, pin, gen, first,
+            rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, pin, gen, first,
             moved, moved.shape[0], moved, 0, log_ids, 0, log_stamp, lgen, x0, flag_ids, 0, flag, queue, inq,
             EPS_REL, eps_abs, max_visits - visits,
         )  # fmt: skip
@@ -703,7 +707,7 @@ def _exact(
             for k in range(grabbed.shape[0]):
                 pin[grabbed[k]] = gen - 1  # pinned again one by one as they are settled
             v, dgen, clamped = _settle_targets(
-                rest, pos, indptr, indices, link, alive, amin, amax, beta, fixed, has_fixed, pin, gen, grabbed,
+                rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, pin, gen, grabbed,
                 targets, dist, dstamp, dgen, queue, inq,
             )  # fmt: skip
             visits += v
@@ -714,7 +718,7 @@ def _exact(
         # walk 1 ended with every link it can fix inside: what is left are the links it needed a pin to
         # move for, so walk 2 starts from their ends
         v, blocked, _, nlog, nflag, ok = _walk(
-            rest, pos, indptr, indices, link, alive, amin, amax, beta, fixed, has_fixed, pin, gen, second,
+            rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, pin, gen, second,
             flag_ids, nflag, flag_ids, 0, log_ids, nlog, log_stamp, lgen, x0, flag_ids, nflag, flag, queue,
             inq, EPS_REL, eps_abs, _greater(max_visits - visits, 0),
         )  # fmt: skip
@@ -727,7 +731,7 @@ def _exact(
         for k in range(grabbed.shape[0]):
             pin[grabbed[k]] = gen - 1
         v, dgen, clamped = _settle_targets(
-            rest, pos, indptr, indices, link, alive, amin, amax, beta, fixed, has_fixed, pin, gen, grabbed,
+            rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, pin, gen, grabbed,
             targets, dist, dstamp, dgen, queue, inq,
         )  # fmt: skip
         visits += v
@@ -737,7 +741,7 @@ def _exact(
             if not (has_fixed and fixed[grabbed[k]]):
                 nlog = _log(grabbed[k], pos, log_stamp, lgen, log_ids, x0, nlog)
     worst, outside, checked = _residual(
-        rest, pos, indptr, indices, link, alive, amin, amax, beta, log_ids, nlog, flag_ids, nflag, region, gen, tol
+        rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, log_ids, nlog, flag_ids, nflag, region, gen, tol
     )
     shortfall = 0.0
     for k in range(grabbed.shape[0]):
@@ -810,8 +814,10 @@ def exact_limits(
     ex = exact_workspace(workspace, n, dim)
     cap = int(max_visits) if max_visits is not None else 64 * n + 10_000
     gen = ex.next_generation()
+    if amin is not None or amax is not None or beta is not None:
+        graph.bind_materials(amin, amax, beta)
     code = _exact(
-        rest, pos, graph.indptr, graph.indices, graph.link, graph.alive, amin, amax, beta, fixed_arr, has_fixed,
+        rest, pos, *graph.kernel_args, fixed_arr, has_fixed,
         moved, grabbed, targets, _ROUND[pos.dtype], TOL[pos.dtype], cap, gen, ex.pin, ex.region, ex.log_stamp,
         ex.log_ids, ex.x0, ex.flag, ex.flag_ids, ex.queue, ex.inq, ex.dist, ex.dstamp, ex.dgen, ex.result,
     )  # fmt: skip
@@ -846,6 +852,8 @@ def violations(rest, pos, graph: Graph, amin, amax, beta) -> Violations:
     A link's box is the valid region of 5.2.2 for one end with respect to the other (the same whichever
     end is taken as sponsor); its distance from the box is the Euclidean norm of the per-axis excesses.
     """
+    if amin is None:
+        amin, amax, beta = graph.amin, graph.amax, graph.beta
     live = np.flatnonzero(graph.alive)
     if live.size == 0:
         return Violations(0.0, 0.0, 0, 0)

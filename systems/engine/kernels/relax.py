@@ -21,7 +21,7 @@ from .graph import Graph, fixed_mask
 
 
 @njit(cache=True, parallel=True)
-def _relax_kernel(rest, pos, indptr, indices, link, alive, active, iterations, step, fixed, has_fixed):
+def _relax_kernel(rest, pos, indptr, indices, ealive, active, iterations, step, fixed, has_fixed):
     k = active.shape[0]
     dim = pos.shape[1]
     new = np.empty((k, dim), dtype=np.float64)
@@ -33,7 +33,7 @@ def _relax_kernel(rest, pos, indptr, indices, link, alive, active, iterations, s
                 new[i, a] = 0.0
             if not (has_fixed and fixed[e]):
                 for j in range(indptr[e], indptr[e + 1]):
-                    if not alive[link[j]]:
+                    if not ealive[j]:
                         continue
                     nb = indices[j]
                     cnt += 1
@@ -84,5 +84,5 @@ def relax(rest, pos, graph: Graph, active, iterations, step=1.0, fixed=None) -> 
     if active.size == 0 or iterations == 0:
         return
     _relax_kernel(
-        rest, pos, graph.indptr, graph.indices, graph.link, graph.alive, active, iterations, step, fixed_arr, has_fixed
+        rest, pos, graph.indptr, graph.indices, graph.entry_alive, active, iterations, step, fixed_arr, has_fixed
     )

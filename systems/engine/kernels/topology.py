@@ -1,8 +1,9 @@
 """Topology changes with no precomputation: cutting links and adding links (thesis 4.5.2, 5.4).
 
 Cutting follows 4.5.2: find the links near the blade with a bounding-box test on their end points,
-then kill (graph.alive = False) every live link the blade crosses. Nothing is rebuilt; the cascade and
-relaxation kernels skip dead links. Link ids never change, so per-link material arrays stay valid.
+then kill (Graph.cut: the link's flag and its two CSR entries' copies) every live link the blade
+crosses. Nothing is rebuilt; the cascade and relaxation kernels skip dead links. Link ids never change,
+so per-link material arrays stay valid.
 
 Crossing rule. An end point lying exactly on the blade's line (2-D) or plane (3-D) counts as being on
 its positive side. A link is cut when its two ends are on different sides and the crossing point lies on
@@ -53,7 +54,7 @@ def cut_segment(pos, graph: Graph, p0, p1, normal=None, depth=None) -> np.ndarra
 
     pos (N, 2): the blade is the segment p0-p1 itself (normal and depth are ignored).
     pos (N, 3): the blade is the strip cut_plane_strip(p0, p1, normal, depth) sweeps; normal
-    defaults to +z (or +y when the segment runs along z). graph.alive is modified in place.
+    defaults to +z (or +y when the segment runs along z). The links are cut in the graph (Graph.cut).
     """
     dim = pos.shape[1] if isinstance(pos, np.ndarray) and pos.ndim == 2 else None
     if dim == 3:
@@ -80,7 +81,7 @@ def cut_segment(pos, graph: Graph, p0, p1, normal=None, depth=None) -> np.ndarra
     c1 = ab[:, 0] * (p1[1] - a[:, 1]) - ab[:, 1] * (p1[0] - a[:, 0])
     hit = (sa != sb) & (c0 * c1 <= 0.0)
     killed = cand[hit]
-    graph.alive[killed] = False
+    graph.cut(killed)
     return killed
 
 
@@ -106,7 +107,7 @@ def cut_plane_strip(pos, graph: Graph, p0, p1, normal, depth=None, two_sided: bo
     t_lo = -depth when two_sided (a scalpel pressed through a surface reaches both sides) else 0.
     depth=None makes the strip unbounded along n: every link crossing the plane through p0-p1 spanned
     by n, at a point that projects between p0 and p1. The normal's length is ignored; it must not be
-    parallel to p1 - p0. pos: (N, 3). graph.alive is modified in place; returns killed link ids.
+    parallel to p1 - p0. pos: (N, 3). The links are cut in the graph (Graph.cut); returns killed link ids.
     Surfaces in 3-D and tetrahedral volumes are cut the same way.
     """
     _check_pos(pos, graph, 3)
@@ -160,7 +161,7 @@ def cut_plane_strip(pos, graph: Graph, p0, p1, normal, depth=None, two_sided: bo
         & (t_coord <= t_hi + eps * abs(t_hi if np.isfinite(t_hi) else 0.0))
     )
     killed = cand[cross & inside]
-    graph.alive[killed] = False
+    graph.cut(killed)
     return killed
 
 

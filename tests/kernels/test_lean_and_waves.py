@@ -1,0 +1,154 @@
+"""The benchmark's lean cascade agrees with the production kernel where both apply, and the level-parallel
+cascade gives the sequential breadth-first result bit for bit, for any number of threads."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import sys
+
+import numba
+import numpy as np
+import pytest
+from cascade_reference import MESH_KINDS, random_mesh
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from chainsim.engine import meshgen
+from chainsim.engine.kernels import waves
+from chainsim.engine.kernels.chainmail import ORDER_BREADTH_FIRST, cascade, make_workspace, material_arrays
+from chainsim.engine.kernels.graph import build_graph
+from chainsim.engine.kernels.lean import LeanWorkspace, lean_move
+
+SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+@SETTINGS
+@given(
+    st.integers(0, 2**32 - 1),
+    st.sampled_from(MESH_KINDS),
+    st.sampled_from([(1.0, 1.0, 0.0), (0.8, 1.2, 0.1), (0.5, 2.5, 0.3)]),
+    st.booleans(),
+)
+def test_lean_cascade_equals_the_kernel_without_features(seed, kind, material, from_rest):
+    """Rigid or not, one material, no cuts, no anchors, one grabbed element: the same positions and order."""
+    rng = np.random.default_rng(seed)
+    dim = {"planar": 2, "surface": 3, "volume": 3}.get(kind) or int(rng.integers(1, 4))
+    rest, links = random_mesh(kind, dim, rng, size=5)
+    graph = build_graph(len(rest), links)
+    mats = material_arrays(graph.n_links, *material)
+    start = rest.copy() if from_rest else rest + rng.normal(scale=0.2, size=rest.shape)
+    g = int(rng.integers(len(rest)))
+    target = start[g] + rng.normal(scale=3.0, size=dim)
+    p1 = start.copy()
+    moved, _ = cascade(rest, p1, graph, *mats, [g], target[None], order=ORDER_BREADTH_FIRST)
+    p2 = start.copy()
+    lw = LeanWorkspace(len(rest))
+    count = lean_move(rest, p2, graph.indptr, graph.indices, g, target, *material, lw)
+    np.testing.assert_array_equal(p1, p2)
+    np.testing.assert_array_equal(moved, lw.order[:count])
+    assert not lw.moved.any()  # its flags are cleared for the next move
+
+
+def test_lean_cascade_on_a_rigid_block_translates_it():
+    rest, _, links = meshgen.tet_grid(6, 6, 6)
+    graph = build_graph(len(rest), links)
+    pos = rest.copy()
+    count = lean_move(rest, pos, graph.indptr, graph.indices, 0, rest[0] + [1.0, 2.0, 3.0], 1.0, 1.0, 0.0,
+                      LeanWorkspace(len(rest)))  # fmt: skip
+    assert count == len(rest)
+    np.testing.assert_allclose(pos, rest + [1.0, 2.0, 3.0], atol=1e-12)
+
+
+@st.composite
+def scenarios(draw):
+    kind = draw(st.sampled_from(MESH_KINDS))
+    dim = {"planar": 2, "surface": 3, "volume": 3}.get(kind) or draw(st.integers(1, 3))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    rest, links = random_mesh(kind, dim, rng, size=draw(st.integers(3, 8)))
+    n, m = len(rest), len(links)
+    if draw(st.booleans()):
+        mats = (rng.uniform(0.0, 1.0, m), rng.uniform(1.0, 3.0, m), rng.uniform(0.0, 0.6, m))
+    else:
+        mats = draw(st.sampled_from([(1.0, 1.0, 0.0), (0.8, 1.2, 0.1), (0.5, 2.5, 0.3), (0.0, 4.0, 1.0)]))
+    if draw(st.booleans()):
+        rest = rest.astype(np.float32)
+    pos = rest.copy() if draw(st.booleans()) else (rest + rng.normal(scale=0.3, size=rest.shape)).astype(rest.dtype)
+    grabbed = rng.choice(n, size=min(draw(st.integers(1, 3)), n), replace=False).astype(np.int64)
+    targets = pos[grabbed] + rng.normal(scale=draw(st.sampled_from([0.1, 1.0, 5.0])), size=(len(grabbed), dim))
+    fixed = rng.random(n) < 0.1 if draw(st.booleans()) else None
+    dead = rng.random(m) < 0.1 if draw(st.booleans()) else np.zeros(m, bool)
+    return rest, pos, links, mats, grabbed, targets.astype(rest.dtype), fixed, dead
+
+
+def both(case):
+    rest, pos, links, mats, grabbed, targets, fixed, dead = case
+    graph = build_graph(len(rest), links)
+    graph.cut(dead)
+    mats = material_arrays(graph.n_links, *mats)
+    p1, p2 = pos.copy(), pos.copy()
+    seq = cascade(rest, p1, graph, *mats, grabbed, targets, fixed=fixed, workspace=make_workspace(len(rest)))
+    par = cascade(rest, p2, graph, *mats, grabbed, targets, fixed=fixed, workspace=make_workspace(len(rest)),
+                  parallel=True)  # fmt: skip
+    return (p1, *seq), (p2, *par)
+
+
+@SETTINGS
+@given(scenarios(), st.sampled_from([1, 2]))
+def test_level_parallel_cascade_is_the_breadth_first_cascade(monkeypatch_session, case, threads):
+    previous = numba.get_num_threads()
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        a, b = both(case)
+    finally:
+        numba.set_num_threads(previous)
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x, y)
+
+
+@pytest.fixture(scope="module")
+def monkeypatch_session():
+    """Every wave of these small meshes takes the parallel path (it is skipped below PARALLEL_MIN pairs)."""
+    mp = pytest.MonkeyPatch()
+    mp.setattr(waves, "PARALLEL_MIN", 0)
+    yield
+    mp.undo()
+
+
+SCRIPT = """
+import hashlib, sys
+import numpy as np
+from chainsim.engine import meshgen
+from chainsim.engine.kernels import waves
+from chainsim.engine.kernels.chainmail import cascade, material_arrays
+from chainsim.engine.kernels.graph import build_graph
+waves.PARALLEL_MIN = 0
+rest, _, links = meshgen.tet_grid(9, 8, 7)
+graph = build_graph(len(rest), links)
+rng = np.random.default_rng(5)
+graph.cut(rng.random(graph.n_links) < 0.05)
+mats = material_arrays(graph.n_links, rng.uniform(0.6, 1, graph.n_links), 1.3, 0.1)
+pos = rest.copy()
+moved, spons = cascade(rest, pos, graph, *mats, [200, 7], rest[[200, 7]] + [[4.0, -3.0, 2.0], [-2.0, 1.0, 5.0]],
+                       parallel=len(sys.argv) > 1)
+print(hashlib.sha256(pos.tobytes() + moved.tobytes() + spons.tobytes()).hexdigest())
+"""
+
+
+def test_sixteen_threads_give_the_sequential_result(tmp_path):
+    """NUMBA_NUM_THREADS=16 on whatever cores there are: the same bytes as the sequential cascade."""
+    script = tmp_path / "run.py"
+    script.write_text(SCRIPT, encoding="utf-8")
+    env = dict(os.environ)
+
+    def digest(threads, *args):
+        env["NUMBA_NUM_THREADS"] = str(threads)
+        out = subprocess.run([sys.executable, str(script), *args], env=env, capture_output=True, text=True, check=True)
+        return out.stdout.strip()
+
+    sequential = digest(1)
+    assert len(sequential) == 64
+    assert digest(16, "parallel") == sequential
+    assert digest(2, "parallel") == sequential
+    assert hashlib.sha256(b"").hexdigest() != sequential
