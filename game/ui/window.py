@@ -39,6 +39,8 @@ from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script, write_recording
 from chainsim.game.app.options import user_settings
 from chainsim.game.gl.context import window_context
+from chainsim.game.records import remote
+from chainsim.game.records.store import RecordStore
 from chainsim.game.records.store import default_path as default_records_path
 from chainsim.game.ui.frameloop import FixedStepper
 from chainsim.game.ui.signin import SignInForm, remember, remembered, status_line
@@ -93,6 +95,23 @@ def _open_window(pyglet, w: int, h: int, caption: str):
     raise last
 
 
+def server_login(values: dict):
+    """With --records URL and no token for that server yet: the sign-in form asks for the password and
+    signs in through this (the token is kept in the local store, as `chainsim records login` does)."""
+    server = values.get("records")
+    if not server:
+        return None
+    with RecordStore(values.get("db") or None) as store:
+        if remote.token_for(store, remote.server_url(server)):
+            return None
+
+    def login(name: str, password: str) -> None:
+        with RecordStore(values.get("db") or None) as store:
+            remote.login(store, server, name, password)
+
+    return login
+
+
 def run_window(args, session=None) -> int:
     """The window on `args.pack`. `session`, when given, is called with the App and returns a study
     session (chainsim.game.ui.study) that takes the keyboard while it shows a form and is updated
@@ -138,7 +157,7 @@ def run_window(args, session=None) -> int:
 
     def open_sign_in() -> None:
         given = {k: values.get(k) or remembered().get(k, "") for k in ("class", "trainee")}
-        form["open"] = SignInForm(given, records_path)
+        form["open"] = SignInForm(given, records_path, login=server_login(values))
         hud.notice = form["open"].markdown()
 
     def form_changed() -> None:
@@ -158,7 +177,11 @@ def run_window(args, session=None) -> int:
     if study is not None:
         study.start()
     # the trainer asks who is training, unless --class and --trainee said so (or a study names them)
-    elif "sign_in" in layout_names and not (values.get("class") and values.get("trainee")) and not script:
+    elif (
+        "sign_in" in layout_names
+        and not script
+        and (not (values.get("class") and values.get("trainee")) or server_login(values) is not None)
+    ):
         open_sign_in()
 
     def now() -> float:
