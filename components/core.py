@@ -53,7 +53,8 @@ class Simulation:
         "enum",
         "rigid",
         choices=("none", "rigid", "surface", "volume"),
-        help="none: static scenery; rigid: moves as a whole; surface / volume: ChainMail on the mesh's surface links or tetrahedra.",
+        help="none: static scenery; rigid: moves as a whole; surface / volume: ChainMail on the mesh's surface "
+        "links or tetrahedra.",
     )
 
 
@@ -61,7 +62,7 @@ class Simulation:
 @dataclass(slots=True)
 class ScriptedMotion:
     waypoints: np.ndarray = prop(
-        "float_list", (), units="mm", help="Flat list x0,y0,z0, x1,y1,z1, ... visited in order."
+        "float_list", (), units="mm", help="Flat list x0,y0,z0, x1,y1,z1, ... visited in order.", stride=3
     )
     speed: float = prop("float", 10.0, units="mm/s", help="Speed along the path.", min=0.0)
     loop: bool = prop("bool", True, help="Start over after the last waypoint.")

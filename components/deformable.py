@@ -24,15 +24,22 @@ from dataclasses import dataclass, field
 import esper
 import numpy as np
 
+from chainsim.assets import ASSETS_DIR
 from chainsim.components.core import MeshRef
 from chainsim.components.registry import component, prop
-from chainsim.engine import meshgen
+from chainsim.components.resources import Settings
+from chainsim.engine import limits, meshgen
+from chainsim.engine.bodies.chainmail import ChainMailBody
+from chainsim.engine.bodies.factory import choose_model, load_table, make_body
 from chainsim.engine.chainmail_params import ORDER_CHOICES, order_name
 from chainsim.engine.errors import UserError
 from chainsim.engine.kernels.chainmail import make_workspace, material_arrays
 from chainsim.engine.kernels.graph import build_graph
 
 ORDERS = ORDER_CHOICES  # breadth-first, balanced, schill, depth-first; fifo = breadth-first
+MODEL_CHOICES = ("chainmail", "xpbd", "projective", "auto")
+#: the speed-accuracy table `model = "auto"` chooses from (written by `chainsim study speed-accuracy`)
+MODEL_TABLE = ASSETS_DIR / "presets" / "models.toml"
 SOURCES = ("auto", "surface", "volume")
 INHERIT = -1.0  # an inline material value of -1 means "take it from the material"
 
@@ -55,7 +62,10 @@ def build_deformable(d: Deformable, ctx) -> None:
     mesh_ref = esper.try_component(ctx.entity, MeshRef)
     if mesh_ref is None:
         raise UserError(f"{where}: a deformable entity needs a mesh table ([entities.{ctx.entity_name}.mesh])")
-    setup_deformable(d, ctx.pack.mesh(mesh_ref.mesh), ctx.pack.section("materials"), mesh_ref.material, where)
+    override = ctx.app.resource(Settings).get("model", "") if ctx.app is not None else ""
+    setup_deformable(
+        d, ctx.pack.mesh(mesh_ref.mesh), ctx.pack.section("materials"), mesh_ref.material, where, model=override
+    )
 
 
 @component(
@@ -77,11 +87,19 @@ class Deformable:
     alpha_min: float = prop("float", INHERIT, help="Compression limit override, 0..1 (-1: from the material).")
     alpha_max: float = prop("float", INHERIT, help="Stretch limit override, >= 1 (-1: from the material).")
     beta: float = prop("float", INHERIT, help="Shear limit override, >= 0 (-1: from the material).")
-    relax: int = prop("int", -1, help="Relaxation iterations after each cascade, thesis 5.2.5 (-1: from the material).")
+    relax: int = prop(
+        "int",
+        -1,
+        help="Relaxation iterations after each cascade, thesis 5.2.5 (-1: from the material).",
+        min=-1,
+        max=limits.MAX_RELAX,
+    )
     relax_step: float = prop(
         "float", 1.0, help="Fraction of the way to the relaxed position per iteration.", min=0.0, max=1.0
     )
-    fixed: np.ndarray = prop("int_list", [], help="Element (vertex) ids that never move.")
+    fixed: np.ndarray = prop(
+        "int_list", [], help="Element (vertex) ids that never move.", min=0, max=limits.MAX_VERTICES - 1
+    )
     fixed_box: np.ndarray = prop(
         "float_list",
         [],
@@ -98,7 +116,9 @@ class Deformable:
         help="Waiting-list order: breadth-first (a queue; fifo is the same), depth-first (5.2.3 as written: new "
         "neighbours at the front), balanced (round robin of Fig. 5.3), schill (largest violation first).",
     )
-    depth: int = prop("int", 2, help="Branch depth per turn for the balanced order.", min=1)
+    depth: int = prop(
+        "int", 2, help="Branch depth per turn for the balanced order.", min=1, max=limits.MAX_BRANCH_DEPTH
+    )
     dtype: str = prop("enum", "float64", choices=("float64", "float32"), help="Precision of positions.")
     drag: bool = prop(
         "bool",
@@ -106,6 +126,33 @@ class Deformable:
         help="A mouse drag on the body pulls the element nearest the grab point "
         "(off when a procedure's tools do the grabbing).",
     )
+    model: str = prop(
+        "enum",
+        "chainmail",
+        choices=MODEL_CHOICES,
+        help="Deformation model: chainmail (thesis 5.2), xpbd, projective (volumes only), or auto "
+        "(the cheapest meeting error_budget / time_budget_ms in the study's table).",
+    )
+    E: float = prop("float", 3000.0, units="Pa", help="xpbd/projective: Young's modulus.", min=1e-6, max=1e12)
+    nu: float = prop("float", 0.45, help="xpbd/projective: Poisson's ratio, 0 <= nu < 0.5.", min=0.0, max=0.4999)
+    density: float = prop("float", 1000.0, units="kg/m^3", help="xpbd/projective: mass density.", min=1e-6, max=1e6)
+    damping: float = prop("float", 0.05, help="xpbd/projective: velocity damping per step, 0..0.99.", min=0.0, max=0.99)
+    substeps: int = prop("int", 8, help="xpbd: substeps per simulation step.", min=1, max=1000)
+    iterations: int = prop(
+        "int",
+        0,
+        help="xpbd: iterations per substep (0: 1); projective: local-global iterations (0: 10).",
+        min=0,
+        max=1000,
+    )
+    unit: float = prop(
+        "float", 0.001, units="m", help="xpbd/projective: metres per mesh length unit.", min=1e-9, max=1e3
+    )
+    thickness: float = prop("float", 1.0, units="mesh units", help="xpbd surfaces: sheet thickness.", min=1e-9, max=1e6)
+    error_budget: float = prop(
+        "float", 0.0, help="auto: largest RMS error / imposed displacement allowed (0: no limit).", min=0.0, max=10.0
+    )
+    time_budget_ms: float = prop("float", 0.0, units="ms", help="auto: CPU per update allowed (0: none).", min=0.0)
 
     # --- runtime state (not manifest keys) -----------------------------------------------------
     pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -123,6 +170,13 @@ class Deformable:
     last_shortfall: float = field(default=0.0, metadata={"digest": False})  # of the last grab (exact only)
     workspace: object = field(default=None, metadata={"digest": False})
     dirty: np.ndarray = _nodigest(_empty_ids)
+    body: object = field(default=None, metadata={"digest": False})  # the ChainMail, XPBD or projective body
+    chainmail_links: np.ndarray = _nodigest(lambda: np.zeros((0, 2), dtype=np.int64))
+    model_used: str = field(default="chainmail", metadata={"digest": False})
+    model_reason: str = field(default="", metadata={"digest": False})
+    mesh_data: object = field(default=None, metadata={"digest": False})  # to rebuild on a model switch
+    held_targets: np.ndarray = _nodigest(lambda: np.zeros((0, 3)))
+    transient: np.ndarray = _nodigest(_empty_ids)  # grabbed for one step only (a GrabRequest without hold)
     last_order: np.ndarray = _nodigest(_empty_ids)
     last_sponsor: np.ndarray = _nodigest(_empty_ids)
     _dirty_mask: np.ndarray = _nodigest(lambda: np.zeros(0, dtype=np.bool_))
@@ -205,7 +259,7 @@ def boundary_vertices(triangles: np.ndarray) -> np.ndarray:
 
 
 def setup_deformable(
-    d: Deformable, mesh, materials: dict, mesh_material: str = "", where: str = "deformable"
+    d: Deformable, mesh, materials: dict, mesh_material: str = "", where: str = "deformable", model: str = ""
 ) -> Deformable:
     """Fill the runtime state of `d` from a MeshData (positions copied; the pack's mesh is shared)."""
 
@@ -244,7 +298,93 @@ def setup_deformable(
     d._dirty_seen = d.dirty
     d.held = _empty_ids()
     d.version = 0
+    d.mesh_data = mesh
+    d.chainmail_links = links
+    use_model(d, model or d.model, where, initial=True)
     return d
+
+
+def chainmail_body(d: Deformable) -> ChainMailBody:
+    """A fresh ChainMail body from `d`'s rest shape, links and limits; `d` mirrors its arrays."""
+    body = ChainMailBody(
+        d.rest,
+        d.chainmail_links,
+        d.amin[0] if len(d.amin) else 0.8,
+        d.amax[0] if len(d.amax) else 1.2,
+        d.beta_l[0] if len(d.beta_l) else 0.1,
+        relax=d.relax_iterations,
+        relax_step=d.relax_step,
+        order=d.order,
+        depth=d.depth,
+        exact=d.exact_limits,
+        fixed=d.fixed_mask,
+        dtype=d.rest.dtype,
+    )
+    mirror_chainmail(d, body)
+    return body
+
+
+def mirror_chainmail(d: Deformable, body: ChainMailBody) -> None:
+    """The component's ChainMail fields are the body's arrays (renderer, picking and digest read them)."""
+    d.pos = body.positions
+    d.graph = body.graph
+    d.alive = body.graph.alive  # the same array the kernels read: cutting flips it in place
+    d.amin, d.amax, d.beta_l = body.amin, body.amax, body.beta
+    d.workspace = body.workspace
+    d.held = body.held
+
+
+def use_model(d: Deformable, model: str, where: str = "deformable", initial: bool = False) -> None:
+    """Put `d` under `model` from its rest shape: ChainMail state stays; xpbd/projective get a body
+    whose positions array is `d.pos`, so drawing, picking and tools see one set of positions."""
+    if model not in MODEL_CHOICES:
+        raise UserError(f"{where}.model: expected one of {', '.join(MODEL_CHOICES)}, got {model!r}")
+    mesh = d.mesh_data
+    tets = mesh.tets if mesh is not None and mesh.tets is not None and len(mesh.tets) else None
+    reason = ""
+    if model == "auto":
+        choice = choose_model(
+            load_table(MODEL_TABLE),
+            scene="block" if tets is not None else "sheet",
+            nodes=d.n_elements,
+            error_budget=d.error_budget,
+            time_budget_ms=d.time_budget_ms,
+        )
+        model, reason = choice.model, f"auto: {choice.model} ({choice.setting}), {choice.reason}"
+    d.held_targets = np.zeros((0, 3))
+    if model == "chainmail":
+        d.body = chainmail_body(d)
+    else:
+        d.pos = d.rest.copy()
+        d.held = _empty_ids()
+        settings = {
+            "E": d.E,
+            "nu": d.nu,
+            "density": d.density,
+            "damping": d.damping,
+            "unit": d.unit,
+            "thickness": d.thickness,
+        }
+        if model == "xpbd":
+            settings.update(substeps=d.substeps, iterations=d.iterations or 1)
+        else:
+            settings.update(iterations=d.iterations or 10)
+        try:
+            body = make_body(
+                model, d.rest.astype(np.float64), tets=tets, triangles=mesh.triangles, fixed=d.fixed_mask, **settings
+            )
+        except UserError as e:
+            raise UserError(f"{where}: {e}") from None
+        body.positions = d.pos if d.pos.dtype == np.float64 else d.pos.astype(np.float64)
+        d.pos = body.positions
+        d.body = body
+        d.graph = body.graph
+        d.alive = body.graph.alive
+    d.model_used = model
+    d.model_reason = reason or f"{model} (as the pack or --model asks)"
+    if not initial:  # a switch at run time: everything is redrawn
+        d.mark_dirty(np.arange(d.n_elements))
+        d.version += 1
 
 
 def build_pull(p: Pull, ctx) -> None:
@@ -256,6 +396,12 @@ def build_pull(p: Pull, ctx) -> None:
             f"{where}.path: expected a flat list of x, y, z waypoints (3 numbers each), got {len(pts)} numbers"
         )
     p.waypoints = pts.reshape(-1, 3)
+    if p.element >= 0:  # checked at spawn (so `validate` reports it), not when the pull starts
+        mesh_ref = esper.try_component(ctx.entity, MeshRef)
+        if mesh_ref is not None:
+            n = len(ctx.pack.mesh(mesh_ref.mesh).vertices)
+            if p.element >= n:
+                raise UserError(f"{where}.element: {p.element} is not an element id of the mesh (0..{n - 1})")
 
 
 @component(
@@ -267,8 +413,15 @@ class Pull:
         "float_list",
         units="mm",
         help="Waypoints x0,y0,z0, x1,y1,z1, ...: the element is dragged from its rest position through them.",
+        stride=3,
     )
-    element: int = prop("int", -1, help="Element (vertex) id pulled; -1: the element nearest to `at`.", min=-1)
+    element: int = prop(
+        "int",
+        -1,
+        help="Element (vertex) id pulled; -1: the element nearest to `at`.",
+        min=-1,
+        max=limits.MAX_VERTICES - 1,
+    )
     at: np.ndarray = prop(
         "vec3", (0.0, 0.0, 0.0), units="mm", help="Point near the pulled element when `element` is -1."
     )

@@ -3,7 +3,8 @@
 A real window, a scripted run and a replay all produce these same events, so a test can press a
 widget or click the face exactly as a trainee does. Window coordinates are pixels with the origin at
 the bottom-left (pyglet's convention). `kind` is the name used in input scripts (see
-docs/input-scripts.md).
+docs/input-scripts.md). Numbers read from a script are finite and bounded (chainsim.engine.limits:
+coordinates within MAX_COORD, sizes within MAX_PIXELS), names within MAX_KEY_LENGTH characters.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import math
 from dataclasses import MISSING, asdict, dataclass, fields
 from typing import Any, ClassVar
 
+from chainsim.engine import limits
 from chainsim.engine.errors import UserError
 
 
@@ -101,10 +103,13 @@ def event_to_dict(event) -> dict[str, Any]:
 
 def _number(where: str, key: str, value) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise UserError(f"{where}: '{key}' must be a number, got {value!r}")
-    if not math.isfinite(value):
+        raise UserError(f"{where}: '{key}' must be a number, got {value!r}"[:300])
+    if isinstance(value, float) and not math.isfinite(value):
         raise UserError(f"{where}: '{key}' must be finite, got {value!r}")
-    return float(value)
+    try:
+        return limits.number(value)
+    except limits.LimitError as e:
+        raise UserError(f"{where}: '{key}' {e} (docs/limits.md)") from None
 
 
 def event_from_dict(d: dict[str, Any], where: str):
@@ -119,7 +124,8 @@ def event_from_dict(d: dict[str, Any], where: str):
     extra = set(d) - allowed - {"kind", "t"}
     if extra:
         raise UserError(
-            f"{where}: unknown key(s) {', '.join(sorted(extra))} for a '{kind}' event; expected {', '.join(sorted(allowed))}"
+            f"{where}: unknown key(s) {', '.join(sorted(extra))} for a '{kind}' event; "
+            f"expected {', '.join(sorted(allowed))}"
         )
     args = {}
     for f in fields(cls):
@@ -131,8 +137,8 @@ def event_from_dict(d: dict[str, Any], where: str):
         if f.name in ("x", "y", "dx", "dy"):
             v = _number(where, f.name, v)
         elif f.name in ("width", "height"):
-            if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
-                raise UserError(f"{where}: '{f.name}' must be a positive integer, got {v!r}")
+            if isinstance(v, bool) or not isinstance(v, int) or not 0 < v <= limits.MAX_PIXELS:
+                raise UserError(f"{where}: '{f.name}' must be a whole number from 1 to {limits.MAX_PIXELS}, got {v!r}")
         elif f.name == "pressed":
             if not isinstance(v, bool):
                 raise UserError(f"{where}: 'pressed' must be true or false, got {v!r}")
@@ -140,8 +146,10 @@ def event_from_dict(d: dict[str, Any], where: str):
             if v not in _BUTTONS:
                 raise UserError(f"{where}: 'button' must be one of left, middle, right; got {v!r}")
         elif f.name in ("key", "name", "entity"):
-            if not isinstance(v, str) or not v:
-                raise UserError(f"{where}: '{f.name}' must be a non-empty string, got {v!r}")
+            if not isinstance(v, str) or not v or len(v) > limits.MAX_KEY_LENGTH:
+                raise UserError(
+                    f"{where}: '{f.name}' must be text of 1 to {limits.MAX_KEY_LENGTH} characters, got {v!r}"[:300]
+                )
         elif f.name == "point":
             if not isinstance(v, (list, tuple)) or len(v) != 3:
                 raise UserError(f"{where}: 'point' must be [x, y, z], got {v!r}")
@@ -149,7 +157,9 @@ def event_from_dict(d: dict[str, Any], where: str):
         elif f.name == "value":
             if isinstance(v, (int, float)) and not isinstance(v, bool):
                 v = _number(where, "value", v)
+            elif isinstance(v, str) and len(v) > limits.MAX_TEXT_LENGTH:
+                raise UserError(f"{where}: 'value' text is over {limits.MAX_TEXT_LENGTH} characters")
             elif v is not None and not isinstance(v, (bool, str)):
-                raise UserError(f"{where}: 'value' must be a number, true/false or a string, got {v!r}")
+                raise UserError(f"{where}: 'value' must be a number, true/false or a string, got {v!r}"[:300])
         args[f.name] = v
     return cls(**args)

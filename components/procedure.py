@@ -113,7 +113,8 @@ def anatomy_from_pack(pack) -> PrpAnatomy:
             if spec is None:
                 want = " or ".join(f"[points.{a.format(s=s)}]" for a in aliases[:2])
                 raise UserError(
-                    f"pack '{pack.name}': the rhizotomy procedure needs {want} (known points: {', '.join(sorted(points)) or 'none'})"
+                    f"pack '{pack.name}': the rhizotomy procedure needs {want} "
+                    f"(known points: {', '.join(sorted(points)) or 'none'})"
                 )
             pts[role] = np.asarray(spec["position"], dtype=np.float64)
         for role, aliases in PLANE_ALIASES.items():
@@ -184,7 +185,9 @@ class ProcedureState:
     hit_point: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     started_at: float = 0.0
     finished: bool = False
-    saved: list[int] = field(default_factory=list)
+    # ids the records store gave to saved attempts: a side effect outside the simulation, so not part
+    # of the world digest (a replay, which never saves, must reach the recorded digest)
+    saved: list[int] = field(default_factory=list, metadata={"digest": False})
     attempt: int = 1  # attempts begun in this session
     closed: bool = False  # the attempt was saved: its clock stops, the next action begins another
     touched: bool = False  # anything done in this attempt (an unsaved attempt worth asking about)

@@ -13,6 +13,7 @@ import dataclasses
 import importlib
 import math
 import pkgutil
+import re
 from collections.abc import Callable
 from dataclasses import MISSING, dataclass
 from typing import Any
@@ -20,6 +21,7 @@ from typing import Any
 import numpy as np
 
 import chainsim.components
+from chainsim.engine import limits
 
 
 class _Required:
@@ -63,6 +65,7 @@ class Field:
     min: float | None = None
     max: float | None = None
     item: Schema | None = None  # schema of each table in a table_list
+    stride: int = 1  # a float_list's length must be a multiple of this (3: x, y, z triples)
 
     @property
     def required(self) -> bool:
@@ -96,11 +99,14 @@ def prop(
     choices: tuple = (),
     min: float | None = None,
     max: float | None = None,
+    stride: int = 1,
 ):
     """A dataclass field that is also a manifest key (see module docstring)."""
     if kind not in KINDS:
         raise ValueError(f"unknown field kind {kind!r}")
-    meta = {"chainsim": dict(kind=kind, units=units, help=help, choices=tuple(choices), min=min, max=max)}
+    meta = {
+        "chainsim": dict(kind=kind, units=units, help=help, choices=tuple(choices), min=min, max=max, stride=stride)
+    }
     if default is REQUIRED:
         return dataclasses.field(metadata=meta)
     if isinstance(default, (list, dict, set, np.ndarray, tuple)) and not isinstance(default, str):
@@ -165,53 +171,102 @@ def load_all() -> None:
 
 
 # -- value conversion -------------------------------------------------------------------------
+#
+# Every value is bounded (chainsim.engine.limits, docs/limits.md): a field's own min/max when it
+# declares them, else +-MAX_COORD for numbers and +-MAX_INT for whole numbers; text has a length
+# limit and paths may not hold control characters. So a manifest can never smuggle an inf, a NaN,
+# a 100-digit integer or an endless count past validation.
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+_NAME_KINDS = ("mesh", "material", "entity")
 
 
 class FieldError(Exception):
     """A value that does not fit its declared field; the message says what was expected."""
 
 
-def _finite(v: float, what: str) -> float:
-    if not math.isfinite(v):
-        raise FieldError(f"must be finite, got {v!r}")
-    return v
-
-
-def _num(v, what="number") -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise FieldError(f"expected {what}, got {_show(v)}")
-    return _finite(float(v), what)
-
-
 def _show(v) -> str:
     if isinstance(v, str):
-        return f"text {v!r}"
+        return f"text {v[:60]!r}" + ("..." if len(v) > 60 else "")
     if isinstance(v, bool):
         return f"{str(v).lower()}"
     if isinstance(v, dict):
         return "a table"
     if isinstance(v, list):
         return f"an array of {len(v)}"
+    if isinstance(v, int) and len(str(v)) > 24:
+        return f"a {len(str(abs(v)))}-digit number"
     return repr(v)
+
+
+def _num(v, f: Field | None = None) -> float:
+    """A finite number within the field's range (its min/max, else +-MAX_COORD)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise FieldError(f"expected number, got {_show(v)}")
+    try:
+        x = float(v)
+    except OverflowError:
+        x = math.inf if v > 0 else -math.inf
+    if not math.isfinite(x):
+        raise FieldError(f"must be finite, got {_show(v) if isinstance(v, int) else repr(x)}")
+    lo = f.min if f is not None and f.min is not None else None
+    hi = f.max if f is not None and f.max is not None else None
+    if lo is not None and x < lo:
+        raise FieldError(f"must be >= {lo:g}, got {x:g}")
+    if hi is not None and x > hi:
+        raise FieldError(f"must be <= {hi:g}, got {x:g}")
+    # a side the field leaves open is bounded by MAX_COORD (a declared bound replaces it: a modulus in Pa)
+    if (hi is None and x > limits.MAX_COORD) or (lo is None and x < -limits.MAX_COORD):
+        raise FieldError(f"must be within +-{limits.MAX_COORD:g} (docs/limits.md), got {x:g}")
+    return x
+
+
+def _int(v, f: Field) -> int:
+    """A whole number within the field's range (its min/max, else +-MAX_INT)."""
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise FieldError(f"expected an integer, got {_show(v)}")
+    lo = int(f.min) if f.min is not None else -limits.MAX_INT
+    hi = int(f.max) if f.max is not None else limits.MAX_INT
+    if v < lo:
+        raise FieldError(f"must be >= {lo}, got {_show(v)}")
+    if v > hi:
+        why = " (docs/limits.md)" if f.max is None or hi in _DOCUMENTED else ""
+        raise FieldError(f"must be <= {hi}{why}, got {_show(v)}")
+    return v
+
+
+_DOCUMENTED = {lim.value for lim in limits.LIMITS.values()}
+
+
+def _text(v, kind: str) -> str:
+    if not isinstance(v, str):
+        raise FieldError(f"expected {KINDS[kind]}, got {_show(v)}")
+    if kind == "path":
+        if len(v) > limits.MAX_PATH_LENGTH:
+            raise FieldError(f"a path of {len(v)} characters is over the {limits.MAX_PATH_LENGTH}-character limit")
+        if _CONTROL.search(v):
+            raise FieldError(f"path {v[:60]!r} contains a control character (NUL, newline, ...); use a plain file name")
+    elif kind in _NAME_KINDS:
+        if len(v) > limits.MAX_KEY_LENGTH:
+            raise FieldError(f"a name of {len(v)} characters is over the {limits.MAX_KEY_LENGTH}-character limit")
+    elif len(v) > limits.MAX_TEXT_LENGTH:
+        raise FieldError(f"text of {len(v)} characters is over the {limits.MAX_TEXT_LENGTH}-character limit")
+    return v
 
 
 def convert(f: Field, v: Any) -> Any:
     """Check `v` against field `f` and return the runtime value; raises FieldError."""
     k = f.kind
     if k in ("str", "path", "mesh", "material", "entity"):
-        if not isinstance(v, str):
-            raise FieldError(f"expected {KINDS[k]}, got {_show(v)}")
-        out = v
+        out = _text(v, k)
     elif k == "enum":
-        if v not in f.choices:
+        if isinstance(v, (list, dict)) or v not in f.choices:
             raise FieldError(f"expected one of {', '.join(str(c) for c in f.choices if c != '')}; got {_show(v)}")
         out = v
     elif k == "int":
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise FieldError(f"expected an integer, got {_show(v)}")
-        out = v
+        out = _int(v, f)
     elif k == "float":
-        out = _num(v)
+        out = _num(v, f)
     elif k == "bool":
         if not isinstance(v, bool):
             raise FieldError(f"expected true or false, got {_show(v)}")
@@ -220,7 +275,7 @@ def convert(f: Field, v: Any) -> Any:
         n = {"vec2": 2, "vec3": 3, "vec4": 4, "quat": 4, "rect": 4}[k]
         if not isinstance(v, list) or len(v) != n:
             raise FieldError(f"expected {KINDS[k]}, got {_show(v)}")
-        arr = np.array([_num(c) for c in v], dtype=np.float64)
+        arr = np.array([_num(c, f) for c in v], dtype=np.float64)
         if k == "quat":
             norm = float(np.linalg.norm(arr))
             if norm < 1e-12:
@@ -230,35 +285,37 @@ def convert(f: Field, v: Any) -> Any:
     elif k in ("str_list", "int_list", "float_list"):
         if not isinstance(v, list):
             raise FieldError(f"expected {KINDS[k]}, got {_show(v)}")
+        if len(v) > limits.MAX_CELLS:
+            raise FieldError(f"an array of {len(v)} items is over the {limits.MAX_CELLS}-item limit")
         if k == "str_list":
             if not all(isinstance(c, str) for c in v):
                 raise FieldError("expected an array of text")
-            out = list(v)
+            out = [_text(c, "str") for c in v]
         elif k == "int_list":
             if not all(isinstance(c, int) and not isinstance(c, bool) for c in v):
                 raise FieldError("expected an array of integers")
-            out = np.array(v, dtype=np.int64)
+            out = np.array([_int(c, f) for c in v], dtype=np.int64)
         else:
-            out = np.array([_num(c) for c in v], dtype=np.float64)
+            out = np.array([_num(c, f) for c in v], dtype=np.float64)
+            if f.stride > 1 and len(out) % f.stride:
+                raise FieldError(
+                    f"expected a flat list of {'x, y, z triples' if f.stride == 3 else f'groups of {f.stride}'} "
+                    f"({f.stride} numbers each), got {len(out)} numbers"
+                )
     elif k == "table_list":
         if not isinstance(v, list) or not all(isinstance(c, dict) for c in v):
             raise FieldError(f"expected an array of tables, got {_show(v)}")
         out = v
     elif k == "any":
-        if isinstance(v, float):
-            _finite(v, "number")
-        if not isinstance(v, (int, float, str, bool)):
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            _num(v)
+        elif isinstance(v, str):
+            _text(v, "str")
+        elif not isinstance(v, bool):
             raise FieldError(f"expected a number, text or true/false, got {_show(v)}")
         out = v
     else:  # pragma: no cover - guarded by prop()
         raise FieldError(f"unknown kind {k}")
-    if f.min is not None or f.max is not None:
-        vals = np.atleast_1d(np.asarray(out, dtype=np.float64)) if k not in ("str", "enum") else []
-        for x in vals:
-            if f.min is not None and x < f.min:
-                raise FieldError(f"must be >= {f.min:g}, got {x:g}")
-            if f.max is not None and x > f.max:
-                raise FieldError(f"must be <= {f.max:g}, got {x:g}")
     return out
 
 

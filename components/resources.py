@@ -150,3 +150,18 @@ class Records:
     # delete_attempt(class, trainee, id): a trainee deletes one of their own attempts; None where the
     # store does not allow it
     delete_attempt: Callable[[str, str, int], None] | None = None
+    # why these Records never save (a replay, a protocol trial), or "": a Save then says so and is no
+    # failure, since nothing was meant to be saved
+    refuses: str = ""
+
+
+@dataclass(slots=True)
+class FailedSaves:
+    """Saves the user asked for that did not happen, one message each.
+
+    A procedure that cannot save (a bad records database, a full disk) shows the message in the
+    window and appends it here; a headless run that ends with any ends with exit code 2, after
+    writing its summary, so a save that did not happen is never a silent success.
+    """
+
+    messages: list[str] = field(default_factory=list)

@@ -11,6 +11,10 @@ phase "start" at the press, "move" for each drag event, "end" at the release. `p
 cursor ray meets the plane through `grab_point` facing the camera, so a drag moves the grabbed point
 parallel to the screen.
 
+`ViewTurned` reports a mouse drag in a viewport that draws an image of its own rather than a camera
+the mouse moves (a "fluoro" viewport: the C-arm view); whoever owns that image decides what the drag
+turns (the C-arm's angles).
+
 Widget events are the input vocabulary's own `chainsim.components.input_events.Widget`; the view system emits them
 directly on the event queue when a widget is clicked, dragged or its key pressed.
 """
@@ -55,3 +59,13 @@ class WidgetRefused:
     """A disabled widget was clicked; its state did not change (procedures may say why)."""
 
     name: str
+
+
+@dataclass(frozen=True, slots=True)
+class ViewTurned:
+    """A drag in an image viewport (kind "fluoro"), in window pixels: right and up are positive."""
+
+    viewport: str
+    dx: float
+    dy: float
+    button: str = "left"

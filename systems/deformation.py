@@ -21,7 +21,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import esper
-import numba
 import numpy as np
 
 from chainsim.components.core import MeshRef, Name, Simulation, Transform
@@ -35,16 +34,13 @@ from chainsim.components.deform_events import (
     ResetRequest,
     as_points,
 )
-from chainsim.components.deformable import Deformable, Pull, setup_deformable
+from chainsim.components.deformable import Deformable, Pull, mirror_chainmail, setup_deformable, use_model
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import EntityIndex, PackResource
 from chainsim.components.view_events import Dragged
-from chainsim.engine.chainmail_params import order_code
+from chainsim.engine.bodies.chainmail import relax_moved  # noqa: F401  (re-exported for the older callers)
 from chainsim.engine.errors import UserError
 from chainsim.engine.kernels import topology
-from chainsim.engine.kernels.chainmail import cascade, material_arrays
-from chainsim.engine.kernels.exact import exact_limits
-from chainsim.engine.kernels.relax import relax
 from chainsim.systems.stages import ORDER_DEFORMATION
 
 ORDER_PULL = ORDER_DEFORMATION - 10
@@ -59,6 +55,7 @@ class DeformationState:
     drag_type: type | None = None  # view_events.Dragged, when the view system is part of the build
     dragging: dict = field(default_factory=dict)  # entity -> (element, its local start, world grab point)
     cascades: int = 0
+    switches: int = 0
     moved_total: int = 0
     errors: list = field(default_factory=list)
 
@@ -97,24 +94,6 @@ def _entity(app, ref) -> int | None:
 
 # -- operations (also used directly by tools and tests) -------------------------------------------
 
-#: below this many active elements relaxation runs on one thread: a parallel region's barriers cost
-#: far more than the work when the machine is busy (measured ~100x slower for a 1000-element patch)
-PARALLEL_RELAX_MIN = 100_000
-
-
-def relax_moved(rest, pos, graph, active, iterations: int, step: float = 1.0, fixed=None) -> None:
-    """Relaxation of thesis 5.2.5 over `active` (chainsim.engine.kernels.relax), serial for small sets."""
-
-    if len(active) >= PARALLEL_RELAX_MIN:
-        relax(rest, pos, graph, active, iterations, step=step, fixed=fixed)
-        return
-    previous = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
-        relax(rest, pos, graph, active, iterations, step=step, fixed=fixed)
-    finally:
-        numba.set_num_threads(previous)
-
 
 def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np.ndarray:
     """Move `ids` to local `targets`, cascade, relax (and keep every link inside its limits with an exact
@@ -124,58 +103,78 @@ def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np
     if len(ids) == 0 or ids.min() < 0 or ids.max() >= n:
         raise ValueError(f"element ids must be in 0..{n - 1}")
     targets = np.asarray(targets_local, dtype=np.float64).reshape(len(ids), 3)
-    if len(d.held):
-        fixed = d.fixed_mask.copy()
-        fixed[d.held] = True  # what a tool already holds stays where it is
-        fixed[ids] = d.fixed_mask[ids]
-    else:
-        fixed = d.fixed_mask
-    order, sponsor = cascade(
-        d.rest,
-        d.pos,
-        d.graph,
-        d.amin,
-        d.amax,
-        d.beta_l,
-        ids,
-        targets.astype(d.pos.dtype),
-        fixed=fixed,
-        order=order_code(d.order),
-        workspace=d.workspace,
-        depth=d.depth,
+    if _dynamic(d):
+        return _grab_body(d, ids, targets, hold)
+    b = d.body  # the component's settings are the ones a pack, a tool or a test last set
+    b.relax_iterations, b.relax_step, b.order, b.depth, b.exact = (
+        d.relax_iterations,
+        d.relax_step,
+        d.order,
+        d.depth,
+        d.exact_limits,
     )
-    d.last_order, d.last_sponsor = order, sponsor
-    if hold:
-        d.held = np.union1d(d.held, ids)
-    changed = order
-    if d.relax_iterations > 0 and len(order) > len(ids):
-        pin = d.fixed_mask.copy()
-        pin[ids] = True
-        if len(d.held):
-            pin[d.held] = True
-        relax_moved(d.rest, d.pos, d.graph, order, d.relax_iterations, step=d.relax_step, fixed=pin)
-    if d.exact_limits:
-        res = exact_limits(d.rest, d.pos, d.graph, d.amin, d.amax, d.beta_l, order, ids, targets, fixed, d.workspace)
-        d.last_shortfall = res.shortfall
-        if len(res.changed):
-            changed = np.union1d(changed, res.changed)
+    b.fixed, b.held = d.fixed_mask, d.held
+    changed = b.move(ids, targets, hold=hold)
+    d.held = d.body.held
+    d.last_order, d.last_sponsor, d.last_shortfall = d.body.last_order, d.body.last_sponsor, d.body.last_shortfall
     if len(changed):
         d.mark_dirty(changed)
         d.version += 1
     return changed
 
 
+def _dynamic(d: Deformable) -> bool:
+    """An XPBD or projective body (it integrates every step); ChainMail moves only when grabbed."""
+    return d.body is not None and d.body.model != "chainmail"
+
+
 def release(d: Deformable, ids=None) -> None:
     if ids is None:
-        d.held = np.zeros(0, dtype=np.int64)
+        keep = np.zeros(len(d.held), dtype=np.bool_)
     else:
-        d.held = np.setdiff1d(d.held, np.asarray(ids, dtype=np.int64))
+        keep = ~np.isin(d.held, np.asarray(ids, dtype=np.int64))
+    if _dynamic(d) and len(d.held_targets) == len(d.held):
+        d.held_targets = d.held_targets[keep]
+        d.body.grab(d.held[keep], d.held_targets) if keep.any() else d.body.release()
+    d.held = d.held[keep]
+    if d.body is not None and not _dynamic(d):
+        d.body.held = d.held
+
+
+def _grab_body(d: Deformable, ids: np.ndarray, targets: np.ndarray, hold: bool) -> np.ndarray:
+    """xpbd / projective: the elements are held at their targets; the body moves on its next step."""
+    old = ~np.isin(d.held, ids)
+    d.held = np.concatenate([d.held[old], ids])
+    d.held_targets = np.concatenate([d.held_targets[old], targets])
+    d.body.grab(d.held, d.held_targets)
+    if not hold:  # a one-off move: held for the next step only
+        d.transient = np.union1d(d.transient, ids)
+    return np.zeros(0, dtype=np.int64)
+
+
+def step_body(d: Deformable, dt: float) -> int:
+    """Advance an xpbd / projective body one simulation step; returns how many elements moved."""
+    try:
+        d.body.step(dt)
+    except UserError as e:  # diverged: positions were restored; say so once and let go of the grab
+        release(d)
+        raise ValueError(str(e)) from None
+    if len(d.transient):
+        release(d, d.transient)
+        d.transient = np.zeros(0, dtype=np.int64)
+    moved = d.body.moved
+    if len(moved):
+        d.mark_dirty(moved)
+        d.version += 1
+    return len(moved)
 
 
 def cut(d: Deformable, ent: int, req: CutRequest) -> int:
     """Kill the links a blade crosses (4.5.2); returns how many were cut."""
 
     before = int(np.count_nonzero(d.alive))
+    if _dynamic(d):
+        return _cut_body(d, ent, req)
     if req.polyline is not None:
         pts = _to_local(ent, as_points(req.polyline, "CutRequest.polyline"), req.frame)
         if len(pts) < 2:
@@ -191,6 +190,25 @@ def cut(d: Deformable, ent: int, req: CutRequest) -> int:
     if cut_count:
         d.version += 1
     return cut_count
+
+
+def _cut_body(d: Deformable, ent: int, req: CutRequest) -> int:
+    """xpbd / projective: the blade removes the links it crosses and the constraints built on them."""
+    kw = _blade_kwargs(ent, req)
+    if req.polyline is not None:
+        pts = _to_local(ent, as_points(req.polyline, "CutRequest.polyline"), req.frame)
+        if len(pts) < 2:
+            raise ValueError("CutRequest.polyline: needs at least 2 points")
+        n = d.body.cut_path(pts, **kw)
+    else:
+        if req.p0 is None or req.p1 is None:
+            raise ValueError("CutRequest: give p0 and p1, or a polyline")
+        p0 = _to_local(ent, as_points(req.p0, "CutRequest.p0"), req.frame)[0]
+        p1 = _to_local(ent, as_points(req.p1, "CutRequest.p1"), req.frame)[0]
+        n = d.body.cut(p0, p1, **kw)
+    if n:
+        d.version += 1
+    return n
 
 
 def _blade_kwargs(ent: int, req: CutRequest) -> dict:
@@ -210,23 +228,11 @@ def _blade_kwargs(ent: int, req: CutRequest) -> dict:
 def add_links(d: Deformable, links) -> int:
     """Join element pairs with new links carrying the body's material limits; returns how many."""
 
-    links = np.asarray(links, dtype=np.int64).reshape(-1, 2)
-    m_before = d.graph.n_links
-    graph = topology.add_links(d.graph, links)
-    added = graph.n_links - m_before
+    if _dynamic(d):
+        raise ValueError(f"adding links needs a ChainMail body; this one runs {d.model_used}")
+    added = d.body.add_links(links)
     if added:
-        amin, amax, beta = material_arrays(
-            added,
-            float(d.amin[0]) if m_before else 0.8,
-            float(d.amax[0]) if m_before else 1.2,
-            float(d.beta_l[0]) if m_before else 0.1,
-        )
-        d.amin = np.concatenate([d.amin, amin])
-        d.amax = np.concatenate([d.amax, amax])
-        d.beta_l = np.concatenate([d.beta_l, beta])
-        d.graph = graph
-        d.alive = graph.alive
-        d.workspace.ensure(graph.indices.shape[0] + 1)
+        mirror_chainmail(d, d.body)
         d.version += 1
     return added
 
@@ -237,10 +243,12 @@ def add_links(d: Deformable, links) -> int:
 def reset(d: Deformable) -> int:
     """Rest shape, all links alive, nothing held; returns how many elements were displaced."""
     moved = int(np.count_nonzero(np.any(d.pos != d.rest, axis=1)))
-    d.pos[:] = d.rest
-    d.graph.revive()
+    if _dynamic(d):
+        use_model(d, d.model_used)  # a fresh body: rest shape, every constraint back
+        return moved
+    d.body.reset()
+    d.held = d.body.held
     d.alive = d.graph.alive
-    d.held = np.zeros(0, dtype=np.int64)
     d.mark_dirty(np.arange(d.n_elements))
     d.version += 1
     return moved
@@ -257,6 +265,14 @@ def deformation_system(app) -> None:
                 _serve(app, st, req, counts)
         elif isinstance(ev, REQUESTS):
             _serve(app, st, ev, counts)
+        elif isinstance(ev, Widget) and ev.name == "model":
+            switch_models(app, st, str(ev.value))
+    for ent, d in esper.get_component(Deformable):
+        if _dynamic(d):
+            try:
+                counts.setdefault(ent, [0, 0, 0])[0] += step_body(d, app.time.dt)
+            except ValueError as e:
+                st.errors.append(f"{d.model_used} body {ent}: {e}")
     for ent, (m, c, a) in counts.items():
         if m or c or a:
             app.events.emit(Deformed(ent, m, c, a))
@@ -264,6 +280,26 @@ def deformation_system(app) -> None:
 
 
 REQUESTS = (GrabRequest, ReleaseRequest, CutRequest, AddLinksRequest, ResetRequest)
+
+#: the order the model switch (Widget "model" with value "next", key m in the packs) walks
+SWITCH_ORDER = ("chainmail", "xpbd", "projective")
+
+
+def switch_models(app, st: DeformationState, value: str) -> None:
+    """Put every deformable body under another model, from rest: `value` names one or is "next"."""
+    for _ent, d in esper.get_component(Deformable):
+        choices = list(SWITCH_ORDER)
+        if value not in SWITCH_ORDER:  # the button (True) or "next": the next model in turn
+            cur = d.model_used if d.model_used in choices else choices[0]
+            model = choices[(choices.index(cur) + 1) % len(choices)]
+        else:
+            model = value
+        try:
+            use_model(d, model)
+        except UserError as e:
+            st.errors.append(f"model switch: {e}")
+        else:
+            st.switches += 1
 
 
 def _serve(app, st: DeformationState, req, counts: dict) -> None:

@@ -1,7 +1,8 @@
 """Picking without GL: ray -> (entity, triangle, point) on the current (possibly deformed) meshes, and a
 world point -> nearest surface point (thesis 3.3.4: landmarks are placed by clicking on the face).
 
-The ray test (chainsim.engine.raycast) is a vectorised, two-sided Moller-Trumbore over every triangle of each candidate mesh
+The ray test (chainsim.engine.raycast) is a vectorised, two-sided Moller-Trumbore over every triangle of each
+candidate mesh
 (after a bounding-sphere cull), on the vertex positions the renderer draws: `Deformable.pos` when the
 entity has one, else the pack mesh, mapped through the entity's Transform. Triangles that lost an edge
 to a cut (a dead ChainMail link, thesis 4.5.2) are neither drawn nor picked.

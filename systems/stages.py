@@ -12,5 +12,6 @@ ORDER_KINEMATICS = 100  # needle / tool pose (simulation stage)
 ORDER_COLLISION = 200
 ORDER_DEFORMATION = 300
 ORDER_PROCEDURE = 100  # procedure steps (procedure stage)
+ORDER_FLUORO = 150  # the C-arm: images and exposure, after the steps have begun an attempt
 ORDER_ASSESSMENT = 200
 ORDER_RENDER = 100

@@ -12,10 +12,11 @@ release (so a drag that leaves the viewport still turns its camera). In an orbit
 `interactive = true`: left-drag rotates, right- or middle-drag pans, scroll zooms; a click (press and
 release within CLICK_PX) picks. `interactive = false` freezes an orbit camera (it then behaves like a
 fixed one). Clicks pick in orbit and fixed viewports; attached viewports (the needle-tip view) neither
-move with the mouse nor pick. In orbit/fixed viewports whose camera the mouse does not move, a left
-press on a surface starts a `Dragged` sequence (grabbing tissue, thesis 4.5.2). Procedures may move
-any camera themselves: `ViewState.get(name).camera` is an OrbitCamera (set yaw/pitch/distance/target,
-then call `update_eye()`).
+move with the mouse nor pick. A drag in a "fluoro" viewport (an image of its own, the C-arm view)
+becomes a `ViewTurned` event for the system that owns the image. In orbit/fixed viewports whose
+camera the mouse does not move, a left press on a surface starts a `Dragged` sequence (grabbing
+tissue, thesis 4.5.2). Procedures may move any camera themselves: `ViewState.get(name).camera` is an
+OrbitCamera (set yaw/pitch/distance/target, then call `update_eye()`).
 
 Widgets: clicks, drags and shortcut keys on the panel produce `Widget(name, value)` events that this
 system emits directly on the event queue (not through PendingInput, so a recording holds the clicks
@@ -48,7 +49,7 @@ from chainsim.components.core import Marker, MeshRef, PolyLine, Transform
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, PickPoint, Resize, Scroll, Widget
 from chainsim.components.resources import EntityIndex, InputState, PackResource, Settings
-from chainsim.components.view_events import Dragged, LayerChanged, Picked, WidgetRefused
+from chainsim.components.view_events import Dragged, LayerChanged, Picked, ViewTurned, WidgetRefused
 from chainsim.engine.errors import UserError
 from chainsim.systems.picking import pick, snap
 from chainsim.systems.stages import ORDER_VIEW
@@ -373,6 +374,8 @@ class ViewSystem:
                 vp.camera.rotate(ev.dx, ev.dy)
             else:
                 vp.camera.pan(ev.dx, ev.dy, vp.rect)
+        elif vp.kind == "fluoro" and vp.interactive:
+            self.emit(app, ViewTurned(vp.name, float(ev.dx), float(ev.dy), ev.button))
 
     def release(self, app, vs: ViewState, ev: MouseButton) -> None:
         if vs.active == PAGE:

@@ -2,35 +2,97 @@
 
 `build_app` is the one way every front end (headless run, replay, window, snapshot, tests) turns
 `PACK[/SCENE]` into a running App: validate the pack, spawn the scene, install the plugins it needs.
+`start_problems` starts each scene of a pack the same way without stepping, which is how `validate`
+knows that a pack it passes will run. Settings a user gives (records database, class, trainee) are
+checked before anything runs (`check_user_settings`), and a run whose save failed ends with exit 2.
 """
 
 from __future__ import annotations
 
 import json
-import os
-import sys
 from pathlib import Path
 from typing import Any
 
+import esper
 import numpy as np
 
-from chainsim.components.resources import Assessment, PackResource, PendingInput, RunInfo, Settings
+from chainsim.components.core import Name
+from chainsim.components.deformable import Deformable
+from chainsim.components.input_events import PickPoint
+from chainsim.components.resources import (
+    Assessment,
+    EntityIndex,
+    FailedSaves,
+    PackResource,
+    PendingInput,
+    Records,
+    RunInfo,
+    Settings,
+)
+from chainsim.engine import limits
 from chainsim.engine.errors import UserError
+from chainsim.engine.progress import progress
 from chainsim.game.app import plugins
 from chainsim.game.app.core import App
 from chainsim.game.app.digest import world_digest
 from chainsim.game.app.inputscript import load_script, write_recording
 from chainsim.game.app.loader import spawn_scene
+from chainsim.game.app.options import MODEL_FLAG_CHOICES
+from chainsim.game.app.outputs import check_output_file, prepare_output_dir, write_text_atomic
 from chainsim.game.packs import pack as packs
+from chainsim.game.records import remote
+from chainsim.game.records import store as records
 from chainsim.game.records.remote import remote_records
 from chainsim.game.records.store import local_records
+from chainsim.game.records.validate import clean_name
 from chainsim.systems.input import InputLog
 
+#: settings a user (or a recording) may give on top of the pack's own: name -> type
+USER_SETTINGS = {"db": str, "records": str, "class": str, "trainee": str, "model": str}
 
-def build_app(
-    ref: str,
+
+def check_user_settings(settings: dict | None, where: str = "settings") -> dict:
+    """The user's settings, checked: known keys and types, class/trainee names, a usable database path.
+
+    Nothing is created or written here; a database that does not exist yet must have an existing,
+    writable folder (it is created, with a warning, when the first attempt is saved).
+    """
+    out: dict = {}
+    if settings is None:
+        return out
+    if not isinstance(settings, dict):
+        raise UserError(f"{where}: expected a table of settings, got {type(settings).__name__}")
+    for key, value in settings.items():
+        kind = USER_SETTINGS.get(key)
+        if kind is None:
+            raise UserError(f"{where}: unknown setting {key!r}; known: {', '.join(USER_SETTINGS)}")
+        if not isinstance(value, kind):
+            raise UserError(f"{where}: setting {key!r} must be {kind.__name__}, got {type(value).__name__}")
+        if key in ("class", "trainee"):
+            value = clean_name(key, value)
+        elif key == "db":
+            records.check_target(value)
+        elif key == "records":
+            value = remote.server_url(value)
+        elif key == "model" and value not in MODEL_FLAG_CHOICES:
+            raise UserError(f"{where}: setting 'model' must be one of {', '.join(MODEL_FLAG_CHOICES)}, got {value!r}")
+        out[key] = value
+    return out
+
+
+def check_dt(dt, where: str = "--dt") -> float:
+    """A fixed step within [MIN_DT, MAX_DT] seconds."""
+    try:
+        return limits.number(dt, limits.MIN_DT, limits.MAX_DT)
+    except limits.LimitError as e:
+        raise UserError(f"{where}: the fixed step in seconds: {e}") from None
+
+
+def app_for_pack(
+    pack: packs.Pack,
+    scene: str | None,
     *,
-    pack_paths=(),
+    ref: str | None = None,
     settings: dict | None = None,
     dt: float | None = None,
     render: bool = False,
@@ -38,21 +100,30 @@ def build_app(
     out_dir: str | None = None,
     screenshot_every: int = 0,
     size: tuple[int, int] | None = None,
+    save: str = "",
 ) -> App:
-    root, scene = packs.resolve(ref, pack_paths)
-    pack = packs.load(root)
+    """A started App for a validated pack's scene: spawned, plugins installed, not stepped.
+
+    `save`, when given, is why this run saves nothing (a replay, a protocol trial): its Records then
+    refuse every write and list no attempts, and the records database is never opened.
+    """
     pack_settings = dict(pack.section("settings"))
-    pack_settings.update(settings or {})
+    pack_settings.update(check_user_settings(settings))
     if size is not None:
         pack_settings["window_size"] = [float(size[0]), float(size[1])]
-    step = dt if dt is not None else float(pack_settings.get("dt", 1.0 / 120.0))
+    step = check_dt(dt) if dt is not None else float(pack_settings.get("dt", 1.0 / 120.0))
     app = App(dt=step, settings=pack_settings, name=pack.name)
     try:
+        app.insert_resource(FailedSaves())
         spawn_scene(app, pack, scene)
         scene_name = app.resource(PackResource).scene
-        app.insert_resource(RunInfo(ref, pack.name, scene_name, headless, render, out_dir, screenshot_every))
+        app.insert_resource(
+            RunInfo(ref or pack.name, pack.name, scene_name, headless, render, out_dir, screenshot_every)
+        )
         app.insert_resource(Assessment())
-        if pack_settings.get("records"):  # a records server (queueing in the local store when offline)
+        if save:
+            app.insert_resource(refusing_records(save))
+        elif pack_settings.get("records"):  # a records server (queueing in the local store when offline)
             app.insert_resource(remote_records(pack_settings["records"], pack_settings.get("db") or None))
         else:
             app.insert_resource(local_records(pack_settings.get("db") or None))
@@ -63,9 +134,72 @@ def build_app(
     return app
 
 
-def _progress(done: int, total: int) -> None:
-    if sys.stderr.isatty() and total >= 2000 and done % max(total // 20, 1) == 0:
-        print(f"\r  step {done}/{total}", end="", file=sys.stderr, flush=True)
+def refusing_records(reason: str) -> Records:
+    """Records that save nothing and list nothing, saying `reason` (replays, protocol trials)."""
+
+    def save_attempt(class_name: str, trainee: str, record: dict) -> int:
+        raise UserError(f"not saved: {reason}")
+
+    return Records(save_attempt=save_attempt, list_attempts=lambda c, t: [], where="nowhere", refuses=reason)
+
+
+def build_app(ref: str, *, pack_paths=(), **kwargs) -> App:
+    """`PACK[/SCENE]` -> a started App (see `app_for_pack` for the keyword arguments)."""
+    root, scene = packs.resolve(ref, pack_paths)
+    return app_for_pack(packs.load(root), scene, ref=ref, **kwargs)
+
+
+def check_events(app: App, events, where: str) -> None:
+    """Events that name things of the scene (picks name an entity) must name what the scene has."""
+    index: EntityIndex = app.resource(EntityIndex)
+    for t, ev in events:
+        if isinstance(ev, PickPoint) and index.get(ev.entity) is None:
+            raise UserError(
+                f"{where}: pick event at t={t:g} names entity '{ev.entity}', which is not in scene "
+                f"'{app.resource(PackResource).scene}' (entities: {', '.join(sorted(index.by_name))})"
+            )
+
+
+def validate_pack(root) -> tuple[packs.Pack | None, list[packs.Problem]]:
+    """Everything `run` would refuse, as `chainsim validate` reports it: the pack's manifest and files
+    (chainsim.game.packs.pack.validate), then every scene started as `run` starts it, without stepping.
+    """
+    pack, problems = packs.validate(root)
+    if pack is None:
+        return None, problems
+    problems = [packs.problem_at(pack, scene, message) for scene, message in start_problems(pack)]
+    return (None, problems) if problems else (pack, [])
+
+
+def start_problems(pack: packs.Pack) -> list[tuple[str, str]]:
+    """(scene, message) for every scene that `run` would refuse to start, and for its script."""
+    out = []
+    for scene in pack.scene_names() or [None]:
+        name = scene or "main"
+        try:
+            app = app_for_pack(pack, scene, save="validation saves nothing")
+        except UserError as e:
+            out.append((name, str(e)))
+            continue
+        try:
+            spec = app.resource(PackResource).scene_spec
+            if spec.get("script"):
+                where = f"scenes.{name}.script"
+                try:
+                    events = load_script(pack.file(spec["script"]))
+                except UserError as e:
+                    raise UserError(f"{where}: {e}") from None
+                check_events(app, events, where)
+        except UserError as e:
+            out.append((name, str(e)))
+        finally:
+            app.close()
+    return out
+
+
+def _steps(total: int):
+    """The steps of a run; long runs show a progress bar (chainsim.engine.progress) that ends its line."""
+    return progress(range(total), desc="steps", unit="step") if total >= 2000 else range(total)
 
 
 def run_pack(
@@ -82,15 +216,22 @@ def run_pack(
     render: bool = False,
     screenshot_every: int = 0,
     size: tuple[int, int] | None = None,
+    save: str = "",
 ) -> dict[str, Any]:
-    """Run a pack headless for `steps` fixed steps; returns (and writes to OUT/summary.json) the summary."""
-    if steps is not None and steps < 0:
-        raise UserError(f"--steps must be >= 0, got {steps}")
-    if out:
+    """Run a pack headless for `steps` fixed steps; returns (and writes to OUT/summary.json) the summary.
+
+    `save`: why this run saves nothing ("" saves to the records database; see `app_for_pack`).
+    """
+    if steps is not None:
         try:
-            Path(out).mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise UserError(f"--out {out}: cannot create folder ({e.strerror})") from None
+            steps = limits.whole(steps, 0, limits.MAX_STEPS)
+        except limits.LimitError as e:
+            raise UserError(f"--steps: {e} (docs/limits.md)") from None
+    # every output is checked before the run, so a long run never ends in an unwritable path
+    if record:
+        check_output_file(record, "--record")
+    if out:
+        prepare_output_dir(out, "--out")
     timed = list(events or [])
     if script:
         timed = load_script(script)
@@ -103,16 +244,17 @@ def run_pack(
         out_dir=out,
         screenshot_every=screenshot_every,
         size=size,
+        save=save,
     )
     try:
         pres: PackResource = app.resource(PackResource)
         if not script and events is None and pres.scene_spec.get("script"):
             timed = load_script(pres.pack.file(pres.scene_spec["script"]))
+        check_events(app, timed, script or "input")
         app.resource(PendingInput).extend(timed)
         n = int(steps if steps is not None else app.resource(Settings).get("steps", 600))
-        for i in range(n):
+        for _ in _steps(n):
             app.update(app.time.dt)
-            _progress(i + 1, n)
         digest = world_digest(app)
         log = app.get_resource(InputLog)
         summary = {
@@ -126,6 +268,9 @@ def run_pack(
             "digest": digest,
             "events_applied": len(log.items) if log else 0,
         }
+        models = body_models(app)
+        if models:
+            summary["models"] = models
         assessment = app.resource(Assessment).values
         if assessment:
             summary["assessment"] = _jsonable(assessment)
@@ -140,13 +285,26 @@ def run_pack(
                 digest=digest,
                 settings=settings,
             )
+        failed = app.resource(FailedSaves).messages
+        if failed:
+            summary["save_errors"] = list(failed)
         if out:
-            tmp = Path(out) / "summary.json.tmp"
-            tmp.write_text(json.dumps(summary, indent=2, sort_keys=True), encoding="utf-8")
-            os.replace(tmp, Path(out) / "summary.json")
+            write_text_atomic(Path(out) / "summary.json", json.dumps(summary, indent=2, sort_keys=True), "--out")
+        if failed:
+            more = f" (and {len(failed) - 1} more)" if len(failed) > 1 else ""
+            raise UserError(f"the attempt was not saved: {failed[0]}{more}")
         return summary
     finally:
         app.close()
+
+
+def body_models(app) -> dict:
+    """Which deformation model each soft body runs, and why (the pack, --model, or the auto choice)."""
+    with app.active():
+        return {
+            esper.component_for_entity(ent, Name).value: {"model": d.model_used, "why": d.model_reason}
+            for ent, d in esper.get_component(Deformable)
+        }
 
 
 def _jsonable(v):

@@ -11,19 +11,22 @@ An input script is TOML (or JSON) with `format = 1` and an array of events:
 
 A recording (`--record FILE`) is JSON: the same events plus the pack, scene, dt, steps and the
 final digest, so `chainsim replay FILE` can run it again and compare.
+
+Both are read through chainsim.engine.datafile (size, nesting and number limits) and every event
+is checked (times finite, in order and at most MAX_TIME; at most MAX_EVENTS events).
 """
 
 from __future__ import annotations
 
 import json
 import math
-import os
-import tomllib
 from pathlib import Path
 from typing import Any
 
 from chainsim.components.input_events import event_from_dict, event_to_dict
+from chainsim.engine import datafile, limits
 from chainsim.engine.errors import UserError
+from chainsim.game.app.outputs import write_text_atomic
 
 FORMAT = 1
 
@@ -51,6 +54,8 @@ def parse_events(data: dict, where: str) -> list[tuple[float, Any]]:
     raw = data.get("event", [])
     if not isinstance(raw, list):
         raise UserError(f"{where}: 'event' must be an array of tables ([[event]])")
+    if len(raw) > limits.MAX_EVENTS:
+        raise UserError(f"{where}: {len(raw):,} events, over the {limits.MAX_EVENTS:,} limit (docs/limits.md)")
     out = []
     last = 0.0
     for i, item in enumerate(raw):
@@ -58,8 +63,14 @@ def parse_events(data: dict, where: str) -> list[tuple[float, Any]]:
         if not isinstance(item, dict):
             raise UserError(f"{w}: must be a table")
         t = item.get("t")
-        if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t) or t < 0:
-            raise UserError(f"{w}: 't' must be a finite number of seconds >= 0, got {t!r}")
+        if (
+            isinstance(t, bool)
+            or not isinstance(t, (int, float))
+            or not (isinstance(t, int) or math.isfinite(t))
+            or not 0 <= t <= limits.MAX_TIME
+        ):
+            shown = repr(t) if not isinstance(t, int) or len(str(t)) < 25 else f"a {len(str(t))}-digit number"
+            raise UserError(f"{w}: 't' must be a number of seconds from 0 to {limits.MAX_TIME:g}, got {shown}")
         if t < last:
             raise UserError(f"{w}: events must be in time order (t={t} after t={last})")
         last = float(t)
@@ -68,22 +79,8 @@ def parse_events(data: dict, where: str) -> list[tuple[float, Any]]:
 
 
 def read_file(path: str | Path) -> dict:
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise UserError(f"{path}: input file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise UserError(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
-    if path.suffix.lower() == ".toml":
-        try:
-            return tomllib.loads(text)
-        except tomllib.TOMLDecodeError as e:
-            raise UserError(f"{path}: TOML syntax error: {e}") from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as e:
-        raise UserError(f"{path}: JSON syntax error at line {e.lineno}: {e.msg}") from None
+    """An input script or recording (.toml as TOML, anything else as JSON), within the data limits."""
+    return datafile.load(path, max_bytes=limits.MAX_SCRIPT_BYTES, what="input file")
 
 
 def load_script(path: str | Path) -> list[tuple[float, Any]]:
@@ -101,11 +98,9 @@ def write_recording(
         "scene": scene,
         "dt": dt,
         "steps": steps,
-        "settings": settings or {},
+        # where attempts were saved is the recorder's own business: a replay never saves
+        "settings": {k: v for k, v in (settings or {}).items() if k not in ("db", "records")},
         "digest": digest,
         "event": [dict(t=t, **event_to_dict(ev)) for t, ev in events],
     }
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=1), encoding="utf-8")
-    os.replace(tmp, path)
+    write_text_atomic(path, json.dumps(data, indent=1, allow_nan=False), "--record")

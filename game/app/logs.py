@@ -10,12 +10,24 @@ import logging
 import sys
 
 
+class _StderrHandler(logging.StreamHandler):
+    """Writes to whatever sys.stderr is at the time of each message (redirections and tests replace it)."""
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value) -> None:  # StreamHandler.__init__ sets it; the property always follows sys.stderr
+        pass
+
+
 def setup_logging(level: int = logging.INFO) -> None:
     """Route every chainsim logger to stderr as plain lines; `level` from -v / -q."""
     root = logging.getLogger("chainsim")
     root.setLevel(level)
     if not any(getattr(h, "_chainsim", False) for h in root.handlers):
-        handler = logging.StreamHandler(sys.stderr)
+        handler = _StderrHandler()
         handler.setFormatter(logging.Formatter("%(message)s"))
         handler._chainsim = True  # so a second call (tests run main() many times) adds no duplicate
         root.addHandler(handler)

@@ -1,26 +1,57 @@
-"""Options the command line, the window and the benchmarks share: window sizes and the user's record settings."""
+"""Options the command line, the window and the benchmarks share: window sizes and the user's record settings.
+
+Numbers are typed by chainsim.engine.argtypes (finite, bounded: docs/limits.md); class and trainee
+names by `name` here, which takes them as the records store does (1 to MAX_NAME_LENGTH printable
+characters, no control or invisible characters), so a bad name is refused before anything runs.
+"""
 
 from __future__ import annotations
 
 import argparse
 
+from chainsim.engine import argtypes
+from chainsim.engine.errors import UserError
+from chainsim.game.records.validate import clean_name
 
-def window_size(text: str) -> tuple[int, int]:
-    """argparse type: WIDTHxHEIGHT in pixels, each 1..16384."""
-    try:
-        w, h = (int(x) for x in text.lower().split("x"))
-        if w <= 0 or h <= 0 or w > 16384 or h > 16384:
-            raise ValueError
-        return w, h
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 1280x800, got {text!r}") from None
+#: argparse type: WIDTHxHEIGHT in pixels, each 1..MAX_PIXELS
+window_size = argtypes.size
+
+
+def name(kind: str):
+    """argparse type: a class or trainee name, checked as the records store checks it."""
+
+    def parse(text: str) -> str:
+        try:
+            return clean_name(kind, text)
+        except UserError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+
+    parse.__name__ = f"{kind} name"
+    return parse
+
+
+def add_records_arguments(p: argparse.ArgumentParser) -> None:
+    """--db, --records, --class and --trainee, for commands whose procedures save attempts."""
+    p.add_argument("--db", metavar="PATH", help="trainee records database (procedures that save attempts)")
+    p.add_argument(
+        "--records", metavar="URL", help="save attempts to this records server (queued in --db when offline)"
+    )
+    p.add_argument(
+        "--class", dest="class_name", type=name("class"), metavar="NAME", help="class the attempt is saved under"
+    )
+    p.add_argument("--trainee", type=name("trainee"), metavar="NAME", help="trainee the attempt is saved under")
 
 
 def user_settings(args) -> dict:
     """Settings a user gives on the command line (records database or server, class, trainee)."""
     out = {}
-    for key, attr in (("db", "db"), ("records", "records"), ("class", "class_name"), ("trainee", "trainee")):
+    pairs = (("db", "db"), ("records", "records"), ("class", "class_name"), ("trainee", "trainee"), ("model", "model"))
+    for key, attr in pairs:
         v = getattr(args, attr, None)
         if v is not None:
             out[key] = v
     return out
+
+
+MODEL_FLAG_HELP = "deformation model for every soft body: chainmail, xpbd, projective or auto (overrides the pack)"
+MODEL_FLAG_CHOICES = ("chainmail", "xpbd", "projective", "auto")

@@ -3,10 +3,12 @@ each pack is stepped headless through chainsim.game.app.headless.run_pack and it
 
 from __future__ import annotations
 
-import sys
+import logging
 
 from chainsim.game.app.headless import run_pack
 from chainsim.game.packs.pack import discover
+
+logger = logging.getLogger(__name__)
 
 
 def measure(steps: int = 120) -> tuple[list[dict], str]:
@@ -15,7 +17,7 @@ def measure(steps: int = 120) -> tuple[list[dict], str]:
     for found in discover():
         if found.source != "builtin":
             continue
-        print(f"[study] pack {found.name}: {steps} steps", file=sys.stderr, flush=True)
+        logger.info(f"pack {found.name}: {steps} steps")
         try:
             summaries.append(run_pack(found.name, steps))
         except Exception as e:  # one broken pack must not sink the report

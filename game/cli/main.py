@@ -14,7 +14,8 @@ import logging
 import os
 import sys
 
-from chainsim.engine.errors import UserError
+from chainsim.engine.argtypes import NEGATIVE_NUMBER
+from chainsim.engine.errors import UserError, printable
 from chainsim.game import __version__
 from chainsim.game.app.logs import setup_logging
 
@@ -22,7 +23,7 @@ from chainsim.game.app.logs import setup_logging
 COMMANDS: dict[str, str] = {
     "bench": "run a benchmark (chainmail, render, ...)",
     "chainmail": "move one element of a mesh with Generalised ChainMail and save the result (.npz)",
-    "docs": "print reference documentation (components: every manifest section and component)",
+    "docs": "print reference documentation (components: every manifest key; limits: every input limit)",
     "new-pack": "create a new asset pack folder from a template",
     "packs": "list the asset packs found and where",
     "play": "open the simulator window on a pack",
@@ -34,12 +35,18 @@ COMMANDS: dict[str, str] = {
     "snapshot": "render a pack's window layout off screen to a PNG",
     "study": "speed-accuracy study of ChainMail vs FEM and mass-spring; calibrate ChainMail presets",
     "validate": "check a pack folder and report every problem",
+    "warmup": "compile the soft-tissue kernels now (seconds, once per install) so no interaction waits on it",
 }
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # `--to -1e3 0 0`: a negative number in e-notation is a value, not an option
+        self._negative_number_matcher = NEGATIVE_NUMBER
+
     def error(self, message: str):  # one line, exit 2
-        self.exit(2, f"{self.prog}: error: {message}\n")
+        self.exit(2, f"{self.prog}: error: {printable(message)}\n")
 
 
 def command_module(name: str):
@@ -82,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         code = args._run(args)
     except UserError as e:
-        print(f"chainsim {args.command}: {e}", file=sys.stderr)
+        print(f"chainsim {args.command}: " + "\n".join(e.lines()), file=sys.stderr)
         return e.exit_code
     except KeyboardInterrupt:
         print(f"chainsim {args.command}: interrupted", file=sys.stderr)

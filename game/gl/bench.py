@@ -9,37 +9,42 @@ and a control panel) at --size (default 1280x800) on the EGL context. Three mode
              only those positions and the normals around them are rewritten (the ChainMail case)
 
 A frame is timed from the upload to `ctx.finish()`, so GPU work is included. The three modes take
-turns frame by frame. Medians (and 90th percentiles) over --frames frames per mode after warm-up. Writes results.json, results.md and
+turns frame by frame. Medians (and 90th percentiles) over --frames frames per mode after warm-up. Writes
+results.json, results.md and
 bench-render.png into --out (default runs/bench-render); progress goes to stderr.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import platform
 import statistics
 import sys
 import time
-from pathlib import Path
 
 import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
 
 from chainsim.components.resources import PendingInput
+from chainsim.engine import argtypes, limits
 from chainsim.engine.errors import UserError
 from chainsim.engine.meshgen import triangulated_grid
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script
 from chainsim.game.app.loader import PackResource
 from chainsim.game.app.options import window_size
+from chainsim.game.app.outputs import prepare_output_dir
 from chainsim.game.gl import render_system as render
 from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
 from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
 from chainsim.systems.ui.viewports import OrbitCamera, fraction_rect
 from chainsim.systems.ui.widgets import WidgetState, place
+
+logger = logging.getLogger(__name__)
 
 HELP = "off-screen frame time of the renderer for 10k / 100k / 1M triangles"
 
@@ -48,25 +53,32 @@ MODES = ("static", "full", "patch")
 
 
 def add_arguments(p) -> None:
-
     p.add_argument(
         "--out", default="runs/bench-render", metavar="DIR", help="output folder (default runs/bench-render)"
     )
     p.add_argument("--size", type=window_size, default=(1280, 800), metavar="WxH", help="frame size (default 1280x800)")
     p.add_argument(
         "--triangles",
-        type=int,
+        type=argtypes.count(2, limits.MAX_BENCH_ELEMENTS),
         nargs="+",
         default=list(DEFAULT_SIZES),
         metavar="N",
         help="approximate triangle counts (default 10000 100000 1000000)",
     )
     p.add_argument(
-        "--frames", type=int, default=30, help="timed frames per case (fewer above 500k triangles; default 30)"
+        "--frames",
+        type=argtypes.frames,
+        default=30,
+        help="timed frames per case (fewer above 500k triangles; default 30)",
     )
-    p.add_argument("--warmup", type=int, default=3, help="untimed frames first (default 3)")
     p.add_argument(
-        "--patch", type=float, default=0.01, help="fraction of vertices moved in 'patch' mode (default 0.01)"
+        "--warmup", type=argtypes.count(0, limits.MAX_FRAMES), default=3, help="untimed frames first (default 3)"
+    )
+    p.add_argument(
+        "--patch",
+        type=argtypes.real(0.0, 1.0, low_open=True),
+        default=0.01,
+        help="fraction of vertices moved in 'patch' mode (default 0.01)",
     )
     p.add_argument(
         "--pack",
@@ -129,8 +141,7 @@ def run_pack(args) -> int:
 
     if args.frames < 1 or args.warmup < 0:
         raise UserError("--frames must be >= 1 and --warmup >= 0")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = prepare_output_dir(args.out, "--out")
     app = build_app(args.pack, render=True, size=args.size)
     rows = {}
     try:
@@ -206,11 +217,7 @@ def run_sheets(args) -> int:
         raise UserError(f"--patch must be a fraction in (0, 1], got {args.patch}")
     if any(n < 2 for n in args.triangles):
         raise UserError("--triangles: each count must be >= 2")
-    out = Path(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise UserError(f"--out {out}: cannot create folder ({e.strerror})") from None
+    out = prepare_output_dir(args.out, "--out")
     ctx = egl_context()
     renderer = Renderer(ctx)
     fbo = offscreen_framebuffer(ctx, args.size)
@@ -226,7 +233,7 @@ def run_sheets(args) -> int:
             centre = np.argsort(np.linalg.norm(pos[:, :2], axis=1))[: max(1, int(args.patch * len(pos)))]
             patch_ids = np.sort(centre)
             # the modes take turns frame by frame, so a change in machine load hits all three alike
-            print(f"  {len(tris):>9,} triangles ({frames} frames per mode) ...", file=sys.stderr, flush=True)
+            logger.info(f"  {len(tris):>9,} triangles ({frames} frames per mode) ...")
             times = {m: [] for m in MODES}
             uploads = {m: [] for m in MODES}
             state = [lifted, pos]
@@ -291,12 +298,14 @@ def run_sheets(args) -> int:
         f"{info['cpu_count']} CPUs, load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at the end "
         "(a software renderer shares those CPUs with everything else running).",
         "",
-        "| triangles | mode | moved vertices | frame median (ms) | frame p90 (ms) | upload median (ms) | fps (median) |",
+        "| triangles | mode | moved vertices | frame median (ms) | frame p90 (ms) | upload median (ms) | fps "
+        "(median) |",
         "|---:|---|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         md.append(
-            f"| {r['triangles']:,} | {r['mode']} | {r['moved_vertices']:,} | {r['median_ms']:.2f} | {r['p90_ms']:.2f} | "
+            f"| {r['triangles']:,} | {r['mode']} | {r['moved_vertices']:,} | {r['median_ms']:.2f} | "
+            f"{r['p90_ms']:.2f} | "
             f"{r['upload_median_ms']:.2f} | {1000.0 / r['median_ms']:.1f} |"
         )
     (out / "results.md").write_text("\n".join(md) + "\n", encoding="utf-8")

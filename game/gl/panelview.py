@@ -33,6 +33,22 @@ def view_title(ov: Overlay, title: str, r: Rect, s: float) -> None:
     ov.label(title, r.x + 6 * s, r.y + r.h - f.ascent - 3 * s, DIM)
 
 
+def fluoro_status(ov: Overlay, status: str, live: bool, has_image: bool, r: Rect, s: float) -> None:
+    """The C-arm view's lines: what the image is and costs along the bottom, LIVE while the pedal is held,
+    and how to make the first image before there is one."""
+    f = ov.font
+    if not has_image:
+        msg = "No image yet: Take X-ray (x)"
+        ov.label(msg, r.x + max((r.w - f.width(msg)) / 2, 4 * s), r.y + r.h / 2, DIM, max_w=r.w - 8 * s)
+    if status:
+        ov.rect(r.x, r.y, r.w, f.line_h + 4 * s, (0, 0, 0, 0.55))
+        ov.label(status, r.x + 6 * s, r.y + 2 * s + f.descent, TEXT, max_w=r.w - 12 * s)
+    if live:
+        w = f.width("LIVE") + 10 * s
+        ov.rect(r.x + r.w - w - 6 * s, r.y + r.h - f.line_h - 8 * s, w, f.line_h + 2 * s, (0.8, 0.1, 0.1, 0.9))
+        ov.label("LIVE", r.x + r.w - w - 1 * s, r.y + r.h - f.ascent - 6 * s, TEXT)
+
+
 def hud(ov: Overlay, h, r: Rect, s: float) -> None:
     """Step title, instruction and messages in a dark band at the top of the main view."""
     f = ov.font

@@ -23,14 +23,17 @@ import numpy as np
 
 from chainsim.components.core import Label, Marker, MeshRef, PolyLine, Transform, Wireframe
 from chainsim.components.deformable import Deformable
+from chainsim.components.fluoro import DETECTOR_MM, SOURCE_TO_DETECTOR_MM, SOURCE_TO_ISO_MM, CArm
 from chainsim.components.hud import HudState
 from chainsim.components.resources import EntityIndex, InputState, PackResource, RunInfo, Settings
 from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
+from chainsim.game.gl.fluoro import FluoroDraw, XrayMesh
 from chainsim.game.gl.png import read_rgba, write_png
 from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
 from chainsim.systems.picking import surface_cache
 from chainsim.systems.stages import ORDER_RENDER
 from chainsim.systems.ui import docbox, keyhelp
+from chainsim.systems.ui.viewports import carm_camera
 from chainsim.systems.ui.widgets import WidgetState
 from chainsim.systems.view import ViewState, refresh_cameras
 
@@ -220,10 +223,10 @@ def collect_frame(app):
             frame.markers.append(
                 (np.asarray(tr.position, float), float(mk.radius), tuple(float(c) for c in mk.color), ent)
             )
-    for ent, pl in esper.get_component(PolyLine):
+    for _ent, pl in esper.get_component(PolyLine):
         if pl.visible and len(pl.points) >= 2:
             frame.lines.append((np.asarray(pl.points, float).reshape(-1, 3), tuple(float(c) for c in pl.color)))
-    for ent, (lb, tr) in esper.get_components(Label, Transform):
+    for _ent, (lb, tr) in esper.get_components(Label, Transform):
         if lb.text:
             frame.labels.append((np.asarray(tr.position, float), lb.text, tuple(float(c) for c in lb.color)))
     if vs.layer_visible("planes") and pack.section("planes"):
@@ -247,7 +250,8 @@ def collect_frame(app):
                 PanelDraw(vp.name, vp.rect, vp.spec.get("title", ""), placed, st.values, st.disabled, hint)
             )
     frame.hud = app.get_resource(HudState)
-    shown3d = [v for v in frame.views if v.kind != "panel"]
+    frame.fluoro = fluoro_draw(app)
+    shown3d = [v for v in frame.views if v.kind not in ("panel", "fluoro")]
     orbit = [v for v in shown3d if v.kind == "orbit"]
     frame.hud_view = (orbit or shown3d)[0].name if shown3d else ""
     shown = page(app)
@@ -256,6 +260,52 @@ def collect_frame(app):
         frame.doc = (title, text, 0 if frame.hud.notice else frame.hud.doc_scroll, buttons)
         frame.doc_box = docbox.box(vs.get(frame.hud_view).rect)
     return frame
+
+
+VIEW_NAMES = {"lateral": "Lateral", "submental": "Submental-oblique", "free": "Free angle"}
+
+
+def fluoro_draw(app) -> FluoroDraw | None:
+    """The C-arm view's image request: the arm's pose at its last image and every mesh whose material
+    attenuates X-rays (visible on screen or not: hiding the skin does not take it out of the beam).
+    None when the layout has no "fluoro" viewport or the world no C-arm."""
+    vs: ViewState = app.resource(ViewState)
+    index = app.get_resource(EntityIndex)
+    if not any(vp.kind == "fluoro" for vp in vs.viewports) or index is None or index.get("carm") is None:
+        return None
+    carm = esper.try_component(index.get("carm"), CArm)
+    if carm is None:
+        return None
+    renderer: Renderer = app.resource(Renderer)
+    pack = app.resource(PackResource).pack
+    meshes = []
+    for ent, ref in esper.get_component(MeshRef):
+        mu = float(_material(pack, ref.material).get("attenuation", 0.0))
+        if mu <= 0.0:
+            continue
+        md = pack.mesh(ref.mesh)
+        if len(md.triangles) == 0:
+            continue
+        d = esper.try_component(ent, Deformable)
+        local = np.asarray(d.pos) if d is not None and len(getattr(d, "pos", ())) == len(md.vertices) else md.vertices
+        tr = esper.try_component(ent, Transform)
+        meshes.append(XrayMesh(renderer.mesh(ent, local, md.triangles, md.links), tr.matrix() if tr else np.eye(4), mu))
+    az, el, iso = carm.image_pose
+    camera = carm_camera(az, el, iso, SOURCE_TO_ISO_MM, SOURCE_TO_DETECTOR_MM, DETECTOR_MM)
+    status = (
+        f"{VIEW_NAMES.get(carm.view, carm.view)} (az {carm.azimuth_deg:.0f}, el {carm.elevation_deg:.0f}) - "
+        f"{carm.shots} images, {carm.exposure_s:.1f} s, {carm.dose_mgy:.2f} mGy"
+    )
+    return FluoroDraw(camera, carm.image_id, meshes, status, carm.live)
+
+
+def capture_fluoro(app) -> None:
+    """Make the C-arm image now if the arm took one since the last: the view then shows the world as it
+    was at the shot, frozen, however long until the next frame is drawn."""
+    with app.active():
+        request = fluoro_draw(app)
+        if request is not None and request.image_id != app.resource(Renderer).fluoro.image_id:
+            app.resource(Renderer).fluoro.update(request)
 
 
 def draw(app):
@@ -313,6 +363,7 @@ class RenderSystem:
     def __call__(self, app) -> None:
 
         target: RenderTarget = app.resource(RenderTarget)
+        capture_fluoro(app)
         if not target.offscreen:
             if target.hold:
                 sync_deformables(app)

@@ -20,6 +20,7 @@ import trimesh
 from chainsim.game.gl import panelview, shaders
 from chainsim.game.gl.context import release_framebuffer
 from chainsim.game.gl.docview import PageView
+from chainsim.game.gl.fluoro import FluoroDraw, FluoroRenderer
 from chainsim.game.gl.meshbuf import GpuMesh
 from chainsim.game.gl.overlay import Overlay
 from chainsim.systems.ui.viewports import Camera, Rect
@@ -84,6 +85,7 @@ class Frame:
     doc: tuple[str, str, int, dict | None] | None = None
     doc_box: Rect | None = None
     doc_shown: tuple[int, int] | None = None  # after drawing: (first line shown, last first line)
+    fluoro: FluoroDraw | None = None  # the C-arm view's image request (chainsim.game.gl.fluoro)
 
 
 def _mat(m: np.ndarray) -> bytes:
@@ -122,6 +124,14 @@ class Renderer:
         self.overlay = Overlay(ctx)
         self.pages = PageView(self.overlay)
         self._labels_seen: dict[tuple, list[bool]] = {}  # viewport rect -> label in sight (this frame)
+        self._fluoro: FluoroRenderer | None = None  # made on first use (only layouts with a C-arm view)
+
+    @property
+    def fluoro(self) -> FluoroRenderer:
+        """The C-arm image maker (chainsim.game.gl.fluoro), created on first use."""
+        if self._fluoro is None:
+            self._fluoro = FluoroRenderer(self.ctx)
+        return self._fluoro
 
     # -- meshes ------------------------------------------------------------------------------
     def mesh(self, key, vertices: np.ndarray, triangles: np.ndarray, links: np.ndarray | None = None) -> GpuMesh:
@@ -149,6 +159,9 @@ class Renderer:
         ctx.scissor = None
         ctx.viewport = (0, 0, W, H)
         self._labels_seen.clear()
+        if frame.fluoro is not None:
+            self.fluoro.update(frame.fluoro)  # a new C-arm image, when one was taken
+            fbo.use()
         covered = sum(v.rect.scaled(s).w * v.rect.scaled(s).h for v in frame.views)
         if covered < W * H:  # viewports clear their own rectangles; clear the rest only when some shows
             fbo.clear(*frame.background, depth=1.0)
@@ -156,11 +169,20 @@ class Renderer:
             r = view.rect.scaled(s)
             if r.w <= 0 or r.h <= 0:
                 continue
-            clear = view.clear or (PANEL_BG if view.kind == "panel" else frame.background)
+            clear = view.clear or (
+                PANEL_BG
+                if view.kind == "panel"
+                else (0.0, 0.0, 0.0, 1.0)
+                if view.kind == "fluoro"
+                else frame.background
+            )
             ctx.scissor = (r.x, r.y, r.w, r.h)
             ctx.viewport = (r.x, r.y, r.w, r.h)
             fbo.clear(*clear, depth=1.0, viewport=(r.x, r.y, r.w, r.h))
-            if view.camera is not None and view.kind != "panel":
+            if view.kind == "fluoro":
+                if frame.fluoro is not None:
+                    self.fluoro.draw(r)
+            elif view.camera is not None and view.kind != "panel":
                 self._scene(frame, view.camera, r, fbo, view.hide_entity)
         ctx.scissor = None
         ctx.viewport = (0, 0, W, H)
@@ -339,6 +361,8 @@ class Renderer:
                 continue
             if view.title:
                 panelview.view_title(ov, view.title, r, s)
+            if view.kind == "fluoro" and frame.fluoro is not None:
+                panelview.fluoro_status(ov, frame.fluoro.status, frame.fluoro.live, self.fluoro.image_id >= 0, r, s)
             if view.camera is not None:
                 seen = self._labels_seen.get((r.x, r.y, r.w, r.h), [])
                 for k, (pos, text, color) in enumerate(frame.labels):
@@ -368,6 +392,9 @@ class Renderer:
         self.overlay.release()
         for o in (self.dyn_vao, self.dyn, self.mesh_prog, self.line_prog, self.id_prog):
             o.release()
+        if self._fluoro is not None:
+            self._fluoro.release()
+            self._fluoro = None
 
 
 def _trs(pos, radius: float) -> np.ndarray:

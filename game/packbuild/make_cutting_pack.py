@@ -14,13 +14,15 @@ exactly along a grid line. Rim vertices keep their rim coordinate so the fixed e
 from __future__ import annotations
 
 import argparse
-import sys
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from chainsim.assets import ASSETS_DIR
+
+logger = logging.getLogger(__name__)
 
 PACK_DIR = ASSETS_DIR / "cutting"
 
@@ -114,9 +116,9 @@ def main(argv=None) -> int:
         if not args.check:
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_text(text, encoding="utf-8")
-            print(f"wrote {path}", file=sys.stderr)
+            logger.info(f"wrote {path}")
     if args.check and stale:
-        print("out of date: " + ", ".join(str(p) for p in stale), file=sys.stderr)
+        logger.warning("out of date: " + ", ".join(str(p) for p in stale))
         return 1
     return 0
 

@@ -15,6 +15,8 @@ import trimesh
 from scipy import ndimage
 
 PUPIL_RADIUS_MM = 2.0  # medial aspect = pupil centre moved this far toward the midline
+#: the last stretch of a path, inside the bony canal of the foramen, where bone around the needle is expected
+CANAL_MM = 4.0
 
 
 def first_hits(mesh: trimesh.Trimesh, origins: np.ndarray, direction: np.ndarray) -> np.ndarray:
@@ -156,10 +158,13 @@ def mouth_corners(skin: trimesh.Trimesh, z_lo: float, z_hi: float, res: float = 
     """Trace the closed lips on a frontal depth map of the skin and return their lateral ends.
 
     On this coarse skin the lip fissure itself is not resolved, but the lips are: they form a
-    horizontal ridge (skin standing out from the profile above and below it). The ridge is
-    taken at the midline between z_lo and z_hi, then followed sideways while it stands out by at
-    least min_ridge_mm; where it fades are the oral commissures. Returns (trace, ends)."""
-    xs = np.arange(-45.0, 45.01, res)
+    horizontal ridge (skin standing out from the profile above and below it), about a millimetre
+    high. The ridge is taken at the midline between z_lo and z_hi and followed sideways, row by row
+    within 2 mm of the previous one; its strength is smoothed over 7 mm along the mouth so one weak
+    column does not end it, and the commissures are where the smoothed strength falls below `fade`
+    times its median over the middle 20 mm. Returns (trace (K, 3) points on the skin, ends
+    {"left"/"right": (x, z)}) in the work frame (+X the subject's left)."""
+    xs = np.arange(-50.0, 50.01, res)
     zs = np.arange(z_lo - 10.0, z_hi + 10.0 + 1e-9, res)
     y = depth_map(skin, xs, zs)
     h = int(round(3.0 / res))
@@ -168,21 +173,33 @@ def mouth_corners(skin: trimesh.Trimesh, z_lo: float, z_hi: float, res: float = 
     i0 = int(np.argmin(np.abs(xs)))
     window = (zs >= z_lo) & (zs <= z_hi)
     j0 = int(np.nanargmax(np.where(window, ridge[i0], -np.inf)))
-    mid = np.abs(xs) < 10.0
-    min_ridge_mm = fade * float(np.median(np.nanmax(ridge[mid, max(j0 - 2, 0) : j0 + 3], axis=1)))
-    trace = {i0: j0}
-    ends = {}
-    for step, side in ((1, "left"), (-1, "right")):
+    # follow the ridge row outward from the midline
+    rows = np.full(len(xs), -1)
+    rows[i0] = j0
+    for step in (1, -1):
         i, j = i0, j0
         while 0 <= i + step < len(xs):
-            lo, hi = max(j - 2, 0), min(j + 3, len(zs))
+            lo, hi = max(j - 4, 0), min(j + 5, len(zs))
             col = ridge[i + step, lo:hi]
-            if np.all(np.isnan(col)) or np.nanmax(col) < min_ridge_mm:
+            if np.all(np.isnan(col)):
                 break
             i, j = i + step, lo + int(np.nanargmax(col))
-            trace[i] = j
-        ends[side] = (xs[i], zs[j])
-    pts = np.array([[xs[i], y[i, j], zs[j]] for i, j in sorted(trace.items())])
+            rows[i] = j
+    strength = np.array([ridge[i, j] if j >= 0 else np.nan for i, j in enumerate(rows)])
+    k = int(round(3.5 / res))
+    filled = np.where(np.isfinite(strength), strength, 0.0)
+    smooth = np.convolve(filled, np.ones(2 * k + 1) / (2 * k + 1), mode="same")
+    smooth[~np.isfinite(strength)] = np.nan
+    mid = np.abs(xs) < 10.0
+    threshold = fade * float(np.nanmedian(smooth[mid]))
+    ends, keep = {}, {i0}
+    for step, side in ((1, "left"), (-1, "right")):
+        i = i0
+        while 0 <= i + step < len(xs) and rows[i + step] >= 0 and smooth[i + step] >= threshold:
+            i += step
+            keep.add(i)
+        ends[side] = (xs[i], zs[rows[i]])
+    pts = np.array([[xs[i], y[i, rows[i]], zs[rows[i]]] for i in sorted(keep)])
     return pts, ends
 
 
@@ -284,6 +301,17 @@ def path_hits(bone: trimesh.Trimesh, plug: trimesh.Trimesh, entry: np.ndarray, t
     tb = first_hits(bone, entry[None], d)[0]
     tp = first_hits(plug, entry[None], d)[0]
     return float(tb), float(tp)
+
+
+def path_clearance(bone: trimesh.Trimesh, entry: np.ndarray, target: np.ndarray, stop_before_mm: float, step_mm=0.5):
+    """Smallest distance (mm) from the segment entry -> target, up to `stop_before_mm` short of the
+    target, to the bone surface: how far the straight needle passes from the nearest bone."""
+    d = target - entry
+    length = float(np.linalg.norm(d))
+    ts = np.arange(0.0, max(length - stop_before_mm, 0.0), step_mm)
+    pts = entry + np.outer(ts / length, d)
+    _, dist, _ = trimesh.proximity.closest_point(bone, pts)
+    return float(dist.min())
 
 
 def clear_entry(skin, bone, plug, lm1, target, radius=15.0, step=0.5):

@@ -86,22 +86,41 @@ def warp_to_depths(
     depths: np.ndarray,
     sigma_mm: float = 22.0,
     rounds: int = 3,
-) -> tuple[trimesh.Trimesh, np.ndarray]:
+    anchors: np.ndarray | None = None,
+    anchor_targets: np.ndarray | None = None,
+    carry: np.ndarray | None = None,
+):
     """Smooth local warp after the global fit: Gaussian radial basis displacements, solved so the
     skin sits at the expected depth along every landmark ray and fading out some 2-3 sigma away
-    from the landmarks. Returns (warped skin, final depth residuals)."""
+    from the landmarks.
+
+    `anchors` (K, 3) are skin points that must move to `anchor_targets` (K, 3) (a soft-tissue
+    feature the depth tables do not fix, such as the corners of the mouth); `carry` (M, 3) are
+    further points moved with the skin (a traced lip line). Returns (warped skin, final depth
+    residuals), plus (anchors, carried points) after the warp when anchors or carry are given."""
     out = skin.copy()
+    anchors = np.zeros((0, 3)) if anchors is None else np.asarray(anchors, float).copy()
+    goals = np.zeros((0, 3)) if anchor_targets is None else np.asarray(anchor_targets, float)
+    carried = np.zeros((0, 3)) if carry is None else np.asarray(carry, float).copy()
     for _ in range(rounds):
         t, p = skin_depths(out, origins, directions)
         ok = np.isfinite(t)
-        disp = -(t - depths)[ok, None] * directions[ok]
-        c = p[ok]
+        disp = np.vstack([-(t - depths)[ok, None] * directions[ok], goals - anchors])
+        c = np.vstack([p[ok], anchors])
         k = np.exp(-np.sum((c[:, None] - c[None]) ** 2, axis=2) / (2 * sigma_mm**2))
         w = np.linalg.solve(k + 1e-6 * np.eye(len(c)), disp)
-        kv = np.exp(-np.sum((out.vertices[:, None] - c[None]) ** 2, axis=2) / (2 * sigma_mm**2))
-        out.vertices = out.vertices + kv @ w
+
+        def moved(q, c=c, w=w):
+            kq = np.exp(-np.sum((q[:, None] - c[None]) ** 2, axis=2) / (2 * sigma_mm**2))
+            return q + kq @ w
+
+        out.vertices = moved(np.asarray(out.vertices))
+        anchors = moved(anchors) if len(anchors) else anchors
+        carried = moved(carried) if len(carried) else carried
     t, _ = skin_depths(out, origins, directions)
-    return out, t - depths
+    if anchor_targets is None and carry is None:
+        return out, t - depths
+    return out, t - depths, anchors, carried
 
 
 def enclose(
@@ -114,9 +133,14 @@ def enclose(
     min_depth_mm: float = 3.0,
     rounds: int = 4,
     cluster_mm: float = 12.0,
+    anchors: np.ndarray | None = None,
+    carry: np.ndarray | None = None,
 ):
     """Add depth constraints where bone still pokes through the skin, and re-warp, until the
-    skull is enclosed (or `rounds` is spent). Returns (skin, origins, directions, depths)."""
+    skull is enclosed (or `rounds` is spent); `anchors` are held where they are and `carry` moves
+    with the skin. Returns (skin, origins, directions, depths, anchors, carried)."""
+    anchors = np.zeros((0, 3)) if anchors is None else np.asarray(anchors, float)
+    carry = np.zeros((0, 3)) if carry is None else np.asarray(carry, float)
     for _ in range(rounds):
         outside = np.flatnonzero(~inside_fn(skin, skull_vertices))
         if len(outside) == 0:
@@ -129,11 +153,16 @@ def enclose(
         # Push out radially from the middle of the head: bone normals on thin plates (nasal
         # bones, orbital walls) can point sideways.
         n = skull_vertices[picked] - np.array([0.0, -10.0, 20.0])
-        origins = np.vstack([origins, skull_vertices[picked]])
-        directions = np.vstack([directions, n / np.linalg.norm(n, axis=1)[:, None]])
-        depths = np.r_[depths, np.full(len(picked), min_depth_mm)]
-        skin, _ = warp_to_depths(skin, origins, directions, depths)
-    return skin, origins, directions, depths
+        n = n / np.linalg.norm(n, axis=1)[:, None]
+        # the ray starts 10 mm back inside the head: from the bone point itself, which already lies
+        # outside the skin, it would meet no skin and the constraint would be void
+        origins = np.vstack([origins, skull_vertices[picked] - 10.0 * n])
+        directions = np.vstack([directions, n])
+        depths = np.r_[depths, np.full(len(picked), min_depth_mm + 10.0)]
+        skin, _, anchors, carry = warp_to_depths(
+            skin, origins, directions, depths, anchors=anchors, anchor_targets=anchors.copy(), carry=carry
+        )
+    return skin, origins, directions, depths, anchors, carry
 
 
 def crop_head(skin: trimesh.Trimesh, z_cut: float) -> trimesh.Trimesh:

@@ -18,13 +18,13 @@ The layout of a manifest:
 from __future__ import annotations
 
 from chainsim.components.registry import Field, Schema, section
+from chainsim.engine import limits
 
 FORMAT_VERSION = 1
 UNITS = ("mm", "cm", "m")
 UNIT_SCALE_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
-MESH_ROLES = ("visual", "collision", "deformable", "tool", "target")
 PRIMITIVES = ("box", "sphere", "cylinder", "capsule", "cone", "grid", "tet_block")
-VIEWPORT_KINDS = ("orbit", "attached", "panel", "fixed")
+VIEWPORT_KINDS = ("orbit", "attached", "panel", "fixed", "fluoro")
 WIDGET_KINDS = ("button", "toggle", "slider", "dial", "light", "text")
 
 section(
@@ -58,18 +58,20 @@ section(
     "table",
     "Run options; every key is declared here.",
     [
-        Field("dt", "float", 1.0 / 120.0, units="s", help="Fixed simulation step.", min=1e-5, max=0.1),
-        Field("steps", "int", 600, help="Default number of steps for headless runs.", min=0),
-        Field("window_size", "vec2", [1280.0, 800.0], units="px", help="Initial window size."),
-        Field("background", "vec4", [0.08, 0.09, 0.11, 1.0], help="Clear colour (RGBA 0..1)."),
         Field(
-            "deformation_budget_ms",
-            "float",
-            8.0,
-            units="ms",
-            help="Time a deformation update may take before the HUD warns.",
-            min=0.0,
+            "dt", "float", 1.0 / 120.0, units="s", help="Fixed simulation step.", min=limits.MIN_DT, max=limits.MAX_DT
         ),
+        Field("steps", "int", 600, help="Default number of steps for headless runs.", min=0, max=limits.MAX_STEPS),
+        Field(
+            "window_size",
+            "vec2",
+            [1280.0, 800.0],
+            units="px",
+            help="Initial window size.",
+            min=1.0,
+            max=limits.MAX_PIXELS,
+        ),
+        Field("background", "vec4", [0.08, 0.09, 0.11, 1.0], help="Clear colour (RGBA 0..1).", min=0.0, max=1.0),
     ],
 )
 
@@ -92,7 +94,6 @@ section(
             choices=UNITS,
             help="Units of the file's coordinates; everything is converted to millimetres.",
         ),
-        Field("role", "enum", "visual", choices=MESH_ROLES, help="What the mesh is for."),
         Field("extents", "vec3", [10.0, 10.0, 10.0], units="mm", help="Box size, or grid/tet_block size.", min=0.0),
         Field("radius", "float", 5.0, units="mm", help="Sphere, cylinder, capsule or cone radius.", min=0.0),
         Field("height", "float", 10.0, units="mm", help="Cylinder, capsule or cone height (along +Z).", min=0.0),
@@ -100,8 +101,10 @@ section(
             "resolution",
             "vec3",
             [8.0, 8.0, 1.0],
-            help="Elements per axis for grid / tet_block; sections for round shapes.",
+            help="Elements per axis for grid / tet_block; sections for round shapes (the vertex count is "
+            "checked against the mesh limits at validation).",
             min=1.0,
+            max=limits.MAX_RESOLUTION,
         ),
         Field("merge_vertices", "bool", True, help="Merge duplicate vertices on load (surfaces)."),
         Field("reorder", "bool", False, help="Reorder vertices for memory locality (reverse Cuthill-McKee) on load."),
@@ -118,6 +121,14 @@ section(
         Field("wireframe", "bool", False, help="Draw the links instead of shaded faces."),
         Field("shading", "enum", "smooth", choices=("smooth", "flat", "unlit"), help="Lighting model."),
         Field(
+            "attenuation",
+            "float",
+            0.0,
+            units="1/mm",
+            help="X-ray linear attenuation coefficient: how dark a closed mesh shows in the C-arm view (0: unseen).",
+            min=0.0,
+        ),
+        Field(
             "preset",
             "str",
             "",
@@ -133,7 +144,14 @@ section(
         ),
         Field("alpha_max", "float", 1.2, help="ChainMail stretch limit relative to the rest link.", min=1.0),
         Field("beta", "float", 0.1, help="ChainMail shear limit relative to the rest link.", min=0.0),
-        Field("relax", "int", 2, help="Relaxation iterations after each cascade (thesis 5.2.5).", min=0),
+        Field(
+            "relax",
+            "int",
+            2,
+            help="Relaxation iterations after each cascade (thesis 5.2.5).",
+            min=0,
+            max=limits.MAX_RELAX,
+        ),
         Field(
             "exact",
             "bool",
@@ -165,13 +183,15 @@ VIEWPORT = Schema(
             "kind",
             "enum",
             choices=VIEWPORT_KINDS,
-            help="orbit: mouse-driven camera; attached: follows an entity and ignores input; panel: 2-D controls; "
-            "fixed: a still camera.",
+            help=(
+                "orbit: mouse-driven camera; attached: follows an entity and ignores input; panel: 2-D controls; "
+                "fixed: a still camera; fluoro: the C-arm's radiograph (a drag turns the C-arm)."
+            ),
         ),
         Field("rect", "rect", help="Placement [x, y, w, h] as window fractions, origin bottom-left.", min=0.0, max=1.0),
         Field("title", "str", "", help="Caption drawn in the viewport."),
         Field("target", "vec3", [0.0, 0.0, 0.0], units="mm", help="Point the camera looks at."),
-        Field("distance", "float", 400.0, units="mm", help="Camera distance from target.", min=0.0),
+        Field("distance", "float", 400.0, units="mm", help="Camera distance from target.", min=1e-3),
         Field(
             "yaw",
             "float",

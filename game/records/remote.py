@@ -26,7 +26,7 @@ from urllib.parse import urlencode, urlsplit
 
 from chainsim.components.resources import Records, SavedLocally
 from chainsim.engine.errors import UserError
-from chainsim.game.records.store import RecordStore
+from chainsim.game.records.store import NoDatabase, RecordStore
 from chainsim.game.records.validate import clean_attempt, clean_name, to_json
 
 logger = logging.getLogger(__name__)
@@ -319,8 +319,10 @@ def remote_records(server: str, db: str | os.PathLike[str] | None = None) -> Rec
 def sync_quietly(server: str, db: str | os.PathLike[str] | None = None) -> None:
     """Send what earlier sessions left in the queue for ``server``; problems are logged, not raised."""
     try:
-        with RecordStore(db) as store:
+        with RecordStore(db, create=False) as store:  # no database: nothing was ever queued
             result = sync(store, server_url(server))
+    except NoDatabase:
+        return
     except UserError as exc:
         logger.warning("records: %s", exc)
         return

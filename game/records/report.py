@@ -1,7 +1,8 @@
 """Trainee-record reports: aligned tables, CSV export and the progress plot (thesis 3.3.4, 6.1.5).
 
 The thesis tool lets trainer and trainee look back over saved results to judge progress; here
-that is a text table, a CSV for spreadsheets and a PNG of the two 6.1.5 errors over attempts.
+that is a text table, a CSV for spreadsheets and a PNG of the two 6.1.5 errors and the X-ray each
+attempt cost (images and seconds of exposure, thesis 3.2.3) over attempts.
 Files are written to a temporary sibling and renamed into place, so an interrupted export never
 leaves a half-written file under the requested name.
 """
@@ -21,7 +22,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from chainsim.engine.errors import UserError
-from chainsim.game.records.validate import AIDS
+from chainsim.game.records.validate import AIDS, printable
 
 CSV_COLUMNS = (
     "id",
@@ -36,6 +37,9 @@ CSV_COLUMNS = (
     "skull_contacts",
     "path_length_mm",
     "redirections",
+    "xray_shots",
+    "exposure_s",
+    "dose_mgy",
     *(f"aid_{name}" for name in AIDS),
     "step_times",
     "details",
@@ -69,7 +73,7 @@ def _cell(value: Any) -> str:
         return "yes" if value else "no"
     if isinstance(value, float):
         return f"{value:.2f}"
-    return str(value)
+    return printable(str(value))  # a name stored by an older version shows its hidden characters
 
 
 def atomic_write(path: Path, write: Callable[[io.TextIOBase | io.BufferedIOBase], None], *, binary: bool) -> None:
@@ -127,6 +131,9 @@ def csv_rows(attempts: Sequence[dict[str, Any]]) -> list[list[Any]]:
                 a["skull_contacts"],
                 a["path_length_mm"],
                 a.get("redirections", 0),
+                a.get("xray_shots", 0),
+                a.get("exposure_s", 0.0),
+                a.get("dose_mgy", 0.0),
                 *(int(bool(a["aids"].get(name, False))) for name in AIDS),
                 json.dumps(a["step_times"], sort_keys=True),
                 json.dumps(a["details"], sort_keys=True),
@@ -147,7 +154,7 @@ def export_csv(attempts: Sequence[dict[str, Any]], path: Path) -> None:
 
 
 def plot_progress(attempts: Sequence[dict[str, Any]], path: Path, title: str) -> None:
-    """PNG of landmark error and needle error against attempt number (Agg, no display)."""
+    """PNG of landmark error, needle error and the X-ray each attempt cost against attempt number (Agg)."""
     if not attempts:
         raise UserError(f"no attempts to plot for {title}")
     if Path(path).suffix.lower() != ".png":
@@ -156,10 +163,12 @@ def plot_progress(attempts: Sequence[dict[str, Any]], path: Path, title: str) ->
     n = list(range(1, len(attempts) + 1))
     landmark = [a["landmark_error_mm"] for a in attempts]
     needle = [float("nan") if a["needle_error_mm"] is None else a["needle_error_mm"] for a in attempts]
+    shots = [a.get("xray_shots", 0) for a in attempts]
+    exposure = [a.get("exposure_s", 0.0) for a in attempts]
 
-    fig = Figure(figsize=(7.0, 5.5), dpi=100)
+    fig = Figure(figsize=(7.0, 7.5), dpi=100)
     FigureCanvasAgg(fig)
-    ax_l, ax_n = fig.subplots(2, 1, sharex=True)
+    ax_l, ax_n, ax_x = fig.subplots(3, 1, sharex=True)
     ax_l.plot(n, landmark, marker="o", color="tab:blue")
     ax_l.set_ylabel("landmark error E (mm)")
     ax_l.set_ylim(bottom=0)
@@ -173,9 +182,18 @@ def plot_progress(attempts: Sequence[dict[str, Any]], path: Path, title: str) ->
         ax_n.axvline(i, color="0.7", linestyle=":", linewidth=1)
     ax_n.axhline(0.0, color="0.4", linewidth=0.8)
     ax_n.set_ylabel("needle error (mm)")
-    ax_n.set_xlabel("attempt" + (" (dotted: no needle contact)" if missing else ""))
     ax_n.grid(alpha=0.3)
-    ax_n.set_xticks(n if len(n) <= 20 else n[:: max(1, len(n) // 10)])
+    # X-ray: images as bars, seconds of exposure as a line on a second axis (thesis 3.2.3)
+    ax_x.bar(n, shots, color="tab:gray", alpha=0.6, label="X-ray images")
+    ax_x.set_ylabel("X-ray images")
+    ax_x.set_ylim(bottom=0)
+    ax_x.grid(alpha=0.3)
+    ax_e = ax_x.twinx()
+    ax_e.plot(n, exposure, marker="^", color="tab:purple", label="exposure (s)")
+    ax_e.set_ylabel("exposure (s)")
+    ax_e.set_ylim(bottom=0)
+    ax_x.set_xlabel("attempt" + (" (dotted: no needle contact)" if missing else ""))
+    ax_x.set_xticks(n if len(n) <= 20 else n[:: max(1, len(n) // 10)])
     fig.suptitle(title)
     fig.tight_layout()
 

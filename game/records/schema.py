@@ -129,7 +129,26 @@ V4_DDL: tuple[str, ...] = (
     """,
 )
 
-MIGRATIONS: tuple[tuple[str, ...], ...] = (V1_DDL, V2_DDL, V3_DDL, V4_DDL)
+# Version 5: what the X-ray cost per attempt (single images, seconds of exposure, estimated entrance
+# dose; thesis 3.2.3) - attempts saved before it keep their rows with 0 - and the study questionnaires
+# of thesis 6.1.2/6.1.4 (a pre-session background form and a post-session rating form per session).
+V5_DDL: tuple[str, ...] = (
+    "ALTER TABLE attempts ADD COLUMN xray_shots INTEGER NOT NULL DEFAULT 0",
+    "ALTER TABLE attempts ADD COLUMN exposure_s REAL NOT NULL DEFAULT 0",
+    "ALTER TABLE attempts ADD COLUMN dose_mgy REAL NOT NULL DEFAULT 0",
+    """
+    CREATE TABLE questionnaires (
+        id         INTEGER PRIMARY KEY,
+        trainee_id INTEGER NOT NULL REFERENCES trainees(id) ON DELETE CASCADE,
+        kind       TEXT NOT NULL,
+        session    TEXT NOT NULL,
+        created_at TEXT NOT NULL,
+        answers    TEXT NOT NULL
+    )
+    """,
+)
+
+MIGRATIONS: tuple[tuple[str, ...], ...] = (V1_DDL, V2_DDL, V3_DDL, V4_DDL, V5_DDL)
 SCHEMA_VERSION = len(MIGRATIONS)
 
 # Tables a records database owns; a version-0 file holding anything else is not ours.
@@ -144,5 +163,6 @@ OWN_TABLES = frozenset(
         "web_sessions",
         "outbox",
         "server_logins",
+        "questionnaires",
     }
 )

@@ -14,12 +14,18 @@ whatever class and user name are typed) and ``add_trainee`` creates its class wh
 Safety: the database runs in WAL mode with ``synchronous=FULL`` and every write is a single
 ``BEGIN IMMEDIATE ... COMMIT``, so killing the process mid-save loses at most the attempt being
 saved and never leaves part of one. A file that is not a records database is refused with one
-line before anything is written to it. Schema and migrations: ``chainsim.game.records.schema``.
+line before anything is written to it: another program's SQLite file (any table, view, index or
+trigger that is not ours) is never written into. A new database file is made by the first write,
+not by opening (a command that fails first leaves nothing; reads until then see an empty store),
+only in a folder that exists (the default location's folder excepted), and with a warning naming
+the file, so a mistyped path is noticed; ``create=False`` refuses a path with no database at all.
+Schema and migrations: ``chainsim.game.records.schema``.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
 import sqlite3
 from collections.abc import Iterator
@@ -30,6 +36,7 @@ from typing import Any
 import platformdirs
 
 from chainsim.components.resources import Records
+from chainsim.engine import limits
 from chainsim.engine.errors import UserError
 from chainsim.game.records.backend import (
     PgConnection,
@@ -40,12 +47,24 @@ from chainsim.game.records.backend import (
     set_schema_version,
 )
 from chainsim.game.records.schema import MIGRATIONS, OWN_TABLES, SCHEMA_VERSION
-from chainsim.game.records.validate import clean_attempt, clean_key, clean_name, to_json
+from chainsim.game.records.validate import (
+    clean_attempt,
+    clean_created_at,
+    clean_key,
+    clean_name,
+    clean_questionnaire,
+    to_json,
+)
 
 ENV_VAR = "CHAINSIM_DB"
 DB_FILENAME = "records.sqlite3"
 SQLITE_MAGIC = b"SQLite format 3\x00"
 BUSY_TIMEOUT_MS = 5000
+logger = logging.getLogger(__name__)
+
+
+class NoDatabase(UserError):
+    """Reading (``create=False``) a records database that does not exist: nothing was ever saved there."""
 
 
 class WriteFailed(UserError):
@@ -87,11 +106,19 @@ def _check_file(path: Path) -> None:
     try:
         ok = ro.execute("PRAGMA quick_check").fetchone()[0]
         version = ro.execute("PRAGMA user_version").fetchone()[0]
-        tables = {r[0] for r in ro.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        objects = ro.execute("SELECT type, name FROM sqlite_master WHERE name NOT LIKE 'sqlite_%'").fetchall()
+        columns = {
+            name: {r[1] for r in ro.execute(f"PRAGMA table_info({name})")}
+            for kind, name in objects
+            if kind == "table" and name in OWN_TABLES and name.isidentifier()
+        }
     except sqlite3.DatabaseError as exc:
         ro.close()
         if _header(path) not in (b"", SQLITE_MAGIC):
             raise UserError(f"{path} is not an SQLite database; expected a chainsim records file") from None
+        if not (os.access(path, os.W_OK) and os.access(path.parent, os.W_OK | os.X_OK)):
+            # a WAL database cannot be read without writing its shared-memory file beside it
+            raise UserError(f"records database {path} is read-only for this user ({exc})") from None
         raise UserError(f"records database {path} is damaged or not a database ({exc})") from None
     finally:
         ro.close()
@@ -101,12 +128,40 @@ def _check_file(path: Path) -> None:
         raise UserError(
             f"records database {path} has schema version {version}; this chainsim reads up to {SCHEMA_VERSION}"
         )
-    foreign = tables - OWN_TABLES - {"sqlite_sequence"}
-    if version == 0 and foreign:
+    own = _own_schema()
+    strange = sorted(name for kind, name in objects if (kind, name) not in own["objects"])
+    if strange or any(not cols <= own["columns"][name] for name, cols in columns.items()):
+        what = f"{strange[0]!r}" if strange else "tables with other columns"
         raise UserError(
-            f"{path} is an SQLite database of something else (table {sorted(foreign)[0]!r}); "
-            "expected a chainsim records file"
+            f"{path} is an SQLite database of something else ({what}); expected a chainsim records file "
+            "(another program's database is never written into)"
         )
+    missing = {"classes", "trainees", "attempts"} - {name for kind, name in objects if kind == "table"}
+    if version >= 1 and missing:  # the first migration made these three
+        raise UserError(f"records database {path} lacks table(s) {', '.join(sorted(missing))}; it is damaged")
+
+
+_OWN: dict = {}
+
+
+def _own_schema() -> dict:
+    """Tables, indexes and columns a records database may hold: those the migrations create."""
+    if not _OWN:
+        mem = sqlite3.connect(":memory:")
+        try:
+            for step in MIGRATIONS:
+                for statement in step:
+                    mem.execute(statement)
+            objects = set(mem.execute("SELECT type, name FROM sqlite_master WHERE name NOT LIKE 'sqlite_%'"))
+            _OWN["objects"] = objects
+            _OWN["columns"] = {
+                name: {r[1] for r in mem.execute(f"PRAGMA table_info({name})")}
+                for kind, name in objects
+                if kind == "table"
+            }
+        finally:
+            mem.close()
+    return _OWN
 
 
 def migrate(conn: sqlite3.Connection) -> int:
@@ -137,15 +192,44 @@ def _row_to_attempt(row: sqlite3.Row) -> dict[str, Any]:
 _ATTEMPT_SELECT = """
     SELECT a.id, c.name AS class_name, t.name AS trainee, a.pack, a.created_at, a.duration_s,
            a.landmark_error_mm, a.needle_error_mm, a.target, a.skull_contacts, a.path_length_mm,
-           a.redirections, a.aids, a.step_times, a.details
+           a.redirections, a.xray_shots, a.exposure_s, a.dose_mgy, a.aids, a.step_times, a.details
     FROM attempts a JOIN trainees t ON t.id = a.trainee_id JOIN classes c ON c.id = t.class_id
 """
+
+
+def check_target(path: str | os.PathLike[str] | None) -> Path | str | None:
+    """Check, without creating or writing anything, that attempts can be saved at ``path``.
+
+    An existing file must be a records database we may write; a new one needs an existing, writable
+    folder (a mistyped folder is an error, not a new database somewhere unexpected).
+    """
+    if is_postgres(path) or (path is None and is_postgres(os.environ.get(ENV_VAR, "").strip())):
+        return path  # a PostgreSQL server answers for itself when connected to
+    p = _path(path)
+    folder = p.parent
+    if p.is_file() and not os.access(p, os.W_OK):
+        raise UserError(f"records database {p} is read-only; nothing could be saved")
+    if not p.exists() and path is not None and not folder.is_dir():
+        raise UserError(f"records database {p}: folder {folder} does not exist (is the path mistyped?)")
+    if folder.is_dir() and not os.access(folder, os.W_OK | os.X_OK):
+        raise UserError(f"records database {p}: folder {folder} is not writable; nothing could be saved")
+    _check_file(p)
+    return p
+
+
+def _path(path: str | os.PathLike[str] | None) -> Path:
+    if path is None:
+        return default_path()
+    text = os.fspath(path)
+    if not text.strip() or "\x00" in text:
+        raise UserError(f"records database path {text!r} is not usable")
+    return Path(text).expanduser()
 
 
 class RecordStore:
     """Classes, trainees and their attempts in one SQLite file (see module docstring)."""
 
-    def __init__(self, path: str | os.PathLike[str] | None = None) -> None:
+    def __init__(self, path: str | os.PathLike[str] | None = None, *, create: bool = True) -> None:
         if path is None and is_postgres(os.environ.get(ENV_VAR, "").strip()):
             path = os.environ[ENV_VAR].strip()
         if is_postgres(path):
@@ -161,32 +245,53 @@ class RecordStore:
                 self._conn.close()
                 raise
             return
-        self.path = Path(path).expanduser() if path is not None else default_path()
+        self.path = _path(path)
         _check_file(self.path)
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise UserError(f"cannot create folder for records database {self.path}: {exc.strerror}") from None
+        created = not self.path.exists()
+        if created and not create:
+            raise NoDatabase(f"no records database at {self.path} (nothing has been saved there)")
+        if created:
+            if path is None:  # the default location: its folder is ours to make
+                try:
+                    self.path.parent.mkdir(parents=True, exist_ok=True)
+                except OSError as exc:
+                    raise UserError(f"cannot create folder for records database {self.path}: {exc.strerror}") from None
+            elif not self.path.parent.is_dir():
+                raise UserError(
+                    f"records database {self.path}: folder {self.path.parent} does not exist (is the path mistyped?)"
+                )
+            # The file is made by the first write, not now: a command that fails before writing leaves
+            # nothing behind, and reads until then see an empty store (an in-memory one).
+            self._conn = None
+            self._memory: sqlite3.Connection | None = None
+            self._unmade = True
+            return
+        self._unmade = False
+        self._conn = self._open_file()
+
+    def _open_file(self) -> sqlite3.Connection:
+        """Connect to the SQLite file (made if missing), in WAL mode, migrated to SCHEMA_VERSION."""
         try:
             # isolation_level=None: we issue BEGIN/COMMIT ourselves so each save is exactly one
             # transaction and DDL is not auto-committed behind our back.
-            self._conn = sqlite3.connect(self.path, isolation_level=None, timeout=BUSY_TIMEOUT_MS / 1000)
+            conn = sqlite3.connect(self.path, isolation_level=None, timeout=BUSY_TIMEOUT_MS / 1000)
         except sqlite3.Error as exc:
             raise UserError(f"cannot open records database {self.path}: {exc}") from None
         try:
-            self._conn.row_factory = sqlite3.Row
-            self._conn.execute("PRAGMA foreign_keys = ON")
-            mode = self._conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
+            conn.row_factory = sqlite3.Row
+            conn.execute("PRAGMA foreign_keys = ON")
+            mode = conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
             if mode.lower() != "wal":
                 raise UserError(f"records database {self.path} cannot use WAL journaling (got {mode})")
-            self._conn.execute("PRAGMA synchronous = FULL")
-            migrate(self._conn)
+            conn.execute("PRAGMA synchronous = FULL")
+            migrate(conn)
         except sqlite3.Error as exc:
-            self._conn.close()
+            conn.close()
             raise UserError(f"cannot use records database {self.path}: {exc}") from None
         except BaseException:
-            self._conn.close()
+            conn.close()
             raise
+        return conn
 
     # -- plumbing -------------------------------------------------------------------------
 
@@ -198,8 +303,11 @@ class RecordStore:
 
     def close(self) -> None:
         conn, self._conn = getattr(self, "_conn", None), None
-        if conn is not None:
-            conn.close()
+        memory, self._memory = getattr(self, "_memory", None), None
+        self._unmade = False
+        for c in (conn, memory):
+            if c is not None:
+                c.close()
 
     @property
     def schema_version(self) -> int:
@@ -208,12 +316,26 @@ class RecordStore:
     @property
     def _db(self) -> sqlite3.Connection:
         if self._conn is None:
+            if getattr(self, "_unmade", False) and self.path.exists():  # another store made it meanwhile
+                self._conn = self._open_file()
+                self._unmade = False
+                return self._conn
+            if getattr(self, "_unmade", False):  # not made yet: reads see an empty store
+                if self._memory is None:
+                    self._memory = sqlite3.connect(":memory:", isolation_level=None)
+                    self._memory.row_factory = sqlite3.Row
+                    migrate(self._memory)
+                return self._memory
             raise UserError("records store is closed")
         return self._conn
 
     @contextmanager
     def _write(self) -> Iterator[sqlite3.Connection]:
-        """One write transaction; rolled back whole on any error."""
+        """One write transaction; rolled back whole on any error. The first one makes a new file."""
+        if self._conn is None and getattr(self, "_unmade", False):
+            self._conn = self._open_file()
+            self._unmade = False
+            logger.warning("created a new records database at %s", self.path)
         conn = self._db
         # IMMEDIATE takes the write lock up front so a concurrent writer waits instead of failing
         # half-way through.
@@ -339,9 +461,9 @@ class RecordStore:
             cur = conn.execute(
                 """
                 INSERT INTO attempts (trainee_id, pack, created_at, duration_s, landmark_error_mm,
-                    needle_error_mm, target, skull_contacts, path_length_mm, redirections, aids, step_times,
-                    details, idem_key)
-                VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
+                    needle_error_mm, target, skull_contacts, path_length_mm, redirections, xray_shots,
+                    exposure_s, dose_mgy, aids, step_times, details, idem_key)
+                VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
                 """,
                 (
                     trainee_id,
@@ -354,6 +476,9 @@ class RecordStore:
                     a["skull_contacts"],
                     a["path_length_mm"],
                     a["redirections"],
+                    a["xray_shots"],
+                    a["exposure_s"],
+                    a["dose_mgy"],
                     to_json(a["aids"]),
                     to_json(a["step_times"]),
                     to_json(a["details"]),
@@ -393,6 +518,46 @@ class RecordStore:
             if conn.execute("DELETE FROM attempts WHERE id = ?", (attempt_id,)).rowcount == 0:
                 raise UserError(f"no attempt with id {attempt_id}")
 
+    def save_questionnaire(self, class_name: str, trainee: str, kind: str, session: str, answers: dict) -> int:
+        """Store a study questionnaire ('pre' or 'post') of one session; the trainee is created if missing."""
+        class_name = clean_name("class", class_name)
+        trainee = clean_name("trainee", trainee)
+        kind, session, answers = clean_questionnaire(kind, session, answers)
+        with self._write() as conn:
+            class_id = self._class_id(conn, class_name)
+            if class_id is None:
+                class_id = conn.execute("INSERT INTO classes (name) VALUES (?)", (class_name,)).lastrowid
+            trainee_id = self._trainee_id(conn, class_id, trainee)
+            if trainee_id is None:
+                trainee_id = conn.execute(
+                    "INSERT INTO trainees (class_id, name) VALUES (?, ?)", (class_id, trainee)
+                ).lastrowid
+            return conn.execute(
+                "INSERT INTO questionnaires (trainee_id, kind, session, created_at, answers) VALUES (?, ?, ?, ?, ?)",
+                (trainee_id, kind, session, clean_created_at(None), to_json(answers)),
+            ).lastrowid
+
+    def list_questionnaires(self, class_name: str | None = None) -> list[dict[str, Any]]:
+        """Questionnaires, oldest first, optionally of one class."""
+        if class_name is not None:
+            class_name = clean_name("class", class_name)
+            self._require_class(class_name)
+        rows = self._db.execute(
+            """
+            SELECT q.id, c.name AS class_name, t.name AS trainee, q.kind, q.session, q.created_at, q.answers
+            FROM questionnaires q JOIN trainees t ON t.id = q.trainee_id JOIN classes c ON c.id = t.class_id
+            WHERE (? IS NULL OR c.name = ?)
+            ORDER BY q.created_at, q.id
+            """,
+            (class_name, class_name),
+        )
+        out = []
+        for r in rows:
+            d = {k: r[k] for k in r.keys()}
+            d["answers"] = json.loads(d["answers"])
+            out.append(d)
+        return out
+
     def attempt_id_for_key(self, key: str) -> int | None:
         """The attempt saved with idempotency key ``key``, or None if none was."""
         row = self._db.execute("SELECT id FROM attempts WHERE idem_key = ?", (clean_key(key),)).fetchone()
@@ -410,8 +575,9 @@ class RecordStore:
 
 
 def _attempt_id(value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise UserError(f"attempt id must be a positive whole number, got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= limits.MAX_ATTEMPT_ID:
+        shown = repr(value) if len(repr(value)) < 30 else f"a {len(repr(value))}-digit number"
+        raise UserError(f"attempt id must be a whole number from 1 to {limits.MAX_ATTEMPT_ID}, got {shown}")
     return value
 
 
@@ -423,11 +589,11 @@ def local_records(db: str | os.PathLike[str] | None = None) -> Records:
             return store.save_attempt(class_name, trainee, record)
 
     def list_attempts(class_name: str, trainee: str) -> list[dict]:
-        with RecordStore(db) as store:
+        with RecordStore(db, create=False) as store:  # looking never creates a database
             return store.list_attempts(class_name, trainee)
 
     def delete_attempt(class_name: str, trainee: str, attempt_id: int) -> None:
-        with RecordStore(db) as store:
+        with RecordStore(db, create=False) as store:
             a = store.get_attempt(attempt_id)
             if (a["class_name"], a["trainee"]) != (class_name, trainee):
                 raise UserError(f"attempt {attempt_id} is not yours")

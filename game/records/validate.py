@@ -11,12 +11,14 @@ import json
 import math
 import numbers
 import re
+import unicodedata
 from datetime import UTC, datetime
 from typing import Any
 
-from chainsim.engine.errors import UserError
+from chainsim.engine import limits
+from chainsim.engine.errors import HIDDEN_CATEGORIES, UserError, printable
 
-NAME_MAX = 64
+NAME_MAX = limits.MAX_NAME_LENGTH
 
 # Aids of 3.3.4 / 6.1.3 whose effect on performance the thesis compares.
 AIDS = ("skin_transparent", "reference_planes", "landmark_planes", "tip_view", "collision_signals")
@@ -35,23 +37,34 @@ REQUIRED = (
     "skull_contacts",
     "path_length_mm",
 )
-OPTIONAL = ("created_at", "aids", "step_times", "details", "redirections")
+OPTIONAL = ("created_at", "aids", "step_times", "details", "redirections", "xray_shots", "exposure_s", "dose_mgy")
 FIELDS = REQUIRED + OPTIONAL
 
-_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+# Unicode categories a name may not hold (chainsim.engine.errors.HIDDEN_CATEGORIES): controls,
+# format characters (right-to-left and other bidi overrides, zero-width joiners, the BOM),
+# surrogates, private use, unassigned, line and paragraph separators. They let a name display as
+# something it is not. `printable` (re-exported here) shows them escaped.
+_HIDDEN = HIDDEN_CATEGORIES
+__all__ = ["printable"]
 
 
 def clean_name(kind: str, value: Any) -> str:
-    """Return ``value`` stripped, or raise if it is not a usable class/trainee/pack name."""
+    """Return ``value`` stripped and NFC-normalised, or raise if it is not a usable class/trainee/pack name."""
     if not isinstance(value, str):
         raise UserError(f"{kind} name must be text, got {type(value).__name__}")
-    name = value.strip()
+    name = unicodedata.normalize("NFC", value.strip())
     if not name:
         raise UserError(f"{kind} name is empty; expected 1-{NAME_MAX} characters")
     if len(name) > NAME_MAX:
-        raise UserError(f"{kind} name {name[:20]!r}... is {len(name)} characters; at most {NAME_MAX} allowed")
-    if _CONTROL.search(name):
-        raise UserError(f"{kind} name {name!r} contains a control character; use printable text")
+        raise UserError(
+            f"{kind} name '{printable(name[:20])}...' is {len(name)} characters; at most {NAME_MAX} allowed"
+        )
+    bad = next((c for c in name if unicodedata.category(c) in _HIDDEN), None)
+    if bad is not None:
+        raise UserError(
+            f"{kind} name '{printable(name)}' contains the invisible or control character "
+            f"U+{ord(bad):04X} ({unicodedata.name(bad, unicodedata.category(bad))}); use printable text"
+        )
     return name
 
 
@@ -192,10 +205,43 @@ def clean_attempt(attempt: Any) -> dict[str, Any]:
         "skull_contacts": _count("skull_contacts", attempt["skull_contacts"]),
         "path_length_mm": _number("path_length_mm", attempt["path_length_mm"]),
         "redirections": _count("redirections", attempt.get("redirections", 0)),
+        "xray_shots": _count("xray_shots", attempt.get("xray_shots", 0)),
+        "exposure_s": _number("exposure_s", attempt.get("exposure_s", 0.0)),
+        "dose_mgy": _number("dose_mgy", attempt.get("dose_mgy", 0.0)),
         "aids": clean_aids(attempt.get("aids")),
         "step_times": clean_step_times(attempt.get("step_times")),
         "details": clean_details(attempt.get("details")),
     }
+
+
+QUESTIONNAIRE_KINDS = ("pre", "post")
+ANSWER_MAX = 500
+
+
+def clean_questionnaire(kind: Any, session: Any, answers: Any) -> tuple[str, str, dict[str, Any]]:
+    """A study questionnaire: its kind ('pre' or 'post'), its session label and the answers (question id ->
+    a number, a short text or None for no answer)."""
+    if kind not in QUESTIONNAIRE_KINDS:
+        raise UserError(f"questionnaire kind is {kind!r}; expected one of {', '.join(QUESTIONNAIRE_KINDS)}")
+    session = clean_name("session", session)
+    if not isinstance(answers, dict):
+        raise UserError(f"questionnaire answers must be an object, got {type(answers).__name__}")
+    out: dict[str, Any] = {}
+    for key, value in answers.items():
+        if not isinstance(key, str) or not STEP_RE.fullmatch(key):
+            raise UserError(f"question id {key!r} must be 1-64 letters, digits, '_', '.' or '-'")
+        if value is None or isinstance(value, bool):
+            out[key] = value
+        elif isinstance(value, numbers.Real):
+            out[key] = _number(f"answers.{key}", value, minimum=None)
+        elif isinstance(value, str):
+            hidden = any(unicodedata.category(c) in _HIDDEN for c in value if c != "\n")
+            if len(value) > ANSWER_MAX or hidden:
+                raise UserError(f"answer {key!r} must be printable text of at most {ANSWER_MAX} characters")
+            out[key] = value
+        else:
+            raise UserError(f"answer {key!r} holds {type(value).__name__}; expected a number, text or nothing")
+    return kind, session, out
 
 
 KEY_RE = re.compile(r"[A-Za-z0-9_\-]{8,128}")

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import platformdirs
 
+from chainsim.engine import datafile
 from chainsim.engine.errors import UserError
 from chainsim.game.records.validate import clean_name
 
@@ -32,12 +33,20 @@ def remembered_path() -> Path:
 
 
 def remembered() -> dict[str, str]:
-    """The class and trainee of the last sign-in, or empty strings."""
+    """The class and trainee of the last sign-in, or empty strings (also for a damaged file or a name
+    the records would refuse, e.g. one holding a right-to-left override)."""
     try:
-        data = json.loads(remembered_path().read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {"class": "", "trainee": ""}
-    return {k: str(data.get(k, "")) if isinstance(data, dict) else "" for k, _ in FIELDS}
+        data = datafile.load(remembered_path(), max_bytes=64 * 1024, what="sign-in file")
+    except UserError:
+        data = {}
+    out = {}
+    for k, _ in FIELDS:
+        v = data.get(k, "") if isinstance(data, dict) else ""
+        try:
+            out[k] = clean_name(k, v) if v else ""
+        except UserError:
+            out[k] = ""
+    return out
 
 
 def remember(values: dict[str, str]) -> None:
@@ -58,24 +67,32 @@ def status_line(settings: dict, records_path) -> str:
 
 
 class SignInForm:
-    """Two text fields; `text` types, `key` handles tab / backspace / return; `done` when accepted."""
+    """Text fields (class, name; and a password when saving to a records server the trainee has no
+    token for); `text` types, `key` handles tab / backspace / return; `done` when accepted.
 
-    def __init__(self, values: dict[str, str], records_path):
-        self.values = {k: str(values.get(k) or "") for k, _ in FIELDS}
+    `login(name, password)` signs in to the server (chainsim.game.records.remote.login) and raises
+    UserError when the server refuses; the password is never shown, stored or remembered.
+    """
+
+    def __init__(self, values: dict[str, str], records_path, login=None):
+        self.fields = FIELDS + ((("password", "Password"),) if login is not None else ())
+        self.values = {k: str(values.get(k) or "") for k, _ in self.fields}
         self.focus = "class" if not self.values["class"] else "trainee"
         self.records_path = records_path
+        self.login = login
         self.error = ""
         self.done = False
 
     def text(self, typed: str) -> None:
         typed = "".join(ch for ch in typed if ch.isprintable())
         if typed:
-            self.values[self.focus] = (self.values[self.focus] + typed)[:64]
+            self.values[self.focus] = (self.values[self.focus] + typed)[: 256 if self.focus == "password" else 64]
             self.error = ""
 
     def key(self, name: str) -> None:
         if name == "tab":
-            self.focus = "trainee" if self.focus == "class" else "class"
+            keys = [k for k, _ in self.fields]
+            self.focus = keys[(keys.index(self.focus) + 1) % len(keys)]
         elif name == "backspace":
             self.values[self.focus] = self.values[self.focus][:-1]
         elif name in ("return", "enter"):
@@ -92,12 +109,21 @@ class SignInForm:
                     self.focus = k
                     break
             return
+        if self.login is not None:
+            try:
+                self.login(self.values["trainee"], self.values["password"])
+            except UserError as e:
+                self.error = str(e)
+                self.values["password"] = ""
+                self.focus = "password"
+                return
+            self.values["password"] = ""  # not kept once the server has given its token
         self.done = True
 
     def markdown(self) -> str:
         rows = []
-        for k, label in FIELDS:
-            v = self.values[k].replace("|", "\\|")
+        for k, label in self.fields:
+            v = "*" * len(self.values[k]) if k == "password" else self.values[k].replace("|", "\\|")
             cursor = "_" if self.focus == k else ""
             rows.append(f"| {'**' + label + '**' if self.focus == k else label} | `{v}{cursor}` |")
         out = [
@@ -114,6 +140,8 @@ class SignInForm:
             "",
             f"Records are kept in `{self.records_path}`.",
         ]
+        if self.login is not None:
+            out[2] = "Your attempts are saved on your programme's records server under your account: sign in once."
         if self.error:
             out += ["", f"**Not yet:** {self.error}"]
         return "\n".join(out) + "\n"

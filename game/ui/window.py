@@ -4,7 +4,8 @@ Only this module (and the GL adapters) import pyglet. Device events become the s
 scripts use (`chainsim.components.input_events`), stamped with the App's simulated time and queued in PendingInput,
 so a window session can be recorded (`--record`) and replayed headless. Each redraw (about 60 per
 second where the machine keeps up) runs the whole fixed steps the wall-clock time since the previous
-one holds, one App.update each (chainsim.game.ui.frameloop), and draws through `chainsim.game.gl.render_system` into the window's framebuffer.
+one holds, one App.update each (chainsim.game.ui.frameloop), and draws through
+`chainsim.game.gl.render_system` into the window's framebuffer.
 
 HiDPI: layouts, input events and widgets work in window units; the renderer draws at the
 framebuffer's resolution (`RenderTarget.scale` = framebuffer pixels per window unit).
@@ -13,8 +14,11 @@ Keys: a widget's `key` (pyglet key names, lower case: "t", "left", "space", "f2"
 uses that widget (held arrow keys repeat); F1 opens the key page, F12 saves a screenshot
 (chainsim-shot-FRAME.png in the current folder). Esc closes an open page; with none open it quits,
 asking first when the attempt is not saved. Packs with a `sign_in` button ask for class and name at
-start (chainsim.game.ui.signin) unless --class and --trainee are given or a script is played. `--input SCRIPT` plays a script, `--exit-after S` closes after S simulated
-seconds, `--screenshot PNG` saves the last frame on closing, `--record FILE` saves the session.
+start (chainsim.game.ui.signin) unless --class and --trainee are given or a script is played.
+`chainsim protocol --participant NAME` runs a study session in the window (chainsim.game.ui.study):
+its questionnaires and trial pages take the keyboard while they are shown. `--input SCRIPT` plays a
+script, `--exit-after S` closes after S simulated seconds, `--screenshot PNG` saves the last frame
+on closing, `--record FILE` saves the session.
 """
 
 from __future__ import annotations
@@ -29,11 +33,14 @@ from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll, Widget
 from chainsim.components.resources import Assessment, PendingInput, Settings
 from chainsim.engine.errors import UserError
+from chainsim.engine.warmup import warm_up
 from chainsim.game.app.digest import world_digest
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script, write_recording
 from chainsim.game.app.options import user_settings
 from chainsim.game.gl.context import window_context
+from chainsim.game.records import remote
+from chainsim.game.records.store import RecordStore
 from chainsim.game.records.store import default_path as default_records_path
 from chainsim.game.ui.frameloop import FixedStepper
 from chainsim.game.ui.signin import SignInForm, remember, remembered, status_line
@@ -88,8 +95,29 @@ def _open_window(pyglet, w: int, h: int, caption: str):
     raise last
 
 
-def run_window(args) -> int:
+def server_login(values: dict):
+    """With --records URL and no token for that server yet: the sign-in form asks for the password and
+    signs in through this (the token is kept in the local store, as `chainsim records login` does)."""
+    server = values.get("records")
+    if not server:
+        return None
+    with RecordStore(values.get("db") or None) as store:
+        if remote.token_for(store, remote.server_url(server)):
+            return None
 
+    def login(name: str, password: str) -> None:
+        with RecordStore(values.get("db") or None) as store:
+            remote.login(store, server, name, password)
+
+    return login
+
+
+def run_window(args, session=None) -> int:
+    """The window on `args.pack`. `session`, when given, is called with the App and returns a study
+    session (chainsim.game.ui.study) that takes the keyboard while it shows a form and is updated
+    once per frame; the window closes when the session has finished."""
+    # every kernel compiled (or loaded from numba's cache) before the window takes any input
+    warm_up()
     script = load_script(args.input) if getattr(args, "input", None) else None
     settings = user_settings(args)  # --db, --class, --trainee for procedures that save attempts
     app = build_app(args.pack, pack_paths=args.pack_path, headless=False, settings=settings)
@@ -129,7 +157,7 @@ def run_window(args) -> int:
 
     def open_sign_in() -> None:
         given = {k: values.get(k) or remembered().get(k, "") for k in ("class", "trainee")}
-        form["open"] = SignInForm(given, records_path)
+        form["open"] = SignInForm(given, records_path, login=server_login(values))
         hud.notice = form["open"].markdown()
 
     def form_changed() -> None:
@@ -145,8 +173,15 @@ def run_window(args) -> int:
         else:
             hud.notice = f.markdown()
 
-    # the trainer asks who is training, unless --class and --trainee said so
-    if "sign_in" in layout_names and not (values.get("class") and values.get("trainee")) and not script:
+    study = session(app) if session is not None else None
+    if study is not None:
+        study.start()
+    # the trainer asks who is training, unless --class and --trainee said so (or a study names them)
+    elif (
+        "sign_in" in layout_names
+        and not script
+        and (not (values.get("class") and values.get("trainee")) or server_login(values) is not None)
+    ):
         open_sign_in()
 
     def now() -> float:
@@ -205,6 +240,9 @@ def run_window(args) -> int:
 
     @window.event
     def on_text(text):
+        if study is not None and study.form is not None:
+            study.text(text)
+            return pyglet.event.EVENT_HANDLED
         if form["open"] is not None:
             form["open"].text(text)
             form_changed()
@@ -212,6 +250,13 @@ def run_window(args) -> int:
 
     @window.event
     def on_key_press(symbol, modifiers):
+        if study is not None and study.form is not None and symbol != pyglet.window.key.F12:
+            # a questionnaire or a study page: the keys are its own (F12 still takes a screenshot)
+            if symbol == pyglet.window.key.ESCAPE:
+                finish()  # leave the study; what was saved stays saved
+            else:
+                study.key(key_name(symbol))
+            return pyglet.event.EVENT_HANDLED
         if form["open"] is not None:  # typing a name: no key reaches the controller
             if symbol == pyglet.window.key.ESCAPE:
                 if values.get("trainee"):
@@ -262,7 +307,10 @@ def run_window(args) -> int:
 
     @window.event
     def on_text_motion(motion):
-        # held arrow keys repeat, so a dial on an arrow key keeps turning while it is held
+        # held arrow keys repeat, so a dial on an arrow key keeps turning while it is held; not while a
+        # form or study page has the keyboard (it took the arrow in on_key_press)
+        if form["open"] is not None or (study is not None and study.form is not None):
+            return pyglet.event.EVENT_HANDLED
         if motion in MOTIONS:
             pending.push(now(), Key(MOTIONS[motion], True))
 
@@ -291,8 +339,12 @@ def run_window(args) -> int:
         if stepper.advance(dt) == 0:
             render.draw(app)  # no whole step yet: show the same state again
         for ev in widget_events.read():
-            if ev.name == "sign_in" and form["open"] is None:
+            if ev.name == "sign_in" and form["open"] is None and study is None:
                 open_sign_in()
+        if study is not None:
+            study.update()
+            if study.finished:
+                finish()
         if args.exit_after is not None and app.time.sim_time >= args.exit_after:
             finish()
 

@@ -2,36 +2,35 @@
 
 Everything becomes a `MeshData` in millimetres: vertices (N, 3) float64, triangles (F, 3) int64 and,
 for volumes, tetrahedra (T, 4) int64. Errors name the file and what is wrong (they surface in
-`chainsim validate` and at load).
+`chainsim validate` and at load). Before a parser runs, the file's size and what its headers declare
+are checked (chainsim.engine.meshcheck); after, every vertex must be finite and within the coordinate
+limit and the counts within the mesh limits (chainsim.engine.limits, docs/limits.md), so a mesh never
+brings an inf or a NaN into the world and a primitive's resolution can never ask for 10^10 vertices.
 """
 
 from __future__ import annotations
 
-import os
+import contextlib
+import io
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import meshio
 import numpy as np
 import trimesh
+from numpy.typing import ArrayLike
 
-from chainsim.engine import meshgen
+from chainsim.engine import limits, meshcheck, meshgen
+from chainsim.engine.limits import max_mesh_bytes  # noqa: F401  (the mesh size limit, re-exported)
 
 SURFACE_EXT = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 VOLUME_EXT = (".msh", ".vtk", ".vtu", ".mesh")
-DEFAULT_MAX_MESH_MB = 64.0
+DEFAULT_MAX_MESH_MB = limits.DEFAULT_MAX_MESH_MB
 
 
 class MeshError(Exception):
     """A mesh file that cannot be used; the message says why."""
-
-
-def max_mesh_bytes() -> int:
-    try:
-        mb = float(os.environ.get("CHAINSIM_MAX_MESH_MB", DEFAULT_MAX_MESH_MB))
-    except ValueError:
-        mb = DEFAULT_MAX_MESH_MB
-    return int(mb * 1024 * 1024)
 
 
 @dataclass(slots=True)
@@ -50,12 +49,24 @@ class MeshData:
         return meshgen.links_from_polygons(self.triangles)
 
 
+def _check_vertices(v: np.ndarray, where: str) -> None:
+    """Finite coordinates within the limit, and not too many of them."""
+    if len(v) > limits.MAX_VERTICES:
+        raise MeshError(f"{where}: {len(v):,} vertices, over the {limits.MAX_VERTICES:,} limit (docs/limits.md)")
+    try:
+        limits.coordinates(v)
+    except limits.LimitError as e:
+        raise MeshError(f"{where}: {str(e).replace('point(s)', 'vertices')}") from None
+
+
 def _check(mesh: MeshData, where: str) -> MeshData:
     v = mesh.vertices
     if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
         raise MeshError(f"{where}: no vertices")
-    if not np.isfinite(v).all():
-        raise MeshError(f"{where}: {int((~np.isfinite(v)).any(axis=1).sum())} vertices have non-finite coordinates")
+    _check_vertices(v, where)
+    for name, cells in (("triangles", mesh.triangles), ("tetrahedra", mesh.tets)):
+        if cells is not None and len(cells) > limits.MAX_CELLS:
+            raise MeshError(f"{where}: {len(cells):,} {name}, over the {limits.MAX_CELLS:,} limit (docs/limits.md)")
     for name, cells in (("triangles", mesh.triangles), ("tetrahedra", mesh.tets)):
         if cells is not None and len(cells) and (cells.min() < 0 or cells.max() >= len(v)):
             raise MeshError(f"{where}: {name} refer to vertices outside 0..{len(v) - 1}")
@@ -69,53 +80,95 @@ def load_file(path: Path, scale_to_mm: float = 1.0, merge_vertices: bool = True,
     path = Path(path)
     where = label or str(path)
     ext = "".join(path.suffixes[-1:]).lower()
+    limit = max_mesh_bytes()
     try:
         size = path.stat().st_size
+        if not path.is_file():
+            raise MeshError(f"{where}: not a file")
+    except ValueError as e:  # a NUL byte in the path
+        raise MeshError(f"{where!r}: not a usable path ({e})") from None
     except OSError as e:
         raise MeshError(f"{where}: cannot read ({e.strerror})") from None
-    if size > max_mesh_bytes():
-        raise MeshError(f"{where}: {size / 1048576:.2f} MB is over the {max_mesh_bytes() / 1048576:.3g} MB mesh limit")
-    if ext in VOLUME_EXT:
-        mesh = _load_volume(path, where)
-    elif ext in SURFACE_EXT:
-        mesh = _load_surface(path, merge_vertices, where)
-    else:
+    if size > limit:
+        raise MeshError(f"{where}: {size / 1048576:.2f} MB is over the {limit / 1048576:.3g} MB mesh limit")
+    if ext not in VOLUME_EXT + SURFACE_EXT:
         raise MeshError(
             f"{where}: unsupported mesh type '{ext}'; expected one of {', '.join(SURFACE_EXT + VOLUME_EXT)}"
         )
-    mesh.vertices = mesh.vertices * scale_to_mm
+    try:
+        meshcheck.check_file(path, ext, limit)
+    except meshcheck.MeshCheckError as e:
+        raise MeshError(f"{where}: {e}") from None
+    if ext in VOLUME_EXT:
+        mesh = _load_volume(path, where, scale_to_mm)
+    else:
+        mesh = _load_surface(path, merge_vertices, where, scale_to_mm)
     return _check(mesh, where)
 
 
-def _load_surface(path: Path, merge_vertices: bool, where: str) -> MeshData:
+@contextlib.contextmanager
+def _quiet():
+    """Parsers warn (numpy casts of garbage) and print (meshio); a bad file gets our one line instead."""
+    with (
+        warnings.catch_warnings(),
+        np.errstate(all="ignore"),
+        contextlib.redirect_stdout(io.StringIO()),
+        contextlib.redirect_stderr(io.StringIO()),
+    ):
+        warnings.simplefilter("ignore")
+        yield
 
+
+def _why(e: BaseException) -> str:
+    text = str(e).splitlines()[0] if str(e).strip() else "parse error"
+    return f"{type(e).__name__}: {text[:200]}"
+
+
+def _load_surface(path: Path, merge_vertices: bool, where: str, scale: float) -> MeshData:
     try:
-        loaded = trimesh.load(str(path), force="mesh", process=merge_vertices)
+        # unprocessed first: processing silently drops NaN/inf vertices, which must be refused instead
+        with _quiet():
+            loaded = trimesh.load(str(path), force="mesh", process=False)
     except Exception as e:  # trimesh raises many types for bad files
-        raise MeshError(
-            f"{where}: not a readable mesh ({type(e).__name__}: {str(e).splitlines()[0] if str(e) else 'parse error'})"
-        ) from None
+        raise MeshError(f"{where}: not a readable mesh ({_why(e)})") from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.vertices) == 0:
         raise MeshError(f"{where}: contains no triangle mesh")
-    return MeshData(np.asarray(loaded.vertices, dtype=np.float64), np.asarray(loaded.faces, dtype=np.int64))
+    _check_vertices(np.asarray(loaded.vertices, dtype=np.float64) * scale, where)
+    if merge_vertices:
+        try:
+            with _quiet():
+                loaded.process()
+        except Exception as e:
+            raise MeshError(f"{where}: not a usable mesh ({_why(e)})") from None
+    verts = np.asarray(loaded.vertices, dtype=np.float64) * scale
+    return MeshData(verts, np.asarray(loaded.faces, dtype=np.int64).reshape(-1, 3))
 
 
-def _load_volume(path: Path, where: str) -> MeshData:
-
+def _load_volume(path: Path, where: str, scale: float) -> MeshData:
     try:
-        m = meshio.read(str(path))
+        with _quiet():
+            m = meshio.read(str(path))
     except (Exception, SystemExit) as e:  # meshio calls sys.exit on some unreadable .msh files
-        raise MeshError(
-            f"{where}: not a readable volume mesh ({type(e).__name__}: {str(e).splitlines()[0] if str(e) else 'parse error'})"
-        ) from None
+        raise MeshError(f"{where}: not a readable volume mesh ({_why(e)})") from None
     tets = [c.data for c in m.cells if c.type == "tetra"]
     tris = [c.data for c in m.cells if c.type == "triangle"]
-    pts = np.asarray(m.points, dtype=np.float64)
+    try:
+        pts = np.asarray(m.points, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise MeshError(f"{where}: points are not numbers ({_why(e)})") from None
     if pts.ndim == 2 and pts.shape[1] == 2:
         pts = np.column_stack([pts, np.zeros(len(pts))])
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
+        raise MeshError(f"{where}: no 3-D points")
+    pts = pts * scale
+    _check_vertices(pts, where)
     if not tets and not tris:
         raise MeshError(f"{where}: has no tetra or triangle cells")
+    if sum(len(c) for c in tets + tris) > limits.MAX_CELLS:
+        raise MeshError(f"{where}: more than {limits.MAX_CELLS:,} cells (docs/limits.md)")
     t4 = np.concatenate(tets).astype(np.int64) if tets else None
+    if t4 is not None and len(t4) and (t4.min() < 0 or t4.max() >= len(pts)):
+        raise MeshError(f"{where}: tetrahedra refer to vertices outside 0..{len(pts) - 1}")
     surf = (
         np.concatenate(tris).astype(np.int64)
         if tris
@@ -132,9 +185,39 @@ def boundary_triangles(tets: np.ndarray) -> np.ndarray:
     return faces[counts[inv.ravel()] == 1]
 
 
-def primitive(kind: str, *, extents, radius: float, height: float, resolution) -> MeshData:
-    """Built-in shapes so packs can have tools and test bodies without mesh files."""
+def check_mesh(mesh: MeshData, where: str) -> MeshData:
+    """Counts, finite and bounded coordinates, cell indices in range; raises MeshError."""
+    return _check(mesh, where)
 
+
+def primitive_size(kind: str, resolution: ArrayLike) -> tuple[int, int]:
+    """(vertices, cells) a primitive of this resolution has, computed without building it."""
+    r = [max(1, int(round(min(float(x), 1e12)))) for x in resolution]
+    if kind == "grid":
+        return (r[0] + 1) * (r[1] + 1), 2 * r[0] * r[1]
+    if kind == "tet_block":
+        return (r[0] + 1) * (r[1] + 1) * (max(r[2], 1) + 1), 6 * r[0] * r[1] * max(r[2], 1)
+    if kind in ("sphere", "capsule"):
+        a, b = max(r[0], 8), max(r[1], 8)
+        return a * b, 2 * a * b
+    if kind in ("cylinder", "cone"):
+        return 2 * max(r[0], 6) + 2, 4 * max(r[0], 6)
+    return 8, 12
+
+
+def check_primitive(kind: str, resolution: ArrayLike, where: str = "primitive") -> None:
+    """Refuse a resolution whose mesh would be over MAX_VERTICES or MAX_CELLS (before building it)."""
+    nv, nc = primitive_size(kind, resolution)
+    if nv > limits.MAX_VERTICES or nc > limits.MAX_CELLS:
+        raise MeshError(
+            f"{where}: a {kind} of resolution {[int(round(float(x))) for x in resolution]} has {nv:,} vertices and "
+            f"{nc:,} cells, over the limits of {limits.MAX_VERTICES:,} and {limits.MAX_CELLS:,} (docs/limits.md)"
+        )
+
+
+def primitive(kind: str, *, extents: ArrayLike, radius: float, height: float, resolution: ArrayLike) -> MeshData:
+    """Built-in shapes so packs can have tools and test bodies without mesh files."""
+    check_primitive(kind, resolution)
     res = [max(1, int(round(r))) for r in resolution]
     if kind == "box":
         m = trimesh.creation.box(extents=extents)

@@ -55,7 +55,9 @@ def grid_index(shape: tuple[int, ...]) -> np.ndarray:
     return np.arange(int(np.prod(shape)), dtype=np.int64).reshape(shape[::-1]).T
 
 
-def grid(shape: tuple[int, ...], spacing=1.0, dim: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def grid(
+    shape: tuple[int, ...], spacing: float | tuple[float, ...] = 1.0, dim: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Rectilinear grid with 4 (2-D) or 6 (3-D) neighbours, as in Gibson's ChainMail (thesis 4.2.1).
 
     `shape` is (nx, ny) or (nx, ny, nz); element (i, j[, k]) has id i + nx*(j + ny*k).
@@ -89,7 +91,9 @@ def grid(shape: tuple[int, ...], spacing=1.0, dim: int | None = None) -> tuple[n
     return pos, unique_links(np.concatenate(links))
 
 
-def triangulated_grid(nx: int, ny: int, spacing: float = 1.0, dim: int = 2):
+def triangulated_grid(
+    nx: int, ny: int, spacing: float = 1.0, dim: int = 2
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """nx x ny elements, each quad split into two triangles; returns (positions, triangles, links)."""
     pos, _ = grid((nx, ny), spacing, dim)
     idx = grid_index((nx, ny))
@@ -101,7 +105,7 @@ def triangulated_grid(nx: int, ny: int, spacing: float = 1.0, dim: int = 2):
     return pos, tris, links_from_polygons(tris)
 
 
-def tet_grid(nx: int, ny: int, nz: int, spacing: float = 1.0):
+def tet_grid(nx: int, ny: int, nz: int, spacing: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Block of nx*ny*nz elements, each cube split into 6 tetrahedra sharing the main diagonal.
 
     Returns (positions (N,3), tets (T,4), links (M,2)). Interior elements have 14 links, like the
@@ -116,7 +120,9 @@ def tet_grid(nx: int, ny: int, nz: int, spacing: float = 1.0):
     return pos, tets, links_from_cells(tets)
 
 
-def random_graph(n: int, m: int, dim: int, rng: np.random.Generator, scale: float = 1.0):
+def random_graph(
+    n: int, m: int, dim: int, rng: np.random.Generator, scale: float = 1.0
+) -> tuple[np.ndarray, np.ndarray]:
     """Random positions and a connected random link graph (a random spanning tree plus extra links)."""
     pos = rng.uniform(0.0, scale, size=(n, dim))
     perm = rng.permutation(n)

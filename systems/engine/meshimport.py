@@ -9,17 +9,24 @@ Accepted inputs:
 
 `load_mesh` returns a MeshData (optionally filled with tetrahedra by chainsim.engine.tetra, optionally reordered
 by chainsim.engine.reorder); `load_graph` returns the flat arrays the CLI and the benchmarks use. Every problem
-becomes a one-line UserError naming the file (or the argument) and what is expected.
+becomes a one-line UserError naming the file (or the argument) and what is expected. Sizes, counts
+and coordinates are bounded (chainsim.engine.limits): an .npz's zip directory and array headers are
+read before its arrays (chainsim.engine.meshcheck), and positions must be finite and within MAX_COORD.
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
+import os
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from chainsim.engine import limits, meshcheck
 from chainsim.engine import reorder as ro
 from chainsim.engine.errors import UserError
 from chainsim.engine.meshes import MeshData, MeshError, load_file
@@ -30,7 +37,7 @@ GRAPH_EXT = ".npz"
 
 
 def load_mesh(
-    path,
+    path: str | os.PathLike,
     *,
     kind: str = "auto",
     pitch: float | None = None,
@@ -38,14 +45,13 @@ def load_mesh(
     reorder: str | None = None,
     scale_to_mm: float = 1.0,
     where: str | None = None,
-):
+) -> MeshData:
     """A MeshData from a mesh file.
 
     kind: "surface" (triangle links), "volume" (tetrahedra; a closed surface is filled with the built-in
     tetrahedraliser, cube size `pitch` or `cells` along the longest side), or "auto" (as the file is).
     reorder: None, "rcm" or "morton" (chainsim.engine.reorder).
     """
-
     where = where or str(path)
     try:
         # meshio reports some unreadable files by printing and calling sys.exit: keep both inside
@@ -73,7 +79,9 @@ def load_mesh(
     return mesh
 
 
-def check_graph(positions, links, fixed=None, where: str = "mesh") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def check_graph(
+    positions: ArrayLike, links: ArrayLike, fixed: ArrayLike | None = None, where: str = "mesh"
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Validate the flat arrays of a ChainMail object; returns (positions float64, links int64, fixed int64)."""
     pos = np.asarray(positions)
     if pos.ndim == 1:
@@ -84,10 +92,15 @@ def check_graph(positions, links, fixed=None, where: str = "mesh") -> tuple[np.n
         )
     if not (np.issubdtype(pos.dtype, np.floating) or np.issubdtype(pos.dtype, np.integer)):
         raise UserError(f"{where}: positions must be numbers, got dtype {pos.dtype}")
+    if len(pos) > limits.MAX_VERTICES:
+        raise UserError(f"{where}: {len(pos):,} elements, over the {limits.MAX_VERTICES:,} limit (docs/limits.md)")
     pos = np.ascontiguousarray(pos, dtype=np.float64)
     if not np.all(np.isfinite(pos)):
         bad = int(np.flatnonzero(~np.isfinite(pos).all(axis=1))[0])
         raise UserError(f"{where}: positions must be finite (row {bad} is not)")
+    biggest = float(np.abs(pos).max()) if len(pos) else 0.0
+    if biggest > limits.MAX_COORD:
+        raise UserError(f"{where}: positions must be within +-{limits.MAX_COORD:g} (docs/limits.md), found {biggest:g}")
     n = len(pos)
     lk = np.asarray(links)
     if lk.size == 0:
@@ -96,6 +109,8 @@ def check_graph(positions, links, fixed=None, where: str = "mesh") -> tuple[np.n
         raise UserError(f"{where}: links must be an (M, 2) array of element ids, got shape {lk.shape}")
     if not np.issubdtype(lk.dtype, np.integer):
         raise UserError(f"{where}: links must be integers, got dtype {lk.dtype}")
+    if len(lk) > limits.MAX_CELLS:
+        raise UserError(f"{where}: {len(lk):,} links, over the {limits.MAX_CELLS:,} limit (docs/limits.md)")
     lk = np.ascontiguousarray(lk, dtype=np.int64)
     if len(lk):
         if lk.min() < 0 or lk.max() >= n:
@@ -123,10 +138,27 @@ def check_graph(positions, links, fixed=None, where: str = "mesh") -> tuple[np.n
     return pos, lk, fx
 
 
-def load_graph(path, *, kind: str = "auto", reorder: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def load_graph(
+    path: str | os.PathLike, *, kind: str = "auto", reorder: str | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(positions (N, D), links (M, 2), fixed (K,)) from a .npz graph or any mesh file load_mesh reads."""
     path = Path(path)
+    if "\x00" in str(path):
+        raise UserError(f"{str(path)!r}: a file name cannot contain a NUL byte")
     if path.suffix.lower() == GRAPH_EXT:
+        limit = limits.max_mesh_bytes()
+        try:
+            size = path.stat().st_size
+        except FileNotFoundError:
+            raise UserError(f"{path}: file not found") from None
+        except OSError as e:
+            raise UserError(f"{path}: cannot read ({e.strerror or e})") from None
+        if size > limit:
+            raise UserError(f"{path}: {size / 1048576:.2f} MB is over the {limit / 1048576:.3g} MB mesh limit")
+        try:
+            meshcheck.check_npz(path, limit)
+        except meshcheck.MeshCheckError as e:
+            raise UserError(f"{path}: {e}") from None
         try:
             with np.load(path, allow_pickle=False) as z:
                 missing = [k for k in ("positions", "links") if k not in z.files]
@@ -140,7 +172,7 @@ def load_graph(path, *, kind: str = "auto", reorder: str | None = None) -> tuple
             raise
         except FileNotFoundError:
             raise UserError(f"{path}: file not found") from None
-        except (OSError, ValueError, EOFError) as e:
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:
             raise UserError(f"{path}: not a readable .npz file ({type(e).__name__})") from None
         pos, links, fixed = check_graph(pos, links, fixed, str(path))
         if reorder:

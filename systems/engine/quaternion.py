@@ -12,11 +12,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
 
-def mul(a, b) -> np.ndarray:
+def mul(a: ArrayLike, b: ArrayLike) -> np.ndarray:
     """The Hamilton product a * b (thesis 3.3.5); as rotations: apply b, then a."""
     w1, x1, y1, z1 = float(a[0]), float(a[1]), float(a[2]), float(a[3])
     w2, x2, y2, z2 = float(b[0]), float(b[1]), float(b[2]), float(b[3])
@@ -30,16 +31,16 @@ def mul(a, b) -> np.ndarray:
     )
 
 
-def conjugate(q) -> np.ndarray:
+def conjugate(q: ArrayLike) -> np.ndarray:
     """(s, -v): the inverse rotation for a unit quaternion."""
     return np.array([q[0], -q[1], -q[2], -q[3]], dtype=np.float64)
 
 
-def norm(q) -> float:
+def norm(q: ArrayLike) -> float:
     return math.sqrt(float(q[0]) ** 2 + float(q[1]) ** 2 + float(q[2]) ** 2 + float(q[3]) ** 2)
 
 
-def normalize(q) -> np.ndarray:
+def normalize(q: ArrayLike) -> np.ndarray:
     """q / |q|, with the sign fixed so that w >= 0 (q and -q are the same rotation)."""
     w, x, y, z = float(q[0]), float(q[1]), float(q[2]), float(q[3])
     n = math.sqrt(w * w + x * x + y * y + z * z)
@@ -53,7 +54,7 @@ def normalize(q) -> np.ndarray:
     return np.array([w / n, x / n, y / n, z / n])
 
 
-def from_axis_angle(axis, angle_rad: float) -> np.ndarray:
+def from_axis_angle(axis: ArrayLike, angle_rad: float) -> np.ndarray:
     """Eq. 3.1: rotation by `angle_rad` about `axis` (any non-zero length)."""
     u = np.asarray(axis, dtype=np.float64)
     n = float(np.linalg.norm(u))
@@ -65,7 +66,7 @@ def from_axis_angle(axis, angle_rad: float) -> np.ndarray:
     return np.array([math.cos(h), u[0] * s, u[1] * s, u[2] * s])
 
 
-def to_axis_angle(q) -> tuple[np.ndarray, float]:
+def to_axis_angle(q: ArrayLike) -> tuple[np.ndarray, float]:
     """(unit axis, angle in radians in [0, pi]); the axis is +Z for the identity."""
     q = normalize(q)
     s = math.sqrt(max(0.0, 1.0 - q[0] * q[0]))
@@ -75,7 +76,7 @@ def to_axis_angle(q) -> tuple[np.ndarray, float]:
     return np.asarray(q[1:]) / s, angle
 
 
-def concat(*qs) -> np.ndarray:
+def concat(*qs: ArrayLike) -> np.ndarray:
     """mul(qs[-1], ... mul(qs[1], qs[0])): qs[0] applied first; renormalised."""
     out = np.asarray(qs[0], dtype=np.float64)
     for q in qs[1:]:
@@ -83,7 +84,7 @@ def concat(*qs) -> np.ndarray:
     return normalize(out)
 
 
-def rotate(q, v) -> np.ndarray:
+def rotate(q: ArrayLike, v: ArrayLike) -> np.ndarray:
     """Rotate vector(s) v, shape (3,) or (N, 3), by the unit quaternion q (q v q*)."""
     v = np.asarray(v, dtype=np.float64)
     w = float(q[0])
@@ -93,7 +94,7 @@ def rotate(q, v) -> np.ndarray:
     return v + w * t + np.cross(u, t)
 
 
-def to_matrix(q) -> np.ndarray:
+def to_matrix(q: ArrayLike) -> np.ndarray:
     """3 x 3 rotation matrix (column vectors) of a unit quaternion."""
     w, x, y, z = (float(c) for c in q)
     return np.array(
@@ -105,7 +106,7 @@ def to_matrix(q) -> np.ndarray:
     )
 
 
-def from_matrix(m) -> np.ndarray:
+def from_matrix(m: ArrayLike) -> np.ndarray:
     """Unit quaternion of a 3 x 3 rotation matrix (Shepperd's method: stable for every angle)."""
     m = np.asarray(m, dtype=np.float64)
     tr = m[0, 0] + m[1, 1] + m[2, 2]
@@ -124,7 +125,7 @@ def from_matrix(m) -> np.ndarray:
     return normalize(q)
 
 
-def look_rotation(forward, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+def look_rotation(forward: ArrayLike, up: ArrayLike = (0.0, 0.0, 1.0)) -> np.ndarray:
     """Rotation taking local +Z to `forward` and local +Y as close to `up` as possible."""
     f = np.asarray(forward, dtype=np.float64)
     f = f / np.linalg.norm(f)

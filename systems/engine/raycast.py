@@ -7,6 +7,7 @@ system (chainsim.systems.picking) runs it on the meshes the renderer draws.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 from trimesh.triangles import closest_point
 
 EPS = 1e-12
@@ -15,7 +16,7 @@ EPS = 1e-12
 # -- geometry ------------------------------------------------------------------------------------
 
 
-def ray_triangles(origin, direction, v0, v1, v2) -> np.ndarray:
+def ray_triangles(origin: ArrayLike, direction: ArrayLike, v0: ArrayLike, v1: ArrayLike, v2: ArrayLike) -> np.ndarray:
     """Distance along the ray to each triangle (inf where missed); triangles given as (F, 3) corners."""
     o = np.asarray(origin, float)
     d = np.asarray(direction, float)
@@ -35,7 +36,9 @@ def ray_triangles(origin, direction, v0, v1, v2) -> np.ndarray:
     return np.where(hit, t, np.inf)
 
 
-def ray_mesh(origin, direction, vertices: np.ndarray, triangles: np.ndarray, chunk: int = 200_000):
+def ray_mesh(
+    origin: ArrayLike, direction: ArrayLike, vertices: np.ndarray, triangles: np.ndarray, chunk: int = 200_000
+) -> tuple[int, float] | None:
     """(triangle, distance) of the nearest hit, or None."""
     if len(triangles) == 0:
         return None
@@ -49,7 +52,7 @@ def ray_mesh(origin, direction, vertices: np.ndarray, triangles: np.ndarray, chu
     return None if best_i < 0 else (best_i, best_t)
 
 
-def closest_on_mesh(vertices: np.ndarray, triangles: np.ndarray, point) -> tuple[int, np.ndarray]:
+def closest_on_mesh(vertices: np.ndarray, triangles: np.ndarray, point: ArrayLike) -> tuple[int, np.ndarray]:
     """(triangle, point) on the mesh surface nearest to `point`."""
 
     p = np.asarray(point, float)

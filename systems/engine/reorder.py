@@ -82,7 +82,7 @@ def permute_links(links: np.ndarray, inv: np.ndarray) -> np.ndarray:
     return meshgen.unique_links(inv[np.asarray(links, dtype=np.int64)])
 
 
-def permute_mesh(mesh, perm: np.ndarray):
+def permute_mesh(mesh: MeshData, perm: np.ndarray) -> MeshData:
     """MeshData renumbered by `perm` (new-to-old)."""
 
     perm = np.asarray(perm, dtype=np.int64)
@@ -98,7 +98,7 @@ def permute_mesh(mesh, perm: np.ndarray):
     )
 
 
-def reorder_mesh(mesh, method: str = "rcm"):
+def reorder_mesh(mesh: MeshData, method: str = "rcm") -> MeshData:
     """A copy of `mesh` with vertices renumbered for locality (see module docstring)."""
     if method not in METHODS:
         raise ValueError(f"reorder method must be one of {', '.join(METHODS)}, got {method!r}")

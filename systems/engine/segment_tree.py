@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
+from numpy.typing import ArrayLike
 
 CHUNK = 16
 GROUP = 16
@@ -149,7 +150,7 @@ class SegmentTree:
             group_hi[g] = chunk_hi[g * GROUP : (g + 1) * GROUP].max(0)
         return cls(v0, e1, e2, chunk_lo, chunk_hi, group_lo, group_hi, order.astype(np.int64))
 
-    def first_hit(self, p0, p1) -> tuple[float, int]:
+    def first_hit(self, p0: ArrayLike, p1: ArrayLike) -> tuple[float, int]:
         """(t in [0, 1], original triangle index) of the first hit along p0 -> p1, or (inf, -1)."""
         if len(self.v0) == 0:
             return np.inf, -1

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import trimesh
+from numpy.typing import ArrayLike
 
 from chainsim.engine import meshgen
 from chainsim.engine.meshes import MeshData, boundary_triangles
@@ -23,7 +24,7 @@ class TetraError(ValueError):
     """A surface that cannot be filled (open, empty, or too fine for the requested pitch)."""
 
 
-def tet_block(shape: tuple[int, int, int], spacing: float = 1.0, origin=(0.0, 0.0, 0.0)):
+def tet_block(shape: tuple[int, int, int], spacing: float = 1.0, origin: ArrayLike = (0.0, 0.0, 0.0)) -> MeshData:
     """Structured block of nx*ny*nz elements as a MeshData (tets + outward boundary triangles)."""
 
     pos, tets, _ = meshgen.tet_grid(*shape, spacing=spacing)
@@ -32,8 +33,12 @@ def tet_block(shape: tuple[int, int, int], spacing: float = 1.0, origin=(0.0, 0.
 
 
 def tetrahedralize(
-    mesh, pitch: float | None = None, cells: int = DEFAULT_CELLS, snap: bool = True, max_elements: int = 2_000_000
-):
+    mesh: MeshData,
+    pitch: float | None = None,
+    cells: int = DEFAULT_CELLS,
+    snap: bool = True,
+    max_elements: int = 2_000_000,
+) -> MeshData:
     """Fill a closed triangle surface (MeshData) with a structured tet grid; returns a MeshData.
 
     pitch: cube size in mesh units (default: longest side / `cells`). snap: move grid nodes that lie

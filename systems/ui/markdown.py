@@ -248,9 +248,11 @@ def _table(block: Block, width: float, measure: Measure, line_h: float, pad: flo
     ncol = max(len(r) for r in rows)
     rows = [r + [[] for _ in range(ncol - len(r))] for r in rows]
     natural = [0.0] * ncol
-    for r in rows:
+    for k, r in enumerate(rows):
         for c, cell in enumerate(r):
-            natural[c] = max(natural[c], sum(measure(sp.text, sp.style) for sp in cell) + 2 * pad)
+            # the header row is drawn bold (wider): measure it so, or a short header is cut mid-word
+            styles = ["bold" if k == 0 and sp.style == "body" else sp.style for sp in cell]
+            natural[c] = max(natural[c], sum(measure(sp.text, st) for sp, st in zip(cell, styles)) + 2 * pad)
     widths = list(natural)
     if sum(widths) > width:
         # water-filling: columns narrower than a fair share keep their width, the rest share what is left

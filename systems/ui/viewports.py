@@ -173,6 +173,7 @@ class OrbitCamera(Camera):
 
     def zoom(self, steps: float, factor: float = 0.9) -> None:
         """Scroll up (positive) moves the eye closer."""
+        steps = float(np.clip(steps, -1000.0, 1000.0))  # beyond this the clip below decides anyway; no overflow
         self.distance = float(np.clip(self.distance * factor**steps, max(self.near * 2, 1e-3), self.far * 0.9))
         self.update_eye()
 
@@ -207,3 +208,37 @@ def attached_camera(position, rotation, scale: float, offset, fov: float, near: 
     fwd = r @ np.array([0.0, 0.0, 1.0])
     up = r @ np.array([0.0, 1.0, 0.0])
     return Camera(eye=eye, target=eye + fwd, up=up, fov=fov, near=near, far=far)
+
+
+def carm_source_direction(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
+    """Unit vector from the C-arm's isocentre to its X-ray source.
+
+    The source's azimuth is measured in the axial plane from the subject's right (+X) toward the face
+    (+Y): 0 puts the source on the right (a lateral view, the beam running right to left), 90 in front
+    of the face, 180 on the left. Its elevation is the angle below the axial plane: positive puts the
+    source under the chin, so the beam runs upward (caudocranial), as in the submental view."""
+    a, b = math.radians(azimuth_deg), math.radians(elevation_deg)
+    return np.array([math.cos(b) * math.cos(a), math.cos(b) * math.sin(a), -math.sin(b)])
+
+
+def carm_camera(
+    azimuth_deg: float,
+    elevation_deg: float,
+    iso,
+    source_to_iso_mm: float,
+    source_to_detector_mm: float,
+    detector_mm: float,
+) -> Camera:
+    """The perspective camera of a C-arm: the eye at the X-ray source, looking through the isocentre
+    at a round detector `detector_mm` across, `source_to_detector_mm` from the source (the view's
+    field of view is the cone the detector subtends). The image's up is the direction in which the
+    source would rise with the elevation, so it turns smoothly with the arm (the vertex is up in a
+    lateral view, the face in a submental one)."""
+    s = carm_source_direction(azimuth_deg, elevation_deg)
+    a, b = math.radians(azimuth_deg), math.radians(elevation_deg)
+    up = np.array([math.sin(b) * math.cos(a), math.sin(b) * math.sin(a), math.cos(b)])
+    iso = np.asarray(iso, float)
+    eye = iso + source_to_iso_mm * s
+    fov = 2.0 * math.degrees(math.atan(0.5 * detector_mm / source_to_detector_mm))
+    near = max(source_to_iso_mm - 250.0, 10.0)  # the head lies within 250 mm of the isocentre
+    return Camera(eye=eye, target=iso, up=up, fov=fov, near=near, far=source_to_detector_mm + 50.0)

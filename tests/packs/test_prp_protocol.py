@@ -41,8 +41,11 @@ script = "scripts/skull-hit.toml"
 """,
     )
     db = tmp_path / "study.sqlite3"
-    code, out, err = cli("protocol", proto, "--db", db, "--class", "s1", "--trainee", "bot", "--out", tmp_path / "o")
+    code, out, err = cli(
+        "protocol", proto, "--scripted", "--db", db, "--class", "s1", "--trainee", "bot", "--out", tmp_path / "o"
+    )
     assert code == 0, err
+    assert "SCRIPTED" in out and "SCRIPTED" in err  # a smoke test says what it is
     assert "Location" in out and "Rotation and insertion" in out
     assert "3.2" in out and "44.0" in out  # the thesis's values beside ours
     assert "[3/3]" in err  # progress on stderr
@@ -60,6 +63,10 @@ script = "scripts/skull-hit.toml"
     assert rows[0]["aids"]["reference_planes"] is True and rows[2]["aids"]["reference_planes"] is False
     assert rows[2]["target"] == "skull"
     assert rows[0]["details"]["protocol"]["condition"] == "reference_planes"
+    assert rows[0]["details"]["protocol"]["scripted"] is True
+    # scripted attempts never count as a participant's in the study's summary
+    code, _, err = cli("protocol", proto, "--summary", "--db", db, "--class", "s1")
+    assert code == 2 and "no attempts of study" in err
 
 
 @pytest.mark.parametrize(
@@ -74,7 +81,8 @@ script = "scripts/skull-hit.toml"
             "'task' must be one of",
         ),
         (
-            'format = 1\npack = "prp"\n[[trial]]\ntask = "location"\ncondition = "x"\nscript = "a.toml"\n[trial.aids]\nxray = true\n',
+            'format = 1\npack = "prp"\n[[trial]]\ntask = "location"\ncondition = "x"\nscript = "a.toml"\n'
+            "[trial.aids]\nxray = true\n",
             "unknown aid 'xray'",
         ),
         (
@@ -91,7 +99,7 @@ script = "scripts/skull-hit.toml"
 )
 def test_bad_protocol_is_one_line_exit_2(cli, tmp_path, body, needle):
     db = tmp_path / "never.sqlite3"
-    code, out, err = cli("protocol", _write(tmp_path, body), "--db", db)
+    code, out, err = cli("protocol", _write(tmp_path, body), "--scripted", "--db", db)
     assert code == 2
     assert needle in err
     assert len(err.strip().splitlines()) == 1
@@ -110,6 +118,6 @@ def test_missing_script_is_refused_before_anything_is_saved(cli, tmp_path):
         'condition = "x"\nscripts = ["scripts/correct.toml", "scripts/nope.toml"]\n',
     )
     db = tmp_path / "never.sqlite3"
-    code, _, err = cli("protocol", proto, "--db", db)
+    code, _, err = cli("protocol", proto, "--scripted", "--db", db)
     assert code == 2 and "nope.toml" in err
     assert not db.exists()

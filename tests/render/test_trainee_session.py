@@ -161,7 +161,7 @@ def test_a_trainee_session_in_the_window(tmp_path):
         s.key(*["Left"] * 16, wait=0.15)
         s.key(*["Up"] * 40, wait=0.15)
         aimed = s.shot("aimed")
-        cx, cy = 768 + 256, int(800 * 0.19)  # centre of the needle-tip view
+        cx, cy = 768 + 128, int(800 * 0.19)  # centre of the needle-tip view (beside the C-arm view)
         cross = aimed[cy - 1 : cy + 2, cx + 6 : cx + 14]
         assert (cross.min(axis=2) > 200).any()  # the white crosshair arm right of the centre
         # attempt 1: in a little, back to the skin, redirect, in to the end, save

@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import http.client
 import json
 import os
 import signal
@@ -15,6 +16,7 @@ import subprocess
 import sys
 import time
 import urllib.error
+import urllib.parse
 import urllib.request
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -103,26 +105,34 @@ def start_server(db: str, log: Path, port: int | None = None) -> Server:
 
 
 def call(server: Server, method: str, path: str, body=None, token: str | None = None, headers=None, raw=None):
-    """(status, decoded JSON or text, headers) of one request; never raises on HTTP errors."""
+    """(status, decoded JSON or text, headers) of one request; never raises on HTTP errors.
+
+    A server may answer (413) before it has read a large body and close the connection: the client's
+    send then fails with a broken pipe, and the answer already sent is read all the same.
+    """
     data = raw if raw is not None else (None if body is None else json.dumps(body).encode())
-    req = urllib.request.Request(server.url + path, data=data, method=method)
+    hdrs = {}
     if data is not None and not any(k.lower() == "content-type" for k in (headers or {})):
-        req.add_header("Content-Type", "application/json")
+        hdrs["Content-Type"] = "application/json"
     if token:
-        req.add_header("Authorization", f"Bearer {token}")
-    for k, v in (headers or {}).items():
-        req.add_header(k, v)
-    opener = urllib.request.build_opener(NoRedirect)
+        hdrs["Authorization"] = f"Bearer {token}"
+    hdrs.update(headers or {})
+    url = urllib.parse.urlsplit(server.url)
+    conn = http.client.HTTPConnection(url.hostname, url.port, timeout=30)
     try:
-        with opener.open(req, timeout=30) as resp:
-            status, text, hdrs = resp.status, resp.read(), resp.headers
-    except urllib.error.HTTPError as exc:
-        status, text, hdrs = exc.code, exc.read(), exc.headers
+        try:
+            conn.request(method, path, body=data, headers=hdrs)
+        except (BrokenPipeError, ConnectionResetError):
+            pass
+        resp = conn.getresponse()
+        status, text, rhdrs = resp.status, resp.read(), resp.headers
+    finally:
+        conn.close()
     try:
         decoded = json.loads(text) if text else None
     except ValueError:
         decoded = text.decode("utf-8", "replace")
-    return status, decoded, hdrs
+    return status, decoded, rhdrs
 
 
 class NoRedirect(urllib.request.HTTPRedirectHandler):

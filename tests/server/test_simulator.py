@@ -138,3 +138,24 @@ def test_command_line_run_login_and_sync(site, tmp_path):
     assert r.returncode == 0 and "sent 0 attempt(s); 0 waiting" in r.stdout
     r = chainsim("run", "prp", "--steps", "1", "--records", "ftp://nowhere", "--db", local)
     assert r.returncode == 2 and "http://127.0.0.1:8000" in r.stderr
+
+
+def test_the_window_sign_in_asks_for_the_password_once_and_keeps_the_token(site, tmp_path):
+    from chainsim.game.ui.signin import SignInForm
+    from chainsim.game.ui.window import server_login
+
+    local = str(tmp_path / "local.sqlite3")
+    values = {"db": local, "records": site.url}
+    login = server_login(values)
+    assert login is not None  # no token yet: the form has a password field
+    form = SignInForm({"class": "c1", "trainee": "alice"}, local, login=login)
+    form.focus = "password"
+    form.text("xyzzy-guess")
+    form.key("return")
+    assert not form.done and "refused" in form.error and form.values["password"] == ""
+    assert "xyzzy" not in form.markdown()
+    form.text(PASSWORD)
+    assert PASSWORD not in form.markdown() and "*" * len(PASSWORD) in form.markdown()
+    form.key("return")
+    assert form.done and form.values["password"] == ""
+    assert server_login(values) is None  # signed in: the next start asks only who is training

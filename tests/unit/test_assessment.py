@@ -134,10 +134,10 @@ def test_a_failing_save_shows_the_error_and_the_session_goes_on(pack_dir, tmp_pa
     from chainsim.components.hud import HudState
 
     bad = tmp_path / "not-a-db"
-    bad.write_text("hello, this is not sqlite")
     r = Run(pack_dir, settings={"db": str(bad)})
     try:
         _full_attempt(r)
+        bad.write_text("hello, this is not sqlite")  # the file went bad during the session
         r.send(Widget("save"))
         msgs = [m for m, _ in r.app.resource(HudState).messages]
         assert any(m.startswith("Not saved:") and "not an SQLite database" in m for m in msgs)

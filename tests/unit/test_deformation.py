@@ -291,7 +291,8 @@ start = 0.05
         ('[entities.body.mesh]\nmesh = "sheet"\n[entities.body.deformable]\nfixed = [5000]\n', "fixed"),
         ("[entities.body.deformable]\n", "mesh"),
         (
-            '[entities.body.mesh]\nmesh = "sheet"\n[entities.body.deformable]\n[entities.body.pull]\npath = [1.0, 2.0]\n',
+            '[entities.body.mesh]\nmesh = "sheet"\n[entities.body.deformable]\n[entities.body.pull]\npath = [1.0, '
+            "2.0]\n",
             "path",
         ),
     ],

@@ -20,7 +20,7 @@ from chainsim.engine.tetra import TetraError, tetrahedralize
 
 
 def _links_set(links):
-    return {tuple(sorted(l)) for l in np.asarray(links).tolist()}
+    return {tuple(sorted(lk)) for lk in np.asarray(links).tolist()}
 
 
 def test_surface_duplicates_are_merged_and_edges_become_links(tmp_path):
@@ -102,8 +102,8 @@ def test_reordering_keeps_the_mesh_and_restores_locality(method):
 
     # same shape: link lengths and tetrahedron volumes survive the renumbering
     def lengths(m):
-        l = m.edge_links()
-        return np.sort(np.linalg.norm(m.vertices[l[:, 0]] - m.vertices[l[:, 1]], axis=1))
+        lk = m.edge_links()
+        return np.sort(np.linalg.norm(m.vertices[lk[:, 0]] - m.vertices[lk[:, 1]], axis=1))
 
     np.testing.assert_allclose(lengths(out), lengths(MeshData(pos, np.zeros((0, 3), np.int64), tets)))
     assert sorted(map(tuple, out.vertices.tolist())) == sorted(map(tuple, pos.tolist()))

@@ -69,6 +69,11 @@ def make_synthetic_pack(root: Path) -> Path:
         _boxes([((c[0] - hx, -hy, z0), (c[0] + hx, hy, z1))]).export(root / "meshes" / f"foramen_ovale_{side}.ply")
     skin = trimesh.creation.icosphere(subdivisions=4, radius=SKIN_R)
     skin.export(root / "meshes" / "skin.ply")
+    # the painted eyes and lips: small flat patches just in front of the sphere (drawn, never picked)
+    for k, name in enumerate(("eyes", "irises", "pupils", "lips", "lip_line")):
+        _boxes([((-10 + 4 * k, SKIN_R + 0.2, -1), (-8 + 4 * k, SKIN_R + 0.3, 1))]).export(
+            root / "meshes" / f"{name}.ply"
+        )
     lines = []
     for side, sx in (("left", 1.0), ("right", -1.0)):
         lines += [

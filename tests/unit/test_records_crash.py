@@ -32,6 +32,7 @@ CHILD = textwrap.dedent(
         return {"pack": "prp", "created_at": f"2026-04-0{i + 1}T08:00:00Z", "duration_s": 10.0 + i,
                 "landmark_error_mm": 3.0 + i, "needle_error_mm": None if i == 1 else 2.0 * i,
                 "target": "skull", "skull_contacts": i, "path_length_mm": 40.0 + i,
+                "xray_shots": i, "exposure_s": 0.3 * i, "dose_mgy": 0.06 * i,
                 "aids": {"tip_view": i % 2 == 0}, "step_times": {"insert": 5.0 + i}, "details": {"i": i}}
 
     store = RecordStore(sys.argv[1])
@@ -52,7 +53,11 @@ CHILD = textwrap.dedent(
                 sys.stdin.readline()
             return self.conn.execute(sql, *params)
 
-    store._conn = FreezeBeforeCommit(store._conn)
+    if store._conn is not None:
+        store._conn = FreezeBeforeCommit(store._conn)
+    else:  # a new database file is made by the first write
+        open_file = store._open_file
+        store._open_file = lambda: FreezeBeforeCommit(open_file())
     # A new class and trainee as well, so a half-done save would also leave them behind.
     store.save_attempt(sys.argv[3], "bob", attempt(8))
     print("SAVE-RETURNED", flush=True)
@@ -73,6 +78,9 @@ def expected(i: int) -> dict:
         "skull_contacts": i,
         "path_length_mm": 40.0 + i,
         "redirections": 0,
+        "xray_shots": i,
+        "exposure_s": 0.3 * i,
+        "dose_mgy": 0.06 * i,
         "aids": {k: k == "tip_view" and i % 2 == 0 for k in AIDS},
         "step_times": {"insert": 5.0 + i},
         "details": {"i": i},

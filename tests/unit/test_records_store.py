@@ -283,6 +283,9 @@ def test_env_var_overrides_default(tmp_path, monkeypatch):
 def test_database_uses_wal(tmp_path):
     with RecordStore(tmp_path / "r.sqlite3"):
         pass
+    assert not (tmp_path / "r.sqlite3").exists()  # made by the first write, not by opening
+    with RecordStore(tmp_path / "r.sqlite3") as s:
+        s.add_class("c1")
     conn = sqlite3.connect(tmp_path / "r.sqlite3")
     assert conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     conn.close()
@@ -320,7 +323,7 @@ def test_v1_database_is_migrated_in_place_with_rows_intact(tmp_path):
     path = tmp_path / "old.sqlite3"
     make_v1(path)
     with RecordStore(path) as s:
-        assert s.schema_version == SCHEMA_VERSION == 4
+        assert s.schema_version == SCHEMA_VERSION == 5
         rows = s.list_attempts()
         assert [r["created_at"] for r in rows] == [f"2025-01-0{i + 1}T10:00:00Z" for i in range(3)]
         assert [r["needle_error_mm"] for r in rows] == [None, 7.0, 6.0]
@@ -362,6 +365,67 @@ def test_v2_database_keeps_its_rows_and_gains_redirections(tmp_path):
     after = [tuple(r)[: len(before[0])] for r in conn.execute("SELECT * FROM attempts WHERE id <= 3 ORDER BY id")]
     conn.close()
     assert after == before
+
+
+def test_v4_database_keeps_its_rows_and_gains_xray_costs_and_questionnaires(tmp_path):
+    """Version 5 adds the X-ray each attempt cost and the study questionnaires; rows saved before it keep
+    every field and read as attempts without X-ray."""
+    from chainsim.game.records.schema import V2_DDL, V3_DDL, V4_DDL
+
+    path = tmp_path / "v4.sqlite3"
+    make_v1(path)
+    conn = sqlite3.connect(path)
+    for stmt in V2_DDL + V3_DDL + V4_DDL:
+        conn.execute(stmt)
+    conn.execute("UPDATE attempts SET redirections = 2 WHERE id = 3")
+    conn.execute("PRAGMA user_version = 4")
+    conn.commit()
+    before = [tuple(r) for r in conn.execute("SELECT * FROM attempts ORDER BY id")]
+    conn.close()
+    with RecordStore(path) as s:
+        assert s.schema_version == 5
+        rows = s.list_attempts()
+        assert [(r["xray_shots"], r["exposure_s"], r["dose_mgy"]) for r in rows] == [(0, 0.0, 0.0)] * 3
+        assert [r["redirections"] for r in rows] == [0, 0, 2]
+        new = s.save_attempt("c1", "alice", {**sample_attempt(), "xray_shots": 4, "exposure_s": 3.2, "dose_mgy": 0.64})
+        got = s.get_attempt(new)
+        assert (got["xray_shots"], got["exposure_s"], got["dose_mgy"]) == (4, 3.2, 0.64)
+        qid = s.save_questionnaire("c1", "alice", "post", "s1", {"local_viewer": 9, "remarks": "fine"})
+        assert s.list_questionnaires("c1")[0]["id"] == qid
+        assert s.list_questionnaires("c1")[0]["answers"] == {"local_viewer": 9, "remarks": "fine"}
+    conn = sqlite3.connect(path)
+    after = [tuple(r)[: len(before[0])] for r in conn.execute("SELECT * FROM attempts WHERE id <= 3 ORDER BY id")]
+    conn.close()
+    assert after == before
+
+
+@pytest.mark.parametrize(
+    "field,value,needle",
+    [
+        ("xray_shots", -1, "'xray_shots' is -1"),
+        ("xray_shots", 1.5, "'xray_shots' must be a whole number"),
+        ("exposure_s", float("nan"), "'exposure_s' is nan"),
+        ("dose_mgy", -0.1, "'dose_mgy' is -0.1"),
+    ],
+)
+def test_bad_xray_fields_are_refused_with_one_line(tmp_path, field, value, needle):
+    with RecordStore(tmp_path / "r.sqlite3") as s:
+        with pytest.raises(UserError, match=needle):
+            s.save_attempt("c1", "alice", {**sample_attempt(), field: value})
+        assert s.list_classes() == []
+
+
+def test_questionnaires_refuse_bad_kinds_and_answers(tmp_path):
+    with RecordStore(tmp_path / "r.sqlite3") as s:
+        with pytest.raises(UserError, match="questionnaire kind is 'during'"):
+            s.save_questionnaire("c1", "alice", "during", "s1", {})
+        with pytest.raises(UserError, match="answer 'q1' holds list"):
+            s.save_questionnaire("c1", "alice", "pre", "s1", {"q1": [1, 2]})
+        with pytest.raises(UserError, match="'answers.q1' is inf"):
+            s.save_questionnaire("c1", "alice", "pre", "s1", {"q1": float("inf")})
+        with pytest.raises(UserError, match="answer 'q1' must be printable text"):
+            s.save_questionnaire("c1", "alice", "pre", "s1", {"q1": "ok\x1b[2J"})
+        assert s.list_classes() == []
 
 
 def test_reopening_current_database_is_a_no_op(tmp_path):

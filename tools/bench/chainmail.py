@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 
+from chainsim.engine import argtypes, limits
 from chainsim.engine.chainmail_params import ORDER_CHOICES
 from chainsim.tools.bench import run as impl
 
@@ -24,9 +25,15 @@ HELP = "ChainMail speed: thesis 6.2 grids and worst case, scaling to 1M elements
 def add_arguments(p) -> None:
     p.add_argument("--quick", action="store_true", help="a fast subset (smaller meshes, fewer repeats)")
     p.add_argument("--out", default="runs/bench-chainmail", metavar="DIR", help="folder for results.md/.json/.png")
-    p.add_argument("--repeat", type=int, default=0, metavar="R", help="timed repeats per case (default: by size)")
     p.add_argument(
-        "--max-elements", type=float, default=0, metavar="N", help="largest scaling mesh (default 1e6, quick 1e5)"
+        "--repeat", type=argtypes.repeat, default=0, metavar="R", help="timed repeats per case (default: by size)"
+    )
+    p.add_argument(
+        "--max-elements",
+        type=argtypes.real(1000.0, float(limits.MAX_BENCH_ELEMENTS)),
+        default=0,
+        metavar="N",
+        help="largest scaling mesh (default 1e6, quick 1e5)",
     )
     p.add_argument(
         "--parts",
@@ -34,12 +41,22 @@ def add_arguments(p) -> None:
         help="comma-separated parts to run: thesis, worst, scaling, exact",
     )
     p.add_argument("--mesh", metavar="MESH", help="time one cascade on this mesh (.npz graph or mesh file)")
-    p.add_argument("--grab", type=int, metavar="I", help="(--mesh) element to move")
-    p.add_argument("--to", type=float, nargs="+", metavar="X", help="(--mesh) target coordinates")
-    p.add_argument("--alpha-min", type=float, default=1.0, metavar="A", help="(--mesh) compression limit (default 1)")
-    p.add_argument("--alpha-max", type=float, default=1.0, metavar="B", help="(--mesh) stretch limit (default 1)")
-    p.add_argument("--beta", type=float, default=0.0, metavar="C", help="(--mesh) shear limit (default 0)")
-    p.add_argument("--relax", type=int, default=0, metavar="N", help="(--mesh) relaxation sweeps after the cascade")
+    p.add_argument("--grab", type=argtypes.element, metavar="I", help="(--mesh) element to move")
+    p.add_argument("--to", type=argtypes.coordinate, nargs="+", metavar="X", help="(--mesh) target coordinates")
+    p.add_argument(
+        "--alpha-min",
+        type=argtypes.real(0.0, 1.0),
+        default=1.0,
+        metavar="A",
+        help="(--mesh) compression limit (default 1)",
+    )
+    p.add_argument(
+        "--alpha-max", type=argtypes.real(1.0), default=1.0, metavar="B", help="(--mesh) stretch limit (default 1)"
+    )
+    p.add_argument("--beta", type=argtypes.real(0.0), default=0.0, metavar="C", help="(--mesh) shear limit (default 0)")
+    p.add_argument(
+        "--relax", type=argtypes.relax, default=0, metavar="N", help="(--mesh) relaxation sweeps after the cascade"
+    )
     p.add_argument(
         "--order",
         choices=ORDER_CHOICES,

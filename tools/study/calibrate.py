@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numba
 import numpy as np
+import tomli_w
 from scipy.optimize import minimize
 
 from chainsim.assets import ASSETS_DIR
@@ -124,14 +125,6 @@ def load_presets(path: str | os.PathLike | None = None) -> dict:
         raise UserError(f"{p}: not valid TOML ({e})") from None
 
 
-def _toml_value(v):
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (int, float)):
-        return repr(v)
-    return '"' + str(v).replace("\\", "\\\\").replace('"', '\\"') + '"'
-
-
 def write_preset(name: str, preset: dict, path: str | os.PathLike | None = None) -> Path:
     """Add or replace table [name] in the presets file, keeping every other preset."""
     if not name or not all(ch.isalnum() or ch in "-_" for ch in name):
@@ -148,15 +141,11 @@ def write_preset(name: str, preset: dict, path: str | os.PathLike | None = None)
         "# the fit's source; nu, E and strain record what it was fitted for.",
         "",
     ]
-    for key in sorted(presets):
-        lines.append(f"[{key}]")
-        for k, v in presets[key].items():
-            lines.append(f"{k} = {_toml_value(v)}")
-        lines.append("")
+    text = "\n".join(lines) + "\n" + tomli_w.dumps({key: presets[key] for key in sorted(presets)})
     try:
         p.parent.mkdir(parents=True, exist_ok=True)
         tmp = p.with_suffix(p.suffix + ".tmp")
-        tmp.write_text("\n".join(lines), encoding="utf-8")
+        tmp.write_text(text, encoding="utf-8")
         os.replace(tmp, p)
     except OSError as e:
         raise UserError(f"--out {p}: cannot write ({e.strerror})") from None

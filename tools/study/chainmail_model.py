@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from chainsim.engine.kernels.chainmail import ORDER_BALANCED, ORDER_FIFO, cascade, make_workspace, material_arrays
+from chainsim.engine.bodies.chainmail import ChainMailBody
+from chainsim.engine.kernels.chainmail import make_workspace, material_arrays
 from chainsim.engine.kernels.graph import build_graph
-from chainsim.engine.kernels.relax import relax
 
 
 @dataclass
@@ -36,7 +36,7 @@ class ChainMailModel:
         if fixed_ids is not None and len(fixed_ids):
             self.fixed = np.zeros(self.n, np.bool_)
             self.fixed[np.asarray(fixed_ids, dtype=np.int64)] = True
-        self.order = {"fifo": ORDER_FIFO, "balanced": ORDER_BALANCED}[order]
+        self.order_name = order
         self._mat_key = None
 
     def _materials(self, p: ChainMailParams):
@@ -56,30 +56,23 @@ class ChainMailModel:
         amin, amax, beta = self._materials(params)
         grabbed = np.ascontiguousarray(grabbed, dtype=np.int64)
         targets = np.ascontiguousarray(self.rest[grabbed] + np.asarray(disp).reshape(-1, 3))
-        pos = self.rest.copy()
-        t0 = time.thread_time()
-        order, _ = cascade(
+        body = ChainMailBody(
             self.rest,
-            pos,
             self.graph,
             amin,
             amax,
             beta,
-            grabbed,
-            targets,
+            relax=int(params.relax_iterations),
+            order=self.order_name,
             fixed=self.fixed,
-            order=self.order,
-            workspace=self.ws,
-            copy=False,
         )
-        t1 = time.thread_time()
-        moved = len(order)
-        if params.relax_iterations > 0 and moved > len(grabbed):
-            active = np.asarray(order[len(grabbed) :], dtype=np.int64)
-            if self.fixed is not None:
-                active = active[~self.fixed[active]]
-            relax(self.rest, pos, self.graph, active, int(params.relax_iterations), 1.0, fixed=self.fixed)
+        body.workspace = self.ws
+        t0 = time.thread_time()
+        body.move(grabbed, targets, hold=False)
         t2 = time.thread_time()
+        moved = len(body.last_order)
+        t1 = t0 + body.stats.extra.get("t_cascade", t2 - t0)
+        pos = body.positions
         u = pos - self.rest
         if not np.all(np.isfinite(u)):
             raise FloatingPointError("ChainMail produced non-finite positions")

@@ -11,7 +11,7 @@ report names the reference used in every row.
 
 from __future__ import annotations
 
-import sys
+import logging
 import time
 import warnings
 
@@ -24,8 +24,11 @@ from . import scenes as sc
 from .chainmail_model import ChainMailModel, ChainMailParams
 from .fem_linear import LinearFEM, LockingWarning
 from .fem_nonlinear import NeoHookeanFEM
+from .live_models import LIVE, baseline_blend, baseline_patch, settle
 from .mass_spring import SYMPLECTIC, MassSpring, integrate
 from .metrics import displacement_error, median_time, realtime_size, volume_change
+
+logger = logging.getLogger(__name__)
 
 E_STUDY, NU_STUDY = 3000.0, 0.45
 STRAINS = [0.01, 0.05, 0.1, 0.25, 0.5]
@@ -35,13 +38,13 @@ RELAX = [0, 4, 16, 64]
 
 # budgets (nodes): above these a solver is not run at that resolution
 LIMITS = {
-    "full": {"nl": 2000, "lin": 12000, "ms": 12000, "ms_explicit": 2000},
-    "quick": {"nl": 1000, "lin": 2500, "ms": 2500, "ms_explicit": 600},
+    "full": {"nl": 2000, "lin": 12000, "ms": 12000, "ms_explicit": 2000, "live": 12000},
+    "quick": {"nl": 1000, "lin": 2500, "ms": 2500, "ms_explicit": 600, "live": 600},
 }
 
 
 def log(msg: str) -> None:
-    print(f"[study {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+    logger.info(f"study {time.strftime('%H:%M:%S')}: {msg}")
 
 
 def default_chainmail_settings():
@@ -215,6 +218,33 @@ def run_scene(name, resolutions, strains, limits, cm_settings, repeats, rows, ti
             {"scene": name, "nodes": n, "model": "ChainMail rigid (worst case)", "seconds": t, "moved": info["moved"]}
         )
         log(f"  ChainMail: {len(cm_settings) * len(RELAX) * len(strains)} runs")
+        # --- baselines and live models (the simulator's XPBD and projective bodies) -----------
+        for s in strains:
+            for label, fn in (
+                ("baseline: grabbed patch only", baseline_patch),
+                ("baseline: distance blend", baseline_blend),
+            ):
+                rows.append(_row(scene, res_n, label, s, fn(scene, s), refs.get(s), ref_name, 0.0, 0, "ok"))
+        if n <= limits.get("live", 0):
+            for label, make in LIVE.items():
+                for s in strains:
+                    u, info = settle(make, scene, s, E_STUDY, NU_STUDY)
+                    rows.append(
+                        _row(
+                            scene,
+                            res_n,
+                            label,
+                            s,
+                            u,
+                            refs.get(s),
+                            ref_name,
+                            info["ms_per_frame"] / 1e3,
+                            info["frames"],
+                            info["status"],
+                            {"frames_to_settle": info["frames"]},
+                        )
+                    )
+                log(f"  {label}: {[r['iterations'] for r in rows[-len(strains) :]]} frames to settle")
         # --- mass-spring -------------------------------------------------------------------
         ms = MassSpring(scene.pos, scene.tets, E_STUDY, fixed=scene.fixed)
         if n <= limits["ms"]:

@@ -13,6 +13,7 @@ HELP = "run a benchmark (chainmail, render, ...)"
 BENCHES = {
     "chainmail": "chainsim.tools.bench.chainmail",
     "render": "chainsim.game.gl.bench",
+    "models": "chainsim.tools.bench.models",
     "records": "chainsim.game.server.bench",
 }
 

@@ -31,13 +31,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from chainsim.engine.chainmail_params import ORDER_CHOICES, ORDERS, check_material, order_code, order_name
+from chainsim.engine import argtypes
+from chainsim.engine.bodies.chainmail import ChainMailBody
+from chainsim.engine.chainmail_params import ORDER_CHOICES, ORDERS, check_material, order_name
 from chainsim.engine.errors import UserError
-from chainsim.engine.kernels.chainmail import cascade, make_workspace, material_arrays
-from chainsim.engine.kernels.exact import ExactResult, exact_limits, violations
+from chainsim.engine.kernels.chainmail import material_arrays
+from chainsim.engine.kernels.exact import ExactResult, violations
 from chainsim.engine.kernels.graph import build_graph
 from chainsim.engine.meshimport import load_graph
-from chainsim.systems.deformation import relax_moved
+from chainsim.game.app.outputs import check_output_file
 
 NAME = "chainmail"
 HELP = "move one element of a mesh with Generalised ChainMail and save the result (.npz)"
@@ -48,15 +50,29 @@ def add_parser(sub):
     p.add_argument(
         "mesh", metavar="MESH", help=".npz with positions/links[/fixed], or a mesh file (.obj .ply .stl .msh .vtu ...)"
     )
-    p.add_argument("--grab", type=int, required=True, metavar="I", help="id of the element to move")
-    p.add_argument("--to", type=float, nargs="+", required=True, metavar="X", help="target position: D coordinates")
-    p.add_argument("--alpha-min", type=float, required=True, metavar="A", help="compression limit in [0, 1]")
-    p.add_argument("--alpha-max", type=float, required=True, metavar="B", help="stretch limit >= 1")
-    p.add_argument("--beta", type=float, required=True, metavar="C", help="shear limit >= 0")
+    p.add_argument("--grab", type=argtypes.element, required=True, metavar="I", help="id of the element to move")
     p.add_argument(
-        "--relax", type=int, default=0, metavar="N", help="relaxation sweeps after the cascade (default 0: raw cascade)"
+        "--to", type=argtypes.coordinate, nargs="+", required=True, metavar="X", help="target position: D coordinates"
     )
-    p.add_argument("--relax-step", type=float, default=1.0, metavar="S", help="relaxation step in (0, 1] (default 1)")
+    p.add_argument(
+        "--alpha-min", type=argtypes.real(0.0, 1.0), required=True, metavar="A", help="compression limit in [0, 1]"
+    )
+    p.add_argument("--alpha-max", type=argtypes.real(1.0), required=True, metavar="B", help="stretch limit >= 1")
+    p.add_argument("--beta", type=argtypes.real(0.0), required=True, metavar="C", help="shear limit >= 0")
+    p.add_argument(
+        "--relax",
+        type=argtypes.relax,
+        default=0,
+        metavar="N",
+        help="relaxation sweeps after the cascade (default 0: raw cascade)",
+    )
+    p.add_argument(
+        "--relax-step",
+        type=argtypes.real(0.0, 1.0, low_open=True),
+        default=1.0,
+        metavar="S",
+        help="relaxation step in (0, 1] (default 1)",
+    )
     p.add_argument(
         "--order",
         choices=ORDER_CHOICES,
@@ -108,9 +124,7 @@ def check_args(args) -> None:
     out = Path(args.out)
     if out.suffix.lower() != ".npz":
         raise UserError(f"--out: must name a .npz file, got {args.out}")
-    parent = out.parent if str(out.parent) else Path(".")
-    if not parent.is_dir():
-        raise UserError(f"--out: folder {parent} does not exist")
+    check_output_file(out, "--out")
 
 
 class Move(NamedTuple):
@@ -143,25 +157,23 @@ def make_body(positions, links, fixed_ids, alpha_min, alpha_max, beta) -> Body:
 
 
 def move(body: Body, grab: int, target, relax_n=0, relax_step=1.0, order="breadth-first", exact=False) -> Move:
-    """Cascade (then relaxation, then the exact pass) from the rest shape."""
-    pos = body.rest.copy()
-    n = len(pos)
-    target = np.asarray(target, dtype=np.float64).reshape(1, -1)
-    grabbed = np.array([grab], dtype=np.int64)
-    ws = make_workspace(n)
-    moved, sponsors = cascade(
-        body.rest, pos, body.graph, *body.mat, grabbed, target, fixed=body.fixed, order=order_code(order), workspace=ws
+    """Cascade (then relaxation, then the exact pass) from the rest shape, through the engine's body."""
+    cm = ChainMailBody(
+        body.rest,
+        body.graph,
+        *body.mat,
+        relax=relax_n,
+        relax_step=relax_step,
+        order=order,
+        exact=exact,
+        fixed=body.fixed,
+        dtype=body.rest.dtype,
     )
-    if relax_n > 0 and len(moved) > 1:
-        pin = np.zeros(n, dtype=np.bool_) if body.fixed is None else body.fixed.copy()
-        pin[grab] = True  # the user holds the grabbed element where it was put
-        relax_moved(body.rest, pos, body.graph, moved, relax_n, step=relax_step, fixed=pin)
-    result = None
-    if exact:
-        result = exact_limits(body.rest, pos, body.graph, *body.mat, moved, grabbed, target, body.fixed, ws)
-    sponsor = np.full(n, -1, dtype=np.int64)
-    sponsor[moved] = sponsors
-    return Move(pos, moved.astype(np.int64), sponsor, result)
+    target = np.asarray(target, dtype=np.float64).reshape(1, -1)
+    cm.move([grab], target, hold=False)
+    sponsor = np.full(cm.n, -1, dtype=np.int64)
+    sponsor[cm.last_order] = cm.last_sponsor
+    return Move(cm.positions, cm.last_order.astype(np.int64), sponsor, cm.last_exact if exact else None)
 
 
 def simulate(

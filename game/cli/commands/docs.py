@@ -1,4 +1,8 @@
-"""`chainsim docs components`: the modder reference, generated from the one registry."""
+"""`chainsim docs components|limits`: the modder reference and the limits, generated from the code.
+
+`components` is every manifest section and component, from the one registry; `limits` is every
+limit on user input, from chainsim.engine.limits (the text of docs/limits.md).
+"""
 
 from __future__ import annotations
 
@@ -6,14 +10,15 @@ import numpy as np
 
 import chainsim.game.packs.schema  # noqa: F401  (importing it registers the manifest sections)
 from chainsim.components.registry import COMPONENTS, KINDS, REQUIRED, SECTION_STYLE, SECTIONS, load_all
+from chainsim.engine import limits
 
 NAME = "docs"
-HELP = "print reference documentation (components: every manifest section and component)"
+HELP = "print reference documentation (components: every manifest key; limits: every input limit)"
 
 
 def add_parser(sub):
     p = sub.add_parser(NAME, help=HELP)
-    p.add_argument("topic", choices=["components"], help="what to print")
+    p.add_argument("topic", choices=["components", "limits"], help="what to print")
     return p
 
 
@@ -74,5 +79,8 @@ def render_reference() -> str:
 
 
 def run(args) -> int:
+    if args.topic == "limits":
+        print(limits.markdown(), end="")
+        return 0
     print(render_reference())
     return 0

@@ -6,7 +6,10 @@ import os
 import sys
 import threading
 
+from chainsim.engine import argtypes, limits
 from chainsim.engine.errors import UserError
+from chainsim.game.app.options import MODEL_FLAG_CHOICES, MODEL_FLAG_HELP, add_records_arguments
+from chainsim.game.app.outputs import check_output_file
 from chainsim.game.packs import pack as packs
 from chainsim.game.records import remote
 from chainsim.game.ui.window import run_window
@@ -21,15 +24,15 @@ def add_parser(sub):
     p.add_argument("--record", metavar="FILE", help="save the session for `chainsim replay`")
     p.add_argument("--input", metavar="SCRIPT", help="play an input script in the window (demonstrations, tests)")
     p.add_argument(
-        "--exit-after", type=float, default=None, metavar="SECONDS", help="close after this much simulated time"
+        "--exit-after",
+        type=argtypes.real(0.0, limits.MAX_TIME),
+        default=None,
+        metavar="SECONDS",
+        help="close after this much simulated time",
     )
     p.add_argument("--screenshot", metavar="PNG", help="save a screenshot of the window when closing")
-    p.add_argument("--db", metavar="PATH", help="trainee records database")
-    p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempts are saved under")
-    p.add_argument("--trainee", metavar="NAME", help="trainee the attempts are saved under")
-    p.add_argument(
-        "--records", metavar="URL", help="save attempts to this records server (queued in --db when offline)"
-    )
+    p.add_argument("--model", choices=MODEL_FLAG_CHOICES, help=MODEL_FLAG_HELP)
+    add_records_arguments(p)
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     return p
 
@@ -48,6 +51,10 @@ def run(args) -> int:
         )
 
     packs.resolve(args.pack, args.pack_path)  # unknown pack: clear error before any window opens
+    if args.record:  # outputs too: a session must not end in an unwritable path
+        check_output_file(args.record, "--record")
+    if args.screenshot:
+        check_output_file(args.screenshot, "--screenshot")
     if args.records:
         remote.server_url(args.records)  # a malformed address is one line now, not a failed save later
         # The queue drains while the window opens; a slow or absent server never delays it.

@@ -1,9 +1,18 @@
-"""`chainsim protocol PROTOCOL.toml`: run a study protocol of scripted trials (thesis 6.1.4) and print Table 6.1.
+"""`chainsim protocol PROTOCOL.toml`: a study after thesis 6.1.4 - with people at the window, or scripted.
 
-A protocol lists trials; each runs one or more input scripts headless with some aids switched on or
-off, saves every attempt to the records store, and the mean error per condition is printed in the
-shape of thesis Table 6.1 (location: landmark error; rotation and insertion: needle error), with the
-thesis's own values beside it. Format:
+With people (`--participant NAME`): the trainer window opens for that participant and runs the
+session of chainsim.game.ui.study - the short pre-session questionnaire, the protocol's trials with
+the aids on and off in an order counterbalanced between participants, the post-session ratings - and
+ends with Table 6.1 over every participant of the study in the records database (also printed here).
+
+`--summary` prints that table and the mean ratings from the records without running anything.
+
+`--scripted` is the smoke test of the harness: each trial's input scripts run headless with its
+aids, every attempt is saved (marked scripted), and the table of this run is printed. Scripted
+attempts do not learn or tire, and aids change what a person sees, not what a script does: the
+numbers measure the scripts, and the output says so.
+
+Format:
 
     format = 1
     pack = "prp"                       # a pack name or folder
@@ -12,49 +21,59 @@ thesis's own values beside it. Format:
     name = "location-planes"
     task = "location"                  # location | insertion
     condition = "reference_planes"     # the table column (reference_planes, without_clues, local_viewer, ...)
-    scripts = ["scripts/correct.toml"] # relative to the protocol file, else to the pack folder
-    repeat = 1                         # runs of each script
-    steps = 1200                       # optional, default: the pack's settings.steps
+    scripts = ["scripts/correct.toml"] # --scripted only: relative to the protocol file, else to the pack
+    repeat = 1                         # cycles with people; runs of each script when scripted
+    steps = 1200                       # --scripted only; default: the pack's settings.steps
     [trial.aids]                       # aids not named are off
     reference_planes = true
 
-Scripted attempts do not learn or tire, and aids change what a person sees, not what a script does:
-the numbers measure the scripts. The protocol is the harness a study with people would use.
+Limits (docs/limits.md): repeat <= MAX_REPEAT, steps <= MAX_STEPS, and at most MAX_PROTOCOL_RUNS
+runs (or trials) in all; everything, scripts, names and the records database included, is checked
+before the first run. Scripted attempts are saved by the protocol itself: a Save pressed inside a
+script saves nothing.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import math
-import sys
-import tomllib
 from pathlib import Path
+from types import SimpleNamespace
 
 import matplotlib
 import matplotlib.pyplot as plt
 
 from chainsim.components.input_events import Widget
+from chainsim.engine import datafile, limits
 from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import run_pack
 from chainsim.game.app.inputscript import load_script
+from chainsim.game.app.options import name
+from chainsim.game.app.outputs import prepare_output_dir, write_text_atomic
 from chainsim.game.packs import pack as packs
-from chainsim.game.records.store import RecordStore
+from chainsim.game.records.store import RecordStore, check_target
+from chainsim.game.records.study import (
+    TASK_METRIC,
+    TASK_TITLE,
+    TASKS,
+    THESIS_MM,
+    format_ratings,
+    format_table,
+    ratings,
+    study_rows,
+    table,
+)
+from chainsim.game.ui.questionnaire import POST, THESIS_RATINGS
+from chainsim.game.ui.study import StudySession, study_name
 from chainsim.systems.procedures.prp.assessment import attempt_record
 
-NAME = "protocol"
-HELP = "run a study protocol of scripted trials, save the attempts, print a Table 6.1-style summary"
+logger = logging.getLogger(__name__)
 
-TASKS = ("location", "insertion")
-TASK_TITLE = {"location": "Location", "insertion": "Rotation and insertion"}
-TASK_METRIC = {"location": "landmark_error_mm", "insertion": "needle_error_mm"}
+NAME = "protocol"
+HELP = "run a study protocol with a participant at the window (or scripted), print Table 6.1 over all participants"
+
 AIDS = ("skin_transparent", "reference_planes", "landmark_planes", "tip_view", "collision_signals")
-#: thesis Table 6.1, mean error in cm, converted to mm
-THESIS_MM = {
-    ("location", "reference_planes"): 3.2,
-    ("location", "without_clues"): 4.7,
-    ("insertion", "local_viewer"): 32.0,
-    ("insertion", "without_clues"): 44.0,
-}
 TOP_KEYS = {"format", "pack", "title", "description", "trial"}
 TRIAL_KEYS = {"name", "task", "condition", "scripts", "script", "repeat", "steps", "aids"}
 
@@ -62,18 +81,30 @@ TRIAL_KEYS = {"name", "task", "condition", "scripts", "script", "repeat", "steps
 def add_parser(sub):
     p = sub.add_parser(NAME, help=HELP, description=HELP)
     p.add_argument("protocol", help="protocol TOML file (e.g. assets/prp/protocols/table61.toml)")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument(
+        "--participant", type=name("trainee"), metavar="NAME", help="run the session for this person in the window"
+    )
+    mode.add_argument("--scripted", action="store_true", help="run the trials' scripts headless (a smoke test)")
+    mode.add_argument("--summary", action="store_true", help="print the study's results over all participants")
     p.add_argument("--db", metavar="PATH", help="records database (default: $CHAINSIM_DB or the user data folder)")
     p.add_argument(
         "--class",
         dest="class_name",
+        type=name("class"),
         default="study",
         metavar="NAME",
-        help="class the attempts are saved under (default: study)",
+        help="class the study's attempts are saved under (default: study)",
     )
     p.add_argument(
-        "--trainee", default="scripted", metavar="NAME", help="trainee the attempts are saved under (default: scripted)"
+        "--trainee",
+        type=name("trainee"),
+        default="scripted",
+        metavar="NAME",
+        help="--scripted: trainee the attempts are saved under (default: scripted)",
     )
-    p.add_argument("--out", metavar="DIR", help="folder for each trial's summary.json, results.json and table61.png")
+    p.add_argument("--side", choices=("left", "right"), default="left", help="side of the insertion trials")
+    p.add_argument("--out", metavar="DIR", help="folder for results.json, table61.txt and table61.png")
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     return p
 
@@ -87,14 +118,9 @@ def load_protocol(path: str | Path) -> dict:
     """Read and check a protocol; every problem is a one-line UserError naming the key."""
 
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise UserError(f"{path}: protocol file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise UserError(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
-    except tomllib.TOMLDecodeError as e:
-        raise UserError(f"{path}: TOML syntax error: {e}") from None
+    data = datafile.parse_toml(
+        datafile.read_text(path, max_bytes=limits.MAX_SCRIPT_BYTES, what="protocol file"), str(path)
+    )
     where = str(path)
     extra = sorted(set(data) - TOP_KEYS)
     if extra:
@@ -129,15 +155,19 @@ def load_protocol(path: str | Path) -> dict:
             raise _err(w, "'condition' must be text (the table column, e.g. \"without_clues\")")
         if "script" in t and "scripts" in t:
             raise _err(w, "give 'script' or 'scripts', not both")
-        scripts = t.get("scripts", [t["script"]] if "script" in t else None)
-        if not isinstance(scripts, list) or not scripts or not all(isinstance(s, str) and s for s in scripts):
-            raise _err(w, "'scripts' must be a non-empty array of script paths")
-        repeat = t.get("repeat", 1)
-        if isinstance(repeat, bool) or not isinstance(repeat, int) or repeat < 1:
-            raise _err(w, f"'repeat' must be a whole number >= 1, got {repeat!r}")
+        scripts = t.get("scripts", [t["script"]] if "script" in t else [])
+        if not isinstance(scripts, list) or not all(isinstance(s, str) and s for s in scripts):
+            raise _err(w, "'scripts' must be an array of script paths")
+        try:
+            repeat = limits.whole(t.get("repeat", 1), 1, limits.MAX_REPEAT)
+        except limits.LimitError as e:
+            raise _err(w, f"'repeat' {e} (docs/limits.md)") from None
         steps = t.get("steps")
-        if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
-            raise _err(w, f"'steps' must be a whole number >= 1, got {steps!r}")
+        if steps is not None:
+            try:
+                steps = limits.whole(steps, 1, limits.MAX_STEPS)
+            except limits.LimitError as e:
+                raise _err(w, f"'steps' {e} (docs/limits.md)") from None
         aids = t.get("aids", {})
         if not isinstance(aids, dict):
             raise _err(w, "'aids' must be a table of true/false")
@@ -157,6 +187,9 @@ def load_protocol(path: str | Path) -> dict:
                 "aids": {a: bool(aids.get(a, False)) for a in AIDS},
             }
         )
+    runs = sum(max(len(t["scripts"]), 1) * t["repeat"] for t in out)
+    if runs > limits.MAX_PROTOCOL_RUNS:
+        raise _err(where, f"asks for {runs:,} runs, over the {limits.MAX_PROTOCOL_RUNS:,} limit (docs/limits.md)")
     return {"path": path, "pack": data["pack"], "title": data.get("title", ""), "trials": out}
 
 
@@ -171,66 +204,13 @@ def _script_path(proto: dict, pack_root: Path, rel: str, where: str) -> Path:
     raise UserError(f"{where}: script '{rel}' not found next to the protocol or in the pack {pack_root}")
 
 
-def mean_table(results: list[dict]) -> dict:
-    """(task, condition) -> (mean, n_used, n_total) of the task's metric over the attempts."""
-    groups: dict = {}
-    for r in results:
-        groups.setdefault((r["task"], r["condition"]), []).append(r["error_mm"])
-    out = {}
-    for key, vals in groups.items():
-        used = [v for v in vals if v is not None]
-        out[key] = (sum(used) / len(used) if used else None, len(used), len(vals))
-    return out
-
-
-def format_table(table: dict) -> str:
-    cols = []
-    for task in TASKS:
-        for t, c in table:
-            if t == task and (t, c) not in cols:
-                cols.append((t, c))
-        for t, c in THESIS_MM:
-            if t == task and (t, c) in table and (t, c) not in cols:
-                cols.append((t, c))
-    width = 18
-    head1 = " " * 26
-    head2 = f"{'':26}"
-    for task in TASKS:
-        n = sum(1 for t, _ in cols if t == task)
-        if n:
-            head1 += TASK_TITLE[task].center(width * n)
-    for t, c in cols:
-        head2 += c.replace("_", " ").center(width)
-    row = f"{'Mean error, this run (mm)':26}"
-    count = f"{'  attempts scored / run':26}"
-    thesis = f"{'Thesis Table 6.1 (mm)':26}"
-    for key in cols:
-        mean, used, total = table[key]
-        row += (f"{mean:.2f}" if mean is not None else "-").center(width)
-        count += f"{used}/{total}".center(width)
-        th = THESIS_MM.get(key)
-        thesis += (f"{th:.1f}" if th is not None else "-").center(width)
-    lines = [
-        "Performance test results (after thesis Table 6.1; location: landmark error, rotation and "
-        "insertion: needle error E = Dist - R)",
-        head1.rstrip(),
-        head2.rstrip(),
-        row.rstrip(),
-        count.rstrip(),
-        thesis.rstrip(),
-    ]
-    return "\n".join(lines)
-
-
-def _plot(table: dict, path: Path) -> None:
-
+def _plot(tab: dict, path: Path, label: str) -> None:
     matplotlib.use("Agg")
-
-    keys = [k for k in table if table[k][0] is not None]
+    keys = [k for k in tab if tab[k]["mean_error_mm"] is not None]
     fig, ax = plt.subplots(figsize=(7, 3.5))
     x = range(len(keys))
-    ax.bar([i - 0.2 for i in x], [table[k][0] for k in keys], width=0.4, label="this run")
-    ax.bar([i + 0.2 for i in x], [THESIS_MM.get(k, 0.0) for k in keys], width=0.4, label="thesis Table 6.1")
+    ax.bar([i - 0.2 for i in x], [tab[k]["mean_error_mm"] for k in keys], width=0.4, label=label)
+    ax.bar([i + 0.2 for i in x], [THESIS_MM.get(k) or 0.0 for k in keys], width=0.4, label="thesis Table 6.1")
     ax.set_xticks(list(x), [f"{TASK_TITLE[t]}\n{c.replace('_', ' ')}" for t, c in keys], fontsize=8)
     ax.set_ylabel("mean error (mm)")
     ax.legend()
@@ -239,38 +219,141 @@ def _plot(table: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def run(args) -> int:
+def _write_out(out: Path | None, proto: dict, pack_name: str, tab: dict, text: str, label: str, extra: dict) -> None:
+    if out is None:
+        return
+    data = {
+        "protocol": str(proto["path"]),
+        "study": study_name(proto),
+        "pack": pack_name,
+        **extra,
+        "table": [{"task": k[0], "condition": k[1], **v} for k, v in tab.items()],
+    }
+    write_text_atomic(out / "results.json", json.dumps(data, indent=2, allow_nan=False), "--out")
+    write_text_atomic(out / "table61.txt", text + "\n", "--out")
+    _plot(tab, out / "table61.png", label)
+    print(f"results: {out / 'results.json'}, {out / 'table61.png'}")
 
+
+def _out_dir(args) -> Path | None:
+    return prepare_output_dir(args.out, "--out") if args.out else None
+
+
+def run(args) -> int:
     proto = load_protocol(args.protocol)
+    if args.summary:
+        return run_summary(args, proto)
+    if args.scripted:
+        return run_scripted(args, proto)
+    if args.participant:
+        return run_people(args, proto)
+    raise UserError(
+        "name the participant (--participant NAME) to run the study in the window, "
+        "--scripted for the scripted smoke test, or --summary for the results so far"
+    )
+
+
+def run_summary(args, proto: dict) -> int:
+    """Table 6.1 and the ratings over every participant of the study in the records."""
+    study = study_name(proto)
+    with RecordStore(args.db) as store:
+        try:
+            attempts = store.list_attempts(args.class_name)
+            questionnaires = store.list_questionnaires(args.class_name)
+        except UserError:
+            attempts, questionnaires = [], []
+    rows = [r for r in study_rows(attempts, study) if not r["scripted"]]
+    if not rows:
+        raise UserError(
+            f"no attempts of study '{study}' by people in class '{args.class_name}' in {store.path}; "
+            f"run a session first: chainsim protocol {args.protocol} --participant NAME"
+        )
+    tab = table(rows)
+    people = len({r["participant"] for r in rows})
+    text = format_table(tab, f"{people} participants")
+    rates = ratings(questionnaires, study)
+    print(text)
+    print()
+    print(format_ratings(rates, {q.id: q.text for q in POST}, THESIS_RATINGS))
+    _write_out(_out_dir(args), proto, proto["pack"], tab, text, "participants", {"ratings": rates})
+    return 0
+
+
+def run_people(args, proto: dict) -> int:
+    """The session of chainsim.game.ui.study in the trainer window; Table 6.1 over everyone at the end."""
+    from chainsim.game.ui.window import run_window  # noqa: PLC0415 - pyglet: only when a window is wanted
+
+    check_target(args.db)  # a mistyped or read-only database is refused before the window opens
+    out = _out_dir(args)
+    db = args.db
+    holder: dict = {}
+
+    def make_session(app):
+        holder["session"] = StudySession(app, proto, args.participant, args.class_name, db, side=args.side)
+        return holder["session"]
+
+    window_args = SimpleNamespace(
+        pack=proto["pack"],
+        pack_path=args.pack_path,
+        input=None,
+        exit_after=None,
+        screenshot=None,
+        record=None,
+        db=db,
+        class_name=args.class_name,
+        trainee=args.participant,
+    )
+    rc = run_window(window_args, session=make_session)
+    session = holder.get("session")
+    if session is None or not session.summary:
+        logger.warning(f"session of {args.participant} ended early; what was done is saved")
+        return rc
+    print(session.summary)
+    _write_out(
+        out,
+        proto,
+        proto["pack"],
+        session.table,
+        session.summary,
+        "participants",
+        {"participant": args.participant, "trials": session.done_trials, "ratings": session.ratings},
+    )
+    return rc
+
+
+def run_scripted(args, proto: dict) -> int:
+    """The smoke test: every trial's scripts headless, saved and tabled - and labelled as scripted."""
     root, _scene = packs.resolve(proto["pack"], args.pack_path)
     pack = packs.load(root)
-    out = Path(args.out) if args.out else None
-    if out is not None:
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise UserError(f"--out {out}: cannot create folder ({e.strerror})") from None
+    check_target(args.db)  # a mistyped or read-only database is refused before the first trial
+    out = _out_dir(args)
     # check every script before anything runs or is saved
     plan = []
     for t in proto["trials"]:
+        if not t["scripts"]:
+            raise UserError(f"{proto['path']}: trial '{t['name']}' has no scripts; --scripted runs need them")
         for s in t["scripts"]:
             path = _script_path(proto, root, s, f"{proto['path']}: trial '{t['name']}'")
             events = load_script(path)
             for r in range(t["repeat"]):
                 plan.append((t, path, events, r))
+    study = study_name(proto)
+    logger.warning("SCRIPTED smoke test: input scripts, not people, make these attempts.")
     store = RecordStore(args.db)
     results = []
     try:
         for i, (t, path, events, r) in enumerate(plan, 1):
-            print(
-                f"[{i}/{len(plan)}] {t['name']}: {path.name} ({', '.join(a for a, v in t['aids'].items() if v) or 'no aids'})",
-                file=sys.stderr,
-                flush=True,
-            )
+            aids = ", ".join(a for a, v in t["aids"].items() if v) or "no aids"
+            logger.info(f"[{i}/{len(plan)}] {t['name']}: {path.name} ({aids})")
             aid_events = [(0.0, Widget(a, v)) for a, v in t["aids"].items()]
             trial_out = str(out / f"{i:02d}-{t['name']}") if out is not None else None
             summary = run_pack(
-                str(root), t["steps"], events=aid_events + list(events), out=trial_out, pack_paths=args.pack_path
+                str(root),
+                t["steps"],
+                events=aid_events + list(events),
+                out=trial_out,
+                pack_paths=args.pack_path,
+                save="the protocol saves each attempt itself",
             )
             a = summary.get("assessment")
             if not a:
@@ -280,6 +363,9 @@ def run(args) -> int:
             if a.get("landmark_error_mm") is not None:
                 rec = attempt_record(pack.name, a)
                 rec["details"]["protocol"] = {
+                    "study": study,
+                    "participant": args.trainee,
+                    "scripted": True,
                     "trial": t["name"],
                     "task": t["task"],
                     "condition": t["condition"],
@@ -297,38 +383,24 @@ def run(args) -> int:
                     "error_mm": err,
                     "target": a.get("target"),
                     "skull_contacts": a.get("skull_contacts"),
+                    "xray_shots": a.get("xray_shots", 0),
                     "aids": t["aids"],
                     "attempt_id": saved,
+                    "participant": args.trainee,
+                    "scripted": True,
                 }
             )
     finally:
         store.close()
-    table = mean_table(results)
-    text = format_table(table)
+    tab = table(results)
+    text = format_table(tab, "scripted run")
     print(text)
     print(f"{len(results)} attempts saved to {store.path} (class {args.class_name}, trainee {args.trainee})")
-    print("Scripted trials: aids change only what a person sees, so conditions differ only through their scripts.")
-    if out is not None:
-        data = {
-            "protocol": str(proto["path"]),
-            "pack": pack.name,
-            "results": results,
-            "table": [
-                {
-                    "task": k[0],
-                    "condition": k[1],
-                    "mean_error_mm": v[0],
-                    "scored": v[1],
-                    "runs": v[2],
-                    "thesis_mm": THESIS_MM.get(k),
-                }
-                for k, v in table.items()
-            ],
-        }
-        (out / "results.json").write_text(json.dumps(data, indent=2, allow_nan=False), encoding="utf-8")
-        (out / "table61.txt").write_text(text + "\n", encoding="utf-8")
-        _plot(table, out / "table61.png")
-        print(f"results: {out / 'results.json'}, {out / 'table61.png'}")
-    if any(v[0] is not None and not math.isfinite(v[0]) for v in table.values()):  # pragma: no cover
-        return 1
+    print(
+        "SCRIPTED: aids change only what a person sees, so these conditions differ only through their scripts; "
+        "for a study with people use --participant NAME."
+    )
+    _write_out(out, proto, pack.name, tab, text, "scripted run", {"scripted": True, "results": results})
+    if any(v["mean_error_mm"] is not None and not math.isfinite(v["mean_error_mm"]) for v in tab.values()):
+        return 1  # pragma: no cover
     return 0

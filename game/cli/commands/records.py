@@ -12,13 +12,17 @@ import json
 import sys
 from pathlib import Path
 
+from chainsim.engine import argtypes, limits
 from chainsim.engine.errors import UserError
 from chainsim.game.cli.commands import records_server
 from chainsim.game.records import report as report
 from chainsim.game.records.store import RecordStore
+from chainsim.game.records.validate import printable
 
 NAME = "records"
 HELP = "view, export, plot or delete trainee records (classes, trainees, attempts)"
+#: actions that look at what exists: on a path with no database they say so (a mistyped --db)
+READ_ONLY = ("classes", "trainees", "list", "show", "plot", "delete")
 
 _EPILOG = """\
 database: --db PATH or postgresql:// URL, else $CHAINSIM_DB, else the user data folder (records.sqlite3).
@@ -75,12 +79,12 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     a.add_argument("id", type=_positive_id, help="attempt id (from `list`)")
     a.add_argument("--yes", action="store_true", help="really delete; without it only show what would go")
 
-    a = action("add-class", "create a class")
-    a.add_argument("name", help="class name (1-64 characters)")
+    a = action("add-class", "create a class (and the database, if new)")
+    a.add_argument("name", help=f"class name (1-{limits.MAX_NAME_LENGTH} characters)")
 
     a = action("add-trainee", "add a trainee to a class (created if missing)")
     a.add_argument("class_name", metavar="CLASS", help="class name")
-    a.add_argument("name", help="trainee name (1-64 characters)")
+    a.add_argument("name", help=f"trainee name (1-{limits.MAX_NAME_LENGTH} characters)")
 
     a = action("plot", "PNG of one trainee's landmark and needle errors over attempts")
     a.add_argument("--class", dest="class_name", metavar="C", required=True, help="class name")
@@ -89,27 +93,21 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
-def _positive_id(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"attempt id must be a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"attempt id must be >= 1, got {value}")
-    return value
+_positive_id = argtypes.count(1, limits.MAX_ATTEMPT_ID)
 
 
 def _summary(a: dict) -> str:
     needle = "-" if a["needle_error_mm"] is None else f"{a['needle_error_mm']:.2f} mm"
     return (
-        f"attempt {a['id']}: {a['class_name']}/{a['trainee']} {a['pack']} {a['created_at']} "
+        f"attempt {a['id']}: {printable(a['class_name'])}/{printable(a['trainee'])} {printable(a['pack'])} "
+        f"{printable(a['created_at'])} "
         f"landmark {a['landmark_error_mm']:.2f} mm, needle {needle}, target {a['target']}"
     )
 
 
 def run(args: argparse.Namespace) -> int:
 
-    with RecordStore(args.db) as store:
+    with RecordStore(args.db, create=args.action not in READ_ONLY) as store:
         act = args.action
         if act in records_server.ACTIONS:
             return records_server.run(args, store)
@@ -144,6 +142,8 @@ def run(args: argparse.Namespace) -> int:
                         "contacts",
                         "path_mm",
                         "redirect",
+                        "xrays",
+                        "exposure_s",
                     ],
                     [
                         [
@@ -159,6 +159,8 @@ def run(args: argparse.Namespace) -> int:
                             a["skull_contacts"],
                             a["path_length_mm"],
                             a["redirections"],
+                            a["xray_shots"],
+                            a["exposure_s"],
                         ]
                         for a in rows
                     ],
@@ -171,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
                 text = (
                     json.dumps(value, sort_keys=True) if isinstance(value, dict) else ("-" if value is None else value)
                 )
-                print(f"{key.ljust(width)}  {text}")
+                print(f"{key.ljust(width)}  {printable(str(text))}")
         elif act == "export":
             fmt = args.format or "csv"
             if fmt == "csv" and (args.csv or args.out) is None:

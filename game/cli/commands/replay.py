@@ -1,15 +1,24 @@
-"""`chainsim replay FILE`: run a recorded session again and check it reaches the same digest."""
+"""`chainsim replay FILE`: run a recorded session again and check it reaches the same digest.
+
+A replay has no side effects: it never saves an attempt (a Save pressed in the recording shows
+"not saved" instead) and never writes, creates or opens anything the recording names, since a
+recording is a file anyone may hand over. Its only output is the optional --out folder the user
+names. Every field is checked before the run: dt within [MIN_DT, MAX_DT], steps within MAX_STEPS,
+known settings of the right type (docs/limits.md).
+"""
 
 from __future__ import annotations
 
-import math
-
+from chainsim.engine import limits
 from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import run_pack
 from chainsim.game.app.inputscript import parse_events, read_file
 
 NAME = "replay"
 HELP = "replay a recorded session and compare its final digest"
+
+#: settings a recording may carry; the records database or server it names is ignored (a replay never saves)
+REPLAY_SETTINGS = ("db", "records", "class", "trainee", "model")
 
 
 def add_parser(sub):
@@ -20,26 +29,60 @@ def add_parser(sub):
     return p
 
 
-def run(args) -> int:
-
-    data = read_file(args.file)
+def check_recording(data, where: str) -> dict:
+    """The fields of a recording, checked; raises UserError naming the first bad one."""
     if not isinstance(data, dict) or data.get("chainsim") != "recording":
-        raise UserError(f"{args.file}: not a chainsim recording (expected the JSON written by --record)")
-    for key, kind in (("pack", str), ("scene", str), ("digest", str), ("steps", int), ("dt", float)):
+        raise UserError(f"{where}: not a chainsim recording (expected the JSON written by --record)")
+    for key in ("pack", "scene", "digest"):
         v = data.get(key)
-        if not isinstance(v, kind) or isinstance(v, bool) or (kind is float and not math.isfinite(v)):
-            raise UserError(f"{args.file}: field '{key}' missing or not a {kind.__name__}")
-    events = parse_events(data, args.file)
-    ref = data["pack"].split("/")[0] + "/" + data["scene"]
+        if not isinstance(v, str) or not v or len(v) > limits.MAX_PATH_LENGTH or "\x00" in v:
+            raise UserError(f"{where}: field '{key}' missing or not text")
+    try:
+        steps = limits.whole(data.get("steps"), 0, limits.MAX_STEPS)
+    except limits.LimitError as e:
+        raise UserError(f"{where}: field 'steps': {e} (docs/limits.md)") from None
+    try:
+        dt = limits.number(data.get("dt"), limits.MIN_DT, limits.MAX_DT)
+    except limits.LimitError as e:
+        raise UserError(f"{where}: field 'dt' (the fixed step in seconds): {e}") from None
     settings = data.get("settings") or {}
     if not isinstance(settings, dict):
-        raise UserError(f"{args.file}: field 'settings' must be a table")
+        raise UserError(f"{where}: field 'settings' must be a table")
+    unknown = sorted(set(settings) - set(REPLAY_SETTINGS))
+    if unknown:
+        raise UserError(f"{where}: unknown setting {unknown[0]!r} in 'settings'; known: {', '.join(REPLAY_SETTINGS)}")
+    for key, value in settings.items():
+        if not isinstance(value, str):
+            raise UserError(f"{where}: setting {key!r} must be text, got {type(value).__name__}")
+    kept = {k: v for k, v in settings.items() if k not in ("db", "records")}
+    return {
+        "pack": data["pack"],
+        "scene": data["scene"],
+        "digest": data["digest"],
+        "steps": steps,
+        "dt": dt,
+        "settings": kept,
+    }
+
+
+def run(args) -> int:
+    data = read_file(args.file)
+    rec = check_recording(data, args.file)
+    events = parse_events(data, args.file)
+    ref = rec["pack"].split("/")[0] + "/" + rec["scene"]
     summary = run_pack(
-        ref, data["steps"], events=events, out=args.out, pack_paths=args.pack_path, dt=data["dt"], settings=settings
+        ref,
+        rec["steps"],
+        events=events,
+        out=args.out,
+        pack_paths=args.pack_path,
+        dt=rec["dt"],
+        settings=rec["settings"],
+        save="a replay never saves attempts",
     )
-    same = summary["digest"] == data["digest"]
+    same = summary["digest"] == rec["digest"]
     print(
-        f"replayed {data['steps']} steps of {ref}: digest {summary['digest'][:16]} "
-        + ("matches the recording" if same else f"DIFFERS from the recording ({data['digest'][:16]})")
+        f"replayed {rec['steps']} steps of {ref}: digest {summary['digest'][:16]} "
+        + ("matches the recording" if same else f"DIFFERS from the recording ({rec['digest'][:16]})")
     )
     return 0 if same else 1

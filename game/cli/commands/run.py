@@ -2,28 +2,22 @@
 
 from __future__ import annotations
 
-import argparse
 import json
-import math
 
+from chainsim.engine import argtypes
 from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import run_pack
-from chainsim.game.app.options import user_settings, window_size
+from chainsim.game.app.options import (
+    MODEL_FLAG_CHOICES,
+    MODEL_FLAG_HELP,
+    add_records_arguments,
+    user_settings,
+    window_size,
+)
 from chainsim.game.records import remote
 
 NAME = "run"
 HELP = "run a pack without a window and write OUT/summary.json"
-
-
-def _nonneg(text: str) -> int:
-
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
-    return v
 
 
 def add_parser(sub):
@@ -31,33 +25,26 @@ def add_parser(sub):
     p.add_argument("pack", help="PACK or PACK/SCENE (a pack name or folder)")
     p.add_argument("--headless", action="store_true", help="no window (the only mode of `run`; accepted for clarity)")
     p.add_argument(
-        "--steps", type=_nonneg, default=None, help="fixed simulation steps (default: the pack's settings.steps)"
+        "--steps", type=argtypes.steps, default=None, help="fixed simulation steps (default: the pack's settings.steps)"
     )
     p.add_argument("--input", metavar="SCRIPT", help="input script (.toml or .json), see docs/input-scripts.md")
     p.add_argument("--record", metavar="FILE", help="save the session (events, digest) for `chainsim replay`")
     p.add_argument("--out", metavar="DIR", help="folder for summary.json (and frames)")
-    p.add_argument("--dt", type=float, default=None, help="override the fixed step (seconds)")
+    p.add_argument("--dt", type=argtypes.dt, default=None, help="override the fixed step (seconds)")
     p.add_argument(
-        "--screenshot-every", type=_nonneg, default=0, metavar="K", help="write a PNG every K frames (needs EGL)"
+        "--screenshot-every", type=argtypes.steps, default=0, metavar="K", help="write a PNG every K frames (needs EGL)"
     )
     p.add_argument(
         "--size", type=window_size, default=None, metavar="WxH", help="off-screen frame size for screenshots"
     )
-    p.add_argument("--db", metavar="PATH", help="trainee records database (procedures that save attempts)")
-    p.add_argument("--class", dest="class_name", metavar="NAME", help="class the attempt is saved under")
-    p.add_argument("--trainee", metavar="NAME", help="trainee the attempt is saved under")
-    p.add_argument(
-        "--records", metavar="URL", help="save attempts to this records server (queued in --db when offline)"
-    )
+    p.add_argument("--model", choices=MODEL_FLAG_CHOICES, help=MODEL_FLAG_HELP)
+    add_records_arguments(p)
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     return p
 
 
 def run(args) -> int:
-
-    if args.dt is not None and not (math.isfinite(args.dt) and 0 < args.dt < 1):
-        raise UserError(f"--dt must be a number of seconds in (0, 1), got {args.dt}")
     if args.screenshot_every and not args.out:
         raise UserError("--screenshot-every needs --out DIR for the frames")
     if args.records:

@@ -1,16 +1,21 @@
 """`chainsim snapshot PACK[/SCENE] --out shot.png [--size WxH] [--steps N]`: the whole window layout
-(every viewport, the control panel and the HUD) rendered off screen (EGL) to a PNG."""
+(every viewport, the control panel and the HUD) rendered off screen (EGL) to a PNG.
+
+`--scene NAME` (the same as PACK/NAME) also plays the scene's own script when no --input is given,
+long enough for it to finish: `chainsim snapshot prp --scene fluoro --out xray.png` shows the correct
+attempt's last C-arm image."""
 
 from __future__ import annotations
 
 import sys
 
-from chainsim.components.resources import PendingInput
+from chainsim.components.resources import PackResource, PendingInput
+from chainsim.engine import argtypes
 from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script
 from chainsim.game.app.options import window_size
-from chainsim.game.cli.commands.run import _nonneg
+from chainsim.game.app.outputs import check_output_file
 from chainsim.game.gl.context import egl_context
 from chainsim.game.gl.render_system import screenshot
 
@@ -19,7 +24,6 @@ HELP = "render a pack's window layout off screen to a PNG"
 
 
 def add_parser(sub):
-
     p = sub.add_parser(NAME, help=HELP)
     p.add_argument("pack", help="PACK or PACK/SCENE")
     p.add_argument("--out", required=True, metavar="PNG", help="image to write")
@@ -28,11 +32,16 @@ def add_parser(sub):
     )
     p.add_argument(
         "--steps",
-        type=_nonneg,
+        type=argtypes.steps,
         default=1,
         help="simulation steps before the picture (default 1: every system, procedures included, has run once)",
     )
     p.add_argument("--input", metavar="SCRIPT", help="input script played during the steps")
+    p.add_argument(
+        "--scene",
+        metavar="NAME",
+        help="scene to show (as PACK/NAME); without --input its own script is played to the end",
+    )
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     return p
 
@@ -41,16 +50,28 @@ def run(args) -> int:
 
     if not args.out.lower().endswith(".png"):
         raise UserError(f"--out {args.out}: expected a file name ending in .png")
+    check_output_file(args.out, "--out")
     egl_context()  # no EGL: one clear line and exit 2 before any work
 
-    app = build_app(args.pack, pack_paths=args.pack_path, render=True, headless=True, size=args.size)
+    target = args.pack
+    if args.scene:
+        target = f"{args.pack.rstrip('/')}/{args.scene}"
+    app = build_app(target, pack_paths=args.pack_path, render=True, headless=True, size=args.size)
     try:
+        steps = args.steps
         if args.input:
             app.resource(PendingInput).extend(load_script(args.input))
-        for i in range(args.steps):
+        elif args.scene:
+            pres = app.resource(PackResource)
+            if pres.scene_spec.get("script"):
+                timed = load_script(pres.pack.file(pres.scene_spec["script"]))
+                app.resource(PendingInput).extend(timed)
+                last = max((t for t, _ in timed), default=0.0)
+                steps = max(steps, int(last / app.time.dt) + 60)  # the last event, then half a second
+        for i in range(steps):
             app.update(app.time.dt)
-            if args.steps >= 2000 and sys.stderr.isatty() and (i + 1) % (args.steps // 20) == 0:
-                print(f"\r  step {i + 1}/{args.steps}", end="", file=sys.stderr, flush=True)
+            if steps >= 2000 and sys.stderr.isatty() and (i + 1) % (steps // 20) == 0:
+                print(f"\r  step {i + 1}/{steps}", end="", file=sys.stderr, flush=True)
         path = screenshot(app, args.out)
     finally:
         app.close()

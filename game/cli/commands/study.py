@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
+import logging
 
+from chainsim.engine import argtypes, limits
 from chainsim.engine.errors import UserError
 from chainsim.game.app import pack_costs
+from chainsim.game.app.outputs import prepare_output_dir
 from chainsim.tools.study import calibrate as cal
 from chainsim.tools.study import report, speed_accuracy
 from chainsim.tools.study.scenes import SCENES
+
+logger = logging.getLogger(__name__)
 
 NAME = "study"
 HELP = "speed-accuracy study of ChainMail vs FEM and mass-spring; calibrate ChainMail presets"
@@ -23,21 +26,39 @@ def add_parser(sub):
     sa.add_argument("--out", required=True, help="output folder")
     sa.add_argument("--scenes", default=None, help="comma-separated subset of block,sheet,cantilever (default: all)")
     sa.add_argument(
-        "--pack-steps", type=int, default=120, help="steps per built-in pack for the frame-cost table (0 skips it)"
+        "--pack-steps",
+        type=argtypes.steps,
+        default=120,
+        help="steps per built-in pack for the frame-cost table (0 skips it)",
     )
     c = s.add_parser("calibrate", help="fit ChainMail alpha_min/alpha_max/beta/relaxation to FEM")
-    c.add_argument("--nu", type=float, default=None, help="Poisson ratio, in (-1, 0.5) (required unless --shipped)")
+    c.add_argument(
+        "--nu",
+        type=argtypes.real(-1.0, 0.5, low_open=True, high_open=True, what="a Poisson ratio"),
+        default=None,
+        help="Poisson ratio, in (-1, 0.5) (required unless --shipped)",
+    )
     c.add_argument(
         "--E",
-        type=float,
+        type=argtypes.real(0.0, 1e15, low_open=True),
         default=None,
         help="Young's modulus [Pa]; sets the strain level a gentle tool traction produces",
     )
-    c.add_argument("--strain", type=float, default=None, help="fit at this strain instead")
-    c.add_argument("--name", required=False, help="preset name (table in the TOML file)")
-    c.add_argument("--out", default=None, help="presets TOML file (default assets/presets/materials.toml)")
     c.add_argument(
-        "--block-n", type=int, default=8, help="nodes per edge of the calibration block (default 8: 512 nodes, ~15 s)"
+        "--strain", type=argtypes.real(0.0, 1.0, low_open=True), default=None, help="fit at this strain instead"
+    )
+    c.add_argument("--name", required=False, help="preset name (table in the TOML file)")
+    c.add_argument(
+        "--out",
+        default="materials.toml",
+        help="presets TOML file to add the preset to (default ./materials.toml; the shipped presets are "
+        "assets/presets/materials.toml in a source checkout)",
+    )
+    c.add_argument(
+        "--block-n",
+        type=argtypes.count(5, limits.MAX_STUDY_BLOCK),
+        default=8,
+        help="nodes per edge of the calibration block (default 8: 512 nodes, ~15 s)",
     )
     c.add_argument(
         "--shipped", action="store_true", help="recompute every preset shipped with the project instead of one"
@@ -56,18 +77,13 @@ def run(args) -> int:
             bad = [x for x in scenes if x not in SCENES]
             if bad:
                 raise UserError(f"--scenes: unknown scene(s) {', '.join(bad)}; expected some of {', '.join(SCENES)}")
-        if args.pack_steps < 0:
-            raise UserError(f"--pack-steps must be >= 0, got {args.pack_steps}")
-        try:
-            Path(args.out).mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise UserError(f"--out {args.out}: cannot create folder ({e.strerror})") from None
+        prepare_output_dir(args.out, "--out")
         results = speed_accuracy.run(args.quick, args.out, scenes)
         summaries, note = ([], "skipped (--pack-steps 0)")
         if args.pack_steps:
             summaries, note = pack_costs.measure(args.pack_steps)
         md = report.write(results, args.out, summaries, note)
-        print(f"wrote {md}", file=sys.stderr)
+        logger.info(f"wrote {md}")
         print(md)
         return 0
     if cmd == "calibrate":
@@ -81,16 +97,16 @@ def run(args) -> int:
         if not args.shipped and args.nu is None:
             raise UserError("--nu is required (Poisson ratio in (-1, 0.5)), or use --shipped")
         for name, E, nu in jobs:
-            print(f"[calibrate] {name}: nu={nu:g} E={E}", file=sys.stderr, flush=True)
+            logger.info(f"calibrate {name}: nu={nu:g} E={E}")
             res = cal.fit(
                 nu,
                 E,
                 None if args.shipped else args.strain,
                 n=args.block_n,
-                progress=lambda m: print(f"[calibrate]   {m}", file=sys.stderr, flush=True),
+                progress=lambda m: logger.info(f"calibrate   {m}"),
             )
             for w in res["warnings"]:
-                print(f"[calibrate]   warning: {w}", file=sys.stderr)
+                logger.warning(f"calibrate: {w}")
             path = cal.write_preset(name, res, args.out)
             print(
                 f"{name}: alpha_min={res['alpha_min']} alpha_max={res['alpha_max']} "

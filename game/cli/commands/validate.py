@@ -1,10 +1,15 @@
-"""`chainsim validate PATH`: every problem in a pack at once, one line each; exit 2 if any."""
+"""`chainsim validate PATH`: every problem in a pack at once, one line each; exit 2 if any.
+
+It reports whatever `chainsim run` would refuse: the manifest and files are checked, then each
+scene is started as `run` starts it (chainsim.game.app.headless.validate_pack).
+"""
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
 
+from chainsim.game.app.headless import validate_pack
 from chainsim.game.packs import pack as packs
 
 NAME = "validate"
@@ -25,7 +30,7 @@ def run(args) -> int:
         path = path.parent
     if not path.exists():
         path, _ = packs.resolve(args.path, args.pack_path)
-    pack, problems = packs.validate(path)
+    pack, problems = validate_pack(path)
     if problems:
         for p in problems:
             print(p, file=sys.stderr)

@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from chainsim.engine.errors import UserError
 
@@ -24,7 +25,7 @@ class StepStats:
     extra: dict = field(default_factory=dict)
 
 
-def check_positions(name: str, x, n: int | None = None) -> np.ndarray:
+def check_positions(name: str, x: ArrayLike, n: int | None = None) -> np.ndarray:
     """(K, 3) finite float64 array or UserError naming `name`."""
     a = np.asarray(x, dtype=np.float64)
     if a.ndim == 1 and a.size == 3:
@@ -40,7 +41,7 @@ def check_positions(name: str, x, n: int | None = None) -> np.ndarray:
     return a
 
 
-def check_ids(name: str, ids, n: int) -> np.ndarray:
+def check_ids(name: str, ids: ArrayLike, n: int) -> np.ndarray:
     """int64 element ids in [0, n) or UserError."""
     a = np.atleast_1d(np.asarray(ids))
     if a.size and not np.issubdtype(a.dtype, np.integer):
@@ -83,7 +84,7 @@ class Body:
 
     model = "body"
 
-    def __init__(self, rest: np.ndarray, fixed=None) -> None:
+    def __init__(self, rest: np.ndarray, fixed: ArrayLike | None = None) -> None:
         self.rest = check_positions("rest positions", rest).copy()
         n = len(self.rest)
         self.positions = self.rest.copy()
@@ -103,7 +104,7 @@ class Body:
     def n(self) -> int:
         return len(self.rest)
 
-    def grab(self, ids, targets) -> None:
+    def grab(self, ids: ArrayLike, targets: ArrayLike) -> None:
         """Hold elements `ids` at `targets` (K, 3) from the next step on (replaces any current grab)."""
         ids = check_ids("grab ids", ids, self.n)
         t = check_positions("grab targets", targets)
@@ -115,7 +116,7 @@ class Body:
         self.grab_ids, self.grab_targets = ids[keep], t[keep]
         self._grab_changed()
 
-    def release(self, ids=None) -> None:
+    def release(self, ids: ArrayLike | None = None) -> None:
         """Let go of all grabbed elements, or only `ids`."""
         if ids is None:
             self.grab_ids, self.grab_targets = np.zeros(0, dtype=np.int64), np.zeros((0, 3))
@@ -137,11 +138,11 @@ class Body:
         self.stats = stats
         return stats
 
-    def cut(self, p0, p1, normal=None, depth=None) -> int:
+    def cut(self, p0: ArrayLike, p1: ArrayLike, normal: ArrayLike | None = None, depth: float | None = None) -> int:
         """Cut along the segment p0-p1 (a blade swept along `normal`); returns how many links died."""
         return self._cut(check_positions("cut p0", p0)[0], check_positions("cut p1", p1)[0], normal, depth)
 
-    def cut_path(self, points, normal=None, depth=None) -> int:
+    def cut_path(self, points: ArrayLike, normal: ArrayLike | None = None, depth: float | None = None) -> int:
         pts = check_positions("cut path", points)
         return sum(self._cut(a, b, normal, depth) for a, b in zip(pts[:-1], pts[1:]))
 

@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import ArrayLike
 from scipy.sparse.linalg import splu
 
 from chainsim.engine import meshgen
@@ -21,7 +22,7 @@ from chainsim.engine.bodies.base import Body, StepStats, check_elastic
 from chainsim.engine.bodies.xpbd import lumped_mass, tet_rest_data
 from chainsim.engine.errors import UserError
 from chainsim.engine.kernels.graph import build_graph
-from chainsim.engine.kernels.projective import local_step
+from chainsim.engine.kernels.projective import local_step, local_step_tri
 from chainsim.engine.kernels.topology import cut_segment
 
 MAX_ITERATIONS = 10_000
@@ -34,8 +35,9 @@ class ProjectiveBody(Body):
 
     def __init__(
         self,
-        rest,
-        tets,
+        rest: ArrayLike,
+        tets: ArrayLike | None = None,
+        triangles: ArrayLike | None = None,
         *,
         E: float = 3000.0,
         nu: float = 0.45,
@@ -45,12 +47,16 @@ class ProjectiveBody(Body):
         damping: float = 0.05,
         dynamic: bool = True,
         unit: float = 1.0,
-        fixed=None,
+        thickness: float = 1.0,
+        fixed: ArrayLike | None = None,
     ) -> None:
         super().__init__(rest, fixed)
         self.mu, self.lam = check_elastic(E, nu, density)
         if tets is None or len(tets) == 0:
-            raise UserError("a projective-dynamics body needs tetrahedra (a volume mesh)")
+            if triangles is None or len(triangles) == 0:
+                raise UserError("a projective-dynamics body needs tetrahedra or triangles")
+            self._init_surface(triangles, iterations, tolerance, damping, dynamic, unit, thickness, density)
+            return
         if not (1 <= int(iterations) <= MAX_ITERATIONS):
             raise UserError(f"iterations: must be in 1..{MAX_ITERATIONS}, got {iterations}")
         if not (0.0 <= damping < 1.0):
@@ -67,6 +73,7 @@ class ProjectiveBody(Body):
         self.D[:, 1:, :] = dm_inv
         self.D[:, 0, :] = -dm_inv.sum(axis=1)
         self.active = np.ones(len(self.tets), dtype=np.bool_)
+        self.surface = False
         self.w_arap = 2.0 * self.mu * self.vol
         self.w_vol = 3.0 * self.lam * self.vol
         self.quats = np.zeros((len(self.tets), 4))
@@ -80,12 +87,51 @@ class ProjectiveBody(Body):
         self._dt = None
         self.refactor_seconds = 0.0
 
+    def _init_surface(self, triangles, iterations, tolerance, damping, dynamic, unit, thickness, density) -> None:
+        """Membrane triangles (as-rigid-as-possible in their plane); no volume term, no bending."""
+        tri = np.ascontiguousarray(triangles, dtype=np.int64)
+        if tri.ndim != 2 or tri.shape[1] != 3 or tri.min() < 0 or tri.max() >= self.n:
+            raise UserError(f"triangles: expected (F, 3) vertex ids in 0..{self.n - 1}")
+        self.iterations, self.tolerance, self.damping = int(iterations), float(tolerance), float(damping)
+        self.dynamic, self.unit = bool(dynamic), float(unit)
+        rest_si = self.rest * self.unit
+        p = rest_si[tri]
+        e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+        area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+        if np.any(area <= 1e-12 * np.maximum(np.sum(e1 * e1, axis=1), 1e-300)):
+            raise UserError("a triangle of the mesh is degenerate (zero area); the mesh cannot be simulated")
+        u = e1 / np.linalg.norm(e1, axis=1)[:, None]
+        nrm = np.cross(e1, e2)
+        v = np.cross(nrm / np.linalg.norm(nrm, axis=1)[:, None], u)
+        dm = np.stack(
+            [np.stack([np.sum(e1 * u, 1), np.sum(e2 * u, 1)], 1), np.stack([np.sum(e1 * v, 1), np.sum(e2 * v, 1)], 1)],
+            1,
+        )
+        dm_inv = np.linalg.inv(dm)  # (F, 2, 2): rest edges in the triangle's own plane
+        self.tets = tri  # the element list (three corners each)
+        self.D = np.zeros((len(tri), 3, 2))
+        self.D[:, 1:, :] = dm_inv
+        self.D[:, 0, :] = -dm_inv.sum(axis=1)
+        self.vol = area * thickness * self.unit
+        self.active = np.ones(len(tri), dtype=np.bool_)
+        self.w_arap = 2.0 * self.mu * self.vol
+        self.w_vol = np.zeros(len(tri))
+        self.surface = True
+        self.quats = np.zeros((0, 4))
+        self.mass = lumped_mass(self.n, None, None, tri, self.vol, density)
+        self.graph = build_graph(self.n, meshgen.links_from_polygons(tri))
+        self.x = rest_si.copy()
+        self.v = np.zeros_like(self.x)
+        self._factor = None
+        self._factor_key = None
+        self.refactor_seconds = 0.0
+
     @property
     def positions(self) -> np.ndarray:
         return self._positions
 
     @positions.setter
-    def positions(self, value) -> None:
+    def positions(self, value: ArrayLike) -> None:
         self._positions = value
         if hasattr(self, "x"):
             self.x[:] = np.asarray(value) * self.unit
@@ -96,8 +142,9 @@ class ProjectiveBody(Body):
         D = self.D[self.active]
         w = (self.w_arap + self.w_vol)[self.active]
         blocks = np.einsum("tkc,tlc->tkl", D, D) * w[:, None, None]
-        rows = np.repeat(t, 4, axis=1).ravel()
-        cols = np.tile(t, (1, 4)).ravel()
+        k = t.shape[1]
+        rows = np.repeat(t, k, axis=1).ravel()
+        cols = np.tile(t, (1, k)).ravel()
         return sp.csr_matrix((blocks.ravel(), (rows, cols)), shape=(self.n, self.n))
 
     def _prepare(self, dt: float) -> None:
@@ -139,7 +186,10 @@ class ProjectiveBody(Body):
         scale = max(float(np.ptp(self.rest * self.unit, axis=0).max()), 1e-300)
         for _ in range(self.iterations):
             done += 1
-            local_step(x, self.tets, self.D, self.active, self.w_arap, self.w_vol, self.quats, 4, rhs)
+            if self.surface:
+                local_step_tri(x, self.tets, self.D, self.active, self.w_arap, rhs)
+            else:
+                local_step(x, self.tets, self.D, self.active, self.w_arap, self.w_vol, self.quats, 4, rhs)
             if self.dynamic:
                 rhs += (self.mass / (dt * dt))[:, None] * y
             if len(free) == 0:
@@ -161,8 +211,9 @@ class ProjectiveBody(Body):
         if len(killed) == 0:
             return 0
         dead_set = {tuple(e) for e in np.sort(self.graph.links[killed], axis=1)}
-        edges = np.sort(self.tets[:, [[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]]], axis=2).reshape(-1, 2)
-        hit = np.array([tuple(e) in dead_set for e in edges]).reshape(-1, 6).any(axis=1)
+        pairs = [[0, 1], [1, 2], [0, 2]] if self.surface else [[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]]
+        edges = np.sort(self.tets[:, pairs], axis=2).reshape(-1, 2)
+        hit = np.array([tuple(e) in dead_set for e in edges]).reshape(-1, len(pairs)).any(axis=1)
         self.active &= ~hit
         return int(len(killed))
 
@@ -171,4 +222,5 @@ class ProjectiveBody(Body):
         self.x[:] = self.rest * self.unit
         self.v[:] = 0.0
         self.quats[:] = 0.0
-        self.quats[:, 0] = 1.0
+        if len(self.quats):
+            self.quats[:, 0] = 1.0

@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from chainsim.engine import meshgen
 from chainsim.engine.bodies.base import Body, StepStats, check_elastic
@@ -37,7 +38,9 @@ def tet_rest_data(rest_si: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np
     return np.linalg.inv(dm), np.abs(det) / 6.0
 
 
-def lumped_mass(n: int, tets: np.ndarray | None, vol: np.ndarray | None, tris, area, density: float) -> np.ndarray:
+def lumped_mass(
+    n: int, tets: np.ndarray | None, vol: np.ndarray | None, tris: ArrayLike, area: np.ndarray | None, density: float
+) -> np.ndarray:
     m = np.zeros(n)
     if tets is not None and len(tets):
         np.add.at(m, tets.ravel(), np.repeat(vol * density / 4.0, 4))
@@ -54,9 +57,9 @@ class XPBDBody(Body):
 
     def __init__(
         self,
-        rest,
-        tets=None,
-        triangles=None,
+        rest: ArrayLike,
+        tets: ArrayLike | None = None,
+        triangles: ArrayLike | None = None,
         *,
         E: float = 3000.0,
         nu: float = 0.45,
@@ -67,9 +70,9 @@ class XPBDBody(Body):
         thickness: float = 1.0,
         bending: float = 0.01,
         unit: float = 1.0,
-        gravity=(0.0, 0.0, 0.0),
+        gravity: ArrayLike = (0.0, 0.0, 0.0),
         constraints: str = "auto",
-        fixed=None,
+        fixed: ArrayLike | None = None,
     ) -> None:
         super().__init__(rest, fixed)
         self.mu, self.lam = check_elastic(E, nu, density)
@@ -166,7 +169,7 @@ class XPBDBody(Body):
         return self._positions
 
     @positions.setter
-    def positions(self, value) -> None:
+    def positions(self, value: ArrayLike) -> None:
         self._positions = value
         if hasattr(self, "x"):
             self.x[:] = np.asarray(value) * self.unit

@@ -98,3 +98,41 @@ def local_step(x, tets, D, active, w_arap, w_vol, quats, rot_iterations, rhs):
                     acc += D[t, k, c] * (w_arap[t] * R[r, c] + w_vol[t] * P)
                 rhs[i, r] += acc
     return rhs
+
+
+@njit(cache=True)
+def local_step_tri(x, tris, D, active, w_arap, rhs):
+    """Membrane triangles: project F (3x2) onto its nearest orthonormal-column matrix R = F (F^T F)^-1/2
+    and accumulate D (w R)^T into the corners (rhs (N,3), overwritten)."""
+    rhs[:] = 0.0
+    F = np.zeros((3, 2))
+    R = np.zeros((3, 2))
+    for t in range(tris.shape[0]):
+        if not active[t]:
+            continue
+        for r in range(3):
+            for c in range(2):
+                acc = 0.0
+                for k in range(3):
+                    acc += x[tris[t, k], r] * D[t, k, c]
+                F[r, c] = acc
+        a = F[0, 0] * F[0, 0] + F[1, 0] * F[1, 0] + F[2, 0] * F[2, 0]
+        b = F[0, 0] * F[0, 1] + F[1, 0] * F[1, 1] + F[2, 0] * F[2, 1]
+        d = F[0, 1] * F[0, 1] + F[1, 1] * F[1, 1] + F[2, 1] * F[2, 1]
+        det = a * d - b * b
+        if det <= 1e-30:
+            continue  # a collapsed triangle has no direction to restore: it contributes nothing
+        s = np.sqrt(det)
+        tau = np.sqrt(a + d + 2.0 * s)
+        # sqrt(C) = (C + s I) / tau for 2x2 SPD C; its inverse by the 2x2 formula
+        m00, m01, m11 = (a + s) / tau, b / tau, (d + s) / tau
+        idet = 1.0 / (m00 * m11 - m01 * m01)
+        i00, i01, i11 = m11 * idet, -m01 * idet, m00 * idet
+        for r in range(3):
+            R[r, 0] = F[r, 0] * i00 + F[r, 1] * i01
+            R[r, 1] = F[r, 0] * i01 + F[r, 1] * i11
+        for k in range(3):
+            i = tris[t, k]
+            for r in range(3):
+                rhs[i, r] += w_arap[t] * (D[t, k, 0] * R[r, 0] + D[t, k, 1] * R[r, 1])
+    return rhs

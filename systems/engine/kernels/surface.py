@@ -42,10 +42,10 @@ def _normal_kernel(disp, indptr, indices, link, alive, rest_len, grabbed, target
         head += 1
         for j in range(indptr[s], indptr[s + 1]):
             e = indices[j]
-            l = link[j]
-            if stamp[e] == 1 or not alive[l] or (has_fixed and fixed[e]):
+            lk = link[j]
+            if stamp[e] == 1 or not alive[lk] or (has_fixed and fixed[e]):
                 continue
-            lim = shear[l] * rest_len[l]
+            lim = shear[lk] * rest_len[lk]
             x = disp[e]
             if x - disp[s] > lim:
                 disp[e] = disp[s] + lim

@@ -233,7 +233,8 @@ def panel_lines(app, st: CuttingState) -> list[str]:
     tool = st.tool or "none - take the forceps or the scissors"
     if st.tool == "forceps" and f.held_entity >= 0:
         tool += f" (holding {st.names.get(f.held_entity, '?')})"
-    lines = [f"Tool: {tool}"]
+    top = esper.component_for_entity(st.top, Deformable)
+    lines = [f"Tool: {tool}", f"Tissue model: {top.model_used} (m switches)"]
     if v:
         cut = ", ".join(v["layers_cut"]) or "none"
         lines += [

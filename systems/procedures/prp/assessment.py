@@ -1,7 +1,9 @@
 """Rhizotomy assessment: the 6.1.5 errors, the attempt record and the assessment tool (thesis 3.3.4, Fig. 3.11).
 
 Stage: procedure (ORDER_ASSESSMENT), after the procedure steps. Reads: ProcedureState, NeedleState,
-PrpAnatomy, Widget events (self_assessment, save, help), Settings ("db", "class", "trainee").
+PrpAnatomy, Widget events (self_assessment, save, help), Settings ("class", "trainee"), Records (where
+attempts go; a replay's refuse every save, which then closes the attempt without storing it).
+A save that did not happen is shown and appended to FailedSaves (a headless run then exits 2).
 Writes: chainsim.game.app.headless.Assessment.values (the summary's `assessment`), HudState.panel_text and
 messages; saves attempts to the records store.
 
@@ -14,7 +16,9 @@ Metrics, on the side of landmark 1 (all millimetres):
                     ovale, R its radius. Negative when the tip stopped inside the opening's radius;
                     None while the needle has touched nothing.
 Also: simulated seconds per step, the tip's path length while inserted, skull contacts, refused
-rotations, the aids that were on at any time of the attempt, and the object reached.
+rotations, the aids that were on at any time of the attempt, the object reached, and the X-ray the
+attempt cost (thesis 3.2.3; chainsim.systems.procedures.prp.fluoro): single images `xray_shots`,
+live seconds `fluoro_s`, total `exposure_s` and the estimated entrance dose `dose_mgy`.
 """
 
 from __future__ import annotations
@@ -22,10 +26,19 @@ from __future__ import annotations
 import esper
 import numpy as np
 
+from chainsim.components.fluoro import CArm
 from chainsim.components.input_events import Widget
 from chainsim.components.needle import NeedleState
 from chainsim.components.procedure import ProcedureState, PrpAnatomy, landmark_errors
-from chainsim.components.resources import Assessment, PackResource, Records, SavedLocally, Settings
+from chainsim.components.resources import (
+    Assessment,
+    EntityIndex,
+    FailedSaves,
+    PackResource,
+    Records,
+    SavedLocally,
+    Settings,
+)
 from chainsim.engine.errors import UserError
 from chainsim.systems.procedures.prp.handles import PrpHandles, hud
 from chainsim.systems.stages import ORDER_ASSESSMENT
@@ -80,11 +93,27 @@ def compute(app) -> dict:
         "rotation_locked": bool(st.locked),
         "lights": dict(ps.lights),
     }
+    out.update(xray_values(app))
     for k in (1, 2, 3):
         out[f"D{k}"] = lm.get(f"D{k}")
         out[f"d{k}"] = lm.get(f"d{k}")
         out[f"Dist{k}"] = lm.get(f"Dist{k}")
     return out
+
+
+def xray_values(app) -> dict:
+    """The C-arm's counts for this attempt: single images, live seconds, exposure and dose (3.2.3)."""
+    ent = app.resource(EntityIndex).get("carm")
+    carm = esper.try_component(ent, CArm) if ent is not None else None
+    if carm is None:
+        return {"xray_shots": 0, "fluoro_s": 0.0, "exposure_s": 0.0, "dose_mgy": 0.0, "xray_view": None}
+    return {
+        "xray_shots": int(carm.shots),
+        "fluoro_s": float(carm.live_s),
+        "exposure_s": float(carm.exposure_s),
+        "dose_mgy": float(carm.dose_mgy),
+        "xray_view": carm.view,
+    }
 
 
 def panel_lines(v: dict) -> list[str]:
@@ -112,6 +141,10 @@ def panel_lines(v: dict) -> list[str]:
         f"Reached {v['target'].replace('_', ' ')}; bone contacts {v['skull_contacts']}; "
         f"redirections {v.get('redirections', 0)}; path {v['path_length_mm']:.1f} mm; time {v['duration_s']:.1f} s"
     )
+    lines.append(
+        f"X-ray: {v.get('xray_shots', 0)} images, {v.get('fluoro_s', 0.0):.1f} s live; exposure "
+        f"{v.get('exposure_s', 0.0):.1f} s, about {v.get('dose_mgy', 0.0):.2f} mGy to the skin"
+    )
     on = [k.replace("_", " ") for k, x in v["aids"].items() if x]
     lines.append("Aids used: " + (", ".join(on) if on else "none"))
     return lines
@@ -128,6 +161,9 @@ def attempt_record(pack_name: str, v: dict) -> dict:
         "skull_contacts": v["skull_contacts"],
         "path_length_mm": v["path_length_mm"],
         "redirections": v.get("redirections", 0),
+        "xray_shots": v.get("xray_shots", 0),
+        "exposure_s": v.get("exposure_s", 0.0),
+        "dose_mgy": v.get("dose_mgy", 0.0),
         "aids": v["aids"],
         "step_times": v["step_times"],
         "details": {
@@ -147,20 +183,31 @@ def attempt_record(pack_name: str, v: dict) -> dict:
                 "rotation_refused",
                 "rotation_horizontal_deg",
                 "rotation_vertical_deg",
+                "fluoro_s",
             )
+            if k in v
         },
     }
 
 
-def save(app, v: dict) -> int:
-    """Save the attempt through the Records resource (Settings class/trainee); raises UserError on failure."""
+def save(app, v: dict) -> int | None:
+    """Save the attempt through the Records resource (Settings class/trainee); raises UserError on failure.
+
+    Returns None, storing nothing, when the Records refuse all saves (a replay): the attempt is then
+    closed exactly as the recorded session closed it, so the replay reaches the same state.
+    """
     if v["landmark_error_mm"] is None:
         raise UserError("place all three landmarks before saving: the landmark error needs them")
+    if app.resource(Records).refuses:
+        return None
     s = app.resource(Settings)
+    rec = attempt_record(app.resource(PackResource).pack.name, v)
+    if isinstance(s.get("protocol"), dict):  # a study trial (chainsim protocol): which one, in its details
+        rec["details"]["protocol"] = dict(s.get("protocol"))
     return app.resource(Records).save_attempt(
         s.get("class") or DEFAULT_CLASS,
         s.get("trainee") or DEFAULT_TRAINEE,
-        attempt_record(app.resource(PackResource).pack.name, v),
+        rec,
     )
 
 
@@ -222,21 +269,24 @@ class AssessmentSystem:
                 except SavedLocally as e:  # safe on this computer; the records server gets it later
                     h.message(f"Saved on this computer: {e}", 8.0)
                     esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState).closed = True
-                except UserError as e:
+                except (UserError, OSError) as e:  # a full disk or a vanished folder must not end the session
                     h.message(f"Not saved: {e}", 8.0)
                     self.errors.append(str(e))
-                except OSError as e:  # a full disk or a vanished folder must not end the session
-                    h.message(f"Not saved: {e}", 8.0)
-                    self.errors.append(str(e))
+                    failed = app.get_resource(FailedSaves)
+                    if failed is not None:  # a headless run then ends with exit 2
+                        failed.messages.append(str(e))
                 else:
                     ps = esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState)
-                    ps.saved.append(rid)
                     ps.closed = True  # this attempt is done; the next action begins another
                     s = app.resource(Settings)
-                    h.message(
-                        f"Attempt {rid} saved for {s.get('trainee') or DEFAULT_TRAINEE} "
-                        f"in class {s.get('class') or DEFAULT_CLASS}. Reset (r) to try again."
-                    )
+                    if rid is None:
+                        h.message(f"Not saved: {app.resource(Records).refuses}. Reset (r) to try again.")
+                    else:
+                        ps.saved.append(rid)
+                        h.message(
+                            f"Attempt {rid} saved for {s.get('trainee') or DEFAULT_TRAINEE} "
+                            f"in class {s.get('class') or DEFAULT_CLASS}. Reset (r) to try again."
+                        )
             elif ev.name == "delete_attempt":
                 self.delete(app, h)
             elif ev.name == "my_attempts":

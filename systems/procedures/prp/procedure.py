@@ -2,7 +2,7 @@
 
 `plugin(app)` is what `pack.procedure = "prp"` installs: the anatomy resource, the needle kinematics
 (chainsim.systems.needle), the swept collision test (chainsim.systems.collision), this step machine and the assessment
-(chainsim.systems.procedures.prp.assessment).
+(chainsim.systems.procedures.prp.assessment) and the C-arm (chainsim.systems.procedures.prp.fluoro).
 
 Stage: procedure (ORDER_PROCEDURE). Reads: Picked, Widget, NeedleAction, NeedleReset,
 RotationRefused, InsertRefused and NeedleHit events; WidgetState (aid toggles). Writes:
@@ -44,7 +44,7 @@ from chainsim.systems import collision
 from chainsim.systems import needle as needle_sys
 from chainsim.systems.collision import NeedleHit
 from chainsim.systems.needle import InsertRefused, NeedleAction, NeedleReset, RotationRefused
-from chainsim.systems.procedures.prp import assessment
+from chainsim.systems.procedures.prp import assessment, fluoro
 from chainsim.systems.procedures.prp.handles import PrpHandles, hud
 from chainsim.systems.stages import ORDER_PROCEDURE
 from chainsim.systems.ui.widgets import WidgetState
@@ -387,11 +387,13 @@ def plugin(app) -> None:
         needles = [ent for ent, _ in esper.get_component(Needle)]
         if len(needles) != 1:
             raise UserError(
-                f"pack '{pack.name}': the rhizotomy procedure needs exactly one entity with a [needle] table, found {len(needles)}"
+                f"pack '{pack.name}': the rhizotomy procedure needs exactly one entity with a [needle] table, "
+                f"found {len(needles)}"
             )
         if index.get(SKIN) is None:
             raise UserError(
-                f"pack '{pack.name}': the rhizotomy procedure needs an entity named '{SKIN}' (landmarks are clicked on it)"
+                f"pack '{pack.name}': the rhizotomy procedure needs an entity named '{SKIN}' "
+                "(landmarks are clicked on it)"
             )
         step_ids = [s["id"] for s in pack.section("steps")]
         unknown = [s for s in step_ids if s not in STEP_IDS]
@@ -420,4 +422,5 @@ def plugin(app) -> None:
     with app.active():
         system.show_step(app, ps)
     app.add_system("procedure", system, order=ORDER_PROCEDURE, name="prp_procedure")
+    fluoro.plugin(app)
     assessment.plugin(app)

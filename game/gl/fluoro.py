@@ -1,0 +1,215 @@
+"""The C-arm's radiograph: X-ray attenuation through closed meshes, and its display (thesis 3.2.3).
+
+A radiograph records, for each ray from the X-ray source to a detector pixel, how much of the beam
+got through: I / I0 = exp(-L) with L the line integral of the linear attenuation coefficient mu
+along the ray (Beer-Lambert). With the anatomy made of closed surfaces, each of one material, L is
+a sum over those surfaces of mu times the length of the ray inside them, and that length is the
+sum of the distances from the source to where the ray leaves a surface minus the sum of the
+distances to where it enters one. A triangle faces the source where the ray enters (its outward
+normal points back at the source), so one additive pass does it: every fragment of every mesh adds
+mu * distance(source, fragment), negated for front faces, into a 32-bit float target (blending ONE,
+ONE; no depth test, no culling; GL's rasterisation rules cover each pixel centre once per surface
+crossing, so a closed mesh contributes exactly its chord). The camera is the C-arm's cone beam: the
+eye at the source, the round detector's cone as the field of view (chainsim.systems.ui.viewports.carm_camera).
+
+Display: L is shown on a logarithmic (linear-in-L) scale, bright where the beam got through and
+dark where it did not, as a fluoroscopy monitor shows it: air light, soft tissue grey, bone darker,
+the steel needle black. Edges are enhanced (L plus its difference from a blurred copy), as a
+fluoroscopy chain's image processing does, and the grey window follows the body in the image the
+way a C-arm's automatic brightness control does (from the 1st to the 98th percentile of L where the
+beam crossed tissue), so a lateral and a submental image both show bone detail; outside the round
+field the image is black.
+
+The image is made only when the C-arm says so (a new `CArm.image_id`: a shot, or a pulse of live
+fluoroscopy) and then shown unchanged - frozen - until the next one, whatever the needle does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+
+from chainsim.game.gl.context import release_framebuffer
+from chainsim.systems.ui.viewports import Camera, Rect
+
+IMAGE_PX = 512
+#: edge enhancement: gain and blur radius (pixels of a IMAGE_PX image)
+EDGE_GAIN = 1.0
+EDGE_SIGMA_PX = 6.0
+#: attenuation below this is air around the head, left out of the grey window
+AIR_L = 0.3
+
+ACC_VS = """
+#version 330
+uniform mat4 u_mvp;
+uniform mat4 u_model;
+in vec3 in_pos;
+out vec3 v_world;
+void main() {
+    gl_Position = u_mvp * vec4(in_pos, 1.0);
+    v_world = (u_model * vec4(in_pos, 1.0)).xyz;
+}
+"""
+
+ACC_FS = """
+#version 330
+uniform vec3 u_source;
+uniform float u_mu;
+in vec3 v_world;
+out float f_path;
+void main() {
+    // leaving a surface adds mu * distance, entering one subtracts it: the sum is mu * chord
+    float d = distance(v_world, u_source);
+    f_path = gl_FrontFacing ? -u_mu * d : u_mu * d;
+}
+"""
+
+SHOW_VS = """
+#version 330
+in vec2 in_xy;
+out vec2 v_uv;
+void main() {
+    v_uv = in_xy * 0.5 + 0.5;
+    gl_Position = vec4(in_xy, 0.0, 1.0);
+}
+"""
+
+SHOW_FS = """
+#version 330
+uniform sampler2D u_image;
+in vec2 v_uv;
+out vec4 f_color;
+void main() { f_color = vec4(texture(u_image, v_uv).rgb, 1.0); }
+"""
+
+
+@dataclass(slots=True)
+class XrayMesh:
+    """One closed mesh in the beam: its GPU buffers, model matrix and attenuation (1/mm)."""
+
+    gpu: object  # chainsim.game.gl.meshbuf.GpuMesh
+    model: np.ndarray
+    mu: float
+
+
+@dataclass(slots=True)
+class FluoroDraw:
+    """What the C-arm view needs this frame (gathered by chainsim.game.gl.render_system)."""
+
+    camera: Camera  # the pose of the image to make (the C-arm's at its last shot or pulse)
+    image_id: int
+    meshes: list[XrayMesh] = field(default_factory=list)
+    status: str = ""  # one line under the view's title: projection, images, exposure
+    live: bool = False
+
+
+def _mat(m: np.ndarray) -> bytes:
+    return np.asarray(m, np.float32).T.tobytes()
+
+
+def grey(path: np.ndarray) -> np.ndarray:
+    """Attenuation L (H, W) -> display grey (H, W) uint8: linear in L, bright = little attenuation,
+    windowed over the round field by percentiles (automatic brightness), black outside the field."""
+    h, w = path.shape
+    yy, xx = np.mgrid[0:h, 0:w]
+    r = 0.5 * min(h, w)
+    inside = (xx + 0.5 - w / 2) ** 2 + (yy + 0.5 - h / 2) ** 2 <= (r - 1.0) ** 2
+    # edge enhancement, as a fluoroscopy chain applies it: the image plus part of its detail above a blur
+    sharp = path + EDGE_GAIN * (path - ndimage.gaussian_filter(path, EDGE_SIGMA_PX * h / IMAGE_PX))
+    vals = sharp[inside & (path > AIR_L)]  # the window follows the body, not the air around it
+    lo, hi = np.percentile(vals, [1.0, 98.0]) if vals.size else (0.0, 1.0)
+    lo = min(lo, 0.0)
+    if hi - lo < 1e-6:
+        hi = lo + 1.0
+    v = 1.0 - np.clip((sharp - lo) / (hi - lo), 0.0, 1.0)
+    out = np.where(inside, 0.06 + 0.9 * v, 0.0)
+    return np.round(out * 255.0).astype(np.uint8)
+
+
+class FluoroRenderer:
+    """Makes C-arm images (float attenuation images) and draws the latest one into a viewport."""
+
+    def __init__(self, ctx, size: int = IMAGE_PX):
+        self.ctx = ctx
+        self.size = int(size)
+        self.acc = ctx.program(vertex_shader=ACC_VS, fragment_shader=ACC_FS)
+        self.show = ctx.program(vertex_shader=SHOW_VS, fragment_shader=SHOW_FS)
+        self.target = ctx.texture((self.size, self.size), 1, dtype="f4")
+        self.fbo = ctx.framebuffer(color_attachments=[self.target])
+        self.display = ctx.texture((self.size, self.size), 4)
+        self.display.filter = (ctx.LINEAR, ctx.LINEAR)
+        quad = np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32)
+        self.quad = ctx.buffer(quad.tobytes())
+        self.quad_vao = ctx.vertex_array(self.show, [(self.quad, "2f", "in_xy")])
+        self.image_id = -1  # the image shown; -1 before the first
+        self.path: np.ndarray | None = None  # attenuation L of the image shown, rows top first
+        self.camera: Camera | None = None  # its C-arm pose
+
+    def capture(self, meshes: list[XrayMesh], camera: Camera) -> np.ndarray:
+        """Attenuation image (size x size, float32, rows top first) of `meshes` seen by `camera`."""
+        ctx = self.ctx
+        vp = camera.view_projection(1.0)
+        try:
+            self.fbo.use()
+            ctx.scissor = None
+            ctx.viewport = (0, 0, self.size, self.size)
+            self.fbo.clear(0.0, 0.0, 0.0, 0.0)
+            ctx.disable(ctx.DEPTH_TEST | ctx.CULL_FACE)
+            ctx.enable(ctx.BLEND)
+            ctx.blend_func = ctx.ONE, ctx.ONE
+            ctx.blend_equation = ctx.FUNC_ADD
+            self.acc["u_source"].value = tuple(float(c) for c in camera.eye)
+            for m in meshes:
+                if m.mu <= 0.0 or not m.gpu.n_indices:
+                    continue
+                model = np.asarray(m.model, float)
+                self.acc["u_mvp"].write(_mat(vp @ model))
+                if "u_model" in self.acc:
+                    self.acc["u_model"].write(_mat(model))
+                self.acc["u_mu"].value = float(m.mu)
+                m.gpu.vao(self.acc, "tri").render(ctx.TRIANGLES, vertices=m.gpu.n_indices)
+            raw = np.frombuffer(self.target.read(), np.float32).reshape(self.size, self.size)
+        finally:
+            ctx.disable(ctx.BLEND)
+            ctx.blend_func = ctx.SRC_ALPHA, ctx.ONE_MINUS_SRC_ALPHA
+        # the image's framebuffer stays bound: whoever draws next binds its own target first
+        return np.ascontiguousarray(raw[::-1])
+
+    def update(self, draw: FluoroDraw) -> bool:
+        """Make a new image if the C-arm took one since the last; True when it did."""
+        if draw.image_id == self.image_id or draw.image_id <= 0:  # no new image (0: none taken yet)
+            return False
+        path = self.capture(draw.meshes, draw.camera)
+        g = grey(path)
+        rgba = np.dstack([g, g, g, np.full_like(g, 255)])
+        self.display.write(np.ascontiguousarray(rgba[::-1]).tobytes())  # GL rows bottom first
+        self.path, self.camera, self.image_id = path, draw.camera, draw.image_id
+        return True
+
+    def draw(self, r: Rect) -> None:
+        """The latest image, square and centred in the framebuffer rectangle `r` (black around it)."""
+        if self.image_id < 0 or r.w <= 0 or r.h <= 0:
+            return
+        ctx = self.ctx
+        side = min(r.w, r.h)
+        x0, y0 = r.x + (r.w - side) // 2, r.y + (r.h - side) // 2
+        ctx.viewport = (x0, y0, side, side)
+        ctx.disable(ctx.DEPTH_TEST | ctx.BLEND | ctx.CULL_FACE)
+        self.display.use(location=0)
+        self.show["u_image"].value = 0
+        self.quad_vao.render(ctx.TRIANGLE_STRIP)
+        ctx.viewport = (r.x, r.y, r.w, r.h)
+
+    def image_rgb(self) -> np.ndarray | None:
+        """The image shown, as grey RGB (rows top first), or None before the first."""
+        if self.path is None:
+            return None
+        g = grey(self.path)
+        return np.dstack([g, g, g])
+
+    def release(self) -> None:
+        release_framebuffer(self.ctx, self.fbo)  # parks the binding first if it is the bound one
+        for o in (self.quad_vao, self.quad, self.target, self.display, self.acc, self.show):
+            o.release()

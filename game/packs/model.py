@@ -1,0 +1,115 @@
+"""The loaded pack: its converted manifest, its files (kept inside the pack folder) and its meshes.
+
+`Pack` is what `chainsim.game.packs.pack.validate` returns; `build_mesh` turns a [meshes] entry into
+a MeshData in millimetres (chainsim.engine.meshes checks the file and the result against the mesh
+limits); `inside` keeps every path a manifest names inside its pack; `material_presets` reads the
+calibrated ChainMail materials a [materials] entry may name.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from chainsim.assets import ASSETS_DIR
+from chainsim.components.registry import SECTION_STYLE
+from chainsim.engine.errors import UserError
+from chainsim.engine.meshes import MeshData, check_mesh, load_file, primitive
+from chainsim.engine.reorder import reorder_mesh
+from chainsim.game.packs import schema as ms
+
+PRESET_FILE = ASSETS_DIR / "presets" / "materials.toml"
+PRESET_KEYS = {"alpha_min": "alpha_min", "alpha_max": "alpha_max", "beta": "beta", "relax": "relax_iterations"}
+
+
+def inside(root: Path, rel: str) -> Path | None:
+    """The resolved path of `rel` if it stays inside `root` (symlinks followed), else None."""
+    if os.path.isabs(rel):
+        return None
+    try:
+        target = (root / rel).resolve()
+        target.relative_to(root.resolve())
+    except (ValueError, OSError):  # outside the pack, a NUL byte, a symlink loop
+        return None
+    return target
+
+
+@dataclass
+class Pack:
+    """A validated pack: converted manifest sections and lazily loaded meshes."""
+
+    root: Path
+    manifest: dict[str, Any]
+    texts: dict[str, str] = field(default_factory=dict)
+    origin: dict[str, str] = field(default_factory=dict)  # "section.name" -> the manifest file defining it
+    _meshes: dict[str, MeshData] = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return self.manifest["pack"]["name"]
+
+    def section(self, name: str) -> Any:
+        return self.manifest.get(name, {} if SECTION_STYLE[name] != "list" else [])
+
+    def mesh(self, name: str) -> MeshData:
+        if name not in self._meshes:
+            self._meshes[name] = build_mesh(self.root, name, self.manifest["meshes"][name])
+        return self._meshes[name]
+
+    def scene_names(self) -> list[str]:
+        return list(self.section("scenes"))
+
+    def scene(self, name: str | None) -> tuple[str, dict]:
+        scenes = self.section("scenes")
+        if not scenes:
+            return "main", {
+                "entities": [],
+                "layout": next(iter(self.section("layouts")), ""),
+                "description": "",
+                "script": "",
+            }
+        if name is None:
+            name = self.manifest["pack"].get("default_scene") or next(iter(scenes))
+        if name not in scenes:
+            raise UserError(f"pack '{self.name}' has no scene '{name}'; scenes: {', '.join(scenes)}")
+        return name, scenes[name]
+
+    def doc_text(self, name: str) -> str:
+        return inside(self.root, self.section("docs")[name]["path"]).read_text(encoding="utf-8")
+
+    def file(self, rel: str) -> Path:
+        p = inside(self.root, rel)
+        if p is None:
+            raise UserError(f"{rel}: path escapes the pack folder {self.root}")
+        return p
+
+
+def build_mesh(root: Path, name: str, spec: dict) -> MeshData:
+    """The mesh of a [meshes] entry in millimetres; MeshError (naming the file or entry) if unusable."""
+    scale = ms.UNIT_SCALE_TO_MM[spec["units"]]
+    if spec["primitive"]:
+        m = primitive(
+            spec["primitive"],
+            extents=spec["extents"],
+            radius=spec["radius"],
+            height=spec["height"],
+            resolution=spec["resolution"],
+        )
+        m.vertices = m.vertices * scale
+        return check_mesh(m, f"meshes.{name}")
+    path = inside(root, spec["path"])
+    m = load_file(path, scale, spec["merge_vertices"], label=spec["path"])
+    if spec.get("reorder"):
+        m = reorder_mesh(m)
+    return m
+
+
+def material_presets() -> dict[str, dict]:
+    """Named ChainMail materials calibrated against FEM (`chainsim study calibrate` writes them)."""
+    try:
+        return tomllib.loads(PRESET_FILE.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return {}

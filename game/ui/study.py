@@ -1,0 +1,272 @@
+"""A study session for a person at the window: questionnaires, counterbalanced trials, Table 6.1 (thesis 6.1.4).
+
+`chainsim protocol PROTOCOL.toml --participant NAME` opens the trainer window and runs one
+participant through the protocol, as the thesis ran its volunteers:
+
+1. the pre-session questionnaire (background, chainsim.game.ui.questionnaire.PRE), typed in the window;
+2. the trials. Each [[trial]] of the protocol is a condition of a task (location: place the three
+   landmarks; insertion: aim and insert the needle from landmarks placed for you at the ideal points,
+   so every insertion starts the same, as the thesis reset its needle). The aids are set as the
+   condition says and locked for the trial. The conditions of a task are run in cycles, each
+   condition once per cycle, `repeat` cycles, and the order within a cycle is counterbalanced between
+   participants (rows of a balanced Latin square, by the participant's number in the study), because
+   the thesis saw participants improve as they went. A page before each trial says what comes;
+   the trial ends when the participant presses Save attempt;
+3. the post-session questionnaire (ratings of each feature, chainsim.game.ui.questionnaire.POST);
+4. Table 6.1 and the mean ratings over every participant of this study in the records database.
+
+Everything is saved as it happens: the attempts (with `details.protocol`: study, participant, trial,
+task, condition, order) and both questionnaires, so a session cut short keeps what was done.
+
+The session is GL-free: the window feeds it keys and text and calls `update()` once per frame; tests
+drive it the same way on a headless App.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from chainsim.components.hud import HudState
+from chainsim.components.input_events import PickPoint, Widget
+from chainsim.components.resources import Assessment, PackResource, PendingInput, Settings
+from chainsim.game.records import study as results
+from chainsim.game.records.store import RecordStore
+from chainsim.game.ui.questionnaire import POST, PRE, THESIS_RATINGS, Notice, Questionnaire
+from chainsim.systems.ui.widgets import WidgetState
+
+logger = logging.getLogger(__name__)
+
+AIDS = ("skin_transparent", "reference_planes", "landmark_planes", "tip_view", "collision_signals")
+TASK_DOES = {
+    "location": "Place the three landmarks on the face (1 beside the mouth, 2 at the pupil, 3 in front of the "
+    "ear), then press **Save attempt**.",
+    "insertion": "The landmarks are placed for you. Aim the needle with the two dials and insert it into the "
+    "foramen ovale, then press **Save attempt**.",
+}
+
+
+def latin_row(n: int, participant: int) -> list[int]:
+    """Order of n conditions for a participant: a row of a balanced Latin square (each condition comes
+    first equally often and follows each other condition equally often over n participants; for an odd n,
+    over 2n, the second n taking the rows reversed)."""
+    first = [j // 2 if j % 2 == 0 else n - (j + 1) // 2 for j in range(n)]
+    row = [(v + participant) % n for v in first]
+    if n % 2 == 1 and (participant // n) % 2 == 1:
+        row.reverse()
+    return row
+
+
+def study_name(proto: dict) -> str:
+    """The study's label in the records: the protocol file's name without .toml."""
+    return proto["path"].stem
+
+
+def plan(proto: dict, participant: int) -> list[dict]:
+    """The participant's trials in order: per task (in protocol order), cycles of its conditions."""
+    out = []
+    tasks = []
+    for t in proto["trials"]:
+        if t["task"] not in tasks:
+            tasks.append(t["task"])
+    for task in tasks:
+        trials = [t for t in proto["trials"] if t["task"] == task]
+        order = latin_row(len(trials), participant)
+        for cycle in range(max(t["repeat"] for t in trials)):
+            for i in order:
+                if cycle < trials[i]["repeat"]:
+                    out.append({**trials[i], "cycle": cycle + 1})
+    for k, t in enumerate(out, 1):
+        t["order"] = k
+    return out
+
+
+class StudySession:
+    """One participant's session on an App (see the module docstring)."""
+
+    def __init__(self, app, proto: dict, participant: str, class_name: str, db, side: str = "left"):
+        self.app = app
+        self.proto = proto
+        self.study = study_name(proto)
+        self.participant = participant
+        self.class_name = class_name
+        self.db = db
+        self.side = side
+        self.form = None
+        self.state = "new"
+        self.trials: list[dict] = []
+        self.k = -1
+        self.saved_seen = 0
+        self.lock_at: float | None = None
+        self.done_trials: list[dict] = []
+        self.summary = ""
+        self.number = 0
+
+    # -- what the window shows and passes on ------------------------------------------------------
+    @property
+    def notice(self) -> str:
+        return self.form.markdown() if self.form is not None else ""
+
+    @property
+    def finished(self) -> bool:
+        return self.state == "finished"
+
+    def start(self) -> None:
+        with RecordStore(self.db) as store:
+            known = []
+            for r in results.study_rows(self._attempts(store), self.study):
+                if r["participant"] not in known:
+                    known.append(r["participant"])
+        self.number = known.index(self.participant) if self.participant in known else len(known)
+        self.trials = plan(self.proto, self.number)
+        self.state = "pre"
+        self.form = Questionnaire(
+            "Before the session",
+            f"Welcome, {self.participant}. A few questions about you first (participant {self.number + 1} "
+            f"of study '{self.study}'; {len(self.trials)} trials follow).",
+            PRE,
+        )
+        self._show()
+
+    def text(self, typed: str) -> None:
+        if self.form is not None:
+            self.form.text(typed)
+            self._after_form()
+
+    def key(self, name: str) -> None:
+        if self.form is not None:
+            self.form.key(name)
+            self._after_form()
+
+    def update(self) -> None:
+        """Once per frame: lock the trial's aids once they are set; end the trial when it is saved."""
+        app = self.app
+        if self.state != "trial":
+            return
+        if self.lock_at is not None and app.time.sim_time >= self.lock_at:
+            app.resource(WidgetState).disable(*AIDS)
+            self.lock_at = None
+        saved = list(app.resource(Assessment).values.get("saved", []))
+        if len(saved) > self.saved_seen:
+            self.saved_seen = len(saved)
+            t = self.trials[self.k]
+            self.done_trials.append({"trial": t["name"], "condition": t["condition"], "attempt_id": saved[-1]})
+            self.next_trial()
+
+    # -- steps ------------------------------------------------------------------------------------
+    def _attempts(self, store: RecordStore) -> list[dict]:
+        try:
+            return store.list_attempts(self.class_name)
+        except Exception:  # no such class yet: nobody has taken part
+            return []
+
+    def _show(self) -> None:
+        self.app.resource(HudState).notice = self.notice
+
+    def _after_form(self) -> None:
+        if self.form is None or not self.form.done:
+            self._show()
+            return
+        if self.state == "pre":
+            self._save_questionnaire("pre", self.form.answers())
+            self.next_trial()
+        elif self.state == "intro":
+            self.form = None
+            self.begin_trial()
+        elif self.state == "post":
+            self._save_questionnaire("post", self.form.answers())
+            self.finish()
+        elif self.state == "summary":
+            self.form = None
+            self.state = "finished"
+        self._show()
+
+    def _save_questionnaire(self, kind: str, answers: dict) -> None:
+        with RecordStore(self.db) as store:
+            store.save_questionnaire(self.class_name, self.participant, kind, self.study, answers)
+
+    def next_trial(self) -> None:
+        self.k += 1
+        if self.k >= len(self.trials):
+            self.state = "post"
+            self.form = Questionnaire(
+                "After the session", "Thank you. Please rate each part of the trainer (1 = poor, 10 = very good).", POST
+            )
+            self._show()
+            return
+        t = self.trials[self.k]
+        on = [a.replace("_", " ") for a in AIDS if t["aids"].get(a)]
+        self.state = "intro"
+        self.form = Notice(
+            f"# Trial {self.k + 1} of {len(self.trials)}: {results.TASK_TITLE[t['task']]}, "
+            f"{t['condition'].replace('_', ' ')}\n\n{TASK_DOES[t['task']]}\n\n"
+            f"Aids in this trial: **{', '.join(on) if on else 'none'}** (the others are off and locked)."
+        )
+        self._show()
+
+    def begin_trial(self) -> None:
+        """Set the trial's aids, start a fresh attempt (landmarks cleared) and, for an insertion trial,
+        place the ideal landmarks; tag what will be saved with the trial."""
+        app = self.app
+        t = self.trials[self.k]
+        self.state = "trial"
+        ws = app.resource(WidgetState)
+        ws.enable(*AIDS)
+        now = app.time.sim_time
+        pending = app.resource(PendingInput)
+        events = [(now + 0.01, Widget(a, bool(t["aids"].get(a, False)))) for a in AIDS]
+        events.append((now + 0.05, Widget("reset", "all")))
+        if t["task"] == "insertion":
+            pts = app.resource(PackResource).pack.section("points")
+            for k in (1, 2, 3):
+                p = pts.get(f"landmark{k}_ideal_{self.side}")
+                if p is not None:
+                    events.append((now + 0.06 + 0.02 * k, PickPoint("skin", tuple(np.asarray(p["position"], float)))))
+        pending.extend(events)
+        self.lock_at = now + 0.2
+        app.resource(Settings).values["protocol"] = {
+            "study": self.study,
+            "participant": self.participant,
+            "participant_number": self.number + 1,
+            "trial": t["name"],
+            "task": t["task"],
+            "condition": t["condition"],
+            "order": t["order"],
+            "cycle": t["cycle"],
+        }
+        h = app.resource(HudState)
+        h.close_doc()
+        h.message(f"Trial {self.k + 1}: {t['condition'].replace('_', ' ')}. Save attempt when you are done.", 8.0)
+
+    def finish(self) -> None:
+        """Table 6.1 and the ratings over every participant of the study, shown and kept in `summary`."""
+        app = self.app
+        app.resource(Settings).values.pop("protocol", None)
+        app.resource(WidgetState).enable(*AIDS)
+        with RecordStore(self.db) as store:
+            rows = results.study_rows(self._attempts(store), self.study)
+            qs = store.list_questionnaires(self.class_name)
+        tab = results.table([r for r in rows if not r["scripted"]])
+        rates = results.ratings(qs, self.study)
+        labels = {q.id: q.text for q in POST}
+        people = len({r["participant"] for r in rows if not r["scripted"]})
+        self.summary = (
+            results.format_table(tab, f"{people} participants")
+            + "\n\n"
+            + results.format_ratings(rates, labels, THESIS_RATINGS)
+        )
+        self.table = tab
+        self.ratings = rates
+        self.state = "summary"
+        self.form = Notice(
+            f"# Study '{self.study}': all participants so far\n\n"
+            "Mean error per task and condition over every participant's attempts (thesis Table 6.1: location "
+            "scored by the landmark error, rotation and insertion by the needle error E = Dist - R).\n\n"
+            f"{results.markdown_table(tab)}\n\n"
+            "Post-session ratings, 1 = poor, 10 = very good:\n\n"
+            f"{results.markdown_ratings(rates, labels, THESIS_RATINGS)}\n\n"
+            "Thank you for taking part.",
+            enter="Enter",
+        )
+        self._show()

@@ -1,0 +1,219 @@
+"""Generalised ChainMail through the body API (thesis 5.2): the cascade, relaxation and the exact-limit
+pass for one body, in one place.
+
+ChainMail is quasi-static: `grab` (or `move`) runs the cascade at once from the current shape, then
+relaxation (5.2.5) and, with `exact`, the pass that puts every link of the moved region back in its
+limits; `step` has nothing left to do. Works for positions of dimension 1, 2 or 3 and in float32.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numba
+import numpy as np
+from numpy.typing import ArrayLike
+
+from chainsim.engine.bodies.base import Body, StepStats, check_ids
+from chainsim.engine.chainmail_params import order_code
+from chainsim.engine.errors import UserError
+from chainsim.engine.kernels import topology
+from chainsim.engine.kernels.chainmail import cascade, make_workspace, material_arrays
+from chainsim.engine.kernels.exact import exact_limits
+from chainsim.engine.kernels.graph import Graph, build_graph
+from chainsim.engine.kernels.relax import relax
+
+#: below this many active elements relaxation runs on one thread: a parallel region's barriers cost
+#: far more than the work when the machine is busy (measured ~100x slower for a 1000-element patch)
+PARALLEL_RELAX_MIN = 100_000
+
+
+def relax_moved(
+    rest: ArrayLike,
+    pos: ArrayLike,
+    graph: Graph,
+    active: ArrayLike,
+    iterations: int,
+    step: float = 1.0,
+    fixed: ArrayLike | None = None,
+) -> None:
+    """Relaxation of thesis 5.2.5 over `active` (chainsim.engine.kernels.relax), serial for small sets."""
+    if len(active) >= PARALLEL_RELAX_MIN:
+        relax(rest, pos, graph, active, iterations, step=step, fixed=fixed)
+        return
+    previous = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        relax(rest, pos, graph, active, iterations, step=step, fixed=fixed)
+    finally:
+        numba.set_num_threads(previous)
+
+
+class ChainMailBody(Body):
+    """A ChainMail object: elements `rest` (N, D), `links` (M, 2) or a built Graph, per-link limits."""
+
+    model = "chainmail"
+
+    def __init__(
+        self,
+        rest: ArrayLike,
+        links: ArrayLike,
+        alpha_min: ArrayLike = 0.8,
+        alpha_max: ArrayLike = 1.2,
+        beta: ArrayLike = 0.1,
+        *,
+        relax: int = 0,
+        relax_step: float = 1.0,
+        order: str = "breadth-first",
+        depth: int = 2,
+        exact: bool = False,
+        fixed: ArrayLike | None = None,
+        dtype: type | np.dtype = np.float64,
+    ) -> None:
+        r = np.ascontiguousarray(rest, dtype=dtype)
+        if r.ndim != 2 or r.shape[1] not in (1, 2, 3):
+            raise UserError(f"rest positions: expected (N, D) with D in 1..3, got shape {r.shape}")
+        if not np.all(np.isfinite(r)):
+            raise UserError("rest positions: coordinates must be finite numbers")
+        self.rest = r
+        self.positions = r.copy()
+        n = len(r)
+        self.graph = links if isinstance(links, Graph) else build_graph(n, links)
+        if np.ndim(alpha_min) == 0:
+            self.amin, self.amax, self.beta = material_arrays(self.graph.n_links, alpha_min, alpha_max, beta)
+        else:
+            self.amin, self.amax, self.beta = (
+                np.ascontiguousarray(a, dtype=np.float64) for a in (alpha_min, alpha_max, beta)
+            )
+        self.fixed = np.zeros(n, dtype=np.bool_)
+        if fixed is not None:
+            f = np.asarray(fixed)
+            if f.dtype == np.bool_ and f.shape == (n,):
+                self.fixed[:] = f
+            else:
+                self.fixed[check_ids("fixed", f, n)] = True
+        self.relax_iterations, self.relax_step = int(relax), float(relax_step)
+        self.order, self.depth, self.exact = order, int(depth), bool(exact)
+        self.workspace = make_workspace(n)
+        self.held = np.zeros(0, dtype=np.int64)
+        self.grab_ids = np.zeros(0, dtype=np.int64)
+        self.grab_targets = np.zeros((0, r.shape[1]))
+        self.moved = np.zeros(0, dtype=np.int64)
+        self.last_order = np.zeros(0, dtype=np.int64)
+        self.last_sponsor = np.zeros(0, dtype=np.int64)
+        self.last_exact = None
+        self.last_shortfall = 0.0
+        self.stats = StepStats()
+
+    def move(self, ids: ArrayLike, targets: ArrayLike, hold: bool = True) -> np.ndarray:
+        """Move `ids` to `targets` from the current shape; returns the ids that changed (5.2.3-5.2.5)."""
+        t0 = time.perf_counter()
+        ids = np.atleast_1d(np.asarray(ids, dtype=np.int64))
+        n = self.n
+        if len(ids) == 0 or ids.min() < 0 or ids.max() >= n:
+            raise ValueError(f"element ids must be in 0..{n - 1}")
+        d = self.rest.shape[1]
+        targets = np.asarray(targets, dtype=np.float64).reshape(len(ids), d)
+        if len(self.held):
+            fixed = self.fixed.copy()
+            fixed[self.held] = True  # what a tool already holds stays where it is
+            fixed[ids] = self.fixed[ids]
+        else:
+            fixed = self.fixed if self.fixed.any() else None
+        order, sponsor = cascade(
+            self.rest,
+            self.positions,
+            self.graph,
+            self.amin,
+            self.amax,
+            self.beta,
+            ids,
+            targets.astype(self.positions.dtype),
+            fixed=fixed,
+            order=order_code(self.order),
+            workspace=self.workspace,
+            depth=self.depth,
+        )
+        self.last_order, self.last_sponsor = order, sponsor
+        t_cascade = time.perf_counter() - t0
+        if hold:
+            self.held = np.union1d(self.held, ids)
+        changed = order
+        if self.relax_iterations > 0 and len(order) > len(ids):
+            pin = self.fixed.copy()
+            pin[ids] = True
+            if len(self.held):
+                pin[self.held] = True
+            relax_moved(self.rest, self.positions, self.graph, order, self.relax_iterations, self.relax_step, pin)
+        if self.exact:
+            res = exact_limits(
+                self.rest,
+                self.positions,
+                self.graph,
+                self.amin,
+                self.amax,
+                self.beta,
+                order,
+                ids,
+                targets,
+                fixed,
+                self.workspace,
+            )
+            self.last_exact, self.last_shortfall = res, res.shortfall
+            if len(res.changed):
+                changed = np.union1d(changed, res.changed)
+        self.moved = changed
+        self.stats = StepStats(1, self.last_shortfall, len(changed), time.perf_counter() - t0, {"t_cascade": t_cascade})
+        return changed
+
+    # -- the body API ---------------------------------------------------------------------------
+    def grab(self, ids: ArrayLike, targets: ArrayLike) -> None:
+        self.move(ids, targets, hold=True)
+
+    def release(self, ids: ArrayLike | None = None) -> None:
+        if ids is None:
+            self.held = np.zeros(0, dtype=np.int64)
+        else:
+            self.held = np.setdiff1d(self.held, np.asarray(ids, dtype=np.int64))
+
+    def step(self, dt: float = 1.0 / 60.0) -> StepStats:
+        """Nothing to integrate: a ChainMail grab has already moved the body."""
+        self.moved = np.zeros(0, dtype=np.int64)
+        return StepStats()
+
+    def _cut(self, p0, p1, normal, depth) -> int:
+        kw = {}
+        if normal is not None:
+            kw["normal"] = normal
+        if depth is not None:
+            kw["depth"] = depth
+        return int(len(topology.cut_segment(self.positions, self.graph, p0, p1, **kw)))
+
+    def cut(self, p0: ArrayLike, p1: ArrayLike, normal: ArrayLike | None = None, depth: float | None = None) -> int:
+        return self._cut(np.asarray(p0, float), np.asarray(p1, float), normal, depth)
+
+    def cut_path(self, points: ArrayLike, normal: ArrayLike | None = None, depth: float | None = None) -> int:
+        kw = {k: v for k, v in (("normal", normal), ("depth", depth)) if v is not None}
+        return int(len(topology.cut_path(self.positions, self.graph, np.asarray(points, float), **kw)))
+
+    def add_links(self, links: ArrayLike) -> int:
+        """Join element pairs with new links carrying the first link's limits; returns how many."""
+        links = np.asarray(links, dtype=np.int64).reshape(-1, 2)
+        m_before = self.graph.n_links
+        graph = topology.add_links(self.graph, links)
+        added = graph.n_links - m_before
+        if added:
+            first = (float(self.amin[0]), float(self.amax[0]), float(self.beta[0])) if m_before else (0.8, 1.2, 0.1)
+            amin, amax, beta = material_arrays(added, *first)
+            self.amin = np.concatenate([self.amin, amin])
+            self.amax = np.concatenate([self.amax, amax])
+            self.beta = np.concatenate([self.beta, beta])
+            self.graph = graph
+            self.workspace.ensure(graph.indices.shape[0] + 1)
+        return added
+
+    def reset(self) -> None:
+        """Rest shape, every link alive, nothing held."""
+        self.positions[:] = self.rest
+        self.graph.revive()
+        self.held = np.zeros(0, dtype=np.int64)

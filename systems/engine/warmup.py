@@ -1,0 +1,67 @@
+"""Compiling the numba kernels ahead, so no interaction ever waits on compilation.
+
+numba compiles a kernel the first time it runs (seconds each on a fresh install) and caches the
+result on disk (cache=True). `warm_up()` runs every kernel the simulator uses once on a tiny input,
+with a progress bar: `chainsim warmup` after installing, and `chainsim play` before its window takes
+input. With a warm cache it costs a fraction of a second (loading the cached machine code).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from chainsim.engine.bodies.chainmail import ChainMailBody
+from chainsim.engine.bodies.projective import ProjectiveBody
+from chainsim.engine.bodies.xpbd import XPBDBody
+from chainsim.engine.chainmail_params import ORDERS
+from chainsim.engine.kernels.normals import vertex_normals_kernel
+from chainsim.engine.meshgen import tet_grid, triangulated_grid
+from chainsim.engine.progress import progress
+from chainsim.engine.segment_tree import SegmentTree
+
+
+def _chainmail(rest, links, surface_tris):
+    # numba compiles one version per argument type: with and without anchors, both precisions
+    for order in ORDERS:
+        for dtype, fixed in ((np.float64, [0]), (np.float64, None), (np.float32, [0]), (np.float32, None)):
+            body = ChainMailBody(rest, links, relax=2, exact=True, order=order, dtype=dtype, fixed=fixed)
+            body.grab([len(rest) - 1], rest[-1] + 0.5)
+            body.cut(rest[0] - 1.0, rest[-1] + 1.0, normal=[0.0, 0.0, 1.0], depth=10.0)
+
+
+def _models(rest, tets, tris):
+    for make in (
+        lambda: XPBDBody(rest, tets, fixed=[0]),
+        lambda: XPBDBody(rest, tets, nu=0.0, E=1e6, fixed=[0]),  # the Green-strain constraints
+        lambda: XPBDBody(rest[: tris.max() + 1], triangles=tris, fixed=[0]),
+        lambda: ProjectiveBody(rest, tets, fixed=[0]),
+        lambda: ProjectiveBody(rest[: tris.max() + 1], triangles=tris, fixed=[0]),
+    ):
+        body = make()
+        body.grab([1], body.rest[1] + 0.1)
+        body.step(1 / 60)
+
+
+def _geometry(rest, tris):
+    out = np.zeros((len(rest), 3))
+    vertex_normals_kernel(rest, tris, out)
+    SegmentTree.build(rest, tris).first_hit(rest[0] - 1.0, rest[-1] + 1.0)
+
+
+def warm_up() -> None:
+    """Run every kernel once (compiling it, or loading it from numba's cache)."""
+    rest, tets, links = tet_grid(3, 3, 3, spacing=1.0)
+    _p2, tris, _l2 = triangulated_grid(3, 3, spacing=1.0, dim=3)
+    jobs = [
+        ("ChainMail", lambda: _chainmail(rest, links, tris)),
+        ("XPBD and projective", lambda: _models(rest, tets, tris)),
+        ("normals and collision", lambda: _geometry(rest, tris)),
+    ]
+    bar = progress(total=len(jobs), desc="compiling kernels", unit="group")
+    try:
+        for name, job in jobs:
+            bar.set_postfix_str(name)
+            job()
+            bar.update(1)
+    finally:
+        bar.close()

@@ -1,0 +1,157 @@
+"""The C-arm: projections, single X-ray images, live fluoroscopy and what they cost (thesis 3.2.3).
+
+Stage: procedure (ORDER_FLUORO, after the procedure steps and before the assessment). Reads: Widget
+events, ViewTurned events from the "fluoro" viewport, InputState.keys (the pedal), ProcedureState
+(the attempt and the entry side), PrpAnatomy (where to centre the arm). Writes: the CArm component
+on the runtime entity "carm", HudState messages. The image itself is made by the renderer
+(chainsim.game.gl.fluoro) whenever `CArm.image_id` grows; without a renderer the counts still run.
+
+Controls (widget names; the pack's layout gives them buttons and keys):
+
+    xray_lateral      C-arm to a lateral view of the entry side: the beam runs across the head,
+                      detector on the entry side (the surgeon reads the needle's depth along the clivus)
+    xray_submental    C-arm to the submental-oblique view: the beam comes up from under the chin along
+                      the foramen ovale's canal, turned 17.5 degrees toward the entry side (the view in
+                      which the foramen shows as an oval and the needle tip can be put on it)
+    xray_take         one image; it stays on the C-arm view, frozen, until the next image
+    fluoro_live       live fluoroscopy on (true) or off (false): a new image 15 times a second
+    carm_azimuth      the source's azimuth, degrees (free angles; a drag in the view turns it too)
+    carm_elevation    the source's elevation below the axial plane, degrees
+
+The pedal: holding the key PEDAL_KEY runs live fluoroscopy while it is held, like the foot switch.
+Exposure is booked per fixed simulation step, so a replay counts the same seconds.
+
+Counts belong to the procedure's attempt: when a new attempt begins (ProcedureState.attempt grows),
+shots and seconds start again from zero; the arm stays where it is.
+"""
+
+from __future__ import annotations
+
+import esper
+import numpy as np
+
+from chainsim.components.core import Name
+from chainsim.components.fluoro import LIVE_RATE_HZ, CArm
+from chainsim.components.input_events import Widget
+from chainsim.components.procedure import ProcedureState, PrpAnatomy
+from chainsim.components.resources import EntityIndex, InputState
+from chainsim.components.view_events import ViewTurned
+from chainsim.systems.procedures.prp.handles import PrpHandles, hud
+from chainsim.systems.stages import ORDER_FLUORO
+
+PEDAL_KEY = "f"
+#: degrees the arm turns per pixel dragged in the C-arm view
+DEG_PER_PX = 0.4
+#: submental-oblique: turned this far from straight up the canal toward the entry side (thesis
+#: 3.2.3; clinically the head is turned 15-20 degrees away from the painful side)
+OBLIQUE_DEG = 17.5
+WIDGETS = ("xray_lateral", "xray_submental", "xray_take", "fluoro_live", "carm_azimuth", "carm_elevation")
+
+
+def lateral_pose(side: str) -> tuple[float, float]:
+    """(azimuth, elevation) of a lateral view with the detector on `side` (the source opposite)."""
+    return (0.0, 0.0) if side == "left" else (180.0, 0.0)  # left is -X: the source on the right, +X
+
+
+def submental_pose(side: str, anatomy: PrpAnatomy) -> tuple[float, float]:
+    """(azimuth, elevation): the beam up the entry side's foramen canal, turned OBLIQUE_DEG toward it."""
+    ax = np.asarray(anatomy.sides[side].foramen_axis, float)
+    src = -ax / np.linalg.norm(ax)  # the source lies down the canal, under the chin
+    elevation = float(np.degrees(np.arcsin(np.clip(-src[2], -1.0, 1.0))))
+    azimuth = float(np.degrees(np.arctan2(src[1], src[0])))
+    # toward the entry side: the left is -X, which lies at azimuth 180
+    toward = 1.0 if side == "left" else -1.0
+    return (azimuth + toward * OBLIQUE_DEG) % 360.0, elevation
+
+
+class CArmSystem:
+    def __init__(self, app):
+        self.widgets = app.events.reader(Widget)
+        self.turns = app.events.reader(ViewTurned)
+        self.last_tick = app.time.tick
+        self.switched = False  # live fluoroscopy switched on with the panel (the pedal needs a held key)
+
+    def carm(self, app) -> CArm:
+        return esper.component_for_entity(app.resource(EntityIndex).get("carm"), CArm)
+
+    def side(self, app) -> str:
+        ps = esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState)
+        return ps.side or "left"
+
+    def centre(self, app, carm: CArm) -> None:
+        carm.iso = np.asarray(app.resource(PrpAnatomy).sides[self.side(app)].foramen_centre, float).copy()
+
+    def image(self, carm: CArm) -> None:
+        carm.image_id += 1
+        carm.image_pose = (carm.azimuth_deg, carm.elevation_deg, tuple(float(c) for c in carm.iso))
+
+    def __call__(self, app) -> None:
+        carm = self.carm(app)
+        h = hud(app)
+        ps = esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState)
+        if ps.attempt != carm.attempt:  # a new attempt: its own shots and seconds
+            carm.attempt = ps.attempt
+            carm.shots, carm.live_s, carm.next_pulse_s = 0, 0.0, 0.0
+        live_switch = None
+        take = False
+        for ev in self.widgets.read():
+            if ev.name == "xray_lateral":
+                carm.azimuth_deg, carm.elevation_deg = lateral_pose(self.side(app))
+                carm.view = "lateral"
+                self.centre(app, carm)
+                h.message("C-arm lateral: take an image (x) to see the needle's depth along the skull base.")
+            elif ev.name == "xray_submental":
+                carm.azimuth_deg, carm.elevation_deg = submental_pose(self.side(app), app.resource(PrpAnatomy))
+                carm.view = "submental"
+                self.centre(app, carm)
+                h.message("C-arm submental-oblique: take an image (x) to see the foramen ovale as an oval.")
+            elif ev.name == "carm_azimuth" and isinstance(ev.value, (int, float)) and not isinstance(ev.value, bool):
+                carm.azimuth_deg = float(ev.value) % 360.0
+                carm.view = "free"
+            elif ev.name == "carm_elevation" and isinstance(ev.value, (int, float)) and not isinstance(ev.value, bool):
+                carm.elevation_deg = float(np.clip(ev.value, -89.0, 89.0))
+                carm.view = "free"
+            elif ev.name == "xray_take":
+                take = True
+            elif ev.name == "fluoro_live":
+                live_switch = bool(ev.value) if ev.value is not None else not carm.live
+        for ev in self.turns.read():
+            if ev.button != "left":
+                continue
+            carm.azimuth_deg = (carm.azimuth_deg - ev.dx * DEG_PER_PX) % 360.0
+            carm.elevation_deg = float(np.clip(carm.elevation_deg + ev.dy * DEG_PER_PX, -89.0, 89.0))
+            carm.view = "free"
+        if not np.any(carm.iso):
+            self.centre(app, carm)
+        if take:
+            carm.shots += 1
+            self.image(carm)
+            h.message(f"X-ray {carm.shots}: {carm.exposure_s:.1f} s of exposure, about {carm.dose_mgy:.2f} mGy so far.")
+        keys = app.resource(InputState).keys
+        pedal = PEDAL_KEY in keys
+        if live_switch is not None:
+            self.switched = live_switch
+        was = carm.live
+        carm.live = pedal or self.switched
+        if carm.live and not was:
+            carm.next_pulse_s = carm.live_s  # the first pulse at once
+        if was and not carm.live:
+            h.message(f"Live fluoroscopy off: {carm.live_s:.1f} s live this attempt, about {carm.dose_mgy:.2f} mGy.")
+        ticks, self.last_tick = app.time.tick - self.last_tick, app.time.tick
+        if carm.live and ticks > 0:
+            if carm.live_s >= carm.next_pulse_s:
+                self.image(carm)
+                carm.next_pulse_s += 1.0 / LIVE_RATE_HZ
+            carm.live_s += ticks * app.time.dt
+
+
+def plugin(app) -> None:
+    """Create the C-arm entity, centred on the left foramen in a lateral view, and its system."""
+    index: EntityIndex = app.resource(EntityIndex)
+    anat: PrpAnatomy = app.resource(PrpAnatomy)
+    az, el = lateral_pose("left")
+    with app.active():
+        carm = CArm(azimuth_deg=az, elevation_deg=el, iso=np.asarray(anat.sides["left"].foramen_centre, float).copy())
+        carm.image_pose = (az, el, tuple(float(c) for c in carm.iso))
+        index.by_name["carm"] = esper.create_entity(Name("carm"), carm)
+    app.add_system("procedure", CArmSystem(app), order=ORDER_FLUORO, name="prp_fluoro")
