@@ -214,7 +214,7 @@ def test_many_grabs_stay_finite(model):
 def test_every_link_cut_leaves_a_body_that_still_steps(model):
     pos, tets, fixed, top = _small_block()
     b = (XPBDBody if model == "xpbd" else ProjectiveBody)(pos, tets, fixed=fixed)
-    b.graph.revive()
+    b.graph.revive()  # every link alive to start with
     for z in np.linspace(0.001, 0.019, 10):
         for y in np.linspace(-0.001, 0.021, 12):
             b.cut([-0.01, y, z], [0.03, y, z], normal=[0, 0, 1], depth=0.01)

@@ -156,17 +156,17 @@ class Body:
         self.fixed = None if fixed is None or not np.any(fixed) else np.ascontiguousarray(fixed, dtype=np.bool_)
         self.moved = 0
         self.exact = None  # the last move's ExactResult
-        self.touched = None  # ids moved since the last reset (None: unknown, reset everything)
+        self.touched = None  # id arrays moved since the last reset (None: unknown, reset everything)
 
     def reset(self) -> None:
         """Back to rest: only the elements the last move touched are copied back (as an interactive
         drag would leave the rest of the mesh, and its caches, alone)."""
-        ids = self.touched
-        if ids is None:
+        if self.touched is None or len(self.touched) > 2:  # unknown, or several moves since: everything
             np.copyto(self.pos, self.rest)
-        elif len(ids):
-            self.pos[ids] = self.rest[ids]
-        self.touched = np.zeros(0, dtype=np.int64)
+        else:
+            for ids in self.touched:  # views of the last move's id lists, still valid before the next
+                self.pos[ids] = self.rest[ids]
+        self.touched = []
 
     def call(self, grab: int, target, **kw):
         """move() with its arguments made once (so a timing loop times the move, not array building)."""
@@ -185,8 +185,8 @@ class Body:
         self._touch(self.lean_ws.order[: self.moved])
 
     def _touch(self, ids) -> None:
-        if self.touched is not None:
-            self.touched = np.concatenate([self.touched, ids]) if len(self.touched) else ids.copy()
+        if self.touched is not None and len(self.touched) <= 2:
+            self.touched.append(ids)
 
     def move(self, grab, target, order: int = 0, relax_n: int = 0, exact: bool = False, parallel: bool = False):
         grabbed = grab if isinstance(grab, np.ndarray) else np.array([grab], dtype=np.int64)
