@@ -74,19 +74,28 @@ class StudyWindow:
             time.sleep(0.5)
         raise AssertionError("the window did not open")
 
+    def _xdo(self, *args: str) -> None:
+        """One xdotool command; a busy X server can refuse one, so it is tried again before failing."""
+        for attempt in range(4):
+            r = subprocess.run(["xdotool", *args], env=self.env, capture_output=True, text=True)
+            if r.returncode == 0:
+                return
+            time.sleep(1.0 + attempt)
+        raise AssertionError(f"xdotool {' '.join(args)} failed: {r.stderr.strip()}")
+
     def key(self, *keys: str, wait: float = 0.35) -> None:
         for k in keys:
-            subprocess.run(["xdotool", "key", "--window", self.wid, k], env=self.env, check=True)
+            self._xdo("key", "--window", self.wid, k)
             time.sleep(wait)
 
     def type(self, text: str) -> None:
-        subprocess.run(["xdotool", "type", "--window", self.wid, "--delay", "120", text], env=self.env, check=True)
+        self._xdo("type", "--window", self.wid, "--delay", "120", text)
         time.sleep(0.6)
 
     def click(self, x: int, y: int, wait: float = 0.8) -> None:
-        subprocess.run(["xdotool", "mousemove", "--window", self.wid, str(x), str(y)], env=self.env, check=True)
+        self._xdo("mousemove", "--window", self.wid, str(x), str(y))
         time.sleep(0.3)
-        subprocess.run(["xdotool", "click", "1"], env=self.env, check=True)
+        self._xdo("click", "1")
         time.sleep(wait)
 
     def shot(self, name: str) -> np.ndarray:
