@@ -46,6 +46,7 @@ import esper
 import numpy as np
 
 from chainsim.components.core import Marker, MeshRef, PolyLine, Transform
+from chainsim.components.deformable import Pull
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, PickPoint, Resize, Scroll, Widget
 from chainsim.components.resources import EntityIndex, InputState, PackResource, Settings
@@ -61,6 +62,7 @@ from chainsim.systems.ui.viewports import (
     OrbitCamera,
     Rect,
     attached_camera,
+    fit_orbit,
     layout_rects,
     orbit_from_table,
 )
@@ -77,6 +79,7 @@ class Viewport:
     camera: Camera | None
     visible: bool
     interactive: bool
+    home: tuple | None = None  # (target, distance, yaw, pitch) the view was framed at; camera:reset returns here
 
     @property
     def is_3d(self) -> bool:
@@ -111,6 +114,7 @@ class ViewState:
     travel: float = 0.0
     widget: wd.Placed | None = None
     grab: tuple | None = None  # (viewport, entity, name, triangle, grab_point)
+    scene_box: tuple | None = None  # (lo, hi) world mm: what views with `fit = true` frame
 
     def get(self, name: str) -> Viewport | None:
         for vp in self.viewports:
@@ -141,13 +145,19 @@ CAMERA_PRESETS = ("front", "side", "below", "reset")
 
 
 def camera_preset(vp: Viewport, preset: str) -> None:
-    """Move an orbit camera to a preset around the layout's target (see the module docstring)."""
+    """Move an orbit camera to a preset around the layout's target, or around where the view was framed
+    (`fit = true`; see the module docstring)."""
     cam = vp.camera
     if not isinstance(cam, OrbitCamera):
         return
     spec = vp.spec
-    cam.target = np.asarray(spec.get("target", (0, 0, 0)), float).copy()
-    cam.distance = float(spec.get("distance", cam.distance))
+    if vp.home is not None:
+        cam.target, cam.distance = np.asarray(vp.home[0], float).copy(), float(vp.home[1])
+        home_yaw, home_pitch = vp.home[2], vp.home[3]
+    else:
+        cam.target = np.asarray(spec.get("target", (0, 0, 0)), float).copy()
+        cam.distance = float(spec.get("distance", cam.distance))
+        home_yaw, home_pitch = float(spec.get("yaw", 0.0)), float(spec.get("pitch", 0.0))
     if preset == "front":
         cam.yaw, cam.pitch = 0.0, 0.0
     elif preset == "side":  # from the subject's left (eye at -X); pressed again, from the right
@@ -155,17 +165,92 @@ def camera_preset(vp: Viewport, preset: str) -> None:
     elif preset == "below":  # from under the chin, looking up at the skull base
         cam.yaw, cam.pitch = 0.0, -80.0
     else:
-        cam.yaw, cam.pitch = float(spec.get("yaw", 0.0)), float(spec.get("pitch", 0.0))
+        cam.yaw, cam.pitch = home_yaw, home_pitch
     cam.update_eye()
 
 
+#: free pixels along the top of a framed view: its caption, and in the main view the step text too
+FIT_TOP_MAIN = 92.0
+FIT_TOP = 30.0
+FIT_MARGIN = 12.0
+
+
+def frame_view(vs: ViewState, vp: Viewport, lo, hi) -> None:
+    """Place an orbit or fixed view's camera (its yaw and pitch kept) so the box lo..hi fills the view,
+    clear of its caption and, in the main view, of the step text (chainsim.systems.ui.viewports.fit_orbit)."""
+    if vp.kind not in ("orbit", "fixed") or not isinstance(vp.camera, OrbitCamera) or vp.rect.w < 2 or vp.rect.h < 2:
+        return
+    top = FIT_TOP_MAIN if vp is main_view(vs) else FIT_TOP
+    fit_orbit(vp.camera, vp.rect, lo, hi, FIT_MARGIN, top)
+
+
+def _at_home(vp: Viewport) -> bool:
+    cam = vp.camera
+    if vp.home is None or not isinstance(cam, OrbitCamera):
+        return False
+    t, d, yaw, pitch = vp.home
+    return bool(np.allclose(cam.target, t)) and abs(cam.distance - d) < 1e-9 and (cam.yaw, cam.pitch) == (yaw, pitch)
+
+
+def fit_views(vs: ViewState, resized: bool = False) -> None:
+    """Frame the scene box in every view whose layout says `fit = true`. After a resize only the views
+    the mouse does not move, and mouse-driven ones still where they were framed, are framed again."""
+    if vs.scene_box is None:
+        return
+    for vp in vs.viewports:
+        if not vp.spec.get("fit") or not isinstance(vp.camera, OrbitCamera):
+            continue
+        if resized and vp.mouse_camera and not _at_home(vp):
+            continue  # the trainee moved this view: leave it where they put it
+        frame_view(vs, vp, *vs.scene_box)
+        cam = vp.camera
+        vp.home = (cam.target.copy(), cam.distance, cam.yaw, cam.pitch)
+
+
+def scene_bounds(app) -> tuple[np.ndarray, np.ndarray] | None:
+    """World box of the visible meshes at rest and of the paths their scripted pulls will take
+    (so a pulled element stays in view); None for a scene without meshes."""
+    pack = app.resource(PackResource).pack
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    with app.active():
+        for ent, ref in esper.get_component(MeshRef):
+            if not ref.visible:
+                continue
+            tr = esper.try_component(ent, Transform)
+            m = tr.matrix() if tr is not None else np.eye(4)
+            pts = [pack.mesh(ref.mesh).vertices]
+            pull = esper.try_component(ent, Pull)
+            if pull is not None and len(pull.waypoints):
+                way = np.asarray(pull.waypoints, float).reshape(-1, 3)
+                if pull.frame == "world":
+                    way = (way - m[:3, 3]) @ np.linalg.inv(m[:3, :3]).T
+                pts.append(way)
+            v = np.vstack(pts)
+            if not len(v):
+                continue
+            w = v @ m[:3, :3].T + m[:3, 3]
+            lo, hi = np.minimum(lo, w.min(axis=0)), np.maximum(hi, w.max(axis=0))
+    if not np.all(np.isfinite(lo)):
+        return None
+    return lo, hi
+
+
 def page_buttons(h: HudState) -> tuple[str, ...]:
-    """The footer buttons of what the page box shows now (as chainsim.game.gl.render_system draws them)."""
+    """The footer buttons of what the page box shows now (as chainsim.game.gl.render_system draws them):
+    the key page leads on to the pack's help pages."""
     if h.notice:
         return ()
     if h.doc_name == "keys":
-        return ("close",)
+        return docbox.KEY_PAGE_BUTTONS
     return docbox.PAGE_BUTTONS
+
+
+def open_help(h: HudState, docs: list[str], page: str | None = None) -> None:
+    """Open a help page: `page`, else the current step's, else the one shown last, else the pack's
+    first (a pack without steps still reaches its pages)."""
+    if page is None and not h.step_doc and (not h.doc_name or h.doc_name == "keys") and docs:
+        page = docs[0]
+    h.open_doc(page)
 
 
 def first_panel(vs: ViewState) -> str:
@@ -273,7 +358,8 @@ class ViewSystem:
             if h.doc_open and (page is None or page == h.doc_name):
                 h.close_doc()
             else:
-                h.open_doc(page)
+                open_help(h, list(app.resource(PackResource).pack.section("docs")), page)
+            app.resource(ViewState).show_help = h.doc_open and h.doc_name == "keys"
         if name.startswith("camera:") and name[7:] in CAMERA_PRESETS:
             vp = main_view(app.resource(ViewState))
             if vp is not None:
@@ -304,6 +390,10 @@ class ViewSystem:
             vs.show_help = False
             return
         names = list(app.resource(PackResource).pack.section("docs"))
+        if name == "docs":  # from the key page on to the help pages
+            open_help(h, names)
+            app.resource(ViewState).show_help = False
+            return
         if h.doc_name in names:
             k = names.index(h.doc_name) + (1 if name == "next" else -1)
             if 0 <= k < len(names):
@@ -443,6 +533,7 @@ class ViewSystem:
                 refreshed = True
             if isinstance(ev, Resize):
                 relayout(vs, layout.get("widgets", []), ev.width, ev.height)
+                fit_views(vs, resized=True)
             elif isinstance(ev, MouseButton):
                 (self.press if ev.pressed else self.release)(app, vs, ev)
             elif isinstance(ev, MouseDrag):
@@ -537,11 +628,14 @@ def plugin(app) -> None:
     size = tuple(int(v) for v in app.resource(Settings).get("window_size", (1280, 800)))
     app.resource(InputState).window_size = size
     vs = app.insert_resource(build_view_state(layout, size))
+    vs.scene_box = scene_bounds(app)
+    fit_views(vs)
     st = app.insert_resource(wd.WidgetState.from_layout(layout.get("widgets", [])))
     steps = pres.pack.section("steps")
     hud = HudState()
     if steps:
         hud.step_title, hud.step_instruction = steps[0].get("title", ""), steps[0].get("instruction", "")
+        hud.step_doc = steps[0].get("docs", "")
     app.insert_resource(hud)
     vs.layers.setdefault("planes", False)
     with app.active():

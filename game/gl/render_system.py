@@ -147,8 +147,11 @@ def page(app):
     if not hud.doc_open:
         return None
     if hud.doc_name == keyhelp.NAME:
-        text = keyhelp.keys_markdown(app.resource(PackResource).layout.get("widgets", []), hud.key_rows)
-        return (keyhelp.TITLE, text, {"close": True})
+        docs = pack.section("docs")
+        text = keyhelp.keys_markdown(
+            app.resource(PackResource).layout.get("widgets", []), hud.key_rows, [d["title"] for d in docs.values()]
+        )
+        return (keyhelp.TITLE, text, {"docs": bool(docs), "close": True})
     docs = pack.section("docs")
     if hud.doc_name not in docs:
         return None

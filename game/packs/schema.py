@@ -216,6 +216,13 @@ VIEWPORT = Schema(
         Field("offset", "vec3", [0.0, 0.0, 0.0], units="mm", help="Camera offset in the attached entity's frame."),
         Field("visible", "bool", True, help="Shown at start (a toggle widget may change it)."),
         Field("interactive", "bool", True, help="Whether camera input moves this view."),
+        Field(
+            "fit",
+            "bool",
+            False,
+            help="orbit/fixed: frame the scene's meshes (and their pull paths) at start and when the window is "
+            "resized: target and distance come from their bounds, yaw and pitch from this table.",
+        ),
     ),
 )
 

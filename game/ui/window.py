@@ -150,9 +150,10 @@ def run_window(args, session=None) -> int:
     hud: HudState = app.resource(HudState)
     values = app.resource(Settings).values
     records_path = Path(values["db"]).expanduser() if values.get("db") else default_records_path()
-    hud.status = status_line(values, records_path)
     widget_events = app.events.reader(Widget)
     layout_names = {w["name"] for w in app.resource(render.PackResource).layout.get("widgets", [])}
+    if "sign_in" in layout_names:  # only a trainer that saves attempts says who is signed in and where
+        hud.status = status_line(values, records_path)
     form: dict = {"open": None}
 
     def open_sign_in() -> None:

@@ -8,4 +8,5 @@ procedures by name and never carry code.
 PROCEDURES: dict[str, str] = {
     "prp": "chainsim.systems.procedures.prp.procedure:plugin",
     "cutting": "chainsim.systems.procedures.cutting.procedure:plugin",
+    "demo": "chainsim.systems.procedures.demo.procedure:plugin",
 }

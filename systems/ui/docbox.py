@@ -23,7 +23,9 @@ SCROLLBAR_W = 8
 
 #: page buttons along the bottom of a docs page, left to right
 PAGE_BUTTONS = ("prev", "next", "close")
-PAGE_BUTTON_LABELS = {"prev": "< Previous page", "next": "Next page >", "close": "Close [Esc]"}
+#: the key page's: on to the pack's help pages, and close
+KEY_PAGE_BUTTONS = ("docs", "close")
+PAGE_BUTTON_LABELS = {"prev": "< Previous page", "next": "Next page >", "docs": "Help pages >", "close": "Close [Esc]"}
 
 
 def box(view: Rect) -> Rect:

@@ -12,7 +12,9 @@ def _cell(text: str) -> str:
     return str(text).replace("|", "\\|")
 
 
-def keys_markdown(widgets: list[dict], key_rows: list[tuple[str, str]]) -> str:
+def keys_markdown(widgets: list[dict], key_rows: list[tuple[str, str]], docs: list[str] | None = None) -> str:
+    """The page: one table of keys and mouse actions; then, when the pack has help pages (their
+    titles in `docs`), how to reach them."""
     rows = [
         ("left-drag in a 3-D view", "turn the view"),
         ("right- or middle-drag", "pan the view"),
@@ -34,4 +36,8 @@ def keys_markdown(widgets: list[dict], key_rows: list[tuple[str, str]]) -> str:
     ]
     lines = [f"# {TITLE}", "", "| Keys or mouse | What it does |", "|---|---|"]
     lines += [f"| {_cell(k)} | {_cell(v)} |" for k, v in rows]
+    if docs:
+        button = " (or the **Help** button)" if any(w["name"] == "help" for w in widgets) else ""
+        lines += ["", "## Help pages", "", f"**Help pages >** below{button} opens them:", ""]
+        lines += [f"- {t}" for t in docs]
     return "\n".join(lines) + "\n"

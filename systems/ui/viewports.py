@@ -189,6 +189,65 @@ class OrbitCamera(Camera):
         self.update_eye()
 
 
+def box_corners(lo, hi) -> np.ndarray:
+    """The 8 corners of the axis-aligned box lo..hi, (8, 3)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+
+
+def fit_orbit(cam: OrbitCamera, rect: Rect, lo, hi, margin: float = 12.0, top: float = 0.0) -> None:
+    """Move `cam` (keeping its yaw and pitch) so the box lo..hi fills `rect` as far as it can while every
+    corner stays inside it: `margin` pixels from each edge and `top` more pixels free along the top
+    (where a view draws its caption and step text). Sets the distance and the target.
+
+    Each corner's position relative to the box centre in the camera's frame (x right, y up, z ahead)
+    bounds the distance d from below: |x| <= m_x tan(fov_x / 2) (d + z) across; vertically the target
+    may also slide by s along the camera's up so the box sits in the free band [y_lo, y_hi] (NDC):
+    y - y_hi t (d + z) <= s <= y - y_lo t (d + z). The smallest d with such an s is found by bisection
+    (the interval of s widens as d grows)."""
+    w, h = max(rect.w, 1), max(rect.h, 1)
+    centre = 0.5 * (np.asarray(lo, float) + np.asarray(hi, float))
+    cam.target = centre.copy()
+    cam.update_eye()
+    f = cam.forward
+    s_ax = np.cross(f, cam.up)
+    if np.linalg.norm(s_ax) < 1e-9:
+        s_ax = np.array([1.0, 0.0, 0.0])
+    s_ax /= np.linalg.norm(s_ax)
+    u_ax = np.cross(s_ax, f)
+    rel = box_corners(lo, hi) - centre
+    x, y, z = rel @ s_ax, rel @ u_ax, rel @ f
+    ty = math.tan(math.radians(cam.fov) / 2.0)
+    tx = ty * (w / h)
+    xm = max(1.0 - 2.0 * margin / w, 0.1)
+    y_hi, y_lo = 1.0 - 2.0 * (margin + top) / h, -1.0 + 2.0 * margin / h
+    if y_hi - y_lo < 0.2:  # a view too short for its top band: centre the box in the whole view
+        y_hi, y_lo = 0.9, -0.9
+    d_min = float(np.max(np.abs(x) / (xm * tx) - z))
+    d_min = max(d_min, float(np.max(2.0 * cam.near - z)), 1e-3)
+
+    def slide(d: float) -> tuple[float, float]:
+        return float(np.max(y - y_hi * ty * (d + z))), float(np.min(y - y_lo * ty * (d + z)))
+
+    a, b = d_min, d_min
+    while slide(b)[0] > slide(b)[1]:
+        a, b = b, b * 2.0
+    for _ in range(60):
+        if slide(a)[0] <= slide(a)[1] or b - a <= 1e-6 * b:
+            break
+        m = 0.5 * (a + b)
+        if slide(m)[0] <= slide(m)[1]:
+            b = m
+        else:
+            a = m
+    d = a if slide(a)[0] <= slide(a)[1] else b
+    s_lo, s_hi = slide(d)
+    cam.target = centre + 0.5 * (s_lo + s_hi) * u_ax
+    cam.distance = d
+    cam.far = max(cam.far, 4.0 * (d + float(np.max(np.abs(rel)))))
+    cam.update_eye()
+
+
 def orbit_from_table(vp: dict) -> OrbitCamera:
     return OrbitCamera(
         target=np.asarray(vp.get("target", (0, 0, 0)), float),

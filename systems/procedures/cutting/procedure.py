@@ -60,6 +60,13 @@ from chainsim.systems.procedures.cutting.state import STEP_IDS, CuttingState, wo
 from chainsim.systems.procedures.cutting.steps import StepsSystem
 from chainsim.systems.stages import ORDER_ASSESSMENT, ORDER_KINEMATICS, ORDER_PROCEDURE
 
+#: the key page's rows for what no widget shows (chainsim.systems.ui.keyhelp)
+KEY_ROWS = [
+    ("left-drag on the tissue in the Controller", "use the instrument: the forceps grip and carry, the scissors cut"),
+    ("click on the tissue", "forceps: grip there; scissors: add a point to the cut path"),
+    ("wheel over the Controller while gripping", "pull (up) or push (down) the tissue 1 mm a notch"),
+]
+
 # -- plugin ----------------------------------------------------------------------------------------
 
 
@@ -131,6 +138,7 @@ def plugin(app) -> None:
     hud = app.get_resource(HudState)
     if hud is not None:
         hud.panel_text = ["Tool: none - take the forceps or the scissors"]
+        hud.key_rows[:0] = KEY_ROWS
     app.add_system("simulation", ToolsSystem(app, st), order=ORDER_KINEMATICS, name="cutting_tools")
     app.add_system("procedure", StepsSystem(st), order=ORDER_PROCEDURE, name="cutting_steps")
     app.add_system("procedure", AssessmentSystem(st), order=ORDER_ASSESSMENT, name="cutting_assessment")

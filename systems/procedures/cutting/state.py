@@ -21,8 +21,8 @@ MOVED_MM = 0.01  # an element this far from rest counts as displaced
 PULL_DONE_MM = 5.0  # 'pull' is done once a grip has carried tissue this far
 CUT_DONE_MM = 20.0  # 'cut' is done after this much cut path that removed links
 OPEN_DONE_MM = 10.0  # 'open' is done once a grip on a cut layer has carried it this far
-#: best views for each tool (4.5.2), relative to the tissue's bounding sphere
-VIEWS = {"forceps": dict(yaw=30.0, pitch=35.0, zoom=0.8), "scissors": dict(yaw=0.0, pitch=75.0, zoom=0.75)}
+#: best views for each tool (4.5.2); each is framed on the layers' bounding box
+VIEWS = {"forceps": dict(yaw=30.0, pitch=35.0), "scissors": dict(yaw=0.0, pitch=75.0)}
 
 
 @dataclass(slots=True)

@@ -3,8 +3,6 @@ pack's [[steps]], the instruments' drawing and the HUD. Procedure stage, ORDER_P
 
 from __future__ import annotations
 
-import math
-
 import esper
 import numpy as np
 
@@ -26,7 +24,7 @@ from chainsim.systems.procedures.cutting.state import (
 )
 from chainsim.systems.ui.viewports import OrbitCamera
 from chainsim.systems.ui.widgets import WidgetState
-from chainsim.systems.view import ViewState
+from chainsim.systems.view import ViewState, frame_view
 
 # -- views, reset, drawing -------------------------------------------------------------------------
 
@@ -39,26 +37,22 @@ def tissue_bounds(st: CuttingState) -> tuple[np.ndarray, np.ndarray]:
 def apply_view(app, st: CuttingState, tool: str) -> None:
     """Jump the frozen (controller) views to the tool's best view of the tissue (thesis 4.5.2): an
     oblique view from the free edge for the forceps, so pulling up and back is a drag up the screen; a
-    near top-down view for the scissors, so a drag across the screen runs across the tissue. The
-    mouse-driven viewer keeps the trainee's own viewpoint; a layout without a frozen view has its orbit
-    views moved instead."""
+    near top-down view for the scissors, so a drag across the screen runs across the tissue. The view
+    is framed on the layers (every corner of their box inside it). The mouse-driven viewer keeps the
+    trainee's own viewpoint; a layout without a frozen view has its orbit views moved instead."""
 
     vs = app.get_resource(ViewState)
     if vs is None or tool not in VIEWS:
         return
     lo, hi = tissue_bounds(st)
-    centre = 0.5 * (lo + hi)
-    radius = max(0.5 * float(np.linalg.norm(hi - lo)), 1.0)
     v = VIEWS[tool]
     frozen = [vp for vp in vs.viewports if vp.is_3d and not vp.mouse_camera]
     for vp in frozen or vs.viewports:
         cam = vp.camera
         if vp.kind not in ("orbit", "fixed") or not isinstance(cam, OrbitCamera):
             continue
-        cam.target = centre.copy()
         cam.yaw, cam.pitch = v["yaw"], v["pitch"]
-        cam.distance = radius / math.sin(math.radians(cam.fov) / 2.0) * v["zoom"]
-        cam.update_eye()
+        frame_view(vs, vp, lo, hi)
 
 
 def reset_tissue(app, st: CuttingState) -> None:
@@ -216,6 +210,7 @@ class StepsSystem:
             if todo:
                 spec = steps[todo[0]]
                 hud.step_title, hud.step_instruction = spec.get("title", ""), spec.get("instruction", "")
+                hud.step_doc = spec.get("docs", "")
             elif st.step_ids:
                 hud.step_title = "Done"
                 hud.step_instruction = "Pull, cut and open again, or press Reset to start over."

@@ -1,0 +1,1 @@
+"""The ChainMail demos' procedure: a marked element, a reset and the step text (thesis 5.3)."""

@@ -1,0 +1,175 @@
+"""The ChainMail demos (thesis 5.3 Figs 5.6-5.8) as something a person can try in the window.
+
+`plugin(app)` is what `pack.procedure = "demo"` installs. The pack's bodies are deformable and carry
+a scripted `pull` (chainsim.components.deformable.Pull) started by a widget; the deformation system
+does the pulling and the mouse drags. This procedure only adds what a person needs around them:
+
+* the element each pull drags is marked (a Marker entity that follows it) and the path it will be
+  dragged along is drawn as a line from it, so "the marked element" is on screen;
+* the `reset` widget puts every body back at rest (a ResetRequest each, served by the deformation
+  system) and arms the pulls again; so does a model switch, which restarts the bodies from rest;
+* the pack's [[steps]] are shown in turn, each done when what it asks for has happened: `pull` when a
+  pull has reached the end of its path, `drag` when a mouse drag on a body has ended. The HUD shows
+  the first step not yet done and its docs page is the one Help opens.
+
+Procedure stage, ORDER_PROCEDURE. Reads Widget and Dragged events, Pull and Deformable components.
+Writes the marker entities' Transform and PolyLine, Pull run state (on reset), HudState.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import esper
+import numpy as np
+
+from chainsim.components.core import Marker, Name, PolyLine, Transform
+from chainsim.components.deform_events import ResetRequest
+from chainsim.components.deformable import Deformable, Pull
+from chainsim.components.hud import HudState
+from chainsim.components.input_events import Widget
+from chainsim.components.resources import EntityIndex, PackResource
+from chainsim.components.view_events import Dragged
+from chainsim.engine.errors import UserError
+from chainsim.systems.stages import ORDER_PROCEDURE
+
+STEP_IDS = ("pull", "drag")
+MARK_COLOR = (0.15, 1.0, 0.35, 1.0)
+PATH_COLOR = (0.15, 1.0, 0.35, 0.8)
+MARK_FRACTION = 0.012  # marker radius as a fraction of the body's size
+
+#: the key page's rows for what no widget shows (chainsim.systems.ui.keyhelp)
+KEY_ROWS = [
+    ("left-drag on the tissue in the Grab view", "pull the element under the cursor with the mouse"),
+]
+
+DONE_TITLE = "Done"
+DONE_TEXT = "Reset (r) and try again, switch the model (m), or open another demo: --scene brain or --scene volume."
+
+
+@dataclass(slots=True)
+class DemoState:
+    marks: dict = field(default_factory=dict)  # pulled entity -> marker entity
+    steps_done: list = field(default_factory=list)
+    resets: int = 0
+    widgets: object = None
+    drags: object = None
+
+
+def _matrix(ent: int) -> np.ndarray:
+    tr = esper.try_component(ent, Transform)
+    return tr.matrix() if tr is not None else np.eye(4)
+
+
+def _pull_path(ent: int, p: Pull, d: Deformable) -> np.ndarray:
+    """World points: the pulled element now, then the waypoints still ahead of it (all of them before
+    the pull starts)."""
+    m = _matrix(ent)
+    here = d.pos[p.resolved].astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+    if p.done:
+        return np.zeros((0, 3))
+    way = np.asarray(p.waypoints, np.float64).reshape(-1, 3)
+    # before the pull starts the waypoints are in the pull's frame; once started they are local
+    if p.started or p.frame == "local":
+        way = way @ m[:3, :3].T + m[:3, 3]
+    if p.started:  # only what is left of the path
+        seg = np.linalg.norm(np.diff(np.vstack([p.start_at @ m[:3, :3].T + m[:3, 3], way]), axis=0), axis=1)
+        k = int(np.searchsorted(np.cumsum(seg), p.travelled, side="right"))
+        way = way[k:]
+    return np.vstack([here[None, :], way])
+
+
+def _rearm_all() -> None:
+    """Every pull ready to run again from its body's rest shape."""
+    for _ent, p in esper.get_component(Pull):
+        was_local = p.started
+        p.started, p.done, p.travelled = False, False, 0.0
+        if was_local and p.frame == "world":
+            p.frame = "local"  # the pull system converted its waypoints to the body's frame already
+
+
+class DemoSystem:
+    def __init__(self, st: DemoState):
+        self.st = st
+
+    def step_done(self, sid: str, dragged: bool) -> bool:
+        if sid == "pull":
+            return any(p.done for _e, p in esper.get_component(Pull))
+        if sid == "drag":
+            return dragged
+        return False
+
+    def __call__(self, app) -> None:
+        st = self.st
+        hud = app.get_resource(HudState)
+        for ev in st.widgets.read():
+            if ev.name in ("reset", "model"):
+                if ev.name == "reset":
+                    for ent, _d in esper.get_component(Deformable):
+                        app.events.emit(ResetRequest(ent))  # the deformation system owns the bodies
+                    st.resets += 1
+                    if hud is not None:
+                        hud.message("Tissue reset: press Pull again, or drag it.", 3.0)
+                _rearm_all()
+                st.steps_done = []
+        dragged = any(ev.phase == "end" and esper.has_component(ev.entity, Deformable) for ev in st.drags.read())
+        for ent, marker in st.marks.items():
+            p = esper.component_for_entity(ent, Pull)
+            d = esper.component_for_entity(ent, Deformable)
+            if p.resolved < 0 or p.resolved >= len(d.pos):
+                continue
+            path = _pull_path(ent, p, d)
+            m = _matrix(ent)
+            esper.component_for_entity(marker, Transform).position = (
+                d.pos[p.resolved].astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+            )
+            line = esper.component_for_entity(marker, PolyLine)
+            line.points = path
+            line.visible = len(path) >= 2
+        steps = app.resource(PackResource).pack.section("steps")
+        ids = [s["id"] for s in steps]
+        for k, sid in enumerate(ids):
+            if sid not in st.steps_done and self.step_done(sid, dragged):
+                st.steps_done.append(sid)
+                if hud is not None:
+                    hud.message(f"Done: {steps[k].get('title', sid)}", 4.0)
+        if hud is None or not steps:
+            return
+        todo = [k for k, sid in enumerate(ids) if sid not in st.steps_done]
+        if todo:
+            spec = steps[todo[0]]
+            hud.step_title, hud.step_instruction = spec.get("title", ""), spec.get("instruction", "")
+            hud.step_doc = spec.get("docs", "")
+        else:
+            hud.step_title, hud.step_instruction = DONE_TITLE, DONE_TEXT
+
+
+def plugin(app) -> None:
+    """Install the demo procedure for a spawned pack (see the module docstring)."""
+    pres: PackResource = app.resource(PackResource)
+    pack = pres.pack
+    unknown = [s["id"] for s in pack.section("steps") if s["id"] not in STEP_IDS]
+    if unknown:
+        raise UserError(f"pack '{pack.name}': step '{unknown[0]}' is not a demo step; steps are {', '.join(STEP_IDS)}")
+    st = DemoState()
+    with app.active():
+        for ent, (_p, d) in esper.get_components(Pull, Deformable):
+            size = float(np.linalg.norm(np.ptp(d.rest, axis=0))) if len(d.rest) else 10.0
+            name = esper.try_component(ent, Name)
+            marker = esper.create_entity(
+                Name(f"{name.value if name else ent}.marked"),
+                Transform(),
+                Marker(max(size * MARK_FRACTION, 0.5), np.array(MARK_COLOR), "marks", True),
+                PolyLine(np.zeros((0, 3)), PATH_COLOR, False, "marks"),
+            )
+            st.marks[ent] = marker
+            index = app.get_resource(EntityIndex)
+            if index is not None:
+                index.by_name.setdefault(f"{name.value if name else ent}.marked", marker)
+    st.widgets = app.events.reader(Widget)
+    st.drags = app.events.reader(Dragged)
+    app.insert_resource(st)
+    hud = app.get_resource(HudState)
+    if hud is not None:
+        hud.key_rows[:0] = KEY_ROWS
+    app.add_system("procedure", DemoSystem(st), order=ORDER_PROCEDURE, name="demo_steps")
