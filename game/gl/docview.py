@@ -145,6 +145,9 @@ class PageView:
             style = run.style
             f = self.font(style)
             base = y + (ln.height - f.line_h) / 2 + f.descent + 1
+            if run.text == "\u2022":  # a list bullet: a dot of its own (the bundled font has no glyph)
+                ov.disc(x0 + run.x + f.width("x") / 2, base + f.ascent * 0.35, max(2.0 * s, f.ascent * 0.16), TEXT, 12)
+                continue
             color = {
                 "bold": BOLD,
                 "italic": ITALIC,

@@ -24,14 +24,38 @@ CHARS = (
 )
 
 
+#: ASCII stand-ins for characters the bundled font has no glyph for (it would draw an empty box)
+FALLBACK = {
+    "\u2022": "\u00b7",
+    "\u2013": "-",
+    "\u2014": "--",
+    "\u2212": "-",
+    "\u2190": "<-",
+    "\u2192": "->",
+    "\u2191": "^",
+    "\u2193": "v",
+    "\u2264": "<=",
+    "\u2265": ">=",
+    "\u2248": "~",
+    "\u00d7": "x",
+    "\u03b1": "alpha",
+    "\u03b2": "beta",
+    "\u03bc": "u",
+}
+
+
 class Font:
-    """Glyph atlas of CHARS in a grid of equal cells; the baseline sits `ascent` below a cell top."""
+    """Glyph atlas of CHARS in a grid of equal cells; the baseline sits `ascent` below a cell top.
+    Characters the font has no glyph for are written with FALLBACK's stand-ins, else "?"."""
 
     def __init__(self, ctx, size_px: int):
 
         self.font = ImageFont.load_default(size=size_px)
         self.ascent, self.descent = self.font.getmetrics()
-        chars = [ch for ch in CHARS if ch.isprintable()]
+        notdef = bytes(self.font.getmask("\uffff"))
+        missing = {ch for ch in CHARS if ch.isprintable() and ch != " " and bytes(self.font.getmask(ch)) == notdef}
+        self.substitute = {ord(ch): FALLBACK.get(ch, "?") for ch in missing}
+        chars = [ch for ch in CHARS if ch.isprintable() and ch not in missing]
         self.advance = {ch: float(self.font.getlength(ch)) for ch in chars}
         self.cell_w = int(max(self.font.getbbox(ch)[2] for ch in chars)) + 2
         self.cell_h = self.ascent + self.descent + 2
@@ -50,8 +74,12 @@ class Font:
         self.texture.filter = (ctx.NEAREST, ctx.NEAREST)
         self.line_h = self.ascent + self.descent + 3
 
+    def shown(self, text: str) -> str:
+        """`text` as drawn: stand-ins for the characters the font lacks."""
+        return text.translate(self.substitute) if self.substitute else text
+
     def width(self, text: str) -> float:
-        return sum(self.advance.get(ch, self.advance["?"]) for ch in text)
+        return sum(self.advance.get(ch, self.advance["?"]) for ch in self.shown(text))
 
     def wrap(self, text: str, width: float) -> list[str]:
         """Greedy word wrap to `width` pixels."""
@@ -227,6 +255,7 @@ class Overlay:
             self.label(text, x + max(1.0, round(self.scale)), baseline, color, max_w, font, False, slant)
         f = font or self.font
         glyphs = self.glyphs.setdefault(f, [])
+        text = f.shown(text)
         if max_w is not None and f.width(text) > max_w:
             while text and f.width(text + "...") > max_w:
                 text = text[:-1]

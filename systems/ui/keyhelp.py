@@ -19,7 +19,7 @@ def keys_markdown(widgets: list[dict], key_rows: list[tuple[str, str]], docs: li
         ("left-drag in a 3-D view", "turn the view"),
         ("right- or middle-drag", "pan the view"),
         ("wheel", "zoom the view; over a dial or slider: step it; over a page: scroll"),
-        ("click", "pick a point (place a landmark); use a button or toggle"),
+        ("click", "use a button or toggle; on a surface: pick that point (a landmark, a grip, a cut point)"),
     ]
     rows += list(key_rows)
     for w in widgets:
@@ -31,7 +31,7 @@ def keys_markdown(widgets: list[dict], key_rows: list[tuple[str, str]], docs: li
     rows += [
         ("`F1`", "open or close this page"),
         ("`PageUp` / `PageDown`", "scroll an open page"),
-        ("`Esc`", "close the open page; with none open, quit (asks first if an attempt is not saved)"),
+        ("`Esc`", "close the open page; with none open, quit (a trainer that saves attempts asks first if one is not)"),
         ("`F12`", "save a screenshot in the current folder"),
     ]
     lines = [f"# {TITLE}", "", "| Keys or mouse | What it does |", "|---|---|"]

@@ -45,6 +45,8 @@ def apply_view(app, st: CuttingState, tool: str) -> None:
     if vs is None or tool not in VIEWS:
         return
     lo, hi = tissue_bounds(st)
+    if vs.scene_box is not None:  # the tissue as it is now, and the whole scene as it was (the brain too)
+        lo, hi = np.minimum(lo, vs.scene_box[0]), np.maximum(hi, vs.scene_box[1])
     v = VIEWS[tool]
     frozen = [vp for vp in vs.viewports if vp.is_3d and not vp.mouse_camera]
     for vp in frozen or vs.viewports:
@@ -213,7 +215,7 @@ class StepsSystem:
                 hud.step_doc = spec.get("docs", "")
             elif st.step_ids:
                 hud.step_title = "Done"
-                hud.step_instruction = "Pull, cut and open again, or press Reset to start over."
+                hud.step_instruction = "Pull, cut and open again, or press Reset tissue (r) to start over."
             hud.panel_text = panel_lines(app, st)
 
 

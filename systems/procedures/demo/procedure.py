@@ -44,7 +44,7 @@ KEY_ROWS = [
 ]
 
 DONE_TITLE = "Done"
-DONE_TEXT = "Reset (r) and try again, switch the model (m), or open another demo: --scene brain or --scene volume."
+DONE_TEXT = "Reset (r) and try again, or switch the tissue model (m) and compare."
 
 
 @dataclass(slots=True)
@@ -99,6 +99,19 @@ class DemoSystem:
             return dragged
         return False
 
+    def panel_lines(self, app) -> list[str]:
+        """What the panel says under the buttons: this demo, the model running it, the other demos."""
+        pres: PackResource = app.resource(PackResource)
+        scenes = pres.pack.section("scenes")
+        lines = [f"Demo: {pres.scene}. {scenes.get(pres.scene, {}).get('description', '')}".strip()]
+        models = sorted({d.model_used for _e, d in esper.get_component(Deformable)})
+        lines.append(f"Tissue model: {', '.join(models)} (m switches)")
+        others = [name for name in scenes if name != pres.scene]
+        if others:
+            rest = "".join(f" or /{name}" for name in others[1:])
+            lines.append(f"Other demos: chainsim play {pres.pack.name}/{others[0]}{rest}")
+        return lines
+
     def __call__(self, app) -> None:
         st = self.st
         hud = app.get_resource(HudState)
@@ -133,7 +146,10 @@ class DemoSystem:
                 st.steps_done.append(sid)
                 if hud is not None:
                     hud.message(f"Done: {steps[k].get('title', sid)}", 4.0)
-        if hud is None or not steps:
+        if hud is None:
+            return
+        hud.panel_text = self.panel_lines(app)
+        if not steps:
             return
         todo = [k for k, sid in enumerate(ids) if sid not in st.steps_done]
         if todo:
