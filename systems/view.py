@@ -361,9 +361,15 @@ class ViewSystem:
                 open_help(h, list(app.resource(PackResource).pack.section("docs")), page)
             app.resource(ViewState).show_help = h.doc_open and h.doc_name == "keys"
         if name.startswith("camera:") and name[7:] in CAMERA_PRESETS:
-            vp = main_view(app.resource(ViewState))
+            vs = app.resource(ViewState)
+            vp = main_view(vs)
             if vp is not None:
                 camera_preset(vp, name[7:])
+                if vp.spec.get("fit") and vs.scene_box is not None:  # framed for the view's size now
+                    frame_view(vs, vp, *vs.scene_box)
+                    if name == "camera:reset":
+                        cam = vp.camera
+                        vp.home = (cam.target.copy(), cam.distance, cam.yaw, cam.pitch)
         spec = st.specs.get(name)
         if spec is not None and spec["kind"] == "toggle" and spec.get("layer"):
             set_layer(app, spec["layer"], bool(st.values[name]))

@@ -148,3 +148,38 @@ mesh = "ball"
                 assert np.all(np.abs(px[:, 2]) < 1.0)
     finally:
         app.close()
+
+
+# -- framing a box (fit_orbit) ----------------------------------------------------------------------
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    centre=st.tuples(*[st.floats(-500, 500)] * 3),
+    size=st.tuples(*[st.floats(20.0, 300)] * 3),  # boxes larger than the near plane allows for
+    yaw=st.floats(0, 360),
+    pitch=st.floats(-85, 85),
+    rect=st.tuples(st.integers(0, 300), st.integers(0, 300), st.integers(120, 1600), st.integers(120, 1000)),
+    top=st.sampled_from([0.0, 30.0, 92.0]),
+)
+def test_fit_orbit_puts_every_corner_inside_and_touches_an_edge(centre, size, yaw, pitch, rect, top):
+    from chainsim.systems.ui.viewports import OrbitCamera, Rect, box_corners, fit_orbit
+
+    lo = np.asarray(centre) - np.asarray(size) / 2
+    hi = np.asarray(centre) + np.asarray(size) / 2
+    r = Rect(*rect)
+    cam = OrbitCamera(distance=50.0, yaw=yaw, pitch=pitch)
+    fit_orbit(cam, r, lo, hi, margin=12.0, top=top)
+    assert (cam.yaw, cam.pitch) == (yaw, pitch)  # the viewing direction is the layout's
+    p = cam.project(box_corners(lo, hi), r)
+    if r.h - 24.0 - top > 0.1 * r.h:  # room for the box under the top band
+        y0, y1 = r.y + 12.0, r.y + r.h - 12.0 - top
+    else:  # too short a view: the box is centred in the whole view, 5 % from its edges
+        y0, y1 = r.y + 0.05 * r.h, r.y + 0.95 * r.h
+    tol = 1e-3 * max(r.w, r.h)
+    assert np.all(p[:, 1] >= y0 - tol) and np.all(p[:, 1] <= y1 + tol)
+    assert np.all(p[:, 0] >= r.x + 12.0 - tol) and np.all(p[:, 0] <= r.x + r.w - 12.0 + tol)
+    assert np.all(p[:, 2] > -1.0) and np.all(p[:, 2] < 1.0)  # in front of the eye, inside the clip range
+    # as close as it can be: some corner sits on the left/right margins or on the band's top/bottom
+    gaps = [p[:, 0].min() - r.x - 12.0, r.x + r.w - 12.0 - p[:, 0].max(), p[:, 1].min() - y0, y1 - p[:, 1].max()]
+    assert min(gaps) < 0.01 * max(r.w, r.h)

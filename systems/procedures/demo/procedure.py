@@ -88,6 +88,22 @@ def _rearm_all() -> None:
             p.frame = "local"  # the pull system converted its waypoints to the body's frame already
 
 
+def place_marks(st: DemoState) -> None:
+    """Each marker on its pulled element, its line along what is left of the pull's path."""
+    for ent, marker in st.marks.items():
+        p = esper.component_for_entity(ent, Pull)
+        d = esper.component_for_entity(ent, Deformable)
+        if p.resolved < 0 or p.resolved >= len(d.pos):
+            continue
+        m = _matrix(ent)
+        esper.component_for_entity(marker, Transform).position = (
+            d.pos[p.resolved].astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+        )
+        line = esper.component_for_entity(marker, PolyLine)
+        line.points = _pull_path(ent, p, d)
+        line.visible = len(line.points) >= 2
+
+
 class DemoSystem:
     def __init__(self, st: DemoState):
         self.st = st
@@ -126,19 +142,7 @@ class DemoSystem:
                 _rearm_all()
                 st.steps_done = []
         dragged = any(ev.phase == "end" and esper.has_component(ev.entity, Deformable) for ev in st.drags.read())
-        for ent, marker in st.marks.items():
-            p = esper.component_for_entity(ent, Pull)
-            d = esper.component_for_entity(ent, Deformable)
-            if p.resolved < 0 or p.resolved >= len(d.pos):
-                continue
-            path = _pull_path(ent, p, d)
-            m = _matrix(ent)
-            esper.component_for_entity(marker, Transform).position = (
-                d.pos[p.resolved].astype(np.float64) @ m[:3, :3].T + m[:3, 3]
-            )
-            line = esper.component_for_entity(marker, PolyLine)
-            line.points = path
-            line.visible = len(path) >= 2
+        place_marks(st)
         steps = app.resource(PackResource).pack.section("steps")
         ids = [s["id"] for s in steps]
         for k, sid in enumerate(ids):
@@ -182,6 +186,7 @@ def plugin(app) -> None:
             index = app.get_resource(EntityIndex)
             if index is not None:
                 index.by_name.setdefault(f"{name.value if name else ent}.marked", marker)
+        place_marks(st)
     st.widgets = app.events.reader(Widget)
     st.drags = app.events.reader(Dragged)
     app.insert_resource(st)
