@@ -13,6 +13,7 @@ HELP = "run a benchmark (chainmail, render, ...)"
 BENCHES = {
     "chainmail": "chainsim.tools.bench.chainmail",
     "render": "chainsim.game.gl.bench",
+    "docs": "chainsim.game.gl.docbench",
     "models": "chainsim.tools.bench.models",
     "records": "chainsim.game.server.bench",
 }
