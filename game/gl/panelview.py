@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from chainsim.game.gl.overlay import Overlay
+from chainsim.systems.ui import docbox
 from chainsim.systems.ui.viewports import Rect
 from chainsim.systems.ui.widgets import TITLE_PX, below_widgets, format_value
 
@@ -54,16 +55,26 @@ def hud(ov: Overlay, h, r: Rect, s: float) -> None:
     f = ov.font
     pad = 8 * s
     width = min(r.w - 2 * pad, 640 * s)
-    lines = []
+    head = []
     if h.step_title:
-        lines.append((h.step_title, ACCENT))
+        head.append((h.step_title, ACCENT))
     if h.step_instruction:
-        lines += [(t, TEXT) for t in f.wrap(h.step_instruction, width - 2 * pad)]
-    for text in h.shown_messages()[-3:]:  # the newest three; older ones are still counted
-        lines += [(t, MESSAGE) for t in f.wrap(text, width - 2 * pad)]
+        head += [(t, TEXT) for t in f.wrap(h.step_instruction, width - 2 * pad)]
+    said = [[(t, MESSAGE) for t in f.wrap(text, width - 2 * pad)] for text in h.shown_messages()[-3:]]
+    top = r.y + r.h - f.line_h - 14 * s  # under the viewport title
+    if h.doc_open or h.notice:
+        # a page is open below (chainsim.systems.ui.docbox): the band ends above its top edge, so the
+        # oldest messages give way first, then the instruction's last lines
+        room = max(int((top - (r.y + r.h - docbox.TOP_ROOM * s) - pad - 2 * s) // f.line_h), 1)
+        while said and len(head) + sum(map(len, said)) > room and len(said) > 1:
+            said.pop(0)
+        keep = max(room - sum(map(len, said)), 1)
+        if len(head) > keep:
+            head = head[: keep - 1] + [(head[keep - 1][0] + " ...", head[keep - 1][1])]
+        said = [m[: max(room - len(head), 0)] for m in said]
+    lines = head + [ln for m in said for ln in m]
     if not lines:
         return
-    top = r.y + r.h - f.line_h - 14 * s  # under the viewport title
     bh = len(lines) * f.line_h + pad
     x0 = r.x + pad
     ov.rect(x0, top - bh, width, bh, (0.0, 0.0, 0.0, 0.55))

@@ -125,7 +125,9 @@ class SignInForm:
         for k, label in self.fields:
             v = "*" * len(self.values[k]) if k == "password" else self.values[k].replace("|", "\\|")
             cursor = "_" if self.focus == k else ""
-            rows.append(f"| {'**' + label + '**' if self.focus == k else label} | `{v}{cursor}` |")
+            # an empty field says so (an empty code span would show its two backticks)
+            shown = f"`{v}{cursor}`" if v or cursor else "*(empty)*"
+            rows.append(f"| {'**' + label + '**' if self.focus == k else label} | {shown} |")
         out = [
             "# Sign in",
             "",

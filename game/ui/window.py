@@ -258,7 +258,8 @@ def run_window(args, session=None) -> int:
             else:
                 study.key(key_name(symbol))
             return pyglet.event.EVENT_HANDLED
-        if form["open"] is not None:  # typing a name: no key reaches the controller
+        if form["open"] is not None and symbol != pyglet.window.key.F12:
+            # typing a name: no key reaches the controller (F12 still takes a screenshot)
             if symbol == pyglet.window.key.ESCAPE:
                 if values.get("trainee"):
                     form["open"] = None
@@ -269,7 +270,7 @@ def run_window(args, session=None) -> int:
                 form["open"].key(key_name(symbol))
                 form_changed()
             return pyglet.event.EVENT_HANDLED
-        if state["confirm"]:
+        if state["confirm"] and symbol != pyglet.window.key.F12:  # a screenshot leaves the question open
             state["confirm"] = False
             hud.notice = ""
             if symbol == pyglet.window.key.ESCAPE:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 TITLE = "Keys and mouse"
 NAME = "keys"  # the HudState.doc_name that shows this page
+ASK = " (asks first if the attempt is not saved)"
 
 
 def _cell(text: str) -> str:
@@ -15,6 +16,7 @@ def _cell(text: str) -> str:
 def keys_markdown(widgets: list[dict], key_rows: list[tuple[str, str]], docs: list[str] | None = None) -> str:
     """The page: one table of keys and mouse actions; then, when the pack has help pages (their
     titles in `docs`), how to reach them."""
+    saves = any(w["name"] == "sign_in" for w in widgets)  # a trainer that saves attempts (as the window decides)
     rows = [
         ("left-drag in a 3-D view", "turn the view"),
         ("right- or middle-drag", "pan the view"),
@@ -31,7 +33,7 @@ def keys_markdown(widgets: list[dict], key_rows: list[tuple[str, str]], docs: li
     rows += [
         ("`F1`", "open or close this page"),
         ("`PageUp` / `PageDown`", "scroll an open page"),
-        ("`Esc`", "close the open page; with none open, quit (a trainer that saves attempts asks first if one is not)"),
+        ("`Esc`", "close the open page; with none open, quit" + (ASK if saves else "")),
         ("`F12`", "save a screenshot in the current folder"),
     ]
     lines = [f"# {TITLE}", "", "| Keys or mouse | What it does |", "|---|---|"]

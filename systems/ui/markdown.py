@@ -289,7 +289,7 @@ def layout(blocks: list[Block], width: float, measure: Measure, line_h: Callable
     body = line_h("body")
     indent_w = measure("\u2022  ", "body")
     out: list[Line] = []
-    for b in blocks:
+    for k, b in enumerate(blocks):
         if b.kind == "blank":
             out.append(Line(body * 0.5))
         elif b.kind == "heading":
@@ -311,6 +311,8 @@ def layout(blocks: list[Block], width: float, measure: Measure, line_h: Callable
         elif b.kind == "code":
             for t in b.text.split("\n"):
                 out.append(Line(body, [Run(16.0, t, "code")] if t else []))
+            if k + 1 < len(blocks) and blocks[k + 1].kind != "blank":  # a paragraph right after: a gap
+                out.append(Line(body * 0.5))
         elif b.kind == "table":
             out += _table(b, width, measure, body, 6.0)
     return out
