@@ -71,7 +71,12 @@ class Session:
             )
             if r.stdout.strip():
                 time.sleep(3.0)  # first frames drawn
-                return r.stdout.split()[0]
+                # on a software renderer the window opens twice (a multisampled try is closed): the
+                # one still there is the last found
+                r = subprocess.run(
+                    ["xdotool", "search", "--name", "chainsim - prp"], env=self.env, capture_output=True, text=True
+                )
+                return r.stdout.split()[-1]
             if self.app.poll() is not None:
                 raise AssertionError(self.app.stdout.read())
             time.sleep(0.5)
