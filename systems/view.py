@@ -32,6 +32,12 @@ view, the box takes the pointer - its footer buttons turn pages or close it, the
 and a click on the main view around it does nothing, so nothing lands on the face underneath.
 The panel and the other views keep working.
 
+Framing: a viewport with `fit = true` is placed (its yaw and pitch kept) so the box around the
+visible meshes and their pull paths fills it, clear of its caption and of the step text
+(`frame_view`, chainsim.systems.ui.viewports.fit_orbit); again after a resize unless the trainee
+moved it. Help: the `help` widget opens the current step's page, else the last shown, else the
+pack's first; the key page (F1) leads on to the pages with its "Help pages >" button.
+
 Camera presets: a button named "camera:front", "camera:side", "camera:below" or "camera:reset"
 (with a key, like any widget) moves the main orbit view: front (facing +Y, the face), side (from
 the subject's left, again for the right), below (from under the chin), or back to the layout's view.

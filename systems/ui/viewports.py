@@ -10,6 +10,7 @@ Conventions (all matrices are 4 x 4 numpy float64, column vectors, OpenGL clip s
 * Orbit / fixed camera: the eye sits `distance` from `target`. With yaw = pitch = 0 the eye is on the
   +Y side of the target and looks along -Y; yaw turns the eye counter-clockwise about +Z (seen from
   above), pitch raises it (positive pitch looks down on the target).
+* `fit_orbit` places an orbit/fixed camera so a box fills a viewport with every corner inside it.
 * Attached camera: the eye is at the entity's origin plus `offset` (given in the entity's local frame,
   scaled and rotated with it) and looks along the entity's rotated local +Z axis, with the rotated
   local +Y axis as the up hint. A needle whose tip is at its entity origin pointing along local +Z
