@@ -98,7 +98,7 @@ class NeedleState:
     target_depth: float = 0.0  # where insertion commands want the tip
     prev_depth: float = 0.0  # depth at the start of the current step (the swept segment's start)
     locked: bool = False  # rotation locked once insertion began (thesis 3.3.4)
-    done: bool = False  # tip is in the target foramen: no further insertion
+    done: bool = False  # tip is in the target: no further insertion
     contact: str = ""  # object the tip touched last ("" none)
     contact_point: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     contacts: dict[str, int] = field(default_factory=dict)  # per role name, this attempt
