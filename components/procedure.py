@@ -185,6 +185,13 @@ section(
             "planes", "str_list", [], help="[planes] names for d (distance to the plane), first found wins ({side})."
         ),
         Field(
+            "plane_through",
+            "str_list",
+            [],
+            help="Instead of a named plane: three [points] names ({side} allowed); d is the distance to the plane "
+            "through them.",
+        ),
+        Field(
             "plane_fallback",
             "vec3",
             [0.0, 0.0, 0.0],
@@ -366,6 +373,10 @@ def scene_from_pack(pack) -> NeedleScene:
                     raise UserError(f"{where}: landmark '{sp['id']}' needs {want} (known points: {known})")
                 t.point = np.asarray(p["position"], dtype=np.float64)
             pname, pl = _first(planes, sp.get("planes", []), s)
+            through = sp.get("plane_through") or []
+            if pl is None and through:
+                pl = _plane_through(points, [n.format(side=s) for n in through], f"{where}: landmark '{sp['id']}'")
+                pname = "plane_through"
             if pl is not None:
                 n = np.asarray(pl["normal"], dtype=np.float64)
                 if np.linalg.norm(n) < 1e-12:
@@ -398,6 +409,18 @@ def scene_from_pack(pack) -> NeedleScene:
         side_from=index_of("side_from", entry),
         landmark_score=np_.get("landmark_score", "thesis-6.1.5"),
     )
+
+
+def _plane_through(points: dict, names: list[str], where: str) -> dict:
+    """{point, normal} of the plane through three named points; one UserError line if it is not one."""
+    missing = [n for n in names if n not in points]
+    if len(names) != 3 or missing:
+        raise UserError(f"{where}: plane_through needs three [points] names ({', '.join(missing) or len(names)})")
+    a, b, c = (np.asarray(points[n]["position"], dtype=np.float64) for n in names)
+    n = np.cross(b - a, c - a)
+    if np.linalg.norm(n) < 1e-9:
+        raise UserError(f"{where}: plane_through points {', '.join(names)} lie on one line")
+    return {"point": a, "normal": n}
 
 
 def landmark_errors(targets: list[LandmarkTarget], landmarks: np.ndarray, score: str = "thesis-6.1.5") -> dict:

@@ -8,6 +8,7 @@ name, the events steps are done on, and one clear line for an event that does no
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from test_needle import FORAMEN, L1, PLATE_Z, Run, make_synthetic_pack, on_skin
 
@@ -95,3 +96,24 @@ def test_an_unknown_event_is_one_clear_line(tmp_path):
     root = _pack(tmp_path, 'done_on = ["depth"]', 'done_on = ["depht"]')
     with pytest.raises(UserError, match="'depht' is not an event of the needle procedure"):
         Run(root)
+
+
+def test_a_plane_through_three_named_points_scores_d(tmp_path):
+    old = 'planes = ["sagittal_pupil_{side}", "pupil_sagittal_{side}", "saggital_pupil_{side}", "sagittal_{side}"]'
+    new = 'plane_through = ["oral_commissure_{side}", "pupil_medial_{side}", "tragus_{side}"]'
+    r = Run(_pack(tmp_path, old, new))
+    try:
+        l2 = on_skin([30, 80, 30])
+        for p in (L1, l2, on_skin([80, 20, 0])):
+            r.send(PickPoint("skin", tuple(p)))
+        r.send(Widget("self_assessment"))
+        from chainsim.components.resources import Assessment
+
+        a = r.app.resource(Assessment).values
+        # the synthetic pack's left points (tests/unit/test_needle.py)
+        m, p, t = np.array([25.0, 80.0, -40.0]), np.array([30.0, 80.0, 30.0]), np.array([85.0, -10.0, 0.0])
+        n = np.cross(p - m, t - m)
+        placed = np.asarray(a["landmarks"][1])  # the click, snapped onto the skin mesh
+        assert a["d2"] == pytest.approx(abs((placed - m) @ n) / np.linalg.norm(n))
+    finally:
+        r.close()
