@@ -1,4 +1,4 @@
-"""The rhizotomy needle: its manifest settings (`[entities.X.needle]`) and its runtime state.
+"""The needle of a needle procedure: its manifest settings (`[entities.X.needle]`) and its runtime state.
 
 Thesis 3.3.4-3.3.6. The needle entity's Transform origin is the TIP and its local +Z axis points
 along the direction of insertion, so a camera attached to it (the local viewer) looks where the
@@ -22,7 +22,8 @@ from chainsim.engine.quaternion import rotate
 
 @component(
     "needle",
-    help="A needle driven by the rhizotomy procedure: rotate (horizontal, then vertical), then insert along its axis.",
+    help="A needle driven by the needle procedure: placed at the entry landmark, rotated (horizontal, then "
+    "vertical), then inserted along its axis.",
 )
 @dataclass(slots=True)
 class Needle:
@@ -58,6 +59,29 @@ class Needle:
     contact_epsilon: float = prop(
         "float", 0.2, units="mm", help="Gap left between the tip and the surface it touched.", min=0.0
     )
+    max_yaw: float = prop(
+        "float",
+        0.0,
+        units="deg",
+        help="Largest horizontal turn either way from where the needle was placed (0: no limit).",
+        min=0.0,
+        max=360.0,
+    )
+    aim_at: np.ndarray = prop(
+        "vec3",
+        (0.0, 0.0, 0.0),
+        units="mm",
+        help="When placed, the needle points level (in the axial plane) at the vertical axis through this point.",
+    )
+    lock_on_insert: bool = prop(
+        "bool", True, help="Rotation locks once the needle is inserted (thesis 3.3.4); false: it may turn while in."
+    )
+    unlock_at_skin: bool = prop(
+        "bool",
+        True,
+        help="Withdrawn back to the skin, the rotation unlocks where it is (withdraw and redirect); false: "
+        "only a Reset unlocks it.",
+    )
 
 
 @dataclass(slots=True)
@@ -74,10 +98,10 @@ class NeedleState:
     target_depth: float = 0.0  # where insertion commands want the tip
     prev_depth: float = 0.0  # depth at the start of the current step (the swept segment's start)
     locked: bool = False  # rotation locked once insertion began (thesis 3.3.4)
-    done: bool = False  # tip is in the target foramen: no further insertion
+    done: bool = False  # tip is in the target: no further insertion
     contact: str = ""  # object the tip touched last ("" none)
     contact_point: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
-    skull_contacts: int = 0
+    contacts: dict[str, int] = field(default_factory=dict)  # per role name, this attempt
     rotation_refused: int = 0
     path_length: float = 0.0  # mm travelled by the tip while inserted (forward and back)
     redirections: int = 0  # times the needle was withdrawn to the skin and turned again

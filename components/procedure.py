@@ -1,20 +1,25 @@
-"""Rhizotomy procedure data: the trainee's progress, the landmarks and the named anatomy it is scored on.
+"""The needle-procedure vocabulary: what a pack declares, how it is read, and the trainee's progress.
 
-Thesis 3.2.3 (the steps), 3.3.4 (three landmarks, the assessment tool) and 6.1.5 (the error
-formulas). `ProcedureState` lives on a runtime entity so that it is part of the world digest (a
-replay reproduces it bit for bit); `PrpAnatomy` is a resource read once from the pack's
-[points], [planes], [foramina] and [paths] tables.
+A needle procedure (thesis 3.2.3 task analysis, 3.3.4 interface, 3.3.6 feedback, 6.1.5 scoring) is
+described entirely by pack data, read by the generic systems in chainsim.systems.procedures.needle:
 
-Anatomy names. The pack names points per side; several spellings are accepted so that an anatomy
-file can use the clinical or the lay word. For side S in (left, right):
+    [needle_procedure]   sides, which landmark places the needle and decides the side, the landmark
+                         score, aids, lights, where Reset goes back to
+    [roles.NAME]         what entities are: skin (clicked, entered), target (an opening with a radius),
+                         obstacle (bounce | stop | warn on contact), tissue (deformable, not an obstacle)
+    [[landmarks]]        the points the trainee clicks, in order, each scored by its distance to a
+                         named point (minus an ideal distance) and to a named plane
+    [[steps]]            (declared in game/packs/schema.py) gain `done_on`, `landmark` and `open_docs`
+    [[feedback]]         per event: a message, a light and its colour
+    [metrics.NAME]       (game/packs/schema.py) gain `measure`: which value of the vocabulary is stored
 
-    oral commissure      oral_commissure_S | mouth_angle_S | mouth_corner_S | commissure_S
-    pupil (medial)       pupil_medial_S | medial_pupil_S | pupil_S
-    tragus / EAM         tragus_S | eam_S | external_auditory_meatus_S | ear_S
-    planes (d1, d2, d3)  axial_mouth_S | sagittal_pupil_S | axial_ear_S (also without _S, and a
-                         few variants); a plane that is not given is the axial (normal +Z) or
-                         sagittal (normal +X) plane through the point above, which is what 6.1.5 defines.
-    foramen              [foramina.S] (centre, radius_mm);  reference path [paths.S] (optional)
+Every key is declared here with `section()`, so `chainsim validate` checks it and `chainsim docs
+components` lists it; docs/needle-procedures.md is the modder's guide. A text may contain `{side}`,
+replaced by the side the trainee works on (the entry of `sides` whose target centre is nearest the
+landmark named by `side_from`).
+
+`NeedleScene` is the resource read once from those tables; `ProcedureState` lives on a runtime entity
+so it is part of the world digest (a replay reproduces it bit for bit).
 """
 
 from __future__ import annotations
@@ -23,35 +28,190 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from chainsim.components.registry import Field, section
 from chainsim.engine.errors import UserError
 
-SIDES = ("left", "right")
-LANDMARK_COUNT = 3
-
-POINT_ALIASES = {
-    "mouth": ("oral_commissure_{s}", "mouth_angle_{s}", "mouth_corner_{s}", "commissure_{s}", "angle_of_mouth_{s}"),
-    "pupil": ("pupil_medial_{s}", "medial_pupil_{s}", "pupil_{s}", "pupil_medial_aspect_{s}"),
-    "tragus": ("tragus_{s}", "eam_{s}", "external_auditory_meatus_{s}", "ear_{s}", "ear_canal_{s}"),
-}
-PLANE_ALIASES = {
-    "mouth": (
-        "axial_mouth_{s}",
-        "mouth_axial_{s}",
-        "axial_oral_commissure_{s}",
-        "axial_commissure_{s}",
-        "axial_mouth",
-        "mouth_axial",
-        "axial_oral_commissure",
+ROLE_KINDS = ("skin", "target", "obstacle", "tissue")
+ON_CONTACT = ("bounce", "stop", "warn")
+LANDMARK_SCORES = ("thesis-6.1.5", "mean-distance", "none")
+LIGHT_COLOURS = ("", "off", "red", "green", "yellow")
+MEASURES = (
+    "",
+    "duration",
+    "step_time",
+    "path_length",
+    "contacts",
+    "first_contact_distance",
+    "needle_error",
+    "landmark_error",
+    "redirections",
+    "refused_rotations",
+    "xray_shots",
+    "exposure",
+    "dose",
+)
+#: the events a step's `done_on` and a feedback's `on` may name (ARG: a role, landmark or widget name)
+EVENTS = (
+    ("click:ROLE", "a click on an entity of that role (landmark roles place the next landmark)"),
+    ("click_elsewhere", "a click that places nothing ({entity}: what was clicked)"),
+    ("landmark:ID", "that landmark was placed ({n}: its number, {side})"),
+    ("landmarks_full", "a click after every landmark is placed"),
+    ("landmark_missing", "Next pressed in a landmark step whose landmark is not placed ({n}, {instruction})"),
+    ("dial:WIDGET", "the needle was turned with that control (rotate_horizontal, rotate_vertical)"),
+    ("depth", "the needle was inserted (its depth set above 0)"),
+    ("withdrawn", "the needle came back to the skin; the dials are free again"),
+    (
+        "contact:ROLE",
+        "the tip touched an entity of that role ({what}, {dist_mm}: tip to the target centre, {radius_mm}, "
+        "{error_mm} = dist - radius, {side})",
     ),
-    "pupil": ("sagittal_pupil_{s}", "pupil_sagittal_{s}", "saggital_pupil_{s}", "sagittal_{s}"),
-    "tragus": ("axial_ear_{s}", "ear_axial_{s}", "axial_tragus_{s}", "axial_eam_{s}", "axial_ear", "axial_tragus"),
-}
-DEFAULT_NORMAL = {"mouth": (0.0, 0.0, 1.0), "pupil": (1.0, 0.0, 0.0), "tragus": (0.0, 0.0, 1.0)}
+    ("refused:locked", "a turn while the needle is in (rotation locked)"),
+    ("refused:not_placed", "a turn or an insertion before the entry landmark placed the needle"),
+    ("refused:in_target", "an insertion with the tip already in the target"),
+    ("refused:max_depth", "an insertion past the needle's max_depth"),
+    ("reset", "Reset: the needle back to the entry landmark"),
+    ("reset_all", "Reset with shift: the landmarks cleared as well"),
+    ("attempt", "a new attempt begins after a saved one ({attempt})"),
+    ("button:WIDGET", "a control-panel button was pressed"),
+)
 
-#: ideal distances of 6.1.5: landmark 1 is 25 mm from the mouth angle, landmark 2 on the pupil,
-#: landmark 3 30 mm from the tragus
-IDEAL_MM = {"mouth": 25.0, "pupil": 0.0, "tragus": 30.0}
-LANDMARK_ROLES = ("mouth", "pupil", "tragus")  # landmark k is measured against role k
+section(
+    "needle_procedure",
+    "table",
+    "How the generic needle procedure (pack.procedure = 'needle') runs this pack (docs/needle-procedures.md).",
+    [
+        Field(
+            "sides",
+            "str_list",
+            [],
+            help="Side names substituted for {side} in entity, point, plane and opening names (e.g. left, right); "
+            "empty: one side, {side} is replaced by nothing.",
+        ),
+        Field(
+            "side_from",
+            "str",
+            "",
+            help="Landmark id whose position decides the side: the side whose target centre is nearest "
+            "(default: the entry landmark).",
+        ),
+        Field(
+            "entry",
+            "str",
+            "",
+            help="Landmark id where the needle enters the skin; placing it places the needle (default: the first).",
+        ),
+        Field(
+            "landmark_score",
+            "enum",
+            "thesis-6.1.5",
+            choices=LANDMARK_SCORES,
+            help="thesis-6.1.5: E = sum over landmarks of (D_k + d_k) / (2 n), D_k = |distance to its point - "
+            "ideal_mm|, d_k = distance to its plane; mean-distance: mean of D_k; none: no landmark error.",
+        ),
+        Field("target", "str", "", help="Role name of the target (default: the first role with role = 'target')."),
+        Field(
+            "aids",
+            "str_list",
+            [],
+            help="Toggle widgets recorded per attempt as aids (on at any time of the attempt counts).",
+        ),
+        Field("lights", "str_list", [], help="Light widgets the feedback drives; all go off at a reset."),
+        Field("signals_aid", "str", "", help="Toggle that shows the lights (off: the lights stay dark)."),
+        Field("planes_aid", "str", "", help="Toggle that shows the planes through the placed landmarks."),
+        Field(
+            "reset_step",
+            "str",
+            "",
+            help="Step a Reset returns to once the entry landmark is placed (default: the step after the last "
+            "landmark step).",
+        ),
+        Field("reset_all_step", "str", "", help="Step a shift+Reset returns to (default: the first landmark step)."),
+    ],
+)
+
+section(
+    "roles",
+    "named",
+    "What some entities are to the needle procedure (skin, target, obstacle, tissue).",
+    [
+        Field(
+            "role",
+            "enum",
+            choices=ROLE_KINDS,
+            help="skin: the entry surface, clicked for landmarks; target: what the needle must reach (it stops "
+            "there and the attempt's clock stops); obstacle: stops or warns the needle; tissue: deformable, "
+            "not an obstacle.",
+        ),
+        Field("entities", "str_list", [], help="Entity names ({side} allowed) that play this role."),
+        Field(
+            "on_contact",
+            "enum",
+            "bounce",
+            choices=ON_CONTACT,
+            help="Obstacles: bounce (the tip springs back by the needle's bounce, thesis 3.3.6), stop (it stays "
+            "where it touched), warn (it passes, the contact is counted and signalled).",
+        ),
+        Field(
+            "labels",
+            "str_list",
+            [],
+            help="How messages name each entity, in the order of `entities` ({what}); default: the entity name.",
+        ),
+        Field("opening", "str", "", help="Targets: a [foramina] entry ({side} allowed) giving centre, radius, axis."),
+        Field("point", "str", "", help="Targets without an opening: a [points] entry ({side} allowed), the centre."),
+        Field("radius_mm", "float", 0.0, units="mm", help="Targets without an opening: the radius R.", min=0.0),
+    ],
+)
+
+section(
+    "landmarks",
+    "list",
+    "A landmark the trainee clicks on the skin, in order, and how it is scored (thesis 3.3.4, 6.1.5).",
+    [
+        Field("id", "str", help="Landmark identifier (used by steps and feedback: landmark:ID)."),
+        Field("on", "str", "skin", help="Role whose entities accept the click."),
+        Field("marker", "entity", "", help="Entity with a marker shown where the landmark is placed."),
+        Field("plane_entity", "entity", "", help="Entity (a thin box) moved onto the plane through the landmark."),
+        Field("plane_normal", "vec3", [0.0, 0.0, 1.0], help="Normal of that plane (the box's local +Z)."),
+        Field("plane_up", "vec3", [0.0, 1.0, 0.0], help="The box's local +Y direction."),
+        Field(
+            "points",
+            "str_list",
+            [],
+            help="[points] names it is measured against, first found wins ({side} allowed); empty: not scored.",
+        ),
+        Field("ideal_mm", "float", 0.0, units="mm", help="Ideal distance to that point: D = |Dist - ideal_mm|."),
+        Field(
+            "planes", "str_list", [], help="[planes] names for d (distance to the plane), first found wins ({side})."
+        ),
+        Field(
+            "plane_through",
+            "str_list",
+            [],
+            help="Instead of a named plane: three [points] names ({side} allowed); d is the distance to the plane "
+            "through them.",
+        ),
+        Field(
+            "plane_fallback",
+            "vec3",
+            [0.0, 0.0, 0.0],
+            help="Normal of the plane through the point used when no named plane is found (zero: none, d = 0).",
+        ),
+        Field("score_label", "str", "", help="How the assessment panel names what it is measured against."),
+    ],
+)
+
+section(
+    "feedback",
+    "list",
+    "What the trainee sees or hears when an event happens (docs/needle-procedures.md lists the events).",
+    [
+        Field("on", "str", help="The event, e.g. 'contact:target', 'landmark:entry', 'refused:locked'."),
+        Field("message", "str", "", help="HUD message; {names} are filled from the event."),
+        Field("light", "str", "", help="Light widget set by the event (every other light goes off)."),
+        Field("color", "enum", "", choices=LIGHT_COLOURS, help="Colour of that light."),
+    ],
+)
 
 
 @dataclass(slots=True)
@@ -64,104 +224,235 @@ class Plane:
 
 
 @dataclass(slots=True)
-class SideAnatomy:
-    side: str
-    points: dict[str, np.ndarray]  # role -> position (mouth, pupil, tragus)
-    planes: dict[str, Plane]  # role -> plane for d1, d2, d3
-    foramen_centre: np.ndarray
-    foramen_radius: float
-    foramen_axis: np.ndarray
-    path_entry: np.ndarray | None = None
-    path_target: np.ndarray | None = None
-    path_clear: bool = False
+class LandmarkTarget:
+    """What one landmark is scored against on one side: a point (with an ideal distance) and a plane."""
+
+    point: np.ndarray | None = None
+    ideal_mm: float = 0.0
+    plane: Plane | None = None
 
 
 @dataclass(slots=True)
-class PrpAnatomy:
-    """Named anatomy of both sides (resource)."""
+class Target:
+    """The target on one side: the entities that count as reaching it, its centre, radius and axis."""
 
-    sides: dict[str, SideAnatomy]
+    entities: tuple[str, ...]
+    centre: np.ndarray
+    radius: float
+    axis: np.ndarray
+
+
+@dataclass(slots=True)
+class Role:
+    name: str
+    kind: str
+    entities: tuple[str, ...]  # every side's names
+    on_contact: str = "bounce"
+    labels: dict[str, str] = field(default_factory=dict)  # entity -> how messages name it
+
+
+@dataclass(slots=True)
+class NeedleScene:
+    """The pack's needle procedure, resolved (resource, read once)."""
+
+    sides: tuple[str, ...]
+    roles: dict[str, Role]
+    target_role: str
+    targets: dict[str, Target]  # side -> target
+    landmark_ids: tuple[str, ...]
+    landmark_specs: list[dict]
+    landmark_targets: dict[str, list[LandmarkTarget]]  # side -> per landmark
+    entry: int = 0  # index of the entry landmark
+    side_from: int = 0
+    landmark_score: str = "thesis-6.1.5"
 
     def side_of(self, point) -> str:
-        """The side whose sagittal half holds the point: the nearer of the two foramina across the
-        midline. Decided from the named anatomy, so it holds whichever way a pack's axes point."""
+        """The side whose target centre is nearest the point (the sagittal half it lies in, for two sides)."""
+        if len(self.sides) == 1:
+            return self.sides[0]
         p = np.asarray(point, float)
-        left, right = self.sides["left"].foramen_centre, self.sides["right"].foramen_centre
-        across = right - left
-        return "left" if (p - 0.5 * (left + right)) @ across < 0.0 else "right"
+        return min(self.sides, key=lambda s: float(np.linalg.norm(p - self.targets[s].centre)))
+
+    def target(self, side: str) -> Target:
+        return self.targets.get(side) or self.targets[self.sides[0]]
+
+    def role_of(self, entity: str, side: str) -> Role | None:
+        """The role an entity plays on `side`: the side's target first, then any other role listing it."""
+        if entity in self.target(side).entities:
+            return self.roles[self.target_role]
+        for r in self.roles.values():
+            if r.kind != "target" and entity in r.entities:
+                return r
+        return None
+
+    def label(self, entity: str) -> str:
+        for r in self.roles.values():
+            if entity in r.labels:
+                return r.labels[entity]
+        return entity.replace("_", " ")
+
+    def obstacles(self) -> list[str]:
+        """Every entity the needle can touch (targets of all sides and obstacles), each once, in role order."""
+        out: list[str] = []
+        for r in self.roles.values():
+            if r.kind in ("target", "obstacle"):
+                out += [e for e in r.entities if e not in out]
+        return out
 
 
-def _lookup(table: dict, aliases, side: str):
-    for a in aliases:
-        name = a.format(s=side)
-        if name in table:
-            return name, table[name]
+def expand(name: str, sides) -> list[str]:
+    """`name` for each side when it holds {side}; else the name itself."""
+    return [name.format(side=s) for s in sides] if "{side}" in name else [name]
+
+
+def _first(table: dict, names, side: str):
+    for n in names:
+        key = n.format(side=side)
+        if key in table:
+            return key, table[key]
     return None, None
 
 
-def anatomy_from_pack(pack) -> PrpAnatomy:
-    """Read both sides' points, planes, foramina and paths; one UserError line if something is missing."""
-    points = pack.section("points")
-    planes = pack.section("planes")
-    foramina = pack.section("foramina")
-    paths = pack.section("paths")
-    sides = {}
-    for s in SIDES:
-        pts, pls = {}, {}
-        for role, aliases in POINT_ALIASES.items():
-            name, spec = _lookup(points, aliases, s)
-            if spec is None:
-                want = " or ".join(f"[points.{a.format(s=s)}]" for a in aliases[:2])
+def scene_from_pack(pack) -> NeedleScene:
+    """Read the needle-procedure tables; one UserError line for what is missing or inconsistent."""
+    np_ = pack.section("needle_procedure")
+    sides = tuple(np_.get("sides") or ()) or ("",)
+    points, planes, foramina = pack.section("points"), pack.section("planes"), pack.section("foramina")
+    where = f"pack '{pack.name}'"
+    roles: dict[str, Role] = {}
+    for name, spec in pack.section("roles").items():
+        ents: list[str] = []
+        labels: dict[str, str] = {}
+        names = spec.get("labels", [])
+        for i, e in enumerate(spec.get("entities", [])):
+            for s in sides if "{side}" in e else ("",):
+                one = e.format(side=s)
+                if one not in ents:
+                    ents.append(one)
+                if i < len(names):
+                    labels[one] = names[i].format(side=s)
+        roles[name] = Role(name, spec["role"], tuple(ents), spec.get("on_contact", "bounce"), labels)
+    target_role = np_.get("target") or next((n for n, r in roles.items() if r.kind == "target"), "")
+    if target_role not in roles or roles[target_role].kind != "target":
+        raise UserError(f"{where}: the needle procedure needs a [roles.NAME] with role = 'target'")
+    tspec = pack.section("roles")[target_role]
+    targets: dict[str, Target] = {}
+    for s in sides:
+        ents = tuple(e.format(side=s) for e in tspec.get("entities", []))
+        if tspec.get("opening"):
+            key = tspec["opening"].format(side=s)
+            fo = foramina.get(key)
+            if fo is None:
+                raise UserError(f"{where}: [roles.{target_role}] opening needs [foramina.{key}] (centre, radius_mm)")
+            ax = np.asarray(fo["axis"], dtype=np.float64)
+            ax = ax / np.linalg.norm(ax) if np.linalg.norm(ax) > 1e-12 else np.array([0.0, 0.0, 1.0])
+            targets[s] = Target(ents, np.asarray(fo["centre"], dtype=np.float64), float(fo["radius_mm"]), ax)
+        else:
+            key = tspec.get("point", "").format(side=s)
+            if key not in points:
                 raise UserError(
-                    f"pack '{pack.name}': the rhizotomy procedure needs {want} "
-                    f"(known points: {', '.join(sorted(points)) or 'none'})"
+                    f"{where}: [roles.{target_role}] needs an opening ([foramina]) "
+                    f"or a point ([points.{key or 'NAME'}])"
                 )
-            pts[role] = np.asarray(spec["position"], dtype=np.float64)
-        for role, aliases in PLANE_ALIASES.items():
-            name, spec = _lookup(planes, aliases, s)
-            if spec is not None:
-                n = np.asarray(spec["normal"], dtype=np.float64)
+            c = np.asarray(points[key]["position"], dtype=np.float64)
+            targets[s] = Target(ents, c, float(tspec.get("radius_mm", 0.0)), np.array([0.0, 0.0, 1.0]))
+    specs = list(pack.section("landmarks"))
+    ids = tuple(sp["id"] for sp in specs)
+    if len(set(ids)) != len(ids):
+        raise UserError(f"{where}: two [[landmarks]] share an id ({', '.join(ids)})")
+    lt: dict[str, list[LandmarkTarget]] = {}
+    for s in sides:
+        row = []
+        for sp in specs:
+            t = LandmarkTarget(ideal_mm=float(sp.get("ideal_mm", 0.0)))
+            if sp.get("points"):
+                _name, p = _first(points, sp["points"], s)
+                if p is None:
+                    want = " or ".join(f"[points.{n.format(side=s)}]" for n in sp["points"][:2])
+                    known = ", ".join(sorted(points)) or "none"
+                    raise UserError(f"{where}: landmark '{sp['id']}' needs {want} (known points: {known})")
+                t.point = np.asarray(p["position"], dtype=np.float64)
+            pname, pl = _first(planes, sp.get("planes", []), s)
+            through = sp.get("plane_through") or []
+            if pl is None and through:
+                pl = _plane_through(points, [n.format(side=s) for n in through], f"{where}: landmark '{sp['id']}'")
+                pname = "plane_through"
+            if pl is not None:
+                n = np.asarray(pl["normal"], dtype=np.float64)
                 if np.linalg.norm(n) < 1e-12:
-                    raise UserError(f"pack '{pack.name}': [planes.{name}] normal must not be zero")
-                pls[role] = Plane(np.asarray(spec["point"], dtype=np.float64), n / np.linalg.norm(n))
-            else:
-                pls[role] = Plane(pts[role].copy(), np.asarray(DEFAULT_NORMAL[role], dtype=np.float64))
-        fo = foramina.get(s)
-        if fo is None:
-            raise UserError(f"pack '{pack.name}': the rhizotomy procedure needs [foramina.{s}] (centre, radius_mm)")
-        ax = np.asarray(fo["axis"], dtype=np.float64)
-        ax = ax / np.linalg.norm(ax) if np.linalg.norm(ax) > 1e-12 else np.array([0.0, 0.0, 1.0])
-        sa = SideAnatomy(s, pts, pls, np.asarray(fo["centre"], dtype=np.float64), float(fo["radius_mm"]), ax)
-        pa = paths.get(s)
-        if pa is not None:
-            sa.path_entry = np.asarray(pa["entry"], dtype=np.float64)
-            sa.path_target = np.asarray(pa["target"], dtype=np.float64)
-            sa.path_clear = bool(pa.get("clear", False))
-        sides[s] = sa
-    return PrpAnatomy(sides)
+                    raise UserError(f"{where}: [planes.{pname}] normal must not be zero")
+                t.plane = Plane(np.asarray(pl["point"], dtype=np.float64), n / np.linalg.norm(n))
+            elif t.point is not None and np.linalg.norm(sp.get("plane_fallback", np.zeros(3))) > 1e-12:
+                n = np.asarray(sp["plane_fallback"], dtype=np.float64)
+                t.plane = Plane(t.point.copy(), n / np.linalg.norm(n))
+            row.append(t)
+        lt[s] = row
+
+    def index_of(key: str, default: int) -> int:
+        lid = np_.get(key) or ""
+        if not lid:
+            return default
+        if lid not in ids:
+            raise UserError(f"{where}: needle_procedure.{key} = '{lid}' is not a landmark id ({', '.join(ids)})")
+        return ids.index(lid)
+
+    entry = index_of("entry", 0)
+    return NeedleScene(
+        sides=sides,
+        roles=roles,
+        target_role=target_role,
+        targets=targets,
+        landmark_ids=ids,
+        landmark_specs=specs,
+        landmark_targets=lt,
+        entry=entry,
+        side_from=index_of("side_from", entry),
+        landmark_score=np_.get("landmark_score", "thesis-6.1.5"),
+    )
 
 
-def landmark_errors(anat: SideAnatomy, landmarks: np.ndarray) -> dict:
-    """Thesis 6.1.5: D1 = |Dist1 - 25|, D2 = Dist2, D3 = |Dist3 - 30|; d_k = distance to plane k;
-    E = ((D1 + d1) + (D2 + d2) + (D3 + d3)) / 6, all in mm. Unplaced landmarks give None."""
+def _plane_through(points: dict, names: list[str], where: str) -> dict:
+    """{point, normal} of the plane through three named points; one UserError line if it is not one."""
+    missing = [n for n in names if n not in points]
+    if len(names) != 3 or missing:
+        raise UserError(f"{where}: plane_through needs three [points] names ({', '.join(missing) or len(names)})")
+    a, b, c = (np.asarray(points[n]["position"], dtype=np.float64) for n in names)
+    n = np.cross(b - a, c - a)
+    if np.linalg.norm(n) < 1e-9:
+        raise UserError(f"{where}: plane_through points {', '.join(names)} lie on one line")
+    return {"point": a, "normal": n}
+
+
+def landmark_errors(targets: list[LandmarkTarget], landmarks: np.ndarray, score: str = "thesis-6.1.5") -> dict:
+    """Per landmark k (1-based): Dist_k to its point, D_k = |Dist_k - ideal_k|, d_k to its plane (0 without
+    one). thesis-6.1.5: E = sum(D_k + d_k) / (2 n) (6.1.5's ((D1 + d1) + (D2 + d2) + (D3 + d3)) / 6 for
+    three); mean-distance: E = mean D_k. All mm; E is None until every landmark is placed."""
     out: dict = {}
-    total = 0.0
+    big_sum = small_sum = 0.0
     complete = True
-    for k, role in enumerate(LANDMARK_ROLES, start=1):
+    for k, t in enumerate(targets, start=1):
         p = landmarks[k - 1]
         if not np.all(np.isfinite(p)):
             out[f"D{k}"] = None
             out[f"d{k}"] = None
             complete = False
             continue
-        dist = float(np.linalg.norm(p - anat.points[role]))
-        big = abs(dist - IDEAL_MM[role])
-        small = anat.planes[role].distance(p)
-        out[f"Dist{k}"] = dist
-        out[f"D{k}"] = big
-        out[f"d{k}"] = small
-        total += big + small
-    out["landmark_error_mm"] = total / 6.0 if complete else None
+        if t.point is not None:
+            dist = float(np.linalg.norm(p - t.point))
+            out[f"Dist{k}"] = dist
+            out[f"D{k}"] = abs(dist - t.ideal_mm)
+            big_sum += out[f"D{k}"]
+        else:
+            out[f"D{k}"] = 0.0
+        out[f"d{k}"] = t.plane.distance(p) if t.plane is not None else 0.0
+        small_sum += out[f"d{k}"]
+    n = len(targets)
+    if not complete or n == 0 or score == "none":
+        out["landmark_error_mm"] = None
+    elif score == "mean-distance":
+        out["landmark_error_mm"] = big_sum / n
+    else:
+        out["landmark_error_mm"] = (big_sum + small_sum) / (2.0 * n)
     return out
 
 
@@ -173,7 +464,7 @@ class ProcedureState:
     step: int = 0
     step_started: float = 0.0  # simulated seconds
     step_times: dict[str, float] = field(default_factory=dict)
-    landmarks: np.ndarray = field(default_factory=lambda: np.full((LANDMARK_COUNT, 3), np.nan))
+    landmarks: np.ndarray = field(default_factory=lambda: np.full((0, 3), np.nan))
     placed: int = 0
     side: str = ""
     aids: dict[str, bool] = field(default_factory=dict)  # on at any time during the attempt
@@ -182,6 +473,7 @@ class ProcedureState:
     elapsed: float = 0.0  # simulated seconds of the attempt
     target: str = "none"  # object the needle touched last
     needle_dist: float = float("nan")  # Dist of E = Dist - R at the last contact (mm)
+    first_dist: float = float("nan")  # the same at the attempt's first contact (mm)
     hit_point: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     started_at: float = 0.0
     finished: bool = False

@@ -1,15 +1,19 @@
-"""Needle collision: a swept segment test against the skull, mandible and foramina (thesis 3.3.6).
+"""Needle collision: a swept segment test against the pack's targets and obstacles (thesis 3.3.6).
 
 Stage: simulation (ORDER_COLLISION), after the needle kinematics. Reads: Needle, NeedleState,
-PrpObstacles (built once from the meshes of the obstacle entities). Writes: NeedleState (tip stopped
-at the first surface met, bounce back from bone, contact counts, Transform via the needle system's
-pose helper); emits NeedleHit.
+NeedleScene (the pack's [roles]: which entities are targets and obstacles, and what an obstacle does
+on contact), NeedleObstacles (built once from those entities' meshes). Writes: NeedleState (tip
+stopped at the first surface met, bounce back, contact counts per role, Transform via the needle
+system's pose helper); emits NeedleHit.
 
 The thesis detected contacts by letting the needle-tip viewpoint collide with the scene. Here the
 same question - what does the tip meet first? - is answered exactly: whenever the tip moves forward,
 the segment from the entry point to the new tip (the shaft, which contains the sweep from the old tip)
-is intersected with every obstacle's triangles and the nearest hit wins. Because the whole sweep is
-tested, an insertion of any length in one step cannot pass through bone. Skin is not an obstacle.
+is intersected with every target's and blocking obstacle's triangles and the nearest hit wins.
+Because the whole sweep is tested, an insertion of any length in one step cannot pass through bone.
+Obstacles that only warn are tested along the sweep from the old tip, so each is met once on the way
+in. Skin and tissue are not obstacles. On contact (the role's `on_contact`): the side's target stops
+the needle for good; bounce springs it back by the needle's `bounce`; stop leaves it where it touched.
 
 The segment query is the engine's (chainsim.engine.segment_tree).
 """
@@ -23,7 +27,7 @@ import numpy as np
 
 from chainsim.components.core import MeshRef, Transform
 from chainsim.components.needle import Needle, NeedleState
-from chainsim.components.procedure import PrpAnatomy
+from chainsim.components.procedure import NeedleScene
 from chainsim.components.resources import EntityIndex, PackResource
 from chainsim.engine.segment_tree import SegmentTree
 from chainsim.systems.needle import apply_pose, sync_widgets
@@ -31,33 +35,33 @@ from chainsim.systems.stages import ORDER_COLLISION
 
 
 @dataclass(slots=True)
-class PrpObstacles:
+class NeedleObstacles:
     """The obstacle entities' meshes prepared for segment queries (resource, built once)."""
 
     names: list[str] = field(default_factory=list)
     trees: list[SegmentTree] = field(default_factory=list)
 
-    def first_hit(self, p0, p1) -> tuple[str, float, int]:
-        """(object name, t, triangle) of the nearest hit over all obstacles, or ("", inf, -1)."""
+    def first_hit(self, p0, p1, only=None, skip=()) -> tuple[str, float, int]:
+        """(object name, t, triangle) of the nearest hit over the obstacles (those in `only` if given, none
+        in `skip`), or ("", inf, -1)."""
         best = ("", np.inf, -1)
         for name, tree in zip(self.names, self.trees):
+            if (only is not None and name not in only) or name in skip:
+                continue
             t, i = tree.first_hit(p0, p1)
             if t < best[1]:
                 best = (name, t, i)
         return best
 
 
-OBSTACLES = ("skull", "mandible", "foramen_ovale_left", "foramen_ovale_right")
-
-
-def build_obstacles(app) -> PrpObstacles:
-    """Meshes of the obstacle entities, through their Transform (static scenery)."""
+def build_obstacles(app, names) -> NeedleObstacles:
+    """Meshes of the named entities (targets and obstacles), through their Transform (static scenery)."""
 
     pack = app.resource(PackResource).pack
     index: EntityIndex = app.resource(EntityIndex)
-    obs = PrpObstacles()
+    obs = NeedleObstacles()
     with app.active():
-        for name in OBSTACLES:
+        for name in names:
             ent = index.get(name)
             if ent is None:
                 continue
@@ -78,51 +82,77 @@ def build_obstacles(app) -> PrpObstacles:
 
 @dataclass(frozen=True, slots=True)
 class NeedleHit:
-    """The needle tip met `object` at `point` (world mm); `distance_to_target_mm` is the distance from
-    the tip to the centre of the foramen ovale on the entry side (the Dist of E = Dist - R, 6.1.5)."""
+    """The needle tip met `object` (playing `role`) at `point` (world mm); `distance_to_target_mm` is the
+    distance from the tip to the centre of the entry side's target (the Dist of E = Dist - R, 6.1.5)."""
 
     object: str
     point: tuple[float, float, float]
     distance_to_target_mm: float
     depth_mm: float
+    role: str = ""
 
 
 def collision_system(app) -> None:
 
-    obs: PrpObstacles = app.resource(PrpObstacles)
-    anat: PrpAnatomy = app.resource(PrpAnatomy)
+    obs: NeedleObstacles = app.resource(NeedleObstacles)
+    scene: NeedleScene = app.resource(NeedleScene)
+    warn = {e for r in scene.roles.values() if r.kind == "obstacle" and r.on_contact == "warn" for e in r.entities}
     for ent, (needle, st) in esper.get_components(Needle, NeedleState):
         if not st.placed or st.depth <= st.prev_depth + 1e-12:
             continue
+        side = scene.side_of(st.entry)
+        target = scene.target(side)
         d = st.direction()
         p1 = st.entry + st.depth * d
-        name, t, _tri = obs.first_hit(st.entry, p1)
+        # what warns is met on the way in only; the side's target is never a mere warning
+        name, t, _tri = obs.first_hit(st.entry, p1, skip=warn - set(target.entities))
+        if warn:
+            p0 = st.entry + st.prev_depth * d
+            wname, wt, _ = obs.first_hit(p0, p1, only=warn - set(target.entities))
+            if wname and (not name or st.prev_depth + wt * (st.depth - st.prev_depth) < t * st.depth):
+                wdepth = st.prev_depth + wt * (st.depth - st.prev_depth)
+                point = st.entry + wdepth * d
+                st.contacts[_role_name(scene, wname, side)] = st.contacts.get(_role_name(scene, wname, side), 0) + 1
+                dist = float(np.linalg.norm(point - target.centre))
+                app.events.emit(
+                    NeedleHit(
+                        wname, tuple(float(c) for c in point), dist, float(wdepth), _role_name(scene, wname, side)
+                    )
+                )
         if not name:
             continue
         hit_depth = t * st.depth
         point = st.entry + hit_depth * d
-        side = anat.side_of(st.entry)
-        fo = anat.sides[side]
-        dist = float(np.linalg.norm(point - fo.foramen_centre))
+        dist = float(np.linalg.norm(point - target.centre))
         stop = max(hit_depth - needle.contact_epsilon, 0.0)
         st.path_length += abs(stop - st.prev_depth) - abs(st.depth - st.prev_depth)
         st.depth = stop
         st.contact = name
         st.contact_point = point.copy()
-        if name == f"foramen_ovale_{side}":
+        role = scene.role_of(name, side)
+        rname = role.name if role is not None else ""
+        st.contacts[rname] = st.contacts.get(rname, 0) + 1
+        if role is not None and role.kind == "target":
             st.target_depth = stop
             st.done = True
+        elif role is not None and role.on_contact == "stop":
+            st.target_depth = stop
         else:
-            # bone (or the other side's opening, which is in bone): spring back (thesis 3.3.6)
-            st.skull_contacts += 1
+            # bounce: spring back (thesis 3.3.6)
             st.target_depth = max(stop - needle.bounce, 0.0)
         st.prev_depth = stop
         apply_pose(app, ent, needle, st)
         sync_widgets(app, st)  # the depth slider shows where the needle is going after the contact
-        app.events.emit(NeedleHit(name, tuple(float(c) for c in point), dist, float(hit_depth)))
+        app.events.emit(NeedleHit(name, tuple(float(c) for c in point), dist, float(hit_depth), rname))
+
+
+def _role_name(scene: NeedleScene, entity: str, side: str) -> str:
+    role = scene.role_of(entity, side)
+    return role.name if role is not None else ""
 
 
 def plugin(app) -> None:
-    app.insert_resource(build_obstacles(app))
+    """Install the collision test over the NeedleScene resource's targets and obstacles (put there first)."""
+    app.insert_resource(build_obstacles(app, app.resource(NeedleScene).obstacles()))
 
     app.add_system("simulation", collision_system, order=ORDER_COLLISION, name="needle_collision")

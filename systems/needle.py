@@ -98,10 +98,10 @@ class NeedleReset:
 # -- pose -----------------------------------------------------------------------------------------
 
 
-def initial_direction(entry) -> np.ndarray:
-    """Into the head, within the axial plane, toward the vertical axis through the head-frame origin
-    (midway between the foramina): the needle starts level and aimed at the midline."""
-    d = np.array([-float(entry[0]), -float(entry[1]), 0.0])
+def initial_direction(entry, aim_at=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Within the axial plane, toward the vertical axis through `aim_at` (the needle's manifest key; the
+    frame origin by default): the needle starts level and aimed at that axis."""
+    d = np.array([float(aim_at[0]) - float(entry[0]), float(aim_at[1]) - float(entry[1]), 0.0])
     n = float(np.linalg.norm(d))
     if n < 1e-9:
         return np.array([-math.copysign(1.0, float(entry[0]) or 1.0), 0.0, 0.0])
@@ -139,7 +139,7 @@ def show(app, ent: int, needle: Needle, visible: bool) -> None:
 def place(app, ent: int, needle: Needle, st: NeedleState, entry) -> None:
     """Put the tip at `entry` (landmark 1) pointing along `initial_direction`, unlocked, not inserted."""
     st.entry = np.asarray(entry, dtype=np.float64).copy()
-    st.q0 = Q.look_rotation(initial_direction(st.entry), Z)
+    st.q0 = Q.look_rotation(initial_direction(st.entry, needle.aim_at), Z)
     reset(app, ent, needle, st)
     st.placed = True
     apply_pose(app, ent, needle, st)
@@ -172,7 +172,7 @@ def park(app, ent: int, needle: Needle, st: NeedleState) -> None:
 
 def new_attempt(st: NeedleState) -> None:
     """Zero what an attempt counts (a saved attempt is closed; the next one counts afresh)."""
-    st.skull_contacts = 0
+    st.contacts = {}
     st.rotation_refused = 0
     st.redirections = 0
     st.path_length = 0.0
@@ -260,6 +260,10 @@ class NeedleSystem:
             st.withdrawn = False
             st.redirections += 1
         if name == "rotate_horizontal":
+            if needle.max_yaw > 0.0:
+                delta = min(max(st.yaw + delta, -needle.max_yaw), needle.max_yaw) - st.yaw
+                if delta == 0.0:
+                    return
             rotate_horizontal(st, delta)
         else:
             rotate_vertical(st, delta, needle.max_pitch)
@@ -285,7 +289,7 @@ class NeedleSystem:
         if want > needle.max_depth:
             app.events.emit(InsertRefused("max_depth"))
         st.target_depth = min(max(want, 0.0), needle.max_depth)
-        if st.target_depth > 0.0 and not st.locked:
+        if st.target_depth > 0.0 and not st.locked and needle.lock_on_insert:
             st.locked = True  # thesis 3.3.4: no rotation once the insertion has begun
         sync_widgets(app, st)
         app.events.emit(NeedleAction(name, st.target_depth))
@@ -319,7 +323,7 @@ class NeedleSystem:
         if st.depth != st.prev_depth:
             st.path_length += abs(st.depth - st.prev_depth)
             apply_pose(app, ent, needle, st)
-        if st.locked and st.depth <= 0.0 and st.target_depth <= 0.0:
+        if st.locked and st.depth <= 0.0 and st.target_depth <= 0.0 and needle.unlock_at_skin:
             # back at the skin: the dials unlock where they are (withdraw and redirect)
             st.locked = st.done = False
             st.withdrawn = True

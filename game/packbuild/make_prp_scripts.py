@@ -30,12 +30,12 @@ import trimesh
 
 from chainsim.assets import ASSETS_DIR
 from chainsim.components.core import Transform
-from chainsim.components.procedure import anatomy_from_pack, landmark_errors
+from chainsim.components.procedure import landmark_errors, scene_from_pack
 from chainsim.components.registry import load_all
 from chainsim.engine.segment_tree import SegmentTree
 from chainsim.game.app.headless import run_pack
 from chainsim.game.packs import pack as packs
-from chainsim.systems.collision import OBSTACLES, PrpObstacles
+from chainsim.systems.collision import NeedleObstacles
 from chainsim.systems.needle import initial_direction
 
 logger = logging.getLogger(__name__)
@@ -77,6 +77,23 @@ def _section_point(skin, plane, centre, radius, prefer) -> np.ndarray:
     return best
 
 
+class SideAnatomy:
+    """One side of the pack's needle procedure as this generator uses it: the three landmarks' points and
+    planes (mouth, pupil, tragus, in the pack's [[landmarks]] order), the foramen and the reference path."""
+
+    def __init__(self, pack, side: str):
+        scene = scene_from_pack(pack)
+        self.targets = scene.landmark_targets[side]
+        self.points = dict(zip(("mouth", "pupil", "tragus"), (t.point for t in self.targets)))
+        self.planes = dict(zip(("mouth", "pupil", "tragus"), (t.plane for t in self.targets)))
+        tg = scene.target(side)
+        self.foramen_centre, self.foramen_radius = tg.centre, tg.radius
+        self.obstacles = scene.obstacles()
+        pa = pack.section("paths").get(side)
+        self.path_entry = np.asarray(pa["entry"], float) if pa else None
+        self.path_target = np.asarray(pa["target"], float) if pa else None
+
+
 def ideal_landmarks(pack, anat, side):
     """The pack's [points.landmarkK_ideal_<side>] when it has them (snapped to the skin), else computed."""
     skin = _skin(pack)
@@ -85,7 +102,7 @@ def ideal_landmarks(pack, anat, side):
     if all(n in pts for n in names):
         given = np.array([pts[n]["position"] for n in names], dtype=np.float64)
         return skin.nearest.on_surface(given)[0], skin
-    sa = anat.sides[side]
+    sa = anat
     sx = 1.0 if side == "left" else -1.0
     l1 = _section_point(skin, sa.planes["mouth"], sa.points["mouth"], 25.0, lambda p: sx * p[0])
     l2 = skin.nearest.on_surface([sa.points["pupil"]])[0][0]
@@ -117,7 +134,7 @@ def clear_entry_near(skin, sa, start, targets, obstacles, want, radius=12.0, ste
     for p in cand:
         lm = np.full((3, 3), np.nan)
         lm[0] = p
-        e = landmark_errors(sa, lm)
+        e = landmark_errors(sa.targets, lm)
         scores.append(e["D1"] + e["d1"])
     jitter = [s * e for e in np.eye(3) for s in (-0.25, 0.25)]
     for idx in np.argsort(scores, kind="stable"):
@@ -232,11 +249,10 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     pack = packs.load(Path(args.pack))
-    anat = anatomy_from_pack(pack)
-    sa = anat.sides[args.side]
-    lms, _skin_mesh = ideal_landmarks(pack, anat, args.side)
-    obstacles = PrpObstacles()
-    for name in OBSTACLES:
+    sa = SideAnatomy(pack, args.side)
+    lms, _skin_mesh = ideal_landmarks(pack, sa, args.side)
+    obstacles = NeedleObstacles()
+    for name in sa.obstacles:
         ent = pack.manifest["entities"].get(name)
         if ent and "mesh" in ent:
             m = pack.mesh(ent["mesh"]["mesh"])

@@ -13,10 +13,14 @@ The layout of a manifest:
     [metrics.NAME]          what the assessment reports
     [docs.NAME]             pages shown in the app
     [points.NAME], [planes.NAME], [foramina.NAME], [paths.NAME]   named anatomy (millimetres)
+
+The needle-procedure tables ([needle_procedure], [roles.NAME], [[landmarks]], [[feedback]]) are
+declared with the data they describe, in chainsim.components.procedure (docs/needle-procedures.md).
 """
 
 from __future__ import annotations
 
+from chainsim.components.procedure import MEASURES  # importing it registers the needle-procedure sections
 from chainsim.components.registry import Field, Schema, section
 from chainsim.engine import limits
 
@@ -48,7 +52,11 @@ section(
         ),
         Field("default_scene", "str", "", help="Scene run when none is named (default: the first)."),
         Field(
-            "procedure", "str", "", help="Procedure plugin the pack uses (a built-in name, e.g. 'prp'); empty for none."
+            "procedure",
+            "str",
+            "",
+            help="Procedure the pack uses: 'needle' (the generic needle procedure its [needle_procedure], [roles], "
+            "[[landmarks]], [[steps]] and [[feedback]] describe; 'prp' is its old name) or 'cutting'; empty for none.",
         ),
     ],
 )
@@ -276,6 +284,21 @@ section(
         Field("title", "str", help="Short title shown in the HUD."),
         Field("instruction", "str", "", help="What the trainee does in this step."),
         Field("docs", "str", "", help="Docs page shown with this step."),
+        Field(
+            "done_on",
+            "str_list",
+            [],
+            help="Needle procedure: events that complete this step and move on to the next (click:ROLE, "
+            "landmark:ID, dial:WIDGET, depth, contact:ROLE, button:WIDGET; docs/needle-procedures.md); steps "
+            "only move forward, and Next moves on one step.",
+        ),
+        Field(
+            "landmark",
+            "str",
+            "",
+            help="Needle procedure: the landmark placed in this step; Next cannot leave the step before it is placed.",
+        ),
+        Field("open_docs", "bool", False, help="Open the step's docs page when the step begins."),
     ],
 )
 
@@ -288,6 +311,19 @@ section(
         Field("units", "str", "", help="Units of the value."),
         Field("help", "str", "", help="How it is computed (cite the method)."),
         Field("lower_is_better", "bool", True, help="Direction of improvement."),
+        Field(
+            "measure",
+            "enum",
+            "",
+            choices=MEASURES,
+            help="Needle procedure: which value of the vocabulary this metric is (duration s, step_time s of "
+            "`step`, path_length mm, contacts with `role`, first_contact_distance mm tip to target centre, "
+            "needle_error mm = Dist - R at the last contact, landmark_error mm, redirections, refused_rotations, "
+            "xray_shots, exposure s, dose mGy); stored per attempt in the records' metrics table under this "
+            "metric's name. Empty: the assessment value of the same name, if any.",
+        ),
+        Field("role", "str", "", help="measure = contacts: the role whose contacts are counted."),
+        Field("step", "str", "", help="measure = step_time: the step timed."),
     ],
 )
 

@@ -148,7 +148,39 @@ V5_DDL: tuple[str, ...] = (
     """,
 )
 
-MIGRATIONS: tuple[tuple[str, ...], ...] = (V1_DDL, V2_DDL, V3_DDL, V4_DDL, V5_DDL)
+# Version 6: procedure-neutral metrics. Each attempt's metrics are rows (attempt, name, value) - a
+# needle procedure stores the pack's own [metrics] here (docs/needle-procedures.md), so a new procedure
+# needs no new column. Every value the fixed columns of versions 1-5 hold is copied in under the
+# column's name, so attempts saved before keep all they had and read the same both ways. The fixed
+# columns stay (the reports, the server and exports read them).
+LEGACY_METRICS: tuple[str, ...] = (
+    "duration_s",
+    "landmark_error_mm",
+    "needle_error_mm",
+    "skull_contacts",
+    "path_length_mm",
+    "redirections",
+    "xray_shots",
+    "exposure_s",
+    "dose_mgy",
+)
+V6_DDL: tuple[str, ...] = (
+    """
+    CREATE TABLE attempt_metrics (
+        id         INTEGER PRIMARY KEY,
+        attempt_id INTEGER NOT NULL REFERENCES attempts(id) ON DELETE CASCADE,
+        name       TEXT NOT NULL,
+        value      REAL,
+        UNIQUE (attempt_id, name)
+    )
+    """,
+    *(
+        f"INSERT INTO attempt_metrics (attempt_id, name, value) SELECT id, '{name}', {name} FROM attempts"
+        for name in LEGACY_METRICS
+    ),
+)
+
+MIGRATIONS: tuple[tuple[str, ...], ...] = (V1_DDL, V2_DDL, V3_DDL, V4_DDL, V5_DDL, V6_DDL)
 SCHEMA_VERSION = len(MIGRATIONS)
 
 # Tables a records database owns; a version-0 file holding anything else is not ours.
@@ -164,5 +196,6 @@ OWN_TABLES = frozenset(
         "outbox",
         "server_logins",
         "questionnaires",
+        "attempt_metrics",
     }
 )

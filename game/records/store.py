@@ -46,7 +46,7 @@ from chainsim.game.records.backend import (
     schema_version,
     set_schema_version,
 )
-from chainsim.game.records.schema import MIGRATIONS, OWN_TABLES, SCHEMA_VERSION
+from chainsim.game.records.schema import LEGACY_METRICS, MIGRATIONS, OWN_TABLES, SCHEMA_VERSION
 from chainsim.game.records.validate import (
     clean_attempt,
     clean_created_at,
@@ -485,7 +485,32 @@ class RecordStore:
                     key,
                 ),
             )
-            return cur.lastrowid
+            rid = cur.lastrowid
+            # the procedure-neutral metrics: the fixed columns' values, then the procedure's own
+            metrics = {name: a[name] for name in LEGACY_METRICS}
+            metrics.update(a["metrics"])
+            for name, value in metrics.items():
+                conn.execute(
+                    "INSERT INTO attempt_metrics (attempt_id, name, value) VALUES (?, ?, ?)",
+                    (rid, name, None if value is None else float(value)),
+                )
+            return rid
+
+    def _with_metrics(self, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        """Each attempt with `metrics`, its rows of the metrics table by name (in the order stored)."""
+        by_id: dict[int, dict[str, Any]] = {r["id"]: {} for r in rows}
+        ids = list(by_id)
+        for start in range(0, len(ids), 500):
+            chunk = ids[start : start + 500]
+            marks = ", ".join("?" for _ in chunk)
+            for m in self._db.execute(
+                f"SELECT attempt_id, name, value FROM attempt_metrics WHERE attempt_id IN ({marks}) ORDER BY id",
+                tuple(chunk),
+            ):
+                by_id[m["attempt_id"]][m["name"]] = m["value"]
+        for r in rows:
+            r["metrics"] = by_id[r["id"]]
+        return rows
 
     def list_attempts(self, class_name: str | None = None, trainee: str | None = None) -> list[dict[str, Any]]:
         """Attempts, oldest first, optionally filtered; naming an unknown class/trainee is an error."""
@@ -503,14 +528,14 @@ class RecordStore:
             """,
             (class_name, class_name, trainee, trainee),
         )
-        return [_row_to_attempt(r) for r in rows]
+        return self._with_metrics([_row_to_attempt(r) for r in rows])
 
     def get_attempt(self, attempt_id: int) -> dict[str, Any]:
         attempt_id = _attempt_id(attempt_id)
         row = self._db.execute(_ATTEMPT_SELECT + " WHERE a.id = ?", (attempt_id,)).fetchone()
         if row is None:
             raise UserError(f"no attempt with id {attempt_id}")
-        return _row_to_attempt(row)
+        return self._with_metrics([_row_to_attempt(row)])[0]
 
     def delete_attempt(self, attempt_id: int) -> None:
         attempt_id = _attempt_id(attempt_id)

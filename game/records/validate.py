@@ -37,7 +37,19 @@ REQUIRED = (
     "skull_contacts",
     "path_length_mm",
 )
-OPTIONAL = ("created_at", "aids", "step_times", "details", "redirections", "xray_shots", "exposure_s", "dose_mgy")
+OPTIONAL = (
+    "created_at",
+    "aids",
+    "step_times",
+    "details",
+    "redirections",
+    "xray_shots",
+    "exposure_s",
+    "dose_mgy",
+    "metrics",
+)
+METRIC_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,63}")
+MAX_METRICS = 200
 FIELDS = REQUIRED + OPTIONAL
 
 # Unicode categories a name may not hold (chainsim.engine.errors.HIDDEN_CATEGORIES): controls,
@@ -182,6 +194,22 @@ def clean_details(value: Any) -> dict[str, Any]:
     return _plain("details", value)
 
 
+def clean_metrics(value: Any) -> dict[str, float | None]:
+    """A procedure's metrics: up to MAX_METRICS names (letters, digits, _) each a finite number or None."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise UserError(f"attempt field 'metrics' must be an object of numbers, got {value!r}")
+    if len(value) > MAX_METRICS:
+        raise UserError(f"attempt field 'metrics' holds {len(value)} metrics; at most {MAX_METRICS}")
+    out: dict[str, float | None] = {}
+    for name, x in value.items():
+        if not isinstance(name, str) or not METRIC_RE.fullmatch(name):
+            raise UserError(f"metric name {name!r} must be letters, digits and _ (up to 64), starting with a letter")
+        out[name] = None if x is None else _number(f"metrics.{name}", x, minimum=None)
+    return out
+
+
 def clean_attempt(attempt: Any) -> dict[str, Any]:
     """Validated, normalised copy of an attempt dict, ready to store."""
     if not isinstance(attempt, dict):
@@ -211,6 +239,7 @@ def clean_attempt(attempt: Any) -> dict[str, Any]:
         "aids": clean_aids(attempt.get("aids")),
         "step_times": clean_step_times(attempt.get("step_times")),
         "details": clean_details(attempt.get("details")),
+        "metrics": clean_metrics(attempt.get("metrics")),
     }
 
 

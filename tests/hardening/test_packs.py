@@ -185,7 +185,7 @@ CASES: dict[str, tuple[str, dict, tuple[str, ...]]] = {
         ("over the 128",),
     ),
     # procedures whose needs only show when the scene starts
-    "prp-without-anatomy": (_sub("format = 1", 'format = 1\nprocedure = "prp"'), {}, ("rhizotomy procedure needs",)),
+    "prp-without-anatomy": (_sub("format = 1", 'format = 1\nprocedure = "prp"'), {}, ("needle procedure needs",)),
     "cutting-without-tools": (
         _sub("format = 1", 'format = 1\nprocedure = "cutting"'),
         {},

@@ -20,7 +20,7 @@ from chainsim.components.input_events import Key, MouseButton, MouseDrag, Widget
 from chainsim.components.resources import Assessment, EntityIndex, PendingInput
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script
-from chainsim.systems.procedures.prp.fluoro import OBLIQUE_DEG
+from chainsim.systems.procedures.needle.fluoro import OBLIQUE_DEG
 from chainsim.systems.ui.viewports import carm_source_direction
 
 ROOT = Path(__file__).resolve().parents[2]

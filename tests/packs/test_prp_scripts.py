@@ -40,7 +40,7 @@ def skull_hit(tmp_path_factory):
 def test_pack_validates_with_meshes():
     pack, problems = packs.validate(PACK)
     assert problems == []
-    assert pack.manifest["pack"]["procedure"] == "prp"
+    assert pack.manifest["pack"]["procedure"] == "needle"  # the generic needle procedure, driven by the pack's data
 
 
 def test_correct_attempt_reaches_the_foramen_with_small_errors(correct):

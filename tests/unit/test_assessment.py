@@ -1,4 +1,4 @@
-"""Assessment of a rhizotomy attempt (thesis 6.1.5 error formulas, the 3.3.4 assessment tool)."""
+"""Assessment of a needle-procedure attempt on the rhizotomy pack (thesis 6.1.5 error formulas, the 3.3.4 tool)."""
 
 from __future__ import annotations
 
@@ -9,19 +9,20 @@ from hypothesis import strategies as st
 from test_needle import L1, Run, make_synthetic_pack, on_skin
 
 from chainsim.components.input_events import PickPoint, Widget
-from chainsim.components.procedure import Plane, SideAnatomy, landmark_errors
+from chainsim.components.procedure import LandmarkTarget, Plane, landmark_errors
 
 coord = st.floats(-100.0, 100.0, allow_nan=False)
 point = st.tuples(coord, coord, coord)
 
 
 def _anat(mouth, pupil, tragus, normals):
-    pts = {"mouth": np.array(mouth), "pupil": np.array(pupil), "tragus": np.array(tragus)}
-    planes = {}
-    for role, n in zip(("mouth", "pupil", "tragus"), normals):
+    """The three landmarks of 3.3.4 as the rhizotomy pack declares them: 25 mm from the mouth corner,
+    on the pupil, 30 mm from the tragus, each with a plane through its point."""
+    out = []
+    for p, ideal, n in zip((mouth, pupil, tragus), (25.0, 0.0, 30.0), normals):
         n = np.asarray(n, float)
-        planes[role] = Plane(pts[role].copy(), n / np.linalg.norm(n))
-    return SideAnatomy("left", pts, planes, np.zeros(3), 3.0, np.array([0.0, 0.0, 1.0]))
+        out.append(LandmarkTarget(np.array(p, float), ideal, Plane(np.array(p, float), n / np.linalg.norm(n))))
+    return out
 
 
 @settings(max_examples=50, deadline=None)

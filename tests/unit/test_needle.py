@@ -118,14 +118,14 @@ class Run:
 
     @property
     def needle(self) -> NeedleState:
-        from chainsim.systems.procedures.prp.handles import PrpHandles
+        from chainsim.systems.procedures.needle.handles import NeedleHandles as PrpHandles
 
         with self.app.active():
             return esper.component_for_entity(self.app.resource(PrpHandles).needle, NeedleState)
 
     @property
     def proc(self) -> ProcedureState:
-        from chainsim.systems.procedures.prp.handles import PrpHandles
+        from chainsim.systems.procedures.needle.handles import NeedleHandles as PrpHandles
 
         with self.app.active():
             return esper.component_for_entity(self.app.resource(PrpHandles).procedure, ProcedureState)
@@ -168,7 +168,7 @@ def test_landmark1_places_needle_level_and_toward_midline(run):
     # the tip transform is the needle entity's: origin at the tip, local +Z along insertion
     from chainsim.components.core import Transform
     from chainsim.engine import quaternion as Q
-    from chainsim.systems.procedures.prp.handles import PrpHandles
+    from chainsim.systems.procedures.needle.handles import NeedleHandles as PrpHandles
 
     with run.app.active():
         tr = esper.component_for_entity(run.app.resource(PrpHandles).needle, Transform)
@@ -287,7 +287,7 @@ def test_huge_insertion_step_stops_at_bone_and_bounces_back(run):
     from chainsim.components.hud import HudState
     from chainsim.components.needle import Needle
     from chainsim.systems.collision import NeedleHit
-    from chainsim.systems.procedures.prp.handles import PrpHandles
+    from chainsim.systems.procedures.needle.handles import NeedleHandles as PrpHandles
 
     with run.app.active():
         esper.component_for_entity(run.app.resource(PrpHandles).needle, Needle).max_depth = 1000.0
@@ -304,7 +304,7 @@ def test_huge_insertion_step_stops_at_bone_and_bounces_back(run):
     run.send(steps=60)
     st = run.needle
     assert st.depth == pytest.approx(contact_depth - 4.0)  # sprang back by `bounce`
-    assert st.skull_contacts == 1
+    assert st.contacts == {"skull": 1}  # the pack's bone role
     assert run.app.resource(HudState).lights["skull"] == "red"
     expect = float(np.linalg.norm(np.asarray(hits[0].point) - FORAMEN["left"]))
     assert hits[0].distance_to_target_mm == pytest.approx(expect)

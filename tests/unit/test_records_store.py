@@ -323,7 +323,7 @@ def test_v1_database_is_migrated_in_place_with_rows_intact(tmp_path):
     path = tmp_path / "old.sqlite3"
     make_v1(path)
     with RecordStore(path) as s:
-        assert s.schema_version == SCHEMA_VERSION == 5
+        assert s.schema_version == SCHEMA_VERSION == 6
         rows = s.list_attempts()
         assert [r["created_at"] for r in rows] == [f"2025-01-0{i + 1}T10:00:00Z" for i in range(3)]
         assert [r["needle_error_mm"] for r in rows] == [None, 7.0, 6.0]
@@ -383,7 +383,7 @@ def test_v4_database_keeps_its_rows_and_gains_xray_costs_and_questionnaires(tmp_
     before = [tuple(r) for r in conn.execute("SELECT * FROM attempts ORDER BY id")]
     conn.close()
     with RecordStore(path) as s:
-        assert s.schema_version == 5
+        assert s.schema_version == 6  # through version 5, and on to 6
         rows = s.list_attempts()
         assert [(r["xray_shots"], r["exposure_s"], r["dose_mgy"]) for r in rows] == [(0, 0.0, 0.0)] * 3
         assert [r["redirections"] for r in rows] == [0, 0, 2]
@@ -520,3 +520,57 @@ def test_empty_file_becomes_a_database(tmp_path):
         s.add_class("c1")
         assert s.list_classes() == ["c1"]
     assert path.stat().st_size > 0
+
+
+def test_v5_rhizotomy_rows_migrate_to_the_metrics_table_and_lose_nothing(tmp_path):
+    """Version 6 adds the procedure-neutral metrics table: every fixed-column value of an attempt saved
+    before it is there under the column's name, and every column still reads as it did."""
+    from chainsim.game.records.schema import LEGACY_METRICS, MIGRATIONS
+
+    path = tmp_path / "v5.sqlite3"
+    make_v1(path)
+    conn = sqlite3.connect(path)
+    for step in MIGRATIONS[1:5]:
+        for stmt in step:
+            conn.execute(stmt)
+    conn.execute(
+        "UPDATE attempts SET redirections = id, xray_shots = 2 * id, exposure_s = 0.3 * id, dose_mgy = 0.06 * id, "
+        "details = ?",
+        (json.dumps({"side": "left", "D1": 1.5, "landmarks": [[1.0, 2.0, 3.0]]}),),
+    )
+    conn.execute("PRAGMA user_version = 5")
+    conn.commit()
+    before = [
+        dict(zip([c[0] for c in cur.description], row))
+        for cur in [conn.execute("SELECT * FROM attempts")]
+        for row in cur
+    ]
+    conn.close()
+    with RecordStore(path) as s:
+        assert s.schema_version == 6
+        rows = s.list_attempts()
+        assert len(rows) == len(before) == 3
+        for old, new in zip(before, rows):
+            for key in ("created_at", "pack", "target", *LEGACY_METRICS):
+                assert new[key] == old[key], key
+            assert new["details"] == json.loads(old["details"]) and new["aids"] == json.loads(old["aids"])
+            assert new["metrics"] == {
+                name: (None if old[name] is None else float(old[name])) for name in LEGACY_METRICS
+            }
+        # a new attempt keeps its procedure's own metrics beside the fixed ones, with no new column
+        rid = s.save_attempt("c1", "alice", dict(sample_attempt(), metrics={"first_contact_dist_mm": 3.5, "x": None}))
+        got = s.get_attempt(rid)["metrics"]
+        assert got["first_contact_dist_mm"] == 3.5 and got["x"] is None and got["landmark_error_mm"] == 4.5
+        s.delete_attempt(rid)
+    conn = sqlite3.connect(path)
+    assert conn.execute("SELECT COUNT(*) FROM attempt_metrics WHERE attempt_id = ?", (rid,)).fetchone()[0] == 0
+    assert conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+    conn.close()
+
+
+def test_metrics_that_are_not_numbers_are_refused(tmp_path):
+    with RecordStore(tmp_path / "m.sqlite3") as s:
+        with pytest.raises(UserError, match="metric"):
+            s.save_attempt("c1", "alice", dict(sample_attempt(), metrics={"bad name": 1.0}))
+        with pytest.raises(UserError, match="metric"):
+            s.save_attempt("c1", "alice", dict(sample_attempt(), metrics={"x": float("nan")}))

@@ -66,7 +66,7 @@ from chainsim.game.records.study import (
 )
 from chainsim.game.ui.questionnaire import POST, THESIS_RATINGS
 from chainsim.game.ui.study import StudySession, study_name
-from chainsim.systems.procedures.prp.assessment import attempt_record
+from chainsim.systems.procedures.needle.assessment import attempt_record
 
 logger = logging.getLogger(__name__)
 

@@ -2,17 +2,18 @@
 
 Stage: procedure (ORDER_FLUORO, after the procedure steps and before the assessment). Reads: Widget
 events, ViewTurned events from the "fluoro" viewport, InputState.keys (the pedal), ProcedureState
-(the attempt and the entry side), PrpAnatomy (where to centre the arm). Writes: the CArm component
-on the runtime entity "carm", HudState messages. The image itself is made by the renderer
-(chainsim.game.gl.fluoro) whenever `CArm.image_id` grows; without a renderer the counts still run.
+(the attempt and the entry side), NeedleScene (the side's target: where to centre the arm, its
+axis). Writes: the CArm component on the runtime entity "carm", HudState messages. The image
+itself is made by the renderer (chainsim.game.gl.fluoro) whenever `CArm.image_id` grows; without
+a renderer the counts still run.
 
 Controls (widget names; the pack's layout gives them buttons and keys):
 
-    xray_lateral      C-arm to a lateral view of the entry side: the beam runs across the head,
-                      detector on the entry side (the surgeon reads the needle's depth along the clivus)
-    xray_submental    C-arm to the submental-oblique view: the beam comes up from under the chin along
-                      the foramen ovale's canal, turned 17.5 degrees toward the entry side (the view in
-                      which the foramen shows as an oval and the needle tip can be put on it)
+    xray_lateral      C-arm to a lateral view of the target's side: the beam runs across the head
+                      (along X), detector on the target's side of the midline (X = 0)
+    xray_submental    C-arm to the axial-oblique view: the beam comes up the target opening's axis,
+                      turned 17.5 degrees toward the target's side (for the foramen ovale, the
+                      submental view in which it shows as an oval and the needle tip can be put on it)
     xray_take         one image; it stays on the C-arm view, frozen, until the next image
     fluoro_live       live fluoroscopy on (true) or off (false): a new image 15 times a second
     carm_azimuth      the source's azimuth, degrees (free angles; a drag in the view turns it too)
@@ -33,10 +34,10 @@ import numpy as np
 from chainsim.components.core import Name
 from chainsim.components.fluoro import LIVE_RATE_HZ, CArm
 from chainsim.components.input_events import Widget
-from chainsim.components.procedure import ProcedureState, PrpAnatomy
+from chainsim.components.procedure import NeedleScene, ProcedureState, Target
 from chainsim.components.resources import EntityIndex, InputState
 from chainsim.components.view_events import ViewTurned
-from chainsim.systems.procedures.prp.handles import PrpHandles, hud
+from chainsim.systems.procedures.needle.handles import Feedback, NeedleHandles, hud
 from chainsim.systems.stages import ORDER_FLUORO
 
 PEDAL_KEY = "f"
@@ -48,19 +49,24 @@ OBLIQUE_DEG = 17.5
 WIDGETS = ("xray_lateral", "xray_submental", "xray_take", "fluoro_live", "carm_azimuth", "carm_elevation")
 
 
-def lateral_pose(side: str) -> tuple[float, float]:
-    """(azimuth, elevation) of a lateral view with the detector on `side` (the source opposite)."""
-    return (0.0, 0.0) if side == "left" else (180.0, 0.0)  # left is -X: the source on the right, +X
+def _on_minus_x(target: Target) -> bool:
+    """Whether the target lies on the -X half (the subject's left in a head frame); a midline target counts."""
+    return float(target.centre[0]) <= 0.0
 
 
-def submental_pose(side: str, anatomy: PrpAnatomy) -> tuple[float, float]:
-    """(azimuth, elevation): the beam up the entry side's foramen canal, turned OBLIQUE_DEG toward it."""
-    ax = np.asarray(anatomy.sides[side].foramen_axis, float)
+def lateral_pose(target: Target) -> tuple[float, float]:
+    """(azimuth, elevation) of a lateral view with the detector on the target's side (the source opposite)."""
+    return (0.0, 0.0) if _on_minus_x(target) else (180.0, 0.0)  # detector at -X: the source at +X
+
+
+def submental_pose(target: Target) -> tuple[float, float]:
+    """(azimuth, elevation): the beam up the target's axis, turned OBLIQUE_DEG toward its side."""
+    ax = np.asarray(target.axis, float)
     src = -ax / np.linalg.norm(ax)  # the source lies down the canal, under the chin
     elevation = float(np.degrees(np.arcsin(np.clip(-src[2], -1.0, 1.0))))
     azimuth = float(np.degrees(np.arctan2(src[1], src[0])))
-    # toward the entry side: the left is -X, which lies at azimuth 180
-    toward = 1.0 if side == "left" else -1.0
+    # toward the target's side: -X lies at azimuth 180
+    toward = 1.0 if _on_minus_x(target) else -1.0
     return (azimuth + toward * OBLIQUE_DEG) % 360.0, elevation
 
 
@@ -74,12 +80,13 @@ class CArmSystem:
     def carm(self, app) -> CArm:
         return esper.component_for_entity(app.resource(EntityIndex).get("carm"), CArm)
 
-    def side(self, app) -> str:
-        ps = esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState)
-        return ps.side or "left"
+    def target(self, app) -> Target:
+        ps = esper.component_for_entity(app.resource(NeedleHandles).procedure, ProcedureState)
+        scene: NeedleScene = app.resource(NeedleScene)
+        return scene.target(ps.side or scene.sides[0])
 
     def centre(self, app, carm: CArm) -> None:
-        carm.iso = np.asarray(app.resource(PrpAnatomy).sides[self.side(app)].foramen_centre, float).copy()
+        carm.iso = np.asarray(self.target(app).centre, float).copy()
 
     def image(self, carm: CArm) -> None:
         carm.image_id += 1
@@ -88,7 +95,7 @@ class CArmSystem:
     def __call__(self, app) -> None:
         carm = self.carm(app)
         h = hud(app)
-        ps = esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState)
+        ps = esper.component_for_entity(app.resource(NeedleHandles).procedure, ProcedureState)
         if ps.attempt != carm.attempt:  # a new attempt: its own shots and seconds
             carm.attempt = ps.attempt
             carm.shots, carm.live_s, carm.next_pulse_s = 0, 0.0, 0.0
@@ -96,15 +103,17 @@ class CArmSystem:
         take = False
         for ev in self.widgets.read():
             if ev.name == "xray_lateral":
-                carm.azimuth_deg, carm.elevation_deg = lateral_pose(self.side(app))
+                carm.azimuth_deg, carm.elevation_deg = lateral_pose(self.target(app))
                 carm.view = "lateral"
                 self.centre(app, carm)
-                h.message("C-arm lateral: take an image (x) to see the needle's depth along the skull base.")
+                if not app.resource(Feedback).has("button:xray_lateral"):  # the pack's own words, if any
+                    h.message("C-arm lateral: take an image (x) to see the needle's depth.")
             elif ev.name == "xray_submental":
-                carm.azimuth_deg, carm.elevation_deg = submental_pose(self.side(app), app.resource(PrpAnatomy))
+                carm.azimuth_deg, carm.elevation_deg = submental_pose(self.target(app))
                 carm.view = "submental"
                 self.centre(app, carm)
-                h.message("C-arm submental-oblique: take an image (x) to see the foramen ovale as an oval.")
+                if not app.resource(Feedback).has("button:xray_submental"):
+                    h.message("C-arm up the target's axis: take an image (x) to see the opening end-on.")
             elif ev.name == "carm_azimuth" and isinstance(ev.value, (int, float)) and not isinstance(ev.value, bool):
                 carm.azimuth_deg = float(ev.value) % 360.0
                 carm.view = "free"
@@ -146,12 +155,13 @@ class CArmSystem:
 
 
 def plugin(app) -> None:
-    """Create the C-arm entity, centred on the left foramen in a lateral view, and its system."""
+    """Create the C-arm entity, centred on the first side's target in a lateral view, and its system."""
     index: EntityIndex = app.resource(EntityIndex)
-    anat: PrpAnatomy = app.resource(PrpAnatomy)
-    az, el = lateral_pose("left")
+    scene: NeedleScene = app.resource(NeedleScene)
+    first = scene.target(scene.sides[0])
+    az, el = lateral_pose(first)
     with app.active():
-        carm = CArm(azimuth_deg=az, elevation_deg=el, iso=np.asarray(anat.sides["left"].foramen_centre, float).copy())
+        carm = CArm(azimuth_deg=az, elevation_deg=el, iso=np.asarray(first.centre, float).copy())
         carm.image_pose = (az, el, tuple(float(c) for c in carm.iso))
         index.by_name["carm"] = esper.create_entity(Name("carm"), carm)
-    app.add_system("procedure", CArmSystem(app), order=ORDER_FLUORO, name="prp_fluoro")
+    app.add_system("procedure", CArmSystem(app), order=ORDER_FLUORO, name="needle_fluoro")

@@ -1,24 +1,28 @@
-"""Rhizotomy assessment: the 6.1.5 errors, the attempt record and the assessment tool (thesis 3.3.4, Fig. 3.11).
+"""Needle-procedure assessment: the landmark and needle errors, the attempt record and the assessment tool.
 
-Stage: procedure (ORDER_ASSESSMENT), after the procedure steps. Reads: ProcedureState, NeedleState,
-PrpAnatomy, Widget events (self_assessment, save, help), Settings ("class", "trainee"), Records (where
-attempts go; a replay's refuse every save, which then closes the attempt without storing it).
-A save that did not happen is shown and appended to FailedSaves (a headless run then exits 2).
-Writes: chainsim.game.app.headless.Assessment.values (the summary's `assessment`), HudState.panel_text and
+Thesis 3.3.4 (the tool, Fig. 3.11) and 6.1.5 (the error formulas). Stage: procedure
+(ORDER_ASSESSMENT), after the procedure steps. Reads: ProcedureState, NeedleState, NeedleScene,
+Widget events (self_assessment, save, help), Settings ("class", "trainee"), Records (where attempts
+go; a replay's refuse every save, which then closes the attempt without storing it). A save that
+did not happen is shown and appended to FailedSaves (a headless run then exits 2). Writes:
+chainsim.game.app.headless.Assessment.values (the summary's `assessment`), HudState.panel_text and
 messages; saves attempts to the records store.
 
-Metrics, on the side of landmark 1 (all millimetres):
-    landmark error  E = ((D1 + d1) + (D2 + d2) + (D3 + d3)) / 6 with D1 = |Dist1 - 25|, D2 = Dist2,
-                    D3 = |Dist3 - 30| (distances to the mouth angle, the pupil's medial aspect and the
-                    tragus) and d1, d2, d3 the distances to the axial plane through the mouth angle,
-                    the sagittal plane through the pupil and the axial plane through the ear
-    needle error    E = Dist - R at the last contact: Dist from the tip to the centre of the foramen
-                    ovale, R its radius. Negative when the tip stopped inside the opening's radius;
-                    None while the needle has touched nothing.
-Also: simulated seconds per step, the tip's path length while inserted, skull contacts, refused
-rotations, the aids that were on at any time of the attempt, the object reached, and the X-ray the
-attempt cost (thesis 3.2.3; chainsim.systems.procedures.prp.fluoro): single images `xray_shots`,
-live seconds `fluoro_s`, total `exposure_s` and the estimated entrance dose `dose_mgy`.
+Values, on the side the trainee works on (all millimetres unless said):
+    landmark error  the pack's `landmark_score` over its [[landmarks]]
+                    (chainsim.components.procedure.landmark_errors; D_k, d_k, Dist_k per landmark k)
+    needle error    E = Dist - R at the last contact: Dist from the tip to the target centre, R the
+                    target's radius. Negative when the tip stopped inside the radius; None while the
+                    needle has touched nothing. `first_contact_dist_mm`: Dist at the first contact.
+    contacts        `ROLE_contacts` per role touched (`contacts` all of them); ROLE_radius_mm for the target
+Also: simulated seconds per step, the tip's path length while inserted, refused rotations,
+redirections, the aids that were on at any time of the attempt, the object reached, and the X-ray
+the attempt cost (thesis 3.2.3; .fluoro): single images `xray_shots`, live seconds `fluoro_s`, total
+`exposure_s` and the estimated entrance dose `dose_mgy`.
+
+The record saved per attempt keeps the records' fixed columns and adds `metrics`: every [metrics.NAME]
+of the pack with its value (`measure` picks it from the vocabulary), stored in the procedure-neutral
+metrics table (chainsim.game.records.schema).
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ import numpy as np
 from chainsim.components.fluoro import CArm
 from chainsim.components.input_events import Widget
 from chainsim.components.needle import NeedleState
-from chainsim.components.procedure import ProcedureState, PrpAnatomy, landmark_errors
+from chainsim.components.procedure import NeedleScene, ProcedureState, landmark_errors
 from chainsim.components.resources import (
     Assessment,
     EntityIndex,
@@ -40,7 +44,7 @@ from chainsim.components.resources import (
     Settings,
 )
 from chainsim.engine.errors import UserError
-from chainsim.systems.procedures.prp.handles import PrpHandles, hud
+from chainsim.systems.procedures.needle.handles import NeedleHandles, hud
 from chainsim.systems.stages import ORDER_ASSESSMENT
 from chainsim.systems.ui.widgets import format_value
 
@@ -55,26 +59,29 @@ def _num(x):
 def compute(app) -> dict:
     """The assessment values of the current attempt (JSON-ready)."""
 
-    handles: PrpHandles = app.resource(PrpHandles)
+    handles: NeedleHandles = app.resource(NeedleHandles)
     ps: ProcedureState = esper.component_for_entity(handles.procedure, ProcedureState)
     st: NeedleState = esper.component_for_entity(handles.needle, NeedleState)
-    anat: PrpAnatomy = app.resource(PrpAnatomy)
-    side = ps.side or "left"
-    sa = anat.sides[side]
-    lm = landmark_errors(sa, ps.landmarks)
-    radius = sa.foramen_radius
+    scene: NeedleScene = app.resource(NeedleScene)
+    side = ps.side or scene.sides[0]
+    target = scene.target(side)
+    lm = landmark_errors(scene.landmark_targets[side], ps.landmarks, scene.landmark_score)
+    radius = target.radius
     needle_error = None if not np.isfinite(ps.needle_dist) else ps.needle_dist - radius
     tip = st.tip() if st.placed else np.full(3, np.nan)
+    obstacle_roles = [r.name for r in scene.roles.values() if r.kind == "obstacle"]
     out = {
         "side": ps.side or None,
         "step": ps.step_id,
         "landmark_error_mm": lm["landmark_error_mm"],
         "needle_error_mm": needle_error,
         "needle_dist_mm": _num(ps.needle_dist),
-        "foramen_radius_mm": radius,
+        "first_contact_dist_mm": _num(ps.first_dist),
+        f"{scene.target_role}_radius_mm": radius,
         "target": ps.target,
         "target_reached": ps.finished,
-        "skull_contacts": int(st.skull_contacts),
+        "contacts": {r: int(st.contacts.get(r, 0)) for r in scene.roles if r in st.contacts or r in obstacle_roles},
+        "obstacle_contacts": int(sum(st.contacts.get(r, 0) for r in obstacle_roles)),
         "path_length_mm": float(st.path_length),
         "rotation_refused": int(st.rotation_refused),
         "redirections": int(st.redirections),
@@ -86,18 +93,53 @@ def compute(app) -> dict:
         "landmarks": [None if not np.all(np.isfinite(p)) else [float(c) for c in p] for p in ps.landmarks],
         "hit_point": None if not np.all(np.isfinite(ps.hit_point)) else [float(c) for c in ps.hit_point],
         "tip": None if not st.placed else [float(c) for c in tip],
-        "tip_to_target_mm": None if not st.placed else float(np.linalg.norm(tip - sa.foramen_centre)),
+        "tip_to_target_mm": None if not st.placed else float(np.linalg.norm(tip - target.centre)),
         "depth_mm": float(st.depth),
         "rotation_horizontal_deg": float(st.yaw),
         "rotation_vertical_deg": float(st.pitch),
         "rotation_locked": bool(st.locked),
         "lights": dict(ps.lights),
     }
+    for r in obstacle_roles:
+        out[f"{r}_contacts"] = int(st.contacts.get(r, 0))
     out.update(xray_values(app))
-    for k in (1, 2, 3):
+    for k in range(1, len(scene.landmark_ids) + 1):
         out[f"D{k}"] = lm.get(f"D{k}")
         out[f"d{k}"] = lm.get(f"d{k}")
         out[f"Dist{k}"] = lm.get(f"Dist{k}")
+    out["metrics"] = metric_values(app.resource(PackResource).pack, scene, out)
+    return out
+
+
+#: measure -> the assessment value it reads
+MEASURE_KEYS = {
+    "duration": "duration_s",
+    "path_length": "path_length_mm",
+    "first_contact_distance": "first_contact_dist_mm",
+    "needle_error": "needle_error_mm",
+    "landmark_error": "landmark_error_mm",
+    "redirections": "redirections",
+    "refused_rotations": "rotation_refused",
+    "xray_shots": "xray_shots",
+    "exposure": "exposure_s",
+    "dose": "dose_mgy",
+}
+
+
+def metric_values(pack, scene: NeedleScene, v: dict) -> dict:
+    """The pack's [metrics.NAME] with their values (numbers or None), in the order declared."""
+    out: dict = {}
+    for name, spec in pack.section("metrics").items():
+        m = spec.get("measure", "")
+        if m == "contacts":
+            x = v["contacts"].get(spec.get("role", ""), 0)
+        elif m == "step_time":
+            x = v["step_times"].get(spec.get("step", ""), 0.0)
+        elif m:
+            x = v.get(MEASURE_KEYS[m])
+        else:
+            x = v.get(name)
+        out[name] = None if x is None or isinstance(x, (dict, list, str)) else float(x)
     return out
 
 
@@ -116,30 +158,42 @@ def xray_values(app) -> dict:
     }
 
 
-def panel_lines(v: dict) -> list[str]:
-    """The self-assessment text (Fig. 3.11's text field), each term said in words."""
+def panel_lines(v: dict, scene: NeedleScene, pack) -> list[str]:
+    """The self-assessment text (Fig. 3.11's text field), each term said in words from the pack's tables."""
 
     def mm(x):
         return "-" if x is None else f"{format_value(x)} mm"
 
+    n = len(scene.landmark_ids)
     lines = [
         f"Self assessment, attempt {v.get('attempt', 1)}"
         + (f" ({v['side']} side)" if v["side"] else "")
         + f": landmark error {mm(v['landmark_error_mm'])}, needle error {mm(v['needle_error_mm'])}"
     ]
-    ds = " / ".join(mm(v[f"D{k}"]) for k in (1, 2, 3))
-    dp = " / ".join(mm(v[f"d{k}"]) for k in (1, 2, 3))
-    lines.append(
-        f"Landmark error: mean of D1-D3 {ds} (to mouth corner - 25 mm, pupil, tragus - 30 mm) "
-        f"and d1-d3 {dp} (to their planes)"
+    if n:
+        ds = " / ".join(mm(v[f"D{k}"]) for k in range(1, n + 1))
+        dp = " / ".join(mm(v[f"d{k}"]) for k in range(1, n + 1))
+        to = ", ".join(sp.get("score_label") or sp["id"] for sp in scene.landmark_specs)
+        lines.append(f"Landmark error: mean of D1-D{n} {ds} (to {to}) and d1-d{n} {dp} (to their planes)")
+    what = (
+        scene.label(scene.target(v["side"] or scene.sides[0]).entities[0])
+        if scene.target(v["side"] or scene.sides[0]).entities
+        else "the target"
     )
     lines.append(
-        f"Needle error: tip to foramen centre {mm(v.get('needle_dist_mm'))} minus its radius "
-        f"{mm(v.get('foramen_radius_mm'))}, at the last contact"
+        f"Needle error: tip to the centre of {what} {mm(v.get('needle_dist_mm'))} minus its radius "
+        f"{mm(v.get(f'{scene.target_role}_radius_mm'))}, at the last contact"
     )
+    labels = pack.section("metrics")
+
+    def said(r: str) -> str:
+        return labels.get(f"{r}_contacts", {}).get("label", r.replace("_", " ") + " contacts").lower()
+
+    counts = "; ".join(f"{said(r)} {v[f'{r}_contacts']}" for r, role in scene.roles.items() if role.kind == "obstacle")
     lines.append(
-        f"Reached {v['target'].replace('_', ' ')}; bone contacts {v['skull_contacts']}; "
-        f"redirections {v.get('redirections', 0)}; path {v['path_length_mm']:.1f} mm; time {v['duration_s']:.1f} s"
+        f"Reached {scene.label(v['target']) if v['target'] != 'none' else 'nothing'}"
+        + (f"; {counts}" if counts else "")
+        + f"; redirections {v.get('redirections', 0)}; path {v['path_length_mm']:.1f} mm; time {v['duration_s']:.1f} s"
     )
     lines.append(
         f"X-ray: {v.get('xray_shots', 0)} images, {v.get('fluoro_s', 0.0):.1f} s live; exposure "
@@ -151,14 +205,18 @@ def panel_lines(v: dict) -> list[str]:
 
 
 def attempt_record(pack_name: str, v: dict) -> dict:
-    """The records-store attempt (chainsim.game.records.store) for assessment values `v` (as in the summary)."""
+    """The records-store attempt (chainsim.game.records.store) for assessment values `v` (as in the summary).
+
+    The fixed columns take what every needle procedure has (`skull_contacts` holds the contacts with
+    every obstacle, a procedure without landmarks stores a landmark error of 0); `metrics` carries the
+    pack's own [metrics] into the procedure-neutral table."""
     return {
         "pack": pack_name,
         "duration_s": v["duration_s"],
-        "landmark_error_mm": v["landmark_error_mm"],
+        "landmark_error_mm": v["landmark_error_mm"] if v["landmark_error_mm"] is not None else 0.0,
         "needle_error_mm": v["needle_error_mm"],
         "target": v["target"],
-        "skull_contacts": v["skull_contacts"],
+        "skull_contacts": v.get("obstacle_contacts", v.get("skull_contacts", 0)),
         "path_length_mm": v["path_length_mm"],
         "redirections": v.get("redirections", 0),
         "xray_shots": v.get("xray_shots", 0),
@@ -167,27 +225,24 @@ def attempt_record(pack_name: str, v: dict) -> dict:
         "aids": v["aids"],
         "step_times": v["step_times"],
         "details": {
-            k: v[k]
-            for k in (
-                "side",
-                "D1",
-                "D2",
-                "D3",
-                "d1",
-                "d2",
-                "d3",
-                "landmarks",
-                "hit_point",
-                "needle_dist_mm",
-                "foramen_radius_mm",
-                "rotation_refused",
-                "rotation_horizontal_deg",
-                "rotation_vertical_deg",
-                "fluoro_s",
-            )
-            if k in v
+            k: v[k] for k in v if k in DETAIL_KEYS or k.endswith("_radius_mm") or (k[:1] in "Dd" and k[1:].isdigit())
         },
+        "metrics": dict(v.get("metrics", {})),
     }
+
+
+DETAIL_KEYS = (
+    "side",
+    "landmarks",
+    "hit_point",
+    "needle_dist_mm",
+    "first_contact_dist_mm",
+    "contacts",
+    "rotation_refused",
+    "rotation_horizontal_deg",
+    "rotation_vertical_deg",
+    "fluoro_s",
+)
 
 
 def save(app, v: dict) -> int | None:
@@ -196,8 +251,8 @@ def save(app, v: dict) -> int | None:
     Returns None, storing nothing, when the Records refuse all saves (a replay): the attempt is then
     closed exactly as the recorded session closed it, so the replay reaches the same state.
     """
-    if v["landmark_error_mm"] is None:
-        raise UserError("place all three landmarks before saving: the landmark error needs them")
+    if v["landmark_error_mm"] is None and app.resource(NeedleScene).landmark_score != "none":
+        raise UserError("place all the landmarks before saving: the landmark error needs them")
     if app.resource(Records).refuses:
         return None
     s = app.resource(Settings)
@@ -262,13 +317,13 @@ class AssessmentSystem:
         for ev in self.widgets.read():
             h = hud(app)
             if ev.name == "self_assessment":
-                h.panel_text = panel_lines(v)
+                h.panel_text = panel_lines(v, app.resource(NeedleScene), app.resource(PackResource).pack)
             elif ev.name == "save":
                 try:
                     rid = save(app, v)
                 except SavedLocally as e:  # safe on this computer; the records server gets it later
                     h.message(f"Saved on this computer: {e}", 8.0)
-                    esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState).closed = True
+                    esper.component_for_entity(app.resource(NeedleHandles).procedure, ProcedureState).closed = True
                 except (UserError, OSError) as e:  # a full disk or a vanished folder must not end the session
                     h.message(f"Not saved: {e}", 8.0)
                     self.errors.append(str(e))
@@ -276,7 +331,7 @@ class AssessmentSystem:
                     if failed is not None:  # a headless run then ends with exit 2
                         failed.messages.append(str(e))
                 else:
-                    ps = esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState)
+                    ps = esper.component_for_entity(app.resource(NeedleHandles).procedure, ProcedureState)
                     ps.closed = True  # this attempt is done; the next action begins another
                     s = app.resource(Settings)
                     if rid is None:
@@ -300,7 +355,7 @@ class AssessmentSystem:
                     ]
             if ev.name != "delete_attempt":
                 self.delete_armed = None
-        ps = esper.component_for_entity(app.resource(PrpHandles).procedure, ProcedureState)
+        ps = esper.component_for_entity(app.resource(NeedleHandles).procedure, ProcedureState)
         v["saved"] = list(ps.saved)
         v["save_errors"] = list(self.errors)
         app.resource(Assessment).values = v
@@ -328,4 +383,4 @@ def plugin(app) -> None:
 
     if not app.has_resource(Assessment):
         app.insert_resource(Assessment())
-    app.add_system("procedure", AssessmentSystem(app), order=ORDER_ASSESSMENT, name="prp_assessment")
+    app.add_system("procedure", AssessmentSystem(app), order=ORDER_ASSESSMENT, name="needle_assessment")

@@ -1,1 +1,0 @@
-"""The percutaneous rhizotomy trainer (thesis ch. 3): steps, needle scoring and the assessment tool."""
