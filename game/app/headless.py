@@ -146,7 +146,7 @@ def refusing_records(reason: str) -> Records:
 def build_app(ref: str, *, pack_paths=(), **kwargs) -> App:
     """`PACK[/SCENE]` -> a started App (see `app_for_pack` for the keyword arguments)."""
     root, scene = packs.resolve(ref, pack_paths)
-    return app_for_pack(packs.load(root), scene, ref=ref, **kwargs)
+    return app_for_pack(packs.load(root, pack_paths), scene, ref=ref, **kwargs)
 
 
 def check_events(app: App, events, where: str) -> None:
@@ -160,11 +160,11 @@ def check_events(app: App, events, where: str) -> None:
             )
 
 
-def validate_pack(root) -> tuple[packs.Pack | None, list[packs.Problem]]:
+def validate_pack(root, pack_paths=()) -> tuple[packs.Pack | None, list[packs.Problem]]:
     """Everything `run` would refuse, as `chainsim validate` reports it: the pack's manifest and files
     (chainsim.game.packs.pack.validate), then every scene started as `run` starts it, without stepping.
     """
-    pack, problems = packs.validate(root)
+    pack, problems = packs.validate(root, pack_paths=pack_paths)
     if pack is None:
         return None, problems
     problems = [packs.problem_at(pack, scene, message) for scene, message in start_problems(pack)]
