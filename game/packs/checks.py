@@ -433,7 +433,11 @@ def check_entities(v: Validator, raw: dict, man: dict) -> dict[str, dict[str, An
 
 
 def check_scenes(v: Validator, man: dict) -> None:
-    """[scenes]: entities and layout exist."""
+    """[scenes]: entities and layout exist, and so does [pack] default_scene (the scene a run without
+    PACK/SCENE starts)."""
+    default = (man.get("pack") or {}).get("default_scene")
+    if default and man.get("scenes") and default not in man["scenes"]:
+        v.add(MANIFEST, "pack.default_scene", f"no scene named '{default}' (scenes: {', '.join(man['scenes'])})")
     for sname, sc in man.get("scenes", {}).items():
         for e in sc.get("entities", []):
             if e not in man["entities"]:
