@@ -19,7 +19,7 @@ from pathlib import Path
 
 from chainsim.engine import datafile, limits
 from chainsim.engine.errors import UserError
-from chainsim.game.packs.discovery import ENV_PATH, MANIFEST, NAME_RE, Found, _scan, discover
+from chainsim.game.packs.discovery import ENV_PATH, MANIFEST, NAME_RE, Found, discover, scan
 
 #: `PACK:PATH`: a pack name (as NAME_RE), a colon, a path inside that pack's folder
 REF_RE = re.compile(r"^([A-Za-z0-9][A-Za-z0-9_-]*):(.*)$", re.S)
@@ -44,7 +44,7 @@ def requires_of(folder: Path) -> list[str]:
 def candidates(root: Path, pack_paths=()) -> dict[str, Path]:
     """Every pack a requirement may name: name -> folder, the first found winning (the folder holding
     `root` first, then the usual discovery order)."""
-    found: list[Found] = _scan(Path(root).resolve().parent, "beside")
+    found: list[Found] = scan(Path(root).resolve().parent, "beside")
     found.extend(discover(pack_paths))
     out: dict[str, Path] = {}
     for f in found:
