@@ -46,6 +46,7 @@ from chainsim.game.records.remote import remote_records
 from chainsim.game.records.store import local_records
 from chainsim.game.records.validate import clean_name
 from chainsim.systems.input import InputLog
+from chainsim.systems.picking import entity_surface
 
 #: settings a user (or a recording) may give on top of the pack's own: name -> type
 USER_SETTINGS = {"db": str, "records": str, "class": str, "trainee": str, "model": str}
@@ -146,25 +147,42 @@ def refusing_records(reason: str) -> Records:
 def build_app(ref: str, *, pack_paths=(), **kwargs) -> App:
     """`PACK[/SCENE]` -> a started App (see `app_for_pack` for the keyword arguments)."""
     root, scene = packs.resolve(ref, pack_paths)
-    return app_for_pack(packs.load(root), scene, ref=ref, **kwargs)
+    return app_for_pack(packs.load(root, pack_paths), scene, ref=ref, **kwargs)
 
 
 def check_events(app: App, events, where: str) -> None:
-    """Events that name things of the scene (picks name an entity) must name what the scene has."""
+    """Everything in a script that the run would refuse mid-way, refused before it starts: picks must
+    name an entity of the scene with a surface to pick on, and the procedure checks the values of the
+    events it reads (plugins.event_check)."""
     index: EntityIndex = app.resource(EntityIndex)
+    pres: PackResource = app.resource(PackResource)
+    check = plugins.event_check(pres.pack.manifest["pack"].get("procedure", ""))
     for t, ev in events:
-        if isinstance(ev, PickPoint) and index.get(ev.entity) is None:
-            raise UserError(
-                f"{where}: pick event at t={t:g} names entity '{ev.entity}', which is not in scene "
-                f"'{app.resource(PackResource).scene}' (entities: {', '.join(sorted(index.by_name))})"
-            )
+        if isinstance(ev, PickPoint):
+            ent = index.get(ev.entity)
+            if ent is None:
+                raise UserError(
+                    f"{where}: pick event at t={t:g} names entity '{ev.entity}', which is not in scene "
+                    f"'{pres.scene}' (entities: {', '.join(sorted(index.by_name))})"
+                )
+            with app.active():
+                surface = entity_surface(app, ent)
+            if surface is None:
+                raise UserError(
+                    f"{where}: pick event at t={t:g} names entity '{ev.entity}', which has no triangle mesh to pick on"
+                )
+        if check is not None:
+            try:
+                check(ev)
+            except UserError as e:
+                raise UserError(f"{where}: event at t={t:g}: {e}") from None
 
 
-def validate_pack(root) -> tuple[packs.Pack | None, list[packs.Problem]]:
+def validate_pack(root, pack_paths=()) -> tuple[packs.Pack | None, list[packs.Problem]]:
     """Everything `run` would refuse, as `chainsim validate` reports it: the pack's manifest and files
     (chainsim.game.packs.pack.validate), then every scene started as `run` starts it, without stepping.
     """
-    pack, problems = packs.validate(root)
+    pack, problems = packs.validate(root, pack_paths=pack_paths)
     if pack is None:
         return None, problems
     problems = [packs.problem_at(pack, scene, message) for scene, message in start_problems(pack)]

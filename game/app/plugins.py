@@ -34,6 +34,15 @@ def _resolve(ref: str) -> Callable | None:
     return getattr(module, fn)
 
 
+def event_check(procedure: str) -> Callable | None:
+    """The procedure's check of one scripted event (a `check_event(ev)` in its plugin's module, raising
+    UserError for a value it would refuse mid-run), or None when it reads every event as it comes."""
+    if not procedure:
+        return None
+    module = importlib.import_module(PROCEDURES[procedure].partition(":")[0])
+    return getattr(module, "check_event", None)
+
+
 def install(app, procedure: str = "", render: bool = False) -> list[str]:
     """Build the plugins for a spawned scene; returns the names of those installed."""
     refs = list(CORE)

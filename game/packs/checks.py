@@ -31,7 +31,8 @@ from chainsim.engine.errors import UserError, printable
 from chainsim.engine.meshes import MeshData, MeshError, check_primitive, max_mesh_bytes
 from chainsim.game.packs import schema as ms
 from chainsim.game.packs.discovery import MANIFEST, NAME_RE
-from chainsim.game.packs.model import PRESET_KEYS, Pack, build_mesh, inside, material_presets
+from chainsim.game.packs.model import PRESET_KEYS, Pack, build_mesh, locate, material_presets
+from chainsim.game.packs.requires import resolve_requires
 from chainsim.systems.procedures import PROCEDURES
 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
@@ -98,8 +99,10 @@ def _line_of(text: str, keypath: str) -> int | None:
 class Validator:
     """Collects problems while the per-section checks below walk one pack."""
 
-    def __init__(self, root: Path):
+    def __init__(self, root: Path, pack_paths=()):
         self.root = root
+        self.pack_paths = tuple(pack_paths)
+        self.deps: dict[str, Path] = {}  # required pack name -> folder (read_manifest fills it)
         self.problems: list[Problem] = []
         self.texts: dict[str, str] = {}
         self.origin: dict[str, str] = {}  # "section.name" -> the manifest file that defines it
@@ -115,9 +118,9 @@ class Validator:
         return any(p.key == key or p.key.startswith(key + ".") for p in self.problems)
 
     def read_toml(self, rel: str) -> dict | None:
-        path = inside(self.root, rel)
+        path, why = locate(self.root, self.deps, rel)
         if path is None:
-            self.add(MANIFEST, "pack.includes", f"'{rel}' escapes the pack folder")
+            self.add(MANIFEST, "pack.includes", why)
             return None
         try:
             text = datafile.read_text(path, max_bytes=limits.MAX_MANIFEST_BYTES, what="manifest file")
@@ -165,10 +168,11 @@ class Validator:
         return out
 
     def path(self, file: str, key: str, rel: str) -> Path | None:
-        """The file a pack path names, if it stays inside the pack and is a readable file."""
-        p = inside(self.root, rel)
+        """The file a pack path names, if it stays inside the pack (or the required pack it names) and is
+        a readable file."""
+        p, why = locate(self.root, self.deps, rel)
         if p is None:
-            self.add(file, key, f"'{rel}' escapes the pack folder (paths must stay inside {self.root.name}/)")
+            self.add(file, key, why)
             return None
         if not p.exists():
             self.add(file, key, f"file '{rel}' not found")
@@ -212,6 +216,7 @@ def read_manifest(v: Validator) -> dict | None:
         return None
     if "pack" not in raw:
         v.add(MANIFEST, "", "missing the [pack] table (name and format)")
+    _requires(v, raw)  # before the includes, which may name files of a required pack
     incs = raw.get("pack", {}).get("includes", []) if isinstance(raw.get("pack"), dict) else []
     if isinstance(incs, list):
         for inc in incs:
@@ -226,6 +231,21 @@ def read_manifest(v: Validator) -> dict | None:
             for m in re.finditer(rf"^\[{sec}\.([A-Za-z0-9_\-]+)", text, re.M):
                 v.origin.setdefault(f"{sec}.{m.group(1)}", rel)
     return raw
+
+
+def _requires(v: Validator, raw: dict) -> None:
+    """[pack] requires: every required pack found, none missing further down the chain, no cycle.
+    A value of the wrong type is left to the [pack] schema check, which reports it."""
+    pk = raw.get("pack")
+    if not isinstance(pk, dict):
+        return
+    req = pk.get("requires", [])
+    if not isinstance(req, list) or not all(isinstance(r, str) for r in req):
+        return
+    name = pk.get("name") if isinstance(pk.get("name"), str) else ""
+    v.deps, problems = resolve_requires(v.root, name, req, v.pack_paths)
+    for msg in problems:
+        v.add(MANIFEST, "pack.requires", msg)
 
 
 def check_name(v: Validator, key: str, name: str) -> bool:
@@ -351,7 +371,7 @@ def check_meshes(v: Validator, man: dict, load_meshes: bool) -> dict[str, MeshDa
                 continue
         if load_meshes:
             try:
-                built[name] = build_mesh(v.root, name, spec)
+                built[name] = build_mesh(v.root, name, spec, v.deps)
             except MeshError as e:
                 v.add(file, f"{key}.path" if has_path else key, str(e))
     return built
@@ -413,7 +433,11 @@ def check_entities(v: Validator, raw: dict, man: dict) -> dict[str, dict[str, An
 
 
 def check_scenes(v: Validator, man: dict) -> None:
-    """[scenes]: entities and layout exist."""
+    """[scenes]: entities and layout exist, and so does [pack] default_scene (the scene a run without
+    PACK/SCENE starts)."""
+    default = (man.get("pack") or {}).get("default_scene")
+    if default and man.get("scenes") and default not in man["scenes"]:
+        v.add(MANIFEST, "pack.default_scene", f"no scene named '{default}' (scenes: {', '.join(man['scenes'])})")
     for sname, sc in man.get("scenes", {}).items():
         for e in sc.get("entities", []):
             if e not in man["entities"]:

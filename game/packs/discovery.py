@@ -40,7 +40,8 @@ class Found:
     source: str  # "builtin", "pack-path", "env", "installed"
 
 
-def _scan(folder: Path, source: str) -> list[Found]:
+def scan(folder: Path, source: str) -> list[Found]:
+    """The packs in `folder`: itself if it holds a manifest, else its sub-folders that do."""
     out = []
     try:
         if (folder / MANIFEST).is_file():
@@ -94,7 +95,7 @@ def _installed() -> list[Found]:
     out = []
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         for folder in _package_folders(ep):
-            out.extend(_scan(folder, "installed"))
+            out.extend(scan(folder, "installed"))
     return out
 
 
@@ -105,11 +106,11 @@ def discover(pack_paths: list[str] | tuple = ()) -> list[Found]:
         path = Path(p)
         if not path.is_dir():
             raise UserError(f"--pack-path {p}: not a folder")
-        found.extend(_scan(path, "pack-path"))
+        found.extend(scan(path, "pack-path"))
     for p in filter(None, os.environ.get(ENV_PATH, "").split(os.pathsep)):
-        found.extend(_scan(Path(p), "env"))
+        found.extend(scan(Path(p), "env"))
     found.extend(_installed())
-    found.extend(_scan(BUILTIN_DIR, "builtin"))
+    found.extend(scan(BUILTIN_DIR, "builtin"))
     return found
 
 

@@ -2,8 +2,9 @@
 
 `Pack` is what `chainsim.game.packs.pack.validate` returns; `build_mesh` turns a [meshes] entry into
 a MeshData in millimetres (chainsim.engine.meshes checks the file and the result against the mesh
-limits); `inside` keeps every path a manifest names inside its pack; `material_presets` reads the
-calibrated ChainMail materials a [materials] entry may name.
+limits); `inside` keeps a path inside one folder and `locate` keeps every path a manifest names inside
+its pack or, written `PACK:PATH`, inside a pack it requires (chainsim.game.packs.requires);
+`material_presets` reads the calibrated ChainMail materials a [materials] entry may name.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from chainsim.engine.errors import UserError
 from chainsim.engine.meshes import MeshData, check_mesh, load_file, primitive
 from chainsim.engine.reorder import reorder_mesh
 from chainsim.game.packs import schema as ms
+from chainsim.game.packs.requires import split_ref
 
 PRESET_FILE = ASSETS_DIR / "presets" / "materials.toml"
 PRESET_KEYS = {"alpha_min": "alpha_min", "alpha_max": "alpha_max", "beta": "beta", "relax": "relax_iterations"}
@@ -37,6 +39,26 @@ def inside(root: Path, rel: str) -> Path | None:
     return target
 
 
+def locate(root: Path, deps: dict[str, Path], rel: str) -> tuple[Path | None, str]:
+    """(the resolved file, "") for a path a manifest names, or (None, why it is refused).
+
+    A plain path stays inside `root`; `PACK:PATH` stays inside the folder of PACK, which must be one
+    of `deps` (the packs this pack requires)."""
+    dep, sub = split_ref(rel)
+    if not dep:
+        p = inside(root, rel)
+        if p is None:
+            return None, f"'{rel}' escapes the pack folder (paths must stay inside {root.name}/)"
+        return p, ""
+    if dep not in deps:
+        listed = ", ".join(sorted(deps)) or "none"
+        return None, f"'{rel}' points into pack '{dep}', which [pack] requires does not list (requires: {listed})"
+    p = inside(deps[dep], sub)
+    if p is None:
+        return None, f"'{rel}' escapes the folder of pack '{dep}' (paths must stay inside {deps[dep].name}/)"
+    return p, ""
+
+
 @dataclass
 class Pack:
     """A validated pack: converted manifest sections and lazily loaded meshes."""
@@ -45,6 +67,7 @@ class Pack:
     manifest: dict[str, Any]
     texts: dict[str, str] = field(default_factory=dict)
     origin: dict[str, str] = field(default_factory=dict)  # "section.name" -> the manifest file defining it
+    deps: dict[str, Path] = field(default_factory=dict)  # required pack name -> its folder
     _meshes: dict[str, MeshData] = field(default_factory=dict)
 
     @property
@@ -56,7 +79,7 @@ class Pack:
 
     def mesh(self, name: str) -> MeshData:
         if name not in self._meshes:
-            self._meshes[name] = build_mesh(self.root, name, self.manifest["meshes"][name])
+            self._meshes[name] = build_mesh(self.root, name, self.manifest["meshes"][name], self.deps)
         return self._meshes[name]
 
     def scene_names(self) -> list[str]:
@@ -78,16 +101,17 @@ class Pack:
         return name, scenes[name]
 
     def doc_text(self, name: str) -> str:
-        return inside(self.root, self.section("docs")[name]["path"]).read_text(encoding="utf-8")
+        return self.file(self.section("docs")[name]["path"]).read_text(encoding="utf-8")
 
     def file(self, rel: str) -> Path:
-        p = inside(self.root, rel)
+        """A file the manifest names: in this pack, or `PACK:PATH` in a pack it requires."""
+        p, why = locate(self.root, self.deps, rel)
         if p is None:
-            raise UserError(f"{rel}: path escapes the pack folder {self.root}")
+            raise UserError(f"{rel}: {why}")
         return p
 
 
-def build_mesh(root: Path, name: str, spec: dict) -> MeshData:
+def build_mesh(root: Path, name: str, spec: dict, deps: dict[str, Path] | None = None) -> MeshData:
     """The mesh of a [meshes] entry in millimetres; MeshError (naming the file or entry) if unusable."""
     scale = ms.UNIT_SCALE_TO_MM[spec["units"]]
     if spec["primitive"]:
@@ -100,7 +124,9 @@ def build_mesh(root: Path, name: str, spec: dict) -> MeshData:
         )
         m.vertices = m.vertices * scale
         return check_mesh(m, f"meshes.{name}")
-    path = inside(root, spec["path"])
+    path, why = locate(root, deps or {}, spec["path"])
+    if path is None:
+        raise UserError(f"meshes.{name}.path: {why}")
     m = load_file(path, scale, spec["merge_vertices"], label=spec["path"])
     if spec.get("reorder"):
         m = reorder_mesh(m)

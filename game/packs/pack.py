@@ -6,6 +6,7 @@ ever imported or executed. This module holds `validate` and `load`; the parts li
     discovery   where packs are found (--pack-path, CHAINSIM_PACK_PATH, installed, built-in)
     model       the loaded Pack, its meshes and files
     checks      the per-part checks `validate` runs, and the Problem lines it reports
+    requires    packs a pack builds on (`[pack] requires`) and `PACK:PATH` paths into them
     schema      the declaration of every manifest section and key
 
 Validation collects every problem at once, each as `file:line: key.path: what is wrong`; every
@@ -53,8 +54,10 @@ __all__ = [
 ]
 
 
-def validate(root: Path, *, load_meshes: bool = True) -> tuple[Pack | None, list[Problem]]:
+def validate(root: Path, *, load_meshes: bool = True, pack_paths=()) -> tuple[Pack | None, list[Problem]]:
     """Validate a pack folder's manifest and files; returns (pack or None, every problem found).
+
+    `pack_paths` (--pack-path folders) are searched for the packs it requires (chainsim.game.packs.requires).
 
     This checks everything that needs no running App; chainsim.game.app.headless.validate_pack
     also starts each scene as `run` does (what `chainsim validate` reports).
@@ -63,7 +66,7 @@ def validate(root: Path, *, load_meshes: bool = True) -> tuple[Pack | None, list
     root = Path(root)
     if not root.is_dir():
         return None, [Problem(str(root), "", "not a folder")]
-    v = Validator(root)
+    v = Validator(root, pack_paths)
     raw = checks.read_manifest(v)
     if raw is None:
         return None, v.problems
@@ -77,15 +80,15 @@ def validate(root: Path, *, load_meshes: bool = True) -> tuple[Pack | None, list
     checks.check_steps(v, man)
     if v.problems:
         return None, v.problems
-    return Pack(root=root, manifest=man, texts=v.texts, origin=v.origin, _meshes=meshes), []
+    return Pack(root=root, manifest=man, texts=v.texts, origin=v.origin, deps=v.deps, _meshes=meshes), []
 
 
-def load(root: Path) -> Pack:
+def load(root: Path, pack_paths=()) -> Pack:
     """Validate (meshes loaded, as `validate` does) and return the pack, or raise PackError listing every problem.
 
     The scenes are not started here: the caller starts the one it runs.
     """
-    pack, problems = validate(root)
+    pack, problems = validate(root, pack_paths=pack_paths)
     if problems:
         raise PackError(problems)
     return pack

@@ -1,4 +1,12 @@
-"""Pack scaffolding: writes a new, valid pack folder a modder edits from there (no Python needed)."""
+"""Pack scaffolding: `chainsim new-pack NAME --template empty|tissue|needle` writes a new pack folder a
+modder edits from there (no Python needed).
+
+The templates are data: folders under `assets/templates/` (chainsim.assets), copied whole with the
+placeholders `"__NAME__"` and `"__TITLE__"` in pack.toml replaced by TOML strings (so any title stays
+valid TOML) and `__TITLE__` in the docs replaced by the title. Each template validates, runs headless
+and does what its own step text says (tests/unit/test_new_pack.py); the `needle` template builds on
+the built-in prp pack through pack dependencies (chainsim.game.packs.requires).
+"""
 
 from __future__ import annotations
 
@@ -9,76 +17,32 @@ from pathlib import Path
 
 import tomli_w
 
+from chainsim.assets import ASSETS_DIR
 from chainsim.engine.errors import UserError
 
-
-def manifest(name: str, title: str) -> dict:
-    """The new pack's pack.toml as data (written by tomli-w, so any title stays valid TOML)."""
-    return {
-        "pack": {
-            "name": name,
-            "format": 1,
-            "title": title,
-            "version": "0.1.0",
-            "description": "Describe the procedure or demo here.",
-            "license": "CC-BY-4.0",
-        },
-        "settings": {"steps": 600},
-        "meshes": {
-            # or: path = "meshes/body.ply" with units = "mm"
-            "body": {"primitive": "tet_block", "extents": [60.0, 40.0, 20.0], "resolution": [6.0, 4.0, 2.0]},
-            "probe": {"primitive": "sphere", "radius": 3.0},
-        },
-        "materials": {
-            "tissue": {"color": [0.85, 0.55, 0.5, 1.0], "alpha_min": 0.8, "alpha_max": 1.3, "beta": 0.2, "relax": 2},
-            "steel": {"color": [0.75, 0.77, 0.8, 1.0]},
-        },
-        "entities": {
-            "body": {
-                "mesh": {"mesh": "body", "material": "tissue"},
-                # drag = true: a mouse drag on the body pulls it, as the step below says
-                "deformable": {"source": "volume", "drag": True},
-            },
-            "probe": {
-                "transform": {"position": [0.0, 0.0, 40.0]},
-                "mesh": {"mesh": "probe", "material": "steel", "pickable": False},
-                "scripted_motion": {"waypoints": [0.0, 0.0, 40.0, 30.0, 0.0, 40.0], "speed": 20.0},
-            },
-        },
-        "scenes": {"main": {"description": "The body and a moving probe.", "layout": "main"}},
-        "layouts": {
-            "main": {
-                "viewports": [
-                    {
-                        "name": "view",
-                        "kind": "orbit",
-                        "rect": [0.0, 0.0, 0.75, 1.0],
-                        "distance": 200.0,
-                        "yaw": 30.0,
-                        "pitch": 25.0,
-                    },
-                    {"name": "panel", "kind": "panel", "rect": [0.75, 0.0, 0.25, 1.0], "title": "Controls"},
-                ]
-            }
-        },
-        "steps": [
-            {
-                "id": "explore",
-                "title": "Explore",
-                "instruction": "Drag on the body to pull it; drag beside it to orbit.",
-                "docs": "readme",
-            }
-        ],
-        "docs": {"readme": {"title": "About", "path": "docs/readme.md"}},
-    }
+TEMPLATES_DIR = ASSETS_DIR / "templates"
+#: template name -> what it gives (the `--template` help)
+TEMPLATES = {
+    "tissue": "a soft block to pull with a button or the mouse (the default)",
+    "needle": "a needle procedure on the prp pack's head: landmarks, aiming, insertion, assessment",
+    "empty": "one box in a view you can turn: the least a pack needs",
+}
+DEFAULT_TEMPLATE = "tissue"
 
 
-def create(name: str, parent: Path, title: str | None = None) -> Path:
-    """Write the pack folder `parent/name`; built in a temporary folder and renamed, so a failure
-    leaves nothing behind."""
+def _toml_string(text: str) -> str:
+    """`text` as a TOML basic string, quotes and escapes included (tomli-w writes it)."""
+    return tomli_w.dumps({"v": text}).split("=", 1)[1].strip()
+
+
+def create(name: str, parent: Path, title: str | None = None, template: str = DEFAULT_TEMPLATE) -> Path:
+    """Write the pack folder `parent/name` from `template`; built in a temporary folder and renamed, so
+    a failure leaves nothing behind."""
     if not re.match(r"^[A-Za-z0-9][A-Za-z0-9_-]*$", name):
         raise UserError(f"pack name '{name}' must use letters, digits, - and _ only")
-    title = title if title is not None else name.replace("-", " ").title()
+    if template not in TEMPLATES:
+        raise UserError(f"--template {template}: expected one of {', '.join(TEMPLATES)}")
+    title = title if title is not None else name.replace("-", " ").replace("_", " ").title()
     if any(ord(c) < 32 for c in title) or len(title) > 200:
         raise UserError("--title: at most 200 characters and no control characters")
     root = Path(parent) / name
@@ -86,14 +50,16 @@ def create(name: str, parent: Path, title: str | None = None) -> Path:
         raise UserError(f"{root} already exists; choose another name or folder")
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=parent))
     try:
-        (tmp / "docs").mkdir()
-        (tmp / "meshes").mkdir()
-        (tmp / "scripts").mkdir()
-        header = f"# {title}: a chainsim asset pack. Reference: `chainsim docs components`.\n"
-        (tmp / "pack.toml").write_text(header + tomli_w.dumps(manifest(name, title)), encoding="utf-8")
-        (tmp / "docs" / "readme.md").write_text(
-            f"# {title}\n\nWhat this pack teaches, and how to use it.\n", encoding="utf-8"
-        )
+        shutil.copytree(TEMPLATES_DIR / template, tmp, dirs_exist_ok=True)
+        for f in (tmp / "meshes",):
+            f.mkdir(exist_ok=True)  # where the pack's own mesh files go
+        manifest = tmp / "pack.toml"
+        text = manifest.read_text(encoding="utf-8")
+        text = text.replace('"__NAME__"', _toml_string(name)).replace('"__TITLE__"', _toml_string(title))
+        # the header comment is plain text, not a TOML string
+        manifest.write_text(text.replace("__TITLE__", title.replace("\n", " ")), encoding="utf-8")
+        for doc in (tmp / "docs").glob("*.md"):
+            doc.write_text(doc.read_text(encoding="utf-8").replace("__TITLE__", title), encoding="utf-8")
         tmp.rename(root)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -50,6 +50,13 @@ section(
             [],
             help="Further TOML files in the pack whose tables are merged into this manifest.",
         ),
+        Field(
+            "requires",
+            "str_list",
+            [],
+            help="Packs this one builds on; its paths may point into their folders as 'PACK:PATH' "
+            '(e.g. path = "prp:meshes/skull.ply"). Nothing else of a required pack is read.',
+        ),
         Field("default_scene", "str", "", help="Scene run when none is named (default: the first)."),
         Field(
             "procedure",

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from chainsim.game.app.headless import validate_pack
 from chainsim.game.packs import pack as packs
 
 BROKEN = Path(__file__).parent / "broken"
@@ -49,6 +50,18 @@ EXPECTED = {
     "unknown-section": [(5, "meshs", "did you mean 'meshes'")],
     "missing-pack": [(None, "", "missing the [pack] table")],
     "bad-include": [(4, "pack.includes", "escapes the pack folder"), (2, "points.chin.position", "array of 3 numbers")],
+    # what only starting a scene, or reading its script, finds: run would refuse these
+    "bad-default-scene": [(4, "pack.default_scene", "no scene named 'nowhere'")],
+    "bad-script-pick": [(11, "scenes.main.script", "'dot', which has no triangle mesh to pick on")],
+    "bad-script-value": [(19, "scenes.main.script", "widget 'pull': expected \"x, y, z\"")],
+}
+
+#: fixtures that `run` refuses (words of its refusal) once it resolves the scene or reads the script:
+#: validate must have reported them first
+REFUSED_BY_RUN = {
+    "bad-default-scene": "scene named 'nowhere'",
+    "bad-script-pick": "has no triangle mesh to pick on",
+    "bad-script-value": "widget 'pull': expected",
 }
 
 
@@ -60,7 +73,7 @@ def test_every_fixture_has_expectations():
 @pytest.mark.parametrize("name", sorted(EXPECTED))
 def test_broken_pack_reports_each_problem_precisely(name, monkeypatch):
     monkeypatch.setenv("CHAINSIM_MAX_MESH_MB", "0.01")
-    pack, problems = packs.validate(BROKEN / name)
+    pack, problems = validate_pack(BROKEN / name)  # what `chainsim validate` runs
     assert pack is None
     want = EXPECTED[name]
     assert len(problems) == len(want), [str(p) for p in problems]
@@ -81,6 +94,15 @@ def test_cli_prints_lines_and_exits_2_without_traceback(name):
     lines = r.stderr.strip().splitlines()
     assert len(lines) == len(EXPECTED[name]) + 1  # one per problem, then the count
     assert lines[0].startswith("pack.toml:")
+
+
+@pytest.mark.parametrize("name", sorted(REFUSED_BY_RUN))
+def test_what_run_refuses_validate_reports_first(name, cli):
+    code, _, err = cli("validate", BROKEN / name)
+    assert code == 2 and len(err.strip().splitlines()) == 2
+    code, _, err = cli("run", BROKEN / name, "--headless", "--steps", "2")
+    assert code == 2 and "Traceback" not in err
+    assert REFUSED_BY_RUN[name] in err, err
 
 
 def test_builtin_packs_validate_clean(cli):

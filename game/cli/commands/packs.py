@@ -26,7 +26,7 @@ def run(args) -> int:
     for f in found:
         shadowed = f.name in seen
         seen.add(f.name)
-        pack, problems = packs.validate(f.path, load_meshes=False)
+        pack, problems = packs.validate(f.path, load_meshes=False, pack_paths=args.pack_path)
         if problems:
             status = (
                 f"INVALID ({len(problems)} problem{'s' if len(problems) > 1 else ''}; run chainsim validate {f.path})"

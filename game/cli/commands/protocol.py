@@ -324,7 +324,7 @@ def run_people(args, proto: dict) -> int:
 def run_scripted(args, proto: dict) -> int:
     """The smoke test: every trial's scripts headless, saved and tabled - and labelled as scripted."""
     root, _scene = packs.resolve(proto["pack"], args.pack_path)
-    pack = packs.load(root)
+    pack = packs.load(root, args.pack_path)
     check_target(args.db)  # a mistyped or read-only database is refused before the first trial
     out = _out_dir(args)
     # check every script before anything runs or is saved

@@ -30,7 +30,7 @@ def run(args) -> int:
         path = path.parent
     if not path.exists():
         path, _ = packs.resolve(args.path, args.pack_path)
-    pack, problems = validate_pack(path)
+    pack, problems = validate_pack(path, args.pack_path)
     if problems:
         for p in problems:
             print(p, file=sys.stderr)

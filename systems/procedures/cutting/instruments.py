@@ -34,6 +34,17 @@ from chainsim.systems.view import ViewState
 # -- the instruments -------------------------------------------------------------------------------
 
 
+def widget_value(name: str, value):
+    """The value of a `pull` ("x, y, z"), `pull_by` ("dx, dy, dz") or `push` (mm) widget event, or one
+    UserError line; scripts are checked with it before a run starts (procedure.check_event)."""
+    if name == "push":
+        value = PUSH_BUTTON_MM if value is None else value
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise UserError(f"widget 'push': value must be a depth in mm, got {value!r}")
+        return float(value)
+    return parse_point(value, f"widget '{name}'")
+
+
 class ToolsSystem:
     """Simulation stage: turns the trainee's input into grab, release and cut requests."""
 
@@ -192,12 +203,7 @@ class ToolsSystem:
             self.lift_blade(app)
         elif name in ("pull", "pull_by", "push"):
             f = esper.component_for_entity(st.forceps, Forceps)
-            if name == "push":
-                value = PUSH_BUTTON_MM if ev.value is None else ev.value
-                if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                    raise UserError(f"widget 'push': value must be a depth in mm, got {ev.value!r}")
-            else:
-                value = parse_point(ev.value, f"widget '{name}'")
+            value = widget_value(name, ev.value)
             if st.tool != "forceps" or f.held_entity < 0:
                 self.say(app, "Choose the forceps and grip the tissue first.")
                 return

@@ -55,7 +55,7 @@ from chainsim.components.view_events import Dragged, Picked
 from chainsim.engine.errors import UserError
 from chainsim.systems.deformation import DeformationState
 from chainsim.systems.procedures.cutting.assessment import AssessmentSystem
-from chainsim.systems.procedures.cutting.instruments import ToolsSystem
+from chainsim.systems.procedures.cutting.instruments import ToolsSystem, widget_value
 from chainsim.systems.procedures.cutting.state import STEP_IDS, CuttingState, world_positions
 from chainsim.systems.procedures.cutting.steps import StepsSystem
 from chainsim.systems.stages import ORDER_ASSESSMENT, ORDER_KINEMATICS, ORDER_PROCEDURE
@@ -68,6 +68,14 @@ KEY_ROWS = [
 ]
 
 # -- plugin ----------------------------------------------------------------------------------------
+
+
+def check_event(ev) -> None:
+    """One scripted event as this procedure will read it: a widget value it would refuse mid-run is
+    refused here, before the run (chainsim.game.app.headless.check_events; so `validate` reports a
+    scene script's bad value)."""
+    if isinstance(ev, Widget) and ev.name in ("pull", "pull_by", "push"):
+        widget_value(ev.name, ev.value)
 
 
 def plugin(app) -> None:
