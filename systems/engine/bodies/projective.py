@@ -206,6 +206,18 @@ class ProjectiveBody(Body):
         self._positions[:] = x / self.unit
         return StepStats(done, change, 0, time.perf_counter() - t0, {"refactor_s": self.refactor_seconds})
 
+    def elastic_forces(self) -> np.ndarray:
+        """Elastic forces (N, 3) in newtons in the current state: minus the gradient of the projective
+        energy sum w/2 |F - proj(F)|^2, which is rhs(x) - L x with rhs the local step's right-hand side
+        and L the global matrix (the projection minimises over its set, so it drops out of the gradient)."""
+        rhs = np.zeros_like(self.x)
+        if self.surface:
+            local_step_tri(self.x, self.tets, self.D, self.active, self.w_arap, rhs)
+        else:
+            # a copy of the rotations, refined further, so asking for forces never changes the next step
+            local_step(self.x, self.tets, self.D, self.active, self.w_arap, self.w_vol, self.quats.copy(), 20, rhs)
+        return rhs - self._stiffness() @ self.x
+
     def _cut(self, p0, p1, normal, depth) -> int:
         killed = cut_segment(self._positions, self.graph, p0, p1, normal=normal, depth=depth)
         if len(killed) == 0:

@@ -18,7 +18,7 @@ from chainsim.engine.bodies.base import Body, StepStats, check_elastic
 from chainsim.engine.errors import UserError
 from chainsim.engine.kernels.graph import build_graph
 from chainsim.engine.kernels.topology import cut_segment
-from chainsim.engine.kernels.xpbd import distance_sweep, stvk_sweep, tet_energy, tet_sweep
+from chainsim.engine.kernels.xpbd import distance_sweep, stvk_sweep, tet_energy, tet_forces, tet_sweep
 
 CONSTRAINTS = ("auto", "neohookean", "stvk")
 
@@ -96,7 +96,11 @@ class XPBDBody(Body):
         if constraints == "auto":
             constraints = "neohookean" if self.lam >= 0.5 * self.mu else "stvk"
         self.constraints = constraints
-        self.lam_eff = max(self.lam, 1e-3 * self.mu)
+        # Smith, de Goes and Kim's reparameterisation (stable Neo-Hookean, their 3.4): the energy
+        # mu/2 |F|^2 + l/2 (J - 1 - mu/l)^2 linearises to linear elasticity with Lame lambda = l - mu,
+        # so the hydrostatic weight is l = lambda + mu. With l = lambda the body was softer in volume
+        # than (E, nu) say: at nu = 0.3 its small-strain lambda was a third of the right one.
+        self.lam_eff = self.lam + self.mu
         self.gamma = 1.0 + self.mu / self.lam_eff
         rest_si = self.rest * self.unit
         self.tets = None if tets is None or len(tets) == 0 else np.ascontiguousarray(tets, dtype=np.int64)
@@ -246,6 +250,25 @@ class XPBDBody(Body):
         super().reset()
         self.x[:] = self.rest * self.unit
         self.v[:] = 0.0
+
+    def elastic_forces(self) -> np.ndarray:
+        """Elastic forces (N, 3) in newtons on every element in the current state: minus the gradient of
+        the constraint energy (Neo-Hookean or StVK tetrahedra; stretch and bending springs on surfaces).
+        At rest they vanish; at small strain they are linear FEM's -K u for the same (E, nu)."""
+        f = np.zeros_like(self.x)
+        if self.tets is not None:
+            stvk = self.constraints == "stvk"
+            lam = self.lam if stvk else self.lam_eff
+            tet_forces(self.x, self.tets, self.dm_inv, self.vol, self.tet_active, self.mu, lam, self.gamma, stvk, f)
+        if len(self.pairs):
+            a, b = self.pairs[:, 0], self.pairs[:, 1]
+            d = self.x[a] - self.x[b]
+            ln = np.maximum(np.linalg.norm(d, axis=1), 1e-300)
+            k = np.where(self.pair_active, 1.0 / self.compliance, 0.0)
+            fa = -(k * (ln - self.rest_len) / ln)[:, None] * d  # C = |d| - L, force on a: -k C d/|d|
+            np.add.at(f, a, fa)
+            np.add.at(f, b, -fa)
+        return f
 
     def energy(self) -> dict:
         """Kinetic and elastic energy (J) of the current state: a check that nothing blows up."""

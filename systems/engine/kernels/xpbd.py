@@ -2,7 +2,8 @@
 
 Tetrahedra follow Macklin and Mueller's constraint form of stable Neo-Hookean elasticity: a
 deviatoric constraint C_D = |F|_F with compliance 1/(mu V) and a hydrostatic one C_H = det F - gamma,
-gamma = 1 + mu/lambda, with compliance 1/(lambda V); each is projected with the XPBD update
+gamma = 1 + mu/l, with compliance 1/(l V), where the caller passes l = lambda + mu (Smith et al.'s
+reparameterisation, so small strains meet linear elasticity with Lame lambda); each is projected with the XPBD update
 dlambda = (-C - a~ lambda) / (sum w |grad C|^2 + a~), a~ = compliance / h^2. Distance constraints
 (surface stretch and bending) use C = |xi - xj| - L. One Gauss-Seidel sweep per call, in element
 order, so results do not depend on the thread count.
@@ -233,3 +234,48 @@ def stvk_sweep(x, w, tets, dm_inv, vol, active, mu, lam, h2):
         if abs(J - 1.0) > worst:
             worst = abs(J - 1.0)
     return worst
+
+
+@njit(cache=True)
+def tet_forces(x, tets, dm_inv, vol, active, mu, lam, gamma, stvk, out):
+    """Elastic forces -dPsi/dx of the live tets' energy, added into out (N, 3).
+
+    stvk False: the stable Neo-Hookean constraint energy V (mu/2 |F|^2 + lam/2 (J - gamma)^2), first
+    Piola stress P = mu F + lam (J - gamma) cof F; stvk True: V (mu |E|^2 + lam/2 (J - 1)^2) with
+    E = (F^T F - I)/2, P = 2 mu F E + lam (J - 1) cof F. Vertex k of a tet gets -V (P Dm^-T) column k.
+    """
+    g = np.zeros((4, 3))
+    F = np.zeros((3, 3))
+    P = np.zeros((3, 3))
+    C = np.zeros((3, 3))
+    E = np.zeros((3, 3))
+    for t in range(tets.shape[0]):
+        if not active[t]:
+            continue
+        _deformation(x, tets, dm_inv, t, F)
+        for r in range(3):
+            r1 = (r + 1) % 3
+            r2 = (r + 2) % 3
+            C[r, 0] = F[r1, 1] * F[r2, 2] - F[r2, 1] * F[r1, 2]
+            C[r, 1] = F[r1, 2] * F[r2, 0] - F[r2, 2] * F[r1, 0]
+            C[r, 2] = F[r1, 0] * F[r2, 1] - F[r2, 0] * F[r1, 1]
+        J = F[0, 0] * C[0, 0] + F[1, 0] * C[1, 0] + F[2, 0] * C[2, 0]
+        if stvk:
+            for i in range(3):
+                for j in range(3):
+                    dot = F[0, i] * F[0, j] + F[1, i] * F[1, j] + F[2, i] * F[2, j]
+                    E[i, j] = 0.5 * (dot - (1.0 if i == j else 0.0))
+            for r in range(3):
+                for c in range(3):
+                    P[r, c] = 2.0 * mu * (F[r, 0] * E[0, c] + F[r, 1] * E[1, c] + F[r, 2] * E[2, c])
+                    P[r, c] += lam * (J - 1.0) * C[r, c]
+        else:
+            for r in range(3):
+                for c in range(3):
+                    P[r, c] = mu * F[r, c] + lam * (J - gamma) * C[r, c]
+        _grads(P, dm_inv[t], g)
+        for k in range(4):
+            i = tets[t, k]
+            out[i, 0] -= vol[t] * g[k, 0]
+            out[i, 1] -= vol[t] * g[k, 1]
+            out[i, 2] -= vol[t] * g[k, 2]
