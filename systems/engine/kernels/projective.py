@@ -31,6 +31,12 @@ def _quat_to_mat(q, R):
 def extract_rotation(A, q, iterations):
     """Rotation of A (3x3) by Mueller et al. 2016, refining unit quaternion q (w, x, y, z) in place."""
     R = np.zeros((3, 3))
+    return _rotation_into(A, q, iterations, R)
+
+
+@njit(cache=True)
+def _rotation_into(A, q, iterations, R):
+    """extract_rotation writing into the caller's R (no allocation: it runs once per tetrahedron)."""
     for _ in range(iterations):
         _quat_to_mat(q, R)
         # omega = sum_i r_i x a_i / (|sum_i r_i . a_i| + eps)
@@ -70,6 +76,8 @@ def local_step(x, tets, D, active, w_arap, w_vol, quats, rot_iterations, rhs):
     """Project every live tet and accumulate the elastic right-hand side (rhs (N,3), overwritten)."""
     rhs[:] = 0.0
     F = np.zeros((3, 3))
+    R = np.zeros((3, 3))
+    M = np.zeros((3, 3))
     for t in range(tets.shape[0]):
         if not active[t]:
             continue
@@ -79,24 +87,28 @@ def local_step(x, tets, D, active, w_arap, w_vol, quats, rot_iterations, rhs):
                 for k in range(4):
                     acc += x[tets[t, k], r] * D[t, k, c]
                 F[r, c] = acc
-        R = extract_rotation(F, quats[t], rot_iterations)
+        _rotation_into(F, quats[t], rot_iterations, R)
         J = (
             F[0, 0] * (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1])
             - F[0, 1] * (F[1, 0] * F[2, 2] - F[1, 2] * F[2, 0])
             + F[0, 2] * (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0])
         )
+        # the target combination M = w_a R + w_v P once per tet, then D M^T into the four corners
         if J > 1e-12:
-            s = J ** (-1.0 / 3.0)
-        else:
-            s = 0.0  # inverted or flat: the volume target is the rotation itself
+            sv = w_vol[t] / np.cbrt(J)
+            for r in range(3):
+                for c in range(3):
+                    M[r, c] = w_arap[t] * R[r, c] + sv * F[r, c]
+        else:  # inverted or flat: the volume target is the rotation itself
+            wr = w_arap[t] + w_vol[t]
+            for r in range(3):
+                for c in range(3):
+                    M[r, c] = wr * R[r, c]
         for k in range(4):
             i = tets[t, k]
+            d0, d1, d2 = D[t, k, 0], D[t, k, 1], D[t, k, 2]
             for r in range(3):
-                acc = 0.0
-                for c in range(3):
-                    P = F[r, c] * s if s > 0.0 else R[r, c]
-                    acc += D[t, k, c] * (w_arap[t] * R[r, c] + w_vol[t] * P)
-                rhs[i, r] += acc
+                rhs[i, r] += d0 * M[r, 0] + d1 * M[r, 1] + d2 * M[r, 2]
     return rhs
 
 
