@@ -57,8 +57,15 @@ def _rotation_into(A, q, iterations, R):
         if angle < 1e-9:
             break
         ha = 0.5 * angle
-        sn = np.sin(ha) / angle
-        dw, dx, dy, dz = np.cos(ha), ox * sn, oy * sn, oz * sn
+        if ha < 0.05:
+            # warm-started rotations change little per step: Taylor terms to 1e-12, no sin or cos
+            h2 = ha * ha
+            sn = 0.5 * (1.0 - h2 / 6.0 + h2 * h2 / 120.0)
+            cs = 1.0 - 0.5 * h2 + h2 * h2 / 24.0
+        else:
+            sn = np.sin(ha) / angle
+            cs = np.cos(ha)
+        dw, dx, dy, dz = cs, ox * sn, oy * sn, oz * sn
         w, x, y, z = q[0], q[1], q[2], q[3]
         q[0] = dw * w - dx * x - dy * y - dz * z
         q[1] = dw * x + dx * w + dy * z - dz * y
@@ -148,3 +155,72 @@ def local_step_tri(x, tris, D, active, w_arap, rhs):
             for r in range(3):
                 rhs[i, r] += w_arap[t] * (D[t, k, 0] * R[r, 0] + D[t, k, 1] * R[r, 1])
     return rhs
+
+
+@njit(cache=True)
+def spmv3(indptr, indices, data, x, out):
+    """out = A x for a CSR matrix A and three right-hand sides at once (x, out (n, 3))."""
+    for i in range(indptr.shape[0] - 1):
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        for k in range(indptr[i], indptr[i + 1]):
+            j = indices[k]
+            v = data[k]
+            a0 += v * x[j, 0]
+            a1 += v * x[j, 1]
+            a2 += v * x[j, 2]
+        out[i, 0] = a0
+        out[i, 1] = a1
+        out[i, 2] = a2
+
+
+@njit(cache=True)
+def pcg3(indptr, indices, data, inv_diag, b, x, iterations, tolerance, r, z, p, q):
+    """Jacobi-preconditioned conjugate gradients on A x = b (A symmetric positive definite, CSR), one
+    independent solve per column of b (n, 3), warm-started from x and updated in place; at most
+    `iterations` steps, stopping early when every column's residual is below tolerance * |b|.
+    r, z, p, q are (n, 3) scratch arrays. Returns the steps taken.
+    """
+    n = b.shape[0]
+    spmv3(indptr, indices, data, x, q)
+    rz = np.zeros(3)
+    bb = np.zeros(3)
+    for i in range(n):
+        for c in range(3):
+            r[i, c] = b[i, c] - q[i, c]
+            z[i, c] = inv_diag[i] * r[i, c]
+            p[i, c] = z[i, c]
+            rz[c] += r[i, c] * z[i, c]
+            bb[c] += b[i, c] * b[i, c]
+    done = 0
+    for _ in range(iterations):
+        rr_max = 0.0
+        for c in range(3):
+            rr = 0.0
+            for i in range(n):
+                rr += r[i, c] * r[i, c]
+            if rr > tolerance * tolerance * max(bb[c], 1e-300) and rr / max(bb[c], 1e-300) > rr_max:
+                rr_max = rr / max(bb[c], 1e-300)
+        if rr_max == 0.0:
+            break
+        done += 1
+        spmv3(indptr, indices, data, p, q)
+        for c in range(3):
+            pq = 0.0
+            for i in range(n):
+                pq += p[i, c] * q[i, c]
+            if pq <= 0.0 or rz[c] == 0.0:
+                continue
+            alpha = rz[c] / pq
+            rz_new = 0.0
+            for i in range(n):
+                x[i, c] += alpha * p[i, c]
+                r[i, c] -= alpha * q[i, c]
+                z[i, c] = inv_diag[i] * r[i, c]
+                rz_new += r[i, c] * z[i, c]
+            beta = rz_new / rz[c]
+            rz[c] = rz_new
+            for i in range(n):
+                p[i, c] = z[i, c] + beta * p[i, c]
+    return done
