@@ -178,21 +178,30 @@ class XPBDBody(Body):
         if hasattr(self, "x"):
             self.x[:] = np.asarray(value) * self.unit
 
+    def _grab_changed(self) -> None:
+        self._w = None  # the inverse masses change with the held set
+
     def _solve(self, dt: float) -> StepStats:
         t0 = time.perf_counter()
         h = dt / self.substeps
         h2 = h * h
-        w = np.where(self.fixed, 0.0, 1.0 / self.mass)
-        w[self.grab_ids] = 0.0
+        if getattr(self, "_w", None) is None or not np.array_equal(self._fixed_seen, self.fixed):
+            self._fixed_seen = self.fixed.copy()
+            w = np.where(self.fixed, 0.0, 1.0 / self.mass)
+            w[self.grab_ids] = 0.0
+            self._w, self._pinned = w, w == 0.0
+            nt = len(self.tets) if self.tets is not None else 0
+            self._lam_d, self._lam_h, self._lam_p = np.zeros(nt), np.zeros(nt), np.zeros(len(self.pairs))
+            self._prev = np.empty_like(self.x)
+        w, lam_d, lam_h, lam_p, prev = self._w, self._lam_d, self._lam_h, self._lam_p, self._prev
         target = self.grab_targets * self.unit
         start = self.x[self.grab_ids].copy()
-        lam_d = np.zeros(len(self.tets) if self.tets is not None else 0)
-        lam_h = np.zeros_like(lam_d)
-        lam_p = np.zeros(len(self.pairs))
+        gravity = bool(np.any(self.gravity != 0.0))
         worst = 0.0
         for s in range(self.substeps):
-            prev = self.x.copy()
-            self.v += h * self.gravity * (w > 0.0)[:, None]
+            prev[:] = self.x
+            if gravity:
+                self.v += h * self.gravity * (w > 0.0)[:, None]
             self.x += h * self.v
             # grabbed elements travel to their targets over the step (no teleporting impulse)
             f = (s + 1) / self.substeps
@@ -224,8 +233,10 @@ class XPBDBody(Body):
                     worst = distance_sweep(
                         self.x, w, self.pairs, self.rest_len, self.compliance, self.pair_active, h2, lam_p
                     )
-            self.v = (self.x - prev) / h * (1.0 - self.damping)
-            self.v[w == 0.0] = 0.0
+            # v = (x - prev) / h * (1 - damping), in place
+            np.subtract(self.x, prev, out=self.v)
+            self.v *= (1.0 - self.damping) / h
+            self.v[self._pinned] = 0.0
         self._positions[:] = self.x / self.unit
         return StepStats(self.substeps * self.iterations, float(worst), 0, time.perf_counter() - t0)
 
