@@ -179,48 +179,63 @@ def spmv3(indptr, indices, data, x, out):
 def pcg3(indptr, indices, data, inv_diag, b, x, iterations, tolerance, r, z, p, q):
     """Jacobi-preconditioned conjugate gradients on A x = b (A symmetric positive definite, CSR), one
     independent solve per column of b (n, 3), warm-started from x and updated in place; at most
-    `iterations` steps, stopping early when every column's residual is below tolerance * |b|.
-    r, z, p, q are (n, 3) scratch arrays. Returns the steps taken.
+    `iterations` steps, stopping early when every column's residual is below tolerance * |b| (a
+    column that gets there stops changing). r, z, p, q are (n, 3) scratch arrays. Returns the steps
+    taken. The three columns share every pass over the arrays (one pass per vector operation).
     """
     n = b.shape[0]
     spmv3(indptr, indices, data, x, q)
     rz = np.zeros(3)
+    rr = np.zeros(3)
     bb = np.zeros(3)
+    pq = np.zeros(3)
+    alpha = np.zeros(3)
+    beta = np.zeros(3)
+    live = np.zeros(3, dtype=np.bool_)
     for i in range(n):
         for c in range(3):
             r[i, c] = b[i, c] - q[i, c]
             z[i, c] = inv_diag[i] * r[i, c]
             p[i, c] = z[i, c]
             rz[c] += r[i, c] * z[i, c]
+            rr[c] += r[i, c] * r[i, c]
             bb[c] += b[i, c] * b[i, c]
     done = 0
     for _ in range(iterations):
-        rr_max = 0.0
+        any_live = False
         for c in range(3):
-            rr = 0.0
-            for i in range(n):
-                rr += r[i, c] * r[i, c]
-            if rr > tolerance * tolerance * max(bb[c], 1e-300) and rr / max(bb[c], 1e-300) > rr_max:
-                rr_max = rr / max(bb[c], 1e-300)
-        if rr_max == 0.0:
+            live[c] = rr[c] > tolerance * tolerance * max(bb[c], 1e-300) and rz[c] > 0.0
+            any_live = any_live or live[c]
+        if not any_live:
             break
         done += 1
         spmv3(indptr, indices, data, p, q)
+        pq[:] = 0.0
+        for i in range(n):
+            for c in range(3):
+                pq[c] += p[i, c] * q[i, c]
         for c in range(3):
-            pq = 0.0
-            for i in range(n):
-                pq += p[i, c] * q[i, c]
-            if pq <= 0.0 or rz[c] == 0.0:
-                continue
-            alpha = rz[c] / pq
-            rz_new = 0.0
-            for i in range(n):
-                x[i, c] += alpha * p[i, c]
-                r[i, c] -= alpha * q[i, c]
-                z[i, c] = inv_diag[i] * r[i, c]
-                rz_new += r[i, c] * z[i, c]
-            beta = rz_new / rz[c]
-            rz[c] = rz_new
-            for i in range(n):
-                p[i, c] = z[i, c] + beta * p[i, c]
+            alpha[c] = rz[c] / pq[c] if live[c] and pq[c] > 0.0 else 0.0
+            if alpha[c] == 0.0:
+                live[c] = False
+        rz_new = np.zeros(3)
+        rr[:] = 0.0
+        for i in range(n):
+            for c in range(3):
+                if live[c]:
+                    x[i, c] += alpha[c] * p[i, c]
+                    r[i, c] -= alpha[c] * q[i, c]
+                    z[i, c] = inv_diag[i] * r[i, c]
+                    rz_new[c] += r[i, c] * z[i, c]
+                rr[c] += r[i, c] * r[i, c]
+        for c in range(3):
+            beta[c] = rz_new[c] / rz[c] if live[c] else 0.0
+            if live[c]:
+                rz[c] = rz_new[c]
+            else:
+                rz[c] = 0.0  # a finished column stays finished
+        for i in range(n):
+            for c in range(3):
+                if live[c]:
+                    p[i, c] = z[i, c] + beta[c] * p[i, c]
     return done
