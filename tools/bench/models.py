@@ -42,6 +42,7 @@ SETTINGS = {
     "xpbd, 1 substep": lambda s: XPBDBody(s.pos, s.tets, E=E, nu=NU, damping=0.1, substeps=1, fixed=s.fixed),
     "xpbd, 2 substeps": lambda s: XPBDBody(s.pos, s.tets, E=E, nu=NU, damping=0.1, substeps=2, fixed=s.fixed),
     "projective statics, direct, 1 iteration": _pd(iterations=1, rotation_iterations=1),
+    "projective statics, CG 6, 1 iteration": _pd(iterations=1, solver="cg", cg_iterations=6, rotation_iterations=1),
     "projective statics, CG 10, 1 iteration": _pd(iterations=1, solver="cg", cg_iterations=10, rotation_iterations=1),
     "projective statics, CG 20, 1 iteration": _pd(iterations=1, solver="cg", cg_iterations=20, rotation_iterations=1),
 }
@@ -50,7 +51,11 @@ SETTINGS = {
 def add_arguments(p) -> None:
     p.add_argument("--n", type=int, default=22, help="nodes per block edge (22: 10,648 nodes)")
     p.add_argument("--frames", type=int, default=400, help="most frames per phase (bounded)")
-    p.add_argument("--only", default=None, help="comma-separated subset of the settings (by their start)")
+    p.add_argument(
+        "--only",
+        default=None,
+        help="semicolon-separated subset of the settings, each named by its start ('xpbd, 1;projective statics, CG')",
+    )
     p.add_argument("--out", default="runs/bench-models", help="folder for results.json and results.md")
 
 
@@ -94,7 +99,7 @@ def run(args) -> int:
         raise UserError(f"--frames: expected 1..100000, got {args.frames}")
     chosen = SETTINGS
     if args.only:
-        want = [w.strip() for w in args.only.split(",") if w.strip()]
+        want = [w.strip() for w in args.only.split(";") if w.strip()]
         chosen = {k: v for k, v in SETTINGS.items() if any(k.startswith(w) for w in want)}
         if not chosen:
             raise UserError(f"--only: no setting starts with {args.only!r}; settings: {'; '.join(SETTINGS)}")
