@@ -231,19 +231,20 @@ class ProjectiveBody(Body):
             if len(free) == 0:
                 break
             b = rhs[free] - self._A_fh @ x[held]
+            old = x[free]
             if self.solver == "cg":
-                new = x[free]
+                new = old.copy()
                 pcg3(*self._csr, self._inv_diag, b, new, self.cg_iterations, 1e-10, *self._scratch)
             else:
                 new = self._factor.solve(b)
-            change = float(np.max(np.abs(new - x[free]))) / scale
+            change = float(np.max(np.abs(new - old))) / scale
             x[free] = new
             if change < self.tolerance:
                 break
         if self.dynamic:
             self.v = (x - prev) / dt * (1.0 - self.damping)
             self.v[held] = 0.0
-        self._positions[:] = x / self.unit
+        np.divide(x, self.unit, out=self._positions)
         return StepStats(done, change, 0, time.perf_counter() - t0, {"refactor_s": self.refactor_seconds})
 
     def elastic_forces(self) -> np.ndarray:
