@@ -126,3 +126,11 @@ def test_bad_solver_settings_are_refused(kwargs, word):
     s = sc.block(5)
     with pytest.raises(UserError, match=word):
         ProjectiveBody(s.pos, s.tets, **kwargs)
+
+
+def test_make_body_passes_the_solver_settings():
+    from chainsim.engine.bodies.factory import make_body
+
+    s = sc.block(5)
+    b = make_body("projective", s.pos, tets=s.tets, solver="cg", cg_iterations=7, rotation_iterations=2, dynamic=False)
+    assert (b.solver, b.cg_iterations, b.rotation_iterations, b.dynamic) == ("cg", 7, 2, False)
