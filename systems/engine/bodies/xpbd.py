@@ -91,8 +91,9 @@ class XPBDBody(Body):
         if constraints not in CONSTRAINTS:
             raise UserError(f"constraints: expected one of {', '.join(CONSTRAINTS)}, got {constraints!r}")
         # The stable Neo-Hookean constraints balance a deviatoric pull (|F|, not zero at rest) against a
-        # hydrostatic push of strength lambda; with lambda small against mu (nu below 1/6) the pull wins
-        # within a substep and stiff bodies blow up, so "auto" uses the Green-strain (StVK) set there.
+        # hydrostatic push; with lambda (not lambda + mu, below) as the push's weight and lambda small
+        # against mu (nu below 1/6) the pull won within a substep and stiff bodies blew up. With the
+        # weight lambda + mu they hold at the extremes, but "auto" keeps the Green-strain (StVK) set there.
         if constraints == "auto":
             constraints = "neohookean" if self.lam >= 0.5 * self.mu else "stvk"
         self.constraints = constraints
