@@ -35,6 +35,7 @@ from chainsim.components.deform_events import (
     as_points,
 )
 from chainsim.components.deformable import Deformable, Pull, mirror_chainmail, setup_deformable, use_model
+from chainsim.components.hud import HudState
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import EntityIndex, PackResource
 from chainsim.components.view_events import Dragged
@@ -58,6 +59,7 @@ class DeformationState:
     switches: int = 0
     moved_total: int = 0
     errors: list = field(default_factory=list)
+    announced: bool = False  # the HUD has said which model `auto` chose, and why
 
 
 # -- frames --------------------------------------------------------------------------------------
@@ -257,6 +259,10 @@ def reset(d: Deformable) -> int:
 def deformation_system(app) -> None:
     """Serve every request in the order it was emitted (a release after a grab undoes that grab's hold)."""
     st: DeformationState = app.resource(DeformationState)
+    if not st.announced:
+        st.announced = True
+        for line in model_lines(auto_only=True):
+            _say(app, line, 10.0)
     counts: dict[int, list] = {}
     drag_type = type(None) if st.drag_type is None else st.drag_type
     for ev in st.requests.read():
@@ -285,6 +291,24 @@ REQUESTS = (GrabRequest, ReleaseRequest, CutRequest, AddLinksRequest, ResetReque
 SWITCH_ORDER = ("chainmail", "xpbd", "projective")
 
 
+def model_lines(auto_only: bool = False) -> list[str]:
+    """One line per soft body naming the model it runs and why (for `auto`: the choice and its reason)."""
+    out = []
+    for ent, d in esper.get_component(Deformable):
+        if auto_only and not d.model_reason.startswith("auto"):
+            continue
+        name = esper.component_for_entity(ent, Name).value if esper.has_component(ent, Name) else f"body {ent}"
+        why = d.model_reason if d.model_reason.startswith("auto") else ""
+        out.append(f"{name}: {d.model_used}" + (f" - {why}" if why else ""))
+    return out
+
+
+def _say(app, text: str, seconds: float) -> None:
+    hud = app.get_resource(HudState)
+    if hud is not None:
+        hud.message(text, seconds)
+
+
 def switch_models(app, st: DeformationState, value: str) -> None:
     """Put every deformable body under another model, from rest: `value` names one or is "next"."""
     for _ent, d in esper.get_component(Deformable):
@@ -300,6 +324,9 @@ def switch_models(app, st: DeformationState, value: str) -> None:
             st.errors.append(f"model switch: {e}")
         else:
             st.switches += 1
+    models = sorted({d.model_used for _e, d in esper.get_component(Deformable)})
+    if models:
+        _say(app, f"Tissue model: {', '.join(models)} (m switches)", 3.0)
 
 
 def _serve(app, st: DeformationState, req, counts: dict) -> None:

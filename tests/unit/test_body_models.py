@@ -112,3 +112,44 @@ def test_auto_in_a_pack_reports_its_choice_in_the_summary(tmp_path):
     (body,) = s["models"].values()
     assert body["model"] in ("chainmail", "xpbd", "projective")
     assert body["why"].startswith("auto:")
+
+
+def test_auto_names_its_choice_and_reason_in_the_hud():
+    from chainsim.components.hud import HudState
+
+    app = build_app("chainmail-demo/volume", settings={"model": "auto"})
+    try:
+        app.update(app.time.dt)
+        texts = [t for t, _ in app.resource(HudState).messages]
+        with app.active():
+            ((_, d),) = esper.get_component(Deformable)
+        assert any(f": {d.model_used} - auto: {d.model_used}" in t and "study scene" in t for t in texts), texts
+    finally:
+        app.close()
+
+
+def test_the_cutting_panel_says_why_auto_chose_its_model():
+    from chainsim.components.hud import HudState
+
+    app = build_app("cutting", settings={"model": "auto"})
+    try:
+        for _ in range(3):
+            app.update(app.time.dt)
+        panel = app.resource(HudState).panel_text
+        assert any(line.startswith("Tissue model:") for line in panel), panel
+        assert any(line.startswith("auto:") for line in panel), panel
+    finally:
+        app.close()
+
+
+def test_a_model_switch_is_said_in_the_hud():
+    from chainsim.components.hud import HudState
+
+    app = build_app("chainmail-demo/volume", settings={"model": "chainmail"})
+    try:
+        app.resource(PendingInput).push(app.time.sim_time, Widget("model", True))
+        for _ in range(2):
+            app.update(app.time.dt)
+        assert any(t.startswith("Tissue model: xpbd") for t, _ in app.resource(HudState).messages)
+    finally:
+        app.close()

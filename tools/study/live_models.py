@@ -4,7 +4,7 @@ Baselines set the floor a model must beat for its figure to mean anything: "only
 moves" (u = 0 elsewhere) and a distance-weighted blend of the grab displacement (each node moves by
 d_fixed / (d_fixed + d_grab) of it, no physics). The live models run through the body API the
 simulator uses, frame by frame from rest at 60 Hz, until their positions settle; a row keeps the
-cost per frame, the frames it took, and the settled field.
+cost per frame, the frames it took, the settled field and the grab's reaction force.
 """
 
 from __future__ import annotations
@@ -63,5 +63,8 @@ def settle(make, scene, strain: float, E: float, nu: float) -> tuple[np.ndarray,
         if np.max(np.abs(body.positions - before)) < SETTLE * d:
             status = "settled"
             break
+    force = body.grab_force()  # the reaction the settled grab needs (None for a model without forces)
     info = {"frames": frames, "ms_per_frame": 1e3 * cpu / frames, "status": status}
+    if force is not None:
+        info["grab_force_N"] = float(np.asarray(force) @ scene.direction)
     return body.positions - scene.pos, info

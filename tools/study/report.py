@@ -254,6 +254,41 @@ def frame_cost_table(summaries: list[dict]) -> str:
     return _table(["pack", "scene", "system", "mean ms", "max ms", "share"], rows)
 
 
+def forces_section(results) -> list[str]:
+    """Markdown lines comparing each live model's settled grab reaction with the force reference."""
+    forces = results.get("forces") or []
+    if not forces:
+        return []
+    names = sorted({m for f in forces for m in f["live"]})
+    L = [
+        f"## Forces: the grab reaction at {results['pareto_strain']:.0%} pull",
+        "",
+        "The force the grab applies along the pull once the body has settled (`body.grab_force()`), in "
+        "newtons, against a reference that does not lock. Linear P1 tetrahedra lock at nu = 0.45, so "
+        "the reference is linear elasticity on quadratic (P2, 10-node) tetrahedra of the same mesh times "
+        "the neo-Hookean / linear P1 reaction ratio there (the large-strain part): "
+        f"*{forces[0]['reference_name']}*. "
+        "`/ ref` is a model's force over the reference; `/ P1 NL` is over the neo-Hookean P1 reaction, "
+        "the best a model on these linear tetrahedra can reach. ChainMail has no force model "
+        "(`grab_force()` is None) and has no row.",
+        "",
+    ]
+    head = ["scene", "nodes", "P2 nodes", "P1 linear", "P1 neo-Hookean", "P2 linear", "reference"]
+    for m in names:
+        head += [m, "/ ref", "/ P1 NL"]
+    rows = []
+    for f in forces:
+        row = [f["scene"], f["nodes"], f["p2_nodes"], f["p1_linear"], f.get("p1_neohookean"), f["p2_linear"]]
+        row.append(f["reference"])
+        for m in names:
+            v = f["live"].get(m)
+            nl = f.get("p1_neohookean")
+            row += [v, None if v is None else v / f["reference"], None if v is None or not nl else v / nl]
+        rows.append(row)
+    L += [_table(head, rows), ""]
+    return L
+
+
 def render_markdown(results, files, pack_section: str) -> str:
     r = results
     L = [
@@ -326,6 +361,7 @@ def render_markdown(results, files, pack_section: str) -> str:
         )
         refs = sorted({(x["nodes"], x["reference"]) for x in r["rows"] if x["scene"] == scene}, key=lambda t: t[0])
         L += ["", "References: " + "; ".join(f"{n} nodes: {ref}" for n, ref in refs), ""]
+    L += forces_section(r)
     L += ["## FEM agreement (linear vs neo-Hookean, coarsest mesh)", ""]
     tab = [
         (x["scene"], x["nodes"], x["strain"], x["rms_error"], x["max_error"])

@@ -24,6 +24,7 @@ from . import scenes as sc
 from .chainmail_model import ChainMailModel, ChainMailParams
 from .fem_linear import LinearFEM, LockingWarning
 from .fem_nonlinear import NeoHookeanFEM
+from .forces import reference_forces
 from .live_models import LIVE, baseline_blend, baseline_patch, settle
 from .mass_spring import SYMPLECTIC, MassSpring, integrate
 from .metrics import displacement_error, median_time, realtime_size, volume_change
@@ -38,8 +39,8 @@ RELAX = [0, 4, 16, 64]
 
 # budgets (nodes): above these a solver is not run at that resolution
 LIMITS = {
-    "full": {"nl": 2000, "lin": 12000, "ms": 12000, "ms_explicit": 2000, "live": 12000},
-    "quick": {"nl": 1000, "lin": 2500, "ms": 2500, "ms_explicit": 600, "live": 600},
+    "full": {"nl": 2000, "lin": 12000, "ms": 12000, "ms_explicit": 2000, "live": 12000, "force": 2000},
+    "quick": {"nl": 1000, "lin": 2500, "ms": 2500, "ms_explicit": 600, "live": 600, "force": 1000},
 }
 
 
@@ -84,7 +85,7 @@ def _row(scene, res_n, model, strain, u, ref, ref_name, t, iters, status, extra=
     return row
 
 
-def run_scene(name, resolutions, strains, limits, cm_settings, repeats, rows, timings):
+def run_scene(name, resolutions, strains, limits, cm_settings, repeats, rows, timings, forces=None):
     prev = None  # (scene, {strain: ref}, {strain: lin}, {strain: nl})
     for res_n in resolutions:
         scene = sc.SCENES[name](res_n)
@@ -93,6 +94,7 @@ def run_scene(name, resolutions, strains, limits, cm_settings, repeats, rows, ti
         c = scene.constrained
         refs, lins, nls = {}, {}, {}
         ref_name = None
+        fem = None
         # --- linear FEM -------------------------------------------------------------------
         if n <= limits["lin"]:
             with warnings.catch_warnings():
@@ -241,10 +243,22 @@ def run_scene(name, resolutions, strains, limits, cm_settings, repeats, rows, ti
                             info["ms_per_frame"] / 1e3,
                             info["frames"],
                             info["status"],
-                            {"frames_to_settle": info["frames"]},
+                            {"frames_to_settle": info["frames"], "grab_force_N": info.get("grab_force_N")},
                         )
                     )
                 log(f"  {label}: {[r['iterations'] for r in rows[-len(strains) :]]} frames to settle")
+        # --- forces: the grab reaction against a reference that does not lock -------------------
+        fs = PARETO_STRAIN
+        if forces is not None and n <= limits.get("force", 0) and fs in lins:
+            t0 = time.perf_counter()
+            ref = reference_forces(scene, fs, E_STUDY, NU_STUDY, lin, lins[fs], fem, nls.get(fs))
+            live = {
+                r["model"]: r["grab_force_N"]
+                for r in rows
+                if r["scene"] == name and r["nodes"] == n and r["strain"] == fs and r.get("grab_force_N") is not None
+            }
+            forces.append({"scene": name, "nodes": n, "strain": fs, **ref, "live": live})
+            log(f"  forces: reference {ref['reference']:.4g} N ({time.perf_counter() - t0:.1f}s), live {live}")
         # --- mass-spring -------------------------------------------------------------------
         ms = MassSpring(scene.pos, scene.tets, E_STUDY, fixed=scene.fixed)
         if n <= limits["ms"]:
@@ -410,11 +424,11 @@ def run(quick: bool, out_dir, scenes=None) -> dict:
     resolutions = sc.QUICK_RESOLUTIONS if quick else sc.RESOLUTIONS
     repeats = 3 if quick else 5
     cm_settings = default_chainmail_settings()
-    rows, timings = [], []
+    rows, timings, forces = [], [], []
     t0 = time.thread_time()
     w0 = time.perf_counter()
     for name in scenes or list(sc.SCENES):
-        run_scene(name, resolutions[name], strains, limits, cm_settings, repeats, rows, timings)
+        run_scene(name, resolutions[name], strains, limits, cm_settings, repeats, rows, timings, forces)
     log("mass-spring stability sweep")
     stability = stability_sweep(n=6 if quick else 8)
     results = {
@@ -427,6 +441,7 @@ def run(quick: bool, out_dir, scenes=None) -> dict:
         "timings": timings,
         "stability": stability,
         "realtime": realtime_table(rows, timings),
+        "forces": forces,
         "chainmail_settings": {k: vars(v) for k, v in cm_settings.items()},
         "elapsed_cpu_s": time.thread_time() - t0,
         "elapsed_wall_s": time.perf_counter() - w0,

@@ -146,6 +146,20 @@ class Body:
         pts = check_positions("cut path", points)
         return sum(self._cut(a, b, normal, depth) for a, b in zip(pts[:-1], pts[1:]))
 
+    def elastic_forces(self) -> np.ndarray | None:
+        """Elastic forces (N, 3) in newtons in the current state (minus the energy gradient), or None for a
+        model without a force model (ChainMail: its limits are geometry, not an energy)."""
+        return None
+
+    def grab_force(self) -> np.ndarray | None:
+        """The force (3,) in newtons the grab applies to the body to hold its elements where they are:
+        minus the sum of the elastic forces on the grabbed elements (the tool feels its opposite). At
+        equilibrium this is the grab's reaction force. None where the model has no forces (ChainMail)."""
+        f = self.elastic_forces()
+        if f is None:
+            return None
+        return -f[self.grab_ids].sum(axis=0) if len(self.grab_ids) else np.zeros(3)
+
     def reset(self) -> None:
         """Back to rest (cuts stay; a new body undoes them)."""
         self.positions[:] = self.rest

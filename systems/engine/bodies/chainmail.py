@@ -181,6 +181,11 @@ class ChainMailBody(Body):
         self.moved = np.zeros(0, dtype=np.int64)
         return StepStats()
 
+    def elastic_forces(self) -> None:
+        """None: ChainMail has no force model. Its limits are geometric (5.2.6), there is no energy whose
+        gradient would be a force, so `grab_force()` is None too; use XPBD or projective for forces."""
+        return None
+
     def _cut(self, p0, p1, normal, depth) -> int:
         kw = {}
         if normal is not None:

@@ -31,7 +31,7 @@ def make_body(
     tets: ArrayLike | None = None,
     triangles: ArrayLike | None = None,
     fixed: ArrayLike | None = None,
-    **settings: float,
+    **settings: float | str | bool,
 ) -> Body:
     """An XPBD or projective-dynamics body on `tets` (or, for XPBD, surface `triangles`)."""
     has_tets = tets is not None and len(tets) > 0
@@ -41,6 +41,7 @@ def make_body(
         return XPBDBody(rest, tets if has_tets else None, None if has_tets else triangles, fixed=fixed, **kw)
     if model == "projective":
         keys = ("E", "nu", "density", "damping", "iterations", "unit", "thickness")
+        keys += ("dynamic", "solver", "cg_iterations", "rotation_iterations")
         kw = {k: settings[k] for k in keys if k in settings}
         return ProjectiveBody(rest, tets if has_tets else None, None if has_tets else triangles, fixed=fixed, **kw)
     raise UserError(f"model: expected one of {', '.join(MODELS)}, got {model!r}")

@@ -18,7 +18,7 @@ from chainsim.engine.bodies.base import Body, StepStats, check_elastic
 from chainsim.engine.errors import UserError
 from chainsim.engine.kernels.graph import build_graph
 from chainsim.engine.kernels.topology import cut_segment
-from chainsim.engine.kernels.xpbd import distance_sweep, stvk_sweep, tet_energy, tet_sweep
+from chainsim.engine.kernels.xpbd import distance_sweep, stvk_sweep, tet_energy, tet_forces, tet_sweep
 
 CONSTRAINTS = ("auto", "neohookean", "stvk")
 
@@ -91,12 +91,17 @@ class XPBDBody(Body):
         if constraints not in CONSTRAINTS:
             raise UserError(f"constraints: expected one of {', '.join(CONSTRAINTS)}, got {constraints!r}")
         # The stable Neo-Hookean constraints balance a deviatoric pull (|F|, not zero at rest) against a
-        # hydrostatic push of strength lambda; with lambda small against mu (nu below 1/6) the pull wins
-        # within a substep and stiff bodies blow up, so "auto" uses the Green-strain (StVK) set there.
+        # hydrostatic push; with lambda (not lambda + mu, below) as the push's weight and lambda small
+        # against mu (nu below 1/6) the pull won within a substep and stiff bodies blew up. With the
+        # weight lambda + mu they hold at the extremes, but "auto" keeps the Green-strain (StVK) set there.
         if constraints == "auto":
             constraints = "neohookean" if self.lam >= 0.5 * self.mu else "stvk"
         self.constraints = constraints
-        self.lam_eff = max(self.lam, 1e-3 * self.mu)
+        # Smith, de Goes and Kim's reparameterisation (stable Neo-Hookean, their 3.4): the energy
+        # mu/2 |F|^2 + l/2 (J - 1 - mu/l)^2 linearises to linear elasticity with Lame lambda = l - mu,
+        # so the hydrostatic weight is l = lambda + mu. With l = lambda the body was softer in volume
+        # than (E, nu) say: at nu = 0.3 its small-strain lambda was a third of the right one.
+        self.lam_eff = self.lam + self.mu
         self.gamma = 1.0 + self.mu / self.lam_eff
         rest_si = self.rest * self.unit
         self.tets = None if tets is None or len(tets) == 0 else np.ascontiguousarray(tets, dtype=np.int64)
@@ -174,21 +179,30 @@ class XPBDBody(Body):
         if hasattr(self, "x"):
             self.x[:] = np.asarray(value) * self.unit
 
+    def _grab_changed(self) -> None:
+        self._w = None  # the inverse masses change with the held set
+
     def _solve(self, dt: float) -> StepStats:
         t0 = time.perf_counter()
         h = dt / self.substeps
         h2 = h * h
-        w = np.where(self.fixed, 0.0, 1.0 / self.mass)
-        w[self.grab_ids] = 0.0
+        if getattr(self, "_w", None) is None or not np.array_equal(self._fixed_seen, self.fixed):
+            self._fixed_seen = self.fixed.copy()
+            w = np.where(self.fixed, 0.0, 1.0 / self.mass)
+            w[self.grab_ids] = 0.0
+            self._w, self._pinned = w, w == 0.0
+            nt = len(self.tets) if self.tets is not None else 0
+            self._lam_d, self._lam_h, self._lam_p = np.zeros(nt), np.zeros(nt), np.zeros(len(self.pairs))
+            self._prev = np.empty_like(self.x)
+        w, lam_d, lam_h, lam_p, prev = self._w, self._lam_d, self._lam_h, self._lam_p, self._prev
         target = self.grab_targets * self.unit
         start = self.x[self.grab_ids].copy()
-        lam_d = np.zeros(len(self.tets) if self.tets is not None else 0)
-        lam_h = np.zeros_like(lam_d)
-        lam_p = np.zeros(len(self.pairs))
+        gravity = bool(np.any(self.gravity != 0.0))
         worst = 0.0
         for s in range(self.substeps):
-            prev = self.x.copy()
-            self.v += h * self.gravity * (w > 0.0)[:, None]
+            prev[:] = self.x
+            if gravity:
+                self.v += h * self.gravity * (w > 0.0)[:, None]
             self.x += h * self.v
             # grabbed elements travel to their targets over the step (no teleporting impulse)
             f = (s + 1) / self.substeps
@@ -220,8 +234,10 @@ class XPBDBody(Body):
                     worst = distance_sweep(
                         self.x, w, self.pairs, self.rest_len, self.compliance, self.pair_active, h2, lam_p
                     )
-            self.v = (self.x - prev) / h * (1.0 - self.damping)
-            self.v[w == 0.0] = 0.0
+            # v = (x - prev) / h * (1 - damping), in place
+            np.subtract(self.x, prev, out=self.v)
+            self.v *= (1.0 - self.damping) / h
+            self.v[self._pinned] = 0.0
         self._positions[:] = self.x / self.unit
         return StepStats(self.substeps * self.iterations, float(worst), 0, time.perf_counter() - t0)
 
@@ -246,6 +262,25 @@ class XPBDBody(Body):
         super().reset()
         self.x[:] = self.rest * self.unit
         self.v[:] = 0.0
+
+    def elastic_forces(self) -> np.ndarray:
+        """Elastic forces (N, 3) in newtons on every element in the current state: minus the gradient of
+        the constraint energy (Neo-Hookean or StVK tetrahedra; stretch and bending springs on surfaces).
+        At rest they vanish; at small strain they are linear FEM's -K u for the same (E, nu)."""
+        f = np.zeros_like(self.x)
+        if self.tets is not None:
+            stvk = self.constraints == "stvk"
+            lam = self.lam if stvk else self.lam_eff
+            tet_forces(self.x, self.tets, self.dm_inv, self.vol, self.tet_active, self.mu, lam, self.gamma, stvk, f)
+        if len(self.pairs):
+            a, b = self.pairs[:, 0], self.pairs[:, 1]
+            d = self.x[a] - self.x[b]
+            ln = np.maximum(np.linalg.norm(d, axis=1), 1e-300)
+            k = np.where(self.pair_active, 1.0 / self.compliance, 0.0)
+            fa = -(k * (ln - self.rest_len) / ln)[:, None] * d  # C = |d| - L, force on a: -k C d/|d|
+            np.add.at(f, a, fa)
+            np.add.at(f, b, -fa)
+        return f
 
     def energy(self) -> dict:
         """Kinetic and elastic energy (J) of the current state: a check that nothing blows up."""

@@ -2,7 +2,8 @@
 
 Tetrahedra follow Macklin and Mueller's constraint form of stable Neo-Hookean elasticity: a
 deviatoric constraint C_D = |F|_F with compliance 1/(mu V) and a hydrostatic one C_H = det F - gamma,
-gamma = 1 + mu/lambda, with compliance 1/(lambda V); each is projected with the XPBD update
+gamma = 1 + mu/l, with compliance 1/(l V), where the caller passes l = lambda + mu (Smith et al.'s
+reparameterisation, so small strains meet linear elasticity with Lame lambda); each is projected with the XPBD update
 dlambda = (-C - a~ lambda) / (sum w |grad C|^2 + a~), a~ = compliance / h^2. Distance constraints
 (surface stretch and bending) use C = |xi - xj| - L. One Gauss-Seidel sweep per call, in element
 order, so results do not depend on the thread count.
@@ -30,9 +31,12 @@ def tet_sweep(x, w, tets, dm_inv, vol, active, mu, lam, gamma, h2, lam_d, lam_h)
 
     x (N,3) positions, w (N,) inverse masses (0: pinned), tets (T,4), dm_inv (T,3,3), vol (T,),
     active (T,) bool, lam_d / lam_h (T,) accumulated multipliers of this step. Returns max |C_H|.
+    The scratch matrices live outside the loop: an allocation per tetrahedron cost as much as its math.
     """
     g = np.zeros((4, 3))
     ids = np.zeros(4, dtype=np.int64)
+    F = np.zeros((3, 3))
+    P = np.zeros((3, 3))
     worst = 0.0
     for t in range(tets.shape[0]):
         if not active[t]:
@@ -44,17 +48,18 @@ def tet_sweep(x, w, tets, dm_inv, vol, active, mu, lam, gamma, h2, lam_d, lam_h)
         if wsum_any == 0.0:
             continue
         # F = Ds Dm^-1, Ds columns x_b - x_a, x_c - x_a, x_d - x_a
-        F = np.zeros((3, 3))
-        for r in range(3):
-            e1 = x[b, r] - x[a, r]
-            e2 = x[c, r] - x[a, r]
-            e3 = x[d, r] - x[a, r]
-            for col in range(3):
-                F[r, col] = e1 * dm_inv[t, 0, col] + e2 * dm_inv[t, 1, col] + e3 * dm_inv[t, 2, col]
+        _deformation(x, tets, dm_inv, t, F)
         # -- deviatoric: C = |F|, dC/dF = F / |F|
-        nf = np.sqrt(np.sum(F * F))
+        nf2 = 0.0
+        for r in range(3):
+            for col in range(3):
+                nf2 += F[r, col] * F[r, col]
+        nf = np.sqrt(nf2)
         if nf > 1e-12 and mu * vol[t] * h2 > 0.0:
-            P = F / nf
+            inv = 1.0 / nf
+            for r in range(3):
+                for col in range(3):
+                    P[r, col] = F[r, col] * inv
             _grads(P, dm_inv[t], g)
             den = w[a] * _sq(g, 0) + w[b] * _sq(g, 1) + w[c] * _sq(g, 2) + w[d] * _sq(g, 3)
             alpha = 1.0 / (mu * vol[t] * h2)
@@ -62,19 +67,8 @@ def tet_sweep(x, w, tets, dm_inv, vol, active, mu, lam, gamma, h2, lam_d, lam_h)
                 dl = (-nf - alpha * lam_d[t]) / (den + alpha)
                 lam_d[t] += dl
                 _apply(x, w, ids, g, dl)
-                for r in range(3):
-                    e1 = x[b, r] - x[a, r]
-                    e2 = x[c, r] - x[a, r]
-                    e3 = x[d, r] - x[a, r]
-                    for col in range(3):
-                        F[r, col] = e1 * dm_inv[t, 0, col] + e2 * dm_inv[t, 1, col] + e3 * dm_inv[t, 2, col]
+                _deformation(x, tets, dm_inv, t, F)
         # -- hydrostatic: C = det F - gamma, dC/dF = cofactor(F)
-        J = (
-            F[0, 0] * (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1])
-            - F[0, 1] * (F[1, 0] * F[2, 2] - F[1, 2] * F[2, 0])
-            + F[0, 2] * (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0])
-        )
-        P = np.zeros((3, 3))
         # columns of the cofactor: f1 x f2, f2 x f0, f0 x f1 (f_i the columns of F)
         for r in range(3):
             r1 = (r + 1) % 3
@@ -82,15 +76,17 @@ def tet_sweep(x, w, tets, dm_inv, vol, active, mu, lam, gamma, h2, lam_d, lam_h)
             P[r, 0] = F[r1, 1] * F[r2, 2] - F[r2, 1] * F[r1, 2]
             P[r, 1] = F[r1, 2] * F[r2, 0] - F[r2, 2] * F[r1, 0]
             P[r, 2] = F[r1, 0] * F[r2, 1] - F[r2, 0] * F[r1, 1]
+        J = F[0, 0] * P[0, 0] + F[1, 0] * P[1, 0] + F[2, 0] * P[2, 0]
         _grads(P, dm_inv[t], g)
         den = w[a] * _sq(g, 0) + w[b] * _sq(g, 1) + w[c] * _sq(g, 2) + w[d] * _sq(g, 3)
         C = J - gamma
         kv = lam * vol[t] * h2
-        alpha = 1.0 / kv if kv > 0.0 else np.inf
-        if kv > 0.0 and den + alpha > 0.0:
-            dl = (-C - alpha * lam_h[t]) / (den + alpha)
-            lam_h[t] += dl
-            _apply(x, w, ids, g, dl)
+        if kv > 0.0:
+            alpha = 1.0 / kv
+            if den + alpha > 0.0:
+                dl = (-C - alpha * lam_h[t]) / (den + alpha)
+                lam_h[t] += dl
+                _apply(x, w, ids, g, dl)
         if abs(J - 1.0) > worst:
             worst = abs(J - 1.0)
     return worst
@@ -233,3 +229,48 @@ def stvk_sweep(x, w, tets, dm_inv, vol, active, mu, lam, h2):
         if abs(J - 1.0) > worst:
             worst = abs(J - 1.0)
     return worst
+
+
+@njit(cache=True)
+def tet_forces(x, tets, dm_inv, vol, active, mu, lam, gamma, stvk, out):
+    """Elastic forces -dPsi/dx of the live tets' energy, added into out (N, 3).
+
+    stvk False: the stable Neo-Hookean constraint energy V (mu/2 |F|^2 + lam/2 (J - gamma)^2), first
+    Piola stress P = mu F + lam (J - gamma) cof F; stvk True: V (mu |E|^2 + lam/2 (J - 1)^2) with
+    E = (F^T F - I)/2, P = 2 mu F E + lam (J - 1) cof F. Vertex k of a tet gets -V (P Dm^-T) column k.
+    """
+    g = np.zeros((4, 3))
+    F = np.zeros((3, 3))
+    P = np.zeros((3, 3))
+    C = np.zeros((3, 3))
+    E = np.zeros((3, 3))
+    for t in range(tets.shape[0]):
+        if not active[t]:
+            continue
+        _deformation(x, tets, dm_inv, t, F)
+        for r in range(3):
+            r1 = (r + 1) % 3
+            r2 = (r + 2) % 3
+            C[r, 0] = F[r1, 1] * F[r2, 2] - F[r2, 1] * F[r1, 2]
+            C[r, 1] = F[r1, 2] * F[r2, 0] - F[r2, 2] * F[r1, 0]
+            C[r, 2] = F[r1, 0] * F[r2, 1] - F[r2, 0] * F[r1, 1]
+        J = F[0, 0] * C[0, 0] + F[1, 0] * C[1, 0] + F[2, 0] * C[2, 0]
+        if stvk:
+            for i in range(3):
+                for j in range(3):
+                    dot = F[0, i] * F[0, j] + F[1, i] * F[1, j] + F[2, i] * F[2, j]
+                    E[i, j] = 0.5 * (dot - (1.0 if i == j else 0.0))
+            for r in range(3):
+                for c in range(3):
+                    P[r, c] = 2.0 * mu * (F[r, 0] * E[0, c] + F[r, 1] * E[1, c] + F[r, 2] * E[2, c])
+                    P[r, c] += lam * (J - 1.0) * C[r, c]
+        else:
+            for r in range(3):
+                for c in range(3):
+                    P[r, c] = mu * F[r, c] + lam * (J - gamma) * C[r, c]
+        _grads(P, dm_inv[t], g)
+        for k in range(4):
+            i = tets[t, k]
+            out[i, 0] -= vol[t] * g[k, 0]
+            out[i, 1] -= vol[t] * g[k, 1]
+            out[i, 2] -= vol[t] * g[k, 2]

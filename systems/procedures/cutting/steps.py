@@ -232,6 +232,8 @@ def panel_lines(app, st: CuttingState) -> list[str]:
         tool += f" (holding {st.names.get(f.held_entity, '?')})"
     top = esper.component_for_entity(st.top, Deformable)
     lines = [f"Tool: {tool}", f"Tissue model: {top.model_used} (m switches)"]
+    if top.model_reason.startswith("auto"):  # which model the budget chose, and why
+        lines.append(top.model_reason)
     if v:
         cut = ", ".join(v["layers_cut"]) or "none"
         lines += [
