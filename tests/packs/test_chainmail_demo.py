@@ -87,3 +87,19 @@ def test_headless_runs_are_reproducible(scene, tmp_path):
     assert a["digest"] == b["digest"]
     assert a["events_applied"] == 1 and (tmp_path / "a" / "summary.json").is_file()
     assert "simulation/deformation" in a["systems"]
+
+
+def test_patch_pull_keeps_every_link_inside_its_limits():
+    """The patch's material asks for exact limits: after the 18 mm pull (rim pinned) no link of the patch
+    is left outside its box, so the trainee sees a dome, never a spike on the pulled element."""
+    app, d, p = _run("patch")
+    try:
+        assert p.done
+        links = np.asarray(d.chainmail_links)
+        assert len(links) > 0
+        for a, b in links:
+            for e, s in ((a, b), (b, a)):
+                lo, hi = _box(d.rest, d.pos, e, s, 0.8, 1.2, 0.5)
+                assert np.all(d.pos[e] >= lo - 1e-6) and np.all(d.pos[e] <= hi + 1e-6), (e, s)
+    finally:
+        app.close()
