@@ -34,6 +34,18 @@ class Forceps:
         "float", 6.0, units="mm", help="A touch grabs the nearest element within this distance.", min=0.0
     )
     lift: float = prop("float", 12.0, units="mm", help="Height of the drawn shaft above the tip.", min=0.0)
+    push_step: float = prop(
+        "float", 2.0, units="mm", help="How far one press of the Push button pushes the held tissue in.", min=0.0
+    )
+    scroll_step: float = prop(
+        "float", 1.0, units="mm", help="How far one wheel notch pulls (up) or pushes (down) the held tissue.", min=0.0
+    )
+    view_yaw: float = prop(
+        "float", 30.0, units="deg", help="Yaw of the frozen views when the forceps are chosen (thesis 4.5.2)."
+    )
+    view_pitch: float = prop(
+        "float", 35.0, units="deg", help="Pitch of the frozen views when the forceps are chosen.", min=-89.0, max=89.0
+    )
     # runtime state
     held_entity: int = -1  # deformable entity held, -1 when open
     held_element: int = -1
@@ -58,6 +70,12 @@ class Scissors:
         "float", 0.5, units="mm", help="Path points closer than this to the last one are skipped.", min=0.0
     )
     blade: float = prop("float", 10.0, units="mm", help="Length of the drawn blade.", min=0.0)
+    view_yaw: float = prop(
+        "float", 0.0, units="deg", help="Yaw of the frozen views when the scissors are chosen (thesis 4.5.2)."
+    )
+    view_pitch: float = prop(
+        "float", 75.0, units="deg", help="Pitch of the frozen views when the scissors are chosen.", min=-89.0, max=89.0
+    )
     depth: float = prop(
         "float",
         4.0,

@@ -295,9 +295,10 @@ section(
             "done_on",
             "str_list",
             [],
-            help="Needle procedure: events that complete this step and move on to the next (click:ROLE, "
-            "landmark:ID, dial:WIDGET, depth, contact:ROLE, button:WIDGET; docs/needle-procedures.md); steps "
-            "only move forward, and Next moves on one step.",
+            help="Events that complete this step. Needle procedure (click:ROLE, landmark:ID, dial:WIDGET, "
+            "depth, contact:ROLE, button:WIDGET; docs/needle-procedures.md): steps only move forward, and Next "
+            "moves on one step. Cutting procedure (carried:MM, cut:MM, opened:MM; docs/making-a-pack.md): any "
+            "one completes the step, in whatever order the trainee works.",
         ),
         Field(
             "landmark",

@@ -276,7 +276,38 @@ def test_a_pack_without_forceps_is_refused(tmp_path):
     dst = tmp_path / "cutting"
     shutil.copytree(PACK, dst)
     text = (dst / "pack.toml").read_text()
-    text = text.replace("[entities.forceps.forceps]\nspeed = 40.0\nreach = 6.0\n", "")
+    head = text.index("[entities.forceps.forceps]\n")
+    text = text[:head] + text[text.index("\n[", head) + 1 :]  # the whole [forceps] table
     (dst / "pack.toml").write_text(text)
     with pytest.raises(UserError, match=r"exactly one entity with a \[forceps\] table"):
+        build_app(str(dst))
+
+
+def test_steps_complete_on_the_events_the_pack_declares(tmp_path):
+    """A step says in data what completes it: a 3 mm carry completes a pull step that asks for 2 mm,
+    not the shipped one that asks for 5 mm."""
+    dst = tmp_path / "cutting"
+    shutil.copytree(PACK, dst)
+    text = (dst / "pack.toml").read_text()
+    assert 'done_on = ["carried:5"]' in text
+    (dst / "pack.toml").write_text(text.replace('done_on = ["carried:5"]', 'done_on = ["carried:2"]'))
+    carry = [(0.0, Widget("forceps")), (0.0, PickPoint("dura", CORNER)), (0.0, Widget("pull_by", "0, 0, 3"))]
+    done = {}
+    for ref in ("cutting", str(dst)):
+        a = make(ref, carry)
+        try:
+            steps(a, 60)
+            done[ref] = a.resource(Assessment).values["steps_done"]
+        finally:
+            a.close()
+    assert done["cutting"] == [] and done[str(dst)] == ["pull"]
+
+
+@pytest.mark.parametrize("bad", ["carried", "carried:x", "lifted:5", "cut:-1"])
+def test_a_step_event_the_procedure_cannot_read_is_one_line(tmp_path, bad):
+    dst = tmp_path / "cutting"
+    shutil.copytree(PACK, dst)
+    text = (dst / "pack.toml").read_text()
+    (dst / "pack.toml").write_text(text.replace('done_on = ["cut:20"]', f'done_on = ["{bad}"]'))
+    with pytest.raises(UserError, match=r"steps\.cut\.done_on: .* is not an event of the cutting procedure"):
         build_app(str(dst))

@@ -20,7 +20,6 @@ from chainsim.engine.raycast import ray_mesh
 from chainsim.systems.picking import entity_surface
 from chainsim.systems.procedures.cutting.state import (
     PUSH_BUTTON_MM,
-    SCROLL_MM,
     TOOLS,
     CuttingState,
     ToolUse,
@@ -203,7 +202,7 @@ class ToolsSystem:
             self.lift_blade(app)
         elif name in ("pull", "pull_by", "push"):
             f = esper.component_for_entity(st.forceps, Forceps)
-            value = widget_value(name, ev.value)
+            value = f.push_step if name == "push" and ev.value is None else widget_value(name, ev.value)
             if st.tool != "forceps" or f.held_entity < 0:
                 self.say(app, "Choose the forceps and grip the tissue first.")
                 return
@@ -288,7 +287,7 @@ class ToolsSystem:
             return  # an orbit view zooms with the wheel instead
         f = esper.component_for_entity(self.st.forceps, Forceps)
         if f.held_entity >= 0:
-            self.push(app, -SCROLL_MM * ev.dy)
+            self.push(app, -f.scroll_step * ev.dy)
 
     def __call__(self, app) -> None:
         st = self.st

@@ -56,7 +56,13 @@ from chainsim.engine.errors import UserError
 from chainsim.systems.deformation import DeformationState
 from chainsim.systems.procedures.cutting.assessment import AssessmentSystem
 from chainsim.systems.procedures.cutting.instruments import ToolsSystem, widget_value
-from chainsim.systems.procedures.cutting.state import STEP_IDS, CuttingState, world_positions
+from chainsim.systems.procedures.cutting.state import (
+    DONE_EVENTS,
+    LEGACY_DONE_ON,
+    CuttingState,
+    parse_done_on,
+    world_positions,
+)
 from chainsim.systems.procedures.cutting.steps import StepsSystem
 from chainsim.systems.stages import ORDER_ASSESSMENT, ORDER_KINEMATICS, ORDER_PROCEDURE
 
@@ -107,13 +113,16 @@ def plugin(app) -> None:
         st.layers = sorted(layers, key=lambda e: (-heights[e], e))
         st.top = st.layers[0]
         st.names = {e: esper.component_for_entity(e, Name).value for e in st.layers}
+        # a step says what completes it (`done_on`); one without it keeps the meaning of its id
         step_ids = [s["id"] for s in pack.section("steps")]
-        unknown = [s for s in step_ids if s not in STEP_IDS]
-        if unknown:
-            raise UserError(
-                f"pack '{pack.name}': step '{unknown[0]}' is not a cutting-trainer step; steps are "
-                f"{', '.join(STEP_IDS)}"
-            )
+        for s in pack.section("steps"):
+            if not s.get("done_on") and s["id"] not in LEGACY_DONE_ON:
+                raise UserError(
+                    f"pack '{pack.name}': step '{s['id']}' says nothing that completes it; give it "
+                    f'done_on = ["KIND:MM"] (KIND: {", ".join(DONE_EVENTS)}) or use a step id of '
+                    f"{', '.join(LEGACY_DONE_ON)}"
+                )
+        st.step_events = [parse_done_on(s, f"steps.{s['id']}.done_on") for s in pack.section("steps")]
         st.step_ids = step_ids
         for ent, color in ((st.forceps, (0.3, 0.85, 0.95, 1.0)), (st.scissors, (0.95, 0.85, 0.25, 1.0))):
             esper.add_component(ent, PolyLine(np.zeros((0, 3)), color, False, "tools"))

@@ -14,15 +14,35 @@ from chainsim.components.resources import PackResource
 from chainsim.engine.errors import UserError
 
 TOOLS = ("forceps", "scissors")
-STEP_IDS = ("pull", "cut", "open")
-PUSH_BUTTON_MM = 2.0  # depth of one press of the Push button
-SCROLL_MM = 1.0  # forceps travel along the normal per scroll notch
+PUSH_BUTTON_MM = 2.0  # a scripted `push` without a value, checked before the run (forceps.push_step in play)
 MOVED_MM = 0.01  # an element this far from rest counts as displaced
-PULL_DONE_MM = 5.0  # 'pull' is done once a grip has carried tissue this far
-CUT_DONE_MM = 20.0  # 'cut' is done after this much cut path that removed links
-OPEN_DONE_MM = 10.0  # 'open' is done once a grip on a cut layer has carried it this far
-#: best views for each tool (4.5.2); each is framed on the layers' bounding box
-VIEWS = {"forceps": dict(yaw=30.0, pitch=35.0), "scissors": dict(yaw=0.0, pitch=75.0)}
+#: what completes a step without `done_on` (packs written before steps said it): its id's events
+LEGACY_DONE_ON = {"pull": ["carried:5"], "cut": ["cut:20"], "open": ["opened:10"]}
+#: the events a cutting step's `done_on` may name, each with a distance in mm (docs/making-a-pack.md)
+DONE_EVENTS = {
+    "carried": "the forceps have carried gripped tissue at least MM from where the grip began",
+    "cut": "the scissors' path, with links removed, is at least MM long",
+    "opened": "a grip on a layer that has been cut has carried it at least MM",
+}
+
+
+def parse_done_on(step: dict, where: str) -> list[tuple[str, float]]:
+    """A cutting step's completing events as (kind, mm), or one UserError line naming what is wrong."""
+    names = step.get("done_on") or LEGACY_DONE_ON.get(step.get("id", ""), [])
+    out = []
+    for ev in names:
+        kind, _, arg = ev.partition(":")
+        try:
+            mm = float(arg)
+        except ValueError:
+            mm = float("nan")
+        if kind not in DONE_EVENTS or not math.isfinite(mm) or mm < 0:
+            raise UserError(
+                f"{where}: '{ev}' is not an event of the cutting procedure (expected KIND:MM with KIND one of "
+                f"{', '.join(DONE_EVENTS)} and MM a distance >= 0, e.g. 'carried:5')"
+            )
+        out.append((kind, mm))
+    return out
 
 
 @dataclass(slots=True)
@@ -44,6 +64,7 @@ class CuttingState:
     top: int = -1
     names: dict = field(default_factory=dict)  # entity id -> name
     step_ids: list = field(default_factory=list)
+    step_events: list = field(default_factory=list)  # per step: [(kind, mm)] that complete it
     steps_done: list = field(default_factory=list)  # in the order they were done
     links_cut: dict = field(default_factory=dict)  # layer name -> links cut since the last reset
     cut_length: float = 0.0  # mm since the last reset

@@ -15,16 +15,14 @@ from chainsim.components.resources import Assessment, PackResource
 from chainsim.components.tools import Forceps, Scissors
 from chainsim.systems.picking import pick
 from chainsim.systems.procedures.cutting.state import (
-    CUT_DONE_MM,
-    OPEN_DONE_MM,
-    PULL_DONE_MM,
-    VIEWS,
     CuttingState,
     world_positions,
 )
 from chainsim.systems.ui.viewports import OrbitCamera
 from chainsim.systems.ui.widgets import WidgetState
 from chainsim.systems.view import ViewState, frame_view
+
+TOOL_COMPONENTS = {"forceps": Forceps, "scissors": Scissors}
 
 # -- views, reset, drawing -------------------------------------------------------------------------
 
@@ -42,18 +40,18 @@ def apply_view(app, st: CuttingState, tool: str) -> None:
     trainee's own viewpoint; a layout without a frozen view has its orbit views moved instead."""
 
     vs = app.get_resource(ViewState)
-    if vs is None or tool not in VIEWS:
+    if vs is None or tool not in TOOL_COMPONENTS:
         return
     lo, hi = tissue_bounds(st)
     if vs.scene_box is not None:  # the tissue as it is now, and the whole scene as it was (the brain too)
         lo, hi = np.minimum(lo, vs.scene_box[0]), np.maximum(hi, vs.scene_box[1])
-    v = VIEWS[tool]
+    comp = esper.component_for_entity(getattr(st, tool), TOOL_COMPONENTS[tool])
     frozen = [vp for vp in vs.viewports if vp.is_3d and not vp.mouse_camera]
     for vp in frozen or vs.viewports:
         cam = vp.camera
         if vp.kind not in ("orbit", "fixed") or not isinstance(cam, OrbitCamera):
             continue
-        cam.yaw, cam.pitch = v["yaw"], v["pitch"]
+        cam.yaw, cam.pitch = comp.view_yaw, comp.view_pitch
         frame_view(vs, vp, lo, hi)
 
 
@@ -161,16 +159,19 @@ class StepsSystem:
     def __init__(self, st: CuttingState):
         self.st = st
 
-    def step_done(self, app, step_id: str) -> bool:
+    def step_done(self, app, k: int) -> bool:
+        """Whether step k's `done_on` events (or, for a step without them, its id's: state.LEGACY_DONE_ON)
+        have happened: any one completes the step."""
         st = self.st
         f = esper.component_for_entity(st.forceps, Forceps)
         carried = float(np.linalg.norm(f.tip - f.grip_start)) if f.held_entity >= 0 else 0.0
-        if step_id == "pull":
-            return carried >= PULL_DONE_MM
-        if step_id == "cut":
-            return st.cut_length >= CUT_DONE_MM and any(_dead(e) for e in st.layers)
-        if step_id == "open":
-            return f.held_entity >= 0 and _dead(f.held_entity) > 0 and carried >= OPEN_DONE_MM
+        for kind, mm in st.step_events[k]:
+            if kind == "carried" and carried >= mm:
+                return True
+            if kind == "cut" and st.cut_length >= mm and any(_dead(e) for e in st.layers):
+                return True
+            if kind == "opened" and f.held_entity >= 0 and _dead(f.held_entity) > 0 and carried >= mm:
+                return True
         return False
 
     def __call__(self, app) -> None:
@@ -202,7 +203,7 @@ class StepsSystem:
         # the thesis lets the trainee pull, cut and pull again in any order (4.5.2): a step is done when
         # what it asks for has happened, and the HUD shows the first step not yet done
         for k, sid in enumerate(st.step_ids):
-            if sid not in st.steps_done and self.step_done(app, sid):
+            if sid not in st.steps_done and self.step_done(app, k):
                 st.steps_done.append(sid)
                 if hud is not None:
                     last = len(st.steps_done) == len(st.step_ids)
