@@ -39,7 +39,7 @@ from numba import get_num_threads, njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .boxes import start_cascade, try_move, try_move_to
+from .boxes import start_cascade
 
 #: waves with fewer sponsors than this run on the calling thread
 PARALLEL_MIN = 512
@@ -72,8 +72,67 @@ def _atomic_min(typingctx, arr, idx, val):
 
 
 @njit(cache=True, inline="always")
-def _candidate(j, e, ealive, fixed, has_fixed, stamp, gen):
-    return stamp[e] != gen and ealive[j] and not (has_fixed and fixed[e])
+def _clamp1(x, base, d, o, am, ax, be):
+    """The clamp of boxes.clamp_axis on plain values: (clamped value, whether it was outside)."""
+    ad = abs(d)
+    if d >= 0.0:
+        lo = base + (am * ad - be * o)
+        hi = base + (ax * ad + be * o)
+    else:
+        lo = base - (ax * ad + be * o)
+        hi = base - (am * ad - be * o)
+    if x < lo:
+        return lo, True
+    if x > hi:
+        return hi, True
+    return x, False
+
+
+@njit(cache=True, inline="always")
+def _sponsor(rest, pos, s):
+    """The sponsor's rest and current coordinates as float64 scalars, read once per sponsor (axes past D
+    read as 0, which leaves every sum of try_move_to unchanged)."""
+    dim = pos.shape[1]
+    r0 = np.float64(rest[s, 0])
+    b0 = np.float64(pos[s, 0])
+    r1 = np.float64(rest[s, 1]) if dim > 1 else 0.0
+    b1 = np.float64(pos[s, 1]) if dim > 1 else 0.0
+    r2 = np.float64(rest[s, 2]) if dim > 2 else 0.0
+    b2 = np.float64(pos[s, 2]) if dim > 2 else 0.0
+    return r0, r1, r2, b0, b1, b2
+
+
+@njit(cache=True, inline="always")
+def _check(rest, e, sp, am, ax, be, dst, row):
+    """boxes.try_move_to with the sponsor's values sp from _sponsor: clamp dst[row] (holding e's
+    position) into e's box, True when a stored value changed. The same arithmetic in the same order."""
+    dim = dst.shape[1]
+    r0, r1, r2, b0, b1, b2 = sp
+    d0 = np.float64(rest[e, 0]) - r0
+    d1 = np.float64(rest[e, 1]) - r1 if dim > 1 else 0.0
+    d2 = np.float64(rest[e, 2]) - r2 if dim > 2 else 0.0
+    a0 = abs(d0)
+    a1 = abs(d1)
+    a2 = abs(d2)
+    c, out = _clamp1(np.float64(dst[row, 0]), b0, d0, a1 + a2, am, ax, be)
+    moved = False
+    if out:
+        old = dst[row, 0]
+        dst[row, 0] = c
+        moved = dst[row, 0] != old
+    if dim > 1:
+        c, out = _clamp1(np.float64(dst[row, 1]), b1, d1, a0 + a2, am, ax, be)
+        if out:
+            old = dst[row, 1]
+            dst[row, 1] = c
+            moved = moved or dst[row, 1] != old
+    if dim > 2:
+        c, out = _clamp1(np.float64(dst[row, 2]), b2, d2, a0 + a1, am, ax, be)
+        if out:
+            old = dst[row, 2]
+            dst[row, 2] = c
+            moved = moved or dst[row, 2] != old
+    return moved
 
 
 @njit(cache=True)
@@ -82,12 +141,13 @@ def _serial_wave(lo, hi, nxt, rest, pos, indptr, indices, ealive, eamin, eamax, 
     """The sequential breadth-first loop over sponsors [lo, hi); appends from nxt, returns the new end."""
     for i in range(lo, hi):
         s = out_order[i]
+        sp = _sponsor(rest, pos, s)
         claim[s] = _NO_CLAIM
         for j in range(indptr[s], indptr[s + 1]):
             e = indices[j]
-            if not _candidate(j, e, ealive, fixed, has_fixed, stamp, gen):
+            if stamp[e] == gen or not ealive[j] or (has_fixed and fixed[e]):
                 continue
-            if try_move(rest, pos, e, s, eamin[j * ms], eamax[j * ms], ebeta[j * ms]):
+            if _check(rest, e, sp, eamin[j * ms], eamax[j * ms], ebeta[j * ms], pos, e):
                 stamp[e] = gen
                 out_order[nxt] = e
                 out_sponsor[nxt] = s
@@ -103,14 +163,17 @@ def _claim_pass(lo, hi, step, chunks, rest, pos, indptr, indices, ealive, eamin,
         row = c * _PAD
         for i in range(lo + c * step, min(lo + (c + 1) * step, hi)):
             s = out_order[i]
+            sp = _sponsor(rest, pos, s)
             claim[s] = _NO_CLAIM  # s moved in the previous wave: its claim is spent (nobody else reads it)
             for j in range(indptr[s], indptr[s + 1]):
                 e = indices[j]
-                if not _candidate(j, e, ealive, fixed, has_fixed, stamp, gen):
-                    continue
+                if stamp[e] == gen or not ealive[j] or (has_fixed and fixed[e]):
+                    continue  # moved already, cut link, or anchor
+                if claim[e] < i:
+                    continue  # an earlier sponsor of this wave moves e already (claims only fall)
                 for a in range(dim):
                     scratch[row, a] = pos[e, a]
-                if try_move_to(rest, pos, e, s, eamin[j * ms], eamax[j * ms], ebeta[j * ms], scratch, row):
+                if _check(rest, e, sp, eamin[j * ms], eamax[j * ms], ebeta[j * ms], scratch, row):
                     _atomic_min(claim, e, i)
 
 
@@ -133,12 +196,13 @@ def _apply_pass(lo, hi, step, chunks, rest, pos, indptr, indices, ealive, eamin,
         k = counts[c * _PAD]  # this chunk's first slot (the counts hold the exclusive prefix sum now)
         for i in range(lo + c * step, min(lo + (c + 1) * step, hi)):
             s = out_order[i]
+            sp = _sponsor(rest, pos, s)
             for j in range(indptr[s], indptr[s + 1]):
                 e = indices[j]
                 if claim[e] != i or not ealive[j]:
                     continue
                 # only this pair writes e (claim[e] names one sponsor): the check again, in place
-                try_move(rest, pos, e, s, eamin[j * ms], eamax[j * ms], ebeta[j * ms])
+                _check(rest, e, sp, eamin[j * ms], eamax[j * ms], ebeta[j * ms], pos, e)
                 stamp[e] = gen
                 out_order[k] = e
                 out_sponsor[k] = s
