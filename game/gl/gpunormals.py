@@ -1,7 +1,9 @@
 """Vertex normals and positions of a whole deforming mesh produced on the GPU in one pass.
 
 A full re-upload (most of the mesh moved) would otherwise convert, compute normals on the CPU and
-write two buffers. Here only the float32 positions cross to the GPU, once, into a 2-D RGB32F texture;
+write two buffers. Here only the float32 positions cross to the GPU, once, into a 2-D single-channel
+R32F texture (x, y, z of vertex v in texels 3v .. 3v + 2: a one-channel upload is a plain copy for every
+driver, where three-channel textures are widened to four on the CPU by some);
 one transform-feedback pass (GL 3.3 core, no rasteriser) runs a vertex shader per vertex that copies
 its position into the position buffer and gathers the face normals of its triangles, found through
 the vertex -> triangle incidence held in two static integer textures (CSR offsets; for each entry the
@@ -18,11 +20,11 @@ import numpy as np
 from chainsim.game.gl.context import release_framebuffer
 
 #: texture width of the position / incidence textures (rows = ceil(count / width))
-WIDTH = 2048
+WIDTH = 4096
 
 _VS = """
 #version 330
-uniform sampler2D u_pos;     // RGB32F: vertex v at (v % W, v / W)
+uniform sampler2D u_pos;     // R32F: coordinate k of vertex v in texel 3 v + k, texel i at (i % W, i / W)
 uniform isampler2D u_ptr;    // R32I: CSR offsets, n + 1 of them
 uniform isampler2D u_adj;    // RG32I: per incidence entry, the other two corners in winding order
 uniform int u_width;
@@ -31,16 +33,21 @@ out vec3 out_normal;
 
 ivec2 at(int i) { return ivec2(i % u_width, i / u_width); }
 
+vec3 vertex(int v) {
+    int i = 3 * v;
+    return vec3(texelFetch(u_pos, at(i), 0).x, texelFetch(u_pos, at(i + 1), 0).x, texelFetch(u_pos, at(i + 2), 0).x);
+}
+
 void main() {
     int v = gl_VertexID;
-    vec3 p = texelFetch(u_pos, at(v), 0).xyz;
+    vec3 p = vertex(v);
     int lo = texelFetch(u_ptr, at(v), 0).x;
     int hi = texelFetch(u_ptr, at(v + 1), 0).x;
     vec3 s = vec3(0.0);
     for (int j = lo; j < hi; ++j) {
         ivec2 bc = texelFetch(u_adj, at(j), 0).xy;
-        vec3 u = texelFetch(u_pos, at(bc.x), 0).xyz - p;
-        vec3 w = texelFetch(u_pos, at(bc.y), 0).xyz - p;
+        vec3 u = vertex(bc.x) - p;
+        vec3 w = vertex(bc.y) - p;
         s += cross(u, w);
     }
     float ln = length(s);
@@ -68,23 +75,29 @@ def corner_incidence(n: int, tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return ptr, adj
 
 
+def fits(ctx, n: int, n_triangles: int) -> bool:
+    """Whether the textures of a mesh this size stay within the context's largest texture."""
+    limit = int(ctx.info.get("GL_MAX_TEXTURE_SIZE", 0) or 0)
+    return _rows(3 * max(n, n_triangles)) <= limit
+
+
 class GpuNormals:
     """The pass for one mesh: static incidence textures, a position texture rewritten per upload, and
-    a staging array padded to the texture's size (`pos` is a view of its first n rows, so converting
+    a staging array padded to the texture's size (`pos` is an (n, 3) view of its start, so converting
     into it is the only copy on the CPU)."""
 
     def __init__(self, ctx, n: int, tris: np.ndarray):
         self.ctx = ctx
         self.n = n
-        rows = _rows(n)
-        self.staging = np.zeros((rows * WIDTH, 3), np.float32)
-        self.pos = self.staging[:n]
+        rows = _rows(3 * n)
+        self.staging = np.zeros(rows * WIDTH, np.float32)
+        self.pos = self.staging[: 3 * n].reshape(n, 3)
         ptr, adj = corner_incidence(n, tris)
         ptr_pad = np.zeros(_rows(n + 1) * WIDTH, np.int32)
         ptr_pad[: n + 1] = ptr
         adj_pad = np.zeros((_rows(len(adj)) * WIDTH, 2), np.int32)
         adj_pad[: len(adj)] = adj
-        self.tex_pos = ctx.texture((WIDTH, rows), 3, dtype="f4")
+        self.tex_pos = ctx.texture((WIDTH, rows), 1, dtype="f4")
         self.tex_ptr = ctx.texture((WIDTH, _rows(n + 1)), 1, ptr_pad.tobytes(), dtype="i4")
         self.tex_adj = ctx.texture((WIDTH, _rows(len(adj))), 2, adj_pad.tobytes(), dtype="i4")
         for tex in (self.tex_pos, self.tex_ptr, self.tex_adj):

@@ -18,6 +18,7 @@ import numpy as np
 
 from chainsim.engine.kernels.normals import moved_normals_kernel, normals_into, vertex_normals_kernel
 from chainsim.engine.meshgen import links_from_polygons
+from chainsim.game.gl import gpunormals
 from chainsim.game.gl.gpunormals import GpuNormals
 
 #: vertex-id gaps smaller than this are written through rather than split into two writes
@@ -208,6 +209,8 @@ class GpuMesh:
         if self._renderer is None:
             self._renderer = str(self.ctx.info.get("GL_RENDERER", ""))
         gpu = len(self.tris) > 0 and gpu_normals_used(self._renderer, self.n)
+        if gpu and self._gpu is None and not gpunormals.fits(self.ctx, self.n, len(self.tris)):
+            gpu = False  # larger than the context's textures: the CPU path
         if gpu and self._gpu is None:
             self._gpu = GpuNormals(self.ctx, self.n, self.tris)
             self.pos = self._gpu.pos  # convert straight into the texture's staging rows from now on
