@@ -174,12 +174,14 @@ class GpuMesh:
             self.stale = False
             self.pending[:] = False
             return self._upload_all(positions)
-        ids = np.flatnonzero(self.pending)
-        if len(ids) == 0:
+        moved = int(np.count_nonzero(self.pending))  # a count first: a full rewrite needs no id list
+        if moved == 0:
             return 0
-        self.pending[ids] = False
-        if len(ids) > FULL_FRACTION * self.n:
+        if moved > FULL_FRACTION * self.n:
+            self.pending[:] = False
             return self._upload_all(positions)
+        ids = np.flatnonzero(self.pending)
+        self.pending[ids] = False
         self.pos[ids] = positions[ids]
         if self._box is not None:
             moved = self.pos[ids]
