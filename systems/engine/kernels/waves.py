@@ -15,14 +15,20 @@ each sponsor in that order and moves at the first check it fails; it stays withi
 moved).
 
 How a wave runs. The wave's sponsors are cut into contiguous chunks, one prange iteration each, and
-three passes follow, each touching only the wave's rows (no pass costs O(N), nothing is allocated):
+three passes follow; none costs O(N), and nothing is allocated (the winner buffer only grows on the
+largest wave so far):
 
 1. claim: every (sponsor i, candidate e) pair whose check moves e lowers claim[e] to i with an atomic
-   minimum, so claim[e] ends as the earliest sponsor that moves e, whatever the threads' timing;
-2. count: each chunk counts its pairs with claim[e] == i (its winners);
-3. apply: an exclusive prefix sum over the chunk counts gives each chunk its slice of the next wave;
-   each winner repeats its check, now on pos itself (the same arithmetic on the same inputs, so the
-   same result), and is stamped and written to its slot, chunk after chunk in the sequential order.
+   minimum, so claim[e] ends as the earliest sponsor that moves e, whatever the threads' timing (a
+   pair whose e already holds an earlier claim is skipped); each chunk also counts its pairs;
+2. move: each chunk finds its pairs with claim[e] == i (its winners), repeats their check on pos
+   itself (the same arithmetic on the same inputs, so the same result; only that pair touches e),
+   stamps them and lists them in its own stretch of a buffer (as long as its pairs, so it cannot
+   overflow; the stretches come from a prefix sum over the chunks' pair counts);
+3. place: an exclusive prefix sum over the chunks' winner counts gives each its slice of the next
+   wave, into which it copies its list: chunk after chunk, the sequential order.
+
+The serial work between the passes is the two prefix sums over the chunks.
 
 claim[e] is set back when e serves as a sponsor in the next wave (nothing else touches a moved
 element's claim), so the array stays ready for the next cascade without a pass over it. Waves with
@@ -157,12 +163,14 @@ def _serial_wave(lo, hi, nxt, rest, pos, indptr, indices, ealive, eamin, eamax, 
 
 @njit(cache=True, parallel=True)
 def _claim_pass(lo, hi, step, chunks, rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed,
-                stamp, gen, out_order, claim, scratch):  # fmt: skip
+                stamp, gen, out_order, claim, scratch, pairs):  # fmt: skip
     dim = pos.shape[1]
     for c in prange(chunks):
         row = c * _PAD
+        npairs = 0
         for i in range(lo + c * step, min(lo + (c + 1) * step, hi)):
             s = out_order[i]
+            npairs += indptr[s + 1] - indptr[s]
             sp = _sponsor(rest, pos, s)
             claim[s] = _NO_CLAIM  # s moved in the previous wave: its claim is spent (nobody else reads it)
             for j in range(indptr[s], indptr[s + 1]):
@@ -175,25 +183,14 @@ def _claim_pass(lo, hi, step, chunks, rest, pos, indptr, indices, ealive, eamin,
                     scratch[row, a] = pos[e, a]
                 if _check(rest, e, sp, eamin[j * ms], eamax[j * ms], ebeta[j * ms], scratch, row):
                     _atomic_min(claim, e, i)
+        pairs[c * _PAD] = npairs
 
 
 @njit(cache=True, parallel=True)
-def _count_pass(lo, hi, step, chunks, indptr, indices, ealive, out_order, claim, counts):
+def _move_pass(lo, hi, step, chunks, rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, stamp, gen,
+               out_order, claim, counts, base, won, won_by):  # fmt: skip
     for c in prange(chunks):
-        k = 0
-        for i in range(lo + c * step, min(lo + (c + 1) * step, hi)):
-            s = out_order[i]
-            for j in range(indptr[s], indptr[s + 1]):
-                if claim[indices[j]] == i and ealive[j]:
-                    k += 1
-        counts[c * _PAD] = k
-
-
-@njit(cache=True, parallel=True)
-def _apply_pass(lo, hi, step, chunks, rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, stamp, gen,
-                out_order, out_sponsor, claim, counts):  # fmt: skip
-    for c in prange(chunks):
-        k = counts[c * _PAD]  # this chunk's first slot (the counts hold the exclusive prefix sum now)
+        k = base[c * _PAD]  # this chunk's list: one place per pair of its sponsors, so it cannot overflow
         for i in range(lo + c * step, min(lo + (c + 1) * step, hi)):
             s = out_order[i]
             sp = _sponsor(rest, pos, s)
@@ -201,20 +198,32 @@ def _apply_pass(lo, hi, step, chunks, rest, pos, indptr, indices, ealive, eamin,
                 e = indices[j]
                 if claim[e] != i or not ealive[j]:
                     continue
-                # only this pair writes e (claim[e] names one sponsor): the check again, in place
+                # only this pair touches e (claim[e] names one sponsor): the check again, now in place
                 _check(rest, e, sp, eamin[j * ms], eamax[j * ms], ebeta[j * ms], pos, e)
                 stamp[e] = gen
-                out_order[k] = e
-                out_sponsor[k] = s
+                won[k] = e
+                won_by[k] = s
                 k += 1
+        counts[c * _PAD] = k - base[c * _PAD]
+
+
+@njit(cache=True, parallel=True)
+def _place_pass(chunks, counts, base, won, won_by, out_order, out_sponsor):
+    for c in prange(chunks):
+        src = base[c * _PAD + 1]  # (the list's start; counts now hold the chunk's first slot)
+        dst = counts[c * _PAD]
+        for k in range(base[c * _PAD + 2]):
+            out_order[dst + k] = won[src + k]
+            out_sponsor[dst + k] = won_by[src + k]
 
 
 @njit(cache=True)
 def _waves(rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, grabbed, targets, fixed, has_fixed, stamp,
-           gen, out_order, out_sponsor, claim, scratch, counts, threads, par_min, per_thread):  # fmt: skip
+           gen, out_order, out_sponsor, claim, scratch, counts, base, won, won_by, threads, par_min,
+           per_thread):  # fmt: skip
     count = start_cascade(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
     if count < 0:
-        return count
+        return count, won, won_by
     lo = 0
     hi = count
     max_chunks = counts.shape[0] // _PAD
@@ -228,18 +237,28 @@ def _waves(rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, grabbed,
             step = (size + chunks - 1) // chunks
             chunks = (size + step - 1) // step
             _claim_pass(lo, hi, step, chunks, rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed,
-                        has_fixed, stamp, gen, out_order, claim, scratch)  # fmt: skip
-            _count_pass(lo, hi, step, chunks, indptr, indices, ealive, out_order, claim, counts)
+                        has_fixed, stamp, gen, out_order, claim, scratch, base)  # fmt: skip
+            total = 0
+            for c in range(chunks):  # each chunk's winner list starts after the pairs of the chunks before
+                k = base[c * _PAD]
+                base[c * _PAD] = total
+                total += k
+            if total > won.shape[0]:  # rare: the largest wave so far, the lists grow (kept for later calls)
+                won = np.empty(2 * total, np.int64)
+                won_by = np.empty(2 * total, np.int64)
+            _move_pass(lo, hi, step, chunks, rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, stamp,
+                       gen, out_order, claim, counts, base, won, won_by)  # fmt: skip
             nxt = hi
             for c in range(chunks):  # exclusive prefix sum: each chunk's first slot in the next wave
                 k = counts[c * _PAD]
+                base[c * _PAD + 1] = base[c * _PAD]
+                base[c * _PAD + 2] = k
                 counts[c * _PAD] = nxt
                 nxt += k
-            _apply_pass(lo, hi, step, chunks, rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, stamp, gen,
-                        out_order, out_sponsor, claim, counts)  # fmt: skip
+            _place_pass(chunks, counts, base, won, won_by, out_order, out_sponsor)
         lo = hi
         hi = nxt
-    return hi
+    return hi, won, won_by
 
 
 class WaveBuffers:
@@ -251,6 +270,9 @@ class WaveBuffers:
         chunks = CHUNKS_PER_THREAD * max(numba.config.NUMBA_NUM_THREADS, 1)
         self.scratch = np.empty((chunks * _PAD, dim), dtype=dtype)
         self.counts = np.zeros(chunks * _PAD, dtype=np.int64)
+        self.base = np.zeros(chunks * _PAD, dtype=np.int64)
+        self.won = np.empty(0, dtype=np.int64)  # the winners of a wave, per chunk (grown on demand)
+        self.won_by = np.empty(0, dtype=np.int64)
 
 
 def cascade_waves(
@@ -262,8 +284,9 @@ def cascade_waves(
     wb = getattr(ws, "waves", None)
     if wb is None or wb.claim.shape[0] != n or wb.scratch.shape[1] != dim or wb.scratch.dtype != pos.dtype:
         wb = ws.waves = WaveBuffers(n, dim, pos.dtype)
-    return _waves(
+    count, wb.won, wb.won_by = _waves(
         rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, grabbed, targets, fixed, has_fixed, stamp, gen,
-        ws.out_order, ws.out_sponsor, wb.claim, wb.scratch, wb.counts, get_num_threads(), PARALLEL_MIN,
-        CHUNKS_PER_THREAD,
+        ws.out_order, ws.out_sponsor, wb.claim, wb.scratch, wb.counts, wb.base, wb.won, wb.won_by, get_num_threads(),
+        PARALLEL_MIN, CHUNKS_PER_THREAD,
     )  # fmt: skip
+    return count
