@@ -4,21 +4,44 @@ A deformed mesh is updated in place: only the vertices the deformation moved are
 contiguous ranges (`buffer.write` with an offset, straight from the arrays, no byte copies), and normals
 are recomputed only around them - the moved vertices and the other corners of their triangles, from
 the triangles touching those. ChainMail moves a local patch per pull (thesis 5.2.3), so an update costs
-in proportion to the patch, not the mesh. When most of the mesh moved, everything is rewritten and the
-normals are recomputed on all threads where there are several (chainsim.engine.kernels.normals).
+in proportion to the patch, not the mesh. When most of the mesh moved, everything is rewritten: for
+meshes of GPU_NORMALS_MIN vertices or more only the float32 positions cross to the GPU and one
+transform-feedback pass there writes both vertex buffers (chainsim.game.gl.gpunormals); smaller meshes
+recompute normals on the CPU, on all threads where there are several (chainsim.engine.kernels.normals).
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 
 from chainsim.engine.kernels.normals import moved_normals_kernel, normals_into, vertex_normals_kernel
 from chainsim.engine.meshgen import links_from_polygons
+from chainsim.game.gl import gpunormals
+from chainsim.game.gl.gpunormals import GpuNormals
 
 #: vertex-id gaps smaller than this are written through rather than split into two writes
 RUN_GAP = 256
 #: above this fraction of moved vertices a full rewrite is cheaper than the bookkeeping
 FULL_FRACTION = 0.3
+#: full rewrites of meshes with this many vertices or more compute normals on the GPU (below it the
+#: CPU kernel is quicker than the texture upload and pass)
+GPU_NORMALS_MIN = 50_000
+#: where full rewrites compute normals: "auto" (the GPU pass on a hardware renderer, the CPU kernel on a
+#: software one such as llvmpipe, where the pass runs on the same CPUs several times slower), "gpu", "cpu"
+GPU_NORMALS = "auto"
+_SOFTWARE = ("llvmpipe", "softpipe", "swiftshader", "lavapipe", "swrast")
+
+
+def gpu_normals_used(renderer: str, n_vertices: int) -> bool:
+    """Whether a full rewrite of a mesh this size computes its normals on the GPU (GPU_NORMALS), given
+    the context's GL_RENDERER string."""
+    if GPU_NORMALS == "cpu" or n_vertices < GPU_NORMALS_MIN:
+        return False
+    if GPU_NORMALS == "gpu":
+        return True
+    return not any(name in renderer.lower() for name in _SOFTWARE)
 
 
 def vertex_normals(pos: np.ndarray, tris: np.ndarray) -> np.ndarray:
@@ -71,6 +94,10 @@ class GpuMesh:
         self.pending = np.zeros(self.n, np.bool_)  # vertices moved since the last upload
         self.stale = False  # everything must be rewritten
         self.bytes_written = 0  # statistics for benchmarks and tests
+        self.timing: dict | None = None  # set to {} to get the split of each full upload (ms), for benchmarks
+        self._gpu: GpuNormals | None = None
+        self._renderer: str | None = None
+        self._normals_behind = False
         self.vaos: dict[str, object] = {}
         self._box = None
 
@@ -147,12 +174,14 @@ class GpuMesh:
             self.stale = False
             self.pending[:] = False
             return self._upload_all(positions)
-        ids = np.flatnonzero(self.pending)
-        if len(ids) == 0:
+        moved = int(np.count_nonzero(self.pending))  # a count first: a full rewrite needs no id list
+        if moved == 0:
             return 0
-        self.pending[ids] = False
-        if len(ids) > FULL_FRACTION * self.n:
+        if moved > FULL_FRACTION * self.n:
+            self.pending[:] = False
             return self._upload_all(positions)
+        ids = np.flatnonzero(self.pending)
+        self.pending[ids] = False
         self.pos[ids] = positions[ids]
         if self._box is not None:
             moved = self.pos[ids]
@@ -162,6 +191,11 @@ class GpuMesh:
         ptr, idx = self._csr
         if self._mark is None:
             self._mark = np.zeros(self.n, np.bool_)  # scratch for the kernel
+        if self._normals_behind:
+            # the last full rewrite computed normals on the GPU; the ranges below write some untouched
+            # vertices through (RUN_GAP), so fetch the current normals once before mixing them in
+            self.vbo_nrm.read_into(self.normals)
+            self._normals_behind = False
         verts = moved_normals_kernel(self.pos, self.tris, ptr, idx, ids, self._mark, self.normals)
         for a, b in runs(ids):
             self.vbo_pos.write(self.pos[a:b], offset=a * 12)
@@ -173,15 +207,48 @@ class GpuMesh:
 
     def _upload_all(self, positions: np.ndarray) -> int:
         self._box = None
+        t0 = time.perf_counter()
+        if self._renderer is None:
+            self._renderer = str(self.ctx.info.get("GL_RENDERER", ""))
+        gpu = len(self.tris) > 0 and gpu_normals_used(self._renderer, self.n)
+        if gpu and self._gpu is None and not gpunormals.fits(self.ctx, self.n, len(self.tris)):
+            gpu = False  # larger than the context's textures: the CPU path
+        if gpu and self._gpu is None:
+            self._gpu = GpuNormals(self.ctx, self.n, self.tris)
+            self.pos = self._gpu.pos  # convert straight into the texture's staging rows from now on
         self.pos[:] = positions
-        if self.n and len(self.tris):
-            if self._csr is None:
-                self._csr = incidence(self.n, self.tris)
-            normals_into(self.pos, self.tris, *self._csr, self.normals)
-        self.vbo_pos.write(self.pos)
-        self.vbo_nrm.write(self.normals)
-        self.bytes_written += self.n * 24
+        t1 = time.perf_counter()
+        if gpu:
+            self._gpu.run(self.vbo_pos, self.vbo_nrm)
+            self._normals_behind = True  # the CPU copy of the normals is fetched when a partial upload needs it
+            self.bytes_written += self.n * 12
+            t2 = t3 = time.perf_counter()
+        else:
+            if self.n and len(self.tris):
+                if self._csr is None:
+                    self._csr = incidence(self.n, self.tris)
+                normals_into(self.pos, self.tris, *self._csr, self.normals)
+            self._normals_behind = False
+            t2 = time.perf_counter()
+            self.vbo_pos.write(self.pos)
+            self.vbo_nrm.write(self.normals)
+            self.bytes_written += self.n * 24
+            t3 = time.perf_counter()
+        if self.timing is not None:
+            self.timing.update(
+                convert=(t1 - t0) * 1e3, normals=(t2 - t1) * 1e3 if not gpu else 0.0,
+                write=(t3 - t2) * 1e3 if not gpu else 0.0, gpu_pass=(t2 - t1) * 1e3 if gpu else 0.0,
+            )  # fmt: skip
         return self.n
+
+    @property
+    def normals_on_gpu(self) -> bool:
+        """Whether full rewrites of this mesh have used the GPU pass."""
+        return self._gpu is not None
+
+    def read_normals(self) -> np.ndarray:
+        """The normals the GPU draws with, read back (N, 3) float32 (for tests)."""
+        return np.frombuffer(self.vbo_nrm.read(), np.float32).reshape(-1, 3)[: self.n].copy()
 
     def release(self) -> None:
         for v in self.vaos.values():
@@ -189,4 +256,7 @@ class GpuMesh:
         for b in (self.vbo_pos, self.vbo_nrm, self.ibo, self.lbo):
             if b is not None:
                 b.release()
+        if self._gpu is not None:
+            self._gpu.release()
+            self._gpu = None
         self.vaos.clear()

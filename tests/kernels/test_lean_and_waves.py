@@ -107,9 +107,41 @@ def test_level_parallel_cascade_is_the_breadth_first_cascade(monkeypatch_session
         np.testing.assert_array_equal(x, y)
 
 
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(scenarios(), min_size=1, max_size=4), st.sampled_from([0, 2, 5]))
+def test_cascades_in_a_row_on_one_workspace_stay_sequential(cases, par_min):
+    """Several cascades through one workspace (its claims must be left clean by each), waves of all sizes
+    mixed between the serial and the parallel path: every one gives the sequential result."""
+    previous = numba.get_num_threads()
+    mp = pytest.MonkeyPatch()
+    mp.setattr(waves, "PARALLEL_MIN", par_min)
+    numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+    try:
+        rest, pos, links, mats, _, _, fixed, dead = cases[0]
+        graph = build_graph(len(rest), links)
+        graph.cut(dead)
+        mats = material_arrays(graph.n_links, *mats)
+        ws_seq, ws_par = make_workspace(len(rest)), make_workspace(len(rest))
+        p1, p2 = pos.copy(), pos.copy()
+        rng = np.random.default_rng(len(cases))
+        for other in cases:
+            grabbed = other[4][other[4] < len(rest)]
+            if not len(grabbed):
+                grabbed = np.array([0])
+            targets = (p1[grabbed] + rng.normal(scale=2.0, size=(len(grabbed), rest.shape[1]))).astype(rest.dtype)
+            seq = cascade(rest, p1, graph, *mats, grabbed, targets, fixed=fixed, workspace=ws_seq)
+            par = cascade(rest, p2, graph, *mats, grabbed, targets, fixed=fixed, workspace=ws_par, parallel=True)
+            np.testing.assert_array_equal(p1, p2)
+            np.testing.assert_array_equal(seq[0], par[0])
+            np.testing.assert_array_equal(seq[1], par[1])
+    finally:
+        numba.set_num_threads(previous)
+        mp.undo()
+
+
 @pytest.fixture(scope="module")
 def monkeypatch_session():
-    """Every wave of these small meshes takes the parallel path (it is skipped below PARALLEL_MIN pairs)."""
+    """Every wave of these small meshes takes the parallel path (waves under PARALLEL_MIN sponsors run serially)."""
     mp = pytest.MonkeyPatch()
     mp.setattr(waves, "PARALLEL_MIN", 0)
     yield

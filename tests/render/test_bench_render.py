@@ -45,6 +45,12 @@ def test_bench_render_writes_table_json_and_plot(tmp_path):
     full = [row for row in data["rows"] if row["mode"] == "full"]
     assert all(p["moved_vertices"] < f["moved_vertices"] for p, f in zip(patch, full))
     assert (tmp_path / "results.md").read_text().count("\n| ") == 7  # header + 6 rows
+    # the full rows split their upload; the parts never add up to more than the upload
+    for f in full:
+        split = f["upload_split_ms"]
+        assert set(split) == {"convert", "normals", "write", "gpu_pass", "bookkeeping"}
+        assert f["normals_on"] == "cpu"  # sheets this small stay under GPU_NORMALS_MIN
+        assert sum(v for k, v in split.items() if k != "bookkeeping") <= f["upload_median_ms"] * 1.5 + 0.5
     assert (tmp_path / "bench-render.png").stat().st_size > 1000
     assert "triangles" in r.stderr  # progress goes to stderr
 

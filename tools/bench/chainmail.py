@@ -72,9 +72,13 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    # numba's OpenMP threads otherwise spin between parallel regions, taking a core from the serial
-    # kernels timed next on a machine with few cores (read when the first parallel region starts)
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    # numba's OpenMP threads spin for a while after each parallel region (libgomp's default is long),
+    # taking a core from the serial kernels timed next on a machine with few cores; falling asleep at
+    # once instead (OMP_WAIT_POLICY=PASSIVE) would make every wave of the level-parallel cascade wake
+    # them again. A short spin (tens of microseconds) keeps them awake across one cascade's waves only.
+    # Read when the first parallel region starts; either variable set by the caller wins.
+    if "OMP_WAIT_POLICY" not in os.environ:
+        os.environ.setdefault("GOMP_SPINCOUNT", "20000")
 
     if args.mesh:
         return impl.run_mesh(args)

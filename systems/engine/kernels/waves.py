@@ -5,319 +5,274 @@ elements are wave 0, and the elements the sponsors of wave k move are wave k + 1
 of (their sponsor's place in wave k, the link's place in the sponsor's row). While wave k is served, an
 element that has not moved still has the position it had before the cascade, and the sponsors of wave
 k have their final positions; so whether sponsor s would move candidate e, and where to, depends on
-nothing else the wave writes. This kernel therefore checks all of a wave's (sponsor, candidate) pairs
-in parallel and only then applies the moves.
+nothing else the wave writes.
 
 Which sponsor wins. A candidate that several sponsors of the wave would move is moved by the first of
 them in the sequential order: the one earliest in wave k (for one sponsor, a link occurs once). That is
 the sponsor the sequential breadth-first cascade uses, because there the candidate is checked against
 each sponsor in that order and moves at the first check it fails; it stays within the rule of 5.2.3
 (an element moves once, to the nearest point of its box with respect to a neighbour that has already
-moved). The result (positions, order, sponsors) is bit for bit the sequential breadth-first result, for
-any number of threads: every decision depends only on values no thread writes during the wave, and the
-moves are applied in the sequential order. Small waves run on one thread (a parallel region costs more
-than their work).
+moved).
+
+How a wave runs. The wave's sponsors are cut into contiguous chunks, one prange iteration each, and
+three passes follow; none costs O(N), and nothing is allocated (the winner buffer only grows on the
+largest wave so far):
+
+1. claim: every (sponsor i, candidate e) pair whose check moves e lowers claim[e] to i with an atomic
+   minimum, so claim[e] ends as the earliest sponsor that moves e, whatever the threads' timing (a
+   pair whose e already holds an earlier claim is skipped); each chunk also counts its pairs;
+2. move: each chunk finds its pairs with claim[e] == i (its winners), repeats their check on pos
+   itself (the same arithmetic on the same inputs, so the same result; only that pair touches e),
+   stamps them and lists them in its own stretch of a buffer (as long as its pairs, so it cannot
+   overflow; the stretches come from a prefix sum over the chunks' pair counts);
+3. place: an exclusive prefix sum over the chunks' winner counts gives each its slice of the next
+   wave, into which it copies its list: chunk after chunk, the sequential order.
+
+The serial work between the passes is the two prefix sums over the chunks.
+
+claim[e] is set back when e serves as a sponsor in the next wave (nothing else touches a moved
+element's claim), so the array stays ready for the next cascade without a pass over it. Waves with
+fewer sponsors than PARALLEL_MIN run the sequential loop on the calling thread: a parallel region
+costs more than their work. The result (positions, order, sponsors) is bit for bit the sequential
+breadth-first result, for any number of threads.
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import get_num_threads, njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
-from .boxes import start_cascade, try_move_to
+from .boxes import start_cascade
 
-#: waves with fewer candidate pairs than this run on the calling thread
-PARALLEL_MIN = 8192
+#: waves with fewer sponsors than this run on the calling thread
+PARALLEL_MIN = 512
+#: prange iterations per thread and wave (more smooths out uneven rows, each costs a little)
+CHUNKS_PER_THREAD = 4
+#: rows of the per-chunk scratch apart (8 rows of 3 float64: no two chunks share a cache line)
+_PAD = 8
+_NO_CLAIM = np.iinfo(np.int64).max
+
+
+@intrinsic
+def _atomic_min(typingctx, arr, idx, val):
+    """arr[idx] = min(arr[idx], val) as one atomic step (int64 array)."""
+    if not (isinstance(arr, types.Array) and arr.dtype == types.int64 and arr.ndim == 1):
+        return None
+    if not (isinstance(idx, types.Integer) and isinstance(val, types.Integer)):
+        return None
+    sig = types.void(arr, idx, val)
+
+    def codegen(context, builder, signature, args):
+        aryty, idxty, valty = signature.args
+        ary = context.make_array(aryty)(context, builder, args[0])
+        i = context.cast(builder, args[1], idxty, types.intp)
+        v = context.cast(builder, args[2], valty, types.int64)
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [i])
+        builder.atomic_rmw("min", ptr, v, "monotonic")
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@njit(cache=True, inline="always")
+def _clamp1(x, base, d, o, am, ax, be):
+    """The clamp of boxes.clamp_axis on plain values: (clamped value, whether it was outside)."""
+    ad = abs(d)
+    if d >= 0.0:
+        lo = base + (am * ad - be * o)
+        hi = base + (ax * ad + be * o)
+    else:
+        lo = base - (ax * ad + be * o)
+        hi = base - (am * ad - be * o)
+    if x < lo:
+        return lo, True
+    if x > hi:
+        return hi, True
+    return x, False
+
+
+@njit(cache=True, inline="always")
+def _sponsor(rest, pos, s):
+    """The sponsor's rest and current coordinates as float64 scalars, read once per sponsor (axes past D
+    read as 0, which leaves every sum of try_move_to unchanged)."""
+    dim = pos.shape[1]
+    r0 = np.float64(rest[s, 0])
+    b0 = np.float64(pos[s, 0])
+    r1 = np.float64(rest[s, 1]) if dim > 1 else 0.0
+    b1 = np.float64(pos[s, 1]) if dim > 1 else 0.0
+    r2 = np.float64(rest[s, 2]) if dim > 2 else 0.0
+    b2 = np.float64(pos[s, 2]) if dim > 2 else 0.0
+    return r0, r1, r2, b0, b1, b2
+
+
+@njit(cache=True, inline="always")
+def _check(rest, e, sp, am, ax, be, dst, row):
+    """boxes.try_move_to with the sponsor's values sp from _sponsor: clamp dst[row] (holding e's
+    position) into e's box, True when a stored value changed. The same arithmetic in the same order."""
+    dim = dst.shape[1]
+    r0, r1, r2, b0, b1, b2 = sp
+    d0 = np.float64(rest[e, 0]) - r0
+    d1 = np.float64(rest[e, 1]) - r1 if dim > 1 else 0.0
+    d2 = np.float64(rest[e, 2]) - r2 if dim > 2 else 0.0
+    a0 = abs(d0)
+    a1 = abs(d1)
+    a2 = abs(d2)
+    c, out = _clamp1(np.float64(dst[row, 0]), b0, d0, a1 + a2, am, ax, be)
+    moved = False
+    if out:
+        old = dst[row, 0]
+        dst[row, 0] = c
+        moved = dst[row, 0] != old
+    if dim > 1:
+        c, out = _clamp1(np.float64(dst[row, 1]), b1, d1, a0 + a2, am, ax, be)
+        if out:
+            old = dst[row, 1]
+            dst[row, 1] = c
+            moved = moved or dst[row, 1] != old
+    if dim > 2:
+        c, out = _clamp1(np.float64(dst[row, 2]), b2, d2, a0 + a1, am, ax, be)
+        if out:
+            old = dst[row, 2]
+            dst[row, 2] = c
+            moved = moved or dst[row, 2] != old
+    return moved
 
 
 @njit(cache=True)
-def _fill(s_lo, s_hi, out_order, indptr, indices, ealive, fixed, has_fixed, stamp, gen, cnt, pair_entry, pair_rank):
-    """Slots of sponsors [s_lo, s_hi): one per row entry, from offset cnt[i] (so the slots follow the
-    sequential order); the entry's index for a candidate (unmoved, live, free neighbour), else -1."""
-    for i in range(s_lo, s_hi):
+def _serial_wave(lo, hi, nxt, rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp,
+                 gen, out_order, out_sponsor, claim):  # fmt: skip
+    """The sequential breadth-first loop over sponsors [lo, hi); appends from nxt, returns the new end."""
+    for i in range(lo, hi):
         s = out_order[i]
-        k = cnt[i]
+        sp = _sponsor(rest, pos, s)
+        claim[s] = _NO_CLAIM
         for j in range(indptr[s], indptr[s + 1]):
             e = indices[j]
-            if stamp[e] != gen and ealive[j] and not (has_fixed and fixed[e]):
-                pair_entry[k] = j
-            else:
-                pair_entry[k] = -1
-            pair_rank[k] = i
-            k += 1
+            if stamp[e] == gen or not ealive[j] or (has_fixed and fixed[e]):
+                continue
+            if _check(rest, e, sp, eamin[j * ms], eamax[j * ms], ebeta[j * ms], pos, e):
+                stamp[e] = gen
+                out_order[nxt] = e
+                out_sponsor[nxt] = s
+                nxt += 1
+    return nxt
 
 
-@njit(cache=True)
-def _decide(
-    p_lo,
-    p_hi,
-    second,
-    rest,
-    pos,
-    indptr,
-    indices,
-    ealive,
-    eamin,
-    eamax,
-    ebeta,
-    ms,
-    out_order,
-    stamp,
-    gen,
-    rank,
-    wave_lo,
-    pair_entry,
-    pair_rank,
-    first,
-    seen,
-    tag,
-    win,
-    buf,
-):
-    """Pairs [p_lo, p_hi): whether the sponsor moves the candidate first (win[p]; buf[p] the new
-    position). Pass 1 (second=False) decides the pairs that are their candidate's first in the sequential
-    order; pass 2 the later pairs of candidates whose first sponsor left them in place (seen[e] == -tag),
-    by checking the earlier sponsors of the wave again. Reads only what the wave does not write."""
+@njit(cache=True, parallel=True)
+def _claim_pass(lo, hi, step, chunks, rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed,
+                stamp, gen, out_order, claim, scratch, pairs):  # fmt: skip
     dim = pos.shape[1]
-    tmp = np.empty((1, dim), dtype=pos.dtype)
-    for p in range(p_lo, p_hi):
-        j = pair_entry[p]
-        if j < 0:  # not a candidate
-            win[p] = False
-            continue
-        e = indices[j]
-        if not second:
-            if not first[p]:
-                win[p] = False
-                continue
-        elif first[p] or seen[e] != -tag:
-            continue
-        i = pair_rank[p]
-        s = out_order[i]
-        for a in range(dim):
-            buf[p, a] = pos[e, a]
-        if not try_move_to(rest, pos, e, s, eamin[j * ms], eamax[j * ms], ebeta[j * ms], buf, p):
-            win[p] = False
-            if not second:
-                seen[e] = -tag  # left in place by its first sponsor: the later ones decide (pass 2)
-            continue
-        if not second:
-            win[p] = True
-            continue
-        wins = True
-        for jj in range(indptr[e], indptr[e + 1]):
-            s2 = indices[jj]
-            # an earlier sponsor of this wave, over a live link: would it have moved e first?
-            if stamp[s2] != gen or not ealive[jj] or rank[s2] < wave_lo or rank[s2] >= i:
-                continue
-            for a in range(dim):
-                tmp[0, a] = pos[e, a]
-            if try_move_to(rest, pos, e, s2, eamin[jj * ms], eamax[jj * ms], ebeta[jj * ms], tmp, 0):
-                wins = False
-                break
-        win[p] = wins
+    for c in prange(chunks):
+        row = c * _PAD
+        npairs = 0
+        for i in range(lo + c * step, min(lo + (c + 1) * step, hi)):
+            s = out_order[i]
+            npairs += indptr[s + 1] - indptr[s]
+            sp = _sponsor(rest, pos, s)
+            claim[s] = _NO_CLAIM  # s moved in the previous wave: its claim is spent (nobody else reads it)
+            for j in range(indptr[s], indptr[s + 1]):
+                e = indices[j]
+                if stamp[e] == gen or not ealive[j] or (has_fixed and fixed[e]):
+                    continue  # moved already, cut link, or anchor
+                if claim[e] < i:
+                    continue  # an earlier sponsor of this wave moves e already (claims only fall)
+                for a in range(dim):
+                    scratch[row, a] = pos[e, a]
+                if _check(rest, e, sp, eamin[j * ms], eamax[j * ms], ebeta[j * ms], scratch, row):
+                    _atomic_min(claim, e, i)
+        pairs[c * _PAD] = npairs
 
 
 @njit(cache=True, parallel=True)
-def _fill_par(
-    s_lo, s_hi, out_order, indptr, indices, ealive, fixed, has_fixed, stamp, gen, cnt, pair_entry, pair_rank, chunks
-):
-    step = (s_hi - s_lo + chunks - 1) // chunks
+def _move_pass(lo, hi, step, chunks, rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, stamp, gen,
+               out_order, claim, counts, base, won, won_by):  # fmt: skip
     for c in prange(chunks):
-        lo = s_lo + c * step
-        _fill(
-            lo,
-            min(lo + step, s_hi),
-            out_order,
-            indptr,
-            indices,
-            ealive,
-            fixed,
-            has_fixed,
-            stamp,
-            gen,
-            cnt,
-            pair_entry,
-            pair_rank,
-        )
+        k = base[c * _PAD]  # this chunk's list: one place per pair of its sponsors, so it cannot overflow
+        for i in range(lo + c * step, min(lo + (c + 1) * step, hi)):
+            s = out_order[i]
+            sp = _sponsor(rest, pos, s)
+            for j in range(indptr[s], indptr[s + 1]):
+                e = indices[j]
+                if claim[e] != i or not ealive[j]:
+                    continue
+                # only this pair touches e (claim[e] names one sponsor): the check again, now in place
+                _check(rest, e, sp, eamin[j * ms], eamax[j * ms], ebeta[j * ms], pos, e)
+                stamp[e] = gen
+                won[k] = e
+                won_by[k] = s
+                k += 1
+        counts[c * _PAD] = k - base[c * _PAD]
 
 
 @njit(cache=True, parallel=True)
-def _decide_par(
-    npairs,
-    second,
-    rest,
-    pos,
-    indptr,
-    indices,
-    ealive,
-    eamin,
-    eamax,
-    ebeta,
-    ms,
-    out_order,
-    stamp,
-    gen,
-    rank,
-    wave_lo,
-    pair_entry,
-    pair_rank,
-    first,
-    seen,
-    tag,
-    win,
-    buf,
-    chunks,
-):
-    step = (npairs + chunks - 1) // chunks
+def _place_pass(chunks, counts, base, won, won_by, out_order, out_sponsor):
     for c in prange(chunks):
-        lo = c * step
-        _decide(
-            lo,
-            min(lo + step, npairs),
-            second,
-            rest,
-            pos,
-            indptr,
-            indices,
-            ealive,
-            eamin,
-            eamax,
-            ebeta,
-            ms,
-            out_order,
-            stamp,
-            gen,
-            rank,
-            wave_lo,
-            pair_entry,
-            pair_rank,
-            first,
-            seen,
-            tag,
-            win,
-            buf,
-        )
+        src = base[c * _PAD + 1]  # (the list's start; counts now hold the chunk's first slot)
+        dst = counts[c * _PAD]
+        for k in range(base[c * _PAD + 2]):
+            out_order[dst + k] = won[src + k]
+            out_sponsor[dst + k] = won_by[src + k]
 
 
 @njit(cache=True)
-def _waves(
-    rest,
-    pos,
-    indptr,
-    indices,
-    ealive,
-    eamin,
-    eamax,
-    ebeta,
-    ms,
-    grabbed,
-    targets,
-    fixed,
-    has_fixed,
-    stamp,
-    gen,
-    out_order,
-    out_sponsor,
-    rank,
-    cnt,
-    pair_entry,
-    pair_rank,
-    first,
-    seen,
-    tag,
-    win,
-    buf,
-    threads,
-    par_min,
-):
+def _waves(rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, grabbed, targets, fixed, has_fixed, stamp,
+           gen, out_order, out_sponsor, claim, scratch, counts, base, won, won_by, threads, par_min,
+           per_thread):  # fmt: skip
     count = start_cascade(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
     if count < 0:
-        return count, tag
-    for i in range(count):
-        rank[out_order[i]] = i
-    wave_lo = 0
-    wave_hi = count
-    chunks = 4 * threads
-    while wave_hi > wave_lo:
-        # one slot per row entry of the wave's sponsors, at offsets in the sequential order
-        cnt[wave_lo] = 0
-        for i in range(wave_lo, wave_hi):
-            s = out_order[i]
-            cnt[i + 1] = cnt[i] + indptr[s + 1] - indptr[s]
-        npairs = cnt[wave_hi]
-        if threads > 1 and npairs >= par_min:
-            _fill_par(
-                wave_lo, wave_hi, out_order, indptr, indices, ealive, fixed, has_fixed, stamp, gen, cnt, pair_entry,
-                pair_rank, chunks,
-            )  # fmt: skip
+        return count, won, won_by
+    lo = 0
+    hi = count
+    max_chunks = counts.shape[0] // _PAD
+    while hi > lo:
+        size = hi - lo
+        if threads < 2 or size < par_min:
+            nxt = _serial_wave(lo, hi, hi, rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed,
+                               has_fixed, stamp, gen, out_order, out_sponsor, claim)  # fmt: skip
         else:
-            _fill(
-                wave_lo, wave_hi, out_order, indptr, indices, ealive, fixed, has_fixed, stamp, gen, cnt, pair_entry,
-                pair_rank,
-            )  # fmt: skip
-        # which pairs come first for their candidate (serial: one flag per pair)
-        tag += 1
-        retry = False
-        for p in range(npairs):
-            if pair_entry[p] < 0:
-                continue
-            e = indices[pair_entry[p]]
-            if seen[e] == tag or seen[e] == -tag:
-                first[p] = False
-            else:
-                seen[e] = tag
-                first[p] = True
-        par = threads > 1 and npairs >= par_min
-        for second in (False, True):
-            if second and not retry:
-                break
-            if par:
-                _decide_par(
-                    npairs, second, rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, out_order, stamp,
-                    gen, rank, wave_lo, pair_entry, pair_rank, first, seen, tag, win, buf, chunks,
-                )  # fmt: skip
-            else:
-                _decide(
-                    0, npairs, second, rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, out_order, stamp,
-                    gen, rank, wave_lo, pair_entry, pair_rank, first, seen, tag, win, buf,
-                )  # fmt: skip
-            if not second:
-                for p in range(npairs):
-                    if pair_entry[p] >= 0 and first[p] and not win[p]:
-                        retry = True
-                        break
-        # apply the moves in the sequential order: the next wave
-        next_hi = wave_hi
-        dim = pos.shape[1]
-        for p in range(npairs):
-            if win[p]:  # (never for an empty slot)
-                e = indices[pair_entry[p]]
-                for a in range(dim):
-                    pos[e, a] = buf[p, a]
-                stamp[e] = gen
-                rank[e] = next_hi
-                out_order[next_hi] = e
-                out_sponsor[next_hi] = out_order[pair_rank[p]]
-                next_hi += 1
-        wave_lo = wave_hi
-        wave_hi = next_hi
-    return wave_hi, tag
+            chunks = min(max_chunks, threads * per_thread, size)
+            step = (size + chunks - 1) // chunks
+            chunks = (size + step - 1) // step
+            _claim_pass(lo, hi, step, chunks, rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed,
+                        has_fixed, stamp, gen, out_order, claim, scratch, base)  # fmt: skip
+            total = 0
+            for c in range(chunks):  # each chunk's winner list starts after the pairs of the chunks before
+                k = base[c * _PAD]
+                base[c * _PAD] = total
+                total += k
+            if total > won.shape[0]:  # rare: the largest wave so far, the lists grow (kept for later calls)
+                won = np.empty(2 * total, np.int64)
+                won_by = np.empty(2 * total, np.int64)
+            _move_pass(lo, hi, step, chunks, rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, stamp,
+                       gen, out_order, claim, counts, base, won, won_by)  # fmt: skip
+            nxt = hi
+            for c in range(chunks):  # exclusive prefix sum: each chunk's first slot in the next wave
+                k = counts[c * _PAD]
+                base[c * _PAD + 1] = base[c * _PAD]
+                base[c * _PAD + 2] = k
+                counts[c * _PAD] = nxt
+                nxt += k
+            _place_pass(chunks, counts, base, won, won_by, out_order, out_sponsor)
+        lo = hi
+        hi = nxt
+    return hi, won, won_by
 
 
 class WaveBuffers:
-    """Scratch of the level-parallel cascade, kept on a cascade Workspace (made on first use)."""
+    """Scratch of the level-parallel cascade, kept on a cascade Workspace (made on first use): O(N) claims
+    and O(threads) per-chunk scratch, padded against false sharing."""
 
-    def __init__(self, n: int, entries: int, dim: int, dtype):
-        self.rank = np.zeros(n, dtype=np.int64)
-        self.cnt = np.zeros(n + 1, dtype=np.int64)
-        self.pair_entry = np.empty(max(entries, 1), dtype=np.int64)
-        self.pair_rank = np.empty(max(entries, 1), dtype=np.int64)
-        self.win = np.zeros(max(entries, 1), dtype=np.bool_)
-        self.first = np.zeros(max(entries, 1), dtype=np.bool_)
-        self.seen = np.zeros(n, dtype=np.int64)  # == +-tag: a candidate of the current wave
-        self.tag = 0
-        self.buf = np.empty((max(entries, 1), dim), dtype=dtype)
+    def __init__(self, n: int, dim: int, dtype):
+        self.claim = np.full(n, _NO_CLAIM, dtype=np.int64)
+        chunks = CHUNKS_PER_THREAD * max(numba.config.NUMBA_NUM_THREADS, 1)
+        self.scratch = np.empty((chunks * _PAD, dim), dtype=dtype)
+        self.counts = np.zeros(chunks * _PAD, dtype=np.int64)
+        self.base = np.zeros(chunks * _PAD, dtype=np.int64)
+        self.won = np.empty(0, dtype=np.int64)  # the winners of a wave, per chunk (grown on demand)
+        self.won_by = np.empty(0, dtype=np.int64)
 
 
 def cascade_waves(
@@ -326,13 +281,12 @@ def cascade_waves(
     """The breadth-first cascade, wave by wave on numba's threads (arguments as chainmail's kernels, ws a
     Workspace); returns how many elements moved, or a negative start error code."""
     n, dim = pos.shape
-    entries = indices.shape[0]
     wb = getattr(ws, "waves", None)
-    if wb is None or wb.rank.shape[0] != n or wb.pair_entry.shape[0] < entries or wb.buf.dtype != pos.dtype:
-        wb = ws.waves = WaveBuffers(n, entries, dim, pos.dtype)
-    count, wb.tag = _waves(
+    if wb is None or wb.claim.shape[0] != n or wb.scratch.shape[1] != dim or wb.scratch.dtype != pos.dtype:
+        wb = ws.waves = WaveBuffers(n, dim, pos.dtype)
+    count, wb.won, wb.won_by = _waves(
         rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, grabbed, targets, fixed, has_fixed, stamp, gen,
-        ws.out_order, ws.out_sponsor, wb.rank, wb.cnt, wb.pair_entry, wb.pair_rank, wb.first, wb.seen, wb.tag, wb.win,
-        wb.buf, get_num_threads(), PARALLEL_MIN,
+        ws.out_order, ws.out_sponsor, wb.claim, wb.scratch, wb.counts, wb.base, wb.won, wb.won_by, get_num_threads(),
+        PARALLEL_MIN, CHUNKS_PER_THREAD,
     )  # fmt: skip
     return count
