@@ -117,3 +117,11 @@ def test_a_plane_through_three_named_points_scores_d(tmp_path):
         assert a["d2"] == pytest.approx(abs((placed - m) @ n) / np.linalg.norm(n))
     finally:
         r.close()
+
+
+def test_a_misspelt_entity_in_a_role_is_one_clear_line(tmp_path):
+    """A role that names an entity the pack does not have is refused, not silently narrowed."""
+    old = 'entities = ["skull", "mandible", "foramen_ovale_{side}"]'
+    root = _pack(tmp_path, old, old.replace('"mandible"', '"mandibel"'))
+    with pytest.raises(UserError, match=r"\[roles\.skull\] entities: 'mandibel' is not an entity of the pack"):
+        Run(root)

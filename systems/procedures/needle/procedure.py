@@ -389,6 +389,15 @@ def _check(pack, scene: NeedleScene, index: EntityIndex) -> None:
     where = f"pack '{pack.name}'"
     if not scene.landmark_ids:
         raise UserError(f"{where}: the needle procedure needs at least one [[landmarks]] (the entry point)")
+    declared = set(pack.manifest.get("entities", {}))
+    for role in scene.roles.values():
+        # a misspelt name would otherwise drop that entity from the role without a word
+        unknown = [e for e in role.entities if e not in declared]
+        if unknown:
+            raise UserError(
+                f"{where}: [roles.{role.name}] entities: '{unknown[0]}' is not an entity of the pack "
+                f"(entities: {', '.join(sorted(declared))})"
+            )
     for sp in scene.landmark_specs:
         role = scene.roles.get(sp["on"])
         if role is None:
