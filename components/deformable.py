@@ -31,6 +31,7 @@ from chainsim.components.resources import Settings
 from chainsim.engine import limits, meshgen
 from chainsim.engine.bodies.chainmail import ChainMailBody
 from chainsim.engine.bodies.factory import choose_model, load_table, make_body
+from chainsim.engine.bodies.projective import SOLVERS as PROJECTIVE_SOLVERS
 from chainsim.engine.chainmail_params import ORDER_CHOICES, order_name
 from chainsim.engine.errors import UserError
 from chainsim.engine.kernels.chainmail import make_workspace, material_arrays
@@ -144,6 +145,20 @@ class Deformable:
         help="xpbd: iterations per substep (0: 1); projective: local-global iterations (0: 10).",
         min=0,
         max=1000,
+    )
+    solver: str = prop(
+        "enum",
+        "direct",
+        choices=PROJECTIVE_SOLVERS,
+        help="projective: global step by a prefactorised sparse solve (direct: fewest frames to settle) or "
+        "warm-started conjugate gradients (cg: no factorisation, cheaper frames, more of them; "
+        "docs/choosing-a-model.md).",
+    )
+    cg_iterations: int = prop(
+        "int", 20, help="projective with solver = cg: conjugate-gradient steps per global step.", min=1, max=10_000
+    )
+    rotation_iterations: int = prop(
+        "int", 4, help="projective: iterations of the per-tetrahedron rotation fit in each local step.", min=1, max=100
     )
     unit: float = prop(
         "float", 0.001, units="m", help="xpbd/projective: metres per mesh length unit.", min=1e-9, max=1e3
@@ -368,7 +383,12 @@ def use_model(d: Deformable, model: str, where: str = "deformable", initial: boo
         if model == "xpbd":
             settings.update(substeps=d.substeps, iterations=d.iterations or 1)
         else:
-            settings.update(iterations=d.iterations or 10)
+            settings.update(
+                iterations=d.iterations or 10,
+                solver=d.solver,
+                cg_iterations=d.cg_iterations,
+                rotation_iterations=d.rotation_iterations,
+            )
         try:
             body = make_body(
                 model, d.rest.astype(np.float64), tets=tets, triangles=mesh.triangles, fixed=d.fixed_mask, **settings

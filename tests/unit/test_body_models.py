@@ -153,3 +153,33 @@ def test_a_model_switch_is_said_in_the_hud():
         assert any(t.startswith("Tissue model: xpbd") for t, _ in app.resource(HudState).messages)
     finally:
         app.close()
+
+
+def test_projective_solver_settings_come_from_the_pack(tmp_path):
+    """A pack picks the projective global step (cg or direct) and its iteration counts in data."""
+    import shutil
+
+    dst = tmp_path / "demo"
+    shutil.copytree(ASSETS_DIR / "chainmail-demo", dst)
+    text = (dst / "pack.toml").read_text()
+    head = "[entities.volume.deformable]\ndrag = true\n"
+    assert head in text
+    extra = 'model = "projective"\nsolver = "cg"\ncg_iterations = 7\nrotation_iterations = 2\n'
+    (dst / "pack.toml").write_text(text.replace(head, head + extra))
+    app = build_app(f"{dst}/volume")
+    try:
+        with app.active():
+            ((_, d),) = esper.get_component(Deformable)
+        assert (d.body.model, d.body.solver, d.body.cg_iterations, d.body.rotation_iterations) == (
+            "projective",
+            "cg",
+            7,
+            2,
+        )
+    finally:
+        app.close()
+    (dst / "pack.toml").write_text(text.replace(head, head + 'model = "projective"\nsolver = "lu"\n'))
+    from chainsim.game.packs import pack as packs
+
+    _, problems = packs.validate(dst)
+    assert any("solver" in str(p) and "direct" in str(p) for p in problems), problems
