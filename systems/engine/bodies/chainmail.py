@@ -139,7 +139,8 @@ class ChainMailBody(Body):
         if hold:
             self.held = np.union1d(self.held, ids)
         changed = order
-        if self.relax_iterations > 0 and len(order) > len(ids):
+        relaxed = self.relax_iterations > 0 and len(order) > len(ids)
+        if relaxed:
             pin = self.fixed.copy()
             pin[ids] = True
             if len(self.held):
@@ -158,6 +159,7 @@ class ChainMailBody(Body):
                 targets,
                 fixed,
                 self.workspace,
+                cascaded=not relaxed,
             )
             self.last_exact, self.last_shortfall = res, res.shortfall
             if len(res.changed):
