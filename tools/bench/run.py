@@ -213,9 +213,8 @@ class Body:
             relax_moved(self.rest, self.pos, self.graph, moved, relax_n, fixed=pin)
         if exact:
             self.exact = exact_limits(
-                self.rest, self.pos, self.graph, *self.mat, moved, grabbed, target, self.fixed, self.ws,
-                cascaded=not relax_n,
-            )  # fmt: skip
+                self.rest, self.pos, self.graph, *self.mat, moved, grabbed, target, self.fixed, self.ws
+            )
             self._touch(self.exact.changed)
 
     def violations(self):

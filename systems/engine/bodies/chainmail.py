@@ -139,8 +139,7 @@ class ChainMailBody(Body):
         if hold:
             self.held = np.union1d(self.held, ids)
         changed = order
-        relaxed = self.relax_iterations > 0 and len(order) > len(ids)
-        if relaxed:
+        if self.relax_iterations > 0 and len(order) > len(ids):
             pin = self.fixed.copy()
             pin[ids] = True
             if len(self.held):
@@ -159,7 +158,6 @@ class ChainMailBody(Body):
                 targets,
                 fixed,
                 self.workspace,
-                cascaded=not relaxed,
             )
             self.last_exact, self.last_shortfall = res, res.shortfall
             if len(res.changed):

@@ -39,10 +39,6 @@ multi-source walk from the fixed elements over the whole mesh) and later pulls r
 element's box from there, as long as the graph, its cut links, the material, the fixed mask and the fixed
 elements' positions are the ones it was computed for.
 
-Right after a cascade (no relaxation since, `cascaded=True`) the walks also skip the links from a moved
-element to one the cascade left in place: the cascade checked that element against the moved one's final
-position and found it inside its box, whatever the order.
-
 Deterministic and single-threaded. Work is counted in element visits and capped (`max_visits`), so a
 degenerate input cannot hang it; the result then says it is incomplete and gives the residual left.
 """
@@ -245,16 +241,11 @@ def _walk(
     eps_rel,
     eps_abs,
     max_visits,
-    region,
-    rmark,
 ):
     """One monotone walk: on axis a elements move only down (down[a]) or only up, each as little as a
     violated link needs, until every link that such moves can fix holds. Moved elements are logged
     (log_ids, x0: the position before); both ends of a link that needed a pin to move are flagged.
-    Starts from seeds[:n_seeds] and seeds2[:n_seeds2]. rmark != 0: pos is a cascade's result, with
-    region[i] == rmark for the elements it moved; a link from such an element, unchanged since, to one
-    the cascade left in place (not fixed, not moved since either) is skipped: the cascade checked that
-    element against this one's final position and found it inside. Returns (visits, blocked, blocked by a fixed element,
+    Starts from seeds[:n_seeds] and seeds2[:n_seeds2]. Returns (visits, blocked, blocked by a fixed element,
     nlog, nflag, finished).
     """
     n = pos.shape[0]
@@ -283,7 +274,6 @@ def _walk(
         inq[i] = False
         visits += 1
         again = False
-        skip_i = rmark != 0 and log_stamp[i] != lgen and pin[i] != gen
         if dim == 3:
             # i's rows and a uniform material loaded once per visit (stores to pos keep the compiler from
             # hoisting them itself); p0..p2 follow i when a correction moves it
@@ -300,8 +290,6 @@ def _walk(
             if not ealive[jj]:
                 continue
             j = indices[jj]
-            if skip_i and region[j] != rmark and log_stamp[j] != lgen and not (has_fixed and fixed[j]):
-                continue
             if dim == 3:
                 # unrolled: the common case, a link inside its box, costs a few multiply-adds
                 d0 = np.float64(rest[j, 0]) - ri0
@@ -375,7 +363,6 @@ def _walk(
                 pos[mover, a] = np.float64(pos[mover, a]) + (-ex if down[a] else ex)
                 if mover == i:
                     again = True
-                    skip_i = False
                     if dim == 3:
                         p0 = np.float64(pos[i, 0])
                         p1 = np.float64(pos[i, 1])
@@ -798,7 +785,6 @@ def _exact(
     field_fixed,
     field_ids,
     field_pos,
-    cascaded,
     result,
 ):
     """The whole pass (see the module docstring). Writes result = [residual, outside, checked,
@@ -847,13 +833,6 @@ def _exact(
     for a in range(dim):
         first[a] = pull[a] < 0.0
         second[a] = not first[a]
-    # positions straight from a cascade: its moved elements marked (gen + 1 is free in region, whose
-    # counts use +-gen) so the walks can skip the links the cascade already checked
-    rmark = 0
-    if cascaded:
-        rmark = gen + 1
-        for k in range(moved.shape[0]):
-            region[moved[k]] = rmark
     free = False  # a grabbed element that is not fixed (only those can be settled short of a target)
     for k in range(grabbed.shape[0]):
         if not (has_fixed and fixed[grabbed[k]]):
@@ -891,7 +870,7 @@ def _exact(
         v, _, at_fixed, nlog, nflag, ok = _walk(
             rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, pin, gen, first,
             moved, moved.shape[0], moved, 0, log_ids, 0, log_stamp, lgen, x0, flag_ids, 0, flag, queue, inq,
-            EPS_REL, eps_abs, max_visits - visits, region, rmark,
+            EPS_REL, eps_abs, max_visits - visits,
         )  # fmt: skip
         visits += v
         complete = complete and ok
@@ -914,7 +893,7 @@ def _exact(
         v, blocked, _, nlog, nflag, ok = _walk(
             rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, pin, gen, second,
             flag_ids, nflag, flag_ids, 0, log_ids, nlog, log_stamp, lgen, x0, flag_ids, nflag, flag, queue,
-            inq, EPS_REL, eps_abs, _greater(max_visits - visits, 0), region, rmark,
+            inq, EPS_REL, eps_abs, _greater(max_visits - visits, 0),
         )  # fmt: skip
         visits += v
         complete = complete and ok
@@ -976,7 +955,6 @@ def exact_limits(
     fixed=None,
     workspace=None,
     max_visits: int | None = None,
-    cascaded: bool = False,
 ) -> ExactResult:
     """After a cascade (and relaxation): put every link touching the moved region back inside its box,
     in place. Grabbed and fixed elements stay put, unless a grabbed element's target cannot be reached
@@ -986,9 +964,7 @@ def exact_limits(
     the cascade moved (its first return value). grabbed: the grabbed ids; targets: where they were asked
     to go ((K, D); default: where they are). fixed: bool (N,) or None, as for the cascade (held elements
     included). workspace: the body's cascade Workspace (the pass keeps its scratch on it).
-    max_visits: cap on element visits (default 64 N + 10^4). cascaded: pos is exactly what the cascade
-    that moved `moved` left (no relaxation since), so the links it checked between a moved element and
-    one it left in place are not checked again (any order of kernels.chainmail). Raises ValueError on bad ids or targets
+    max_visits: cap on element visits (default 64 N + 10^4). Raises ValueError on bad ids or targets
     (pos is then untouched).
 
     Assumes the links outside the moved region are inside their boxes (what an exact step leaves); it
@@ -1017,7 +993,7 @@ def exact_limits(
         rest, pos, *graph.kernel_args, fixed_arr, has_fixed,
         moved, grabbed, targets, _ROUND[pos.dtype], TOL[pos.dtype], cap, gen, ex.pin, ex.region, ex.log_stamp,
         ex.log_ids, ex.x0, ex.flag, ex.flag_ids, ex.queue, ex.inq, ex.dist, ex.dstamp, ex.dgen,
-        *ex.field_args(graph), bool(cascaded), ex.result,
+        *ex.field_args(graph), ex.result,
     )  # fmt: skip
     if code < 0:
         raise ValueError(_ERRORS[code].replace("N)", f"{n})"))
