@@ -554,8 +554,8 @@ def markdown(results: dict) -> str:
             "Material 0.8 / 1.2, beta 0.1 (tools/bench/exact_cases.py). Plain: one cascade from rest; outside: "
             "share of all links outside their box after it, and the worst distance from a box in rest lengths. "
             "Exact: the same cascade followed by the exact-limit pass. Times are CPU-time medians (the wall clock "
-            "is in results.json); ratio: exact over plain; residual: the worst distance from a box after it (rest lengths); short: how far the "
-            "grabbed element stopped from its target (0: reached).\n"
+            "is in results.json); ratio: exact over plain; residual: the worst distance from a box after it (rest "
+            "lengths); short: how far the grabbed element stopped from its target (0: reached).\n"
         )
         out.append(
             "| case | pull mm | order | moved | plain ms | outside | worst | exact ms | ratio | residual | short mm |"

@@ -32,7 +32,8 @@ from numba import njit
 from .boxes import start_cascade
 
 #: meshes smaller than this cascade the usual way: the tree's bookkeeping costs more than it saves there
-MIN_ELEMENTS = 2048
+#: (a full pull of a 125-element block: 5.6 us plain, 6.5 us replayed; 1000 elements: 24.5 against 12.3 us)
+MIN_ELEMENTS = 512
 
 REPLAY_DONE = 0
 REPLAY_DIVERGED = 1
