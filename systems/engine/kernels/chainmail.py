@@ -601,11 +601,10 @@ def _rigid_cascade(rest, pos, graph, kargs, grabbed, targets, fixed_arr, has_fix
         tree.graph = None
         return None
     if status == rigid.REPLAY_DIVERGED:
-        ix, ea, mn, mx, bt, ms = kargs[1], kargs[2], kargs[3], kargs[4], kargs[5], kargs[6]
+        # the real cascade leaves the stored search here: it goes on from the state the replay reached
         count = _fifo_loop(
-            rest, pos, kargs[0], ix, ea, mn, mx, bt, ms, fixed_arr, has_fixed, ws.stamp, gen, ws.out_order,
-            ws.out_sponsor, count, head, j0,
-        )  # fmt: skip
+            rest, pos, *kargs, fixed_arr, has_fixed, ws.stamp, gen, ws.out_order, ws.out_sponsor, count, head, j0
+        )
     elif status < 0:
         count = status
     return count
