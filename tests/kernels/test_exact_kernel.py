@@ -195,3 +195,33 @@ def test_bad_arguments_raise_before_anything_moves(kwargs, match):
     with pytest.raises(ValueError, match=match):
         exact_limits(rest, pos, graph, *mats, args["moved"], args["grabbed"], args["targets"])
     np.testing.assert_array_equal(pos, before)
+
+
+@SETTINGS
+@given(scenarios(), st.lists(st.sampled_from(["same", "toggle", "cut", "relaxed"]), min_size=2, max_size=5))
+def test_repeated_pulls_match_the_reference_whatever_changes_between_them(case, steps):
+    """A drag repeats the same pull: the pass then reads the reachable boxes from a field it builds once;
+    anchors toggled in place, links cut or positions changed after the cascade in between must all be
+    noticed. Each step matches the whole-mesh reference, keeps
+    every link inside and the fixed elements where they were."""
+    rest, links, alive, _, fixed, grabbed, targets, order, _, rng = case
+    graph, mats, ws, _ = setup(case)
+    fixed = np.zeros(len(rest), bool) if fixed is None else fixed.copy()
+    for what in ["same"] + steps:
+        if what == "toggle":
+            fixed[rng.integers(len(rest))] ^= True
+        elif what == "cut" and len(links):
+            graph.cut(rng.choice(len(links), size=1))
+        pos = rest.copy()
+        moved, _ = cascade(rest, pos, graph, *mats, grabbed, targets, fixed=fixed, order=order, workspace=ws)
+        if what == "relaxed":  # positions changed after the cascade (as relaxation does)
+            pos[moved] += rng.normal(scale=0.05, size=pos[moved].shape) * (~fixed[moved])[:, None]
+            pos[grabbed] = np.where(fixed[grabbed, None], pos[grabbed], targets)
+        after = pos.copy()
+        res = exact_limits(rest, pos, graph, *mats, moved, grabbed, targets, fixed, ws)
+        ref, ref_short = ref_exact(rest, after, links, graph.alive, *mats, grabbed, targets, fixed)
+        scale = 1.0 + np.abs(ref).max()
+        np.testing.assert_allclose(pos, ref, rtol=0, atol=1e-7 * scale)
+        assert res.shortfall == pytest.approx(ref_short, abs=1e-7 * scale)
+        assert violations(rest, pos, graph, *mats).outside == 0
+        np.testing.assert_array_equal(pos[fixed], rest[fixed])

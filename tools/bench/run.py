@@ -244,6 +244,7 @@ def thesis_part(quick: bool, repeat: int) -> list[dict]:
                 row[f"gen_{label}_ms"] = median_ms(t)
                 row[f"gen_{label}_cpu_ms"] = cpu_ms(t)
                 row[f"lean_{label}_ms"] = median_ms(tl)
+                row[f"lean_{label}_cpu_ms"] = cpu_ms(tl)
                 row[f"gen_{label}_moved"] = body.moved
                 gpos = rest.copy()
                 gib = partial(gibson_grid_move, gpos, (side, side), c, target, amin, amax, beta)
@@ -371,6 +372,8 @@ def scaling_part(quick: bool, repeat: int, max_elements: float) -> list[dict]:
                 row["rigid_min_ms"] = min(t) * 1e3  # least disturbed run, for loaded machines
                 row["lean_ms"] = median_ms(tl)
                 row["lean_ratio"] = median_ms(t) / median_ms(tl)
+                row["lean_cpu_ms"] = cpu_ms(tl)
+                row["lean_cpu_ratio"] = cpu_ms(t) / max(cpu_ms(tl), 1e-9)
                 row["parallel_ms"] = median_ms(tp)
                 row["threads"] = numba.get_num_threads()
                 row["rigid_moved"] = body.moved
@@ -451,6 +454,17 @@ def exact_part(quick: bool, repeat: int) -> list[dict]:
 # -- report ------------------------------------------------------------------------------------------
 
 
+def _cpu(row: dict, key: str, digits: int = 3) -> str:
+    """A CPU-time figure of a row, or '-' for results written before it was recorded."""
+    return f"{row[key]:.{digits}f}" if key in row else "-"
+
+
+def _cpu_ratio(row: dict, num: str, den: str) -> str:
+    if f"{den}_cpu_ms" not in row:
+        return "-"
+    return f"{row[f'{num}_cpu_ms'] / max(row[f'{den}_cpu_ms'], 1e-9):.2f}"
+
+
 def _fmt_rate(ms: float) -> str:
     return f"{1000.0 / ms:,.0f}" if ms > 0 else "inf"
 
@@ -467,7 +481,8 @@ def markdown(results: dict) -> str:
             "Ours: cascade-only updates per second (1000 / median ms). Thesis: Java + VRML frame rates on an "
             "AMD-K7, Tables 6.2-6.4. 'high' = small move of the centre element, 'low' = a move that every "
             "element follows. Moved = elements moved by our generalised run. Low vs lean: its time over the lean "
-            "cascade's (chainsim.engine.kernels.lean) for the same move, timed alternately in the same run.\n"
+            "cascade's (chainsim.engine.kernels.lean) for the same move, timed alternately in the same run (wall "
+            "clock; CPU time in brackets).\n"
         )
         out.append(
             "Rates from wall-clock medians; in brackets, from CPU-time medians (what the process itself "
@@ -488,7 +503,8 @@ def markdown(results: dict) -> str:
                 f"({chi / th['generalised_high']:,.0f}x) | "
                 f"{lo:,.0f} ({clo:,.0f}) | {th['generalised_low']:g} | {lo / th['generalised_low']:,.0f}x "
                 f"({clo / th['generalised_low']:,.0f}x) | {r['gen_low_moved']} | "
-                f"{r['gen_low_ms'] / r['lean_low_ms']:.2f} | {_fmt_rate(r['gib_high_ms'])} | "
+                f"{r['gen_low_ms'] / r['lean_low_ms']:.2f} ({_cpu_ratio(r, 'gen_low', 'lean_low')}) | "
+                f"{_fmt_rate(r['gib_high_ms'])} | "
                 f"{_fmt_rate(r['gib_low_ms'])} | "
                 f"{th['gibson_high']:g} / {th['gibson_low']:g} |"
             )
@@ -513,7 +529,8 @@ def markdown(results: dict) -> str:
         out.append(
             "Wall-clock medians, CPU-time medians in brackets; the ratio to the generated order uses CPU time. "
             "Lean: the lean cascade (chainsim.engine.kernels.lean: one material, no anchors, no cuts), timed "
-            "alternately with the rigid cascade in the same run; vs lean = rigid / lean. Level-parallel: the "
+            "alternately with the rigid cascade in the same run; vs lean = rigid / lean (wall clock, CPU time in "
+            "brackets: on a busy machine the longer call is preempted more often). Level-parallel: the "
             "breadth-first cascade wave by wave on numba's threads (same result), timed after them.\n"
         )
         out.append(
@@ -525,7 +542,8 @@ def markdown(results: dict) -> str:
             rel = f"{r['rigid_relax2_ms']:.3f} ({r['rigid_relax2_cpu_ms']:.3f})" if "rigid_relax2_ms" in r else "-"
             out.append(
                 f"| {r['mesh']} | {r['elements']:,} | {r['links_per_element']:.1f} | {r['variant']} | "
-                f"{r['rigid_ms']:.3f} ({r['rigid_cpu_ms']:.3f}) | {r['lean_ms']:.3f} | {r['lean_ratio']:.2f} | "
+                f"{r['rigid_ms']:.3f} ({r['rigid_cpu_ms']:.3f}) | {r['lean_ms']:.3f} ({_cpu(r, 'lean_cpu_ms')}) | "
+                f"{r['lean_ratio']:.2f} ({_cpu(r, 'lean_cpu_ratio', 2)}) | "
                 f"{r['parallel_ms']:.3f} ({r['threads']}) | {rel} | {r['ratio_to_ordered']:.2f} | "
                 f"{r['local_ms']:.4f} ({r['local_cpu_ms']:.4f}) | {r['local_moved']} |"
             )
@@ -535,9 +553,9 @@ def markdown(results: dict) -> str:
         out.append(
             "Material 0.8 / 1.2, beta 0.1 (tools/bench/exact_cases.py). Plain: one cascade from rest; outside: "
             "share of all links outside their box after it, and the worst distance from a box in rest lengths. "
-            "Exact: the same cascade followed by the exact-limit pass; ratio: its CPU time over the plain "
-            "cascade's; residual: the worst distance from a box after it (rest lengths); short: how far the "
-            "grabbed element stopped from its target (0: reached).\n"
+            "Exact: the same cascade followed by the exact-limit pass. Times are CPU-time medians (the wall clock "
+            "is in results.json); ratio: exact over plain; residual: the worst distance from a box after it (rest "
+            "lengths); short: how far the grabbed element stopped from its target (0: reached).\n"
         )
         out.append(
             "| case | pull mm | order | moved | plain ms | outside | worst | exact ms | ratio | residual | short mm |"
@@ -545,8 +563,8 @@ def markdown(results: dict) -> str:
         out.append("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|")
         for r in results["exact"]:
             out.append(
-                f"| {r['case']} | {r['pull_mm']:g} | {r['order']} | {r['moved']} | {r['plain_ms']:.3f} | "
-                f"{100 * r['outside_share']:.2f} % | {r['outside_worst']:.2f} | {r['exact_ms']:.3f} | "
+                f"| {r['case']} | {r['pull_mm']:g} | {r['order']} | {r['moved']} | {r['plain_cpu_ms']:.3f} | "
+                f"{100 * r['outside_share']:.2f} % | {r['outside_worst']:.2f} | {r['exact_cpu_ms']:.3f} | "
                 f"{r['exact_ratio']:.1f}x | {r['residual']:.1e} | {r['shortfall_mm']:.2f} |"
             )
         out.append("")
@@ -699,6 +717,9 @@ def run_mesh(args) -> int:
         "repeats": reps,
         "lean_median_ms": median_ms(lean_t),
         "lean_ratio": median_ms(times) / max(median_ms(lean_t), 1e-12),
+        "cpu_median_ms": cpu_ms(times),
+        "lean_cpu_median_ms": cpu_ms(lean_t),
+        "lean_cpu_ratio": cpu_ms(times) / max(cpu_ms(lean_t), 1e-12),
         "elements_moved": body.moved,
         "order": order_name(args.order),
         "relax": args.relax,
@@ -728,7 +749,8 @@ def run_mesh(args) -> int:
     print(
         f"{result['mesh']}: {n} elements, {result['links']} links; one {result['order']} cascade moving "
         f"{result['elements_moved']} elements: median {result['median_ms']:.4f} ms over {reps} runs; the lean "
-        f"cascade {result['lean_median_ms']:.4f} ms (ratio {result['lean_ratio']:.2f})"
+        f"cascade {result['lean_median_ms']:.4f} ms (ratio {result['lean_ratio']:.2f}; CPU time "
+        f"{result['cpu_median_ms']:.4f} against {result['lean_cpu_median_ms']:.4f} ms, {result['lean_cpu_ratio']:.2f})"
     )
     if args.exact:
         e = result["exact"]

@@ -35,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from . import waves
+from . import rigid, waves
 from .boxes import start_cascade, try_move, violation
 from .graph import Graph
 
@@ -107,6 +107,8 @@ class Workspace:
     stamp[i] == gen means element i has moved in the current cascade; bumping `gen` clears every flag
     at once. The output buffers are N long; the waiting-list buffers of the balanced and Schill orders
     are grown on demand (to the CSR size plus K) and then kept. The breadth-first order needs no queue.
+    A cascade replayed along the stored tree of a material with no freedom (kernels.rigid) leaves the
+    stamps of what it moved unset: nothing reads them after the cascade.
     """
 
     def __init__(self, n: int):
@@ -125,6 +127,7 @@ class Workspace:
         self.q_key = np.empty(0, dtype=np.float64)  # violation (Schill)
         self.branch_head = np.empty(0, dtype=np.int64)
         self.branch_tail = np.empty(0, dtype=np.int64)
+        self.rigid = None  # the breadth-first tree a material with no freedom replays (kernels.rigid)
         # The mesh arrays last checked with this workspace, held (not just their ids) so an identity
         # match means the very same arrays: interactive dragging re-checks only pos, grabbed, targets.
         self.checked: tuple = ()
@@ -198,11 +201,43 @@ def _cascade_fifo(
     count = start_cascade(pos, grabbed, targets, fixed, has_fixed, stamp, gen, out_order, out_sponsor)
     if count < 0:
         return count
-    head = 0
+    return _fifo_loop(
+        rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen, out_order,
+        out_sponsor, count, 0, -1,
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def _fifo_loop(
+    rest,
+    pos,
+    indptr,
+    indices,
+    ealive,
+    eamin,
+    eamax,
+    ebeta,
+    ms,
+    fixed,
+    has_fixed,
+    stamp,
+    gen,
+    out_order,
+    out_sponsor,
+    count,
+    head,
+    j0,
+):
+    """The breadth-first cascade from a given state: out_order[:count] moved (and stamped), the sponsor at
+    out_order[head] served next from its CSR entry j0 (-1: from its first). Returns the final count."""
     dim = pos.shape[1]
     while head < count:
         s = out_order[head]
         head += 1
+        j_first = indptr[s]
+        if j0 >= 0:  # resuming a sponsor part-way through its neighbours
+            j_first = j0
+            j0 = -1
         if dim == 3:
             # the sponsor's rows loaded once per sponsor; the same arithmetic as try_move otherwise
             r0 = np.float64(rest[s, 0])
@@ -211,7 +246,7 @@ def _cascade_fifo(
             b0 = np.float64(pos[s, 0])
             b1 = np.float64(pos[s, 1])
             b2 = np.float64(pos[s, 2])
-            for j in range(indptr[s], indptr[s + 1]):
+            for j in range(j_first, indptr[s + 1]):
                 e = indices[j]
                 if stamp[e] == gen or not ealive[j] or (has_fixed and fixed[e]):
                     continue
@@ -265,7 +300,7 @@ def _cascade_fifo(
                     out_sponsor[count] = s
                     count += 1
             continue
-        for j in range(indptr[s], indptr[s + 1]):
+        for j in range(j_first, indptr[s + 1]):
             e = indices[j]
             if stamp[e] == gen or not ealive[j] or (has_fixed and fixed[e]):
                 continue
@@ -544,6 +579,37 @@ def _cascade_schill(
 # Python entry point
 
 
+def _rigid_cascade(rest, pos, graph, kargs, grabbed, targets, fixed_arr, has_fixed, ws, gen, alpha):
+    """The breadth-first cascade through a material with no freedom, replayed along the workspace's stored
+    tree (kernels.rigid); None when there is no tree for this move yet (the caller cascades as usual)."""
+    tree = ws.rigid
+    if tree is None:
+        tree = ws.rigid = rigid.RigidTree()
+    if not tree.holds_for(graph, grabbed):
+        if not tree.want(graph, grabbed):
+            return None
+        n = pos.shape[0]
+        if grabbed.min() < 0 or grabbed.max() >= n or np.unique(grabbed).shape[0] != grabbed.shape[0]:
+            return None  # the cascade reports the bad ids
+        tree.build(graph, grabbed, fixed_arr, has_fixed, ws.stamp, gen)
+        gen = ws.next_generation()
+    status, count, head, j0 = rigid.replay(
+        rest, pos, grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen, ws.out_order, ws.out_sponsor, alpha,
+        tree.order, tree.spos, tree.entry, tree.count, tree.start, tree.grabbed, tree.fixed, tree.has_fixed,
+    )  # fmt: skip
+    if status == rigid.REPLAY_STALE:
+        tree.graph = None
+        return None
+    if status == rigid.REPLAY_DIVERGED:
+        # the real cascade leaves the stored search here: it goes on from the state the replay reached
+        count = _fifo_loop(
+            rest, pos, *kargs, fixed_arr, has_fixed, ws.stamp, gen, ws.out_order, ws.out_sponsor, count, head, j0
+        )
+    elif status < 0:
+        count = status
+    return count
+
+
 _START_ERRORS = {
     -1: "grabbed ids must be element ids in [0, N)",
     -2: "grabbed ids must be distinct",
@@ -683,9 +749,14 @@ def cascade(
     gen = ws.next_generation()
     args = (rest, pos, *kargs, grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen)
     if order == ORDER_BREADTH_FIRST:
+        count = None
         if parallel:
             count = waves.cascade_waves(*args, ws)
-        else:
+        elif workspace is not None and n >= rigid.MIN_ELEMENTS:
+            alpha = rigid.rigid_material(graph)
+            if alpha is not None:
+                count = _rigid_cascade(rest, pos, graph, kargs, grabbed, targets, fixed_arr, has_fixed, ws, gen, alpha)
+        if count is None:
             count = _cascade_fifo(*args, ws.out_order, ws.out_sponsor)
     elif order == ORDER_DEPTH_FIRST:
         count = _cascade_depth_first(*args, ws.q_entry, ws.q_sponsor, ws.out_order, ws.out_sponsor)

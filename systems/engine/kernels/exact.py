@@ -33,7 +33,11 @@ the links' slack, found with Dijkstra and stopped as soon as no further pin can 
 reachable position nearest its target is the per-axis clamp of the target. The grabbed element is put
 there and both walks run again from the cascade's result. Several grabbed elements are settled in the
 order given, each against the fixed ones and those settled before it; `shortfall` says how far the
-furthest stopped from its target.
+furthest stopped from its target. A drag repeats such pulls with the same fixed elements, so when a
+second one needs the search, the boxes of every element against the fixed ones are computed at once (one
+multi-source walk from the fixed elements over the whole mesh) and later pulls read the first grabbed
+element's box from there, as long as the graph, its cut links, the material, the fixed mask and the fixed
+elements' positions are the ones it was computed for.
 
 Deterministic and single-threaded. Work is counted in element visits and capped (`max_visits`), so a
 degenerate input cannot hang it; the result then says it is incomplete and gives the residual left.
@@ -104,9 +108,40 @@ class ExactWorkspace:
         self.inq = np.zeros(n, dtype=np.bool_)  # all False between walks
         self.dist = np.empty((n, 2 * dim), dtype=np.float64)  # reach labels, per axis and side
         self.dstamp = np.zeros(n, dtype=np.int32)
-        self.result = np.zeros(8, dtype=np.float64)
+        self.result = np.zeros(9, dtype=np.float64)
         self.gen = 0  # each call uses gen and gen + 1 (a second attempt)
         self.dgen = 0
+        # the reachable boxes against the fixed elements (_pin_field), built once a pull out of reach
+        # repeats with the same graph, material and fixed elements (a drag), then read instead of searched
+        self.field = np.empty((0, 2 * dim), dtype=np.float64)
+        self.field_key: tuple = ()
+        self.field_fixed = np.zeros(0, dtype=np.bool_)
+        self.field_ids = np.zeros(0, dtype=np.int64)
+        self.field_pos = np.zeros((0, dim), dtype=np.float64)
+        self.field_seen: tuple = ()
+
+    def field_args(self, graph) -> tuple:
+        """(field, valid for this graph and material, fixed mask, fixed ids, their positions) for _exact;
+        the kernel checks the mask and positions."""
+        ok = _same_key(self.field_key, _field_key(graph))
+        return self.field, ok, self.field_fixed, self.field_ids, self.field_pos
+
+    def searched(self, rest, pos, graph, fixed) -> None:
+        """A pull was settled by searching: build the field when the previous such call had the same key."""
+        key = _field_key(graph)
+        again = _same_key(self.field_seen, key)
+        self.field_seen = key
+        if not again:
+            return
+        n = pos.shape[0]
+        if self.field.shape[0] != n:
+            self.field = np.empty((n, 2 * self.dim), dtype=np.float64)
+        _pin_field(rest, pos, *graph.kernel_args, fixed, self.field, self.queue, self.inq)
+        self.field_fixed = fixed.copy()
+        self.field_ids = np.flatnonzero(fixed).astype(np.int64)
+        self.field_pos = np.ascontiguousarray(pos[self.field_ids], dtype=np.float64)
+        self.field_key = key
+        self.field_seen = ()
 
     def next_generation(self) -> int:
         if self.gen >= 2**31 - 8 or self.dgen >= 2**30:
@@ -116,6 +151,15 @@ class ExactWorkspace:
             self.dgen = 0
         self.gen += 2
         return self.gen
+
+
+def _field_key(graph) -> tuple:
+    """What the pin field depends on besides the fixed elements: the graph, its link state, the material."""
+    return (graph, graph.version, graph.entry_amin, graph.entry_amax, graph.entry_beta)
+
+
+def _same_key(a: tuple, b: tuple) -> bool:
+    return len(a) == len(b) == 5 and a[1] == b[1] and all(x is y for x, y in zip(a[:1] + a[2:], b[:1] + b[2:]))
 
 
 def exact_workspace(workspace, n: int, dim: int) -> ExactWorkspace:
@@ -230,30 +274,43 @@ def _walk(
         inq[i] = False
         visits += 1
         again = False
+        if dim == 3:
+            # i's rows and a uniform material loaded once per visit (stores to pos keep the compiler from
+            # hoisting them itself); p0..p2 follow i when a correction moves it
+            ri0 = np.float64(rest[i, 0])
+            ri1 = np.float64(rest[i, 1])
+            ri2 = np.float64(rest[i, 2])
+            p0 = np.float64(pos[i, 0])
+            p1 = np.float64(pos[i, 1])
+            p2 = np.float64(pos[i, 2])
+            mid = 0.5 * (eamin[0] + eamax[0])
+            half = 0.5 * (eamax[0] - eamin[0])
+            bt = ebeta[0]
         for jj in range(indptr[i], indptr[i + 1]):
             if not ealive[jj]:
                 continue
             j = indices[jj]
             if dim == 3:
                 # unrolled: the common case, a link inside its box, costs a few multiply-adds
-                d0 = np.float64(rest[j, 0]) - np.float64(rest[i, 0])
-                d1 = np.float64(rest[j, 1]) - np.float64(rest[i, 1])
-                d2 = np.float64(rest[j, 2]) - np.float64(rest[i, 2])
+                d0 = np.float64(rest[j, 0]) - ri0
+                d1 = np.float64(rest[j, 1]) - ri1
+                d2 = np.float64(rest[j, 2]) - ri2
                 a0 = abs(d0)
                 a1 = abs(d1)
                 a2 = abs(d2)
                 l1 = a0 + a1 + a2
                 eps = eps_rel * l1 + eps_abs
-                mid = 0.5 * (eamin[jj * ms] + eamax[jj * ms])
-                half = 0.5 * (eamax[jj * ms] - eamin[jj * ms])
-                b = ebeta[jj * ms]
+                if ms != 0:
+                    mid = 0.5 * (eamin[jj] + eamax[jj])
+                    half = 0.5 * (eamax[jj] - eamin[jj])
+                    bt = ebeta[jj]
                 # signed offset from the centre of the interval, and distance beyond its half-width
-                s0 = np.float64(pos[j, 0]) - np.float64(pos[i, 0]) - mid * d0
-                s1 = np.float64(pos[j, 1]) - np.float64(pos[i, 1]) - mid * d1
-                s2 = np.float64(pos[j, 2]) - np.float64(pos[i, 2]) - mid * d2
-                e0 = abs(s0) - (half * a0 + b * (l1 - a0))
-                e1 = abs(s1) - (half * a1 + b * (l1 - a1))
-                e2 = abs(s2) - (half * a2 + b * (l1 - a2))
+                s0 = np.float64(pos[j, 0]) - p0 - mid * d0
+                s1 = np.float64(pos[j, 1]) - p1 - mid * d1
+                s2 = np.float64(pos[j, 2]) - p2 - mid * d2
+                e0 = abs(s0) - (half * a0 + bt * (l1 - a0))
+                e1 = abs(s1) - (half * a1 + bt * (l1 - a1))
+                e2 = abs(s2) - (half * a2 + bt * (l1 - a2))
                 if e0 <= eps and e1 <= eps and e2 <= eps:
                     continue
             else:
@@ -306,6 +363,10 @@ def _walk(
                 pos[mover, a] = np.float64(pos[mover, a]) + (-ex if down[a] else ex)
                 if mover == i:
                     again = True
+                    if dim == 3:
+                        p0 = np.float64(pos[i, 0])
+                        p1 = np.float64(pos[i, 1])
+                        p2 = np.float64(pos[i, 2])
                 elif not inq[j]:
                     inq[j] = True
                     queue[tail] = j
@@ -444,6 +505,76 @@ def _reach(
 
 
 @njit(cache=True)
+def _pin_field(rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, field, queue, inq):
+    """The reachable boxes of every element against the fixed ones, at once: field[v, 2 a] = min over
+    fixed p of z_p + dist_a(p -> v) and field[v, 2 a + 1] = min over p of dist_a(v -> p) - z_p, with z
+    and dist_a as in _reach (+inf where no fixed element binds). A multi-source label-correcting walk
+    from the fixed elements, whose labels stay their own (a path does not pass through one, as in
+    _reach). Returns the visits."""
+    n = pos.shape[0]
+    dim = pos.shape[1]
+    ns = 2 * dim
+    head = 0
+    tail = 0
+    size = 0
+    for v in range(n):
+        if fixed[v]:
+            for a in range(dim):
+                z = np.float64(pos[v, a]) - np.float64(rest[v, a])
+                field[v, 2 * a] = z
+                field[v, 2 * a + 1] = -z
+            inq[v] = True
+            queue[tail] = v
+            tail += 1
+            size += 1
+        else:
+            for k in range(ns):
+                field[v, k] = np.inf
+    if tail == n:
+        tail = 0
+    visits = 0
+    while size > 0:
+        u = queue[head]
+        head += 1
+        if head == n:
+            head = 0
+        size -= 1
+        inq[u] = False
+        visits += 1
+        for jj in range(indptr[u], indptr[u + 1]):
+            v = indices[jj]
+            if not ealive[jj] or fixed[v]:
+                continue
+            l1 = 0.0
+            for b in range(dim):
+                l1 += abs(np.float64(rest[v, b]) - np.float64(rest[u, b]))
+            mid1 = 0.5 * (eamin[jj * ms] + eamax[jj * ms]) - 1.0
+            half = 0.5 * (eamax[jj * ms] - eamin[jj * ms])
+            be = ebeta[jj * ms]
+            improved = False
+            for k in range(ns):
+                if field[u, k] == np.inf:
+                    continue
+                # the weight _reach gives the step v -> u, met here in the other direction
+                dv = np.float64(rest[v, k // 2]) - np.float64(rest[u, k // 2])
+                d = dv if k % 2 == 0 else -dv
+                ad = abs(d)
+                w = mid1 * d + half * ad + be * (l1 - ad)
+                nd = field[u, k] + (w if w > 0.0 else 0.0)
+                if nd < field[v, k]:
+                    field[v, k] = nd
+                    improved = True
+            if improved and not inq[v]:
+                inq[v] = True
+                queue[tail] = v
+                tail += 1
+                if tail == n:
+                    tail = 0
+                size += 1
+    return visits
+
+
+@njit(cache=True)
 def _settle_targets(
     rest,
     pos,
@@ -465,10 +596,15 @@ def _settle_targets(
     dgen,
     queue,
     inq,
+    field,
+    use_field,
+    result,
 ):
     """Put each grabbed element at the reachable position nearest its target (the per-axis clamp of the
     target into its reachable box), in the order given, each pinned before the next is settled (pin
-    must hold no grabbed element on entry). Returns (visits, dgen, moved: whether any was clamped)."""
+    must hold no grabbed element on entry). The first one is settled against the fixed elements alone:
+    its box is read from `field` when use_field (see _pin_field), and result[8] is set when it had to be
+    searched instead. Returns (visits, dgen, moved: whether any was clamped)."""
     n = pos.shape[0]
     dim = pos.shape[1]
     ns = 2 * dim
@@ -477,10 +613,28 @@ def _settle_targets(
     best = np.empty(ns)
     visits = 0
     clamped = False
+    first = True
     for k in range(grabbed.shape[0]):
         g = grabbed[k]
         if has_fixed and fixed[g]:
             continue
+        if first and has_fixed:
+            first = False
+            if use_field:
+                for a in range(dim):
+                    r = np.float64(rest[g, a])
+                    x = np.float64(targets[k, a])
+                    if field[g, 2 * a] < x - r:
+                        x = r + field[g, 2 * a]
+                    if field[g, 2 * a + 1] < r - x:
+                        x = r - field[g, 2 * a + 1]
+                    if x != pos[g, a]:
+                        clamped = True
+                    pos[g, a] = x
+                pin[g] = gen
+                continue
+            result[8] = 1.0
+        first = False
         for s in range(ns):
             zb[s] = np.inf
         any_pin = False
@@ -626,12 +780,31 @@ def _exact(
     dist,
     dstamp,
     dgen,
+    field,
+    field_ok,
+    field_fixed,
+    field_ids,
+    field_pos,
     result,
 ):
     """The whole pass (see the module docstring). Writes result = [residual, outside, checked,
-    shortfall, visits, complete, n changed, dgen]; returns 0, or a negative code before anything moves."""
+    shortfall, visits, complete, n changed, dgen, searched]; returns 0, or a negative code before
+    anything moves. field_ok: the pin field was built for this graph and material; it is used when the
+    fixed mask and the fixed elements' positions are still the ones it was built from."""
     n = pos.shape[0]
     dim = pos.shape[1]
+    result[8] = 0.0
+    use_field = field_ok and has_fixed and field_fixed.shape[0] == n
+    if use_field:
+        for i in range(n):
+            if fixed[i] != field_fixed[i]:
+                use_field = False
+                break
+    if use_field:
+        for k in range(field_ids.shape[0]):
+            for a in range(dim):
+                if pos[field_ids[k], a] != field_pos[k, a]:
+                    use_field = False
     for k in range(grabbed.shape[0]):
         if grabbed[k] < 0 or grabbed[k] >= n:
             return -1
@@ -688,7 +861,7 @@ def _exact(
                 pin[grabbed[k]] = gen - 1  # pinned again one by one as they are settled
             v, dgen, clamped = _settle_targets(
                 rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, pin, gen, grabbed,
-                targets, dist, dstamp, dgen, queue, inq,
+                targets, dist, dstamp, dgen, queue, inq, field, use_field, result,
             )  # fmt: skip
             visits += v
             settled = True
@@ -708,7 +881,7 @@ def _exact(
                 pin[grabbed[k]] = gen - 1  # pinned again one by one as they are settled
             v, dgen, clamped = _settle_targets(
                 rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, pin, gen, grabbed,
-                targets, dist, dstamp, dgen, queue, inq,
+                targets, dist, dstamp, dgen, queue, inq, field, use_field, result,
             )  # fmt: skip
             visits += v
             settled = True
@@ -732,7 +905,7 @@ def _exact(
             pin[grabbed[k]] = gen - 1
         v, dgen, clamped = _settle_targets(
             rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, pin, gen, grabbed,
-            targets, dist, dstamp, dgen, queue, inq,
+            targets, dist, dstamp, dgen, queue, inq, field, use_field, result,
         )  # fmt: skip
         visits += v
         settled = True
@@ -819,11 +992,14 @@ def exact_limits(
     code = _exact(
         rest, pos, *graph.kernel_args, fixed_arr, has_fixed,
         moved, grabbed, targets, _ROUND[pos.dtype], TOL[pos.dtype], cap, gen, ex.pin, ex.region, ex.log_stamp,
-        ex.log_ids, ex.x0, ex.flag, ex.flag_ids, ex.queue, ex.inq, ex.dist, ex.dstamp, ex.dgen, ex.result,
+        ex.log_ids, ex.x0, ex.flag, ex.flag_ids, ex.queue, ex.inq, ex.dist, ex.dstamp, ex.dgen,
+        *ex.field_args(graph), ex.result,
     )  # fmt: skip
     if code < 0:
         raise ValueError(_ERRORS[code].replace("N)", f"{n})"))
     r = ex.result
+    if r[8]:
+        ex.searched(rest, pos, graph, fixed_arr)
     ex.dgen = int(r[7])
     nchanged = int(r[6])
     return ExactResult(

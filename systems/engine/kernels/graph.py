@@ -50,6 +50,7 @@ class Graph:
         "entry_amax",
         "entry_beta",
         "mat_stride",
+        "version",
     )
 
     def __init__(self, indptr, indices, link, links, alive=None):
@@ -67,6 +68,9 @@ class Graph:
         self.amin = self.amax = self.beta = None
         self.entry_amin = self.entry_amax = self.entry_beta = None
         self.mat_stride = 0
+        # bumped by every change of an alive flag, so caches of the link structure (the rigid cascade's
+        # breadth-first tree) can tell they are stale without comparing the flags
+        self.version = 0
 
     @property
     def n_elements(self) -> int:
@@ -93,6 +97,7 @@ class Graph:
         if changed.size:
             self._alive[changed] = bool(value)
             _set_entries(self._entry_alive, self.indptr, self.link, self.links, changed, bool(value))
+            self.version += 1
         return changed
 
     def cut(self, ids) -> np.ndarray:
@@ -103,6 +108,7 @@ class Graph:
         """Every link alive again (a reset to the rest shape)."""
         self._alive[:] = True
         self._entry_alive[:] = True
+        self.version += 1
 
     # -- materials -----------------------------------------------------------------------------------
 
