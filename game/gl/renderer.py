@@ -11,6 +11,7 @@ The renderer only sees plain data (`Frame`); `chainsim.game.gl.render_system` ga
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -26,6 +27,9 @@ from chainsim.game.gl.overlay import Overlay
 from chainsim.systems.ui.viewports import Camera, Rect
 
 SHADING = {"smooth": 0, "flat": 1, "unlit": 2}
+#: opaque meshes with at least this many triangles are drawn only where their convex hull passes the
+#: depth test against what is already drawn (the skull inside the opaque skin costs nothing then)
+CULL_MIN_TRIANGLES = 4000
 PANEL_BG, TEXT, DIM, ACCENT, LIGHT_RGBA = (
     panelview.PANEL_BG,
     panelview.TEXT,
@@ -102,6 +106,21 @@ def _set(prog, name: str, value) -> None:
             u.value = value
 
 
+@contextmanager
+def _writes_off(fbo):
+    """Neither colour nor depth is written inside (occlusion queries). moderngl hands a framebuffer's
+    masks to GL when it is bound, so it is bound again after each change."""
+    fbo.color_mask = (False, False, False, False)
+    fbo.depth_mask = False
+    fbo.use()
+    try:
+        yield
+    finally:
+        fbo.color_mask = (True, True, True, True)
+        fbo.depth_mask = True
+        fbo.use()
+
+
 def icosphere(subdiv: int = 2) -> tuple[np.ndarray, np.ndarray]:
 
     s = trimesh.creation.icosphere(subdivisions=subdiv, radius=1.0)
@@ -125,6 +144,9 @@ class Renderer:
         self.pages = PageView(self.overlay)
         self._labels_seen: dict[tuple, list[bool]] = {}  # viewport rect -> label in sight (this frame)
         self._fluoro: FluoroRenderer | None = None  # made on first use (only layouts with a C-arm view)
+        self.occlusion_culling = True  # off: every mesh is drawn (tests compare both)
+        self._queries: list = []  # reused occlusion queries; `_next_query` hands them out per frame
+        self._next_query = 0
 
     @property
     def fluoro(self) -> FluoroRenderer:
@@ -159,6 +181,7 @@ class Renderer:
         ctx.scissor = None
         ctx.viewport = (0, 0, W, H)
         self._labels_seen.clear()
+        self._next_query = 0
         if frame.fluoro is not None:
             self.fluoro.update(frame.fluoro)  # a new C-arm image, when one was taken
             fbo.use()
@@ -224,6 +247,44 @@ class Renderer:
         _set(self.line_prog, "u_color", tuple(float(c) for c in color))
         self.dyn_vao.render(mode, vertices=len(pts))
 
+    def _query(self):
+        """An occlusion query for this frame (queries are kept and reused from frame to frame)."""
+        if self._next_query == len(self._queries):
+            self._queries.append(self.ctx.query(samples=True))
+        q = self._queries[self._next_query]
+        self._next_query += 1
+        return q
+
+    def _near_clear_of(self, m: MeshDraw, cam: Camera, aspect: float) -> bool:
+        """Whether the mesh's box lies wholly beyond the camera's near plane (with its corners), so its
+        convex hull's near side is drawn whole and an occlusion test on it is sound."""
+        lo, hi = m.gpu.box()
+        model = np.asarray(m.model, float)
+        centre = model[:3, :3] @ (0.5 * (lo + hi)) + model[:3, 3]
+        half = np.abs(model[:3, :3]) @ (0.5 * (hi - lo))
+        eye = np.asarray(cam.eye, float)
+        gap = np.linalg.norm(np.maximum(np.abs(eye - centre) - half, 0.0))
+        t = np.tan(np.radians(cam.fov) / 2.0)
+        return gap > cam.near * np.sqrt(1.0 + t * t * (1.0 + aspect * aspect)) * 1.01
+
+    def _draw_unless_hidden(self, m: MeshDraw, vp, eye, cam: Camera, aspect: float) -> None:
+        """Draw an opaque mesh under conditional rendering: its convex hull is drawn first, without
+        colour or depth writes, in an occlusion query, and the mesh only if some hull sample passed.
+        Every fragment of the mesh lies inside the hull, at or behind the hull's near side, so a mesh
+        with any visible fragment always has a visible hull sample: nothing visible is ever culled."""
+        hv = m.gpu.hull_vao(self.line_prog)
+        if hv is None or not self._near_clear_of(m, cam, aspect):
+            self._draw_mesh(m, vp, eye)
+            return
+        vao, n = hv
+        q = self._query()
+        with _writes_off(self.ctx.fbo):
+            _set(self.line_prog, "u_mvp", _mat(vp @ np.asarray(m.model, float)))
+            with q:
+                vao.render(self.ctx.TRIANGLES, vertices=n)
+        with q.crender:
+            self._draw_mesh(m, vp, eye)
+
     def _label_queries(self, frame: Frame, vp, eye, r: Rect) -> None:
         """Which labels the opaque scene leaves in sight: a small sphere at each label's point is drawn
         without colour or depth writes inside an occlusion query (before markers, which would hide it),
@@ -232,19 +293,13 @@ class Renderer:
         seen = self._labels_seen[(r.x, r.y, r.w, r.h)] = []
         if not frame.labels:
             return
-        fbo = ctx.fbo
-        fbo.color_mask = (False, False, False, False)
-        fbo.depth_mask = False
-        try:
+        with _writes_off(ctx.fbo):
             for pos, _text, _color in frame.labels:
                 q = ctx.query(samples=True)
                 with q:
                     self._draw_mesh(MeshDraw(self.sphere, _trs(pos, 1.2), (1, 1, 1, 1)), vp, eye)
                 seen.append(q.samples > 0)
                 q.mglo.release() if hasattr(q.mglo, "release") else None
-        finally:
-            fbo.color_mask = (True, True, True, True)
-            fbo.depth_mask = True
 
     def _scene(self, frame: Frame, cam: Camera, r: Rect, fbo, hide: int = -1) -> None:
         ctx = self.ctx
@@ -254,13 +309,17 @@ class Renderer:
         ctx.disable(ctx.BLEND | ctx.CULL_FACE)
         fbo.depth_mask = True
         see_through = []
+        drawn = 0  # opaque meshes drawn so far: the first one has nothing in front to hide behind
         for m in frame.meshes:
             if hide >= 0 and m.entity == hide:
                 continue
             if m.color[3] < 0.999:
                 see_through.append(("mesh", m))
+            elif self.occlusion_culling and drawn and not m.wireframe and m.gpu.n_indices >= 3 * CULL_MIN_TRIANGLES:
+                self._draw_unless_hidden(m, vp, eye, cam, r.aspect)
             else:
                 self._draw_mesh(m, vp, eye)
+            drawn += m.color[3] >= 0.999
         self._label_queries(frame, vp, eye, r)
         for pos, radius, color, ent in frame.markers:
             if hide >= 0 and ent == hide:
@@ -392,6 +451,10 @@ class Renderer:
         self.overlay.release()
         for o in (self.dyn_vao, self.dyn, self.mesh_prog, self.line_prog, self.id_prog):
             o.release()
+        for q in self._queries:
+            if hasattr(q.mglo, "release"):
+                q.mglo.release()
+        self._queries.clear()
         if self._fluoro is not None:
             self._fluoro.release()
             self._fluoro = None

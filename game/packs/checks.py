@@ -340,6 +340,8 @@ def check_meshes(v: Validator, man: dict, load_meshes: bool) -> dict[str, MeshDa
             p = v.path(file, f"{key}.path", spec["path"])
             if p is None:
                 continue
+            if spec.get("display") and v.path(file, f"{key}.display", spec["display"]) is None:
+                continue
             limit = max_mesh_bytes()
             if p.stat().st_size > limit:
                 v.add(

@@ -88,6 +88,13 @@ section(
         ),
         Field("primitive", "enum", "", choices=("",) + PRIMITIVES, help="Built-in shape instead of a file."),
         Field(
+            "display",
+            "path",
+            "",
+            help="A lighter copy of the surface (same units) drawn in its place; picking, contacts and the "
+            "C-arm image keep the full mesh. Ignored for meshes that deform.",
+        ),
+        Field(
             "units",
             "enum",
             "mm",
