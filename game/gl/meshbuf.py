@@ -72,6 +72,7 @@ class GpuMesh:
         self.pending = np.zeros(self.n, np.bool_)  # vertices moved since the last upload
         self.stale = False  # everything must be rewritten
         self.bytes_written = 0  # statistics for benchmarks and tests
+        self.version = 0  # bumped by every change of what is drawn (cached views compare it)
         self.vaos: dict[str, object] = {}
         self._box = None
         self._hull = None  # (vertex buffer, index buffer, index count, {program: vertex array})
@@ -150,6 +151,7 @@ class GpuMesh:
         """Replace the drawn links (after a cut)."""
         links = np.ascontiguousarray(links, dtype=np.int64).reshape(-1, 2)
         self._links = links
+        self.version += 1
         if self.lbo is not None:
             data = links.astype(np.uint32).tobytes()
             if len(data) > self.lbo.size:
@@ -161,6 +163,7 @@ class GpuMesh:
     def set_triangles(self, tri_ids: np.ndarray) -> None:
         """Draw only these triangles (ids into the original list), e.g. after a cut."""
         self.tri_ids = np.asarray(tri_ids, np.int64)
+        self.version += 1
         data = self.tris[self.tri_ids].astype(np.uint32).tobytes()
         if data:
             self.ibo.write(data)
@@ -184,6 +187,7 @@ class GpuMesh:
         if len(ids) == 0:
             return 0
         self._drop_hull()
+        self.version += 1
         self.pending[ids] = False
         if len(ids) > FULL_FRACTION * self.n:
             return self._upload_all(positions)
@@ -208,6 +212,7 @@ class GpuMesh:
     def _upload_all(self, positions: np.ndarray) -> int:
         self._box = None
         self._drop_hull()
+        self.version += 1
         self.pos[:] = positions
         if self.n and len(self.tris):
             if self._csr is None:

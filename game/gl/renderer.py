@@ -24,6 +24,7 @@ from chainsim.game.gl.docview import PageView
 from chainsim.game.gl.fluoro import FluoroDraw, FluoroRenderer
 from chainsim.game.gl.meshbuf import GpuMesh
 from chainsim.game.gl.overlay import Overlay
+from chainsim.game.gl.viewcache import ViewCache, view_key
 from chainsim.systems.ui.viewports import Camera, Rect
 
 SHADING = {"smooth": 0, "flat": 1, "unlit": 2}
@@ -145,6 +146,7 @@ class Renderer:
         self._labels_seen: dict[tuple, list[bool]] = {}  # viewport rect -> label in sight (this frame)
         self._fluoro: FluoroRenderer | None = None  # made on first use (only layouts with a C-arm view)
         self.occlusion_culling = True  # off: every mesh is drawn (tests compare both)
+        self.view_cache: ViewCache | None = None  # `cache_views()` turns it on
         self._queries: list = []  # reused occlusion queries; `_next_query` hands them out per frame
         self._next_query = 0
 
@@ -201,18 +203,57 @@ class Renderer:
             )
             ctx.scissor = (r.x, r.y, r.w, r.h)
             ctx.viewport = (r.x, r.y, r.w, r.h)
+            is_3d = view.camera is not None and view.kind not in ("panel", "fluoro")
+            if is_3d and self.view_cache is not None:
+                self._cached_scene(frame, view, r, fbo, clear)
+                continue
             fbo.clear(*clear, depth=1.0, viewport=(r.x, r.y, r.w, r.h))
             if view.kind == "fluoro":
                 if frame.fluoro is not None:
                     self.fluoro.draw(r)
-            elif view.camera is not None and view.kind != "panel":
+            elif is_3d:
                 self._scene(frame, view.camera, r, fbo, view.hide_entity)
+        if self.view_cache is not None:
+            self.view_cache.forget({v.name for v in frame.views})
         ctx.scissor = None
         ctx.viewport = (0, 0, W, H)
         self.overlay.set_scale(s)
         self._overlay(frame)
         self.overlay.flush((W, H))
         ctx.disable(ctx.BLEND)
+
+    def cache_views(self, on: bool = True) -> None:
+        """Keep each 3-D view's image and draw it again only when what it shows changed
+        (chainsim.game.gl.viewcache); for windows, where most frames repeat most views."""
+        if on and self.view_cache is None:
+            self.view_cache = ViewCache(self.ctx)
+        elif not on and self.view_cache is not None:
+            self.view_cache.release()
+            self.view_cache = None
+
+    def _cached_scene(self, frame: Frame, view: ViewDraw, r: Rect, fbo, clear) -> None:
+        """Draw the view into its cached image if its key changed, then copy the image into `r`."""
+        ctx = self.ctx
+        vc = self.view_cache
+        cv = vc.slot(view.name, (r.w, r.h))
+        key = view_key(frame, view, r, clear)
+        if key != cv.key:
+            local = Rect(0, 0, r.w, r.h)
+            cv.fbo.use()
+            ctx.scissor = None
+            ctx.viewport = (0, 0, r.w, r.h)
+            cv.fbo.clear(*clear, depth=1.0)
+            self._scene(frame, view.camera, local, cv.fbo, view.hide_entity)
+            cv.seen = self._labels_seen.pop((0, 0, r.w, r.h), [])
+            cv.key = key
+            vc.redrawn += 1
+            fbo.use()
+            ctx.scissor = (r.x, r.y, r.w, r.h)
+            ctx.viewport = (r.x, r.y, r.w, r.h)
+        else:
+            vc.reused += 1
+        self._labels_seen[(r.x, r.y, r.w, r.h)] = cv.seen
+        vc.copy(cv, r)
 
     def _mesh_uniforms(self, prog, vp: np.ndarray, m: MeshDraw, eye) -> None:
         model = np.asarray(m.model, float)
@@ -458,6 +499,7 @@ class Renderer:
         if self._fluoro is not None:
             self._fluoro.release()
             self._fluoro = None
+        self.cache_views(False)
 
 
 def _trs(pos, radius: float) -> np.ndarray:
