@@ -11,7 +11,6 @@ normals are recomputed on all threads where there are several (chainsim.engine.k
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import ConvexHull
 
 from chainsim.engine.kernels.normals import moved_normals_kernel, normals_into, vertex_normals_kernel
 from chainsim.engine.meshgen import links_from_polygons
@@ -75,7 +74,6 @@ class GpuMesh:
         self.version = 0  # bumped by every change of what is drawn (cached views compare it)
         self.vaos: dict[str, object] = {}
         self._box = None
-        self._hull = None  # (vertex buffer, index buffer, index count, {program: vertex array})
 
     def box(self) -> tuple[np.ndarray, np.ndarray]:
         """(low, high) corners of a box holding the mesh, in its own frame. After partial uploads it
@@ -91,37 +89,6 @@ class GpuMesh:
         """Box centre in the mesh frame (sorting transparent meshes)."""
         lo, hi = self.box()
         return 0.5 * (lo + hi)
-
-    def hull_vao(self, prog):
-        """A vertex array (positions only) of the mesh's convex hull, for occlusion tests: every
-        fragment of the mesh lies inside it, so where the hull is hidden the mesh is too. Made on
-        first use; None for a mesh too small or flat to have one. A deformation drops it."""
-        if self._hull is None:
-            try:
-                hull = ConvexHull(np.asarray(self.pos, np.float64))
-                faces = np.asarray(hull.simplices, np.uint32)
-            except Exception:  # fewer than 4 points, or all in one plane: nothing to test with
-                self._hull = (None, None, 0, {})
-                return None
-            vbo = self.ctx.buffer(np.ascontiguousarray(self.pos, np.float32).tobytes())
-            ibo = self.ctx.buffer(faces.tobytes())
-            self._hull = (vbo, ibo, faces.size, {})
-        vbo, ibo, n, vaos = self._hull
-        if vbo is None:
-            return None
-        if prog.glo not in vaos:
-            vaos[prog.glo] = self.ctx.vertex_array(prog, [(vbo, "3f", "in_pos")], ibo)
-        return vaos[prog.glo], n
-
-    def _drop_hull(self) -> None:
-        if self._hull is not None:
-            vbo, ibo, _, vaos = self._hull
-            for v in vaos.values():
-                v.release()
-            for b in (vbo, ibo):
-                if b is not None:
-                    b.release()
-            self._hull = None
 
     # -- vertex arrays -----------------------------------------------------------------------
     def vao(self, prog, kind: str):
@@ -186,7 +153,6 @@ class GpuMesh:
         ids = np.flatnonzero(self.pending)
         if len(ids) == 0:
             return 0
-        self._drop_hull()
         self.version += 1
         self.pending[ids] = False
         if len(ids) > FULL_FRACTION * self.n:
@@ -211,7 +177,6 @@ class GpuMesh:
 
     def _upload_all(self, positions: np.ndarray) -> int:
         self._box = None
-        self._drop_hull()
         self.version += 1
         self.pos[:] = positions
         if self.n and len(self.tris):
@@ -224,7 +189,6 @@ class GpuMesh:
         return self.n
 
     def release(self) -> None:
-        self._drop_hull()
         for v in self.vaos.values():
             v.release()
         for b in (self.vbo_pos, self.vbo_nrm, self.ibo, self.lbo):

@@ -177,6 +177,8 @@ def collect_frame(app):
     cache = surface_cache(app)
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     alive_ents = set()
+    drawn_meshes: dict[str, list[MeshDraw]] = {}  # pack mesh name -> its entities' draws
+    enclosed: list[tuple[MeshDraw, str]] = []  # draw, name of the mesh the pack says encloses it
     for ent, ref in esper.get_component(MeshRef):
         alive_ents.add(ent)
         if not ref.visible:
@@ -217,10 +219,15 @@ def collect_frame(app):
             or esper.has_component(ent, Wireframe)
         )
         frame.meshes.append(MeshDraw(gm, model, tuple(color), wire, mat.get("shading", "smooth"), ent))
+        drawn_meshes.setdefault(ref.mesh, []).append(frame.meshes[-1])
+        enclosed.append((frame.meshes[-1], pack.manifest["meshes"][ref.mesh].get("inside", "")))
         blo, bhi = gm.box()
         c = (model @ np.r_[0.5 * (blo + bhi), 1.0])[:3]
         ext = np.abs(model[:3, :3]) @ (bhi - blo) / 2
         lo, hi = np.minimum(lo, c - ext), np.maximum(hi, c + ext)
+    for md, outer in enclosed:
+        if outer and len(drawn_meshes.get(outer, ())) == 1:  # one enclosing entity, or none is meant
+            md.inside = drawn_meshes[outer][0]
     for key in [k for k in renderer.meshes if k not in alive_ents]:
         renderer.forget(key)  # entity removed
     for ent, (mk, tr) in esper.get_components(Marker, Transform):

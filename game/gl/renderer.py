@@ -28,9 +28,7 @@ from chainsim.game.gl.viewcache import ViewCache, view_key
 from chainsim.systems.ui.viewports import Camera, Rect
 
 SHADING = {"smooth": 0, "flat": 1, "unlit": 2}
-#: opaque meshes with at least this many triangles are drawn only where their convex hull passes the
-#: depth test against what is already drawn (the skull inside the opaque skin costs nothing then)
-CULL_MIN_TRIANGLES = 4000
+
 PANEL_BG, TEXT, DIM, ACCENT, LIGHT_RGBA = (
     panelview.PANEL_BG,
     panelview.TEXT,
@@ -48,6 +46,7 @@ class MeshDraw:
     wireframe: bool = False
     shading: str = "smooth"
     entity: int = -1
+    inside: MeshDraw | None = None  # a closed mesh wholly enclosing this one (not drawn while it hides it)
 
 
 @dataclass(slots=True)
@@ -145,10 +144,8 @@ class Renderer:
         self.pages = PageView(self.overlay)
         self._labels_seen: dict[tuple, list[bool]] = {}  # viewport rect -> label in sight (this frame)
         self._fluoro: FluoroRenderer | None = None  # made on first use (only layouts with a C-arm view)
-        self.occlusion_culling = True  # off: every mesh is drawn (tests compare both)
+        self.cull_enclosed = True  # off: meshes inside an opaque one are drawn anyway (tests compare)
         self.view_cache: ViewCache | None = None  # `cache_views()` turns it on
-        self._queries: list = []  # reused occlusion queries; `_next_query` hands them out per frame
-        self._next_query = 0
 
     @property
     def fluoro(self) -> FluoroRenderer:
@@ -183,7 +180,6 @@ class Renderer:
         ctx.scissor = None
         ctx.viewport = (0, 0, W, H)
         self._labels_seen.clear()
-        self._next_query = 0
         if frame.fluoro is not None:
             self.fluoro.update(frame.fluoro)  # a new C-arm image, when one was taken
             fbo.use()
@@ -288,17 +284,9 @@ class Renderer:
         _set(self.line_prog, "u_color", tuple(float(c) for c in color))
         self.dyn_vao.render(mode, vertices=len(pts))
 
-    def _query(self):
-        """An occlusion query for this frame (queries are kept and reused from frame to frame)."""
-        if self._next_query == len(self._queries):
-            self._queries.append(self.ctx.query(samples=True))
-        q = self._queries[self._next_query]
-        self._next_query += 1
-        return q
-
     def _near_clear_of(self, m: MeshDraw, cam: Camera, aspect: float) -> bool:
-        """Whether the mesh's box lies wholly beyond the camera's near plane (with its corners), so its
-        convex hull's near side is drawn whole and an occlusion test on it is sound."""
+        """Whether the eye is outside the mesh's box by more than the reach of the near plane's
+        corners: then the eye is outside the mesh and the near plane cuts nothing of it."""
         lo, hi = m.gpu.box()
         model = np.asarray(m.model, float)
         centre = model[:3, :3] @ (0.5 * (lo + hi)) + model[:3, 3]
@@ -306,25 +294,21 @@ class Renderer:
         eye = np.asarray(cam.eye, float)
         gap = np.linalg.norm(np.maximum(np.abs(eye - centre) - half, 0.0))
         t = np.tan(np.radians(cam.fov) / 2.0)
-        return gap > cam.near * np.sqrt(1.0 + t * t * (1.0 + aspect * aspect)) * 1.01
+        return bool(gap > cam.near * np.sqrt(1.0 + t * t * (1.0 + aspect * aspect)) * 1.01)
 
-    def _draw_unless_hidden(self, m: MeshDraw, vp, eye, cam: Camera, aspect: float) -> None:
-        """Draw an opaque mesh under conditional rendering: its convex hull is drawn first, without
-        colour or depth writes, in an occlusion query, and the mesh only if some hull sample passed.
-        Every fragment of the mesh lies inside the hull, at or behind the hull's near side, so a mesh
-        with any visible fragment always has a visible hull sample: nothing visible is ever culled."""
-        hv = m.gpu.hull_vao(self.line_prog)
-        if hv is None or not self._near_clear_of(m, cam, aspect):
-            self._draw_mesh(m, vp, eye)
-            return
-        vao, n = hv
-        q = self._query()
-        with _writes_off(self.ctx.fbo):
-            _set(self.line_prog, "u_mvp", _mat(vp @ np.asarray(m.model, float)))
-            with q:
-                vao.render(self.ctx.TRIANGLES, vertices=n)
-        with q.crender:
-            self._draw_mesh(m, vp, eye)
+    def _enclosed_and_hidden(self, m: MeshDraw, cam: Camera, aspect: float, hide: int) -> bool:
+        """Whether `m` lies inside a closed mesh drawn opaque in this view, seen from outside: then no
+        fragment of it can show (the pack states the enclosure and a test checks it on the meshes)."""
+        outer = m.inside
+        return (
+            self.cull_enclosed
+            and outer is not None
+            and outer.color[3] >= 0.999
+            and not outer.wireframe
+            and not (hide >= 0 and outer.entity == hide)
+            and np.array_equal(np.asarray(outer.model, float), np.asarray(m.model, float))
+            and self._near_clear_of(outer, cam, aspect)
+        )
 
     def _label_queries(self, frame: Frame, vp, eye, r: Rect) -> None:
         """Which labels the opaque scene leaves in sight: a small sphere at each label's point is drawn
@@ -350,17 +334,15 @@ class Renderer:
         ctx.disable(ctx.BLEND | ctx.CULL_FACE)
         fbo.depth_mask = True
         see_through = []
-        drawn = 0  # opaque meshes drawn so far: the first one has nothing in front to hide behind
         for m in frame.meshes:
             if hide >= 0 and m.entity == hide:
                 continue
+            if self._enclosed_and_hidden(m, cam, r.aspect, hide):
+                continue
             if m.color[3] < 0.999:
                 see_through.append(("mesh", m))
-            elif self.occlusion_culling and drawn and not m.wireframe and m.gpu.n_indices >= 3 * CULL_MIN_TRIANGLES:
-                self._draw_unless_hidden(m, vp, eye, cam, r.aspect)
             else:
                 self._draw_mesh(m, vp, eye)
-            drawn += m.color[3] >= 0.999
         self._label_queries(frame, vp, eye, r)
         for pos, radius, color, ent in frame.markers:
             if hide >= 0 and ent == hide:
@@ -492,10 +474,6 @@ class Renderer:
         self.overlay.release()
         for o in (self.dyn_vao, self.dyn, self.mesh_prog, self.line_prog, self.id_prog):
             o.release()
-        for q in self._queries:
-            if hasattr(q.mglo, "release"):
-                q.mglo.release()
-        self._queries.clear()
         if self._fluoro is not None:
             self._fluoro.release()
             self._fluoro = None

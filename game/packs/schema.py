@@ -95,6 +95,14 @@ section(
             "C-arm image keep the full mesh. Ignored for meshes that deform.",
         ),
         Field(
+            "inside",
+            "str",
+            "",
+            help="Name of a closed mesh this one lies wholly inside (the skull in the skin): while an entity "
+            "of that mesh with the same transform is drawn opaque and the eye is outside it, this one is "
+            "not drawn, as none of it could show.",
+        ),
+        Field(
             "units",
             "enum",
             "mm",

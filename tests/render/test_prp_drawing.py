@@ -43,18 +43,18 @@ def _camera(app, yaw, pitch, distance):
 
 
 @pytest.mark.parametrize("yaw,pitch,distance", CAMERAS)
-def test_occlusion_culling_never_hides_what_shows(prp_app, yaw, pitch, distance):
+def test_culling_enclosed_meshes_never_hides_what_shows(prp_app, yaw, pitch, distance):
     from chainsim.game.gl.renderer import Renderer
 
     r = prp_app.resource(Renderer)
     _camera(prp_app, yaw, pitch, distance)
     try:
-        r.occlusion_culling = False
+        r.cull_enclosed = False
         everything = _pixels(prp_app)
-        r.occlusion_culling = True
+        r.cull_enclosed = True
         culled = _pixels(prp_app)
     finally:
-        r.occlusion_culling = True
+        r.cull_enclosed = True
     assert np.array_equal(everything, culled)
 
 
@@ -118,3 +118,39 @@ def test_bench_render_pack_writes_its_report(tmp_path):
     info = json.loads((out / "results-pack.json").read_text())
     assert info["pack"] == "prp" and info["median_ms"]
     assert all(v > 0 for v in info["median_ms"].values())
+
+
+def _winding(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Generalised winding number of a closed surface at each point (1 inside, 0 outside)."""
+    tri = vertices[faces]
+    out = []
+    for chunk in np.array_split(points, max(1, len(points) // 64)):
+        a = tri[None] - chunk[:, None, None, :]
+        x, y, z = a[:, :, 0], a[:, :, 1], a[:, :, 2]
+        lx, ly, lz = (np.linalg.norm(v, axis=-1) for v in (x, y, z))
+        det = np.einsum("pfi,pfi->pf", x, np.cross(y, z))
+        den = (
+            lx * ly * lz
+            + np.einsum("pfi,pfi->pf", x, y) * lz
+            + np.einsum("pfi,pfi->pf", y, z) * lx
+            + np.einsum("pfi,pfi->pf", z, x) * ly
+        )
+        out.append(np.arctan2(det, den).sum(axis=1) / (2.0 * np.pi))
+    return np.concatenate(out)
+
+
+def test_meshes_said_to_be_inside_the_skin_are_inside_it():
+    """The pack's `inside = "skin"` lets the renderer skip the skull behind an opaque skin; that is
+    only sound if every drawn vertex of it lies inside the drawn skin (sampled, winding numbers)."""
+    from chainsim.game.packs.discovery import resolve
+    from chainsim.game.packs.pack import load
+
+    pack = load(resolve("prp")[0])
+    skin = pack.display_mesh("skin")
+    inner = [n for n, spec in pack.manifest["meshes"].items() if spec.get("inside") == "skin"]
+    assert {"skull", "mandible"} <= set(inner)
+    for name in inner:
+        m = pack.display_mesh(name)
+        pts = m.vertices[:: max(1, len(m.vertices) // 400)]
+        w = _winding(pts, skin.vertices, skin.triangles)
+        assert w.min() > 0.5, f"{name} reaches outside the skin"
