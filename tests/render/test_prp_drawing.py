@@ -154,3 +154,19 @@ def test_meshes_said_to_be_inside_the_skin_are_inside_it():
         pts = m.vertices[:: max(1, len(m.vertices) // 400)]
         w = _winding(pts, skin.vertices, skin.triangles)
         assert w.min() > 0.5, f"{name} reaches outside the skin"
+
+
+def test_text_laid_out_once_draws_the_same_quads(gl_ctx):
+    from chainsim.game.gl.overlay import Overlay
+
+    ov = Overlay(gl_ctx)
+    try:
+        first = ov.label("Horizontal turn (deg)", 10.5, 20.0, (1, 1, 1, 1), max_w=90.0)
+        quads = list(ov.glyphs[ov.font])
+        again = ov.label("Horizontal turn (deg)", 10.5, 20.0, (1, 1, 1, 1), max_w=90.0)
+        assert again == first and ov.glyphs[ov.font][len(quads) :] == quads
+        moved = ov.label("Horizontal turn (deg)", 11.5, 20.0, (1, 1, 1, 1), max_w=90.0)
+        assert moved == first + 1.0
+        assert ov.font.width("abc") == ov.font.width("abc") > 0
+    finally:
+        ov.release()
