@@ -49,6 +49,26 @@ def incidence(n: int, tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return ptr, (order // 3).astype(np.int64)
 
 
+def _closed_outward(pos: np.ndarray, tris: np.ndarray) -> bool:
+    if len(tris) < 4:
+        return False
+    _, ids = np.unique(np.round(np.asarray(pos, np.float64), 6), axis=0, return_inverse=True)
+    t = ids.reshape(-1)[tris]
+    if np.any((t[:, 0] == t[:, 1]) | (t[:, 1] == t[:, 2]) | (t[:, 0] == t[:, 2])):
+        return False
+    directed = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+    n = int(t.max()) + 1
+    code = directed[:, 0] * n + directed[:, 1]
+    reverse = directed[:, 1] * n + directed[:, 0]
+    if len(np.unique(code)) != len(code):
+        return False  # an edge run twice the same way: inconsistent winding or more than two faces
+    if not np.all(np.isin(reverse, code)):
+        return False  # an open edge
+    p = np.asarray(pos, np.float64)[tris]
+    volume = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0
+    return bool(volume > 0.0)
+
+
 class GpuMesh:
     """Vertex/normal/index buffers of one mesh plus the CPU copy needed for partial updates."""
 
@@ -72,6 +92,7 @@ class GpuMesh:
         self.stale = False  # everything must be rewritten
         self.bytes_written = 0  # statistics for benchmarks and tests
         self.version = 0  # bumped by every change of what is drawn (cached views compare it)
+        self._closed = None  # closed_outward(), once known
         self.vaos: dict[str, object] = {}
         self._box = None
 
@@ -84,6 +105,17 @@ class GpuMesh:
             else:
                 self._box = (np.zeros(3), np.zeros(3))
         return self._box
+
+    def closed_outward(self) -> bool:
+        """Whether the drawn triangles close a surface wound outward (vertices merged by position, so
+        a crease split into two vertices still counts as closed): every edge is used twice, once each
+        way, and the enclosed volume is positive. Then from outside only its front faces can show.
+        Checked once for the mesh as loaded; False after any upload or cut."""
+        if self.version:
+            return False
+        if self._closed is None:
+            self._closed = _closed_outward(self.pos, self.tris[self.tri_ids])
+        return self._closed
 
     def center(self) -> np.ndarray:
         """Box centre in the mesh frame (sorting transparent meshes)."""

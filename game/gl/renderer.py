@@ -145,6 +145,7 @@ class Renderer:
         self._labels_seen: dict[tuple, list[bool]] = {}  # viewport rect -> label in sight (this frame)
         self._fluoro: FluoroRenderer | None = None  # made on first use (only layouts with a C-arm view)
         self.cull_enclosed = True  # off: meshes inside an opaque one are drawn anyway (tests compare)
+        self.cull_back = True  # off: back faces of closed opaque meshes are drawn too (tests compare)
         self.view_cache: ViewCache | None = None  # `cache_views()` turns it on
 
     @property
@@ -341,6 +342,15 @@ class Renderer:
                 continue
             if m.color[3] < 0.999:
                 see_through.append(("mesh", m))
+            elif (
+                self.cull_back and not m.wireframe and m.gpu.closed_outward() and self._near_clear_of(m, cam, r.aspect)
+            ):
+                # seen from outside a closed surface, its back faces are all behind its front faces:
+                # skipping them before rasterising halves the work of the skin under a software renderer
+                ctx.enable(ctx.CULL_FACE)
+                ctx.cull_face = "back"
+                self._draw_mesh(m, vp, eye)
+                ctx.disable(ctx.CULL_FACE)
             else:
                 self._draw_mesh(m, vp, eye)
         self._label_queries(frame, vp, eye, r)
