@@ -154,11 +154,12 @@ def _pack_cases(app, renderer: Renderer, pack) -> dict:
     dials = [w["name"] for w in app.resource(PackResource).layout.get("widgets", []) if w.get("kind") == "dial"]
     st = app.resource(WidgetState)
 
-    def setup(display=True, culling=True, cache=True):
+    def setup(display=True, culling=True, cache=True, back=True):
         def apply():
             for n, path in displays.items():
                 pack.manifest["meshes"][n]["display"] = path if display else ""
             renderer.cull_enclosed = culling
+            renderer.cull_back = back
             renderer.cache_views(cache)
 
         return apply
@@ -172,13 +173,14 @@ def _pack_cases(app, renderer: Renderer, pack) -> dict:
         v = float(st.values.get(name, 0.0))
         app.resource(PendingInput).push(app.time.sim_time, Widget(name, 1.0 if v <= 0.0 else 0.0))
 
-    before = setup(display=False, culling=False, cache=False)
+    before = setup(display=False, culling=False, cache=False, back=False)
     now = setup()
     cases = {
-        "before: full meshes, all drawn, every view every frame": (before, None),
-        "every view drawn every frame (display copies, enclosed meshes skipped)": (setup(cache=False), None),
+        "before: full meshes, all faces, every view every frame": (before, None),
+        "every view drawn every frame (display copies, hidden meshes and faces skipped)": (setup(cache=False), None),
         "  the same with the full meshes": (setup(display=False, cache=False), None),
         "  the same drawing meshes enclosed by the opaque skin": (setup(culling=False, cache=False), None),
+        "  the same drawing the back faces of closed meshes": (setup(back=False, cache=False), None),
         "window: nothing changes (views copied from their images)": (now, None),
     }
     if orbit is not None:

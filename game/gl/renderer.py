@@ -229,12 +229,22 @@ class Renderer:
             self.view_cache = None
 
     def _cached_scene(self, frame: Frame, view: ViewDraw, r: Rect, fbo, clear) -> None:
-        """Draw the view into its cached image if its key changed, then copy the image into `r`."""
+        """A view whose key is that of its image is copied from it. A view that changed since the last
+        frame is drawn straight into `fbo` (while it keeps changing, an image would only add a copy);
+        one that has just stopped changing is drawn into its image and copied from then on."""
         ctx = self.ctx
         vc = self.view_cache
         cv = vc.slot(view.name, (r.w, r.h))
         key = view_key(frame, view, r, clear)
-        if key != cv.key:
+        changing, cv.last = key != cv.last, key
+        if key == cv.key:
+            vc.reused += 1
+        elif changing:
+            vc.direct += 1
+            fbo.clear(*clear, depth=1.0, viewport=(r.x, r.y, r.w, r.h))
+            self._scene(frame, view.camera, r, fbo, view.hide_entity)
+            return
+        else:
             local = Rect(0, 0, r.w, r.h)
             cv.fbo.use()
             ctx.scissor = None
@@ -247,8 +257,6 @@ class Renderer:
             fbo.use()
             ctx.scissor = (r.x, r.y, r.w, r.h)
             ctx.viewport = (r.x, r.y, r.w, r.h)
-        else:
-            vc.reused += 1
         self._labels_seen[(r.x, r.y, r.w, r.h)] = cv.seen
         vc.copy(cv, r)
 

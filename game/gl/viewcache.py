@@ -4,7 +4,9 @@ and copied into the frame otherwise.
 A window under a software renderer (Mesa llvmpipe) spends most of a frame rasterising the 3-D views
 (`chainsim bench render --pack prp`). Most frames change only some of them - orbiting moves the
 surgeon's view, not the needle-tip view; between actions nothing moves at all - so each view keeps
-its last image with a key of everything that decides its pixels: rectangle, background, camera
+an image, drawn in the first frame after it stopped changing (while it changes every frame it is
+drawn straight into the frame, as an image would only add a copy), with a key of everything that
+decides its pixels: rectangle, background, camera
 matrix, and per mesh, marker, line, plane and label what it is, where and in which colour, plus the
 mesh's upload count (`GpuMesh.version`). An equal key means equal pixels; the copy is exact
 (texelFetch, one texel per pixel). Labels keep the visibility found when the image was drawn.
@@ -61,7 +63,8 @@ class CachedView:
     fbo: object
     image: object
     size: tuple[int, int]
-    key: tuple | None = None
+    key: tuple | None = None  # of the image
+    last: tuple | None = None  # of the view in the last frame
     seen: list = field(default_factory=list)  # label visibility when the image was drawn
 
 
@@ -75,8 +78,10 @@ class ViewCache:
         quad = np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32)
         self.vbo = ctx.buffer(quad.tobytes())
         self.vao = ctx.vertex_array(self.prog, [(self.vbo, "2f", "in_pos")])
-        self.redrawn = 0  # views drawn afresh, and copied from their image (statistics, tests)
+        # statistics (tests, benchmarks): views drawn into their image, copied from it, drawn straight
+        self.redrawn = 0
         self.reused = 0
+        self.direct = 0
 
     def slot(self, name: str, size: tuple[int, int]) -> CachedView:
         """The view's image (re)made at `size` (pixels)."""
