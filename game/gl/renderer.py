@@ -146,6 +146,7 @@ class Renderer:
         self._fluoro: FluoroRenderer | None = None  # made on first use (only layouts with a C-arm view)
         self.cull_enclosed = True  # off: meshes inside an opaque one are drawn anyway (tests compare)
         self.cull_back = True  # off: back faces of closed opaque meshes are drawn too (tests compare)
+        self._label_q: list = []  # occlusion queries of the labels
         self.view_cache: ViewCache | None = None  # `cache_views()` turns it on
 
     @property
@@ -327,13 +328,14 @@ class Renderer:
         seen = self._labels_seen[(r.x, r.y, r.w, r.h)] = []
         if not frame.labels:
             return
+        while len(self._label_q) < len(frame.labels):
+            self._label_q.append(ctx.query(samples=True))  # kept: one per label, reused every frame
         with _writes_off(ctx.fbo):
-            for pos, _text, _color in frame.labels:
-                q = ctx.query(samples=True)
+            for q, (pos, _text, _color) in zip(self._label_q, frame.labels):
                 with q:
                     self._draw_mesh(MeshDraw(self.sphere, _trs(pos, 1.2), (1, 1, 1, 1)), vp, eye)
-                seen.append(q.samples > 0)
-                q.mglo.release() if hasattr(q.mglo, "release") else None
+        # all queries are issued before the first result is read: one wait for the rasteriser, not one each
+        seen.extend(q.samples > 0 for q in self._label_q[: len(frame.labels)])
 
     def _scene(self, frame: Frame, cam: Camera, r: Rect, fbo, hide: int = -1) -> None:
         ctx = self.ctx
@@ -496,6 +498,10 @@ class Renderer:
             self._fluoro.release()
             self._fluoro = None
         self.cache_views(False)
+        for q in self._label_q:
+            if hasattr(q.mglo, "release"):
+                q.mglo.release()
+        self._label_q.clear()
 
 
 def _trs(pos, radius: float) -> np.ndarray:
