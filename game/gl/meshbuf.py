@@ -10,10 +10,14 @@ normals are recomputed on all threads where there are several (chainsim.engine.k
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from chainsim.engine.kernels.normals import moved_normals_kernel, normals_into, vertex_normals_kernel
 from chainsim.engine.meshgen import links_from_polygons
+
+_SERIALS = itertools.count()
 
 #: vertex-id gaps smaller than this are written through rather than split into two writes
 RUN_GAP = 256
@@ -92,6 +96,7 @@ class GpuMesh:
         self.stale = False  # everything must be rewritten
         self.bytes_written = 0  # statistics for benchmarks and tests
         self.version = 0  # bumped by every change of what is drawn (cached views compare it)
+        self.serial = next(_SERIALS)  # never reused, unlike id(): a new mesh never matches an old key
         self._closed = None  # closed_outward(), once known
         self.vaos: dict[str, object] = {}
         self._box = None

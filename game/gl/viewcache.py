@@ -26,7 +26,7 @@ def view_key(frame, view, r, clear) -> tuple:
     vp = np.asarray(view.camera.view_projection(r.aspect), np.float64)
     meshes = tuple(
         (
-            id(m.gpu),
+            m.gpu.serial,
             m.gpu.version,
             m.gpu.n_indices,
             np.asarray(m.model, np.float64).tobytes(),
