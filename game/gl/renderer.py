@@ -28,6 +28,8 @@ from chainsim.game.gl.viewcache import ViewCache, view_key
 from chainsim.systems.ui.viewports import Camera, Rect
 
 SHADING = {"smooth": 0, "flat": 1, "unlit": 2}
+#: a cached view is drawn into its image after this many frames without change (chainsim.game.gl.viewcache)
+STILL_FRAMES = 2
 
 PANEL_BG, TEXT, DIM, ACCENT, LIGHT_RGBA = (
     panelview.PANEL_BG,
@@ -230,17 +232,19 @@ class Renderer:
             self.view_cache = None
 
     def _cached_scene(self, frame: Frame, view: ViewDraw, r: Rect, fbo, clear) -> None:
-        """A view whose key is that of its image is copied from it. A view that changed since the last
-        frame is drawn straight into `fbo` (while it keeps changing, an image would only add a copy);
-        one that has just stopped changing is drawn into its image and copied from then on."""
+        """A view whose key is that of its image is copied from it. A view that changed within the last
+        STILL_FRAMES frames is drawn straight into `fbo` (while it keeps changing - a drag sends events
+        every frame or two - an image would only add a copy); once it has kept still that long it is
+        drawn into its image and copied from then on."""
         ctx = self.ctx
         vc = self.view_cache
         cv = vc.slot(view.name, (r.w, r.h))
         key = view_key(frame, view, r, clear)
-        changing, cv.last = key != cv.last, key
+        cv.still = cv.still + 1 if key == cv.last else 0
+        cv.last = key
         if key == cv.key:
             vc.reused += 1
-        elif changing:
+        elif cv.still < STILL_FRAMES:
             vc.direct += 1
             fbo.clear(*clear, depth=1.0, viewport=(r.x, r.y, r.w, r.h))
             self._scene(frame, view.camera, r, fbo, view.hide_entity)

@@ -4,7 +4,7 @@ and copied into the frame otherwise.
 A window under a software renderer (Mesa llvmpipe) spends most of a frame rasterising the 3-D views
 (`chainsim bench render --pack prp`). Most frames change only some of them - orbiting moves the
 surgeon's view, not the needle-tip view; between actions nothing moves at all - so each view keeps
-an image, drawn in the first frame after it stopped changing (while it changes every frame it is
+an image, drawn once the view has kept still for two frames (while it changes, as in a drag, it is
 drawn straight into the frame, as an image would only add a copy), with a key of everything that
 decides its pixels: rectangle, background, camera
 matrix, and per mesh, marker, line, plane and label what it is, where and in which colour, plus the
@@ -65,6 +65,7 @@ class CachedView:
     size: tuple[int, int]
     key: tuple | None = None  # of the image
     last: tuple | None = None  # of the view in the last frame
+    still: int = 0  # frames since the key last changed
     seen: list = field(default_factory=list)  # label visibility when the image was drawn
 
 
