@@ -29,7 +29,7 @@ from chainsim.systems.ui.viewports import Camera, Rect
 
 SHADING = {"smooth": 0, "flat": 1, "unlit": 2}
 #: a cached view is drawn into its image after this many frames without change (chainsim.game.gl.viewcache)
-STILL_FRAMES = 2
+STILL_FRAMES = 1
 
 PANEL_BG, TEXT, DIM, ACCENT, LIGHT_RGBA = (
     panelview.PANEL_BG,
@@ -233,9 +233,9 @@ class Renderer:
 
     def _cached_scene(self, frame: Frame, view: ViewDraw, r: Rect, fbo, clear) -> None:
         """A view whose key is that of its image is copied from it. A view that changed within the last
-        STILL_FRAMES frames is drawn straight into `fbo` (while it keeps changing - a drag sends events
-        every frame or two - an image would only add a copy); once it has kept still that long it is
-        drawn into its image and copied from then on."""
+        STILL_FRAMES frames is drawn straight into `fbo` (while it keeps changing, as in a drag, an image
+        would only add a copy); once it has kept still that long it is drawn into its image and copied
+        from then on."""
         ctx = self.ctx
         vc = self.view_cache
         cv = vc.slot(view.name, (r.w, r.h))

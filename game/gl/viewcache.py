@@ -4,9 +4,9 @@ and copied into the frame otherwise.
 A window under a software renderer (Mesa llvmpipe) spends most of a frame rasterising the 3-D views
 (`chainsim bench render --pack prp`). Most frames change only some of them - orbiting moves the
 surgeon's view, not the needle-tip view; between actions nothing moves at all - so each view keeps
-an image, drawn once the view has kept still for two frames (while it changes, as in a drag, it is
-drawn straight into the frame, as an image would only add a copy), with a key of everything that
-decides its pixels: rectangle, background, camera
+an image, drawn in the first frame in which the view has not changed (while it changes, as in a
+drag, it is drawn straight into the frame, as an image would only add a copy), with a key of
+everything that decides its pixels: rectangle, background, camera
 matrix, and per mesh, marker, line, plane and label what it is, where and in which colour, plus the
 mesh's upload count (`GpuMesh.version`). An equal key means equal pixels; the copy is exact
 (texelFetch, one texel per pixel). Labels keep the visibility found when the image was drawn.
