@@ -32,6 +32,7 @@ import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
 
+from chainsim.components.input_events import Widget
 from chainsim.components.resources import PendingInput
 from chainsim.engine import argtypes, limits
 from chainsim.engine.errors import UserError
@@ -47,6 +48,7 @@ from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release
 from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
 from chainsim.systems.ui.viewports import OrbitCamera, fraction_rect
 from chainsim.systems.ui.widgets import WidgetState, place
+from chainsim.systems.view import ViewState
 
 logger = logging.getLogger(__name__)
 
@@ -99,6 +101,14 @@ def add_arguments(p) -> None:
         help="instead of sheets: frame time of this pack's real window layout after its scene script "
         "(App update + draw + finish), with where the time goes",
     )
+    p.add_argument(
+        "--at",
+        type=argtypes.real(0.0, 3600.0),
+        default=1.9,
+        metavar="SECONDS",
+        help="with --pack: how far the scene script plays before timing (default 1.9 s: in prp the "
+        "landmarks are placed and the needle waits at the skin for the dials)",
+    )
 
 
 def sheet(n_triangles: int):
@@ -148,77 +158,144 @@ def _median_ms(fn, frames: int, warmup: int) -> float:
     return statistics.median(out)
 
 
+def _pack_cases(app, renderer: Renderer, pack) -> dict:
+    """Named frame set-ups of the pack bench: a function that switches the speed-ups on or off and
+    one that makes a frame's change (None: nothing changes, as between a trainee's actions)."""
+
+    displays = {n: spec.get("display", "") for n, spec in pack.manifest["meshes"].items()}
+    orbit = next((v.camera for v in app.resource(ViewState).viewports if v.kind == "orbit"), None)
+    dials = [w["name"] for w in app.resource(PackResource).layout.get("widgets", []) if w.get("kind") == "dial"]
+    st = app.resource(WidgetState)
+
+    def setup(display=True, culling=True, cache=True, back=True):
+        def apply():
+            for n, path in displays.items():
+                pack.manifest["meshes"][n]["display"] = path if display else ""
+            renderer.cull_enclosed = culling
+            renderer.cull_back = back
+            renderer.cache_views(cache)
+
+        return apply
+
+    def turn():
+        orbit.yaw = (orbit.yaw + 0.5) % 360.0
+        orbit.update_eye()
+
+    def dial():
+        name = dials[0]
+        v = float(st.values.get(name, 0.0))
+        app.resource(PendingInput).push(app.time.sim_time, Widget(name, 1.0 if v <= 0.0 else 0.0))
+
+    before = setup(display=False, culling=False, cache=False, back=False)
+    now = setup()
+    cases = {
+        "before: full meshes, all faces, every view every frame": (before, None),
+        "every view drawn every frame (display copies, hidden meshes and faces skipped)": (setup(cache=False), None),
+        "  the same with the full meshes": (setup(display=False, cache=False), None),
+        "  the same drawing meshes enclosed by the opaque skin": (setup(culling=False, cache=False), None),
+        "  the same drawing the back faces of closed meshes": (setup(back=False, cache=False), None),
+        "window: nothing changes (views copied from their images)": (now, None),
+    }
+    if orbit is not None:
+        cases["window: orbiting the camera (one view redrawn)"] = (now, turn)
+    if dials:
+        cases[f"window: turning the {dials[0]} dial (needle and its views redrawn)"] = (now, dial)
+    return cases
+
+
 def run_pack(args) -> int:
-    """The pack's window layout, drawn off screen at --size after its scene script has played:
-    median frame time of App.update + draw + finish, and the same frame with parts left out."""
+    """The pack's window layout, drawn off screen at --size after its scene script has played --at seconds:
+    median frame time of App.update + draw + finish in the set-ups of `_pack_cases`, which take turns
+    frame by frame (a change of machine load hits them alike), and the frame with parts left out."""
 
     if args.frames < 1 or args.warmup < 0:
         raise UserError("--frames must be >= 1 and --warmup >= 0")
     out = prepare_output_dir(args.out, "--out")
     app = build_app(args.pack, render=True, size=args.size)
     rows = {}
+    cpu = {}
     try:
         pres = app.resource(PackResource)
         if pres.scene_spec.get("script"):
             app.resource(PendingInput).extend(load_script(pres.pack.file(pres.scene_spec["script"])))
-        app.run_steps(int(4.0 / app.time.dt))
+        app.run_steps(int(args.at / app.time.dt))
+        pending = app.resource(PendingInput)
+        del pending.items[pending.cursor :]  # the rest of the script would change frames under the timing
         target = app.resource(render.RenderTarget)
         ctx = target.ctx
         renderer: Renderer = app.resource(Renderer)
-
-        def frame():
-            app.update(app.time.dt)
-            render.draw(app)
-            ctx.finish()
+        target.samples = 1  # as the window under software GL (no multisampling there)
+        cases = _pack_cases(app, renderer, pres.pack)
+        times = {k: [] for k in cases}
+        cpu_times = {k: [] for k in cases}
+        for i in range(args.warmup + args.frames):
+            for name, (apply, change) in cases.items():
+                apply()
+                for _ in range(3):  # the set-up's first frames (view images drawn) are not timed
+                    render.draw(app)
+                c0, t0 = time.process_time(), time.perf_counter()
+                if change is not None:
+                    change()
+                app.update(app.time.dt)
+                render.draw(app)
+                ctx.finish()
+                if i >= args.warmup:
+                    times[name].append((time.perf_counter() - t0) * 1e3)
+                    cpu_times[name].append((time.process_time() - c0) * 1e3)
+        for name in cases:
+            rows[name] = statistics.median(times[name])
+            cpu[name] = statistics.median(cpu_times[name])
+        cases[next(iter(cases))][0]()  # "before" set-up for the parts below: every view drawn
+        renderer.cache_views(False)
 
         def draw_only():
             render.draw(app)
             ctx.finish()
 
-        for samples in sorted({1, min(4, ctx.max_samples)}):
+        for samples in sorted({min(4, ctx.max_samples)} - {1}):
             target.samples = samples
-            rows[f"frame (update + draw), MSAA x{samples}"] = _median_ms(frame, args.frames, args.warmup)
+            rows[f"draw, MSAA x{samples} (as snapshots)"] = _median_ms(draw_only, args.frames, 1)
         target.samples = 1
-        rows["App.update alone (one fixed step)"] = _median_ms(lambda: app.update(app.time.dt), args.frames, 2)
-        rows["draw alone"] = _median_ms(draw_only, args.frames, 2)
+        rows["App.update alone (one fixed step)"] = _median_ms(lambda: app.update(app.time.dt), args.frames, 1)
         st = app.resource(WidgetState)
-        had = dict(st.values)
-        for name in ("skin_transparent",):
-            if name in st.values:
-                app.resource(PendingInput).push(
-                    app.time.sim_time,
-                    __import__("chainsim.components.input_events", fromlist=["Widget"]).Widget(name, True),
-                )
-                app.update(app.time.dt)
-                rows["draw, skin transparent (two sorted passes)"] = _median_ms(draw_only, args.frames, 2)
-                app.resource(PendingInput).push(
-                    app.time.sim_time,
-                    __import__("chainsim.components.input_events", fromlist=["Widget"]).Widget(name, had[name]),
-                )
-                app.update(app.time.dt)
+        if "skin_transparent" in st.values:
+            had = st.values["skin_transparent"]
+            app.resource(PendingInput).push(app.time.sim_time, Widget("skin_transparent", True))
+            app.update(app.time.dt)
+            rows["draw, skin transparent (sorted see-through pass)"] = _median_ms(draw_only, args.frames, 1)
+            app.resource(PendingInput).push(app.time.sim_time, Widget("skin_transparent", had))
+            app.update(app.time.dt)
         real_render = renderer._scene
         renderer._scene = lambda *a, **k: None
         try:
-            rows["draw without the 3-D scenes (panels, text, clears)"] = _median_ms(draw_only, args.frames, 2)
+            rows["draw without the 3-D scenes (panels, text, clears)"] = _median_ms(draw_only, args.frames, 1)
         finally:
             renderer._scene = real_render
         n_tri = sum(int(gm.n_indices) // 3 for gm in renderer.meshes.values())
     finally:
         app.close()
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
     info = {
         "pack": args.pack,
         "size": list(args.size),
         "renderer": ctx.info.get("GL_RENDERER", "?"),
         "cpu_count": os.cpu_count(),
+        "load_average_1_5_15": list(load),
         "triangles_uploaded": n_tri,
         "median_ms": rows,
+        "median_cpu_ms": cpu,
     }
     (out / "results-pack.json").write_text(json.dumps(info, indent=2), encoding="utf-8")
-    print(f"# {args.pack} window layout, {args.size[0]}x{args.size[1]}, {info['renderer']}, {n_tri:,} triangles")
-    print("| part | median (ms) | fps |")
-    print("|---|---:|---:|")
+    print(
+        f"# {args.pack} window layout, {args.size[0]}x{args.size[1]}, {info['renderer']}, "
+        f"{info['cpu_count']} CPUs, load {load[0]:.1f}"
+    )
+    print("frame = App.update + draw + finish; CPU = process time of all threads (the rasteriser's too)")
+    print("| frame | median (ms) | fps | CPU (ms) |")
+    print("|---|---:|---:|---:|")
     for k, v in rows.items():
-        print(f"| {k} | {v:.1f} | {1000.0 / v:.1f} |")
+        c = f"{cpu[k]:.1f}" if k in cpu else ""
+        print(f"| {k} | {v:.1f} | {1000.0 / v:.1f} | {c} |")
     return 0
 
 

@@ -12,6 +12,7 @@ recompute normals on the CPU, on all threads where there are several (chainsim.e
 
 from __future__ import annotations
 
+import itertools
 import time
 
 import numpy as np
@@ -20,6 +21,8 @@ from chainsim.engine.kernels.normals import moved_normals_kernel, normals_into, 
 from chainsim.engine.meshgen import links_from_polygons
 from chainsim.game.gl import gpunormals
 from chainsim.game.gl.gpunormals import GpuNormals
+
+_SERIALS = itertools.count()
 
 #: vertex-id gaps smaller than this are written through rather than split into two writes
 RUN_GAP = 256
@@ -72,6 +75,26 @@ def incidence(n: int, tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return ptr, (order // 3).astype(np.int64)
 
 
+def _closed_outward(pos: np.ndarray, tris: np.ndarray) -> bool:
+    if len(tris) < 4:
+        return False
+    _, ids = np.unique(np.round(np.asarray(pos, np.float64), 6), axis=0, return_inverse=True)
+    t = ids.reshape(-1)[tris]
+    if np.any((t[:, 0] == t[:, 1]) | (t[:, 1] == t[:, 2]) | (t[:, 0] == t[:, 2])):
+        return False
+    directed = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+    n = int(t.max()) + 1
+    code = directed[:, 0] * n + directed[:, 1]
+    reverse = directed[:, 1] * n + directed[:, 0]
+    if len(np.unique(code)) != len(code):
+        return False  # an edge run twice the same way: inconsistent winding or more than two faces
+    if not np.all(np.isin(reverse, code)):
+        return False  # an open edge
+    p = np.asarray(pos, np.float64)[tris]
+    volume = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0
+    return bool(volume > 0.0)
+
+
 class GpuMesh:
     """Vertex/normal/index buffers of one mesh plus the CPU copy needed for partial updates."""
 
@@ -98,6 +121,9 @@ class GpuMesh:
         self._gpu: GpuNormals | None = None
         self._renderer: str | None = None
         self._normals_behind = False
+        self.version = 0  # bumped by every change of what is drawn (cached views compare it)
+        self.serial = next(_SERIALS)  # never reused, unlike id(): a new mesh never matches an old key
+        self._closed = None  # closed_outward(), once known
         self.vaos: dict[str, object] = {}
         self._box = None
 
@@ -110,6 +136,17 @@ class GpuMesh:
             else:
                 self._box = (np.zeros(3), np.zeros(3))
         return self._box
+
+    def closed_outward(self) -> bool:
+        """Whether the drawn triangles close a surface wound outward (vertices merged by position, so
+        a crease split into two vertices still counts as closed): every edge is used twice, once each
+        way, and the enclosed volume is positive. Then from outside only its front faces can show.
+        Checked once for the mesh as loaded; False after any upload or cut."""
+        if self.version:
+            return False
+        if self._closed is None:
+            self._closed = _closed_outward(self.pos, self.tris[self.tri_ids])
+        return self._closed
 
     def center(self) -> np.ndarray:
         """Box centre in the mesh frame (sorting transparent meshes)."""
@@ -144,6 +181,7 @@ class GpuMesh:
         """Replace the drawn links (after a cut)."""
         links = np.ascontiguousarray(links, dtype=np.int64).reshape(-1, 2)
         self._links = links
+        self.version += 1
         if self.lbo is not None:
             data = links.astype(np.uint32).tobytes()
             if len(data) > self.lbo.size:
@@ -155,6 +193,7 @@ class GpuMesh:
     def set_triangles(self, tri_ids: np.ndarray) -> None:
         """Draw only these triangles (ids into the original list), e.g. after a cut."""
         self.tri_ids = np.asarray(tri_ids, np.int64)
+        self.version += 1
         data = self.tris[self.tri_ids].astype(np.uint32).tobytes()
         if data:
             self.ibo.write(data)
@@ -177,6 +216,7 @@ class GpuMesh:
         moved = int(np.count_nonzero(self.pending))  # a count first: a full rewrite needs no id list
         if moved == 0:
             return 0
+        self.version += 1
         if moved > FULL_FRACTION * self.n:
             self.pending[:] = False
             return self._upload_all(positions)
@@ -207,6 +247,7 @@ class GpuMesh:
 
     def _upload_all(self, positions: np.ndarray) -> int:
         self._box = None
+        self.version += 1
         t0 = time.perf_counter()
         if self._renderer is None:
             self._renderer = str(self.ctx.info.get("GL_RENDERER", ""))

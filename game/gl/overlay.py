@@ -43,6 +43,11 @@ FALLBACK = {
     "\u03bc": "u",
 }
 
+#: most strings (widths) and laid-out lines (glyph quads) kept per font / overlay; a frame of the
+#: prp window uses a few hundred, and the same ones frame after frame, so measuring and laying out
+#: text is done once instead of every frame (the caches are emptied when they fill up)
+TEXT_CACHE = 4096
+
 
 class Font:
     """Glyph atlas of CHARS in a grid of equal cells; the baseline sits `ascent` below a cell top.
@@ -73,13 +78,19 @@ class Font:
         self.texture = ctx.texture(img.size, 1, img.tobytes())
         self.texture.filter = (ctx.NEAREST, ctx.NEAREST)
         self.line_h = self.ascent + self.descent + 3
+        self._widths: dict[str, float] = {}  # text -> width: the panel measures the same strings each frame
 
     def shown(self, text: str) -> str:
         """`text` as drawn: stand-ins for the characters the font lacks."""
         return text.translate(self.substitute) if self.substitute else text
 
     def width(self, text: str) -> float:
-        return sum(self.advance.get(ch, self.advance["?"]) for ch in self.shown(text))
+        w = self._widths.get(text)
+        if w is None:
+            if len(self._widths) > TEXT_CACHE:
+                self._widths.clear()
+            w = self._widths[text] = sum(self.advance.get(ch, self.advance["?"]) for ch in self.shown(text))
+        return w
 
     def wrap(self, text: str, width: float) -> list[str]:
         """Greedy word wrap to `width` pixels."""
@@ -113,6 +124,7 @@ class Overlay:
         self.small: dict[int, Font] = {}  # smaller atlases for widgets shorter than a text line
         self.shapes: list[float] = []
         self.glyphs: dict[Font, list[float]] = {}
+        self._laid_out: dict[tuple, tuple[list[float], float]] = {}  # label arguments -> (glyph quads, pen x)
         self.vbo_shapes = ctx.buffer(reserve=1 << 16, dynamic=True)
         self.vbo_glyphs = ctx.buffer(reserve=1 << 16, dynamic=True)
         self.vao_shapes = ctx.vertex_array(self.flat, [(self.vbo_shapes, "2f 4f", "in_pos", "in_color")])
@@ -126,6 +138,7 @@ class Overlay:
             for f in self.small.values():
                 f.release()
             self.small.clear()
+            self._laid_out.clear()
             self.font = Font(self.ctx, max(6, round(self.font_px * scale)))
 
     # -- shapes (framebuffer pixels) ---------------------------------------------------------
@@ -256,6 +269,14 @@ class Overlay:
         f = font or self.font
         glyphs = self.glyphs.setdefault(f, [])
         text = f.shown(text)
+        key = (id(f), text, float(x), float(baseline), tuple(color), max_w, slant)
+        hit = self._laid_out.get(key)
+        if hit is not None:
+            glyphs += hit[0]
+            return hit[1]
+        if len(self._laid_out) > TEXT_CACHE:
+            self._laid_out.clear()
+        start = len(glyphs)
         if max_w is not None and f.width(text) > max_w:
             while text and f.width(text + "...") > max_w:
                 text = text[:-1]
@@ -323,6 +344,7 @@ class Overlay:
                 a,
             ]
             pen += f.advance[ch]
+        self._laid_out[key] = (glyphs[start:], pen)
         return pen
 
     def flush(self, size: tuple[int, int]) -> None:

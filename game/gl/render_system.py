@@ -39,6 +39,7 @@ from chainsim.systems.view import ViewState, refresh_cameras
 
 PLANE_COLORS = ((0.95, 0.35, 0.35, 0.22), (0.35, 0.9, 0.45, 0.22), (0.35, 0.55, 1.0, 0.22), (0.9, 0.8, 0.3, 0.22))
 XRAY_OPACITY = 0.3
+DISPLAY = "display"  # key prefix of GPU meshes drawn from a pack mesh's display copy
 PLANE_PATCH_MM = 22.0  # half the side of a reference-plane patch
 
 
@@ -179,20 +180,26 @@ def collect_frame(app):
     cache = surface_cache(app)
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     alive_ents = set()
+    drawn_meshes: dict[str, list[MeshDraw]] = {}  # pack mesh name -> its entities' draws
+    enclosed: list[tuple[MeshDraw, str]] = []  # draw, name of the mesh the pack says encloses it
     for ent, ref in esper.get_component(MeshRef):
         alive_ents.add(ent)
         if not ref.visible:
             continue
-        md = pack.mesh(ref.mesh)
+        d = esper.try_component(ent, D) if D is not None else None
+        # a mesh that never deforms is drawn from its lighter display copy where the pack has one
+        # (kept under its own key: the C-arm image draws the full mesh under the entity's)
+        md = pack.mesh(ref.mesh) if d is not None else pack.display_mesh(ref.mesh)
         if len(md.triangles) == 0 and md.links is None:
             continue
         tr = esper.try_component(ent, Transform)
         model = tr.matrix() if tr is not None else np.eye(4)
-        d = esper.try_component(ent, D) if D is not None else None
         local = np.asarray(d.pos) if d is not None and len(getattr(d, "pos", ())) == len(md.vertices) else md.vertices
         graph = getattr(d, "graph", None) if d is not None else None
         links = np.asarray(graph.links) if graph is not None else None
-        gm = renderer.mesh(ent, local, md.triangles, links if links is not None else md.links)
+        key = ent if md is pack.mesh(ref.mesh) else (DISPLAY, ent)
+        alive_ents.add(key)
+        gm = renderer.mesh(key, local, md.triangles, links if links is not None else md.links)
         if d is not None:
             gm.upload(local)
             alive = getattr(d, "alive", None)
@@ -215,10 +222,15 @@ def collect_frame(app):
             or esper.has_component(ent, Wireframe)
         )
         frame.meshes.append(MeshDraw(gm, model, tuple(color), wire, mat.get("shading", "smooth"), ent))
+        drawn_meshes.setdefault(ref.mesh, []).append(frame.meshes[-1])
+        enclosed.append((frame.meshes[-1], pack.manifest["meshes"][ref.mesh].get("inside", "")))
         blo, bhi = gm.box()
         c = (model @ np.r_[0.5 * (blo + bhi), 1.0])[:3]
         ext = np.abs(model[:3, :3]) @ (bhi - blo) / 2
         lo, hi = np.minimum(lo, c - ext), np.maximum(hi, c + ext)
+    for md, outer in enclosed:
+        if outer and len(drawn_meshes.get(outer, ())) == 1:  # one enclosing entity, or none is meant
+            md.inside = drawn_meshes[outer][0]
     for key in [k for k in renderer.meshes if k not in alive_ents]:
         renderer.forget(key)  # entity removed
     for ent, (mk, tr) in esper.get_components(Marker, Transform):

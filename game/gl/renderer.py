@@ -11,6 +11,7 @@ The renderer only sees plain data (`Frame`); `chainsim.game.gl.render_system` ga
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -23,9 +24,13 @@ from chainsim.game.gl.docview import PageView
 from chainsim.game.gl.fluoro import FluoroDraw, FluoroRenderer
 from chainsim.game.gl.meshbuf import GpuMesh
 from chainsim.game.gl.overlay import Overlay
+from chainsim.game.gl.viewcache import ViewCache, view_key
 from chainsim.systems.ui.viewports import Camera, Rect
 
 SHADING = {"smooth": 0, "flat": 1, "unlit": 2}
+#: a cached view is drawn into its image after this many frames without change (chainsim.game.gl.viewcache)
+STILL_FRAMES = 1
+
 PANEL_BG, TEXT, DIM, ACCENT, LIGHT_RGBA = (
     panelview.PANEL_BG,
     panelview.TEXT,
@@ -43,6 +48,7 @@ class MeshDraw:
     wireframe: bool = False
     shading: str = "smooth"
     entity: int = -1
+    inside: MeshDraw | None = None  # a closed mesh wholly enclosing this one (not drawn while it hides it)
 
 
 @dataclass(slots=True)
@@ -102,6 +108,21 @@ def _set(prog, name: str, value) -> None:
             u.value = value
 
 
+@contextmanager
+def _writes_off(fbo):
+    """Neither colour nor depth is written inside (occlusion queries). moderngl hands a framebuffer's
+    masks to GL when it is bound, so it is bound again after each change."""
+    fbo.color_mask = (False, False, False, False)
+    fbo.depth_mask = False
+    fbo.use()
+    try:
+        yield
+    finally:
+        fbo.color_mask = (True, True, True, True)
+        fbo.depth_mask = True
+        fbo.use()
+
+
 def icosphere(subdiv: int = 2) -> tuple[np.ndarray, np.ndarray]:
 
     s = trimesh.creation.icosphere(subdivisions=subdiv, radius=1.0)
@@ -125,6 +146,10 @@ class Renderer:
         self.pages = PageView(self.overlay)
         self._labels_seen: dict[tuple, list[bool]] = {}  # viewport rect -> label in sight (this frame)
         self._fluoro: FluoroRenderer | None = None  # made on first use (only layouts with a C-arm view)
+        self.cull_enclosed = True  # off: meshes inside an opaque one are drawn anyway (tests compare)
+        self.cull_back = True  # off: back faces of closed opaque meshes are drawn too (tests compare)
+        self._label_q: list = []  # occlusion queries of the labels
+        self.view_cache: ViewCache | None = None  # `cache_views()` turns it on
 
     @property
     def fluoro(self) -> FluoroRenderer:
@@ -178,18 +203,67 @@ class Renderer:
             )
             ctx.scissor = (r.x, r.y, r.w, r.h)
             ctx.viewport = (r.x, r.y, r.w, r.h)
+            is_3d = view.camera is not None and view.kind not in ("panel", "fluoro")
+            if is_3d and self.view_cache is not None:
+                self._cached_scene(frame, view, r, fbo, clear)
+                continue
             fbo.clear(*clear, depth=1.0, viewport=(r.x, r.y, r.w, r.h))
             if view.kind == "fluoro":
                 if frame.fluoro is not None:
                     self.fluoro.draw(r)
-            elif view.camera is not None and view.kind != "panel":
+            elif is_3d:
                 self._scene(frame, view.camera, r, fbo, view.hide_entity)
+        if self.view_cache is not None:
+            self.view_cache.forget({v.name for v in frame.views})
         ctx.scissor = None
         ctx.viewport = (0, 0, W, H)
         self.overlay.set_scale(s)
         self._overlay(frame)
         self.overlay.flush((W, H))
         ctx.disable(ctx.BLEND)
+
+    def cache_views(self, on: bool = True) -> None:
+        """Keep each 3-D view's image and draw it again only when what it shows changed
+        (chainsim.game.gl.viewcache); for windows, where most frames repeat most views."""
+        if on and self.view_cache is None:
+            self.view_cache = ViewCache(self.ctx)
+        elif not on and self.view_cache is not None:
+            self.view_cache.release()
+            self.view_cache = None
+
+    def _cached_scene(self, frame: Frame, view: ViewDraw, r: Rect, fbo, clear) -> None:
+        """A view whose key is that of its image is copied from it. A view that changed within the last
+        STILL_FRAMES frames is drawn straight into `fbo` (while it keeps changing, as in a drag, an image
+        would only add a copy); once it has kept still that long it is drawn into its image and copied
+        from then on."""
+        ctx = self.ctx
+        vc = self.view_cache
+        cv = vc.slot(view.name, (r.w, r.h))
+        key = view_key(frame, view, r, clear)
+        cv.still = cv.still + 1 if key == cv.last else 0
+        cv.last = key
+        if key == cv.key:
+            vc.reused += 1
+        elif cv.still < STILL_FRAMES:
+            vc.direct += 1
+            fbo.clear(*clear, depth=1.0, viewport=(r.x, r.y, r.w, r.h))
+            self._scene(frame, view.camera, r, fbo, view.hide_entity)
+            return
+        else:
+            local = Rect(0, 0, r.w, r.h)
+            cv.fbo.use()
+            ctx.scissor = None
+            ctx.viewport = (0, 0, r.w, r.h)
+            cv.fbo.clear(*clear, depth=1.0)
+            self._scene(frame, view.camera, local, cv.fbo, view.hide_entity)
+            cv.seen = self._labels_seen.pop((0, 0, r.w, r.h), [])
+            cv.key = key
+            vc.redrawn += 1
+            fbo.use()
+            ctx.scissor = (r.x, r.y, r.w, r.h)
+            ctx.viewport = (r.x, r.y, r.w, r.h)
+        self._labels_seen[(r.x, r.y, r.w, r.h)] = cv.seen
+        vc.copy(cv, r)
 
     def _mesh_uniforms(self, prog, vp: np.ndarray, m: MeshDraw, eye) -> None:
         model = np.asarray(m.model, float)
@@ -224,6 +298,32 @@ class Renderer:
         _set(self.line_prog, "u_color", tuple(float(c) for c in color))
         self.dyn_vao.render(mode, vertices=len(pts))
 
+    def _near_clear_of(self, m: MeshDraw, cam: Camera, aspect: float) -> bool:
+        """Whether the eye is outside the mesh's box by more than the reach of the near plane's
+        corners: then the eye is outside the mesh and the near plane cuts nothing of it."""
+        lo, hi = m.gpu.box()
+        model = np.asarray(m.model, float)
+        centre = model[:3, :3] @ (0.5 * (lo + hi)) + model[:3, 3]
+        half = np.abs(model[:3, :3]) @ (0.5 * (hi - lo))
+        eye = np.asarray(cam.eye, float)
+        gap = np.linalg.norm(np.maximum(np.abs(eye - centre) - half, 0.0))
+        t = np.tan(np.radians(cam.fov) / 2.0)
+        return bool(gap > cam.near * np.sqrt(1.0 + t * t * (1.0 + aspect * aspect)) * 1.01)
+
+    def _enclosed_and_hidden(self, m: MeshDraw, cam: Camera, aspect: float, hide: int) -> bool:
+        """Whether `m` lies inside a closed mesh drawn opaque in this view, seen from outside: then no
+        fragment of it can show (the pack states the enclosure and a test checks it on the meshes)."""
+        outer = m.inside
+        return (
+            self.cull_enclosed
+            and outer is not None
+            and outer.color[3] >= 0.999
+            and not outer.wireframe
+            and not (hide >= 0 and outer.entity == hide)
+            and np.array_equal(np.asarray(outer.model, float), np.asarray(m.model, float))
+            and self._near_clear_of(outer, cam, aspect)
+        )
+
     def _label_queries(self, frame: Frame, vp, eye, r: Rect) -> None:
         """Which labels the opaque scene leaves in sight: a small sphere at each label's point is drawn
         without colour or depth writes inside an occlusion query (before markers, which would hide it),
@@ -232,19 +332,14 @@ class Renderer:
         seen = self._labels_seen[(r.x, r.y, r.w, r.h)] = []
         if not frame.labels:
             return
-        fbo = ctx.fbo
-        fbo.color_mask = (False, False, False, False)
-        fbo.depth_mask = False
-        try:
-            for pos, _text, _color in frame.labels:
-                q = ctx.query(samples=True)
+        while len(self._label_q) < len(frame.labels):
+            self._label_q.append(ctx.query(samples=True))  # kept: one per label, reused every frame
+        with _writes_off(ctx.fbo):
+            for q, (pos, _text, _color) in zip(self._label_q, frame.labels):
                 with q:
                     self._draw_mesh(MeshDraw(self.sphere, _trs(pos, 1.2), (1, 1, 1, 1)), vp, eye)
-                seen.append(q.samples > 0)
-                q.mglo.release() if hasattr(q.mglo, "release") else None
-        finally:
-            fbo.color_mask = (True, True, True, True)
-            fbo.depth_mask = True
+        # all queries are issued before the first result is read: one wait for the rasteriser, not one each
+        seen.extend(q.samples > 0 for q in self._label_q[: len(frame.labels)])
 
     def _scene(self, frame: Frame, cam: Camera, r: Rect, fbo, hide: int = -1) -> None:
         ctx = self.ctx
@@ -257,8 +352,19 @@ class Renderer:
         for m in frame.meshes:
             if hide >= 0 and m.entity == hide:
                 continue
+            if self._enclosed_and_hidden(m, cam, r.aspect, hide):
+                continue
             if m.color[3] < 0.999:
                 see_through.append(("mesh", m))
+            elif (
+                self.cull_back and not m.wireframe and m.gpu.closed_outward() and self._near_clear_of(m, cam, r.aspect)
+            ):
+                # seen from outside a closed surface, its back faces are all behind its front faces:
+                # skipping them before rasterising halves the work of the skin under a software renderer
+                ctx.enable(ctx.CULL_FACE)
+                ctx.cull_face = "back"
+                self._draw_mesh(m, vp, eye)
+                ctx.disable(ctx.CULL_FACE)
             else:
                 self._draw_mesh(m, vp, eye)
         self._label_queries(frame, vp, eye, r)
@@ -395,6 +501,11 @@ class Renderer:
         if self._fluoro is not None:
             self._fluoro.release()
             self._fluoro = None
+        self.cache_views(False)
+        for q in self._label_q:
+            if hasattr(q.mglo, "release"):
+                q.mglo.release()
+        self._label_q.clear()
 
 
 def _trs(pos, radius: float) -> np.ndarray:

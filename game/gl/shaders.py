@@ -108,3 +108,18 @@ in vec4 v_color;
 out vec4 f_color;
 void main() { f_color = vec4(v_color.rgb, v_color.a * texture(u_atlas, v_uv).r); }
 """
+
+# a cached viewport image copied pixel for pixel into its rectangle (chainsim.game.gl.viewcache)
+COPY_VS = """
+#version 330
+in vec2 in_pos;
+void main() { gl_Position = vec4(in_pos, 0.0, 1.0); }
+"""
+
+COPY_FS = """
+#version 330
+uniform sampler2D u_image;
+uniform ivec2 u_origin;
+out vec4 f_color;
+void main() { f_color = texelFetch(u_image, ivec2(gl_FragCoord.xy) - u_origin, 0); }
+"""

@@ -346,6 +346,8 @@ def check_meshes(v: Validator, man: dict, load_meshes: bool) -> dict[str, MeshDa
         file = v.file_of(key)
         if v.has_problem(key):
             continue  # its table is already wrong; checking the file would only repeat that
+        if spec.get("inside") and spec["inside"] not in man.get("meshes", {}):
+            v.add(file, f"{key}.inside", f"no mesh named '{spec['inside']}' in [meshes]")
         has_path, has_prim = bool(spec.get("path")), bool(spec.get("primitive"))
         if has_path == has_prim:
             v.add(file, key, "give exactly one of 'path' or 'primitive'")
@@ -359,6 +361,8 @@ def check_meshes(v: Validator, man: dict, load_meshes: bool) -> dict[str, MeshDa
         else:
             p = v.path(file, f"{key}.path", spec["path"])
             if p is None:
+                continue
+            if spec.get("display") and v.path(file, f"{key}.display", spec["display"]) is None:
                 continue
             limit = max_mesh_bytes()
             if p.stat().st_size > limit:

@@ -82,6 +82,19 @@ class Pack:
             self._meshes[name] = build_mesh(self.root, name, self.manifest["meshes"][name], self.deps)
         return self._meshes[name]
 
+    def display_mesh(self, name: str) -> MeshData:
+        """What the renderer draws for mesh `name`: its `display` file (a decimated copy, for speed
+        in software rendering) where it has one, else the mesh itself. Its vertices are read as
+        stored: a copy keeps a crease (a flat cap) by giving the faces on each side their own."""
+        spec = self.manifest["meshes"][name]
+        if not spec.get("display") or spec.get("primitive"):
+            return self.mesh(name)
+        key = f"display:{name}"
+        if key not in self._meshes:
+            as_stored = {**spec, "path": spec["display"], "reorder": False, "merge_vertices": False}
+            self._meshes[key] = build_mesh(self.root, name, as_stored)
+        return self._meshes[key]
+
     def scene_names(self) -> list[str]:
         return list(self.section("scenes"))
 

@@ -103,6 +103,21 @@ section(
         ),
         Field("primitive", "enum", "", choices=("",) + PRIMITIVES, help="Built-in shape instead of a file."),
         Field(
+            "display",
+            "path",
+            "",
+            help="A lighter copy of the surface (same units) drawn in its place; picking, contacts and the "
+            "C-arm image keep the full mesh. Ignored for meshes that deform.",
+        ),
+        Field(
+            "inside",
+            "str",
+            "",
+            help="Name of a closed mesh this one lies wholly inside (the skull in the skin): while an entity "
+            "of that mesh with the same transform is drawn opaque and the eye is outside it, this one is "
+            "not drawn, as none of it could show.",
+        ),
+        Field(
             "units",
             "enum",
             "mm",

@@ -143,6 +143,9 @@ def run_window(args, session=None) -> int:
     target = render.RenderTarget(ctx, ctx.screen, fw / max(w, 1), offscreen=False, size=(fw, fh))
     app.insert_resource(target)
     app.add_plugin(render.plugin)
+    if not getattr(window.config, "sample_buffers", 0):
+        # without multisampling (software GL) a view's image can be kept and copied while it is unchanged
+        app.resource(render.Renderer).cache_views()
     pending: PendingInput = app.resource(PendingInput)
     if script:
         pending.extend(script)

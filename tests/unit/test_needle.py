@@ -47,7 +47,10 @@ def make_synthetic_pack(root: Path) -> Path:
 
     root = Path(root)
     (root / "meshes").mkdir(parents=True, exist_ok=True)
-    shutil.copy(PACK / "pack.toml", root / "pack.toml")
+    # the display copies and the enclosure claims belong to the real anatomy, not to this one
+    manifest = (PACK / "pack.toml").read_text(encoding="utf-8").splitlines()
+    keep = [ln for ln in manifest if not ln.startswith(("display = ", "inside = "))]
+    (root / "pack.toml").write_text("\n".join(keep) + "\n", encoding="utf-8")
     shutil.copytree(PACK / "docs", root / "docs", dirs_exist_ok=True)
     (root / "scripts").mkdir(exist_ok=True)
     (root / "scripts" / "correct.toml").write_text("format = 1\n")

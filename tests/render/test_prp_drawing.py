@@ -1,0 +1,214 @@
+"""What the prp window draws stays what it was after the speed-ups: cached views, occlusion culling
+and the display copies of the skull and skin (docs/rendering.md, "Frame rate under software GL")."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.render.conftest import open_app
+
+CAMERAS = [(35.0, 10.0, 420.0), (200.0, 20.0, 420.0), (90.0, -30.0, 300.0), (0.0, 0.0, 150.0), (0.0, -80.0, 300.0)]
+
+
+@pytest.fixture(scope="module")
+def prp_app():
+    from chainsim.components.resources import PendingInput
+    from chainsim.game.app.inputscript import load_script
+    from chainsim.game.app.loader import PackResource
+    from chainsim.game.gl import render_system as render
+
+    app = open_app("prp", size=(640, 400))
+    pres = app.resource(PackResource)
+    app.resource(PendingInput).extend(load_script(pres.pack.file("scripts/correct.toml")))
+    app.run_steps(int(1.8 / app.time.dt))  # landmarks placed and labelled, needle at the skin
+    app.resource(render.RenderTarget).samples = 1  # exact comparisons
+    yield app
+    app.close()
+
+
+def _pixels(app) -> np.ndarray:
+    from chainsim.game.gl import render_system as render
+
+    render.draw(app)
+    return render.read_pixels(app).astype(np.int16)
+
+
+def _camera(app, yaw, pitch, distance):
+    from chainsim.systems.view import ViewState
+
+    cam = app.resource(ViewState).get("surgeon").camera
+    cam.yaw, cam.pitch, cam.distance = yaw, pitch, distance
+    cam.update_eye()
+
+
+@pytest.mark.parametrize("yaw,pitch,distance", CAMERAS)
+def test_culling_enclosed_meshes_never_hides_what_shows(prp_app, yaw, pitch, distance):
+    from chainsim.game.gl.renderer import Renderer
+
+    r = prp_app.resource(Renderer)
+    _camera(prp_app, yaw, pitch, distance)
+    try:
+        r.cull_enclosed = False
+        everything = _pixels(prp_app)
+        r.cull_enclosed = True
+        culled = _pixels(prp_app)
+    finally:
+        r.cull_enclosed = True
+    assert np.array_equal(everything, culled)
+
+
+@pytest.mark.parametrize("yaw,pitch,distance", CAMERAS)
+def test_back_faces_skipped_only_where_they_cannot_show(prp_app, yaw, pitch, distance):
+    from chainsim.game.gl.renderer import Renderer
+
+    r = prp_app.resource(Renderer)
+    _camera(prp_app, yaw, pitch, distance)
+    try:
+        r.cull_back = False
+        both = _pixels(prp_app)
+        r.cull_back = True
+        front = _pixels(prp_app)
+    finally:
+        r.cull_back = True
+    diff = np.abs(both - front).max(axis=-1)
+    # a few silhouette pixels may differ: where the rasteriser leaves a crack between two front
+    # faces at the very edge, the back face behind it no longer fills the crack
+    assert np.count_nonzero(diff) <= 20
+
+
+def test_closed_outward_surfaces_are_told_apart():
+    from chainsim.game.gl.meshbuf import _closed_outward
+    from chainsim.game.gl.renderer import icosphere
+
+    v, f = icosphere(1)
+    assert _closed_outward(v, f)
+    assert not _closed_outward(v, f[:, ::-1])  # wound inward
+    assert not _closed_outward(v, f[1:])  # a hole
+    # a crease: the first face gets its own copies of its corners - still closed
+    split = np.vstack([v, v[f[0]]])
+    g = f.copy()
+    g[0] = [len(v), len(v) + 1, len(v) + 2]
+    assert _closed_outward(split, g)
+
+
+def test_cached_views_match_fresh_ones_and_redraw_on_change(prp_app):
+    from chainsim.game.gl.renderer import STILL_FRAMES, Renderer
+
+    r = prp_app.resource(Renderer)
+    try:
+        for yaw, pitch, distance in CAMERAS[:3]:
+            _camera(prp_app, yaw, pitch, distance)
+            r.cache_views(False)
+            fresh = _pixels(prp_app)
+            r.cache_views(True)
+            vc = r.view_cache
+            first = _pixels(prp_app)  # new views: drawn straight into the frame
+            assert vc.direct == 2 and vc.redrawn == 0
+            for _ in range(STILL_FRAMES - 1):  # not yet still long enough: drawn straight again
+                _pixels(prp_app)
+            direct = vc.direct
+            assert direct == 2 * STILL_FRAMES and vc.redrawn == 0
+            imaged = _pixels(prp_app)  # still long enough: drawn into their images
+            assert vc.redrawn == 2
+            copied = _pixels(prp_app)  # unchanged: copied
+            assert vc.redrawn == 2 and vc.reused == 2, "an unchanged frame redrew a view"
+            assert np.array_equal(first, fresh)
+            # llvmpipe rasterises in screen tiles, so a view drawn at its own origin may differ by one
+            # level in a few blended pixels; nothing else differs
+            for img in (imaged, copied):
+                diff = np.abs(img - fresh).max(axis=-1)
+                assert diff.max() <= 2 and np.count_nonzero(diff) < 200
+            _camera(prp_app, yaw + 5.0, pitch, distance)
+            _pixels(prp_app)
+            assert vc.direct == direct + 1 and vc.reused == 3, "only the surgeon's view moved"
+    finally:
+        r.cache_views(False)
+
+
+def test_display_copies_are_lighter_and_close_to_the_full_meshes():
+    import trimesh
+
+    from chainsim.game.packs.discovery import resolve
+    from chainsim.game.packs.pack import load
+
+    pack = load(resolve("prp")[0])
+    full, light = pack.mesh("skull"), pack.display_mesh("skull")
+    assert len(light.triangles) * 3 < len(full.triangles)
+    surface = trimesh.Trimesh(full.vertices, full.triangles, process=False)
+    _, dist, _ = trimesh.proximity.closest_point(surface, light.vertices[::20])
+    assert dist.max() < 1.0  # mm
+    skin, shown = pack.mesh("skin"), pack.display_mesh("skin")
+    assert shown.vertices[:, 2].min() > skin.vertices[:, 2].min()  # the ragged neck rim is cut away
+    face = skin.vertices[:, 2] > -60.0
+    _, dist, _ = trimesh.proximity.closest_point(
+        trimesh.Trimesh(shown.vertices, shown.triangles, process=False), skin.vertices[face][::25]
+    )
+    assert dist.max() < 1e-6  # the face and head are the collision skin itself
+
+
+def test_bench_render_pack_writes_its_report(tmp_path):
+    import json
+
+    from chainsim.game.cli.main import main
+
+    out = tmp_path / "bench"
+    rc = main(
+        ["bench", "render", "--pack", "prp", "--size", "320x200", "--frames", "1", "--warmup", "0", "--out", str(out)]
+    )
+    assert rc == 0
+    info = json.loads((out / "results-pack.json").read_text())
+    assert info["pack"] == "prp" and info["median_ms"]
+    assert all(v > 0 for v in info["median_ms"].values())
+
+
+def _winding(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Generalised winding number of a closed surface at each point (1 inside, 0 outside)."""
+    tri = vertices[faces]
+    out = []
+    for chunk in np.array_split(points, max(1, len(points) // 64)):
+        a = tri[None] - chunk[:, None, None, :]
+        x, y, z = a[:, :, 0], a[:, :, 1], a[:, :, 2]
+        lx, ly, lz = (np.linalg.norm(v, axis=-1) for v in (x, y, z))
+        det = np.einsum("pfi,pfi->pf", x, np.cross(y, z))
+        den = (
+            lx * ly * lz
+            + np.einsum("pfi,pfi->pf", x, y) * lz
+            + np.einsum("pfi,pfi->pf", y, z) * lx
+            + np.einsum("pfi,pfi->pf", z, x) * ly
+        )
+        out.append(np.arctan2(det, den).sum(axis=1) / (2.0 * np.pi))
+    return np.concatenate(out)
+
+
+def test_meshes_said_to_be_inside_the_skin_are_inside_it():
+    """The pack's `inside = "skin"` lets the renderer skip the skull behind an opaque skin; that is
+    only sound if every drawn vertex of it lies inside the drawn skin (sampled, winding numbers)."""
+    from chainsim.game.packs.discovery import resolve
+    from chainsim.game.packs.pack import load
+
+    pack = load(resolve("prp")[0])
+    skin = pack.display_mesh("skin")
+    inner = [n for n, spec in pack.manifest["meshes"].items() if spec.get("inside") == "skin"]
+    assert {"skull", "mandible"} <= set(inner)
+    for name in inner:
+        m = pack.display_mesh(name)
+        pts = m.vertices[:: max(1, len(m.vertices) // 400)]
+        w = _winding(pts, skin.vertices, skin.triangles)
+        assert w.min() > 0.5, f"{name} reaches outside the skin"
+
+
+def test_text_laid_out_once_draws_the_same_quads(gl_ctx):
+    from chainsim.game.gl.overlay import Overlay
+
+    ov = Overlay(gl_ctx)
+    try:
+        first = ov.label("Horizontal turn (deg)", 10.5, 20.0, (1, 1, 1, 1), max_w=90.0)
+        quads = list(ov.glyphs[ov.font])
+        again = ov.label("Horizontal turn (deg)", 10.5, 20.0, (1, 1, 1, 1), max_w=90.0)
+        assert again == first and ov.glyphs[ov.font][len(quads) :] == quads
+        moved = ov.label("Horizontal turn (deg)", 11.5, 20.0, (1, 1, 1, 1), max_w=90.0)
+        assert moved == first + 1.0
+        assert ov.font.width("abc") == ov.font.width("abc") > 0
+    finally:
+        ov.release()
