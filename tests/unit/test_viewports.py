@@ -3,7 +3,7 @@
 import math
 
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from chainsim.systems.ui.viewports import OrbitCamera, Rect, attached_camera, fraction_rect, layout_rects
