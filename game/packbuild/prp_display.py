@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from chainsim.engine.errors import UserError
+
 from chainsim.assets import ASSETS_DIR
 
 #: meshes decimated for display, with their target triangle counts
@@ -31,7 +33,12 @@ NECK_CUT_Z = -100.0
 
 def decimate(vertices: np.ndarray, faces: np.ndarray, n_faces: int) -> trimesh.Trimesh:
     """About `n_faces` triangles of the same surface (quadric error metric)."""
-    import fast_simplification  # noqa: PLC0415 - needed only to rebuild the copies, not to run
+    try:
+        import fast_simplification  # noqa: PLC0415 - needed only to rebuild the copies, not to run
+    except ImportError:
+        raise UserError(
+            "rebuilding the display meshes needs fast-simplification: pip install 'chainsim[packbuild]'"
+        ) from None
 
     reduction = max(0.0, 1.0 - n_faces / max(len(faces), 1))
     v, f = fast_simplification.simplify(
