@@ -19,9 +19,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from chainsim.engine.errors import UserError
-
 from chainsim.assets import ASSETS_DIR
+from chainsim.engine.errors import UserError
 
 #: meshes decimated for display, with their target triangle counts
 TARGETS = {"skull": 16_000}
