@@ -43,6 +43,7 @@ CSV_COLUMNS = (
     *(f"aid_{name}" for name in AIDS),
     "step_times",
     "details",
+    "metrics",  # the procedure's own metrics (records' procedure-neutral table), JSON
 )
 
 
@@ -137,6 +138,7 @@ def csv_rows(attempts: Sequence[dict[str, Any]]) -> list[list[Any]]:
                 *(int(bool(a["aids"].get(name, False))) for name in AIDS),
                 json.dumps(a["step_times"], sort_keys=True),
                 json.dumps(a["details"], sort_keys=True),
+                json.dumps(a.get("metrics") or {}, sort_keys=True),
             ]
         )
     return rows

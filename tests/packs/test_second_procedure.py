@@ -99,3 +99,12 @@ def test_both_attempts_show_in_records(cli, tmp_path):
     assert metrics["mandible"]["bone_contacts"] >= 1
     assert metrics["mental_foramen_left"]["bone_contacts"] == pytest.approx(0.0)
     assert metrics["mental_foramen_left"]["needle_error_mm"] <= 0.5
+    # and a trainer's CSV export carries them too, one JSON cell per attempt
+    code, _, err = cli("records", "--db", db, "export", "--csv", tmp_path / "all.csv")
+    assert code == 0, err
+    import csv
+
+    with (tmp_path / "all.csv").open(newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    by_target = {r["target"]: json.loads(r["metrics"]) for r in rows}
+    assert by_target["mandible"]["bone_contacts"] >= 1 and "needle_error_mm" in by_target["mental_foramen_left"]
