@@ -69,13 +69,7 @@ def tet_sweep(x, w, tets, dm_inv, vol, active, mu, lam, gamma, h2, lam_d, lam_h)
                 _apply(x, w, ids, g, dl)
                 _deformation(x, tets, dm_inv, t, F)
         # -- hydrostatic: C = det F - gamma, dC/dF = cofactor(F)
-        # columns of the cofactor: f1 x f2, f2 x f0, f0 x f1 (f_i the columns of F)
-        for r in range(3):
-            r1 = (r + 1) % 3
-            r2 = (r + 2) % 3
-            P[r, 0] = F[r1, 1] * F[r2, 2] - F[r2, 1] * F[r1, 2]
-            P[r, 1] = F[r1, 2] * F[r2, 0] - F[r2, 2] * F[r1, 0]
-            P[r, 2] = F[r1, 0] * F[r2, 1] - F[r2, 0] * F[r1, 1]
+        _cofactor(F, P)
         J = F[0, 0] * P[0, 0] + F[1, 0] * P[1, 0] + F[2, 0] * P[2, 0]
         _grads(P, dm_inv[t], g)
         den = w[a] * _sq(g, 0) + w[b] * _sq(g, 1) + w[c] * _sq(g, 2) + w[d] * _sq(g, 3)
@@ -163,6 +157,17 @@ def tet_energy(x, tets, dm_inv, vol, active, mu, lam, gamma):
 
 
 @njit(cache=True)
+def _cofactor(F, out):
+    """out = cofactor(F) = det(F) F^-T, the derivative of det F: columns f1 x f2, f2 x f0, f0 x f1."""
+    for r in range(3):
+        r1 = (r + 1) % 3
+        r2 = (r + 2) % 3
+        out[r, 0] = F[r1, 1] * F[r2, 2] - F[r2, 1] * F[r1, 2]
+        out[r, 1] = F[r1, 2] * F[r2, 0] - F[r2, 2] * F[r1, 0]
+        out[r, 2] = F[r1, 0] * F[r2, 1] - F[r2, 0] * F[r1, 1]
+
+
+@njit(cache=True)
 def _deformation(x, tets, dm_inv, t, F):
     a, b, c, d = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
     for r in range(3):
@@ -215,12 +220,7 @@ def stvk_sweep(x, w, tets, dm_inv, vol, active, mu, lam, h2):
             + F[0, 2] * (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0])
         )
         if lam * vol[t] * h2 > 0.0:  # a volume stiffness that underflows to 0 has no constraint to enforce
-            for r in range(3):
-                r1 = (r + 1) % 3
-                r2 = (r + 2) % 3
-                P[r, 0] = F[r1, 1] * F[r2, 2] - F[r2, 1] * F[r1, 2]
-                P[r, 1] = F[r1, 2] * F[r2, 0] - F[r2, 2] * F[r1, 0]
-                P[r, 2] = F[r1, 0] * F[r2, 1] - F[r2, 0] * F[r1, 1]
+            _cofactor(F, P)
             _grads(P, dm_inv[t], g)
             den = w[ids[0]] * _sq(g, 0) + w[ids[1]] * _sq(g, 1) + w[ids[2]] * _sq(g, 2) + w[ids[3]] * _sq(g, 3)
             alpha = 1.0 / (lam * vol[t] * h2)
@@ -248,12 +248,7 @@ def tet_forces(x, tets, dm_inv, vol, active, mu, lam, gamma, stvk, out):
         if not active[t]:
             continue
         _deformation(x, tets, dm_inv, t, F)
-        for r in range(3):
-            r1 = (r + 1) % 3
-            r2 = (r + 2) % 3
-            C[r, 0] = F[r1, 1] * F[r2, 2] - F[r2, 1] * F[r1, 2]
-            C[r, 1] = F[r1, 2] * F[r2, 0] - F[r2, 2] * F[r1, 0]
-            C[r, 2] = F[r1, 0] * F[r2, 1] - F[r2, 0] * F[r1, 1]
+        _cofactor(F, C)
         J = F[0, 0] * C[0, 0] + F[1, 0] * C[1, 0] + F[2, 0] * C[2, 0]
         if stvk:
             for i in range(3):
