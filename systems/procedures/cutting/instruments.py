@@ -19,7 +19,6 @@ from chainsim.engine.errors import UserError
 from chainsim.engine.raycast import ray_mesh
 from chainsim.systems.picking import entity_surface
 from chainsim.systems.procedures.cutting.state import (
-    PUSH_BUTTON_MM,
     TOOLS,
     CuttingState,
     ToolUse,
@@ -34,10 +33,12 @@ from chainsim.systems.view import ViewState
 
 
 def widget_value(name: str, value):
-    """The value of a `pull` ("x, y, z"), `pull_by` ("dx, dy, dz") or `push` (mm) widget event, or one
-    UserError line; scripts are checked with it before a run starts (procedure.check_event)."""
+    """The value of a `pull` ("x, y, z"), `pull_by` ("dx, dy, dz") or `push` (mm; None: the Push button,
+    the forceps' push_step) widget event, or one UserError line; scripts are checked with it before a run
+    starts (procedure.check_event)."""
     if name == "push":
-        value = PUSH_BUTTON_MM if value is None else value
+        if value is None:
+            return None
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise UserError(f"widget 'push': value must be a depth in mm, got {value!r}")
         return float(value)
@@ -202,12 +203,12 @@ class ToolsSystem:
             self.lift_blade(app)
         elif name in ("pull", "pull_by", "push"):
             f = esper.component_for_entity(st.forceps, Forceps)
-            value = f.push_step if name == "push" and ev.value is None else widget_value(name, ev.value)
+            value = widget_value(name, ev.value)
             if st.tool != "forceps" or f.held_entity < 0:
                 self.say(app, "Choose the forceps and grip the tissue first.")
                 return
             if name == "push":
-                self.push(app, float(value))
+                self.push(app, f.push_step if value is None else value)
             elif name == "pull":
                 self.aim(f, value)
             else:

@@ -14,7 +14,6 @@ from chainsim.components.resources import PackResource
 from chainsim.engine.errors import UserError
 
 TOOLS = ("forceps", "scissors")
-PUSH_BUTTON_MM = 2.0  # a scripted `push` without a value, checked before the run (forceps.push_step in play)
 MOVED_MM = 0.01  # an element this far from rest counts as displaced
 #: what completes a step without `done_on` (packs written before steps said it): its id's events
 LEGACY_DONE_ON = {"pull": ["carried:5"], "cut": ["cut:20"], "open": ["opened:10"]}
