@@ -75,6 +75,18 @@ class Font:
             draw.text((cx + 1, cy + 1), ch, font=self.font, fill=255)
             # atlas rows are uploaded top row first, so v = 0 is the image top
             self.uv[ch] = (cx / W, cy / H, (cx + self.cell_w) / W, (cy + self.cell_h) / H)
+        # each glyph's inked box in its cell (x0, y0, x1, y1; pixels from the cell's top left), None for
+        # blank ones: text is drawn as these boxes rather than whole cells, which under a software
+        # renderer cuts the blended area of a panel's text about three-fold
+        ink = np.asarray(img, np.uint8)
+        self.ink: dict[str, tuple[int, int, int, int] | None] = {}
+        for i, ch in enumerate(chars):
+            cx, cy = (i % cols) * self.cell_w, (i // cols) * self.cell_h
+            cell = ink[cy : cy + self.cell_h, cx : cx + self.cell_w]
+            rows_on, cols_on = np.flatnonzero(cell.any(axis=1)), np.flatnonzero(cell.any(axis=0))
+            self.ink[ch] = (
+                (int(cols_on[0]), int(rows_on[0]), int(cols_on[-1]) + 1, int(rows_on[-1]) + 1) if len(rows_on) else None
+            )
         self.texture = ctx.texture(img.size, 1, img.tobytes())
         self.texture.filter = (ctx.NEAREST, ctx.NEAREST)
         self.line_h = self.ascent + self.descent + 3
@@ -286,56 +298,65 @@ class Overlay:
         # whole pixels: the atlas is sampled nearest, so a fractional offset would drop texel rows
         top = float(round(baseline)) + f.ascent + 1
         bottom = top - f.cell_h
+        W, H = f.texture.size
         for ch in text:
             if ch not in f.uv:
                 ch = "?"
-            u0, v0, u1, v1 = f.uv[ch]
-            x0 = float(round(pen)) - 1
-            x1 = x0 + f.cell_w
-            lean = slant * f.cell_h
+            box = f.ink[ch]
+            if box is None:  # blank (a space): nothing to draw
+                pen += f.advance[ch]
+                continue
+            ix0, iy0, ix1, iy1 = box
+            u0, v0 = f.uv[ch][0] + ix0 / W, f.uv[ch][1] + iy0 / H
+            u1, v1 = f.uv[ch][0] + ix1 / W, f.uv[ch][1] + iy1 / H
+            x0 = float(round(pen)) - 1 + ix0
+            x1 = x0 + (ix1 - ix0)
+            y1, y0 = top - iy0, top - iy1  # the inked box's top and bottom
+            # the slant moves each height by slant x (height above the cell bottom), as for a whole cell
+            lean0, lean1 = slant * (y0 - bottom), slant * (y1 - bottom)
             glyphs += [
-                x0,
-                bottom,
+                x0 + lean0,
+                y0,
                 u0,
                 v1,
                 r,
                 g,
                 b,
                 a,
-                x1,
-                bottom,
+                x1 + lean0,
+                y0,
                 u1,
                 v1,
                 r,
                 g,
                 b,
                 a,
-                x1 + lean,
-                top,
+                x1 + lean1,
+                y1,
                 u1,
                 v0,
                 r,
                 g,
                 b,
                 a,
-                x0,
-                bottom,
+                x0 + lean0,
+                y0,
                 u0,
                 v1,
                 r,
                 g,
                 b,
                 a,
-                x1 + lean,
-                top,
+                x1 + lean1,
+                y1,
                 u1,
                 v0,
                 r,
                 g,
                 b,
                 a,
-                x0 + lean,
-                top,
+                x0 + lean1,
+                y1,
                 u0,
                 v0,
                 r,

@@ -24,12 +24,15 @@ from chainsim.game.gl.docview import PageView
 from chainsim.game.gl.fluoro import FluoroDraw, FluoroRenderer
 from chainsim.game.gl.meshbuf import GpuMesh
 from chainsim.game.gl.overlay import Overlay
-from chainsim.game.gl.viewcache import ViewCache, view_key
+from chainsim.game.gl.viewcache import ViewCache, base_key, item_keys
 from chainsim.systems.ui.viewports import Camera, Rect
 
 SHADING = {"smooth": 0, "flat": 1, "unlit": 2}
 #: a cached view is drawn into its image after this many frames without change (chainsim.game.gl.viewcache)
 STILL_FRAMES = 1
+#: an item that changed within this many frames is live: drawn over its view's layer rather than in it,
+#: so a dial turned in fits and starts does not redraw the layer at each pause (chainsim.game.gl.viewcache)
+LIVE_FRAMES = 12
 
 PANEL_BG, TEXT, DIM, ACCENT, LIGHT_RGBA = (
     panelview.PANEL_BG,
@@ -232,18 +235,30 @@ class Renderer:
             self.view_cache = None
 
     def _cached_scene(self, frame: Frame, view: ViewDraw, r: Rect, fbo, clear) -> None:
-        """A view whose key is that of its image is copied from it. A view that changed within the last
-        STILL_FRAMES frames is drawn straight into `fbo` (while it keeps changing, as in a drag, an image
-        would only add a copy); once it has kept still that long it is drawn into its image and copied
-        from then on."""
+        """A view whose key is that of its image is copied from it. A view in which only some items
+        move (the needle while a dial turns) over an unchanged camera is its layer - the image of the
+        other items, with their depth - copied, and the moving items drawn over it (`_layered`).
+        Otherwise a view that changed within the last STILL_FRAMES frames is drawn straight into
+        `fbo` (while it keeps changing, as in an orbit, an image would only add a copy); once it has
+        kept still that long it is drawn into its image and copied from then on."""
         ctx = self.ctx
         vc = self.view_cache
         cv = vc.slot(view.name, (r.w, r.h))
-        key = view_key(frame, view, r, clear)
+        base = base_key(frame, view, r, clear)
+        items = item_keys(frame)
+        if len(items) == len(cv.items):
+            cv.age = [a + 1 if k == o else 0 for a, k, o in zip(cv.age, items, cv.items, strict=True)]
+        else:  # a new view, or items came or went: none is known to keep still
+            cv.age = [0 if cv.last is not None else LIVE_FRAMES] * len(items)
+        cv.items = items
+        key = (base, tuple(items))
+        base_still = cv.last is not None and cv.last[0] == base
         cv.still = cv.still + 1 if key == cv.last else 0
         cv.last = key
         if key == cv.key:
             vc.reused += 1
+        elif base_still and self._layered(frame, view, r, fbo, clear, cv, base, items):
+            return
         elif cv.still < STILL_FRAMES:
             vc.direct += 1
             fbo.clear(*clear, depth=1.0, viewport=(r.x, r.y, r.w, r.h))
@@ -264,6 +279,130 @@ class Renderer:
             ctx.viewport = (r.x, r.y, r.w, r.h)
         self._labels_seen[(r.x, r.y, r.w, r.h)] = cv.seen
         vc.copy(cv, r)
+
+    def _layered(self, frame: Frame, view: ViewDraw, r: Rect, fbo, clear, cv, base, items) -> bool:
+        """Draw the view as its layer plus its live items (changed within the last LIVE_FRAMES frames),
+        when that is exact and cheaper: the live items are opaque, no still mesh's hiding depends on a
+        live one, and the still items hold at least as many triangles. The layer holds the still
+        opaque items with their depth; with still see-through items (a see-through skin) a second
+        image holds them blended over it, and each frame only the live items' screen box is made
+        again from the opaque layer, the live items and the see-through items. False: not used."""
+        live = [i for i, a in enumerate(cv.age) if a < LIVE_FRAMES]
+        if not live or len(live) == len(items):
+            return False
+        nm, nk, nl = len(frame.meshes), len(frame.markers), len(frame.lines)
+        live_set = set(live)
+        tri_live = tri_still = 0
+        for i, m in enumerate(frame.meshes):
+            if i in live_set:
+                if m.color[3] < 0.999:
+                    return False
+                tri_live += m.gpu.n_indices
+            else:
+                if m.inside is not None and any(m.inside is frame.meshes[j] for j in live if j < nm):
+                    return False
+                tri_still += m.gpu.n_indices
+        for i in live:
+            if nm <= i < nm + nk and frame.markers[i - nm][2][3] < 0.999:
+                return False
+            if i >= nm + nk + nl:  # a plane: always see-through
+                return False
+        if tri_still < tri_live:
+            return False
+        ctx = self.ctx
+        vc = self.view_cache
+        cam, hide = view.camera, view.hide_entity
+        still_set = frozenset(range(len(items))) - live_set
+        see_through = (
+            any(m.color[3] < 0.999 for i, m in enumerate(frame.meshes) if i not in live_set)
+            or any(frame.markers[k][2][3] < 0.999 for k in range(nk) if nm + k not in live_set)
+            or any(nm + nk + nl + k not in live_set for k in range(len(frame.planes)))
+        )
+        layer_key = ("layer", base, tuple(live), tuple(items[i] for i in sorted(still_set)))
+        if cv.key != layer_key:
+            local = Rect(0, 0, r.w, r.h)
+            cv.fbo.use()
+            ctx.scissor = None
+            ctx.viewport = (0, 0, r.w, r.h)
+            cv.fbo.clear(*clear, depth=1.0)
+            self._scene(frame, cam, local, cv.fbo, hide, skip=live_set, part="opaque" if see_through else "all")
+            cv.seen = self._labels_seen.pop((0, 0, r.w, r.h), [])
+            if see_through:
+                over_fbo, over_image = vc.over(cv)
+                over_fbo.use()
+                vc.copy(cv, local, depth=True)
+                self._scene(frame, cam, local, over_fbo, hide, skip=live_set, part="see-through")
+            cv.key = layer_key
+            cv.layers += 1
+            vc.layers_drawn += 1
+            fbo.use()
+            ctx.scissor = (r.x, r.y, r.w, r.h)
+            ctx.viewport = (r.x, r.y, r.w, r.h)
+        vc.layered += 1
+        if see_through:
+            vc.copy(cv, r, image=vc.over(cv)[1])
+            box = self._screen_box(frame, cam, r, live, hide)
+            if box is not None:
+                vc.copy(cv, r, depth=True, box=box)
+                ctx.scissor = box
+                self._scene(frame, cam, r, fbo, hide, skip=still_set, part="opaque", queries=False)
+                self._scene(frame, cam, r, fbo, hide, skip=live_set, part="see-through")
+                ctx.scissor = (r.x, r.y, r.w, r.h)
+        else:
+            vc.copy(cv, r, depth=True)
+            self._scene(frame, cam, r, fbo, hide, skip=still_set, queries=False)
+        self._labels_seen[(r.x, r.y, r.w, r.h)] = cv.seen
+        return True
+
+    def _screen_box(self, frame: Frame, cam: Camera, r: Rect, which: list[int], hide: int):
+        """Scissor box (x, y, w, h) in framebuffer pixels holding the items numbered `which` as drawn in
+        view rectangle `r`, with a margin; all of `r` when one reaches behind the eye; None when none
+        of them shows."""
+        nm, nk = len(frame.meshes), len(frame.markers)
+        pts = []
+        for i in which:
+            if i < nm:
+                m = frame.meshes[i]
+                if hide >= 0 and m.entity == hide:
+                    continue
+                lo, hi = m.gpu.box()
+                corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+                model = np.asarray(m.model, float)
+                pts.append(corners @ model[:3, :3].T + model[:3, 3])
+            elif i < nm + nk:
+                pos, radius, _c, ent = frame.markers[i - nm]
+                if hide >= 0 and ent == hide:
+                    continue
+                pos = np.asarray(pos, float)
+                pts.append(
+                    np.array(
+                        [
+                            pos + [sx * radius, sy * radius, sz * radius]
+                            for sx in (-1, 1)
+                            for sy in (-1, 1)
+                            for sz in (-1, 1)
+                        ]
+                    )
+                )
+            else:
+                pts.append(np.asarray(frame.lines[i - nm - nk][0], float).reshape(-1, 3))
+        if not pts:
+            return None
+        p = np.vstack(pts)
+        clip = np.c_[p, np.ones(len(p))] @ np.asarray(cam.view_projection(r.aspect), float).T
+        full = (r.x, r.y, r.w, r.h)
+        if (clip[:, 3] <= 1e-9).any():
+            return full
+        ndc = clip[:, :2] / clip[:, 3:4]
+        x0 = int(np.floor(r.x + (ndc[:, 0].min() * 0.5 + 0.5) * r.w)) - 2
+        x1 = int(np.ceil(r.x + (ndc[:, 0].max() * 0.5 + 0.5) * r.w)) + 2
+        y0 = int(np.floor(r.y + (ndc[:, 1].min() * 0.5 + 0.5) * r.h)) - 2
+        y1 = int(np.ceil(r.y + (ndc[:, 1].max() * 0.5 + 0.5) * r.h)) + 2
+        x0, y0 = max(x0, r.x), max(y0, r.y)
+        x1, y1 = min(x1, r.x + r.w), min(y1, r.y + r.h)
+        if x1 <= x0 or y1 <= y0:
+            return None
+        return (x0, y0, x1 - x0, y1 - y0)
 
     def _mesh_uniforms(self, prog, vp: np.ndarray, m: MeshDraw, eye) -> None:
         model = np.asarray(m.model, float)
@@ -341,21 +480,39 @@ class Renderer:
         # all queries are issued before the first result is read: one wait for the rasteriser, not one each
         seen.extend(q.samples > 0 for q in self._label_q[: len(frame.labels)])
 
-    def _scene(self, frame: Frame, cam: Camera, r: Rect, fbo, hide: int = -1) -> None:
+    def _scene(
+        self,
+        frame: Frame,
+        cam: Camera,
+        r: Rect,
+        fbo,
+        hide: int = -1,
+        skip=frozenset(),
+        part: str = "all",
+        queries: bool = True,
+    ) -> None:
+        """Draw the view's items: all of them (`part` "all"), the opaque ones ("opaque") or the see-through
+        ones over what is there ("see-through"); items numbered in `skip` (viewcache.item_keys order)
+        are left out. Label visibility is found in the opaque part, before the markers (unless not
+        `queries`)."""
         ctx = self.ctx
         vp = cam.view_projection(r.aspect)
         eye = np.asarray(cam.eye, float)
         ctx.enable(ctx.DEPTH_TEST)
         ctx.disable(ctx.BLEND | ctx.CULL_FACE)
         fbo.depth_mask = True
+        opaque = part != "see-through"
         see_through = []
-        for m in frame.meshes:
-            if hide >= 0 and m.entity == hide:
+        nm, nk, nl = len(frame.meshes), len(frame.markers), len(frame.lines)
+        for i, m in enumerate(frame.meshes):
+            if i in skip or (hide >= 0 and m.entity == hide):
                 continue
             if self._enclosed_and_hidden(m, cam, r.aspect, hide):
                 continue
             if m.color[3] < 0.999:
                 see_through.append(("mesh", m))
+            elif not opaque:
+                continue
             elif (
                 self.cull_back and not m.wireframe and m.gpu.closed_outward() and self._near_clear_of(m, cam, r.aspect)
             ):
@@ -367,22 +524,30 @@ class Renderer:
                 ctx.disable(ctx.CULL_FACE)
             else:
                 self._draw_mesh(m, vp, eye)
-        self._label_queries(frame, vp, eye, r)
-        for pos, radius, color, ent in frame.markers:
-            if hide >= 0 and ent == hide:
+        if opaque and queries:
+            self._label_queries(frame, vp, eye, r)
+        for k, (pos, radius, color, ent) in enumerate(frame.markers):
+            if nm + k in skip or (hide >= 0 and ent == hide):
                 continue
             md = MeshDraw(self.sphere, _trs(pos, radius), color, entity=ent)
             if color[3] < 0.999:
                 see_through.append(("mesh", md))
-            else:
+            elif opaque:
                 self._draw_mesh(md, vp, eye)
-        for pts, color in frame.lines:
-            if len(pts) >= 2:
-                self._dyn_draw(pts, ctx.LINE_STRIP, vp, color)
-        for corners, color in frame.planes:
-            see_through.append(("plane", (np.asarray(corners, float), color)))
-        if not see_through:
+        if opaque:
+            for k, (pts, color) in enumerate(frame.lines):
+                if len(pts) >= 2 and nm + nk + k not in skip:
+                    self._dyn_draw(pts, ctx.LINE_STRIP, vp, color)
+        for k, (corners, color) in enumerate(frame.planes):
+            if nm + nk + nl + k not in skip:
+                see_through.append(("plane", (np.asarray(corners, float), color)))
+        if not see_through or part == "opaque":
             return
+        self._see_through(see_through, vp, eye, fbo)
+
+    def _see_through(self, items: list, vp, eye, fbo) -> None:
+        """Transparent meshes and planes, farthest first, blended without depth writes."""
+        ctx = self.ctx
 
         def depth(item):
             kind, obj = item
@@ -392,11 +557,12 @@ class Renderer:
                 c = (np.asarray(obj.model, float) @ np.r_[obj.gpu.center(), 1.0])[:3]
             return -float(np.linalg.norm(c - eye))
 
-        see_through.sort(key=depth)  # farthest first
+        items.sort(key=depth)  # farthest first
+        ctx.enable(ctx.DEPTH_TEST)
         ctx.enable(ctx.BLEND)
         ctx.blend_func = ctx.SRC_ALPHA, ctx.ONE_MINUS_SRC_ALPHA
         fbo.depth_mask = False
-        for kind, obj in see_through:
+        for kind, obj in items:
             if kind == "plane":
                 corners, color = obj
                 self._dyn_draw(corners[[0, 1, 2, 0, 2, 3]], ctx.TRIANGLES, vp, color)

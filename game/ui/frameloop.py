@@ -37,3 +37,29 @@ class FixedStepper:
         if self.target is not None:
             self.target.hold = False
         return n
+
+
+class FrameLog:
+    """`chainsim play --frame-times CSV`: one row per window frame - wall seconds since the first, the
+    interval since the previous frame (what the trainee sees: simulation, drawing, the buffer swap and
+    waiting for the display) and the time this frame spent simulating and drawing, both in ms. Rows are
+    written as they come, so a session that ends badly keeps what it measured."""
+
+    def __init__(self, path: str | None):
+        self.file = None if not path else open(path, "w", encoding="utf-8")  # noqa: SIM115 - open for the session
+        self.t0: float | None = None
+        if self.file is not None:
+            self.file.write("t_s,interval_ms,work_ms\n")
+
+    def add(self, t: float, interval: float, work: float) -> None:
+        if self.file is None:
+            return
+        if self.t0 is None:
+            self.t0 = t
+        self.file.write(f"{t - self.t0:.4f},{interval * 1e3:.2f},{work * 1e3:.2f}\n")
+        self.file.flush()
+
+    def close(self) -> None:
+        if self.file is not None:
+            self.file.close()
+            self.file = None

@@ -42,7 +42,7 @@ from chainsim.game.gl.context import window_context
 from chainsim.game.records import remote
 from chainsim.game.records.store import RecordStore
 from chainsim.game.records.store import default_path as default_records_path
-from chainsim.game.ui.frameloop import FixedStepper
+from chainsim.game.ui.frameloop import FixedStepper, FrameLog
 from chainsim.game.ui.signin import SignInForm, remember, remembered, status_line
 from chainsim.systems.input import InputLog
 
@@ -334,6 +334,8 @@ def run_window(args, session=None) -> int:
 
     stepper = FixedStepper(app, target)
 
+    frame_log = FrameLog(getattr(args, "frame_times", None))
+
     @window.event
     def on_draw():
         t = time.perf_counter()  # wall clock paces the window only; the App runs on simulated time
@@ -343,6 +345,7 @@ def run_window(args, session=None) -> int:
             return
         if stepper.advance(dt) == 0:
             render.draw(app)  # no whole step yet: show the same state again
+        frame_log.add(t, dt, time.perf_counter() - t)
         for ev in widget_events.read():
             if ev.name == "sign_in" and form["open"] is None and study is None:
                 open_sign_in()
@@ -361,5 +364,6 @@ def run_window(args, session=None) -> int:
     try:
         pyglet.app.run(1 / 60)
     finally:
+        frame_log.close()
         app.close()
     return state["rc"]

@@ -39,7 +39,7 @@ def test_window_plays_a_script_and_saves_what_it_shows(tmp_path):
 
     script = tmp_path / "s.toml"
     script.write_text(SCRIPT, encoding="utf-8")
-    shot, rec = tmp_path / "w.png", tmp_path / "rec.json"
+    shot, rec, times = tmp_path / "w.png", tmp_path / "rec.json", tmp_path / "frames.csv"
     r = subprocess.run(
         [
             "xvfb-run",
@@ -59,6 +59,8 @@ def test_window_plays_a_script_and_saves_what_it_shows(tmp_path):
             str(shot),
             "--record",
             str(rec),
+            "--frame-times",
+            str(times),
         ],
         cwd=ROOT,
         capture_output=True,
@@ -79,3 +81,9 @@ def test_window_plays_a_script_and_saves_what_it_shows(tmp_path):
     )
     assert r2.returncode == 0, r2.stdout + r2.stderr
     assert "matches" in r2.stdout
+    # the frame log: one row per frame, times that add up to the session
+    rows = [line.split(",") for line in times.read_text(encoding="utf-8").splitlines()]
+    assert rows[0] == ["t_s", "interval_ms", "work_ms"]
+    t, interval, work = (np.array([float(r[k]) for r in rows[1:]]) for k in range(3))
+    assert len(t) >= 10 and np.all(np.diff(t) >= 0) and np.all(work > 0)
+    assert abs(interval[1:].sum() / 1e3 - (t[-1] - t[0])) < 0.05

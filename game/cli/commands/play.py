@@ -31,6 +31,12 @@ def add_parser(sub):
         help="close after this much simulated time",
     )
     p.add_argument("--screenshot", metavar="PNG", help="save a screenshot of the window when closing")
+    p.add_argument(
+        "--frame-times",
+        metavar="CSV",
+        help="write each frame's time to this file (frame rate as the trainee sees it: "
+        "seconds, interval since the previous frame and time in simulation + drawing, in ms)",
+    )
     p.add_argument("--model", choices=MODEL_FLAG_CHOICES, help=MODEL_FLAG_HELP)
     add_records_arguments(p)
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
@@ -55,6 +61,8 @@ def run(args) -> int:
         check_output_file(args.record, "--record")
     if args.screenshot:
         check_output_file(args.screenshot, "--screenshot")
+    if args.frame_times:
+        check_output_file(args.frame_times, "--frame-times")
     if args.records:
         remote.server_url(args.records)  # a malformed address is one line now, not a failed save later
         # The queue drains while the window opens; a slow or absent server never delays it.
