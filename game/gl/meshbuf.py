@@ -35,6 +35,15 @@ GPU_NORMALS_MIN = 50_000
 #: software one such as llvmpipe, where the pass runs on the same CPUs several times slower), "gpu", "cpu"
 GPU_NORMALS = "auto"
 _SOFTWARE = ("llvmpipe", "softpipe", "swiftshader", "lavapipe", "swrast")
+#: opaque meshes of this many triangles or more, never changed since loading, also keep their triangles
+#: in ORDER_DIRECTIONS orders, each sorted nearest-first as seen from one direction: drawn in the one
+#: nearest the eye's, a surface hidden behind another (the inner face of the skull, the far side of the
+#: cranium) mostly fails the depth test before it is shaded
+SORTED_MIN = 4000
+ORDER_DIRECTIONS = np.array(
+    [[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1) if (x, y, z) != (0, 0, 0)], float
+)
+ORDER_DIRECTIONS /= np.linalg.norm(ORDER_DIRECTIONS, axis=1)[:, None]
 
 
 def gpu_normals_used(renderer: str, n_vertices: int) -> bool:
@@ -126,6 +135,7 @@ class GpuMesh:
         self._closed = None  # closed_outward(), once known
         self.vaos: dict[str, object] = {}
         self._box = None
+        self._ordered = None  # index buffer of the triangles in every ORDER_DIRECTIONS order (made on first use)
 
     def box(self) -> tuple[np.ndarray, np.ndarray]:
         """(low, high) corners of a box holding the mesh, in its own frame. After partial uploads it
@@ -155,18 +165,33 @@ class GpuMesh:
 
     # -- vertex arrays -----------------------------------------------------------------------
     def vao(self, prog, kind: str):
-        """A vertex array for `prog`: kind 'tri' (positions, normals, triangles) or 'line' (links)."""
+        """A vertex array for `prog`: kind 'tri' (positions, normals, triangles), 'ordered' (the same
+        with the triangles in every nearest-first order, after `nearest_first`) or 'line' (links)."""
         key = f"{kind}:{prog.glo}"
         if key not in self.vaos:
-            if kind == "tri":
+            if kind in ("tri", "ordered"):
                 attrs = [(self.vbo_pos, "3f", "in_pos")]
                 if "in_normal" in prog:
                     attrs.append((self.vbo_nrm, "3f", "in_normal"))
-                self.vaos[key] = self.ctx.vertex_array(prog, attrs, self.ibo)
+                self.vaos[key] = self.ctx.vertex_array(prog, attrs, self.ibo if kind == "tri" else self._ordered)
             else:
                 self._ensure_lines()
                 self.vaos[key] = self.ctx.vertex_array(prog, [(self.vbo_pos, "3f", "in_pos")], self.lbo)
         return self.vaos[key]
+
+    def nearest_first(self, eye) -> int | None:
+        """For a mesh as loaded with SORTED_MIN triangles or more: the first index, in the 'ordered'
+        vertex array, of its triangles sorted nearest-first for an eye at `eye` (mesh frame). None
+        otherwise (smaller meshes, or changed ones: draw the 'tri' array)."""
+        if self.version or len(self.tris) < SORTED_MIN or self.n_indices != self.tris.size:
+            return None
+        if self._ordered is None:
+            centroids = self.pos[self.tris].astype(np.float64).mean(axis=1)
+            depth = centroids @ ORDER_DIRECTIONS.T  # larger: nearer an eye far out along that direction
+            order = np.argsort(-depth, axis=0, kind="stable").T  # (directions, triangles)
+            self._ordered = self.ctx.buffer(self.tris[order].astype(np.uint32).tobytes())
+        d = np.asarray(eye, np.float64) - self.center()
+        return int(np.argmax(ORDER_DIRECTIONS @ d)) * self.n_indices
 
     def _ensure_lines(self):
         if self.lbo is None:
@@ -294,7 +319,7 @@ class GpuMesh:
     def release(self) -> None:
         for v in self.vaos.values():
             v.release()
-        for b in (self.vbo_pos, self.vbo_nrm, self.ibo, self.lbo):
+        for b in (self.vbo_pos, self.vbo_nrm, self.ibo, self.lbo, self._ordered):
             if b is not None:
                 b.release()
         if self._gpu is not None:

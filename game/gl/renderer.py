@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -147,11 +148,13 @@ class Renderer:
         self.dyn_vao = ctx.vertex_array(self.line_prog, [(self.dyn, "3f", "in_pos")])
         self.overlay = Overlay(ctx)
         self.pages = PageView(self.overlay)
-        self._labels_seen: dict[tuple, list[bool]] = {}  # viewport rect -> label in sight (this frame)
+        # viewport rect -> label in sight (this frame): a list of bools, or of queries not yet read
+        self._labels_seen: dict[tuple, list] = {}
         self._fluoro: FluoroRenderer | None = None  # made on first use (only layouts with a C-arm view)
         self.cull_enclosed = True  # off: meshes inside an opaque one are drawn anyway (tests compare)
         self.cull_back = True  # off: back faces of closed opaque meshes are drawn too (tests compare)
-        self._label_q: list = []  # occlusion queries of the labels
+        self._label_q: list[list] = []  # occlusion queries of the labels, a set per scene drawn in a frame
+        self._label_sets = 0  # sets used in this frame
         self.view_cache: ViewCache | None = None  # `cache_views()` turns it on
 
     @property
@@ -187,12 +190,17 @@ class Renderer:
         ctx.scissor = None
         ctx.viewport = (0, 0, W, H)
         self._labels_seen.clear()
+        self._label_sets = 0
         if frame.fluoro is not None:
             self.fluoro.update(frame.fluoro)  # a new C-arm image, when one was taken
             fbo.use()
         covered = sum(v.rect.scaled(s).w * v.rect.scaled(s).h for v in frame.views)
         if covered < W * H:  # viewports clear their own rectangles; clear the rest only when some shows
             fbo.clear(*frame.background, depth=1.0)
+        # Views copied from their images go first and the drawing after: under a software renderer a
+        # copy into the frame waits until everything already queued for the frame is rasterised,
+        # so a copy after a drawn view would leave the rasteriser idle while this thread goes on.
+        later = []
         for view in frame.views:
             r = view.rect.scaled(s)
             if r.w <= 0 or r.h <= 0:
@@ -208,14 +216,15 @@ class Renderer:
             ctx.viewport = (r.x, r.y, r.w, r.h)
             is_3d = view.camera is not None and view.kind not in ("panel", "fluoro")
             if is_3d and self.view_cache is not None:
-                self._cached_scene(frame, view, r, fbo, clear)
+                draw = self._cached_scene(frame, view, r, fbo, clear)
+                if draw is not None:
+                    later.append((r, draw))
                 continue
-            fbo.clear(*clear, depth=1.0, viewport=(r.x, r.y, r.w, r.h))
-            if view.kind == "fluoro":
-                if frame.fluoro is not None:
-                    self.fluoro.draw(r)
-            elif is_3d:
-                self._scene(frame, view.camera, r, fbo, view.hide_entity)
+            later.append((r, partial(self._plain_view, frame, view, r, fbo, clear, is_3d)))
+        for r, draw in later:
+            ctx.scissor = (r.x, r.y, r.w, r.h)
+            ctx.viewport = (r.x, r.y, r.w, r.h)
+            draw()
         if self.view_cache is not None:
             self.view_cache.forget({v.name for v in frame.views})
         ctx.scissor = None
@@ -224,6 +233,14 @@ class Renderer:
         self._overlay(frame)
         self.overlay.flush((W, H))
         ctx.disable(ctx.BLEND)
+
+    def _plain_view(self, frame: Frame, view: ViewDraw, r: Rect, fbo, clear, is_3d: bool) -> None:
+        fbo.clear(*clear, depth=1.0, viewport=(r.x, r.y, r.w, r.h))
+        if view.kind == "fluoro":
+            if frame.fluoro is not None:
+                self.fluoro.draw(r)
+        elif is_3d:
+            self._scene(frame, view.camera, r, fbo, view.hide_entity)
 
     def cache_views(self, on: bool = True) -> None:
         """Keep each 3-D view's image and draw it again only when what it shows changed
@@ -234,13 +251,16 @@ class Renderer:
             self.view_cache.release()
             self.view_cache = None
 
-    def _cached_scene(self, frame: Frame, view: ViewDraw, r: Rect, fbo, clear) -> None:
+    def _cached_scene(self, frame: Frame, view: ViewDraw, r: Rect, fbo, clear):
         """A view whose key is that of its image is copied from it. A view in which only some items
         move (the needle while a dial turns) over an unchanged camera is its layer - the image of the
         other items, with their depth - copied, and the moving items drawn over it (`_layered`).
         Otherwise a view that changed within the last STILL_FRAMES frames is drawn straight into
         `fbo` (while it keeps changing, as in an orbit, an image would only add a copy); once it has
-        kept still that long it is drawn into its image and copied from then on."""
+        kept still that long it is drawn into its image and copied from then on.
+
+        Copies are made now; what is drawn into the frame is returned as a function for `render` to
+        call after every view's copies (None: nothing to draw)."""
         ctx = self.ctx
         vc = self.view_cache
         cv = vc.slot(view.name, (r.w, r.h))
@@ -255,15 +275,19 @@ class Renderer:
         base_still = cv.last is not None and cv.last[0] == base
         cv.still = cv.still + 1 if key == cv.last else 0
         cv.last = key
+        layered = False
         if key == cv.key:
             vc.reused += 1
-        elif base_still and self._layered(frame, view, r, fbo, clear, cv, base, items):
-            return
+        elif base_still and (layered := self._layered(frame, view, r, fbo, clear, cv, base, items)) is not False:
+            return layered
         elif cv.still < STILL_FRAMES:
             vc.direct += 1
-            fbo.clear(*clear, depth=1.0, viewport=(r.x, r.y, r.w, r.h))
-            self._scene(frame, view.camera, r, fbo, view.hide_entity)
-            return
+
+            def draw():
+                fbo.clear(*clear, depth=1.0, viewport=(r.x, r.y, r.w, r.h))
+                self._scene(frame, view.camera, r, fbo, view.hide_entity)
+
+            return draw
         else:
             local = Rect(0, 0, r.w, r.h)
             cv.fbo.use()
@@ -271,7 +295,7 @@ class Renderer:
             ctx.viewport = (0, 0, r.w, r.h)
             cv.fbo.clear(*clear, depth=1.0)
             self._scene(frame, view.camera, local, cv.fbo, view.hide_entity)
-            cv.seen = self._labels_seen.pop((0, 0, r.w, r.h), [])
+            cv.seen = self._seen(self._labels_seen.pop((0, 0, r.w, r.h), []))
             cv.key = key
             vc.redrawn += 1
             fbo.use()
@@ -279,14 +303,17 @@ class Renderer:
             ctx.viewport = (r.x, r.y, r.w, r.h)
         self._labels_seen[(r.x, r.y, r.w, r.h)] = cv.seen
         vc.copy(cv, r)
+        return None
 
-    def _layered(self, frame: Frame, view: ViewDraw, r: Rect, fbo, clear, cv, base, items) -> bool:
+    def _layered(self, frame: Frame, view: ViewDraw, r: Rect, fbo, clear, cv, base, items):
         """Draw the view as its layer plus its live items (changed within the last LIVE_FRAMES frames),
         when that is exact and cheaper: the live items are opaque, no still mesh's hiding depends on a
         live one, and the still items hold at least as many triangles. The layer holds the still
         opaque items with their depth; with still see-through items (a see-through skin) a second
         image holds them blended over it, and each frame only the live items' screen box is made
-        again from the opaque layer, the live items and the see-through items. False: not used."""
+        again from the opaque layer, the live items and the see-through items. Returns the drawing of
+        the live items (after the copies, made now; None if nothing of them shows), or False: not
+        used."""
         live = [i for i, a in enumerate(cv.age) if a < LIVE_FRAMES]
         if not live or len(live) == len(items):
             return False
@@ -326,7 +353,7 @@ class Renderer:
             ctx.viewport = (0, 0, r.w, r.h)
             cv.fbo.clear(*clear, depth=1.0)
             self._scene(frame, cam, local, cv.fbo, hide, skip=live_set, part="opaque" if see_through else "all")
-            cv.seen = self._labels_seen.pop((0, 0, r.w, r.h), [])
+            cv.seen = self._seen(self._labels_seen.pop((0, 0, r.w, r.h), []))
             if see_through:
                 over_fbo, over_image = vc.over(cv)
                 over_fbo.use()
@@ -339,20 +366,23 @@ class Renderer:
             ctx.scissor = (r.x, r.y, r.w, r.h)
             ctx.viewport = (r.x, r.y, r.w, r.h)
         vc.layered += 1
+        self._labels_seen[(r.x, r.y, r.w, r.h)] = cv.seen
         if see_through:
             vc.copy(cv, r, image=vc.over(cv)[1])
             box = self._screen_box(frame, cam, r, live, hide)
-            if box is not None:
-                vc.copy(cv, r, depth=True, box=box)
+            if box is None:
+                return None
+            vc.copy(cv, r, depth=True, box=box)
+
+            def draw():
                 ctx.scissor = box
                 self._scene(frame, cam, r, fbo, hide, skip=still_set, part="opaque", queries=False)
                 self._scene(frame, cam, r, fbo, hide, skip=live_set, part="see-through")
                 ctx.scissor = (r.x, r.y, r.w, r.h)
-        else:
-            vc.copy(cv, r, depth=True)
-            self._scene(frame, cam, r, fbo, hide, skip=still_set, queries=False)
-        self._labels_seen[(r.x, r.y, r.w, r.h)] = cv.seen
-        return True
+
+            return draw
+        vc.copy(cv, r, depth=True)
+        return partial(self._scene, frame, cam, r, fbo, hide, skip=still_set, queries=False)
 
     def _screen_box(self, frame: Frame, cam: Camera, r: Rect, which: list[int], hide: int):
         """Scissor box (x, y, w, h) in framebuffer pixels holding the items numbered `which` as drawn in
@@ -425,8 +455,17 @@ class Renderer:
                 vao.render(self.ctx.LINES, vertices=m.gpu.n_line_indices)
         else:
             self._mesh_uniforms(self.mesh_prog, vp, m, eye)
-            if m.gpu.n_indices:
+            if not m.gpu.n_indices:
+                return
+            first = None
+            if m.color[3] >= 0.999:  # opaque: nearest triangles first, so hidden ones fail the depth test
+                model = np.asarray(m.model, float)
+                local_eye = np.linalg.solve(model, np.r_[np.asarray(eye, float), 1.0])[:3]
+                first = m.gpu.nearest_first(local_eye)
+            if first is None:
                 m.gpu.vao(self.mesh_prog, "tri").render(self.ctx.TRIANGLES, vertices=m.gpu.n_indices)
+            else:
+                m.gpu.vao(self.mesh_prog, "ordered").render(self.ctx.TRIANGLES, vertices=m.gpu.n_indices, first=first)
 
     def _dyn_draw(self, pts: np.ndarray, mode, vp, color) -> None:
         data = np.ascontiguousarray(pts, np.float32).tobytes()
@@ -466,19 +505,28 @@ class Renderer:
     def _label_queries(self, frame: Frame, vp, eye, r: Rect) -> None:
         """Which labels the opaque scene leaves in sight: a small sphere at each label's point is drawn
         without colour or depth writes inside an occlusion query (before markers, which would hide it),
-        so a label behind the skull is not drawn over it."""
+        so a label behind the skull is not drawn over it. The queries are read when the labels are
+        laid out (`_seen`), after every view is queued: reading one waits for the rasteriser."""
         ctx = self.ctx
-        seen = self._labels_seen[(r.x, r.y, r.w, r.h)] = []
         if not frame.labels:
+            self._labels_seen[(r.x, r.y, r.w, r.h)] = []
             return
-        while len(self._label_q) < len(frame.labels):
-            self._label_q.append(ctx.query(samples=True))  # kept: one per label, reused every frame
+        if self._label_sets == len(self._label_q):
+            self._label_q.append([])
+        queries = self._label_q[self._label_sets]  # kept: reused every frame
+        self._label_sets += 1
+        while len(queries) < len(frame.labels):
+            queries.append(ctx.query(samples=True))
         with _writes_off(ctx.fbo):
-            for q, (pos, _text, _color) in zip(self._label_q, frame.labels):
+            for q, (pos, _text, _color) in zip(queries, frame.labels):
                 with q:
                     self._draw_mesh(MeshDraw(self.sphere, _trs(pos, 1.2), (1, 1, 1, 1)), vp, eye)
-        # all queries are issued before the first result is read: one wait for the rasteriser, not one each
-        seen.extend(q.samples > 0 for q in self._label_q[: len(frame.labels)])
+        self._labels_seen[(r.x, r.y, r.w, r.h)] = queries[: len(frame.labels)]
+
+    @staticmethod
+    def _seen(found: list) -> list[bool]:
+        """Label visibility from `_labels_seen`: its bools, or its queries read."""
+        return [q if isinstance(q, bool) else q.samples > 0 for q in found]
 
     def _scene(
         self,
@@ -636,7 +684,7 @@ class Renderer:
             if view.kind == "fluoro" and frame.fluoro is not None:
                 panelview.fluoro_status(ov, frame.fluoro.status, frame.fluoro.live, self.fluoro.image_id >= 0, r, s)
             if view.camera is not None:
-                seen = self._labels_seen.get((r.x, r.y, r.w, r.h), [])
+                seen = self._seen(self._labels_seen.get((r.x, r.y, r.w, r.h), []))
                 for k, (pos, text, color) in enumerate(frame.labels):
                     if k < len(seen) and not seen[k]:
                         continue  # behind bone or skin
@@ -668,7 +716,7 @@ class Renderer:
             self._fluoro.release()
             self._fluoro = None
         self.cache_views(False)
-        for q in self._label_q:
+        for q in (q for qs in self._label_q for q in qs):
             if hasattr(q.mglo, "release"):
                 q.mglo.release()
         self._label_q.clear()

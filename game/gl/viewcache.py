@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from chainsim.game.gl import shaders
-from chainsim.game.gl.blit import Blitter
+from chainsim.game.gl.rawgl import Blitter
 
 
 def base_key(frame, view, r, clear) -> tuple:

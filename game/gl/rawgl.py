@@ -1,4 +1,4 @@
-"""Copying a rectangle of one framebuffer into another with glBlitFramebuffer.
+"""Copying a rectangle of one framebuffer into another (glBlitFramebuffer), which moderngl does not offer.
 
 moderngl only blits whole framebuffers onto each other at the same place. A cached viewport image
 (chainsim.game.gl.viewcache) has to land at its view's rectangle, with its depth when items are drawn
