@@ -30,8 +30,9 @@ LIGHT_RGBA = {"red": (0.92, 0.18, 0.16, 1.0), "green": (0.20, 0.85, 0.30, 1.0), 
 def view_title(ov: Overlay, title: str, r: Rect, s: float) -> None:
     f = ov.font
     w = f.width(title) + 12 * s
-    ov.rect(r.x, r.y + r.h - f.line_h - 6 * s, w, f.line_h + 6 * s, (0, 0, 0, 0.45))
-    ov.label(title, r.x + 6 * s, r.y + r.h - f.ascent - 3 * s, DIM)
+    # dark enough to read over a bright view (the needle-tip view is often filled by bone)
+    ov.rect(r.x, r.y + r.h - f.line_h - 6 * s, w, f.line_h + 6 * s, (0, 0, 0, 0.7))
+    ov.label(title, r.x + 6 * s, r.y + r.h - f.ascent - 3 * s, TEXT)
 
 
 def fluoro_status(ov: Overlay, status: str, live: bool, has_image: bool, r: Rect, s: float) -> None:
@@ -98,7 +99,8 @@ def aim(ov: Overlay, camera, r: Rect, target, note: str, s: float) -> None:
     inside = ahead > 0 and r.x + 6 * s <= x <= r.x + r.w - 6 * s and r.y + 6 * s <= y <= r.y + r.h - 6 * s
     if inside:
         ring(ov, x, y, 9 * s, AIM, 2 * s)
-        ov.label(note, min(x + 12 * s, r.x + r.w - f.width(note) - 4 * s), y + 6 * s, AIM)
+        # above and right of the ring, its box clear of the crosshair's arm when the ring is centred
+        _backed_label(ov, note, min(x + 12 * s, r.x + r.w - f.width(note) - 4 * s), y + 8 * s + f.descent, AIM, s)
         return
     # out of view (or behind): an arrow on the edge pointing the way to turn
     dx, dy = (x - cx, y - cy) if ahead > 0 else (cx - x, cy - y)
@@ -114,7 +116,14 @@ def aim(ov: Overlay, camera, r: Rect, target, note: str, s: float) -> None:
     text = f"target {note}" if ahead > 0 else f"target behind, {note}"
     tx = min(max(ex - f.width(text) / 2, r.x + 4 * s), r.x + r.w - f.width(text) - 4 * s)
     ty = min(max(ey - dy * 30 * s, r.y + 6 * s), r.y + r.h - 2 * f.line_h)
-    ov.label(text, tx, ty, AIM)
+    _backed_label(ov, text, tx, ty, AIM, s)
+
+
+def _backed_label(ov: Overlay, text: str, x: float, baseline: float, color, s: float) -> None:
+    """A label on a dark box: the needle-tip view is often filled by bright bone."""
+    f = ov.font
+    ov.rect(x - 3 * s, baseline - f.descent - 2 * s, f.width(text) + 6 * s, f.line_h + 2 * s, (0, 0, 0, 0.6))
+    ov.label(text, x, baseline, color)
 
 
 def ring(ov: Overlay, cx: float, cy: float, radius: float, color, width: float, segments: int = 24) -> None:

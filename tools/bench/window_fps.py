@@ -1,0 +1,166 @@
+"""The prp window's frame rate as a trainee meets it: the real window under Xvfb, driven with xdotool.
+
+`chainsim bench render --pack prp` times the window's frames off screen; this drives the real one
+(`chainsim play prp --frame-times`), buffer swaps and event handling included, through the actions
+that redraw the most: keeping still, turning the Horizontal dial by dragging it, orbiting the
+surgeon's view by dragging in it, and the same with the skin see-through (its toggle clicked). The
+landmarks are placed by an input script first, as the dials only turn in the aiming step.
+
+    python -m tools.bench.window_fps [--out DIR] [--seconds 6] [--venv PATH]
+
+Needs Xvfb and xdotool (Debian: apt-get install -y xvfb xdotool). Prints a markdown table of each
+phase's median frame interval (frames are paced at 60 fps at most) and 90th percentile, and leaves
+the frame log, the window's output and a screenshot of each phase's end in --out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import tomllib
+from pathlib import Path
+
+import tomli_w
+
+from chainsim.game.app.headless import build_app
+from chainsim.game.app.inputscript import load_script
+from chainsim.game.packs.discovery import resolve
+from chainsim.game.packs.pack import load
+from chainsim.systems.view import ViewState
+
+W, H = 1280, 800
+LANDMARKS_UNTIL = 1.6  # s of the pack's correct script: the three landmark picks
+
+
+def _widgets() -> dict[str, tuple[int, int]]:
+    """Screen centre (x right, y down) of each prp panel widget at the window's size."""
+    app = build_app("prp", size=(W, H))
+    try:
+        vs = app.resource(ViewState)
+        placed = [p for ps in vs.panels.values() for p in ps]
+        out = {p.spec["name"]: (p.rect.x + p.rect.w / 2, p.rect.y + p.rect.h / 2) for p in placed}
+        surgeon = vs.get("surgeon").rect
+        out["surgeon"] = (surgeon.x + surgeon.w / 2, surgeon.y + surgeon.h * 0.6)
+        return {k: (int(x), H - 1 - int(y)) for k, (x, y) in out.items()}
+    finally:
+        app.close()
+
+
+def _landmark_script(path: Path) -> None:
+    """The pack's correct script cut after its landmark picks."""
+    pack = load(resolve("prp")[0])
+    data = tomllib.loads(pack.file("scripts/correct.toml").read_text(encoding="utf-8"))
+    data["event"] = [e for e in data["event"] if float(e["t"]) <= LANDMARKS_UNTIL]
+    data["description"] = "the three landmarks of the correct attempt"
+    path.write_text(tomli_w.dumps(data), encoding="utf-8")
+    load_script(path)  # the cut-down script must still read
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", default="runs/window-fps", help="folder for the frame log and screenshots")
+    ap.add_argument("--seconds", type=float, default=6.0, help="length of each moving phase (default 6)")
+    ap.add_argument("--venv", default=None, help="virtual environment whose chainsim to run (default: this one)")
+    args = ap.parse_args(argv)
+    for tool in ("Xvfb", "xdotool"):
+        if shutil.which(tool) is None:
+            print(f"window_fps: {tool} is not installed (Debian: apt-get install -y xvfb xdotool)", file=sys.stderr)
+            return 2
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    chainsim = [str(Path(args.venv) / "bin" / "chainsim")] if args.venv else [sys.executable, "-m", "chainsim.game"]
+    widgets = _widgets()
+    script = out / "landmarks.toml"
+    _landmark_script(script)
+    display = f":{70 + os.getpid() % 50}"
+    env = {**os.environ, "DISPLAY": display}
+    env.pop("PYGLET_HEADLESS", None)
+    frames = out / "frames.csv"
+    xvfb = subprocess.Popen(
+        ["Xvfb", display, "-screen", "0", f"{W}x{H}x24", "-nolisten", "tcp"], stderr=subprocess.DEVNULL
+    )
+    db = Path(tempfile.mkdtemp()) / "records.sqlite3"
+    play = None
+    try:
+        time.sleep(1.5)
+        with open(out / "play.log", "w", encoding="utf-8") as log:
+            play = subprocess.Popen(
+                [*chainsim, "play", "prp", "--class", "bench", "--trainee", "bench", "--db", str(db)]
+                + ["--input", str(script), "--frame-times", str(frames), "--exit-after", "600"],
+                env=env,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+            )
+        while not (frames.exists() and frames.stat().st_size > 40):
+            if play.poll() is not None:
+                print((out / "play.log").read_text(encoding="utf-8"), file=sys.stderr)
+                return 1
+            time.sleep(0.1)
+        t0 = time.monotonic()  # about the first frame's time (the log's zero)
+
+        def xdo(*a) -> None:
+            subprocess.run(["xdotool", *map(str, a)], env=env, check=False)
+
+        def still(seconds: float) -> None:
+            time.sleep(seconds)
+
+        def drag(at: tuple[int, int], step: int):
+            def run(seconds: float) -> None:
+                xdo("mousemove", *at)
+                xdo("mousedown", 1)
+                end, k = time.monotonic() + seconds, 0
+                while time.monotonic() < end:  # to and fro, 20 moves each way
+                    k += 1
+                    xdo("mousemove_relative", "--", step if (k // 20) % 2 == 0 else -step, 0)
+                    time.sleep(0.01)
+                xdo("mouseup", 1)
+
+            return run
+
+        phases = []
+
+        def phase(name: str, action, seconds: float) -> None:
+            a = time.monotonic() - t0
+            action(seconds)
+            phases.append((name, a, time.monotonic() - t0))
+            shot = out / f"{name.replace(' ', '-')}.png"
+            subprocess.run(["import", "-window", "root", str(shot)], env=env, check=False)
+
+        time.sleep(LANDMARKS_UNTIL + 1.5)
+        dial, view = drag(widgets["rotate_horizontal"], 2), drag(widgets["surgeon"], 3)
+        phase("still", still, 3.0)
+        phase("turning a dial", dial, args.seconds)
+        phase("orbiting", view, args.seconds)
+        xdo("mousemove", *widgets["skin_transparent"])
+        xdo("click", 1)
+        time.sleep(0.5)
+        phase("see-through still", still, 3.0)
+        phase("see-through orbiting", view, args.seconds)
+        phase("see-through turning a dial", dial, args.seconds)
+    finally:
+        if play is not None:
+            play.terminate()
+            play.wait(10)
+        xvfb.terminate()
+        xvfb.wait(10)
+    rows = [(float(r["t_s"]), float(r["interval_ms"])) for r in csv.DictReader(open(frames, encoding="utf-8"))]
+    print("| phase | frames | interval, median (ms) | fps | p90 (ms) |")
+    print("|---|---:|---:|---:|---:|")
+    for name, a, b in phases:
+        iv = sorted(v for t, v in rows if a + 0.7 <= t <= b - 0.2)  # the phase's settled middle
+        if not iv:
+            continue
+        med = statistics.median(iv)
+        print(f"| {name} | {len(iv)} | {med:.1f} | {1000.0 / med:.1f} | {iv[int(0.9 * (len(iv) - 1))]:.1f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
