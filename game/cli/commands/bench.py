@@ -14,6 +14,7 @@ BENCHES = {
     "chainmail": "chainsim.tools.bench.chainmail",
     "render": "chainsim.game.gl.bench",
     "docs": "chainsim.game.gl.docbench",
+    "window": "chainsim.game.ui.windowbench",
     "models": "chainsim.tools.bench.models",
     "records": "chainsim.game.server.bench",
 }

@@ -1,4 +1,5 @@
-"""The prp window's frame rate as a trainee meets it: the real window under Xvfb, driven with xdotool.
+"""`chainsim bench window`: the prp window's frame rate as a trainee meets it - the real window under
+Xvfb, driven with xdotool.
 
 `chainsim bench render --pack prp` times the window's frames off screen; this drives the real one
 (`chainsim play prp --frame-times`), buffer swaps and event handling included, through the actions
@@ -6,16 +7,17 @@ that redraw the most: keeping still, turning the Horizontal dial by dragging it,
 surgeon's view by dragging in it, and the same with the skin see-through (its toggle clicked). The
 landmarks are placed by an input script first, as the dials only turn in the aiming step.
 
-    python -m tools.bench.window_fps [--out DIR] [--seconds 6] [--venv PATH]
+    chainsim bench window [--out DIR] [--seconds 6] [--python PATH]
 
 Needs Xvfb and xdotool (Debian: apt-get install -y xvfb xdotool). Prints a markdown table of each
-phase's median frame interval (frames are paced at 60 fps at most) and 90th percentile, and leaves
-the frame log, the window's output and a screenshot of each phase's end in --out.
+phase's median frame interval (frames are paced at 60 fps at most) and 90th percentile, writes it
+to results.md, and leaves the frame log, the session's recording (`chainsim replay` plays it back),
+the window's output and, with ImageMagick, a screenshot of each phase's end in --out. `--python`
+runs another installation's chainsim (a before/after comparison).
 """
 
 from __future__ import annotations
 
-import argparse
 import csv
 import os
 import shutil
@@ -29,12 +31,16 @@ from pathlib import Path
 
 import tomli_w
 
+from chainsim.engine import argtypes
+from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script
+from chainsim.game.app.outputs import prepare_output_dir
 from chainsim.game.packs.discovery import resolve
 from chainsim.game.packs.pack import load
 from chainsim.systems.view import ViewState
 
+HELP = "frame rate of the real prp window under Xvfb, driven with xdotool (dial, orbit, see-through skin)"
 W, H = 1280, 800
 LANDMARKS_UNTIL = 1.6  # s of the pack's correct script: the three landmark picks
 
@@ -63,19 +69,32 @@ def _landmark_script(path: Path) -> None:
     load_script(path)  # the cut-down script must still read
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", default="runs/window-fps", help="folder for the frame log and screenshots")
-    ap.add_argument("--seconds", type=float, default=6.0, help="length of each moving phase (default 6)")
-    ap.add_argument("--venv", default=None, help="virtual environment whose chainsim to run (default: this one)")
-    args = ap.parse_args(argv)
+def add_arguments(p) -> None:
+    p.add_argument(
+        "--out", default="runs/bench-window", metavar="DIR", help="output folder (default runs/bench-window)"
+    )
+    p.add_argument(
+        "--seconds",
+        type=argtypes.real(1.0, 600.0),
+        default=6.0,
+        help="length of each moving phase in seconds (default 6)",
+    )
+    p.add_argument(
+        "--python",
+        default=None,
+        metavar="PATH",
+        help="the Python of another installation whose chainsim window to measure (default: this one)",
+    )
+
+
+def run(args) -> int:
     for tool in ("Xvfb", "xdotool"):
         if shutil.which(tool) is None:
-            print(f"window_fps: {tool} is not installed (Debian: apt-get install -y xvfb xdotool)", file=sys.stderr)
-            return 2
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    chainsim = [str(Path(args.venv) / "bin" / "chainsim")] if args.venv else [sys.executable, "-m", "chainsim.game"]
+            raise UserError(f"bench window needs {tool} (Debian: apt-get install -y xvfb xdotool); it is not installed")
+    if args.python is not None and not Path(args.python).is_file():
+        raise UserError(f"--python {args.python}: no such file (expected a Python interpreter)")
+    out = prepare_output_dir(args.out, "--out")
+    chainsim = [args.python or sys.executable, "-m", "chainsim.game.cli.main"]
     widgets = _widgets()
     script = out / "landmarks.toml"
     _landmark_script(script)
@@ -86,14 +105,15 @@ def main(argv=None) -> int:
     xvfb = subprocess.Popen(
         ["Xvfb", display, "-screen", "0", f"{W}x{H}x24", "-nolisten", "tcp"], stderr=subprocess.DEVNULL
     )
-    db = Path(tempfile.mkdtemp()) / "records.sqlite3"
+    records = tempfile.TemporaryDirectory()  # the attempt is not kept
+    db = Path(records.name) / "records.sqlite3"
     play = None
     try:
         time.sleep(1.5)
         with open(out / "play.log", "w", encoding="utf-8") as log:
             play = subprocess.Popen(
                 [*chainsim, "play", "prp", "--class", "bench", "--trainee", "bench", "--db", str(db)]
-                + ["--input", str(script), "--frame-times", str(frames), "--exit-after", "600"],
+                + ["--input", str(script), "--frame-times", str(frames), "--record", str(out / "session.json")],
                 env=env,
                 stdout=log,
                 stderr=subprocess.STDOUT,
@@ -130,8 +150,9 @@ def main(argv=None) -> int:
             a = time.monotonic() - t0
             action(seconds)
             phases.append((name, a, time.monotonic() - t0))
-            shot = out / f"{name.replace(' ', '-')}.png"
-            subprocess.run(["import", "-window", "root", str(shot)], env=env, check=False)
+            if shutil.which("import"):  # ImageMagick, where installed: what the phase ended on
+                shot = out / f"{name.replace(' ', '-')}.png"
+                subprocess.run(["import", "-window", "root", str(shot)], env=env, check=False)
 
         time.sleep(LANDMARKS_UNTIL + 1.5)
         dial, view = drag(widgets["rotate_horizontal"], 2), drag(widgets["surgeon"], 3)
@@ -144,23 +165,37 @@ def main(argv=None) -> int:
         phase("see-through still", still, 3.0)
         phase("see-through orbiting", view, args.seconds)
         phase("see-through turning a dial", dial, args.seconds)
+        # quit as a trainee does: Esc, and Esc again to leave the attempt unsaved (the recording is
+        # written on the way out)
+        found = subprocess.run(
+            ["xdotool", "search", "--name", "chainsim - prp"], env=env, capture_output=True, text=True
+        ).stdout.split()
+        for _ in range(2):
+            if found and play.poll() is None:
+                xdo("key", "--window", found[-1], "Escape")
+                time.sleep(0.8)
+        play.wait(20)
     finally:
-        if play is not None:
+        if play is not None and play.poll() is None:
             play.terminate()
             play.wait(10)
         xvfb.terminate()
         xvfb.wait(10)
-    rows = [(float(r["t_s"]), float(r["interval_ms"])) for r in csv.DictReader(open(frames, encoding="utf-8"))]
-    print("| phase | frames | interval, median (ms) | fps | p90 (ms) |")
-    print("|---|---:|---:|---:|---:|")
+        records.cleanup()
+    with open(frames, encoding="utf-8") as f:
+        rows = [(float(r["t_s"]), float(r["interval_ms"])) for r in csv.DictReader(f)]
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    lines = [
+        f"# the prp window under Xvfb, {W}x{H}, {os.cpu_count()} CPUs, load {load:.1f}",
+        "| phase | frames | interval, median (ms) | fps | p90 (ms) |",
+        "|---|---:|---:|---:|---:|",
+    ]
     for name, a, b in phases:
         iv = sorted(v for t, v in rows if a + 0.7 <= t <= b - 0.2)  # the phase's settled middle
         if not iv:
             continue
         med = statistics.median(iv)
-        print(f"| {name} | {len(iv)} | {med:.1f} | {1000.0 / med:.1f} | {iv[int(0.9 * (len(iv) - 1))]:.1f} |")
+        lines.append(f"| {name} | {len(iv)} | {med:.1f} | {1000.0 / med:.1f} | {iv[int(0.9 * (len(iv) - 1))]:.1f} |")
+    (out / "results.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    print("\n".join(lines))
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
