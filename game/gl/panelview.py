@@ -100,7 +100,7 @@ def aim(ov: Overlay, camera, r: Rect, target, note: str, s: float) -> None:
     if inside:
         ring(ov, x, y, 9 * s, AIM, 2 * s)
         # above and right of the ring, its box clear of the crosshair's arm when the ring is centred
-        _backed_label(ov, note, min(x + 12 * s, r.x + r.w - f.width(note) - 4 * s), y + 8 * s + f.descent, AIM, s)
+        backed_label(ov, note, min(x + 12 * s, r.x + r.w - f.width(note) - 4 * s), y + 8 * s + f.descent, AIM, s)
         return
     # out of view (or behind): an arrow on the edge pointing the way to turn
     dx, dy = (x - cx, y - cy) if ahead > 0 else (cx - x, cy - y)
@@ -116,11 +116,11 @@ def aim(ov: Overlay, camera, r: Rect, target, note: str, s: float) -> None:
     text = f"target {note}" if ahead > 0 else f"target behind, {note}"
     tx = min(max(ex - f.width(text) / 2, r.x + 4 * s), r.x + r.w - f.width(text) - 4 * s)
     ty = min(max(ey - dy * 30 * s, r.y + 6 * s), r.y + r.h - 2 * f.line_h)
-    _backed_label(ov, text, tx, ty, AIM, s)
+    backed_label(ov, text, tx, ty, AIM, s)
 
 
-def _backed_label(ov: Overlay, text: str, x: float, baseline: float, color, s: float) -> None:
-    """A label on a dark box: the needle-tip view is often filled by bright bone."""
+def backed_label(ov: Overlay, text: str, x: float, baseline: float, color, s: float) -> None:
+    """A label on a dark box, readable over bright bone or a see-through head as over the background."""
     f = ov.font
     ov.rect(x - 3 * s, baseline - f.descent - 2 * s, f.width(text) + 6 * s, f.line_h + 2 * s, (0, 0, 0, 0.6))
     ov.label(text, x, baseline, color)

@@ -690,7 +690,7 @@ class Renderer:
                         continue  # behind bone or skin
                     x, y, z = view.camera.project(pos, r)[0]
                     if -1 < z < 1 and r.contains(x, y):
-                        ov.label(text, x + 4 * s, y + 4 * s, color)
+                        panelview.backed_label(ov, text, x + 4 * s, y + 4 * s, color, s)
             hud = frame.hud
             if hud is not None and view.name == hud.aim_view and view.camera is not None:
                 panelview.aim(ov, view.camera, r, hud.aim_target, hud.aim_note, s)
