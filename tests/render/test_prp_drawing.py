@@ -102,6 +102,80 @@ def test_big_meshes_drawn_nearest_first_look_the_same(prp_app, monkeypatch, yaw,
     assert np.count_nonzero(diff > 2) <= 10
 
 
+@pytest.mark.parametrize("see_through", [False, True])
+def test_landmark_labels_show_where_their_point_can_be_seen(see_through):
+    """From all round the head, skin opaque or see-through (then the skull and jaw hide what is
+    behind them), a landmark's label is drawn where a ray from the eye
+    reaches its point and not where the head stands between: checked against ray casts through
+    the opaque anatomy as drawn; points that lie within a couple of millimetres of showing (seen at
+    a grazing angle or past an edge) are left out, as the label's probe is a 1.2 mm ball."""
+    import trimesh
+
+    from chainsim.components.input_events import Widget
+    from chainsim.components.resources import PendingInput
+    from chainsim.game.app.inputscript import load_script
+    from chainsim.game.app.loader import PackResource
+    from chainsim.game.gl import render_system as render
+    from chainsim.game.gl.renderer import Renderer
+    from chainsim.systems.view import ViewState
+
+    app = open_app("prp", size=(640, 400))
+    try:
+        pres = app.resource(PackResource)
+        app.resource(PendingInput).extend(load_script(pres.pack.file("scripts/correct.toml")))
+        app.run_steps(int(1.8 / app.time.dt))
+        pending = app.resource(PendingInput)
+        del pending.items[pending.cursor :]
+        pending.push(app.time.sim_time, Widget("skin_transparent", see_through))
+        app.update(app.time.dt)
+        r = app.resource(Renderer)
+        frame = render.draw(app)
+        parts = []
+        for m in frame.meshes:
+            hidden_inside = m.inside is not None and m.inside.color[3] >= 0.999
+            if m.color[3] < 0.999 or m.wireframe or hidden_inside or len(m.gpu.tri_ids) < 1000:
+                # see-through; enclosed by the opaque skin (nothing it hides is not hidden already); or
+                # an instrument: the needle runs through landmark 1 and hides only a sliver of its probe
+                continue
+            model = np.asarray(m.model, float)
+            v = m.gpu.pos.astype(float) @ model[:3, :3].T + model[:3, 3]
+            parts.append(trimesh.Trimesh(v, m.gpu.tris[m.gpu.tri_ids], process=False))
+        scene = trimesh.util.concatenate(parts)
+        rays = trimesh.ray.ray_triangle.RayMeshIntersector(scene)
+        view = app.resource(ViewState).get("surgeon")
+        checked = {True: 0, False: 0}
+
+        def blocked(eye, target, margin):
+            """Whether an opaque surface crosses the ray from `eye` more than `margin` mm before `target`."""
+            d = target - eye
+            dist = np.linalg.norm(d)
+            hits, _, _ = rays.intersects_location([eye], [d / dist], multiple_hits=True)
+            return bool(len(hits)) and np.linalg.norm(hits - eye, axis=1).min() < dist - margin
+
+        for yaw in range(0, 360, 30):
+            for pitch in (-40.0, 0.0, 40.0):
+                _camera(app, float(yaw), pitch, 420.0)
+                drawn = render.draw(app)
+                rect = view.rect.scaled(frame.scale)
+                seen = r._seen(r._labels_seen[(rect.x, rect.y, rect.w, rect.h)])
+                eye = np.asarray(view.camera.eye, float)
+                for k, (pos, _text, _c) in enumerate(drawn.labels):
+                    pos = np.asarray(pos, float)
+                    _, _, face = trimesh.proximity.closest_point(scene, [pos])
+                    outward = pos + 2.0 * scene.face_normals[face[0]]  # past the probe ball (1.2 mm)
+                    if not blocked(eye, pos, 0.3):
+                        visible = True  # the point itself can be seen
+                    elif blocked(eye, outward, 1.0):
+                        visible = False  # not even the ball's outer side can
+                    else:
+                        continue
+                    checked[visible] += 1
+                    assert seen[k] == visible, f"label {k + 1} from yaw {yaw}, pitch {pitch}: drawn {seen[k]}"
+        assert checked[True] >= 10 and checked[False] >= 10, checked
+    finally:
+        app.close()
+
+
 def test_closed_outward_surfaces_are_told_apart():
     from chainsim.game.gl.meshbuf import _closed_outward
     from chainsim.game.gl.renderer import icosphere
