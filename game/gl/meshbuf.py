@@ -179,11 +179,15 @@ class GpuMesh:
                 self.vaos[key] = self.ctx.vertex_array(prog, [(self.vbo_pos, "3f", "in_pos")], self.lbo)
         return self.vaos[key]
 
+    @property
+    def orderable(self) -> bool:
+        """Whether the mesh is drawn from nearest-first orders: as loaded, with SORTED_MIN triangles or more."""
+        return not self.version and len(self.tris) >= SORTED_MIN and self.n_indices == self.tris.size
+
     def nearest_first(self, eye) -> int | None:
-        """For a mesh as loaded with SORTED_MIN triangles or more: the first index, in the 'ordered'
-        vertex array, of its triangles sorted nearest-first for an eye at `eye` (mesh frame). None
-        otherwise (smaller meshes, or changed ones: draw the 'tri' array)."""
-        if self.version or len(self.tris) < SORTED_MIN or self.n_indices != self.tris.size:
+        """For an `orderable` mesh: the first index, in the 'ordered' vertex array, of its triangles
+        sorted nearest-first for an eye at `eye` (mesh frame). None otherwise (draw the 'tri' array)."""
+        if not self.orderable:
             return None
         if self._ordered is None:
             centroids = self.pos[self.tris].astype(np.float64).mean(axis=1)

@@ -62,8 +62,9 @@ class Blitter:
             return False
         bind, blit, get_error = gl
         ctx = self.ctx
-        while get_error():  # errors of earlier calls are not this copy's
-            pass
+        for _ in range(8):  # errors of earlier calls are not this copy's (bounded: a lost context repeats one)
+            if not get_error():
+                break
         scissor = ctx.scissor
         ctx.scissor = None  # a scissored blit is drawn, an unscissored one copied
         sx, sy = origin

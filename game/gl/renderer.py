@@ -201,6 +201,7 @@ class Renderer:
         # copy into the frame waits until everything already queued for the frame is rasterised,
         # so a copy after a drawn view would leave the rasteriser idle while this thread goes on.
         later = []
+        items = None  # viewcache.item_keys(frame), made once for all the cached views
         for view in frame.views:
             r = view.rect.scaled(s)
             if r.w <= 0 or r.h <= 0:
@@ -216,7 +217,8 @@ class Renderer:
             ctx.viewport = (r.x, r.y, r.w, r.h)
             is_3d = view.camera is not None and view.kind not in ("panel", "fluoro")
             if is_3d and self.view_cache is not None:
-                draw = self._cached_scene(frame, view, r, fbo, clear)
+                items = item_keys(frame) if items is None else items
+                draw = self._cached_scene(frame, view, r, fbo, clear, items)
                 if draw is not None:
                     later.append((r, draw))
                 continue
@@ -251,7 +253,7 @@ class Renderer:
             self.view_cache.release()
             self.view_cache = None
 
-    def _cached_scene(self, frame: Frame, view: ViewDraw, r: Rect, fbo, clear):
+    def _cached_scene(self, frame: Frame, view: ViewDraw, r: Rect, fbo, clear, items: list):
         """A view whose key is that of its image is copied from it. A view in which only some items
         move (the needle while a dial turns) over an unchanged camera is its layer - the image of the
         other items, with their depth - copied, and the moving items drawn over it (`_layered`).
@@ -265,7 +267,6 @@ class Renderer:
         vc = self.view_cache
         cv = vc.slot(view.name, (r.w, r.h))
         base = base_key(frame, view, r, clear)
-        items = item_keys(frame)
         if len(items) == len(cv.items):
             cv.age = [a + 1 if k == o else 0 for a, k, o in zip(cv.age, items, cv.items, strict=True)]
         else:  # a new view, or items came or went: none is known to keep still
@@ -458,10 +459,9 @@ class Renderer:
             if not m.gpu.n_indices:
                 return
             first = None
-            if m.color[3] >= 0.999:  # opaque: nearest triangles first, so hidden ones fail the depth test
+            if m.color[3] >= 0.999 and m.gpu.orderable:  # nearest triangles first: hidden ones fail the depth test
                 model = np.asarray(m.model, float)
-                local_eye = np.linalg.solve(model, np.r_[np.asarray(eye, float), 1.0])[:3]
-                first = m.gpu.nearest_first(local_eye)
+                first = m.gpu.nearest_first(np.linalg.solve(model, np.r_[np.asarray(eye, float), 1.0])[:3])
             if first is None:
                 m.gpu.vao(self.mesh_prog, "tri").render(self.ctx.TRIANGLES, vertices=m.gpu.n_indices)
             else:

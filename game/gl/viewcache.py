@@ -64,11 +64,6 @@ def item_keys(frame) -> list[tuple]:
     return keys
 
 
-def view_key(frame, view, r, clear) -> tuple:
-    """Everything the view's pixels depend on, as a comparable tuple."""
-    return base_key(frame, view, r, clear), tuple(item_keys(frame))
-
-
 @dataclass
 class CachedView:
     fbo: object
