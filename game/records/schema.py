@@ -180,7 +180,67 @@ V6_DDL: tuple[str, ...] = (
     ),
 )
 
-MIGRATIONS: tuple[tuple[str, ...], ...] = (V1_DDL, V2_DDL, V3_DDL, V4_DDL, V5_DDL, V6_DDL)
+# Version 7: results the server computes (docs/records-server.md). An upload is a row of ``uploads``
+# (the server's scoring queue: acknowledged at once, scored by a worker that replays its recording);
+# the attempt it becomes carries who filed it, the server's time (the client's clock kept beside it),
+# the pack's identity, the client's own figures and where they differ from the replay's. A trainer
+# retracts an attempt with a reason instead of deleting it; ``audit_log`` keeps who did what, when.
+# Attempts saved before keep their rows, filed by nobody and not flagged.
+V7_DDL: tuple[str, ...] = (
+    "ALTER TABLE attempts ADD COLUMN filed_by TEXT",
+    "ALTER TABLE attempts ADD COLUMN client_created_at TEXT",
+    "ALTER TABLE attempts ADD COLUMN pack_version TEXT",
+    "ALTER TABLE attempts ADD COLUMN pack_hash TEXT",
+    "ALTER TABLE attempts ADD COLUMN client_figures TEXT",
+    "ALTER TABLE attempts ADD COLUMN differences TEXT NOT NULL DEFAULT '[]'",
+    "ALTER TABLE attempts ADD COLUMN retracted_at TEXT",
+    "ALTER TABLE attempts ADD COLUMN retracted_by TEXT",
+    "ALTER TABLE attempts ADD COLUMN retract_reason TEXT",
+    """
+    CREATE TABLE uploads (
+        id           INTEGER PRIMARY KEY,
+        idem_key     TEXT UNIQUE,
+        body_hash    TEXT NOT NULL,
+        filed_by     TEXT NOT NULL,
+        class_name   TEXT NOT NULL,
+        trainee      TEXT NOT NULL,
+        received_at  TEXT NOT NULL,
+        pack         TEXT NOT NULL,
+        pack_version TEXT NOT NULL,
+        pack_hash    TEXT NOT NULL,
+        claimed      TEXT NOT NULL,
+        recording    TEXT NOT NULL,
+        state        TEXT NOT NULL CHECK (state IN ('scoring', 'scored', 'refused')),
+        claimed_by   TEXT,
+        claimed_at   REAL,
+        tries        INTEGER NOT NULL DEFAULT 0,
+        attempt_id   INTEGER REFERENCES attempts(id) ON DELETE SET NULL,
+        error        TEXT,
+        scored_at    TEXT
+    )
+    """,
+    "CREATE INDEX uploads_by_state ON uploads (state, id)",
+    """
+    CREATE TABLE attempt_recordings (
+        id         INTEGER PRIMARY KEY,
+        attempt_id INTEGER NOT NULL UNIQUE REFERENCES attempts(id) ON DELETE CASCADE,
+        recording  TEXT NOT NULL
+    )
+    """,
+    """
+    CREATE TABLE audit_log (
+        id         INTEGER PRIMARY KEY,
+        at         TEXT NOT NULL,
+        actor      TEXT NOT NULL,
+        action     TEXT NOT NULL,
+        attempt_id INTEGER,
+        class_name TEXT NOT NULL,
+        detail     TEXT NOT NULL
+    )
+    """,
+)
+
+MIGRATIONS: tuple[tuple[str, ...], ...] = (V1_DDL, V2_DDL, V3_DDL, V4_DDL, V5_DDL, V6_DDL, V7_DDL)
 SCHEMA_VERSION = len(MIGRATIONS)
 
 # Tables a records database owns; a version-0 file holding anything else is not ours.
@@ -197,5 +257,8 @@ OWN_TABLES = frozenset(
         "server_logins",
         "questionnaires",
         "attempt_metrics",
+        "uploads",
+        "attempt_recordings",
+        "audit_log",
     }
 )

@@ -184,15 +184,19 @@ def migrate(conn: sqlite3.Connection) -> int:
 
 def _row_to_attempt(row: sqlite3.Row) -> dict[str, Any]:
     out = {key: row[key] for key in row.keys()}
-    for key in ("aids", "step_times", "details"):
+    for key in ("aids", "step_times", "details", "differences"):
         out[key] = json.loads(out[key])
+    if out["client_figures"] is not None:
+        out["client_figures"] = json.loads(out["client_figures"])
     return out
 
 
 _ATTEMPT_SELECT = """
     SELECT a.id, c.name AS class_name, t.name AS trainee, a.pack, a.created_at, a.duration_s,
            a.landmark_error_mm, a.needle_error_mm, a.target, a.skull_contacts, a.path_length_mm,
-           a.redirections, a.xray_shots, a.exposure_s, a.dose_mgy, a.aids, a.step_times, a.details
+           a.redirections, a.xray_shots, a.exposure_s, a.dose_mgy, a.aids, a.step_times, a.details,
+           a.filed_by, a.client_created_at, a.pack_version, a.pack_hash, a.client_figures, a.differences,
+           a.retracted_at, a.retracted_by, a.retract_reason
     FROM attempts a JOIN trainees t ON t.id = a.trainee_id JOIN classes c ON c.id = t.class_id
 """
 
@@ -271,6 +275,13 @@ class RecordStore:
 
     def _open_file(self) -> sqlite3.Connection:
         """Connect to the SQLite file (made if missing), in WAL mode, migrated to SCHEMA_VERSION."""
+        if not self.path.exists():
+            # attempts and password hashes are private: the file (and, after it, SQLite's -wal and
+            # -shm files, which copy its mode) is readable by its owner only
+            try:
+                os.close(os.open(self.path, os.O_CREAT | os.O_WRONLY, 0o600))
+            except OSError as exc:
+                raise UserError(f"cannot create records database {self.path}: {exc.strerror}") from None
         try:
             # isolation_level=None: we issue BEGIN/COMMIT ourselves so each save is exactly one
             # transaction and DDL is not auto-committed behind our back.
@@ -450,51 +461,80 @@ class RecordStore:
                 row = conn.execute("SELECT id FROM attempts WHERE idem_key = ?", (key,)).fetchone()
                 if row is not None:
                     return row[0]
-            class_id = self._class_id(conn, class_name)
-            if class_id is None:
-                class_id = conn.execute("INSERT INTO classes (name) VALUES (?)", (class_name,)).lastrowid
-            trainee_id = self._trainee_id(conn, class_id, trainee)
-            if trainee_id is None:
-                trainee_id = conn.execute(
-                    "INSERT INTO trainees (class_id, name) VALUES (?, ?)", (class_id, trainee)
-                ).lastrowid
-            cur = conn.execute(
-                """
-                INSERT INTO attempts (trainee_id, pack, created_at, duration_s, landmark_error_mm,
-                    needle_error_mm, target, skull_contacts, path_length_mm, redirections, xray_shots,
-                    exposure_s, dose_mgy, aids, step_times, details, idem_key)
-                VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
-                """,
-                (
-                    trainee_id,
-                    a["pack"],
-                    a["created_at"],
-                    a["duration_s"],
-                    a["landmark_error_mm"],
-                    a["needle_error_mm"],
-                    a["target"],
-                    a["skull_contacts"],
-                    a["path_length_mm"],
-                    a["redirections"],
-                    a["xray_shots"],
-                    a["exposure_s"],
-                    a["dose_mgy"],
-                    to_json(a["aids"]),
-                    to_json(a["step_times"]),
-                    to_json(a["details"]),
-                    key,
-                ),
+            return self.insert_attempt(conn, class_name, trainee, a, key=key)
+
+    def insert_attempt(
+        self,
+        conn: sqlite3.Connection,
+        class_name: str,
+        trainee: str,
+        a: dict[str, Any],
+        *,
+        key: str | None = None,
+        provenance: dict[str, Any] | None = None,
+    ) -> int:
+        """Insert one cleaned attempt (``clean_attempt``) inside the caller's transaction; returns its id.
+
+        ``provenance`` (the records server's scoring) fills who filed it, the client's clock, the pack's
+        version and hash, the client's own figures, where they differ from the replay's, and the recording.
+        """
+        prov = provenance or {}
+        class_id = self._class_id(conn, class_name)
+        if class_id is None:
+            class_id = conn.execute("INSERT INTO classes (name) VALUES (?)", (class_name,)).lastrowid
+        trainee_id = self._trainee_id(conn, class_id, trainee)
+        if trainee_id is None:
+            trainee_id = conn.execute(
+                "INSERT INTO trainees (class_id, name) VALUES (?, ?)", (class_id, trainee)
+            ).lastrowid
+        cur = conn.execute(
+            """
+            INSERT INTO attempts (trainee_id, pack, created_at, duration_s, landmark_error_mm,
+                needle_error_mm, target, skull_contacts, path_length_mm, redirections, xray_shots,
+                exposure_s, dose_mgy, aids, step_times, details, idem_key, filed_by, client_created_at,
+                pack_version, pack_hash, client_figures, differences)
+            VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
+            """,
+            (
+                trainee_id,
+                a["pack"],
+                a["created_at"],
+                a["duration_s"],
+                a["landmark_error_mm"],
+                a["needle_error_mm"],
+                a["target"],
+                a["skull_contacts"],
+                a["path_length_mm"],
+                a["redirections"],
+                a["xray_shots"],
+                a["exposure_s"],
+                a["dose_mgy"],
+                to_json(a["aids"]),
+                to_json(a["step_times"]),
+                to_json(a["details"]),
+                key,
+                prov.get("filed_by"),
+                prov.get("client_created_at"),
+                prov.get("pack_version"),
+                prov.get("pack_hash"),
+                None if prov.get("client_figures") is None else to_json(prov["client_figures"]),
+                to_json(prov.get("differences") or []),
+            ),
+        )
+        rid = cur.lastrowid
+        # the procedure-neutral metrics: the fixed columns' values, then the procedure's own
+        metrics = {name: a[name] for name in LEGACY_METRICS}
+        metrics.update(a["metrics"])
+        for name, value in metrics.items():
+            conn.execute(
+                "INSERT INTO attempt_metrics (attempt_id, name, value) VALUES (?, ?, ?)",
+                (rid, name, None if value is None else float(value)),
             )
-            rid = cur.lastrowid
-            # the procedure-neutral metrics: the fixed columns' values, then the procedure's own
-            metrics = {name: a[name] for name in LEGACY_METRICS}
-            metrics.update(a["metrics"])
-            for name, value in metrics.items():
-                conn.execute(
-                    "INSERT INTO attempt_metrics (attempt_id, name, value) VALUES (?, ?, ?)",
-                    (rid, name, None if value is None else float(value)),
-                )
-            return rid
+        if prov.get("recording") is not None:
+            conn.execute(
+                "INSERT INTO attempt_recordings (attempt_id, recording) VALUES (?, ?)", (rid, prov["recording"])
+            )
+        return rid
 
     def _with_metrics(self, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         """Each attempt with `metrics`, its rows of the metrics table by name (in the order stored)."""
@@ -542,6 +582,47 @@ class RecordStore:
         with self._write() as conn:
             if conn.execute("DELETE FROM attempts WHERE id = ?", (attempt_id,)).rowcount == 0:
                 raise UserError(f"no attempt with id {attempt_id}")
+
+    def retract_attempt(self, attempt_id: int, actor: str, reason: str) -> dict[str, Any]:
+        """Mark an attempt retracted (kept, shown as such) with who, when and why; one audit row."""
+        attempt_id = _attempt_id(attempt_id)
+        reason = reason.strip() if isinstance(reason, str) else ""
+        if not reason or len(reason) > 500:
+            raise UserError("a retraction needs a reason of 1-500 characters")
+        now = clean_created_at(None)
+        with self._write() as conn:
+            row = conn.execute(_ATTEMPT_SELECT + " WHERE a.id = ?", (attempt_id,)).fetchone()
+            if row is None:
+                raise UserError(f"no attempt with id {attempt_id}")
+            if row["retracted_at"] is not None:
+                raise UserError(f"attempt {attempt_id} was already retracted")
+            conn.execute(
+                "UPDATE attempts SET retracted_at = ?, retracted_by = ?, retract_reason = ? WHERE id = ?",
+                (now, actor, reason, attempt_id),
+            )
+            self.audit(conn, actor, "retract", row["class_name"], reason, attempt_id)
+        return self.get_attempt(attempt_id)
+
+    def audit(
+        self, conn: sqlite3.Connection, actor: str, action: str, class_name: str, detail: str, attempt_id=None
+    ) -> None:
+        """One row of the audit log, inside the caller's transaction."""
+        conn.execute(
+            "INSERT INTO audit_log (at, actor, action, attempt_id, class_name, detail) VALUES (?, ?, ?, ?, ?, ?)",
+            (clean_created_at(None), actor, action, attempt_id, class_name, detail),
+        )
+
+    def audit_entries(self, classes: list[str]) -> list[dict[str, Any]]:
+        """The audit log of the given classes, oldest first."""
+        if not classes:
+            return []
+        marks = ", ".join("?" for _ in classes)
+        rows = self._db.execute(
+            "SELECT id, at, actor, action, attempt_id, class_name, detail FROM audit_log "
+            f"WHERE class_name IN ({marks}) ORDER BY id",
+            tuple(classes),
+        )
+        return [{k: r[k] for k in r.keys()} for r in rows]
 
     def save_questionnaire(self, class_name: str, trainee: str, kind: str, session: str, answers: dict) -> int:
         """Store a study questionnaire ('pre' or 'post') of one session; the trainee is created if missing."""

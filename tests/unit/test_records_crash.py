@@ -85,6 +85,16 @@ def expected(i: int) -> dict:
         "aids": {k: k == "tip_view" and i % 2 == 0 for k in AIDS},
         "step_times": {"insert": 5.0 + i},
         "details": {"i": i},
+        # saved on this computer: no server filed or scored it
+        "filed_by": None,
+        "client_created_at": None,
+        "pack_version": None,
+        "pack_hash": None,
+        "client_figures": None,
+        "differences": [],
+        "retracted_at": None,
+        "retracted_by": None,
+        "retract_reason": None,
     }
     # the procedure-neutral metrics table holds every fixed-column value too, saved in the same transaction
     row["metrics"] = {k: None if row[k] is None else float(row[k]) for k in LEGACY_METRICS}
