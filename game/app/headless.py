@@ -35,12 +35,12 @@ from chainsim.engine.progress import progress
 from chainsim.game.app import plugins
 from chainsim.game.app.core import App
 from chainsim.game.app.digest import world_digest
-from chainsim.game.app.inputscript import load_script, write_recording
+from chainsim.game.app.inputscript import load_script, recording_data, write_recording
 from chainsim.game.app.loader import spawn_scene
 from chainsim.game.app.options import MODEL_FLAG_CHOICES
 from chainsim.game.app.outputs import check_output_file, prepare_output_dir, write_text_atomic
 from chainsim.game.packs import pack as packs
-from chainsim.game.records import remote
+from chainsim.game.records import provenance, remote
 from chainsim.game.records import store as records
 from chainsim.game.records.remote import remote_records
 from chainsim.game.records.store import local_records
@@ -125,7 +125,9 @@ def app_for_pack(
         if save:
             app.insert_resource(refusing_records(save))
         elif pack_settings.get("records"):  # a records server (queueing in the local store when offline)
-            app.insert_resource(remote_records(pack_settings["records"], pack_settings.get("db") or None))
+            # the server scores the attempt by replaying this session, so each save carries its recording
+            evidence = lambda: attempt_evidence(app, pack, settings)  # noqa: E731
+            app.insert_resource(remote_records(pack_settings["records"], pack_settings.get("db") or None, evidence))
         else:
             app.insert_resource(local_records(pack_settings.get("db") or None))
         plugins.install(app, pack.manifest["pack"].get("procedure", ""), render=render)
@@ -133,6 +135,24 @@ def app_for_pack(
         app.close()
         raise
     return app
+
+
+def attempt_evidence(app: App, pack: packs.Pack, settings: dict | None) -> dict:
+    """What an upload carries for the records server to replay: the session so far, and the pack's identity.
+
+    Called while the Save is handled, so the recording runs from the session's start to the step that
+    saves (the state an attempt starts from is whatever the session's earlier attempts left)."""
+    log = app.get_resource(InputLog)
+    recording = recording_data(
+        pack=pack.name,
+        scene=app.resource(PackResource).scene,
+        dt=app.time.dt,
+        steps=app.time.tick,
+        events=list(log.items) if log else [],
+        digest=world_digest(app),
+        settings={k: v for k, v in (settings or {}).items() if k in ("class", "trainee", "model")},
+    )
+    return {"recording": provenance.encode_recording(recording), "pack_identity": provenance.pack_identity(pack)}
 
 
 def refusing_records(reason: str) -> Records:
@@ -144,10 +164,11 @@ def refusing_records(reason: str) -> Records:
     return Records(save_attempt=save_attempt, list_attempts=lambda c, t: [], where="nowhere", refuses=reason)
 
 
-def build_app(ref: str, *, pack_paths=(), **kwargs) -> App:
-    """`PACK[/SCENE]` -> a started App (see `app_for_pack` for the keyword arguments)."""
-    root, scene = packs.resolve(ref, pack_paths)
-    return app_for_pack(packs.load(root, pack_paths), scene, ref=ref, **kwargs)
+def build_app(ref: str, *, pack_paths=(), scene: str | None = None, **kwargs) -> App:
+    """`PACK[/SCENE]` or a pack folder -> a started App (see `app_for_pack` for the keyword arguments);
+    `scene`, when given, is the scene to start whatever the reference names (a replay's recorded one)."""
+    root, ref_scene = packs.resolve(ref, pack_paths)
+    return app_for_pack(packs.load(root, pack_paths), scene or ref_scene, ref=ref, **kwargs)
 
 
 def check_events(app: App, events, where: str) -> None:
@@ -235,10 +256,12 @@ def run_pack(
     screenshot_every: int = 0,
     size: tuple[int, int] | None = None,
     save: str = "",
+    scene: str | None = None,
 ) -> dict[str, Any]:
     """Run a pack headless for `steps` fixed steps; returns (and writes to OUT/summary.json) the summary.
 
     `save`: why this run saves nothing ("" saves to the records database; see `app_for_pack`).
+    `scene`: the scene to run when `ref` is a pack alone (a replay passes the recorded one).
     """
     if steps is not None:
         try:
@@ -256,6 +279,7 @@ def run_pack(
     app = build_app(
         ref,
         pack_paths=pack_paths,
+        scene=scene,
         settings=settings,
         dt=dt,
         render=render or screenshot_every > 0,

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -79,19 +80,89 @@ def parse_events(data: dict, where: str) -> list[tuple[float, Any]]:
 
 
 def read_file(path: str | Path) -> dict:
-    """An input script or recording (.toml as TOML, anything else as JSON), within the data limits."""
-    return datafile.load(path, max_bytes=limits.MAX_SCRIPT_BYTES, what="input file")
+    """An input script or recording (.toml as TOML, anything else as JSON), within the data limits.
+
+    A number the reader refuses (NaN or Infinity in JSON, an integer past 64 bits, a float that
+    overflows) is named by its event and key, as docs/input-scripts.md promises: `event 3: 'value' ...`.
+    """
+    text = datafile.read_text(path, max_bytes=limits.MAX_SCRIPT_BYTES, what="input file")
+    toml = Path(path).suffix.lower() == ".toml"
+    try:
+        return datafile.parse_toml(text, str(path)) if toml else datafile.parse_json(text, str(path))
+    except datafile.DataError as e:
+        key, detail = (e.key, e.detail) if e.key or toml else _bad_json_number(text)
+        m = re.fullmatch(r"integer of (\d+) digits is out of the 64-bit range", detail)
+        detail = f"is a {m.group(1)}-digit integer, out of the 64-bit range" if m else detail
+        if not key or e.line is not None:
+            raise
+        raise UserError(f"{path}: {_key_place(key)} {detail}") from None
+
+
+class _BadNumber:
+    """A number the strict JSON reader refuses, kept (by the second, lenient reading) to find its key."""
+
+    def __init__(self, detail: str):
+        self.detail = detail
+
+
+def _lenient_int(s: str):
+    digits = len(s.lstrip("-"))
+    return (
+        _BadNumber(f"is a {digits}-digit integer, out of the 64-bit range")
+        if digits > 18 and not (-(2**63) <= int(s) < 2**63)
+        else int(s)
+    )
+
+
+def _lenient_float(s: str):
+    x = float(s)
+    return x if math.isfinite(x) else _BadNumber(f"is {s[:30]}, too large for a float")
+
+
+def _bad_json_number(text: str) -> tuple[str, str]:
+    """(dotted key, what is wrong) of the first number strict JSON reading refused; ("", "") if none.
+    Only called after the strict reading passed its nesting check, so this reading is bounded too."""
+    try:
+        data = json.loads(
+            text,
+            parse_int=_lenient_int,
+            parse_float=_lenient_float,
+            parse_constant=lambda s: _BadNumber(f"must be a finite number, got {s}"),
+        )
+    except (ValueError, RecursionError):
+        return "", ""
+    stack: list[tuple[Any, str]] = [(data, "")]
+    while stack:  # depth first, in the file's order
+        v, key = stack.pop()
+        if isinstance(v, _BadNumber):
+            return key, v.detail
+        items = v.items() if isinstance(v, dict) else enumerate(v) if isinstance(v, list) else ()
+        stack.extend(reversed([(x, f"{key}.{k}" if key else str(k)) for k, x in items]))
+    return "", ""
+
+
+def _key_place(key: str) -> str:
+    """'event.2.point.1' -> "event 3: 'point'"; any other key -> "'key'"."""
+    parts = key.split(".")
+    if len(parts) >= 3 and parts[0] == "event" and parts[1].isdigit():
+        return f"event {int(parts[1]) + 1}: '{parts[2]}'"
+    return f"'{key}'"
 
 
 def load_script(path: str | Path) -> list[tuple[float, Any]]:
     return parse_events(read_file(path), str(path))
 
 
-def write_recording(
-    path: str | Path, *, pack: str, scene: str, dt: float, steps: int, events, digest: str, settings: dict | None = None
-) -> None:
+def write_recording(path: str | Path, **fields) -> None:
     """Write atomically (temp file + rename): an interrupted write never clobbers an old recording."""
-    data = {
+    write_text_atomic(path, json.dumps(recording_data(**fields), indent=1, allow_nan=False), "--record")
+
+
+def recording_data(
+    *, pack: str, scene: str, dt: float, steps: int, events, digest: str, settings: dict | None = None
+) -> dict:
+    """A recording as a JSON-ready dict (what `--record` writes and what an upload to a records server carries)."""
+    return {
         "chainsim": "recording",
         "format": FORMAT,
         "pack": pack,
@@ -103,4 +174,3 @@ def write_recording(
         "digest": digest,
         "event": [dict(t=t, **event_to_dict(ev)) for t, ev in events],
     }
-    write_text_atomic(path, json.dumps(data, indent=1, allow_nan=False), "--record")

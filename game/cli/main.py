@@ -12,6 +12,7 @@ import argparse
 import importlib
 import logging
 import os
+import re
 import sys
 
 from chainsim.engine.argtypes import NEGATIVE_NUMBER
@@ -67,7 +68,26 @@ def build_parser(chosen: str | None = None) -> argparse.ArgumentParser:
             mod.add_parser(sub).set_defaults(_run=mod.run)
         else:
             sub.add_parser(name, help=help_)
+    _escape_percent(parser)
     return parser
+
+
+#: a `%` that starts no argparse placeholder (`%(default)s`) nor an escaped `%%`
+_LONE_PERCENT = re.compile(r"%(?![(%])")
+
+
+def _escape_percent(parser: argparse.ArgumentParser) -> None:
+    """Double every lone `%` in help texts: argparse %-formats them, so "5 % of" in any command's or
+    benchmark's help would end `--help` in a traceback."""
+    for action in parser._actions:
+        if isinstance(action.help, str):
+            action.help = _LONE_PERCENT.sub("%%", action.help)
+        if isinstance(action, argparse._SubParsersAction):
+            for choice in action._choices_actions:
+                if isinstance(choice.help, str):
+                    choice.help = _LONE_PERCENT.sub("%%", choice.help)
+            for sub in action.choices.values():
+                _escape_percent(sub)
 
 
 def _chosen(argv: list[str]) -> str | None:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from chainsim.assets import ASSETS_DIR
 from chainsim.engine import datafile, limits
-from chainsim.engine.errors import UserError
+from chainsim.engine.errors import UserError, printable
 
 BUILTIN_DIR = ASSETS_DIR
 ENV_PATH = "CHAINSIM_PACK_PATH"
@@ -132,4 +132,12 @@ def resolve(ref: str, pack_paths=()) -> tuple[Path, str | None]:
     if name in seen:
         return seen[name].path, (scene or None)
     known = ", ".join(sorted(seen)) or "none"
+    if not NAME_RE.match(name) or (scene and Path(name).is_dir()):  # a folder path: say so, not "pack ''"
+        shown = printable(ref[:200])
+        if p.is_dir():
+            raise UserError(f"{shown}: this folder holds no pack.toml (a pack folder holds its manifest)")
+        raise UserError(
+            f"pack folder '{shown}' not found; expected a pack folder, its pack.toml, or a pack name "
+            f"(PACK or PACK/SCENE; known packs: {known})"
+        )
     raise UserError(f"pack '{name}' not found; known packs: {known} (add folders with --pack-path or {ENV_PATH})")

@@ -10,6 +10,7 @@ the built-in prp pack through pack dependencies (chainsim.game.packs.requires).
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import tempfile
@@ -48,7 +49,13 @@ def create(name: str, parent: Path, title: str | None = None, template: str = DE
     root = Path(parent) / name
     if root.exists():
         raise UserError(f"{root} already exists; choose another name or folder")
-    tmp = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=parent))
+    # root ignores permission bits, so the check is made both ways: access first, then any OSError
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise UserError(f"--dir {parent}: cannot write in this folder (read-only?); choose another with --dir")
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=parent))
+    except OSError as e:
+        raise UserError(f"--dir {parent}: cannot write in this folder ({e.strerror or e}); choose another") from None
     try:
         shutil.copytree(TEMPLATES_DIR / template, tmp, dirs_exist_ok=True)
         for f in (tmp / "meshes",):
@@ -61,6 +68,9 @@ def create(name: str, parent: Path, title: str | None = None, template: str = DE
         for doc in (tmp / "docs").glob("*.md"):
             doc.write_text(doc.read_text(encoding="utf-8").replace("__TITLE__", title), encoding="utf-8")
         tmp.rename(root)
+    except OSError as e:  # a full disk or a folder made read-only meanwhile: nothing is left behind
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise UserError(f"cannot create {root}: {e.strerror or e}") from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -69,10 +69,13 @@ def run(args) -> int:
     data = read_file(args.file)
     rec = check_recording(data, args.file)
     events = parse_events(data, args.file)
-    ref = rec["pack"].split("/")[0] + "/" + rec["scene"]
+    # `pack` is the reference the recording was made with: a name, PACK/SCENE or a folder path (which may
+    # hold slashes of its own); it is resolved as `run` resolves it, and the recorded scene is started
+    ref = rec["pack"]
     summary = run_pack(
         ref,
         rec["steps"],
+        scene=rec["scene"],
         events=events,
         out=args.out,
         pack_paths=args.pack_path,
@@ -82,7 +85,7 @@ def run(args) -> int:
     )
     same = summary["digest"] == rec["digest"]
     print(
-        f"replayed {rec['steps']} steps of {ref}: digest {summary['digest'][:16]} "
+        f"replayed {rec['steps']} steps of {ref} (scene {rec['scene']}): digest {summary['digest'][:16]} "
         + ("matches the recording" if same else f"DIFFERS from the recording ({rec['digest'][:16]})")
     )
     return 0 if same else 1
