@@ -3,8 +3,10 @@
 For each live tetrahedron, F = X D (X the 3x4 corner positions, D the 4x3 rest operator). The
 as-rigid-as-possible target is F's rotation R, found by Mueller et al.'s iterative extraction
 (quaternion updates, warm-started from the last frame's rotation, so one or two iterations suffice
-between frames); the volume target is F scaled to unit determinant (R for an inverted element). The
-right-hand side gathers D (w_a R + w_v P)^T per tetrahedron into its four corners.
+between frames); the volume target P = F - (tr(R^T F) - 3) / 3 R shifts F's singular values equally
+until they sum to 3, the closest point of that set, so the two projections are those of corotational
+linear elasticity, mu |F - R|^2 + lambda / 2 (tr(R^T F) - 3)^2 per unit volume. The right-hand side
+gathers D (w_a R + w_v P)^T per tetrahedron into its four corners.
 """
 
 from __future__ import annotations
@@ -54,7 +56,7 @@ def _rotation_into(A, q, iterations, R):
         oy *= s
         oz *= s
         angle = np.sqrt(ox * ox + oy * oy + oz * oz)
-        if angle < 1e-9:
+        if angle < 1e-13:  # round-off: the forces use R as the exact polar rotation
             break
         ha = 0.5 * angle
         if ha < 0.05:
@@ -101,22 +103,18 @@ def local_step(x, tets, D, active, w_arap, w_vol, quats, rot_iterations, rhs):
             for col in range(3):
                 F[r, col] = e1 * D[t, 1, col] + e2 * D[t, 2, col] + e3 * D[t, 3, col]
         _rotation_into(F, quats[t], rot_iterations, R)
-        J = (
-            F[0, 0] * (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1])
-            - F[0, 1] * (F[1, 0] * F[2, 2] - F[1, 2] * F[2, 0])
-            + F[0, 2] * (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0])
-        )
-        # the target combination M = w_a R + w_v P once per tet, then D M^T into the four corners
-        if J > 1e-12:
-            sv = w_vol[t] / np.cbrt(J)
-            for r in range(3):
-                for c in range(3):
-                    M[r, c] = w_arap[t] * R[r, c] + sv * F[r, c]
-        else:  # inverted or flat: the volume target is the rotation itself
-            wr = w_arap[t] + w_vol[t]
-            for r in range(3):
-                for c in range(3):
-                    M[r, c] = wr * R[r, c]
+        # volume target P = F - c R with c = (tr(R^T F) - 3) / 3: the closest point to F on the set whose
+        # signed singular values sum to 3 (a uniform shift of F's singular values), so w_v / 2 |F - P|^2 is
+        # (lambda V / 2) (tr(R^T F) - 3)^2 and its gradient w_v (F - P) = lambda V (tr(R^T F) - 3) R;
+        # R is a proper rotation, so an inverted element is pushed back out, never towards a reflection
+        trs = 0.0
+        for r in range(3):
+            for c in range(3):
+                trs += R[r, c] * F[r, c]
+        wr = w_arap[t] - w_vol[t] * (trs - 3.0) / 3.0
+        for r in range(3):
+            for c in range(3):
+                M[r, c] = wr * R[r, c] + w_vol[t] * F[r, c]
         for r in range(3):
             g1 = M[r, 0] * D[t, 1, 0] + M[r, 1] * D[t, 1, 1] + M[r, 2] * D[t, 1, 2]
             g2 = M[r, 0] * D[t, 2, 0] + M[r, 1] * D[t, 2, 1] + M[r, 2] * D[t, 2, 2]
