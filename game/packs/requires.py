@@ -6,7 +6,8 @@ the folders of the packs it lists itself: a path into a pack it does not list, o
 of the folder it names, is refused by `chainsim validate`. Required packs are found where packs are
 found (chainsim.game.packs.discovery), with the folder that holds the requiring pack searched first,
 so packs kept side by side find each other without --pack-path. Each required pack's own `requires`
-is followed too: a missing pack anywhere in the chain, or a cycle, is one problem line.
+is followed too, each pack read once however many paths lead to it (linear in the number of packs,
+at most MAX_REQUIRED_PACKS): a missing pack anywhere in the chain, or a cycle, is one problem line.
 
 Only the required packs' files are read, never their manifests' tables: a pack that requires `prp`
 gets prp's meshes by naming them, not prp's entities or anatomy.
@@ -69,26 +70,44 @@ def resolve_requires(root: Path, name: str, requires: list[str], pack_paths=()) 
             problems.append(_not_found(req, known))
         else:
             deps[req] = known[req]
-    # follow the chain below each direct requirement: missing packs and cycles further down
-    for req, folder in deps.items():
-        msg = _walk(req, folder, [name, req], known)
-        if msg:
-            problems.append(msg)
+    msg = _check_below(name, list(deps), known)
+    if msg:
+        problems.append(msg)
     return deps, problems
 
 
-def _walk(name: str, folder: Path, chain: list[str], known: dict[str, Path]) -> str:
-    if len(chain) > limits.MAX_NESTING:
-        return f"the chain {' -> '.join(chain[:8])} -> ... is too deep"
-    for req in requires_of(folder):
-        if req in chain:
+def _check_below(name: str, direct: list[str], known: dict[str, Path]) -> str:
+    """The packs below the direct requirements, each read once (depth first, without recursion): the
+    first missing pack, cycle, chain deeper than MAX_NESTING or graph over MAX_REQUIRED_PACKS, or "".
+
+    A pack reached again by another path is not read again, so a diamond of n packs costs n reads,
+    not one per path (which doubles with every level)."""
+    state: dict[str, str] = {name: "open"}  # pack -> "open" (on the current chain) or "done"
+    chain = [name]
+    todo = [iter(direct)]  # per pack on the chain: the requirements not yet followed
+    while todo:
+        req = next(todo[-1], None)
+        if req is None:
+            state[chain.pop()] = "done"
+            todo.pop()
+            continue
+        if state.get(req) == "done":
+            continue
+        if state.get(req) == "open":
             cyc = chain[chain.index(req) :] + [req]
             return f"{' -> '.join(cyc)} is a cycle (packs cannot require one another in a ring)"
         if req not in known:
-            return f"'{name}' requires {_not_found(req, known)}"
-        msg = _walk(req, known[req], chain + [req], known)
-        if msg:
-            return msg
+            return f"'{chain[-1]}' requires {_not_found(req, known)}"
+        if len(chain) >= limits.MAX_NESTING:
+            return f"the chain {' -> '.join(chain[:8])} -> ... is too deep (over {limits.MAX_NESTING} packs)"
+        if len(state) > limits.MAX_REQUIRED_PACKS:
+            return (
+                f"builds on more than {limits.MAX_REQUIRED_PACKS} packs through its requirements "
+                "(MAX_REQUIRED_PACKS, docs/limits.md)"
+            )
+        state[req] = "open"
+        chain.append(req)
+        todo.append(iter(requires_of(known[req])))
     return ""
 
 

@@ -77,6 +77,14 @@ MAX_BENCH_ELEMENTS = _limit(
     "Largest generated mesh of a benchmark (`bench chainmail --max-elements`, `bench render --triangles`).",
 )
 MAX_EVENTS = _limit("MAX_EVENTS", 1_000_000, "events", "Counts", "Events in one input script or recording.")
+MAX_REQUIRED_PACKS = _limit(
+    "MAX_REQUIRED_PACKS",
+    256,
+    "packs",
+    "Counts",
+    "Packs one pack builds on, directly or through the packs those require (`[pack] requires`); each is "
+    "read once, however many paths lead to it.",
+)
 MAX_STUDY_BLOCK = _limit(
     "MAX_STUDY_BLOCK", 16, "nodes per edge", "Counts", "Calibration block size of `study calibrate --block-n`."
 )

@@ -126,3 +126,55 @@ def test_required_packs_are_found_beside_the_pack_or_through_pack_path(tmp_path,
     beside = write_pack(tmp_path / "lib", "user", body, ["base"])
     code, _, err = cli("validate", beside)
     assert code == 0, err
+
+
+def _diamond(folder: Path, levels: int) -> Path:
+    """`top` requiring a0 and b0; a_i and b_i each requiring a_(i+1) and b_(i+1): 2 * levels packs
+    below the top and 2 ** levels paths from it to the last level."""
+    for i in range(levels):
+        below = [f"a{i + 1}", f"b{i + 1}"] if i + 1 < levels else []
+        for side in "ab":
+            write_pack(folder, f"{side}{i}", "", below)
+    return write_pack(folder, "top", "", ["a0", "b0"])
+
+
+def test_a_deep_diamond_reads_each_required_pack_once(tmp_path, monkeypatch):
+    from chainsim.game.packs import requires
+
+    top = _diamond(tmp_path, 24)
+    reads: list[Path] = []
+    real = requires.requires_of
+    monkeypatch.setattr(requires, "requires_of", lambda folder: reads.append(Path(folder)) or real(folder))
+    pack, problems = packs.validate(top)
+    assert problems == [] and pack is not None
+    assert sorted(p.name for p in reads) == sorted(f"{s}{i}" for i in range(24) for s in "ab")
+
+
+@pytest.mark.parametrize("levels", [3, 9])
+def test_reads_grow_with_the_packs_not_with_the_paths(tmp_path, monkeypatch, levels):
+    from chainsim.game.packs import requires
+
+    top = _diamond(tmp_path, levels)
+    calls = []
+    real = requires.requires_of
+    monkeypatch.setattr(requires, "requires_of", lambda folder: calls.append(folder) or real(folder))
+    assert packs.validate(top)[1] == []
+    assert len(calls) == 2 * levels
+
+
+def test_a_cycle_at_the_bottom_of_a_diamond_is_found(tmp_path, cli):
+    _diamond(tmp_path, 6)
+    (tmp_path / "b5" / "pack.toml").write_text('[pack]\nname = "b5"\nformat = 1\nrequires = ["a2"]\n')
+    code, _, err = cli("validate", tmp_path / "top")
+    assert code == 2 and "a2 -> " in err and "-> b5 -> a2 is a cycle" in err
+
+
+def test_more_required_packs_than_the_limit_is_one_line(tmp_path, cli, monkeypatch):
+    from chainsim.engine import limits
+
+    monkeypatch.setattr(limits, "MAX_REQUIRED_PACKS", 5)
+    top = _diamond(tmp_path, 4)
+    code, _, err = cli("validate", top)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 2, err
+    assert "pack.requires" in lines[0] and "more than 5 packs" in lines[0]
