@@ -20,6 +20,7 @@ import os
 import urllib.error
 import urllib.request
 import uuid
+from collections.abc import Callable
 from datetime import UTC, datetime
 from typing import Any
 from urllib.parse import urlencode, urlsplit
@@ -134,9 +135,17 @@ def role_for(store: RecordStore, server: str, token: str) -> str:
 # -- the queue --------------------------------------------------------------------------------
 
 
-def enqueue(store: RecordStore, server: str, class_name: str, trainee: str, attempt: dict) -> int:
-    """Validate the attempt and commit it to the outbox; returns the outbox row id."""
+def enqueue(
+    store: RecordStore, server: str, class_name: str, trainee: str, attempt: dict, evidence: dict | None = None
+) -> int:
+    """Validate the attempt and commit it to the outbox with its evidence; returns the outbox row id.
+
+    ``evidence`` is what the server scores the attempt from: ``recording`` (compressed) and
+    ``pack_identity`` (``chainsim.game.records.provenance``); the attempt's own figures go beside it
+    and the server keeps them only to compare.
+    """
     record = clean_attempt(attempt)  # a bad attempt is refused now, not after a round trip
+    record.update(evidence or {})
     with store.transaction() as conn:
         return conn.execute(
             "INSERT INTO outbox (server, idem_key, class_name, trainee, attempt, queued_at) VALUES (?, ?, ?, ?, ?, ?)",
@@ -160,7 +169,10 @@ def pending(store: RecordStore, server: str | None = None) -> list[Any]:
 
 
 def _send(store: RecordStore, row: Any, token: str) -> int:
-    """POST one outbox row; on success mark it sent and return the server's id."""
+    """POST one outbox row; on acknowledgement mark it sent and return the server's upload id.
+
+    The server answers at once (202) and scores the attempt afterwards by replaying its recording;
+    ``GET /api/uploads/ID`` says when it is scored and the attempt's id."""
     body = json.loads(row["attempt"])
     # A trainee's attempts go under the signed-in account whatever the window's name fields say;
     # a trainer files for a trainee of their class by naming them.
@@ -170,9 +182,9 @@ def _send(store: RecordStore, row: Any, token: str) -> int:
     with store.transaction() as conn:
         conn.execute(
             "UPDATE outbox SET sent_at = ?, remote_id = ?, last_error = NULL WHERE id = ?",
-            (datetime.now(UTC).isoformat(timespec="seconds"), int(answer["id"]), row["id"]),
+            (datetime.now(UTC).isoformat(timespec="seconds"), int(answer["upload"]), row["id"]),
         )
-    return int(answer["id"])
+    return int(answer["upload"])
 
 
 def _note_error(store: RecordStore, row_id: int, message: str) -> None:
@@ -236,9 +248,11 @@ class RemoteRecords:
     def close(self) -> None:
         self.local.close()
 
-    def save_attempt(self, class_name: str, trainee: str, attempt: dict[str, Any]) -> int:
-        """The server's id of the saved attempt; KeptOffline when it waits in the local queue."""
-        local_id = enqueue(self.local, self.server, class_name, trainee, attempt)
+    def save_attempt(self, class_name: str, trainee: str, attempt: dict[str, Any], evidence: dict | None = None) -> int:
+        """The server's upload id of the attempt; KeptOffline when it waits in the local queue.
+
+        The server acknowledges at once and scores the attempt by replaying ``evidence["recording"]``."""
+        local_id = enqueue(self.local, self.server, class_name, trainee, attempt, evidence)
         token = token_for(self.local, self.server)
         why = None
         if token is None:
@@ -269,18 +283,6 @@ class RemoteRecords:
         except UserError as exc:
             logger.warning("records sync: %s", exc)
 
-    def delete_attempt(self, attempt_id: int) -> None:
-        """Delete on the server; it refuses (403) an attempt that is not the account's."""
-        token = token_for(self.local, self.server)
-        if token is None:
-            raise UserError(f"not signed in to {self.server}: chainsim records login {self.server} NAME")
-        try:
-            request(f"{self.server}/api/attempts/{int(attempt_id)}", "DELETE", token=token)
-        except ServerError as exc:
-            raise UserError(f"{self.server}: {exc}") from None
-        except OSError as exc:
-            raise UserError(str(exc)) from None
-
     def list_attempts(self, class_name: str | None = None, trainee: str | None = None) -> list[dict[str, Any]]:
         token = token_for(self.local, self.server)
         if token is None:
@@ -297,23 +299,25 @@ class RemoteRecords:
             raise UserError(str(exc)) from None
 
 
-def remote_records(server: str, db: str | os.PathLike[str] | None = None) -> Records:
-    """The Records resource on a records server, queueing in the local store ``db`` (see module doc)."""
+def remote_records(
+    server: str, db: str | os.PathLike[str] | None = None, evidence: Callable[[], dict] | None = None
+) -> Records:
+    """The Records resource on a records server, queueing in the local store ``db`` (see module doc).
+
+    ``evidence()`` gives, at each save, the recording and pack identity the server scores from. A
+    trainee cannot delete an attempt on a server (a trainer retracts it), so there is no delete here.
+    """
     server = server_url(server)
 
     def save_attempt(class_name: str, trainee: str, record: dict) -> int:
         with RemoteRecords(server, db) as rr:
-            return rr.save_attempt(class_name, trainee, record)
+            return rr.save_attempt(class_name, trainee, record, None if evidence is None else evidence())
 
     def list_attempts(class_name: str, trainee: str) -> list[dict]:
         with RemoteRecords(server, db) as rr:
             return rr.list_attempts(class_name, trainee)
 
-    def delete_attempt(class_name: str, trainee: str, attempt_id: int) -> None:
-        with RemoteRecords(server, db) as rr:
-            rr.delete_attempt(attempt_id)
-
-    return Records(save_attempt, list_attempts, f"records server {server}", delete_attempt)
+    return Records(save_attempt, list_attempts, f"records server {server}")
 
 
 def sync_quietly(server: str, db: str | os.PathLike[str] | None = None) -> None:

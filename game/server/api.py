@@ -3,28 +3,36 @@
     POST   /api/login              {"name", "password", "label"?} -> {"token", "expires_at", "user"}
     GET    /api/me                 the account behind the token
     GET    /api/attempts           ?class=C&trainee=T, the attempts the account may see
-    POST   /api/attempts           an attempt record (the store's fields); Idempotency-Key header
+    POST   /api/attempts           an upload: the simulator's record, its recording and pack_identity;
+                                   Idempotency-Key header -> 202 {"upload", "status": "scoring", ...}
+    GET    /api/uploads/{id}       an upload's state: scoring, scored (with attempt_id) or refused (error)
     GET    /api/attempts/{id}      one attempt (403 when it is someone else's)
-    DELETE /api/attempts/{id}      delete one attempt (same rule)
+    POST   /api/attempts/{id}/retract  {"reason"}: a trainer retracts an attempt of their class (kept)
+    DELETE /api/attempts/{id}      refused: attempts are records (a trainer retracts instead)
+    GET    /api/audit              ?class=C, the audit log of a trainer's classes
 
-An attempt is the record ``RecordStore`` keeps (``chainsim.game.records.validate.FIELDS``),
-so fields added to the record pass through unchanged. A trainee files attempts under their own
-class and name; a trainer may file for a trainee of a class they teach by naming ``class_name``
-and ``trainee``. A resent attempt with the same Idempotency-Key answers 200 with the first id.
+An attempt is the record ``RecordStore`` keeps (``chainsim.game.records.validate.FIELDS``) with
+the figures the server's replay computed (``chainsim.game.server.scoring``): the simulator's own
+are kept beside them (``client_figures``) and ``differences`` lists where they disagree. A
+trainee files attempts under their own class and name; a trainer may file for a trainee of a
+class they teach by naming ``class_name`` and ``trainee``; the attempt records the account that
+filed it and the server's time. A resent upload with the same Idempotency-Key answers 200 with
+the first upload; the same key with another body is a 409.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
 from starlette.routing import Route
 
 from chainsim.engine.errors import UserError
 from chainsim.game.records.store import RecordStore
-from chainsim.game.records.validate import clean_name
-from chainsim.game.server import accounts
+from chainsim.game.records.validate import clean_key, clean_name
+from chainsim.game.server import accounts, scoring
 from chainsim.game.server.accounts import User
 from chainsim.game.server.auth import HTTPError, api_user, read_json
 
@@ -42,7 +50,7 @@ def visible_attempts(store: RecordStore, user: User, class_name: str | None, tra
         raise HTTPError(400, str(exc)) from None
     if user.is_trainer:
         if class_name is not None and class_name not in user.classes:
-            raise HTTPError(403, f"you do not teach class {class_name!r}")
+            raise HTTPError(403, "you do not teach that class")
         classes = [class_name] if class_name is not None else list(user.classes)
         known = set(store.list_classes())
         out: list[dict] = []
@@ -72,10 +80,47 @@ def readable_attempt(store: RecordStore, user: User, attempt_id: int) -> dict:
     return attempt
 
 
-def delete_attempt(store: RecordStore, user: User, attempt_id: int) -> dict:
-    attempt = readable_attempt(store, user, attempt_id)
-    store.delete_attempt(attempt_id)
-    return attempt
+def retract_attempt(store: RecordStore, user: User, attempt_id: int, reason: Any) -> dict:
+    if not user.is_trainer:
+        raise HTTPError(403, "attempts are kept; only a trainer of the class can retract one")
+    readable_attempt(store, user, attempt_id)
+    try:
+        return store.retract_attempt(attempt_id, user.name, reason)
+    except UserError as exc:
+        if type(exc) is not UserError:
+            raise
+        raise HTTPError(422, str(exc)) from None
+
+
+def audit_entries(store: RecordStore, user: User, class_name: str | None) -> list[dict]:
+    if not user.is_trainer:
+        raise HTTPError(403, "the audit log is for trainers")
+    if class_name is not None and class_name not in user.classes:
+        raise HTTPError(403, "you do not teach that class")
+    return store.audit_entries([class_name] if class_name is not None else list(user.classes))
+
+
+def readable_upload(store: RecordStore, user: User, upload_id: int) -> dict:
+    row = scoring.get_upload(store, upload_id)
+    if row is None:
+        raise HTTPError(404, f"no upload with id {upload_id}")
+    if not user.can_see(row["class_name"], row["trainee"]) and row["filed_by"] != user.name:
+        raise HTTPError(403, f"upload {upload_id} is not yours to see")
+    return scoring.upload_view(row)
+
+
+def known_upload(store: RecordStore, user: User, key: str, digest: str) -> dict | None:
+    """The upload a resend with this Idempotency-Key already made; 409 when the key was used otherwise."""
+    row = scoring.upload_for_key(store, key)
+    if row is None:
+        if store.attempt_id_for_key(key) is not None:  # an attempt saved before uploads were scored
+            raise HTTPError(409, "this Idempotency-Key was already used; send the upload with a fresh key")
+        return None
+    if row["filed_by"] != user.name and not user.can_see(row["class_name"], row["trainee"]):
+        raise HTTPError(409, "this Idempotency-Key was used for another trainee's attempt")
+    if row["body_hash"] != digest:
+        raise HTTPError(409, "this Idempotency-Key was used for a different attempt; send it with a fresh key")
+    return row
 
 
 def file_under(user: User, record: dict[str, Any]) -> tuple[str, str]:
@@ -91,7 +136,7 @@ def file_under(user: User, record: dict[str, Any]) -> tuple[str, str]:
         except UserError as exc:
             raise HTTPError(422, str(exc)) from None
         if class_name not in user.classes:
-            raise HTTPError(403, f"you do not teach class {class_name!r}")
+            raise HTTPError(403, "you do not teach that class")
         return class_name, trainee
     if user.trainee_id is None:
         raise HTTPError(403, "this trainee account has no trainee record; ask your trainer")
@@ -101,24 +146,12 @@ def file_under(user: User, record: dict[str, Any]) -> tuple[str, str]:
     return own
 
 
-def save_attempt(store: RecordStore, user: User, class_name: str, trainee: str, record: dict, key: str | None):
-    """(id, created?) of the attempt; a known key returns the first save's id."""
-    try:
-        if key is not None:
-            existing = store.attempt_id_for_key(key)
-            if existing is not None:
-                first = store.get_attempt(existing)
-                if not user.can_see(first["class_name"], first["trainee"]):
-                    raise HTTPError(409, "this Idempotency-Key was used for another trainee's attempt")
-                return first, False
-        aid = store.save_attempt(class_name, trainee, record, key=key)
-        return store.get_attempt(aid), True
-    except HTTPError:
-        raise
-    except UserError as exc:
-        if type(exc) is not UserError:  # WriteFailed and the like: the storage layer answers 503
-            raise
-        raise HTTPError(422, str(exc)) from None
+def queue_upload(store: RecordStore, user: User, class_name: str, trainee: str, checked: dict, key, digest: str):
+    row, created = scoring.enqueue(store, user.name, class_name, trainee, checked, key, digest)
+    if not created:  # two sends of one key raced; the first one's row answers both
+        if row["body_hash"] != digest:
+            raise HTTPError(409, "this Idempotency-Key was used for a different attempt; send it with a fresh key")
+    return row, created
 
 
 # -- routes -----------------------------------------------------------------------------------
@@ -164,13 +197,53 @@ async def create_attempt(request: Request) -> Response:
     if not isinstance(body, dict):
         raise HTTPError(422, f"an attempt must be a JSON object of fields, got {type(body).__name__}")
     key = request.headers.get(IDEMPOTENCY_HEADER)
-    class_name, trainee = file_under(user, body)
-    attempt, created = await request.app.state.storage.run(save_attempt, user, class_name, trainee, body, key)
+    if key is not None:
+        try:
+            key = clean_key(key)
+        except UserError as exc:
+            raise HTTPError(400, str(exc)) from None
+    digest = scoring.body_hash(body)
+    storage = request.app.state.storage
+    row = None if key is None else await storage.run(known_upload, user, key, digest)
+    created = False
+    if row is None:
+        class_name, trainee = file_under(user, body)
+        try:
+            # the pack's identity (hashed once per server) and the recording are checked off the event loop
+            checked = await run_in_threadpool(scoring.check_upload, request.app.state.packs, body)
+        except UserError as exc:
+            raise HTTPError(422, str(exc)) from None
+        row, created = await storage.run(queue_upload, user, class_name, trainee, checked, key, digest)
+        if created:
+            request.app.state.scorer.wake()
+    answer = scoring.upload_view(row)
     return JSONResponse(
-        {"id": attempt["id"], "attempt": attempt},
-        status_code=201 if created else 200,
-        headers={"Location": f"/api/attempts/{attempt['id']}"},
+        answer,
+        status_code=202 if created else 200,
+        headers={"Location": f"/api/uploads/{row['id']}"},
     )
+
+
+async def get_upload(request: Request) -> Response:
+    user = await api_user(request)
+    value = int(request.path_params["upload_id"])
+    if not 1 <= value < 2**63:
+        raise HTTPError(404, f"no upload with id {value}")
+    return JSONResponse(await request.app.state.storage.run(readable_upload, user, value))
+
+
+async def retract(request: Request) -> Response:
+    user = await api_user(request)
+    body = await read_json(request)
+    reason = body.get("reason") if isinstance(body, dict) else None
+    attempt = await request.app.state.storage.run(retract_attempt, user, _attempt_id(request), reason)
+    return JSONResponse(attempt)
+
+
+async def audit(request: Request) -> Response:
+    user = await api_user(request)
+    rows = await request.app.state.storage.run(audit_entries, user, request.query_params.get("class"))
+    return JSONResponse({"audit": rows})
 
 
 async def get_attempt(request: Request) -> Response:
@@ -181,8 +254,10 @@ async def get_attempt(request: Request) -> Response:
 
 async def remove_attempt(request: Request) -> Response:
     user = await api_user(request)
-    await request.app.state.storage.run(delete_attempt, user, _attempt_id(request))
-    return Response(status_code=204)
+    await request.app.state.storage.run(readable_attempt, user, _attempt_id(request))
+    if user.is_trainer:
+        raise HTTPError(405, "attempts are kept; retract it with POST /api/attempts/ID/retract and a reason")
+    raise HTTPError(403, "attempts are kept; only a trainer of the class can retract one")
 
 
 async def health(request: Request) -> Response:
@@ -197,4 +272,7 @@ routes = [
     Route("/api/attempts", create_attempt, methods=["POST"]),
     Route("/api/attempts/{attempt_id:int}", get_attempt, methods=["GET"]),
     Route("/api/attempts/{attempt_id:int}", remove_attempt, methods=["DELETE"]),
+    Route("/api/attempts/{attempt_id:int}/retract", retract, methods=["POST"]),
+    Route("/api/uploads/{upload_id:int}", get_upload, methods=["GET"]),
+    Route("/api/audit", audit, methods=["GET"]),
 ]

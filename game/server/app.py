@@ -22,7 +22,7 @@ from starlette.routing import Mount
 from starlette.staticfiles import StaticFiles
 
 from chainsim.engine.errors import UserError
-from chainsim.game.server import api, views
+from chainsim.game.server import api, scoring, views
 from chainsim.game.server.auth import HTTPError
 from chainsim.game.server.storage import Storage, Unavailable
 
@@ -65,13 +65,26 @@ async def _user_error(request: Request, exc: UserError) -> Response:
     return _error(request, 422, str(exc))
 
 
-def build_app(db: str | None) -> Starlette:
-    """The app over the records database ``db`` (a path, a postgresql:// URL, or None: default file)."""
+def build_app(
+    db: str | None,
+    *,
+    pack_paths: list[str] | tuple = (),
+    scorers: int = scoring.DEFAULT_WORKERS,
+    lease_s: float = scoring.DEFAULT_LEASE_S,
+) -> Starlette:
+    """The app over the records database ``db`` (a path, a postgresql:// URL, or None: default file).
+
+    ``scorers`` replays run at once (``chainsim.game.server.scoring``); packs are the built-in and
+    installed ones plus ``pack_paths``."""
     storage = Storage(db)
+    packs = scoring.ServerPacks(pack_paths)
+    scorer = scoring.Scorer(db, packs, scorers, lease_s)
 
     @asynccontextmanager
     async def lifespan(app: Starlette):
+        scorer.start()  # uploads a killed server left waiting are scored now
         yield
+        scorer.stop()
         storage.close()
 
     app = Starlette(
@@ -91,6 +104,8 @@ def build_app(db: str | None) -> Starlette:
         lifespan=lifespan,
     )
     app.state.storage = storage
+    app.state.packs = packs
+    app.state.scorer = scorer
     return app
 
 
@@ -113,6 +128,8 @@ class SecurityHeaders:
                     headers.setdefault(key, value)
                 if not static:
                     headers.setdefault("Cache-Control", "no-store")
+                if scope.get("scheme") == "https":  # browsers keep to TLS for this host from now on
+                    headers.setdefault("Strict-Transport-Security", "max-age=31536000")
             await send(message)
 
         await self.app(scope, receive, send_with_headers)
@@ -126,11 +143,13 @@ def serve(
     certfile: str | None = None,
     keyfile: str | None = None,
     log_level: str = "info",
+    pack_paths: list[str] | tuple = (),
+    scorers: int = scoring.DEFAULT_WORKERS,
 ) -> None:
-    """Run the server until interrupted (uvicorn, one process)."""
+    """Run the server until interrupted (uvicorn, one process; replays in ``scorers`` processes beside it)."""
     import uvicorn  # noqa: PLC0415 - only `chainsim serve` needs the server
 
-    app = build_app(db)
+    app = build_app(db, pack_paths=pack_paths, scorers=scorers)
     logger.info(
         "records server on %s://%s:%d, database %s",
         "https" if certfile else "http",

@@ -28,9 +28,9 @@ from starlette.routing import Route
 
 from chainsim.game.records import report, xapi
 from chainsim.game.records.store import RecordStore
-from chainsim.game.server import accounts, plots
+from chainsim.game.server import accounts, plots, scoring
 from chainsim.game.server.accounts import User
-from chainsim.game.server.api import delete_attempt, readable_attempt, visible_attempts
+from chainsim.game.server.api import audit_entries, readable_attempt, retract_attempt, visible_attempts
 from chainsim.game.server.auth import (
     LOGIN_CSRF_COOKIE,
     SESSION_COOKIE,
@@ -115,8 +115,14 @@ def trainee_detail(store: RecordStore, user: User, trainee_id: int) -> dict:
     if not user.can_see(t["class_name"], t["name"]):
         raise HTTPError(403, "these attempts are not yours to see")
     t["attempts"] = store.list_attempts(t["class_name"], t["name"])
-    t["metrics"] = plots.metrics(t["attempts"])
+    # a retracted attempt stays listed but leaves the progress plots
+    t["metrics"] = plots.metrics([a for a in t["attempts"] if not a["retracted_at"]])
+    t["waiting"] = scoring.waiting_uploads(store, [t["class_name"]], t["name"])
     return t
+
+
+#: a trainee sees the class median only in classes of at least this many trainees
+MEDIAN_MIN_TRAINEES = 5
 
 
 def trainee_plot(store: RecordStore, user: User, trainee_id: int, metric: str, fmt: str) -> bytes:
@@ -125,10 +131,14 @@ def trainee_plot(store: RecordStore, user: User, trainee_id: int, metric: str, f
         raise HTTPError(404, f"no metric {metric!r} in these attempts; known: {', '.join(t['metrics']) or 'none'}")
     by_trainee: dict[str, list[dict]] = {}
     for a in store.list_attempts(t["class_name"]):  # oldest first within each trainee
-        by_trainee.setdefault(a["trainee"], []).append(a)
+        if not a["retracted_at"]:
+            by_trainee.setdefault(a["trainee"], []).append(a)
     median = plots.class_median(list(by_trainee.values()), metric)
+    if not user.is_trainer and len(by_trainee) < MEDIAN_MIN_TRAINEES:
+        # with few classmates the median gives their scores away (two trainees: it is their mean)
+        median = []
     title = f"{t['name']} ({t['class_name']}): {plots.label(metric)}"
-    return plots.render(t["attempts"], median, metric, title, fmt)
+    return plots.render([a for a in t["attempts"] if not a["retracted_at"]], median, metric, title, fmt)
 
 
 def attempt_detail(store: RecordStore, user: User, attempt_id: int) -> dict:
@@ -233,21 +243,27 @@ async def attempt_page(request: Request) -> Response:
     d = await request.app.state.storage.run(attempt_detail, user, _int_param(request, "attempt_id"))
     a = d["attempt"]
     scalars = {k: v for k, v in a.items() if not isinstance(v, (dict, list))}
-    nested = {k: v for k, v in a.items() if isinstance(v, (dict, list)) and k not in ("step_times", "aids")}
+    nested = {
+        k: v
+        for k, v in a.items()
+        if isinstance(v, (dict, list)) and k not in ("step_times", "aids", "differences", "client_figures")
+    }
     return render("attempt.html", user=user, csrf=csrf, a=a, trainee_id=d["trainee_id"], scalars=scalars, nested=nested)
 
 
-async def attempt_delete(request: Request) -> Response:
+async def attempt_retract(request: Request) -> Response:
     user, csrf = await page_user(request)
-    check_csrf(request, await read_form(request), csrf)
-    gone = await request.app.state.storage.run(delete_attempt, user, _int_param(request, "attempt_id"))
-    d = await request.app.state.storage.run(
-        lambda store: store.query(
-            "SELECT t.id FROM trainees t JOIN classes c ON c.id = t.class_id WHERE c.name = ? AND t.name = ?",
-            (gone["class_name"], gone["trainee"]),
-        )
-    )
-    return RedirectResponse(f"/trainees/{d[0][0]}" if d else "/", status_code=303)
+    form = await read_form(request)
+    check_csrf(request, form, csrf)
+    attempt_id = _int_param(request, "attempt_id")
+    await request.app.state.storage.run(retract_attempt, user, attempt_id, form.get("reason", ""))
+    return RedirectResponse(f"/attempts/{attempt_id}", status_code=303)
+
+
+async def audit_page(request: Request) -> Response:
+    user, csrf = await page_user(request)
+    rows = await request.app.state.storage.run(audit_entries, user, None)
+    return render("audit.html", user=user, csrf=csrf, rows=rows)
 
 
 async def _export_rows(request: Request) -> list[dict]:
@@ -290,7 +306,8 @@ routes = [
     Route("/trainees/{trainee_id:int}", trainee_page, methods=["GET"]),
     Route("/trainees/{trainee_id:int}/plot/{image}", plot_image, methods=["GET"]),
     Route("/attempts/{attempt_id:int}", attempt_page, methods=["GET"]),
-    Route("/attempts/{attempt_id:int}/delete", attempt_delete, methods=["POST"]),
+    Route("/attempts/{attempt_id:int}/retract", attempt_retract, methods=["POST"]),
+    Route("/audit", audit_page, methods=["GET"]),
     Route("/export/attempts.csv", export_csv, methods=["GET"]),
     Route("/export/attempts.xapi.json", export_xapi, methods=["GET"]),
 ]

@@ -39,6 +39,10 @@ def add_parser(sub):
     p.add_argument("--port", type=_port, default=8000, help="port (default 8000)")
     p.add_argument("--certfile", metavar="PEM", help="TLS certificate: serve https (needed off this machine)")
     p.add_argument("--keyfile", metavar="PEM", help="TLS private key for --certfile")
+    p.add_argument("--pack-path", action="append", default=[], metavar="DIR", help="more packs to score attempts of")
+    p.add_argument(
+        "--scorers", type=int, default=2, metavar="N", help="attempts replayed at once, one process each (default 2)"
+    )
     return p
 
 
@@ -59,5 +63,7 @@ def run(args) -> int:
         certfile=args.certfile,
         keyfile=args.keyfile,
         log_level="warning" if level >= logging.WARNING else "info",
+        pack_paths=args.pack_path,
+        scorers=args.scorers,
     )
     return 0

@@ -1,0 +1,509 @@
+"""The records server computes each attempt's result: it replays the attempt's recording on its own pack.
+
+An upload (``POST /api/attempts``) carries the simulator's figures, the input recording of the
+session up to the Save and the pack's identity (``chainsim.game.records.provenance``). It is
+checked at once - the pack must be one this server has, at the same version and with the same
+files, and the recording must be a well-formed recording of that pack that reaches a Save -
+then committed to the ``uploads`` table and acknowledged (202). Nothing is scored on the request.
+
+``Scorer`` is a bounded pool: ``workers`` threads, each claiming the oldest waiting upload from the
+database and replaying it in a process of its own (the ECS world is per process, and a replay is
+CPU work that must not hold the server's event loop or its threads). The claim is a row update;
+the result - the attempt built from the replay's figures, the client's figures kept beside it,
+the fields where they differ, the recording - is inserted in the same transaction that marks the
+upload scored, and only if the claim is still this worker's. So each upload becomes at most one
+attempt, and a killed server resumes: uploads claimed by a process that is gone (same host) or
+whose claim is older than the lease are claimed again. A recording that does not replay to a Save
+refuses the upload ("refused", with the reason), which its filer sees through ``GET
+/api/uploads/ID`` and the dashboard.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import multiprocessing
+import os
+import socket
+import threading
+import time
+import uuid
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
+from typing import Any
+
+from chainsim.engine import limits
+from chainsim.engine.errors import UserError
+from chainsim.game.records import provenance
+from chainsim.game.records.backend import db_errors
+from chainsim.game.records.store import RecordStore
+from chainsim.game.records.validate import clean_attempt, clean_created_at, clean_name, to_json
+
+logger = logging.getLogger(__name__)
+
+#: replays run at once (one process each); the rest wait in the database
+DEFAULT_WORKERS = 2
+#: a claim older than this (seconds) is taken over: its worker is presumed gone
+DEFAULT_LEASE_S = 300.0
+#: how often an idle worker looks for new uploads (seconds); a new upload also wakes one at once
+POLL_S = 1.0
+#: times an upload is tried when the replay process itself fails (not the recording) before it is refused
+MAX_TRIES = 3
+#: settings a recording may carry; a replay uses only the deformation model
+RECORDING_SETTINGS = ("class", "trainee", "model")
+
+#: where the replay's and the simulator's figures may differ without a flag: times by a frame or two
+#: (a window that took several steps in one frame saves a step or two later than the replay), the
+#: dose with them, everything else by rounding only
+TIME_TOLERANCE_S = 0.1
+COMPARED = (
+    "duration_s",
+    "landmark_error_mm",
+    "needle_error_mm",
+    "target",
+    "skull_contacts",
+    "path_length_mm",
+    "redirections",
+    "xray_shots",
+    "exposure_s",
+    "dose_mgy",
+)
+
+
+# -- the server's packs --------------------------------------------------------------------------
+
+
+class ServerPacks:
+    """The packs this server scores with: by name only (an upload never names a folder), identity cached."""
+
+    def __init__(self, pack_paths: list[str] | tuple = ()) -> None:
+        self.pack_paths = list(pack_paths)
+        self._cache: dict[str, dict] = {}
+        self._lock = threading.Lock()
+
+    def info(self, name: str) -> dict | None:
+        """``{"root", "identity", "scenes"}`` of the pack called ``name``, or None when there is none."""
+        with self._lock:
+            if name in self._cache:
+                return self._cache[name]
+        from chainsim.game.packs import pack as packs  # noqa: PLC0415 - loaded when the first upload needs it
+        from chainsim.game.packs.discovery import discover  # noqa: PLC0415
+
+        found = {}
+        for f in discover(self.pack_paths):
+            found.setdefault(f.name, f.path)
+        if name not in found:
+            return None
+        pack = packs.load(found[name], self.pack_paths)
+        info = {
+            "root": str(found[name]),
+            "identity": provenance.pack_identity(pack),
+            "scenes": pack.scene_names(),
+            "default_scene": pack.manifest["pack"].get("default_scene"),
+        }
+        with self._lock:
+            self._cache[name] = info
+        return info
+
+
+# -- checking an upload (on the request) ---------------------------------------------------------
+
+
+def _recording_fields(rec: dict) -> dict:
+    """The fields a replay needs, checked; UserError naming the first bad one."""
+    for key in ("pack", "scene", "digest"):
+        v = rec.get(key)
+        if not isinstance(v, str) or not v or len(v) > limits.MAX_PATH_LENGTH:
+            raise UserError(f"recording field '{key}' missing or not text")
+    try:
+        steps = limits.whole(rec.get("steps"), 1, limits.MAX_STEPS)
+        dt = limits.number(rec.get("dt"), limits.MIN_DT, limits.MAX_DT)
+    except limits.LimitError as e:
+        raise UserError(f"recording field 'steps' or 'dt': {e} (docs/limits.md)") from None
+    settings = rec.get("settings") or {}
+    if not isinstance(settings, dict) or any(
+        k not in RECORDING_SETTINGS or not isinstance(v, str) for k, v in settings.items()
+    ):
+        raise UserError(f"recording 'settings' may hold only text values of {', '.join(RECORDING_SETTINGS)}")
+    return {"scene": rec["scene"], "steps": steps, "dt": dt, "model": settings.get("model")}
+
+
+def check_upload(packs: ServerPacks, body: dict) -> dict:
+    """Take the evidence out of an upload and check it all; UserError (a 422) naming what is wrong.
+
+    Returns ``claimed`` (the simulator's figures, cleaned), ``recording`` (the compressed text, as kept),
+    ``identity`` and ``pack`` (the server's pack info)."""
+    from chainsim.game.app.inputscript import parse_events  # noqa: PLC0415 - the app layer, loaded on use
+
+    text = body.pop("recording", None)
+    identity = body.pop("pack_identity", None)
+    if text is None or identity is None:
+        raise UserError(
+            "an attempt must carry its recording and pack_identity: the server scores it by replaying it "
+            "(save from chainsim play/run with --records; a current simulator sends both)"
+        )
+    identity = provenance.clean_identity(identity)
+    claimed = clean_attempt(body)
+    if claimed["pack"] != identity["name"]:
+        raise UserError(f"attempt pack {claimed['pack']!r} is not pack_identity.name {identity['name']!r}")
+    info = packs.info(identity["name"])
+    if info is None:
+        raise UserError(f"pack {identity['name']!r} is not on this server; ask the trainer to install it")
+    have = info["identity"]
+    if (have["version"], have["hash"]) != (identity["version"], identity["hash"]):
+        raise UserError(
+            f"pack {identity['name']!r} version {identity['version']} (files {identity['hash'][:12]}) is not the "
+            f"server's (version {have['version']}, files {have['hash'][:12]}); the attempt was made on another copy "
+            "of the pack, so the server cannot score it"
+        )
+    recording = provenance.decode_recording(text)
+    fields = _recording_fields(recording)
+    if recording["pack"].split("/")[0] != identity["name"]:
+        raise UserError(f"the recording is of pack {recording['pack']!r}, not {identity['name']!r}")
+    if fields["scene"] not in (info["scenes"] or [info["default_scene"] or fields["scene"]]):
+        raise UserError(f"the recording's scene {fields['scene']!r} is not a scene of pack {identity['name']!r}")
+    events = parse_events(recording, "recording")
+    if not any(getattr(ev, "name", None) == "save" for _, ev in events):
+        raise UserError("the recording never presses Save, so it cannot reproduce a saved attempt")
+    return {"claimed": claimed, "recording": text, "identity": identity}
+
+
+def body_hash(body: dict) -> str:
+    """A fingerprint of an upload's body, so a reused Idempotency-Key with another body is noticed."""
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+# -- replaying (in a worker process) -------------------------------------------------------------
+
+
+def replay_record(recording_text: str, pack_root: str, pack_paths: list[str]) -> dict:
+    """Replay a recording headless on the pack at ``pack_root``; the attempt record its last Save made.
+
+    Raises UserError when the recording does not replay to a Save (events the scene refuses, a Save the
+    procedure refuses, such as one before every landmark is placed)."""
+    from chainsim.components.resources import PendingInput, Records  # noqa: PLC0415 - worker process only
+    from chainsim.game.app.headless import app_for_pack, check_events  # noqa: PLC0415
+    from chainsim.game.app.inputscript import parse_events  # noqa: PLC0415
+    from chainsim.game.packs import pack as packs  # noqa: PLC0415
+
+    recording = provenance.decode_recording(recording_text)
+    fields = _recording_fields(recording)
+    events = parse_events(recording, "recording")
+    pack = packs.load(Path(pack_root), pack_paths)
+    settings = {"model": fields["model"]} if fields["model"] else {}
+    app = app_for_pack(pack, fields["scene"], settings=settings, dt=fields["dt"], save="scoring replay")
+    try:
+        saved: list[dict] = []
+
+        def capture(class_name: str, trainee: str, record: dict) -> int:
+            saved.append(record)
+            return len(saved)
+
+        # the procedure saves through Records; here each save is caught instead of stored
+        app.insert_resource(Records(save_attempt=capture, list_attempts=lambda c, t: [], where="replay"))
+        check_events(app, events, "recording")
+        app.resource(PendingInput).extend(events)
+        for _ in range(fields["steps"]):
+            app.update(app.time.dt)
+    finally:
+        app.close()
+    if not saved:
+        raise UserError("the recording does not replay to a saved attempt (the replayed session never saved)")
+    return saved[-1]
+
+
+def _close(a: Any, b: Any, *, name: str) -> bool:
+    if isinstance(a, str) or isinstance(b, str) or a is None or b is None:
+        return a == b
+    a, b = float(a), float(b)
+    if name.endswith("_s") or name.startswith("step_times."):
+        return abs(a - b) <= TIME_TOLERANCE_S
+    if name == "dose_mgy":
+        return abs(a - b) <= 0.05 * max(abs(a), abs(b)) + 1e-9
+    return math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-6)
+
+
+def differences(claimed: dict, scored: dict) -> list[dict]:
+    """``[{"field", "simulator", "replay"}]`` where the simulator's figures are not the replay's."""
+    out = []
+    pairs = [(k, claimed.get(k), scored.get(k)) for k in COMPARED]
+    for k in sorted(set(claimed.get("step_times", {})) | set(scored.get("step_times", {}))):
+        pairs.append((f"step_times.{k}", claimed["step_times"].get(k), scored["step_times"].get(k)))
+    for k in sorted(set(claimed.get("metrics", {})) | set(scored.get("metrics", {}))):
+        pairs.append((f"metrics.{k}", claimed["metrics"].get(k), scored["metrics"].get(k)))
+    for k in sorted(set(claimed.get("aids", {})) | set(scored.get("aids", {}))):
+        pairs.append((f"aids.{k}", claimed["aids"].get(k), scored["aids"].get(k)))
+    for name, a, b in pairs:
+        if not _close(a, b, name=name):
+            out.append({"field": name, "simulator": a, "replay": b})
+    return out
+
+
+# -- the queue -----------------------------------------------------------------------------------
+
+
+def upload_for_key(store: RecordStore, key: str) -> dict | None:
+    rows = store.query("SELECT * FROM uploads WHERE idem_key = ?", (key,))
+    return dict(rows[0]) if rows else None
+
+
+def enqueue(store: RecordStore, filed_by: str, class_name: str, trainee: str, checked: dict, key, digest: str):
+    """Commit an upload to the queue; ``(row, created)`` - a known key returns its first row instead."""
+    now = clean_created_at(None)
+    with store.transaction() as conn:
+        if key is not None:
+            row = conn.execute("SELECT * FROM uploads WHERE idem_key = ?", (key,)).fetchone()
+            if row is not None:
+                return dict(row), False
+        claimed = checked["claimed"]
+        uid = conn.execute(
+            """
+            INSERT INTO uploads (idem_key, body_hash, filed_by, class_name, trainee, received_at, pack, pack_version,
+                pack_hash, claimed, recording, state)
+            VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'scoring')
+            """,
+            (
+                key,
+                digest,
+                filed_by,
+                class_name,
+                trainee,
+                now,
+                checked["identity"]["name"],
+                checked["identity"]["version"],
+                checked["identity"]["hash"],
+                to_json(claimed),
+                checked["recording"],
+            ),
+        ).lastrowid
+        row = conn.execute("SELECT * FROM uploads WHERE id = ?", (uid,)).fetchone()
+    return dict(row), True
+
+
+def upload_view(row: dict) -> dict:
+    """What ``GET /api/uploads/ID`` and the acknowledgement say about an upload."""
+    return {
+        "upload": row["id"],
+        "status": row["state"],
+        "attempt_id": row["attempt_id"],
+        "error": row["error"],
+        "received_at": row["received_at"],
+        "class_name": row["class_name"],
+        "trainee": row["trainee"],
+        "filed_by": row["filed_by"],
+        "pack": row["pack"],
+    }
+
+
+def get_upload(store: RecordStore, upload_id: int) -> dict | None:
+    rows = store.query("SELECT * FROM uploads WHERE id = ?", (upload_id,))
+    return dict(rows[0]) if rows else None
+
+
+def waiting_uploads(store: RecordStore, classes: list[str], trainee: str | None = None) -> list[dict]:
+    """Uploads of these classes not scored yet, and those refused: what the dashboard lists beside attempts."""
+    if not classes:
+        return []
+    marks = ", ".join("?" for _ in classes)
+    rows = store.query(
+        "SELECT id, class_name, trainee, received_at, pack, state, error, filed_by FROM uploads "
+        f"WHERE state != 'scored' AND class_name IN ({marks}) AND (? IS NULL OR trainee = ?) ORDER BY id",
+        (*classes, trainee, trainee),
+    )
+    return [dict(r) for r in rows]
+
+
+def _host() -> str:
+    return socket.gethostname()
+
+
+def _gone(claimed_by: str | None, mine: str) -> bool:
+    """True when a claim belongs to a process of this host that no longer runs (or to an earlier server
+    that had this process id: its claims carry another instance token than ``mine``)."""
+    if not claimed_by:
+        return True
+    host, pid, token = ([*claimed_by.split("|"), "", ""])[:3]
+    if host != _host() or not pid.isdigit():
+        return False
+    if int(pid) == os.getpid():
+        return not claimed_by.startswith(mine + "|")
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:  # alive, another user's
+        return False
+    return False
+
+
+def claim(store: RecordStore, worker: str, lease_s: float) -> dict | None:
+    """Take the oldest waiting upload for ``worker`` (``host|pid|instance|n``); None when there is none."""
+    mine = "|".join(worker.split("|")[:3])
+    now = time.time()
+    with store.transaction() as conn:
+        rows = conn.execute(
+            "SELECT id, claimed_by, claimed_at FROM uploads WHERE state = 'scoring' ORDER BY id LIMIT 50"
+        ).fetchall()
+        for r in rows:
+            free = r["claimed_by"] is None or (r["claimed_at"] or 0) < now - lease_s or _gone(r["claimed_by"], mine)
+            if not free:
+                continue
+            conn.execute(
+                "UPDATE uploads SET claimed_by = ?, claimed_at = ?, tries = tries + 1 WHERE id = ?",
+                (worker, now, r["id"]),
+            )
+            return dict(conn.execute("SELECT * FROM uploads WHERE id = ?", (r["id"],)).fetchone())
+    return None
+
+
+def finish(store: RecordStore, upload: dict, worker: str, scored: dict | None, error: str | None) -> int | None:
+    """Store the replay's attempt (or the refusal) and mark the upload, in one transaction, if still claimed.
+
+    Returns the new attempt's id (None when refused, or when the claim was lost to another worker)."""
+    now = clean_created_at(None)
+    with store.transaction() as conn:
+        row = conn.execute("SELECT state, claimed_by FROM uploads WHERE id = ?", (upload["id"],)).fetchone()
+        if row is None or row["state"] != "scoring" or row["claimed_by"] != worker:
+            return None  # another worker took it over and finishes it; never two attempts
+        if scored is None:
+            conn.execute(
+                "UPDATE uploads SET state = 'refused', error = ?, scored_at = ? WHERE id = ?",
+                (error[:500], now, upload["id"]),
+            )
+            return None
+        claimed = json.loads(upload["claimed"])
+        record = clean_attempt({**scored, "created_at": upload["received_at"]})
+        record["pack"] = upload["pack"]
+        diffs = differences(claimed, record)
+        aid = store.insert_attempt(
+            conn,
+            clean_name("class", upload["class_name"]),
+            clean_name("trainee", upload["trainee"]),
+            record,
+            key=upload["idem_key"],
+            provenance={
+                "filed_by": upload["filed_by"],
+                "client_created_at": claimed.get("created_at"),
+                "pack_version": upload["pack_version"],
+                "pack_hash": upload["pack_hash"],
+                "client_figures": claimed,
+                "differences": diffs,
+                "recording": upload["recording"],
+            },
+        )
+        if diffs:
+            store.audit(
+                conn,
+                "server",
+                "flag",
+                upload["class_name"],
+                "result differs from the simulator's: " + ", ".join(d["field"] for d in diffs),
+                aid,
+            )
+        conn.execute(
+            "UPDATE uploads SET state = 'scored', attempt_id = ?, scored_at = ?, recording = '' WHERE id = ?",
+            (aid, now, upload["id"]),
+        )
+        return aid
+
+
+class Scorer:
+    """The bounded pool that scores uploads (see module docstring); ``start`` it, ``wake`` it, ``stop`` it."""
+
+    def __init__(
+        self,
+        db: str | None,
+        packs: ServerPacks,
+        workers: int = DEFAULT_WORKERS,
+        lease_s: float = DEFAULT_LEASE_S,
+    ) -> None:
+        if not 1 <= workers <= 64:
+            raise UserError(f"--scorers must be from 1 to 64, got {workers}")
+        self.db = db
+        self.packs = packs
+        self.workers = workers
+        self.lease_s = lease_s
+        self._stop = threading.Event()
+        self._wake = threading.Condition()
+        self._threads: list[threading.Thread] = []
+        self._pool: ProcessPoolExecutor | None = None
+        self.prefix = f"{_host()}|{os.getpid()}|{uuid.uuid4().hex[:8]}"
+
+    def start(self) -> None:
+        # spawn: a fresh interpreter per replay process, never a fork of the server's threads
+        self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+        for i in range(self.workers):
+            t = threading.Thread(target=self._loop, args=(f"{self.prefix}|{i}",), name=f"scorer-{i}", daemon=True)
+            t.start()
+            self._threads.append(t)
+
+    def wake(self) -> None:
+        with self._wake:
+            self._wake.notify()
+
+    def stop(self) -> None:
+        self._stop.set()
+        with self._wake:
+            self._wake.notify_all()
+        for t in self._threads:
+            t.join(timeout=30)
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+
+    def _loop(self, worker: str) -> None:
+        store = None
+        while not self._stop.is_set():
+            try:
+                if store is None:
+                    store = RecordStore(self.db)
+                upload = claim(store, worker, self.lease_s)
+                if upload is None:
+                    with self._wake:
+                        self._wake.wait(POLL_S)
+                    continue
+                self._score(store, upload, worker)
+            except (UserError, *db_errors()) as exc:  # database gone or busy: reconnect and try again
+                logger.warning("scoring: %s", exc)
+                if store is not None:
+                    try:
+                        store.close()
+                    except Exception:  # the connection is already broken
+                        logger.debug("closing a failed scoring connection", exc_info=True)
+                store = None
+                self._stop.wait(POLL_S)
+        if store is not None:
+            store.close()
+
+    def _score(self, store: RecordStore, upload: dict, worker: str) -> None:
+        info = self.packs.info(upload["pack"])
+        scored, error = None, None
+        if info is None or info["identity"]["hash"] != upload["pack_hash"]:
+            error = f"pack {upload['pack']!r} is no longer on this server at the version the attempt ran on"
+        else:
+            try:
+                assert self._pool is not None
+                future = self._pool.submit(replay_record, upload["recording"], info["root"], self.packs.pack_paths)
+                scored = future.result()
+            except UserError as exc:
+                error = f"the recording does not replay: {exc}"
+            except BrokenProcessPool as exc:
+                if self._stop.is_set():
+                    return
+                self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+                if upload["tries"] < MAX_TRIES:
+                    logger.warning("scoring upload %s: the replay process failed (%s); trying again", upload["id"], exc)
+                    with store.transaction() as conn:  # free the claim for the next try
+                        conn.execute("UPDATE uploads SET claimed_by = NULL WHERE id = ?", (upload["id"],))
+                    return
+                error = "the replay failed on the server every time it was tried"
+            except Exception as exc:  # a replay that crashes is the recording's fault, said in one line
+                logger.warning("scoring upload %s failed", upload["id"], exc_info=True)
+                error = f"the recording does not replay: {type(exc).__name__}: {str(exc)[:200]}"
+        aid = finish(store, upload, worker, scored, error)
+        if aid is not None:
+            logger.info("upload %s scored: attempt %s", upload["id"], aid)
+        elif error:
+            logger.info("upload %s refused: %s", upload["id"], error)
