@@ -114,10 +114,13 @@ class ChainMailBody(Body):
             raise ValueError(f"element ids must be in 0..{n - 1}")
         d = self.rest.shape[1]
         targets = np.asarray(targets, dtype=np.float64).reshape(len(ids), d)
-        if len(self.held):
+        # What a tool already holds stays where it is. A drag holds only the element it moves, so the
+        # usual frame needs no mask of its own: the body's anchors, or none at all (the kernel then skips
+        # the anchor test), without an O(N) copy per frame.
+        others = self.held[~np.isin(self.held, ids)] if len(self.held) else self.held
+        if len(others):
             fixed = self.fixed.copy()
-            fixed[self.held] = True  # what a tool already holds stays where it is
-            fixed[ids] = self.fixed[ids]
+            fixed[others] = True
         else:
             fixed = self.fixed if self.fixed.any() else None
         order, sponsor = cascade(
@@ -136,7 +139,7 @@ class ChainMailBody(Body):
         )
         self.last_order, self.last_sponsor = order, sponsor
         t_cascade = time.perf_counter() - t0
-        if hold:
+        if hold and not (len(self.held) == len(ids) and np.array_equal(self.held, ids)):
             self.held = np.union1d(self.held, ids)
         changed = order
         if self.relax_iterations > 0 and len(order) > len(ids):

@@ -35,9 +35,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from . import rigid, waves
+from . import waves
 from .boxes import start_cascade, try_move, violation
 from .graph import Graph
+from .prefetch import prefetch
 
 ORDER_BREADTH_FIRST = 0
 ORDER_FIFO = ORDER_BREADTH_FIRST  # the older name of the same order
@@ -106,9 +107,9 @@ class Workspace:
 
     stamp[i] == gen means element i has moved in the current cascade; bumping `gen` clears every flag
     at once. The output buffers are N long; the waiting-list buffers of the balanced and Schill orders
-    are grown on demand (to the CSR size plus K) and then kept. The breadth-first order needs no queue.
-    A cascade replayed along the stored tree of a material with no freedom (kernels.rigid) leaves the
-    stamps of what it moved unset: nothing reads them after the cascade.
+    are grown on demand (to the CSR size plus K) and then kept. The breadth-first order needs no queue;
+    it walks a copy of the graph's CSR arrays in int32 (`csr32`, made once per graph when the sizes fit):
+    half the bytes of the neighbour lists it streams, which on large meshes is much of its time.
     """
 
     def __init__(self, n: int):
@@ -127,7 +128,7 @@ class Workspace:
         self.q_key = np.empty(0, dtype=np.float64)  # violation (Schill)
         self.branch_head = np.empty(0, dtype=np.int64)
         self.branch_tail = np.empty(0, dtype=np.int64)
-        self.rigid = None  # the breadth-first tree a material with no freedom replays (kernels.rigid)
+        self.csr32 = None  # (graph, indptr, indices) in int32 for the breadth-first order
         # The mesh arrays last checked with this workspace, held (not just their ids) so an identity
         # match means the very same arrays: interactive dragging re-checks only pos, grabbed, targets.
         self.checked: tuple = ()
@@ -157,6 +158,16 @@ class Workspace:
         if order == ORDER_SCHILL and cap > self.q_key.shape[0]:
             self.q_key = np.empty(cap, dtype=np.float64)
 
+    def narrow_csr(self, graph: Graph, kargs: tuple) -> tuple:
+        """kargs with the CSR arrays in int32 when they fit (kept per graph: a Graph's neighbour lists
+        never change, cuts only flip alive flags; added links make a new Graph)."""
+        c = self.csr32
+        if c is None or c[0] is not graph:
+            if graph.indices.shape[0] >= 2**31 - 1:
+                return kargs
+            c = self.csr32 = (graph, graph.indptr.astype(np.int32), graph.indices.astype(np.int32))
+        return (c[1], c[2], *kargs[2:])
+
     def next_generation(self) -> int:
         self.gen += 1
         if self.gen >= _GEN_LIMIT:  # practically never; keeps stamps unambiguous
@@ -172,6 +183,26 @@ def make_workspace(n: int) -> Workspace:
 
 # ----------------------------------------------------------------------------------------------------
 # kernels (the valid region and the move into it: kernels.boxes)
+
+
+#: how many queued sponsors ahead the breadth-first loop asks for rows: far enough that a load from
+#: memory has landed when the sponsor is served (about a microsecond of work), near enough that the rows
+#: are still cached then; the CSR row start is asked for twice as far ahead, so that the neighbour list
+#: itself can be asked for at the nearer distance
+_AHEAD = 12
+
+
+@njit(cache=True, inline="always")
+def _box_lo_hi(b, d, a, o, am, ax, be):
+    """The interval of 5.2.2 on one axis around sponsor coordinate b (mirrored for d < 0), as selects
+    rather than branches: d's sign follows no pattern a branch predictor could learn. b - x is b + (-x)
+    exactly, so this is bit for bit the branching form of kernels.boxes."""
+    w_lo = am * a - be * o
+    w_hi = ax * a + be * o
+    pos_side = d >= 0.0
+    lo = b + (w_lo if pos_side else -w_hi)
+    hi = b + (w_hi if pos_side else -w_lo)
+    return lo, hi
 
 
 @njit(cache=True)
@@ -203,7 +234,7 @@ def _cascade_fifo(
         return count
     return _fifo_loop(
         rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen, out_order,
-        out_sponsor, count, 0, -1,
+        out_sponsor, count,
     )  # fmt: skip
 
 
@@ -225,19 +256,31 @@ def _fifo_loop(
     out_order,
     out_sponsor,
     count,
-    head,
-    j0,
 ):
-    """The breadth-first cascade from a given state: out_order[:count] moved (and stamped), the sponsor at
-    out_order[head] served next from its CSR entry j0 (-1: from its first). Returns the final count."""
+    """The breadth-first cascade from the grabbed elements out_order[:count] (moved and stamped).
+    Returns the final count."""
+    n = pos.shape[0]
     dim = pos.shape[1]
+    head = 0
     while head < count:
+        # Once every element has moved no check can move another: the sponsors still queued (the
+        # last wave, when a drag carries the whole body) have nothing left to do. Only without
+        # anchors, where the count of movable elements is n without counting anything.
+        if count == n and not has_fixed:
+            break
+        # The rows of the sponsors served next, asked for ahead (kernels.prefetch): on a mesh larger
+        # than the caches, waiting for them is most of a cascade's time.
+        if head + 2 * _AHEAD < count:
+            s2 = out_order[head + 2 * _AHEAD]
+            prefetch(indptr, s2)
+            prefetch(pos, s2)
+            prefetch(rest, s2)
+        if head + _AHEAD < count:
+            s1 = out_order[head + _AHEAD]
+            prefetch(indices, indptr[s1])
+            prefetch(indices, indptr[s1 + 1] - 1)
         s = out_order[head]
         head += 1
-        j_first = indptr[s]
-        if j0 >= 0:  # resuming a sponsor part-way through its neighbours
-            j_first = j0
-            j0 = -1
         if dim == 3:
             # the sponsor's rows loaded once per sponsor; the same arithmetic as try_move otherwise
             r0 = np.float64(rest[s, 0])
@@ -246,7 +289,7 @@ def _fifo_loop(
             b0 = np.float64(pos[s, 0])
             b1 = np.float64(pos[s, 1])
             b2 = np.float64(pos[s, 2])
-            for j in range(j_first, indptr[s + 1]):
+            for j in range(indptr[s], indptr[s + 1]):
                 e = indices[j]
                 if stamp[e] == gen or not ealive[j] or (has_fixed and fixed[e]):
                     continue
@@ -259,48 +302,30 @@ def _fifo_loop(
                 a0 = abs(d0)
                 a1 = abs(d1)
                 a2 = abs(d2)
-                # clamp_axis for the three axes, written out (numba inlines it poorly here)
-                moved = False
-                if d0 >= 0.0:
-                    lo = b0 + (am * a0 - be * (a1 + a2))
-                    hi = b0 + (ax * a0 + be * (a1 + a2))
-                else:
-                    lo = b0 - (ax * a0 + be * (a1 + a2))
-                    hi = b0 - (am * a0 - be * (a1 + a2))
-                x = np.float64(pos[e, 0])
-                if x < lo or x > hi:
-                    old = pos[e, 0]
-                    pos[e, 0] = lo if x < lo else hi
-                    moved = pos[e, 0] != old
-                if d1 >= 0.0:
-                    lo = b1 + (am * a1 - be * (a0 + a2))
-                    hi = b1 + (ax * a1 + be * (a0 + a2))
-                else:
-                    lo = b1 - (ax * a1 + be * (a0 + a2))
-                    hi = b1 - (am * a1 - be * (a0 + a2))
-                x = np.float64(pos[e, 1])
-                if x < lo or x > hi:
-                    old = pos[e, 1]
-                    pos[e, 1] = lo if x < lo else hi
-                    moved = moved or pos[e, 1] != old
-                if d2 >= 0.0:
-                    lo = b2 + (am * a2 - be * (a0 + a1))
-                    hi = b2 + (ax * a2 + be * (a0 + a1))
-                else:
-                    lo = b2 - (ax * a2 + be * (a0 + a1))
-                    hi = b2 - (am * a2 - be * (a0 + a1))
-                x = np.float64(pos[e, 2])
-                if x < lo or x > hi:
-                    old = pos[e, 2]
-                    pos[e, 2] = lo if x < lo else hi
-                    moved = moved or pos[e, 2] != old
-                if moved:
+                # the clamps of kernels.boxes for the three axes, as selects (no branch on the data)
+                x0 = pos[e, 0]
+                x1 = pos[e, 1]
+                x2 = pos[e, 2]
+                lo, hi = _box_lo_hi(b0, d0, a0, a1 + a2, am, ax, be)
+                f = np.float64(x0)
+                c0 = pos.dtype.type(lo if f < lo else (hi if f > hi else f))
+                lo, hi = _box_lo_hi(b1, d1, a1, a0 + a2, am, ax, be)
+                f = np.float64(x1)
+                c1 = pos.dtype.type(lo if f < lo else (hi if f > hi else f))
+                lo, hi = _box_lo_hi(b2, d2, a2, a0 + a1, am, ax, be)
+                f = np.float64(x2)
+                c2 = pos.dtype.type(lo if f < lo else (hi if f > hi else f))
+                # a move that rounds back to the stored value (float32) is no move
+                if (c0 != x0) | (c1 != x1) | (c2 != x2):
+                    pos[e, 0] = c0
+                    pos[e, 1] = c1
+                    pos[e, 2] = c2
                     stamp[e] = gen
                     out_order[count] = e
                     out_sponsor[count] = s
                     count += 1
             continue
-        for j in range(j_first, indptr[s + 1]):
+        for j in range(indptr[s], indptr[s + 1]):
             e = indices[j]
             if stamp[e] == gen or not ealive[j] or (has_fixed and fixed[e]):
                 continue
@@ -579,37 +604,6 @@ def _cascade_schill(
 # Python entry point
 
 
-def _rigid_cascade(rest, pos, graph, kargs, grabbed, targets, fixed_arr, has_fixed, ws, gen, alpha):
-    """The breadth-first cascade through a material with no freedom, replayed along the workspace's stored
-    tree (kernels.rigid); None when there is no tree for this move yet (the caller cascades as usual)."""
-    tree = ws.rigid
-    if tree is None:
-        tree = ws.rigid = rigid.RigidTree()
-    if not tree.holds_for(graph, grabbed):
-        if not tree.want(graph, grabbed):
-            return None
-        n = pos.shape[0]
-        if grabbed.min() < 0 or grabbed.max() >= n or np.unique(grabbed).shape[0] != grabbed.shape[0]:
-            return None  # the cascade reports the bad ids
-        tree.build(graph, grabbed, fixed_arr, has_fixed, ws.stamp, gen)
-        gen = ws.next_generation()
-    status, count, head, j0 = rigid.replay(
-        rest, pos, grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen, ws.out_order, ws.out_sponsor, alpha,
-        tree.order, tree.spos, tree.entry, tree.count, tree.start, tree.grabbed, tree.fixed, tree.has_fixed,
-    )  # fmt: skip
-    if status == rigid.REPLAY_STALE:
-        tree.graph = None
-        return None
-    if status == rigid.REPLAY_DIVERGED:
-        # the real cascade leaves the stored search here: it goes on from the state the replay reached
-        count = _fifo_loop(
-            rest, pos, *kargs, fixed_arr, has_fixed, ws.stamp, gen, ws.out_order, ws.out_sponsor, count, head, j0
-        )
-    elif status < 0:
-        count = status
-    return count
-
-
 _START_ERRORS = {
     -1: "grabbed ids must be element ids in [0, N)",
     -2: "grabbed ids must be distinct",
@@ -749,15 +743,13 @@ def cascade(
     gen = ws.next_generation()
     args = (rest, pos, *kargs, grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen)
     if order == ORDER_BREADTH_FIRST:
-        count = None
         if parallel:
             count = waves.cascade_waves(*args, ws)
-        elif workspace is not None and n >= rigid.MIN_ELEMENTS:
-            alpha = rigid.rigid_material(graph)
-            if alpha is not None:
-                count = _rigid_cascade(rest, pos, graph, kargs, grabbed, targets, fixed_arr, has_fixed, ws, gen, alpha)
-        if count is None:
-            count = _cascade_fifo(*args, ws.out_order, ws.out_sponsor)
+        else:
+            count = _cascade_fifo(
+                rest, pos, *ws.narrow_csr(graph, kargs), grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen,
+                ws.out_order, ws.out_sponsor,
+            )  # fmt: skip
     elif order == ORDER_DEPTH_FIRST:
         count = _cascade_depth_first(*args, ws.q_entry, ws.q_sponsor, ws.out_order, ws.out_sponsor)
     elif order == ORDER_BALANCED:

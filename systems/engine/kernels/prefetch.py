@@ -1,0 +1,39 @@
+"""A software prefetch for numba kernels: ask the CPU to start loading a row of an array that a kernel
+will read soon, without waiting for it.
+
+The breadth-first cascade (kernels.chainmail) knows which elements it will serve next (they wait in its
+queue) long before it reads their rows; on meshes larger than the caches those reads are the cost of the
+cascade, so it asks for them a few sponsors ahead. A prefetch changes no value and never faults (an
+address past the end is only a hint), so it changes no result.
+"""
+
+from __future__ import annotations
+
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+
+@intrinsic
+def prefetch(typingctx, arr, row):
+    """Start loading arr[row] (arr[row, 0] for a 2-D array) into the caches, for reading."""
+    if not isinstance(arr, types.Array) or not isinstance(row, types.Integer):
+        return None
+    sig = types.void(arr, row)
+
+    def codegen(context, builder, signature, args):
+        aryty, rowty = signature.args
+        ary = context.make_array(aryty)(context, builder, args[0])
+        i = context.cast(builder, args[1], rowty, types.intp)
+        idx = [i] + [ir.Constant(i.type, 0)] * (aryty.ndim - 1)
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, idx, wraparound=False, boundscheck=False)
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fnty = ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32])
+        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0")
+        # read (0), keep in all cache levels (3), data cache (1)
+        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
