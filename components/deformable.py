@@ -138,7 +138,14 @@ class Deformable:
     nu: float = prop("float", 0.45, help="xpbd/projective: Poisson's ratio, 0 <= nu < 0.5.", min=0.0, max=0.4999)
     density: float = prop("float", 1000.0, units="kg/m^3", help="xpbd/projective: mass density.", min=1e-6, max=1e6)
     damping: float = prop("float", 0.05, help="xpbd/projective: velocity damping per step, 0..0.99.", min=0.0, max=0.99)
-    substeps: int = prop("int", 8, help="xpbd: substeps per simulation step.", min=1, max=1000)
+    substeps: int = prop(
+        "int",
+        0,
+        help="xpbd: substeps per simulation step (0: as many as the element size and stiffness need, "
+        "docs/choosing-a-model.md).",
+        min=0,
+        max=1000,
+    )
     iterations: int = prop(
         "int",
         0,
@@ -381,7 +388,7 @@ def use_model(d: Deformable, model: str, where: str = "deformable", initial: boo
             "thickness": d.thickness,
         }
         if model == "xpbd":
-            settings.update(substeps=d.substeps, iterations=d.iterations or 1)
+            settings.update(substeps=d.substeps or "auto", iterations=d.iterations or 1)
         else:
             settings.update(
                 iterations=d.iterations or 10,

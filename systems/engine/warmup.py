@@ -31,8 +31,9 @@ def _chainmail(rest, links, surface_tris):
 
 def _models(rest, tets, tris):
     for make in (
-        lambda: XPBDBody(rest, tets, fixed=[0]),
-        lambda: XPBDBody(rest, tets, nu=0.0, E=1e6, fixed=[0]),  # the Green-strain constraints
+        lambda: XPBDBody(rest, tets, fixed=[0]),  # corotational, the default
+        lambda: XPBDBody(rest, tets, constraints="neohookean", fixed=[0]),
+        lambda: XPBDBody(rest, tets, constraints="stvk", fixed=[0]),
         lambda: XPBDBody(rest[: tris.max() + 1], triangles=tris, fixed=[0]),
         lambda: ProjectiveBody(rest, tets, fixed=[0]),
         lambda: ProjectiveBody(rest[: tris.max() + 1], triangles=tris, fixed=[0]),

@@ -8,7 +8,9 @@ E in Pa, density in kg/m^3. The solve runs in SI so E and density mean what they
 
 from __future__ import annotations
 
+import math
 import time
+import warnings
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -18,12 +20,26 @@ from chainsim.engine.bodies.base import Body, StepStats, check_elastic
 from chainsim.engine.errors import UserError
 from chainsim.engine.kernels.graph import build_graph
 from chainsim.engine.kernels.topology import cut_segment
-from chainsim.engine.kernels.xpbd import distance_sweep, stvk_sweep, tet_energy, tet_forces, tet_sweep
+from chainsim.engine.kernels.xpbd import (
+    corot_energy,
+    corot_forces,
+    corot_sweep,
+    distance_sweep,
+    stvk_sweep,
+    tet_energy,
+    tet_forces,
+    tet_sweep,
+)
 
-CONSTRAINTS = ("auto", "neohookean", "stvk")
+CONSTRAINTS = ("auto", "corotational", "neohookean", "stvk")
 
 MAX_SUBSTEPS = 1000
 MAX_ITERATIONS = 1000
+#: the substep rule: a shear wave may cross at most this fraction of the shortest edge per substep. Past
+#: it the constraints act as nearly hard projections whose Gauss-Seidel fixed point is not the energy's
+#: minimum: bodies come out too soft or too stiff and, pushed hard, elements invert (measured on 1 mm
+#: tetrahedra at 10-100 kPa, docs/choosing-a-model.md). Below it XPBD approaches the implicit solution.
+COURANT = 0.5
 
 
 def tet_rest_data(rest_si: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -65,7 +81,7 @@ class XPBDBody(Body):
         nu: float = 0.45,
         density: float = 1000.0,
         damping: float = 0.05,
-        substeps: int = 8,
+        substeps: int | str = "auto",
         iterations: int = 1,
         thickness: float = 1.0,
         bending: float = 0.01,
@@ -78,24 +94,31 @@ class XPBDBody(Body):
         self.mu, self.lam = check_elastic(E, nu, density)
         if not (0.0 <= damping < 1.0):
             raise UserError(f"damping: must be in [0, 1), got {damping}")
-        if not (1 <= int(substeps) <= MAX_SUBSTEPS):
-            raise UserError(f"substeps: must be in 1..{MAX_SUBSTEPS}, got {substeps}")
+        if substeps != "auto" and not (
+            isinstance(substeps, int | np.integer) and not isinstance(substeps, bool) and 1 <= substeps <= MAX_SUBSTEPS
+        ):
+            raise UserError(f"substeps: expected 'auto' or a whole number in 1..{MAX_SUBSTEPS}, got {substeps!r}")
         if not (1 <= int(iterations) <= MAX_ITERATIONS):
             raise UserError(f"iterations: must be in 1..{MAX_ITERATIONS}, got {iterations}")
         if not (unit > 0.0 and np.isfinite(unit)):
             raise UserError(f"unit: metres per length unit must be > 0, got {unit}")
         self.E, self.nu, self.density = float(E), float(nu), float(density)
-        self.damping, self.substeps, self.iterations = float(damping), int(substeps), int(iterations)
+        self.damping, self.iterations = float(damping), int(iterations)
+        self.substeps_setting = substeps if substeps == "auto" else int(substeps)
+        self.substeps = 1 if substeps == "auto" else int(substeps)  # the count the last step used
+        self._substeps_for: dict[float, int] = {}
+        self.notice = ""
         self.unit = float(unit)
         self.gravity = np.asarray(gravity, dtype=np.float64)
         if constraints not in CONSTRAINTS:
             raise UserError(f"constraints: expected one of {', '.join(CONSTRAINTS)}, got {constraints!r}")
-        # The stable Neo-Hookean constraints balance a deviatoric pull (|F|, not zero at rest) against a
-        # hydrostatic push; with lambda (not lambda + mu, below) as the push's weight and lambda small
-        # against mu (nu below 1/6) the pull won within a substep and stiff bodies blew up. With the
-        # weight lambda + mu they hold at the extremes, but "auto" keeps the Green-strain (StVK) set there.
+        # "auto" is the corotational pair (|F - R| and det F - 1): both zero at rest, so a body left alone
+        # stays put at any stiffness, size and step. The stable Neo-Hookean pair (|F| and det F - gamma)
+        # balances two nonzero constraints at rest and, once its compliance is small against an
+        # element's inverse mass (millimetre elements, tens of kPa), drifts and collapses; it stays
+        # available by name, as does the Green-strain (StVK) set.
         if constraints == "auto":
-            constraints = "neohookean" if self.lam >= 0.5 * self.mu else "stvk"
+            constraints = "corotational"
         self.constraints = constraints
         # Smith, de Goes and Kim's reparameterisation (stable Neo-Hookean, their 3.4): the energy
         # mu/2 |F|^2 + l/2 (J - 1 - mu/l)^2 linearises to linear elasticity with Lame lambda = l - mu,
@@ -111,6 +134,8 @@ class XPBDBody(Body):
             self.dm_inv, self.vol = tet_rest_data(rest_si, self.tets)
             links = meshgen.links_from_cells(self.tets)
             self.tet_active = np.ones(len(self.tets), dtype=np.bool_)
+            self.quats = np.zeros((len(self.tets), 4))
+            self.quats[:, 0] = 1.0
             tri, area = None, None
         else:
             if triangles is None or len(triangles) == 0:
@@ -130,6 +155,11 @@ class XPBDBody(Body):
         )
         self.pair_active = np.ones(len(self.pairs), dtype=np.bool_)
         self.mass = lumped_mass(self.n, self.tets, self.vol, tri, area, self.density)
+        # the fastest wave the substep rule must resolve: shear in a volume, stretch in a sheet
+        self.wave_speed = math.sqrt((self.mu if self.tets is not None else self.E) / self.density)
+        lk = self.graph.links
+        edge = np.linalg.norm(rest_si[lk[:, 0]] - rest_si[lk[:, 1]], axis=1) if len(lk) else np.ones(1)
+        self.min_edge = float(max(edge.min(), 1e-300))
         self.x = rest_si.copy()
         self.v = np.zeros_like(self.x)
 
@@ -182,8 +212,38 @@ class XPBDBody(Body):
     def _grab_changed(self) -> None:
         self._w = None  # the inverse masses change with the held set
 
+    def substeps_needed(self, dt: float) -> int:
+        """Substeps the rule asks for at frame step dt: a shear (surfaces: stretch) wave crosses at most
+        COURANT of the shortest edge per substep."""
+        return max(1, math.ceil(dt * self.wave_speed / (COURANT * self.min_edge) - 1e-9))
+
+    def _resolve_substeps(self, dt: float) -> int:
+        n = self._substeps_for.get(dt)
+        if n is not None:
+            return n
+        need = self.substeps_needed(dt)
+        what = (
+            f"xpbd: {self.min_edge * 1e3:.3g} mm elements at E = {self.E:g} Pa need {need} substeps per "
+            f"{dt * 1e3:.3g} ms step (a wave crosses {COURANT} of an element per substep)"
+        )
+        if self.substeps_setting == "auto":
+            if need > MAX_SUBSTEPS:
+                raise UserError(
+                    f"{what}, more than the {MAX_SUBSTEPS} allowed: use projective, coarser elements or a shorter step"
+                )
+            n = need
+        else:
+            n = int(self.substeps_setting)
+            if n < need:
+                # honoured (a researcher may measure exactly this), but never silently
+                self.notice = f"{what}; {n} given, so the body may come out too soft or invert under a hard pull"
+                warnings.warn(self.notice, stacklevel=3)
+        self._substeps_for[dt] = n
+        return n
+
     def _solve(self, dt: float) -> StepStats:
         t0 = time.perf_counter()
+        self.substeps = self._resolve_substeps(dt)
         h = dt / self.substeps
         h2 = h * h
         if getattr(self, "_w", None) is None or not np.array_equal(self._fixed_seen, self.fixed):
@@ -211,7 +271,23 @@ class XPBDBody(Body):
             lam_h[:] = 0.0
             lam_p[:] = 0.0
             for _ in range(self.iterations):
-                if self.tets is not None and self.constraints == "stvk":
+                if self.tets is not None and self.constraints == "corotational":
+                    worst = corot_sweep(
+                        self.x,
+                        w,
+                        self.tets,
+                        self.dm_inv,
+                        self.vol,
+                        self.tet_active,
+                        self.mu,
+                        self.lam,
+                        h2,
+                        self.quats,
+                        2,
+                        lam_d,
+                        lam_h,
+                    )
+                elif self.tets is not None and self.constraints == "stvk":
                     worst = stvk_sweep(
                         self.x, w, self.tets, self.dm_inv, self.vol, self.tet_active, self.mu, self.lam, h2
                     )
@@ -262,13 +338,20 @@ class XPBDBody(Body):
         super().reset()
         self.x[:] = self.rest * self.unit
         self.v[:] = 0.0
+        if self.tets is not None:
+            self.quats[:] = 0.0
+            self.quats[:, 0] = 1.0
 
     def elastic_forces(self) -> np.ndarray:
         """Elastic forces (N, 3) in newtons on every element in the current state: minus the gradient of
         the constraint energy (Neo-Hookean or StVK tetrahedra; stretch and bending springs on surfaces).
         At rest they vanish; at small strain they are linear FEM's -K u for the same (E, nu)."""
         f = np.zeros_like(self.x)
-        if self.tets is not None:
+        if self.tets is not None and self.constraints == "corotational":
+            corot_forces(
+                self.x, self.tets, self.dm_inv, self.vol, self.tet_active, self.mu, self.lam, self.quats.copy(), f
+            )
+        elif self.tets is not None:
             stvk = self.constraints == "stvk"
             lam = self.lam if stvk else self.lam_eff
             tet_forces(self.x, self.tets, self.dm_inv, self.vol, self.tet_active, self.mu, lam, self.gamma, stvk, f)
@@ -286,7 +369,10 @@ class XPBDBody(Body):
         """Kinetic and elastic energy (J) of the current state: a check that nothing blows up."""
         kin = 0.5 * float(np.sum(self.mass[:, None] * self.v**2))
         el = 0.0
-        if self.tets is not None:
+        if self.tets is not None and self.constraints == "corotational":
+            q = self.quats.copy()
+            el = float(corot_energy(self.x, self.tets, self.dm_inv, self.vol, self.tet_active, self.mu, self.lam, q))
+        elif self.tets is not None:
             el = float(
                 tet_energy(self.x, self.tets, self.dm_inv, self.vol, self.tet_active, self.mu, self.lam_eff, self.gamma)
             )

@@ -1,12 +1,15 @@
-"""XPBD constraint kernels (numba): stable Neo-Hookean tetrahedra and distance constraints.
+"""XPBD constraint kernels (numba): corotational, stable Neo-Hookean and Green-strain tetrahedra, and
+distance constraints.
 
-Tetrahedra follow Macklin and Mueller's constraint form of stable Neo-Hookean elasticity: a
-deviatoric constraint C_D = |F|_F with compliance 1/(mu V) and a hydrostatic one C_H = det F - gamma,
-gamma = 1 + mu/l, with compliance 1/(l V), where the caller passes l = lambda + mu (Smith et al.'s
-reparameterisation, so small strains meet linear elasticity with Lame lambda); each is projected with the XPBD update
-dlambda = (-C - a~ lambda) / (sum w |grad C|^2 + a~), a~ = compliance / h^2. Distance constraints
-(surface stretch and bending) use C = |xi - xj| - L. One Gauss-Seidel sweep per call, in element
-order, so results do not depend on the thread count.
+The default tetrahedron is corotational: C_D = |F - R|_F (R the rotation of F) with compliance
+1/(2 mu V) and C_H = det F - 1 with compliance 1/(lambda V); both vanish at rest, so a body at rest
+stays there at any stiffness, element size and step. Macklin and Mueller's stable Neo-Hookean pair
+(C_D = |F|_F, compliance 1/(mu V); C_H = det F - gamma, gamma = 1 + mu/l, compliance 1/(l V), the
+caller passing l = lambda + mu after Smith et al.) is kept by name: it balances two constraints that
+are not zero at rest, which holds only while the solve converges. Each constraint is projected with
+the XPBD update dlambda = (-C - a~ lambda) / (sum w |grad C|^2 + a~), a~ = compliance / h^2. Distance
+constraints (surface stretch and bending) use C = |xi - xj| - L. One Gauss-Seidel sweep per call, in
+element order, so results do not depend on the thread count.
 """
 
 from __future__ import annotations
@@ -269,3 +272,168 @@ def tet_forces(x, tets, dm_inv, vol, active, mu, lam, gamma, stvk, out):
             out[i, 0] -= vol[t] * g[k, 0]
             out[i, 1] -= vol[t] * g[k, 1]
             out[i, 2] -= vol[t] * g[k, 2]
+
+
+@njit(cache=True)
+def polar_rotation(F, q, iterations, R):
+    """The rotation of F's polar decomposition into R, refining the unit quaternion q (w, x, y, z) in
+    place by Mueller et al.'s fixed-point update (2016): warm-started from the last substep, one or two
+    updates track a tetrahedron's rotation. The result is always a proper rotation, also for an
+    inverted F, so the constraint below pulls an inverted element back out."""
+    for _ in range(iterations):
+        _quat_matrix(q, R)
+        ox = oy = oz = 0.0
+        dot = 0.0
+        for i in range(3):
+            rx, ry, rz = R[0, i], R[1, i], R[2, i]
+            ax, ay, az = F[0, i], F[1, i], F[2, i]
+            ox += ry * az - rz * ay
+            oy += rz * ax - rx * az
+            oz += rx * ay - ry * ax
+            dot += rx * ax + ry * ay + rz * az
+        s = 1.0 / (abs(dot) + 1e-12)
+        ox *= s
+        oy *= s
+        oz *= s
+        angle = np.sqrt(ox * ox + oy * oy + oz * oz)
+        if angle < 1e-14:
+            break
+        sn = np.sin(0.5 * angle) / angle
+        cs = np.cos(0.5 * angle)
+        dw, dx, dy, dz = cs, ox * sn, oy * sn, oz * sn
+        w0, x0, y0, z0 = q[0], q[1], q[2], q[3]
+        q[0] = dw * w0 - dx * x0 - dy * y0 - dz * z0
+        q[1] = dw * x0 + dx * w0 + dy * z0 - dz * y0
+        q[2] = dw * y0 - dx * z0 + dy * w0 + dz * x0
+        q[3] = dw * z0 + dx * y0 - dy * x0 + dz * w0
+        nq = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+        for k in range(4):
+            q[k] /= nq
+    _quat_matrix(q, R)
+
+
+@njit(cache=True)
+def _quat_matrix(q, R):
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    R[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    R[0, 1] = 2.0 * (x * y - w * z)
+    R[0, 2] = 2.0 * (x * z + w * y)
+    R[1, 0] = 2.0 * (x * y + w * z)
+    R[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    R[1, 2] = 2.0 * (y * z - w * x)
+    R[2, 0] = 2.0 * (x * z - w * y)
+    R[2, 1] = 2.0 * (y * z + w * x)
+    R[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+
+
+@njit(cache=True)
+def corot_sweep(x, w, tets, dm_inv, vol, active, mu, lam, h2, quats, rot_iterations, lam_d, lam_h):
+    """One sweep of corotational tetrahedra (in place): a deviatoric constraint C_D = |F - R|_F with
+    compliance 1/(2 mu V) and a volume constraint C_H = det F - 1 with compliance 1/(lam V), R the
+    rotation of F. The energy V (mu |F - R|^2 + lam/2 (det F - 1)^2) is linear elasticity at small
+    strain with the true Lame parameters, and both constraints are zero at rest, so a body left alone
+    stays where it is whatever its stiffness, size and time step; the rest-biased Neo-Hookean pair
+    above drifts and collapses once its compliance is small against the element's inverse mass.
+
+    quats (T, 4) are the tets' rotations, warm-started across calls; lam_d / lam_h (T,) the
+    multipliers of this substep. Returns max |det F - 1|.
+    """
+    g = np.zeros((4, 3))
+    ids = np.zeros(4, dtype=np.int64)
+    F = np.zeros((3, 3))
+    P = np.zeros((3, 3))
+    R = np.zeros((3, 3))
+    worst = 0.0
+    for t in range(tets.shape[0]):
+        if not active[t]:
+            continue
+        for k in range(4):
+            ids[k] = tets[t, k]
+        a, b, c, d = ids[0], ids[1], ids[2], ids[3]
+        if w[a] + w[b] + w[c] + w[d] == 0.0:
+            continue
+        _deformation(x, tets, dm_inv, t, F)
+        polar_rotation(F, quats[t], rot_iterations, R)
+        # -- deviatoric: C = |F - R|, dC/dF = (F - R) / C (R's own change drops out: it is the closest
+        # rotation, so |F - R|^2 is stationary in R)
+        c2 = 0.0
+        for r in range(3):
+            for col in range(3):
+                P[r, col] = F[r, col] - R[r, col]
+                c2 += P[r, col] * P[r, col]
+        C = np.sqrt(c2)
+        kd = 2.0 * mu * vol[t] * h2
+        if C > 1e-14 and kd > 0.0:
+            inv = 1.0 / C
+            for r in range(3):
+                for col in range(3):
+                    P[r, col] *= inv
+            _grads(P, dm_inv[t], g)
+            den = w[a] * _sq(g, 0) + w[b] * _sq(g, 1) + w[c] * _sq(g, 2) + w[d] * _sq(g, 3)
+            alpha = 1.0 / kd
+            dl = (-C - alpha * lam_d[t]) / (den + alpha)
+            lam_d[t] += dl
+            _apply(x, w, ids, g, dl)
+            _deformation(x, tets, dm_inv, t, F)
+        # -- volume: C = det F - 1, dC/dF = cofactor(F)
+        _cofactor(F, P)
+        J = F[0, 0] * P[0, 0] + F[1, 0] * P[1, 0] + F[2, 0] * P[2, 0]
+        kv = lam * vol[t] * h2
+        if kv > 0.0:
+            _grads(P, dm_inv[t], g)
+            den = w[a] * _sq(g, 0) + w[b] * _sq(g, 1) + w[c] * _sq(g, 2) + w[d] * _sq(g, 3)
+            alpha = 1.0 / kv
+            dl = (-(J - 1.0) - alpha * lam_h[t]) / (den + alpha)
+            lam_h[t] += dl
+            _apply(x, w, ids, g, dl)
+        if abs(J - 1.0) > worst:
+            worst = abs(J - 1.0)
+    return worst
+
+
+@njit(cache=True)
+def corot_forces(x, tets, dm_inv, vol, active, mu, lam, quats, out):
+    """Elastic forces -dPsi/dx of the corotational energy V (mu |F - R|^2 + lam/2 (J - 1)^2), added into
+    out (N, 3): first Piola stress P = 2 mu (F - R) + lam (J - 1) cof F. quats are refined in place
+    (pass a copy to leave a body's warm start alone)."""
+    g = np.zeros((4, 3))
+    F = np.zeros((3, 3))
+    P = np.zeros((3, 3))
+    C = np.zeros((3, 3))
+    R = np.zeros((3, 3))
+    for t in range(tets.shape[0]):
+        if not active[t]:
+            continue
+        _deformation(x, tets, dm_inv, t, F)
+        polar_rotation(F, quats[t], 40, R)
+        _cofactor(F, C)
+        J = F[0, 0] * C[0, 0] + F[1, 0] * C[1, 0] + F[2, 0] * C[2, 0]
+        for r in range(3):
+            for c in range(3):
+                P[r, c] = 2.0 * mu * (F[r, c] - R[r, c]) + lam * (J - 1.0) * C[r, c]
+        _grads(P, dm_inv[t], g)
+        for k in range(4):
+            i = tets[t, k]
+            out[i, 0] -= vol[t] * g[k, 0]
+            out[i, 1] -= vol[t] * g[k, 1]
+            out[i, 2] -= vol[t] * g[k, 2]
+
+
+@njit(cache=True)
+def corot_energy(x, tets, dm_inv, vol, active, mu, lam, quats):
+    """The corotational energy sum V (mu |F - R|^2 + lam/2 (J - 1)^2) (quats refined in place)."""
+    F = np.zeros((3, 3))
+    R = np.zeros((3, 3))
+    e = 0.0
+    for t in range(tets.shape[0]):
+        if not active[t]:
+            continue
+        _deformation(x, tets, dm_inv, t, F)
+        polar_rotation(F, quats[t], 40, R)
+        J = np.linalg.det(F)
+        s = 0.0
+        for r in range(3):
+            for c in range(3):
+                s += (F[r, c] - R[r, c]) ** 2
+        e += vol[t] * (mu * s + 0.5 * lam * (J - 1.0) ** 2)
+    return e
