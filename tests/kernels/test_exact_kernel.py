@@ -1,7 +1,8 @@
 """The exact-limit pass (after a cascade, every link inside its box) against the plain whole-mesh
 reference on random meshes, materials, anchors, cut links and pulls, plus what a user relies on: no link
 left outside, pins kept, targets reached when reachable and otherwise approached as near as the limits
-allow, elements no violation reaches left alone."""
+allow, elements no violation reaches left alone. The exact step (exact_move, no cascade) against the same
+reference: every link inside, the same shortfall, and every element at least as near where it started."""
 
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ from chainsim.engine.kernels.chainmail import (
     make_workspace,
     material_arrays,
 )
-from chainsim.engine.kernels.exact import exact_limits, violations
+from chainsim.engine.kernels.exact import exact_limits, exact_move, violations
 from chainsim.engine.kernels.graph import build_graph
 
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -225,3 +226,62 @@ def test_repeated_pulls_match_the_reference_whatever_changes_between_them(case, 
         assert res.shortfall == pytest.approx(ref_short, abs=1e-7 * scale)
         assert violations(rest, pos, graph, *mats).outside == 0
         np.testing.assert_array_equal(pos[fixed], rest[fixed])
+
+
+@SETTINGS
+@given(scenarios(), st.booleans())
+def test_exact_step_is_inside_and_at_least_as_near_as_the_reference(case, check):
+    """The step from a shape whose links hold (rest, or an earlier exact step): no link outside, fixed
+    elements kept, the same stop as the reference when a target is out of reach, and on every axis each
+    element moved no further from where it started than the reference (cascade, then its closures) moved
+    it: the closures of the start shape are the nearest shape with the pins in place (exact.py)."""
+    rest, links, alive, _, fixed, grabbed, targets, order, warm, rng = case
+    graph = build_graph(len(rest), links)
+    graph.cut(~np.asarray(alive, bool))
+    mats = material_arrays(len(links), *case[3])
+    ws = make_workspace(len(rest))
+    pos = rest.copy()
+    if warm:
+        g0 = rng.choice(len(rest), size=1).astype(np.int64)
+        exact_move(rest, pos, graph, *mats, g0, rest[g0] + rng.normal(scale=2.0, size=(1, rest.shape[1])), fixed, ws)
+        assert violations(rest, pos, graph, *mats).outside == 0
+    start = pos.copy()
+    changed, res = exact_move(rest, pos, graph, *mats, grabbed, targets, fixed, ws, order=order, check=check)
+    changed = changed.copy()
+    v = violations(rest, pos, graph, *mats)
+    assert v.outside == 0 and v.worst <= 1e-6, v
+    assert res.complete and res.outside == 0
+    if fixed is not None:
+        np.testing.assert_array_equal(pos[fixed], start[fixed])
+    untouched = np.ones(len(rest), bool)
+    untouched[changed] = False
+    np.testing.assert_array_equal(pos[untouched], start[untouched])
+    ref_start = start.copy()
+    moved, _ = cascade(rest, ref_start, graph, *mats, grabbed, targets, fixed=fixed, order=order, workspace=ws)
+    ref, ref_short = ref_exact(rest, ref_start, links, graph.alive, *mats, grabbed, targets, fixed)
+    scale = 1.0 + np.abs(ref).max()
+    assert res.shortfall == pytest.approx(ref_short, abs=1e-7 * scale)
+    assert np.all(np.abs(pos - start) <= np.abs(ref - start) + 1e-7 * scale)
+
+
+def test_exact_step_on_a_pulled_block_moves_only_what_it_must():
+    """A 6^3 block, base fixed, a top corner pulled up 1 (in reach) and then 40 (out of reach): the step
+    reaches the target or stops where the reference stops, and elements far from the pull stay."""
+    rest, _, links = meshgen.tet_grid(6, 6, 6)
+    rest = np.ascontiguousarray(rest, dtype=np.float64)
+    graph = build_graph(len(rest), links)
+    mats = material_arrays(len(links), 0.8, 1.2, 0.1)
+    fixed = rest[:, 2] <= rest[:, 2].min() + 1e-9
+    g = np.array([int(np.argmax(rest.sum(axis=1)))])
+    for lift in (1.0, 40.0):
+        pos = rest.copy()
+        target = rest[g] + np.array([[0.0, 0.0, lift]])
+        changed, res = exact_move(rest, pos, graph, *mats, g, target, fixed, make_workspace(len(rest)))
+        ref_pos = rest.copy()
+        moved, _ = cascade(rest, ref_pos, graph, *mats, g, target, fixed=fixed)
+        ref, short = ref_exact(rest, ref_pos, links, graph.alive, *mats, g, target, fixed)
+        assert violations(rest, pos, graph, *mats).outside == 0
+        assert res.shortfall == pytest.approx(short, abs=1e-9)
+        assert np.all(np.abs(pos - rest) <= np.abs(ref - rest) + 1e-9)
+        if lift == 1.0:
+            assert res.shortfall == 0.0 and len(changed) < len(rest) // 2
