@@ -6,6 +6,8 @@
                                    landmark 1, the needle entry) pulled along the outward surface normal
     block_case()                   a 21^3 tetrahedral block (9261 elements), its base fixed, a top-centre
                                    element pulled up and sideways
+    whole_body_cases(max_elements) tet blocks of 12^3, 38^3 and 100^3 elements (1.7k, 55k, 1M), base fixed,
+                                   the top-centre element pulled 1.5 block heights: every element moves
 
 All with the thesis's medium material (6.2.1: alpha 0.8 / 1.2) and beta 0.1.
 """
@@ -78,4 +80,18 @@ def cases(quick: bool = False) -> list[Case]:
     out = [skin_case(True), skin_case(False)]
     if not quick:
         out += [skin_case(True, volume=True), block_case()]
+    return out
+
+
+WHOLE_SIDES = (12, 38, 100)
+
+
+def whole_body_cases(max_elements: float = 1e6) -> list[Case]:
+    out = []
+    for side in WHOLE_SIDES:
+        if side**3 > max_elements:
+            break
+        c = block_case(side)
+        height = 2.0 * (side - 1)
+        out.append(c._replace(name=f"whole body: tet block {side}^3, base fixed", pulls=(1.5 * height,)))
     return out

@@ -12,6 +12,9 @@ Parts:
   scaling  rigid full cascades on tetrahedral blocks and triangle sheets from 10^3 to 10^6 elements,
            with and without relaxation, in generated order, shuffled (random ids) and shuffled then
            reordered (reverse Cuthill-McKee, chainsim.engine.reorder); plus a local grab on the largest mesh.
+  drag     soft presets dragged 12 frames through ChainMailBody.move, float64 and float32, at 100k and
+           1M elements, beside the lean cascade on the same frames (tools/bench/drag.py).
+  threads  the level-parallel cascade against the serial one on the same drags, by size and thread count.
   exact    the pulls of tools/bench/exact_cases.py (the prp face pulled 8, 22 and 46 mm, rim fixed or
            not; the face filled with tetrahedra; a tet block) in every waiting-list order: the links the
            plain cascade leaves outside their limits, and the exact-limit pass's cost, residual and
@@ -39,14 +42,14 @@ from chainsim.engine import meshgen
 from chainsim.engine.chainmail_params import ORDERS, check_material, order_code, order_name
 from chainsim.engine.errors import UserError
 from chainsim.engine.kernels.chainmail import cascade, make_workspace, material_arrays
-from chainsim.engine.kernels.exact import exact_limits, violations
+from chainsim.engine.kernels.exact import exact_limits, exact_move, violations
 from chainsim.engine.kernels.gibson import gibson_grid_move
 from chainsim.engine.kernels.graph import build_graph
 from chainsim.engine.kernels.lean import LeanWorkspace, lean_move
 from chainsim.engine.meshimport import load_graph
 from chainsim.engine.reorder import rcm_permutation
 from chainsim.systems.deformation import relax_moved
-from chainsim.tools.bench import exact_cases
+from chainsim.tools.bench import drag, exact_cases
 from chainsim.tools.bench.meshes import relabel, surface_sheet, tet_cube
 
 # Tables 6.2-6.4 (frames/second): size -> (Gibson hi, lo, SurfaceChainMail hi, lo, Generalised hi, lo)
@@ -74,7 +77,7 @@ TABLE_OF = {"rigid": "6.2", "medium": "6.3", "soft": "6.4"}
 # alpha_min, alpha_max as in 6.2.1 (after Gibson 1999); the thesis gives no shear value, these are ours
 MATERIALS = {"rigid": (1.0, 1.0, 0.0), "medium": (0.8, 1.2, 0.1), "soft": (0.5, 2.5, 0.3)}
 SIDES = (11, 25, 51, 75)
-PARTS = ("thesis", "worst", "scaling", "exact")
+PARTS = ("thesis", "worst", "scaling", "exact", "drag", "threads")
 
 
 def _log(msg: str) -> None:
@@ -192,6 +195,13 @@ class Body:
         grabbed = grab if isinstance(grab, np.ndarray) else np.array([grab], dtype=np.int64)
         if not isinstance(target, np.ndarray) or target.ndim != 2:
             target = np.asarray(target, dtype=np.float64).reshape(1, -1)
+        if exact and not relax_n:  # the exact step replaces the cascade (kernels.exact.exact_move)
+            changed, self.exact = exact_move(
+                self.rest, self.pos, self.graph, *self.mat, grabbed, target, self.fixed, self.ws, order
+            )
+            self.moved = len(changed)
+            self._touch(changed)
+            return
         moved, _ = cascade(
             self.rest,
             self.pos,
@@ -408,13 +418,15 @@ def exact_part(quick: bool, repeat: int) -> list[dict]:
     """Per case, pull and order: the plain cascade (time, moved, links left outside their limits) and
     the cascade followed by the exact-limit pass (time, residual, shortfall)."""
     rows = []
-    for case in exact_cases.cases(quick):
-        reps = repeat or (7 if quick else 25)
+    whole = exact_cases.whole_body_cases(1e5 if quick else 1e6)
+    for case in exact_cases.cases(quick) + whole:
+        big = case in whole
+        reps = repeat or (3 if big and len(case.rest) > 1e5 else (7 if quick or big else 25))
         _log(f"  {case.name}: {len(case.rest)} elements, {len(case.links)} links")
         body = Body(case.rest, case.links, *exact_cases.MATERIAL, fixed=case.fixed)
         for mm in case.pulls:
             target = case.rest[case.grab] + mm * case.direction
-            for name in ORDERS:
+            for name in ORDERS[:1] if big else ORDERS:  # whole body: breadth-first (the step is order-free)
                 code = order_code(name)
                 t = time_calls(body.call(case.grab, target, order=code), body.reset, reps)
                 v = body.violations()
@@ -568,6 +580,7 @@ def markdown(results: dict) -> str:
                 f"{r['exact_ratio']:.1f}x | {r['residual']:.1e} | {r['shortfall_mm']:.2f} |"
             )
         out.append("")
+    out += drag.markdown(results)
     return "\n".join(out)
 
 
@@ -667,6 +680,12 @@ def run_suite(args) -> int:
     if "exact" in parts:
         _log("exact limits ...")
         results["exact"] = exact_part(args.quick, args.repeat)
+    if "drag" in parts:
+        _log("drags ...")
+        results["drag"] = drag.drag_part(args.quick, args.repeat, max_el)
+    if "threads" in parts:
+        _log("level-parallel against serial, by size and thread count ...")
+        results["threads"] = drag.threads_part(args.quick, args.repeat, max_el)
     results["wall_s"] = time.perf_counter() - t0
     md = markdown(results)
     _write_atomic(out / "results.json", json.dumps(results, indent=1))
