@@ -184,3 +184,45 @@ def test_sixteen_threads_give_the_sequential_result(tmp_path):
     assert digest(16, "parallel") == sequential
     assert digest(2, "parallel") == sequential
     assert hashlib.sha256(b"").hexdigest() != sequential
+
+
+def test_the_level_parallel_choice_rule_is_explicit():
+    """Picked only with enough threads and a large enough mesh: never on 2 threads, where it loses."""
+    assert not waves.parallel_wins(10**7, 2)
+    assert not waves.parallel_wins(10**7, 1)
+    assert not waves.parallel_wins(waves.AUTO_MIN_ELEMENTS - 1, 64)
+    assert waves.parallel_wins(waves.AUTO_MIN_ELEMENTS, waves.AUTO_MIN_THREADS)
+    for threads in range(1, 65):
+        for n in (10**3, 10**5, 10**6, 10**7):
+            assert waves.parallel_wins(n, threads) == (
+                threads >= waves.AUTO_MIN_THREADS and n >= waves.AUTO_MIN_ELEMENTS
+            )
+
+
+def test_cascade_follows_the_rule_when_left_to_choose(monkeypatch):
+    """parallel=None (what a body passes) runs the level-parallel kernel exactly when the rule says so,
+    with the same result either way."""
+    rest, _, links = meshgen.tet_grid(8, 8, 8)
+    graph = build_graph(len(rest), links)
+    mats = material_arrays(graph.n_links, 0.8, 1.2, 0.1)
+    calls = []
+    real = waves.cascade_waves
+
+    def spy(*args):
+        calls.append(1)
+        return real(*args)
+
+    monkeypatch.setattr(waves, "cascade_waves", spy)
+    target = (rest[0] + 3.0)[None]
+    p_serial = rest.copy()
+    cascade(rest, p_serial, graph, *mats, [0], target, workspace=make_workspace(len(rest)), parallel=None)
+    assert calls == []  # 512 elements: below AUTO_MIN_ELEMENTS whatever the threads
+    monkeypatch.setattr(waves, "AUTO_MIN_ELEMENTS", 1)
+    monkeypatch.setattr(waves, "AUTO_MIN_THREADS", 1)
+    p_auto = rest.copy()
+    cascade(rest, p_auto, graph, *mats, [0], target, workspace=make_workspace(len(rest)), parallel=None)
+    assert calls == [1]
+    np.testing.assert_array_equal(p_auto, p_serial)
+    monkeypatch.setattr(waves, "AUTO_MIN_THREADS", numba.get_num_threads() + 1)
+    cascade(rest, rest.copy(), graph, *mats, [0], target, workspace=make_workspace(len(rest)), parallel=None)
+    assert calls == [1]

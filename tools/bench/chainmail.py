@@ -1,6 +1,6 @@
 """`chainsim bench chainmail`: Generalised ChainMail speed against the thesis (6.2) and at scale.
 
-    chainsim bench chainmail [--quick] [--out DIR] [--exact]  thesis grids, worst case, scaling, exact limits
+    chainsim bench chainmail [--quick] [--out DIR] [--exact]  thesis grids, worst case, scaling, exact limits, drags
     chainsim bench chainmail --mesh MESH --grab I --to X Y Z --alpha-min A --alpha-max B --beta C
                              [--order O] [--exact] [--repeat R] [--json]   one cascade on a mesh, from rest
 
@@ -37,8 +37,8 @@ def add_arguments(p) -> None:
     )
     p.add_argument(
         "--parts",
-        default="thesis,worst,scaling,exact",
-        help="comma-separated parts to run: thesis, worst, scaling, exact",
+        default="thesis,worst,scaling,exact,drag",
+        help="comma-separated parts to run: thesis, worst, scaling, exact, drag, threads",
     )
     p.add_argument("--mesh", metavar="MESH", help="time one cascade on this mesh (.npz graph or mesh file)")
     p.add_argument("--grab", type=argtypes.element, metavar="I", help="(--mesh) element to move")

@@ -94,6 +94,7 @@ class ChainMailBody(Body):
                 self.fixed[check_ids("fixed", f, n)] = True
         self.relax_iterations, self.relax_step = int(relax), float(relax_step)
         self.order, self.depth, self.exact = order, int(depth), bool(exact)
+        self._order_cache = (None, 0)
         self.workspace = make_workspace(n)
         self.held = np.zeros(0, dtype=np.int64)
         self.grab_ids = np.zeros(0, dtype=np.int64)
@@ -108,16 +109,23 @@ class ChainMailBody(Body):
     def move(self, ids: ArrayLike, targets: ArrayLike, hold: bool = True) -> np.ndarray:
         """Move `ids` to `targets` from the current shape; returns the ids that changed (5.2.3-5.2.5)."""
         t0 = time.perf_counter()
+        # A drag calls this every frame, often for a few hundred moved elements: the Python around the
+        # kernel is kept to a few microseconds (no set operations, no O(N) pass when nothing is held).
         ids = np.atleast_1d(np.asarray(ids, dtype=np.int64))
         n = self.n
-        if len(ids) == 0 or ids.min() < 0 or ids.max() >= n:
+        k = len(ids)
+        if k == 0 or (int(ids[0]) if k == 1 else ids.min()) < 0 or (int(ids[0]) if k == 1 else ids.max()) >= n:
             raise ValueError(f"element ids must be in 0..{n - 1}")
         d = self.rest.shape[1]
-        targets = np.asarray(targets, dtype=np.float64).reshape(len(ids), d)
+        targets = np.asarray(targets, dtype=np.float64).reshape(k, d)
         # What a tool already holds stays where it is. A drag holds only the element it moves, so the
         # usual frame needs no mask of its own: the body's anchors, or none at all (the kernel then skips
         # the anchor test), without an O(N) copy per frame.
-        others = self.held[~np.isin(self.held, ids)] if len(self.held) else self.held
+        held = self.held
+        if len(held) == 0 or (len(held) == k == 1 and held[0] == ids[0]):
+            others = ()
+        else:
+            others = held[~np.isin(held, ids)]
         if len(others):
             fixed = self.fixed.copy()
             fixed[others] = True
@@ -131,15 +139,18 @@ class ChainMailBody(Body):
             self.amax,
             self.beta,
             ids,
-            targets.astype(self.positions.dtype),
+            targets if self.positions.dtype == np.float64 else targets.astype(self.positions.dtype),
             fixed=fixed,
-            order=order_code(self.order),
+            order=self._order_code(),
             workspace=self.workspace,
             depth=self.depth,
+            parallel=None,  # level-parallel only where it wins (kernels.waves.parallel_wins)
         )
         self.last_order, self.last_sponsor = order, sponsor
         t_cascade = time.perf_counter() - t0
-        if hold and not (len(self.held) == len(ids) and np.array_equal(self.held, ids)):
+        if hold and len(others) == 0 and len(held) == k == 1 and held[0] == ids[0]:
+            pass  # a drag frame: the element is already held
+        elif hold:
             self.held = np.union1d(self.held, ids)
         changed = order
         if self.relax_iterations > 0 and len(order) > len(ids):
@@ -168,6 +179,13 @@ class ChainMailBody(Body):
         self.moved = changed
         self.stats = StepStats(1, self.last_shortfall, len(changed), time.perf_counter() - t0, {"t_cascade": t_cascade})
         return changed
+
+    def _order_code(self) -> int:
+        # the name is a public attribute a pack or tool may change between moves; its code is looked up
+        # once per name
+        if self._order_cache[0] != self.order:
+            self._order_cache = (self.order, order_code(self.order))
+        return self._order_cache[1]
 
     # -- the body API ---------------------------------------------------------------------------
     def grab(self, ids: ArrayLike, targets: ArrayLike) -> None:

@@ -32,6 +32,7 @@ owns them (one value per material when every link shares it), so they stream wit
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numba import njit
 
@@ -660,7 +661,7 @@ def cascade(
     workspace: Workspace | None = None,
     depth: int = 2,
     copy: bool = True,
-    parallel: bool = False,
+    parallel: bool | None = False,
 ):
     """Move `grabbed` to `targets` and propagate the move through the mesh (5.2.3); pos changes in place.
 
@@ -671,7 +672,8 @@ def cascade(
     left out of the result), or None. order: ORDER_BREADTH_FIRST, ORDER_DEPTH_FIRST, ORDER_BALANCED
     (branch depth `depth`) or ORDER_SCHILL. workspace: reuse one per mesh so a cascade costs what moves,
     not N (without one, a temporary of size N is made). parallel: breadth-first only, each wave's
-    candidates checked on numba's threads (chainsim.engine.kernels.waves); the result is the same.
+    candidates checked on numba's threads (chainsim.engine.kernels.waves); the result is the same. None
+    lets the mesh size and numba's thread count decide (waves.parallel_wins); other orders run serially.
 
     Returns (order, sponsor_of_moved): the ids that moved in the order they moved (grabbed first), each
     once, and for each the element whose move made it move (-1 for grabbed). With copy=False these are
@@ -727,6 +729,13 @@ def cascade(
         )
     if order == ORDER_BALANCED and depth < 1:
         raise ValueError(f"depth must be >= 1, got {depth}")
+    if parallel is None:
+        # the size first: asking numba for its thread count costs microseconds, a local grab not many more
+        parallel = (
+            order == ORDER_BREADTH_FIRST
+            and pos.shape[0] >= waves.AUTO_MIN_ELEMENTS
+            and waves.parallel_wins(pos.shape[0], numba.get_num_threads())
+        )
     if parallel and order != ORDER_BREADTH_FIRST:
         raise ValueError("parallel=True runs the breadth-first order only")
 

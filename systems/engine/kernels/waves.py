@@ -49,6 +49,20 @@ from .boxes import start_cascade
 
 #: waves with fewer sponsors than this run on the calling thread
 PARALLEL_MIN = 512
+#: When a cascade picks this kernel by itself (cascade(..., parallel=None), what bodies do): only with at
+#: least this many threads and on meshes of at least this many elements. Measured on soft drags
+#: (`chainsim bench chainmail --parts threads`): with fewer threads the three parallel passes a wave
+#: costs more than the extra cores give, on smaller meshes the waves are too short to share.
+AUTO_MIN_THREADS = 8
+AUTO_MIN_ELEMENTS = 100_000
+
+
+def parallel_wins(n_elements: int, threads: int) -> bool:
+    """Whether the level-parallel cascade is the faster breadth-first cascade for a mesh of n_elements
+    on `threads` threads (the rule cascade(..., parallel=None) follows; see AUTO_MIN_*)."""
+    return threads >= AUTO_MIN_THREADS and n_elements >= AUTO_MIN_ELEMENTS
+
+
 #: prange iterations per thread and wave (more smooths out uneven rows, each costs a little)
 CHUNKS_PER_THREAD = 4
 #: rows of the per-chunk scratch apart (8 rows of 3 float64: no two chunks share a cache line)
