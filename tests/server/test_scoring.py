@@ -1,0 +1,198 @@
+"""The server computes each result by replaying the attempt's recording (issue: results that can be trusted).
+
+Uploads come from the real simulator (the prp pack, scripted input, Save pressed) through the
+local outbox, to a real `chainsim serve` over SQLite and PostgreSQL. A queued upload edited to
+claim a success after an attempt that hit the skull is stored with the replay's figures and
+flagged; an unknown pack, another copy of a pack or a recording that never saves is refused and
+stays queued with the reason; a server killed with uploads waiting scores each of them once
+after a restart; attempts cannot be deleted by a trainee, and a trainer's retraction is audited.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import time
+
+import pytest
+from conftest import PASSWORD, call, populate, start_server
+
+from chainsim.components.input_events import Widget
+from chainsim.components.resources import PendingInput
+from chainsim.game.app.headless import build_app
+from chainsim.game.app.inputscript import load_script
+from chainsim.game.records import provenance, remote
+from chainsim.game.records.store import RecordStore
+
+SCRIPTS = "assets/prp/scripts"
+
+
+def save_through_simulator(url: str, local: str, script: str, trainee: str = "alice") -> None:
+    """Run a built-in scripted attempt in the simulator with --records and press Save at its end."""
+    events = load_script(f"{SCRIPTS}/{script}")
+    end = events[-1][0]
+    app = build_app("prp", settings={"db": local, "records": url, "class": "c1", "trainee": trainee})
+    try:
+        app.resource(PendingInput).extend([*events, (end + 0.5, Widget("save"))])
+        app.run_steps(int((end + 1.0) * 120))
+    finally:
+        app.close()
+
+
+def queue_offline(tmp_path, url: str, script: str, name: str = "local.sqlite3") -> str:
+    """An attempt saved while the server is unknown to the simulator: it waits in the local outbox."""
+    local = str(tmp_path / name)
+    save_through_simulator("http://127.0.0.1:9", local, script)  # nothing listens on port 9
+    with RecordStore(local) as store, store.transaction() as conn:
+        conn.execute("UPDATE outbox SET server = ?", (url,))
+    return local
+
+
+def wait_scored(server, upload_id: int, token: str, timeout: float = 120.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        status, answer, _ = call(server, "GET", f"/api/uploads/{upload_id}", token=token)
+        assert status == 200, answer
+        if answer["status"] != "scoring":
+            return answer
+        time.sleep(0.3)
+    raise AssertionError(f"upload {upload_id} not scored in {timeout} s")
+
+
+@pytest.fixture
+def server(records_db, tmp_path):
+    populate(records_db)
+    srv = start_server(records_db, tmp_path / "serve.log")
+    for name in ("alice", "tina"):
+        status, answer, _ = call(srv, "POST", "/api/login", {"name": name, "password": PASSWORD})
+        srv.tokens[name] = answer["token"]
+    yield srv
+    srv.stop()
+
+
+def test_forged_upload_is_stored_with_the_replays_figures_and_flagged(server, tmp_path):
+    local = queue_offline(tmp_path, server.url, "skull-hit.toml")
+    with RecordStore(local) as store:
+        (row,) = store.query("SELECT id, attempt FROM outbox")
+        body = json.loads(row["attempt"])
+        assert body["target"] == "skull" and "recording" in body and body["pack_identity"]["name"] == "prp"
+        # the trainee edits the queued upload: the foramen ovale, a perfect needle and perfect landmarks
+        body.update(target="foramen_ovale_left", needle_error_mm=-2.0, landmark_error_mm=0.0, skull_contacts=0)
+        with store.transaction() as conn:
+            conn.execute("UPDATE outbox SET attempt = ? WHERE id = ?", (json.dumps(body), row["id"]))
+        remote.login(store, server.url, "alice", PASSWORD)
+        assert remote.sync(store)["sent"] == 1
+        upload_id = store.query("SELECT remote_id FROM outbox")[0][0]
+    result = wait_scored(server, upload_id, server.tokens["alice"])
+    assert result["status"] == "scored", result
+    status, a, _ = call(server, "GET", f"/api/attempts/{result['attempt_id']}", token=server.tokens["tina"])
+    assert status == 200
+    assert a["target"] == "skull" and a["needle_error_mm"] > 5.0 and a["skull_contacts"] >= 1
+    assert a["filed_by"] == "alice" and a["client_figures"]["target"] == "foramen_ovale_left"
+    flagged = {d["field"] for d in a["differences"]}
+    assert {"target", "needle_error_mm", "skull_contacts"} <= flagged
+    # the trainer's page says so, and the audit log holds the flag
+    status, log, _ = call(server, "GET", "/api/audit", token=server.tokens["tina"])
+    assert any(e["action"] == "flag" and e["attempt_id"] == a["id"] for e in log["audit"])
+    # the recording is kept with the attempt and replays as it was uploaded
+    with RecordStore(server.db) as store:
+        (kept,) = store.query("SELECT recording FROM attempt_recordings WHERE attempt_id = ?", (a["id"],))
+        assert provenance.decode_recording(kept[0])["pack"] == "prp"
+
+
+def test_honest_upload_is_not_flagged_and_the_server_keeps_time(server, tmp_path):
+    local = str(tmp_path / "local.sqlite3")
+    with RecordStore(local) as store:
+        remote.login(store, server.url, "alice", PASSWORD)
+    save_through_simulator(server.url, local, "correct.toml")
+    with RecordStore(local) as store:
+        (row,) = store.query("SELECT remote_id, attempt, last_error FROM outbox")
+        assert row["last_error"] is None
+    result = wait_scored(server, row["remote_id"], server.tokens["alice"])
+    status, a, _ = call(server, "GET", f"/api/attempts/{result['attempt_id']}", token=server.tokens["alice"])
+    assert a["target"] == "foramen_ovale_left" and a["differences"] == []
+    assert a["created_at"] == result["received_at"]  # the server's clock; the client's is kept beside it
+    assert a["client_created_at"] == json.loads(row["attempt"])["created_at"]
+
+
+def test_unknown_pack_or_copy_or_non_saving_recording_is_refused_and_stays_queued(server, tmp_path):
+    local = queue_offline(tmp_path, server.url, "skull-hit.toml")
+    with RecordStore(local) as store:
+        (row,) = store.query("SELECT id, attempt FROM outbox")
+        good = json.loads(row["attempt"])
+        remote.login(store, server.url, "alice", PASSWORD)
+        cases = {
+            "not on this server": {**good, "pack_identity": {**good["pack_identity"], "name": "nope"}, "pack": "nope"},
+            "another copy": {**good, "pack_identity": {**good["pack_identity"], "hash": "0" * 64}},
+        }
+        rec = provenance.decode_recording(good["recording"])
+        rec["event"] = [e for e in rec["event"] if e.get("name") != "save"]
+        cases["never presses Save"] = {**good, "recording": provenance.encode_recording(rec)}
+        cases["must carry its recording"] = {k: v for k, v in good.items() if k != "recording"}
+        for expected, body in cases.items():
+            with store.transaction() as conn:
+                conn.execute(
+                    "UPDATE outbox SET attempt = ?, last_error = NULL WHERE id = ?", (json.dumps(body), row["id"])
+                )
+            result = remote.sync(store)
+            assert result["sent"] == 0 and result["waiting"] == 1, result
+            assert "HTTP 422" in result["problems"][0] and "kept in the queue" in result["problems"][0]
+            assert expected in store.query("SELECT last_error FROM outbox")[0][0]
+
+
+def test_killed_server_scores_every_waiting_upload_once_after_restart(records_db, tmp_path):
+    populate(records_db)
+    srv = start_server(records_db, tmp_path / "serve.log")
+    status, answer, _ = call(srv, "POST", "/api/login", {"name": "alice", "password": PASSWORD})
+    token = answer["token"]
+    local = queue_offline(tmp_path, srv.url, "skull-hit.toml")
+    with RecordStore(local) as store:
+        body = json.loads(store.query("SELECT attempt FROM outbox")[0][0])
+    ids = []
+    for i in range(6):
+        status, ack, _ = call(srv, "POST", "/api/attempts", body, token, {"Idempotency-Key": f"kill-key-{i}"})
+        assert status == 202 and ack["status"] == "scoring", ack
+        ids.append(ack["upload"])
+    # a resend is answered with the first upload; the same key with another body is a conflict
+    status, again, _ = call(srv, "POST", "/api/attempts", body, token, {"Idempotency-Key": "kill-key-0"})
+    assert status == 200 and again["upload"] == ids[0]
+    other = {**body, "duration_s": 1.0}
+    status, _, _ = call(srv, "POST", "/api/attempts", other, token, {"Idempotency-Key": "kill-key-0"})
+    assert status == 409
+    srv.stop(signal.SIGKILL)
+    srv = start_server(records_db, tmp_path / "serve2.log", int(srv.url.rsplit(":", 1)[1]))
+    try:
+        results = [wait_scored(srv, i, token, 240) for i in ids]
+        assert all(r["status"] == "scored" for r in results), results
+        with RecordStore(records_db) as store:
+            attempts = store.list_attempts("c1", "alice")
+        assert sorted(a["id"] for a in attempts) == sorted(r["attempt_id"] for r in results)
+        assert len(attempts) == len(ids)
+    finally:
+        srv.stop()
+
+
+def test_trainee_cannot_delete_trainer_retracts_with_a_reason(server, tmp_path):
+    local = str(tmp_path / "local.sqlite3")
+    with RecordStore(local) as store:
+        remote.login(store, server.url, "alice", PASSWORD)
+    save_through_simulator(server.url, local, "skull-hit.toml")
+    with RecordStore(local) as store:
+        upload_id = store.query("SELECT remote_id FROM outbox")[0][0]
+    aid = wait_scored(server, upload_id, server.tokens["alice"])["attempt_id"]
+    status, answer, _ = call(server, "DELETE", f"/api/attempts/{aid}", token=server.tokens["alice"])
+    assert status == 403 and "trainer" in answer["error"]
+    status, answer, _ = call(server, "POST", f"/api/attempts/{aid}/retract", {}, server.tokens["tina"])
+    assert status == 422 and "reason" in answer["error"]
+    status, a, _ = call(
+        server, "POST", f"/api/attempts/{aid}/retract", {"reason": "wrong trainee"}, server.tokens["tina"]
+    )
+    assert status == 200 and a["retracted_by"] == "tina" and a["retract_reason"] == "wrong trainee"
+    status, log, _ = call(server, "GET", "/api/audit", token=server.tokens["tina"])
+    assert [(e["action"], e["actor"], e["detail"]) for e in log["audit"] if e["attempt_id"] == aid][-1] == (
+        "retract",
+        "tina",
+        "wrong trainee",
+    )
+    status, _, _ = call(server, "GET", "/api/audit", token=server.tokens["alice"])
+    assert status == 403
