@@ -54,3 +54,26 @@ def test_single_mesh_timing_refuses_bad_input(tmp_path, capsys):
         code = main(["bench", "chainmail", "--mesh", str(tmp_path / "g.npz"), *extra])
         err = capsys.readouterr().err
         assert code == 2 and needle in err and len(err.strip().splitlines()) == 1
+
+
+def test_drag_and_threads_parts_report_the_lean_cascade_beside_every_row(tmp_path):
+    out = tmp_path / "b"
+    code = main(
+        ["bench", "chainmail", "--parts", "drag,threads", "--max-elements", "1000", "--repeat", "1", "--out", str(out)]
+    )
+    assert code == 0
+    res = json.loads((out / "results.json").read_text())
+    drag = res["drag"]
+    assert {(r["material"], r["dtype"]) for r in drag} == {
+        (m, d) for m in ("soft-tissue", "very-soft") for d in ("float64", "float32")
+    }
+    for r in drag:
+        assert r["frames"] == 12 and r["body_ms"] > 0 and r["lean_ms"] > 0
+        assert r["moved_last"] > 1 and r["lean_moved_last"] > 1
+        if r["dtype"] == "float64":
+            assert r["same_as_lean"] and r["moved_last"] == r["lean_moved_last"]
+    threads = res["threads"]
+    assert threads and all(r["serial_ms"] > 0 and r["parallel_ms"] > 0 for r in threads)
+    assert not any(r["rule_picks_parallel"] for r in threads)  # 1000 elements: below the rule's size
+    md = (out / "results.md").read_text()
+    assert "beside the lean cascade" in md and "thread count" in md
