@@ -356,6 +356,15 @@ def mirror_chainmail(d: Deformable, body: ChainMailBody) -> None:
     d.held = body.held
 
 
+def auto_scene(d: Deformable, volume: bool) -> str:
+    """The study scene an auto body is looked up in: tissue-sized volumes (under half a metre across)
+    in the surgical-scale block, larger volumes in the 1 m block, surfaces in the sheet."""
+    if not volume:
+        return "sheet"
+    extent = float(np.ptp(d.rest, axis=0).max()) * d.unit if len(d.rest) else 0.0
+    return "tissue-block" if extent < 0.5 else "block"
+
+
 def use_model(d: Deformable, model: str, where: str = "deformable", initial: bool = False) -> None:
     """Put `d` under `model` from its rest shape: ChainMail state stays; xpbd/projective get a body
     whose positions array is `d.pos`, so drawing, picking and tools see one set of positions."""
@@ -364,17 +373,26 @@ def use_model(d: Deformable, model: str, where: str = "deformable", initial: boo
     mesh = d.mesh_data
     tets = mesh.tets if mesh is not None and mesh.tets is not None and len(mesh.tets) else None
     reason = ""
+    row: dict = {}
     if model == "auto":
         choice = choose_model(
             load_table(MODEL_TABLE),
-            scene="block" if tets is not None else "sheet",
+            scene=auto_scene(d, tets is not None),
             nodes=d.n_elements,
             error_budget=d.error_budget,
             time_budget_ms=d.time_budget_ms,
+            E=d.E,
         )
-        model, reason = choice.model, f"auto: {choice.model} ({choice.setting}), {choice.reason}"
+        model, row = choice.model, choice.params
+        reason = f"auto: {choice.model} ({choice.setting}), {choice.reason}"
     d.held_targets = np.zeros((0, 3))
     if model == "chainmail":
+        if row:  # the row's material and relaxation, as the study measured them
+            n = len(d.chainmail_links)
+            d.amin = np.full(n, float(row.get("alpha_min", d.amin[0] if len(d.amin) else 0.8)))
+            d.amax = np.full(n, float(row.get("alpha_max", d.amax[0] if len(d.amax) else 1.2)))
+            d.beta_l = np.full(n, float(row.get("beta", d.beta_l[0] if len(d.beta_l) else 0.1)))
+            d.relax_iterations = int(row.get("relax", d.relax_iterations))
         d.body = chainmail_body(d)
     else:
         d.pos = d.rest.copy()
@@ -396,6 +414,7 @@ def use_model(d: Deformable, model: str, where: str = "deformable", initial: boo
                 cg_iterations=d.cg_iterations,
                 rotation_iterations=d.rotation_iterations,
             )
+        settings.update(row)  # an auto choice builds exactly the row's setting
         try:
             body = make_body(
                 model, d.rest.astype(np.float64), tets=tets, triangles=mesh.triangles, fixed=d.fixed_mask, **settings

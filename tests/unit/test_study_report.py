@@ -14,7 +14,8 @@ def test_tiny_study_writes_report_plots_and_strict_json(tmp_path, monkeypatch):
     monkeypatch.setattr(sa, "RELAX", [0, 2])
     rows, timings = [], []
     limits = {"nl": 200, "lin": 400, "ms": 400, "ms_explicit": 0}
-    sa.run_scene("block", [5, 7], [0.01, 0.1], limits, {"medium": ChainMailParams(0.8, 1.2, 0.1)}, 1, rows, timings)
+    materials = {"medium": ChainMailParams(0.8, 1.2, 0.1)}
+    sa.run_scene("block", [5, 7], [0.01, 0.1], limits, materials, 1, rows, timings)
     results = {
         "mode": "quick",
         "material": {"E": sa.E_STUDY, "nu": sa.NU_STUDY},
@@ -25,7 +26,7 @@ def test_tiny_study_writes_report_plots_and_strict_json(tmp_path, monkeypatch):
         "timings": timings,
         "stability": sa.stability_sweep(n=5),
         "realtime": sa.realtime_table(rows, timings),
-        "chainmail_settings": {},
+        "chainmail_settings": {k: vars(v) for k, v in materials.items()},
         "elapsed_cpu_s": 1.0,
         "elapsed_wall_s": 1.0,
         "clock": "thread CPU",

@@ -37,10 +37,17 @@ def baseline_blend(scene, strain: float) -> np.ndarray:
     return w[:, None] * (strain * scene.length * scene.direction)[None, :]
 
 
+#: the live settings the study runs, as the body arguments `auto` rebuilds them from
+LIVE_PARAMS = {
+    "XPBD (8 substeps)": {"damping": 0.1, "substeps": 8},
+    "projective (statics, 10 it)": {"iterations": 10, "dynamic": False},
+}
 LIVE = {
-    "XPBD (8 substeps)": lambda s, E, nu: XPBDBody(s.pos, s.tets, E=E, nu=nu, damping=0.1, substeps=8, fixed=s.fixed),
+    "XPBD (8 substeps)": lambda s, E, nu: XPBDBody(
+        s.pos, s.tets, E=E, nu=nu, fixed=s.fixed, **LIVE_PARAMS["XPBD (8 substeps)"]
+    ),
     "projective (statics, 10 it)": lambda s, E, nu: ProjectiveBody(
-        s.pos, s.tets, E=E, nu=nu, iterations=10, dynamic=False, fixed=s.fixed
+        s.pos, s.tets, E=E, nu=nu, fixed=s.fixed, **LIVE_PARAMS["projective (statics, 10 it)"]
     ),
 }
 

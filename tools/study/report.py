@@ -16,6 +16,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import tomli_w
 
+from .live_models import LIVE_PARAMS
 from .metrics import pareto_front
 
 # thesis Table 6.5: nodes deformed in real time by earlier methods (their own platforms)
@@ -92,11 +93,22 @@ def model_table(results) -> dict:
                 "nodes": int(r["nodes"]),
                 "model": fam,
                 "setting": r["model"],
+                "params": row_params(fam, r["model"], results.get("chainmail_settings", {})),
                 "rms_error": float(r["rms_error"]),
                 "ms_per_update": float(r["time_ms"]),
             }
         )
     return {"strain": results["pareto_strain"], "rows": rows}
+
+
+def row_params(model: str, setting: str, materials: dict) -> dict:
+    """The body settings a row was measured with, so `auto` builds exactly that body: ChainMail's
+    material limits and relaxation count, or the live model's settings (tools/study/live_models.LIVE)."""
+    if model == "chainmail":
+        name, relax = setting.removeprefix("ChainMail ").rsplit(" r", 1)
+        m = materials[name]
+        return {"alpha_min": m["alpha_min"], "alpha_max": m["alpha_max"], "beta": m["beta"], "relax": int(relax)}
+    return dict(LIVE_PARAMS[setting])
 
 
 def baselines(results, scene) -> dict:

@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import logging
+import os
+import platform
 
 from chainsim.engine import argtypes, limits
 from chainsim.engine.errors import UserError
 from chainsim.game.app import pack_costs
 from chainsim.game.app.outputs import prepare_output_dir
 from chainsim.tools.study import calibrate as cal
-from chainsim.tools.study import report, speed_accuracy
+from chainsim.tools.study import report, speed_accuracy, surgical, surgical_report
 from chainsim.tools.study.scenes import SCENES
 
 logger = logging.getLogger(__name__)
@@ -20,7 +22,17 @@ HELP = "speed-accuracy study of ChainMail vs FEM and mass-spring; calibrate Chai
 
 def add_parser(sub):
     p = sub.add_parser(NAME, help=HELP, description=HELP)
-    s = p.add_subparsers(dest="study_cmd", metavar="{speed-accuracy,calibrate}")
+    s = p.add_subparsers(dest="study_cmd", metavar="{speed-accuracy,surgical,calibrate}")
+    sg = s.add_parser(
+        "surgical",
+        help="the trade at surgical scale: a 30 mm tissue block, 5-0.6 mm elements, 1-100 kPa; writes "
+        "report.md, a plot, results.json and the model table rows",
+    )
+    sg.add_argument("--quick", action="store_true", help="two mesh sizes, one material (about a minute)")
+    sg.add_argument("--out", required=True, help="output folder")
+    sg.add_argument(
+        "--table", default=None, help="model table to merge the rows into (assets/presets/models.toml in a checkout)"
+    )
     sa = s.add_parser("speed-accuracy", help="run the study; writes report.md, PNG plots, results.json")
     sa.add_argument("--quick", action="store_true", help="small meshes and fewer loads (< 3 min)")
     sa.add_argument("--out", required=True, help="output folder")
@@ -67,6 +79,12 @@ def add_parser(sub):
     return p
 
 
+def platform_line() -> str:
+    """The machine a figure came from, in a few words."""
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    return f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, load {load:.1f}"
+
+
 def run(args) -> int:
 
     cmd = getattr(args, "study_cmd", None)
@@ -84,6 +102,13 @@ def run(args) -> int:
             summaries, note = pack_costs.measure(args.pack_steps)
         md = report.write(results, args.out, summaries, note)
         logger.info(f"wrote {md}")
+        print(md)
+        return 0
+    if cmd == "surgical":
+        prepare_output_dir(args.out, "--out")
+        results = surgical.run("quick" if args.quick else "full", progress=lambda m: logger.info(f"study   {m}"))
+        command = "chainsim study surgical" + (" --quick" if args.quick else "") + f" --out {args.out}"
+        md = surgical_report.write(results, args.out, command, platform_line(), args.table)
         print(md)
         return 0
     if cmd == "calibrate":

@@ -10,13 +10,15 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from chainsim.engine import meshgen
 from chainsim.engine.bodies.base import Body
+from chainsim.engine.bodies.chainmail import ChainMailBody
 from chainsim.engine.bodies.projective import ProjectiveBody
 from chainsim.engine.bodies.xpbd import XPBDBody
 from chainsim.engine.errors import UserError
@@ -33,10 +35,20 @@ def make_body(
     fixed: ArrayLike | None = None,
     **settings: float | str | bool,
 ) -> Body:
-    """An XPBD or projective-dynamics body on `tets` (or, for XPBD, surface `triangles`)."""
+    """A body of `model` on `tets` (or surface `triangles`): ChainMail on the mesh's edges (settings
+    alpha_min, alpha_max, beta, relax), XPBD or projective dynamics (their constructor's settings)."""
     has_tets = tets is not None and len(tets) > 0
+    if model == "chainmail":
+        cells = tets if has_tets else triangles
+        if cells is None or len(cells) == 0:
+            raise UserError("a ChainMail body needs tetrahedra or triangles (its links are their edges)")
+        links = meshgen.links_from_cells(np.asarray(cells, dtype=np.int64))
+        kw = {k: settings[k] for k in ("relax", "exact", "order", "dtype") if k in settings}
+        limits = [float(settings.get(k, d)) for k, d in (("alpha_min", 0.8), ("alpha_max", 1.2), ("beta", 0.1))]
+        return ChainMailBody(rest, links, *limits, fixed=fixed, **kw)
     if model == "xpbd":
         keys = ("E", "nu", "density", "damping", "substeps", "iterations", "unit", "thickness", "bending")
+        keys += ("constraints",)
         kw = {k: settings[k] for k in keys if k in settings}
         return XPBDBody(rest, tets if has_tets else None, None if has_tets else triangles, fixed=fixed, **kw)
     if model == "projective":
@@ -47,6 +59,16 @@ def make_body(
     raise UserError(f"model: expected one of {', '.join(MODELS)}, got {model!r}")
 
 
+#: the settings a table row may give for each model: the body built is exactly the row's
+ROW_PARAMS = {
+    "chainmail": ("alpha_min", "alpha_max", "beta", "relax"),
+    "xpbd": ("substeps", "iterations", "constraints", "damping"),
+    "projective": ("iterations", "dynamic", "solver", "cg_iterations", "rotation_iterations", "damping"),
+}
+#: with no budget at all, `auto` keeps to one 60 Hz frame
+DEFAULT_TIME_BUDGET_MS = 16.7
+
+
 @dataclass
 class Choice:
     model: str
@@ -54,10 +76,11 @@ class Choice:
     rms_error: float
     ms_per_update: float
     reason: str
+    params: dict = field(default_factory=dict)
 
 
 def load_table(path: Path) -> list[dict]:
-    """Rows of the study's model table: scene, nodes, model, setting, rms_error, ms_per_update."""
+    """Rows of the study's model table: scene, nodes, model, setting, params, rms_error, ms_per_update."""
     try:
         data = tomllib.loads(Path(path).read_text())
     except (OSError, tomllib.TOMLDecodeError) as e:
@@ -66,35 +89,64 @@ def load_table(path: Path) -> list[dict]:
     need = {"scene", "nodes", "model", "setting", "rms_error", "ms_per_update"}
     if not isinstance(rows, list) or not rows or not all(isinstance(r, dict) and need <= set(r) for r in rows):
         raise UserError(f"model table {path}: expected [[rows]] with {', '.join(sorted(need))}")
+    for i, r in enumerate(rows):
+        params = r.get("params", {})
+        allowed = ROW_PARAMS.get(r["model"], ())
+        if not isinstance(params, dict) or not set(params) <= set(allowed):
+            raise UserError(f"model table {path}: rows[{i}].params: expected keys among {', '.join(allowed)}")
     return rows
 
 
 def choose_model(
-    table: list[dict], *, scene: str, nodes: int, error_budget: float = 0.0, time_budget_ms: float = 0.0
+    table: list[dict],
+    *,
+    scene: str,
+    nodes: int,
+    error_budget: float = 0.0,
+    time_budget_ms: float = 0.0,
+    E: float | None = None,
 ) -> Choice:
-    """The cheapest row meeting both budgets (0: no budget) at the nearest mesh size of the nearest scene.
+    """A row of the table for a body of `nodes` nodes (and Young's modulus E where the table has several).
 
-    Times scale with the node count (the table's size to this mesh's, linearly). When nothing meets an
-    error budget, the most accurate row within the time budget is taken and the reason says so.
+    An error budget alone: the cheapest row that meets it. A time budget alone: the most accurate row
+    that fits it. Both: the cheapest meeting both, else the most accurate that fits the time. Neither:
+    the most accurate within one 60 Hz frame (DEFAULT_TIME_BUDGET_MS). Rows come from the nearest
+    scene, mesh size (log scale) and stiffness; times scale linearly with the node count.
     """
     scenes = sorted({r["scene"] for r in table})
     use_scene = scene if scene in scenes else ("block" if "block" in scenes else scenes[0])
-    rows = [r for r in table if r["scene"] == use_scene]
+    rows = [r for r in table if r["scene"] == use_scene and r["model"] in MODELS]
     sizes = sorted({int(r["nodes"]) for r in rows})
     size = min(sizes, key=lambda s: abs(math.log(max(s, 1) / max(nodes, 1))))
-    rows = [r for r in rows if int(r["nodes"]) == size and r["model"] in MODELS]
-    scale = max(nodes, 1) / max(size, 1)
-    cand = [dict(r, ms=float(r["ms_per_update"]) * scale) for r in rows if np.isfinite(float(r["rms_error"]))]
-    within_time = [r for r in cand if not time_budget_ms or r["ms"] <= time_budget_ms]
-    ok = [r for r in within_time if not error_budget or float(r["rms_error"]) <= error_budget]
+    rows = [r for r in rows if int(r["nodes"]) == size]
+    stiff = sorted({float(r["E"]) for r in rows if "E" in r})
     where = f"study scene '{use_scene}' at {size} nodes (this body: {nodes})"
-    if ok:
+    if stiff and E is not None:
+        e_row = min(stiff, key=lambda v: abs(math.log(v / max(E, 1e-12))))
+        rows = [r for r in rows if float(r.get("E", e_row)) == e_row]
+        where += f", E = {e_row:g} Pa (this body: {E:g})"
+    scale = max(nodes, 1) / max(size, 1)
+    cand = [
+        dict(r, ms=float(r["ms_per_update"]) * scale)
+        for r in rows
+        if np.isfinite(float(r["rms_error"])) and np.isfinite(float(r["ms_per_update"]))
+    ]
+    if not cand:
+        raise UserError(f"model table: no measured row for {where}")
+    budget = time_budget_ms or (0.0 if error_budget else DEFAULT_TIME_BUDGET_MS)
+    within_time = [r for r in cand if not budget or r["ms"] <= budget]
+    ok = [r for r in within_time if not error_budget or float(r["rms_error"]) <= error_budget]
+    limits = f"error <= {error_budget or 'any'}, time <= {budget or 'any'} ms"
+    if error_budget and ok:
         best = min(ok, key=lambda r: (r["ms"], float(r["rms_error"])))
-        why = f"cheapest meeting error <= {error_budget or 'any'} and time <= {time_budget_ms or 'any'} ms on {where}"
+        why = f"the cheapest meeting {limits} on {where}"
     elif within_time:
-        best = min(within_time, key=lambda r: float(r["rms_error"]))
-        why = f"nothing meets error <= {error_budget}: the most accurate within {time_budget_ms or 'any'} ms on {where}"
+        best = min(within_time, key=lambda r: (float(r["rms_error"]), r["ms"]))
+        miss = f"nothing meets error <= {error_budget}: " if error_budget else ""
+        why = f"{miss}the most accurate within {budget} ms on {where}"
     else:
         best = min(cand, key=lambda r: r["ms"])
-        why = f"nothing fits {time_budget_ms} ms: the fastest on {where}"
-    return Choice(best["model"], str(best["setting"]), float(best["rms_error"]), best["ms"], why)
+        why = f"nothing fits {budget} ms: the fastest on {where}"
+    return Choice(
+        best["model"], str(best["setting"]), float(best["rms_error"]), best["ms"], why, dict(best.get("params", {}))
+    )
