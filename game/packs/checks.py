@@ -33,7 +33,9 @@ from chainsim.game.packs import schema as ms
 from chainsim.game.packs.discovery import MANIFEST, NAME_RE
 from chainsim.game.packs.model import PRESET_KEYS, Pack, build_mesh, locate, material_presets
 from chainsim.game.packs.requires import resolve_requires
+from chainsim.game.records import validate as records
 from chainsim.systems.procedures import PROCEDURES
+from chainsim.systems.procedures.needle import checks as needle_checks
 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 
@@ -215,7 +217,7 @@ def read_manifest(v: Validator) -> dict | None:
     if raw is None:
         return None
     if "pack" not in raw:
-        v.add(MANIFEST, "", "missing the [pack] table (name and format)")
+        v.add(MANIFEST, "pack", "missing the [pack] table (name and format)")
     _requires(v, raw)  # before the includes, which may name files of a required pack
     incs = raw.get("pack", {}).get("includes", []) if isinstance(raw.get("pack"), dict) else []
     if isinstance(incs, list):
@@ -489,6 +491,63 @@ def check_steps(v: Validator, man: dict) -> None:
     for i, sid in enumerate(ids):
         if sid is not None and ids.count(sid) > 1:
             v.add(MANIFEST, f"steps.{i}.id", f"duplicate step id '{sid}'")
+            break
+
+
+#: `pack.procedure` values that run the generic needle procedure
+NEEDLE_PROCEDURES = ("needle", "prp")
+
+
+def check_procedure(v: Validator, man: dict) -> None:
+    """A needle pack: what its procedure formats and refers to (chainsim.systems.procedures.needle.checks),
+    and the limits the records store puts on the attempts it saves, so that no attempt the pack
+    produces is refused when the trainee saves it. Run on an otherwise valid manifest only: the
+    checks read the tables' converted values."""
+    if (man.get("pack") or {}).get("procedure") not in NEEDLE_PROCEDURES or v.problems:
+        return
+    for key, msg in needle_checks.problems(man):
+        v.add(v.file_of(key), key, msg)
+    name = man["pack"].get("name", "")
+    if len(name) > records.NAME_MAX:
+        v.add(
+            MANIFEST,
+            "pack.name",
+            f"a needle pack's name is stored with each attempt: at most {records.NAME_MAX} characters, not {len(name)}",
+        )
+    aids = man.get("needle_procedure", {}).get("aids", [])
+    unknown = [a for a in aids if a not in records.AIDS]
+    if unknown:
+        v.add(
+            MANIFEST,
+            "needle_procedure.aids",
+            f"'{unknown[0][:60]}' is not an aid the records store (aids: {', '.join(records.AIDS)})",
+        )
+    metrics = man.get("metrics", {})
+    if len(metrics) > records.MAX_METRICS:
+        v.add(MANIFEST, "metrics", f"{len(metrics)} metrics; an attempt stores at most {records.MAX_METRICS}")
+    for mname in metrics:
+        if not records.METRIC_RE.fullmatch(mname):
+            key = f"metrics.{mname}"
+            v.add(v.file_of(key), key, "a metric's name is letters, digits and _ (up to 64), starting with a letter")
+    steps = man.get("steps", [])
+    if not steps:
+        v.add(MANIFEST, "steps", "the needle procedure needs at least one [[steps]] (its time is booked per step)")
+    for i, st in enumerate(steps):
+        if not records.STEP_RE.fullmatch(st.get("id", "")):
+            v.add(
+                MANIFEST,
+                f"steps.{i}.id",
+                "a step id is 1-64 letters, digits, '_', '.' or '-', starting with a "
+                "letter or digit (attempts store their time per step)",
+            )
+    for key, ent in needle_checks.hit_entities(man):
+        if not records.TARGET_RE.fullmatch(ent):
+            v.add(
+                v.file_of(key),
+                key,
+                f"'{ent[:60]}' can be touched by the needle, and an attempt stores what it touched last: such "
+                "entities are named in lower_snake_case (a-z, 0-9, _; up to 64)",
+            )
             break
 
 

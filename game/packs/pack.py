@@ -78,6 +78,7 @@ def validate(root: Path, *, load_meshes: bool = True, pack_paths=()) -> tuple[Pa
     checks.check_scenes(v, man)
     checks.check_layouts(v, man)
     checks.check_steps(v, man)
+    checks.check_procedure(v, man)
     if v.problems:
         return None, v.problems
     return Pack(root=root, manifest=man, texts=v.texts, origin=v.origin, deps=v.deps, _meshes=meshes), []

@@ -48,7 +48,7 @@ EXPECTED = {
         (17, "layouts.main.widgets", "need a viewport of kind 'panel'"),
     ],
     "unknown-section": [(5, "meshs", "did you mean 'meshes'")],
-    "missing-pack": [(None, "", "missing the [pack] table")],
+    "missing-pack": [(None, "pack", "missing the [pack] table")],
     "bad-include": [(4, "pack.includes", "escapes the pack folder"), (2, "points.chin.position", "array of 3 numbers")],
     # what only starting a scene, or reading its script, finds: run would refuse these
     "bad-default-scene": [(4, "pack.default_scene", "no scene named 'nowhere'")],
