@@ -14,6 +14,7 @@ from chainsim.engine.bodies.chainmail import ChainMailBody
 from chainsim.engine.bodies.projective import ProjectiveBody
 from chainsim.engine.bodies.xpbd import XPBDBody
 from chainsim.engine.chainmail_params import ORDERS
+from chainsim.engine.kernels.chainmail import cascade
 from chainsim.engine.kernels.normals import vertex_normals_kernel
 from chainsim.engine.meshgen import tet_grid, triangulated_grid
 from chainsim.engine.progress import progress
@@ -27,6 +28,12 @@ def _chainmail(rest, links, surface_tris):
             body = ChainMailBody(rest, links, relax=2, exact=True, order=order, dtype=dtype, fixed=fixed)
             body.grab([len(rest) - 1], rest[-1] + 0.5)
             body.cut(rest[0] - 1.0, rest[-1] + 1.0, normal=[0.0, 0.0, 1.0], depth=10.0)
+    # the level-parallel cascade, which a body takes by itself on large meshes with many threads
+    for dtype in (np.float64, np.float32):
+        body = ChainMailBody(rest, links, dtype=dtype)
+        t = (body.rest[-1] + 0.5)[None]
+        cascade(body.rest, body.positions, body.graph, body.amin, body.amax, body.beta, [len(rest) - 1], t,
+                workspace=body.workspace, parallel=True)  # fmt: skip
 
 
 def _models(rest, tets, tris):
