@@ -35,6 +35,9 @@ def test_a_run_measures_solver_and_physical_error_for_every_setting(monkeypatch)
     assert all(r.get("physical_estimated") for r in fine if "physical_error" in r)
     for r in rows:
         assert np.isfinite(r["solver_error"]) and r["ms_per_frame"] > 0
+        assert np.isfinite(r["volume_change"]) and np.isfinite(r["reference_volume_change"])
+    # the physical models invert nothing under the lift
+    assert all(r["min_J"] > 0 for r in rows if r["model"] != "chainmail")
     # the FEM solution scores zero solver error against itself; a live model does not beat physics for free
     assert all(r["physical_error"] >= 0.5 * r["mesh_error"] for r in coarse if "mesh_error" in r)
 

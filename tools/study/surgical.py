@@ -139,6 +139,18 @@ def run_setting(b: Block, model: str, params: dict, E: float, nu: float) -> tupl
     return body.positions - b.pos, info
 
 
+def volume_figures(b: Block, u: np.ndarray) -> dict:
+    """Total volume change and the smallest tetrahedron volume ratio of a displacement (mm)."""
+
+    def signed(x):
+        p = x[b.tets]
+        return np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0])
+
+    v0 = signed(b.pos)
+    ratio = signed(b.pos + u) / v0
+    return {"volume_change": float(np.sum(ratio * np.abs(v0)) / np.sum(np.abs(v0)) - 1.0), "min_J": float(ratio.min())}
+
+
 def _rms(u, ref) -> float:
     return float(np.sqrt(np.mean(np.sum((u - ref) ** 2, axis=1))) / LIFT_MM)
 
@@ -177,6 +189,10 @@ def run(mode: str = "quick", progress=None) -> dict:
                     "params": params,
                     **info,
                 }
+                if u is not None:
+                    row.update(volume_figures(b, u))
+                if refs[k] is not None:
+                    row["reference_volume_change"] = volume_figures(b, refs[k])["volume_change"]
                 if u is not None and refs[k] is not None:
                     row["solver_error"] = _rms(u, refs[k])
                 if u is not None and phys is not None:

@@ -41,8 +41,9 @@ def markdown(results: dict, plot: str | None, command: str, machine: str) -> str
         sel = [r for r in rows if r["material"] == mat]
         L += [f"## {mat}: E = {sel[0]['E']:g} Pa, nu = {sel[0]['nu']:g}", ""]
         L += [
-            "| element mm | nodes | setting | ms/frame | solver error | physical error | substeps | status |",
-            "|---:|---:|---|---:|---:|---:|---:|---|",
+            "| element mm | nodes | setting | ms/frame | solver error | physical error | volume change "
+            "(FEM) | smallest J | substeps | status |",
+            "|---:|---:|---|---:|---:|---:|---:|---:|---:|---|",
         ]
         for r in sel:
             phys = _f(r.get("physical_error"))
@@ -50,7 +51,9 @@ def markdown(results: dict, plot: str | None, command: str, machine: str) -> str
                 phys = "~" + phys
             L.append(
                 f"| {r['element_mm']:g} | {r['nodes']} | {r['setting']} | {_f(r['ms_per_frame'], '{:.2f}')} | "
-                f"{_f(r.get('solver_error'))} | {phys} | {r.get('substeps', '')} | {r['status']} |"
+                f"{_f(r.get('solver_error'))} | {phys} | {_f(r.get('volume_change'), '{:+.4f}')} "
+                f"({_f(r.get('reference_volume_change'), '{:+.4f}')}) | {_f(r.get('min_J'), '{:.2f}')} | "
+                f"{r.get('substeps', '')} | {r['status']} |"
             )
         L.append("")
     L += ["## Reference solves", "", "| material | nodes | seconds |", "|---|---:|---:|"]
