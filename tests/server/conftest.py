@@ -4,16 +4,24 @@
 ``tina`` teaches c1, trainer ``tom`` teaches c2; trainees ``alice`` and ``bob`` are in c1,
 ``carol`` in c2. Every account's password is ``PASSWORD`` and each has an API token in
 ``site.tokens``. Tests that need a server of their own (kill -9, restarts) use ``start_server``.
+
+Uploads are real: ``upload()`` is what the simulator queues after a built-in scripted attempt with
+Save pressed (its figures, its recording and the pack's identity), made once per test session.
+The server answers 202 with an upload id and scores it by replay; ``save_scored`` sends one and
+waits for the attempt the replay stored.
 """
 
 from __future__ import annotations
 
+import functools
 import http.client
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 import urllib.error
 import urllib.parse
@@ -27,6 +35,7 @@ from chainsim.game.records.store import RecordStore
 from chainsim.game.server import accounts
 
 REPO = Path(__file__).resolve().parents[2]
+SCRIPTS = REPO / "assets" / "prp" / "scripts"
 PASSWORD = "correct horse 42"
 PEOPLE = (
     ("tina", "trainer", ["c1"]),
@@ -55,6 +64,57 @@ def attempt(i: int = 0, **over) -> dict:
     }
     a.update(over)
     return a
+
+
+def save_through_simulator(url: str, local: str, script: str, trainee: str = "alice") -> None:
+    """Run a built-in scripted attempt in the simulator with --records and press Save at its end."""
+    from chainsim.components.input_events import Widget  # noqa: PLC0415 - the simulator, loaded when used
+    from chainsim.components.resources import PendingInput  # noqa: PLC0415
+    from chainsim.game.app.headless import build_app  # noqa: PLC0415
+    from chainsim.game.app.inputscript import load_script  # noqa: PLC0415
+
+    events = load_script(SCRIPTS / script)
+    end = events[-1][0]
+    app = build_app("prp", settings={"db": local, "records": url, "class": "c1", "trainee": trainee})
+    try:
+        app.resource(PendingInput).extend([*events, (end + 0.5, Widget("save"))])
+        app.run_steps(int((end + 1.0) * 120))
+    finally:
+        app.close()
+
+
+@functools.cache
+def _queued(script: str) -> str:
+    """The upload (JSON text) the simulator queues for a scripted attempt; nothing listens on port 9,
+    so it stays in the local outbox, from where it is taken."""
+    folder = tempfile.mkdtemp(prefix="chainsim-upload-")
+    try:
+        local = str(Path(folder) / "local.sqlite3")
+        save_through_simulator("http://127.0.0.1:9", local, script)
+        with RecordStore(local) as store:
+            return store.query("SELECT attempt FROM outbox")[0][0]
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def upload(script: str = "correct.toml", **over) -> dict:
+    """A real upload of the prp pack (figures, ``recording``, ``pack_identity``), fields in ``over`` changed."""
+    body = json.loads(_queued(script))
+    body.update(over)
+    return body
+
+
+def figures(script: str = "correct.toml", **over) -> dict:
+    """The simulator's own record of a real upload, without its evidence: what the procedure saves."""
+    body = upload(script, **over)
+    del body["recording"], body["pack_identity"]
+    return body
+
+
+def evidence(script: str = "correct.toml") -> dict:
+    """The recording and pack identity of a real upload: what ``RemoteRecords.save_attempt`` sends."""
+    body = upload(script)
+    return {"recording": body["recording"], "pack_identity": body["pack_identity"]}
 
 
 @dataclass
@@ -133,6 +193,36 @@ def call(server: Server, method: str, path: str, body=None, token: str | None = 
     except ValueError:
         decoded = text.decode("utf-8", "replace")
     return status, decoded, rhdrs
+
+
+def send(server: Server, who: str, body: dict, key: str | None = None, token: str | None = None):
+    """POST one upload as ``who`` (or with ``token``); (status, answer, headers)."""
+    headers = {"Idempotency-Key": key} if key else None
+    return call(server, "POST", "/api/attempts", body, token or server.tokens[who], headers)
+
+
+def wait_scored(server: Server, upload_id: int, token: str, timeout: float = 240.0) -> dict:
+    """The upload's state once it is no longer "scoring" (scored or refused)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        status, answer, _ = call(server, "GET", f"/api/uploads/{upload_id}", token=token)
+        assert status == 200, answer
+        if answer["status"] != "scoring":
+            return answer
+        time.sleep(0.2)
+    raise AssertionError(f"upload {upload_id} not scored in {timeout} s")
+
+
+def save_scored(server: Server, who: str, body: dict, key: str | None = None, token: str | None = None) -> dict:
+    """Send an upload, wait for its scoring and return the attempt the server stored."""
+    token = token or server.tokens[who]
+    status, ack, _ = send(server, who, body, key, token)
+    assert status in (200, 202), ack
+    result = wait_scored(server, ack["upload"], token)
+    assert result["status"] == "scored", result
+    status, stored, _ = call(server, "GET", f"/api/attempts/{result['attempt_id']}", token=token)
+    assert status == 200, stored
+    return stored
 
 
 class NoRedirect(urllib.request.HTTPRedirectHandler):

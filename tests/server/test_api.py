@@ -1,93 +1,112 @@
-"""The JSON API of `chainsim serve` as a client sees it, on SQLite and PostgreSQL: create, list,
-read, delete, idempotent resend, who may see what, and every kind of bad request answered 4xx
-with the server still up and nothing written."""
+"""The JSON API of `chainsim serve` as a client sees it, on SQLite and PostgreSQL: upload (202, then
+scored by replay), list, read, no deletes, idempotent resend, who may see what, and every kind of
+bad request answered 4xx with the server still up and nothing written."""
 
 from __future__ import annotations
 
 import json
 import secrets
-import time
 import uuid
 
 import pytest
-from conftest import PASSWORD, attempt, call, count_attempts
+from conftest import PASSWORD, call, count_attempts, save_scored, send, upload, wait_scored
 
 from chainsim.game.records.store import RecordStore
 from chainsim.game.server import accounts
 
 
-def save(site, who: str, a: dict, key: str | None = None):
-    headers = {"Idempotency-Key": key} if key else None
-    return call(site, "POST", "/api/attempts", a, site.tokens[who], headers)
+def count_uploads(db: str) -> int:
+    with RecordStore(db) as store:
+        return store.query("SELECT COUNT(*) FROM uploads")[0][0]
 
 
 # -- the ordinary path --------------------------------------------------------------------------
 
 
-def test_trainee_saves_lists_reads_and_deletes_own_attempt(site):
-    status, answer, hdrs = save(site, "alice", attempt(1))
-    assert status == 201, answer
-    aid = answer["id"]
-    assert hdrs["Location"] == f"/api/attempts/{aid}"
-    stored = answer["attempt"]
-    assert (stored["class_name"], stored["trainee"]) == ("c1", "alice")  # filed under the account
-    for key, value in attempt(1).items():
-        if key != "aids":
-            assert stored[key] == value, key
+def test_trainee_uploads_lists_and_reads_own_attempt_but_cannot_delete_it(site):
+    body = upload()
+    status, ack, hdrs = send(site, "alice", body)
+    assert status == 202 and ack["status"] == "scoring", ack
+    assert hdrs["Location"] == f"/api/uploads/{ack['upload']}"
+    assert (ack["class_name"], ack["trainee"], ack["filed_by"]) == ("c1", "alice", "alice")  # filed under the account
+    result = wait_scored(site, ack["upload"], site.tokens["alice"])
+    assert result["status"] == "scored", result
+    aid = result["attempt_id"]
+    status, stored, _ = call(site, "GET", f"/api/attempts/{aid}", token=site.tokens["alice"])
+    assert status == 200 and (stored["class_name"], stored["trainee"]) == ("c1", "alice")
+    assert stored["target"] == body["target"] == "foramen_ovale_left" and stored["differences"] == []
+    for key in ("landmark_error_mm", "needle_error_mm", "skull_contacts", "path_length_mm", "aids"):
+        assert stored[key] == pytest.approx(body[key]), key
     status, listed, _ = call(site, "GET", "/api/attempts", token=site.tokens["alice"])
     assert status == 200 and aid in [a["id"] for a in listed["attempts"]]
     assert {(a["class_name"], a["trainee"]) for a in listed["attempts"]} == {("c1", "alice")}
+    # attempts are records: the trainee's delete is refused and the attempt stays as it was
+    status, answer, _ = call(site, "DELETE", f"/api/attempts/{aid}", token=site.tokens["alice"])
+    assert status == 403 and "trainer" in answer["error"]
     assert call(site, "GET", f"/api/attempts/{aid}", token=site.tokens["alice"])[1] == stored
-    assert call(site, "DELETE", f"/api/attempts/{aid}", token=site.tokens["alice"])[0] == 204
-    assert call(site, "GET", f"/api/attempts/{aid}", token=site.tokens["alice"])[0] == 404
+    # the trainer is told to retract instead
+    status, answer, _ = call(site, "DELETE", f"/api/attempts/{aid}", token=site.tokens["tina"])
+    assert status == 405 and "retract" in answer["error"]
+    assert call(site, "GET", f"/api/attempts/{aid}", token=site.tokens["alice"])[0] == 200
 
 
 def test_resend_with_same_key_is_stored_once(site):
     key = uuid.uuid4().hex
-    before = count_attempts(site.db)
-    first = save(site, "bob", attempt(2), key)
-    again = save(site, "bob", attempt(2), key)
-    assert (first[0], again[0]) == (201, 200)
-    assert first[1]["id"] == again[1]["id"]
-    assert count_attempts(site.db) == before + 1
-    # The key belongs to bob's attempt: alice reusing it learns nothing and writes nothing.
-    stolen = save(site, "alice", attempt(3), key)
-    assert stolen[0] == 409 and "id" not in stolen[1]
-    assert count_attempts(site.db) == before + 1
+    before = count_uploads(site.db)
+    first = send(site, "bob", upload(), key)
+    again = send(site, "bob", upload(), key)
+    assert (first[0], again[0]) == (202, 200)
+    assert first[1]["upload"] == again[1]["upload"]
+    assert count_uploads(site.db) == before + 1
+    # The key belongs to bob's upload: alice reusing it learns nothing and writes nothing.
+    stolen = send(site, "alice", upload(), key)
+    assert stolen[0] == 409 and "upload" not in stolen[1]
+    assert count_uploads(site.db) == before + 1
+    # scored once: a resend after scoring answers with the same upload and its one attempt
+    scored = wait_scored(site, first[1]["upload"], site.tokens["bob"])
+    late = send(site, "bob", upload(), key)
+    assert late[0] == 200 and (late[1]["upload"], late[1]["attempt_id"]) == (first[1]["upload"], scored["attempt_id"])
+    with RecordStore(site.db) as store:
+        assert store.query("SELECT COUNT(*) FROM attempts WHERE idem_key = ?", (key,))[0][0] == 1
 
 
 def test_trainer_sees_taught_classes_only_and_files_for_a_trainee(site):
-    status, answer, _ = save(site, "tina", dict(attempt(4), class_name="c1", trainee="bob"))
-    assert status == 201 and answer["attempt"]["trainee"] == "bob"
-    carol = save(site, "carol", attempt(5))[1]["id"]
+    stored = save_scored(site, "tina", upload(class_name="c1", trainee="bob"))
+    assert (stored["trainee"], stored["filed_by"]) == ("bob", "tina")
+    carol = save_scored(site, "carol", upload())["id"]
     listed = call(site, "GET", "/api/attempts", token=site.tokens["tina"])[1]["attempts"]
     assert {a["class_name"] for a in listed} == {"c1"}
     assert call(site, "GET", f"/api/attempts/{carol}", token=site.tokens["tina"])[0] == 403
     assert call(site, "GET", f"/api/attempts/{carol}", token=site.tokens["tom"])[0] == 200
     assert call(site, "GET", "/api/attempts?class=c2", token=site.tokens["tina"])[0] == 403
-    assert save(site, "tina", dict(attempt(4), class_name="c2", trainee="carol"))[0] == 403
-    assert save(site, "tina", attempt(4))[0] == 422  # a trainer must say whose attempt it is
+    assert send(site, "tina", upload(class_name="c2", trainee="carol"))[0] == 403
+    assert send(site, "tina", upload())[0] == 422  # a trainer must say whose attempt it is
 
 
 # -- who may see what -----------------------------------------------------------------------------
 
 
 def test_trainee_cannot_read_list_delete_or_file_another_trainees_attempts(site):
-    bobs = save(site, "bob", attempt(6))[1]["id"]
-    before = count_attempts(site.db)
+    bob_upload = send(site, "bob", upload())[1]["upload"]
+    bobs = wait_scored(site, bob_upload, site.tokens["bob"])["attempt_id"]
+    before = (count_attempts(site.db), count_uploads(site.db))
     alice = site.tokens["alice"]
     status, answer, _ = call(site, "GET", f"/api/attempts/{bobs}", token=alice)
     assert status == 403 and "not yours" in answer["error"]
+    assert call(site, "GET", f"/api/uploads/{bob_upload}", token=alice)[0] == 403
     assert call(site, "DELETE", f"/api/attempts/{bobs}", token=alice)[0] == 403
+    assert call(site, "POST", f"/api/attempts/{bobs}/retract", {"reason": "mine now"}, alice)[0] == 403
     assert call(site, "GET", "/api/attempts?trainee=bob", token=alice)[0] == 403
     assert call(site, "GET", "/api/attempts?class=c2", token=alice)[0] == 403
-    assert save(site, "alice", dict(attempt(1), trainee="bob"))[0] == 403
-    assert save(site, "alice", dict(attempt(1), class_name="c2"))[0] == 403
-    assert count_attempts(site.db) == before
+    assert send(site, "alice", upload(trainee="bob"))[0] == 403
+    assert send(site, "alice", upload(class_name="c2"))[0] == 403
+    assert (count_attempts(site.db), count_uploads(site.db)) == before
     assert call(site, "GET", f"/api/attempts/{bobs}", token=site.tokens["bob"])[0] == 200
-    # a trainer of another class cannot delete it either
+    # a trainer of another class can neither delete nor retract it
     assert call(site, "DELETE", f"/api/attempts/{bobs}", token=site.tokens["tom"])[0] == 403
-    assert count_attempts(site.db) == before
+    assert call(site, "POST", f"/api/attempts/{bobs}/retract", {"reason": "x"}, site.tokens["tom"])[0] == 403
+    assert (count_attempts(site.db), count_uploads(site.db)) == before
+    assert call(site, "GET", f"/api/attempts/{bobs}", token=site.tokens["bob"])[1]["retracted_by"] is None
 
 
 # -- credentials -----------------------------------------------------------------------------------
@@ -111,7 +130,7 @@ def test_missing_or_forged_token_is_401(site, header):
     headers = {"Authorization": header} if header else {}
     status, answer, hdrs = call(site, "GET", "/api/attempts", headers=headers)
     assert status == 401 and "error" in answer and "Bearer" in hdrs["WWW-Authenticate"]
-    assert call(site, "POST", "/api/attempts", attempt(), headers=headers)[0] == 401
+    assert call(site, "POST", "/api/attempts", upload(), headers=headers)[0] == 401
     assert count_attempts(site.db) == before
 
 
@@ -159,14 +178,14 @@ BAD_BODIES = [
 
 @pytest.mark.parametrize("what,raw,ctype,expected", BAD_BODIES, ids=[b[0] for b in BAD_BODIES])
 def test_bad_bodies_are_4xx_and_write_nothing(site, what, raw, ctype, expected):
-    before = count_attempts(site.db)
+    before = (count_attempts(site.db), count_uploads(site.db))
     status, answer, _ = call(
         site, "POST", "/api/attempts", raw=raw, token=site.tokens["alice"], headers={"Content-Type": ctype}
     )
     assert status == expected, answer
     assert isinstance(answer, dict) and "\n" not in answer["error"]
     assert site.alive()
-    assert count_attempts(site.db) == before
+    assert (count_attempts(site.db), count_uploads(site.db)) == before
 
 
 BAD_FIELDS = [
@@ -183,29 +202,29 @@ BAD_FIELDS = [
 
 @pytest.mark.parametrize("change,named", BAD_FIELDS, ids=[n for _, n in BAD_FIELDS])
 def test_bad_fields_are_422_naming_the_field(site, change, named):
-    before = count_attempts(site.db)
-    status, answer, _ = save(site, "alice", attempt(0, **change))
+    before = (count_attempts(site.db), count_uploads(site.db))
+    status, answer, _ = send(site, "alice", upload(**change))
     assert status in (400, 422), answer
     assert named in answer["error"] and "\n" not in answer["error"]
-    assert count_attempts(site.db) == before
+    assert (count_attempts(site.db), count_uploads(site.db)) == before
     assert site.alive()
 
 
 def test_injection_shaped_and_huge_names(site):
     nasty = "x'); DROP TABLE attempts;--"
-    status, answer, _ = save(site, "tina", dict(attempt(7), class_name="c1", trainee=nasty))
-    assert status == 201 and answer["attempt"]["trainee"] == nasty  # stored as text, nothing run
+    stored = save_scored(site, "tina", upload(class_name="c1", trainee=nasty))
+    assert stored["trainee"] == nasty  # stored as text, nothing run
     q = "?trainee=" + urllib_quote(nasty)
     listed = call(site, "GET", "/api/attempts" + q, token=site.tokens["tina"])[1]["attempts"]
     assert [a["trainee"] for a in listed] == [nasty]
-    before = count_attempts(site.db)
-    assert save(site, "tina", dict(attempt(7), class_name="c1", trainee="n" * 10_000))[0] == 422
+    before = (count_attempts(site.db), count_uploads(site.db))
+    assert send(site, "tina", upload(class_name="c1", trainee="n" * 10_000))[0] == 422
     assert call(site, "GET", "/api/attempts?class=" + "c" * 10_000, token=site.tokens["tina"])[0] == 400
     assert call(site, "GET", "/api/attempts/" + "9" * 40, token=site.tokens["tina"])[0] == 404
     assert call(site, "GET", "/api/attempts/-1", token=site.tokens["tina"])[0] == 404
-    assert save(site, "alice", attempt(0), key="k" * 10_000)[0] == 422
-    assert save(site, "alice", attempt(0), key="bad key!")[0] == 422
-    assert count_attempts(site.db) == before
+    assert send(site, "alice", upload(), key="k" * 10_000)[0] == 400
+    assert send(site, "alice", upload(), key="bad key!")[0] == 400
+    assert (count_attempts(site.db), count_uploads(site.db)) == before
     assert site.alive()
 
 
@@ -224,15 +243,19 @@ def test_errors_are_json_and_pages_carry_security_headers(site):
     assert hdrs["X-Content-Type-Options"] == "nosniff"
 
 
-def test_many_concurrent_saves_all_land(site):
+def test_many_concurrent_uploads_all_land_and_are_scored_once(site):
     from concurrent.futures import ThreadPoolExecutor
 
-    before = count_attempts(site.db)
+    before = (count_attempts(site.db), count_uploads(site.db))
     keys = [secrets.token_hex(8) for _ in range(40)]
+    body = upload("skull-hit.toml")
     with ThreadPoolExecutor(8) as pool:
-        results = list(pool.map(lambda k: save(site, "carol", attempt(int(k[:2], 16) % 9), k), keys))
-    assert all(r[0] == 201 for r in results)
-    assert len({r[1]["id"] for r in results}) == 40
-    assert count_attempts(site.db) == before + 40
-    time.sleep(0)  # (nothing to wait for: every save was acknowledged after commit)
-    assert json.dumps(results[0][1]["attempt"])  # what came back is plain JSON
+        acks = list(pool.map(lambda k: send(site, "carol", body, k), keys))
+    assert all(r[0] == 202 for r in acks), [r for r in acks if r[0] != 202][:1]
+    assert len({r[1]["upload"] for r in acks}) == 40
+    assert count_uploads(site.db) == before[1] + 40
+    scored = [wait_scored(site, r[1]["upload"], site.tokens["carol"]) for r in acks]
+    assert all(r["status"] == "scored" for r in scored)
+    assert len({r["attempt_id"] for r in scored}) == 40
+    assert count_attempts(site.db) == before[0] + 40
+    assert json.dumps(scored[0])  # what came back is plain JSON

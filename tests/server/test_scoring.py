@@ -12,31 +12,12 @@ from __future__ import annotations
 
 import json
 import signal
-import time
 
 import pytest
-from conftest import PASSWORD, call, populate, start_server
+from conftest import PASSWORD, call, populate, save_through_simulator, start_server, wait_scored
 
-from chainsim.components.input_events import Widget
-from chainsim.components.resources import PendingInput
-from chainsim.game.app.headless import build_app
-from chainsim.game.app.inputscript import load_script
 from chainsim.game.records import provenance, remote
 from chainsim.game.records.store import RecordStore
-
-SCRIPTS = "assets/prp/scripts"
-
-
-def save_through_simulator(url: str, local: str, script: str, trainee: str = "alice") -> None:
-    """Run a built-in scripted attempt in the simulator with --records and press Save at its end."""
-    events = load_script(f"{SCRIPTS}/{script}")
-    end = events[-1][0]
-    app = build_app("prp", settings={"db": local, "records": url, "class": "c1", "trainee": trainee})
-    try:
-        app.resource(PendingInput).extend([*events, (end + 0.5, Widget("save"))])
-        app.run_steps(int((end + 1.0) * 120))
-    finally:
-        app.close()
 
 
 def queue_offline(tmp_path, url: str, script: str, name: str = "local.sqlite3") -> str:
@@ -46,17 +27,6 @@ def queue_offline(tmp_path, url: str, script: str, name: str = "local.sqlite3") 
     with RecordStore(local) as store, store.transaction() as conn:
         conn.execute("UPDATE outbox SET server = ?", (url,))
     return local
-
-
-def wait_scored(server, upload_id: int, token: str, timeout: float = 120.0) -> dict:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        status, answer, _ = call(server, "GET", f"/api/uploads/{upload_id}", token=token)
-        assert status == 200, answer
-        if answer["status"] != "scoring":
-            return answer
-        time.sleep(0.3)
-    raise AssertionError(f"upload {upload_id} not scored in {timeout} s")
 
 
 @pytest.fixture
