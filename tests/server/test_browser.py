@@ -15,7 +15,7 @@ import re
 import shutil
 
 import pytest
-from conftest import PASSWORD, attempt, call
+from conftest import PASSWORD, save_scored, send, upload, wait_scored
 from records_db import missing
 
 CHROMIUM = "/usr/bin/chromium"
@@ -55,9 +55,11 @@ def sign_in(page, site, name: str) -> None:
 
 
 def test_trainer_signs_in_opens_progress_plot_and_exports_csv(browser, site, tmp_path):
-    for i in range(4):
-        assert call(site, "POST", "/api/attempts", attempt(i), site.tokens["alice"])[0] == 201
-    assert call(site, "POST", "/api/attempts", attempt(2), site.tokens["bob"])[0] == 201
+    sent = [send(site, "alice", upload(("correct.toml", "skull-hit.toml")[i % 2])) for i in range(4)]
+    sent.append(send(site, "bob", upload("skull-hit.toml")))
+    assert [status for status, _, _ in sent] == [202] * 5
+    for (_, ack, _), who in zip(sent, ["alice"] * 4 + ["bob"], strict=True):
+        assert wait_scored(site, ack["upload"], site.tokens[who])["status"] == "scored"
     context = browser.new_context(accept_downloads=True)
     page = context.new_page()
     try:
@@ -89,7 +91,7 @@ def test_trainer_signs_in_opens_progress_plot_and_exports_csv(browser, site, tmp
 
 
 def test_trainee_gets_403_on_another_trainees_attempt(browser, site):
-    bobs = call(site, "POST", "/api/attempts", attempt(3), site.tokens["bob"])[1]["id"]
+    bobs = save_scored(site, "bob", upload())["id"]
     context = browser.new_context()
     page = context.new_page()
     try:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import io
 import sys
 
-from conftest import PASSWORD, attempt, call, start_server
+from conftest import PASSWORD, call, save_scored, start_server, upload
 
 from chainsim.game.records.store import RecordStore
 from chainsim.game.server import accounts
@@ -31,7 +31,7 @@ def test_serve_acceptance(records_db, tmp_path, cli, monkeypatch):
         status, page, _ = call(server, "GET", "/login")
         assert status == 200 and '<form method="post" action="/login"' in page
         assert call(server, "GET", "/api/attempts")[0] == 401
-        bobs = call(server, "POST", "/api/attempts", attempt(1), bob)[1]["id"]
+        bobs = save_scored(server, "bob", upload(), token=bob)["id"]
         assert call(server, "GET", f"/api/attempts/{bobs}", token=alice)[0] == 403
         assert call(server, "GET", f"/api/attempts/{bobs}", token=bob)[0] == 200
         # a new password revokes every token of the account

@@ -1,13 +1,29 @@
 """The simulator saving to a records server: online, offline (queued, sent later), lost answers
-(sent again, stored once), and the command line (`run --records`, `records login`, `records sync`)."""
+(sent again, stored once), and the command line (`run --records`, `records login`, `records sync`).
+
+Every save carries its recording and pack identity; the server acknowledges it with an upload id
+and stores the attempt once its replay has scored it."""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
 
-from conftest import PASSWORD, REPO, attempt, call, count_attempts, populate, start_server
+from conftest import (
+    PASSWORD,
+    REPO,
+    attempt,
+    call,
+    count_attempts,
+    evidence,
+    figures,
+    populate,
+    send,
+    start_server,
+    wait_scored,
+)
 from records_db import free_port
 
 from chainsim.components.hud import HudState
@@ -41,14 +57,17 @@ def test_window_save_goes_to_the_server_and_my_attempts_lists_it(site, tmp_path)
         assert remote.login(store, site.url, "alice", PASSWORD)["role"] == "trainee"
     before = count_attempts(site.db)
     text = play_and_save({"db": local, "records": site.url, "class": "c1", "trainee": "alice"})
-    assert count_attempts(site.db) == before + 1
-    with RecordStore(site.db) as store:
-        newest = store.list_attempts("c1", "alice")[-1]
-    assert newest["target"] == "foramen_ovale_left" and newest["pack"] == "prp"
     assert any(line.startswith("Attempts of alice (c1):") for line in text)
     with RecordStore(local) as store:
         assert remote.pending(store) == []
-        assert store.query("SELECT remote_id FROM outbox")[0][0] == newest["id"]
+        upload_id = store.query("SELECT remote_id FROM outbox")[0][0]
+    result = wait_scored(site, upload_id, site.tokens["alice"])
+    assert result["status"] == "scored", result
+    assert count_attempts(site.db) == before + 1
+    with RecordStore(site.db) as store:
+        newest = store.list_attempts("c1", "alice")[-1]
+    assert newest["id"] == result["attempt_id"]
+    assert newest["target"] == "foramen_ovale_left" and newest["pack"] == "prp" and newest["differences"] == []
 
 
 def test_offline_save_is_queued_then_synced_once(tmp_path, records_db):
@@ -63,7 +82,7 @@ def test_offline_save_is_queued_then_synced_once(tmp_path, records_db):
     rr = remote.RemoteRecords(url, local)
     try:
         try:
-            rr.save_attempt("c1", "bob", attempt(1))
+            rr.save_attempt("c1", "bob", figures(), evidence())
             raise AssertionError("saved to a server that is down")
         except remote.KeptOffline as exc:
             assert "unreachable" in str(exc) and "records sync" in str(exc)
@@ -78,6 +97,9 @@ def test_offline_save_is_queued_then_synced_once(tmp_path, records_db):
         with RecordStore(local) as store:
             assert remote.sync(store) == {"sent": 1, "waiting": 0, "problems": []}
             assert remote.sync(store) == {"sent": 0, "waiting": 0, "problems": []}
+            upload_id = store.query("SELECT remote_id FROM outbox")[0][0]
+        token = call(server, "POST", "/api/login", {"name": "bob", "password": PASSWORD})[1]["token"]
+        assert wait_scored(server, upload_id, token)["status"] == "scored"
         assert count_attempts(records_db) == 1
     finally:
         server.stop()
@@ -87,24 +109,23 @@ def test_lost_answer_is_sent_again_and_stored_once(site, tmp_path):
     local = str(tmp_path / "local.sqlite3")
     with RecordStore(local) as store:
         remote.login(store, site.url, "carol", PASSWORD)
-        row_id = remote.enqueue(store, site.url, "c2", "carol", attempt(2))
+        row_id = remote.enqueue(store, site.url, "c2", "carol", figures(), evidence())
         row = [r for r in remote.pending(store) if r["id"] == row_id][0]
-        # the server stored it but the answer never came back (the simulator crashed before marking)
-        status, first, _ = call(
-            site, "POST", "/api/attempts", attempt(2), site.tokens["carol"], {"Idempotency-Key": row["idem_key"]}
-        )
-        assert status == 201
+        # the server took it but the answer never came back (the simulator crashed before marking)
+        status, first, _ = send(site, "carol", json.loads(row["attempt"]), row["idem_key"])
+        assert status == 202
+        wait_scored(site, first["upload"], site.tokens["carol"])
         before = count_attempts(site.db)
         assert remote.sync(store)["sent"] == 1
         assert count_attempts(site.db) == before
-        assert store.query("SELECT remote_id FROM outbox WHERE id = ?", (row_id,))[0][0] == first["id"]
+        assert store.query("SELECT remote_id FROM outbox WHERE id = ?", (row_id,))[0][0] == first["upload"]
 
 
 def test_refused_attempt_stays_in_the_queue_with_the_reason(site, tmp_path):
     local = str(tmp_path / "local.sqlite3")
     with RecordStore(local) as store:
         remote.login(store, site.url, "tina", PASSWORD)  # a trainer may not file for class c2
-        remote.enqueue(store, site.url, "c2", "carol", attempt(1))
+        remote.enqueue(store, site.url, "c2", "carol", attempt(1), evidence())
         result = remote.sync(store)
         assert result["sent"] == 0 and result["waiting"] == 1 and "403" in result["problems"][0]
         assert "teach" in store.query("SELECT last_error FROM outbox")[0][0]
@@ -133,6 +154,9 @@ def test_command_line_run_login_and_sync(site, tmp_path):
     before = count_attempts(site.db)
     r = chainsim("run", "prp", "--steps", "720", "--input", str(script), "--db", local, "--records", site.url, "--json")
     assert r.returncode == 0, r.stderr
+    with RecordStore(local) as store:
+        upload_id = store.query("SELECT remote_id FROM outbox")[0][0]
+    assert wait_scored(site, upload_id, site.tokens["alice"])["status"] == "scored"
     assert count_attempts(site.db) == before + 1
     r = chainsim("records", "--db", local, "sync")
     assert r.returncode == 0 and "sent 0 attempt(s); 0 waiting" in r.stdout
