@@ -541,7 +541,7 @@ def check_procedure(v: Validator, man: dict) -> None:
                 "letter or digit (attempts store their time per step)",
             )
     for key, ent in needle_checks.hit_entities(man):
-        if not records.TARGET_RE.fullmatch(ent):
+        if ent in man.get("entities", {}) and not records.TARGET_RE.fullmatch(ent):
             v.add(
                 v.file_of(key),
                 key,
