@@ -1,9 +1,10 @@
-"""kill -9 of the records server in the middle of a burst of saves, on SQLite and PostgreSQL.
+"""kill -9 of the records server in the middle of a burst of uploads, on SQLite and PostgreSQL.
 
-Eight clients save attempts with idempotency keys as fast as the server answers; once enough
-saves were acknowledged the server process gets SIGKILL. After a restart on the same database
-every acknowledged attempt is there with its fields, and resending everything that was sent
-(acknowledged or not) with the same keys adds each attempt at most once.
+Eight clients send real uploads (recording and pack identity) with idempotency keys as fast as
+the server acknowledges them; once enough were acknowledged the server process gets SIGKILL.
+After a restart on the same database every acknowledged upload is there and is scored into an
+attempt, and resending everything that was sent (acknowledged or not) with the same keys adds
+each upload, and each attempt, at most once.
 """
 
 from __future__ import annotations
@@ -13,16 +14,27 @@ import threading
 import uuid
 
 import pytest
-from conftest import attempt, call, count_attempts, populate, start_server
+from conftest import PASSWORD, call, count_attempts, populate, start_server, upload, wait_scored
+
+from chainsim.game.records.store import RecordStore
+
+#: acknowledged uploads before the kill; each one costs a replay after the restart
+ENOUGH = 24
+
+
+def count_uploads(db: str) -> int:
+    with RecordStore(db) as store:
+        return store.query("SELECT COUNT(*) FROM uploads")[0][0]
 
 
 @pytest.mark.skipif(not hasattr(signal, "SIGKILL"), reason="needs POSIX SIGKILL")
-def test_acknowledged_attempts_survive_kill_9(records_db, tmp_path):
+def test_acknowledged_uploads_survive_kill_9_and_are_scored_once(records_db, tmp_path):
     populate(records_db)
     server = start_server(records_db, tmp_path / "serve.log")
-    token = call(server, "POST", "/api/login", {"name": "alice", "password": "correct horse 42"})[1]["token"]
-    acked: dict[str, int] = {}  # idempotency key -> id, for answered saves
-    sent: dict[str, dict] = {}  # every key a client tried, with its attempt
+    token = call(server, "POST", "/api/login", {"name": "alice", "password": PASSWORD})[1]["token"]
+    base = upload("skull-hit.toml")
+    acked: dict[str, int] = {}  # idempotency key -> upload id, for answered uploads
+    sent: dict[str, dict] = {}  # every key a client tried, with its upload
     lock = threading.Lock()
     enough = threading.Event()
     stop = threading.Event()
@@ -31,20 +43,21 @@ def test_acknowledged_attempts_survive_kill_9(records_db, tmp_path):
     def client(n: int) -> None:
         i = 0
         while not stop.is_set():
-            key, a = uuid.uuid4().hex, attempt(n, duration_s=float(1000 * n + i))
+            # the simulator's own duration tells the uploads apart (the replay's is kept beside it)
+            key, body = uuid.uuid4().hex, {**base, "duration_s": float(1000 * n + i)}
             with lock:
-                sent[key] = a
+                sent[key] = body
             try:
-                status, answer, _ = call(server, "POST", "/api/attempts", a, token, {"Idempotency-Key": key})
+                status, answer, _ = call(server, "POST", "/api/attempts", body, token, {"Idempotency-Key": key})
             except OSError:  # the server died under this request: not acknowledged
                 return
-            if status != 201:
+            if status != 202:
                 refused.append((status, answer))
                 enough.set()
                 return
             with lock:
-                acked[key] = answer["id"]
-                if len(acked) >= 60:
+                acked[key] = answer["upload"]
+                if len(acked) >= ENOUGH:
                     enough.set()
             i += 1
 
@@ -52,7 +65,7 @@ def test_acknowledged_attempts_survive_kill_9(records_db, tmp_path):
     for t in threads:
         t.start()
     try:
-        assert enough.wait(120), "the server did not acknowledge 60 saves"
+        assert enough.wait(120), f"the server did not acknowledge {ENOUGH} uploads"
         assert not refused, refused[0]
         server.proc.send_signal(signal.SIGKILL)
         assert server.proc.wait(10) == -signal.SIGKILL
@@ -66,18 +79,25 @@ def test_acknowledged_attempts_survive_kill_9(records_db, tmp_path):
 
     server = start_server(records_db, tmp_path / "serve-again.log")
     try:
-        for key, aid in acked_now.items():
-            status, got, _ = call(server, "GET", f"/api/attempts/{aid}", token=token)
-            assert status == 200, (aid, got)
-            assert got["duration_s"] == sent_now[key]["duration_s"]
-        stored_before_resend = count_attempts(records_db)
-        assert stored_before_resend >= len(acked_now)
-        for key, a in sent_now.items():
-            status, answer, _ = call(server, "POST", "/api/attempts", a, token, {"Idempotency-Key": key})
-            assert status in (200, 201), answer
-            if key in acked_now:
-                assert (status, answer["id"]) == (200, acked_now[key])
-        # each key is stored exactly once: acknowledged or in flight at the kill, never twice
+        assert count_uploads(records_db) >= len(acked_now)
+        for key, upload_id in acked_now.items():
+            status, answer, _ = call(server, "POST", "/api/attempts", sent_now[key], token, {"Idempotency-Key": key})
+            assert (status, answer["upload"]) == (200, upload_id), answer
+        for key, body in sent_now.items():
+            status, answer, _ = call(server, "POST", "/api/attempts", body, token, {"Idempotency-Key": key})
+            assert status in (200, 202), answer
+        # each key is one upload: acknowledged or in flight at the kill, never two
+        assert count_uploads(records_db) == len(sent_now)
+        for key, upload_id in acked_now.items():
+            result = wait_scored(server, upload_id, token)
+            assert result["status"] == "scored", result
+            status, got, _ = call(server, "GET", f"/api/attempts/{result['attempt_id']}", token=token)
+            assert status == 200 and got["client_figures"]["duration_s"] == sent_now[key]["duration_s"]
+        with RecordStore(records_db) as store:
+            waiting = [r[0] for r in store.query("SELECT id FROM uploads WHERE state = 'scoring'")]
+        for upload_id in waiting:
+            assert wait_scored(server, upload_id, token)["status"] == "scored"
+        # and each upload one attempt
         assert count_attempts(records_db) == len(sent_now)
     finally:
         server.stop()
