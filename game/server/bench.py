@@ -1,18 +1,27 @@
-"""`chainsim bench records`: load on a local records server, then a check that nothing was lost.
+"""`chainsim bench records`: real uploads to a local records server, scored by replay; speed and a count check.
 
-Starts ``chainsim serve`` on 127.0.0.1 over the given database (a fresh SQLite file in a
-temporary folder by default, or a postgresql:// URL of a scratch database), makes one trainee
-account and API token per client in a class of its own, and lets ``--clients`` threads save
-attempts through the JSON API (keep-alive connections, an idempotency key each) for
-``--seconds``. Reports attempts per second, latency percentiles and errors, then counts the
-attempts in the database: the count must equal the acknowledged saves. The bench class, its
-accounts and attempts are removed at the end (``--keep`` leaves them), and the server stopped.
+First the bench makes one real upload as the simulator does: the built-in rhizotomy pack runs its
+scripted correct attempt headless and presses Save, and the upload the simulator queues (its
+figures, the compressed recording, the pack's identity) is taken from its local outbox. It times
+replaying that recording the way the server scores it, pinned to one core: the replay speed is
+replay seconds per simulated second (below 0.1 is "10x real time or faster").
+
+Then it starts ``chainsim serve`` on 127.0.0.1 over the given database (a fresh SQLite file in a
+temporary folder by default, or a postgresql:// URL of a scratch database) with ``--scorers N``
+replay workers, makes one trainee account and API token per client in a class of its own, and lets
+``--clients`` threads each send ``--attempts`` uploads through the JSON API (keep-alive
+connections, an idempotency key each). Acknowledgement is the time from sending an upload to its
+202; scoring is the time from the 202 to the server having stored the replay's attempt (the bench
+watches the uploads table every 0.2 s). The count check: every acknowledged upload scored, once,
+into one attempt, and nothing refused. The bench class, its accounts, uploads and attempts are
+removed at the end (``--keep`` leaves them), and the server is stopped.
 """
 
 from __future__ import annotations
 
 import http.client
 import json
+import os
 import secrets
 import signal
 import statistics
@@ -26,31 +35,90 @@ from typing import Any
 
 from chainsim.engine.errors import UserError
 
-HELP = "load a local records server with N clients saving attempts; attempts/s, latency, errors, count check"
+HELP = "real uploads to a local records server: replay speed, acknowledgement and scoring p50/p99, count check"
 PASSWORD = "bench-" + "x" * 12
+#: how often the bench looks for newly scored uploads (seconds): the resolution of the scoring times
+POLL_S = 0.2
+#: the scripted attempt every bench upload carries
+SCRIPT = "correct.toml"
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--clients", type=int, default=50, help="concurrent clients (default 50)")
-    p.add_argument("--seconds", type=float, default=60.0, help="how long they save (default 60)")
+    p.add_argument("--clients", type=int, default=50, help="trainees uploading at once (default 50)")
+    p.add_argument("--attempts", type=int, default=20, help="uploads per trainee (default 20)")
+    p.add_argument("--scorers", type=int, default=2, help="the server's replay workers (serve --scorers, default 2)")
     p.add_argument("--db", metavar="PATH|URL", help="records database (default: a new SQLite file in a temp folder)")
-    p.add_argument("--keep", action="store_true", help="keep the bench class, its accounts and attempts")
+    p.add_argument("--timeout", type=float, default=3600.0, help="longest wait for the scoring, seconds (default 3600)")
+    p.add_argument("--keep", action="store_true", help="keep the bench class, its accounts, uploads and attempts")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
-def _attempt(i: int) -> dict:
+# -- one real upload, and how fast it replays -----------------------------------------------------
+
+
+def make_upload(folder: Path) -> dict:
+    """The upload the simulator queues after the prp pack's scripted correct attempt and a Save."""
+    from chainsim.components.input_events import Widget  # noqa: PLC0415 - the simulator, loaded when used
+    from chainsim.components.resources import PendingInput  # noqa: PLC0415
+    from chainsim.game.app.headless import build_app  # noqa: PLC0415
+    from chainsim.game.app.inputscript import load_script  # noqa: PLC0415
+    from chainsim.game.records.store import RecordStore  # noqa: PLC0415
+    from chainsim.game.server.scoring import ServerPacks  # noqa: PLC0415
+
+    info = ServerPacks().info("prp")
+    if info is None:
+        raise UserError("the built-in pack 'prp' is missing; reinstall chainsim")
+    events = load_script(Path(info["root"]) / "scripts" / SCRIPT)
+    end = events[-1][0]
+    local = str(folder / "simulator.sqlite3")
+    # nobody is signed in to this address, so the save stays in the local outbox without a request
+    settings = {"db": local, "records": "http://127.0.0.1:9", "class": "bench", "trainee": "bench"}
+    app = build_app("prp", settings=settings)
+    try:
+        app.resource(PendingInput).extend([*events, (end + 0.5, Widget("save"))])
+        app.run_steps(int((end + 1.0) * 120))
+    finally:
+        app.close()
+    with RecordStore(local) as store:
+        rows = store.query("SELECT attempt FROM outbox")
+    if not rows:
+        raise UserError(f"the scripted attempt {SCRIPT} did not save; the bench has no upload to send")
+    return json.loads(rows[0][0])
+
+
+def replay_speed(upload: dict, runs: int = 3) -> dict[str, Any]:
+    """Time the server's replay of ``upload`` on one core: the median of ``runs`` after a warm-up."""
+    from chainsim.game.records import provenance  # noqa: PLC0415
+    from chainsim.game.server.scoring import ServerPacks, replay_record  # noqa: PLC0415
+
+    info = ServerPacks().info("prp")
+    recording = provenance.decode_recording(upload["recording"])
+    simulated = recording["steps"] * recording["dt"]
+    pinned = hasattr(os, "sched_getaffinity")
+    before = os.sched_getaffinity(0) if pinned else None
+    if pinned:  # one core, as one scorer gets when every scorer is busy
+        os.sched_setaffinity(0, {min(before)})
+    try:
+        replay_record(upload["recording"], info["root"], [])  # warm-up: kernels loaded, caches filled
+        times = []
+        for _ in range(runs):
+            t0 = time.perf_counter()
+            replay_record(upload["recording"], info["root"], [])
+            times.append(time.perf_counter() - t0)
+    finally:
+        if pinned:
+            os.sched_setaffinity(0, before)
+    replay_s = statistics.median(times)
     return {
-        "pack": "prp",
-        "duration_s": 60.0 + i % 50,
-        "landmark_error_mm": 2.0 + (i % 7) * 0.5,
-        "needle_error_mm": 1.0 - (i % 5) * 0.5,
-        "target": "foramen_ovale_left",
-        "skull_contacts": i % 4,
-        "path_length_mm": 55.0 + i % 10,
-        "aids": {"tip_view": True, "reference_planes": i % 2 == 0},
-        "step_times": {"landmarks": 25.0, "insert": 35.0 + i % 10},
-        "details": {"D1": 1.5, "d1": 0.25, "side": "left"},
+        "simulated_s": round(simulated, 3),
+        "replay_s": round(replay_s, 3),
+        "replay_s_per_simulated_s": round(replay_s / simulated, 4),
+        "times_real_time": round(simulated / replay_s, 1),
+        "one_core": pinned,
     }
+
+
+# -- the load ------------------------------------------------------------------------------------
 
 
 def _free_port() -> int:
@@ -61,11 +129,12 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _start_server(db: str, log: Path) -> tuple[subprocess.Popen, int]:
+def _start_server(db: str, log: Path, scorers: int) -> tuple[subprocess.Popen, int]:
     port = _free_port()
     with log.open("ab") as fh:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "chainsim.game", "-q", "serve", "--db", db, "--port", str(port)],
+            [sys.executable, "-m", "chainsim.game", "-q", "serve", "--db", db, "--port", str(port)]
+            + ["--scorers", str(scorers)],
             stdout=fh,
             stderr=subprocess.STDOUT,
         )
@@ -85,13 +154,13 @@ def _start_server(db: str, log: Path) -> tuple[subprocess.Popen, int]:
     raise UserError("chainsim serve did not answer within 60 s")
 
 
-def _client(port: int, token: str, deadline: float, out: dict[str, Any], lock: threading.Lock) -> None:
+def _client(port: int, token: str, body: bytes, attempts: int, out: dict[str, Any], lock: threading.Lock) -> None:
+    """Send ``attempts`` uploads one after another; note each acknowledgement's latency and time."""
     latencies: list[float] = []
-    acked = errors = 0
-    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
-    i = 0
-    while time.monotonic() < deadline:
-        body = json.dumps(_attempt(i))
+    acked: dict[int, float] = {}
+    errors: list[str] = []
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
+    for _ in range(attempts):
         headers = {
             "Content-Type": "application/json",
             "Authorization": f"Bearer {token}",
@@ -101,43 +170,78 @@ def _client(port: int, token: str, deadline: float, out: dict[str, Any], lock: t
         try:
             conn.request("POST", "/api/attempts", body, headers)
             resp = conn.getresponse()
-            resp.read()
+            raw = resp.read()
             status = resp.status
-        except (OSError, http.client.HTTPException):
-            status = 0
+        except (OSError, http.client.HTTPException) as exc:
+            status, raw = 0, str(exc).encode()
             conn.close()
-            conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+            conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
         latencies.append(time.perf_counter() - t0)
-        if status == 201:
-            acked += 1
+        if status == 202:
+            acked[int(json.loads(raw)["upload"])] = time.monotonic()
         else:
-            errors += 1
-        i += 1
+            errors.append(f"{status}: {raw[:200].decode('utf-8', 'replace')}")
     conn.close()
     with lock:
         out["latencies"].extend(latencies)
-        out["acked"] += acked
-        out["errors"] += errors
+        out["acked"].update(acked)
+        out["errors"].extend(errors)
 
 
-def _percentile(values: list[float], q: float) -> float:
+def _percentile(values: list[float], q: float) -> float | None:
     if not values:
-        return float("nan")
+        return None
     ordered = sorted(values)
     return ordered[min(len(ordered) - 1, int(round(q * (len(ordered) - 1))))]
 
 
-def run_bench(db: str | None, clients: int, seconds: float, keep: bool = False) -> dict[str, Any]:
+def _ms(value: float | None) -> float | None:
+    return None if value is None else round(1000 * value, 1)
+
+
+def _watch_scoring(db: str, class_name: str, acked: dict[int, float], timeout: float) -> dict[int, float]:
+    """Monotonic time each acknowledged upload was first seen no longer scoring (until all are, or timeout)."""
+    from chainsim.game.records.store import RecordStore  # noqa: PLC0415
+
+    done: dict[int, float] = {}
+    deadline = time.monotonic() + timeout
+    with RecordStore(db) as store:
+        while len(done) < len(acked) and time.monotonic() < deadline:
+            rows = store.query("SELECT id FROM uploads WHERE class_name = ? AND state != 'scoring'", (class_name,))
+            now = time.monotonic()
+            for (uid,) in rows:
+                done.setdefault(int(uid), now)
+            if len(done) < len(acked):
+                time.sleep(POLL_S)
+    return done
+
+
+def run_bench(
+    db: str | None,
+    clients: int,
+    attempts: int,
+    scorers: int = 2,
+    keep: bool = False,
+    timeout: float = 3600.0,
+) -> dict[str, Any]:
     from chainsim.game.records.backend import is_postgres  # noqa: PLC0415 - keep `chainsim bench -h` light
     from chainsim.game.records.store import RecordStore  # noqa: PLC0415
     from chainsim.game.server import accounts  # noqa: PLC0415
 
     if not 1 <= clients <= 500:
         raise UserError(f"--clients must be 1-500, got {clients}")
-    if not 0.5 <= seconds <= 600:
-        raise UserError(f"--seconds must be 0.5-600, got {seconds}")
+    if not 1 <= attempts <= 1000:
+        raise UserError(f"--attempts must be 1-1000, got {attempts}")
+    if not 1 <= scorers <= 64:
+        raise UserError(f"--scorers must be 1-64, got {scorers}")
+    if not 1 <= timeout <= 86400:
+        raise UserError(f"--timeout must be 1-86400 seconds, got {timeout}")
     tmp = tempfile.TemporaryDirectory(prefix="chainsim-bench-")
-    db = db or str(Path(tmp.name) / "bench.sqlite3")
+    folder = Path(tmp.name)
+    upload = make_upload(folder)
+    speed = replay_speed(upload)
+    body = json.dumps(upload).encode()
+    db = db or str(folder / "bench.sqlite3")
     class_name = f"bench-{secrets.token_hex(4)}"
     with RecordStore(db) as store:
         backend = "postgresql" if is_postgres(db) else "sqlite"
@@ -146,18 +250,19 @@ def run_bench(db: str | None, clients: int, seconds: float, keep: bool = False) 
         for n in range(clients):
             user = accounts.add_user(store, f"{class_name}-{n:03d}", "trainee", PASSWORD, [class_name])
             tokens.append(accounts.issue_token(store, user, "bench", 3600)[0])
-    proc, port = _start_server(db, Path(tmp.name) / "serve.log")
-    out: dict[str, Any] = {"latencies": [], "acked": 0, "errors": 0}
+    proc, port = _start_server(db, folder / "serve.log", scorers)
+    out: dict[str, Any] = {"latencies": [], "acked": {}, "errors": []}
     lock = threading.Lock()
     try:
         t0 = time.monotonic()
-        deadline = t0 + seconds
-        threads = [threading.Thread(target=_client, args=(port, tok, deadline, out, lock)) for tok in tokens]
+        threads = [threading.Thread(target=_client, args=(port, tok, body, attempts, out, lock)) for tok in tokens]
         for t in threads:
             t.start()
         for t in threads:
             t.join()
-        elapsed = time.monotonic() - t0
+        sent_s = time.monotonic() - t0
+        done = _watch_scoring(db, class_name, out["acked"], timeout)
+        scored_s = time.monotonic() - t0
     finally:
         proc.send_signal(signal.SIGTERM)
         try:
@@ -165,44 +270,79 @@ def run_bench(db: str | None, clients: int, seconds: float, keep: bool = False) 
         except subprocess.TimeoutExpired:
             proc.kill()
     with RecordStore(db) as store:
-        stored = len(store.list_attempts(class_name))
+        rows = store.query("SELECT id, state, attempt_id, error FROM uploads WHERE class_name = ?", (class_name,))
+        stored = store.query(
+            "SELECT COUNT(*) FROM attempts a JOIN trainees t ON t.id = a.trainee_id "
+            "JOIN classes c ON c.id = t.class_id WHERE c.name = ?",
+            (class_name,),
+        )[0][0]
         if not keep:
             with store.transaction() as conn:
+                conn.execute("DELETE FROM uploads WHERE class_name = ?", (class_name,))
                 conn.execute("DELETE FROM users WHERE name LIKE ?", (f"{class_name}-%",))
                 conn.execute("DELETE FROM classes WHERE name = ?", (class_name,))
     tmp.cleanup()
+    scored = [r for r in rows if r["state"] == "scored"]
+    refused = [r for r in rows if r["state"] == "refused"]
+    attempt_ids = {r["attempt_id"] for r in scored}
+    acked = out["acked"]
+    scoring = [done[u] - acked[u] for u in acked if u in done]
     lat = out["latencies"]
     return {
         "backend": backend,
         "database": where,
         "clients": clients,
-        "seconds": round(elapsed, 2),
-        "acknowledged": out["acked"],
-        "attempts_per_s": round(out["acked"] / elapsed, 1),
-        "p50_ms": round(1000 * _percentile(lat, 0.50), 2),
-        "p95_ms": round(1000 * _percentile(lat, 0.95), 2),
-        "max_ms": round(1000 * max(lat), 2) if lat else None,
-        "mean_ms": round(1000 * statistics.fmean(lat), 2) if lat else None,
-        "errors": out["errors"],
+        "attempts_per_client": attempts,
+        "scorers": scorers,
+        "replay": speed,
+        "sent_s": round(sent_s, 2),
+        "scored_s": round(scored_s, 2),
+        "acknowledged": len(acked),
+        "ack_p50_ms": _ms(_percentile(lat, 0.50)),
+        "ack_p99_ms": _ms(_percentile(lat, 0.99)),
+        "ack_max_ms": _ms(max(lat) if lat else None),
+        "scoring_p50_s": None if not scoring else round(_percentile(scoring, 0.50), 2),
+        "scoring_p99_s": None if not scoring else round(_percentile(scoring, 0.99), 2),
+        "scoring_max_s": None if not scoring else round(max(scoring), 2),
+        "scored_per_s": round(len(scored) / scored_s, 2) if scored_s else None,
+        "errors": len(out["errors"]),
+        "first_error": out["errors"][0] if out["errors"] else None,
+        "scored": len(scored),
+        "refused": len(refused),
+        "first_refusal": refused[0]["error"] if refused else None,
         "stored": stored,
-        "count_ok": stored == out["acked"],
+        "count_ok": len(scored) == len(acked) == len(attempt_ids) == stored and len(rows) == len(acked),
     }
 
 
 def run(args) -> int:
-    result = run_bench(args.db, args.clients, args.seconds, args.keep)
+    result = run_bench(args.db, args.clients, args.attempts, args.scorers, args.keep, args.timeout)
     if args.json:
         print(json.dumps(result, indent=2))
     else:
+        r = result["replay"]
         print(
-            f"records server on {result['backend']} ({result['database']}): {result['clients']} clients, "
-            f"{result['seconds']} s\n"
-            f"  acknowledged  {result['acknowledged']} attempts, {result['attempts_per_s']} attempts/s\n"
-            f"  latency       p50 {result['p50_ms']} ms, p95 {result['p95_ms']} ms, max {result['max_ms']} ms\n"
-            f"  errors        {result['errors']}\n"
-            f"  count check   {result['stored']} stored for {result['acknowledged']} acknowledged: "
-            + ("ok" if result["count_ok"] else "MISMATCH")
+            f"replay of one attempt ({r['simulated_s']} s simulated) on "
+            f"{'one core' if r['one_core'] else 'this machine'}: {r['replay_s']} s, "
+            f"{r['replay_s_per_simulated_s']} s per simulated s ({r['times_real_time']}x real time)\n"
+            f"records server on {result['backend']} ({result['database']}): {result['clients']} trainees x "
+            f"{result['attempts_per_client']} uploads, {result['scorers']} scorers\n"
+            f"  acknowledged  {result['acknowledged']} in {result['sent_s']} s: p50 {result['ack_p50_ms']} ms, "
+            f"p99 {result['ack_p99_ms']} ms, max {result['ack_max_ms']} ms\n"
+            f"  scored        {result['scored']} by {result['scored_s']} s ({result['scored_per_s']}/s): "
+            f"p50 {result['scoring_p50_s']} s, p99 {result['scoring_p99_s']} s, max {result['scoring_max_s']} s "
+            "after the acknowledgement\n"
+            f"  errors        {result['errors']}"
+            + (f" (first: {result['first_error']})" if result["errors"] else "")
+            + f", refused {result['refused']}"
+            + (f" (first: {result['first_refusal']})" if result["refused"] else "")
+            + "\n"
+            f"  count check   {result['stored']} attempts stored, {result['scored']} uploads scored for "
+            f"{result['acknowledged']} acknowledged: " + ("ok" if result["count_ok"] else "MISMATCH")
         )
     if not result["count_ok"]:
-        raise UserError(f"count check failed: {result['stored']} stored, {result['acknowledged']} acknowledged")
+        raise UserError(
+            f"count check failed: {result['acknowledged']} acknowledged, {result['scored']} scored, "
+            f"{result['stored']} stored, {result['refused']} refused"
+        )
     return 0

@@ -1,19 +1,30 @@
-"""`chainsim bench records` runs, stops by itself, and its count check holds (both backends).
+"""`chainsim bench records` sends real uploads, waits for their scoring and its count check holds (both backends).
 
-Only that it works is tested here; its figures are in docs/records-server.md."""
+Only that it works and measures what it says is tested here; its figures are in docs/records-server.md."""
 
 from __future__ import annotations
+
+import pytest
 
 from chainsim.game.records.store import RecordStore
 from chainsim.game.server.bench import run_bench
 
 
-def test_bench_runs_bounded_and_loses_nothing(records_db, cli):
-    result = run_bench(records_db, clients=3, seconds=1.0)
-    assert result["acknowledged"] > 0 and result["errors"] == 0
-    assert result["count_ok"] and result["stored"] == result["acknowledged"]
-    assert result["p50_ms"] <= result["p95_ms"] <= result["max_ms"]
+def test_bench_sends_real_uploads_scores_each_once_and_cleans_up(records_db, cli):
+    result = run_bench(records_db, clients=3, attempts=2, scorers=2)
+    assert result["acknowledged"] == 6 and result["errors"] == 0 and result["refused"] == 0
+    assert result["scored"] == result["stored"] == 6 and result["count_ok"]
+    assert 0 < result["ack_p50_ms"] <= result["ack_p99_ms"] <= result["ack_max_ms"]
+    assert 0 < result["scoring_p50_s"] <= result["scoring_p99_s"] <= result["scoring_max_s"]
+    replay = result["replay"]
+    assert replay["simulated_s"] > 1.0 and replay["replay_s"] > 0
+    assert replay["replay_s_per_simulated_s"] == pytest.approx(replay["replay_s"] / replay["simulated_s"], rel=0.01)
     with RecordStore(records_db) as store:  # the bench cleans up after itself
         assert store.list_classes() == [] and store.query("SELECT COUNT(*) FROM users")[0][0] == 0
-    code, _, err = cli("bench", "records", "--clients", "0", "--seconds", "1")
-    assert code == 2 and "--clients" in err
+        assert store.query("SELECT COUNT(*) FROM uploads")[0][0] == 0
+
+
+def test_bench_arguments_are_checked_with_one_line(cli):
+    for args, named in ((("--clients", "0"), "--clients"), (("--attempts", "0"), "--attempts")):
+        code, _, err = cli("bench", "records", *args)
+        assert code == 2 and named in err and len(err.strip().splitlines()) == 1, err
