@@ -467,7 +467,7 @@ def check_layouts(v: Validator, man: dict) -> None:
                 v.add(MANIFEST, f"{key}.viewports.{i}.attach", f"no entity named '{vp['attach']}'")
             if "far" in vp and "near" in vp and vp["far"] <= vp["near"]:
                 v.add(MANIFEST, f"{key}.viewports.{i}.far", "must be greater than 'near'")
-        panels = [vp.get("name") for vp in vps if vp.get("kind") == "panel"]
+        panels = [vp["name"] for vp in vps if vp.get("kind") == "panel" and vp.get("name")]
         for i, w in enumerate(lay.get("widgets", [])):
             if w.get("viewport") and w["viewport"] not in panels:
                 v.add(

@@ -133,3 +133,9 @@ def test_a_side_name_that_passes_formats_for_any_side(text):
     if checks.format_problem(text, checks.SIDE_VALUES, strict=True) == "":
         for side in ("left", "right", ""):
             text.format(side=side)
+
+
+def test_a_panel_without_a_name_is_a_line_not_a_traceback(mental_block):
+    problems = mental_block('name = "controller"\nkind = "panel"', 'kind = "panel"')
+    assert problems[0].key == "layouts.trainer.viewports.2" and "'name'" in problems[0].message
+    assert all("\n" not in str(p) for p in problems)
