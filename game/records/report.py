@@ -115,7 +115,22 @@ def _umask() -> int:
     return mask
 
 
+#: first characters a spreadsheet reads as the start of a formula (OWASP's list for CSV injection)
+FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
+
+
+def neutral(value: Any) -> Any:
+    """A text cell a spreadsheet would run as a formula, made inert by a leading apostrophe.
+
+    Names and packs are the trainees' own text, and a trainer opens the export in a spreadsheet:
+    ``=HYPERLINK(...)`` in a trainee's name must arrive as text. Numbers stay numbers."""
+    if isinstance(value, str) and value.startswith(FORMULA_STARTS):
+        return "'" + value
+    return value
+
+
 def csv_rows(attempts: Sequence[dict[str, Any]]) -> list[list[Any]]:
+    """The export's rows: one per attempt, text cells neutralised (``neutral``)."""
     rows = []
     for a in attempts:
         rows.append(
@@ -141,7 +156,7 @@ def csv_rows(attempts: Sequence[dict[str, Any]]) -> list[list[Any]]:
                 json.dumps(a.get("metrics") or {}, sort_keys=True),
             ]
         )
-    return rows
+    return [[neutral(cell) for cell in row] for row in rows]
 
 
 def export_csv(attempts: Sequence[dict[str, Any]], path: Path) -> None:

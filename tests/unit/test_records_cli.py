@@ -168,6 +168,24 @@ def test_export_csv_content(db, tmp_path, capsys):
     assert [p.name for p in out.parent.iterdir()] == ["alice.csv"]  # temp file renamed away
 
 
+def test_export_neutralises_text_a_spreadsheet_would_run_as_a_formula(db, tmp_path):
+    names = {'=HYPERLINK("http://x","y")': "c1", "+1+1": "c1", "-2+3": "c1", "@SUM(A1)": "c1"}
+    with RecordStore(db) as s:
+        for name, class_name in names.items():
+            s.save_attempt(class_name, name, attempt(1))
+        s.save_attempt("=cmd|' /c calc'!A0", "dave", attempt(2))
+    out = tmp_path / "all.csv"
+    assert call(db, "export", "--csv", str(out)) == 0
+    with out.open(newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    trainees = {r["trainee"] for r in rows}
+    assert {"'" + name for name in names} <= trainees and not any(t.startswith(("=", "+", "-", "@")) for t in trainees)
+    assert "'=cmd|' /c calc'!A0" in {r["class_name"] for r in rows}
+    # numbers stay numbers, and ordinary names are untouched
+    assert {r["trainee"] for r in rows if r["class_name"] == "c1"} >= {"alice", "bob"}
+    assert all(float(r["duration_s"]) > 0 for r in rows)
+
+
 def test_export_no_contact_is_empty_cell(db, tmp_path):
     out = tmp_path / "bob.csv"
     call(db, "export", "--csv", str(out), "--class", "c1", "--trainee", "bob")
