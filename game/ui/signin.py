@@ -138,7 +138,8 @@ class SignInForm:
             *rows,
             "",
             "Type, **Tab** moves to the other field, **Backspace** deletes, **Enter** signs in. "
-            "The names are remembered for the next start.",
+            "The names are remembered for the next start. **Esc** closes this page without signing in "
+            "(attempts then go to anonymous; **Sign in** opens it again).",
             "",
             f"Records are kept in `{self.records_path}`.",
         ]

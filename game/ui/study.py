@@ -16,7 +16,15 @@ participant through the protocol, as the thesis ran its volunteers:
 4. Table 6.1 and the mean ratings over every participant of this study in the records database.
 
 Everything is saved as it happens: the attempts (with `details.protocol`: study, participant, trial,
-task, condition, order) and both questionnaires, so a session cut short keeps what was done.
+task, condition, order) and both questionnaires, so a session cut short keeps what was done. Running
+the same participant again resumes after their last saved trial (and skips a questionnaire already
+answered), so no trial is made or counted twice; `chainsim protocol --restart` retracts the saved
+trials first (kept in the records, marked retracted, never counted) to start over. Attempts retracted
+in the records count for nothing here, and of a participant's questionnaires only the newest of each
+kind counts.
+
+Ending early is a choice, never an accident: Esc in the window asks first (`end_question`), saying
+what is saved and how to continue.
 
 The session is GL-free: the window feeds it keys and text and calls `update()` once per frame; tests
 drive it the same way on a headless App.
@@ -58,6 +66,35 @@ def latin_row(n: int, participant: int) -> list[int]:
     return row
 
 
+def current_attempts(attempts: list[dict]) -> list[dict]:
+    """The attempts that count: not retracted (a restarted participant's earlier trials are)."""
+    return [a for a in attempts if not a.get("retracted_at")]
+
+
+def newest_questionnaires(qs: list[dict]) -> list[dict]:
+    """Each participant's newest questionnaire of each kind and session (a restart answers again)."""
+    newest: dict[tuple, dict] = {}
+    for q in qs:
+        key = (q.get("trainee"), q.get("kind"), q.get("session"))
+        if key not in newest or (q.get("created_at") or "", q.get("id") or 0) >= (
+            newest[key].get("created_at") or "",
+            newest[key].get("id") or 0,
+        ):
+            newest[key] = q
+    return list(newest.values())
+
+
+def saved_trials(attempts: list[dict], study: str, participant: str) -> dict[int, dict]:
+    """A participant's saved (not retracted, not scripted) trials of `study`: trial order -> attempt."""
+    out = {}
+    for a in current_attempts(attempts):
+        p = (a.get("details") or {}).get("protocol") or {}
+        if p.get("study") == study and p.get("participant") == participant and not p.get("scripted"):
+            if isinstance(p.get("order"), int):
+                out[p["order"]] = a
+    return out
+
+
 def study_name(proto: dict) -> str:
     """The study's label in the records: the protocol file's name without .toml."""
     return proto["path"].stem
@@ -85,8 +122,11 @@ def plan(proto: dict, participant: int) -> list[dict]:
 class StudySession:
     """One participant's session on an App (see the module docstring)."""
 
-    def __init__(self, app, proto: dict, participant: str, class_name: str, db, side: str = "left"):
+    def __init__(
+        self, app, proto: dict, participant: str, class_name: str, db, side: str = "left", restart: bool = False
+    ):
         self.app = app
+        self.restart = restart  # start at the beginning even where a questionnaire was answered before
         self.proto = proto
         self.study = study_name(proto)
         self.participant = participant
@@ -102,6 +142,7 @@ class StudySession:
         self.done_trials: list[dict] = []
         self.summary = ""
         self.number = 0
+        self.post_answered = False
 
     # -- what the window shows and passes on ------------------------------------------------------
     @property
@@ -114,12 +155,19 @@ class StudySession:
 
     def start(self) -> None:
         with RecordStore(self.db) as store:
-            known = []
-            for r in results.study_rows(self._attempts(store), self.study):
-                if r["participant"] not in known:
-                    known.append(r["participant"])
+            attempts = self._attempts(store)
+            qs = self._questionnaires(store)
+        known = []
+        for r in results.study_rows(attempts, self.study):
+            if r["participant"] not in known:
+                known.append(r["participant"])
         self.number = known.index(self.participant) if self.participant in known else len(known)
         self.trials = plan(self.proto, self.number)
+        saved = saved_trials(attempts, self.study, self.participant)
+        answered = {q["kind"] for q in qs if q.get("trainee") == self.participant and q.get("session") == self.study}
+        if not self.restart and (saved or "pre" in answered):
+            self._resume(saved, answered)
+            return
         self.state = "pre"
         self.form = Questionnaire(
             "Before the session",
@@ -128,6 +176,59 @@ class StudySession:
             PRE,
         )
         self._show()
+
+    def _resume(self, saved: dict[int, dict], answered: set[str]) -> None:
+        """Continue after the last saved trial: the trials before it are done, the next one comes."""
+        last = max(saved, default=0)
+        self.k = min(last, len(self.trials)) - 1
+        for order in sorted(saved):
+            if order <= len(self.trials):
+                t = self.trials[order - 1]
+                self.done_trials.append(
+                    {"trial": t["name"], "condition": t["condition"], "attempt_id": saved[order]["id"]}
+                )
+        self.post_answered = "post" in answered
+        left = len(self.trials) - last
+        if left > 0:
+            goes_on = f"The session continues with trial {last + 1} of {len(self.trials)}."
+        elif not self.post_answered:
+            goes_on = "Every trial is saved; the questions after the session come next."
+        else:
+            goes_on = "Every trial and both questionnaires are saved; the results over every participant follow."
+        self.state = "resume"
+        self.form = Notice(
+            f"# Welcome back, {self.participant}\n\n"
+            f"{len(saved)} of {len(self.trials)} trials of study '{self.study}' are saved"
+            f"{' (the last: trial ' + str(last) + ')' if saved else ''}. {goes_on}\n\n"
+            "To start over from trial 1 instead, close the window (**Esc**) and run the protocol again with "
+            "`--restart`."
+        )
+        self._show()
+
+    def end_question(self, unsaved: bool = False) -> str | None:
+        """What Esc asks before the session ends early (None once the results are shown: nothing is lost)."""
+        if self.state in ("summary", "finished"):
+            return None
+        done = len(self.done_trials)
+        lost = ""
+        if self.state == "trial" and unsaved:
+            lost = f" Trial {self.k + 1} is in progress and **not saved**."
+        elif self.state == "trial":
+            lost = f" Trial {self.k + 1} is in progress and not saved yet."
+        elif self.state in ("pre", "post"):
+            lost = " The answers on this page are **not saved** yet."
+        nxt = max(self.k, 0) + 1  # the trial shown or in progress (1-based); pre: the first
+        again = (
+            f"Running `chainsim protocol ... --participant {self.participant}` again continues with trial {nxt}."
+            if done < len(self.trials)
+            else f"Running `chainsim protocol ... --participant {self.participant}` again continues with the "
+            "questions after the session."
+        )
+        return (
+            "# End the session?\n\n"
+            f"{done} of {len(self.trials)} trials are saved and stay saved.{lost}\n\n{again}\n\n"
+            "Press **Esc** again to end the session, or any other key to go back.\n"
+        )
 
     def text(self, typed: str) -> None:
         if self.form is not None:
@@ -157,8 +258,14 @@ class StudySession:
     # -- steps ------------------------------------------------------------------------------------
     def _attempts(self, store: RecordStore) -> list[dict]:
         try:
-            return store.list_attempts(self.class_name)
+            return current_attempts(store.list_attempts(self.class_name))
         except Exception:  # no such class yet: nobody has taken part
+            return []
+
+    def _questionnaires(self, store: RecordStore) -> list[dict]:
+        try:
+            return newest_questionnaires(store.list_questionnaires(self.class_name))
+        except Exception:  # no such class yet
             return []
 
     def _show(self) -> None:
@@ -171,6 +278,12 @@ class StudySession:
         if self.state == "pre":
             self._save_questionnaire("pre", self.form.answers())
             self.next_trial()
+        elif self.state == "resume":
+            self.form = None
+            if self.k + 1 >= len(self.trials) and self.post_answered:
+                self.finish()
+            else:
+                self.next_trial()
         elif self.state == "intro":
             self.form = None
             self.begin_trial()
@@ -197,6 +310,10 @@ class StudySession:
             return
         t = self.trials[self.k]
         on = [a.replace("_", " ") for a in AIDS if t["aids"].get(a)]
+        # the scene behind the trial's page already shows this trial's aids, not the last trial's
+        self.app.resource(WidgetState).enable(*AIDS)
+        now = self.app.time.sim_time
+        self.app.resource(PendingInput).extend([(now + 0.01, Widget(a, bool(t["aids"].get(a, False)))) for a in AIDS])
         self.state = "intro"
         self.form = Notice(
             f"# Trial {self.k + 1} of {len(self.trials)}: {results.TASK_TITLE[t['task']]}, "
@@ -246,7 +363,7 @@ class StudySession:
         app.resource(WidgetState).enable(*AIDS)
         with RecordStore(self.db) as store:
             rows = results.study_rows(self._attempts(store), self.study)
-            qs = store.list_questionnaires(self.class_name)
+            qs = self._questionnaires(store)
         tab = results.table([r for r in rows if not r["scripted"]])
         rates = results.ratings(qs, self.study)
         labels = {q.id: q.text for q in POST}

@@ -12,8 +12,10 @@ framebuffer's resolution (`RenderTarget.scale` = framebuffer pixels per window u
 
 Keys: a widget's `key` (pyglet key names, lower case: "t", "left", "space", "f2"; digits "1".."9")
 uses that widget (held arrow keys repeat); F1 opens the key page, F12 saves a screenshot
-(chainsim-shot-FRAME.png in the current folder). Esc closes an open page; with none open it quits,
-asking first when the attempt is not saved. Packs with a `sign_in` button ask for class and name at
+(chainsim-shot-FRAME.png in the current folder). Esc closes an open page (the sign-in page too:
+attempts then go to anonymous until Sign in is pressed); with none open it quits, asking first when
+the attempt is not saved, and in a study always, saying what is saved (so does the window's close
+button). Packs with a `sign_in` button ask for class and name at
 start (chainsim.game.ui.signin) unless --class and --trainee are given or a script is played.
 `chainsim protocol --participant NAME` runs a study session in the window (chainsim.game.ui.study):
 its questionnaires and trial pages take the keyboard while they are shown. `--input SCRIPT` plays a
@@ -242,8 +244,23 @@ def run_window(args, session=None) -> int:
     def on_mouse_scroll(x, y, scroll_x, scroll_y):
         pending.push(now(), Scroll(float(x), float(y), float(scroll_y)))
 
+    def unsaved() -> bool:
+        return bool(app.resource(Assessment).values.get("unsaved"))
+
+    def ask_or_quit() -> None:
+        """Quit, unless something would be lost: then ask (Esc again quits, any other key goes back)."""
+        question = study.end_question(unsaved()) if study is not None else (QUIT_QUESTION if unsaved() else None)
+        if question is None:
+            finish()
+            return
+        state["confirm"] = True
+        state["behind"] = hud.notice  # the page the question covers comes back when the trainee says no
+        hud.notice = question
+
     @window.event
     def on_text(text):
+        if state.pop("swallow_text", False) or state["confirm"]:
+            return pyglet.event.EVENT_HANDLED  # the key that answered the question types nothing
         if study is not None and study.form is not None:
             study.text(text)
             return pyglet.event.EVENT_HANDLED
@@ -254,39 +271,38 @@ def run_window(args, session=None) -> int:
 
     @window.event
     def on_key_press(symbol, modifiers):
+        if state["confirm"] and symbol != pyglet.window.key.F12:  # a screenshot leaves the question open
+            state["confirm"] = False
+            hud.notice = state.pop("behind", "")
+            if symbol == pyglet.window.key.ESCAPE:
+                finish()
+            else:
+                state["swallow_text"] = True
+            return pyglet.event.EVENT_HANDLED
         if study is not None and study.form is not None and symbol != pyglet.window.key.F12:
             # a questionnaire or a study page: the keys are its own (F12 still takes a screenshot)
             if symbol == pyglet.window.key.ESCAPE:
-                finish()  # leave the study; what was saved stays saved
+                ask_or_quit()  # ending early keeps what was saved, and says so first
             else:
                 study.key(key_name(symbol))
             return pyglet.event.EVENT_HANDLED
         if form["open"] is not None and symbol != pyglet.window.key.F12:
             # typing a name: no key reaches the controller (F12 still takes a screenshot)
             if symbol == pyglet.window.key.ESCAPE:
-                if values.get("trainee"):
-                    form["open"] = None
-                    hud.notice = ""
-                else:
-                    finish()
+                # Esc closes the page, as everywhere; attempts go to anonymous until Sign in is pressed
+                form["open"] = None
+                hud.notice = ""
+                if not values.get("trainee"):
+                    hud.message("Not signed in: attempts are saved as anonymous. Press Sign in to sign in.", 8.0)
             else:
                 form["open"].key(key_name(symbol))
                 form_changed()
             return pyglet.event.EVENT_HANDLED
-        if state["confirm"] and symbol != pyglet.window.key.F12:  # a screenshot leaves the question open
-            state["confirm"] = False
-            hud.notice = ""
-            if symbol == pyglet.window.key.ESCAPE:
-                finish()
-            return pyglet.event.EVENT_HANDLED
         if symbol == pyglet.window.key.ESCAPE:
             if hud.doc_open:
                 pending.push(now(), Key("escape", True))  # closes the page (the view system)
-            elif app.resource(Assessment).values.get("unsaved"):
-                state["confirm"] = True
-                hud.notice = QUIT_QUESTION
             else:
-                finish()
+                ask_or_quit()
             return pyglet.event.EVENT_HANDLED
         if symbol == pyglet.window.key.F12:
             path = render.screenshot(app, f"chainsim-shot-{app.time.frame:06d}.png")
@@ -294,8 +310,12 @@ def run_window(args, session=None) -> int:
             return pyglet.event.EVENT_HANDLED
         if symbol in ARROWS:
             return pyglet.event.EVENT_HANDLED  # arrives through on_text_motion, with key repeat
+        pressed_at[key_name(symbol)] = now()
         pending.push(now(), Key(key_name(symbol), True))
         return pyglet.event.EVENT_HANDLED
+
+    # when a key goes down at simulated time t
+    pressed_at: dict[str, float] = {}
 
     ARROWS = {
         pyglet.window.key.LEFT: "left",
@@ -322,7 +342,12 @@ def run_window(args, session=None) -> int:
     @window.event
     def on_key_release(symbol, modifiers):
         if symbol not in (pyglet.window.key.ESCAPE, pyglet.window.key.F12):
-            pending.push(now(), Key(key_name(symbol), False))
+            name, t = key_name(symbol), now()
+            # a key pressed and released within one frame (a quick Shift+R) is held for one step, so the
+            # step that sees R also sees Shift down; otherwise both would be up before anything read them
+            if pressed_at.pop(name, None) == t:
+                t += app.time.dt
+            pending.push(t, Key(name, False))
 
     @window.event
     def on_resize(width, height):
@@ -358,7 +383,11 @@ def run_window(args, session=None) -> int:
 
     @window.event
     def on_close():
-        finish()
+        # the window's close button asks as Esc does; a second close (or Esc) while asked quits
+        if state["confirm"]:
+            finish()
+        else:
+            ask_or_quit()
         return pyglet.event.EVENT_HANDLED
 
     try:

@@ -231,3 +231,70 @@ def test_plan_cycles_through_conditions(tmp_path, participant):
     # two cycles; the planes condition has repeat 1, so it appears once
     assert sorted(loc) == ["reference_planes", "without_clues", "without_clues"]
     assert [t["order"] for t in pl] == list(range(1, len(pl) + 1))
+
+
+def test_a_participant_who_stopped_resumes_after_the_last_saved_trial(tmp_path):
+    db = tmp_path / "study.sqlite3"
+    ann = Participant(tmp_path, "ann", db)
+    ann.s.start()
+    ann.answer(["@return"] * len(PRE))
+    ann.do_trial()
+    ann.do_trial()
+    # Esc in the middle of the third trial's page: the window asks first, saying what is kept
+    question = ann.s.end_question()
+    assert "2 of 4 trials are saved" in question and "continues with trial 3" in question
+    ann.app.close()
+
+    again = Participant(tmp_path, "ann", db)
+    again.s.start()
+    assert again.s.state == "resume" and "2 of 4 trials" in again.s.notice and "trial 3" in again.s.notice
+    again.s.key("return")
+    assert again.s.state == "intro" and "Trial 3 of 4" in again.s.notice  # no second pre-session form
+    again.do_trial()
+    again.do_trial()
+    again.answer(["@return"] * len(POST))
+    assert again.s.state == "summary"
+    cell = again.s.table[("location", "reference_planes")]
+    assert cell["attempts"] == 1  # each trial made and counted once
+    with RecordStore(db) as store:
+        orders = [r["details"]["protocol"]["order"] for r in store.list_attempts("study", "ann")]
+    assert orders == [1, 2, 3, 4]
+    again.app.close()
+
+
+def test_restart_asks_and_then_retracts_the_saved_trials(tmp_path, cli, monkeypatch):
+    import io
+
+    db = tmp_path / "study.sqlite3"
+    ann = Participant(tmp_path, "ann", db)
+    ann.s.start()
+    ann.answer(["@return"] * len(PRE))
+    ann.do_trial()
+    ann.app.close()
+    args = ["protocol", tmp_path / "study61.toml", "--participant", "ann", "--db", db, "--restart"]
+    import chainsim.game.ui.window as window
+
+    sessions = []
+    monkeypatch.setattr(window, "run_window", lambda args, session: sessions.append(session) or 0)
+    monkeypatch.setattr("sys.stdin", io.StringIO("no\n"))
+    code, _, err = cli(*args)
+    assert code == 2 and "unchanged" in err and "Type yes" in err
+    with RecordStore(db) as store:
+        assert [r["retracted_at"] for r in store.list_attempts("study", "ann")] == [None]
+    monkeypatch.setattr("sys.stdin", io.StringIO("yes\n"))
+    code, out, err = cli(*args)
+    assert code == 0, err
+    with RecordStore(db) as store:
+        assert store.list_attempts("study", "ann")[0]["retracted_at"]  # kept, marked, not counted
+    fresh = Participant(tmp_path, "ann", db)
+    fresh.s = sessions[-1](fresh.app)  # the session the window would run
+    fresh.s.start()
+    assert fresh.s.state == "pre" and len(fresh.s.trials) == 4  # from the start: questions, then trial 1
+    fresh.app.close()
+
+
+def test_restart_needs_a_participant(tmp_path, cli):
+    f = tmp_path / "p.toml"
+    f.write_text(PROTO)
+    code, _, err = cli("protocol", f, "--scripted", "--restart", "--db", tmp_path / "x.sqlite3")
+    assert code == 2 and "--participant" in err

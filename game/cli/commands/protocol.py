@@ -4,6 +4,9 @@ With people (`--participant NAME`): the trainer window opens for that participan
 session of chainsim.game.ui.study - the short pre-session questionnaire, the protocol's trials with
 the aids on and off in an order counterbalanced between participants, the post-session ratings - and
 ends with Table 6.1 over every participant of the study in the records database (also printed here).
+Running the same participant again continues after their last saved trial; `--restart` starts over
+from trial 1, after asking on the terminal (type yes): the earlier trials are retracted, kept in the
+records but never counted, so no trial counts twice.
 
 `--summary` prints that table and the mean ratings from the records without running anything.
 
@@ -38,6 +41,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -65,7 +69,13 @@ from chainsim.game.records.study import (
     table,
 )
 from chainsim.game.ui.questionnaire import POST, THESIS_RATINGS
-from chainsim.game.ui.study import StudySession, study_name
+from chainsim.game.ui.study import (
+    StudySession,
+    current_attempts,
+    newest_questionnaires,
+    saved_trials,
+    study_name,
+)
 from chainsim.systems.procedures.needle.assessment import attempt_record
 
 logger = logging.getLogger(__name__)
@@ -87,6 +97,11 @@ def add_parser(sub):
     )
     mode.add_argument("--scripted", action="store_true", help="run the trials' scripts headless (a smoke test)")
     mode.add_argument("--summary", action="store_true", help="print the study's results over all participants")
+    p.add_argument(
+        "--restart",
+        action="store_true",
+        help="--participant: start over from trial 1 (asks first; the saved trials are retracted, not deleted)",
+    )
     p.add_argument("--db", metavar="PATH", help="records database (default: $CHAINSIM_DB or the user data folder)")
     p.add_argument(
         "--class",
@@ -241,6 +256,8 @@ def _out_dir(args) -> Path | None:
 
 def run(args) -> int:
     proto = load_protocol(args.protocol)
+    if args.restart and not args.participant:
+        raise UserError("--restart goes with --participant NAME (it starts that participant's session over)")
     if args.summary:
         return run_summary(args, proto)
     if args.scripted:
@@ -262,6 +279,7 @@ def run_summary(args, proto: dict) -> int:
             questionnaires = store.list_questionnaires(args.class_name)
         except UserError:
             attempts, questionnaires = [], []
+    attempts, questionnaires = current_attempts(attempts), newest_questionnaires(questionnaires)
     rows = [r for r in study_rows(attempts, study) if not r["scripted"]]
     if not rows:
         raise UserError(
@@ -286,10 +304,14 @@ def run_people(args, proto: dict) -> int:
     check_target(args.db)  # a mistyped or read-only database is refused before the window opens
     out = _out_dir(args)
     db = args.db
+    if args.restart:
+        restart(args, proto)
     holder: dict = {}
 
     def make_session(app):
-        holder["session"] = StudySession(app, proto, args.participant, args.class_name, db, side=args.side)
+        holder["session"] = StudySession(
+            app, proto, args.participant, args.class_name, db, side=args.side, restart=args.restart
+        )
         return holder["session"]
 
     window_args = SimpleNamespace(
@@ -319,6 +341,36 @@ def run_people(args, proto: dict) -> int:
         {"participant": args.participant, "trials": session.done_trials, "ratings": session.ratings},
     )
     return rc
+
+
+def restart(args, proto: dict) -> None:
+    """--restart: ask on the terminal, then retract the participant's saved trials of this study (the
+    records keep them, marked retracted with the reason; tables never count them)."""
+    study = study_name(proto)
+    with RecordStore(args.db) as store:
+        try:
+            attempts = store.list_attempts(args.class_name)
+        except UserError:  # no such class yet: nothing to start over from
+            attempts = []
+        saved = saved_trials(attempts, study, args.participant)
+        if not saved:
+            print(f"{args.participant} has no saved trials of study '{study}'; the session starts at trial 1.")
+            return
+        orders = sorted(saved)
+        sys.stderr.write(
+            f"{args.participant} has {len(saved)} saved trials of study '{study}' (trials "
+            f"{', '.join(map(str, orders))}). Starting over retracts them: the records keep them, marked "
+            "retracted, and the study's tables no longer count them. Type yes to start over at trial 1: "
+        )
+        sys.stderr.flush()
+        answer = sys.stdin.readline().strip().lower() if sys.stdin is not None else ""
+        if answer not in ("yes", "y"):
+            raise UserError(f"not restarted: {args.participant}'s saved trials are unchanged")
+        for order in orders:
+            store.retract_attempt(
+                saved[order]["id"], args.participant, f"participant restarted study '{study}' (--restart)"
+            )
+    print(f"retracted {len(saved)} trials of {args.participant}; the session starts at trial 1")
 
 
 def run_scripted(args, proto: dict) -> int:
