@@ -26,6 +26,9 @@ SESSION_COOKIE = "chainsim_session"
 LOGIN_CSRF_COOKIE = "chainsim_login_csrf"
 MAX_JSON_BYTES = 1 << 20  # an attempt with its details and a few X-ray shots' metadata
 MAX_FORM_BYTES = 64 << 10
+#: objects and lists inside objects and lists; an attempt's details nest 3 or 4 deep. Deeper bodies are
+#: refused before any code walks them recursively (that would end in a RecursionError, a 500).
+MAX_JSON_DEPTH = 32
 
 
 class HTTPError(Exception):
@@ -62,11 +65,37 @@ async def read_json(request: Request) -> Any:
         raise HTTPError(415, f"expected Content-Type application/json, got {ctype or 'none'}")
     body = await read_body(request, MAX_JSON_BYTES)
     try:
-        return json.loads(body.decode("utf-8"), parse_constant=_no_constant)
+        value = json.loads(body.decode("utf-8"), parse_constant=_no_constant)
     except (UnicodeDecodeError, ValueError) as exc:
         raise HTTPError(400, f"request body is not valid JSON ({_short(exc)})") from None
     except RecursionError:
-        raise HTTPError(400, "request body nests too deeply") from None
+        raise HTTPError(400, f"request body nests too deeply; at most {MAX_JSON_DEPTH} levels accepted") from None
+    where = too_deep(value, MAX_JSON_DEPTH)
+    if where is not None:
+        raise HTTPError(
+            422, f"{where} nests more than {MAX_JSON_DEPTH} levels of objects or lists; at most {MAX_JSON_DEPTH}"
+        )
+    return value
+
+
+def too_deep(value: Any, limit: int) -> str | None:
+    """What in ``value`` nests deeper than ``limit`` (``field 'details'``, or ``request body``), else None.
+
+    Walked with a stack, not recursion, so any depth the JSON parser accepted is measured safely."""
+    stack = [(value, 1, None)]
+    while stack:
+        item, depth, top = stack.pop()
+        if isinstance(item, dict):
+            children = item.items()
+        elif isinstance(item, list):
+            children = enumerate(item)
+        else:
+            continue
+        if depth > limit:
+            return "request body" if top is None else f"field {top!r}"
+        for key, child in children:
+            stack.append((child, depth + 1, key if item is value and isinstance(value, dict) else top))
+    return None
 
 
 def _no_constant(name: str) -> Any:

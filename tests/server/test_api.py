@@ -210,6 +210,28 @@ def test_bad_fields_are_422_naming_the_field(site, change, named):
     assert site.alive()
 
 
+def nested(depth: int) -> dict:
+    root: dict = {}
+    inner = root
+    for _ in range(depth - 1):
+        inner["x"] = {}
+        inner = inner["x"]
+    return root
+
+
+@pytest.mark.parametrize("depth", [40, 500, 900])
+def test_deeply_nested_details_are_422_naming_the_field(site, depth):
+    before = (count_attempts(site.db), count_uploads(site.db))
+    status, answer, _ = send(site, "alice", upload(details=nested(depth)))
+    assert status == 422, answer
+    assert "'details'" in answer["error"] and "at most 32" in answer["error"] and "\n" not in answer["error"]
+    assert site.alive()
+    assert (count_attempts(site.db), count_uploads(site.db)) == before
+    # an ordinary nesting is kept
+    ok = send(site, "alice", upload(details={"shots": [{"angle": {"a": [1, 2]}}]}))
+    assert ok[0] == 202, ok[1]
+
+
 def test_injection_shaped_and_huge_names(site):
     nasty = "x'); DROP TABLE attempts;--"
     stored = save_scored(site, "tina", upload(class_name="c1", trainee=nasty))
