@@ -69,6 +69,7 @@ from numba import njit
 
 from .chainmail import cascade
 from .graph import Graph, fixed_mask
+from .prefetch import prefetch
 
 #: relative tolerance of a link check: inside when within this fraction of the link's L1 rest offset of
 #: its box; keeps rounding from re-queueing elements around cycles of links with no slack (rigid)
@@ -78,6 +79,9 @@ _ROUND = {np.dtype(np.float64): 4 * np.finfo(np.float64).eps, np.dtype(np.float3
 #: in the reported figures a link is outside when its distance to the box exceeds this fraction of its
 #: rest length (float32 positions cannot be placed closer than their own rounding)
 TOL = {np.dtype(np.float64): 1e-9, np.dtype(np.float32): 1e-5}
+
+#: the exact step's walk asks for the rows of the element it serves this many visits ahead
+_AHEAD = 8
 
 _ERRORS = {
     -1: "grabbed ids must be element ids in [0, N)",
@@ -115,14 +119,16 @@ class ExactWorkspace:
     def __init__(self, n: int, dim: int):
         self.n = n
         self.dim = dim
-        self.pin = np.zeros(n, dtype=np.int32)  # == gen: a grabbed element pinned in this call
-        self.region = np.zeros(n, dtype=np.int32)  # == +-gen: in the region whose links are checked
-        self.log_stamp = np.zeros(n, dtype=np.int32)  # == lgen: position saved in the log
-        self.log_ids = np.empty(n, dtype=np.int64)
-        self.x0 = np.empty((n, dim), dtype=np.float64)  # positions before the pass changed them
+        # pin (== gen: a grabbed element pinned in this call), region (== +-gen: in the region whose links
+        # are checked), log_stamp (== lgen: position saved in the log), as rows of one array
+        self.stamps = np.zeros((3, n), dtype=np.int32)
+        self.pin, self.region, self.log_stamp = self.stamps
+        # the log and the queue have a row to spare: the exact step writes an entry before counting it
+        self.log_ids = np.empty(n + 1, dtype=np.int64)
+        self.x0 = np.empty((n + 1, dim), dtype=np.float64)  # positions before the pass changed them
         self.flag = np.zeros(n, dtype=np.int32)  # == lgen: end of a link a walk could not fix
         self.flag_ids = np.empty(n, dtype=np.int64)
-        self.queue = np.empty(max(n, 1), dtype=np.int64)
+        self.queue = np.empty(n + 1, dtype=np.int64)
         self.inq = np.zeros(n, dtype=np.bool_)  # all False between walks
         self.dist = np.empty((n, 2 * dim), dtype=np.float64)  # reach labels, per axis and side
         self.dstamp = np.zeros(n, dtype=np.int32)
@@ -137,6 +143,20 @@ class ExactWorkspace:
         self.field_ids = np.zeros(0, dtype=np.int64)
         self.field_pos = np.zeros((0, dim), dtype=np.float64)
         self.field_seen: tuple = ()
+        # what the exact step reads of a graph: (graph, version, kernel arguments with the CSR in int32
+        # where it fits, whether any link is cut), kept while the graph, its link state and material stay
+        self.step_key: tuple = ()
+
+    def step_args(self, graph, workspace) -> tuple:
+        """(kernel arguments, some link cut) of `graph` for the exact step, made once per graph state."""
+        k = self.step_key
+        same = k and k[0] is graph and k[1] == graph.version and k[2] is graph.entry_amin
+        if not (same and k[3] is graph.entry_beta):
+            kargs = graph.kernel_args
+            if workspace is not None and hasattr(workspace, "narrow_csr"):
+                kargs = workspace.narrow_csr(graph, kargs)
+            k = self.step_key = (graph, graph.version, graph.entry_amin, graph.entry_beta, kargs, not graph.alive.all())
+        return k[4], k[5]
 
     def field_args(self, graph) -> tuple:
         """(field, valid for this graph and material, fixed mask, fixed ids, their positions) for _exact;
@@ -954,8 +974,174 @@ def _exact(
     return 0
 
 
+@njit(cache=True, fastmath={"contract"})
+def _closure_walk3(
+    rest,
+    pos,
+    indptr,
+    indices,
+    ealive,
+    eamin,
+    eamax,
+    ebeta,
+    ms,
+    cut,
+    fixed,
+    has_fixed,
+    pin,
+    gen,
+    grabbed,
+    targets,
+    sign,
+    log_ids,
+    log_stamp,
+    x0,
+    queue,
+    inq,
+    excess,
+    eps_abs,
+    max_visits,
+):
+    """The exact step from a shape whose links all hold: the grabbed elements put at their targets and,
+    on each axis a with sign[a] != 0, every other element moved only in that direction and only as far
+    as a link forces it (the least closure of the difference constraints, module docstring), by one
+    label-correcting walk (FIFO) from the grabbed elements over all axes at once. A walk reaches only the
+    elements that move: a link both of whose ends keep their start positions already held.
+
+    Fixed elements and other grabbed ones are not moved; excess[a] gets the most a link would have
+    pushed a fixed one (how far the target is out of reach on that axis). cut: some link is dead (else
+    the alive flags are not read). queue, log_ids and x0 hold n + 1 rows (the log and the queue are
+    written before they are counted). Returns (visits, nlog, finished, conflict: a link would have
+    pushed another grabbed element)."""
+    qn = queue.shape[0]
+    head = 0
+    tail = 0
+    size = 0
+    nlog = 0
+    for k in range(grabbed.shape[0]):
+        g = grabbed[k]
+        if has_fixed and fixed[g]:
+            continue
+        nlog = _log(g, pos, log_stamp, gen, log_ids, x0, nlog)
+        for a in range(3):
+            pos[g, a] = targets[k, a]
+        if not inq[g]:
+            inq[g] = True
+            queue[tail] = g
+            tail += 1
+            size += 1
+    visits = 0
+    conflict = False
+    s0 = np.float64(sign[0])
+    s1 = np.float64(sign[1])
+    s2 = np.float64(sign[2])
+    mid = 0.5 * (eamin[0] + eamax[0])
+    half = 0.5 * (eamax[0] - eamin[0])
+    bt = ebeta[0]
+    ex0 = 0.0
+    ex1 = 0.0
+    ex2 = 0.0
+    while size > 0 and visits < max_visits:
+        if size > _AHEAD:
+            # the rows of the element served _AHEAD visits from now, asked for ahead (kernels.prefetch):
+            # on a mesh larger than the caches the walk otherwise waits for them
+            w = queue[head + _AHEAD - qn if head + _AHEAD >= qn else head + _AHEAD]
+            prefetch(indptr, w)
+            prefetch(pos, w)
+            prefetch(rest, w)
+            prefetch(indices, indptr[w])
+        v = queue[head]
+        head += 1
+        if head == qn:
+            head = 0
+        size -= 1
+        inq[v] = False
+        visits += 1
+        # v's rows loaded once per visit (a uniform material once per walk)
+        rv0 = np.float64(rest[v, 0])
+        rv1 = np.float64(rest[v, 1])
+        rv2 = np.float64(rest[v, 2])
+        pv0 = np.float64(pos[v, 0])
+        pv1 = np.float64(pos[v, 1])
+        pv2 = np.float64(pos[v, 2])
+        for jj in range(indptr[v], indptr[v + 1]):
+            if cut and not ealive[jj]:
+                continue
+            u = indices[jj]
+            if ms != 0:
+                mid = 0.5 * (eamin[jj] + eamax[jj])
+                half = 0.5 * (eamax[jj] - eamin[jj])
+                bt = ebeta[jj]
+            # The bound v puts on u along axis a (5.2.2 about its centre): x_u >= x_v + mid d - w when the
+            # axis moves up (s = +1), x_u <= x_v + mid d + w when down, w = half |d| + beta (l1 - |d|). u lies
+            # e = s (x_v - x_u + mid d) - w behind it; the part beta l1 that every axis shares goes to the
+            # threshold, so the common case (nothing to push) costs a few multiply-adds per axis. s = 0
+            # gives e <= 0: no push on an axis that does not move.
+            d0 = np.float64(rest[u, 0]) - rv0
+            d1 = np.float64(rest[u, 1]) - rv1
+            d2 = np.float64(rest[u, 2]) - rv2
+            a0 = abs(d0)
+            a1 = abs(d1)
+            a2 = abs(d2)
+            l1 = a0 + a1 + a2
+            hbt = half - bt
+            eps = (bt + EPS_REL) * l1 + eps_abs
+            pu0 = np.float64(pos[u, 0])
+            pu1 = np.float64(pos[u, 1])
+            pu2 = np.float64(pos[u, 2])
+            e0 = s0 * (pv0 - pu0 + mid * d0) - hbt * a0
+            e1 = s1 * (pv1 - pu1 + mid * d1) - hbt * a1
+            e2 = s2 * (pv2 - pu2 + mid * d2) - hbt * a2
+            h0 = e0 > eps
+            h1 = e1 > eps
+            h2 = e2 > eps
+            if not (h0 | h1 | h2):
+                continue
+            btl = bt * l1
+            e0 -= btl
+            e1 -= btl
+            e2 -= btl
+            if has_fixed and fixed[u]:
+                ex0 = e0 if h0 and e0 > ex0 else ex0
+                ex1 = e1 if h1 and e1 > ex1 else ex1
+                ex2 = e2 if h2 and e2 > ex2 else ex2
+                continue
+            if pin[u] == gen:
+                conflict = True
+                continue
+            # u's start position logged the first time it moves: written every time and counted once,
+            # selects where branches on whether u moved before would be mispredicted
+            log_ids[nlog] = u
+            x0[nlog, 0] = pu0
+            x0[nlog, 1] = pu1
+            x0[nlog, 2] = pu2
+            nlog += log_stamp[u] != gen
+            log_stamp[u] = gen
+            pos[u, 0] = pu0 + s0 * e0 if h0 else pu0
+            pos[u, 1] = pu1 + s1 * e1 if h1 else pu1
+            pos[u, 2] = pu2 + s2 * e2 if h2 else pu2
+            queue[tail] = u
+            q = not inq[u]
+            inq[u] = True
+            tail += q
+            size += q
+            if tail == qn:
+                tail = 0
+    excess[0] = ex0
+    excess[1] = ex1
+    excess[2] = ex2
+    finished = size == 0
+    while size > 0:  # leave the queue flags clean
+        inq[queue[head]] = False
+        head += 1
+        if head == qn:
+            head = 0
+        size -= 1
+    return visits, nlog, finished, conflict
+
+
 @njit(cache=True)
-def _closure_walk(
+def _closure_walk_nd(
     rest,
     pos,
     indptr,
@@ -981,7 +1167,9 @@ def _closure_walk(
     eps_abs,
     max_visits,
 ):
-    """The exact step from a shape whose links all hold: the grabbed elements put at their targets and,
+    """_closure_walk3 for one or two axes (the same walk, a loop over the axes; read that one first).
+
+    The exact step from a shape whose links all hold: the grabbed elements put at their targets and,
     on each axis a with sign[a] != 0, every other element moved only in that direction and only as far
     as a link forces it (the least closure of the difference constraints, module docstring), by one
     label-correcting walk from the grabbed elements over all axes at once. A walk reaches only the
@@ -1016,7 +1204,6 @@ def _closure_walk(
     conflict = False
     s0 = np.float64(sign[0])
     s1 = np.float64(sign[1]) if dim > 1 else 0.0
-    s2 = np.float64(sign[2]) if dim > 2 else 0.0
     while size > 0 and visits < max_visits:
         v = queue[head]
         head += 1
@@ -1028,13 +1215,6 @@ def _closure_walk(
         mid = 0.5 * (eamin[0] + eamax[0])
         half = 0.5 * (eamax[0] - eamin[0])
         bt = ebeta[0]
-        if dim == 3:  # v's rows loaded once (a uniform material too); unrolled as in _walk
-            rv0 = np.float64(rest[v, 0])
-            rv1 = np.float64(rest[v, 1])
-            rv2 = np.float64(rest[v, 2])
-            pv0 = np.float64(pos[v, 0])
-            pv1 = np.float64(pos[v, 1])
-            pv2 = np.float64(pos[v, 2])
         for jj in range(indptr[v], indptr[v + 1]):
             if not ealive[jj]:
                 continue
@@ -1044,70 +1224,30 @@ def _closure_walk(
                 half = 0.5 * (eamax[jj] - eamin[jj])
                 bt = ebeta[jj]
             moved = False
-            if dim == 3:
-                # the bound v puts on u along each axis, x_u >= x_v + mid d - w when the axis moves up
-                # (s = +1), x_u <= x_v + mid d + w when down (5.2.2 about its centre); s = 0 gives ex = 0
-                d0 = np.float64(rest[u, 0]) - rv0
-                d1 = np.float64(rest[u, 1]) - rv1
-                d2 = np.float64(rest[u, 2]) - rv2
-                a0 = abs(d0)
-                a1 = abs(d1)
-                a2 = abs(d2)
-                l1 = a0 + a1 + a2
-                eps = EPS_REL * l1 + eps_abs
-                c0 = pv0 + mid * d0 - s0 * (half * a0 + bt * (l1 - a0))
-                c1 = pv1 + mid * d1 - s1 * (half * a1 + bt * (l1 - a1))
-                c2 = pv2 + mid * d2 - s2 * (half * a2 + bt * (l1 - a2))
-                e0 = s0 * (c0 - np.float64(pos[u, 0]))
-                e1 = s1 * (c1 - np.float64(pos[u, 1]))
-                e2 = s2 * (c2 - np.float64(pos[u, 2]))
-                if e0 <= eps and e1 <= eps and e2 <= eps:
+            l1 = 0.0
+            for a in range(dim):
+                l1 += abs(np.float64(rest[u, a]) - np.float64(rest[v, a]))
+            eps = EPS_REL * l1 + eps_abs
+            for a in range(dim):
+                s = s0 if a == 0 else s1
+                if s == 0.0:
+                    continue
+                d = np.float64(rest[u, a]) - np.float64(rest[v, a])
+                ad = abs(d)
+                cand = np.float64(pos[v, a]) + mid * d - s * (half * ad + bt * (l1 - ad))
+                ex = s * (cand - np.float64(pos[u, a]))
+                if ex <= eps:
                     continue
                 if has_fixed and fixed[u]:
-                    if e0 > eps:
-                        excess[0] = _greater(excess[0], e0)
-                    if e1 > eps:
-                        excess[1] = _greater(excess[1], e1)
-                    if e2 > eps:
-                        excess[2] = _greater(excess[2], e2)
+                    excess[a] = _greater(excess[a], ex)
                     continue
                 if pin[u] == gen:
                     conflict = True
                     continue
                 if log_stamp[u] != gen:
                     nlog = _log(u, pos, log_stamp, gen, log_ids, x0, nlog)
-                if e0 > eps:
-                    pos[u, 0] = c0
-                if e1 > eps:
-                    pos[u, 1] = c1
-                if e2 > eps:
-                    pos[u, 2] = c2
+                pos[u, a] = cand
                 moved = True
-            else:
-                l1 = 0.0
-                for a in range(dim):
-                    l1 += abs(np.float64(rest[u, a]) - np.float64(rest[v, a]))
-                eps = EPS_REL * l1 + eps_abs
-                for a in range(dim):
-                    s = s0 if a == 0 else s1
-                    if s == 0.0:
-                        continue
-                    d = np.float64(rest[u, a]) - np.float64(rest[v, a])
-                    ad = abs(d)
-                    cand = np.float64(pos[v, a]) + mid * d - s * (half * ad + bt * (l1 - ad))
-                    ex = s * (cand - np.float64(pos[u, a]))
-                    if ex <= eps:
-                        continue
-                    if has_fixed and fixed[u]:
-                        excess[a] = _greater(excess[a], ex)
-                        continue
-                    if pin[u] == gen:
-                        conflict = True
-                        continue
-                    if log_stamp[u] != gen:
-                        nlog = _log(u, pos, log_stamp, gen, log_ids, x0, nlog)
-                    pos[u, a] = cand
-                    moved = True
             if moved and not inq[u]:
                 inq[u] = True
                 queue[tail] = u
@@ -1136,6 +1276,7 @@ def _exact_move(
     eamax,
     ebeta,
     ms,
+    cut,
     fixed,
     has_fixed,
     grabbed,
@@ -1144,29 +1285,29 @@ def _exact_move(
     tol,
     max_visits,
     gen,
-    pin,
-    region,
-    log_stamp,
+    stamps,
     log_ids,
     x0,
     queue,
     inq,
     check,
-    result,
 ):
-    """exact_move's kernel (see the module docstring, "The exact step"). Writes result = [residual,
-    outside, checked, shortfall, visits, complete, n changed, fallback]; fallback 1: the grabbed elements
-    pull one axis both ways or one stops another, so the caller settles them with the cascade and the
-    walks (pos is then as on entry). Returns 0, or a negative code before anything moves."""
+    """exact_move's kernel (see the module docstring, "The exact step"). stamps: the workspace's pin,
+    region and log stamps as rows. Returns (code, n changed, visits, complete, fallback, residual,
+    outside, checked, shortfall): code 0, or a negative code before anything moves; fallback: the grabbed
+    elements pull one axis both ways or one stops another, so the caller settles them with the cascade
+    and the walks (pos is then as on entry)."""
     n = pos.shape[0]
     dim = pos.shape[1]
-    result[7] = 0.0
+    pin = stamps[0]
+    region = stamps[1]
+    log_stamp = stamps[2]
     for k in range(grabbed.shape[0]):
         if grabbed[k] < 0 or grabbed[k] >= n:
-            return -1
+            return -1, 0, 0, True, False, 0.0, 0, 0, 0.0
         for a in range(dim):
             if not np.isfinite(targets[k, a]):
-                return -3
+                return -3, 0, 0, True, False, 0.0, 0, 0, 0.0
     sign = np.zeros(3, dtype=np.int64)
     scale = 0.0
     nfree = 0
@@ -1186,42 +1327,42 @@ def _exact_move(
                 sign[a] = s
             scale = _greater(scale, _greater(abs(targets[k, a]), abs(np.float64(pos[g, a]))))
     if mixed:
-        result[7] = 1.0
-        return 0
+        return 0, 0, 0, True, True, 0.0, 0, 0, 0.0
     eps_abs = eps_round * 2.0 * scale
-    excess = np.zeros(dim)
-    visits, nlog, finished, conflict = _closure_walk(
-        rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, pin, gen, grabbed, targets,
-        sign, log_ids, log_stamp, x0, queue, inq, excess, eps_abs, max_visits,
-    )  # fmt: skip
-    out_of_reach = False
-    for a in range(dim):
-        if excess[a] > 0.0:
-            out_of_reach = True
+    excess = np.zeros(3)
+    if dim == 3:
+        visits, nlog, finished, conflict = _closure_walk3(
+            rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, cut, fixed, has_fixed, pin, gen, grabbed,
+            targets, sign, log_ids, log_stamp, x0, queue, inq, excess, eps_abs, max_visits,
+        )  # fmt: skip
+    else:
+        visits, nlog, finished, conflict = _closure_walk_nd(
+            rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, pin, gen, grabbed, targets,
+            sign, log_ids, log_stamp, x0, queue, inq, excess, eps_abs, max_visits,
+        )  # fmt: skip
+    out_of_reach = excess[0] > 0.0 or excess[1] > 0.0 or excess[2] > 0.0
     if conflict or (out_of_reach and nfree > 1):
         _restore(pos, log_ids, x0, nlog)
-        result[7] = 1.0
-        return 0
-    if out_of_reach:
-        # one grabbed element, out of reach on some axes by excess[a]: its nearest reachable position is
-        # the target moved back by that much (the per-axis clamp into its reachable box: the fixed element
-        # that bound hardest lies at dist from it), and every label the walk set moves back with it, to no
-        # less than where the element started (5.2.2 closures of the clamped target; see the docstring)
-        for k in range(nlog):
-            i = log_ids[k]
-            for a in range(dim):
-                if excess[a] > 0.0:
-                    s = np.float64(sign[a])
-                    x = np.float64(pos[i, a]) - s * excess[a]
-                    if s * (x - x0[k, a]) < 0.0:
-                        x = x0[k, a]
-                    pos[i, a] = x
-    # keep only the elements that end somewhere else
+        return 0, 0, 0, True, True, 0.0, 0, 0, 0.0
+    # One grabbed element out of reach on some axes by excess[a]: its nearest reachable position is the
+    # target moved back by that much (the per-axis clamp into its reachable box: the fixed element that
+    # bound hardest lies at dist from it), and every label the walk set moves back with it, to no less
+    # than where the element started (5.2.2 closures of the clamped target; see the docstring). In the
+    # same pass only the elements that end somewhere else are kept.
+    back = np.zeros(3)
+    for a in range(dim):
+        back[a] = np.float64(sign[a]) * excess[a]
     m = 0
     for k in range(nlog):
         i = log_ids[k]
         same = True
         for a in range(dim):
+            x = np.float64(pos[i, a])
+            if out_of_reach and back[a] != 0.0:
+                x -= back[a]
+                if (x - x0[k, a]) * sign[a] < 0.0:
+                    x = x0[k, a]
+                pos[i, a] = x
             if pos[i, a] != x0[k, a]:
                 same = False
         if same:
@@ -1247,20 +1388,15 @@ def _exact_move(
         for a in range(dim):
             s2 += (np.float64(targets[k, a]) - np.float64(pos[g, a])) ** 2
         shortfall = _greater(shortfall, np.sqrt(s2))
-    result[0] = worst
-    result[1] = outside
-    result[2] = checked
-    result[3] = shortfall
-    result[4] = visits
-    result[5] = 1.0 if finished else 0.0
-    result[6] = m
-    return 0
+    return 0, m, visits, finished, False, worst, outside, checked, shortfall
 
 
 # ----------------------------------------------------------------------------------------------------
 # Python entry point
 
 _INT64 = np.dtype(np.int64)
+_BOOL = np.dtype(np.bool_)
+_NO_FIXED = np.zeros(1, dtype=np.bool_)
 
 
 def exact_limits(
@@ -1370,29 +1506,32 @@ def exact_move(
         grabbed = np.ascontiguousarray(np.atleast_1d(grabbed), dtype=np.int64)
     if type(targets) is not np.ndarray or targets.shape != (len(grabbed), dim) or targets.dtype != np.float64:
         targets = np.ascontiguousarray(targets, dtype=np.float64).reshape(len(grabbed), dim)
-    fixed_arr, has_fixed = fixed_mask(fixed, n)
+    if fixed is None:
+        fixed_arr, has_fixed = _NO_FIXED, False
+    elif type(fixed) is np.ndarray and fixed.dtype == _BOOL and fixed.shape == (n,) and fixed.flags.c_contiguous:
+        fixed_arr, has_fixed = fixed, True
+    else:
+        fixed_arr, has_fixed = fixed_mask(fixed, n)
+    kargs, cut = ex.step_args(graph, workspace)
     cap = int(max_visits) if max_visits is not None else 64 * n + 10_000
-    gen = ex.next_generation()
-    r = ex.result
-    code = _exact_move(
-        rest, pos, *graph.kernel_args, fixed_arr, has_fixed, grabbed, targets, _ROUND[pos.dtype], TOL[pos.dtype],
-        cap, gen, ex.pin, ex.region, ex.log_stamp, ex.log_ids, ex.x0, ex.queue, ex.inq, bool(check), r,
+    code, m, visits, complete, fallback, worst, outside, checked, shortfall = _exact_move(
+        rest, pos, *kargs, cut, fixed_arr, has_fixed, grabbed, targets, _ROUND[pos.dtype],
+        TOL[pos.dtype], cap, ex.next_generation(), ex.stamps, ex.log_ids, ex.x0, ex.queue, ex.inq, bool(check),
     )  # fmt: skip
     if code < 0:
         raise ValueError(_ERRORS[code].replace("N)", f"{n})"))
-    if r[7]:  # both ways on an axis, or grabbed elements in one another's way: the cascade and the walks
+    if fallback:  # both ways on an axis, or grabbed elements in one another's way: the cascade and the walks
         moved, _ = cascade(
             rest, pos, graph, None, None, None, grabbed, targets.astype(pos.dtype), fixed=fixed, order=order,
             workspace=workspace,
         )  # fmt: skip
         res = exact_limits(rest, pos, graph, None, None, None, moved, grabbed, targets, fixed, workspace, max_visits)
         return np.union1d(moved, res.changed), res
-    m = int(r[6])
     changed = ex.log_ids[:m]
-    if r[1]:  # the start shape had links outside: the walks put back those the step checked
+    if outside:  # the start shape had links outside: the walks put back those the step checked
         res = exact_limits(rest, pos, graph, None, None, None, changed.copy(), grabbed, targets, fixed, workspace)
-        return np.union1d(changed, res.changed), res._replace(visits=res.visits + int(r[4]))
-    return changed, ExactResult(changed, float(r[0]), 0, int(r[2]), float(r[3]), int(r[4]), bool(r[5]))
+        return np.union1d(changed, res.changed), res._replace(visits=res.visits + visits)
+    return changed, ExactResult(changed, worst, 0, checked, shortfall, visits, complete)
 
 
 class Violations(NamedTuple):
