@@ -27,7 +27,14 @@ def test_the_block_is_tissue_sized_with_a_fixed_base_and_a_held_patch():
 def test_a_run_measures_solver_and_physical_error_for_every_setting(monkeypatch):
     res = _tiny(monkeypatch)
     rows = res["rows"]
-    assert {r["setting"] for r in rows} == {s for _m, s, _p in surgical.SETTINGS}
+    base = {"baseline: held patch only", "baseline: distance blend"}
+    assert {r["setting"] for r in rows} == {s for _m, s, _p in surgical.SETTINGS} | base
+    # the baselines score against the same references, and the physical models beat both
+    for mesh in (5.0, 2.5):
+        sel = [r for r in rows if r["element_mm"] == mesh]
+        floor = min(r["solver_error"] for r in sel if r["setting"] in base)
+        assert all(r["solver_error"] < floor for r in sel if r["model"] in ("xpbd", "projective")), mesh
+    rows = [r for r in rows if r["model"] != "baseline"]
     coarse = [r for r in rows if r["element_mm"] == 5.0]
     fine = [r for r in rows if r["element_mm"] == 2.5]
     # the coarse mesh is scored against the finer mesh's FEM; the finest gets an estimate, marked

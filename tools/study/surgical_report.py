@@ -76,13 +76,24 @@ def plot(results: dict, out: Path) -> str | None:
             )
             if sel:
                 ax.plot([r["ms_per_frame"] for r in sel], [r["physical_error"] for r in sel], "o-", label=setting)
+        base = [
+            r["physical_error"]
+            for r in results["rows"]
+            if r["material"] == mat and r["model"] == "baseline" and r.get("physical_error") is not None
+        ]
+        if base:
+            ax.axhline(min(base), color="black", ls="--", lw=1, label="best no-physics baseline")
         ax.axvline(16.7, color="grey", ls=":", lw=1)
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("CPU ms per frame (dotted: one 60 Hz frame)")
         ax.set_ylabel("physical error (RMS / lift)")
         ax.set_title(f"{mat}: E = {rows[[r['material'] for r in rows].index(mat)]['E']:g} Pa")
-    axes[0][0].legend(fontsize=7)
+    handles = {}
+    for ax in axes[0]:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            handles.setdefault(lab, h)
+    axes[0][0].legend(handles.values(), handles.keys(), fontsize=7)
     fig.tight_layout()
     name = "surgical-tradeoff.png"
     fig.savefig(out / name, dpi=110)
