@@ -32,7 +32,7 @@ from starlette.routing import Route
 from chainsim.engine.errors import UserError
 from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import clean_key, clean_name
-from chainsim.game.server import accounts, scoring
+from chainsim.game.server import accounts, scoring, throttle
 from chainsim.game.server.accounts import User
 from chainsim.game.server.auth import HTTPError, api_user, read_json
 
@@ -171,10 +171,13 @@ async def login(request: Request) -> Response:
     label = body.get("label", "api")
     if not isinstance(label, str) or not label.strip() or len(label) > 64:
         raise HTTPError(422, "label must be 1-64 characters of text")
+    key, address = throttle.guarded(request, body.get("name"))
     storage = request.app.state.storage
     user = await storage.run(accounts.check_login, body.get("name"), body.get("password"))
     if user is None:
+        request.app.state.throttle.failed(key, address)
         raise HTTPError(401, "name or password is wrong")
+    request.app.state.throttle.succeeded(key)
     token, expires = await storage.run(accounts.issue_token, user, label.strip())
     return JSONResponse({"token": token, "expires_at": expires, "user": user.public()}, status_code=201)
 

@@ -25,6 +25,7 @@ from chainsim.engine.errors import UserError
 from chainsim.game.server import api, scoring, views
 from chainsim.game.server.auth import HTTPError
 from chainsim.game.server.storage import Storage, Unavailable
+from chainsim.game.server.throttle import Throttle
 
 logger = logging.getLogger(__name__)
 
@@ -42,7 +43,9 @@ SECURITY_HEADERS = {
 def _error(request: Request, status: int, message: str, headers: dict[str, str] | None = None) -> Response:
     if request.url.path.startswith("/api/") or request.url.path == "/api":
         return JSONResponse({"error": message}, status_code=status, headers=headers)
-    return views.render("error.html", status, status=status, message=message)
+    page = views.render("error.html", status, status=status, message=message)
+    page.headers.update(headers or {})  # Retry-After on a 429 or 503 page too
+    return page
 
 
 async def _http_error(request: Request, exc: HTTPError) -> Response:
@@ -106,6 +109,7 @@ def build_app(
     app.state.storage = storage
     app.state.packs = packs
     app.state.scorer = scorer
+    app.state.throttle = Throttle()
     return app
 
 

@@ -28,7 +28,7 @@ from starlette.routing import Route
 
 from chainsim.game.records import report, xapi
 from chainsim.game.records.store import RecordStore
-from chainsim.game.server import accounts, plots, scoring
+from chainsim.game.server import accounts, plots, scoring, throttle
 from chainsim.game.server.accounts import User
 from chainsim.game.server.api import audit_entries, readable_attempt, retract_attempt, visible_attempts
 from chainsim.game.server.auth import (
@@ -175,13 +175,16 @@ async def login_submit(request: Request) -> Response:
     if not cookie:
         raise HTTPError(403, "sign-in form expired or forged (no CSRF cookie); reload the sign-in page")
     check_csrf(request, form, cookie)
+    key, address = throttle.guarded(request, form.get("name", ""))
     storage = request.app.state.storage
     user = await storage.run(accounts.check_login, form.get("name", ""), form.get("password", ""))
     if user is None:
+        request.app.state.throttle.failed(key, address)
         token = new_login_csrf()
         resp = render("login.html", 401, csrf=token, error="Name or password is wrong.", name=form.get("name", "")[:64])
         resp.set_cookie(LOGIN_CSRF_COOKIE, token, httponly=True, samesite="strict", secure=_secure(request))
         return resp
+    request.app.state.throttle.succeeded(key)
     sid, _ = await storage.run(accounts.start_session, user)
     resp = RedirectResponse("/", status_code=303)
     resp.set_cookie(

@@ -164,11 +164,21 @@ def start_server(db: str, log: Path, port: int | None = None) -> Server:
     raise RuntimeError(f"chainsim serve did not answer in 30 s: {log.read_text()}")
 
 
-def call(server: Server, method: str, path: str, body=None, token: str | None = None, headers=None, raw=None):
+def call(
+    server: Server,
+    method: str,
+    path: str,
+    body=None,
+    token: str | None = None,
+    headers=None,
+    raw=None,
+    source: str | None = None,
+):
     """(status, decoded JSON or text, headers) of one request; never raises on HTTP errors.
 
     A server may answer (413) before it has read a large body and close the connection: the client's
-    send then fails with a broken pipe, and the answer already sent is read all the same.
+    send then fails with a broken pipe, and the answer already sent is read all the same. ``source``
+    is the client's address (any of 127.0.0.0/8 reaches the server as another machine would).
     """
     data = raw if raw is not None else (None if body is None else json.dumps(body).encode())
     hdrs = {}
@@ -178,7 +188,9 @@ def call(server: Server, method: str, path: str, body=None, token: str | None = 
         hdrs["Authorization"] = f"Bearer {token}"
     hdrs.update(headers or {})
     url = urllib.parse.urlsplit(server.url)
-    conn = http.client.HTTPConnection(url.hostname, url.port, timeout=30)
+    conn = http.client.HTTPConnection(
+        url.hostname, url.port, timeout=30, source_address=None if source is None else (source, 0)
+    )
     try:
         try:
             conn.request(method, path, body=data, headers=hdrs)
