@@ -361,3 +361,47 @@ def test_exact_writes_residual_shortfall_and_changed(tmp_path):
         assert float(z["shortfall"]) == pytest.approx(4.0)
         assert float(z["residual"]) <= 1e-12
         assert 5 in z["changed"].tolist()
+
+
+def test_exact_without_relaxation_is_one_exact_step(tmp_path):
+    """--exact with --relax 0 is the exact step (kernels.exact.exact_move, bit for bit): every link inside,
+    fixed elements kept, each element on every axis no further from rest than the cascade followed by the
+    exact-limit pass puts it (the step's shape is the nearest); with --relax N the cascade path is kept."""
+    from chainsim.engine.kernels.chainmail import cascade, material_arrays
+    from chainsim.engine.kernels.exact import exact_limits, exact_move, violations
+    from chainsim.engine.kernels.graph import build_graph
+
+    pos, _, links = meshgen.tet_grid(6, 6, 6)
+    pos = np.ascontiguousarray(pos, dtype=np.float64)
+    base = np.flatnonzero(pos[:, 2] <= pos[:, 2].min() + 1e-9)
+    mesh = save_graph(tmp_path / "m.npz", pos, links, fixed=base)
+    grab = int(np.argmax(pos.sum(axis=1)))
+    graph = build_graph(len(pos), links)
+    mats = material_arrays(len(links), 0.8, 1.2, 0.1)
+    mask = np.zeros(len(pos), bool)
+    mask[base] = True
+    for lift in ([1.5, -0.5, 2.0], [0.0, 0.0, 40.0]):  # in reach, then out of reach
+        target = pos[grab] + np.array(lift)
+        out = tmp_path / "o.npz"
+        assert run_cli(mesh, out, grab, target, 0.8, 1.2, 0.1, "--exact") == 0
+        step = pos.copy()
+        changed, res = exact_move(pos, step, graph, *mats, [grab], target[None], mask)
+        old = pos.copy()
+        moved, _ = cascade(pos, old, graph, *mats, [grab], target[None], fixed=mask)
+        exact_limits(pos, old, graph, *mats, moved, [grab], target[None], mask)
+        with np.load(out) as z:
+            np.testing.assert_array_equal(z["positions"], step)
+            np.testing.assert_array_equal(z["order"], changed)
+            np.testing.assert_array_equal(z["changed"], changed)
+            assert np.all(z["sponsor"] == -1)
+            assert float(z["shortfall"]) == pytest.approx(res.shortfall, abs=0.0)
+            assert float(z["residual"]) <= 1e-12
+            p = z["positions"]
+        assert violations(pos, p, graph, *mats).outside == 0
+        np.testing.assert_array_equal(p[base], pos[base])
+        assert np.all(np.abs(p - pos) <= np.abs(old - pos) + 1e-9)
+    out = tmp_path / "r.npz"
+    assert run_cli(mesh, out, grab, pos[grab] + [1.5, -0.5, 2.0], 0.8, 1.2, 0.1, "--exact", "--relax", "2") == 0
+    with np.load(out) as z:
+        assert np.any(z["sponsor"] >= 0)  # the cascade path, relaxation and the exact-limit pass
+        assert violations(pos, z["positions"], graph, *mats).outside == 0

@@ -10,11 +10,14 @@ the order they moved, grabbed first, each once) and sponsor (N,: the element who
 element move; -1 for the grabbed element and for elements that did not move). --relax 0 gives the raw
 cascade; N > 0 runs N relaxation sweeps (5.2.5) over the moved elements afterwards.
 
---exact then puts every link back inside its limits (chainsim.engine.kernels.exact); fixed elements stay,
-and a grabbed element whose target the limits cannot reach stops at the reachable position nearest
-it. OUT.npz then also holds changed (ids the pass moved), residual (worst distance of a link from its
-box, in rest lengths) and shortfall (how far the grabbed element stopped from its target). Without
---exact the result is the thesis cascade, unchanged. --stats prints how many links end outside their
+--exact gives the nearest shape with every link inside its limits (chainsim.engine.kernels.exact): with
+--relax 0, one exact step instead of the cascade (exact_move; order then holds the ids that moved, in
+the order the step moved them, and sponsor is -1 throughout: the step has no sponsors); with --relax N,
+the cascade and relaxation, then the exact-limit pass. Fixed elements stay, and a grabbed element whose
+target the limits cannot reach stops at the reachable position nearest it. OUT.npz then also holds
+changed (ids the step or pass moved), residual (worst distance of a link from its box, in rest lengths)
+and shortfall (how far the grabbed element stopped from its target). Without --exact the result is the
+thesis cascade, unchanged. --stats prints how many links end outside their
 limits, for this result and for a plain cascade in every order.
 
 Every input is checked before anything runs; a bad one is a one-line error (exit 2) and nothing is
@@ -33,10 +36,10 @@ import numpy as np
 
 from chainsim.engine import argtypes
 from chainsim.engine.bodies.chainmail import ChainMailBody
-from chainsim.engine.chainmail_params import ORDER_CHOICES, ORDERS, check_material, order_name
+from chainsim.engine.chainmail_params import ORDER_CHOICES, ORDERS, check_material, order_code, order_name
 from chainsim.engine.errors import UserError
-from chainsim.engine.kernels.chainmail import material_arrays
-from chainsim.engine.kernels.exact import ExactResult, violations
+from chainsim.engine.kernels.chainmail import make_workspace, material_arrays
+from chainsim.engine.kernels.exact import ExactResult, exact_move, violations
 from chainsim.engine.kernels.graph import build_graph
 from chainsim.engine.meshimport import load_graph
 from chainsim.game.app.outputs import check_output_file
@@ -157,7 +160,17 @@ def make_body(positions, links, fixed_ids, alpha_min, alpha_max, beta) -> Body:
 
 
 def move(body: Body, grab: int, target, relax_n=0, relax_step=1.0, order="breadth-first", exact=False) -> Move:
-    """Cascade (then relaxation, then the exact pass) from the rest shape, through the engine's body."""
+    """Cascade (then relaxation, then the exact pass) from the rest shape, through the engine's body; exact
+    without relaxation is one exact step instead (no cascade: kernels.exact.exact_move)."""
+    if exact and not relax_n:
+        pos = body.rest.copy()
+        target = np.asarray(target, dtype=np.float64).reshape(1, -1)
+        changed, res = exact_move(
+            body.rest, pos, body.graph, *body.mat, np.array([grab], dtype=np.int64), target, body.fixed,
+            make_workspace(len(pos)), order=order_code(order), check=True,
+        )  # fmt: skip
+        changed = changed.astype(np.int64)  # a copy: the step's ids are a view into its workspace
+        return Move(pos, changed, np.full(len(pos), -1, dtype=np.int64), res._replace(changed=changed))
     cm = ChainMailBody(
         body.rest,
         body.graph,
@@ -231,7 +244,7 @@ def stats_lines(body: Body, m: Move, args) -> list[str]:
     if m.exact is not None:
         e = m.exact
         lines.append(
-            f"exact: {len(e.changed)} elements moved again, worst residual {e.residual:.3g} rest lengths, "
+            f"exact: {len(e.changed)} elements changed, worst residual {e.residual:.3g} rest lengths, "
             f"shortfall {e.shortfall:.6g} ({'target reached' if e.shortfall == 0 else 'target out of reach'})"
             + ("" if e.complete else "; stopped at the visit cap")
         )
