@@ -17,6 +17,7 @@ import base64
 import hashlib
 import hmac
 import secrets
+import threading
 import time
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -28,8 +29,13 @@ from chainsim.game.records.validate import clean_name
 
 ROLES = ("trainer", "trainee")
 PASSWORD_MIN, PASSWORD_MAX = 8, 1024
-# scrypt cost: 16 MiB and about 50 ms per check on a laptop core (RFC 7914's interactive setting).
-SCRYPT_N, SCRYPT_R, SCRYPT_P = 2**14, 8, 1
+# scrypt cost: OWASP's Password Storage Cheat Sheet minimum (N=2^17, r=8, p=1): 128 MiB and a few
+# tenths of a second per check on one core. hashlib's scrypt (OpenSSL) is the kept library; a hash of
+# a lower cost (earlier versions used N=2^14) still verifies and is replaced at the next sign-in.
+SCRYPT_N, SCRYPT_R, SCRYPT_P = 2**17, 8, 1
+SCRYPT_MAXMEM = 256 << 20  # hashlib refuses anything over 32 MiB unless told
+# hashes computed at once: each holds 128 MiB, so a burst of sign-ins queues instead of exhausting memory
+_HASHING = threading.BoundedSemaphore(2)
 SESSION_TTL_S = 12 * 3600
 TOKEN_TTL_S = 180 * 24 * 3600
 TOKEN_PREFIX = "cst_"
@@ -81,7 +87,10 @@ def check_password_rules(password: Any) -> str:
 def hash_password(password: str) -> str:
     """``scrypt$N$r$p$salt$hash`` (base64) for a password that passed ``check_password_rules``."""
     salt = secrets.token_bytes(16)
-    digest = hashlib.scrypt(password.encode(), salt=salt, n=SCRYPT_N, r=SCRYPT_R, p=SCRYPT_P, dklen=32)
+    with _HASHING:
+        digest = hashlib.scrypt(
+            password.encode(), salt=salt, n=SCRYPT_N, r=SCRYPT_R, p=SCRYPT_P, maxmem=SCRYPT_MAXMEM, dklen=32
+        )
     return f"scrypt${SCRYPT_N}${SCRYPT_R}${SCRYPT_P}${_b64(salt)}${_b64(digest)}"
 
 
@@ -91,12 +100,27 @@ def verify_password(password: str, stored: str) -> bool:
         if kind != "scrypt":
             return False
         want = base64.b64decode(digest)
-        got = hashlib.scrypt(
-            password.encode(), salt=base64.b64decode(salt), n=int(n), r=int(r), p=int(p), dklen=len(want)
-        )
+        if int(n) > SCRYPT_N or int(r) > SCRYPT_R or int(p) > SCRYPT_P:
+            return False  # not a hash this server wrote: never spend more than its own cost on one
+        with _HASHING:
+            got = hashlib.scrypt(
+                password.encode(),
+                salt=base64.b64decode(salt),
+                n=int(n),
+                r=int(r),
+                p=int(p),
+                maxmem=SCRYPT_MAXMEM,
+                dklen=len(want),
+            )
     except (ValueError, TypeError):
         return False
     return hmac.compare_digest(got, want)
+
+
+def needs_rehash(stored: str) -> bool:
+    """True for a hash made at a lower cost than the current one (replaced at the next sign-in)."""
+    parts = stored.split("$")
+    return len(parts) != 6 or parts[0] != "scrypt" or parts[1:4] != [str(SCRYPT_N), str(SCRYPT_R), str(SCRYPT_P)]
 
 
 # Checked against when the name is unknown, so a wrong name costs as long as a wrong password.
@@ -215,6 +239,9 @@ def check_login(store: RecordStore, name: Any, password: Any) -> User | None:
         return None
     if not verify_password(password, rows[0]["password_hash"]):
         return None
+    if needs_rehash(rows[0]["password_hash"]):
+        with store.transaction() as conn:
+            conn.execute("UPDATE users SET password_hash = ? WHERE id = ?", (hash_password(password), rows[0]["id"]))
     return load_user(store, rows[0]["id"])
 
 
