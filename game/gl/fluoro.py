@@ -103,6 +103,8 @@ class FluoroDraw:
     meshes: list[XrayMesh] = field(default_factory=list)
     status: str = ""  # one line under the view's title: projection, images, exposure
     live: bool = False
+    attempt: int = 0  # the procedure attempt the C-arm counts for; a new one starts with no image
+    images: int = 0  # images this attempt (shots, and live pulses)
 
 
 def _mat(m: np.ndarray) -> bytes:
@@ -143,7 +145,9 @@ class FluoroRenderer:
         quad = np.array([-1, -1, 1, -1, -1, 1, 1, 1], np.float32)
         self.quad = ctx.buffer(quad.tobytes())
         self.quad_vao = ctx.vertex_array(self.show, [(self.quad, "2f", "in_xy")])
-        self.image_id = -1  # the image shown; -1 before the first
+        self.image_id = -1  # the last image made; -1 before the first
+        self.shown = False  # whether it is on the view (a new attempt clears the last attempt's image)
+        self.attempt = 0
         self.path: np.ndarray | None = None  # attenuation L of the image shown, rows top first
         self.camera: Camera | None = None  # its C-arm pose
 
@@ -178,19 +182,24 @@ class FluoroRenderer:
         return np.ascontiguousarray(raw[::-1])
 
     def update(self, draw: FluoroDraw) -> bool:
-        """Make a new image if the C-arm took one since the last; True when it did."""
+        """Make a new image if the C-arm took one since the last; True when it did. A new attempt with
+        no image of its own yet shows none (its caption says 0 images), not the last attempt's."""
+        if draw.attempt != self.attempt:
+            self.attempt = draw.attempt
+            if draw.images == 0 and draw.image_id == self.image_id:
+                self.shown, self.path = False, None
         if draw.image_id == self.image_id or draw.image_id <= 0:  # no new image (0: none taken yet)
             return False
         path = self.capture(draw.meshes, draw.camera)
         g = grey(path)
         rgba = np.dstack([g, g, g, np.full_like(g, 255)])
         self.display.write(np.ascontiguousarray(rgba[::-1]).tobytes())  # GL rows bottom first
-        self.path, self.camera, self.image_id = path, draw.camera, draw.image_id
+        self.path, self.camera, self.image_id, self.shown = path, draw.camera, draw.image_id, True
         return True
 
     def draw(self, r: Rect) -> None:
         """The latest image, square and centred in the framebuffer rectangle `r` (black around it)."""
-        if self.image_id < 0 or r.w <= 0 or r.h <= 0:
+        if not self.shown or r.w <= 0 or r.h <= 0:
             return
         ctx = self.ctx
         side = min(r.w, r.h)

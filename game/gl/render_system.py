@@ -311,7 +311,8 @@ def fluoro_draw(app) -> FluoroDraw | None:
         f"{VIEW_NAMES.get(carm.view, carm.view)} (az {carm.azimuth_deg:.0f}, el {carm.elevation_deg:.0f}) - "
         f"{carm.shots} images, {carm.exposure_s:.1f} s, {carm.dose_mgy:.2f} mGy"
     )
-    return FluoroDraw(camera, carm.image_id, meshes, status, carm.live)
+    images = carm.shots + (1 if carm.live_s > 0 else 0)
+    return FluoroDraw(camera, carm.image_id, meshes, status, carm.live, carm.attempt, images)
 
 
 def capture_fluoro(app) -> None:
@@ -319,7 +320,7 @@ def capture_fluoro(app) -> None:
     was at the shot, frozen, however long until the next frame is drawn."""
     with app.active():
         request = fluoro_draw(app)
-        if request is not None and request.image_id != app.resource(Renderer).fluoro.image_id:
+        if request is not None:
             app.resource(Renderer).fluoro.update(request)
 
 

@@ -577,6 +577,8 @@ class Renderer:
         for k, (pos, radius, color, ent) in enumerate(frame.markers):
             if nm + k in skip or (hide >= 0 and ent == hide):
                 continue
+            if np.linalg.norm(np.asarray(eye, float) - np.asarray(pos, float)) <= radius * 1.05:
+                continue  # a camera inside a marker (the tip view on its entry mark) would see only the marker
             md = MeshDraw(self.sphere, _trs(pos, radius), color, entity=ent)
             if color[3] < 0.999:
                 see_through.append(("mesh", md))
@@ -682,7 +684,7 @@ class Renderer:
             if view.title:
                 panelview.view_title(ov, view.title, r, s)
             if view.kind == "fluoro" and frame.fluoro is not None:
-                panelview.fluoro_status(ov, frame.fluoro.status, frame.fluoro.live, self.fluoro.image_id >= 0, r, s)
+                panelview.fluoro_status(ov, frame.fluoro.status, frame.fluoro.live, self.fluoro.shown, r, s)
             if view.camera is not None:
                 seen = self._seen(self._labels_seen.get((r.x, r.y, r.w, r.h), []))
                 for k, (pos, text, color) in enumerate(frame.labels):

@@ -95,6 +95,22 @@ def saved_trials(attempts: list[dict], study: str, participant: str) -> dict[int
     return out
 
 
+def every_condition(tab: dict, proto: dict) -> dict:
+    """Table 6.1 with a column for each condition of the protocol, those without attempts yet too
+    (shown as "-" and 0/0), in the protocol's order, so a table says what is still missing."""
+    out = {}
+    for t in proto["trials"]:
+        key = (t["task"], t["condition"])
+        out[key] = tab.get(key) or {
+            "mean_error_mm": None,
+            "scored": 0,
+            "attempts": 0,
+            "participants": 0,
+            "thesis_mm": results.THESIS_MM.get(key),
+        }
+    return {**out, **{k: v for k, v in tab.items() if k not in out}}
+
+
 def study_name(proto: dict) -> str:
     """The study's label in the records: the protocol file's name without .toml."""
     return proto["path"].stem
@@ -364,7 +380,7 @@ class StudySession:
         with RecordStore(self.db) as store:
             rows = results.study_rows(self._attempts(store), self.study)
             qs = self._questionnaires(store)
-        tab = results.table([r for r in rows if not r["scripted"]])
+        tab = every_condition(results.table([r for r in rows if not r["scripted"]]), self.proto)
         rates = results.ratings(qs, self.study)
         labels = {q.id: q.text for q in POST}
         people = len({r["participant"] for r in rows if not r["scripted"]})

@@ -99,3 +99,17 @@ def test_landmark_3_words_name_what_this_head_shows(pack, skin, side):
     joins = ear.max()  # the ear's front, where it meets the face
     click = skin_hit(skin, [sign * 200.0, joins + 40.0, z], [-sign, 0.0, 0.0])
     assert np.linalg.norm(click - ideal(anatomy, 3, side)) < 4.0
+
+
+def test_help_pages_are_for_trainees():
+    """Every help page of a built-in pack is for the person at the window: no builders' command lines,
+    and no images (the page box would show only their alt text)."""
+    from chainsim.assets import ASSETS_DIR
+
+    for manifest in sorted(ASSETS_DIR.glob("*/pack.toml")):
+        with open(manifest, "rb") as f:
+            pages = tomllib.load(f).get("docs", {})
+        for name, page in pages.items():
+            text = (manifest.parent / page["path"]).read_text(encoding="utf-8")
+            assert "![" not in text, f"{manifest.parent.name}: help page {name} shows an image's alt text"
+            assert "packbuild" not in text, f"{manifest.parent.name}: help page {name} is builders' material"

@@ -298,3 +298,18 @@ def test_restart_needs_a_participant(tmp_path, cli):
     f.write_text(PROTO)
     code, _, err = cli("protocol", f, "--scripted", "--restart", "--db", tmp_path / "x.sqlite3")
     assert code == 2 and "--participant" in err
+
+
+def test_summary_shows_every_condition_of_the_protocol_those_without_attempts_too(tmp_path, cli):
+    db = tmp_path / "study.sqlite3"
+    p = Participant(tmp_path, "ann", db)
+    p.s.start()
+    p.answer(["@return"] * len(PRE))
+    p.do_trial()  # only the first location trial is saved
+    p.app.close()
+    code, out, err = cli("protocol", tmp_path / "study61.toml", "--summary", "--db", db)
+    assert code == 0, err
+    header = out.splitlines()[2]
+    for condition in ("reference planes", "without clues", "local viewer"):
+        assert condition in header
+    assert "0/0" in out.splitlines()[4]  # the conditions still missing: none scored of none made

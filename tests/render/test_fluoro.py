@@ -202,3 +202,30 @@ def test_snapshot_of_the_fluoro_scene_shows_bone_and_needle(tmp_path):
     ys, xs = np.nonzero(dark)
     span = max(np.ptp(xs), np.ptp(ys))
     assert span > 0.25 * min(h, w)
+
+
+def test_a_new_attempt_starts_without_the_last_attempts_image(gl_ctx, tmp_path):
+    """After Save and Reset the C-arm view says "No image yet" with its 0 images, not the last attempt's image."""
+    from chainsim.game.app.headless import build_app
+    from chainsim.game.gl.render_system import draw
+    from chainsim.game.gl.renderer import Renderer
+
+    settings = {"db": str(tmp_path / "r.sqlite3"), "class": "c1", "trainee": "ann"}
+    app = build_app(str(PACK), render=True, headless=True, settings=settings)
+    events = load_script(PACK / "scripts" / "correct.toml")
+    try:
+        _play(app, events, max(t for t, _ in events) + 0.1)
+        draw(app)
+        fr = app.resource(Renderer).fluoro
+        assert fr.shown and fr.image_rgb() is not None
+        t = app.time.sim_time
+        turn = Widget("rotate_horizontal", 1.0)
+        _play(app, [(t + 0.01, Widget("save", None)), (t + 0.05, Widget("reset", None)), (t + 0.1, turn)], 0.3)
+        draw(app)
+        assert app.resource(Assessment).values.get("saved")
+        assert not fr.shown and fr.image_rgb() is None
+        _play(app, [(app.time.sim_time + 0.01, Widget("xray_take", None))], 0.1)
+        draw(app)
+        assert fr.shown  # the new attempt's own image
+    finally:
+        app.close()

@@ -72,6 +72,7 @@ from chainsim.game.ui.questionnaire import POST, THESIS_RATINGS
 from chainsim.game.ui.study import (
     StudySession,
     current_attempts,
+    every_condition,
     newest_questionnaires,
     saved_trials,
     study_name,
@@ -286,7 +287,7 @@ def run_summary(args, proto: dict) -> int:
             f"no attempts of study '{study}' by people in class '{args.class_name}' in {store.path}; "
             f"run a session first: chainsim protocol {args.protocol} --participant NAME"
         )
-    tab = table(rows)
+    tab = every_condition(table(rows), proto)
     people = len({r["participant"] for r in rows})
     text = format_table(tab, f"{people} participants")
     rates = ratings(questionnaires, study)

@@ -271,16 +271,27 @@ def my_attempts(app, limit: int = 6) -> list[str]:
     s = app.resource(Settings)
     cls, who = s.get("class") or DEFAULT_CLASS, s.get("trainee") or DEFAULT_TRAINEE
     rows = app.resource(Records).list_attempts(cls, who)
+    scene = app.get_resource(NeedleScene)
     lines = [f"Attempts of {who} ({cls}): {len(rows)}"]
-    for r in rows[-limit:]:
-        ne = "-" if r["needle_error_mm"] is None else f"{r['needle_error_mm']:.1f}"
+    # numbered 1..N as the trainee made them (the save message uses the same numbers), the target named
+    for k, r in enumerate(rows[-limit:], len(rows) - len(rows[-limit:]) + 1):
+        ne = "-" if r["needle_error_mm"] is None else f"{r['needle_error_mm']:.1f} mm"
+        reached = "nothing" if r["target"] in (None, "none") else (scene.label(r["target"]) if scene else r["target"])
         lines.append(
-            f"#{r['id']} {r['created_at'][:16]}  {r['duration_s']:.1f} s, landmarks "
-            f"{r['landmark_error_mm']:.1f} mm, needle {ne} mm, {r['target']}"
+            f"{k}. {r['created_at'][:16].replace('T', ' ')}: {r['duration_s']:.1f} s, landmarks "
+            f"{r['landmark_error_mm']:.1f} mm, needle {ne}, reached {reached}"
         )
     if rows:
-        lines.append(f"Delete attempt (press twice) removes #{rows[-1]['id']}, the newest.")
+        lines.append(f"Delete attempt (press twice) removes number {len(rows)}, the newest.")
     return lines
+
+
+def own_count(app) -> int | None:
+    """How many attempts the signed-in trainee has saved (the number My attempts gives the newest)."""
+    try:
+        return len(app.resource(Records).list_attempts(*_who(app)))
+    except (UserError, OSError):
+        return None
 
 
 def _who(app) -> tuple[str, str]:
@@ -310,6 +321,7 @@ class AssessmentSystem:
         self.widgets = app.events.reader(Widget)
         self.errors: list[str] = []
         self.delete_armed: int | None = None  # the attempt a first Delete press chose
+        self.panel_shown: list[str] | None = None  # the self-assessment lines on the panel, while they are
 
     def __call__(self, app) -> None:
 
@@ -318,6 +330,7 @@ class AssessmentSystem:
             h = hud(app)
             if ev.name == "self_assessment":
                 h.panel_text = panel_lines(v, app.resource(NeedleScene), app.resource(PackResource).pack)
+                self.panel_shown = list(h.panel_text)
             elif ev.name == "save":
                 try:
                     rid = save(app, v)
@@ -334,13 +347,18 @@ class AssessmentSystem:
                     ps = esper.component_for_entity(app.resource(NeedleHandles).procedure, ProcedureState)
                     ps.closed = True  # this attempt is done; the next action begins another
                     s = app.resource(Settings)
+                    # in a study the session moves on by itself: no Reset to suggest
+                    again = "" if s.get("protocol") else " Reset (r) to try again."
                     if rid is None:
-                        h.message(f"Not saved: {app.resource(Records).refuses}. Reset (r) to try again.")
+                        h.message(f"Not saved: {app.resource(Records).refuses}.{again}")
                     else:
                         ps.saved.append(rid)
+                        n = own_count(app)
                         h.message(
-                            f"Attempt {rid} saved for {s.get('trainee') or DEFAULT_TRAINEE} "
-                            f"in class {s.get('class') or DEFAULT_CLASS}. Reset (r) to try again."
+                            f"Attempt {ps.attempt} saved for {s.get('trainee') or DEFAULT_TRAINEE} "
+                            f"in class {s.get('class') or DEFAULT_CLASS}"
+                            + (f" (number {n} in My attempts)" if n else "")
+                            + f".{again}"
                         )
             elif ev.name == "delete_attempt":
                 self.delete(app, h)
@@ -355,6 +373,14 @@ class AssessmentSystem:
                     ]
             if ev.name != "delete_attempt":
                 self.delete_armed = None
+        h = hud(app)
+        if self.panel_shown is not None:
+            if h.panel_text != self.panel_shown:  # something else took the panel (My attempts, a new attempt)
+                self.panel_shown = None
+            else:  # the self assessment follows the attempt while it is shown (a bone hit's needle error)
+                lines = panel_lines(v, app.resource(NeedleScene), app.resource(PackResource).pack)
+                if lines != self.panel_shown:
+                    h.panel_text = self.panel_shown = lines
         ps = esper.component_for_entity(app.resource(NeedleHandles).procedure, ProcedureState)
         v["saved"] = list(ps.saved)
         v["save_errors"] = list(self.errors)
