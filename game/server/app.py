@@ -10,6 +10,7 @@ images from elsewhere, no framing).
 from __future__ import annotations
 
 import logging
+import os
 from contextlib import asynccontextmanager
 
 from starlette.applications import Starlette
@@ -22,12 +23,16 @@ from starlette.routing import Mount
 from starlette.staticfiles import StaticFiles
 
 from chainsim.engine.errors import UserError
+from chainsim.game.records import remote, xapi
 from chainsim.game.server import api, scoring, views
 from chainsim.game.server.auth import HTTPError
 from chainsim.game.server.storage import Storage, Unavailable
 from chainsim.game.server.throttle import Throttle
 
 logger = logging.getLogger(__name__)
+
+#: the programme's address for xAPI identities (default: the address the server listens on)
+BASE_URL_ENV = "CHAINSIM_SERVER_URL"
 
 SECURITY_HEADERS = {
     "Content-Security-Policy": (
@@ -74,6 +79,7 @@ def build_app(
     pack_paths: list[str] | tuple = (),
     scorers: int = scoring.DEFAULT_WORKERS,
     lease_s: float = scoring.DEFAULT_LEASE_S,
+    base_url: str = xapi.DEFAULT_HOMEPAGE,
 ) -> Starlette:
     """The app over the records database ``db`` (a path, a postgresql:// URL, or None: default file).
 
@@ -110,6 +116,8 @@ def build_app(
     app.state.packs = packs
     app.state.scorer = scorer
     app.state.throttle = Throttle()
+    # the programme's address in xAPI identities: configured, never taken from a request's Host header
+    app.state.base_url = remote.server_url(base_url)
     return app
 
 
@@ -153,7 +161,12 @@ def serve(
     """Run the server until interrupted (uvicorn, one process; replays in ``scorers`` processes beside it)."""
     import uvicorn  # noqa: PLC0415 - only `chainsim serve` needs the server
 
-    app = build_app(db, pack_paths=pack_paths, scorers=scorers)
+    base_url = os.environ.get(BASE_URL_ENV, "").strip() or f"{'https' if certfile else 'http'}://{host}:{port}"
+    try:
+        base_url = remote.server_url(base_url)
+    except UserError as exc:
+        raise UserError(f"${BASE_URL_ENV}: {exc}") from None
+    app = build_app(db, pack_paths=pack_paths, scorers=scorers, base_url=base_url)
     logger.info(
         "records server on %s://%s:%d, database %s",
         "https" if certfile else "http",

@@ -292,7 +292,7 @@ async def export_csv(request: Request) -> Response:
 
 async def export_xapi(request: Request) -> Response:
     rows = await _export_rows(request)
-    home = str(request.base_url).rstrip("/")
+    home = request.app.state.base_url  # configured: a Host header must not choose whose identities these are
     return Response(
         xapi.dumps(xapi.statements(rows, home)),
         media_type="application/json",

@@ -169,6 +169,11 @@ def test_csv_and_xapi_downloads(site):
     status, stmts, _ = b.get("/export/attempts.xapi.json?class=c2")
     assert status == 200 and all(s["actor"]["account"]["homePage"] == site.url for s in stmts)
     assert any(s["result"]["extensions"][f"{site.url}/xapi/extensions/duration_s"] == 68.0 for s in stmts)
+    # identities come from the server's configured address, never from the request's Host header
+    forged = b._headers({"Host": "evil.example:80"})
+    status, stmts, _ = call(site, "GET", "/export/attempts.xapi.json?class=c2", headers=forged)
+    assert status == 200 and stmts and all(s["actor"]["account"]["homePage"] == site.url for s in stmts)
+    assert "evil.example" not in str(stmts)
     # the same downloads with an API token (scripts)
     assert call(site, "GET", "/export/attempts.csv?class=c2", token=site.tokens["tom"])[0] == 200
     assert call(site, "GET", "/export/attempts.csv?class=c1", token=site.tokens["tom"])[0] == 403
