@@ -285,3 +285,36 @@ def test_exact_step_on_a_pulled_block_moves_only_what_it_must():
         assert np.all(np.abs(pos - rest) <= np.abs(ref - rest) + 1e-9)
         if lift == 1.0:
             assert res.shortfall == 0.0 and len(changed) < len(rest) // 2
+
+
+@SETTINGS
+@given(scenarios(), st.lists(st.sampled_from(["same", "toggle", "cut", "moved"]), min_size=3, max_size=6))
+def test_repeated_exact_steps_read_the_field_and_match_the_reference(case, steps):
+    """A drag repeats pulls against the same fixed elements: from the second pull out of reach on, the step
+    clamps the target with the field of the fixed elements instead of finding it by its walk. Fixed
+    elements toggled, links cut or a fixed element moved in between must be noticed: every step keeps every
+    link inside, stops where the reference stops and moves no element further than the reference."""
+    rest, links, alive, _, fixed, grabbed, targets, order, _, rng = case
+    graph, mats, ws, _ = setup(case)
+    fixed = np.zeros(len(rest), bool) if fixed is None else fixed.copy()
+    fixed[rng.integers(len(rest))] = True
+    g, t = grabbed[:1], targets[:1] * 3.0  # one grabbed element, far: out of reach of the fixed ones
+    start = rest.copy()
+    for what in ["same"] + steps:
+        if what == "toggle":
+            fixed[rng.integers(len(rest))] ^= True
+        elif what == "cut" and len(links):
+            graph.cut(rng.choice(len(links), size=1))
+        elif what == "moved":  # the fixed elements put elsewhere, every link still inside: a translation
+            start = start + 0.37
+        pos = start.copy()
+        exact_move(rest, pos, graph, *mats, g, t, fixed, ws, order=order)
+        ref_start = start.copy()
+        moved, _ = cascade(rest, ref_start, graph, *mats, g, t, fixed=fixed, order=order)
+        ref, ref_short = ref_exact(rest, ref_start, links, graph.alive, *mats, g, t, fixed)
+        scale = 1.0 + np.abs(ref).max()
+        assert violations(rest, pos, graph, *mats).outside == 0
+        np.testing.assert_array_equal(pos[fixed], start[fixed])
+        short = 0.0 if fixed[g[0]] else float(np.linalg.norm(pos[g[0]] - t[0]))
+        assert short == pytest.approx(ref_short, abs=1e-7 * scale)
+        assert np.all(np.abs(pos - start) <= np.abs(ref - start) + 1e-7 * scale)

@@ -787,6 +787,23 @@ def _residual(rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, seeds
 
 
 @njit(cache=True)
+def _field_valid(pos, fixed, has_fixed, field_ok, field_fixed, field_ids, field_pos):
+    """Whether the pin field (built for this graph and material when field_ok) was built from this fixed
+    mask and these positions of the fixed elements."""
+    n = pos.shape[0]
+    if not (field_ok and has_fixed and field_fixed.shape[0] == n):
+        return False
+    for i in range(n):
+        if fixed[i] != field_fixed[i]:
+            return False
+    for k in range(field_ids.shape[0]):
+        for a in range(pos.shape[1]):
+            if pos[field_ids[k], a] != field_pos[k, a]:
+                return False
+    return True
+
+
+@njit(cache=True)
 def _exact(
     rest,
     pos,
@@ -832,17 +849,7 @@ def _exact(
     n = pos.shape[0]
     dim = pos.shape[1]
     result[8] = 0.0
-    use_field = field_ok and has_fixed and field_fixed.shape[0] == n
-    if use_field:
-        for i in range(n):
-            if fixed[i] != field_fixed[i]:
-                use_field = False
-                break
-    if use_field:
-        for k in range(field_ids.shape[0]):
-            for a in range(dim):
-                if pos[field_ids[k], a] != field_pos[k, a]:
-                    use_field = False
+    use_field = _field_valid(pos, fixed, has_fixed, field_ok, field_fixed, field_ids, field_pos)
     for k in range(grabbed.shape[0]):
         if grabbed[k] < 0 or grabbed[k] >= n:
             return -1
@@ -1291,12 +1298,18 @@ def _exact_move(
     queue,
     inq,
     check,
+    field,
+    field_ok,
+    field_fixed,
+    field_ids,
+    field_pos,
 ):
     """exact_move's kernel (see the module docstring, "The exact step"). stamps: the workspace's pin,
-    region and log stamps as rows. Returns (code, n changed, visits, complete, fallback, residual,
-    outside, checked, shortfall): code 0, or a negative code before anything moves; fallback: the grabbed
-    elements pull one axis both ways or one stops another, so the caller settles them with the cascade
-    and the walks (pos is then as on entry)."""
+    region and log stamps as rows; field...: the pin field, as for _exact. Returns (code, n changed,
+    visits, complete, fallback, residual, outside, checked, shortfall, searched): code 0, or a negative
+    code before anything moves; fallback: the grabbed elements pull one axis both ways or one stops
+    another, so the caller settles them with the cascade and the walks (pos is then as on entry);
+    searched: a target out of reach was found by the walk, not read from the field."""
     n = pos.shape[0]
     dim = pos.shape[1]
     pin = stamps[0]
@@ -1304,22 +1317,43 @@ def _exact_move(
     log_stamp = stamps[2]
     for k in range(grabbed.shape[0]):
         if grabbed[k] < 0 or grabbed[k] >= n:
-            return -1, 0, 0, True, False, 0.0, 0, 0, 0.0
+            return -1, 0, 0, True, False, 0.0, 0, 0, 0.0, False
         for a in range(dim):
             if not np.isfinite(targets[k, a]):
-                return -3, 0, 0, True, False, 0.0, 0, 0, 0.0
+                return -3, 0, 0, True, False, 0.0, 0, 0, 0.0, False
+    nfree = 0
+    for k in range(grabbed.shape[0]):
+        nfree += not (has_fixed and fixed[grabbed[k]])
+    # One grabbed element against the fixed ones, whose reachable boxes a drag has already computed (the
+    # pin field, as exact_limits reads it): its target clamped into its box first, so the walk reaches
+    # only the elements that end somewhere else instead of spreading from the target out of reach.
+    tg = targets
+    clamped = False
+    if nfree == 1 and _field_valid(pos, fixed, has_fixed, field_ok, field_fixed, field_ids, field_pos):
+        tg = targets.copy()
+        clamped = True
+        for k in range(grabbed.shape[0]):
+            g = grabbed[k]
+            if fixed[g]:
+                continue
+            for a in range(dim):
+                r = np.float64(rest[g, a])
+                x = tg[k, a]
+                if field[g, 2 * a] < x - r:
+                    x = r + field[g, 2 * a]
+                if field[g, 2 * a + 1] < r - x:
+                    x = r - field[g, 2 * a + 1]
+                tg[k, a] = x
     sign = np.zeros(3, dtype=np.int64)
     scale = 0.0
-    nfree = 0
     mixed = False
     for k in range(grabbed.shape[0]):
         g = grabbed[k]
         pin[g] = gen
         if has_fixed and fixed[g]:
             continue
-        nfree += 1
         for a in range(dim):
-            step = np.float64(targets[k, a]) - np.float64(pos[g, a])
+            step = np.float64(tg[k, a]) - np.float64(pos[g, a])
             s = 1 if step > 0.0 else (-1 if step < 0.0 else 0)
             if s != 0:
                 if sign[a] == -s:
@@ -1327,23 +1361,23 @@ def _exact_move(
                 sign[a] = s
             scale = _greater(scale, _greater(abs(targets[k, a]), abs(np.float64(pos[g, a]))))
     if mixed:
-        return 0, 0, 0, True, True, 0.0, 0, 0, 0.0
+        return 0, 0, 0, True, True, 0.0, 0, 0, 0.0, False
     eps_abs = eps_round * 2.0 * scale
     excess = np.zeros(3)
     if dim == 3:
         visits, nlog, finished, conflict = _closure_walk3(
             rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, cut, fixed, has_fixed, pin, gen, grabbed,
-            targets, sign, log_ids, log_stamp, x0, queue, inq, excess, eps_abs, max_visits,
+            tg, sign, log_ids, log_stamp, x0, queue, inq, excess, eps_abs, max_visits,
         )  # fmt: skip
     else:
         visits, nlog, finished, conflict = _closure_walk_nd(
-            rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, pin, gen, grabbed, targets,
+            rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, pin, gen, grabbed, tg,
             sign, log_ids, log_stamp, x0, queue, inq, excess, eps_abs, max_visits,
         )  # fmt: skip
     out_of_reach = excess[0] > 0.0 or excess[1] > 0.0 or excess[2] > 0.0
     if conflict or (out_of_reach and nfree > 1):
         _restore(pos, log_ids, x0, nlog)
-        return 0, 0, 0, True, True, 0.0, 0, 0, 0.0
+        return 0, 0, 0, True, True, 0.0, 0, 0, 0.0, False
     # One grabbed element out of reach on some axes by excess[a]: its nearest reachable position is the
     # target moved back by that much (the per-axis clamp into its reachable box: the fixed element that
     # bound hardest lies at dist from it), and every label the walk set moves back with it, to no less
@@ -1388,7 +1422,7 @@ def _exact_move(
         for a in range(dim):
             s2 += (np.float64(targets[k, a]) - np.float64(pos[g, a])) ** 2
         shortfall = _greater(shortfall, np.sqrt(s2))
-    return 0, m, visits, finished, False, worst, outside, checked, shortfall
+    return 0, m, visits, finished, False, worst, outside, checked, shortfall, out_of_reach and not clamped
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -1514,12 +1548,15 @@ def exact_move(
         fixed_arr, has_fixed = fixed_mask(fixed, n)
     kargs, cut = ex.step_args(graph, workspace)
     cap = int(max_visits) if max_visits is not None else 64 * n + 10_000
-    code, m, visits, complete, fallback, worst, outside, checked, shortfall = _exact_move(
+    code, m, visits, complete, fallback, worst, outside, checked, shortfall, searched = _exact_move(
         rest, pos, *kargs, cut, fixed_arr, has_fixed, grabbed, targets, _ROUND[pos.dtype],
         TOL[pos.dtype], cap, ex.next_generation(), ex.stamps, ex.log_ids, ex.x0, ex.queue, ex.inq, bool(check),
+        *ex.field_args(graph),
     )  # fmt: skip
     if code < 0:
         raise ValueError(_ERRORS[code].replace("N)", f"{n})"))
+    if searched:  # out of reach again with the same fixed elements: a drag; their field is built once
+        ex.searched(rest, pos, graph, fixed_arr)
     if fallback:  # both ways on an axis, or grabbed elements in one another's way: the cascade and the walks
         moved, _ = cascade(
             rest, pos, graph, None, None, None, grabbed, targets.astype(pos.dtype), fixed=fixed, order=order,
