@@ -86,9 +86,17 @@ class ServerPacks:
 
     def info(self, name: str) -> dict | None:
         """``{"root", "identity", "scenes"}`` of the pack called ``name``, or None when there is none."""
+        # one lookup at a time: the first uploads after a start all want the same pack, and loading and
+        # hashing it once per waiting upload (a thundering herd) held each of them for seconds
         with self._lock:
             if name in self._cache:
                 return self._cache[name]
+            info = self._load(name)
+            if info is not None:
+                self._cache[name] = info
+            return info
+
+    def _load(self, name: str) -> dict | None:
         from chainsim.game.packs import pack as packs  # noqa: PLC0415 - loaded when the first upload needs it
         from chainsim.game.packs.discovery import discover  # noqa: PLC0415
 
@@ -104,8 +112,6 @@ class ServerPacks:
             "scenes": pack.scene_names(),
             "default_scene": pack.manifest["pack"].get("default_scene"),
         }
-        with self._lock:
-            self._cache[name] = info
         return info
 
 
