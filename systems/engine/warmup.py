@@ -15,7 +15,7 @@ from chainsim.engine.bodies.projective import ProjectiveBody
 from chainsim.engine.bodies.xpbd import XPBDBody
 from chainsim.engine.chainmail_params import ORDERS
 from chainsim.engine.kernels.chainmail import cascade
-from chainsim.engine.kernels.normals import vertex_normals_kernel
+from chainsim.engine.kernels.normals import _normals_parallel, moved_normals_kernel, vertex_normals_kernel
 from chainsim.engine.meshgen import tet_grid, triangulated_grid
 from chainsim.engine.progress import progress
 from chainsim.engine.segment_tree import SegmentTree
@@ -51,8 +51,24 @@ def _models(rest, tets, tris):
 
 
 def _geometry(rest, tris):
-    out = np.zeros((len(rest), 3))
-    vertex_normals_kernel(rest, tris, out)
+    # the argument types the app passes: float64 positions from the engine, float32 from the window's
+    # GPU meshes (chainsim.game.gl.meshbuf: whole-mesh normals into float32 or float64, and the moved
+    # vertices' normals while a tool drags tissue); missing one froze a first forceps grip for seconds
+    tris = np.ascontiguousarray(tris, dtype=np.int64)
+    n = int(tris.max()) + 1
+    flat = tris.ravel()
+    ptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(flat, minlength=n), out=ptr[1:])
+    idx = (np.argsort(flat, kind="stable") // 3).astype(np.int64)
+    for pos_type, out_types in ((np.float64, (np.float64,)), (np.float32, (np.float32, np.float64))):
+        pos = np.ascontiguousarray(rest[:n], dtype=pos_type)
+        for out_type in out_types:
+            vertex_normals_kernel(pos, tris, np.zeros((n, 3), out_type))
+        normals = np.zeros((n, 3), pos_type)
+        moved_normals_kernel(pos, tris, ptr, idx, np.arange(2, dtype=np.int64), np.zeros(n, np.bool_), normals)
+    # large meshes on machines with several cores take the parallel gather (float32, the GPU copy)
+    pos32 = np.ascontiguousarray(rest[:n], dtype=np.float32)
+    _normals_parallel(pos32, tris, ptr, idx, np.zeros((n, 3), np.float32), 2)
     SegmentTree.build(rest, tris).first_hit(rest[0] - 1.0, rest[-1] + 1.0)
 
 
