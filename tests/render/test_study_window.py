@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 from PIL import Image
 from test_trainee_session import H, W, landmark_pixels, needs_x, widget_centre
 
@@ -133,6 +134,7 @@ def page_text_rows(img: np.ndarray) -> int:
     return int(((box.min(axis=2) > 170).sum(axis=1) > 3).sum())
 
 
+@pytest.mark.slow
 @needs_x
 def test_a_participant_session_in_the_window(tmp_path):
     from chainsim.game.records.store import RecordStore

@@ -143,6 +143,7 @@ def grid_rows(img: np.ndarray, x0: int, x1: int) -> int:
     return int((near.mean(axis=1) > 0.5).sum())
 
 
+@pytest.mark.slow
 @needs_x
 def test_a_trainee_session_in_the_window(tmp_path):
     lm = landmark_pixels()

@@ -9,9 +9,11 @@ from __future__ import annotations
 import subprocess
 import time
 
+import pytest
 from test_trainee_session import Session, landmark_pixels, needs_x
 
 
+@pytest.mark.slow
 @needs_x
 def test_esc_closes_the_sign_in_page_and_asks_before_unsaved_work_is_lost(tmp_path):
     lm = landmark_pixels()
