@@ -19,7 +19,7 @@ from chainsim.engine.chainmail_params import order_code
 from chainsim.engine.errors import UserError
 from chainsim.engine.kernels import topology
 from chainsim.engine.kernels.chainmail import cascade, make_workspace, material_arrays
-from chainsim.engine.kernels.exact import exact_limits
+from chainsim.engine.kernels.exact import exact_limits, exact_move
 from chainsim.engine.kernels.graph import Graph, build_graph
 from chainsim.engine.kernels.relax import relax
 
@@ -131,6 +131,34 @@ class ChainMailBody(Body):
             fixed[others] = True
         else:
             fixed = self.fixed if self.fixed.any() else None
+        if self.exact and self.relax_iterations == 0 and self.positions.dtype == np.float64:
+            # no relaxation: one exact step (the nearest shape with every link inside) instead of the
+            # cascade and the exact-limit pass; the first step after construction also measures every
+            # link it touches, in case the start shape was set from outside with links out of their box
+            changed, res = exact_move(
+                self.rest,
+                self.positions,
+                self.graph,
+                self.amin,
+                self.amax,
+                self.beta,
+                ids,
+                targets,
+                fixed,
+                self.workspace,
+                order=self._order_code(),
+                check=not getattr(self, "_exact_clean", False),
+            )
+            self._exact_clean = True
+            changed = changed.copy()  # a view into the workspace otherwise
+            self.last_order = changed
+            self.last_sponsor = np.full(len(changed), -1, dtype=np.int64)  # the step has no sponsors
+            self.last_exact, self.last_shortfall = res, res.shortfall
+            if hold and not (len(others) == 0 and len(held) == k == 1 and held[0] == ids[0]):
+                self.held = np.union1d(self.held, ids)
+            self.moved = changed
+            self.stats = StepStats(1, self.last_shortfall, len(changed), time.perf_counter() - t0, {"t_cascade": 0.0})
+            return changed
         order, sponsor = cascade(
             self.rest,
             self.positions,
