@@ -40,22 +40,33 @@ def _files(root: Path) -> list[Path]:
     return out
 
 
-def files_hash(roots: list[Path]) -> str:
-    """SHA-256 over every file of ``roots`` (relative names and contents), in a fixed order."""
+def files_listing(roots: list[Path]) -> tuple:
+    """``(root index, relative name, size, mtime_ns)`` of every file of ``roots``, in a fixed order.
+
+    A pack whose listing is unchanged has unchanged files (an editor or a copy that replaces a file
+    changes its size or its time); a file that vanishes mid-walk counts as a change."""
     listing = []
     for i, root in enumerate(roots):
         for path in _files(root):
-            st = path.stat()
-            listing.append((i, path.relative_to(root).as_posix(), path, st.st_size, st.st_mtime_ns))
+            try:
+                st = path.stat()
+            except OSError:
+                st = None
+            listing.append((i, path.relative_to(root).as_posix(), st and st.st_size, st and st.st_mtime_ns))
+    return tuple(listing) + tuple(str(r) for r in roots)
+
+
+def files_hash(roots: list[Path]) -> str:
+    """SHA-256 over every file of ``roots`` (relative names and contents), in a fixed order."""
     # hashing is keyed on names, sizes and times: a save does not reread an unchanged pack
-    key = tuple((i, rel, size, mtime) for i, rel, _, size, mtime in listing) + tuple(str(r) for r in roots)
+    key = files_listing(roots)
     cached = _hash_cache.get(key)
     if cached is not None:
         return cached
     h = hashlib.sha256()
-    for i, rel, path, _, _ in listing:
+    for i, rel, _, _ in key[: len(key) - len(roots)]:
         h.update(f"{i}\0{rel}\0".encode())
-        h.update(hashlib.sha256(path.read_bytes()).digest())
+        h.update(hashlib.sha256((roots[i] / rel).read_bytes()).digest())
     _hash_cache[key] = digest = h.hexdigest()
     return digest
 

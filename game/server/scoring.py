@@ -77,11 +77,16 @@ COMPARED = (
 
 
 class ServerPacks:
-    """The packs this server scores with: by name only (an upload never names a folder), identity cached."""
+    """The packs this server scores with: by name only (an upload never names a folder).
+
+    A pack's identity is cached with the names, sizes and modification times of its files (and of the
+    packs it requires); each lookup compares them again, so a trainer who updates a pack on a running
+    server has uploads made with the new files accepted at once, and the old files' uploads refused,
+    without a restart. The comparison reads no file contents: only a changed pack is read and hashed."""
 
     def __init__(self, pack_paths: list[str] | tuple = ()) -> None:
         self.pack_paths = list(pack_paths)
-        self._cache: dict[str, dict] = {}
+        self._cache: dict[str, tuple[tuple, dict]] = {}
         self._lock = threading.Lock()
 
     def info(self, name: str) -> dict | None:
@@ -89,11 +94,14 @@ class ServerPacks:
         # one lookup at a time: the first uploads after a start all want the same pack, and loading and
         # hashing it once per waiting upload (a thundering herd) held each of them for seconds
         with self._lock:
-            if name in self._cache:
-                return self._cache[name]
+            cached = self._cache.get(name)
+            if cached is not None and cached[0] == _signature(cached[1]["roots"]):
+                return cached[1]
             info = self._load(name)
-            if info is not None:
-                self._cache[name] = info
+            if info is None:
+                self._cache.pop(name, None)
+            else:
+                self._cache[name] = (_signature(info["roots"]), info)
             return info
 
     def _load(self, name: str) -> dict | None:
@@ -108,11 +116,17 @@ class ServerPacks:
         pack = packs.load(found[name], self.pack_paths)
         info = {
             "root": str(found[name]),
+            "roots": [str(found[name])] + [str(p) for _, p in sorted(pack.deps.items())],
             "identity": provenance.pack_identity(pack),
             "scenes": pack.scene_names(),
             "default_scene": pack.manifest["pack"].get("default_scene"),
         }
         return info
+
+
+def _signature(roots: list[str]) -> tuple:
+    """Names, sizes and modification times of every file of ``roots``: what a pack's update changes."""
+    return provenance.files_listing([Path(r) for r in roots])
 
 
 # -- checking an upload (on the request) ---------------------------------------------------------

@@ -9,6 +9,11 @@ Uploads are real: ``upload()`` is what the simulator queues after a built-in scr
 Save pressed (its figures, its recording and the pack's identity), made once per test session.
 The server answers 202 with an upload id and scores it by replay; ``save_scored`` sends one and
 waits for the attempt the replay stored.
+
+The prp pack these tests replay is a copy in a temporary folder, found through $CHAINSIM_PACK_PATH
+by the simulator, the servers and the command lines alike: an edit made to ``assets/prp`` while the
+tests run changes the built-in pack's hash, never the copy's, so an upload made at the start still
+matches the server's pack at the end.
 """
 
 from __future__ import annotations
@@ -46,6 +51,20 @@ PEOPLE = (
 )
 
 from records_db import free_port  # noqa: E402  (tests/records_db.py, loaded by tests/conftest.py)
+
+
+@pytest.fixture(scope="package", autouse=True)
+def pack_copy(tmp_path_factory):
+    """The prp pack copied to a folder of its own and put first on $CHAINSIM_PACK_PATH (see module doc)."""
+    folder = tmp_path_factory.mktemp("packs")
+    shutil.copytree(REPO / "assets" / "prp", folder / "prp", ignore=shutil.ignore_patterns("__pycache__", ".*"))
+    before = os.environ.get("CHAINSIM_PACK_PATH")
+    os.environ["CHAINSIM_PACK_PATH"] = str(folder)
+    yield folder / "prp"
+    if before is None:
+        os.environ.pop("CHAINSIM_PACK_PATH", None)
+    else:
+        os.environ["CHAINSIM_PACK_PATH"] = before
 
 
 def attempt(i: int = 0, **over) -> dict:
@@ -138,12 +157,13 @@ class Server:
         return self.proc.poll() is None and call(self, "GET", "/api/health")[0] == 200
 
 
-def start_server(db: str, log: Path, port: int | None = None) -> Server:
+def start_server(db: str, log: Path, port: int | None = None, args: tuple[str, ...] = ()) -> Server:
+    """``chainsim serve`` over ``db`` on 127.0.0.1 (``args``: more options), once it answers."""
     port = port or free_port()
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     fh = log.open("ab")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "chainsim.game", "serve", "--db", db, "--port", str(port)],
+        [sys.executable, "-m", "chainsim.game", "serve", "--db", db, "--port", str(port), *args],
         stdout=fh,
         stderr=subprocess.STDOUT,
         env=env,

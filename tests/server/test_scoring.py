@@ -6,16 +6,20 @@ claim a success after an attempt that hit the skull is stored with the replay's 
 flagged; an unknown pack, another copy of a pack or a recording that never saves is refused and
 stays queued with the reason; a server killed with uploads waiting scores each of them once
 after a restart; attempts cannot be deleted by a trainee, and a trainer's retraction is audited.
+A trainer who updates a pack on a running server has uploads made with the new files scored
+without a restart, and those made with the old files refused.
 """
 
 from __future__ import annotations
 
 import json
+import shutil
 import signal
 
 import pytest
-from conftest import PASSWORD, call, populate, save_through_simulator, start_server, wait_scored
+from conftest import PASSWORD, call, populate, save_through_simulator, start_server, upload, wait_scored
 
+from chainsim.game.packs import pack as packs
 from chainsim.game.records import provenance, remote
 from chainsim.game.records.store import RecordStore
 
@@ -166,3 +170,34 @@ def test_trainee_cannot_delete_trainer_retracts_with_a_reason(server, tmp_path):
     )
     status, _, _ = call(server, "GET", "/api/audit", token=server.tokens["alice"])
     assert status == 403
+
+
+def test_a_pack_updated_on_a_running_server_scores_uploads_made_with_its_new_files(records_db, tmp_path, pack_copy):
+    folder = tmp_path / "packs"
+    shutil.copytree(pack_copy, folder / "prp")  # this server's own copy, which the trainer updates
+    populate(records_db)
+    srv = start_server(records_db, tmp_path / "serve.log", args=("--pack-path", str(folder)))
+    try:
+        token = call(srv, "POST", "/api/login", {"name": "alice", "password": PASSWORD})[1]["token"]
+        old = upload("correct.toml")
+        status, ack, _ = call(srv, "POST", "/api/attempts", old, token, {"Idempotency-Key": "before-update"})
+        assert status == 202, ack
+        assert wait_scored(srv, ack["upload"], token)["status"] == "scored"
+
+        # the trainer updates the pack in place; the simulator, with the same update, sends its new identity
+        manifest = folder / "prp" / "pack.toml"
+        manifest.write_text(manifest.read_text() + "\n# updated by the trainer\n")
+        new = {**old, "pack_identity": provenance.pack_identity(packs.load(folder / "prp"))}
+        assert new["pack_identity"]["hash"] != old["pack_identity"]["hash"]
+        status, ack, _ = call(srv, "POST", "/api/attempts", new, token, {"Idempotency-Key": "after-update"})
+        assert status == 202, ack
+        result = wait_scored(srv, ack["upload"], token)
+        assert result["status"] == "scored", result
+        status, a, _ = call(srv, "GET", f"/api/attempts/{result['attempt_id']}", token=token)
+        assert a["pack_hash"] == new["pack_identity"]["hash"] and a["target"] == "foramen_ovale_left"
+
+        # an upload made with the old files is now another copy of the pack: refused, naming why
+        status, answer, _ = call(srv, "POST", "/api/attempts", old, token, {"Idempotency-Key": "old-files"})
+        assert status == 422 and "is not the server's" in answer["error"], answer
+    finally:
+        srv.stop()
