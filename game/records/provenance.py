@@ -22,12 +22,12 @@ import zlib
 from pathlib import Path
 from typing import Any
 
+from chainsim.engine import limits
 from chainsim.engine.errors import UserError
 
-#: compressed size of one attempt's recording (a long window session with mouse motion is a few 100 KiB)
-MAX_RECORDING_BYTES = 768 << 10
-#: the same recording as JSON; a zip bomb stops here
-MAX_RECORDING_INFLATED = 16 << 20
+#: compressed size of one attempt's recording, and the same recording as JSON (docs/limits.md)
+MAX_RECORDING_BYTES = limits.MAX_RECORDING_BYTES
+MAX_RECORDING_INFLATED = limits.MAX_RECORDING_INFLATED
 _SKIP_DIRS = {"__pycache__", ".git"}
 _hash_cache: dict[tuple, str] = {}
 

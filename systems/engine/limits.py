@@ -161,6 +161,17 @@ MAX_SCRIPT_BYTES = _limit(
     "Files and nesting",
     "An input script, a recording or a study protocol.",
 )
+#: a recording once inflated; a small upload cannot inflate into a large one (a zip bomb stops here)
+MAX_RECORDING_INFLATED = 16 * 1024 * 1024
+MAX_RECORDING_BYTES = _limit(
+    "MAX_RECORDING_BYTES",
+    768 * 1024,
+    "bytes",
+    "Files and nesting",
+    "The recording an attempt uploads to a records server and the server keeps with it, compressed "
+    f"(a long window session with mouse motion is a few 100 KiB); at most {MAX_RECORDING_INFLATED:,} bytes "
+    "once inflated (`MAX_RECORDING_INFLATED`). A larger one is refused with a 422 naming the limit.",
+)
 MAX_NESTING = _limit(
     "MAX_NESTING",
     32,
