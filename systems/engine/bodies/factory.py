@@ -107,6 +107,7 @@ def choose_model(
     E: float | None = None,
 ) -> Choice:
     """A row of the table for a body of `nodes` nodes (and Young's modulus E where the table has several).
+    Rows that do not beat the study's no-physics baselines are taken only when no other row fits.
 
     An error budget alone: the cheapest row that meets it. A time budget alone: the most accurate row
     that fits it. Both: the cheapest meeting both, else the most accurate that fits the time. Neither:
@@ -135,6 +136,12 @@ def choose_model(
         raise UserError(f"model table: no measured row for {where}")
     budget = time_budget_ms or (0.0 if error_budget else DEFAULT_TIME_BUDGET_MS)
     within_time = [r for r in cand if not budget or r["ms"] <= budget]
+    # a row no better than a no-physics shape (the study's baselines) is taken only when nothing else fits
+    meaningful = [r for r in within_time if r.get("beats_baselines", True)]
+    if meaningful:
+        within_time = meaningful
+    else:
+        where += "; no row within the budget beats the no-physics baselines"
     ok = [r for r in within_time if not error_budget or float(r["rms_error"]) <= error_budget]
     limits = f"error <= {error_budget or 'any'}, time <= {budget or 'any'} ms"
     if error_budget and ok:

@@ -1,0 +1,128 @@
+"""`model = "auto"`: the selection rule, and every row of the shipped table builds exactly its setting."""
+
+from __future__ import annotations
+
+import esper
+import numpy as np
+import pytest
+
+import chainsim.components.deformable as deformable
+from chainsim.components.deformable import MODEL_TABLE, Deformable, use_model
+from chainsim.engine.bodies.factory import ROW_PARAMS, Choice, choose_model, load_table, make_body
+from chainsim.engine.errors import UserError
+from chainsim.engine.meshgen import tet_grid
+from chainsim.game.app.headless import build_app
+
+
+def _row(model, err, ms, nodes=1000, E=None, **params):
+    r = {"scene": "tissue-block", "nodes": nodes, "model": model, "setting": f"{model} {err}", "params": params}
+    r.update(rms_error=err, ms_per_update=ms)
+    if E is not None:
+        r["E"] = E
+    return r
+
+
+TABLE = [
+    _row("chainmail", 0.20, 0.05, relax=0),
+    _row("chainmail", 0.15, 0.3, relax=4),
+    _row("xpbd", 0.04, 9.0, substeps="auto"),
+    _row("projective", 0.03, 14.0, iterations=10),
+    _row("projective", 0.02, 40.0, iterations=30),
+]
+
+
+def test_an_error_budget_takes_the_cheapest_row_that_meets_it():
+    c = choose_model(TABLE, scene="tissue-block", nodes=1000, error_budget=0.05)
+    assert (c.model, c.rms_error) == ("xpbd", 0.04) and "cheapest" in c.reason
+
+
+def test_a_time_budget_takes_the_most_accurate_row_that_fits_it():
+    c = choose_model(TABLE, scene="tissue-block", nodes=1000, time_budget_ms=15.0)
+    assert (c.model, c.rms_error) == ("projective", 0.03) and "most accurate" in c.reason
+    c = choose_model(TABLE, scene="tissue-block", nodes=1000, time_budget_ms=1.0)
+    assert (c.model, c.rms_error) == ("chainmail", 0.15)
+
+
+def test_both_budgets_take_the_cheapest_meeting_both_else_the_most_accurate_in_time():
+    c = choose_model(TABLE, scene="tissue-block", nodes=1000, error_budget=0.1, time_budget_ms=50.0)
+    assert c.rms_error == 0.04
+    c = choose_model(TABLE, scene="tissue-block", nodes=1000, error_budget=0.01, time_budget_ms=20.0)
+    assert c.rms_error == 0.03 and "nothing meets" in c.reason
+
+
+def test_no_budget_keeps_to_one_frame_and_times_scale_with_size():
+    assert choose_model(TABLE, scene="tissue-block", nodes=1000).rms_error == 0.03
+    # twice the nodes: the 9 and 14 ms rows cost 18 and 28 ms, past a 60 Hz frame
+    assert choose_model(TABLE, scene="tissue-block", nodes=2000).rms_error == 0.15
+
+
+def test_the_nearest_stiffness_is_used_where_the_table_has_several():
+    table = [_row("xpbd", 0.04, 5.0, E=1e3), _row("xpbd", 0.04, 50.0, E=1e5), _row("chainmail", 0.2, 0.1, E=1e5)]
+    assert choose_model(table, scene="tissue-block", nodes=1000, E=2e3, time_budget_ms=10).model == "xpbd"
+    c = choose_model(table, scene="tissue-block", nodes=1000, E=8e4, time_budget_ms=10)
+    assert c.model == "chainmail" and "E = 100000 Pa" in c.reason
+
+
+def test_a_row_with_a_setting_the_model_lacks_is_refused(tmp_path):
+    p = tmp_path / "t.toml"
+    p.write_text(
+        '[[rows]]\nscene="b"\nnodes=1\nmodel="xpbd"\nsetting="s"\nrms_error=0.1\nms_per_update=1\n'
+        "[rows.params]\nrelax=3\n"
+    )
+    with pytest.raises(UserError, match=r"rows\[0\]\.params"):
+        load_table(p)
+
+
+def test_make_body_builds_chainmail_too():
+    pos, tets, _ = tet_grid(3, 3, 3, spacing=1.0)
+    b = make_body("chainmail", pos, tets=tets, alpha_min=0.7, alpha_max=1.3, beta=0.2, relax=3)
+    assert b.model == "chainmail" and b.relax_iterations == 3
+    assert np.all(b.amin == 0.7) and np.all(b.amax == 1.3) and np.all(b.beta == 0.2)
+
+
+def _check_body(body, model, params):
+    assert body.model == model
+    for key, want in params.items():
+        if model == "chainmail":
+            got = {"alpha_min": body.amin, "alpha_max": body.amax, "beta": body.beta}.get(key)
+            if got is None:
+                assert body.relax_iterations == want
+            else:
+                assert np.all(got == want), key
+        elif key == "substeps":
+            assert body.substeps_setting == want
+        else:
+            assert getattr(body, key) == want, key
+
+
+def test_every_row_of_the_shipped_table_builds_exactly_its_setting(monkeypatch):
+    rows = load_table(MODEL_TABLE)
+    assert {r["model"] for r in rows} == set(ROW_PARAMS)
+    app = build_app("chainmail-demo/volume", settings={"model": "chainmail"})
+    try:
+        with app.active():
+            _ent, d = esper.get_component(Deformable)[0]
+        for r in rows:
+            assert set(r["params"]) <= set(ROW_PARAMS[r["model"]])
+            choice = Choice(r["model"], r["setting"], r["rms_error"], r["ms_per_update"], "test", dict(r["params"]))
+            monkeypatch.setattr(deformable, "choose_model", lambda *a, _c=choice, **k: _c)
+            use_model(d, "auto")
+            _check_body(d.body, r["model"], r["params"])
+            assert d.model_reason.startswith(f"auto: {r['model']} ({r['setting']})")
+    finally:
+        app.close()
+
+
+def test_the_shipped_table_has_every_live_model_at_every_surgical_size():
+    rows = [r for r in load_table(MODEL_TABLE) if r["scene"] == "tissue-block"]
+    sizes = sorted({r["nodes"] for r in rows})
+    assert len(sizes) >= 3 and sizes[-1] >= 10_000
+    for n in sizes:
+        assert {r["model"] for r in rows if r["nodes"] == n} >= {"chainmail", "xpbd", "projective"}, n
+
+
+def test_a_row_no_better_than_the_baselines_is_taken_only_when_nothing_else_fits():
+    table = [dict(_row("chainmail", 0.19, 0.1), beats_baselines=False), _row("projective", 0.05, 10.0)]
+    assert choose_model(table, scene="tissue-block", nodes=1000, time_budget_ms=12).model == "projective"
+    c = choose_model(table, scene="tissue-block", nodes=1000, time_budget_ms=1)
+    assert c.model == "chainmail" and "no-physics baselines" in c.reason
