@@ -49,18 +49,27 @@ from .boxes import start_cascade
 
 #: waves with fewer sponsors than this run on the calling thread
 PARALLEL_MIN = 512
-#: When a cascade picks this kernel by itself (cascade(..., parallel=None), what bodies do): only with at
-#: least this many threads and on meshes of at least this many elements. Measured on soft drags
-#: (`chainsim bench chainmail --parts threads`): with fewer threads the three parallel passes a wave
-#: costs more than the extra cores give, on smaller meshes the waves are too short to share.
-AUTO_MIN_THREADS = 8
-AUTO_MIN_ELEMENTS = 100_000
+#: When a cascade picks this kernel by itself (cascade(..., parallel=None), what bodies do): (threads, elements)
+#: steps, each "with at least this many of numba's threads, on meshes of at least this many elements". Set from
+#: soft drags on tet blocks of 10k to 1M elements with 1, 2, 4, 8 and 16 threads on a 16-core machine
+#: (tools/bench/crossover.py; figures in docs/chainmail.md): on 1 and 2 threads it lost at every size
+#: (0.5-0.7x: the three parallel passes a wave cost more than the extra core gives); on 4 threads it tied at
+#: 100k (1.02x) and won from 300k (1.15x, 1.4x at 1M); on 8 and 16 threads it lost or tied at 30k and below
+#: and won from 100k (1.5x and 2.1x there, up to 2.4x). A step starts at the smallest measured size that won
+#: by more than a tie, so the rule never picks the kernel where it lost.
+AUTO_STEPS = ((8, 100_000), (4, 300_000))
+#: the least threads and elements of any step: below either, a cascade stays serial without asking further
+#: (cascade checks the size first, before asking numba for its thread count)
+AUTO_MIN_THREADS = min(t for t, _ in AUTO_STEPS)
+AUTO_MIN_ELEMENTS = min(n for _, n in AUTO_STEPS)
 
 
 def parallel_wins(n_elements: int, threads: int) -> bool:
     """Whether the level-parallel cascade is the faster breadth-first cascade for a mesh of n_elements
-    on `threads` threads (the rule cascade(..., parallel=None) follows; see AUTO_MIN_*)."""
-    return threads >= AUTO_MIN_THREADS and n_elements >= AUTO_MIN_ELEMENTS
+    on `threads` threads (the rule cascade(..., parallel=None) follows; see AUTO_STEPS)."""
+    if threads < AUTO_MIN_THREADS or n_elements < AUTO_MIN_ELEMENTS:
+        return False
+    return any(threads >= t and n_elements >= n for t, n in AUTO_STEPS)
 
 
 #: prange iterations per thread and wave (more smooths out uneven rows, each costs a little)
