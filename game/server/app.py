@@ -157,15 +157,25 @@ def serve(
     log_level: str = "info",
     pack_paths: list[str] | tuple = (),
     scorers: int = scoring.DEFAULT_WORKERS,
+    base_url: str | None = None,
 ) -> None:
-    """Run the server until interrupted (uvicorn, one process; replays in ``scorers`` processes beside it)."""
+    """Run the server until interrupted (uvicorn, one process; replays in ``scorers`` processes beside it).
+
+    ``base_url`` (``serve --base-url``) is the programme's address in xAPI identities; without it
+    $CHAINSIM_SERVER_URL, else the address the server listens on."""
     import uvicorn  # noqa: PLC0415 - only `chainsim serve` needs the server
 
-    base_url = os.environ.get(BASE_URL_ENV, "").strip() or f"{'https' if certfile else 'http'}://{host}:{port}"
-    try:
-        base_url = remote.server_url(base_url)
-    except UserError as exc:
-        raise UserError(f"${BASE_URL_ENV}: {exc}") from None
+    if base_url is not None:
+        try:
+            base_url = remote.server_url(base_url)
+        except UserError as exc:
+            raise UserError(f"--base-url: {exc}") from None
+    else:
+        base_url = os.environ.get(BASE_URL_ENV, "").strip() or f"{'https' if certfile else 'http'}://{host}:{port}"
+        try:
+            base_url = remote.server_url(base_url)
+        except UserError as exc:
+            raise UserError(f"${BASE_URL_ENV}: {exc}") from None
     app = build_app(db, pack_paths=pack_paths, scorers=scorers, base_url=base_url)
     logger.info(
         "records server on %s://%s:%d, database %s",

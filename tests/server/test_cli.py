@@ -1,13 +1,14 @@
 """`chainsim serve` and `chainsim records user ...` from the command line, as the README shows them:
 the sign-in page answers, /api/attempts without credentials is 401, a trainee's token cannot read
-another trainee's attempt (403); accounts are made with one clear line per mistake."""
+another trainee's attempt (403); accounts are made with one clear line per mistake; ``serve --base-url``
+is the address xAPI identities use, over $CHAINSIM_SERVER_URL."""
 
 from __future__ import annotations
 
 import io
 import sys
 
-from conftest import PASSWORD, call, save_scored, start_server, upload
+from conftest import PASSWORD, attempt, call, populate, save_scored, start_server, upload
 
 from chainsim.game.records.store import RecordStore
 from chainsim.game.server import accounts
@@ -80,3 +81,26 @@ def test_serve_refuses_bad_database_and_flags(tmp_path, cli):
     assert code == 2 and "1-65535" in err
     code, _, err = cli("serve", "--db", tmp_path / "x.sqlite3", "--certfile", "c.pem")
     assert code == 2 and "go together" in err
+
+
+def test_serve_base_url_names_the_programme_in_xapi_identities(records_db, tmp_path, monkeypatch):
+    populate(records_db)
+    with RecordStore(records_db) as store:
+        store.save_attempt("c2", "carol", attempt(1))
+    monkeypatch.setenv("CHAINSIM_SERVER_URL", "https://old.example.org")  # the flag wins over the variable
+    server = start_server(records_db, tmp_path / "serve.log", args=("--base-url", "https://training.example.org/sim/"))
+    try:
+        token = call(server, "POST", "/api/login", {"name": "tom", "password": PASSWORD})[1]["token"]
+        status, stmts, _ = call(server, "GET", "/export/attempts.xapi.json?class=c2", token=token)
+        assert status == 200 and stmts
+        assert all(s["actor"]["account"]["homePage"] == "https://training.example.org/sim" for s in stmts)
+        assert "old.example.org" not in str(stmts) and "127.0.0.1" not in str(stmts)
+    finally:
+        server.stop()
+
+
+def test_serve_refuses_a_bad_base_url_in_one_line(tmp_path, cli):
+    for bad in ("training.example.org", "ftp://training.example.org", "https://u@training.example.org", "https://"):
+        code, _, err = cli("serve", "--db", tmp_path / "x.sqlite3", "--base-url", bad)
+        assert code == 2 and "--base-url" in err and "expected" in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "x.sqlite3").exists()

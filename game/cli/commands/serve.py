@@ -6,7 +6,8 @@ import argparse
 import logging
 
 from chainsim.engine.errors import UserError
-from chainsim.game.server.app import serve
+from chainsim.game.records import remote
+from chainsim.game.server.app import BASE_URL_ENV, serve
 
 NAME = "serve"
 HELP = "run the records server: trainers' dashboard and JSON API over the records database"
@@ -16,7 +17,8 @@ database: --db PATH or postgresql://USER@HOST/DBNAME, else $CHAINSIM_DB, else th
 accounts: chainsim records user add --role trainer --class C NAME (see docs/records-server.md).
 examples:
   chainsim serve --db programme.sqlite3 --port 8000
-  chainsim serve --db postgresql://chainsim@db.example.org/records --host 0.0.0.0 --certfile c.pem --keyfile k.pem
+  chainsim serve --db postgresql://chainsim@db.example.org/records --host 0.0.0.0 --certfile c.pem --keyfile k.pem \
+      --base-url https://training.example.org
 """
 
 
@@ -41,6 +43,12 @@ def add_parser(sub):
     p.add_argument("--keyfile", metavar="PEM", help="TLS private key for --certfile")
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR", help="more packs to score attempts of")
     p.add_argument(
+        "--base-url",
+        metavar="URL",
+        help=f"the programme's public address, used in xAPI identities (default ${BASE_URL_ENV}, else the address "
+        "the server listens on); never taken from a request",
+    )
+    p.add_argument(
         "--scorers", type=int, default=2, metavar="N", help="attempts replayed at once, one process each (default 2)"
     )
     return p
@@ -49,6 +57,14 @@ def add_parser(sub):
 def run(args) -> int:
     if bool(args.certfile) != bool(args.keyfile):
         raise UserError("--certfile and --keyfile go together")
+    if args.base_url is not None:
+        try:
+            remote.server_url(args.base_url)
+        except UserError:
+            raise UserError(
+                f"--base-url {args.base_url[:200]!r}: expected the programme's public address, such as "
+                "https://training.example.org (scheme, host, optional port and path)"
+            ) from None
     if args.host not in ("127.0.0.1", "localhost", "::1") and not args.certfile:
         logging.getLogger(__name__).warning(
             "listening on %s without TLS: passwords and cookies cross the network in clear; "
@@ -65,5 +81,6 @@ def run(args) -> int:
         log_level="warning" if level >= logging.WARNING else "info",
         pack_paths=args.pack_path,
         scorers=args.scorers,
+        base_url=args.base_url,
     )
     return 0
