@@ -153,6 +153,9 @@ class Records:
     # why these Records never save (a replay, a protocol trial), or "": a Save then says so and is no
     # failure, since nothing was meant to be saved
     refuses: str = ""
+    # filed_as(id) -> (class, trainee, number): whom a records server files a save under (the signed-in
+    # account, whatever names were typed) and the attempt's number among theirs; None: the names given
+    filed_as: Callable[[int], tuple[str, str, int | None] | None] | None = None
 
 
 @dataclass(slots=True)

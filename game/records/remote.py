@@ -9,7 +9,10 @@ stores a key once, so an attempt whose answer was lost and is sent again is not 
 never lost, never sent twice.
 
 Sign-in: ``chainsim records login URL NAME`` asks for the password and keeps the API token in the
-local store (``server_logins``); $CHAINSIM_RECORDS_TOKEN overrides it (scripts, CI).
+local store (``server_logins``); $CHAINSIM_RECORDS_TOKEN overrides it (scripts, CI). A server with a
+certificate of its own (self-signed, or signed by the programme's own authority) is trusted with
+``--cafile PEM``: the authority's certificates are kept with the sign-in, and every later send, sync
+and listing to that server verifies it against them (and only them).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import ssl
 import urllib.error
 import urllib.request
 import uuid
@@ -34,6 +38,8 @@ logger = logging.getLogger(__name__)
 
 TOKEN_ENV = "CHAINSIM_RECORDS_TOKEN"
 TIMEOUT_S = 5.0
+#: a CA file larger than this is not a certificate bundle (the system's own bundle is about 200 KiB)
+MAX_CA_BYTES = 1 << 20
 
 
 class KeptOffline(SavedLocally):
@@ -69,8 +75,11 @@ def request(
     token: str | None = None,
     headers: dict | None = None,
     timeout: float = TIMEOUT_S,
+    context: ssl.SSLContext | None = None,
 ) -> Any:
-    """One JSON request; returns the decoded answer, raises ServerError (HTTP) or OSError (network)."""
+    """One JSON request; returns the decoded answer, raises ServerError (HTTP) or OSError (network).
+
+    ``context`` verifies an https server (``trust``); None trusts the system's authorities."""
     data = None if body is None else json.dumps(body, allow_nan=False).encode()
     req = urllib.request.Request(url, data=data, method=method)
     req.add_header("Accept", "application/json")
@@ -81,7 +90,7 @@ def request(
     for k, v in (headers or {}).items():
         req.add_header(k, v)
     try:
-        with urllib.request.urlopen(req, timeout=timeout) as resp:
+        with urllib.request.urlopen(req, timeout=timeout, context=context) as resp:
             raw = resp.read()
     except urllib.error.HTTPError as exc:
         try:
@@ -90,6 +99,11 @@ def request(
             message = exc.reason
         raise ServerError(exc.code, str(message)) from None
     except urllib.error.URLError as exc:
+        if isinstance(exc.reason, ssl.SSLCertVerificationError):
+            raise OSError(
+                f"cannot reach {url}: its certificate is not trusted ({exc.reason.verify_message}); for a server "
+                "with its own certificate sign in with: chainsim records login --cafile CA.pem URL NAME"
+            ) from None
         raise OSError(f"cannot reach {url}: {exc.reason}") from None
     return json.loads(raw) if raw else None
 
@@ -97,11 +111,68 @@ def request(
 # -- sign-in ----------------------------------------------------------------------------------
 
 
-def login(store: RecordStore, server: str, name: str, password: str) -> dict:
-    """Sign in to ``server`` and keep its token in ``store``; returns the account."""
-    server = server_url(server)
+def read_cafile(path: str | os.PathLike[str]) -> str:
+    """The PEM text of ``--cafile``, checked to hold at least one certificate; UserError naming the problem."""
+    what = "expected the PEM file of the authority that signed the server's certificate (or the certificate itself)"
     try:
-        answer = request(f"{server}/api/login", "POST", {"name": name, "password": password, "label": "simulator"})
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_CA_BYTES + 1)
+    except FileNotFoundError:
+        raise UserError(f"--cafile {path}: no such file; {what}") from None
+    except IsADirectoryError:
+        raise UserError(f"--cafile {path}: is a folder; {what}") from None
+    except OSError as exc:
+        raise UserError(f"--cafile {path}: cannot be read ({exc.strerror}); {what}") from None
+    if len(raw) > MAX_CA_BYTES:
+        raise UserError(f"--cafile {path}: larger than {MAX_CA_BYTES} bytes; {what}")
+    try:
+        pem = raw.decode("ascii")
+        trust(pem)
+    except (UnicodeDecodeError, ssl.SSLError, ValueError):
+        raise UserError(f"--cafile {path}: holds no PEM certificate; {what}") from None
+    return pem
+
+
+def trust(ca_pem: str | None) -> ssl.SSLContext | None:
+    """An SSL context that trusts only the certificates of ``ca_pem``; None (the system's) without it."""
+    if not ca_pem:
+        return None
+    if "-----BEGIN CERTIFICATE-----" not in ca_pem:
+        raise ValueError("no PEM certificate")
+    return ssl.create_default_context(cadata=ca_pem)
+
+
+def context_for(store: RecordStore, server: str) -> ssl.SSLContext | None:
+    """How to verify ``server``: the authority kept at its sign-in (``--cafile``), else the system's."""
+    rows = store.query("SELECT ca_pem FROM server_logins WHERE server = ?", (server,))
+    try:
+        return trust(rows[0][0] if rows else None)
+    except (ssl.SSLError, ValueError):
+        raise UserError(f"the authority kept for {server} is no longer readable; sign in again with --cafile") from None
+
+
+def login(
+    store: RecordStore, server: str, name: str, password: str, cafile: str | os.PathLike[str] | None = None
+) -> dict:
+    """Sign in to ``server`` and keep its token in ``store``; returns the account.
+
+    ``cafile``: the PEM of the authority to trust for this server, kept with the sign-in for later sends
+    and syncs. Without it a sign-in again keeps the authority an earlier one gave."""
+    server = server_url(server)
+    if cafile is not None:
+        if not server.startswith("https://"):
+            raise UserError(f"--cafile is for an https:// server; {server} is plain http, so nothing is verified")
+        ca_pem = read_cafile(cafile)
+    else:
+        rows = store.query("SELECT ca_pem FROM server_logins WHERE server = ?", (server,))
+        ca_pem = rows[0][0] if rows else None
+    try:
+        answer = request(
+            f"{server}/api/login",
+            "POST",
+            {"name": name, "password": password, "label": "simulator"},
+            context=trust(ca_pem),
+        )
     except ServerError as exc:
         raise UserError(f"{server} refused the sign-in: {exc}") from None
     except OSError as exc:
@@ -110,8 +181,8 @@ def login(store: RecordStore, server: str, name: str, password: str) -> dict:
     with store.transaction() as conn:
         conn.execute("DELETE FROM server_logins WHERE server = ?", (server,))
         conn.execute(
-            "INSERT INTO server_logins (server, user_name, role, token, saved_at) VALUES (?, ?, ?, ?, ?)",
-            (server, answer["user"]["name"], answer["user"]["role"], answer["token"], now),
+            "INSERT INTO server_logins (server, user_name, role, token, saved_at, ca_pem) VALUES (?, ?, ?, ?, ?, ?)",
+            (server, answer["user"]["name"], answer["user"]["role"], answer["token"], now, ca_pem),
         )
     return answer["user"]
 
@@ -129,7 +200,7 @@ def role_for(store: RecordStore, server: str, token: str) -> str:
     rows = store.query("SELECT role FROM server_logins WHERE server = ? AND token = ?", (server, token))
     if rows:
         return rows[0][0]
-    return request(f"{server}/api/me", token=token)["role"]
+    return request(f"{server}/api/me", token=token, context=context_for(store, server))["role"]
 
 
 # -- the queue --------------------------------------------------------------------------------
@@ -168,23 +239,31 @@ def pending(store: RecordStore, server: str | None = None) -> list[Any]:
     )
 
 
-def _send(store: RecordStore, row: Any, token: str) -> int:
-    """POST one outbox row; on acknowledgement mark it sent and return the server's upload id.
+def _send(store: RecordStore, row: Any, token: str) -> dict:
+    """POST one outbox row; on acknowledgement mark it sent and return the server's answer.
 
-    The server answers at once (202) and scores the attempt afterwards by replaying its recording;
-    ``GET /api/uploads/ID`` says when it is scored and the attempt's id."""
+    The server answers at once (202: ``upload``, the ``class_name`` and ``trainee`` it files under,
+    the ``number`` the attempt will have among that trainee's) and scores the attempt afterwards by
+    replaying its recording; ``GET /api/uploads/ID`` says when it is scored and the attempt's id."""
     body = json.loads(row["attempt"])
     # A trainee's attempts go under the signed-in account whatever the window's name fields say;
     # a trainer files for a trainee of their class by naming them.
     if role_for(store, row["server"], token) == "trainer":
         body["class_name"], body["trainee"] = row["class_name"], row["trainee"]
-    answer = request(f"{row['server']}/api/attempts", "POST", body, token, {"Idempotency-Key": row["idem_key"]})
+    answer = request(
+        f"{row['server']}/api/attempts",
+        "POST",
+        body,
+        token,
+        {"Idempotency-Key": row["idem_key"]},
+        context=context_for(store, row["server"]),
+    )
     with store.transaction() as conn:
         conn.execute(
             "UPDATE outbox SET sent_at = ?, remote_id = ?, last_error = NULL WHERE id = ?",
             (datetime.now(UTC).isoformat(timespec="seconds"), int(answer["upload"]), row["id"]),
         )
-    return int(answer["upload"])
+    return answer
 
 
 def _note_error(store: RecordStore, row_id: int, message: str) -> None:
@@ -238,6 +317,8 @@ class RemoteRecords:
         self.server = server_url(server)
         self.local = RecordStore(local_db)
         self.where = f"records server {self.server}"
+        #: the server's acknowledgement of the last save: whom it files the attempt under, its number
+        self.acknowledged: dict[str, Any] | None = None
 
     def __enter__(self) -> RemoteRecords:
         return self
@@ -260,7 +341,7 @@ class RemoteRecords:
         else:
             row = next(r for r in pending(self.local, self.server) if r["id"] == local_id)
             try:
-                remote_id = _send(self.local, row, token)
+                self.acknowledged = _send(self.local, row, token)
             except OSError:
                 why = f"{self.server} is unreachable"
             except ServerError as exc:
@@ -270,7 +351,7 @@ class RemoteRecords:
                 why = f"{self.server} answered {exc.status} ({exc})"
             else:
                 self._flush_quietly()
-                return remote_id
+                return int(self.acknowledged["upload"])
         raise KeptOffline(
             f"{why}; attempt kept on this computer and sent by `chainsim records sync` or the next start",
             local_id,
@@ -292,7 +373,7 @@ class RemoteRecords:
                 class_name = trainee = None  # a trainee account lists its own attempts, whatever the names typed
             query = {k: v for k, v in (("class", class_name), ("trainee", trainee)) if v is not None}
             url = f"{self.server}/api/attempts" + (f"?{urlencode(query)}" if query else "")
-            return request(url, token=token)["attempts"]
+            return request(url, token=token, context=context_for(self.local, self.server))["attempts"]
         except ServerError as exc:
             raise UserError(f"{self.server}: {exc}") from None
         except OSError as exc:
@@ -306,18 +387,24 @@ def remote_records(
 
     ``evidence()`` gives, at each save, the recording and pack identity the server scores from. A
     trainee cannot delete an attempt on a server (a trainer retracts it), so there is no delete here.
+    ``filed_as(upload)`` is what the server said it files a save under: the signed-in trainee's class and
+    name (not the names typed in the window) and the attempt's number among theirs once it is scored.
     """
     server = server_url(server)
+    filed: dict[int, tuple[str, str, int | None]] = {}
 
     def save_attempt(class_name: str, trainee: str, record: dict) -> int:
         with RemoteRecords(server, db) as rr:
-            return rr.save_attempt(class_name, trainee, record, None if evidence is None else evidence())
+            upload = rr.save_attempt(class_name, trainee, record, None if evidence is None else evidence())
+            ack = rr.acknowledged or {}
+            filed[upload] = (ack.get("class_name", class_name), ack.get("trainee", trainee), ack.get("number"))
+            return upload
 
     def list_attempts(class_name: str, trainee: str) -> list[dict]:
         with RemoteRecords(server, db) as rr:
             return rr.list_attempts(class_name, trainee)
 
-    return Records(save_attempt, list_attempts, f"records server {server}")
+    return Records(save_attempt, list_attempts, f"records server {server}", filed_as=filed.get)
 
 
 def sync_quietly(server: str, db: str | os.PathLike[str] | None = None) -> None:

@@ -240,7 +240,12 @@ V7_DDL: tuple[str, ...] = (
     """,
 )
 
-MIGRATIONS: tuple[tuple[str, ...], ...] = (V1_DDL, V2_DDL, V3_DDL, V4_DDL, V5_DDL, V6_DDL, V7_DDL)
+# Version 8: the certificate authority a simulator trusts for a records server with its own certificate
+# (``chainsim records login --cafile``), kept as PEM text with the sign-in so later sends and syncs
+# verify the server against it; sign-ins saved before trust the system's authorities, as they did.
+V8_DDL: tuple[str, ...] = ("ALTER TABLE server_logins ADD COLUMN ca_pem TEXT",)
+
+MIGRATIONS: tuple[tuple[str, ...], ...] = (V1_DDL, V2_DDL, V3_DDL, V4_DDL, V5_DDL, V6_DDL, V7_DDL, V8_DDL)
 SCHEMA_VERSION = len(MIGRATIONS)
 
 # Tables a records database owns; a version-0 file holding anything else is not ours.

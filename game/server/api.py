@@ -4,7 +4,8 @@
     GET    /api/me                 the account behind the token
     GET    /api/attempts           ?class=C&trainee=T, the attempts the account may see
     POST   /api/attempts           an upload: the simulator's record, its recording and pack_identity;
-                                   Idempotency-Key header -> 202 {"upload", "status": "scoring", ...}
+                                   Idempotency-Key header -> 202 {"upload", "status": "scoring", "class_name",
+                                   "trainee", "number" (the attempt's among the trainee's), ...}
     GET    /api/uploads/{id}       an upload's state: scoring, scored (with attempt_id) or refused (error)
     GET    /api/attempts/{id}      one attempt (403 when it is someone else's)
     POST   /api/attempts/{id}/retract  {"reason"}: a trainer retracts an attempt of their class (kept)
@@ -154,6 +155,11 @@ def queue_upload(store: RecordStore, user: User, class_name: str, trainee: str, 
     return row, created
 
 
+def acknowledgement(store: RecordStore, row: dict) -> dict:
+    """What the server answers to an upload: its state, whom it files it under and the attempt's number."""
+    return {**scoring.upload_view(row), "number": scoring.attempt_number(store, row)}
+
+
 # -- routes -----------------------------------------------------------------------------------
 
 
@@ -219,7 +225,8 @@ async def create_attempt(request: Request) -> Response:
         row, created = await storage.run(queue_upload, user, class_name, trainee, checked, key, digest)
         if created:
             request.app.state.scorer.wake()
-    answer = scoring.upload_view(row)
+    # the simulator names the account and the attempt's number in its save message from this answer
+    answer = await storage.run(acknowledgement, row)
     return JSONResponse(
         answer,
         status_code=202 if created else 200,

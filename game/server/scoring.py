@@ -318,6 +318,32 @@ def upload_view(row: dict) -> dict:
     }
 
 
+def attempt_number(store: RecordStore, row: dict) -> int | None:
+    """The number an upload's attempt has (or will have, once scored) in its trainee's list of attempts,
+    as the simulator's My attempts counts them: 1 for the first. None for a refused upload.
+
+    Attempts come in the order the server received them and waiting uploads are scored in that order,
+    so an upload still scoring comes after every attempt stored and every earlier upload still waiting;
+    one statement counts both, so an upload scored meanwhile is counted once."""
+    who = "FROM attempts a JOIN trainees t ON a.trainee_id = t.id JOIN classes c ON t.class_id = c.id "
+    who += "WHERE c.name = ? AND t.name = ?"
+    if row["state"] == "scoring":
+        rows = store.query(
+            f"SELECT (SELECT COUNT(*) {who}) + (SELECT COUNT(*) FROM uploads WHERE state = 'scoring' "
+            "AND class_name = ? AND trainee = ? AND id <= ?)",
+            (row["class_name"], row["trainee"], row["class_name"], row["trainee"], row["id"]),
+        )
+    elif row["state"] == "scored" and row["attempt_id"] is not None:
+        rows = store.query(
+            f"SELECT COUNT(*) {who} AND (a.created_at < (SELECT created_at FROM attempts WHERE id = ?) "
+            "OR (a.created_at = (SELECT created_at FROM attempts WHERE id = ?) AND a.id <= ?))",
+            (row["class_name"], row["trainee"], row["attempt_id"], row["attempt_id"], row["attempt_id"]),
+        )
+    else:
+        return None
+    return int(rows[0][0]) or None
+
+
 def get_upload(store: RecordStore, upload_id: int) -> dict | None:
     rows = store.query("SELECT * FROM uploads WHERE id = ?", (upload_id,))
     return dict(rows[0]) if rows else None

@@ -24,6 +24,7 @@ import json
 import os
 import shutil
 import signal
+import ssl
 import subprocess
 import sys
 import tempfile
@@ -158,8 +159,9 @@ class Server:
 
 
 def start_server(db: str, log: Path, port: int | None = None, args: tuple[str, ...] = ()) -> Server:
-    """``chainsim serve`` over ``db`` on 127.0.0.1 (``args``: more options), once it answers."""
+    """``chainsim serve`` over ``db`` on 127.0.0.1 (``args``: more options; https with --certfile), once it answers."""
     port = port or free_port()
+    scheme = "https" if "--certfile" in args else "http"
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     fh = log.open("ab")
     proc = subprocess.Popen(
@@ -169,7 +171,7 @@ def start_server(db: str, log: Path, port: int | None = None, args: tuple[str, .
         env=env,
     )
     fh.close()
-    server = Server(f"http://127.0.0.1:{port}", db, proc, log)
+    server = Server(f"{scheme}://127.0.0.1:{port}", db, proc, log)
     deadline = time.monotonic() + 30
     while time.monotonic() < deadline:
         if proc.poll() is not None:
@@ -208,9 +210,13 @@ def call(
         hdrs["Authorization"] = f"Bearer {token}"
     hdrs.update(headers or {})
     url = urllib.parse.urlsplit(server.url)
-    conn = http.client.HTTPConnection(
-        url.hostname, url.port, timeout=30, source_address=None if source is None else (source, 0)
-    )
+    source_address = None if source is None else (source, 0)
+    if url.scheme == "https":  # the tests' own server; what the simulator trusts is tested in test_tls.py
+        conn = http.client.HTTPSConnection(
+            url.hostname, url.port, timeout=30, source_address=source_address, context=ssl._create_unverified_context()
+        )
+    else:
+        conn = http.client.HTTPConnection(url.hostname, url.port, timeout=30, source_address=source_address)
     try:
         try:
             conn.request(method, path, body=data, headers=hdrs)

@@ -70,6 +70,23 @@ def test_window_save_goes_to_the_server_and_my_attempts_lists_it(site, tmp_path)
     assert newest["target"] == "foramen_ovale_left" and newest["pack"] == "prp" and newest["differences"] == []
 
 
+def test_save_message_names_the_signed_in_account_and_the_number_the_records_show(site, tmp_path):
+    local = str(tmp_path / "local.sqlite3")
+    with RecordStore(local) as store:
+        remote.login(store, site.url, "bob", PASSWORD)
+    # the names typed in the window are not the account's: the server files the attempt under bob in c1
+    text = play_and_save({"db": local, "records": site.url, "class": "c9", "trainee": "zed"})
+    (message,) = [line for line in text if "saved for" in line]
+    assert "saved for bob in class c1" in message and "zed" not in message, message
+    number = int(message.split("(number ")[1].split(" ")[0])
+    with RecordStore(local) as store:
+        upload_id = store.query("SELECT remote_id FROM outbox")[0][0]
+    result = wait_scored(site, upload_id, site.tokens["bob"])
+    with RecordStore(site.db) as store:
+        ids = [a["id"] for a in store.list_attempts("c1", "bob")]
+    assert ids.index(result["attempt_id"]) + 1 == number  # My attempts shows it with that number
+
+
 def test_offline_save_is_queued_then_synced_once(tmp_path, records_db):
     populate(records_db)
     port = free_port()

@@ -2,7 +2,8 @@
 
     records user add --role trainer|trainee --class C NAME   (password asked, or --password-stdin)
     records user list | token NAME [--days N] | passwd NAME | remove NAME --yes
-    records login URL NAME          sign the simulator in to a records server (keeps the token)
+    records login URL NAME [--cafile PEM]   sign the simulator in to a records server (keeps the token,
+                                    and the authority to trust for a server with its own certificate)
     records sync [--server URL]     send attempts waiting in the local queue
     records export --format xapi --out FILE [--lrs URL]   xAPI 1.0.3 statements
 
@@ -56,6 +57,12 @@ def add_actions(action) -> None:
     a.add_argument("server", metavar="URL", help="records server, e.g. http://127.0.0.1:8000")
     a.add_argument("name", help="your account name")
     a.add_argument("--password-stdin", action="store_true", help="read the password from the first line of stdin")
+    a.add_argument(
+        "--cafile",
+        metavar="PEM",
+        help="an https server with its own certificate: the PEM of the authority that signed it (or the "
+        "certificate itself), trusted for this server from now on; kept for later sends and syncs",
+    )
 
     a = action("sync", "send attempts waiting in the local queue to their records server")
     a.add_argument("--server", metavar="URL", help="only this server")
@@ -112,7 +119,9 @@ def run(args, store) -> int:
             print(f"removed user {args.name.strip()!r}", file=sys.stderr)
         return 0
     if act == "login":
-        user = remote.login(store, args.server, args.name, _password(args, confirm=False))
+        if args.cafile is not None:  # a wrong file is said before the password is asked
+            remote.read_cafile(args.cafile)
+        user = remote.login(store, args.server, args.name, _password(args, confirm=False), args.cafile)
         print(f"signed in to {remote.server_url(args.server)} as {user['name']} ({user['role']})", file=sys.stderr)
         return 0
     if act == "sync":

@@ -353,10 +353,11 @@ class AssessmentSystem:
                         h.message(f"Not saved: {app.resource(Records).refuses}.{again}")
                     else:
                         ps.saved.append(rid)
-                        n = own_count(app)
+                        # a records server files the attempt under the signed-in account, not the typed names
+                        filed = app.resource(Records).filed_as
+                        cls, who, n = (filed and filed(rid)) or (*_who(app), own_count(app))
                         h.message(
-                            f"Attempt {ps.attempt} saved for {s.get('trainee') or DEFAULT_TRAINEE} "
-                            f"in class {s.get('class') or DEFAULT_CLASS}"
+                            f"Attempt {ps.attempt} saved for {who} in class {cls}"
                             + (f" (number {n} in My attempts)" if n else "")
                             + f".{again}"
                         )
