@@ -79,6 +79,9 @@ def add_arguments(p) -> None:
         default="tissue",
         help="tissue: the 30 x 30 x 20 mm block of 1.25 mm tetrahedra (10,625 nodes); block: the 1 m study block",
     )
+    p.add_argument(
+        "--element-mm", type=float, default=1.25, help="tissue: tetrahedron edge in mm (0.5..5; 1.25: 10,625 nodes)"
+    )
     p.add_argument("--E", type=float, default=3e4, help="tissue: Young's modulus in Pa (1e3..1e6, default 30 kPa)")
     p.add_argument("--nu", type=float, default=0.45, help="tissue: Poisson's ratio (0..0.499)")
     p.add_argument("--n", type=int, default=22, help="block: nodes per edge (22: 10,648 nodes)")
@@ -141,7 +144,10 @@ def run(args) -> int:
     if args.scene == "tissue":
         if not (1e3 <= args.E <= 1e6) or not (0.0 <= args.nu <= 0.499):
             raise UserError(f"--E / --nu: expected 1e3..1e6 Pa and 0..0.499, got {args.E:g} and {args.nu:g}")
-        scene = TissueScene(1.25, args.E, args.nu)
+        element = getattr(args, "element_mm", 1.25)
+        if not (0.5 <= element <= 5.0):
+            raise UserError(f"--element-mm: expected 0.5..5 mm, got {element:g}")
+        scene = TissueScene(element, args.E, args.nu)
         refs = {
             s: surgical.reference(scene.b, args.E, args.nu, s * scene.length, limit=10**6)
             for s in (STRAIN, STRAIN + STEP)
@@ -183,7 +189,8 @@ def run(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     where = (
-        f"the 30 x 30 x 20 mm tissue block of 1.25 mm tetrahedra, E = {scene.E:g} Pa, nu = {scene.nu:g}, lifted"
+        f"the 30 x 30 x 20 mm tissue block of {scene.b.spacing:g} mm tetrahedra, E = {scene.E:g} Pa, "
+        f"nu = {scene.nu:g}, lifted"
         if args.scene == "tissue"
         else "the 1 m block at 3 kPa, pulled"
     )
