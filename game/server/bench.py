@@ -1,6 +1,10 @@
 """`chainsim bench records`: real uploads to a local records server, scored by replay; speed and a count check.
 
-First the bench makes one real upload as the simulator does: the built-in rhizotomy pack runs its
+The bench works on a copy of the built-in rhizotomy pack in its temporary folder, served with
+``--pack-path``: a pack edited while the bench runs would otherwise be hashed again by the server
+and the bench's uploads, made with the old files, refused as another copy of the pack.
+
+First the bench makes one real upload as the simulator does: the copied rhizotomy pack runs its
 scripted correct attempt headless and presses Save, and the upload the simulator queues (its
 figures, the compressed recording, the pack's identity) is taken from its local outbox. It times
 replaying that recording the way the server scores it, pinned to one core: the replay speed is
@@ -23,6 +27,7 @@ import http.client
 import json
 import os
 import secrets
+import shutil
 import signal
 import statistics
 import subprocess
@@ -56,7 +61,18 @@ def add_arguments(p) -> None:
 # -- one real upload, and how fast it replays -----------------------------------------------------
 
 
-def make_upload(folder: Path) -> dict:
+def copy_pack(folder: Path) -> list[str]:
+    """The built-in prp pack copied into ``folder/packs``; the pack paths that find the copy first."""
+    from chainsim.game.packs.discovery import BUILTIN_DIR  # noqa: PLC0415
+
+    source = BUILTIN_DIR / "prp"
+    if not (source / "pack.toml").is_file():
+        raise UserError("the built-in pack 'prp' is missing; reinstall chainsim")
+    shutil.copytree(source, folder / "packs" / "prp", ignore=shutil.ignore_patterns("__pycache__", ".*"))
+    return [str(folder / "packs")]
+
+
+def make_upload(folder: Path, pack_paths: list[str]) -> dict:
     """The upload the simulator queues after the prp pack's scripted correct attempt and a Save."""
     from chainsim.components.input_events import Widget  # noqa: PLC0415 - the simulator, loaded when used
     from chainsim.components.resources import PendingInput  # noqa: PLC0415
@@ -65,7 +81,7 @@ def make_upload(folder: Path) -> dict:
     from chainsim.game.records.store import RecordStore  # noqa: PLC0415
     from chainsim.game.server.scoring import ServerPacks  # noqa: PLC0415
 
-    info = ServerPacks().info("prp")
+    info = ServerPacks(pack_paths).info("prp")
     if info is None:
         raise UserError("the built-in pack 'prp' is missing; reinstall chainsim")
     events = load_script(Path(info["root"]) / "scripts" / SCRIPT)
@@ -73,7 +89,7 @@ def make_upload(folder: Path) -> dict:
     local = str(folder / "simulator.sqlite3")
     # nobody is signed in to this address, so the save stays in the local outbox without a request
     settings = {"db": local, "records": "http://127.0.0.1:9", "class": "bench", "trainee": "bench"}
-    app = build_app("prp", settings=settings)
+    app = build_app("prp", pack_paths=pack_paths, settings=settings)
     try:
         app.resource(PendingInput).extend([*events, (end + 0.5, Widget("save"))])
         app.run_steps(int((end + 1.0) * 120))
@@ -86,12 +102,15 @@ def make_upload(folder: Path) -> dict:
     return json.loads(rows[0][0])
 
 
-def replay_speed(upload: dict, runs: int = 3) -> dict[str, Any]:
-    """Time the server's replay of ``upload`` on one core: the median of ``runs`` after a warm-up."""
+def replay_speed(upload: dict, pack_paths: list[str], runs: int = 3) -> dict[str, Any]:
+    """Time the server's replay of ``upload`` on one core: the median of ``runs`` after a warm-up.
+
+    Both the wall-clock time and the CPU time of this process are kept: on a machine shared with
+    other work the wall clock counts the time the core spent on others, the CPU time does not."""
     from chainsim.game.records import provenance  # noqa: PLC0415
     from chainsim.game.server.scoring import ServerPacks, replay_record  # noqa: PLC0415
 
-    info = ServerPacks().info("prp")
+    info = ServerPacks(pack_paths).info("prp")
     recording = provenance.decode_recording(upload["recording"])
     simulated = recording["steps"] * recording["dt"]
     pinned = hasattr(os, "sched_getaffinity")
@@ -99,21 +118,25 @@ def replay_speed(upload: dict, runs: int = 3) -> dict[str, Any]:
     if pinned:  # one core, as one scorer gets when every scorer is busy
         os.sched_setaffinity(0, {min(before)})
     try:
-        replay_record(upload["recording"], info["root"], [])  # warm-up: kernels loaded, caches filled
-        times = []
+        replay_record(upload["recording"], info["root"], pack_paths)  # warm-up: kernels loaded, caches filled
+        times, cpu = [], []
         for _ in range(runs):
-            t0 = time.perf_counter()
-            replay_record(upload["recording"], info["root"], [])
+            t0, c0 = time.perf_counter(), time.process_time()
+            replay_record(upload["recording"], info["root"], pack_paths)
             times.append(time.perf_counter() - t0)
+            cpu.append(time.process_time() - c0)
     finally:
         if pinned:
             os.sched_setaffinity(0, before)
     replay_s = statistics.median(times)
+    cpu_s = statistics.median(cpu)
     return {
         "simulated_s": round(simulated, 3),
         "replay_s": round(replay_s, 3),
         "replay_s_per_simulated_s": round(replay_s / simulated, 4),
         "times_real_time": round(simulated / replay_s, 1),
+        "replay_cpu_s": round(cpu_s, 3),
+        "simulated_s_per_cpu_s": round(simulated / cpu_s, 1),
         "one_core": pinned,
     }
 
@@ -129,12 +152,13 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _start_server(db: str, log: Path, scorers: int) -> tuple[subprocess.Popen, int]:
+def _start_server(db: str, log: Path, scorers: int, pack_paths: list[str]) -> tuple[subprocess.Popen, int]:
     port = _free_port()
     with log.open("ab") as fh:
         proc = subprocess.Popen(
             [sys.executable, "-m", "chainsim.game", "-q", "serve", "--db", db, "--port", str(port)]
-            + ["--scorers", str(scorers)],
+            + ["--scorers", str(scorers)]
+            + [arg for p in pack_paths for arg in ("--pack-path", p)],
             stdout=fh,
             stderr=subprocess.STDOUT,
         )
@@ -238,8 +262,9 @@ def run_bench(
         raise UserError(f"--timeout must be 1-86400 seconds, got {timeout}")
     tmp = tempfile.TemporaryDirectory(prefix="chainsim-bench-")
     folder = Path(tmp.name)
-    upload = make_upload(folder)
-    speed = replay_speed(upload)
+    pack_paths = copy_pack(folder)
+    upload = make_upload(folder, pack_paths)
+    speed = replay_speed(upload, pack_paths)
     body = json.dumps(upload).encode()
     db = db or str(folder / "bench.sqlite3")
     class_name = f"bench-{secrets.token_hex(4)}"
@@ -250,7 +275,7 @@ def run_bench(
         for n in range(clients):
             user = accounts.add_user(store, f"{class_name}-{n:03d}", "trainee", PASSWORD, [class_name])
             tokens.append(accounts.issue_token(store, user, "bench", 3600)[0])
-    proc, port = _start_server(db, folder / "serve.log", scorers)
+    proc, port = _start_server(db, folder / "serve.log", scorers, pack_paths)
     out: dict[str, Any] = {"latencies": [], "acked": {}, "errors": []}
     lock = threading.Lock()
     try:
@@ -324,7 +349,8 @@ def run(args) -> int:
         print(
             f"replay of one attempt ({r['simulated_s']} s simulated) on "
             f"{'one core' if r['one_core'] else 'this machine'}: {r['replay_s']} s, "
-            f"{r['replay_s_per_simulated_s']} s per simulated s ({r['times_real_time']}x real time)\n"
+            f"{r['replay_s_per_simulated_s']} s per simulated s ({r['times_real_time']}x real time); "
+            f"CPU {r['replay_cpu_s']} s: {r['simulated_s_per_cpu_s']} simulated s per CPU s\n"
             f"records server on {result['backend']} ({result['database']}): {result['clients']} trainees x "
             f"{result['attempts_per_client']} uploads, {result['scorers']} scorers\n"
             f"  acknowledged  {result['acknowledged']} in {result['sent_s']} s: p50 {result['ack_p50_ms']} ms, "

@@ -53,19 +53,23 @@ PEOPLE = (
 
 from records_db import free_port  # noqa: E402  (tests/records_db.py, loaded by tests/conftest.py)
 
+#: the folder that holds the copy of the prp pack, once ``pack_copy`` made it
+PACKS: list[Path] = []
 
-@pytest.fixture(scope="package", autouse=True)
+
+@pytest.fixture(scope="session")
 def pack_copy(tmp_path_factory):
-    """The prp pack copied to a folder of its own and put first on $CHAINSIM_PACK_PATH (see module doc)."""
+    """The prp pack copied, once per session, to a folder of its own (see module doc)."""
     folder = tmp_path_factory.mktemp("packs")
     shutil.copytree(REPO / "assets" / "prp", folder / "prp", ignore=shutil.ignore_patterns("__pycache__", ".*"))
-    before = os.environ.get("CHAINSIM_PACK_PATH")
-    os.environ["CHAINSIM_PACK_PATH"] = str(folder)
-    yield folder / "prp"
-    if before is None:
-        os.environ.pop("CHAINSIM_PACK_PATH", None)
-    else:
-        os.environ["CHAINSIM_PACK_PATH"] = before
+    PACKS[:] = [folder]
+    return folder / "prp"
+
+
+@pytest.fixture(autouse=True)
+def serve_the_pack_copy(pack_copy, monkeypatch):
+    """Each test here finds prp in the copy (the simulator, command lines, servers); tests elsewhere do not."""
+    monkeypatch.setenv("CHAINSIM_PACK_PATH", str(pack_copy.parent))
 
 
 def attempt(i: int = 0, **over) -> dict:
@@ -163,6 +167,8 @@ def start_server(db: str, log: Path, port: int | None = None, args: tuple[str, .
     port = port or free_port()
     scheme = "https" if "--certfile" in args else "http"
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    if PACKS:  # a session's server starts before any test's environment is set
+        env["CHAINSIM_PACK_PATH"] = str(PACKS[0])
     fh = log.open("ab")
     proc = subprocess.Popen(
         [sys.executable, "-m", "chainsim.game", "serve", "--db", db, "--port", str(port), *args],
@@ -275,7 +281,7 @@ def populate(db: str) -> None:
 
 
 @pytest.fixture(scope="session", params=("sqlite", "postgresql"))
-def site(request, tmp_path_factory):
+def site(request, tmp_path_factory, pack_copy):
     """A running server with the PEOPLE accounts, one per backend for the whole session."""
     folder = tmp_path_factory.mktemp(f"site-{request.param}")
     if request.param == "sqlite":

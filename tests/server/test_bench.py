@@ -19,6 +19,8 @@ def test_bench_sends_real_uploads_scores_each_once_and_cleans_up(records_db, cli
     replay = result["replay"]
     assert replay["simulated_s"] > 1.0 and replay["replay_s"] > 0
     assert replay["replay_s_per_simulated_s"] == pytest.approx(replay["replay_s"] / replay["simulated_s"], rel=0.01)
+    assert replay["replay_cpu_s"] > 0
+    assert replay["simulated_s_per_cpu_s"] == pytest.approx(replay["simulated_s"] / replay["replay_cpu_s"], rel=0.05)
     with RecordStore(records_db) as store:  # the bench cleans up after itself
         assert store.list_classes() == [] and store.query("SELECT COUNT(*) FROM users")[0][0] == 0
         assert store.query("SELECT COUNT(*) FROM uploads")[0][0] == 0
