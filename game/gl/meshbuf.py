@@ -56,11 +56,33 @@ def gpu_normals_used(renderer: str, n_vertices: int) -> bool:
     return not any(name in renderer.lower() for name in _SOFTWARE)
 
 
+#: whether the normals kernel may be called in this process; False while a window's kernels are still
+#: compiling in another process (chainsim.game.app.compiling), when numpy computes the first uploads'
+KERNEL_NORMALS = True
+
+
+def _numpy_normals(pos: np.ndarray, tris: np.ndarray, out: np.ndarray) -> None:
+    """The kernel's normals with numpy: face cross products summed per vertex, normalised."""
+    p = np.asarray(pos, np.float64)
+    t = np.asarray(tris, np.int64)
+    face = np.cross(p[t[:, 1]] - p[t[:, 0]], p[t[:, 2]] - p[t[:, 0]])
+    acc = np.zeros((len(p), 3))
+    for k in range(3):
+        for c in range(3):
+            acc[:, c] += np.bincount(t[:, k], weights=face[:, c], minlength=len(p))
+    ln = np.linalg.norm(acc, axis=1)
+    ok = ln > 1e-30
+    out[ok] = acc[ok] / ln[ok, None]
+    out[~ok] = 0.0
+
+
 def vertex_normals(pos: np.ndarray, tris: np.ndarray) -> np.ndarray:
     """Unit per-vertex normals: the area-weighted mean of the incident face normals (numba kernel)."""
 
     out = np.zeros((len(pos), 3))
-    if len(pos) and len(tris):
+    if len(pos) and len(tris) and not KERNEL_NORMALS:
+        _numpy_normals(pos, tris, out)
+    elif len(pos) and len(tris):
         vertex_normals_kernel(np.ascontiguousarray(pos), np.ascontiguousarray(tris, dtype=np.int64), out)
     return out
 

@@ -35,11 +35,13 @@ from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll, Widget
 from chainsim.components.resources import Assessment, PendingInput, Settings
 from chainsim.engine.errors import UserError
-from chainsim.engine.warmup import warm_up
+from chainsim.engine.warmup import GEOMETRY, Compiler
+from chainsim.game.app.compiling import KernelGate, needed_groups
 from chainsim.game.app.digest import world_digest
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script, write_recording
 from chainsim.game.app.options import user_settings
+from chainsim.game.gl import meshbuf
 from chainsim.game.gl.context import window_context
 from chainsim.game.records import remote
 from chainsim.game.records.store import RecordStore
@@ -47,6 +49,7 @@ from chainsim.game.records.store import default_path as default_records_path
 from chainsim.game.ui.frameloop import FixedStepper, FrameLog
 from chainsim.game.ui.signin import SignInForm, remember, remembered, status_line
 from chainsim.systems.input import InputLog
+from chainsim.systems.view import ViewState
 
 QUIT_QUESTION = (
     "# Quit without saving?\n\nThis attempt is not saved. Press **Esc** again to quit, or any other key to "
@@ -118,8 +121,16 @@ def run_window(args, session=None) -> int:
     """The window on `args.pack`. `session`, when given, is called with the App and returns a study
     session (chainsim.game.ui.study) that takes the keyboard while it shows a form and is updated
     once per frame; the window closes when the session has finished."""
-    # every kernel compiled (or loaded from numba's cache) before the window takes any input
-    warm_up()
+    # the kernels compile (or load from numba's cache) in child processes while the window opens and
+    # the trainee signs in; input that needs them waits (chainsim.game.app.compiling)
+    compiler = Compiler(first=[GEOMETRY])
+    try:
+        return _run_window(args, session, compiler)
+    finally:
+        compiler.stop()
+
+
+def _run_window(args, session, compiler: Compiler) -> int:
     script = load_script(args.input) if getattr(args, "input", None) else None
     settings = user_settings(args)  # --db, --class, --trainee for procedures that save attempts
     app = build_app(args.pack, pack_paths=args.pack_path, headless=False, settings=settings)
@@ -149,6 +160,12 @@ def run_window(args, session=None) -> int:
         # without multisampling (software GL) a view's image can be kept and copied while it is unchanged
         app.resource(render.Renderer).cache_views()
     pending: PendingInput = app.resource(PendingInput)
+    needed = needed_groups(app)
+    compiler.prefer(needed)
+    gate = None if compiler.ready(needed) else KernelGate(compiler, needed, scripted=bool(script))
+    # until the normals kernel is compiled the first uploads take numpy's normals (the same vectors)
+    meshbuf.KERNEL_NORMALS = compiler.ready([GEOMETRY])
+    view_state: ViewState = app.resource(ViewState)
     if script:
         pending.extend(script)
     state = {"last": None, "closing": False, "rc": 0, "confirm": False}
@@ -193,6 +210,13 @@ def run_window(args, session=None) -> int:
     def now() -> float:
         return app.time.sim_time
 
+    def send(ev, t: float | None = None) -> None:
+        """Queue a device event for the App, or hold it while the kernels it may need compile."""
+        if gate is not None and not gate.lets_through(ev, hud, view_state.hover):
+            gate.hold(time.perf_counter(), ev)
+            return
+        pending.push(now() if t is None else t, ev)
+
     def finish() -> None:
         """Save what was asked for, then close (once)."""
         if state["closing"]:
@@ -226,23 +250,23 @@ def run_window(args, session=None) -> int:
 
     @window.event
     def on_mouse_motion(x, y, dx, dy):
-        pending.push(now(), MouseMove(float(x), float(y)))
+        send(MouseMove(float(x), float(y)))
 
     @window.event
     def on_mouse_press(x, y, button, modifiers):
-        pending.push(now(), MouseButton(float(x), float(y), _button(button), True))
+        send(MouseButton(float(x), float(y), _button(button), True))
 
     @window.event
     def on_mouse_release(x, y, button, modifiers):
-        pending.push(now(), MouseButton(float(x), float(y), _button(button), False))
+        send(MouseButton(float(x), float(y), _button(button), False))
 
     @window.event
     def on_mouse_drag(x, y, dx, dy, buttons, modifiers):
-        pending.push(now(), MouseDrag(float(x), float(y), float(dx), float(dy), _button(buttons)))
+        send(MouseDrag(float(x), float(y), float(dx), float(dy), _button(buttons)))
 
     @window.event
     def on_mouse_scroll(x, y, scroll_x, scroll_y):
-        pending.push(now(), Scroll(float(x), float(y), float(scroll_y)))
+        send(Scroll(float(x), float(y), float(scroll_y)))
 
     def unsaved() -> bool:
         return bool(app.resource(Assessment).values.get("unsaved"))
@@ -311,7 +335,7 @@ def run_window(args, session=None) -> int:
         if symbol in ARROWS:
             return pyglet.event.EVENT_HANDLED  # arrives through on_text_motion, with key repeat
         pressed_at[key_name(symbol)] = now()
-        pending.push(now(), Key(key_name(symbol), True))
+        send(Key(key_name(symbol), True))
         return pyglet.event.EVENT_HANDLED
 
     # when a key goes down at simulated time t
@@ -337,7 +361,7 @@ def run_window(args, session=None) -> int:
         if form["open"] is not None or (study is not None and study.form is not None):
             return pyglet.event.EVENT_HANDLED
         if motion in MOTIONS:
-            pending.push(now(), Key(MOTIONS[motion], True))
+            send(Key(MOTIONS[motion], True))
 
     @window.event
     def on_key_release(symbol, modifiers):
@@ -347,14 +371,14 @@ def run_window(args, session=None) -> int:
             # step that sees R also sees Shift down; otherwise both would be up before anything read them
             if pressed_at.pop(name, None) == t:
                 t += app.time.dt
-            pending.push(t, Key(name, False))
+            send(Key(name, False), t)
 
     @window.event
     def on_resize(width, height):
         fbw, fbh = window.get_framebuffer_size()
         target.size = (int(fbw), int(fbh))
         target.scale = fbw / max(int(width), 1)
-        pending.push(now(), Resize(max(int(width), 1), max(int(height), 1)))
+        send(Resize(max(int(width), 1), max(int(height), 1)))
         return pyglet.event.EVENT_HANDLED
 
     stepper = FixedStepper(app, target)
@@ -368,7 +392,24 @@ def run_window(args, session=None) -> int:
         state["last"] = t
         if state["closing"]:
             return
-        if stepper.advance(dt) == 0:
+        if gate is not None:
+            if not state.get("said_ready") and gate.ready():
+                state["said_ready"] = True
+                print(
+                    f"kernels: the scene's ready {time.perf_counter() - compiler.started:.1f} s after start", flush=True
+                )
+            if not state.get("said_all") and compiler.ready():
+                state["said_all"] = True
+                print(f"kernels: all compiled {compiler.seconds:.1f} s after start", flush=True)
+            gate.show(hud)
+            if not meshbuf.KERNEL_NORMALS and compiler.ready([GEOMETRY]):
+                meshbuf.KERNEL_NORMALS = True
+            for t_ev, ev in gate.release(now(), app.time.dt):
+                pending.push(t_ev, ev)
+        if gate is not None and not gate.stepping():
+            stepper.carry = 0.0
+            render.draw(app)  # input waits for kernels: the scene stands still, the window still draws
+        elif stepper.advance(dt) == 0:
             render.draw(app)  # no whole step yet: show the same state again
         frame_log.add(t, dt, time.perf_counter() - t)
         for ev in widget_events.read():

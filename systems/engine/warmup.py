@@ -1,12 +1,30 @@
 """Compiling the numba kernels ahead, so no interaction ever waits on compilation.
 
 numba compiles a kernel the first time it runs (seconds each on a fresh install) and caches the
-result on disk (cache=True). `warm_up()` runs every kernel the simulator uses once on a tiny input,
-with a progress bar: `chainsim warmup` after installing, and `chainsim play` before its window takes
-input. With a warm cache it costs a fraction of a second (loading the cached machine code).
+result on disk (cache=True). The kernels come in groups (`GROUPS`), each run once on a tiny input
+with every argument type the app passes. `warm_up()` runs them in this process with a progress bar;
+with a warm cache that costs a fraction of a second (loading the cached machine code).
+
+`Compiler` runs the groups in child processes instead (`python -m chainsim.engine.warmup`, one
+group at a time on request, `PROCESSES` of them taking the next group as each finishes): the window
+opens at once and reads the progress while they work, and a process holds no lock another needs
+(a thread compiling in the window's process would hold the GIL for seconds at a time). The groups a
+pack needs go first (`Compiler(first=...)`). What a child compiles lands in numba's on-disk cache,
+from which the window's process then loads it on first call. Two children may compile one helper
+kernel (the exact-limit pass serves every ChainMail order); numba writes a kernel's cache index by
+read, modify, write, so each child takes a file lock around that write (`_lock_cache_index`), else
+one child's entry could replace the other's and the kernel compile a second time later.
 """
 
 from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable
 
 import numpy as np
 
@@ -20,15 +38,28 @@ from chainsim.engine.meshgen import tet_grid, triangulated_grid
 from chainsim.engine.progress import progress
 from chainsim.engine.segment_tree import SegmentTree
 
+#: child processes compiling at once (a third would only share the same cores on a two-core machine)
+PROCESSES = max(1, min(2, os.cpu_count() or 1))
 
-def _chainmail(rest, links, surface_tris):
-    # numba compiles one version per argument type: with and without anchors, both precisions
-    for order in ORDERS:
-        for dtype, fixed in ((np.float64, [0]), (np.float64, None), (np.float32, [0]), (np.float32, None)):
-            body = ChainMailBody(rest, links, relax=2, exact=True, order=order, dtype=dtype, fixed=fixed)
-            body.grab([len(rest) - 1], rest[-1] + 0.5)
-            body.cut(rest[0] - 1.0, rest[-1] + 1.0, normal=[0.0, 0.0, 1.0], depth=10.0)
+
+def _grid():
+    rest, tets, links = tet_grid(3, 3, 3, spacing=1.0)
+    _p2, tris, _l2 = triangulated_grid(3, 3, spacing=1.0, dim=3)
+    return rest, tets, links, tris
+
+
+def _chainmail(order: str, dtype) -> None:
+    rest, _tets, links, _tris = _grid()
+    # numba compiles one version per argument type: with and without anchors
+    for fixed in ([0], None):
+        body = ChainMailBody(rest, links, relax=2, exact=True, order=order, dtype=dtype, fixed=fixed)
+        body.grab([len(rest) - 1], rest[-1] + 0.5)
+        body.cut(rest[0] - 1.0, rest[-1] + 1.0, normal=[0.0, 0.0, 1.0], depth=10.0)
+
+
+def _parallel_cascade() -> None:
     # the level-parallel cascade, which a body takes by itself on large meshes with many threads
+    rest, _tets, links, _tris = _grid()
     for dtype in (np.float64, np.float32):
         body = ChainMailBody(rest, links, dtype=dtype)
         t = (body.rest[-1] + 0.5)[None]
@@ -36,7 +67,8 @@ def _chainmail(rest, links, surface_tris):
                 workspace=body.workspace, parallel=True)  # fmt: skip
 
 
-def _models(rest, tets, tris):
+def _models() -> None:
+    rest, tets, _links, tris = _grid()
     for make in (
         lambda: XPBDBody(rest, tets, fixed=[0]),  # corotational, the default
         lambda: XPBDBody(rest, tets, constraints="neohookean", fixed=[0]),
@@ -50,16 +82,31 @@ def _models(rest, tets, tris):
         body.step(1 / 60)
 
 
-def _geometry(rest, tris):
-    # the argument types the app passes: float64 positions from the engine, float32 from the window's
-    # GPU meshes (chainsim.game.gl.meshbuf: whole-mesh normals into float32 or float64, and the moved
-    # vertices' normals while a tool drags tissue); missing one froze a first forceps grip for seconds
-    tris = np.ascontiguousarray(tris, dtype=np.int64)
-    n = int(tris.max()) + 1
+def _csr(tris: np.ndarray, n: int):
     flat = tris.ravel()
     ptr = np.zeros(n + 1, np.int64)
     np.cumsum(np.bincount(flat, minlength=n), out=ptr[1:])
-    idx = (np.argsort(flat, kind="stable") // 3).astype(np.int64)
+    return ptr, (np.argsort(flat, kind="stable") // 3).astype(np.int64)
+
+
+def _geometry() -> None:
+    # what every scene calls once it is drawn and a needle moves: the first uploads' normals and the
+    # needle's collision query
+    rest, _tets, _links, tris = _grid()
+    tris = np.ascontiguousarray(tris, dtype=np.int64)
+    n = int(tris.max()) + 1
+    vertex_normals_kernel(np.ascontiguousarray(rest[:n]), tris, np.zeros((n, 3)))
+    SegmentTree.build(rest, tris).first_hit(rest[0] - 1.0, rest[-1] + 1.0)
+
+
+def _moving_normals() -> None:
+    # the argument types the app passes: float64 positions from the engine, float32 from the window's
+    # GPU meshes (chainsim.game.gl.meshbuf: whole-mesh normals into float32 or float64, and the moved
+    # vertices' normals while a tool drags tissue); missing one froze a first forceps grip for seconds
+    rest, _tets, _links, tris = _grid()
+    tris = np.ascontiguousarray(tris, dtype=np.int64)
+    n = int(tris.max()) + 1
+    ptr, idx = _csr(tris, n)
     for pos_type, out_types in ((np.float64, (np.float64,)), (np.float32, (np.float32, np.float64))):
         pos = np.ascontiguousarray(rest[:n], dtype=pos_type)
         for out_type in out_types:
@@ -69,23 +116,222 @@ def _geometry(rest, tris):
     # large meshes on machines with several cores take the parallel gather (float32, the GPU copy)
     pos32 = np.ascontiguousarray(rest[:n], dtype=np.float32)
     _normals_parallel(pos32, tris, ptr, idx, np.zeros((n, 3), np.float32), 2)
-    SegmentTree.build(rest, tris).first_hit(rest[0] - 1.0, rest[-1] + 1.0)
 
 
-def warm_up() -> None:
-    """Run every kernel once (compiling it, or loading it from numba's cache)."""
-    rest, tets, links = tet_grid(3, 3, 3, spacing=1.0)
-    _p2, tris, _l2 = triangulated_grid(3, 3, spacing=1.0, dim=3)
-    jobs = [
-        ("ChainMail", lambda: _chainmail(rest, links, tris)),
-        ("XPBD and projective", lambda: _models(rest, tets, tris)),
-        ("normals and collision", lambda: _geometry(rest, tris)),
-    ]
-    bar = progress(total=len(jobs), desc="compiling kernels", unit="group")
+#: the kernel groups, in the order they are compiled when nothing asks for another first: what every
+#: window draws with (normals) and a needle's collisions first, then each model a pack can pick (a
+#: pack's own go first: Compiler.prefer)
+GEOMETRY = "normals and collision"
+MOVING = "normals of moving meshes"
+MODELS = "XPBD and projective"
+PRECISIONS = {"float64": np.float64, "float32": np.float32}
+
+
+def chainmail_group(order: str, dtype: str = "float64") -> str:
+    """The group holding ChainMail's kernels for one cascade order and precision."""
+    return f"ChainMail {order} {dtype}"
+
+
+GROUPS: dict[str, Callable[[], None]] = {
+    GEOMETRY: _geometry,
+    MOVING: _moving_normals,
+    "ChainMail level-parallel": _parallel_cascade,  # long (a parallel kernel) and shares nothing: begun early
+    **{
+        chainmail_group(order, name): (lambda order=order, dtype=dtype: _chainmail(order, dtype))
+        for order in ORDERS
+        for name, dtype in PRECISIONS.items()
+    },
+    MODELS: _models,
+}
+
+
+def family(name: str) -> str:
+    """Groups of one family share most of their kernels (every ChainMail order of one precision shares
+    relaxation and the exact-limit pass): one of them runs alone until it is done, and the others then
+    load the shared kernels from the cache instead of compiling them a second time alongside."""
+    return name.rsplit(" ", 1)[1] if name.startswith("ChainMail ") and name.endswith(tuple(PRECISIONS)) else name
+
+
+def warm_up(groups: Iterable[str] | None = None) -> None:
+    """Run every kernel group once in this process (compiling it, or loading it from numba's cache)."""
+    names = list(GROUPS) if groups is None else list(groups)
+    bar = progress(total=len(names), desc="compiling kernels", unit="group")
     try:
-        for name, job in jobs:
+        for name in names:
             bar.set_postfix_str(name)
-            job()
+            GROUPS[name]()
             bar.update(1)
     finally:
         bar.close()
+
+
+def _lock_cache_index() -> None:
+    """Make numba's cache-index update (read the index, add an entry, write it) one step across processes."""
+    try:
+        import fcntl  # noqa: PLC0415 - Unix only
+
+        from numba.core.caching import IndexDataCacheFile  # noqa: PLC0415 - numba's internals, children only
+    except ImportError:  # no fcntl (Windows) or another numba: its own update, as without children
+        return
+    save = IndexDataCacheFile.save
+
+    def locked_save(self, key, data):
+        with open(f"{self._index_path}.lock", "a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            try:
+                save(self, key, data)
+            finally:
+                fcntl.flock(lock, fcntl.LOCK_UN)
+
+    IndexDataCacheFile.save = locked_save
+
+
+def _child() -> int:
+    """A compiling child: reads group names from stdin, one per line, answers 'done NAME' or 'failed NAME: why'."""
+    _lock_cache_index()
+    print("ready", flush=True)
+    for line in sys.stdin:
+        name = line.strip()
+        if not name:
+            continue
+        try:
+            GROUPS[name]()
+        except Exception as e:  # the window then compiles that group itself when it is needed
+            print(f"failed {name}: {type(e).__name__}: {e}".replace("\n", " "), flush=True)
+        else:
+            print(f"done {name}", flush=True)
+    return 0
+
+
+class Compiler:
+    """Compiles the kernel groups in up to `processes` child processes while the caller goes on.
+
+    `first` names the groups wanted soonest (a pack's own); they are handed out before the others.
+    `done` (groups finished, failed ones too: their kernels then compile where they are first called),
+    `failed` (name -> why) and `fraction()` say how far it got, from any thread; `ready(names)` whether
+    those groups are done;
+    `wait()` blocks until all are. `seconds` is the time from start to the last group.
+    """
+
+    def __init__(self, first: Iterable[str] = (), processes: int | None = None, groups: Iterable[str] | None = None):
+        names = list(GROUPS) if groups is None else list(groups)
+        first = [n for n in dict.fromkeys(first) if n in names]
+        self.queue = deque(first + [n for n in names if n not in first])
+        self.total = len(self.queue)
+        self.done: list[str] = []
+        self.failed: dict[str, str] = {}
+        self.running: dict[int, str] = {}
+        self.started = time.perf_counter()
+        self.seconds: float | None = None
+        self._lock = threading.Lock()
+        self._changed = threading.Condition(self._lock)
+        self._finished = threading.Event()
+        self._procs: list[subprocess.Popen] = []
+        n = max(1, min(processes or PROCESSES, self.total)) if self.total else 0
+        self._alive = n
+        if not n:
+            self._finished.set()
+            self.seconds = 0.0
+        for i in range(n):
+            threading.Thread(target=self._feed, args=(i,), daemon=True, name=f"chainsim-compile-{i}").start()
+
+    def _eligible(self, name: str) -> bool:
+        fam = family(name)
+        if any(family(d) == fam for d in self.done):
+            return True
+        return not any(family(r) == fam for r in self.running.values())
+
+    def _next(self, worker: int) -> str | None:
+        with self._changed:
+            self.running.pop(worker, None)
+            self._changed.notify_all()
+            while self.queue:
+                name = next((n for n in self.queue if self._eligible(n)), None)
+                if name is not None:
+                    self.queue.remove(name)
+                    self.running[worker] = name
+                    return name
+                self._changed.wait(0.5)  # a group of the same family is running: wait until it is done
+            return None
+
+    def _feed(self, worker: int) -> None:
+        proc = None
+        try:
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "chainsim.engine.warmup", "--child"],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.DEVNULL,
+                text=True,
+                bufsize=1,
+            )
+            with self._lock:
+                self._procs.append(proc)
+            if proc.stdout.readline().strip() != "ready":
+                raise RuntimeError("the compiling process did not start")
+            while (name := self._next(worker)) is not None:
+                proc.stdin.write(name + "\n")
+                proc.stdin.flush()
+                reply = proc.stdout.readline().strip()
+                with self._lock:
+                    if reply == f"done {name}":
+                        self.done.append(name)
+                    else:
+                        self.failed[name] = reply.partition(": ")[2] or "the compiling process ended"
+                        self.done.append(name)  # its family's shared kernels are no longer awaited
+        except Exception as e:  # no child process: what is left compiles where it is first called
+            with self._lock:
+                self.running.pop(worker, None)
+                if self._alive == 1:
+                    for name in self.queue:
+                        self.failed[name] = f"{type(e).__name__}: {e}"
+                        self.done.append(name)
+                    self.queue.clear()
+        finally:
+            if proc is not None:
+                try:
+                    proc.stdin.close()
+                    proc.wait(timeout=10)
+                except Exception:
+                    proc.kill()
+            with self._lock:
+                self._alive -= 1
+                if self._alive == 0:
+                    self.seconds = time.perf_counter() - self.started
+                    self._finished.set()
+
+    def prefer(self, names: Iterable[str]) -> None:
+        """Hand out the groups `names` (those not begun yet) before any other."""
+        with self._lock:
+            first = [n for n in dict.fromkeys(names) if n in self.queue]
+            self.queue = deque(first + [n for n in self.queue if n not in first])
+
+    def ready(self, names: Iterable[str] | None = None) -> bool:
+        """Whether the groups `names` (default: all) need no more compiling here."""
+        if names is None:
+            return self._finished.is_set()
+        with self._lock:
+            have = set(self.done)
+        return all(n in have or n not in GROUPS for n in names)
+
+    def fraction(self) -> float:
+        with self._lock:
+            return len(self.done) / self.total if self.total else 1.0
+
+    def compiling(self) -> list[str]:
+        """The groups being compiled now."""
+        with self._lock:
+            return list(self.running.values())
+
+    def wait(self, timeout: float | None = None) -> bool:
+        return self._finished.wait(timeout)
+
+    def stop(self) -> None:
+        """Hand out no more groups (the window closed first). A child ends after the group it is on, so
+        nothing it writes into the cache is cut off half-way."""
+        with self._lock:
+            self.queue.clear()
+
+
+if __name__ == "__main__" and sys.argv[1:] == ["--child"]:
+    sys.exit(_child())

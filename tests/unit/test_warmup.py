@@ -62,3 +62,106 @@ def test_no_pack_needs_a_kernel_type_warmup_left_out(pack, monkeypatch):
         after = _signatures()
         missing = {k: v - before.get(k, set()) for k, v in after.items() if v - before.get(k, set())}
         assert not missing, f"{pack} {script.name} compiled during play: {missing}"
+
+
+class _Compiling:
+    """A stand-in for chainsim.engine.warmup.Compiler whose groups finish when the test says so."""
+
+    def __init__(self, total=7):
+        self.done: list[str] = []
+        self.failed: dict[str, str] = {}
+        self.total = total
+
+    def ready(self, names=None):
+        return names is not None and all(n in self.done for n in names)
+
+
+def test_window_input_waits_for_the_kernels_and_then_arrives_in_order():
+    from chainsim.components.hud import HudState
+    from chainsim.components.input_events import Key, MouseButton, MouseMove
+    from chainsim.game.app.compiling import KernelGate
+
+    compiler = _Compiling()
+    gate = KernelGate(compiler, ["normals and collision"])
+    hud = HudState()
+    assert gate.stepping() and not gate.ready()
+    gate.show(hud)
+    assert any("preparing the soft-tissue engine" in t and "0 of 1" in t for t, _ in hud.messages)
+    # the help and the pointer need no kernel: they reach the App at once
+    assert gate.lets_through(Key("f1", True), hud, "")
+    assert gate.lets_through(MouseButton(5.0, 5.0, "left", True), hud, "help")
+    assert gate.lets_through(MouseMove(1.0, 1.0), hud, "")
+    # a click on the scene waits, and so does whatever follows it (its release)
+    press, release = MouseButton(50.0, 60.0, "left", True), MouseButton(50.0, 60.0, "left", False)
+    assert not gate.lets_through(press, hud, "")
+    gate.hold(10.0, press)
+    assert not gate.lets_through(Key("f1", True), hud, "")
+    gate.hold(10.1, release)
+    assert not gate.stepping()  # the scene stands still while input waits
+    gate.show(hud)
+    assert any(t.startswith("Your input waits") for t, _ in hud.messages)
+    assert gate.release(3.0, 0.05) == []
+    compiler.done.append("normals and collision")
+    out = gate.release(3.0, 0.05)
+    assert [ev for _, ev in out] == [press, release]
+    assert out[0][0] == 3.0 and abs(out[1][0] - 3.1) < 1e-9  # the release comes as long after the press
+    assert gate.stepping() and gate.lets_through(Key("r", True), hud, "")
+    gate.show(hud)
+    assert not any("soft-tissue engine" in t for t, _ in hud.messages)
+
+
+def test_a_scripted_window_stands_still_until_the_kernels_are_ready():
+    from chainsim.game.app.compiling import KernelGate
+
+    compiler = _Compiling()
+    gate = KernelGate(compiler, ["normals and collision"], scripted=True)
+    assert not gate.stepping()
+    compiler.done.append("normals and collision")
+    assert gate.stepping()
+
+
+def test_groups_sharing_kernels_compile_one_after_another():
+    from chainsim.engine import warmup
+
+    bf64, sc64, bf32 = (warmup.chainmail_group(o, d) for o, d in (("breadth-first", "float64"),
+                        ("schill", "float64"), ("breadth-first", "float32")))  # fmt: skip
+    assert set(warmup.GROUPS) >= {bf64, sc64, bf32, warmup.GEOMETRY, warmup.MODELS}
+    assert warmup.family(bf64) == warmup.family(sc64) != warmup.family(bf32)
+    c = warmup.Compiler(groups=[])  # nothing to compile: ready at once, no process started
+    assert c.ready() and c.seconds == 0.0
+    c.running = {0: bf64}
+    assert not c._eligible(sc64) and c._eligible(bf32) and c._eligible(warmup.MODELS)
+    c.done.append(bf64)
+    assert c._eligible(sc64)
+
+
+def test_the_scene_needs_its_own_models_kernels():
+    from chainsim.engine import warmup
+    from chainsim.game.app.compiling import needed_groups
+    from chainsim.game.app.headless import build_app
+
+    app = build_app("prp")
+    try:
+        assert needed_groups(app) == [warmup.GEOMETRY]
+    finally:
+        app.close()
+    app = build_app("cutting")
+    try:
+        needed = needed_groups(app)
+        assert needed[:2] == [warmup.GEOMETRY, warmup.MOVING] and warmup.chainmail_group("schill", "float64") in needed
+        assert warmup.MODELS in needed  # the m key switches the tissue's model
+    finally:
+        app.close()
+
+
+def test_first_uploads_take_numpys_normals_equal_to_the_kernels(monkeypatch):
+    import numpy as np
+
+    from chainsim.engine.meshgen import triangulated_grid
+    from chainsim.game.gl import meshbuf
+
+    pos, tris, _links = triangulated_grid(6, 5, spacing=1.0, dim=3)
+    pos = pos + np.random.default_rng(1).normal(0.0, 0.3, pos.shape)
+    kernel = meshbuf.vertex_normals(pos, tris)
+    monkeypatch.setattr(meshbuf, "KERNEL_NORMALS", False)
+    np.testing.assert_allclose(meshbuf.vertex_normals(pos, tris), kernel, atol=1e-12)

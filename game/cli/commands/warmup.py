@@ -1,22 +1,44 @@
-"""`chainsim warmup`: compile every numba kernel ahead (after installing), so nothing waits later."""
+"""`chainsim warmup`: compile every numba kernel ahead (after installing), so nothing waits later.
+
+The kernel groups compile in child processes side by side (chainsim.engine.warmup.Compiler), then
+this process loads them all from numba's cache, which also compiles anything a child could not."""
 
 from __future__ import annotations
 
 import time
 
-from chainsim.engine.warmup import warm_up
+from chainsim.engine.progress import progress
+from chainsim.engine.warmup import Compiler, warm_up
 
 NAME = "warmup"
-HELP = "compile the soft-tissue kernels now (seconds, once per install) so no interaction waits on it"
+HELP = "compile the soft-tissue kernels now (a minute or two once per install) so no interaction waits on it"
 
 
 def add_parser(sub):
     p = sub.add_parser(NAME, help=HELP, description=HELP)
+    p.add_argument("--in-process", action="store_true", help="compile in this process only, one group after another")
     return p
 
 
 def run(args) -> int:
     t0 = time.perf_counter()
-    warm_up()
+    if not getattr(args, "in_process", False):
+        compiler = Compiler()
+        bar = progress(total=compiler.total, desc="compiling kernels", unit="group")
+        try:
+            seen, said = 0, ""
+            while not compiler.wait(0.25):
+                now, busy = len(compiler.done), ", ".join(compiler.compiling())
+                if busy != said:
+                    bar.set_postfix_str(busy)
+                    said = busy
+                bar.update(now - seen)
+                seen = now
+            bar.update(compiler.total - seen)
+        finally:
+            bar.close()
+    for name, why in compiler.failed.items() if not getattr(args, "in_process", False) else ():
+        print(f"{name}: compiled here ({why})")
+    warm_up()  # loads what the children cached; compiles here whatever they could not
     print(f"kernels ready in {time.perf_counter() - t0:.1f} s")
     return 0
