@@ -33,11 +33,11 @@ def _quat_to_mat(q, R):
 def extract_rotation(A, q, iterations):
     """Rotation of A (3x3) by Mueller et al. 2016, refining unit quaternion q (w, x, y, z) in place."""
     R = np.zeros((3, 3))
-    return _rotation_into(A, q, iterations, R)
+    return rotation_into(A, q, iterations, R)
 
 
 @njit(cache=True)
-def _rotation_into(A, q, iterations, R):
+def rotation_into(A, q, iterations, R):
     """extract_rotation writing into the caller's R (no allocation: it runs once per tetrahedron)."""
     for _ in range(iterations):
         _quat_to_mat(q, R)
@@ -102,7 +102,7 @@ def local_step(x, tets, D, active, w_arap, w_vol, quats, rot_iterations, rhs):
             e3 = x[i3, r] - x[i0, r]
             for col in range(3):
                 F[r, col] = e1 * D[t, 1, col] + e2 * D[t, 2, col] + e3 * D[t, 3, col]
-        _rotation_into(F, quats[t], rot_iterations, R)
+        rotation_into(F, quats[t], rot_iterations, R)
         # volume target P = F - c R with c = (tr(R^T F) - 3) / 3: the closest point to F on the set whose
         # signed singular values sum to 3 (a uniform shift of F's singular values), so w_v / 2 |F - P|^2 is
         # (lambda V / 2) (tr(R^T F) - 3)^2 and its gradient w_v (F - P) = lambda V (tr(R^T F) - 3) R;

@@ -17,6 +17,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from chainsim.engine.kernels.projective import rotation_into
+
 
 @njit(cache=True)
 def _apply(x, w, ids, g, dl):
@@ -275,58 +277,6 @@ def tet_forces(x, tets, dm_inv, vol, active, mu, lam, gamma, stvk, out):
 
 
 @njit(cache=True)
-def polar_rotation(F, q, iterations, R):
-    """The rotation of F's polar decomposition into R, refining the unit quaternion q (w, x, y, z) in
-    place by Mueller et al.'s fixed-point update (2016): warm-started from the last substep, one or two
-    updates track a tetrahedron's rotation. The result is always a proper rotation, also for an
-    inverted F, so the constraint below pulls an inverted element back out."""
-    for _ in range(iterations):
-        _quat_matrix(q, R)
-        ox = oy = oz = 0.0
-        dot = 0.0
-        for i in range(3):
-            rx, ry, rz = R[0, i], R[1, i], R[2, i]
-            ax, ay, az = F[0, i], F[1, i], F[2, i]
-            ox += ry * az - rz * ay
-            oy += rz * ax - rx * az
-            oz += rx * ay - ry * ax
-            dot += rx * ax + ry * ay + rz * az
-        s = 1.0 / (abs(dot) + 1e-12)
-        ox *= s
-        oy *= s
-        oz *= s
-        angle = np.sqrt(ox * ox + oy * oy + oz * oz)
-        if angle < 1e-14:
-            break
-        sn = np.sin(0.5 * angle) / angle
-        cs = np.cos(0.5 * angle)
-        dw, dx, dy, dz = cs, ox * sn, oy * sn, oz * sn
-        w0, x0, y0, z0 = q[0], q[1], q[2], q[3]
-        q[0] = dw * w0 - dx * x0 - dy * y0 - dz * z0
-        q[1] = dw * x0 + dx * w0 + dy * z0 - dz * y0
-        q[2] = dw * y0 - dx * z0 + dy * w0 + dz * x0
-        q[3] = dw * z0 + dx * y0 - dy * x0 + dz * w0
-        nq = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-        for k in range(4):
-            q[k] /= nq
-    _quat_matrix(q, R)
-
-
-@njit(cache=True)
-def _quat_matrix(q, R):
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    R[0, 0] = 1.0 - 2.0 * (y * y + z * z)
-    R[0, 1] = 2.0 * (x * y - w * z)
-    R[0, 2] = 2.0 * (x * z + w * y)
-    R[1, 0] = 2.0 * (x * y + w * z)
-    R[1, 1] = 1.0 - 2.0 * (x * x + z * z)
-    R[1, 2] = 2.0 * (y * z - w * x)
-    R[2, 0] = 2.0 * (x * z - w * y)
-    R[2, 1] = 2.0 * (y * z + w * x)
-    R[2, 2] = 1.0 - 2.0 * (x * x + y * y)
-
-
-@njit(cache=True)
 def corot_sweep(x, w, tets, dm_inv, vol, active, mu, lam, h2, quats, rot_iterations, lam_d, lam_h):
     """One sweep of corotational tetrahedra (in place): a deviatoric constraint C_D = |F - R|_F with
     compliance 1/(2 mu V) and a volume constraint C_H = det F - 1 with compliance 1/(lam V), R the
@@ -353,7 +303,7 @@ def corot_sweep(x, w, tets, dm_inv, vol, active, mu, lam, h2, quats, rot_iterati
         if w[a] + w[b] + w[c] + w[d] == 0.0:
             continue
         _deformation(x, tets, dm_inv, t, F)
-        polar_rotation(F, quats[t], rot_iterations, R)
+        rotation_into(F, quats[t], rot_iterations, R)
         # -- deviatoric: C = |F - R|, dC/dF = (F - R) / C (R's own change drops out: it is the closest
         # rotation, so |F - R|^2 is stationary in R)
         c2 = 0.0
@@ -405,7 +355,7 @@ def corot_forces(x, tets, dm_inv, vol, active, mu, lam, quats, out):
         if not active[t]:
             continue
         _deformation(x, tets, dm_inv, t, F)
-        polar_rotation(F, quats[t], 40, R)
+        rotation_into(F, quats[t], 40, R)
         _cofactor(F, C)
         J = F[0, 0] * C[0, 0] + F[1, 0] * C[1, 0] + F[2, 0] * C[2, 0]
         for r in range(3):
@@ -429,7 +379,7 @@ def corot_energy(x, tets, dm_inv, vol, active, mu, lam, quats):
         if not active[t]:
             continue
         _deformation(x, tets, dm_inv, t, F)
-        polar_rotation(F, quats[t], 40, R)
+        rotation_into(F, quats[t], 40, R)
         J = np.linalg.det(F)
         s = 0.0
         for r in range(3):
