@@ -121,6 +121,14 @@ class ViewState:
     widget: wd.Placed | None = None
     grab: tuple | None = None  # (viewport, entity, name, triangle, grab_point)
     scene_box: tuple | None = None  # (lo, hi) world mm: what views with `fit = true` frame
+    # an enlarged view (`enlarge:NAME` widget): 1 = it takes the main view's place and the main view
+    # its own, 2 = it fills the window; 0 = the layout as written
+    enlarged: str = ""
+    enlarge: int = 0
+    # the C-arm monitor's window/level (a right-drag in its view): the grey window's width as a
+    # multiple of the automatic one, and its centre moved by this fraction of the automatic width
+    xray_window: float = 1.0
+    xray_level: float = 0.0
 
     def get(self, name: str) -> Viewport | None:
         for vp in self.viewports:
@@ -263,9 +271,21 @@ def first_panel(vs: ViewState) -> str:
     return next((vp.name for vp in vs.viewports if vp.kind == "panel"), "")
 
 
+#: a right-drag in the C-arm view: window width x exp(dx * this), per pixel
+WINDOW_PER_PX = 0.01
+#: ... and level moved by dy * this (fractions of the automatic window), per pixel
+LEVEL_PER_PX = 0.004
+
+
 def relayout(vs: ViewState, widgets: list[dict], width: int, height: int) -> None:
     vs.size = (int(width), int(height))
     rects = layout_rects([vp.spec for vp in vs.viewports], vs.size[0], vs.size[1])
+    big = vs.get(vs.enlarged) if vs.enlarge else None
+    main = main_view(vs)
+    if big is not None and vs.enlarge == 2:  # the whole window: every other view gives way
+        rects = {name: (Rect(0, 0, vs.size[0], vs.size[1]) if name == big.name else Rect(0, 0, 0, 0)) for name in rects}
+    elif big is not None and main is not None and main is not big:  # the two swap places
+        rects[big.name], rects[main.name] = rects[main.name], rects[big.name]
     for vp in vs.viewports:
         vp.rect = rects[vp.name]
     fp = first_panel(vs)
@@ -366,6 +386,12 @@ class ViewSystem:
             else:
                 open_help(h, list(app.resource(PackResource).pack.section("docs")), page)
             app.resource(ViewState).show_help = h.doc_open and h.doc_name == "keys"
+        if name.startswith("enlarge:"):
+            vs = app.resource(ViewState)
+            step = 0 if vs.enlarged != name[8:] else vs.enlarge
+            vs.enlarged, vs.enlarge = name[8:], (step + 1) % 3
+            relayout(vs, app.resource(PackResource).layout.get("widgets", []), *vs.size)
+            fit_views(vs, resized=True)
         if name.startswith("camera:") and name[7:] in CAMERA_PRESETS:
             vs = app.resource(ViewState)
             vp = main_view(vs)
@@ -476,6 +502,9 @@ class ViewSystem:
                 vp.camera.rotate(ev.dx, ev.dy)
             else:
                 vp.camera.pan(ev.dx, ev.dy, vp.rect)
+        elif vp.kind == "fluoro" and ev.button == "right":  # window/level, as on a fluoroscopy monitor
+            vs.xray_window = float(np.clip(vs.xray_window * np.exp(ev.dx * WINDOW_PER_PX), 0.05, 4.0))
+            vs.xray_level = float(np.clip(vs.xray_level + ev.dy * LEVEL_PER_PX, -1.5, 1.5))
         elif vp.kind == "fluoro" and vp.interactive:
             self.emit(app, ViewTurned(vp.name, float(ev.dx), float(ev.dy), ev.button))
 

@@ -35,6 +35,16 @@ from chainsim.game.gl.context import release_framebuffer
 from chainsim.systems.ui.viewports import Camera, Rect
 
 IMAGE_PX = 512
+#: a view shown larger than LARGE_VIEW_PX framebuffer pixels a side gets images of LARGE_IMAGE_PX
+LARGE_VIEW_PX = 560
+LARGE_IMAGE_PX = 1024
+
+
+def image_size(view_side_px: float) -> int:
+    """The side of the images made for a C-arm view of this many framebuffer pixels a side."""
+    return LARGE_IMAGE_PX if view_side_px > LARGE_VIEW_PX else IMAGE_PX
+
+
 #: edge enhancement: gain and blur radius (pixels of a IMAGE_PX image)
 EDGE_GAIN = 1.0
 EDGE_SIGMA_PX = 6.0
@@ -105,15 +115,20 @@ class FluoroDraw:
     live: bool = False
     attempt: int = 0  # the procedure attempt the C-arm counts for; a new one starts with no image
     images: int = 0  # images this attempt (shots, and live pulses)
+    window: float = 1.0  # the monitor's window width, times the automatic one
+    level: float = 0.0  # its centre, moved by this fraction of the automatic width (+: the image lighter)
+    size: int = IMAGE_PX  # pixels a side of the images made now (larger while the view is shown large)
 
 
 def _mat(m: np.ndarray) -> bytes:
     return np.asarray(m, np.float32).T.tobytes()
 
 
-def grey(path: np.ndarray) -> np.ndarray:
+def grey(path: np.ndarray, window: float = 1.0, level: float = 0.0) -> np.ndarray:
     """Attenuation L (H, W) -> display grey (H, W) uint8: linear in L, bright = little attenuation,
-    windowed over the round field by percentiles (automatic brightness), black outside the field."""
+    windowed over the round field by percentiles (automatic brightness), black outside the field.
+    `window` narrows (< 1) or widens the grey window about its centre, `level` moves the centre by
+    that fraction of the automatic width, as a monitor's window/level controls do."""
     h, w = path.shape
     yy, xx = np.mgrid[0:h, 0:w]
     r = 0.5 * min(h, w)
@@ -125,6 +140,9 @@ def grey(path: np.ndarray) -> np.ndarray:
     lo = min(lo, 0.0)
     if hi - lo < 1e-6:
         hi = lo + 1.0
+    if window != 1.0 or level != 0.0:
+        mid, half = 0.5 * (lo + hi) + level * (hi - lo), 0.5 * (hi - lo) * max(window, 1e-3)
+        lo, hi = mid - half, mid + half
     v = 1.0 - np.clip((sharp - lo) / (hi - lo), 0.0, 1.0)
     out = np.where(inside, 0.06 + 0.9 * v, 0.0)
     return np.round(out * 255.0).astype(np.uint8)
@@ -150,6 +168,7 @@ class FluoroRenderer:
         self.attempt = 0
         self.path: np.ndarray | None = None  # attenuation L of the image shown, rows top first
         self.camera: Camera | None = None  # its C-arm pose
+        self.contrast = (1.0, 0.0)  # the window/level the display texture was made with
 
     def capture(self, meshes: list[XrayMesh], camera: Camera) -> np.ndarray:
         """Attenuation image (size x size, float32, rows top first) of `meshes` seen by `camera`."""
@@ -188,14 +207,35 @@ class FluoroRenderer:
             self.attempt = draw.attempt
             if draw.images == 0 and draw.image_id == self.image_id:
                 self.shown, self.path = False, None
+        contrast = (draw.window, draw.level)
         if draw.image_id == self.image_id or draw.image_id <= 0:  # no new image (0: none taken yet)
+            if self.path is not None and contrast != self.contrast:  # the monitor's window/level turned
+                self._show(contrast)
             return False
+        if draw.size != self.size:
+            self._resize(draw.size)
         path = self.capture(draw.meshes, draw.camera)
-        g = grey(path)
+        self.path, self.camera, self.image_id, self.shown = path, draw.camera, draw.image_id, True
+        self._show(contrast)
+        return True
+
+    def _show(self, contrast: tuple[float, float]) -> None:
+        g = grey(self.path, *contrast)
+        if g.shape[0] != self.display.size[1]:
+            self.display.release()
+            self.display = self.ctx.texture((g.shape[1], g.shape[0]), 4)
+            self.display.filter = (self.ctx.LINEAR, self.ctx.LINEAR)
         rgba = np.dstack([g, g, g, np.full_like(g, 255)])
         self.display.write(np.ascontiguousarray(rgba[::-1]).tobytes())  # GL rows bottom first
-        self.path, self.camera, self.image_id, self.shown = path, draw.camera, draw.image_id, True
-        return True
+        self.contrast = contrast
+
+    def _resize(self, size: int) -> None:
+        """Make images of `size` pixels a side from now on (the one shown stays until the next)."""
+        release_framebuffer(self.ctx, self.fbo)
+        self.target.release()
+        self.size = int(size)
+        self.target = self.ctx.texture((self.size, self.size), 1, dtype="f4")
+        self.fbo = self.ctx.framebuffer(color_attachments=[self.target])
 
     def draw(self, r: Rect) -> None:
         """The latest image, square and centred in the framebuffer rectangle `r` (black around it)."""
@@ -215,7 +255,7 @@ class FluoroRenderer:
         """The image shown, as grey RGB (rows top first), or None before the first."""
         if self.path is None:
             return None
-        g = grey(self.path)
+        g = grey(self.path, *self.contrast)
         return np.dstack([g, g, g])
 
     def release(self) -> None:

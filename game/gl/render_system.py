@@ -27,7 +27,7 @@ from chainsim.components.fluoro import DETECTOR_MM, SOURCE_TO_DETECTOR_MM, SOURC
 from chainsim.components.hud import HudState
 from chainsim.components.resources import EntityIndex, InputState, PackResource, RunInfo, Settings
 from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
-from chainsim.game.gl.fluoro import FluoroDraw, XrayMesh
+from chainsim.game.gl.fluoro import FluoroDraw, XrayMesh, image_size
 from chainsim.game.gl.png import read_rgba, write_png
 from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
 from chainsim.systems.picking import surface_cache
@@ -312,7 +312,13 @@ def fluoro_draw(app) -> FluoroDraw | None:
         f"{carm.shots} images, {carm.exposure_s:.1f} s, {carm.dose_mgy:.2f} mGy"
     )
     images = carm.shots + (1 if carm.live_s > 0 else 0)
-    return FluoroDraw(camera, carm.image_id, meshes, status, carm.live, carm.attempt, images)
+    side = max((min(vp.rect.w, vp.rect.h) for vp in vs.viewports if vp.kind == "fluoro"), default=0)
+    target = app.get_resource(RenderTarget)
+    side *= target.scale if target is not None else 1.0
+    size = image_size(side)
+    return FluoroDraw(
+        camera, carm.image_id, meshes, status, carm.live, carm.attempt, images, vs.xray_window, vs.xray_level, size
+    )
 
 
 def capture_fluoro(app) -> None:

@@ -18,6 +18,7 @@ from PIL import Image
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import Assessment, PendingInput
 from chainsim.game.app.inputscript import load_script
+from chainsim.game.gl.fluoro import grey
 from chainsim.systems.ui.viewports import Rect, carm_camera
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -149,8 +150,51 @@ def test_submental_shot_of_a_correct_attempt_shows_the_needle_in_the_foramen(gl_
         rim = path[(r > 1.4 * radius) & (r < 2.2 * radius) & off_needle]
         assert hole.size > 20 and rim.size > 100
         assert np.median(rim) - np.median(hole) > 0.3  # about 4 mm of bone missing (0.08 / mm)
+        # and on the monitor: the oval is lighter than its rim, more so with the window narrowed on it
+        shown = fr.image_rgb()[..., 0].astype(float)
+        hole_mask, rim_mask = (r < 0.7 * radius) & off_needle, (r > 1.4 * radius) & (r < 2.2 * radius) & off_needle
+        seen = np.median(shown[hole_mask]) - np.median(shown[rim_mask])
+        assert seen >= 12.0, seen  # grey levels of 255
+        narrow = grey(path, window=0.5).astype(float)
+        assert np.median(narrow[hole_mask]) - np.median(narrow[rim_mask]) > 1.5 * seen
+        assert n == 512  # the small monitor's image
     finally:
         app.close()
+
+
+def test_the_big_xray_key_enlarges_the_monitor_and_its_images():
+    """v (the Big X-ray button): the C-arm view takes the surgeon's view's place, then the whole window,
+    then the layout comes back; a large view gets images of 1024 pixels a side."""
+    from chainsim.game.gl.fluoro import IMAGE_PX, LARGE_IMAGE_PX, image_size
+    from chainsim.systems.view import ViewState
+
+    app = open_app(str(PACK))
+    try:
+        vs = app.resource(ViewState)
+        carm0, surgeon0 = vs.get("carm").rect, vs.get("surgeon").rect
+        pending = app.resource(PendingInput)
+        pending.push(app.time.sim_time, Widget("enlarge:carm", None))
+        app.update(app.time.dt)
+        assert vs.get("carm").rect == surgeon0 and vs.get("surgeon").rect == carm0
+        assert image_size(min(surgeon0.w, surgeon0.h)) == LARGE_IMAGE_PX and image_size(carm0.w) == IMAGE_PX
+        pending.push(app.time.sim_time, Widget("enlarge:carm", None))
+        app.update(app.time.dt)
+        full = vs.get("carm").rect
+        assert (full.w, full.h) == vs.size and vs.at(full.w // 2, full.h // 2).name == "carm"
+        pending.push(app.time.sim_time, Widget("enlarge:carm", None))
+        app.update(app.time.dt)
+        assert vs.get("carm").rect == carm0 and vs.get("surgeon").rect == surgeon0
+    finally:
+        app.close()
+
+
+def test_window_level_narrows_and_moves_the_grey_window():
+    rng = np.random.default_rng(3)
+    path = np.clip(rng.normal(2.0, 0.5, (64, 64)), 0.5, None)
+    auto, narrow, darker = grey(path), grey(path, window=0.5), grey(path, level=0.3)
+    inside = auto > 0
+    assert np.std(narrow[inside].astype(float)) > np.std(auto[inside].astype(float))
+    assert np.mean(darker[inside].astype(float)) > np.mean(auto[inside].astype(float))  # centre up: L reads lighter
 
 
 def test_the_image_stays_frozen_until_the_next_shot(gl_ctx):
