@@ -38,7 +38,7 @@ from chainsim.engine.kernels.chainmail import make_workspace, material_arrays
 from chainsim.engine.kernels.graph import build_graph
 
 ORDERS = ORDER_CHOICES  # breadth-first, balanced, schill, depth-first; fifo = breadth-first
-MODEL_CHOICES = ("chainmail", "xpbd", "projective", "auto")
+MODEL_CHOICES = ("chainmail", "xpbd", "projective", "hybrid", "auto")
 #: the speed-accuracy table `model = "auto"` chooses from (written by `chainsim study speed-accuracy`)
 MODEL_TABLE = ASSETS_DIR / "presets" / "models.toml"
 SOURCES = ("auto", "surface", "volume")
@@ -407,6 +407,8 @@ def use_model(d: Deformable, model: str, where: str = "deformable", initial: boo
         }
         if model == "xpbd":
             settings.update(substeps=d.substeps or "auto", iterations=d.iterations or 1)
+        elif model == "hybrid":  # one two-level iteration a frame (chainsim.engine.bodies.hybrid)
+            settings.update(iterations=d.iterations or 1)
         else:
             settings.update(
                 iterations=d.iterations or 10,

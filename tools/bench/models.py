@@ -23,6 +23,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from chainsim.engine.bodies.hybrid import HybridBody
 from chainsim.engine.bodies.projective import ProjectiveBody
 from chainsim.engine.bodies.xpbd import XPBDBody
 from chainsim.engine.errors import UserError
@@ -47,6 +48,10 @@ def _xpbd(substeps):
     return lambda s: XPBDBody(s.pos, s.tets, E=s.E, nu=s.nu, damping=0.1, substeps=substeps, fixed=s.fixed, unit=s.unit)
 
 
+def _hybrid(**kw):
+    return lambda s: HybridBody(s.pos, s.tets, E=s.E, nu=s.nu, fixed=s.fixed, unit=s.unit, **kw)
+
+
 SETTINGS = {
     "xpbd, substeps by rule": _xpbd("auto"),
     "xpbd, 1 substep": _xpbd(1),
@@ -55,6 +60,9 @@ SETTINGS = {
     "projective statics, CG 6, 1 iteration": _pd(iterations=1, solver="cg", cg_iterations=6, rotation_iterations=1),
     "projective statics, CG 10, 1 iteration": _pd(iterations=1, solver="cg", cg_iterations=10, rotation_iterations=1),
     "projective statics, CG 20, 1 iteration": _pd(iterations=1, solver="cg", cg_iterations=20, rotation_iterations=1),
+    "hybrid, ChainMail start, CG 6": _hybrid(coarse=0.0, start="chainmail", cg_iterations=6, rotation_iterations=1),
+    "hybrid, coarse 3 edges, CG 6, 3 rotations": _hybrid(coarse=3.0, cg_iterations=6, rotation_iterations=3),
+    "hybrid, coarse 3 edges, CG 3, 2 rotations": _hybrid(coarse=3.0, cg_iterations=3, rotation_iterations=2),
 }
 
 

@@ -19,11 +19,12 @@ from numpy.typing import ArrayLike
 from chainsim.engine import meshgen
 from chainsim.engine.bodies.base import Body
 from chainsim.engine.bodies.chainmail import ChainMailBody
+from chainsim.engine.bodies.hybrid import HybridBody
 from chainsim.engine.bodies.projective import ProjectiveBody
 from chainsim.engine.bodies.xpbd import XPBDBody
 from chainsim.engine.errors import UserError
 
-MODELS = ("chainmail", "xpbd", "projective")
+MODELS = ("chainmail", "xpbd", "projective", "hybrid")
 
 
 def make_body(
@@ -56,6 +57,12 @@ def make_body(
         keys += ("dynamic", "solver", "cg_iterations", "rotation_iterations")
         kw = {k: settings[k] for k in keys if k in settings}
         return ProjectiveBody(rest, tets if has_tets else None, None if has_tets else triangles, fixed=fixed, **kw)
+    if model == "hybrid":
+        if not has_tets:
+            raise UserError("a hybrid body needs tetrahedra (surfaces: use projective or xpbd)")
+        kw = {k: settings[k] for k in HYBRID_PARAMS + ("E", "nu", "density", "unit") if k in settings}
+        kw.update({k: settings[k] for k in ("alpha_min", "alpha_max", "beta") if k in settings})
+        return HybridBody(rest, tets, fixed=fixed, **kw)
     raise UserError(f"model: expected one of {', '.join(MODELS)}, got {model!r}")
 
 
@@ -65,6 +72,9 @@ ROW_PARAMS = {
     "xpbd": ("substeps", "iterations", "constraints", "damping"),
     "projective": ("iterations", "dynamic", "solver", "cg_iterations", "rotation_iterations", "damping"),
 }
+#: the hybrid body's settings; they join ROW_PARAMS (so `auto` can take them) with the study's first rows for
+#: it, since the shipped table must hold rows for every model it names
+HYBRID_PARAMS = ("iterations", "cg_iterations", "rotation_iterations", "coarse", "start", "sleep", "wake_rings")
 #: with no budget at all, `auto` keeps to one 60 Hz frame
 DEFAULT_TIME_BUDGET_MS = 16.7
 

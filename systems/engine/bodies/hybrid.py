@@ -1,0 +1,294 @@
+"""Tissue that settles in a few frames: projective dynamics (the corotational energy of
+chainsim.engine.bodies.projective) solved by a two-level iteration, with sleeping far from the tool.
+
+Why two levels: projective dynamics' local-global iteration contracts by about 1 - 2 mu / (2 mu + 3
+lambda) per iteration (0.976 at nu = 0.45), because its global matrix is a Laplacian per axis and knows
+nothing of the coupling of the axes through the volume term; a grab from rest then takes tens of
+frames with a few CG steps each. Linear elasticity's stiffness K (the energy's Hessian at rest) does know
+it, and the smooth part of the answer, the part that is slow for the Laplacian, is what a coarse grid
+represents well. So each frame:
+
+1. one local step gives the forces f = -grad W at the current shape (rotations warm-started);
+2. coarse correction: the displacement in the span of a trilinear coarse grid (spacing `coarse` times
+   the mean edge) that minimises the linearised energy, P (P^T K P)^-1 P^T f (Galerkin, factorised once
+   per set of held and awake nodes, a few thousand unknowns);
+3. smoothing: a few CG steps on projective dynamics' global matrix L for the forces left after step 2
+   (updated linearly through K), which fixes what the coarse grid cannot represent.
+
+The coarse step is a Newton step with the rest Hessian, right only while the rotations follow the
+shape: with one rotation refinement per local step they lag a sudden grab and the iteration diverged
+on a 10k-node block (lifted 10 %); three per step converge (hence the default, measured in `chainsim
+bench models`).
+
+The iteration's fixed point is f = 0, the projective energy's equilibrium, so its answer is the static
+projective solution (statics: no inertia), and it returns to rest after release the same way. With
+`start = "chainmail"` a new grab target first runs one ChainMail cascade (thesis 5.2.3) from the
+current shape as the solve's start, the idea of starting physics from the cascade's one-pass
+spread; `coarse = 0` leaves out the coarse step (then this is projective dynamics with CG steps).
+
+Sleeping (`sleep` > 0): only awake nodes are solved; sleepers are held where they are. A grab wakes the
+held nodes and `wake_rings` rings around them; after each frame the sleepers next to an awake node that
+moved more than `sleep` times the displacement scale wake (with `wake_rings` rings), so the awake region
+follows the disturbance outwards; with nothing grabbed and every change below the threshold, the body
+falls asleep. The cost of a frame is then that of the awake region, not of the body.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import ArrayLike
+from scipy.sparse.linalg import splu
+
+from chainsim.engine import meshgen
+from chainsim.engine.bodies.base import StepStats
+from chainsim.engine.bodies.chainmail import ChainMailBody
+from chainsim.engine.bodies.projective import ProjectiveBody
+from chainsim.engine.errors import UserError
+from chainsim.engine.kernels.projective import local_step, pcg3, spmv3
+from chainsim.engine.kernels.twolevel import tet_stiffness, trilinear_weights, wake_front
+
+STARTS = ("none", "chainmail")
+#: set-ups kept for held/awake sets seen before (a release and a re-grab of the same patch cost nothing)
+CACHE = 4
+
+
+class HybridBody(ProjectiveBody):
+    """Static projective dynamics on tetrahedra, solved by coarse correction plus CG smoothing."""
+
+    model = "hybrid"
+
+    def __init__(
+        self,
+        rest: ArrayLike,
+        tets: ArrayLike,
+        *,
+        E: float = 3000.0,
+        nu: float = 0.45,
+        density: float = 1000.0,
+        iterations: int = 1,
+        cg_iterations: int = 6,
+        rotation_iterations: int = 3,
+        coarse: float = 3.0,
+        start: str = "none",
+        sleep: float = 0.0,
+        wake_rings: int = 4,
+        unit: float = 1.0,
+        fixed: ArrayLike | None = None,
+        alpha_min: float = 0.8,
+        alpha_max: float = 1.2,
+        beta: float = 0.1,
+    ) -> None:
+        if tets is None or len(tets) == 0:
+            raise UserError("a hybrid body needs tetrahedra (surfaces: use projective or xpbd)")
+        super().__init__(
+            rest,
+            tets,
+            E=E,
+            nu=nu,
+            density=density,
+            iterations=iterations,
+            dynamic=False,
+            unit=unit,
+            solver="cg",
+            cg_iterations=cg_iterations,
+            rotation_iterations=rotation_iterations,
+            fixed=fixed,
+        )
+        self.notice = ""  # CG is this body's own choice, not a switch from what was asked
+        if not (coarse == 0.0 or 1.5 <= coarse <= 16.0):
+            raise UserError(f"coarse: expected 0 (off) or a grid spacing of 1.5..16 mean edges, got {coarse}")
+        if start not in STARTS:
+            raise UserError(f"start: expected one of {', '.join(STARTS)}, got {start!r}")
+        if not (math.isfinite(sleep) and 0.0 <= sleep < 1.0):
+            raise UserError(f"sleep: expected a threshold in [0, 1) of the displacement scale, got {sleep}")
+        if not (1 <= int(wake_rings) <= 1000):
+            raise UserError(f"wake_rings: expected 1..1000, got {wake_rings}")
+        self.coarse, self.start, self.sleep, self.wake_rings = float(coarse), start, float(sleep), int(wake_rings)
+        rest_si = self.rest * self.unit
+        links = meshgen.links_from_cells(self.tets)
+        self.edge = float(np.mean(np.linalg.norm(rest_si[links[:, 0]] - rest_si[links[:, 1]], axis=1)))
+        self.K_e = tet_stiffness(self.D, self.vol, self.mu, self.lam)
+        if self.coarse:
+            h = self.coarse * self.edge
+            lo = rest_si.min(axis=0)
+            dims = np.maximum(np.ceil((rest_si.max(axis=0) - lo) / h).astype(np.int64) + 1, 2)
+            self._cids, self._cw = trilinear_weights(rest_si, lo, h, dims)
+        self._chain = None
+        if start == "chainmail":
+            self._chain = ChainMailBody(self.rest, self.graph, alpha_min, alpha_max, beta, fixed=self.fixed)
+        self.awake = np.ones(self.n, dtype=np.bool_) if not self.sleep else np.zeros(self.n, dtype=np.bool_)
+        self._setups: dict = {}
+        self._setup = None
+        self._last_targets = None
+        self._sleep_scale = 0.0
+        self._prev_last = 0.0
+
+    # -- set-up per held and awake set ----------------------------------------------------------
+    def _grab_changed(self) -> None:
+        if self.sleep and len(self.grab_ids):
+            self._wake_around(self.grab_ids)
+        self._setup = None
+
+    def _wake_around(self, ids: np.ndarray) -> None:
+        change = np.zeros(self.n)
+        seed = np.zeros(self.n, dtype=np.bool_)
+        seed[ids] = True
+        self.awake[ids] = True
+        change[ids] = 1.0
+        wake_front(self.graph.indptr, self.graph.indices, self.awake, change, 0.5, self.wake_rings)
+
+    def _prepare_hybrid(self) -> dict:
+        held = self.fixed.copy()
+        held[self.grab_ids] = True
+        solve = ~held & self.awake
+        key = (solve.tobytes(), self.active.tobytes())
+        hit = self._setups.get(key)
+        if hit is not None:
+            return hit
+        t0 = time.perf_counter()
+        free = np.flatnonzero(solve)
+        loc = np.full(self.n, -1, dtype=np.int64)
+        loc[free] = np.arange(len(free))
+        # elements with a node to solve for: the only ones whose forces matter this frame
+        touch = self.active & solve[self.tets].any(axis=1)
+        t = self.tets[touch]
+        # projective dynamics' global matrix L (one per axis), split into solved and other columns
+        D = self.D[touch]
+        w = (self.w_arap + self.w_vol)[touch]
+        blocks = (np.einsum("tkc,tlc->tkl", D, D) * w[:, None, None]).ravel()
+        rows, cols = np.repeat(t, 4, axis=1).ravel(), np.tile(t, (1, 4)).ravel()
+        keep = solve[rows]
+        rows, cols, blocks = rows[keep], cols[keep], blocks[keep]
+        inner = solve[cols]
+        nf = len(free)
+        L_ff = sp.csr_matrix((blocks[inner], (loc[rows[inner]], loc[cols[inner]])), shape=(nf, nf))
+        L_fo = sp.csr_matrix((blocks[~inner], (loc[rows[~inner]], cols[~inner])), shape=(nf, self.n))
+        diag = L_ff.diagonal()
+        if nf and np.any(diag <= 0.0):  # a node with no live element keeps its place
+            L_ff = L_ff + sp.diags(np.where(diag <= 0.0, 1.0, 0.0))
+            diag = L_ff.diagonal()
+        L_ff.sort_indices()
+        s = {
+            "free": free,
+            "touch": touch,
+            "L_ff": (L_ff.indptr.astype(np.int64), L_ff.indices.astype(np.int64), L_ff.data),
+            "L_fo": L_fo,
+            "inv_diag": 1.0 / diag if nf else np.zeros(0),
+            "scratch": [np.zeros((nf, 3)) for _ in range(5)],
+            "coarse": None,
+        }
+        if self.coarse and nf:
+            # K on the solved dofs (3 i + axis), from the elements that touch them
+            dof = (3 * t[:, :, None] + np.arange(3)).reshape(len(t), 12)
+            kr, kc = np.repeat(dof, 12, axis=1).ravel(), np.tile(dof, (1, 12)).ravel()
+            kv = self.K_e[touch].ravel()
+            node_r, node_c = kr // 3, kc // 3
+            ok = solve[node_r] & solve[node_c]
+            K_ff = sp.csr_matrix(
+                (kv[ok], (3 * loc[node_r[ok]] + kr[ok] % 3, 3 * loc[node_c[ok]] + kc[ok] % 3)), shape=(3 * nf, 3 * nf)
+            )
+            ids, cw = self._cids[free], self._cw[free]
+            used, cidx = np.unique(ids, return_inverse=True)
+            P = sp.csr_matrix((cw.ravel(), (np.repeat(np.arange(nf), 8), cidx.ravel())), shape=(nf, len(used)))
+            P3 = sp.kron(P, sp.eye(3), format="csr")
+            Kc = (P3.T @ K_ff @ P3).tocsc()
+            cd = Kc.diagonal()
+            if np.any(cd <= 1e-300 * max(cd.max(), 1e-300)):
+                Kc = Kc + sp.diags(np.where(cd <= 1e-300 * max(cd.max(), 1e-300), 1.0, 0.0))
+            factor = splu(Kc, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+            s["coarse"] = (K_ff, P3, factor)
+        s["seconds"] = time.perf_counter() - t0
+        if len(self._setups) >= CACHE:
+            self._setups.pop(next(iter(self._setups)))
+        self._setups[key] = s
+        return s
+
+    # -- a frame ----------------------------------------------------------------------------------
+    def _solve(self, dt: float) -> StepStats:
+        t0 = time.perf_counter()
+        x = self.x
+        targets = self.grab_targets * self.unit
+        if self._chain is not None and len(self.grab_ids):
+            moved = self._last_targets is None or not np.array_equal(self._last_targets, targets)
+            if moved:  # a new target: the cascade spreads it through the body in one pass, the solve refines
+                self._chain.positions[:] = x / self.unit
+                self._chain.held = np.zeros(0, dtype=np.int64)
+                self._chain.move(self.grab_ids, self.grab_targets)
+                x[:] = self._chain.positions * self.unit
+        self._last_targets = targets.copy()
+        if self._setup is None:
+            self._setup = self._prepare_hybrid()
+        s = self._setup
+        free = s["free"]
+        x[self.grab_ids] = targets
+        disp = float(np.max(np.abs(x - self.rest * self.unit))) if len(x) else 0.0
+        scale = max(disp, 1e-12 * self._scale)
+        change = np.zeros(self.n)
+        done = 0
+        last = 0.0
+        if len(free):
+            rhs = self._rhs if self._rhs is not None and self._rhs.shape == x.shape else np.zeros_like(x)
+            self._rhs = rhs
+            mask = s["touch"]
+            indptr, indices, data = s["L_ff"]
+            r, z, p, q, d = s["scratch"]
+            for _ in range(self.iterations):
+                done += 1
+                local_step(
+                    x, self.tets, self.D, mask, self.w_arap, self.w_vol, self.quats, self.rotation_iterations, rhs
+                )
+                # forces on the solved nodes: f = rhs - L x (minus the energy's gradient)
+                xf = x[free]
+                Lx = np.empty_like(xf)
+                spmv3(indptr, indices, data, xf, Lx)
+                f = rhs[free] - Lx - s["L_fo"] @ x
+                step = np.zeros_like(xf)
+                if s["coarse"] is not None:
+                    K_ff, P3, factor = s["coarse"]
+                    dc = P3 @ factor.solve(P3.T @ f.ravel())
+                    f -= (K_ff @ dc).reshape(-1, 3)
+                    step += dc.reshape(-1, 3)
+                d[:] = 0.0
+                pcg3(indptr, indices, data, s["inv_diag"], f, d, self.cg_iterations, 1e-10, r, z, p, q)
+                step += d
+                x[free] = xf + step
+                last = float(np.max(np.abs(step))) if len(step) else 0.0
+            change[free] = np.sqrt(np.sum(step * step, axis=1))
+        if self.sleep:
+            # measured against the largest displacement since the body last slept: after a release the
+            # body's own displacement shrinks towards zero, and a threshold relative to it never falls
+            self._sleep_scale = max(self._sleep_scale, scale)
+            threshold = self.sleep * self._sleep_scale
+            woke = wake_front(self.graph.indptr, self.graph.indices, self.awake, change, threshold, self.wake_rings)
+            if woke:
+                self._setup = None
+            # converging linearly, about last * rate / (1 - rate) is still to go: a body that creeps
+            # slowly is not at rest, and freezing it would keep the creep's shape
+            rate = last / self._prev_last if self._prev_last > 0.0 else 1.0
+            remaining = last / (1.0 - rate) if rate < 1.0 else math.inf
+            self._prev_last = last
+            if not woke and len(self.grab_ids) == 0 and remaining <= threshold:
+                self.awake[:] = False  # nothing held and nothing moving: the body sleeps
+                self._setup = None
+                self._sleep_scale = 0.0
+        np.divide(x, self.unit, out=self._positions)
+        extra = {"setup_s": s["seconds"], "awake": int(self.awake.sum()), "solved": len(free)}
+        return StepStats(done, last / scale if scale > 0 else 0.0, 0, time.perf_counter() - t0, extra)
+
+    def _cut(self, p0, p1, normal, depth) -> int:
+        killed = super()._cut(p0, p1, normal, depth)
+        if killed:
+            self._setups.clear()
+            self._setup = None
+        return killed
+
+    def reset(self) -> None:
+        super().reset()
+        if self.sleep:
+            self.awake[:] = False
+        self._setup = None
+        self._last_targets = None
