@@ -36,6 +36,10 @@ class HudState:
     status: str = ""
     # a question or notice in the page box (quit with an unsaved attempt, preparing the model); "" none
     notice: str = ""
+    # the attempt's debrief over the main view: (text, tone) rows, tone one of chainsim.systems.procedures.
+    # needle.debrief's (head, pass, fail, note, advice, critical); and its lines over the last X-ray image
+    debrief: list[tuple[str, str]] = field(default_factory=list)
+    debrief_paths: list[tuple] = field(default_factory=list)  # (points (K, 3) world mm, RGBA)
 
     def open_doc(self, name: str | None = None) -> None:
         if name:

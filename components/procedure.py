@@ -126,6 +126,13 @@ section(
             "landmark step).",
         ),
         Field("reset_all_step", "str", "", help="Step a shift+Reset returns to (default: the first landmark step)."),
+        Field(
+            "ideal_path",
+            "str",
+            "",
+            help="[paths] name ({side} allowed) of the ideal needle path, drawn against the trainee's in the "
+            "debrief; empty: none drawn.",
+        ),
     ],
 )
 

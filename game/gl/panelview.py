@@ -51,8 +51,97 @@ def fluoro_status(ov: Overlay, status: str, live: bool, has_image: bool, r: Rect
         ov.label("LIVE", r.x + r.w - w - 1 * s, r.y + r.h - f.ascent - 6 * s, TEXT)
 
 
+DEBRIEF_TONES = {
+    "head": (0.45, 0.95, 0.55, 1.0),
+    "critical": (1.0, 0.42, 0.38, 1.0),
+    "pass": (0.55, 0.95, 0.60, 1.0),
+    "fail": (1.0, 0.55, 0.50, 1.0),
+    "plain": TEXT,
+    "note": TEXT,
+    "advice": MESSAGE,
+}
+#: the debrief box takes at most this share of the main view's height (the head stays in sight above it)
+DEBRIEF_SHARE = 0.5
+
+
+def debrief_layout(
+    f, rows: list[tuple[str, str]], width: float, columns: bool = True
+) -> list[list[tuple[str, str, float]]] | None:
+    """Lines of (text, tone, x offset): metric rows two to a line (None when one does not fit half the
+    width), or with `columns` false one to a line; every other row wrapped to the whole width."""
+    col = (width - 12) / 2
+    metric = [t for t, tone in rows[1:] if tone in ("pass", "fail", "plain")]
+    two = columns and bool(metric)
+    if two and not all(f.width(t) <= col for t in metric):
+        return None
+    lines: list[list[tuple[str, str, float]]] = []
+    pending: list[tuple[str, str, float]] = []
+    for i, (text, tone) in enumerate(rows):
+        if two and i > 0 and tone in ("pass", "fail", "plain"):
+            pending.append((text, tone, 0.0 if not pending else col + 12))
+            if len(pending) == 2:
+                lines.append(pending)
+                pending = []
+            continue
+        if pending:
+            lines.append(pending)
+            pending = []
+        lines += [[(t, tone, 0.0)] for t in f.wrap(text, width)]
+    if pending:
+        lines.append(pending)
+    return lines
+
+
+def debrief(ov: Overlay, rows: list[tuple[str, str]], r: Rect, s: float) -> None:
+    """The attempt's debrief in a box along the bottom of the main view, in the largest font (down to
+    two thirds of the main one) whose lines all fit in DEBRIEF_SHARE of the view's height."""
+    pad = 8 * s
+    w = r.w - 2 * pad
+    base = ov.font_px_base
+    # two columns in the largest font that fits, else one column; the head stays in sight above the box
+    tries = [(k, c) for c in (True, False) for k in (1.0, 0.92, 0.84, 0.76, 0.7)]
+    for k, c in tries:
+        f = ov.font_sized(base * k)
+        lines = debrief_layout(f, rows, w - 2 * pad, c)
+        if lines is None:
+            continue
+        bh = len(lines) * f.line_h + pad
+        if bh <= r.h * DEBRIEF_SHARE:
+            break
+    y0 = r.y + pad
+    ov.rect(r.x + pad, y0, w, bh, (0.0, 0.0, 0.0, 0.78))
+    top = y0 + bh - pad / 2
+    for i, line in enumerate(lines):
+        for text, tone, dx in line:
+            ov.label(
+                text,
+                r.x + 2 * pad + dx,
+                top - (i + 1) * f.line_h + f.descent,
+                DEBRIEF_TONES.get(tone, TEXT),
+                max_w=w - 2 * pad - dx,
+                font=f,
+                bold=tone in ("head", "critical"),
+            )
+
+
+def debrief_paths(ov: Overlay, camera, r: Rect, paths: list[tuple], s: float, square: bool = False) -> None:
+    """The debrief's ideal path and the trainee's, projected with a view's camera and drawn over it
+    (in front of skin and bone, which would hide them inside the head). `square`: the X-ray image,
+    drawn square and centred in its view."""
+    side = min(r.w, r.h)
+    sq = Rect(r.x + (r.w - side) // 2, r.y + (r.h - side) // 2, side, side) if square else r
+    for pts, color in paths:
+        p = camera.project(np.asarray(pts, float).reshape(-1, 3), sq)
+        for a, b in zip(p[:-1], p[1:], strict=True):
+            if -1 < a[2] < 1 and -1 < b[2] < 1:
+                ov.segment(a[0], a[1], b[0], b[1], color, 2.5 * s)
+
+
 def hud(ov: Overlay, h, r: Rect, s: float) -> None:
-    """Step title, instruction and messages in a dark band at the top of the main view."""
+    """Step title, instruction and messages in a dark band at the top of the main view; the debrief,
+    while shown, along its bottom."""
+    if getattr(h, "debrief", None):
+        debrief(ov, h.debrief, r, s)
     f = ov.font
     pad = 8 * s
     width = min(r.w - 2 * pad, 640 * s)

@@ -685,6 +685,8 @@ class Renderer:
                 panelview.view_title(ov, view.title, r, s)
             if view.kind == "fluoro" and frame.fluoro is not None:
                 panelview.fluoro_status(ov, frame.fluoro.status, frame.fluoro.live, self.fluoro.shown, r, s)
+                if frame.hud is not None and frame.hud.debrief_paths and self.fluoro.shown:
+                    panelview.debrief_paths(ov, frame.fluoro.camera, r, frame.hud.debrief_paths, s, square=True)
             if view.camera is not None:
                 seen = self._seen(self._labels_seen.get((r.x, r.y, r.w, r.h), []))
                 for k, (pos, text, color) in enumerate(frame.labels):
@@ -694,6 +696,8 @@ class Renderer:
                     if -1 < z < 1 and r.contains(x, y):
                         panelview.backed_label(ov, text, x + 4 * s, y + 4 * s, color, s)
             hud = frame.hud
+            if hud is not None and hud.debrief_paths and view.name == frame.hud_view and view.camera is not None:
+                panelview.debrief_paths(ov, view.camera, r, hud.debrief_paths, s)
             if hud is not None and view.name == hud.aim_view and view.camera is not None:
                 panelview.aim(ov, view.camera, r, hud.aim_target, hud.aim_note, s)
             if hud is not None and view.name == frame.hud_view:

@@ -347,6 +347,23 @@ section(
         ),
         Field("role", "str", "", help="measure = contacts: the role whose contacts are counted."),
         Field("step", "str", "", help="measure = step_time: the step timed."),
+        Field(
+            "benchmark",
+            "float",
+            None,
+            help="Proficiency level in the metric's units: the debrief passes a value at or below it (at or "
+            "above when lower_is_better is false). Absent: the metric is shown without a verdict.",
+        ),
+        Field("benchmark_source", "str", "", help="Where the benchmark comes from (a study, an expert group)."),
+        Field(
+            "critical",
+            "float",
+            None,
+            help="A value beyond this (above it when lower is better) is a critical error that fails the attempt "
+            "whatever the rest; so is no value at all (a needle that touched nothing).",
+        ),
+        Field("critical_note", "str", "", help="The critical error in words, as the debrief says it."),
+        Field("advice", "str", "", help="One line of advice the debrief gives when the metric fails."),
     ],
 )
 

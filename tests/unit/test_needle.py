@@ -47,9 +47,9 @@ def make_synthetic_pack(root: Path) -> Path:
 
     root = Path(root)
     (root / "meshes").mkdir(parents=True, exist_ok=True)
-    # the display copies and the enclosure claims belong to the real anatomy, not to this one
+    # the display copies, the enclosure claims and the ideal path belong to the real anatomy, not to this one
     manifest = (PACK / "pack.toml").read_text(encoding="utf-8").splitlines()
-    keep = [ln for ln in manifest if not ln.startswith(("display = ", "inside = "))]
+    keep = [ln for ln in manifest if not ln.startswith(("display = ", "inside = ", "ideal_path = "))]
     (root / "pack.toml").write_text("\n".join(keep) + "\n", encoding="utf-8")
     shutil.copytree(PACK / "docs", root / "docs", dirs_exist_ok=True)
     (root / "scripts").mkdir(exist_ok=True)

@@ -20,6 +20,12 @@ redirections, the aids that were on at any time of the attempt, the object reach
 the attempt cost (thesis 3.2.3; .fluoro): single images `xray_shots`, live seconds `fluoro_s`, total
 `exposure_s` and the estimated entrance dose `dose_mgy`.
 
+The debrief (Self assessment, and every save) says each metric against the pack's benchmark, the
+critical errors and one line of advice per failed metric (chainsim.systems.procedures.needle.debrief)
+in HudState.debrief over the surgeon's view, and draws while it is shown the ideal landmarks and the
+ideal path against the trainee's (entities with Marker and PolyLine; HudState.debrief_paths over the
+last X-ray image). The attempt stores its thinned needle path and the ideal geometry in `details`.
+
 The record saved per attempt keeps the records' fixed columns and adds `metrics`: every [metrics.NAME]
 of the pack with its value (`measure` picks it from the vocabulary), stored in the procedure-neutral
 metrics table (chainsim.game.records.schema).
@@ -30,6 +36,7 @@ from __future__ import annotations
 import esper
 import numpy as np
 
+from chainsim.components.core import Marker, PolyLine, Transform
 from chainsim.components.fluoro import CArm
 from chainsim.components.input_events import Widget
 from chainsim.components.needle import NeedleState
@@ -44,6 +51,7 @@ from chainsim.components.resources import (
     Settings,
 )
 from chainsim.engine.errors import UserError
+from chainsim.systems.procedures.needle import debrief as db
 from chainsim.systems.procedures.needle.handles import NeedleHandles, hud
 from chainsim.systems.stages import ORDER_ASSESSMENT
 from chainsim.systems.ui.widgets import format_value
@@ -242,6 +250,10 @@ DETAIL_KEYS = (
     "rotation_horizontal_deg",
     "rotation_vertical_deg",
     "fluoro_s",
+    "needle_path",
+    "ideal_path",
+    "ideal_landmarks",
+    "verdict",
 )
 
 
@@ -316,21 +328,148 @@ def delete_own(app, attempt_id: int) -> None:
     rec.delete_attempt(*_who(app), attempt_id)
 
 
+def geometry(app, v: dict, trace: list) -> None:
+    """Add to `v` what the debrief draws: the needle path (thinned), the ideal path and the ideal
+    place of each placed landmark (the nearest point its D and d would call perfect)."""
+    scene: NeedleScene = app.resource(NeedleScene)
+    side = v["side"] or scene.sides[0]
+    v["needle_path"] = db.thin(trace) if len(trace) else []
+    npc = app.resource(PackResource).pack.section("needle_procedure")
+    path = app.resource(PackResource).pack.section("paths").get(npc.get("ideal_path", "").format(side=side))
+    v["ideal_path"] = (
+        [[round(float(c), 2) for c in path["entry"]], [round(float(c), 2) for c in path["target"]]] if path else None
+    )
+    ideal = []
+    for t, mark in zip(scene.landmark_targets[side], v["landmarks"], strict=False):
+        p = None if mark is None else db.ideal_landmark(t.point, t.ideal_mm, t.plane, mark)
+        ideal.append(None if p is None else [round(float(c), 2) for c in p])
+    v["ideal_landmarks"] = ideal
+    o = db.outcome(db.verdicts(app.resource(PackResource).pack.section("metrics"), v["metrics"]))
+    v["verdict"] = {"passed": o["passed"], "met": o["met"], "judged": o["judged"], "critical": o["critical"]}
+
+
+def debrief_rows(v: dict, scene: NeedleScene, pack) -> list[tuple[str, str]]:
+    """The debrief as (text, tone) rows: the verdict, one row per metric with its benchmark, the
+    landmark terms, the X-ray and aids, the advice for each failed metric and what the views show."""
+    rows = db.verdicts(pack.section("metrics"), v["metrics"])
+    o = db.outcome(rows)
+    head = f"Debrief, attempt {v.get('attempt', 1)}" + (f" ({v['side']} side)" if v["side"] else "")
+    out = [(f"{head}: {db.verdict_line(o)}", db.CRITICAL if (o["critical"] or not o["passed"]) else db.HEAD)]
+    for r in rows:
+        text = f"{r['label']}: {r['shown']}"
+        if r["passed"] is None:
+            out.append((f"{text} (no benchmark)", db.PLAIN))
+        else:
+            word = "CRITICAL" if r["critical"] else "pass" if r["passed"] else "FAIL"
+            out.append((f"{text} - {word} ({r['threshold']})", db.PASS if r["passed"] else db.FAIL))
+    n = len(scene.landmark_ids)
+    if n and v.get("D1") is not None:
+        ds = ", ".join(db.number(v[f"D{k}"], "mm") for k in range(1, n + 1))
+        dp = ", ".join(db.number(v[f"d{k}"], "mm") for k in range(1, n + 1))
+        out.append(
+            (f"Landmarks 1-{n}: off the ideal distance (D) {ds}; off their planes (d) {dp}", db.NOTE),
+        )
+    on = [k.replace("_", " ") for k, x in v["aids"].items() if x]
+    out.append(
+        (
+            f"X-ray: {v.get('xray_shots', 0)} images, {v.get('fluoro_s', 0.0):.1f} s live. "
+            f"Aids used: {', '.join(on) if on else 'none'}",
+            db.NOTE,
+        )
+    )
+    for r in rows:
+        if r["advice"]:
+            out.append((f"{r['label']}: {r['advice']}", db.ADVICE))
+    if v.get("ideal_path") or any(v.get("ideal_landmarks") or []):
+        out.append(("Green: the ideal landmarks and path; orange: your needle's path (surgeon's view, X-ray)", db.NOTE))
+    return out
+
+
+DEBRIEF_GREEN = (0.25, 1.0, 0.45, 1.0)
+DEBRIEF_ORANGE = (1.0, 0.55, 0.1, 1.0)
+DEBRIEF_OFFSET = (1.0, 1.0, 1.0, 0.9)
+
+
+class DebriefDrawing:
+    """The ideal landmarks as entities in the 3-D views (made on first use, hidden when closed); the
+    paths are drawn over the views from HudState.debrief_paths (inside the head, bone would hide them)."""
+
+    def __init__(self) -> None:
+        self.marks: list[int] = []
+        self.offsets: list[int] = []
+
+    def show(self, v: dict | None) -> None:
+        ideal = (v or {}).get("ideal_landmarks") or []
+        while len(self.marks) < len(ideal):
+            self.marks.append(esper.create_entity(Transform(), Marker(radius=1.3, color=np.array(DEBRIEF_GREEN))))
+            self.offsets.append(esper.create_entity(PolyLine(color=DEBRIEF_OFFSET, visible=False, layer="debrief")))
+        lines = []
+        for k, (mark, off) in enumerate(zip(self.marks, self.offsets, strict=True)):
+            p = ideal[k] if v is not None and k < len(ideal) else None
+            m = esper.component_for_entity(mark, Marker)
+            m.visible = p is not None
+            if p is not None:
+                esper.component_for_entity(mark, Transform).position = np.asarray(p, float)
+            lines.append((off, None if p is None else [v["landmarks"][k], p]))
+        for ent, pts in lines:
+            pl = esper.component_for_entity(ent, PolyLine)
+            pl.visible = bool(pts) and len(pts) >= 2
+            if pl.visible:
+                pl.points = np.asarray(pts, float).reshape(-1, 3)
+
+    def paths(self, v: dict) -> list[tuple]:
+        """The lines drawn over the last X-ray image: (points (K, 3), RGBA)."""
+        out = []
+        if v.get("ideal_path"):
+            out.append((np.asarray(v["ideal_path"], float), DEBRIEF_GREEN))
+        if len(v.get("needle_path") or []) >= 2:
+            out.append((np.asarray(v["needle_path"], float), DEBRIEF_ORANGE))
+        return out
+
+
 class AssessmentSystem:
     def __init__(self, app):
         self.widgets = app.events.reader(Widget)
         self.errors: list[str] = []
         self.delete_armed: int | None = None  # the attempt a first Delete press chose
         self.panel_shown: list[str] | None = None  # the self-assessment lines on the panel, while they are
+        self.trace = db.PathTrace()
+        self.drawing = DebriefDrawing()
+        self.drawn_path = 0  # points of the needle path the debrief drawing shows
+
+    def open_debrief(self, app, v: dict) -> None:
+        h = hud(app)
+        scene, pack = app.resource(NeedleScene), app.resource(PackResource).pack
+        h.debrief = debrief_rows(v, scene, pack)
+        h.debrief_paths = self.drawing.paths(v)
+        self.drawn_path = len(v["needle_path"])
+        self.drawing.show(v)
+        # the panel keeps the headline; the whole debrief is over the surgeon's view
+        o = v["verdict"]
+        h.panel_text = [
+            panel_lines(v, scene, pack)[0],
+            ("FAILED (critical error)" if o["critical"] else "PASSED" if o["passed"] else "FAILED")
+            + ": the debrief is over the surgeon's view until Reset (r) or My attempts",
+        ]
+        self.panel_shown = list(h.panel_text)
+
+    def close_debrief(self, app) -> None:
+        h = hud(app)
+        h.debrief, h.debrief_paths = [], []
+        self.drawing.show(None)
 
     def __call__(self, app) -> None:
 
+        handles: NeedleHandles = app.resource(NeedleHandles)
+        ps0 = esper.component_for_entity(handles.procedure, ProcedureState)
+        st0: NeedleState = esper.component_for_entity(handles.needle, NeedleState)
+        self.trace.update(ps0.attempt, st0.tip() if st0.placed else None, st0.placed and st0.depth > 0)
         v = compute(app)
+        geometry(app, v, self.trace.points)
         for ev in self.widgets.read():
             h = hud(app)
             if ev.name == "self_assessment":
-                h.panel_text = panel_lines(v, app.resource(NeedleScene), app.resource(PackResource).pack)
-                self.panel_shown = list(h.panel_text)
+                self.open_debrief(app, v)
             elif ev.name == "save":
                 try:
                     rid = save(app, v)
@@ -346,6 +485,7 @@ class AssessmentSystem:
                 else:
                     ps = esper.component_for_entity(app.resource(NeedleHandles).procedure, ProcedureState)
                     ps.closed = True  # this attempt is done; the next action begins another
+                    self.open_debrief(app, v)  # a saved attempt ends with its debrief
                     s = app.resource(Settings)
                     # in a study the session moves on by itself: no Reset to suggest
                     again = "" if s.get("protocol") else " Reset (r) to try again."
@@ -378,10 +518,11 @@ class AssessmentSystem:
         if self.panel_shown is not None:
             if h.panel_text != self.panel_shown:  # something else took the panel (My attempts, a new attempt)
                 self.panel_shown = None
-            else:  # the self assessment follows the attempt while it is shown (a bone hit's needle error)
-                lines = panel_lines(v, app.resource(NeedleScene), app.resource(PackResource).pack)
-                if lines != self.panel_shown:
-                    h.panel_text = self.panel_shown = lines
+                self.close_debrief(app)
+            else:  # the debrief follows the attempt while it is shown (a bone hit's needle error)
+                scene, pack = app.resource(NeedleScene), app.resource(PackResource).pack
+                if debrief_rows(v, scene, pack) != h.debrief or len(v["needle_path"]) != self.drawn_path:
+                    self.open_debrief(app, v)
         ps = esper.component_for_entity(app.resource(NeedleHandles).procedure, ProcedureState)
         v["saved"] = list(ps.saved)
         v["save_errors"] = list(self.errors)

@@ -307,6 +307,21 @@ def problems(man: dict) -> list[tuple[str, str]]:
                     "(docs/needle-procedures.md) or name the metric after a value",
                 )
             )
+        # a critical error the debrief could not name would fail an attempt without saying why
+        if m.get("critical") is not None and not m.get("critical_note"):
+            out.append((f"metrics.{mname}.critical_note", "a critical value needs a critical_note: the error in words"))
+    # the debrief draws the ideal path on every side the trainee may work on
+    ideal = npc.get("ideal_path", "")
+    if ideal:
+        paths = man.get("paths", {})
+        for side in list(npc.get("sides") or []) or [""]:
+            if ideal.format(side=side) not in paths:
+                out.append(
+                    (
+                        "needle_procedure.ideal_path",
+                        f"no [paths.{ideal.format(side=side)}] (side '{side}'); known: {', '.join(paths) or 'none'}",
+                    )
+                )
     return out
 
 

@@ -1,0 +1,147 @@
+"""The debrief of a needle attempt: a verdict per metric against the pack's proficiency benchmark, the
+critical errors that fail an attempt whatever the rest, one line of advice per failed metric, and the
+geometry drawn against the trainee's (the ideal landmark positions, the ideal needle path).
+
+Plain functions on plain data, no GL and no ECS: the window's debrief (chainsim.systems.procedures.
+needle.assessment) and the records server's attempt page (chainsim.game.server.views) say the same
+thing from the same pack data. A pack declares the benchmark, its source, the critical value and the
+advice on each [metrics.NAME] (docs/needle-procedures.md, "Benchmarks and critical errors").
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: debrief row tones: how the window colours a row (PASS, FAIL and PLAIN are metric rows, set in columns)
+HEAD, PASS, FAIL, PLAIN, NOTE, ADVICE, CRITICAL = "head", "pass", "fail", "plain", "note", "advice", "critical"
+METRIC_TONES = (PASS, FAIL, PLAIN)
+
+
+def number(x: float | None, units: str = "") -> str:
+    """A value as a person reads it: rounded to what matters (counts whole), with its units."""
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "-"
+    x = float(x)
+    if not units or units in ("images", "contacts"):
+        text = f"{x:.0f}" if x == round(x) else f"{x:.1f}"
+    elif abs(x) >= 100:
+        text = f"{x:.0f}"
+    elif units == "mGy":
+        text = f"{x:.2f}"
+    else:
+        text = f"{x:.1f}"
+    if text in ("-0", "-0.0", "-0.00"):
+        text = text[1:]
+    return f"{text} {units}".strip()
+
+
+def verdicts(metrics_spec: dict, values: dict) -> list[dict]:
+    """One row per [metrics.NAME] of the pack, in its order: the value, the benchmark and whether the
+    value meets it (None: no benchmark), and whether it is a critical error.
+
+    `values` maps metric names to numbers or None (an attempt's `metrics`). A metric with a critical
+    value and no value at all (a needle that touched nothing has no needle error) is a critical error:
+    there is nothing to show it was done."""
+    out = []
+    for name, spec in metrics_spec.items():
+        v = values.get(name)
+        v = None if v is None or not math.isfinite(float(v)) else float(v)
+        lower = bool(spec.get("lower_is_better", True))
+        bench = spec.get("benchmark")
+        crit = spec.get("critical")
+        passed = None
+        if bench is not None:
+            passed = v is not None and (v <= bench if lower else v >= bench)
+        critical = crit is not None and (v is None or (v > crit if lower else v < crit))
+        units = spec.get("units", "")
+        out.append(
+            {
+                "name": name,
+                "label": spec.get("label") or name,
+                "units": units,
+                "help": spec.get("help", ""),
+                "value": v,
+                "shown": number(v, units),
+                "benchmark": bench,
+                "threshold": "" if bench is None else ("\u2264 " if lower else "\u2265 ") + number(bench, units),
+                "source": spec.get("benchmark_source", ""),
+                "passed": passed,
+                "critical": critical,
+                "critical_note": spec.get("critical_note", "") if critical else "",
+                "advice": spec.get("advice", "") if passed is False or critical else "",
+            }
+        )
+    return out
+
+
+def outcome(rows: list[dict]) -> dict:
+    """The attempt's verdict: passed only with no critical error and every benchmark met."""
+    judged = [r for r in rows if r["passed"] is not None]
+    met = sum(1 for r in judged if r["passed"])
+    critical = [r["critical_note"] or r["label"] for r in rows if r["critical"]]
+    return {
+        "passed": not critical and met == len(judged),
+        "met": met,
+        "judged": len(judged),
+        "critical": critical,
+    }
+
+
+def verdict_line(o: dict) -> str:
+    if o["critical"]:
+        return "FAILED: critical error - " + "; ".join(o["critical"])
+    if o["passed"]:
+        return f"PASSED: every benchmark met ({o['met']} of {o['judged']})"
+    return f"FAILED: {o['met']} of {o['judged']} benchmarks met"
+
+
+def ideal_landmark(point, ideal_mm: float, plane, mark) -> np.ndarray:
+    """Where the trainee's mark should have gone: the nearest point to `mark` at `ideal_mm` from the
+    landmark's point and on its plane (both scored by 6.1.5's D and d). `plane` has `point` and unit
+    `normal`, or is None; `point` may be None (only the plane is scored)."""
+    q = np.asarray(mark, float)
+    if point is None:
+        if plane is None:
+            return q
+        return q - ((q - plane.point) @ plane.normal) * plane.normal
+    p = np.asarray(point, float)
+    if plane is None:
+        d = q - p
+        n = np.linalg.norm(d)
+        return p if n < 1e-9 else p + ideal_mm * d / n
+    nrm = np.asarray(plane.normal, float)
+    h = float((p - plane.point) @ nrm)
+    c = p - h * nrm  # the point's foot on the plane: centre of the circle of ideal places
+    r = math.sqrt(max(ideal_mm * ideal_mm - h * h, 0.0))
+    u = q - ((q - plane.point) @ nrm) * nrm - c
+    n = np.linalg.norm(u)
+    return c if n < 1e-9 or r == 0.0 else c + r * u / n
+
+
+def thin(points, most: int = 200) -> list[list[float]]:
+    """At most `most` points of a path, evenly taken, first and last kept (what an attempt stores)."""
+    pts = np.asarray(points, float).reshape(-1, 3)
+    if len(pts) > most:
+        pts = pts[np.unique(np.linspace(0, len(pts) - 1, most).round().astype(int))]
+    return [[round(float(c), 2) for c in p] for p in pts]
+
+
+class PathTrace:
+    """The needle tip's path while inserted, one point per half millimetre moved (an attempt's path)."""
+
+    STEP_MM = 0.5
+
+    def __init__(self) -> None:
+        self.points: list[np.ndarray] = []
+        self.attempt = -1
+
+    def update(self, attempt: int, tip, inserted: bool) -> None:
+        if attempt != self.attempt:  # a new attempt starts its own path
+            self.points, self.attempt = [], attempt
+        if not inserted:
+            return
+        tip = np.asarray(tip, float)
+        if not self.points or np.linalg.norm(tip - self.points[-1]) >= self.STEP_MM:
+            self.points.append(tip.copy())
