@@ -175,7 +175,7 @@ def _lock_cache_index() -> None:
         return
     save = IndexDataCacheFile.save
 
-    def locked_save(self, key, data):
+    def _locked_save(self, key, data):
         with open(f"{self._index_path}.lock", "a") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)
             try:
@@ -183,7 +183,7 @@ def _lock_cache_index() -> None:
             finally:
                 fcntl.flock(lock, fcntl.LOCK_UN)
 
-    IndexDataCacheFile.save = locked_save
+    IndexDataCacheFile.save = _locked_save
 
 
 def _child() -> int:

@@ -23,6 +23,6 @@ def test_saved_attempts_are_listed_for_the_trainee(tmp_path):
         app.run_steps(int(7.0 * 120))
         text = app.resource(HudState).panel_text
         assert text[0] == "Attempts of alice (c1): 1"
-        assert "foramen_ovale_left" in text[1]
+        assert "reached foramen ovale left" in text[1]  # the target in words, not its id
     finally:
         app.close()

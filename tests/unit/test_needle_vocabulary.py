@@ -123,5 +123,5 @@ def test_a_misspelt_entity_in_a_role_is_one_clear_line(tmp_path):
     """A role that names an entity the pack does not have is refused, not silently narrowed."""
     old = 'entities = ["skull", "mandible", "foramen_ovale_{side}"]'
     root = _pack(tmp_path, old, old.replace('"mandible"', '"mandibel"'))
-    with pytest.raises(UserError, match=r"\[roles\.skull\] entities: 'mandibel' is not an entity of the pack"):
+    with pytest.raises(UserError, match=r"roles\.skull\.entities: 'mandibel' is not an entity of the pack"):
         Run(root)
