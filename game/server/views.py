@@ -10,7 +10,8 @@ on their own page and can open nothing else (403).
     GET  /classes/{id}                      trainees of a class with attempt counts
     GET  /trainees/{id}                     attempts and one progress plot per metric
     GET  /trainees/{id}/plot/{metric}.svg   (or .png) the plot, with the class median
-    GET  /attempts/{id}                     every field of one attempt; POST .../delete removes it
+    GET  /attempts/{id}                     one attempt in words: the verdict per metric against the pack's
+                                            benchmark, the landmark terms, step times, aids, details
     GET  /export/attempts.csv, /export/attempts.xapi.json   ?class=C&trainee=T
 """
 
@@ -41,6 +42,7 @@ from chainsim.game.server.auth import (
     read_form,
     session,
 )
+from chainsim.systems.procedures.needle import debrief
 
 templates = Environment(loader=PackageLoader("chainsim.game.server", "templates"), autoescape=select_autoescape())
 templates.filters["tojson_pretty"] = lambda v: json.dumps(v, indent=2, sort_keys=True)
@@ -241,17 +243,125 @@ async def plot_image(request: Request) -> Response:
     return Response(data, media_type=plots.FORMATS[fmt], headers={"Cache-Control": "private, no-store"})
 
 
+_SPECS: dict[str, tuple] = {}  # pack root -> (its pack.toml's modification time, [metrics] section)
+
+
+def metric_specs(packs, name: str) -> dict:
+    """The [metrics] section (labels, units, benchmarks) of pack `name` as the server has it; {} when
+    the server has no such pack (the page then names the metrics without verdicts)."""
+    from pathlib import Path  # noqa: PLC0415
+
+    from chainsim.game.packs import pack as packlib  # noqa: PLC0415 - loaded when an attempt page needs it
+
+    info = packs.info(name) if packs is not None else None
+    if info is None:
+        return {}
+    root = Path(info["root"])
+    stamp = (root / "pack.toml").stat().st_mtime_ns
+    hit = _SPECS.get(str(root))
+    if hit is None or hit[0] != stamp:
+        hit = _SPECS[str(root)] = (stamp, dict(packlib.load(root, packs.pack_paths).section("metrics")))
+    return hit[1]
+
+
+#: an attempt's fields said in words on its page: field -> (words, units)
+FIELD_WORDS = {
+    "pack": ("Procedure", ""),
+    "created_at": ("Saved", ""),
+    "target": ("Reached", ""),
+    "duration_s": ("Time", "s"),
+    "landmark_error_mm": ("Landmark error", "mm"),
+    "needle_error_mm": ("Needle error", "mm"),
+    "skull_contacts": ("Bone contacts", ""),
+    "path_length_mm": ("Insertion path length", "mm"),
+    "redirections": ("Redirections", ""),
+    "xray_shots": ("X-ray images", ""),
+    "exposure_s": ("X-ray exposure", "s"),
+    "dose_mgy": ("Estimated skin dose", "mGy"),
+    "side": ("Side", ""),
+    "needle_dist_mm": ("Tip to the target's centre at the last contact", "mm"),
+    "first_contact_dist_mm": ("Tip to the target's centre at the first contact", "mm"),
+    "rotation_refused": ("Refused rotations", ""),
+    "rotation_horizontal_deg": ("Horizontal turn", "deg"),
+    "rotation_vertical_deg": ("Vertical tilt", "deg"),
+    "fluoro_s": ("Live fluoroscopy", "s"),
+    "hit_point": ("Last contact point", "mm"),
+}
+
+
+def said(key: str, value) -> tuple[str, str]:
+    """(words, value in words) for one field of an attempt: numbers rounded with units, points as
+    x, y, z in mm, lists and tables summarised, never raw JSON."""
+    words, units = FIELD_WORDS.get(key, (key.replace("_", " ").capitalize(), ""))
+    if not units:
+        for suffix, u in (("_mm", "mm"), ("_s", "s"), ("_deg", "deg"), ("_mgy", "mGy")):
+            if key.endswith(suffix):
+                units = u
+    if value is None:
+        return words, "-"
+    if isinstance(value, bool):
+        return words, "yes" if value else "no"
+    if isinstance(value, (int, float)):
+        return words, debrief.number(value, units)
+    if isinstance(value, list) and len(value) == 3 and all(isinstance(c, (int, float)) for c in value):
+        return words, ", ".join(f"{c:.1f}" for c in value) + " mm (x, y, z)"
+    if isinstance(value, list):
+        return words, f"{len(value)} items"
+    if isinstance(value, dict):
+        return words, "; ".join(f"{k.replace('_', ' ')} {said(k, v)[1]}" for k, v in value.items())
+    return words, str(value).replace("_", " ")
+
+
+def attempt_view(a: dict, specs: dict) -> dict:
+    """What the attempt page shows: the verdict, one row per metric, the landmark terms and the rest."""
+    values = dict(a.get("metrics") or {})
+    for k in ("landmark_error_mm", "needle_error_mm", "duration_s", "path_length_mm", "redirections"):
+        values.setdefault(k, a.get(k))
+    if not specs:  # a pack the server does not have: its stored metrics, named, without verdicts
+        specs = {k: {"label": said(k, None)[0], "units": said(k, None)[1] or ""} for k in values}
+        for k in specs:
+            specs[k]["units"] = FIELD_WORDS.get(k, ("", ""))[1]
+    rows = debrief.verdicts(specs, values)
+    d = dict(a.get("details") or {})
+    marks = d.get("landmarks") or []
+    ideal = d.get("ideal_landmarks") or []
+    landmarks = []
+    for k, p in enumerate(marks, start=1):
+        landmarks.append(
+            {
+                "k": k,
+                "placed": said("p", p)[1] if p else "not placed",
+                "ideal": said("p", ideal[k - 1])[1] if k - 1 < len(ideal) and ideal[k - 1] else "-",
+                "D": debrief.number(d.get(f"D{k}"), "mm"),
+                "d": debrief.number(d.get(f"d{k}"), "mm"),
+            }
+        )
+    skip = {"landmarks", "ideal_landmarks", "needle_path", "ideal_path", "verdict", "contacts", "protocol"}
+    skip |= {k for k in d if k[:1] in "Dd" and k[1:].isdigit() or k.startswith("Dist")}
+    facts = [said(k, a.get(k)) for k in ("pack", "created_at", "target") if k in a]
+    facts += [said(k, v) for k, v in d.items() if k not in skip]
+    if d.get("contacts"):
+        facts.append(("Contacts", "; ".join(f"{k.replace('_', ' ')} {v}" for k, v in d["contacts"].items())))
+    if d.get("needle_path"):
+        facts.append(("Needle path stored", f"{len(d['needle_path'])} points"))
+    return {
+        "rows": rows,
+        "outcome": debrief.outcome(rows),
+        "verdict": debrief.verdict_line(debrief.outcome(rows)) if any(r["passed"] is not None for r in rows) else "",
+        "landmarks": landmarks,
+        "facts": facts,
+    }
+
+
 async def attempt_page(request: Request) -> Response:
     user, csrf = await page_user(request)
     d = await request.app.state.storage.run(attempt_detail, user, _int_param(request, "attempt_id"))
     a = d["attempt"]
-    scalars = {k: v for k, v in a.items() if not isinstance(v, (dict, list))}
-    nested = {
-        k: v
-        for k, v in a.items()
-        if isinstance(v, (dict, list)) and k not in ("step_times", "aids", "differences", "client_figures")
-    }
-    return render("attempt.html", user=user, csrf=csrf, a=a, trainee_id=d["trainee_id"], scalars=scalars, nested=nested)
+    specs = await request.app.state.storage.run(
+        lambda *_: metric_specs(getattr(request.app.state, "packs", None), a.get("pack", ""))
+    )
+    view = attempt_view(a, specs)
+    return render("attempt.html", user=user, csrf=csrf, a=a, trainee_id=d["trainee_id"], v=view)
 
 
 async def attempt_retract(request: Request) -> Response:

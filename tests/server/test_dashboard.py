@@ -230,3 +230,27 @@ def test_names_are_escaped_in_pages(site, name):
     for page in (class_page, detail):
         assert name not in page
     assert "&lt;script&gt;" in class_page or "&#34;" in class_page or "&amp;" in class_page
+
+
+def test_attempt_page_says_each_metric_in_words_against_the_benchmark(site):
+    a = attempt(
+        3,
+        needle_error_mm=6.721578213131352e-05,
+        skull_contacts=4,
+        metrics={"needle_error_mm": 6.721578213131352e-05, "skull_contacts": 4.0, "xray_shots": 2.0},
+        details={"D1": 6.721578213131352e-05, "d1": 0.31, "side": "left", "landmarks": [[-46.43, 52.6, -38.15]]},
+    )
+    aid = save(site, "alice", a)
+    b = Browser(site)
+    b.sign_in("tina")
+    status, page, _ = b.get(f"/attempts/{aid}")
+    assert status == 200
+    # the prp pack's benchmarks: more than 3 bone contacts is a critical error whatever the rest
+    verdict = re.search(r'id="verdict">([^<]*)<', page).group(1)
+    assert verdict.startswith("FAILED: critical error") and "more than 3 bone contacts" in verdict
+    assert re.search(r"<td[^>]*>Bone contacts</td>\s*<td class=\"num\">4</td>", page)
+    assert "\u2264 1" in page and "Advice: On bone, withdraw" in page
+    # rounded with units, never raw floats, snake_case keys or JSON arrays
+    assert "0.0 mm" in page and "6.72" not in page and "e-05" not in page
+    assert "-46.4, 52.6, -38.1 mm (x, y, z)" in page or "-46.4, 52.6, -38.2 mm (x, y, z)" in page
+    assert "skull_contacts" not in page and "[[" not in page and "needle_error_mm" not in page
