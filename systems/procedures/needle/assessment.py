@@ -470,6 +470,10 @@ class AssessmentSystem:
             h = hud(app)
             if ev.name == "self_assessment":
                 self.open_debrief(app, v)
+            elif ev.name == "save" and ps0.closed:
+                # a second press (a double click, a script that saves after a tool pressed Save) must not
+                # store the same attempt twice
+                h.message(f"Attempt {ps0.attempt} is already saved. Reset (r) to try again.")
             elif ev.name == "save":
                 try:
                     rid = save(app, v)
