@@ -2,10 +2,18 @@
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import tempfile
 
 os.environ.setdefault("PYGLET_HEADLESS", "true")
 os.environ.pop("CHAINSIM_PACK_PATH", None)
+# the built-in scripts press Save, so a run without --db saves to the default records database: in tests
+# that is a throwaway file, never the developer's own records (set before any fixture, module-scoped ones too)
+_RECORDS = tempfile.mkdtemp(prefix="chainsim-test-records-")
+atexit.register(shutil.rmtree, _RECORDS, True)
+os.environ["CHAINSIM_DB"] = os.path.join(_RECORDS, "records.sqlite3")
 
 import pytest  # noqa: E402
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import sys
 
+from chainsim.components.input_events import Widget
 from chainsim.components.resources import PackResource, PendingInput
 from chainsim.engine import argtypes
 from chainsim.engine.errors import UserError
@@ -56,15 +57,18 @@ def run(args) -> int:
     target = args.pack
     if args.scene:
         target = f"{args.pack.rstrip('/')}/{args.scene}"
-    app = build_app(target, pack_paths=args.pack_path, render=True, headless=True, size=args.size)
+    # a picture stores no attempt, whatever Save a script presses
+    app = build_app(
+        target, pack_paths=args.pack_path, render=True, headless=True, size=args.size, save="a snapshot saves nothing"
+    )
     try:
         steps = args.steps
         if args.input:
-            app.resource(PendingInput).extend(load_script(args.input))
+            app.resource(PendingInput).extend(_unsaved(load_script(args.input)))
         elif args.scene:
             pres = app.resource(PackResource)
             if pres.scene_spec.get("script"):
-                timed = load_script(pres.pack.file(pres.scene_spec["script"]))
+                timed = _unsaved(load_script(pres.pack.file(pres.scene_spec["script"])))
                 app.resource(PendingInput).extend(timed)
                 last = max((t for t, _ in timed), default=0.0)
                 steps = max(steps, int(last / app.time.dt) + 60)  # the last event, then half a second
@@ -77,3 +81,9 @@ def run(args) -> int:
         app.close()
     print(f"wrote {path}")
     return 0
+
+
+def _unsaved(timed: list) -> list:
+    """A script's events without its Save presses: the picture shows the scene as the attempt left it,
+    with no save message over it (the built-in scripts end with Save)."""
+    return [(t, ev) for t, ev in timed if not (isinstance(ev, Widget) and ev.name == "save")]
