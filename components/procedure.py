@@ -133,6 +133,13 @@ section(
             help="[paths] name ({side} allowed) of the ideal needle path, drawn against the trainee's in the "
             "debrief; empty: none drawn.",
         ),
+        Field(
+            "fluoro_first",
+            "bool",
+            False,
+            help="Fluoroscopy first: the tip view shows no target ring or distance, so the trainee guides by X-ray "
+            "(play/run --fluoro-first turns it on too); the assessment records the mode.",
+        ),
     ],
 )
 

@@ -49,7 +49,7 @@ from chainsim.systems.input import InputLog
 from chainsim.systems.picking import entity_surface
 
 #: settings a user (or a recording) may give on top of the pack's own: name -> type
-USER_SETTINGS = {"db": str, "records": str, "class": str, "trainee": str, "model": str}
+USER_SETTINGS = {"db": str, "records": str, "class": str, "trainee": str, "model": str, "fluoro_first": bool}
 
 
 def check_user_settings(settings: dict | None, where: str = "settings") -> dict:

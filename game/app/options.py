@@ -43,9 +43,16 @@ def add_records_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def user_settings(args) -> dict:
-    """Settings a user gives on the command line (records database or server, class, trainee)."""
+    """Settings a user gives on the command line (records database or server, class, trainee, model, fluoro-first)."""
     out = {}
-    pairs = (("db", "db"), ("records", "records"), ("class", "class_name"), ("trainee", "trainee"), ("model", "model"))
+    pairs = (
+        ("db", "db"),
+        ("records", "records"),
+        ("class", "class_name"),
+        ("trainee", "trainee"),
+        ("model", "model"),
+        ("fluoro_first", "fluoro_first"),
+    )
     for key, attr in pairs:
         v = getattr(args, attr, None)
         if v is not None:

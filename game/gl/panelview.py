@@ -174,12 +174,16 @@ def hud(ov: Overlay, h, r: Rect, s: float) -> None:
 
 def aim(ov: Overlay, camera, r: Rect, target, note: str, s: float) -> None:
     """Crosshair at the centre of an attached view (where the needle points) and the target's
-    projected position: a ring with its distance, or an arrow at the edge when it is out of view."""
+    projected position: a ring with its distance, or an arrow at the edge when it is out of view.
+    Without a target (fluoroscopy first) only the crosshair and `note`, at the foot of the view."""
     cx, cy = r.x + r.w / 2, r.y + r.h / 2
     arm, gap = 14 * s, 4 * s
     for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
         ov.segment(cx + dx * gap, cy + dy * gap, cx + dx * arm, cy + dy * arm, CROSS, 1.5 * s)
     if target is None or camera is None:
+        if note:
+            f = ov.font
+            backed_label(ov, note, r.x + max((r.w - f.width(note)) / 2, 4 * s), r.y + 6 * s + f.descent, TEXT, s)
         return
     eye = np.asarray(camera.eye, float)
     ahead = float((np.asarray(target, float) - eye) @ camera.forward)

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from chainsim.components.fluoro import DOSE_RATE_MGY_S, SHOT_S, CArm
+from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, Widget
 from chainsim.components.resources import Assessment, EntityIndex, PendingInput
 from chainsim.game.app.headless import build_app
@@ -152,3 +153,63 @@ def test_saved_attempt_shows_its_xray_in_records(tmp_path, cli):
     assert float(fields["exposure_s"]) == pytest.approx(3 * SHOT_S)
     code, out, err = cli("records", "--db", db, "list")
     assert "xrays" in out.splitlines()[0]
+
+
+def _fluoro_first_pack(tmp_path) -> Path:
+    """A copy of the pack whose [needle_procedure] turns fluoroscopy-first on."""
+    import shutil
+
+    dst = tmp_path / "prp-ff"
+    shutil.copytree(PACK, dst)
+    toml = dst / "pack.toml"
+    text = toml.read_text()
+    assert "\nfluoro_first = false" in text
+    toml.write_text(text.replace("\nfluoro_first = false", "\nfluoro_first = true", 1))
+    return dst
+
+
+def test_fluoro_first_takes_the_ring_and_distance_off_the_tip_view_and_is_recorded(tmp_path):
+    events = load_script(PACK / "scripts" / "correct.toml")
+    steps = int((max(t for t, _ in events) + 0.2) * 120)
+    for settings, pack, on in (
+        (None, PACK, False),
+        ({"fluoro_first": True}, PACK, True),  # play/run --fluoro-first
+        (None, _fluoro_first_pack(tmp_path), True),  # the pack's own setting
+    ):
+        app = build_app(str(pack), settings=settings)
+        app.resource(PendingInput).extend(sorted(events, key=lambda e: e[0]))
+        for _ in range(steps):
+            app.update(app.time.dt)
+        h = app.resource(HudState)
+        a = app.resource(Assessment).values
+        assert a["fluoro_first"] is on
+        assert a["target_reached"]  # the X-ray alone still lets the attempt be scored as ever
+        if on:
+            assert h.aim_target is None and "mm" not in h.aim_note and "X-ray" in h.aim_note
+        else:
+            assert h.aim_target is not None and h.aim_note.endswith(" mm")
+        app.close()
+
+
+def test_fluoro_first_is_stored_with_the_saved_attempt(tmp_path, cli):
+    script = tmp_path / "saved.toml"
+    text = (PACK / "scripts" / "correct.toml").read_text()
+    last = max(t for t, _ in load_script(PACK / "scripts" / "correct.toml"))
+    script.write_text(text + f'\n[[event]]\nt = {last + 0.3}\nkind = "widget"\nname = "save"\n')
+    db = tmp_path / "r.sqlite3"
+    code, _, err = cli(
+        "run", str(PACK), "--headless", "--input", script, "--db", db, "--trainee", "ann", "--fluoro-first"
+    )
+    assert code == 0, err
+    code, out, err = cli("records", "--db", db, "show", "1")
+    assert code == 0, err
+    assert "fluoro_first" in out and "true" in out.split("fluoro_first", 1)[1].splitlines()[0].lower()
+
+
+def test_fluoro_first_must_be_true_or_false(tmp_path, cli):
+    pack = _fluoro_first_pack(tmp_path)
+    toml = pack / "pack.toml"
+    toml.write_text(toml.read_text().replace("\nfluoro_first = true", '\nfluoro_first = "yes"', 1))
+    code, out, err = cli("validate", str(pack))
+    assert code == 2
+    assert "needle_procedure.fluoro_first: expected true or false" in out + err

@@ -38,6 +38,13 @@ def add_parser(sub):
         "--size", type=window_size, default=None, metavar="WxH", help="off-screen frame size for screenshots"
     )
     p.add_argument("--model", choices=MODEL_FLAG_CHOICES, help=MODEL_FLAG_HELP)
+    p.add_argument(
+        "--fluoro-first",
+        action="store_true",
+        default=None,
+        help="fluoroscopy first: no target ring or distance in the needle-tip view, guide by X-ray "
+        "(as the pack's [needle_procedure] fluoro_first; recorded with each attempt)",
+    )
     add_records_arguments(p)
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")

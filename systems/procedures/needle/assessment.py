@@ -52,6 +52,7 @@ from chainsim.components.resources import (
 )
 from chainsim.engine.errors import UserError
 from chainsim.systems.procedures.needle import debrief as db
+from chainsim.systems.procedures.needle import fluoro
 from chainsim.systems.procedures.needle.handles import NeedleHandles, hud
 from chainsim.systems.stages import ORDER_ASSESSMENT
 from chainsim.systems.ui.widgets import format_value
@@ -97,6 +98,7 @@ def compute(app) -> dict:
         "unsaved": bool(ps.touched and not ps.closed),
         "step_times": {k: float(v) for k, v in ps.step_times.items()},
         "aids": {k: bool(v) for k, v in ps.aids.items()},
+        "fluoro_first": fluoro.fluoro_first(app),
         "duration_s": float(ps.elapsed),
         "landmarks": [None if not np.all(np.isfinite(p)) else [float(c) for c in p] for p in ps.landmarks],
         "hit_point": None if not np.all(np.isfinite(ps.hit_point)) else [float(c) for c in ps.hit_point],
@@ -250,6 +252,7 @@ DETAIL_KEYS = (
     "rotation_horizontal_deg",
     "rotation_vertical_deg",
     "fluoro_s",
+    "fluoro_first",
     "needle_path",
     "ideal_path",
     "ideal_landmarks",

@@ -22,6 +22,10 @@ Controls (widget names; the pack's layout gives them buttons and keys):
 The pedal: holding the key PEDAL_KEY runs live fluoroscopy while it is held, like the foot switch.
 Exposure is booked per fixed simulation step, so a replay counts the same seconds.
 
+Fluoroscopy first (`fluoro_first`): the pack's [needle_procedure] fluoro_first, or the user's
+setting of that name (`play/run --fluoro-first`), takes the target ring and distance off the tip
+view, as in theatre where the needle is guided by the images; the assessment records the mode.
+
 Counts belong to the procedure's attempt: when a new attempt begins (ProcedureState.attempt grows),
 shots and seconds start again from zero; the arm stays where it is.
 """
@@ -35,10 +39,19 @@ from chainsim.components.core import Name
 from chainsim.components.fluoro import LIVE_RATE_HZ, CArm
 from chainsim.components.input_events import Widget
 from chainsim.components.procedure import NeedleScene, ProcedureState, Target
-from chainsim.components.resources import EntityIndex, InputState
+from chainsim.components.resources import EntityIndex, InputState, PackResource, Settings
 from chainsim.components.view_events import ViewTurned
 from chainsim.systems.procedures.needle.handles import Feedback, NeedleHandles, hud
 from chainsim.systems.stages import ORDER_FLUORO
+
+
+def fluoro_first(app) -> bool:
+    """Whether this run guides by X-ray only: the user's setting wins over the pack's [needle_procedure]."""
+    s = app.resource(Settings)
+    if s.get("fluoro_first") is not None:
+        return bool(s.get("fluoro_first"))
+    return bool(app.resource(PackResource).pack.section("needle_procedure").get("fluoro_first", False))
+
 
 PEDAL_KEY = "f"
 #: degrees the arm turns per pixel dragged in the C-arm view

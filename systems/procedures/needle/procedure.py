@@ -25,7 +25,8 @@ closes it (its clock stops); the next action - a reset, a turn, an insertion, a 
 next attempt from zero, keeping the landmarks unless shift+Reset clears them.
 
 Aiming aid: every frame the HUD gets the entry side's target centre and the tip's distance to it,
-which the needle-tip view draws with a crosshair (chainsim.game.gl.panelview.aim).
+which the needle-tip view draws with a crosshair (chainsim.game.gl.panelview.aim); in fluoroscopy-first
+mode (.fluoro.fluoro_first) it gets neither, only a note, and the trainee guides by the X-ray.
 """
 
 from __future__ import annotations
@@ -99,6 +100,7 @@ class ProcedureSystem:
         self.tip_view = next(
             (v["name"] for v in pres.layout.get("viewports", []) if v.get("attach") == needle_name), ""
         )
+        self.fluoro_first = fluoro.fluoro_first(app)
         ids = [s["id"] for s in self.step_list]
         landmark_steps = [i for i, s in enumerate(self.step_list) if s.get("landmark")]
         self.reset_all_step = self.config.get("reset_all_step") or (ids[landmark_steps[0]] if landmark_steps else "")
@@ -356,7 +358,12 @@ class ProcedureSystem:
         h.aim_view = self.tip_view
         _ent, _needle, st = self.needle(app)
         if not st.placed:
-            h.aim_target, h.aim_note = None, f"place landmark {self.scene.entry + 1} first"
+            # the tip view then shows the crosshair only; the step's instruction says where to click
+            h.aim_target, h.aim_note = None, ""
+            return
+        if self.fluoro_first:
+            # no ring and no distance: where the target lies must be read from the X-ray images
+            h.aim_target, h.aim_note = None, "fluoroscopy first: guide by the X-ray"
             return
         centre = self.scene.target(ps.side or self.scene.sides[0]).centre
         h.aim_target = tuple(float(c) for c in centre)
