@@ -38,7 +38,7 @@ from chainsim.engine.kernels.chainmail import make_workspace, material_arrays
 from chainsim.engine.kernels.graph import build_graph
 
 ORDERS = ORDER_CHOICES  # breadth-first, balanced, schill, depth-first; fifo = breadth-first
-MODEL_CHOICES = ("chainmail", "xpbd", "projective", "hybrid", "auto")
+MODEL_CHOICES = ("chainmail", "xpbd", "projective", "hybrid", "surface", "auto")
 #: the speed-accuracy table `model = "auto"` chooses from (written by `chainsim study speed-accuracy`)
 MODEL_TABLE = ASSETS_DIR / "presets" / "models.toml"
 SOURCES = ("auto", "surface", "volume")
@@ -131,7 +131,8 @@ class Deformable:
         "enum",
         "chainmail",
         choices=MODEL_CHOICES,
-        help="Deformation model: chainmail (thesis 5.2), xpbd, projective (volumes only), or auto "
+        help="Deformation model: chainmail (thesis 5.2), xpbd, projective (volumes only), surface (SurfaceChainMail "
+        "on a sheet, thesis 4.4), or auto "
         "(the cheapest meeting error_budget / time_budget_ms in the study's table).",
     )
     E: float = prop("float", 3000.0, units="Pa", help="xpbd/projective: Young's modulus.", min=1e-6, max=1e12)
@@ -407,6 +408,15 @@ def use_model(d: Deformable, model: str, where: str = "deformable", initial: boo
         }
         if model == "xpbd":
             settings.update(substeps=d.substeps or "auto", iterations=d.iterations or 1)
+        elif model == "surface":  # SurfaceChainMail with the material's limits (thesis 4.4)
+            settings.update(
+                alpha_min=float(d.amin[0]) if len(d.amin) else 0.8,
+                alpha_max=float(d.amax[0]) if len(d.amax) else 1.2,
+                beta=float(d.beta_l[0]) if len(d.beta_l) else 0.1,
+                relax=d.relax_iterations,
+                exact=d.exact_limits,
+                order=d.order,
+            )
         elif model == "hybrid":  # one two-level iteration a frame (chainsim.engine.bodies.hybrid)
             settings.update(iterations=d.iterations or 1)
         else:

@@ -21,10 +21,11 @@ from chainsim.engine.bodies.base import Body
 from chainsim.engine.bodies.chainmail import ChainMailBody
 from chainsim.engine.bodies.hybrid import HybridBody
 from chainsim.engine.bodies.projective import ProjectiveBody
+from chainsim.engine.bodies.surface import SurfaceChainMailBody
 from chainsim.engine.bodies.xpbd import XPBDBody
 from chainsim.engine.errors import UserError
 
-MODELS = ("chainmail", "xpbd", "projective", "hybrid")
+MODELS = ("chainmail", "xpbd", "projective", "hybrid", "surface")
 
 
 def make_body(
@@ -63,6 +64,12 @@ def make_body(
         kw = {k: settings[k] for k in HYBRID_PARAMS + ("E", "nu", "density", "unit") if k in settings}
         kw.update({k: settings[k] for k in ("alpha_min", "alpha_max", "beta") if k in settings})
         return HybridBody(rest, tets, fixed=fixed, **kw)
+    if model == "surface":  # SurfaceChainMail on a sheet's triangles (thesis 4.4)
+        if has_tets or triangles is None or len(triangles) == 0:
+            raise UserError("a surface ChainMail body needs a triangle surface (volumes: chainmail or hybrid)")
+        kw = {k: settings[k] for k in ("relax", "exact", "order") if k in settings}
+        limits = [float(settings.get(k, d)) for k, d in (("alpha_min", 0.8), ("alpha_max", 1.2), ("beta", 0.1))]
+        return SurfaceChainMailBody(rest, triangles, *limits, fixed=fixed, **kw)
     raise UserError(f"model: expected one of {', '.join(MODELS)}, got {model!r}")
 
 
