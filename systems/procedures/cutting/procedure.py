@@ -31,7 +31,9 @@ Systems:
       instrument sits on the tissue point under the cursor, read from MouseMove), the pack's
       [[steps]] (pull, cut, open: each done when what it asks for has happened, in any order, 4.5.2)
       and HUD text.
-  procedure stage, ORDER_ASSESSMENT (`cutting_assessment`): chainsim.game.app.headless.Assessment values.
+  procedure stage, ORDER_ASSESSMENT (`cutting_assessment`): chainsim.game.app.headless.Assessment values,
+      and Save attempt: the attempt (from the start or the last Reset tissue) stored through the Records
+      resource with the pack's own metrics (.assessment).
 
 Writes: Forceps / Scissors runtime fields, the tools' Transform / Marker / PolyLine, CuttingState
 (resource), HudState, Assessment, viewport cameras (ViewState), a Wireframe component on the layers,
@@ -158,4 +160,4 @@ def plugin(app) -> None:
         hud.key_rows[:0] = KEY_ROWS
     app.add_system("simulation", ToolsSystem(app, st), order=ORDER_KINEMATICS, name="cutting_tools")
     app.add_system("procedure", StepsSystem(st), order=ORDER_PROCEDURE, name="cutting_steps")
-    app.add_system("procedure", AssessmentSystem(st), order=ORDER_ASSESSMENT, name="cutting_assessment")
+    app.add_system("procedure", AssessmentSystem(st, app), order=ORDER_ASSESSMENT, name="cutting_assessment")
