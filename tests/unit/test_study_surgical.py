@@ -6,8 +6,10 @@ from __future__ import annotations
 import tomllib
 
 import numpy as np
+import pytest
 
 from chainsim.engine.bodies.factory import load_table
+from chainsim.engine.errors import UserError
 from chainsim.tools.study import surgical, surgical_report
 
 
@@ -68,3 +70,10 @@ def test_the_rows_merge_into_the_table_auto_reads(monkeypatch, tmp_path):
     # merging again replaces the tissue rows, never duplicates them
     surgical_report.merge_table(table, surgical.model_table(res)["rows"])
     assert len(tomllib.loads(table.read_text())["rows"]) == len(rows)
+
+
+def test_a_table_that_is_not_a_model_table_is_one_clear_line(tmp_path):
+    bad = tmp_path / "models.toml"
+    bad.write_text("rows = [[[")
+    with pytest.raises(UserError, match="cannot read it as a model table"):
+        surgical_report.merge_table(bad, [])

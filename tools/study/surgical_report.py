@@ -13,6 +13,8 @@ import matplotlib
 import matplotlib.pyplot as plt
 import tomli_w
 
+from chainsim.engine.errors import UserError
+
 from .surgical import BLOCK_MM, FRAMES, LIFT_MM, PATCH_MM, model_table
 
 
@@ -117,7 +119,13 @@ def write(results: dict, out_dir, command: str, machine: str, table: Path | None
 
 def merge_table(path: Path, rows: list[dict]) -> None:
     """Replace the tissue-block rows of the table at `path` (other scenes' rows are kept)."""
-    old = tomllib.loads(path.read_text(encoding="utf-8")) if path.exists() else {}
-    kept = [r for r in old.get("rows", []) if r.get("scene") != "tissue-block"]
+    try:
+        old = tomllib.loads(path.read_text(encoding="utf-8")) if path.exists() else {}
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+        raise UserError(f"--table {path}: cannot read it as a model table ({e})") from None
+    kept = [r for r in old.get("rows", []) if isinstance(r, dict) and r.get("scene") != "tissue-block"]
     head = "# written by `chainsim study speed-accuracy` and `chainsim study surgical`: error and cost per model\n"
-    path.write_text(head + tomli_w.dumps({"strain": old.get("strain", 0.1), "rows": kept + rows}), encoding="utf-8")
+    try:
+        path.write_text(head + tomli_w.dumps({"strain": old.get("strain", 0.1), "rows": kept + rows}), encoding="utf-8")
+    except OSError as e:
+        raise UserError(f"--table {path}: cannot write it ({e.strerror})") from None

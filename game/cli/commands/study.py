@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import os
 import platform
+from pathlib import Path
 
 from chainsim.engine import argtypes, limits
 from chainsim.engine.errors import UserError
@@ -105,6 +106,8 @@ def run(args) -> int:
         print(md)
         return 0
     if cmd == "surgical":
+        if args.table is not None and not Path(args.table).parent.is_dir():
+            raise UserError(f"--table {args.table}: its folder does not exist (expected a model table's path)")
         prepare_output_dir(args.out, "--out")
         results = surgical.run("quick" if args.quick else "full", progress=lambda m: logger.info(f"study   {m}"))
         command = "chainsim study surgical" + (" --quick" if args.quick else "") + f" --out {args.out}"
