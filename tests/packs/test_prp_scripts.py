@@ -109,3 +109,20 @@ def test_variant_scripts_are_imperfect_but_complete():
         a = run_pack(str(PACK), script=str(SCRIPTS / f"variant-{k}.toml"))["assessment"]
         assert a["landmark_error_mm"] is not None and a["landmark_error_mm"] > 0.5
         assert a["target"] != "none"
+
+
+def test_the_scripted_attempts_end_with_one_saved_attempt(cli, tmp_path):
+    """`chainsim run prp --headless --input SCRIPT --db PATH` as the docs show it stores the attempt."""
+    db = tmp_path / "r.sqlite3"
+    for name in ("correct", "skull-hit"):
+        code, _, err = cli("run", str(PACK), "--headless", "--input", SCRIPTS / f"{name}.toml", "--db", db)
+        assert code == 0, err
+    code, out, err = cli("records", "--db", db, "list")
+    assert code == 0, err
+    rows = [line for line in out.splitlines()[2:] if line.strip()]  # below the header and its rule
+    assert len(rows) == 2  # one attempt per run, whatever else presses Save again
+    targets = set()
+    for n in (1, 2):
+        code, out, err = cli("records", "--db", db, "show", str(n))
+        targets.add(dict(line.split(None, 1) for line in out.splitlines() if line.strip())["target"].strip())
+    assert targets == {"foramen_ovale_left", "skull"}
