@@ -1,0 +1,68 @@
+"""The paths the documentation shows, run as a user runs them against a real `chainsim serve`.
+
+docs/records-server.md: sign in with `chainsim records login`, then `chainsim run PACK --headless
+--input SCRIPT --records URL` saves the scripted attempt (the built-in scripts end with Save attempt)
+and the server stores the figures its replay of the recording computes. The needle trainer and the
+cutting trainer alike.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+from conftest import PASSWORD, REPO, call, wait_scored
+
+from chainsim.game.records.store import RecordStore
+
+
+def chainsim(*args: str, stdin: str | None = None) -> subprocess.CompletedProcess:
+    """The command line as a user runs it, in a process of its own."""
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run(
+        [sys.executable, "-m", "chainsim.game", *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        input=stdin,
+        timeout=300,
+    )
+
+
+def run_and_score(site, tmp_path, pack: str, script: str) -> dict:
+    """Sign in as alice, run `chainsim run PACK --headless --input SCRIPT --records URL` as documented,
+    and return the attempt the server stored once its replay scored the upload."""
+    local = str(tmp_path / "local.sqlite3")
+    r = chainsim("records", "--db", local, "login", site.url, "alice", "--password-stdin", stdin=PASSWORD + "\n")
+    assert r.returncode == 0, r.stderr
+    r = chainsim("run", pack, "--headless", "--input", script, "--records", site.url, "--db", local)
+    assert r.returncode == 0, r.stderr
+    with RecordStore(local) as store:
+        sent = store.query("SELECT remote_id FROM outbox")
+    assert len(sent) == 1, sent  # the script's Save made one upload, sent at once
+    token = site.tokens["alice"]
+    result = wait_scored(site, sent[0][0], token)
+    assert result["status"] == "scored", result
+    status, stored, _ = call(site, "GET", f"/api/attempts/{result['attempt_id']}", token=token)
+    assert status == 200, stored
+    return stored
+
+
+def test_the_documented_needle_run_saves_an_attempt_the_server_scores(site, tmp_path):
+    stored = run_and_score(site, tmp_path, "prp", str(REPO / "assets" / "prp" / "scripts" / "correct.toml"))
+    assert stored["pack"] == "prp" and stored["trainee"] == "alice" and stored["filed_by"] == "alice"
+    assert stored["target"] == "foramen_ovale_left" and stored["needle_error_mm"] < 1.0
+    assert stored["differences"] == []  # the replay computed what the simulator showed
+
+
+def test_the_cutting_trainer_saves_an_attempt_the_server_scores_with_its_own_metrics(site, tmp_path):
+    stored = run_and_score(
+        site, tmp_path, "cutting", str(REPO / "assets" / "cutting" / "scripts" / "cut-and-open.toml")
+    )
+    assert stored["pack"] == "cutting" and stored["target"] == "dura"  # the opening made in the top layer
+    metrics = stored["metrics"]
+    assert metrics["links_cut"] > 0 and metrics["layers_cut"] == 1
+    assert metrics["cut_length_mm"] > 50.0 and metrics["forceps_time_s"] > 0
+    assert stored["differences"] == []
+    assert set(stored["step_times"]) == {"pull", "cut", "open"}
