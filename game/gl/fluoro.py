@@ -124,17 +124,58 @@ def _mat(m: np.ndarray) -> bytes:
     return np.asarray(m, np.float32).T.tobytes()
 
 
-def grey(path: np.ndarray, window: float = 1.0, level: float = 0.0) -> np.ndarray:
+def blur_sigma(side: int) -> float:
+    """The edge enhancement's blur, in pixels of an image `side` pixels a side."""
+    return EDGE_SIGMA_PX * side / IMAGE_PX
+
+
+def blurred(path: np.ndarray) -> np.ndarray:
+    """The blurred copy of L that the edge enhancement subtracts (scipy's gaussian, reflected at the edges)."""
+    return ndimage.gaussian_filter(path, blur_sigma(path.shape[0]))
+
+
+def blurred_part(part: np.ndarray) -> np.ndarray:
+    """`blurred(part)` for one mesh's share of L, made only around where that share is not zero: a
+    needle covers a few thousand pixels of the image, and the blur is a sum, so the blur of the
+    whole is the sum of its parts' blurs."""
+    rows, cols = np.flatnonzero(part.any(axis=1)), np.flatnonzero(part.any(axis=0))
+    out = np.zeros_like(part)
+    if not rows.size:
+        return out
+    sigma = blur_sigma(part.shape[0])
+    pad = int(4.0 * sigma + 0.5) + 1  # scipy truncates the kernel at 4 sigma: nothing reaches further
+    y0, y1, x0, x1 = rows[0] - pad, rows[-1] + 1 + pad, cols[0] - pad, cols[-1] + 1 + pad
+    h, w = part.shape
+    if y0 < 0 or x0 < 0 or y1 > h or x1 > w:  # near the edge the reflection matters: the whole image
+        return blurred(part)
+    # zeros all round the crop, at least the kernel's reach: its reflected edges add nothing
+    out[y0:y1, x0:x1] = ndimage.gaussian_filter(part[y0:y1, x0:x1], sigma)
+    return out
+
+
+_FIELDS: dict[tuple[int, int], np.ndarray] = {}
+
+
+def round_field(h: int, w: int) -> np.ndarray:
+    """The detector's round field: True inside (one mask per image size, made once)."""
+    inside = _FIELDS.get((h, w))
+    if inside is None:
+        yy, xx = np.mgrid[0:h, 0:w]
+        r = 0.5 * min(h, w)
+        inside = _FIELDS[(h, w)] = (xx + 0.5 - w / 2) ** 2 + (yy + 0.5 - h / 2) ** 2 <= (r - 1.0) ** 2
+    return inside
+
+
+def grey(path: np.ndarray, window: float = 1.0, level: float = 0.0, blur: np.ndarray | None = None) -> np.ndarray:
     """Attenuation L (H, W) -> display grey (H, W) uint8: linear in L, bright = little attenuation,
     windowed over the round field by percentiles (automatic brightness), black outside the field.
     `window` narrows (< 1) or widens the grey window about its centre, `level` moves the centre by
-    that fraction of the automatic width, as a monitor's window/level controls do."""
+    that fraction of the automatic width, as a monitor's window/level controls do. `blur`, when
+    given, is `blurred(path)` already made."""
     h, w = path.shape
-    yy, xx = np.mgrid[0:h, 0:w]
-    r = 0.5 * min(h, w)
-    inside = (xx + 0.5 - w / 2) ** 2 + (yy + 0.5 - h / 2) ** 2 <= (r - 1.0) ** 2
+    inside = round_field(h, w)
     # edge enhancement, as a fluoroscopy chain applies it: the image plus part of its detail above a blur
-    sharp = path + EDGE_GAIN * (path - ndimage.gaussian_filter(path, EDGE_SIGMA_PX * h / IMAGE_PX))
+    sharp = path + EDGE_GAIN * (path - (blurred(path) if blur is None else blur))
     vals = sharp[inside & (path > AIR_L)]  # the window follows the body, not the air around it
     lo, hi = np.percentile(vals, [1.0, 98.0]) if vals.size else (0.0, 1.0)
     lo = min(lo, 0.0)
@@ -169,11 +210,45 @@ class FluoroRenderer:
         self.path: np.ndarray | None = None  # attenuation L of the image shown, rows top first
         self.camera: Camera | None = None  # its C-arm pose
         self.contrast = (1.0, 0.0)  # the window/level the display texture was made with
+        self.blur: np.ndarray | None = None  # blurred(self.path), kept with it
+        self._pose: tuple | None = None  # the arm's pose and image size the kept shares were made for
+        self._parts: dict = {}  # mesh key -> (its share of L, that share's blur) (see capture)
 
     def capture(self, meshes: list[XrayMesh], camera: Camera) -> np.ndarray:
-        """Attenuation image (size x size, float32, rows top first) of `meshes` seen by `camera`."""
-        ctx = self.ctx
+        """Attenuation image (size x size, float32, rows top first) of `meshes` seen by `camera`.
+
+        L is a sum over meshes, so each mesh's share is kept with what it was made from (the arm's
+        pose, the mesh's GPU version, its model matrix, its attenuation) and only shares whose mesh
+        changed are drawn again: in live fluoroscopy that is the needle, a few hundred triangles,
+        not the skull's two hundred thousand (which cost llvmpipe some 50 ms an image). Each share's
+        blur is kept as well (`self.blur`), for the same reason."""
         vp = camera.view_projection(1.0)
+        pose = (vp.tobytes(), tuple(float(c) for c in camera.eye), self.size)
+        if pose != self._pose:
+            self._parts.clear()
+            self._pose = pose
+        total = np.zeros((self.size, self.size), np.float32)
+        blur = np.zeros((self.size, self.size), np.float32)
+        kept = {}
+        for m in meshes:
+            if m.mu <= 0.0 or not m.gpu.n_indices:
+                continue
+            model = np.asarray(m.model, float)
+            key = (m.gpu.serial, m.gpu.version, m.gpu.n_indices, model.tobytes(), float(m.mu))
+            part = self._parts.get(key)
+            if part is None:
+                share = self._draw([m], vp, camera)
+                part = (share, blurred_part(share))
+            kept[key] = part
+            total += part[0]
+            blur += part[1]
+        self._parts = kept  # shares of meshes gone or changed are dropped
+        self.blur = blur
+        return total
+
+    def _draw(self, meshes: list[XrayMesh], vp: np.ndarray, camera: Camera) -> np.ndarray:
+        """The attenuation of `meshes` alone (rows top first), drawn in one additive pass."""
+        ctx = self.ctx
         try:
             self.fbo.use()
             ctx.scissor = None
@@ -185,8 +260,6 @@ class FluoroRenderer:
             ctx.blend_equation = ctx.FUNC_ADD
             self.acc["u_source"].value = tuple(float(c) for c in camera.eye)
             for m in meshes:
-                if m.mu <= 0.0 or not m.gpu.n_indices:
-                    continue
                 model = np.asarray(m.model, float)
                 self.acc["u_mvp"].write(_mat(vp @ model))
                 if "u_model" in self.acc:
@@ -206,7 +279,7 @@ class FluoroRenderer:
         if draw.attempt != self.attempt:
             self.attempt = draw.attempt
             if draw.images == 0 and draw.image_id == self.image_id:
-                self.shown, self.path = False, None
+                self.shown, self.path, self.blur = False, None, None
         contrast = (draw.window, draw.level)
         if draw.image_id == self.image_id or draw.image_id <= 0:  # no new image (0: none taken yet)
             if self.path is not None and contrast != self.contrast:  # the monitor's window/level turned
@@ -220,7 +293,7 @@ class FluoroRenderer:
         return True
 
     def _show(self, contrast: tuple[float, float]) -> None:
-        g = grey(self.path, *contrast)
+        g = grey(self.path, *contrast, blur=self.blur)
         if g.shape[0] != self.display.size[1]:
             self.display.release()
             self.display = self.ctx.texture((g.shape[1], g.shape[0]), 4)
@@ -236,6 +309,7 @@ class FluoroRenderer:
         self.size = int(size)
         self.target = self.ctx.texture((self.size, self.size), 1, dtype="f4")
         self.fbo = self.ctx.framebuffer(color_attachments=[self.target])
+        self._parts.clear()
 
     def draw(self, r: Rect) -> None:
         """The latest image, square and centred in the framebuffer rectangle `r` (black around it)."""
@@ -255,7 +329,7 @@ class FluoroRenderer:
         """The image shown, as grey RGB (rows top first), or None before the first."""
         if self.path is None:
             return None
-        g = grey(self.path, *self.contrast)
+        g = grey(self.path, *self.contrast, blur=self.blur)
         return np.dstack([g, g, g])
 
     def release(self) -> None:

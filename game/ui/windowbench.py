@@ -4,8 +4,9 @@ Xvfb, driven with xdotool.
 `chainsim bench render --pack prp` times the window's frames off screen; this drives the real one
 (`chainsim play prp --frame-times`), buffer swaps and event handling included, through the actions
 that redraw the most: keeping still, turning the Horizontal dial by dragging it, orbiting the
-surgeon's view by dragging in it, and the same with the skin see-through (its toggle clicked). The
-landmarks are placed by an input script first, as the dials only turn in the aiming step.
+surgeon's view by dragging in it, the same with the skin see-through (its toggle clicked), then live
+fluoroscopy (the Live switch clicked) kept still and with the dial turning. The landmarks are placed
+by an input script first, as the dials only turn in the aiming step.
 
     chainsim bench window [--out DIR] [--seconds 6] [--python PATH]
 
@@ -40,7 +41,7 @@ from chainsim.game.packs.discovery import resolve
 from chainsim.game.packs.pack import load
 from chainsim.systems.view import ViewState
 
-HELP = "frame rate of the real prp window under Xvfb, driven with xdotool (dial, orbit, see-through skin)"
+HELP = "frame rate of the real prp window under Xvfb, driven with xdotool (dial, orbit, see-through skin, live X-ray)"
 W, H = 1280, 800
 LANDMARKS_UNTIL = 1.6  # s of the pack's correct script: the three landmark picks
 
@@ -165,6 +166,15 @@ def run(args) -> int:
         phase("see-through still", still, 3.0)
         phase("see-through orbiting", view, args.seconds)
         phase("see-through turning a dial", dial, args.seconds)
+        # live fluoroscopy (the panel's Live switch, as the pedal held): a new X-ray image 15 times a
+        # second of simulated time while the trainee turns the dial under it
+        xdo("mousemove", *widgets["fluoro_live"])
+        xdo("click", 1)
+        time.sleep(0.5)
+        phase("live fluoroscopy", still, 3.0)
+        phase("live fluoroscopy turning a dial", dial, args.seconds)
+        xdo("mousemove", *widgets["fluoro_live"])
+        xdo("click", 1)
         # quit as a trainee does: Esc, and Esc again to leave the attempt unsaved (the recording is
         # written on the way out)
         found = subprocess.run(
