@@ -305,6 +305,13 @@ section(
         Field("id", "str", help="Step identifier."),
         Field("title", "str", help="Short title shown in the HUD."),
         Field("instruction", "str", "", help="What the trainee does in this step."),
+        Field(
+            "fluoro_first_instruction",
+            "str",
+            "",
+            help="Said instead of instruction in fluoroscopy-first mode (needle procedures' fluoro_first), for a "
+            "step whose instruction leans on the tip view's target ring; empty: instruction.",
+        ),
         Field("docs", "str", "", help="Docs page shown with this step."),
         Field(
             "done_on",

@@ -213,3 +213,14 @@ def test_fluoro_first_must_be_true_or_false(tmp_path, cli):
     code, out, err = cli("validate", str(pack))
     assert code == 2
     assert "needle_procedure.fluoro_first: expected true or false" in out + err
+
+
+def test_fluoro_first_aiming_steps_say_to_aim_by_the_x_ray_not_the_ring():
+    events = [(t, e) for t, e in load_script(PACK / "scripts" / "correct.toml") if t <= 1.6]  # the landmarks
+    for settings, ring in ((None, True), ({"fluoro_first": True}, False)):
+        app, _carm = run(events, steps=int(1.8 * 120), settings=settings)
+        h = app.resource(HudState)
+        assert h.step_title.lower().startswith("aim")
+        assert ("ring" in h.step_instruction) is ring
+        assert ring or "X-ray" in h.step_instruction
+        app.close()

@@ -146,6 +146,8 @@ class ProcedureSystem:
         h = hud(app)
         h.step_title = spec.get("title", ps.step_id)
         h.step_instruction = spec.get("instruction", "")
+        if self.fluoro_first and spec.get("fluoro_first_instruction"):  # no ring to line up with
+            h.step_instruction = spec["fluoro_first_instruction"]
         h.step_doc = spec.get("docs", "") or h.step_doc
         h.doc_name = h.step_doc or h.doc_name
         # a reading step opens its page in the app (thesis 3.4); later steps keep it a Help press away
