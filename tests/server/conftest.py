@@ -298,6 +298,18 @@ def site(request, tmp_path_factory, pack_copy):
     server.stop()
 
 
+def settle(db: str, timeout: float = 240.0) -> None:
+    """Wait until no upload of ``db`` is still scoring: uploads an earlier test left are attempts by then,
+    so a count taken now changes only by what the test itself sends."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        with RecordStore(db) as store:
+            if store.query("SELECT COUNT(*) FROM uploads WHERE state = 'scoring'")[0][0] == 0:
+                return
+        time.sleep(0.2)
+    raise AssertionError(f"uploads of {db} still scoring after {timeout} s")
+
+
 def count_attempts(db: str) -> int:
     with RecordStore(db) as store:
         return len(store.list_attempts())
