@@ -224,3 +224,13 @@ def test_fluoro_first_aiming_steps_say_to_aim_by_the_x_ray_not_the_ring():
         assert ("ring" in h.step_instruction) is ring
         assert ring or "X-ray" in h.step_instruction
         app.close()
+
+
+def test_a_fluoro_first_recording_replays_in_that_mode(tmp_path, cli):
+    rec, out = tmp_path / "ff.json", tmp_path / "replayed"
+    code, _, err = cli("run", str(PACK), "--headless", "--steps", "60", "--fluoro-first", "--record", rec)
+    assert code == 0, err
+    assert json.loads(rec.read_text())["settings"]["fluoro_first"] is True
+    code, _, err = cli("replay", rec, "--out", out)
+    assert code == 0, err
+    assert json.loads((out / "summary.json").read_text())["assessment"]["fluoro_first"] is True

@@ -18,7 +18,7 @@ NAME = "replay"
 HELP = "replay a recorded session and compare its final digest"
 
 #: settings a recording may carry; the records database or server it names is ignored (a replay never saves)
-REPLAY_SETTINGS = ("db", "records", "class", "trainee", "model")
+REPLAY_SETTINGS = ("db", "records", "class", "trainee", "model", "fluoro_first")
 
 
 def add_parser(sub):
@@ -52,7 +52,10 @@ def check_recording(data, where: str) -> dict:
     if unknown:
         raise UserError(f"{where}: unknown setting {unknown[0]!r} in 'settings'; known: {', '.join(REPLAY_SETTINGS)}")
     for key, value in settings.items():
-        if not isinstance(value, str):
+        if key == "fluoro_first":  # the one switch (play/run --fluoro-first); the rest are names
+            if not isinstance(value, bool):
+                raise UserError(f"{where}: setting 'fluoro_first' must be true or false, got {type(value).__name__}")
+        elif not isinstance(value, str):
             raise UserError(f"{where}: setting {key!r} must be text, got {type(value).__name__}")
     kept = {k: v for k, v in settings.items() if k not in ("db", "records")}
     return {
