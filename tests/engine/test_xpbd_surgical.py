@@ -96,6 +96,7 @@ def test_a_body_left_alone_stays_at_rest(n, size, E, nu):
 # -- under a pull ---------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "n,size,E,nu,pull",
     [

@@ -47,6 +47,7 @@ def _site(tmp_path: Path, value: str, *, record: bool = True) -> tuple[Path, Pat
     return site, marker
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "value, record",
     [

@@ -207,6 +207,7 @@ def test_a_mutant_that_validates_runs_its_scripts_and_saves(name, needle_packs, 
     assert seen.get("refused") and seen.get("ran and saved"), seen
 
 
+@pytest.mark.slow
 def test_the_unmutated_packs_run_every_script_and_save(needle_packs, tmp_path):
     for pack in needle_packs.values():
         pack.write(pack.data)

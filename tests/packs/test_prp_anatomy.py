@@ -207,6 +207,7 @@ def test_bones_are_closed_surfaces(meshes):
         assert np.array_equal(forward[0], backward[0]) and np.array_equal(forward[1], backward[1]), name
 
 
+@pytest.mark.slow
 def test_eyes_and_lips_are_painted_where_the_landmarks_are(anatomy, meshes):
     painted = {n: trimesh.load(PACK / "meshes" / f"{n}.ply", force="mesh") for n in PAINTED}
     skin = meshes["skin"]
@@ -241,6 +242,7 @@ def test_mouth_and_jaw_fit_the_skull(anatomy, meshes):
     assert 5.0 < upper_incisal - lower_incisal < 20.0  # a relaxed jaw, slightly open
 
 
+@pytest.mark.slow
 def test_skin_encloses_the_skull_with_plausible_facial_tissue(meshes):
     skin, skull = meshes["skin"], meshes["skull"]
     v = skull.vertices

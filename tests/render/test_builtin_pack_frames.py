@@ -48,6 +48,7 @@ SCRIPTS = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ref,script,steps", SCRIPTS)
 def test_window_view_images_and_layers_draw_what_a_fresh_frame_draws(ref, script, steps):
     """The window keeps view images and layers (a still view copied; a moving needle, tissue or

@@ -89,11 +89,12 @@ def test_window_plays_a_script_and_saves_what_it_shows(tmp_path):
     assert abs(interval[1:].sum() / 1e3 - (t[-1] - t[0])) < 0.05
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(shutil.which("Xvfb") is None or shutil.which("xdotool") is None, reason="needs Xvfb and xdotool")
 def test_bench_window_drives_the_real_window_and_reports_each_phase(tmp_path):
     """`chainsim bench window` opens the prp window under Xvfb, turns a dial and orbits by dragging,
-    with the skin opaque and see-through, and reports the frame rate of each phase from the
-    window's own frame log."""
+    with the skin opaque and see-through, runs live fluoroscopy, and reports the frame rate of each
+    phase from the window's own frame log."""
     out = tmp_path / "bw"
     r = subprocess.run(
         [sys.executable, "-m", "game", "bench", "window", "--seconds", "1.5", "--out", str(out)],
@@ -112,6 +113,8 @@ def test_bench_window_drives_the_real_window_and_reports_each_phase(tmp_path):
         "see-through still",
         "see-through orbiting",
         "see-through turning a dial",
+        "live fluoroscopy",
+        "live fluoroscopy turning a dial",
     }
     for name, cells in phases.items():
         frames, fps = int(cells[1]), float(cells[3])
@@ -133,6 +136,15 @@ def test_bench_window_drives_the_real_window_and_reports_each_phase(tmp_path):
         values = app.resource(WidgetState).values
         assert values["skin_transparent"] is True
         assert abs(float(values["rotate_horizontal"])) > 1.0
+        # the Live switch was clicked on and off again: live seconds were counted, none run now
+        import esper
+
+        from chainsim.components.fluoro import CArm
+        from chainsim.components.resources import EntityIndex
+
+        with app.active():
+            carm = esper.component_for_entity(app.resource(EntityIndex).get("carm"), CArm)
+        assert carm.live_s > 1.0 and not carm.live
     finally:
         app.close()
     r2 = subprocess.run(

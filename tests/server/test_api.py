@@ -265,6 +265,7 @@ def test_errors_are_json_and_pages_carry_security_headers(site):
     assert hdrs["X-Content-Type-Options"] == "nosniff"
 
 
+@pytest.mark.slow
 def test_many_concurrent_uploads_all_land_and_are_scored_once(site):
     from concurrent.futures import ThreadPoolExecutor
 

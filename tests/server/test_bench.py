@@ -10,6 +10,7 @@ from chainsim.game.records.store import RecordStore
 from chainsim.game.server.bench import run_bench
 
 
+@pytest.mark.slow
 def test_bench_sends_real_uploads_scores_each_once_and_cleans_up(records_db, cli):
     result = run_bench(records_db, clients=3, attempts=2, scorers=2)
     assert result["acknowledged"] == 6 and result["errors"] == 0 and result["refused"] == 0

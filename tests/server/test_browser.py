@@ -54,6 +54,7 @@ def sign_in(page, site, name: str) -> None:
     page.click("button[type=submit]")
 
 
+@pytest.mark.slow
 def test_trainer_signs_in_opens_progress_plot_and_exports_csv(browser, site, tmp_path):
     sent = [send(site, "alice", upload(("correct.toml", "skull-hit.toml")[i % 2])) for i in range(4)]
     sent.append(send(site, "bob", upload("skull-hit.toml")))

@@ -8,6 +8,7 @@ from __future__ import annotations
 import io
 import sys
 
+import pytest
 from conftest import PASSWORD, attempt, call, populate, save_scored, start_server, upload
 
 from chainsim.game.records.store import RecordStore
@@ -19,6 +20,7 @@ def add_user(cli, monkeypatch, db, *args, password=PASSWORD):
     return cli("records", "--db", db, "user", "add", "--password-stdin", *args)
 
 
+@pytest.mark.slow
 def test_serve_acceptance(records_db, tmp_path, cli, monkeypatch):
     assert add_user(cli, monkeypatch, records_db, "--role", "trainer", "--class", "c1", "tina")[0] == 0
     assert add_user(cli, monkeypatch, records_db, "--role", "trainee", "--class", "c1", "alice")[0] == 0

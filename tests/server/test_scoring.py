@@ -114,6 +114,7 @@ def test_unknown_pack_or_copy_or_non_saving_recording_is_refused_and_stays_queue
             assert expected in store.query("SELECT last_error FROM outbox")[0][0]
 
 
+@pytest.mark.slow
 def test_killed_server_scores_every_waiting_upload_once_after_restart(records_db, tmp_path):
     populate(records_db)
     srv = start_server(records_db, tmp_path / "serve.log")
@@ -172,6 +173,7 @@ def test_trainee_cannot_delete_trainer_retracts_with_a_reason(server, tmp_path):
     assert status == 403
 
 
+@pytest.mark.slow
 def test_a_pack_updated_on_a_running_server_scores_uploads_made_with_its_new_files(records_db, tmp_path, pack_copy):
     folder = tmp_path / "packs"
     shutil.copytree(pack_copy, folder / "prp")  # this server's own copy, which the trainer updates

@@ -11,6 +11,7 @@ import os
 import subprocess
 import sys
 
+import pytest
 from conftest import (
     PASSWORD,
     REPO,
@@ -87,6 +88,7 @@ def test_save_message_names_the_signed_in_account_and_the_number_the_records_sho
     assert ids.index(result["attempt_id"]) + 1 == number  # My attempts shows it with that number
 
 
+@pytest.mark.slow
 def test_offline_save_is_queued_then_synced_once(tmp_path, records_db):
     populate(records_db)
     port = free_port()
@@ -160,6 +162,7 @@ def chainsim(*args, env=None, stdin=None):
     )
 
 
+@pytest.mark.slow
 def test_command_line_run_login_and_sync(site, tmp_path):
     script = tmp_path / "save.toml"
     script.write_text((SCRIPTS / "correct.toml").read_text() + '\n[[event]]\nt = 5.0\nkind = "widget"\nname = "save"\n')

@@ -48,6 +48,7 @@ def login(cli, monkeypatch, local, url, *extra):
     return code, out, "".join(line for line in err.splitlines(True) if "created a new records database" not in line)
 
 
+@pytest.mark.slow
 def test_sign_in_with_cafile_is_kept_for_later_syncs(records_db, tmp_path, certificates, cli, monkeypatch):
     populate(records_db)
     tls = ("--certfile", str(certificates / "server.pem"), "--keyfile", str(certificates / "server.key"))

@@ -79,6 +79,7 @@ def test_skin_with_nothing_fixed_reaches_every_target(cli, tmp_path, mm):
     assert v.outside == 0 and v.worst <= 1e-6
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("volume", ["skin", "block"])
 def test_tetrahedral_volumes_end_inside(cli, tmp_path, volume):
     case = exact_cases.skin_case(True, volume=True) if volume == "skin" else exact_cases.block_case(9)

@@ -271,6 +271,7 @@ def chainsim(*argv, env=None):
 needs_cli = pytest.mark.skipif(not (REPO / "game" / "cli" / "main.py").exists(), reason="game/cli/main.py not present")
 
 
+@pytest.mark.slow
 @needs_cli
 def test_entry_point_exit_codes(db, tmp_path):
     ok = chainsim("records", "--db", str(db), "list", "--class", "c2")

@@ -31,6 +31,7 @@ def _signatures() -> dict[str, set[str]]:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("pack", ["cutting", "prp"])
 def test_no_pack_needs_a_kernel_type_warmup_left_out(pack, monkeypatch):
     monkeypatch.setenv("PYGLET_HEADLESS", "true")
