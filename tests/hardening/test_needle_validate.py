@@ -71,6 +71,19 @@ CASES = {
         "needle_procedure.reset_step",
         "not a step",
     ),
+    # the debrief formats ideal_path per side when an attempt ends: a bad name must fail here, not there
+    "ideal-path-brace": (
+        'ideal_path = "mental_{side}"',
+        'ideal_path = "mental}_{side}"',
+        "needle_procedure.ideal_path",
+        "'}'",
+    ),
+    "ideal-path-field": (
+        'ideal_path = "mental_{side}"',
+        'ideal_path = "mental_{sid}"',
+        "needle_procedure.ideal_path",
+        "unknown field",
+    ),
     "feedback-event-unknown": ('on = "reset"', 'on = "reste"', "feedback.8.on", "not an event"),
     "step-landmark-missing": ('landmark = "entry"', 'landmark = "entri"', "steps.1.landmark", "not a landmark id"),
     "role-entity-missing": (

@@ -170,6 +170,8 @@ def problems(man: dict) -> list[tuple[str, str]]:
     for i, sp in enumerate(specs):
         for k in ("points", "planes", "plane_through"):
             side_names += [(f"landmarks.{i}.{k}", n) for n in sp.get(k, [])]
+    if isinstance(npc.get("ideal_path"), str) and npc["ideal_path"]:
+        side_names.append(("needle_procedure.ideal_path", npc["ideal_path"]))  # the debrief formats it per side
     bad_names = set()
     for key, name in side_names:
         msg = format_problem(name, SIDE_VALUES, strict=True)
