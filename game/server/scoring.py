@@ -39,6 +39,7 @@ from chainsim.engine import limits
 from chainsim.engine.errors import UserError
 from chainsim.game.records import provenance
 from chainsim.game.records.backend import db_errors
+from chainsim.game.records.schema import LEGACY_METRICS
 from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import clean_attempt, clean_created_at, clean_name, to_json
 
@@ -59,18 +60,7 @@ RECORDING_SETTINGS = ("class", "trainee", "model")
 #: (a window that took several steps in one frame saves a step or two later than the replay), the
 #: dose with them, everything else by rounding only
 TIME_TOLERANCE_S = 0.1
-COMPARED = (
-    "duration_s",
-    "landmark_error_mm",
-    "needle_error_mm",
-    "target",
-    "skull_contacts",
-    "path_length_mm",
-    "redirections",
-    "xray_shots",
-    "exposure_s",
-    "dose_mgy",
-)
+COMPARED = (*LEGACY_METRICS, "target")  # every fixed figure of an attempt
 
 
 # -- the server's packs --------------------------------------------------------------------------

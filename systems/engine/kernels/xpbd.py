@@ -162,6 +162,16 @@ def tet_energy(x, tets, dm_inv, vol, active, mu, lam, gamma):
 
 
 @njit(cache=True)
+def _add_forces(out, tets, t, v, g):
+    """Add -V (P Dm^-T) column k (g, from _grads) to vertex k of tet t."""
+    for k in range(4):
+        i = tets[t, k]
+        out[i, 0] -= v * g[k, 0]
+        out[i, 1] -= v * g[k, 1]
+        out[i, 2] -= v * g[k, 2]
+
+
+@njit(cache=True)
 def _cofactor(F, out):
     """out = cofactor(F) = det(F) F^-T, the derivative of det F: columns f1 x f2, f2 x f0, f0 x f1."""
     for r in range(3):
@@ -269,11 +279,7 @@ def tet_forces(x, tets, dm_inv, vol, active, mu, lam, gamma, stvk, out):
                 for c in range(3):
                     P[r, c] = mu * F[r, c] + lam * (J - gamma) * C[r, c]
         _grads(P, dm_inv[t], g)
-        for k in range(4):
-            i = tets[t, k]
-            out[i, 0] -= vol[t] * g[k, 0]
-            out[i, 1] -= vol[t] * g[k, 1]
-            out[i, 2] -= vol[t] * g[k, 2]
+        _add_forces(out, tets, t, vol[t], g)
 
 
 @njit(cache=True)
@@ -362,11 +368,7 @@ def corot_forces(x, tets, dm_inv, vol, active, mu, lam, quats, out):
             for c in range(3):
                 P[r, c] = 2.0 * mu * (F[r, c] - R[r, c]) + lam * (J - 1.0) * C[r, c]
         _grads(P, dm_inv[t], g)
-        for k in range(4):
-            i = tets[t, k]
-            out[i, 0] -= vol[t] * g[k, 0]
-            out[i, 1] -= vol[t] * g[k, 1]
-            out[i, 2] -= vol[t] * g[k, 2]
+        _add_forces(out, tets, t, vol[t], g)
 
 
 @njit(cache=True)
