@@ -9,6 +9,7 @@ every dial, slider and text.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -92,9 +93,27 @@ def debrief_layout(
     return lines
 
 
-def debrief(ov: Overlay, rows: list[tuple[str, str]], r: Rect, s: float) -> None:
-    """The attempt's debrief in a box along the bottom of the main view, in the largest font (down to
-    two thirds of the main one) whose lines all fit in DEBRIEF_SHARE of the view's height."""
+@dataclass
+class DebriefFit:
+    """Where the debrief goes: its font, its lines of (text, tone, x offset) and its box in window
+    pixels; `max_w(dx)` is the width a line starting at dx may take (text wider than that is cut)."""
+
+    font: object
+    lines: list[list[tuple[str, str, float]]]
+    x: float
+    y: float
+    w: float
+    h: float
+    pad: float
+
+    def max_w(self, dx: float) -> float:
+        return self.w - 2 * self.pad - dx
+
+
+def debrief_fit(ov: Overlay, rows: list[tuple[str, str]], r: Rect, s: float) -> DebriefFit:
+    """The debrief's layout in a box along the bottom of the main view, in the largest font (down to
+    0.7 of the main one) whose lines all fit in DEBRIEF_SHARE of the view's height; where none does,
+    the smallest font in one column (every line still inside the view: the box grows upwards)."""
     pad = 8 * s
     w = r.w - 2 * pad
     base = ov.font_px_base
@@ -108,20 +127,27 @@ def debrief(ov: Overlay, rows: list[tuple[str, str]], r: Rect, s: float) -> None
         bh = len(lines) * f.line_h + pad
         if bh <= r.h * DEBRIEF_SHARE:
             break
-    y0 = r.y + pad
-    ov.rect(r.x + pad, y0, w, bh, (0.0, 0.0, 0.0, 0.78))
-    top = y0 + bh - pad / 2
-    for i, line in enumerate(lines):
+    return DebriefFit(f, lines, r.x + pad, r.y + pad, w, min(bh, r.h - 2 * pad), pad)
+
+
+def debrief(ov: Overlay, rows: list[tuple[str, str]], r: Rect, s: float) -> DebriefFit:
+    """The attempt's debrief drawn where debrief_fit puts it; returns that layout."""
+    fit = debrief_fit(ov, rows, r, s)
+    f, pad = fit.font, fit.pad
+    ov.rect(fit.x, fit.y, fit.w, fit.h, (0.0, 0.0, 0.0, 0.78))
+    top = fit.y + fit.h - pad / 2
+    for i, line in enumerate(fit.lines):
         for text, tone, dx in line:
             ov.label(
                 text,
-                r.x + 2 * pad + dx,
+                fit.x + pad + dx,
                 top - (i + 1) * f.line_h + f.descent,
                 DEBRIEF_TONES.get(tone, TEXT),
-                max_w=w - 2 * pad - dx,
+                max_w=fit.max_w(dx),
                 font=f,
                 bold=tone in ("head", "critical"),
             )
+    return fit
 
 
 def debrief_paths(ov: Overlay, camera, r: Rect, paths: list[tuple], s: float, square: bool = False) -> None:
