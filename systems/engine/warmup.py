@@ -26,14 +26,21 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable
 
+import numba
 import numpy as np
 
 from chainsim.engine.bodies.chainmail import ChainMailBody
 from chainsim.engine.bodies.projective import ProjectiveBody
 from chainsim.engine.bodies.xpbd import XPBDBody
 from chainsim.engine.chainmail_params import ORDERS
+from chainsim.engine.kernels import waves
 from chainsim.engine.kernels.chainmail import cascade
-from chainsim.engine.kernels.normals import _normals_parallel, moved_normals_kernel, vertex_normals_kernel
+from chainsim.engine.kernels.normals import (
+    PARALLEL_THREADS,
+    _normals_parallel,
+    moved_normals_kernel,
+    vertex_normals_kernel,
+)
 from chainsim.engine.meshgen import tet_grid, triangulated_grid
 from chainsim.engine.progress import progress
 from chainsim.engine.segment_tree import SegmentTree
@@ -57,14 +64,13 @@ def _chainmail(order: str, dtype) -> None:
         body.cut(rest[0] - 1.0, rest[-1] + 1.0, normal=[0.0, 0.0, 1.0], depth=10.0)
 
 
-def _parallel_cascade() -> None:
+def _parallel_cascade(dtype) -> None:
     # the level-parallel cascade, which a body takes by itself on large meshes with many threads
     rest, _tets, links, _tris = _grid()
-    for dtype in (np.float64, np.float32):
-        body = ChainMailBody(rest, links, dtype=dtype)
-        t = (body.rest[-1] + 0.5)[None]
-        cascade(body.rest, body.positions, body.graph, body.amin, body.amax, body.beta, [len(rest) - 1], t,
-                workspace=body.workspace, parallel=True)  # fmt: skip
+    body = ChainMailBody(rest, links, dtype=dtype)
+    t = (body.rest[-1] + 0.5)[None]
+    cascade(body.rest, body.positions, body.graph, body.amin, body.amax, body.beta, [len(rest) - 1], t,
+            workspace=body.workspace, parallel=True)  # fmt: skip
 
 
 def _models() -> None:
@@ -113,9 +119,11 @@ def _moving_normals() -> None:
             vertex_normals_kernel(pos, tris, np.zeros((n, 3), out_type))
         normals = np.zeros((n, 3), pos_type)
         moved_normals_kernel(pos, tris, ptr, idx, np.arange(2, dtype=np.int64), np.zeros(n, np.bool_), normals)
-    # large meshes on machines with several cores take the parallel gather (float32, the GPU copy)
-    pos32 = np.ascontiguousarray(rest[:n], dtype=np.float32)
-    _normals_parallel(pos32, tris, ptr, idx, np.zeros((n, 3), np.float32), 2)
+    # large meshes on machines with several cores take the parallel gather (float32, the GPU copy);
+    # with fewer threads normals_into never calls it, and a parallel kernel is slow to compile
+    if numba.config.NUMBA_NUM_THREADS >= PARALLEL_THREADS:
+        pos32 = np.ascontiguousarray(rest[:n], dtype=np.float32)
+        _normals_parallel(pos32, tris, ptr, idx, np.zeros((n, 3), np.float32), 2)
 
 
 #: the kernel groups, in the order they are compiled when nothing asks for another first: what every
@@ -132,17 +140,34 @@ def chainmail_group(order: str, dtype: str = "float64") -> str:
     return f"ChainMail {order} {dtype}"
 
 
+PARALLEL = "ChainMail level-parallel"
+
 GROUPS: dict[str, Callable[[], None]] = {
     GEOMETRY: _geometry,
     MOVING: _moving_normals,
-    "ChainMail level-parallel": _parallel_cascade,  # long (a parallel kernel) and shares nothing: begun early
+    PARALLEL: lambda: _parallel_cascade(np.float64),  # long (a parallel kernel), shares nothing: begun early
     **{
         chainmail_group(order, name): (lambda order=order, dtype=dtype: _chainmail(order, dtype))
         for order in ORDERS
         for name, dtype in PRECISIONS.items()
     },
+    f"{PARALLEL} (float32)": lambda: _parallel_cascade(np.float32),
     MODELS: _models,
 }
+
+
+def reachable(threads: int | None = None) -> list[str]:
+    """The groups `chainsim warmup` and the window compile unasked: every kernel a built-in pack can
+    call on a machine where numba has `threads` threads (default: its own count). Left out until a
+    pack asks for them (`Compiler.prefer`) or `chainsim warmup --all`: ChainMail in float32 (a pack's
+    `deformable.dtype`; no built-in pack sets it, and it would compile each order a second time), and
+    with fewer threads than kernels.waves.AUTO_MIN_THREADS the level-parallel cascade, which a body
+    then never takes (waves.parallel_wins; a parallel kernel is the slowest to compile)."""
+    threads = numba.config.NUMBA_NUM_THREADS if threads is None else threads
+    out = [n for n in GROUPS if "float32" not in n]
+    if threads < waves.AUTO_MIN_THREADS:
+        out.remove(PARALLEL)
+    return out
 
 
 def family(name: str) -> str:
@@ -153,8 +178,9 @@ def family(name: str) -> str:
 
 
 def warm_up(groups: Iterable[str] | None = None) -> None:
-    """Run every kernel group once in this process (compiling it, or loading it from numba's cache)."""
-    names = list(GROUPS) if groups is None else list(groups)
+    """Run kernel groups (default: every `reachable` one) once in this process, compiling each or
+    loading it from numba's cache."""
+    names = reachable() if groups is None else list(groups)
     bar = progress(total=len(names), desc="compiling kernels", unit="group")
     try:
         for name in names:
@@ -210,12 +236,13 @@ class Compiler:
     `done` (groups finished, failed ones too: their kernels then compile where they are first called),
     `failed` (name -> why) and `fraction()` say how far it got, from any thread; `ready(names)` whether
     those groups are done;
-    `wait()` blocks until all are. `seconds` is the time from start to the last group.
+    `wait()` blocks until all are. `seconds` is the time from start to the last group. `groups`
+    defaults to the `reachable` ones; a group `first` or `prefer` names joins them.
     """
 
     def __init__(self, first: Iterable[str] = (), processes: int | None = None, groups: Iterable[str] | None = None):
-        names = list(GROUPS) if groups is None else list(groups)
-        first = [n for n in dict.fromkeys(first) if n in names]
+        names = reachable() if groups is None else list(groups)
+        first = [n for n in dict.fromkeys(first) if n in GROUPS]
         self.queue = deque(first + [n for n in names if n not in first])
         self.total = len(self.queue)
         self.done: list[str] = []
@@ -227,12 +254,22 @@ class Compiler:
         self._changed = threading.Condition(self._lock)
         self._finished = threading.Event()
         self._procs: list[subprocess.Popen] = []
-        n = max(1, min(processes or PROCESSES, self.total)) if self.total else 0
-        self._alive = n
-        if not n:
+        self._processes = processes or PROCESSES
+        self._alive = 0
+        self._workers = 0  # feeding threads started (their numbers)
+        with self._lock:
+            self._start_workers()
+        if not self._alive:
             self._finished.set()
             self.seconds = 0.0
-        for i in range(n):
+
+    def _start_workers(self) -> None:
+        """Start feeding threads (each with its child process) up to the process count or the queue's
+        length (with the lock held)."""
+        while self._alive < min(max(1, self._processes), len(self.queue)):
+            self._alive += 1
+            self._workers += 1
+            i = self._workers - 1
             threading.Thread(target=self._feed, args=(i,), daemon=True, name=f"chainsim-compile-{i}").start()
 
     def _eligible(self, name: str) -> bool:
@@ -252,10 +289,19 @@ class Compiler:
                     self.running[worker] = name
                     return name
                 self._changed.wait(0.5)  # a group of the same family is running: wait until it is done
+            self._retire()  # now, under the lock: a group `prefer` adds after this starts another feeder
             return None
+
+    def _retire(self) -> None:
+        """One feeder fewer (with the lock held); the last one marks the compiler finished."""
+        self._alive -= 1
+        if self._alive == 0:
+            self.seconds = time.perf_counter() - self.started
+            self._finished.set()
 
     def _feed(self, worker: int) -> None:
         proc = None
+        retired = False
         try:
             proc = subprocess.Popen(
                 [sys.executable, "-m", "chainsim.engine.warmup", "--child"],
@@ -269,7 +315,11 @@ class Compiler:
                 self._procs.append(proc)
             if proc.stdout.readline().strip() != "ready":
                 raise RuntimeError("the compiling process did not start")
-            while (name := self._next(worker)) is not None:
+            while True:
+                name = self._next(worker)
+                if name is None:  # no group left: _next has retired this feeder
+                    retired = True
+                    break
                 proc.stdin.write(name + "\n")
                 proc.stdin.flush()
                 reply = proc.stdout.readline().strip()
@@ -294,17 +344,24 @@ class Compiler:
                     proc.wait(timeout=10)
                 except Exception:
                     proc.kill()
-            with self._lock:
-                self._alive -= 1
-                if self._alive == 0:
-                    self.seconds = time.perf_counter() - self.started
-                    self._finished.set()
+            if not retired:
+                with self._lock:
+                    self._retire()
 
     def prefer(self, names: Iterable[str]) -> None:
-        """Hand out the groups `names` (those not begun yet) before any other."""
+        """Hand out the groups `names` (those not begun yet) before any other; one not among this
+        compiler's groups (a pack's float32 ChainMail) joins them, and the children start again if they
+        had finished."""
         with self._lock:
-            first = [n for n in dict.fromkeys(names) if n in self.queue]
+            begun = set(self.done) | set(self.running.values())
+            first = [n for n in dict.fromkeys(names) if n in GROUPS and n not in begun]
+            added = [n for n in first if n not in self.queue]
             self.queue = deque(first + [n for n in self.queue if n not in first])
+            if added:
+                self.total += len(added)
+                self._finished.clear()
+                self.seconds = None
+                self._start_workers()
 
     def ready(self, names: Iterable[str] | None = None) -> bool:
         """Whether the groups `names` (default: all) need no more compiling here."""
@@ -325,6 +382,17 @@ class Compiler:
 
     def wait(self, timeout: float | None = None) -> bool:
         return self._finished.wait(timeout)
+
+    def close(self, timeout: float = 10.0) -> None:
+        """Wait for the child processes to end (after `wait()`: they end once the groups run out)."""
+        with self._lock:
+            procs = list(self._procs)
+        for proc in procs:
+            try:
+                proc.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
 
     def stop(self) -> None:
         """Hand out no more groups (the window closed first). A child ends after the group it is on, so

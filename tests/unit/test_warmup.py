@@ -166,3 +166,43 @@ def test_first_uploads_take_numpys_normals_equal_to_the_kernels(monkeypatch):
     kernel = meshbuf.vertex_normals(pos, tris)
     monkeypatch.setattr(meshbuf, "KERNEL_NORMALS", False)
     np.testing.assert_allclose(meshbuf.vertex_normals(pos, tris), kernel, atol=1e-12)
+
+
+@pytest.mark.parametrize("threads", [1, 2, 4, 16])
+def test_warmup_leaves_out_only_groups_no_body_takes_with_that_many_threads(threads):
+    from chainsim.engine import warmup
+    from chainsim.engine.kernels import waves
+
+    groups = warmup.reachable(threads)
+    assert set(groups) <= set(warmup.GROUPS)
+    assert not [g for g in groups if "float32" in g]
+    # the level-parallel cascade is compiled exactly where a body would take it on some mesh
+    takes = any(waves.parallel_wins(n, threads) for n in (10**4, 10**5, 10**6, 10**7))
+    assert (warmup.PARALLEL in groups) == takes
+    assert {warmup.GEOMETRY, warmup.MOVING, warmup.MODELS} <= set(groups)
+
+
+@pytest.mark.parametrize("pack", sorted(p.name for p in (ROOT / "assets").iterdir() if (p / "pack.toml").is_file()))
+def test_every_group_a_built_in_pack_needs_is_compiled_by_warmup(pack):
+    from chainsim.engine import warmup
+    from chainsim.game.app.compiling import needed_groups
+    from chainsim.game.app.headless import build_app
+
+    app = build_app(str(ROOT / "assets" / pack))
+    try:
+        needed = needed_groups(app)
+    finally:
+        app.close()
+    assert needed and not set(needed) - set(warmup.reachable(1))
+
+
+def test_a_group_a_pack_asks_for_after_the_rest_are_done_is_compiled():
+    from chainsim.engine import warmup
+
+    c = warmup.Compiler(groups=[])
+    assert c.ready() and c.ready([warmup.GEOMETRY]) is False
+    c.prefer([warmup.GEOMETRY])  # a pack's group the window did not start with (float32 ChainMail)
+    assert not c.ready() and c.total == 1
+    assert c.wait(300), "the group was not compiled"
+    c.close()
+    assert c.ready([warmup.GEOMETRY]) and c.done == [warmup.GEOMETRY] and not c.failed

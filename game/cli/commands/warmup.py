@@ -1,14 +1,16 @@
 """`chainsim warmup`: compile every numba kernel ahead (after installing), so nothing waits later.
 
 The kernel groups compile in child processes side by side (chainsim.engine.warmup.Compiler), then
-this process loads them all from numba's cache, which also compiles anything a child could not."""
+this process loads them all from numba's cache, which also compiles anything a child could not.
+Every kernel a built-in pack can reach on this machine is among them (warmup.reachable); `--all`
+adds the rest (ChainMail in float32, the parallel kernels numba never takes with this few threads)."""
 
 from __future__ import annotations
 
 import time
 
 from chainsim.engine.progress import progress
-from chainsim.engine.warmup import Compiler, warm_up
+from chainsim.engine.warmup import GROUPS, Compiler, reachable, warm_up
 
 NAME = "warmup"
 HELP = "compile the soft-tissue kernels now (a minute or two once per install) so no interaction waits on it"
@@ -17,13 +19,20 @@ HELP = "compile the soft-tissue kernels now (a minute or two once per install) s
 def add_parser(sub):
     p = sub.add_parser(NAME, help=HELP, description=HELP)
     p.add_argument("--in-process", action="store_true", help="compile in this process only, one group after another")
+    p.add_argument(
+        "--all",
+        action="store_true",
+        help="also the kernels no built-in pack reaches on this machine (float32 ChainMail, parallel kernels "
+        "numba only takes with 4 or more threads)",
+    )
     return p
 
 
 def run(args) -> int:
     t0 = time.perf_counter()
+    groups = list(GROUPS) if getattr(args, "all", False) else reachable()
     if not getattr(args, "in_process", False):
-        compiler = Compiler()
+        compiler = Compiler(groups=groups)
         bar = progress(total=compiler.total, desc="compiling kernels", unit="group")
         try:
             seen, said = 0, ""
@@ -37,8 +46,9 @@ def run(args) -> int:
             bar.update(compiler.total - seen)
         finally:
             bar.close()
+        compiler.close()
     for name, why in compiler.failed.items() if not getattr(args, "in_process", False) else ():
         print(f"{name}: compiled here ({why})")
-    warm_up()  # loads what the children cached; compiles here whatever they could not
+    warm_up(groups)  # loads what the children cached; compiles here whatever they could not
     print(f"kernels ready in {time.perf_counter() - t0:.1f} s")
     return 0

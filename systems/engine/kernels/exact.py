@@ -887,8 +887,11 @@ def _exact(
     settled = False
     clamped = False
     lgen = gen
-    nlog = 0
-    nflag = 0
+    # counts that start at zero are typed int64, not as the literal 0: numba compiles a callee once per
+    # argument type, and a literal is a type of its own (one more copy of _walk per precision)
+    zero = np.int64(0)
+    nlog = zero
+    nflag = zero
     if free and has_fixed:
         # the cascade reached a fixed element: a target may be out of reach, so settle the grabbed
         # elements before the walks rather than after a wasted walk (this reads only the pins)
@@ -914,7 +917,7 @@ def _exact(
         lgen = gen + attempt
         v, _, at_fixed, nlog, nflag, ok = _walk(
             rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, pin, gen, first,
-            moved, moved.shape[0], moved, 0, log_ids, 0, log_stamp, lgen, x0, flag_ids, 0, flag, queue, inq,
+            moved, moved.shape[0], moved, zero, log_ids, zero, log_stamp, lgen, x0, flag_ids, zero, flag, queue, inq,
             EPS_REL, eps_abs, max_visits - visits,
         )  # fmt: skip
         visits += v
@@ -937,8 +940,8 @@ def _exact(
         # move for, so walk 2 starts from their ends
         v, blocked, _, nlog, nflag, ok = _walk(
             rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, pin, gen, second,
-            flag_ids, nflag, flag_ids, 0, log_ids, nlog, log_stamp, lgen, x0, flag_ids, nflag, flag, queue,
-            inq, EPS_REL, eps_abs, _greater(max_visits - visits, 0),
+            flag_ids, nflag, flag_ids, zero, log_ids, nlog, log_stamp, lgen, x0, flag_ids, nflag, flag, queue,
+            inq, EPS_REL, eps_abs, _greater(max_visits - visits, zero),
         )  # fmt: skip
         visits += v
         complete = complete and ok
