@@ -17,7 +17,10 @@ on their own page and can open nothing else (403).
 
 from __future__ import annotations
 
+import asyncio
+import base64
 import csv
+import hashlib
 import io
 import json
 from typing import Any
@@ -29,7 +32,7 @@ from starlette.routing import Route
 
 from chainsim.game.records import report, xapi
 from chainsim.game.records.store import RecordStore
-from chainsim.game.server import accounts, plots, scoring, throttle
+from chainsim.game.server import accounts, plots, replay3d, scoring, throttle
 from chainsim.game.server.accounts import User
 from chainsim.game.server.api import audit_entries, readable_attempt, retract_attempt, visible_attempts
 from chainsim.game.server.auth import (
@@ -353,6 +356,16 @@ def attempt_view(a: dict, specs: dict) -> dict:
     }
 
 
+#: the attempt page's import map (three.js's modules import "three"); inline, so allowed by its hash
+IMPORT_MAP = '{"imports": {"three": "/static/vendor/three/three.module.js"}}'
+_MAP_HASH = base64.b64encode(hashlib.sha256(IMPORT_MAP.encode()).digest()).decode()
+#: the site's policy, with this site's scripts and the import map allowed (the 3-D replay)
+REPLAY_CSP = (
+    f"default-src 'self'; img-src 'self'; style-src 'self'; script-src 'self' 'sha256-{_MAP_HASH}'; "
+    "connect-src 'self'; frame-ancestors 'none'; form-action 'self'; base-uri 'none'"
+)
+
+
 async def attempt_page(request: Request) -> Response:
     user, csrf = await page_user(request)
     d = await request.app.state.storage.run(attempt_detail, user, _int_param(request, "attempt_id"))
@@ -361,7 +374,104 @@ async def attempt_page(request: Request) -> Response:
         lambda *_: metric_specs(getattr(request.app.state, "packs", None), a.get("pack", ""))
     )
     view = attempt_view(a, specs)
-    return render("attempt.html", user=user, csrf=csrf, a=a, trainee_id=d["trainee_id"], v=view)
+    page = render("attempt.html", user=user, csrf=csrf, a=a, trainee_id=d["trainee_id"], v=view, import_map=IMPORT_MAP)
+    page.headers["Content-Security-Policy"] = REPLAY_CSP
+    return page
+
+
+# -- the attempt in 3-D (chainsim.game.server.replay3d) ------------------------------------------
+
+
+def attempt_recording(store: RecordStore, user: User, attempt_id: int) -> tuple[dict, str]:
+    """The attempt (if this account may read it) and its stored recording; 404 when it has none."""
+    a = readable_attempt(store, user, attempt_id)
+    rows = store.query("SELECT recording FROM attempt_recordings WHERE attempt_id = ?", (attempt_id,))
+    if not rows:
+        raise HTTPError(404, f"attempt {attempt_id} has no recording (only attempts the server scored can be replayed)")
+    return a, rows[0][0]
+
+
+def _pack_info(request: Request, name: str, pack_hash: str | None = None) -> dict:
+    info = request.app.state.packs.info(name)
+    if info is None:
+        raise HTTPError(404, f"this server has no pack {name!r}, so the attempt cannot be replayed")
+    if pack_hash and info["identity"]["hash"] != pack_hash:
+        raise HTTPError(409, f"pack {name!r} changed since this attempt was scored; its replay would differ")
+    return info
+
+
+def _replays(request: Request) -> replay3d.Replays:
+    state = request.app.state
+    if getattr(state, "replays", None) is None:
+        state.replays = replay3d.Replays()
+    return state.replays
+
+
+def _paths(request: Request) -> list[str]:
+    return list(request.app.state.packs.pack_paths)
+
+
+def _cached(request: Request, etag: str, max_age: int) -> dict[str, str] | None:
+    """Cache headers for a response whose bytes depend only on `etag`; None when the browser's copy is current."""
+    headers = {"ETag": f'"{etag}"', "Cache-Control": f"private, max-age={max_age}"}
+    return None if request.headers.get("if-none-match", "").strip() == headers["ETag"] else headers
+
+
+async def _track(request: Request) -> tuple[dict, dict, str]:
+    user, _ = await page_user(request)
+    attempt_id = _int_param(request, "attempt_id")
+    a, recording = await request.app.state.storage.run(attempt_recording, user, attempt_id)
+    info = await asyncio.to_thread(_pack_info, request, a["pack"], a.get("pack_hash"))
+    key = replay3d.track_key(recording, info["identity"]["hash"])
+    # a replay takes seconds: on a thread of its own, not one of the database's workers
+    track = await asyncio.to_thread(_replays(request).track, key, recording, info["root"], _paths(request))
+    return a, track, key
+
+
+async def attempt_replay(request: Request) -> Response:
+    """The attempt's replay track (JSON): the needle over time, contacts, X-ray image addresses, and
+    the stored landmarks and paths the page draws beside it."""
+    a, track, key = await _track(request)
+    headers = _cached(request, key, 3600)
+    if headers is None:
+        return Response(status_code=304, headers={"ETag": f'"{key}"'})
+    d = a.get("details") or {}
+    body = replay3d.public_track(track, a["id"])
+    body.update(
+        {
+            "pack": a["pack"],
+            "mesh": f"/packs/{a['pack']}/display.glb",
+            "landmarks": d.get("landmarks") or [],
+            "ideal_landmarks": d.get("ideal_landmarks") or [],
+            "ideal_path": d.get("ideal_path"),
+            "needle_path": d.get("needle_path") or [],
+        }
+    )
+    return Response(json.dumps(body), media_type="application/json", headers=headers)
+
+
+async def attempt_xray(request: Request) -> Response:
+    a, track, key = await _track(request)
+    name = request.path_params["image"]
+    k = int(name[:-4]) if name.endswith(".png") and name[:-4].isdigit() else 0
+    if not 1 <= k <= len(track["images"]):
+        raise HTTPError(404, f"attempt {a['id']} has {len(track['images'])} X-ray images; no image {name!r}")
+    headers = _cached(request, f"{key}-{k}", 3600)
+    if headers is None:
+        return Response(status_code=304)
+    return Response(track["images"][k - 1]["png"], media_type="image/png", headers=headers)
+
+
+async def pack_mesh(request: Request) -> Response:
+    """The pack's anatomy as binary glTF, cached by the pack's version (its hash)."""
+    await page_user(request)
+    info = await asyncio.to_thread(_pack_info, request, request.path_params["pack"])
+    etag = info["identity"]["hash"][:32]
+    headers = _cached(request, etag, 86400)
+    if headers is None:
+        return Response(status_code=304, headers={"ETag": f'"{etag}"'})
+    data = await asyncio.to_thread(_replays(request).glb, etag, info["root"], _paths(request))
+    return Response(data, media_type="model/gltf-binary", headers=headers)
 
 
 async def attempt_retract(request: Request) -> Response:
@@ -420,6 +530,9 @@ routes = [
     Route("/trainees/{trainee_id:int}/plot/{image}", plot_image, methods=["GET"]),
     Route("/attempts/{attempt_id:int}", attempt_page, methods=["GET"]),
     Route("/attempts/{attempt_id:int}/retract", attempt_retract, methods=["POST"]),
+    Route("/attempts/{attempt_id:int}/replay.json", attempt_replay, methods=["GET"]),
+    Route("/attempts/{attempt_id:int}/xray/{image}", attempt_xray, methods=["GET"]),
+    Route("/packs/{pack}/display.glb", pack_mesh, methods=["GET"]),
     Route("/audit", audit_page, methods=["GET"]),
     Route("/export/attempts.csv", export_csv, methods=["GET"]),
     Route("/export/attempts.xapi.json", export_xapi, methods=["GET"]),

@@ -1,0 +1,279 @@
+"""The attempt page's 3-D replay: the needle's track, bone contacts and X-ray images from a recording,
+and the pack's anatomy as compact display meshes (binary glTF).
+
+The thesis's trainer lets a trainee watch the attempt against the ideal afterwards (6.1.5); on the
+records server the trainer does it in the browser. The server already replays every upload to score
+it (``chainsim.game.server.scoring``); here the stored recording of one attempt is replayed again,
+headless with off-screen rendering (EGL), and sampled: the needle's tip and direction over the
+attempt's time, where the tip touched something (role and point), and every X-ray image the C-arm
+made, rendered by the simulator's own fluoroscopy renderer (``chainsim.game.gl.fluoro``) exactly as
+the trainee saw it. Only the attempt the recording saved last is kept (a recording starts at the
+session's start, so earlier attempts of that session come before it).
+
+Meshes: each pack entity drawn from a mesh file, in its display copy where the pack has one
+(``display`` in ``[meshes.X]``), thinned by vertex clustering when still large, with its material's
+colour; written as one GLB (trimesh) so the browser downloads a few hundred kB once per pack version.
+
+Replays run in a process of their own (spawned, like the scorers') and the results are kept per
+attempt in memory: a page opened twice replays once.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import multiprocessing
+import threading
+from collections import OrderedDict
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from chainsim.engine.errors import UserError
+from chainsim.game.records import provenance
+
+#: needle samples per simulated second kept in the track (the browser interpolates between them)
+SAMPLE_HZ = 20.0
+#: at most this many X-ray images per attempt; live fluoroscopy makes 15 a second, so beyond
+#: one per LIVE_KEEP_S of a live run the pulses in between are left out
+MAX_IMAGES = 48
+LIVE_KEEP_S = 1.0
+#: a display mesh with more triangles than this is thinned for the browser
+MAX_TRIANGLES = 20_000
+
+
+def replay_track(recording_text: str, pack_root: str, pack_paths: list[str]) -> dict:
+    """Replay a recording headless with off-screen rendering; the last saved attempt's track:
+
+    ``{"duration_s", "frames": [[t, tip x y z, direction x y z], ...], "contacts": [{"t", "role",
+    "point"}], "images": [{"t", "png" (bytes), "view", "azimuth_deg", "elevation_deg"}], "needle_length_mm"}``
+    with t in seconds of the attempt's own clock."""
+    import esper  # noqa: PLC0415 - worker process only
+
+    from chainsim.components.fluoro import CArm  # noqa: PLC0415
+    from chainsim.components.needle import Needle, NeedleState  # noqa: PLC0415
+    from chainsim.components.procedure import ProcedureState  # noqa: PLC0415
+    from chainsim.components.resources import EntityIndex, PendingInput, Records  # noqa: PLC0415
+    from chainsim.game.app.headless import app_for_pack, check_events  # noqa: PLC0415
+    from chainsim.game.app.inputscript import parse_events  # noqa: PLC0415
+    from chainsim.game.gl.renderer import Renderer  # noqa: PLC0415
+    from chainsim.game.packs import pack as packs  # noqa: PLC0415
+    from chainsim.game.server.scoring import _recording_fields  # noqa: PLC0415
+    from chainsim.systems.procedures.needle.handles import NeedleHandles  # noqa: PLC0415
+
+    recording = provenance.decode_recording(recording_text)
+    fields = _recording_fields(recording)
+    events = parse_events(recording, "recording")
+    pack = packs.load(Path(pack_root), pack_paths)
+    settings = {"model": fields["model"]} if fields["model"] else {}
+    app = app_for_pack(pack, fields["scene"], settings=settings, dt=fields["dt"], render=True, save="replay")
+    saves: list[tuple[int, int]] = []  # (attempt number, frame index) at each Save
+    frames: list[tuple[int, list[float]]] = []
+    contacts: list[tuple[int, dict]] = []
+    images: list[tuple[int, dict]] = []
+    try:
+
+        def capture(class_name: str, trainee: str, record: dict) -> int:
+            ps = esper.component_for_entity(handles.procedure, ProcedureState)
+            saves.append((ps.attempt, len(frames)))
+            return len(saves)
+
+        app.insert_resource(Records(save_attempt=capture, list_attempts=lambda c, t: [], where="replay"))
+        check_events(app, events, "recording")
+        app.resource(PendingInput).extend(events)
+        handles = app.resource(NeedleHandles)
+        with app.active():
+            length = float(esper.component_for_entity(handles.needle, Needle).length)
+        every = max(1, round(1.0 / (SAMPLE_HZ * app.time.dt)))
+        seen_contacts = 0
+        image_id = -1
+        last_live_t = -1e9
+        for step in range(fields["steps"]):
+            app.update(app.time.dt)
+            with app.active():
+                ps = esper.component_for_entity(handles.procedure, ProcedureState)
+                st = esper.component_for_entity(handles.needle, NeedleState)
+                t = round(float(ps.elapsed), 3)
+                if step % every == 0 or not frames:
+                    tip = st.tip() if st.placed else np.full(3, np.nan)
+                    frames.append((ps.attempt, [t, *_r(tip), *_r(st.direction(), 4)]))
+                n = sum(st.contacts.values())
+                if n < seen_contacts:  # a new attempt counts from zero
+                    seen_contacts = 0
+                if n > seen_contacts:
+                    point = st.contact_point if np.all(np.isfinite(st.contact_point)) else st.tip()
+                    contacts.append((ps.attempt, {"t": t, "role": st.contact, "point": _r(point)}))
+                    seen_contacts = n
+                index = app.get_resource(EntityIndex)
+                carm = esper.try_component(index.get("carm"), CArm) if index and index.get("carm") is not None else None
+                fluoro = app.resource(Renderer)._fluoro if app.get_resource(Renderer) is not None else None
+                if carm is not None and fluoro is not None and fluoro.image_id != image_id and fluoro.shown:
+                    image_id = fluoro.image_id
+                    if carm.live and t - last_live_t < LIVE_KEEP_S:
+                        continue
+                    last_live_t = t if carm.live else last_live_t
+                    rgb = fluoro.image_rgb()
+                    if rgb is not None:
+                        images.append(
+                            (
+                                ps.attempt,
+                                {
+                                    "t": t,
+                                    "png": _png(rgb),
+                                    "view": carm.view,
+                                    "live": bool(carm.live),
+                                    "azimuth_deg": round(float(carm.image_pose[0]), 1),
+                                    "elevation_deg": round(float(carm.image_pose[1]), 1),
+                                },
+                            )
+                        )
+    finally:
+        app.close()
+    if not saves:
+        raise UserError("the recording does not replay to a saved attempt")
+    attempt, end = saves[-1]
+    kept = [f for a, f in frames[: end + 1] if a == attempt]
+    return {
+        "needle_length_mm": length,
+        "duration_s": kept[-1][0] if kept else 0.0,
+        "frames": kept,
+        "contacts": [c for a, c in contacts if a == attempt],
+        "images": [i for a, i in images if a == attempt][-MAX_IMAGES:],
+    }
+
+
+def _r(v, digits: int = 2) -> list[float | None]:
+    return [round(float(c), digits) if np.isfinite(c) else None for c in np.asarray(v, float)]
+
+
+def _png(rgb: np.ndarray) -> bytes:
+    from PIL import Image  # noqa: PLC0415
+
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgb), "RGB").save(buf, format="PNG", optimize=True)
+    return buf.getvalue()
+
+
+# -- display meshes ----------------------------------------------------------------------------
+
+
+def cluster(vertices: np.ndarray, triangles: np.ndarray, most: int) -> tuple[np.ndarray, np.ndarray]:
+    """A mesh thinned to about `most` triangles by vertex clustering: vertices snapped to a grid (the
+    cell grown until few enough triangles are left), each cell's vertices merged at their mean,
+    triangles that collapse dropped. Coarse but shape-true to within a cell, which is all a
+    see-through overview needs."""
+    v = np.asarray(vertices, float)
+    f = np.asarray(triangles, np.int64)
+    if len(f) <= most:
+        return v, f
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    cell = float(np.max(hi - lo)) / 400.0
+    while True:
+        keys = np.floor((v - lo) / cell).astype(np.int64)
+        _, inverse = np.unique(keys, axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        g = inverse[f]
+        keep = (g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 0] != g[:, 2])
+        if keep.sum() <= most:
+            break
+        cell *= 1.25
+    n = int(inverse.max()) + 1
+    sums = np.zeros((n, 3))
+    np.add.at(sums, inverse, v)
+    counts = np.bincount(inverse, minlength=n)[:, None]
+    g = np.unique(np.sort(g[keep], axis=1), axis=0, return_index=True)[1]
+    faces = inverse[f][keep][np.sort(g)]
+    return sums / counts, faces
+
+
+def display_glb(pack_root: str, pack_paths: list[str]) -> bytes:
+    """The pack's anatomy for the browser: one node per entity drawn from a mesh file (its display copy
+    where it has one), named after the entity, coloured by its material; instruments (primitives) are
+    left out: the page draws the needle from the track."""
+    import trimesh  # noqa: PLC0415
+
+    from chainsim.game.packs import pack as packs  # noqa: PLC0415
+
+    pack = packs.load(Path(pack_root), pack_paths)
+    meshes = pack.section("meshes")
+    materials = pack.section("materials")
+    scene = trimesh.Scene()
+    for name, ent in pack.manifest.get("entities", {}).items():
+        ref = ent.get("mesh") if isinstance(ent, dict) else None
+        if not isinstance(ref, dict) or not ref.get("mesh"):
+            continue
+        spec = meshes.get(ref["mesh"], {})
+        if spec.get("primitive") or not spec.get("path"):
+            continue
+        md = pack.display_mesh(ref["mesh"])
+        v, f = cluster(md.vertices, md.triangles, MAX_TRIANGLES)
+        color = list(materials.get(ref.get("material", ""), {}).get("color", [0.8, 0.8, 0.8, 1.0]))[:4]
+        rgba = np.clip(np.array((color + [1.0])[:4]) * 255, 0, 255).astype(np.uint8)
+        mesh = trimesh.Trimesh(vertices=v.astype(np.float32), faces=f.astype(np.uint32), process=False)
+        # one colour per mesh as its material: no per-vertex or per-face colour data to download
+        material = trimesh.visual.material.PBRMaterial(name=name, baseColorFactor=rgba, metallicFactor=0.0)
+        mesh.visual = trimesh.visual.TextureVisuals(material=material)
+        scene.add_geometry(mesh, node_name=name, geom_name=name)
+    return scene.export(file_type="glb")
+
+
+# -- the server's side: one replay process, results kept ----------------------------------------
+
+
+class Replays:
+    """Replays and meshes for the attempt pages, computed in one spawned process and kept in memory."""
+
+    def __init__(self, keep: int = 16) -> None:
+        self.keep = keep
+        self._pool: ProcessPoolExecutor | None = None
+        self._lock = threading.Lock()
+        self._tracks: OrderedDict[str, dict] = OrderedDict()
+        self._glbs: dict[str, bytes] = {}
+
+    def _submit(self, fn, *args) -> Any:
+        with self._lock:
+            if self._pool is None:
+                self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+            pool = self._pool
+        return pool.submit(fn, *args).result()
+
+    def track(self, key: str, recording: str, pack_root: str, pack_paths: list[str]) -> dict:
+        with self._lock:
+            hit = self._tracks.get(key)
+            if hit is not None:
+                self._tracks.move_to_end(key)
+                return hit
+        track = self._submit(replay_track, recording, pack_root, list(pack_paths))
+        with self._lock:
+            self._tracks[key] = track
+            while len(self._tracks) > self.keep:
+                self._tracks.popitem(last=False)
+        return track
+
+    def glb(self, key: str, pack_root: str, pack_paths: list[str]) -> bytes:
+        hit = self._glbs.get(key)
+        if hit is None:
+            hit = self._glbs[key] = self._submit(display_glb, pack_root, list(pack_paths))
+        return hit
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+
+
+def track_key(recording: str, pack_hash: str) -> str:
+    """What a replay's result depends on: the recording and the pack's version."""
+    return hashlib.sha256(json.dumps([recording, pack_hash]).encode()).hexdigest()[:32]
+
+
+def public_track(track: dict, attempt_id: int) -> dict:
+    """The track as the page reads it: images as addresses instead of bytes."""
+    out = {k: v for k, v in track.items() if k != "images"}
+    out["images"] = [
+        {**{k: v for k, v in im.items() if k != "png"}, "url": f"/attempts/{attempt_id}/xray/{k + 1}.png"}
+        for k, im in enumerate(track["images"])
+    ]
+    return out
