@@ -38,6 +38,7 @@ from numba import njit
 
 from . import waves
 from .boxes import start_cascade, try_move, violation
+from .gather import LANES, lowest_bit, unmoved_mask
 from .graph import Graph
 from .prefetch import prefetch
 
@@ -129,7 +130,7 @@ class Workspace:
         self.q_key = np.empty(0, dtype=np.float64)  # violation (Schill)
         self.branch_head = np.empty(0, dtype=np.int64)
         self.branch_tail = np.empty(0, dtype=np.int64)
-        self.csr32 = None  # (graph, indptr, indices) in int32 for the breadth-first order
+        self.csr32 = None  # (graph, indptr, indices, padded indices) in int32 for the breadth-first order
         # The mesh arrays last checked with this workspace, held (not just their ids) so an identity
         # match means the very same arrays: interactive dragging re-checks only pos, grabbed, targets.
         self.checked: tuple = ()
@@ -159,15 +160,20 @@ class Workspace:
         if order == ORDER_SCHILL and cap > self.q_key.shape[0]:
             self.q_key = np.empty(cap, dtype=np.float64)
 
-    def narrow_csr(self, graph: Graph, kargs: tuple) -> tuple:
+    def narrow_csr(self, graph: Graph, kargs: tuple, padded: bool = False) -> tuple:
         """kargs with the CSR arrays in int32 when they fit (kept per graph: a Graph's neighbour lists
-        never change, cuts only flip alive flags; added links make a new Graph)."""
+        never change, cuts only flip alive flags; added links make a new Graph). With `padded` the
+        neighbour ids are followed by sixteen zeros, so that kernels.gather may read sixteen ids from
+        any entry on (the breadth-first loop); otherwise they are a view of exactly 2M ids."""
         c = self.csr32
         if c is None or c[0] is not graph:
             if graph.indices.shape[0] >= 2**31 - 1:
                 return kargs
-            c = self.csr32 = (graph, graph.indptr.astype(np.int32), graph.indices.astype(np.int32))
-        return (c[1], c[2], *kargs[2:])
+            m = graph.indices.shape[0]
+            ids = np.zeros(m + LANES, dtype=np.int32)
+            ids[:m] = graph.indices
+            c = self.csr32 = (graph, graph.indptr.astype(np.int32), ids[:m], ids)
+        return (c[1], c[3] if padded else c[2], *kargs[2:])
 
     def next_generation(self) -> int:
         self.gen += 1
@@ -282,6 +288,9 @@ def _fifo_loop(
             prefetch(indices, indptr[s1 + 1] - 1)
         s = out_order[head]
         head += 1
+        start = indptr[s]
+        stop = indptr[s + 1]
+        r0 = r1 = r2 = b0 = b1 = b2 = 0.0
         if dim == 3:
             # the sponsor's rows loaded once per sponsor; the same arithmetic as try_move otherwise
             r0 = np.float64(rest[s, 0])
@@ -290,9 +299,24 @@ def _fifo_loop(
             b0 = np.float64(pos[s, 0])
             b1 = np.float64(pos[s, 1])
             b2 = np.float64(pos[s, 2])
-            for j in range(indptr[s], indptr[s + 1]):
+        # Most of a sponsor's neighbours have moved already; which have not is asked sixteen entries at a
+        # time (kernels.gather), and only those entries are visited, in their listed order.
+        while start < stop:
+            width = min(stop - start, LANES)
+            mask = unmoved_mask(indices, start, width, stamp, gen)
+            while mask != 0:
+                j = start + lowest_bit(mask)
+                mask &= mask - 1
                 e = indices[j]
+                # stamp again: a link listed twice may have moved e earlier in this very row
                 if stamp[e] == gen or not ealive[j] or (has_fixed and fixed[e]):
+                    continue
+                if dim != 3:
+                    if try_move(rest, pos, e, s, eamin[j * ms], eamax[j * ms], ebeta[j * ms]):
+                        stamp[e] = gen
+                        out_order[count] = e
+                        out_sponsor[count] = s
+                        count += 1
                     continue
                 am = eamin[j * ms]
                 ax = eamax[j * ms]
@@ -325,16 +349,7 @@ def _fifo_loop(
                     out_order[count] = e
                     out_sponsor[count] = s
                     count += 1
-            continue
-        for j in range(indptr[s], indptr[s + 1]):
-            e = indices[j]
-            if stamp[e] == gen or not ealive[j] or (has_fixed and fixed[e]):
-                continue
-            if try_move(rest, pos, e, s, eamin[j * ms], eamax[j * ms], ebeta[j * ms]):
-                stamp[e] = gen
-                out_order[count] = e
-                out_sponsor[count] = s
-                count += 1
+            start += width
     return count
 
 
@@ -755,9 +770,9 @@ def cascade(
         if parallel:
             count = waves.cascade_waves(*args, ws)
         else:
+            csr = ws.narrow_csr(graph, kargs, padded=True)
             count = _cascade_fifo(
-                rest, pos, *ws.narrow_csr(graph, kargs), grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen,
-                ws.out_order, ws.out_sponsor,
+                rest, pos, *csr, grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen, ws.out_order, ws.out_sponsor,
             )  # fmt: skip
     elif order == ORDER_DEPTH_FIRST:
         count = _cascade_depth_first(*args, ws.q_entry, ws.q_sponsor, ws.out_order, ws.out_sponsor)

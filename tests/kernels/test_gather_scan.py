@@ -1,0 +1,81 @@
+"""The sixteen-at-a-time scan of unmoved neighbours (kernels.gather) against a plain loop, and the
+breadth-first cascade built on it against the waiting-list reference on meshes whose rows are longer
+than sixteen entries or list a link twice (the cases where its chunks and its second stamp check
+matter)."""
+
+from __future__ import annotations
+
+import numpy as np
+from cascade_reference import ref_cascade
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from chainsim.engine.kernels.chainmail import ORDER_BREADTH_FIRST, cascade, make_workspace, material_arrays
+from chainsim.engine.kernels.gather import LANES, mask_of
+from chainsim.engine.kernels.graph import build_graph
+
+SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.sampled_from([np.int32, np.int64]))
+def test_mask_marks_exactly_the_entries_whose_stamp_differs(seed, id_dtype):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 200))
+    m = int(rng.integers(1, 100))
+    ids = np.zeros(m + LANES, dtype=id_dtype)  # padded as the cascade's CSR copy is
+    ids[:m] = rng.integers(0, n, m)
+    stamp = rng.integers(0, 3, n).astype(np.int32)
+    gen = np.int32(rng.integers(0, 3))
+    start = int(rng.integers(0, m))
+    count = int(rng.integers(0, min(LANES, m - start) + 1))
+    want = sum(1 << k for k in range(count) if stamp[ids[start + k]] != gen)
+    assert mask_of(ids, start, count, stamp, gen) == want
+
+
+def hub_mesh(rng, dim):
+    """A random graph plus hubs linked to 17-40 elements each, and some links listed twice."""
+    n = int(rng.integers(30, 80))
+    rest = rng.uniform(-3.0, 3.0, (n, dim))
+    links = [tuple(rng.choice(n, 2, replace=False)) for _ in range(2 * n)]
+    for hub in rng.choice(n, 3, replace=False):
+        for other in rng.choice(n, int(rng.integers(17, min(40, n))), replace=False):
+            if other != hub:
+                links.append((hub, other))
+    links = np.array(links, dtype=np.int64)
+    twice = links[rng.choice(len(links), len(links) // 10, replace=False)]
+    return rest, np.concatenate([links, twice[:, ::-1]])
+
+
+@SETTINGS
+@given(
+    st.integers(0, 2**32 - 1),
+    st.integers(1, 3),
+    st.sampled_from([np.float64, np.float32]),
+    st.booleans(),
+    st.booleans(),
+)
+def test_breadth_first_cascade_on_long_rows_matches_reference(seed, dim, dtype, per_link, features):
+    rng = np.random.default_rng(seed)
+    rest, links = hub_mesh(rng, dim)
+    n, m = len(rest), len(links)
+    if per_link:
+        mats = (rng.uniform(0.3, 1.0, m), rng.uniform(1.0, 2.0, m), rng.uniform(0.0, 0.4, m))
+    else:
+        mats = (0.8, 1.2, 0.1)
+    amin, amax, beta = material_arrays(m, *mats)
+    alive = rng.random(m) > 0.15 if features else np.ones(m, bool)
+    fixed = rng.random(n) < 0.1 if features else None
+    graph = build_graph(n, links)
+    graph.set_alive(~alive, False)
+    rest = rest.astype(dtype)
+    pos = (rest + rng.normal(scale=0.3, size=rest.shape)).astype(dtype)
+    ws = make_workspace(n)
+    for _ in range(3):  # a drag: each move from the last one's shape, one workspace
+        grab = np.array([int(rng.integers(n))])
+        target = (pos[grab] + rng.normal(scale=2.0, size=(1, dim))).astype(dtype)
+        want = ref_cascade(rest, pos, links, alive, amin, amax, beta, grab, target, fixed, order=ORDER_BREADTH_FIRST)
+        moved, sponsor = cascade(rest, pos, graph, amin, amax, beta, grab, target, fixed=fixed, workspace=ws)
+        np.testing.assert_array_equal(moved, want[1])
+        np.testing.assert_array_equal(sponsor, want[2])
+        np.testing.assert_array_equal(pos, want[0])
