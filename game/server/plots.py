@@ -70,8 +70,11 @@ def render(
     metric: str,
     title: str,
     fmt: str = "svg",
+    *,
+    ylabel: str = "",
+    benchmark: tuple[float, str] | None = None,
 ) -> bytes:
-    """The plot as SVG or PNG bytes."""
+    """The plot as SVG or PNG bytes; ``benchmark`` (value, words) is drawn as a horizontal line."""
     fig = Figure(figsize=(6.4, 3.2), dpi=100)
     canvas = (FigureCanvasSVG if fmt == "svg" else FigureCanvasAgg)(fig)
     ax = fig.subplots()
@@ -84,11 +87,13 @@ def render(
         ax.plot(
             [x for x, _ in med], [y for _, y in med], linestyle="--", color="0.45", marker=".", label="class median"
         )
+    if benchmark is not None:
+        ax.axhline(benchmark[0], color="tab:red", linestyle=":", label=benchmark[1])
     ax.set_xlabel("attempt")
-    ax.set_ylabel(label(metric))
+    ax.set_ylabel(ylabel or label(metric))
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
-    if own or med:
+    if own or med or benchmark is not None:
         ax.legend(loc="best", fontsize=8)
     if len(xs) <= 20 and xs:
         ax.set_xticks(xs)

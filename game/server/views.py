@@ -30,9 +30,10 @@ from starlette.requests import Request
 from starlette.responses import HTMLResponse, RedirectResponse, Response
 from starlette.routing import Route
 
+from chainsim.engine.errors import UserError
 from chainsim.game.records import report, xapi
 from chainsim.game.records.store import RecordStore
-from chainsim.game.server import accounts, plots, replay3d, scoring, throttle
+from chainsim.game.server import accounts, classpage, plots, replay3d, scoring, throttle
 from chainsim.game.server.accounts import User
 from chainsim.game.server.api import audit_entries, readable_attempt, retract_attempt, visible_attempts
 from chainsim.game.server.auth import (
@@ -48,6 +49,7 @@ from chainsim.game.server.auth import (
 from chainsim.systems.procedures.needle import debrief
 
 templates = Environment(loader=PackageLoader("chainsim.game.server", "templates"), autoescape=select_autoescape())
+templates.globals["format_value"] = lambda v, units="": debrief.number(v, units) if isinstance(v, (int, float)) else v
 templates.filters["tojson_pretty"] = lambda v: json.dumps(v, indent=2, sort_keys=True)
 
 
@@ -90,25 +92,11 @@ def class_list(store: RecordStore, user: User) -> list[dict]:
     return [dict(r) for r in rows]
 
 
-def class_detail(store: RecordStore, user: User, class_id: int) -> dict:
-    rows = store.query("SELECT id, name FROM classes WHERE id = ?", (class_id,))
-    if not rows:
-        raise HTTPError(404, f"no class with id {class_id}")
-    name = rows[0]["name"]
-    if not user.is_trainer or name not in user.classes:
-        raise HTTPError(403, f"you do not teach class {name!r}")
-    trainees = store.query(
-        """
-        SELECT t.id, t.name, COUNT(a.id) AS attempts, MAX(a.created_at) AS last
-        FROM trainees t LEFT JOIN attempts a ON a.trainee_id = t.id
-        WHERE t.class_id = ? GROUP BY t.id, t.name ORDER BY t.name
-        """,
-        (class_id,),
-    )
-    return {"id": class_id, "name": name, "trainees": [dict(r) for r in trainees]}
-
-
-def trainee_detail(store: RecordStore, user: User, trainee_id: int) -> dict:
+def trainee_detail(store: RecordStore, user: User, trainee_id: int, specs_for=None, query: dict | None = None) -> dict:
+    """One trainee's attempts of one procedure (``query['pack']``, else their newest attempt's): each with its
+    verdict against the pack's benchmarks, their latest and best, success rate and trend, a page of the
+    list (newest first), and the pack's metrics to plot. Packs never share a table or a plot."""
+    query = query or {}
     rows = store.query(
         "SELECT t.id, t.name, c.id AS class_id, c.name AS class_name FROM trainees t "
         "JOIN classes c ON c.id = t.class_id WHERE t.id = ?",
@@ -119,9 +107,39 @@ def trainee_detail(store: RecordStore, user: User, trainee_id: int) -> dict:
     t = dict(rows[0])
     if not user.can_see(t["class_name"], t["name"]):
         raise HTTPError(403, "these attempts are not yours to see")
-    t["attempts"] = store.list_attempts(t["class_name"], t["name"])
-    # a retracted attempt stays listed but leaves the progress plots
-    t["metrics"] = plots.metrics([a for a in t["attempts"] if not a["retracted_at"]])
+    every = store.list_attempts(t["class_name"], t["name"])
+    t["packs"] = sorted({a["pack"] for a in every})
+    newest = every[-1]["pack"] if every else ""
+    t["pack"] = query.get("pack") if query.get("pack") in t["packs"] else newest
+    specs = specs_for(t["pack"]) if specs_for and t["pack"] else {}
+    own = [a for a in every if a["pack"] == t["pack"]]
+    for k, a in enumerate(own, start=1):
+        a["number"] = k
+        a["judged"] = classpage.judged(a, specs)
+    kept = [a["judged"] for a in own if not a["retracted_at"]]
+    passed = [j for j in kept if j["passed"] is not None]
+    t["summary"] = {
+        "latest": kept[-1] if kept else None,
+        "best": max(kept, key=lambda j: (j["passed"] is True, j["met"], j["id"])) if kept else None,
+        "success": (sum(1 for j in passed if j["passed"]) / len(passed)) if passed else None,
+        "trend": classpage.trend([j["met"] for j in kept]),
+        "count": len(kept),
+    }
+    newest_first = own[::-1]
+    t["pages"] = max(1, -(-len(newest_first) // classpage.PAGE_SIZE))
+    try:
+        t["page"] = min(max(1, int(query.get("page", 1))), t["pages"])
+    except ValueError:
+        t["page"] = 1
+    t["attempts"] = newest_first[(t["page"] - 1) * classpage.PAGE_SIZE : t["page"] * classpage.PAGE_SIZE]
+    live = [a for a in own if not a["retracted_at"]]
+    if specs:
+        names = [m for m in specs if any(classpage.values(a).get(m) is not None for a in live)]
+        t["metrics"] = {m: specs[m].get("label") or m for m in names}
+    else:  # a pack the server does not have: the records' numeric fields
+        t["metrics"] = {m: plots.label(m) for m in plots.metrics(live)}
+    t["columns"] = list(t["metrics"])[:4]  # the table shows a few; the attempt page shows every one
+    t["units"] = {m: (specs.get(m) or {}).get("units", "") for m in t["metrics"]}
     t["waiting"] = scoring.waiting_uploads(store, [t["class_name"]], t["name"])
     return t
 
@@ -130,20 +148,31 @@ def trainee_detail(store: RecordStore, user: User, trainee_id: int) -> dict:
 MEDIAN_MIN_TRAINEES = 5
 
 
-def trainee_plot(store: RecordStore, user: User, trainee_id: int, metric: str, fmt: str) -> bytes:
-    t = trainee_detail(store, user, trainee_id)
+def trainee_plot(
+    store: RecordStore, user: User, trainee_id: int, metric: str, fmt: str, pack: str, specs: dict
+) -> bytes:
+    t = trainee_detail(store, user, trainee_id, lambda _: specs, {"pack": pack})
     if metric not in t["metrics"]:
         raise HTTPError(404, f"no metric {metric!r} in these attempts; known: {', '.join(t['metrics']) or 'none'}")
     by_trainee: dict[str, list[dict]] = {}
     for a in store.list_attempts(t["class_name"]):  # oldest first within each trainee
-        if not a["retracted_at"]:
-            by_trainee.setdefault(a["trainee"], []).append(a)
+        if not a["retracted_at"] and a["pack"] == t["pack"]:
+            by_trainee.setdefault(a["trainee"], []).append(classpage.values(a))
     median = plots.class_median(list(by_trainee.values()), metric)
     if not user.is_trainer and len(by_trainee) < MEDIAN_MIN_TRAINEES:
         # with few classmates the median gives their scores away (two trainees: it is their mean)
         median = []
-    title = f"{t['name']} ({t['class_name']}): {plots.label(metric)}"
-    return plots.render([a for a in t["attempts"] if not a["retracted_at"]], median, metric, title, fmt)
+    spec = specs.get(metric) or {}
+    units = spec.get("units", "")
+    words = t["metrics"][metric]
+    bench = None
+    if isinstance(spec.get("benchmark"), (int, float)):
+        better = "at most" if spec.get("lower_is_better", True) else "at least"
+        bench = (float(spec["benchmark"]), f"benchmark: {better} {debrief.number(spec['benchmark'], units)}")
+    title = f"{t['name']} ({t['class_name']}), {t['pack']}: {words}"
+    own = by_trainee.get(t["name"], [])  # every attempt of the pack, not only the page's
+    ylabel = f"{words} ({units})" if units else words
+    return plots.render(own, median, metric, title, fmt, ylabel=ylabel, benchmark=bench)
 
 
 def attempt_detail(store: RecordStore, user: User, attempt_id: int) -> dict:
@@ -226,15 +255,63 @@ async def home(request: Request) -> Response:
 
 async def class_page(request: Request) -> Response:
     user, csrf = await page_user(request)
-    cls = await request.app.state.storage.run(class_detail, user, _int_param(request, "class_id"))
-    return render("class.html", user=user, csrf=csrf, cls=cls)
+    packs = getattr(request.app.state, "packs", None)
+    q = dict(request.query_params)
+    cls = await request.app.state.storage.run(
+        classpage.overview, user, _int_param(request, "class_id"), lambda name: metric_specs(packs, name), q
+    )
+    notes = {"added": "Trainee account added.", "password": "New password set; their sessions and tokens have ended."}
+    return render("class.html", user=user, csrf=csrf, cls=cls, note=notes.get(q.get("done", ""), ""))
+
+
+async def class_plot(request: Request) -> Response:
+    user, _ = await page_user(request)
+    pack, metric = request.path_params["pack"], request.path_params["image"]
+    if not metric.endswith(".svg"):
+        raise HTTPError(404, f"class plots are .svg, got {metric!r}")
+    specs = await asyncio.to_thread(metric_specs, getattr(request.app.state, "packs", None), pack)
+    data = await request.app.state.storage.run(
+        classpage.metric_plot, user, _int_param(request, "class_id"), pack, metric[:-4], specs
+    )
+    return Response(data, media_type="image/svg+xml", headers={"Cache-Control": "private, no-store"})
+
+
+async def _manage(request: Request, action, done: str) -> Response:
+    """A trainer's form on the class page: CSRF-checked; a refused one counts like a failed sign-in."""
+    user, csrf = await page_user(request)
+    form = await read_form(request)
+    check_csrf(request, form, csrf)
+    if not user.is_trainer:
+        raise HTTPError(403, "only trainers manage classes")
+    key, address = throttle.guarded(request, user.name)
+    class_id = _int_param(request, "class_id")
+    try:
+        await request.app.state.storage.run(action, user, class_id, form.get("name", ""), form.get("password", ""))
+    except (HTTPError, UserError):
+        request.app.state.throttle.failed(key, address)
+        raise
+    return RedirectResponse(f"/classes/{class_id}?done={done}", status_code=303)
+
+
+async def class_add_trainee(request: Request) -> Response:
+    return await _manage(request, classpage.add_trainee, "added")
+
+
+async def class_reset_password(request: Request) -> Response:
+    return await _manage(request, classpage.reset_password, "password")
 
 
 async def trainee_page(request: Request) -> Response:
     user, csrf = await page_user(request)
-    t = await request.app.state.storage.run(trainee_detail, user, _int_param(request, "trainee_id"))
-    labels = {m: plots.label(m) for m in t["metrics"]}
-    return render("trainee.html", user=user, csrf=csrf, t=t, labels=labels)
+    packs = getattr(request.app.state, "packs", None)
+    t = await request.app.state.storage.run(
+        trainee_detail,
+        user,
+        _int_param(request, "trainee_id"),
+        lambda name: metric_specs(packs, name),
+        dict(request.query_params),
+    )
+    return render("trainee.html", user=user, csrf=csrf, t=t, labels=t["metrics"])
 
 
 async def plot_image(request: Request) -> Response:
@@ -242,7 +319,11 @@ async def plot_image(request: Request) -> Response:
     metric, _, fmt = request.path_params["image"].rpartition(".")
     if fmt not in plots.FORMATS or not metric:
         raise HTTPError(404, f"plots are .svg or .png, got {request.path_params['image']!r}")
-    data = await request.app.state.storage.run(trainee_plot, user, _int_param(request, "trainee_id"), metric, fmt)
+    pack = request.path_params.get("pack", "")
+    specs = await asyncio.to_thread(metric_specs, getattr(request.app.state, "packs", None), pack) if pack else {}
+    data = await request.app.state.storage.run(
+        trainee_plot, user, _int_param(request, "trainee_id"), metric, fmt, pack, specs
+    )
     return Response(data, media_type=plots.FORMATS[fmt], headers={"Cache-Control": "private, no-store"})
 
 
@@ -526,8 +607,12 @@ routes = [
     Route("/logout", logout, methods=["POST"]),
     Route("/", home, methods=["GET"]),
     Route("/classes/{class_id:int}", class_page, methods=["GET"]),
+    Route("/classes/{class_id:int}/plot/{pack}/{image}", class_plot, methods=["GET"]),
+    Route("/classes/{class_id:int}/trainees", class_add_trainee, methods=["POST"]),
+    Route("/classes/{class_id:int}/password", class_reset_password, methods=["POST"]),
     Route("/trainees/{trainee_id:int}", trainee_page, methods=["GET"]),
     Route("/trainees/{trainee_id:int}/plot/{image}", plot_image, methods=["GET"]),
+    Route("/trainees/{trainee_id:int}/plot/{pack}/{image}", plot_image, methods=["GET"]),
     Route("/attempts/{attempt_id:int}", attempt_page, methods=["GET"]),
     Route("/attempts/{attempt_id:int}/retract", attempt_retract, methods=["POST"]),
     Route("/attempts/{attempt_id:int}/replay.json", attempt_replay, methods=["GET"]),

@@ -1,0 +1,213 @@
+"""The class at a glance, one procedure at a time, and a trainer's management of a class in the browser.
+
+The thesis's trainer judges progress from saved results (3.3.4); a class page does it for every
+trainee of a class at once: for one procedure (pack) - never two on one line or in one table - each
+trainee's latest and best attempt, their success rate (attempts that met every benchmark and had
+no critical error), a trend (whether their latest attempts pass more benchmarks than their earlier
+ones) and whether they are below the benchmark now (their latest attempt failed). Verdicts come from
+the pack's own [metrics] benchmarks (``chainsim.systems.procedures.needle.debrief``), labels and
+units too, so nothing here names a procedure's words.
+
+Tables sort and page on the server (links with ``sort``, ``dir`` and ``page``), so they work without
+scripts. Plots: one per metric, every trainee's attempts faint, the class median over attempt
+number bold, the benchmark as a horizontal line.
+
+Management (trainers, for classes they teach; CSRF-checked forms; a refused form counts against
+the trainer like a failed sign-in, so the site's throttle slows guessing): add a trainee account,
+set a trainee's new password (their sessions and tokens end).
+"""
+
+from __future__ import annotations
+
+import io
+import statistics
+from typing import Any
+
+from matplotlib.backends.backend_svg import FigureCanvasSVG
+from matplotlib.figure import Figure
+
+from chainsim.game.records.store import RecordStore
+from chainsim.game.server import accounts
+from chainsim.game.server.accounts import User
+from chainsim.game.server.auth import HTTPError
+from chainsim.systems.procedures.needle import debrief
+
+PAGE_SIZE = 25
+SORTS = ("trainee", "attempts", "success", "latest", "best", "trend", "last")
+
+
+def values(a: dict) -> dict:
+    """An attempt's metric values as the pack's benchmarks name them."""
+    v = dict(a.get("metrics") or {})
+    for k, x in a.items():  # the record's own fixed figures, where the pack's metrics share their names
+        if isinstance(x, (int, float)) and not isinstance(x, bool) and k != "id":
+            v.setdefault(k, x)
+    return v
+
+
+def judged(a: dict, specs: dict) -> dict:
+    """The attempt with its verdict: passed (every benchmark met, no critical error), metrics passed."""
+    rows = debrief.verdicts(specs, values(a)) if specs else []
+    o = debrief.outcome(rows) if rows else {"passed": None}
+    return {
+        "id": a["id"],
+        "created_at": a["created_at"],
+        "passed": o.get("passed") if any(r["passed"] is not None for r in rows) else None,
+        "met": sum(1 for r in rows if r["passed"]),
+        "judged": sum(1 for r in rows if r["passed"] is not None),
+        "rows": rows,
+    }
+
+
+def trend(scores: list[int]) -> str:
+    """'better', 'worse' or 'steady': the latest attempts' benchmarks met against the earlier ones'."""
+    if len(scores) < 2:
+        return "-"
+    half = max(1, len(scores) // 2)
+    early, late = statistics.mean(scores[:half]), statistics.mean(scores[half:])
+    return "better" if late > early + 0.25 else "worse" if late < early - 0.25 else "steady"
+
+
+def class_row(store: RecordStore, user: User, class_id: int) -> dict:
+    rows = store.query("SELECT id, name FROM classes WHERE id = ?", (class_id,))
+    if not rows:
+        raise HTTPError(404, f"no class with id {class_id}")
+    name = rows[0]["name"]
+    if not user.is_trainer or name not in user.classes:
+        raise HTTPError(403, f"you do not teach class {name!r}")
+    return {"id": class_id, "name": name}
+
+
+def overview(store: RecordStore, user: User, class_id: int, specs_for, query: dict) -> dict:
+    """What the class page shows for one pack (``query['pack']``, else the class's first)."""
+    cls = class_row(store, user, class_id)
+    trainees = [
+        dict(r)
+        for r in store.query(
+            "SELECT t.id, t.name, u.name AS account FROM trainees t LEFT JOIN users u ON u.trainee_id = t.id "
+            "WHERE t.class_id = ? ORDER BY t.name",
+            (class_id,),
+        )
+    ]
+    attempts = [a for a in store.list_attempts(cls["name"]) if not a["retracted_at"]]
+    packs = sorted({a["pack"] for a in attempts})
+    pack = query.get("pack") if query.get("pack") in packs else (packs[0] if packs else "")
+    specs = specs_for(pack) if pack else {}
+    by_trainee: dict[str, list[dict]] = {}
+    for a in attempts:
+        if a["pack"] == pack:
+            by_trainee.setdefault(a["trainee"], []).append(a)
+    table = []
+    for t in trainees:
+        own = by_trainee.get(t["name"], [])
+        js = [judged(a, specs) for a in own]
+        latest = js[-1] if js else None
+        best = max(js, key=lambda j: (j["passed"] is True, j["met"], j["id"])) if js else None
+        passed = [j for j in js if j["passed"] is not None]
+        table.append(
+            {
+                **t,
+                "attempts": len(js),
+                "latest": latest,
+                "best": best,
+                "success": (sum(1 for j in passed if j["passed"]) / len(passed)) if passed else None,
+                "trend": trend([j["met"] for j in js]),
+                "below": latest is not None and latest["passed"] is False,
+                "last": own[-1]["created_at"] if own else "",
+            }
+        )
+    sort = query.get("sort") if query.get("sort") in SORTS else "trainee"
+    desc = query.get("dir") == "desc"
+    key = {
+        "trainee": lambda r: (r["name"],),
+        "attempts": lambda r: (r["attempts"],),
+        "success": lambda r: (r["success"] is not None, r["success"] or 0.0),
+        "latest": lambda r: (r["latest"] is not None, r["latest"]["met"] if r["latest"] else 0),
+        "best": lambda r: (r["best"] is not None, r["best"]["met"] if r["best"] else 0),
+        "trend": lambda r: ({"worse": 0, "steady": 1, "better": 2}.get(r["trend"], -1),),
+        "last": lambda r: (r["last"],),
+    }[sort]
+    table.sort(key=key, reverse=desc)
+    pages = max(1, -(-len(table) // PAGE_SIZE))
+    try:
+        page = min(max(1, int(query.get("page", 1))), pages)
+    except ValueError:
+        page = 1
+    metric_names = [k for k, s in specs.items() if isinstance(s, dict)] if specs else []
+    everyone = [values(a) for own in by_trainee.values() for a in own]
+    shown_metrics = [m for m in metric_names if any(v.get(m) is not None for v in everyone)]
+    return {
+        **cls,
+        "packs": packs,
+        "pack": pack,
+        "rows": table[(page - 1) * PAGE_SIZE : page * PAGE_SIZE],
+        "count": len(table),
+        "below": [r["name"] for r in table if r["below"]],
+        "page": page,
+        "pages": pages,
+        "sort": sort,
+        "desc": desc,
+        "metrics": [{"key": m, "label": specs[m].get("label", m.replace("_", " "))} for m in shown_metrics],
+        "accounts": [t["account"] for t in trainees if t["account"]],
+    }
+
+
+def metric_plot(store: RecordStore, user: User, class_id: int, pack: str, metric: str, specs: dict) -> bytes:
+    """One metric of one pack for the whole class: each trainee's attempts (faint), the class median
+    by attempt number, and the benchmark line (SVG)."""
+    cls = class_row(store, user, class_id)
+    if metric not in specs:
+        raise HTTPError(404, f"pack {pack!r} has no metric {metric!r}")
+    spec = specs[metric]
+    by_trainee: dict[str, list[float]] = {}
+    for a in store.list_attempts(cls["name"]):
+        if a["retracted_at"] or a["pack"] != pack:
+            continue
+        v = values(a).get(metric)
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            by_trainee.setdefault(a["trainee"], []).append(float(v))
+    fig = Figure(figsize=(6.4, 3.0), dpi=100)
+    FigureCanvasSVG(fig)
+    ax = fig.subplots()
+    for ys in by_trainee.values():
+        ax.plot(range(1, len(ys) + 1), ys, color="tab:blue", alpha=0.25, marker=".", linewidth=1)
+    longest = max((len(ys) for ys in by_trainee.values()), default=0)
+    med = [statistics.median([ys[k] for ys in by_trainee.values() if len(ys) > k]) for k in range(longest)]
+    if med:
+        ax.plot(range(1, longest + 1), med, color="tab:blue", linewidth=2.5, marker="o", label="class median")
+    units = spec.get("units", "")
+    if isinstance(spec.get("benchmark"), (int, float)):
+        better = "at most" if spec.get("lower_is_better", True) else "at least"
+        bench = debrief.number(spec["benchmark"], units)
+        ax.axhline(float(spec["benchmark"]), color="tab:red", linestyle="--", label=f"benchmark: {better} {bench}")
+    ax.set_title(f"{cls['name']}: {spec.get('label', metric)} ({pack})", fontsize=10)
+    ax.set_xlabel("attempt")
+    ax.set_ylabel(f"{spec.get('label', metric)}" + (f" ({units})" if units else ""))
+    ax.grid(alpha=0.3)
+    if med or spec.get("benchmark") is not None:
+        ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="svg", metadata={"Date": None})
+    return buf.getvalue()
+
+
+# -- management ----------------------------------------------------------------------------------
+
+
+def add_trainee(store: RecordStore, user: User, class_id: int, name: Any, password: Any) -> str:
+    cls = class_row(store, user, class_id)
+    u = accounts.add_user(store, name if isinstance(name, str) else "", "trainee", password, [cls["name"]])
+    return f"Trainee account {u.name!r} added to class {cls['name']}."
+
+
+def reset_password(store: RecordStore, user: User, class_id: int, name: Any, password: Any) -> str:
+    cls = class_row(store, user, class_id)
+    rows = store.query(
+        "SELECT u.name FROM users u JOIN trainees t ON t.id = u.trainee_id WHERE t.class_id = ? AND u.name = ?",
+        (class_id, name if isinstance(name, str) else ""),
+    )
+    if not rows:
+        raise HTTPError(404, f"class {cls['name']} has no trainee account {name!r}")
+    accounts.set_password(store, rows[0][0], password)
+    return f"New password set for {rows[0][0]!r}; their sessions and tokens have ended."
