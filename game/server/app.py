@@ -24,7 +24,7 @@ from starlette.staticfiles import StaticFiles
 
 from chainsim.engine.errors import UserError
 from chainsim.game.records import remote, xapi
-from chainsim.game.server import api, scoring, views
+from chainsim.game.server import api, scoring, train_routes, views
 from chainsim.game.server.auth import HTTPError
 from chainsim.game.server.storage import Storage, Unavailable
 from chainsim.game.server.throttle import Throttle
@@ -116,6 +116,7 @@ def build_app(
     app.state.packs = packs
     app.state.scorer = scorer
     app.state.throttle = Throttle()
+    train_routes.install(app)  # /train/PACK: the trainer in a browser tab
     # the programme's address in xAPI identities: configured, never taken from a request's Host header
     app.state.base_url = remote.server_url(base_url)
     return app

@@ -1,0 +1,176 @@
+// The trainer page (/train/PACK): draws the pictures the server streams over the WebSocket and sends
+// the mouse, wheel and keyboard back as the trainer's input events (game/server/train_routes.py).
+// Coordinates go in window units with the origin at the bottom-left, as the desktop window gives them.
+"use strict";
+(function () {
+  const canvas = document.getElementById("train-screen");
+  const state = document.getElementById("train-state");
+  const g = canvas.getContext("2d");
+  let W = canvas.width, H = canvas.height, mime = "image/jpeg";
+  // figures the benchmark reads (chainsim bench train): frames, bytes, input-to-picture latencies
+  const stats = (window.trainStats = { frames: 0, bytes: 0, shownSeq: 0, latencies: [], ready: false, closed: null });
+  const sentAt = new Map(); // seq of a key or button press -> when it was sent (ms)
+  let seq = 0, ws = null, drawing = Promise.resolve();
+
+  function fit() {
+    // the picture keeps its shape inside the page's width and the window's height
+    const width = Math.min(canvas.parentElement.clientWidth, (window.innerHeight - 40) * (W / H));
+    canvas.style.width = Math.max(320, Math.floor(width)) + "px";
+    canvas.style.height = "auto";
+  }
+  window.addEventListener("resize", fit);
+  fit();
+
+  function say(text, bad) {
+    state.textContent = text;
+    state.className = bad ? "error" : "note";
+  }
+
+  function send(msg, probe) {
+    if (!ws || ws.readyState !== WebSocket.OPEN) return;
+    if (msg.type !== "ack") {
+      msg.seq = ++seq;
+      if (probe) sentAt.set(seq, performance.now());
+    }
+    ws.send(JSON.stringify(msg));
+  }
+
+  function shown(blob, frameSeq) {
+    drawing = drawing.then(async () => {
+      const bitmap = await createImageBitmap(blob);
+      g.drawImage(bitmap, 0, 0, W, H);
+      bitmap.close();
+      const now = performance.now();
+      for (const [s, t] of sentAt) {
+        if (s <= frameSeq) {
+          stats.latencies.push(now - t);
+          sentAt.delete(s);
+        }
+      }
+      stats.frames += 1;
+      stats.shownSeq = frameSeq;
+      send({ type: "ack" }); // drawn: the server may send the next picture
+    }).catch(() => send({ type: "ack" }));
+  }
+
+  function connect() {
+    const scheme = location.protocol === "https:" ? "wss:" : "ws:";
+    ws = new WebSocket(scheme + "//" + location.host + canvas.dataset.socket);
+    ws.binaryType = "arraybuffer";
+    say("Starting the trainer on the server...");
+    ws.onmessage = (e) => {
+      if (typeof e.data === "string") {
+        const msg = JSON.parse(e.data);
+        if (msg.type === "starting") say("Starting the trainer on the server (a few seconds)...");
+        if (msg.type === "ready") {
+          W = canvas.width = msg.width;
+          H = canvas.height = msg.height;
+          mime = msg.format;
+          fit();
+          stats.ready = true;
+          say("Trainer ready: click the picture to give it the keyboard.");
+          canvas.focus();
+        }
+        return;
+      }
+      const head = new DataView(e.data, 0, 8);
+      stats.bytes += e.data.byteLength;
+      shown(new Blob([e.data.slice(8)], { type: mime }), head.getUint32(4));
+    };
+    ws.onclose = (e) => {
+      stats.closed = { code: e.code, reason: e.reason };
+      const why = e.reason || "the connection to the server was lost";
+      say("The trainer stopped: " + why + ". Reload the page to start again.", true);
+    };
+  }
+
+  // -- mouse and wheel ------------------------------------------------------------------------
+  let buttons = 0, last = null, pendingMove = null;
+  const BUTTON = ["left", "middle", "right"];
+
+  function at(e) {
+    const r = canvas.getBoundingClientRect();
+    const x = ((e.clientX - r.left) * W) / r.width;
+    const y = H - ((e.clientY - r.top) * H) / r.height;
+    return [Math.min(Math.max(x, 0), W), Math.min(Math.max(y, 0), H)];
+  }
+  function flush() {
+    if (pendingMove) send(pendingMove);
+    pendingMove = null;
+  }
+  canvas.addEventListener("mousemove", (e) => {
+    const [x, y] = at(e);
+    if (buttons) {
+      const held = BUTTON[[1, 4, 2].findIndex((b) => buttons & b)] || "left";
+      const dx = last ? x - last[0] : 0, dy = last ? y - last[1] : 0;
+      // moves within one animation frame become one drag with their summed motion
+      if (pendingMove && pendingMove.type === "mouse_drag") {
+        pendingMove.x = x; pendingMove.y = y; pendingMove.dx += dx; pendingMove.dy += dy;
+      } else {
+        flush();
+        pendingMove = { type: "mouse_drag", x, y, dx, dy, button: held };
+      }
+    } else {
+      pendingMove = { type: "mouse_move", x, y };
+    }
+    last = [x, y];
+    requestAnimationFrame(flush);
+  });
+  canvas.addEventListener("mousedown", (e) => {
+    canvas.focus();
+    e.preventDefault();
+    flush();
+    const [x, y] = at(e);
+    buttons = e.buttons;
+    last = [x, y];
+    send({ type: "mouse_button", x, y, button: BUTTON[e.button] || "left", pressed: true }, true);
+  });
+  window.addEventListener("mouseup", (e) => {
+    if (!buttons) return;
+    flush();
+    const [x, y] = at(e);
+    buttons = e.buttons;
+    send({ type: "mouse_button", x, y, button: BUTTON[e.button] || "left", pressed: false });
+  });
+  canvas.addEventListener("contextmenu", (e) => e.preventDefault()); // right-drag is the X-ray's contrast
+  canvas.addEventListener("wheel", (e) => {
+    e.preventDefault();
+    const [x, y] = at(e);
+    const notches = e.deltaMode === 0 ? e.deltaY / 100 : e.deltaMode === 1 ? e.deltaY / 3 : e.deltaY;
+    send({ type: "scroll", x, y, dy: Math.max(-10, Math.min(10, -notches)) });
+  }, { passive: false });
+
+  // -- keyboard: the browser's key names to the trainer's (pyglet's) ----------------------------
+  const NAMED = {
+    ArrowLeft: "left", ArrowRight: "right", ArrowUp: "up", ArrowDown: "down", " ": "space",
+    Escape: "escape", Home: "home", End: "end", PageUp: "pageup", PageDown: "pagedown", Enter: "return",
+    Tab: "tab", Backspace: "backspace", Delete: "delete", Insert: "insert", "-": "minus", "=": "equal",
+    ",": "comma", ".": "period", "/": "slash", ";": "semicolon", "'": "apostrophe", "[": "bracketleft",
+    "]": "bracketright", "\\": "backslash", "`": "grave",
+  };
+  function keyName(e) {
+    if (e.key === "Shift" || e.key === "Control" || e.key === "Alt") {
+      return (e.code.endsWith("Right") ? "r" : "l") + { Shift: "shift", Control: "ctrl", Alt: "alt" }[e.key];
+    }
+    if (/^F([1-9]|1[0-2])$/.test(e.key)) return e.key.toLowerCase();
+    if (NAMED[e.key]) return NAMED[e.key];
+    if (/^Key[A-Z]$/.test(e.code)) return e.code.slice(3).toLowerCase(); // letters by position, Shift or not
+    if (/^Digit[0-9]$/.test(e.code)) return e.code.slice(5);
+    return null;
+  }
+  canvas.addEventListener("keydown", (e) => {
+    const name = keyName(e);
+    if (!name || e.ctrlKey || e.metaKey) return; // browser shortcuts (Ctrl+R, Ctrl+W) stay the browser's
+    e.preventDefault();
+    flush();
+    send({ type: "key", key: name, pressed: true }, !e.repeat);
+  });
+  canvas.addEventListener("keyup", (e) => {
+    const name = keyName(e);
+    if (!name) return;
+    e.preventDefault();
+    send({ type: "key", key: name, pressed: false });
+  });
+
+  connect();
+})();

@@ -1,0 +1,284 @@
+"""One trainee's trainer, run off screen in a process of its own and streamed as pictures (``/train/PACK``).
+
+The records server starts this module as a child process per browser session
+(``python -m chainsim.game.server.train_session``, see ``train_routes``). It is the desktop window
+(``chainsim.game.ui.window``) without a display: the same App built by ``build_app``, the same
+layout, widgets, help pages and steps, drawn by the same render system into an EGL off-screen
+framebuffer (``chainsim.game.gl.context``) and paced by the wall clock in whole fixed steps
+(``chainsim.game.ui.frameloop.FixedStepper``), so a browser session replays exactly as a window
+session does (thesis 3.3.1: delivery in a web browser; 3.3.4: the linked views and controller).
+
+Protocol on the pipes (the parent is the only peer; it has validated every input already):
+
+- stdin, one JSON object a line: ``{"t": "in", "ev": EVENT, "seq": N}`` an input event in the input
+  scripts' vocabulary (``chainsim.components.input_events``) without its time, stamped here with the
+  App's simulated time as the window stamps device events; ``{"t": "credit", "n": K}`` K more frames
+  may be sent (the page asks for the next frame once it has drawn one, so a slow link never queues
+  pictures); ``{"t": "reply", ...}`` the answer to a request below. End of input ends the session.
+- stdout, records of ``kind`` (1 byte), length (4 bytes, big-endian), payload: ``F`` a frame (8-byte
+  header: frame number and the last input ``seq`` the frame shows, both uint32, then the encoded
+  picture), ``J`` a JSON object: ``ready``, ``save`` (the attempt with the recording and pack identity
+  the records server scores it from, the same evidence ``chainsim play --records`` uploads), ``list``
+  (the trainee's saved attempts, for My attempts), ``error``.
+
+A frame is encoded and sent only when the page has credit for one and the picture changed; a still
+scene costs no bandwidth.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import queue
+import struct
+import sys
+import threading
+import time
+from typing import Any
+
+#: what a frame may be encoded as: Pillow's format name and the page's MIME type
+FORMATS = {"jpeg": ("JPEG", "image/jpeg"), "webp": ("WEBP", "image/webp")}
+DEFAULT_FORMAT = "jpeg"
+DEFAULT_QUALITY = 70
+#: the most pictures a second a session draws and sends (a window draws about 60; the stream is the cost)
+DEFAULT_FPS = 30.0
+#: frames the page may have in flight at once (sent, not yet drawn)
+FRAME_CREDIT = 2
+SAVE_REPLY_S = 30.0
+
+
+def encode(rgb: bytes, size: tuple[int, int], fmt: str, quality: int) -> bytes:
+    """A picture of the framebuffer's bytes (RGB, bottom row first, as GL reads them) in ``fmt``."""
+    from PIL import Image  # noqa: PLC0415 - the session process only
+
+    # a negative stride reads the rows bottom-up: the flip costs no copy
+    im = Image.frombuffer("RGB", size, rgb, "raw", "RGB", 0, -1)
+    out = io.BytesIO()
+    if fmt == "webp":
+        im.save(out, "WEBP", quality=quality, method=0)
+    else:
+        im.save(out, "JPEG", quality=quality)
+    return out.getvalue()
+
+
+class Channel:
+    """The pipes to the parent: framed records out (one writer lock), JSON lines in (a reader thread)."""
+
+    def __init__(self, out, inp) -> None:
+        self.out = out
+        self.lock = threading.Lock()
+        self.inputs: queue.Queue = queue.Queue()
+        self.replies: queue.Queue = queue.Queue()
+        self.closed = threading.Event()
+        self.credit = 0  # the parent gives credit once the page is told the picture's size
+        self._credit_lock = threading.Lock()
+        threading.Thread(target=self._read, args=(inp,), daemon=True, name="train-input").start()
+
+    def _read(self, inp) -> None:
+        try:
+            for line in inp:
+                msg = json.loads(line)
+                kind = msg.get("t")
+                if kind == "in":
+                    self.inputs.put(msg)
+                elif kind == "credit":
+                    with self._credit_lock:
+                        self.credit = min(self.credit + int(msg.get("n", 1)), FRAME_CREDIT)
+                elif kind == "reply":
+                    self.replies.put(msg)
+        finally:
+            self.closed.set()
+            self.replies.put(None)
+
+    def take_credit(self) -> bool:
+        with self._credit_lock:
+            if self.credit <= 0:
+                return False
+            self.credit -= 1
+            return True
+
+    def send(self, kind: bytes, payload: bytes) -> None:
+        with self.lock:
+            self.out.write(kind + struct.pack(">I", len(payload)) + payload)
+            self.out.flush()
+
+    def send_json(self, obj: dict) -> None:
+        self.send(b"J", json.dumps(obj, allow_nan=False, default=str).encode())
+
+    def ask(self, obj: dict, timeout: float = SAVE_REPLY_S) -> dict:
+        """Send a request and wait for the parent's reply (requests come one at a time: the App's thread)."""
+        self.send_json(obj)
+        try:
+            reply = self.replies.get(timeout=timeout)
+        except queue.Empty:
+            reply = None
+        if reply is None:
+            from chainsim.engine.errors import UserError  # noqa: PLC0415
+
+            raise UserError("the records server did not answer; the attempt is not saved")
+        return reply
+
+
+def server_records(channel: Channel, app, pack, settings: dict):
+    """Records that file each save through the records server's parent process, with the session's
+    recording and the pack's identity (``chainsim.game.app.headless.attempt_evidence``): the server
+    checks and queues it as it does every upload, and scores it by replaying the recording."""
+    from chainsim.components.resources import Records  # noqa: PLC0415
+    from chainsim.engine.errors import UserError  # noqa: PLC0415
+    from chainsim.game.app.headless import attempt_evidence  # noqa: PLC0415
+    from chainsim.game.records.validate import clean_attempt, to_json  # noqa: PLC0415
+
+    filed: dict[int, tuple[str, str, int | None]] = {}
+
+    def save_attempt(class_name: str, trainee: str, record: dict) -> int:
+        evidence = attempt_evidence(app, pack, settings)
+        # checked and made JSON here, as the simulator's outbox does before it uploads
+        record = json.loads(to_json(clean_attempt(record)))
+        reply = channel.ask({"t": "save", "record": record, **evidence})
+        if not reply.get("ok"):
+            raise UserError(str(reply.get("error") or "the records server refused the attempt"))
+        upload = int(reply["upload"])
+        filed[upload] = (reply.get("class_name", class_name), reply.get("trainee", trainee), reply.get("number"))
+        return upload
+
+    def list_attempts(class_name: str, trainee: str) -> list[dict]:
+        reply = channel.ask({"t": "list"})
+        if not reply.get("ok"):
+            raise UserError(str(reply.get("error") or "the records server did not list the attempts"))
+        return list(reply.get("attempts") or [])
+
+    return Records(save_attempt, list_attempts, "records server", filed_as=filed.get)
+
+
+class Session:
+    """The App of one trainee drawn off screen: input in, pictures out (see the module docstring)."""
+
+    def __init__(self, cfg: dict, channel: Channel) -> None:
+        import chainsim.game.gl.render_system as render  # noqa: PLC0415 - imported in the session process only
+        from chainsim.components.hud import HudState  # noqa: PLC0415
+        from chainsim.components.input_events import Widget  # noqa: PLC0415
+        from chainsim.components.resources import PendingInput, Settings  # noqa: PLC0415
+        from chainsim.engine.warmup import warm_up  # noqa: PLC0415
+        from chainsim.game.app.compiling import needed_groups  # noqa: PLC0415
+        from chainsim.game.app.headless import app_for_pack  # noqa: PLC0415
+        from chainsim.game.gl.context import egl_context, offscreen_framebuffer  # noqa: PLC0415
+        from chainsim.game.packs import pack as packs  # noqa: PLC0415
+        from chainsim.game.ui.frameloop import FixedStepper  # noqa: PLC0415
+
+        self.render = render
+        self.channel = channel
+        self.fmt = cfg.get("format", DEFAULT_FORMAT)
+        self.quality = int(cfg.get("quality", DEFAULT_QUALITY))
+        self.period = 1.0 / float(cfg.get("fps", DEFAULT_FPS))
+        self.settings = {"class": cfg["class"], "trainee": cfg["trainee"]}
+        pack = packs.load(cfg["root"], cfg.get("pack_paths", []))
+        # the window's App (headless=False: the window's settings), saving through the records server
+        app = app_for_pack(pack, None, ref=pack.name, settings=self.settings, headless=False, save="")
+        self.app = app
+        app.insert_resource(server_records(channel, app, pack, self.settings))
+        w, h = (int(x) for x in app.resource(Settings).get("window_size", [1280, 800]))
+        self.size = (w, h)
+        ctx = egl_context()
+        # one sample: multisampling multiplies a software rasteriser's time (see game/ui/window.py)
+        app.insert_resource(render.RenderTarget(ctx, offscreen_framebuffer(ctx, (w, h)), 1.0, samples=1))
+        app.add_plugin(render.plugin)
+        app.resource(render.Renderer).cache_views()  # most frames repeat most views
+        warm_up(needed_groups(app))  # numba's cache: loaded once here, not mid-frame
+        self.pending = app.resource(PendingInput)
+        self.hud = app.resource(HudState)
+        values = app.resource(Settings).values
+        layout = {wd["name"] for wd in app.resource(render.PackResource).layout.get("widgets", [])}
+        self.who = f"Signed in: {values.get('trainee')}, class {values.get('class')}. Records: this server"
+        if "sign_in" in layout:
+            self.hud.status = self.who
+        self.widget_events = app.events.reader(Widget)
+        self.stepper = FixedStepper(app, None)
+        self.pressed_at: dict[str, float] = {}
+        self.last_seq = 0
+        self.frame_no = 0
+        self.last_raw: bytes | None = None
+
+    def apply(self, msg: dict) -> None:
+        """One input from the page, as the window turns a device event into an App event."""
+        from chainsim.components.input_events import Key, event_from_dict  # noqa: PLC0415
+
+        ev = event_from_dict(dict(msg["ev"]), "input")
+        self.last_seq = max(self.last_seq, int(msg.get("seq") or 0))
+        now = self.app.time.sim_time
+        if isinstance(ev, Key):
+            if ev.key == "escape" and ev.pressed and not self.hud.doc_open:
+                self.hud.message("Close the tab to leave; press Save attempt first to keep this attempt.", 6.0)
+                return
+            if ev.pressed:
+                self.pressed_at[ev.key] = now
+            elif self.pressed_at.pop(ev.key, None) == now:
+                # pressed and released within one frame: held for one step, as in the window
+                self.pending.push(now + self.app.time.dt, ev)
+                return
+        self.pending.push(now, ev)
+
+    def frame(self) -> bytes | None:
+        """Draw now; the encoded picture, or None when it is the one sent last."""
+        render = self.render
+        render.draw(self.app)
+        target = self.app.resource(render.RenderTarget)
+        raw = target.fbo.read(components=3, alignment=1)
+        if raw == self.last_raw:
+            return None
+        self.last_raw = raw
+        return encode(raw, tuple(target.fbo.size), self.fmt, self.quality)
+
+    def run(self) -> None:
+        channel = self.channel
+        channel.send_json({"t": "ready", "size": list(self.size), "format": FORMATS[self.fmt][1]})
+        last = time.perf_counter()
+        while not channel.closed.is_set():
+            start = time.perf_counter()
+            while True:
+                try:
+                    self.apply(channel.inputs.get_nowait())
+                except queue.Empty:
+                    break
+            self.stepper.advance(start - last)
+            last = start
+            for ev in self.widget_events.read():
+                if ev.name == "sign_in":  # the page's sign-in is the records server's: say who is signed in
+                    self.hud.message(self.who.replace("Signed in:", "You are signed in as"), 6.0)
+            if channel.credit > 0:
+                picture = self.frame()
+                if picture is not None and channel.take_credit():
+                    self.frame_no += 1
+                    channel.send(b"F", struct.pack(">II", self.frame_no, self.last_seq & 0xFFFFFFFF) + picture)
+            spare = self.period - (time.perf_counter() - start)
+            if spare > 0:
+                channel.closed.wait(spare)
+
+    def close(self) -> None:
+        self.app.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m chainsim.game.server.train_session CONFIG_JSON``: run one session on the pipes."""
+    argv = sys.argv[1:] if argv is None else argv
+    cfg: dict[str, Any] = json.loads(argv[0])
+    os.environ.setdefault("PYGLET_HEADLESS", "true")
+    # the protocol owns stdout: anything the App prints goes to stderr (the server's log)
+    out = os.fdopen(os.dup(1), "wb", buffering=0)
+    os.dup2(2, 1)
+    sys.stdout = sys.stderr
+    channel = Channel(out, sys.stdin.buffer)
+    try:
+        session = Session(cfg, channel)
+    except Exception as exc:  # a pack that does not start: one line for the page
+        channel.send_json({"t": "error", "message": f"the trainer did not start: {type(exc).__name__}: {exc}"})
+        return 2
+    try:
+        session.run()
+    finally:
+        session.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
