@@ -68,3 +68,20 @@ def test_a_held_element_stays_while_another_is_dragged():
         body.move([len(rest) - 1], rest[-1] + frame * 1.5)
         np.testing.assert_array_equal(body.positions[0], held)
     assert set(body.held.tolist()) == {0, len(rest) - 1}
+
+
+def test_an_anchor_set_on_the_body_between_frames_holds_from_the_next_frame():
+    """body.fixed is the anchors' own array: a tool that pins an element mid-drag (body.fixed[i] = True) is
+    obeyed from the next frame on, though the drag started with no anchor at all."""
+    rest, links = random_mesh("volume", 3, np.random.default_rng(5), size=6)
+    body = ChainMailBody(rest, links, 0.95, 1.05, 0.02)
+    far = int(np.argmax(np.sum((rest - rest[0]) ** 2, axis=1)))
+    step = np.array([2.0, 1.5, 1.0])
+    body.move([0], rest[0] + step)
+    assert far in body.moved  # the whole block followed the first frame
+    body.fixed[far] = True
+    held = body.positions[far].copy()
+    for frame in range(2, 5):
+        changed = body.move([0], rest[0] + frame * step)
+        assert far not in changed
+        np.testing.assert_array_equal(body.positions[far], held)

@@ -119,8 +119,8 @@ class ChainMailBody(Body):
         d = self.rest.shape[1]
         targets = np.asarray(targets, dtype=np.float64).reshape(k, d)
         # What a tool already holds stays where it is. A drag holds only the element it moves, so the
-        # usual frame needs no mask of its own: the body's anchors, or none at all (the kernel then skips
-        # the anchor test), without an O(N) copy per frame.
+        # usual frame needs no mask of its own: the body's anchors as they are, with no O(N) copy or
+        # scan per frame (the kernel tests the anchor flag only of the few neighbours it checks).
         held = self.held
         if len(held) == 0 or (len(held) == k == 1 and held[0] == ids[0]):
             others = ()
@@ -130,7 +130,7 @@ class ChainMailBody(Body):
             fixed = self.fixed.copy()
             fixed[others] = True
         else:
-            fixed = self.fixed if self.fixed.any() else None
+            fixed = self.fixed
         if self.exact and self.relax_iterations == 0 and self.positions.dtype == np.float64:
             # no relaxation: one exact step (the nearest shape with every link inside) instead of the
             # cascade and the exact-limit pass; the first step after construction also measures every

@@ -271,9 +271,9 @@ def _fifo_loop(
     head = 0
     while head < count:
         # Once every element has moved no check can move another: the sponsors still queued (the
-        # last wave, when a drag carries the whole body) have nothing left to do. Only without
-        # anchors, where the count of movable elements is n without counting anything.
-        if count == n and not has_fixed:
+        # last wave, when a drag carries the whole body) have nothing left to do. (With an anchor in the
+        # mesh the count never reaches n.)
+        if count == n:
             break
         # The rows of the sponsors served next, asked for ahead (kernels.prefetch): on a mesh larger
         # than the caches, waiting for them is most of a cascade's time.
@@ -745,10 +745,13 @@ def cascade(
     if order == ORDER_BALANCED and depth < 1:
         raise ValueError(f"depth must be >= 1, got {depth}")
     if parallel is None:
-        # the size first: asking numba for its thread count costs microseconds, a local grab not many more
+        # the size first, then the most threads numba may run: asking numba for its current thread count
+        # costs about ten microseconds (a drag frame on a small patch costs not many more), and the rule
+        # never picks the kernel for fewer threads where it does not for more
         parallel = (
             order == ORDER_BREADTH_FIRST
             and pos.shape[0] >= waves.AUTO_MIN_ELEMENTS
+            and waves.parallel_wins(pos.shape[0], numba.config.NUMBA_NUM_THREADS)
             and waves.parallel_wins(pos.shape[0], numba.get_num_threads())
         )
     if parallel and order != ORDER_BREADTH_FIRST:
