@@ -25,6 +25,7 @@ from typing import Any
 
 from matplotlib.backends.backend_svg import FigureCanvasSVG
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from chainsim.game.records.store import RecordStore
 from chainsim.game.server import accounts
@@ -181,6 +182,7 @@ def metric_plot(store: RecordStore, user: User, class_id: int, pack: str, metric
         bench = debrief.number(spec["benchmark"], units)
         ax.axhline(float(spec["benchmark"]), color="tab:red", linestyle="--", label=f"benchmark: {better} {bench}")
     ax.set_title(f"{cls['name']}: {spec.get('label', metric)} ({pack})", fontsize=10)
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # attempts are whole numbers
     ax.set_xlabel("attempt")
     ax.set_ylabel(f"{spec.get('label', metric)}" + (f" ({units})" if units else ""))
     ax.grid(alpha=0.3)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import io
 import os
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -65,6 +66,14 @@ def shot(page, name: str) -> None:
         page.screenshot(path=str(Path(folder) / name), full_page=True)
 
 
+def wait_until(page, js: str, timeout_s: float = 30.0) -> None:
+    """Poll a JavaScript expression from outside the page (the site's CSP forbids the page evaluating strings)."""
+    end = time.monotonic() + timeout_s
+    while not page.evaluate(js):
+        assert time.monotonic() < end, f"never true: {js}"
+        time.sleep(0.1)
+
+
 def drawn_pixels(page) -> int:
     from PIL import Image  # noqa: PLC0415
 
@@ -97,7 +106,7 @@ def test_attempt_page_replays_the_attempt_in_3d(browser, site):
 
         imgs = page.locator("#xrays img")
         assert imgs.count() == stored["xray_shots"]
-        page.wait_for_function("[...document.querySelectorAll('#xrays img')].every(i => i.complete)")
+        wait_until(page, "[...document.querySelectorAll('#xrays img')].every(i => i.complete)")
         sizes = page.evaluate("[...document.querySelectorAll('#xrays img')].map(i => i.naturalWidth)")
         assert all(w >= 256 for w in sizes), sizes
         assert page.evaluate("document.scrollingElement.scrollWidth <= innerWidth")
