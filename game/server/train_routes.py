@@ -51,6 +51,7 @@ from chainsim.game.server.auth import HTTPError, session
 logger = logging.getLogger(__name__)
 
 SEATS_ENV, IDLE_ENV, GRACE_ENV = "CHAINSIM_TRAIN_SEATS", "CHAINSIM_TRAIN_IDLE_S", "CHAINSIM_TRAIN_GRACE_S"
+FORMAT_ENV, QUALITY_ENV = "CHAINSIM_TRAIN_FORMAT", "CHAINSIM_TRAIN_QUALITY"
 #: sessions at once: each holds about one core while it draws (docs/records-server.md, cost per seat)
 DEFAULT_SEATS = 2
 DEFAULT_IDLE_S = 900.0
@@ -364,10 +365,18 @@ def _env_number(name: str, default: float, kind=float, lo: float = 0.0):
 
 
 def trainer_from_env() -> Trainer:
+    fmt = os.environ.get(FORMAT_ENV, "").strip().lower() or "jpeg"
+    if fmt not in ("jpeg", "webp"):
+        raise UserError(f"${FORMAT_ENV} must be jpeg or webp, got {fmt!r}")
+    quality = _env_number(QUALITY_ENV, 70, int, 1)
+    if quality > 100:
+        raise UserError(f"${QUALITY_ENV} must be from 1 to 100, got {quality}")
     return Trainer(
         seats=_env_number(SEATS_ENV, DEFAULT_SEATS, int, 1),
         idle_s=_env_number(IDLE_ENV, DEFAULT_IDLE_S, float, 1.0),
         grace_s=_env_number(GRACE_ENV, DEFAULT_GRACE_S, float, 0.0),
+        fmt=fmt,
+        quality=quality,
     )
 
 
@@ -468,13 +477,16 @@ async def train_socket(ws: WebSocket) -> None:
             message = await ws.receive()
             if message["type"] == "websocket.disconnect":
                 break
+            # a page that breaks the rules loses its session at once (its seat too)
             if not bucket.take():
                 await ws.close(TOO_FAST, f"too many input messages: at most {RATE:g} a second")
+                await trainer.end(seat, "too many input messages")
                 break
             try:
                 checked = check_message(message.get("text", message.get("bytes")), seat.size)
             except BadMessage as exc:
                 await ws.close(BAD_MESSAGE, str(exc)[:120])
+                await trainer.end(seat, f"bad input message: {exc}")
                 break
             if checked is None:
                 await trainer.send_child(seat, {"t": "credit", "n": 1})

@@ -17,6 +17,7 @@ BENCHES = {
     "window": "chainsim.game.ui.windowbench",
     "models": "chainsim.tools.bench.models",
     "records": "chainsim.game.server.bench",
+    "train": "chainsim.game.server.train_bench",
 }
 
 

@@ -13,10 +13,15 @@
   let seq = 0, ws = null, drawing = Promise.resolve();
 
   function fit() {
-    // the picture keeps its shape inside the page's width and the window's height
-    const width = Math.min(canvas.parentElement.clientWidth, (window.innerHeight - 40) * (W / H));
-    canvas.style.width = Math.max(320, Math.floor(width)) + "px";
-    canvas.style.height = "auto";
+    // pixel for pixel when the browser window is wide and tall enough (centred in it, wider than the
+    // page's column), else scaled down to fit, keeping its shape
+    const width = Math.max(320, Math.floor(Math.min(W, window.innerWidth - 24, (window.innerHeight - 24) * (W / H))));
+    canvas.style.maxWidth = "none"; // the stylesheet keeps canvases in the column; this one may be wider
+    canvas.style.width = width + "px";
+    canvas.style.height = Math.round((width * H) / W) + "px";
+    canvas.style.marginLeft = "0px";
+    const left = canvas.getBoundingClientRect().left;
+    canvas.style.marginLeft = Math.round((window.innerWidth - width) / 2 - left) + "px";
   }
   window.addEventListener("resize", fit);
   fit();
@@ -90,8 +95,9 @@
 
   function at(e) {
     const r = canvas.getBoundingClientRect();
-    const x = ((e.clientX - r.left) * W) / r.width;
-    const y = H - ((e.clientY - r.top) * H) / r.height;
+    // whole window units, as a desktop window reports the pointer
+    const x = Math.round(((e.clientX - r.left) * W) / r.width);
+    const y = Math.round(H - ((e.clientY - r.top) * H) / r.height);
     return [Math.min(Math.max(x, 0), W), Math.min(Math.max(y, 0), H)];
   }
   function flush() {

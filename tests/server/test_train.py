@@ -1,0 +1,249 @@
+"""The trainer in a browser tab (/train/PACK, chainsim.game.server.train_routes and train_session).
+
+As a trainee uses it: headless Chromium signs in, follows the link on their page, sees the trainer
+drawn by the server, and drives it with the mouse and keys; the slow test makes the prp pack's whole
+correct attempt with the clicks and drags of assets/prp/scripts/correct-mouse.toml and finds it in the
+records under the trainee, scored by the server's replay. The socket's rules are tested with a plain
+WebSocket client carrying a signed-in trainee's cookie: who may open a session, messages refused with
+a reason, the rate limit, the seats and the end of a session whose page went away.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+
+import pytest
+from conftest import PASSWORD, call, populate, start_server
+from test_browser import browser, sign_in  # noqa: F401 - the module's Chromium fixture
+
+from chainsim.game.records.store import RecordStore
+from chainsim.game.server import accounts
+from chainsim.game.server.train_routes import BadMessage, Bucket, check_message
+
+SIZE = (1280, 800)
+
+
+# -- input messages (no server) -----------------------------------------------------------------
+
+
+def test_device_events_pass_as_the_sessions_input_events():
+    msg = check_message(
+        '{"type": "mouse_button", "x": 10, "y": 20.5, "button": "left", "pressed": true, "seq": 3}', SIZE
+    )
+    assert msg == {
+        "t": "in",
+        "ev": {"kind": "mouse_button", "x": 10.0, "y": 20.5, "button": "left", "pressed": True},
+        "seq": 3,
+    }
+    assert check_message('{"type": "key", "key": "f1", "pressed": false}', SIZE)["ev"]["key"] == "f1"
+    assert check_message('{"type": "ack"}', SIZE) is None
+
+
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [
+        (b"\x00\x01", "JSON text, not binary"),
+        ("not json", "not JSON"),
+        ("[1, 2]", "JSON object"),
+        ('{"type": "widget", "name": "save"}', "unknown input type 'widget'"),
+        ('{"type": "pick", "entity": "skin", "point": [0, 0, 0]}', "unknown input type 'pick'"),
+        ('{"type": "mouse_move", "x": 1}', "missing y"),
+        ('{"type": "mouse_move", "x": 1, "y": 2, "z": 3}', "unknown field(s) z"),
+        ('{"type": "mouse_move", "x": 1e9, "y": 2}', "'x' must be a number from 0 to 1280"),
+        ('{"type": "mouse_move", "x": NaN, "y": 2}', "not JSON"),
+        ('{"type": "mouse_move", "x": "1", "y": 2}', "'x' must be a number"),
+        ('{"type": "scroll", "x": 1, "y": 2, "dy": 500}', "'dy' must be a number from -50 to 50"),
+        ('{"type": "key", "key": "rm -rf", "pressed": true}', "unknown key name"),
+        ('{"type": "key", "key": "a", "pressed": 1}', "'pressed' must be true or false"),
+        ('{"type": "mouse_button", "x": 1, "y": 2, "button": "fourth", "pressed": true}', "'button' must be"),
+        ('{"type": "key", "key": "a", "pressed": true, "seq": -1}', "'seq' must be a whole number"),
+        ('{"type": "ack", "extra": 1}', "an ack has no other fields"),
+        ('{"type": "mouse_move", "x": 1, "y": 2, "pad": "' + "x" * 600 + '"}', "over 512 bytes"),
+    ],
+)
+def test_bad_messages_are_refused_naming_what_is_wrong(text, says):
+    with pytest.raises(BadMessage, match=None) as info:
+        check_message(text, SIZE)
+    assert says in str(info.value)
+
+
+def test_the_rate_limit_allows_a_burst_then_the_rate():
+    now = [0.0]
+    bucket = Bucket(rate=100.0, burst=10.0, clock=lambda: now[0])
+    assert all(bucket.take() for _ in range(10))
+    assert not bucket.take()
+    now[0] += 0.05  # 5 more at 100 a second
+    assert sum(bucket.take() for _ in range(10)) == 5
+
+
+# -- the socket's rules, with a plain client ------------------------------------------------------
+
+
+def cookie_for(db: str, name: str) -> str:
+    with RecordStore(db) as store:
+        user = accounts.check_login(store, name, PASSWORD)
+        sid, _ = accounts.start_session(store, user)
+    return sid
+
+
+async def _talk(url: str, path: str, cookie: str | None, origin: str | None, send=()):
+    """Open the socket, send ``send`` once the first picture came; (close code, reason, messages seen)."""
+    import websockets
+
+    headers = {"Cookie": f"chainsim_session={cookie}"} if cookie else {}
+    seen = []
+    async with websockets.connect(
+        url.replace("http", "ws", 1) + path, additional_headers=headers, origin=origin, max_size=None
+    ) as ws:
+        try:
+            while True:
+                msg = await asyncio.wait_for(ws.recv(), 120)
+                seen.append(json.loads(msg)["type"] if isinstance(msg, str) else "frame")
+                if seen.count("frame") == 1 and not isinstance(msg, str):
+                    for text in send:
+                        await ws.send(text)
+        except websockets.ConnectionClosed as exc:
+            return exc.rcvd.code if exc.rcvd else None, exc.rcvd.reason if exc.rcvd else "", seen
+
+
+def talk(server, name, path="/train/prp/ws", send=(), origin="self"):
+    cookie = None if name is None else cookie_for(server.db, name)
+    origin = server.url if origin == "self" else origin
+    return asyncio.run(_talk(server.url, path, cookie, origin, send))
+
+
+def test_only_a_signed_in_trainee_opens_a_session_and_from_this_site_only(site):
+    assert talk(site, None)[:2] == (4401, "not signed in; sign in and open the page again")
+    code, reason, _ = talk(site, "tina")
+    assert code == 4403 and "trainee accounts" in reason
+    code, reason, _ = talk(site, "alice", origin="http://evil.example")
+    assert (code, reason) == (4403, "opened from another site; refused")
+    code, reason, _ = talk(site, "alice", path="/train/nosuchpack/ws")
+    assert code == 4404 and "no pack named 'nosuchpack'" in reason
+    # the page itself: a trainer is refused, a visitor is sent to sign in
+    assert (
+        call(site, "GET", "/train/prp", headers={"Cookie": f"chainsim_session={cookie_for(site.db, 'tom')}"})[0] == 403
+    )
+
+
+def test_a_bad_message_closes_the_session_with_its_reason(site):
+    code, reason, seen = talk(site, "carol", send=['{"type": "key", "key": "f1", "pressed": "yes"}'])
+    assert (code, reason) == (4400, "key: 'pressed' must be true or false")
+    assert seen[:3] == ["starting", "ready", "frame"]  # it had started and drawn
+
+
+def test_a_flood_of_input_is_cut_off(site):
+    flood = ['{"type": "mouse_move", "x": 5, "y": 5}'] * 2000
+    code, reason, _ = talk(site, "bob", send=flood)
+    assert code == 4429 and "too many input messages" in reason
+
+
+def test_all_seats_taken_then_freed_when_the_page_has_gone(tmp_path, monkeypatch, browser):  # noqa: F811
+    db = str(tmp_path / "seats.sqlite3")
+    populate(db)
+    monkeypatch.setenv("CHAINSIM_TRAIN_SEATS", "1")
+    monkeypatch.setenv("CHAINSIM_TRAIN_GRACE_S", "1")
+    server = start_server(db, tmp_path / "serve.log")
+    try:
+        context = browser.new_context(bypass_csp=True)
+        page = context.new_page()
+        sign_in(page, server, "alice")
+        page.goto(server.url + "/train/prp")
+        page.wait_for_function("window.trainStats && window.trainStats.frames > 0", timeout=120_000)
+        # bob finds the one seat taken: a clear page, and the socket says so too
+        bob = {"Cookie": f"chainsim_session={cookie_for(db, 'bob')}"}
+        status, text, headers = call(server, "GET", "/train/prp", headers=bob)
+        assert status == 503 and "All seats are taken" in text and headers["Retry-After"]
+        assert talk(server, "bob")[:2] == (4503, "all 1 seats are taken; try again in a few minutes")
+        context.close()  # alice's tab goes; her process is killed once the grace time has passed
+        deadline = time.monotonic() + 30
+        while call(server, "GET", "/train/prp", headers=bob)[0] != 200:
+            assert time.monotonic() < deadline, "the seat was not freed"
+            time.sleep(0.5)
+    finally:
+        server.stop()
+    assert "alice's session ended (page gone for 1 s)" in (tmp_path / "serve.log").read_text()
+
+
+# -- in Chromium, as a trainee does ---------------------------------------------------------------
+
+
+def open_trainer(browser, site, who):  # noqa: F811
+    context = browser.new_context(viewport={"width": 1400, "height": 1000}, bypass_csp=True)
+    page = context.new_page()
+    sign_in(page, site, who)
+    page.click("a#train")
+    assert page.url.endswith("/train/prp")
+    page.wait_for_function("window.trainStats && window.trainStats.frames > 0", timeout=120_000)
+    return context, page
+
+
+def picture(page) -> list[int]:
+    """A coarse sample of the canvas's pixels (what the trainee sees)."""
+    return page.evaluate(
+        """() => { const c = document.getElementById('train-screen');
+        const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data; const out = [];
+        for (let i = 0; i < d.length; i += 4 * 997) out.push(d[i], d[i + 1], d[i + 2]); return out; }"""
+    )
+
+
+def test_a_trainee_sees_the_trainer_and_drives_it_with_keys(browser, site):  # noqa: F811
+    context, page = open_trainer(browser, site, "alice")
+    try:
+        first = picture(page)
+        assert len(set(first)) > 20  # drawn: views, panel and text, not a blank canvas
+        box = page.locator("#train-screen").bounding_box()
+        assert (round(box["width"]), round(box["height"])) == (1280, 800)  # pixel for pixel
+        shown = page.evaluate("() => window.trainStats.frames")
+        page.locator("#train-screen").press("Escape")  # closes the help page over the surgeon's view
+        page.wait_for_function(f"window.trainStats.frames > {shown}", timeout=30_000)
+        time.sleep(0.5)
+        assert picture(page) != first
+        assert page.evaluate("() => window.trainStats.latencies.length") >= 1
+    finally:
+        context.close()
+
+
+@pytest.mark.slow
+def test_a_whole_correct_attempt_in_the_browser_is_saved_under_the_trainee(browser, site):  # noqa: F811
+    from conftest import SCRIPTS
+
+    from chainsim.game.app.inputscript import load_script
+
+    before = {a["id"] for a in call(site, "GET", "/api/attempts", token=site.tokens["bob"])[1]["attempts"]}
+    context, page = open_trainer(browser, site, "bob")
+    try:
+        box = page.locator("#train-screen").bounding_box()
+        W, H = 1280, 800
+        assert (round(box["width"]), round(box["height"])) == (W, H)
+        mouse = page.mouse
+        last_t = 0.0
+        for t, ev in load_script(SCRIPTS / "correct-mouse.toml"):
+            time.sleep(max(0.0, t - last_t) * 1.5)  # the script's pace, with room for a slow machine
+            last_t = t
+            x, y = box["x"] + ev.x, box["y"] + (H - ev.y)
+            if ev.kind == "mouse_move":
+                mouse.move(x, y)
+            elif ev.kind == "mouse_drag":
+                mouse.move(x, y, steps=4)
+            elif ev.kind == "mouse_button":
+                (mouse.down if ev.pressed else mouse.up)(button=ev.button)
+            else:
+                raise AssertionError(f"unexpected event {ev}")
+        deadline = time.monotonic() + 240
+        while True:  # the script ends with Self assessment and Save: the server scores it by replay
+            rows = call(site, "GET", "/api/attempts", token=site.tokens["bob"])[1]["attempts"]
+            new = [a for a in rows if a["id"] not in before]
+            if new:
+                break
+            assert time.monotonic() < deadline, "no attempt stored"
+            time.sleep(1.0)
+    finally:
+        context.close()
+    (attempt,) = new
+    assert (attempt["class_name"], attempt["trainee"], attempt["pack"]) == ("c1", "bob", "prp")
+    assert attempt["target"].startswith("foramen_ovale")
+    status, full, _ = call(site, "GET", f"/api/attempts/{attempt['id']}", token=site.tokens["bob"])
+    assert status == 200 and full["differences"] == []
