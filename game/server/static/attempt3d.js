@@ -16,6 +16,7 @@ const gallery = document.getElementById('xrays');
 
 const ORANGE = 0xe07b00, GREEN = 0x1f9d3a, RED = 0xd01010, BG = 0x1d2330;
 
+function plural(n, word) { return `${n} ${word}${n === 1 ? '' : 's'}`; }
 function say(text) { status.textContent = text; }
 
 async function main() {
@@ -65,7 +66,7 @@ async function main() {
   const dot = (p, color, r) => {
     const s = new THREE.Mesh(new THREE.SphereGeometry(r, 16, 12), new THREE.MeshBasicMaterial({ color, depthTest: false }));
     s.position.set(...p);
-    s.renderOrder = 5;
+    s.renderOrder = 7;
     scene.add(s);
     return s;
   };
@@ -77,7 +78,15 @@ async function main() {
     return l;
   };
   track.landmarks.forEach((p) => p && dot(p, ORANGE, 2.2));
-  track.ideal_landmarks.forEach((p) => p && dot(p, GREEN, 1.8));
+  // the ideal places as green rings around the trainee's dots, so both show where they coincide
+  track.ideal_landmarks.forEach((p) => {
+    if (!p) return;
+    const ring = new THREE.Mesh(new THREE.SphereGeometry(3.6, 12, 8),
+      new THREE.MeshBasicMaterial({ color: GREEN, wireframe: true, depthTest: false }));
+    ring.position.set(...p);
+    ring.renderOrder = 5;
+    scene.add(ring);
+  });
   if (track.ideal_path) line(track.ideal_path, GREEN);
   const contacts = track.contacts.map((c) => ({ ...c, mark: c.point[0] === null ? null : dot(c.point, RED, 2.0) }));
 
@@ -150,7 +159,11 @@ async function main() {
     camera.aspect = w / h;
     camera.updateProjectionMatrix();
   }
-  camera.position.copy(centre).add(new THREE.Vector3(-1.0, -2.2, 0.6).normalize().multiplyScalar(radius * 2.1));
+  // look from the side the needle went in (towards the first landmark), a little from above and in front
+  const first = track.landmarks.find((p) => p) || frames.find((f) => f[1] !== null)?.slice(1, 4);
+  const side = first ? new THREE.Vector3(...first).sub(centre).setZ(0).normalize() : new THREE.Vector3(-1, 0, 0);
+  const view = side.multiplyScalar(1.0).add(new THREE.Vector3(0, 0, 0.35)).normalize();
+  camera.position.copy(centre).add(view.multiplyScalar(radius * 2.0));
   controls.target.copy(centre);
   controls.update();
   resize();
@@ -178,7 +191,7 @@ async function main() {
   });
   show(0);
   window.chainsimReplay = { state, show, frames: frames.length, images: track.images.length, contacts: track.contacts.length };
-  say(`Replayed from the recording: ${frames.length} needle positions, ${track.contacts.length} contacts, ${track.images.length} X-ray images. Drag to turn, wheel to zoom.`);
+  say(`Replayed from the recording: ${frames.length} needle positions, ${plural(track.contacts.length, 'contact')}, ${plural(track.images.length, 'X-ray image')}. Drag to turn, wheel to zoom.`);
   box.dataset.ready = '1';
 }
 
