@@ -287,8 +287,10 @@ def deformation_system(app) -> None:
 
 REQUESTS = (GrabRequest, ReleaseRequest, CutRequest, AddLinksRequest, ResetRequest)
 
-#: the order the model switch (Widget "model" with value "next", key m in the packs) walks
-SWITCH_ORDER = ("chainmail", "xpbd", "projective")
+#: the order the model switch (Widget "model" with value "next", key m in the packs) walks: volumes reach
+#: the hybrid body, sheets SurfaceChainMail (each only runs on its own kind of mesh)
+SWITCH_ORDER = ("chainmail", "xpbd", "projective", "hybrid")
+SWITCH_ORDER_SURFACE = ("surface", "chainmail", "xpbd", "projective")
 
 
 def model_lines(auto_only: bool = False) -> list[str]:
@@ -312,12 +314,16 @@ def _say(app, text: str, seconds: float) -> None:
 def switch_models(app, st: DeformationState, value: str) -> None:
     """Put every deformable body under another model, from rest: `value` names one or is "next"."""
     for _ent, d in esper.get_component(Deformable):
-        choices = list(SWITCH_ORDER)
-        if value not in SWITCH_ORDER:  # the button (True) or "next": the next model in turn
-            cur = d.model_used if d.model_used in choices else choices[0]
-            model = choices[(choices.index(cur) + 1) % len(choices)]
-        else:
+        mesh = d.mesh_data
+        volume = mesh is not None and getattr(mesh, "tets", None) is not None and len(mesh.tets) > 0
+        choices = list(SWITCH_ORDER if volume else SWITCH_ORDER_SURFACE)
+        if value in choices:
             model = value
+        elif value in SWITCH_ORDER + SWITCH_ORDER_SURFACE:
+            continue  # a model for the other kind of mesh: this body keeps its own
+        else:  # the button (True) or "next": the next model in turn
+            cur = d.model_used if d.model_used in choices else choices[-1]
+            model = choices[(choices.index(cur) + 1) % len(choices)]
         try:
             use_model(d, model)
         except UserError as e:

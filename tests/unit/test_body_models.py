@@ -17,10 +17,12 @@ from chainsim.game.app.headless import build_app, run_pack
 CUT_SCRIPT = ASSETS_DIR / "cutting" / "scripts" / "cut-and-open.toml"
 
 
-@pytest.mark.parametrize("model", ["chainmail", "xpbd", "projective"])
+@pytest.mark.parametrize("model", ["chainmail", "xpbd", "projective", None])
 def test_the_cutting_trainer_lifts_and_cuts_under_every_model(model, tmp_path):
-    s = run_pack("cutting", script=str(CUT_SCRIPT), settings={"model": model}, out=str(tmp_path))
-    assert {v["model"] for v in s["models"].values()} == {model}
+    settings = {"model": model} if model else {}
+    s = run_pack("cutting", script=str(CUT_SCRIPT), settings=settings, out=str(tmp_path))
+    # with no --model the layers run the pack's SurfaceChainMail (thesis 4.5)
+    assert {v["model"] for v in s["models"].values()} == {model or "surface"}
     a = s["assessment"]
     assert a["links_cut_by_layer"]["dura"] > 0  # the scissors cut the top layer
     assert a["links_cut_by_layer"]["arachnoid"] == 0  # and only it
@@ -32,7 +34,7 @@ def test_the_m_key_switches_models_live_from_rest():
     app = build_app("cutting", settings={"model": "chainmail"})
     try:
         seen = []
-        for _ in range(3):
+        for _ in range(4):
             app.resource(PendingInput).push(app.time.sim_time, Widget("model", True))
             for _ in range(2):
                 app.update(app.time.dt)
@@ -40,7 +42,8 @@ def test_the_m_key_switches_models_live_from_rest():
                 models = {d.model_used for _, d in esper.get_component(Deformable)}
                 assert all(np.allclose(d.pos, d.rest, atol=1e-9) for _, d in esper.get_component(Deformable))
             seen.append(models)
-        assert seen == [{"xpbd"}, {"projective"}, {"chainmail"}]
+        # the layers are sheets: the walk reaches SurfaceChainMail, the pack's own model
+        assert seen == [{"xpbd"}, {"projective"}, {"surface"}, {"chainmail"}]
     finally:
         app.close()
 

@@ -41,6 +41,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
+from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 
 from chainsim.engine import meshgen
@@ -48,8 +49,8 @@ from chainsim.engine.bodies.base import StepStats
 from chainsim.engine.bodies.chainmail import ChainMailBody
 from chainsim.engine.bodies.projective import ProjectiveBody
 from chainsim.engine.errors import UserError
-from chainsim.engine.kernels.projective import local_step, pcg3, spmv3
-from chainsim.engine.kernels.twolevel import tet_stiffness, trilinear_weights, wake_front
+from chainsim.engine.kernels.projective import pcg3, spmv3
+from chainsim.engine.kernels.twolevel import local_forces, tet_stiffness, trilinear_weights, wake_front
 
 STARTS = ("none", "chainmail")
 #: set-ups kept for held/awake sets seen before (a release and a re-grab of the same patch cost nothing)
@@ -72,6 +73,7 @@ class HybridBody(ProjectiveBody):
         iterations: int = 1,
         cg_iterations: int = 6,
         rotation_iterations: int = 3,
+        rotation_tolerance: float = 0.0,
         coarse: float = 3.0,
         start: str = "none",
         sleep: float = 0.0,
@@ -107,7 +109,11 @@ class HybridBody(ProjectiveBody):
             raise UserError(f"sleep: expected a threshold in [0, 1) of the displacement scale, got {sleep}")
         if not (1 <= int(wake_rings) <= 1000):
             raise UserError(f"wake_rings: expected 1..1000, got {wake_rings}")
+        if not (math.isfinite(rotation_tolerance) and 0.0 <= rotation_tolerance <= 0.1):
+            raise UserError(f"rotation_tolerance: expected 0..0.1 radians, got {rotation_tolerance}")
         self.coarse, self.start, self.sleep, self.wake_rings = float(coarse), start, float(sleep), int(wake_rings)
+        self.rotation_tolerance = float(rotation_tolerance)
+        self._released = False
         rest_si = self.rest * self.unit
         links = meshgen.links_from_cells(self.tets)
         self.edge = float(np.mean(np.linalg.norm(rest_si[links[:, 0]] - rest_si[links[:, 1]], axis=1)))
@@ -129,6 +135,7 @@ class HybridBody(ProjectiveBody):
 
     # -- set-up per held and awake set ----------------------------------------------------------
     def _grab_changed(self) -> None:
+        self._released = len(self.grab_ids) == 0
         if self.sleep and len(self.grab_ids):
             self._wake_around(self.grab_ids)
         self._setup = None
@@ -141,9 +148,25 @@ class HybridBody(ProjectiveBody):
         change[ids] = 1.0
         wake_front(self.graph.indptr, self.graph.indices, self.awake, change, 0.5, self.wake_rings)
 
+    def _floating(self, held: np.ndarray) -> np.ndarray:
+        """Nodes of pieces (connected through live elements) that nothing holds: a piece cut free, or a
+        body let go with no fixed node. Statics gives such a piece no unique place (it may move rigidly
+        at no cost, so its matrices are singular): it keeps where it is."""
+        t = self.tets[self.active]
+        if not len(t):
+            return np.ones(self.n, dtype=np.bool_)
+        rows = np.repeat(t, 4, axis=1).ravel()
+        cols = np.tile(t, (1, 4)).ravel()
+        adj = sp.csr_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(self.n, self.n))
+        _, label = connected_components(adj, directed=False)
+        anchored = np.zeros(label.max() + 1, dtype=np.bool_)
+        anchored[label[held]] = True
+        return ~anchored[label]
+
     def _prepare_hybrid(self) -> dict:
         held = self.fixed.copy()
         held[self.grab_ids] = True
+        held |= self._floating(held)
         solve = ~held & self.awake
         key = (solve.tobytes(), self.active.tobytes())
         hit = self._setups.get(key)
@@ -175,6 +198,7 @@ class HybridBody(ProjectiveBody):
         s = {
             "free": free,
             "touch": touch,
+            "elems": np.flatnonzero(touch),
             "L_ff": (L_ff.indptr.astype(np.int64), L_ff.indices.astype(np.int64), L_ff.data),
             "L_fo": L_fo,
             "inv_diag": 1.0 / diag if nf else np.zeros(0),
@@ -220,6 +244,10 @@ class HybridBody(ProjectiveBody):
                 self._chain.move(self.grab_ids, self.grab_targets)
                 x[:] = self._chain.positions * self.unit
         self._last_targets = targets.copy()
+        if self._released:
+            self._released = False
+            if self._settle_at_rest():
+                return StepStats(0, 0.0, 0, time.perf_counter() - t0, {"setup_s": 0.0, "awake": 0, "solved": 0})
         if self._setup is None:
             self._setup = self._prepare_hybrid()
         s = self._setup
@@ -233,13 +261,21 @@ class HybridBody(ProjectiveBody):
         if len(free):
             rhs = self._rhs if self._rhs is not None and self._rhs.shape == x.shape else np.zeros_like(x)
             self._rhs = rhs
-            mask = s["touch"]
             indptr, indices, data = s["L_ff"]
             r, z, p, q, d = s["scratch"]
             for _ in range(self.iterations):
                 done += 1
-                local_step(
-                    x, self.tets, self.D, mask, self.w_arap, self.w_vol, self.quats, self.rotation_iterations, rhs
+                local_forces(
+                    x,
+                    self.tets,
+                    self.D,
+                    s["elems"],
+                    self.w_arap,
+                    self.w_vol,
+                    self.quats,
+                    self.rotation_iterations,
+                    self.rotation_tolerance,
+                    rhs,
                 )
                 # forces on the solved nodes: f = rhs - L x (minus the energy's gradient)
                 xf = x[free]
@@ -278,6 +314,28 @@ class HybridBody(ProjectiveBody):
         np.divide(x, self.unit, out=self._positions)
         extra = {"setup_s": s["seconds"], "awake": int(self.awake.sum()), "solved": len(free)}
         return StepStats(done, last / scale if scale > 0 else 0.0, 0, time.perf_counter() - t0, extra)
+
+    def _settle_at_rest(self) -> bool:
+        """After the last release, with every fixed node where it rests, the static answer is known
+        exactly: nothing holds the body, no load acts on it, and the rest shape is the energy's minimum
+        (zero, cut elements or not). So the body goes there in the frame of the release rather than
+        iterating back over many frames (the creep a few smoothing steps a frame would show). Returns
+        whether it did."""
+        rest = self.rest * self.unit
+        if len(self.grab_ids) or not np.allclose(
+            self.x[self.fixed], rest[self.fixed], rtol=0.0, atol=1e-12 * self._scale
+        ):
+            return False
+        self.x[:] = rest
+        self.quats[:] = 0.0
+        self.quats[:, 0] = 1.0
+        if self.sleep:
+            self.awake[:] = False
+            self._sleep_scale = 0.0
+        self._setup = None
+        self._prev_last = 0.0
+        np.divide(self.x, self.unit, out=self._positions)
+        return True
 
     def _cut(self, p0, p1, normal, depth) -> int:
         killed = super()._cut(p0, p1, normal, depth)
