@@ -169,9 +169,13 @@ class SurfaceChainMailBody(Body):
         rel = targets - self.origin
         self.plane.move(ids, rel @ self.axes.T, hold=True)
         self._normal_move(ids, rel @ self.normal - self.h_rest[ids])
-        self.positions[:] = (
-            self.origin + self.plane.positions @ self.axes + (self.h_rest + self.disp)[:, None] * self.normal
-        )
+        new = self.origin + self.plane.positions @ self.axes + (self.h_rest + self.disp)[:, None] * self.normal
+        # an element neither part moved (a fixed one, or one the move never reached) is exactly at rest,
+        # not at its rest shape passed through the plane and back (round-off would move fixed elements
+        # and mark the whole sheet as moved every frame)
+        same = np.all(self.plane.positions == self.uv_rest, axis=1) & (self.disp == 0.0)
+        new[same] = self.rest[same]
+        self.positions[:] = new
 
     # -- the body API ---------------------------------------------------------------------------------
     def _grab_changed(self) -> None:
