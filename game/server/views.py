@@ -1,17 +1,24 @@
 """The trainers' dashboard: sign in, classes, trainees, progress plots, one attempt, exports.
 
 Plain HTML forms and links rendered on the server (Jinja2, autoescaped), one stylesheet served
-from the package, plots as server-rendered SVG/PNG images: everything works without JavaScript
-and nothing is loaded from another site. A trainer sees the classes they teach; a trainee lands
-on their own page and can open nothing else (403).
+from the package, plots as server-rendered SVG/PNG images: every page but one works without
+JavaScript and nothing is loaded from another site. The attempt page adds its 3-D replay with this
+site's own copy of three.js (``chainsim.game.server.replay3d``). A trainer sees the classes they
+teach; a trainee lands on their own page and can open nothing else (403). Tables and plots hold one
+procedure (pack) at a time.
 
     GET  /login, POST /login, POST /logout
     GET  /                                  a trainer's classes (a trainee: their own page)
-    GET  /classes/{id}                      trainees of a class with attempt counts
-    GET  /trainees/{id}                     attempts and one progress plot per metric
-    GET  /trainees/{id}/plot/{metric}.svg   (or .png) the plot, with the class median
-    GET  /attempts/{id}                     one attempt in words: the verdict per metric against the pack's
-                                            benchmark, the landmark terms, step times, aids, details
+    GET  /classes/{id}?pack=&sort=&dir=&page=   the class at a glance (chainsim.game.server.classpage)
+    GET  /classes/{id}/plot/{pack}/{metric}.svg one metric for the class: trainees, median, benchmark
+    POST /classes/{id}/trainees, /classes/{id}/password   a trainer adds a trainee, sets a password
+    GET  /trainees/{id}?pack=&page=         one trainee's attempts of one pack, with verdicts
+    GET  /trainees/{id}/plot/{pack}/{metric}.svg   (or .png) progress, class median, benchmark
+    GET  /attempts/{id}                     one attempt in words and in 3-D: the verdict per metric
+                                            against the pack's benchmark, the landmark terms, step
+                                            times, aids, details
+    GET  /attempts/{id}/replay.json, /attempts/{id}/xray/{k}.png, /packs/{pack}/display.glb
+    POST /attempts/{id}/retract             with a reason (audit log)
     GET  /export/attempts.csv, /export/attempts.xapi.json   ?class=C&trainee=T
 """
 

@@ -179,11 +179,25 @@ def test_trainer_adds_a_trainee_and_resets_a_password(browser, big_class):  # no
         finally:
             trainee.close()
         # a trainee's page per procedure, as the trainer sees it
-        page.goto(url)
-        page.click("#class-table a:text-is('t01')")
-        assert page.locator("nav.tabs a").all_inner_texts() == ["mental-block", "prp"]
-        assert page.locator("#summary").inner_text().count("fail") >= 1
+        page.goto(url + "?pack=prp")
+        page.click("#class-table a:text-is('t02')")
+        assert page.locator("nav.tabs a").all_inner_texts() == ["prp"]
+        assert "50 %" in page.locator("#summary").inner_text()
         assert page.evaluate("document.scrollingElement.scrollWidth <= innerWidth")
+        wait_until(page, "[...document.querySelectorAll('.plots img')].every(i => i.complete && i.naturalWidth > 0)")
         shot(page, "trainee-1280.png")
+        # retract t02's passing attempt with a reason: it stays listed, marked, and leaves the figures
+        trainee_url = page.url
+        page.click("#attempts tbody tr:first-child td:first-child a")
+        page.fill("form.danger input[name=reason]", "ran the wrong scenario")
+        page.click("form.danger button")
+        assert "ran the wrong scenario" in page.locator("#retracted").inner_text()
+        page.goto(trainee_url)
+        assert "retracted" in page.locator("#attempts").inner_text()
+        assert "0 %" in page.locator("#summary").inner_text()
+        page.goto(site.url + "/audit")
+        assert "ran the wrong scenario" in page.locator("#audit").inner_text()
+        page.goto(url + "?pack=prp")
+        assert "t02" in page.locator("#below").inner_text()
     finally:
         page.close()
