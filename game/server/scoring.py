@@ -176,7 +176,9 @@ def check_upload(packs: ServerPacks, body: dict) -> dict:
     if fields["scene"] not in (info["scenes"] or [info["default_scene"] or fields["scene"]]):
         raise UserError(f"the recording's scene {fields['scene']!r} is not a scene of pack {identity['name']!r}")
     events = parse_events(recording, "recording")
-    if not any(getattr(ev, "name", None) == "save" for _, ev in events):
+    # Save is a widget event in a script, a click (or a key) in a window or browser session: the replay
+    # decides whether that click was on Save; a recording with neither is refused here already
+    if not any(getattr(ev, "name", None) == "save" or getattr(ev, "pressed", False) for _, ev in events):
         raise UserError("the recording never presses Save, so it cannot reproduce a saved attempt")
     return {"claimed": claimed, "recording": text, "identity": identity}
 

@@ -206,32 +206,63 @@ def test_a_trainee_sees_the_trainer_and_drives_it_with_keys(browser, site):  # n
         context.close()
 
 
+#: the dials' keys (the prp controller's help): the normal step is 1 degree, with Shift a quarter
+DIAL_KEYS = {"rotate_horizontal": ("ArrowRight", "ArrowLeft"), "rotate_vertical": ("ArrowUp", "ArrowDown")}
+
+
+def dial_presses(name: str, value: float) -> list[str]:
+    """Key presses turning dial ``name`` from 0 to ``value`` (within an eighth of a degree)."""
+    up, down = DIAL_KEYS[name]
+    key = up if value > 0 else down
+    whole = int(abs(value))
+    quarters = round((abs(value) - whole) / 0.25)
+    return [key] * whole + [f"Shift+{key}"] * quarters
+
+
 @pytest.mark.slow
 def test_a_whole_correct_attempt_in_the_browser_is_saved_under_the_trainee(browser, site):  # noqa: F811
+    """The prp correct attempt as a trainee makes it in the page: the help page closed, the landmarks
+    clicked on the face, the dials turned with the arrow keys to the correct script's angles, the
+    X-ray and insertion controls clicked, Self assessment and Save clicked (the clicks of
+    correct-mouse.toml, whose dial drags carry fractions of a pixel no pointer makes)."""
     from conftest import SCRIPTS
 
+    from chainsim.components.input_events import Widget
     from chainsim.game.app.inputscript import load_script
 
+    dials = [
+        (ev.name, ev.value) for _, ev in load_script(SCRIPTS / "correct.toml") if getattr(ev, "name", "") in DIAL_KEYS
+    ]
+    events = load_script(SCRIPTS / "correct-mouse.toml")
+    assert not any(isinstance(ev, Widget) for _, ev in events)
     before = {a["id"] for a in call(site, "GET", "/api/attempts", token=site.tokens["bob"])[1]["attempts"]}
     context, page = open_trainer(browser, site, "bob")
     try:
         box = page.locator("#train-screen").bounding_box()
         W, H = 1280, 800
         assert (round(box["width"]), round(box["height"])) == (W, H)
-        mouse = page.mouse
-        last_t = 0.0
-        for t, ev in load_script(SCRIPTS / "correct-mouse.toml"):
+        mouse, keyboard = page.mouse, page.keyboard
+        last_t, i = 0.0, 0
+        while i < len(events):
+            t, ev = events[i]
             time.sleep(max(0.0, t - last_t) * 1.5)  # the script's pace, with room for a slow machine
             last_t = t
             x, y = box["x"] + ev.x, box["y"] + (H - ev.y)
+            if ev.kind == "mouse_button" and ev.pressed and events[i + 1][1].kind == "mouse_drag":
+                name, value = dials.pop(0)  # a dial's drag: turned by its keys instead
+                for key in dial_presses(name, value):
+                    keyboard.press(key)
+                    time.sleep(0.05)
+                i += 3  # the press, the drag, the release
+                continue
             if ev.kind == "mouse_move":
                 mouse.move(x, y)
-            elif ev.kind == "mouse_drag":
-                mouse.move(x, y, steps=4)
             elif ev.kind == "mouse_button":
                 (mouse.down if ev.pressed else mouse.up)(button=ev.button)
             else:
                 raise AssertionError(f"unexpected event {ev}")
+            i += 1
+        assert dials == []
         deadline = time.monotonic() + 240
         while True:  # the script ends with Self assessment and Save: the server scores it by replay
             rows = call(site, "GET", "/api/attempts", token=site.tokens["bob"])[1]["attempts"]
