@@ -17,6 +17,7 @@ import time
 import pytest
 from conftest import PASSWORD, call, populate, start_server
 from test_browser import browser, sign_in  # noqa: F401 - the module's Chromium fixture
+from test_tls import certificates  # noqa: F401 - the programme's authority and the server's certificate
 
 from chainsim.game.records.store import RecordStore
 from chainsim.game.server import accounts
@@ -88,14 +89,14 @@ def cookie_for(db: str, name: str) -> str:
     return sid
 
 
-async def _talk(url: str, path: str, cookie: str | None, origin: str | None, send=()):
+async def _talk(url: str, path: str, cookie: str | None, origin: str | None, send=(), ssl=None):
     """Open the socket, send ``send`` once the first picture came; (close code, reason, messages seen)."""
     import websockets
 
     headers = {"Cookie": f"chainsim_session={cookie}"} if cookie else {}
     seen = []
     async with websockets.connect(
-        url.replace("http", "ws", 1) + path, additional_headers=headers, origin=origin, max_size=None
+        url.replace("http", "ws", 1) + path, additional_headers=headers, origin=origin, max_size=None, ssl=ssl
     ) as ws:
         try:
             while True:
@@ -108,10 +109,10 @@ async def _talk(url: str, path: str, cookie: str | None, origin: str | None, sen
             return exc.rcvd.code if exc.rcvd else None, exc.rcvd.reason if exc.rcvd else "", seen
 
 
-def talk(server, name, path="/train/prp/ws", send=(), origin="self"):
+def talk(server, name, path="/train/prp/ws", send=(), origin="self", ssl=None):
     cookie = None if name is None else cookie_for(server.db, name)
     origin = server.url if origin == "self" else origin
-    return asyncio.run(_talk(server.url, path, cookie, origin, send))
+    return asyncio.run(_talk(server.url, path, cookie, origin, send, ssl))
 
 
 def test_only_a_signed_in_trainee_opens_a_session_and_from_this_site_only(site):
@@ -165,6 +166,27 @@ def test_all_seats_taken_then_freed_when_the_page_has_gone(tmp_path, monkeypatch
     finally:
         server.stop()
     assert "alice's session ended (page gone for 1 s)" in (tmp_path / "serve.log").read_text()
+
+
+def test_the_stream_runs_on_the_servers_tls(tmp_path, certificates):  # noqa: F811
+    """Behind --certfile the socket is wss:// on the same listener and certificate; plain ws:// gets nothing."""
+    import ssl
+
+    db = str(tmp_path / "tls.sqlite3")
+    populate(db)
+    server = start_server(
+        db, tmp_path / "serve.log", args=("--certfile", str(certificates / "server.pem"),
+                                          "--keyfile", str(certificates / "server.key"))
+    )  # fmt: skip
+    try:
+        trust = ssl.create_default_context(cafile=str(certificates / "ca.pem"))
+        code, reason, seen = talk(server, "alice", send=['{"type": "key", "key": "nokey", "pressed": true}'], ssl=trust)
+        assert seen[:3] == ["starting", "ready", "frame"]
+        assert (code, reason) == (4400, "key: unknown key name 'nokey'")
+        with pytest.raises(Exception):  # noqa: B017 - the TLS listener does not speak plain HTTP upgrades
+            asyncio.run(_talk(server.url.replace("https", "http", 1), "/train/prp/ws", None, server.url))
+    finally:
+        server.stop()
 
 
 # -- in Chromium, as a trainee does ---------------------------------------------------------------
