@@ -90,3 +90,24 @@ def test_cutting_through_topology_updates_both_orders():
     killed = topology.cut_segment(rest, graph, [2.5, -1.0, 0.0], [2.5, 7.0, 0.0])
     assert len(killed) and not graph.alive[killed].any()
     assert_in_step(graph)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_dead_link_count_follows_every_change_of_the_alive_flags(seed):
+    """n_dead (which lets the breadth-first cascade skip the alive flags) equals the cut links after any
+    sequence of cuts, revivals of single links and whole resets."""
+    rng = np.random.default_rng(seed)
+    rest, links = random_mesh("volume", 3, rng, size=4)
+    alive = rng.random(len(links)) > 0.3
+    graph = build_graph(len(rest), links, alive=alive)
+    assert graph.n_dead == int((~graph.alive).sum())
+    for _ in range(6):
+        ids = rng.choice(len(links), int(rng.integers(1, 8)))
+        if rng.random() < 0.15:
+            graph.revive()
+        elif rng.random() < 0.5:
+            graph.cut(ids)
+        else:
+            graph.set_alive(ids, True)
+        assert graph.n_dead == int((~graph.alive).sum())

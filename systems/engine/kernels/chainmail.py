@@ -197,6 +197,9 @@ def make_workspace(n: int) -> Workspace:
 #: are still cached then; the CSR row start is asked for twice as far ahead, so that the neighbour list
 #: itself can be asked for at the nearer distance
 _AHEAD = 12
+#: how many queued sponsors ahead it asks for the rows of a sponsor's first unmoved neighbour: once that
+#: sponsor's neighbour list has arrived (asked for _AHEAD sponsors ahead), and early enough for the rows
+_NEAR = 6
 
 
 @njit(cache=True, inline="always")
@@ -231,6 +234,7 @@ def _cascade_fifo(
     gen,
     out_order,
     out_sponsor,
+    has_dead=True,
 ):
     # With a FIFO waiting list the first queued entry for an element that violates its box is the one
     # that moves it: neither its position nor its (already moved) sponsor's changes before that entry
@@ -240,34 +244,35 @@ def _cascade_fifo(
     if count < 0:
         return count
     return _fifo_loop(
-        rest, pos, indptr, indices, ealive, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen, out_order,
-        out_sponsor, count,
+        rest, pos, indptr, indices, ealive, has_dead, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen,
+        out_order, out_sponsor, count,
     )  # fmt: skip
 
 
 @njit(cache=True)
 def _fifo_loop(
-    rest,
-    pos,
-    indptr,
-    indices,
-    ealive,
-    eamin,
-    eamax,
-    ebeta,
-    ms,
-    fixed,
-    has_fixed,
-    stamp,
-    gen,
-    out_order,
-    out_sponsor,
-    count,
-):
+    rest, pos, indptr, indices, ealive, has_dead, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen, out_order,
+    out_sponsor, count,
+):  # fmt: skip
     """The breadth-first cascade from the grabbed elements out_order[:count] (moved and stamped).
     Returns the final count."""
+    args = (rest, pos, indptr, indices, ealive, has_dead, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen,
+            out_order, out_sponsor, count)  # fmt: skip
+    if pos.shape[1] == 3:
+        return _fifo_loop_3d(*args)
+    return _fifo_loop_nd(*args)
+
+
+@njit(cache=True)
+def _fifo_loop_3d(
+    rest, pos, indptr, indices, ealive, has_dead, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen, out_order,
+    out_sponsor, count,
+):  # fmt: skip
     n = pos.shape[0]
-    dim = pos.shape[1]
+    # one material for every link (ms == 0): its limits read once, not per candidate
+    am = eamin[0]
+    ax = eamax[0]
+    be = ebeta[0]
     head = 0
     while head < count:
         # Once every element has moved no check can move another: the sponsors still queued (the
@@ -286,19 +291,28 @@ def _fifo_loop(
             s1 = out_order[head + _AHEAD]
             prefetch(indices, indptr[s1])
             prefetch(indices, indptr[s1 + 1] - 1)
+        if head + _NEAR < count:
+            # and nearer still, the stamps of a queued sponsor's neighbours (one gather, which also brings
+            # them in for its own scan) and the rows of the first of them still unmoved, the one it will
+            # most likely check first (should a sponsor served before it move that one, the prefetch is
+            # wasted, the result the same)
+            s0 = out_order[head + _NEAR]
+            first = indptr[s0]
+            ahead = unmoved_mask(indices, first, min(indptr[s0 + 1] - first, LANES), stamp, gen)
+            e0 = indices[first + lowest_bit(ahead)] if ahead != 0 else s0
+            prefetch(pos, e0)
+            prefetch(rest, e0)
         s = out_order[head]
         head += 1
+        # the sponsor's rows loaded once per sponsor; the same arithmetic as try_move otherwise
+        r0 = np.float64(rest[s, 0])
+        r1 = np.float64(rest[s, 1])
+        r2 = np.float64(rest[s, 2])
+        b0 = np.float64(pos[s, 0])
+        b1 = np.float64(pos[s, 1])
+        b2 = np.float64(pos[s, 2])
         start = indptr[s]
         stop = indptr[s + 1]
-        r0 = r1 = r2 = b0 = b1 = b2 = 0.0
-        if dim == 3:
-            # the sponsor's rows loaded once per sponsor; the same arithmetic as try_move otherwise
-            r0 = np.float64(rest[s, 0])
-            r1 = np.float64(rest[s, 1])
-            r2 = np.float64(rest[s, 2])
-            b0 = np.float64(pos[s, 0])
-            b1 = np.float64(pos[s, 1])
-            b2 = np.float64(pos[s, 2])
         # Most of a sponsor's neighbours have moved already; which have not is asked sixteen entries at a
         # time (kernels.gather), and only those entries are visited, in their listed order.
         while start < stop:
@@ -309,18 +323,12 @@ def _fifo_loop(
                 mask &= mask - 1
                 e = indices[j]
                 # stamp again: a link listed twice may have moved e earlier in this very row
-                if stamp[e] == gen or not ealive[j] or (has_fixed and fixed[e]):
+                if stamp[e] == gen or (has_dead and not ealive[j]) or (has_fixed and fixed[e]):
                     continue
-                if dim != 3:
-                    if try_move(rest, pos, e, s, eamin[j * ms], eamax[j * ms], ebeta[j * ms]):
-                        stamp[e] = gen
-                        out_order[count] = e
-                        out_sponsor[count] = s
-                        count += 1
-                    continue
-                am = eamin[j * ms]
-                ax = eamax[j * ms]
-                be = ebeta[j * ms]
+                if ms != 0:
+                    am = eamin[j]
+                    ax = eamax[j]
+                    be = ebeta[j]
                 d0 = np.float64(rest[e, 0]) - r0
                 d1 = np.float64(rest[e, 1]) - r1
                 d2 = np.float64(rest[e, 2]) - r2
@@ -345,6 +353,60 @@ def _fifo_loop(
                     pos[e, 0] = c0
                     pos[e, 1] = c1
                     pos[e, 2] = c2
+                    stamp[e] = gen
+                    out_order[count] = e
+                    out_sponsor[count] = s
+                    count += 1
+            start += width
+    return count
+
+
+@njit(cache=True)
+def _fifo_loop_nd(
+    rest, pos, indptr, indices, ealive, has_dead, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen, out_order,
+    out_sponsor, count,
+):  # fmt: skip
+    """_fifo_loop_3d for positions of any dimension, the box of each candidate from kernels.boxes."""
+    n = pos.shape[0]
+    head = 0
+    while head < count:
+        if count == n:
+            break
+        # asked for ahead as in _fifo_loop_3d
+        if head + 2 * _AHEAD < count:
+            s2 = out_order[head + 2 * _AHEAD]
+            prefetch(indptr, s2)
+            prefetch(pos, s2)
+            prefetch(rest, s2)
+        if head + _AHEAD < count:
+            s1 = out_order[head + _AHEAD]
+            prefetch(indices, indptr[s1])
+            prefetch(indices, indptr[s1 + 1] - 1)
+        if head + _NEAR < count:
+            # and nearer still, the stamps of a queued sponsor's neighbours (one gather, which also brings
+            # them in for its own scan) and the rows of the first of them still unmoved, the one it will
+            # most likely check first (should a sponsor served before it move that one, the prefetch is
+            # wasted, the result the same)
+            s0 = out_order[head + _NEAR]
+            first = indptr[s0]
+            ahead = unmoved_mask(indices, first, min(indptr[s0 + 1] - first, LANES), stamp, gen)
+            e0 = indices[first + lowest_bit(ahead)] if ahead != 0 else s0
+            prefetch(pos, e0)
+            prefetch(rest, e0)
+        s = out_order[head]
+        head += 1
+        start = indptr[s]
+        stop = indptr[s + 1]
+        while start < stop:
+            width = min(stop - start, LANES)
+            mask = unmoved_mask(indices, start, width, stamp, gen)
+            while mask != 0:
+                j = start + lowest_bit(mask)
+                mask &= mask - 1
+                e = indices[j]
+                if stamp[e] == gen or (has_dead and not ealive[j]) or (has_fixed and fixed[e]):
+                    continue
+                if try_move(rest, pos, e, s, eamin[j * ms], eamax[j * ms], ebeta[j * ms]):
                     stamp[e] = gen
                     out_order[count] = e
                     out_sponsor[count] = s
@@ -776,6 +838,7 @@ def cascade(
             csr = ws.narrow_csr(graph, kargs, padded=True)
             count = _cascade_fifo(
                 rest, pos, *csr, grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen, ws.out_order, ws.out_sponsor,
+                graph.n_dead > 0,
             )  # fmt: skip
     elif order == ORDER_DEPTH_FIRST:
         count = _cascade_depth_first(*args, ws.q_entry, ws.q_sponsor, ws.out_order, ws.out_sponsor)

@@ -25,6 +25,7 @@ class Graph:
     link:    int64 (2M,)   undirected link id of each CSR entry
     links:   int64 (M, 2)  endpoints of each link
     alive:   bool (M,)     False once a link is cut (read-only: cut through `cut` / `set_alive`)
+    n_dead:  int           how many links are cut
 
     The kernels read the per-link data in CSR entry order, so that it streams with `indices` instead of
     being fetched by link id: `entry_alive` (2M,) mirrors `alive`, and the bound materials (per-link
@@ -51,6 +52,7 @@ class Graph:
         "entry_beta",
         "mat_stride",
         "version",
+        "n_dead",
     )
 
     def __init__(self, indptr, indices, link, links, alive=None):
@@ -64,6 +66,8 @@ class Graph:
             raise ValueError(f"alive must have shape ({m},), got {self._alive.shape}")
         self.alive = _frozen(self._alive.view())
         self._entry_alive = np.ascontiguousarray(self._alive[self.link])
+        # how many links are cut: with none, the breadth-first cascade skips reading the alive flags
+        self.n_dead = int(m - np.count_nonzero(self._alive))
         self.entry_alive = _frozen(self._entry_alive.view())
         self.amin = self.amax = self.beta = None
         self.entry_amin = self.entry_amax = self.entry_beta = None
@@ -96,6 +100,7 @@ class Graph:
         changed = np.unique(ids[self._alive[ids] != bool(value)])
         if changed.size:
             self._alive[changed] = bool(value)
+            self.n_dead += -len(changed) if value else len(changed)
             _set_entries(self._entry_alive, self.indptr, self.link, self.links, changed, bool(value))
             self.version += 1
         return changed
@@ -108,6 +113,7 @@ class Graph:
         """Every link alive again (a reset to the rest shape)."""
         self._alive[:] = True
         self._entry_alive[:] = True
+        self.n_dead = 0
         self.version += 1
 
     # -- materials -----------------------------------------------------------------------------------
