@@ -16,8 +16,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import PASSWORD, save_scored, upload
+from conftest import PASSWORD, attempt, save_scored, upload
 from records_db import missing
+
+from chainsim.game.records.store import RecordStore
 
 CHROMIUM = "/usr/bin/chromium"
 # WebGL without a GPU: SwiftShader through ANGLE
@@ -122,6 +124,22 @@ def test_attempt_page_replays_the_attempt_in_3d(browser, site):
         page.wait_for_timeout(300)
         assert page.evaluate("document.scrollingElement.scrollWidth <= innerWidth")
         shot(page, f"attempt3d-{site.db.split(':')[0]}-390.png")
+    finally:
+        page.close()
+
+
+@pytest.mark.slow
+def test_an_attempt_without_recording_says_why_it_has_no_3d_view(browser, site):
+    with RecordStore(site.db) as store:
+        aid = store.save_attempt("c1", "bob", attempt(2))  # as a local simulator's import would have it
+    page = browser.new_page()
+    try:
+        sign_in(page, site, "tina")
+        page.goto(f"{site.url}/attempts/{aid}")
+        wait_until(page, "document.getElementById('replay-status').textContent.startsWith('No 3-D replay')")
+        assert "has no recording" in page.locator("#replay-status").inner_text()
+        assert page.locator("#replay-canvas").count() == 0
+        assert page.locator("#metrics").is_visible()  # the page in words is all there
     finally:
         page.close()
 
