@@ -105,6 +105,31 @@ def encoding_costs(pack: str, quality: int) -> dict:
     return out
 
 
+def sessions_cpu_s(server_pid: int) -> float:
+    """CPU seconds used so far by the server's session processes (Linux /proc; 0 elsewhere)."""
+    total = 0.0
+    try:
+        tasks = os.listdir(f"/proc/{server_pid}/task")
+    except OSError:
+        return 0.0
+    tick = os.sysconf("SC_CLK_TCK")
+    for tid in tasks:
+        try:
+            children = Path(f"/proc/{server_pid}/task/{tid}/children").read_text().split()
+        except OSError:
+            continue
+        for pid in children:
+            try:
+                cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
+                if b"train_session" not in cmd:
+                    continue
+                fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+                total += (int(fields[11]) + int(fields[12])) / tick
+            except (OSError, IndexError, ValueError):
+                continue
+    return total
+
+
 def _wait(url: str, proc, log: Path) -> None:
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
@@ -168,7 +193,7 @@ def run(args) -> int:
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
             try:
-                rows = _measure(browser, url, names, args)
+                rows = _measure(browser, url, names, args, server.pid)
             finally:
                 browser.close()
     finally:
@@ -187,9 +212,9 @@ def run(args) -> int:
     return 0
 
 
-def _measure(browser, url: str, names: list[str], args) -> list[dict]:
+def _measure(browser, url: str, names: list[str], args, server_pid: int) -> list[dict]:
     contexts, pages, rows = [], [], []
-    print("sessions  fps (min / median)  latency ms (median / p90)  KiB/s per session  load")
+    print("sessions  fps (min / median)  latency ms (median / p90)  KiB/s per session  CPU per session  load")
     for k, name in enumerate(names, start=1):
         context = browser.new_context(viewport={"width": 1400, "height": 1000}, bypass_csp=True)
         page = context.new_page()
@@ -205,10 +230,11 @@ def _measure(browser, url: str, names: list[str], args) -> list[dict]:
         pages.append(page)
         time.sleep(2.0)  # every tab turning its dial before the count starts
         start = [pg.evaluate(READ) for pg in pages]
-        t0 = time.perf_counter()
+        cpu0, t0 = sessions_cpu_s(server_pid), time.perf_counter()
         time.sleep(args.seconds)
         end = [pg.evaluate(READ) for pg in pages]
         span = time.perf_counter() - t0
+        cpu = (sessions_cpu_s(server_pid) - cpu0) / span / k
         fps = [(e["frames"] - s["frames"]) / span for s, e in zip(start, end)]
         kbs = [(e["bytes"] - s["bytes"]) / span / 1024 for s, e in zip(start, end)]
         lat = sorted(x for s, e in zip(start, end) for x in e["lat"][len(s["lat"]) :])
@@ -219,13 +245,14 @@ def _measure(browser, url: str, names: list[str], args) -> list[dict]:
             "latency_ms_median": statistics.median(lat) if lat else None,
             "latency_ms_p90": lat[int(0.9 * (len(lat) - 1))] if lat else None,
             "kib_s_median": statistics.median(kbs),
+            "cpu_per_session": cpu,
             "load": os.getloadavg()[0],
         }
         rows.append(row)
         latency = f"{row['latency_ms_median']:.0f} / {row['latency_ms_p90']:.0f}" if lat else "- (no key press shown)"
         print(
             f"{k:8d}  {row['fps_min']:5.1f} / {row['fps_median']:5.1f}       {latency:>24}  "
-            f"{row['kib_s_median']:17.0f}  {row['load']:.2f}",
+            f"{row['kib_s_median']:17.0f}  {cpu:14.0%}  {row['load']:.2f}",
             flush=True,
         )
     for context in contexts:
