@@ -10,7 +10,14 @@ from cascade_reference import ref_cascade
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine.kernels.chainmail import ORDER_BREADTH_FIRST, cascade, make_workspace, material_arrays
+from chainsim.engine.kernels.chainmail import (
+    _NO_FIXED,
+    ORDER_BREADTH_FIRST,
+    _cascade_fifo,
+    cascade,
+    make_workspace,
+    material_arrays,
+)
 from chainsim.engine.kernels.gather import LANES, mask_of
 from chainsim.engine.kernels.graph import build_graph
 
@@ -79,3 +86,30 @@ def test_breadth_first_cascade_on_long_rows_matches_reference(seed, dim, dtype, 
         np.testing.assert_array_equal(moved, want[1])
         np.testing.assert_array_equal(sponsor, want[2])
         np.testing.assert_array_equal(pos, want[0])
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.integers(0, 2**32 - 1), st.integers(1, 3))
+def test_breadth_first_loop_on_int64_lists_matches_reference(seed, dim):
+    """Meshes with 2^31 or more CSR entries keep int64 neighbour lists, unpadded: the loop then scans them
+    entry by entry, with the same result (run here on a small mesh's own int64 arrays)."""
+    rng = np.random.default_rng(seed)
+    rest, links = hub_mesh(rng, dim)
+    n, m = len(rest), len(links)
+    amin, amax, beta = material_arrays(m, rng.uniform(0.3, 1.0, m), rng.uniform(1.0, 2.0, m), 0.1)
+    graph = build_graph(n, links)
+    graph.cut(rng.choice(m, m // 8, replace=False))
+    graph.bind_materials(amin, amax, beta)
+    pos = rest + rng.normal(scale=0.3, size=rest.shape)
+    grab = np.array([int(rng.integers(n))])
+    target = pos[grab] + rng.normal(scale=2.0, size=(1, dim))
+    want = ref_cascade(rest, pos, links, graph.alive, amin, amax, beta, grab, target)
+    ws = make_workspace(n)
+    got = pos.copy()
+    count = _cascade_fifo(
+        rest, got, *graph.kernel_args, grab, target, _NO_FIXED, False, ws.stamp, ws.next_generation(),
+        ws.out_order, ws.out_sponsor, True,
+    )  # fmt: skip
+    assert graph.indices.dtype == np.int64
+    np.testing.assert_array_equal(ws.out_order[:count], want[1])
+    np.testing.assert_array_equal(got, want[0])
