@@ -24,7 +24,9 @@ import hashlib
 import io
 import json
 import multiprocessing
+import os
 import threading
+import time
 from collections import OrderedDict
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -223,6 +225,18 @@ def display_glb(pack_root: str, pack_paths: list[str]) -> bytes:
 # -- the server's side: one replay process, results kept ----------------------------------------
 
 
+def _leave_with(server_pid: int) -> None:
+    """In the replay process: exit when the server is gone (a server killed without its shutdown
+    would otherwise leave this process, its GL context and its memory behind)."""
+
+    def watch() -> None:
+        while os.getppid() == server_pid:
+            time.sleep(2.0)
+        os._exit(0)
+
+    threading.Thread(target=watch, name="leave-with-server", daemon=True).start()
+
+
 class Replays:
     """Replays and meshes for the attempt pages, computed in one spawned process and kept in memory."""
 
@@ -236,7 +250,9 @@ class Replays:
     def _submit(self, fn, *args) -> Any:
         with self._lock:
             if self._pool is None:
-                self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+                self._pool = ProcessPoolExecutor(
+                    1, mp_context=multiprocessing.get_context("spawn"), initializer=_leave_with, initargs=(os.getpid(),)
+                )
             pool = self._pool
         return pool.submit(fn, *args).result()
 
