@@ -19,11 +19,11 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from chainsim.game.gl import panelview, shaders
+from chainsim.game.gl import culling, panelview, shaders
 from chainsim.game.gl.context import release_framebuffer
 from chainsim.game.gl.docview import PageView
 from chainsim.game.gl.fluoro import FluoroDraw, FluoroRenderer
-from chainsim.game.gl.meshbuf import GpuMesh
+from chainsim.game.gl.meshbuf import ORDER_DIRECTIONS, GpuMesh
 from chainsim.game.gl.overlay import Overlay
 from chainsim.game.gl.viewcache import ViewCache, base_key, item_keys
 from chainsim.systems.ui.viewports import Camera, Rect
@@ -103,13 +103,21 @@ def _mat(m: np.ndarray) -> bytes:
 
 
 def _set(prog, name: str, value) -> None:
-    """Set a uniform if the compiler kept it (unused ones are optimised away)."""
-    if name in prog:
-        u = prog[name]
-        if isinstance(value, bytes):
-            u.write(value)
-        else:
-            u.value = value
+    """Set a uniform if the compiler kept it (unused ones are optimised away). The program keeps its
+    uniforms by name (None: dropped), as `name in prog` walks every member of the program and a frame
+    sets a few hundred uniforms."""
+    found = prog.__dict__.get("_chainsim_uniforms")
+    if found is None:
+        found = prog.__dict__["_chainsim_uniforms"] = {}
+    u = found.get(name, False)
+    if u is False:
+        u = found[name] = prog[name] if name in prog else None
+    if u is None:
+        return
+    if isinstance(value, bytes):
+        u.write(value)
+    else:
+        u.value = value
 
 
 @contextmanager
@@ -156,6 +164,10 @@ class Renderer:
         self._label_q: list[list] = []  # occlusion queries of the labels, a set per scene drawn in a frame
         self._label_sets = 0  # sets used in this frame
         self.view_cache: ViewCache | None = None  # `cache_views()` turns it on
+        self.cull_outside = True  # off: big meshes are handed to GL whole in every draw (tests compare)
+        self.defer_labels = True  # off: label queries are read where the labels are laid out (tests compare)
+        self._culled: dict[int, _Culled] = {}  # GpuMesh.serial -> its list of triangles in sight
+        self._model_mats: dict[bytes, tuple[bytes, bytes]] = {}  # model matrix -> its uniforms (model, normals)
 
     @property
     def fluoro(self) -> FluoroRenderer:
@@ -170,14 +182,20 @@ class Renderer:
         gm = self.meshes.get(key)
         if gm is None or gm.n != len(vertices):
             if gm is not None:
-                gm.release()
+                self._release_mesh(gm)
             gm = self.meshes[key] = GpuMesh(self.ctx, vertices, triangles, links)
         return gm
 
     def forget(self, key) -> None:
         gm = self.meshes.pop(key, None)
         if gm is not None:
-            gm.release()
+            self._release_mesh(gm)
+
+    def _release_mesh(self, gm: GpuMesh) -> None:
+        c = self._culled.pop(gm.serial, None)
+        if c is not None:
+            c.release()
+        gm.release()
 
     # -- frame -------------------------------------------------------------------------------
     def render(self, frame: Frame, fbo, size: tuple[int, int] | None = None) -> None:
@@ -438,11 +456,17 @@ class Renderer:
     def _mesh_uniforms(self, prog, vp: np.ndarray, m: MeshDraw, eye) -> None:
         model = np.asarray(m.model, float)
         _set(prog, "u_mvp", _mat(vp @ model))
-        _set(prog, "u_model", _mat(model))
-        lin = model[:3, :3]
-        det = np.linalg.det(lin)
-        nm = np.linalg.inv(lin).T if abs(det) > 1e-30 else np.eye(3)
-        _set(prog, "u_normal_mat", _mat(nm))
+        key = model.tobytes()
+        mats = self._model_mats.get(key)
+        if mats is None:  # the same few model matrices come back draw after draw
+            lin = model[:3, :3]
+            det = np.linalg.det(lin)
+            nm = np.linalg.inv(lin).T if abs(det) > 1e-30 else np.eye(3)
+            if len(self._model_mats) > 256:
+                self._model_mats.clear()
+            mats = self._model_mats[key] = (_mat(model), _mat(nm))
+        _set(prog, "u_model", mats[0])
+        _set(prog, "u_normal_mat", mats[1])
         _set(prog, "u_color", tuple(float(c) for c in m.color))
         _set(prog, "u_eye", tuple(float(c) for c in eye))
         _set(prog, "u_shading", SHADING.get(m.shading, 0))
@@ -462,10 +486,57 @@ class Renderer:
             if m.color[3] >= 0.999 and m.gpu.orderable:  # nearest triangles first: hidden ones fail the depth test
                 model = np.asarray(m.model, float)
                 first = m.gpu.nearest_first(np.linalg.solve(model, np.r_[np.asarray(eye, float), 1.0])[:3])
+            if self.cull_outside and self._draw_visible(m, vp, first):
+                return
             if first is None:
                 m.gpu.vao(self.mesh_prog, "tri").render(self.ctx.TRIANGLES, vertices=m.gpu.n_indices)
             else:
                 m.gpu.vao(self.mesh_prog, "ordered").render(self.ctx.TRIANGLES, vertices=m.gpu.n_indices, first=first)
+
+    def _draw_visible(self, m: MeshDraw, vp, first: int | None) -> bool:
+        """Draw only the triangles of a big mesh, as loaded, that can touch the viewport's scissor box,
+        in the order the whole mesh would be drawn in (`first`: its nearest-first order; None: its
+        stored order), so the image is the same (chainsim.game.gl.culling). False when nothing would be
+        left out, or not enough to pay: then the caller draws the whole mesh."""
+        gm = m.gpu
+        if gm.version or gm.n_indices != gm.tris.size or len(gm.tris) < culling.CULL_MIN:
+            return False
+        ctx = self.ctx
+        mvp = np.asarray(vp, float) @ np.asarray(m.model, float)
+        planes = culling.region_planes(mvp, ctx.viewport, ctx.scissor)
+        if planes is None:
+            return True  # an empty box: nothing to draw
+        c = self._culled.get(gm.serial)
+        if c is None:
+            c = self._culled[gm.serial] = _Culled(gm)
+        if culling.box_inside(planes, c.corners):
+            return False
+        order = -1 if first is None else first // gm.n_indices
+        key = (planes.tobytes(), order)
+        if c.key != key:  # the two faces of a see-through mesh share one list
+            keep = culling.visible_triangles(gm.pos, gm.tris, planes)
+            if order >= 0:  # in the stored nearest-first order, kept triangles keep their places
+                sorted_ids = c.order(order)
+                ids = sorted_ids[keep[sorted_ids]]
+            else:
+                ids = np.flatnonzero(keep)
+            c.n = len(ids)
+            if c.n > (1.0 - culling.CULL_SHARE) * len(gm.tris):
+                c.key, c.n = key, -1
+                return False
+            data = c.tris32[ids].tobytes()
+            if len(data) > c.buffer.size:
+                c.buffer.orphan(max(len(data), 2 * c.buffer.size))
+            elif data:
+                c.buffer.orphan()  # fresh storage: a draw still queued keeps the old list
+            if data:
+                c.buffer.write(data)
+            c.key = key
+        if c.n < 0:
+            return False
+        if c.n:
+            c.vao(self.mesh_prog).render(ctx.TRIANGLES, vertices=3 * c.n)
+        return True
 
     def _dyn_draw(self, pts: np.ndarray, mode, vp, color) -> None:
         data = np.ascontiguousarray(pts, np.float32).tobytes()
@@ -677,6 +748,7 @@ class Renderer:
         nothing of the scene (a landmark label) shows through an open page."""
         ov = self.overlay
         s = frame.scale
+        waiting = []  # views whose labels wait for their queries: (overlay positions, fonts, view, rect, queries)
         for view in frame.views:
             r = view.rect.scaled(s)
             if view.kind == "panel" or r.w <= 0:
@@ -688,13 +760,14 @@ class Renderer:
                 if frame.hud is not None and frame.hud.debrief_paths and self.fluoro.shown:
                     panelview.debrief_paths(ov, frame.fluoro.camera, r, frame.hud.debrief_paths, s, square=True)
             if view.camera is not None:
-                seen = self._seen(self._labels_seen.get((r.x, r.y, r.w, r.h), []))
-                for k, (pos, text, color) in enumerate(frame.labels):
-                    if k < len(seen) and not seen[k]:
-                        continue  # behind bone or skin
-                    x, y, z = view.camera.project(pos, r)[0]
-                    if -1 < z < 1 and r.contains(x, y):
-                        panelview.backed_label(ov, text, x + 4 * s, y + 4 * s, color, s)
+                found = self._labels_seen.get((r.x, r.y, r.w, r.h), [])
+                if self.defer_labels and frame.labels and not all(isinstance(q, bool) for q in found):
+                    # reading a query waits until the rasteriser has drawn everything queued: the
+                    # labels' place in the overlay is kept, and they are put there after the rest of
+                    # the overlay is laid out, so this thread works while the rasteriser does
+                    waiting.append((len(ov.shapes), len(ov.glyphs.get(ov.font, ())), list(ov.glyphs), view, r, found))
+                else:
+                    self._view_labels(frame, view, r, self._seen(found))
             hud = frame.hud
             if hud is not None and hud.debrief_paths and view.name == frame.hud_view and view.camera is not None:
                 panelview.debrief_paths(ov, view.camera, r, hud.debrief_paths, s)
@@ -704,15 +777,51 @@ class Renderer:
                 panelview.hud(ov, hud, r, s)
         for p in frame.panels:
             panelview.panel(ov, p, frame.hud, s)
+        for shapes_at, glyphs_at, fonts_before, view, r, found in reversed(waiting):
+            self._insert_labels(shapes_at, glyphs_at, fonts_before, frame, view, r, self._seen(found))
         if frame.doc is not None:
             W, H = frame.size[0] * s, frame.size[1] * s
             ov.flush((W, H))
             title, text, first, buttons = frame.doc
             frame.doc_shown = self.pages.draw(frame.doc_box, s, title, text, first, buttons)
 
+    def _view_labels(self, frame: Frame, view: ViewDraw, r: Rect, seen: list[bool]) -> None:
+        """The labels in sight in `view` (not behind bone or skin), each on its dark box."""
+        s = frame.scale
+        for k, (pos, text, color) in enumerate(frame.labels):
+            if k < len(seen) and not seen[k]:
+                continue  # behind bone or skin
+            x, y, z = view.camera.project(pos, r)[0]
+            if -1 < z < 1 and r.contains(x, y):
+                panelview.backed_label(self.overlay, text, x + 4 * s, y + 4 * s, color, s)
+
+    def _insert_labels(self, shapes_at: int, glyphs_at: int, fonts_before: list, frame, view, r, seen) -> None:
+        """Lay out a view's labels and put their shapes and glyphs where they would have gone had they
+        been laid out in turn (`shapes_at`, `glyphs_at` in the overlay's lists, `fonts_before`: the fonts
+        with glyphs then), so the overlay is drawn exactly as before."""
+        ov = self.overlay
+        font = ov.font
+        shapes, glyphs = ov.shapes, ov.glyphs.get(font)
+        ov.shapes = []
+        ov.glyphs[font] = []
+        self._view_labels(frame, view, r, seen)
+        new_shapes, new_glyphs = ov.shapes, ov.glyphs[font]
+        shapes[shapes_at:shapes_at] = new_shapes
+        ov.shapes = shapes
+        if glyphs is None:  # no text of this font after the labels' place
+            glyphs = []
+        glyphs[glyphs_at:glyphs_at] = new_glyphs
+        ov.glyphs[font] = glyphs
+        if not glyphs:
+            del ov.glyphs[font]
+        elif new_glyphs and font not in fonts_before:  # the font's batch goes where the labels' glyphs put it
+            order = [f for f in fonts_before if f in ov.glyphs] + [font]
+            order += [f for f in ov.glyphs if f not in order]
+            ov.glyphs = {f: ov.glyphs[f] for f in order}
+
     def release(self) -> None:
         for gm in self.meshes.values():
-            gm.release()
+            self._release_mesh(gm)
         self.meshes.clear()
         self.sphere.release()
         self.overlay.release()
@@ -726,6 +835,47 @@ class Renderer:
             if hasattr(q.mglo, "release"):
                 q.mglo.release()
         self._label_q.clear()
+
+
+class _Culled:
+    """A big mesh's triangles in sight in its last draw (`Renderer._draw_visible`): an index buffer of
+    its own, one vertex array per program, and the key (region planes, order) the list was made for."""
+
+    def __init__(self, gm: GpuMesh):
+        self.gm = gm
+        self.buffer = gm.ctx.buffer(reserve=max(12, gm.tris.size), dynamic=True)  # a quarter of the whole list
+        self.vaos: dict[int, object] = {}
+        self.key = None
+        self.n = 0  # triangles in the list; -1: too many left to pay (drawn whole)
+        self.corners = culling.box_corners(*gm.box())
+        self.tris32 = gm.tris.astype(np.uint32)
+        self._depth = None
+        self._orders: dict[int, np.ndarray] = {}
+
+    def order(self, k: int) -> np.ndarray:
+        """Triangle numbers nearest-first along ORDER_DIRECTIONS[k], as GpuMesh.nearest_first stores them."""
+        ids = self._orders.get(k)
+        if ids is None:
+            if self._depth is None:
+                self._depth = self.gm.pos[self.gm.tris].astype(np.float64).mean(axis=1) @ ORDER_DIRECTIONS.T
+            ids = self._orders[k] = np.argsort(-self._depth[:, k], kind="stable")
+        return ids
+
+    def vao(self, prog):
+        v = self.vaos.get(prog.glo)
+        if v is None:
+            gm = self.gm
+            attrs = [(gm.vbo_pos, "3f", "in_pos")]
+            if "in_normal" in prog:
+                attrs.append((gm.vbo_nrm, "3f", "in_normal"))
+            v = self.vaos[prog.glo] = gm.ctx.vertex_array(prog, attrs, self.buffer)
+        return v
+
+    def release(self) -> None:
+        for v in self.vaos.values():
+            v.release()
+        self.vaos.clear()
+        self.buffer.release()
 
 
 def _trs(pos, radius: float) -> np.ndarray:
