@@ -46,6 +46,8 @@ DEFAULT_FPS = 30.0
 #: frames the page may have in flight at once (sent, not yet drawn)
 FRAME_CREDIT = 2
 SAVE_REPLY_S = 30.0
+#: after this many loops without input or a changed picture, the picture is drawn every STILL_EVERY-th loop
+STILL_FRAMES, STILL_EVERY = 15, 6
 
 
 def encode(rgb: bytes, size: tuple[int, int], fmt: str, quality: int) -> bytes:
@@ -198,6 +200,7 @@ class Session:
         self.last_seq = 0
         self.frame_no = 0
         self.last_raw: bytes | None = None
+        self.still = 0  # loops since the input or picture last changed
 
     def apply(self, msg: dict) -> None:
         """One input from the page, as the window turns a device event into an App event."""
@@ -235,21 +238,27 @@ class Session:
         last = time.perf_counter()
         while not channel.closed.is_set():
             start = time.perf_counter()
+            had_input = False
             while True:
                 try:
                     self.apply(channel.inputs.get_nowait())
                 except queue.Empty:
                     break
+                had_input = True
             self.stepper.advance(start - last)
             last = start
             for ev in self.widget_events.read():
                 if ev.name == "sign_in":  # the page's sign-in is the records server's: say who is signed in
                     self.hud.message(self.who.replace("Signed in:", "You are signed in as"), 6.0)
-            if channel.credit > 0:
+            # a still scene is looked at a few times a second only; input brings back the full rate
+            self.still = 0 if had_input else self.still + 1
+            if channel.credit > 0 and (self.still < STILL_FRAMES or self.still % STILL_EVERY == 0):
                 picture = self.frame()
-                if picture is not None and channel.take_credit():
-                    self.frame_no += 1
-                    channel.send(b"F", struct.pack(">II", self.frame_no, self.last_seq & 0xFFFFFFFF) + picture)
+                if picture is not None:
+                    self.still = 0
+                    if channel.take_credit():
+                        self.frame_no += 1
+                        channel.send(b"F", struct.pack(">II", self.frame_no, self.last_seq & 0xFFFFFFFF) + picture)
             spare = self.period - (time.perf_counter() - start)
             if spare > 0:
                 channel.closed.wait(spare)
