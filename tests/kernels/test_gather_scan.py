@@ -9,6 +9,7 @@ import numpy as np
 from cascade_reference import ref_cascade
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from numba import njit
 
 from chainsim.engine.kernels.chainmail import (
     _NO_FIXED,
@@ -18,7 +19,7 @@ from chainsim.engine.kernels.chainmail import (
     make_workspace,
     material_arrays,
 )
-from chainsim.engine.kernels.gather import LANES, mask_of
+from chainsim.engine.kernels.gather import LANES, lowest_bit, mask_of
 from chainsim.engine.kernels.graph import build_graph
 
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -38,6 +39,17 @@ def test_mask_marks_exactly_the_entries_whose_stamp_differs(seed, id_dtype):
     count = int(rng.integers(0, min(LANES, m - start) + 1))
     want = sum(1 << k for k in range(count) if stamp[ids[start + k]] != gen)
     assert mask_of(ids, start, count, stamp, gen) == want
+
+
+@njit(cache=True)
+def _lowest(x):
+    return lowest_bit(x)
+
+
+@given(st.integers(0, 2**63 - 1))
+def test_lowest_bit_is_the_index_of_the_lowest_set_bit(x):
+    want = (x & -x).bit_length() - 1 if x else 64
+    assert _lowest(np.int64(x)) == want
 
 
 def hub_mesh(rng, dim):

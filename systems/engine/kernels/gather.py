@@ -80,7 +80,8 @@ def _gather_ne16(typingctx, indices, start, stamp, gen):
 
 @intrinsic
 def lowest_bit(typingctx, x):
-    """Index of the lowest set bit of x (x != 0)."""
+    """Index of the lowest set bit of x; the width of x's type when x == 0 (defined, so a caller may compute
+    it before testing x)."""
     if not isinstance(x, types.Integer):
         return None
     sig = x(x)
@@ -89,7 +90,7 @@ def lowest_bit(typingctx, x):
         (v,) = args
         fnty = ir.FunctionType(v.type, [v.type, ir.IntType(1)])
         fn = cgutils.get_or_insert_function(builder.module, fnty, f"llvm.cttz.i{v.type.width}")
-        return builder.call(fn, [v, ir.Constant(ir.IntType(1), 1)])
+        return builder.call(fn, [v, ir.Constant(ir.IntType(1), 0)])
 
     return sig, codegen
 
