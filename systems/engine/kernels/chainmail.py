@@ -21,7 +21,8 @@ Whatever the order, a link is only guaranteed inside its box against the sponsor
 box, and says nothing of elements moved by different sponsors. kernels.exact puts every link back inside.
 
 Cost follows what moves: the "already moved" flag is a generation stamp in a reusable Workspace, so
-nothing of size N is cleared or allocated per cascade.
+nothing of size N is cleared or allocated per cascade. The breadth-first loop asks which of a sponsor's
+neighbours have not moved sixteen entries at a time (kernels.gather) and visits only those.
 
 Material limits are per link (arrays of length M), so inhomogeneous tissue is just different numbers on
 different links. With d = rest[B] - rest[A] and o_a the sum of |d_b| over the other axes, the box on axis
