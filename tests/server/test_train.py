@@ -11,6 +11,7 @@ a reason, the rate limit, the seats and the end of a session whose page went awa
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import json
 import time
 
@@ -112,7 +113,13 @@ async def _talk(url: str, path: str, cookie: str | None, origin: str | None, sen
 def talk(server, name, path="/train/prp/ws", send=(), origin="self", ssl=None):
     cookie = None if name is None else cookie_for(server.db, name)
     origin = server.url if origin == "self" else origin
-    return asyncio.run(_talk(server.url, path, cookie, origin, send, ssl))
+    return in_thread(_talk(server.url, path, cookie, origin, send, ssl))
+
+
+def in_thread(coro):
+    """Run ``coro`` on an event loop of its own thread: Playwright's sync API holds this thread's loop."""
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        return pool.submit(asyncio.run, coro).result()
 
 
 def test_only_a_signed_in_trainee_opens_a_session_and_from_this_site_only(site):
@@ -184,7 +191,7 @@ def test_the_stream_runs_on_the_servers_tls(tmp_path, certificates):  # noqa: F8
         assert seen[:3] == ["starting", "ready", "frame"]
         assert (code, reason) == (4400, "key: unknown key name 'nokey'")
         with pytest.raises(Exception):  # noqa: B017 - the TLS listener does not speak plain HTTP upgrades
-            asyncio.run(_talk(server.url.replace("https", "http", 1), "/train/prp/ws", None, server.url))
+            in_thread(_talk(server.url.replace("https", "http", 1), "/train/prp/ws", None, server.url))
     finally:
         server.stop()
 

@@ -49,6 +49,7 @@
       for (const [s, t] of sentAt) {
         if (s <= frameSeq) {
           stats.latencies.push(now - t);
+          if (stats.latencies.length > 10000) stats.latencies.splice(0, 5000); // a long session keeps the newest
           sentAt.delete(s);
         }
       }
