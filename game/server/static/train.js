@@ -151,7 +151,7 @@
   const NAMED = {
     ArrowLeft: "left", ArrowRight: "right", ArrowUp: "up", ArrowDown: "down", " ": "space",
     Escape: "escape", Home: "home", End: "end", PageUp: "pageup", PageDown: "pagedown", Enter: "return",
-    Tab: "tab", Backspace: "backspace", Delete: "delete", Insert: "insert", "-": "minus", "=": "equal",
+    Backspace: "backspace", Delete: "delete", Insert: "insert", "-": "minus", "=": "equal",
     ",": "comma", ".": "period", "/": "slash", ";": "semicolon", "'": "apostrophe", "[": "bracketleft",
     "]": "bracketright", "\\": "backslash", "`": "grave",
   };
@@ -159,7 +159,8 @@
     if (e.key === "Shift" || e.key === "Control" || e.key === "Alt") {
       return (e.code.endsWith("Right") ? "r" : "l") + { Shift: "shift", Control: "ctrl", Alt: "alt" }[e.key];
     }
-    if (/^F([1-9]|1[0-2])$/.test(e.key)) return e.key.toLowerCase();
+    // F12 stays the browser's (its tools), Tab too (the keyboard can leave the picture)
+    if (/^F([1-9]|1[01])$/.test(e.key)) return e.key.toLowerCase();
     if (NAMED[e.key]) return NAMED[e.key];
     if (/^Key[A-Z]$/.test(e.code)) return e.code.slice(3).toLowerCase(); // letters by position, Shift or not
     if (/^Digit[0-9]$/.test(e.code)) return e.code.slice(5);
