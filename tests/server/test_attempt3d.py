@@ -105,6 +105,19 @@ def test_attempt_page_replays_the_attempt_in_3d(browser, site):
         assert late is not None, "at the attempt's end the needle is in the head"
         assert early is None or np.linalg.norm(np.subtract(late, early)) > 5.0, "the scrubber did not move the needle"
         assert page.evaluate("window.chainsimReplay.state.index") == n - 1
+        # Play from the start runs the needle forward over the attempt's time (3.6 s); Pause holds it
+        page.locator("#scrubber").fill("0")
+        page.click("#play")
+        wait_until(page, "window.chainsimReplay.state.index > 5")
+        for _ in range(3):  # Pause; on a slow machine the replay may reach its end first, and a click replays it
+            if page.locator("#play").inner_text() == "Play":
+                break
+            page.click("#play")
+        assert page.locator("#play").inner_text() == "Play"
+        held = page.evaluate("window.chainsimReplay.state.index")
+        page.wait_for_timeout(500)
+        assert page.evaluate("window.chainsimReplay.state.index") == held
+        page.locator("#scrubber").fill(str(n - 1))
 
         imgs = page.locator("#xrays img")
         assert imgs.count() == stored["xray_shots"]

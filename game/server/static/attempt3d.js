@@ -53,7 +53,7 @@ async function main() {
   for (const m of meshes) {
     const mat = m.material;
     mat.transparent = true;
-    mat.opacity = m === outer ? 0.16 : 0.45;
+    mat.opacity = m === outer ? 0.14 : 0.32;
     mat.depthWrite = false;
     mat.side = THREE.DoubleSide;
     m.renderOrder = m === outer ? 2 : 1;
@@ -88,15 +88,15 @@ async function main() {
     scene.add(ring);
   });
   if (track.ideal_path) line(track.ideal_path, GREEN);
-  const contacts = track.contacts.map((c) => ({ ...c, mark: c.point[0] === null ? null : dot(c.point, RED, 2.0) }));
+  const contacts = track.contacts.map((c) => ({ ...c, mark: c.point[0] === null ? null : dot(c.point, RED, 2.6) }));
 
   // the needle: a shaft from the tip back along its direction, and the tip
   const len = track.needle_length_mm || 100;
   const shaft = new THREE.Mesh(
     new THREE.CylinderGeometry(0.9, 0.9, len, 12).translate(0, -len / 2, 0),
-    new THREE.MeshStandardMaterial({ color: 0xc8ccd4, metalness: 0.3, roughness: 0.4, depthTest: false }));
+    new THREE.MeshBasicMaterial({ color: 0x5aa9ff, depthTest: false }));
   shaft.renderOrder = 6;
-  const tipMark = dot([0, 0, 0], ORANGE, 1.2);
+  const tipMark = dot([0, 0, 0], ORANGE, 1.8);
   scene.add(shaft);
   const trail = line([[0, 0, 0], [0, 0, 0]], ORANGE);
 
