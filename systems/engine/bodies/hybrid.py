@@ -52,7 +52,7 @@ from chainsim.engine.errors import UserError
 from chainsim.engine.kernels.projective import pcg3, spmv3
 from chainsim.engine.kernels.twolevel import local_forces, tet_stiffness, trilinear_weights, wake_front
 
-STARTS = ("none", "chainmail")
+STARTS = ("none", "chainmail", "linear")
 #: set-ups kept for held/awake sets seen before (a release and a re-grab of the same patch cost nothing)
 CACHE = 4
 
@@ -73,9 +73,8 @@ class HybridBody(ProjectiveBody):
         iterations: int = 1,
         cg_iterations: int = 6,
         rotation_iterations: int = 3,
-        rotation_tolerance: float = 0.0,
         coarse: float = 3.0,
-        start: str = "none",
+        start: str = "linear",
         sleep: float = 0.0,
         wake_rings: int = 4,
         unit: float = 1.0,
@@ -109,10 +108,7 @@ class HybridBody(ProjectiveBody):
             raise UserError(f"sleep: expected a threshold in [0, 1) of the displacement scale, got {sleep}")
         if not (1 <= int(wake_rings) <= 1000):
             raise UserError(f"wake_rings: expected 1..1000, got {wake_rings}")
-        if not (math.isfinite(rotation_tolerance) and 0.0 <= rotation_tolerance <= 0.1):
-            raise UserError(f"rotation_tolerance: expected 0..0.1 radians, got {rotation_tolerance}")
         self.coarse, self.start, self.sleep, self.wake_rings = float(coarse), start, float(sleep), int(wake_rings)
-        self.rotation_tolerance = float(rotation_tolerance)
         self._released = False
         rest_si = self.rest * self.unit
         links = meshgen.links_from_cells(self.tets)
@@ -166,13 +162,13 @@ class HybridBody(ProjectiveBody):
     def _prepare_hybrid(self) -> dict:
         held = self.fixed.copy()
         held[self.grab_ids] = True
-        held |= self._floating(held)
-        solve = ~held & self.awake
-        key = (solve.tobytes(), self.active.tobytes())
+        key = (held.tobytes(), self.awake.tobytes(), self.active.tobytes())
         hit = self._setups.get(key)
         if hit is not None:
             return hit
         t0 = time.perf_counter()
+        held |= self._floating(held)
+        solve = ~held & self.awake
         free = np.flatnonzero(solve)
         loc = np.full(self.n, -1, dtype=np.int64)
         loc[free] = np.arange(len(free))
@@ -225,6 +221,9 @@ class HybridBody(ProjectiveBody):
                 Kc = Kc + sp.diags(np.where(cd <= 1e-300 * max(cd.max(), 1e-300), 1.0, 0.0))
             factor = splu(Kc, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
             s["coarse"] = (K_ff, P3, factor)
+            # K from the held dofs into the solved ones: the linear response to a move of the grabbed nodes
+            oh = solve[node_r] & ~solve[node_c]
+            s["K_fh"] = sp.csr_matrix((kv[oh], (3 * loc[node_r[oh]] + kr[oh] % 3, kc[oh])), shape=(3 * nf, 3 * self.n))
         s["seconds"] = time.perf_counter() - t0
         if len(self._setups) >= CACHE:
             self._setups.pop(next(iter(self._setups)))
@@ -252,7 +251,17 @@ class HybridBody(ProjectiveBody):
             self._setup = self._prepare_hybrid()
         s = self._setup
         free = s["free"]
+        jump = targets - x[self.grab_ids]
+        predicted = None
         x[self.grab_ids] = targets
+        if self.start == "linear" and s["coarse"] is not None and len(free) and np.any(jump):
+            # a new target: before the nonlinear step, spread the grabbed nodes' jump through the body by
+            # the linear response (rest stiffness: forces -K_fh jump, one coarse solve and the CG smoothing),
+            # so the first local step sees a body already near the new shape, not one ring of elements
+            # stretched by the whole jump
+            delta = np.zeros((self.n, 3))
+            delta[self.grab_ids] = jump
+            predicted = self._correct(s, -(s["K_fh"] @ delta.ravel()).reshape(-1, 3), x)
         disp = float(np.max(np.abs(x - self.rest * self.unit))) if len(x) else 0.0
         scale = max(disp, 1e-12 * self._scale)
         change = np.zeros(self.n)
@@ -261,8 +270,7 @@ class HybridBody(ProjectiveBody):
         if len(free):
             rhs = self._rhs if self._rhs is not None and self._rhs.shape == x.shape else np.zeros_like(x)
             self._rhs = rhs
-            indptr, indices, data = s["L_ff"]
-            r, z, p, q, d = s["scratch"]
+            step = predicted if predicted is not None else np.zeros((len(free), 3))
             for _ in range(self.iterations):
                 done += 1
                 local_forces(
@@ -274,24 +282,14 @@ class HybridBody(ProjectiveBody):
                     self.w_vol,
                     self.quats,
                     self.rotation_iterations,
-                    self.rotation_tolerance,
                     rhs,
                 )
                 # forces on the solved nodes: f = rhs - L x (minus the energy's gradient)
                 xf = x[free]
                 Lx = np.empty_like(xf)
-                spmv3(indptr, indices, data, xf, Lx)
+                spmv3(*s["L_ff"], xf, Lx)
                 f = rhs[free] - Lx - s["L_fo"] @ x
-                step = np.zeros_like(xf)
-                if s["coarse"] is not None:
-                    K_ff, P3, factor = s["coarse"]
-                    dc = P3 @ factor.solve(P3.T @ f.ravel())
-                    f -= (K_ff @ dc).reshape(-1, 3)
-                    step += dc.reshape(-1, 3)
-                d[:] = 0.0
-                pcg3(indptr, indices, data, s["inv_diag"], f, d, self.cg_iterations, 1e-10, r, z, p, q)
-                step += d
-                x[free] = xf + step
+                step = self._correct(s, f, x)
                 last = float(np.max(np.abs(step))) if len(step) else 0.0
             change[free] = np.sqrt(np.sum(step * step, axis=1))
         if self.sleep:
@@ -314,6 +312,24 @@ class HybridBody(ProjectiveBody):
         np.divide(x, self.unit, out=self._positions)
         extra = {"setup_s": s["seconds"], "awake": int(self.awake.sum()), "solved": len(free)}
         return StepStats(done, last / scale if scale > 0 else 0.0, 0, time.perf_counter() - t0, extra)
+
+    def _correct(self, s: dict, f: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """One two-level correction for forces f on the solved nodes: the coarse step, then CG smoothing of
+        what is left (updated linearly through K); added to x's solved nodes and returned."""
+        free = s["free"]
+        indptr, indices, data = s["L_ff"]
+        r, z, p, q, d = s["scratch"]
+        step = np.zeros_like(f)
+        if s["coarse"] is not None:
+            K_ff, P3, factor = s["coarse"]
+            dc = P3 @ factor.solve(P3.T @ f.ravel())
+            f = f - (K_ff @ dc).reshape(-1, 3)
+            step += dc.reshape(-1, 3)
+        d[:] = 0.0
+        pcg3(indptr, indices, data, s["inv_diag"], f, d, self.cg_iterations, 1e-10, r, z, p, q)
+        step += d
+        x[free] += step
+        return step
 
     def _settle_at_rest(self) -> bool:
         """After the last release, with every fixed node where it rests, the static answer is known

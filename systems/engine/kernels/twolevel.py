@@ -98,53 +98,21 @@ def wake_front(indptr, indices, awake, change, threshold, rings):
     return woke
 
 
-@njit(cache=True)
-def local_forces(x, tets, D, elems, w_arap, w_vol, quats, max_rot, rot_tol, rhs):
-    """The projective local step (chainsim.engine.kernels.projective.local_step, same energy and
-    right-hand side) over the listed elements only, `elems` (an index array, so a sleeping body's
-    frame costs its awake elements, not the whole element list), with every per-element quantity in
-    registers, and the rotation refined at most `max_rot` times, stopping once a refinement would turn
-    it by less than `rot_tol` radians (warm-started rotations of slowly moving elements stop after one
-    test). rhs (N, 3) is overwritten."""
-    rhs[:] = 0.0
-    for k in range(elems.shape[0]):
-        t = elems[k]
-        i0 = tets[t, 0]
-        i1 = tets[t, 1]
-        i2 = tets[t, 2]
-        i3 = tets[t, 3]
-        a10 = D[t, 1, 0]
-        a11 = D[t, 1, 1]
-        a12 = D[t, 1, 2]
-        a20 = D[t, 2, 0]
-        a21 = D[t, 2, 1]
-        a22 = D[t, 2, 2]
-        a30 = D[t, 3, 0]
-        a31 = D[t, 3, 1]
-        a32 = D[t, 3, 2]
-        e1 = x[i1, 0] - x[i0, 0]
-        e2 = x[i2, 0] - x[i0, 0]
-        e3 = x[i3, 0] - x[i0, 0]
-        f00 = e1 * a10 + e2 * a20 + e3 * a30
-        f01 = e1 * a11 + e2 * a21 + e3 * a31
-        f02 = e1 * a12 + e2 * a22 + e3 * a32
-        e1 = x[i1, 1] - x[i0, 1]
-        e2 = x[i2, 1] - x[i0, 1]
-        e3 = x[i3, 1] - x[i0, 1]
-        f10 = e1 * a10 + e2 * a20 + e3 * a30
-        f11 = e1 * a11 + e2 * a21 + e3 * a31
-        f12 = e1 * a12 + e2 * a22 + e3 * a32
-        e1 = x[i1, 2] - x[i0, 2]
-        e2 = x[i2, 2] - x[i0, 2]
-        e3 = x[i3, 2] - x[i0, 2]
-        f20 = e1 * a10 + e2 * a20 + e3 * a30
-        f21 = e1 * a11 + e2 * a21 + e3 * a31
-        f22 = e1 * a12 + e2 * a22 + e3 * a32
-        w = quats[t, 0]
-        qx = quats[t, 1]
-        qy = quats[t, 2]
-        qz = quats[t, 3]
-        for it in range(max_rot + 1):
+@njit(cache=True, fastmath=True)
+def refine_rotations(F, Q, iterations):
+    """Refine unit quaternions Q (M, 4) (w, x, y, z) towards the rotations of the matrices F (M, 9),
+    row-major, `iterations` times, all elements per pass, with no branch and no trigonometry, so the
+    loop runs in SIMD lanes. Each pass is Mueller et al.'s update (the torque omega = sum_i r_i x f_i /
+    |sum_i r_i . f_i| of the current rotation's columns against F's), applied as the first-order
+    quaternion step q + (0, omega / 2) q, normalised: the same fixed point (omega = 0 exactly at F's polar
+    rotation) and, for the small corrections of a warm start, the same step to second order."""
+    m = F.shape[0]
+    for _ in range(iterations):
+        for t in range(m):
+            w = Q[t, 0]
+            qx = Q[t, 1]
+            qy = Q[t, 2]
+            qz = Q[t, 3]
             r00 = 1 - 2 * (qy * qy + qz * qz)
             r01 = 2 * (qx * qy - w * qz)
             r02 = 2 * (qx * qz + w * qy)
@@ -154,85 +122,83 @@ def local_forces(x, tets, D, elems, w_arap, w_vol, quats, max_rot, rot_tol, rhs)
             r20 = 2 * (qx * qz - w * qy)
             r21 = 2 * (qy * qz + w * qx)
             r22 = 1 - 2 * (qx * qx + qy * qy)
-            if it == max_rot:  # R is the rotation of the last quaternion
-                break
+            f00, f01, f02 = F[t, 0], F[t, 1], F[t, 2]
+            f10, f11, f12 = F[t, 3], F[t, 4], F[t, 5]
+            f20, f21, f22 = F[t, 6], F[t, 7], F[t, 8]
             ox = (r10 * f20 - r20 * f10) + (r11 * f21 - r21 * f11) + (r12 * f22 - r22 * f12)
             oy = (r20 * f00 - r00 * f20) + (r21 * f01 - r01 * f21) + (r22 * f02 - r02 * f22)
             oz = (r00 * f10 - r10 * f00) + (r01 * f11 - r11 * f01) + (r02 * f12 - r12 * f02)
-            dot = (
-                r00 * f00
-                + r10 * f10
-                + r20 * f20
-                + r01 * f01
-                + r11 * f11
-                + r21 * f21
-                + r02 * f02
-                + r12 * f12
-                + r22 * f22
-            )
-            s = 1.0 / (abs(dot) + 1e-9)
-            ox *= s
-            oy *= s
-            oz *= s
-            a2 = ox * ox + oy * oy + oz * oz
-            if a2 < max(rot_tol, 1e-13) ** 2:  # below 1e-13: round-off, R is the exact polar rotation
-                break
-            angle = np.sqrt(a2)
-            ha = 0.5 * angle
-            if ha < 0.05:
-                h2 = ha * ha
-                sn = 0.5 * (1.0 - h2 / 6.0 + h2 * h2 / 120.0)
-                cs = 1.0 - 0.5 * h2 + h2 * h2 / 24.0
-            else:
-                sn = np.sin(ha) / angle
-                cs = np.cos(ha)
-            dx = ox * sn
-            dy = oy * sn
-            dz = oz * sn
-            nw = cs * w - dx * qx - dy * qy - dz * qz
-            nx = cs * qx + dx * w + dy * qz - dz * qy
-            ny = cs * qy - dx * qz + dy * w + dz * qx
-            nz = cs * qz + dx * qy - dy * qx + dz * w
+            dot = r00 * f00 + r10 * f10 + r20 * f20 + r01 * f01 + r11 * f11 + r21 * f21 + r02 * f02 + r12 * f12
+            dot += r22 * f22
+            s = 0.5 / (abs(dot) + 1e-9)
+            dx = ox * s
+            dy = oy * s
+            dz = oz * s
+            nw = w - dx * qx - dy * qy - dz * qz
+            nx = qx + dx * w + dy * qz - dz * qy
+            ny = qy - dx * qz + dy * w + dz * qx
+            nz = qz + dx * qy - dy * qx + dz * w
             nq = 1.0 / np.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
-            w = nw * nq
-            qx = nx * nq
-            qy = ny * nq
-            qz = nz * nq
-        quats[t, 0] = w
-        quats[t, 1] = qx
-        quats[t, 2] = qy
-        quats[t, 3] = qz
-        trs = r00 * f00 + r10 * f10 + r20 * f20 + r01 * f01 + r11 * f11 + r21 * f21 + r02 * f02 + r12 * f12 + r22 * f22
+            Q[t, 0] = nw * nq
+            Q[t, 1] = nx * nq
+            Q[t, 2] = ny * nq
+            Q[t, 3] = nz * nq
+
+
+@njit(cache=True)
+def local_forces(x, tets, D, elems, w_arap, w_vol, quats, rot_iterations, rhs):
+    """The projective local step (chainsim.engine.kernels.projective.local_step: the same energy and
+    right-hand side) over the listed elements only, `elems` (an index array, so a sleeping body's frame
+    costs its awake elements, not the whole element list), in three passes: every element's F, then
+    `rot_iterations` refinements of every rotation at once (refine_rotations), then the targets and the
+    scatter into rhs (N, 3, overwritten). quats (T, 4) are read and written for the listed elements."""
+    rhs[:] = 0.0
+    m = elems.shape[0]
+    Fs = np.empty((m, 9))
+    Q = np.empty((m, 4))
+    for k in range(m):
+        t = elems[k]
+        i0, i1, i2, i3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
+        for r in range(3):
+            e1 = x[i1, r] - x[i0, r]
+            e2 = x[i2, r] - x[i0, r]
+            e3 = x[i3, r] - x[i0, r]
+            for c in range(3):
+                Fs[k, 3 * r + c] = e1 * D[t, 1, c] + e2 * D[t, 2, c] + e3 * D[t, 3, c]
+        for c in range(4):
+            Q[k, c] = quats[t, c]
+    refine_rotations(Fs, Q, rot_iterations)
+    R = np.empty(9)
+    for k in range(m):
+        t = elems[k]
+        w, qx, qy, qz = Q[k, 0], Q[k, 1], Q[k, 2], Q[k, 3]
+        for c in range(4):
+            quats[t, c] = Q[k, c]
+        R[0] = 1 - 2 * (qy * qy + qz * qz)
+        R[1] = 2 * (qx * qy - w * qz)
+        R[2] = 2 * (qx * qz + w * qy)
+        R[3] = 2 * (qx * qy + w * qz)
+        R[4] = 1 - 2 * (qx * qx + qz * qz)
+        R[5] = 2 * (qy * qz - w * qx)
+        R[6] = 2 * (qx * qz - w * qy)
+        R[7] = 2 * (qy * qz + w * qx)
+        R[8] = 1 - 2 * (qx * qx + qy * qy)
+        trs = 0.0
+        for j in range(9):
+            trs += R[j] * Fs[k, j]
+        # volume target as in projective.local_step: M = w_a R + w_v (F - (tr(R^T F) - 3) / 3 R)
         wv = w_vol[t]
         wr = w_arap[t] - wv * (trs - 3.0) / 3.0
-        m00 = wr * r00 + wv * f00
-        m01 = wr * r01 + wv * f01
-        m02 = wr * r02 + wv * f02
-        m10 = wr * r10 + wv * f10
-        m11 = wr * r11 + wv * f11
-        m12 = wr * r12 + wv * f12
-        m20 = wr * r20 + wv * f20
-        m21 = wr * r21 + wv * f21
-        m22 = wr * r22 + wv * f22
-        g1 = m00 * a10 + m01 * a11 + m02 * a12
-        g2 = m00 * a20 + m01 * a21 + m02 * a22
-        g3 = m00 * a30 + m01 * a31 + m02 * a32
-        rhs[i1, 0] += g1
-        rhs[i2, 0] += g2
-        rhs[i3, 0] += g3
-        rhs[i0, 0] -= g1 + g2 + g3
-        g1 = m10 * a10 + m11 * a11 + m12 * a12
-        g2 = m10 * a20 + m11 * a21 + m12 * a22
-        g3 = m10 * a30 + m11 * a31 + m12 * a32
-        rhs[i1, 1] += g1
-        rhs[i2, 1] += g2
-        rhs[i3, 1] += g3
-        rhs[i0, 1] -= g1 + g2 + g3
-        g1 = m20 * a10 + m21 * a11 + m22 * a12
-        g2 = m20 * a20 + m21 * a21 + m22 * a22
-        g3 = m20 * a30 + m21 * a31 + m22 * a32
-        rhs[i1, 2] += g1
-        rhs[i2, 2] += g2
-        rhs[i3, 2] += g3
-        rhs[i0, 2] -= g1 + g2 + g3
+        i0, i1, i2, i3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
+        for r in range(3):
+            m0 = wr * R[3 * r] + wv * Fs[k, 3 * r]
+            m1 = wr * R[3 * r + 1] + wv * Fs[k, 3 * r + 1]
+            m2 = wr * R[3 * r + 2] + wv * Fs[k, 3 * r + 2]
+            g1 = m0 * D[t, 1, 0] + m1 * D[t, 1, 1] + m2 * D[t, 1, 2]
+            g2 = m0 * D[t, 2, 0] + m1 * D[t, 2, 1] + m2 * D[t, 2, 2]
+            g3 = m0 * D[t, 3, 0] + m1 * D[t, 3, 1] + m2 * D[t, 3, 2]
+            rhs[i1, r] += g1
+            rhs[i2, r] += g2
+            rhs[i3, r] += g3
+            rhs[i0, r] -= g1 + g2 + g3
     return rhs
