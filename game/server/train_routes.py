@@ -470,7 +470,7 @@ async def train_socket(ws: WebSocket) -> None:
         if seat.socket is ws:
             seat.socket, seat.detached_at = None, time.monotonic()
         return
-    await trainer.send_child(seat, {"t": "credit", "n": 2})
+    await trainer.send_child(seat, {"t": "credit", "n": 2, "fresh": True})
     bucket = Bucket()
     try:
         while True:

@@ -14,7 +14,8 @@ Protocol on the pipes (the parent is the only peer; it has validated every input
   scripts' vocabulary (``chainsim.components.input_events``) without its time, stamped here with the
   App's simulated time as the window stamps device events; ``{"t": "credit", "n": K}`` K more frames
   may be sent (the page asks for the next frame once it has drawn one, so a slow link never queues
-  pictures); ``{"t": "reply", ...}`` the answer to a request below. End of input ends the session.
+  pictures), with ``"fresh": true`` when a page attached (the picture is sent even if unchanged);
+  ``{"t": "reply", ...}`` the answer to a request below. End of input ends the session.
 - stdout, records of ``kind`` (1 byte), length (4 bytes, big-endian), payload: ``F`` a frame (8-byte
   header: frame number and the last input ``seq`` the frame shows, both uint32, then the encoded
   picture), ``J`` a JSON object: ``ready``, ``save`` (the attempt with the recording and pack identity
@@ -74,6 +75,7 @@ class Channel:
         self.replies: queue.Queue = queue.Queue()
         self.closed = threading.Event()
         self.credit = 0  # the parent gives credit once the page is told the picture's size
+        self.fresh = False
         self._credit_lock = threading.Lock()
         threading.Thread(target=self._read, args=(inp,), daemon=True, name="train-input").start()
 
@@ -87,6 +89,8 @@ class Channel:
                 elif kind == "credit":
                     with self._credit_lock:
                         self.credit = min(self.credit + int(msg.get("n", 1)), FRAME_CREDIT)
+                        if msg.get("fresh"):  # a page (re)attached: it needs the picture even if unchanged
+                            self.fresh = True
                 elif kind == "reply":
                     self.replies.put(msg)
         finally:
@@ -252,6 +256,8 @@ class Session:
                     self.hud.message(self.who.replace("Signed in:", "You are signed in as"), 6.0)
             # a still scene is looked at a few times a second only; input brings back the full rate
             self.still = 0 if had_input else self.still + 1
+            if channel.fresh:
+                channel.fresh, self.last_raw, self.still = False, None, 0
             if channel.credit > 0 and (self.still < STILL_FRAMES or self.still % STILL_EVERY == 0):
                 picture = self.frame()
                 if picture is not None:

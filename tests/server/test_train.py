@@ -174,6 +174,12 @@ def test_all_seats_taken_then_freed_when_the_page_has_gone(tmp_path, monkeypatch
         status, text, headers = call(server, "GET", "/train/prp", headers=bob)
         assert status == 503 and "All seats are taken" in text and headers["Retry-After"]
         assert talk(server, "bob")[:2] == (4503, "all 1 seats are taken; try again in a few minutes")
+        # alice's second tab takes her session over (the picture as it stands); the first tab is told
+        second = context.new_page()
+        second.goto(server.url + "/train/prp")
+        second.wait_for_function("window.trainStats && window.trainStats.frames > 0", timeout=60_000)
+        page.wait_for_function("window.trainStats.closed !== null", timeout=10_000)
+        assert page.evaluate("() => window.trainStats.closed.code") == 4409
         context.close()  # alice's tab goes; her process is killed once the grace time has passed
         deadline = time.monotonic() + 30
         while call(server, "GET", "/train/prp", headers=bob)[0] != 200:
