@@ -323,3 +323,17 @@ def test_a_whole_correct_attempt_in_the_browser_is_saved_under_the_trainee(brows
     assert attempt["target"].startswith("foramen_ovale")
     status, full, _ = call(site, "GET", f"/api/attempts/{attempt['id']}", token=site.tokens["bob"])
     assert status == 200 and full["differences"] == []
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (("--sessions", "0"), "--sessions must be from 1 to 32, got 0"),
+        (("--seconds", "1"), "--seconds must be from 2 to 600, got 1"),
+        (("--quality", "101"), "--quality must be from 1 to 100, got 101"),
+    ],
+)
+def test_bench_train_refuses_bad_sizes_in_one_line(cli, args, says):
+    code, out, err = cli("bench", "train", *args)
+    assert code == 2
+    assert says in err and "Traceback" not in err
