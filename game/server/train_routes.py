@@ -56,6 +56,7 @@ FORMAT_ENV, QUALITY_ENV = "CHAINSIM_TRAIN_FORMAT", "CHAINSIM_TRAIN_QUALITY"
 DEFAULT_SEATS = 2
 DEFAULT_IDLE_S = 900.0
 DEFAULT_GRACE_S = 60.0
+RECHECK_S = 30.0  # how often a running session's sign-in is checked again
 START_TIMEOUT_S = 120.0  # a cold numba cache compiles the kernels once
 MAX_MESSAGE_BYTES = 512
 RATE, BURST = 240.0, 480.0
@@ -334,10 +335,25 @@ class Trainer:
         return {"ok": True, "attempts": json.loads(json.dumps(rows, default=str))}
 
     async def _watch(self, seat: Seat) -> None:
-        """End a session whose page is gone for ``grace_s``, or that had no input for ``idle_s``."""
+        """End a session whose page is gone for ``grace_s``, that had no input for ``idle_s``, or whose
+        sign-in ended (signed out, password changed, expired: checked every ``RECHECK_S``)."""
+        checked = time.monotonic()
         while True:
             await asyncio.sleep(1.0)
             now = time.monotonic()
+            ws = seat.socket
+            if ws is not None and now - checked > RECHECK_S:
+                checked = now
+                try:
+                    found = await session(ws)
+                except Exception:  # the database busy: the next check decides
+                    found = seat.user, ""
+                if found is None or found[0].id != seat.user.id:
+                    seat.socket = None
+                    with contextlib.suppress(Exception):
+                        await ws.close(NOT_SIGNED_IN, "signed out; sign in and open the page again")
+                    await self.end(seat, "signed out")
+                    return
             if seat.socket is None and seat.detached_at is not None and now - seat.detached_at > self.grace_s:
                 await self.end(seat, f"page gone for {self.grace_s:g} s")
                 return

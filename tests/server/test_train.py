@@ -22,7 +22,7 @@ from test_tls import certificates  # noqa: F401 - the programme's authority and 
 
 from chainsim.game.records.store import RecordStore
 from chainsim.game.server import accounts
-from chainsim.game.server.train_routes import BadMessage, Bucket, check_message
+from chainsim.game.server.train_routes import RECHECK_S, BadMessage, Bucket, check_message
 
 SIZE = (1280, 800)
 
@@ -185,9 +185,25 @@ def test_all_seats_taken_then_freed_when_the_page_has_gone(tmp_path, monkeypatch
         while call(server, "GET", "/train/prp", headers=bob)[0] != 200:
             assert time.monotonic() < deadline, "the seat was not freed"
             time.sleep(0.5)
+        # bob trains, then signs out in another tab: his session ends at the next check of his sign-in
+        context = browser.new_context(bypass_csp=True)
+        page = context.new_page()
+        sign_in(page, server, "bob")
+        page.goto(server.url + "/train/prp")
+        page.wait_for_function("window.trainStats && window.trainStats.frames > 0", timeout=120_000)
+        other = context.new_page()
+        other.goto(server.url + "/")
+        other.click("header button[type=submit]")  # Sign out
+        page.wait_for_function("window.trainStats.closed !== null", timeout=RECHECK_S * 1000 + 15_000)
+        assert page.evaluate("() => [window.trainStats.closed.code, window.trainStats.closed.reason]") == [
+            4401,
+            "signed out; sign in and open the page again",
+        ]
+        context.close()
     finally:
         server.stop()
-    assert "alice's session ended (page gone for 1 s)" in (tmp_path / "serve.log").read_text()
+    log = (tmp_path / "serve.log").read_text()
+    assert "alice's session ended (page gone for 1 s)" in log and "bob's session ended (signed out)" in log
 
 
 @pytest.mark.slow
