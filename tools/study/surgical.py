@@ -2,7 +2,7 @@
 block of tetrahedra of 5 to 0.6 mm, base fixed, a 6 x 6 mm patch of its top held by a tool and lifted
 3 mm, at 60 Hz, for soft (1 kPa: brain, fat), muscle-like (30 kPa) and skin-like (100 kPa) tissue.
 
-Every live setting (ChainMail, XPBD, projective dynamics) runs through the body API from rest for a
+Every live setting (ChainMail, XPBD, projective dynamics, the hybrid body) runs through the body API from rest for a
 fixed number of frames, as a tool holds tissue in the simulator; a row keeps the median CPU per frame
 and two errors of the shape it reached (RMS over nodes / the 3 mm lift):
 
@@ -70,6 +70,16 @@ SETTINGS = [
         {"dynamic": False, "solver": "cg", "cg_iterations": 6, "iterations": 1, "rotation_iterations": 1},
     ),
     ("projective", "projective statics, CG 20, 2 it", {"dynamic": False, "solver": "cg", "iterations": 2}),
+    (
+        "hybrid",
+        "hybrid, linear start, CG 6, 3 rotations",
+        {"coarse": 3.0, "cg_iterations": 6, "rotation_iterations": 3, "start": "linear"},
+    ),
+    (
+        "hybrid",
+        "hybrid, linear start, CG 3, 2 rotations",
+        {"coarse": 3.0, "cg_iterations": 3, "rotation_iterations": 2, "start": "linear"},
+    ),
 ]
 
 
