@@ -62,7 +62,7 @@ def test_the_rows_merge_into_the_table_auto_reads(monkeypatch, tmp_path):
     rows = load_table(table)
     assert {r["scene"] for r in rows} == {"block", "tissue-block"}
     tissue = [r for r in rows if r["scene"] == "tissue-block"]
-    assert {r["model"] for r in tissue} == {"chainmail", "xpbd", "projective"}
+    assert {r["model"] for r in tissue} == {"chainmail", "xpbd", "projective", "hybrid"}
     assert all("params" in r and "E" in r for r in tissue)
     text = md.read_text()
     assert "chainsim study surgical --quick" in text and "physical error" in text
