@@ -202,6 +202,7 @@ class Trainer:
         self.fmt = fmt
         self.quality = quality
         self.running: dict[int, Seat] = {}  # account id -> its session
+        self.lock = asyncio.Lock()
 
     def full_for(self, user: accounts.User) -> bool:
         return user.id not in self.running and len(self.running) >= self.seats
@@ -456,20 +457,21 @@ async def train_socket(ws: WebSocket) -> None:
         await ws.close(NO_PACK if exc.status == 404 else FORBIDDEN, exc.message[:120])
         return
     trainer: Trainer = ws.app.state.trainer
-    seat = trainer.running.get(user.id)
-    if seat is not None and seat.pack != pack:
-        await trainer.end(seat, "the trainee opened another pack")
-        seat = None
-    if seat is None:
-        if trainer.full_for(user):
-            await ws.close(SEATS_TAKEN, f"all {trainer.seats} seats are taken; try again in a few minutes")
-            return
-        seat = await trainer.start(ws.app, user, pack, info)
-    elif seat.socket is not None:  # the same trainee in a second tab: this one takes the session over
-        old, seat.socket = seat.socket, None
-        with contextlib.suppress(Exception):
-            await old.close(TAKEN_OVER, "this session was opened in another tab")
-    seat.socket, seat.detached_at = ws, None
+    async with trainer.lock:  # one start at a time: two pages at once never pass the seat count together
+        seat = trainer.running.get(user.id)
+        if seat is not None and seat.pack != pack:
+            await trainer.end(seat, "the trainee opened another pack")
+            seat = None
+        if seat is None:
+            if trainer.full_for(user):
+                await ws.close(SEATS_TAKEN, f"all {trainer.seats} seats are taken; try again in a few minutes")
+                return
+            seat = await trainer.start(ws.app, user, pack, info)
+        elif seat.socket is not None:  # the same trainee in a second tab: this one takes the session over
+            old, seat.socket = seat.socket, None
+            with contextlib.suppress(Exception):
+                await old.close(TAKEN_OVER, "this session was opened in another tab")
+        seat.socket, seat.detached_at = ws, None
     try:
         await ws.send_json({"type": "starting"})
         try:
