@@ -73,15 +73,23 @@ def make_body(
     raise UserError(f"model: expected one of {', '.join(MODELS)}, got {model!r}")
 
 
+#: the hybrid body's settings (a table row may give any of them)
+HYBRID_PARAMS = (
+    "iterations",
+    "cg_iterations",
+    "rotation_iterations",
+    "coarse",
+    "start",
+    "sleep",
+    "wake_rings",
+)
 #: the settings a table row may give for each model: the body built is exactly the row's
 ROW_PARAMS = {
     "chainmail": ("alpha_min", "alpha_max", "beta", "relax"),
     "xpbd": ("substeps", "iterations", "constraints", "damping"),
     "projective": ("iterations", "dynamic", "solver", "cg_iterations", "rotation_iterations", "damping"),
+    "hybrid": HYBRID_PARAMS,
 }
-#: the hybrid body's settings; they join ROW_PARAMS (so `auto` can take them) with the study's first rows for
-#: it, since the shipped table must hold rows for every model it names
-HYBRID_PARAMS = ("iterations", "cg_iterations", "rotation_iterations", "coarse", "start", "sleep", "wake_rings")
 #: with no budget at all, `auto` keeps to one 60 Hz frame
 DEFAULT_TIME_BUDGET_MS = 16.7
 
