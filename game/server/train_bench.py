@@ -67,7 +67,7 @@ READ = "() => { const s = window.trainStats; return {frames: s.frames, bytes: s.
 def add_arguments(p) -> None:
     p.add_argument("--sessions", type=int, default=3, help="most tabs at once (measured 1, 2, ... up to this)")
     p.add_argument("--seconds", type=float, default=15.0, help="seconds measured at each number of tabs")
-    p.add_argument("--pack", default="prp", help="the pack trained (default prp)")
+    p.add_argument("--pack", default="prp", help="the pack trained (default prp; the dial turned is where prp's is)")
     p.add_argument("--format", choices=("jpeg", "webp"), default="jpeg", help="the stream's picture format")
     p.add_argument("--quality", type=int, default=70, help="the pictures' quality, 1-100 (default 70)")
     p.add_argument("--json", default=None, help="also write the figures to this JSON file")
@@ -150,6 +150,10 @@ def run(args) -> int:
         raise UserError(f"--seconds must be from 2 to 600, got {args.seconds:g}")
     if not 1 <= args.quality <= 100:
         raise UserError(f"--quality must be from 1 to 100, got {args.quality}")
+    if args.json:
+        from chainsim.game.app.outputs import check_output_file  # noqa: PLC0415
+
+        check_output_file(args.json, "--json")  # before minutes of measuring
     if not os.path.exists(CHROMIUM):
         raise UserError(f"bench train needs Chromium at {CHROMIUM} (apt-get install chromium)")
     try:

@@ -347,6 +347,7 @@ def test_a_whole_correct_attempt_in_the_browser_is_saved_under_the_trainee(brows
         (("--sessions", "0"), "--sessions must be from 1 to 32, got 0"),
         (("--seconds", "1"), "--seconds must be from 2 to 600, got 1"),
         (("--quality", "101"), "--quality must be from 1 to 100, got 101"),
+        (("--json", "/no/such/folder/figures.json"), "--json /no/such/folder/figures.json: folder /no/such/folder"),
     ],
 )
 def test_bench_train_refuses_bad_sizes_in_one_line(cli, args, says):
