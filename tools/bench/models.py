@@ -62,10 +62,11 @@ SETTINGS = {
     "projective statics, CG 10, 1 iteration": _pd(iterations=1, solver="cg", cg_iterations=10, rotation_iterations=1),
     "projective statics, CG 20, 1 iteration": _pd(iterations=1, solver="cg", cg_iterations=20, rotation_iterations=1),
     "hybrid, ChainMail start, CG 6": _hybrid(coarse=0.0, start="chainmail", cg_iterations=6, rotation_iterations=1),
-    "hybrid, coarse 3 edges, CG 6, 3 rotations": _hybrid(coarse=3.0, cg_iterations=6, rotation_iterations=3),
-    "hybrid, coarse 3 edges, CG 3, 2 rotations": _hybrid(coarse=3.0, cg_iterations=3, rotation_iterations=2),
-    "hybrid, coarse 3 edges, CG 6, 3 rotations, sleeping 0.015": _hybrid(
-        coarse=3.0, cg_iterations=6, rotation_iterations=3, sleep=0.015, wake_rings=4
+    "hybrid, coarse 3 edges, CG 6, 3 rotations": _hybrid(start="none", cg_iterations=6, rotation_iterations=3),
+    "hybrid, linear start, CG 6, 3 rotations": _hybrid(start="linear", cg_iterations=6, rotation_iterations=3),
+    "hybrid, linear start, CG 3, 2 rotations": _hybrid(start="linear", cg_iterations=3, rotation_iterations=2),
+    "hybrid, linear start, CG 3, 2 rotations, sleeping 0.015": _hybrid(
+        start="linear", cg_iterations=3, rotation_iterations=2, sleep=0.015, wake_rings=4
     ),
 }
 
