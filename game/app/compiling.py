@@ -31,13 +31,14 @@ PAGE_WIDGETS = {"help", "sign_in"}
 
 def needed_groups(app) -> list[str]:
     """The kernel groups the scene of `app` can call: normals and collision always; with soft bodies the
-    normals of moving meshes, each body's model's (a ChainMail body's cascade order and precision) and
-    the other models too, which a key can switch to."""
+    normals of moving meshes, ChainMail's for each body's cascade order and precision (its model's, or
+    the one the m key switches to) and the other models too."""
     names = [GEOMETRY]
     with app.active():
         for _ent, d in esper.get_component(Deformable):
             body = getattr(d, "body", None)
-            order = getattr(body, "order", None) or (d.order if d.model == "chainmail" else None)
+            # the body's own order, else the material's: the m key reaches ChainMail from every model
+            order = getattr(body, "order", None) or d.order
             names.append(MOVING)
             if order is not None:
                 names.append(chainmail_group(order_name(order), str(d.dtype)))

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 
+from chainsim.components.deformable import MODEL_CHOICES
 from chainsim.engine import argtypes
 from chainsim.engine.errors import UserError
 from chainsim.game.records.validate import clean_name
@@ -60,5 +61,8 @@ def user_settings(args) -> dict:
     return out
 
 
-MODEL_FLAG_HELP = "deformation model for every soft body: chainmail, xpbd, projective or auto (overrides the pack)"
-MODEL_FLAG_CHOICES = ("chainmail", "xpbd", "projective", "auto")
+MODEL_FLAG_HELP = (
+    "deformation model for every soft body: chainmail, xpbd, projective, hybrid (volumes), surface "
+    "(sheets) or auto (overrides the pack)"
+)
+MODEL_FLAG_CHOICES = MODEL_CHOICES  # one list: the pack key `model` and the flag take the same names

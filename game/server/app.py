@@ -94,6 +94,9 @@ def build_app(
         scorer.start()  # uploads a killed server left waiting are scored now
         yield
         scorer.stop()
+        replays = getattr(app.state, "replays", None)
+        if replays is not None:  # the attempt pages' replay process, started when first asked for
+            replays.close()
         storage.close()
 
     app = Starlette(

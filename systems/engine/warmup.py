@@ -30,7 +30,9 @@ import numba
 import numpy as np
 
 from chainsim.engine.bodies.chainmail import ChainMailBody
+from chainsim.engine.bodies.hybrid import HybridBody
 from chainsim.engine.bodies.projective import ProjectiveBody
+from chainsim.engine.bodies.surface import SurfaceChainMailBody
 from chainsim.engine.bodies.xpbd import XPBDBody
 from chainsim.engine.chainmail_params import ORDERS
 from chainsim.engine.kernels import waves
@@ -82,9 +84,16 @@ def _models() -> None:
         lambda: XPBDBody(rest[: tris.max() + 1], triangles=tris, fixed=[0]),
         lambda: ProjectiveBody(rest, tets, fixed=[0]),
         lambda: ProjectiveBody(rest[: tris.max() + 1], triangles=tris, fixed=[0]),
+        # the m key reaches these too: hybrid on volumes, SurfaceChainMail on sheets (the cutting layers)
+        lambda: HybridBody(rest, tets, fixed=[0]),
+        lambda: SurfaceChainMailBody(rest[: tris.max() + 1], tris, fixed=[0]),
     ):
         body = make()
-        body.grab([1], body.rest[1] + 0.1)
+        # two pulls (a moving target takes the hybrid body's linear start), then a release
+        for lift in (0.1, 0.15):
+            body.grab([1], body.rest[1] + lift)
+            body.step(1 / 60)
+        body.release()
         body.step(1 / 60)
 
 
