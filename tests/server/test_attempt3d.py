@@ -125,7 +125,7 @@ def test_attempt_page_replays_the_attempt_in_3d(browser, site):
         sizes = page.evaluate("[...document.querySelectorAll('#xrays img')].map(i => i.naturalWidth)")
         assert all(w >= 256 for w in sizes), sizes
         assert page.evaluate("document.scrollingElement.scrollWidth <= innerWidth")
-        shot(page, f"attempt3d-{site.db.split(':')[0]}-1280.png")
+        shot(page, f"attempt3d-{'postgresql' if site.db.startswith('postgres') else 'sqlite'}-1280.png")
 
         mesh = page.request.get(f"{site.url}/packs/prp/display.glb")
         assert mesh.status == 200 and mesh.body()[:4] == b"glTF"
@@ -136,7 +136,7 @@ def test_attempt_page_replays_the_attempt_in_3d(browser, site):
         page.set_viewport_size({"width": 390, "height": 844})
         page.wait_for_timeout(300)
         assert page.evaluate("document.scrollingElement.scrollWidth <= innerWidth")
-        shot(page, f"attempt3d-{site.db.split(':')[0]}-390.png")
+        shot(page, f"attempt3d-{'postgresql' if site.db.startswith('postgres') else 'sqlite'}-390.png")
     finally:
         page.close()
 
