@@ -22,16 +22,6 @@ SCRIPTS = {
 }
 
 
-@pytest.fixture(scope="module", autouse=True)
-def egl():
-    from chainsim.game.gl.context import GLUnavailable, egl_context
-
-    try:
-        egl_context()
-    except GLUnavailable as e:
-        pytest.skip(f"no EGL OpenGL 3.3 context: {e}")
-
-
 @pytest.mark.parametrize("size", [(1280, 800), (1024, 768)], ids=["1280x800", "1024x768"])
 @pytest.mark.parametrize("pack", ["prp", "mental-block"])
 def test_every_line_of_the_debrief_is_inside_the_window(pack, size):

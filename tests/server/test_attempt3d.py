@@ -10,18 +10,16 @@ from __future__ import annotations
 
 import io
 import os
-import shutil
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 from conftest import PASSWORD, attempt, save_scored, upload
-from records_db import missing
+from test_browser import chromium
 
 from chainsim.game.records.store import RecordStore
 
-CHROMIUM = "/usr/bin/chromium"
 # WebGL without a GPU: SwiftShader through ANGLE
 ARGS = [
     "--headless",
@@ -39,18 +37,7 @@ BACKGROUND = (0x1D, 0x23, 0x30)
 
 @pytest.fixture(scope="module")
 def browser():
-    if not (os.path.exists(CHROMIUM) and shutil.which(CHROMIUM)):
-        missing("Chromium (/usr/bin/chromium)", "apt-get install -y chromium chromium-driver")
-    try:
-        from playwright.sync_api import sync_playwright
-    except ImportError:
-        missing("playwright (Python package)", "pip install -e '.[test]'")
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
-        try:
-            yield b
-        finally:
-            b.close()
+    yield from chromium(ARGS)
 
 
 def sign_in(page, site, name: str) -> None:

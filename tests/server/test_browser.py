@@ -30,8 +30,8 @@ ARGS = [
 ]
 
 
-@pytest.fixture(scope="module")
-def browser():
+def chromium(args=ARGS):
+    """The distribution's Chromium started headless through Playwright (a generator for fixtures)."""
     if not (os.path.exists(CHROMIUM) and shutil.which(CHROMIUM)):
         missing("Chromium (/usr/bin/chromium)", "apt-get install -y chromium chromium-driver")
     try:
@@ -39,11 +39,16 @@ def browser():
     except ImportError:
         missing("playwright (Python package)", "pip install -e '.[test]'")
     with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
+        b = p.chromium.launch(executable_path=CHROMIUM, args=args, headless=True)
         try:
             yield b
         finally:
             b.close()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    yield from chromium()
 
 
 def sign_in(page, site, name: str) -> None:
