@@ -66,3 +66,15 @@ MODEL_FLAG_HELP = (
     "(sheets) or auto (overrides the pack)"
 )
 MODEL_FLAG_CHOICES = MODEL_CHOICES  # one list: the pack key `model` and the flag take the same names
+
+
+def add_mode_arguments(p: argparse.ArgumentParser) -> None:
+    """--model and --fluoro-first, for the commands that run a pack (play, run)."""
+    p.add_argument("--model", choices=MODEL_FLAG_CHOICES, help=MODEL_FLAG_HELP)
+    p.add_argument(
+        "--fluoro-first",
+        action="store_true",
+        default=None,
+        help="fluoroscopy first: no target ring or distance in the needle-tip view, guide by X-ray "
+        "(as the pack's [needle_procedure] fluoro_first; recorded with each attempt)",
+    )

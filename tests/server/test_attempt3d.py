@@ -16,22 +16,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import PASSWORD, attempt, save_scored, upload
+from test_browser import ARGS as BROWSER_ARGS
 from test_browser import chromium
 
 from chainsim.game.records.store import RecordStore
 
 # WebGL without a GPU: SwiftShader through ANGLE
-ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--use-angle=swiftshader",
-    "--enable-unsafe-swiftshader",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
+ARGS = [*BROWSER_ARGS, "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
 BACKGROUND = (0x1D, 0x23, 0x30)
 
 

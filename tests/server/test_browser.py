@@ -18,16 +18,10 @@ import pytest
 from conftest import PASSWORD, save_scored, send, upload, wait_scored
 from records_db import missing
 
-CHROMIUM = "/usr/bin/chromium"
-ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
+from chainsim.game.server.train_bench import CHROMIUM, CHROMIUM_ARGS
+
+# the flags the bench starts Chromium with (a closed network: no background connections)
+ARGS = ["--headless", *CHROMIUM_ARGS]
 
 
 def chromium(args=ARGS):

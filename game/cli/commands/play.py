@@ -8,7 +8,7 @@ import threading
 
 from chainsim.engine import argtypes, limits
 from chainsim.engine.errors import UserError
-from chainsim.game.app.options import MODEL_FLAG_CHOICES, MODEL_FLAG_HELP, add_records_arguments
+from chainsim.game.app.options import add_mode_arguments, add_records_arguments
 from chainsim.game.app.outputs import check_output_file
 from chainsim.game.packs import pack as packs
 from chainsim.game.records import remote
@@ -37,14 +37,7 @@ def add_parser(sub):
         help="write each frame's time to this file (frame rate as the trainee sees it: "
         "seconds, interval since the previous frame and time in simulation + drawing, in ms)",
     )
-    p.add_argument("--model", choices=MODEL_FLAG_CHOICES, help=MODEL_FLAG_HELP)
-    p.add_argument(
-        "--fluoro-first",
-        action="store_true",
-        default=None,
-        help="fluoroscopy first: no target ring or distance in the needle-tip view, guide by X-ray "
-        "(as the pack's [needle_procedure] fluoro_first; recorded with each attempt)",
-    )
+    add_mode_arguments(p)
     add_records_arguments(p)
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     return p

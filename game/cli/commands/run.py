@@ -8,8 +8,7 @@ from chainsim.engine import argtypes
 from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import run_pack
 from chainsim.game.app.options import (
-    MODEL_FLAG_CHOICES,
-    MODEL_FLAG_HELP,
+    add_mode_arguments,
     add_records_arguments,
     user_settings,
     window_size,
@@ -37,14 +36,7 @@ def add_parser(sub):
     p.add_argument(
         "--size", type=window_size, default=None, metavar="WxH", help="off-screen frame size for screenshots"
     )
-    p.add_argument("--model", choices=MODEL_FLAG_CHOICES, help=MODEL_FLAG_HELP)
-    p.add_argument(
-        "--fluoro-first",
-        action="store_true",
-        default=None,
-        help="fluoroscopy first: no target ring or distance in the needle-tip view, guide by X-ray "
-        "(as the pack's [needle_procedure] fluoro_first; recorded with each attempt)",
-    )
+    add_mode_arguments(p)
     add_records_arguments(p)
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")

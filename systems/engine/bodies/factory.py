@@ -58,12 +58,10 @@ def make_body(
         keys += ("dynamic", "solver", "cg_iterations", "rotation_iterations")
         kw = {k: settings[k] for k in keys if k in settings}
         return ProjectiveBody(rest, tets if has_tets else None, None if has_tets else triangles, fixed=fixed, **kw)
-    if model == "hybrid":
-        if not has_tets:
-            raise UserError("a hybrid body needs tetrahedra (surfaces: use projective or xpbd)")
+    if model == "hybrid":  # HybridBody refuses a mesh without tetrahedra
         kw = {k: settings[k] for k in HYBRID_PARAMS + ("E", "nu", "density", "unit") if k in settings}
         kw.update({k: settings[k] for k in ("alpha_min", "alpha_max", "beta") if k in settings})
-        return HybridBody(rest, tets, fixed=fixed, **kw)
+        return HybridBody(rest, tets if has_tets else None, fixed=fixed, **kw)
     if model == "surface":  # SurfaceChainMail on a sheet's triangles (thesis 4.4)
         if has_tets or triangles is None or len(triangles) == 0:
             raise UserError("a surface ChainMail body needs a triangle surface (volumes: chainmail or hybrid)")

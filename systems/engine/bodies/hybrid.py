@@ -94,7 +94,7 @@ class HybridBody(ProjectiveBody):
         beta: float = 0.1,
     ) -> None:
         if tets is None or len(tets) == 0:
-            raise UserError("a hybrid body needs tetrahedra (surfaces: use projective or xpbd)")
+            raise UserError("a hybrid body needs tetrahedra (surfaces: use surface, projective or xpbd)")
         super().__init__(
             rest,
             tets,
