@@ -127,7 +127,10 @@ class Validator:
         try:
             text = datafile.read_text(path, max_bytes=limits.MAX_MANIFEST_BYTES, what="manifest file")
         except datafile.DataError as e:
-            self.problems.append(Problem(rel, "", e.detail, e.line))
+            if rel == MANIFEST:
+                self.problems.append(Problem(rel, "", e.detail, e.line))
+            else:  # an included file that is missing or unreadable: the key that names it is what to fix
+                self.add(MANIFEST, "pack.includes", f"'{rel}': {e.detail}")
             return None
         self.texts[rel] = text
         try:

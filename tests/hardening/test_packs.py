@@ -172,6 +172,11 @@ CASES: dict[str, tuple[str, dict, tuple[str, ...]]] = {
         {},
         ("pack.includes", "control"),
     ),
+    "include-missing": (
+        _sub("format = 1", 'format = 1\nincludes = ["{side}anatomy.toml"]'),
+        {},
+        ("pack.includes", "'{side}anatomy.toml'", "not found"),
+    ),
     # nesting and size
     "5000-deep-array": (BASE_PACK + f"[metrics.m]\nlabel = {DEEP_ARRAY}\n", {}, ("nested more than 32",)),
     "100-deep-inline-table": (BASE_PACK + f"[metrics.m]\nlabel = {DEEP_TABLE}\n", {}, ("nested more than 32",)),
