@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from chainsim.components.registry import component, prop
-from chainsim.engine import quaternion
+from chainsim.systems.engine import quaternion
 
 
 @dataclass(slots=True)

@@ -3,7 +3,7 @@
 A real window, a scripted run and a replay all produce these same events, so a test can press a
 widget or click the face exactly as a trainee does. Window coordinates are pixels with the origin at
 the bottom-left (pyglet's convention). `kind` is the name used in input scripts (see
-docs/input-scripts.md). Numbers read from a script are finite and bounded (chainsim.engine.limits:
+docs/input-scripts.md). Numbers read from a script are finite and bounded (chainsim.systems.engine.limits:
 coordinates within MAX_COORD, sizes within MAX_PIXELS), names within MAX_KEY_LENGTH characters.
 """
 
@@ -13,8 +13,8 @@ import math
 from dataclasses import MISSING, asdict, dataclass, fields
 from typing import Any, ClassVar
 
-from chainsim.engine import limits
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine import limits
+from chainsim.systems.engine.errors import UserError
 
 
 @dataclass(frozen=True, slots=True)

@@ -14,14 +14,14 @@ import importlib
 import math
 import pkgutil
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import MISSING, dataclass
 from typing import Any
 
 import numpy as np
 
 import chainsim.components
-from chainsim.engine import limits
+from chainsim.systems.engine import limits
 
 
 class _Required:
@@ -159,20 +159,23 @@ def section(name: str, style: str, help: str, fields: list[Field], open_keys: bo
 _loaded = False
 
 
-def load_all() -> None:
-    """Import every module of the `components` package so all component types are registered."""
-    global _loaded
-    if _loaded:
-        return
+def load_all(features: Iterable[str] = ()) -> None:
+    """Register every manifest table: the shared types of this package, then each feature's modules.
 
+    A feature declares its own component types and sections in its modules (importing one registers
+    them); the composition root names the features (chainsim.game.app.plugins.load_manifests). A
+    feature module that is missing is an error, not a smaller registry."""
+    global _loaded
     for mod in pkgutil.iter_modules(chainsim.components.__path__):
         importlib.import_module(f"chainsim.components.{mod.name}")
+    for name in features:
+        importlib.import_module(name)
     _loaded = True
 
 
 # -- value conversion -------------------------------------------------------------------------
 #
-# Every value is bounded (chainsim.engine.limits, docs/limits.md): a field's own min/max when it
+# Every value is bounded (chainsim.systems.engine.limits, docs/limits.md): a field's own min/max when it
 # declares them, else +-MAX_COORD for numbers and +-MAX_INT for whole numbers; text has a length
 # limit and paths may not hold control characters. So a manifest can never smuggle an inf, a NaN,
 # a 100-digit integer or an endless count past validation.

@@ -10,7 +10,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 
 
 @dataclass(slots=True)

@@ -35,7 +35,7 @@ def test_every_package_folder_is_listed_and_every_listed_package_exists():
                 key=lambda p: len(mapping[p]),
             )
             if owner != pkg:
-                continue  # a folder mapped under another name (systems/engine -> chainsim.engine)
+                continue  # a folder mapped under another name (systems/engine -> chainsim.systems.engine)
             assert name in listed, f"{init.parent.relative_to(REPO)} is a package but {name} is not in pyproject"
 
 

@@ -1,7 +1,7 @@
 """The window while the kernels compile: which kernel groups a scene needs, input held until they are
 ready, and the progress line on the HUD.
 
-On a fresh install the numba kernels take minutes to compile (chainsim.engine.warmup). The window
+On a fresh install the numba kernels take minutes to compile (chainsim.systems.engine.warmup). The window
 opens at once and they compile in child processes (`Compiler`) while the trainee signs in and reads
 the help. Until the groups the scene needs are compiled (`needed_groups`: the normals and collision
 kernels every scene draws and steps with, and the kernels of each soft body's model), `KernelGate`
@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import esper
 
-from chainsim.components.deformable import Deformable
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseMove, Resize
-from chainsim.engine.chainmail_params import order_name
-from chainsim.engine.warmup import GEOMETRY, MODELS, MOVING, Compiler, chainmail_group
+from chainsim.systems.engine.chainmail_params import order_name
+from chainsim.systems.engine.warmup import GEOMETRY, MODELS, MOVING, Compiler, chainmail_group
+from chainsim.systems.tissue.deformable import Deformable
 
 #: keys that open or move through pages (no kernel behind them)
 PAGE_KEYS = {"f1", "f12"}

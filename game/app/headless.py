@@ -16,9 +16,11 @@ from typing import Any
 import esper
 import numpy as np
 
+from chainsim.components.app import App
 from chainsim.components.core import Name
-from chainsim.components.deformable import Deformable
+from chainsim.components.digest import world_digest
 from chainsim.components.input_events import PickPoint
+from chainsim.components.loader import spawn_scene
 from chainsim.components.resources import (
     Assessment,
     EntityIndex,
@@ -29,14 +31,8 @@ from chainsim.components.resources import (
     RunInfo,
     Settings,
 )
-from chainsim.engine import limits
-from chainsim.engine.errors import UserError
-from chainsim.engine.progress import progress
 from chainsim.game.app import plugins
-from chainsim.game.app.core import App
-from chainsim.game.app.digest import world_digest
 from chainsim.game.app.inputscript import load_script, recording_data, write_recording
-from chainsim.game.app.loader import spawn_scene
 from chainsim.game.app.options import MODEL_FLAG_CHOICES
 from chainsim.game.app.outputs import check_output_file, prepare_output_dir, write_text_atomic
 from chainsim.game.packs import pack as packs
@@ -45,8 +41,12 @@ from chainsim.game.records import store as records
 from chainsim.game.records.remote import remote_records
 from chainsim.game.records.store import local_records
 from chainsim.game.records.validate import clean_name
-from chainsim.systems.input import InputLog
-from chainsim.systems.picking import entity_surface
+from chainsim.systems.engine import limits
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.progress import progress
+from chainsim.systems.motion.input import InputLog
+from chainsim.systems.tissue.deformable import Deformable
+from chainsim.systems.view.picking import entity_surface
 
 #: settings a user (or a recording) may give on top of the pack's own: name -> type
 USER_SETTINGS = {"db": str, "records": str, "class": str, "trainee": str, "model": str, "fluoro_first": bool}
@@ -237,7 +237,7 @@ def start_problems(pack: packs.Pack) -> list[tuple[str, str]]:
 
 
 def _steps(total: int):
-    """The steps of a run; long runs show a progress bar (chainsim.engine.progress) that ends its line."""
+    """The steps of a run; long runs show a progress bar (chainsim.systems.engine.progress) that ends its line."""
     return progress(range(total), desc="steps", unit="step") if total >= 2000 else range(total)
 
 

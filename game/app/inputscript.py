@@ -12,7 +12,7 @@ An input script is TOML (or JSON) with `format = 1` and an array of events:
 A recording (`--record FILE`) is JSON: the same events plus the pack, scene, dt, steps and the
 final digest, so `chainsim replay FILE` can run it again and compare.
 
-Both are read through chainsim.engine.datafile (size, nesting and number limits) and every event
+Both are read through chainsim.systems.engine.datafile (size, nesting and number limits) and every event
 is checked (times finite, in order and at most MAX_TIME; at most MAX_EVENTS events).
 """
 
@@ -25,9 +25,9 @@ from pathlib import Path
 from typing import Any
 
 from chainsim.components.input_events import event_from_dict, event_to_dict
-from chainsim.engine import datafile, limits
-from chainsim.engine.errors import UserError
 from chainsim.game.app.outputs import write_text_atomic
+from chainsim.systems.engine import datafile, limits
+from chainsim.systems.engine.errors import UserError
 
 FORMAT = 1
 

@@ -1,6 +1,6 @@
 """Options the command line, the window and the benchmarks share: window sizes and the user's record settings.
 
-Numbers are typed by chainsim.engine.argtypes (finite, bounded: docs/limits.md); class and trainee
+Numbers are typed by chainsim.systems.engine.argtypes (finite, bounded: docs/limits.md); class and trainee
 names by `name` here, which takes them as the records store does (1 to MAX_NAME_LENGTH printable
 characters, no control or invisible characters), so a bad name is refused before anything runs.
 """
@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import argparse
 
-from chainsim.components.deformable import MODEL_CHOICES
-from chainsim.engine import argtypes
-from chainsim.engine.errors import UserError
 from chainsim.game.records.validate import clean_name
+from chainsim.systems.engine import argtypes
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.tissue.deformable import MODEL_CHOICES
 
 #: argparse type: WIDTHxHEIGHT in pixels, each 1..MAX_PIXELS
 window_size = argtypes.size

@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 
 
 def _usable(path: str | os.PathLike, flag: str) -> Path:

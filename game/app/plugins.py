@@ -10,28 +10,18 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 
+from chainsim.systems import FEATURES
 from chainsim.systems.procedures import PROCEDURES
 
-# always considered, in this order; each decides for itself whether the scene needs it
-CORE: list[str] = [
-    "chainsim.systems.input:plugin",
-    "chainsim.systems.view:plugin",
-    "chainsim.systems.motion:plugin",
-    "chainsim.systems.deformation:plugin",
-]
+CORE: list[str] = FEATURES
 
 RENDER: list[str] = ["chainsim.game.gl.render_system:plugin"]
 
 
-def _resolve(ref: str) -> Callable | None:
+def _resolve(ref: str) -> Callable:
+    # a plugin that is named but missing is an error: a scene must never run with a feature quietly absent
     mod, _, fn = ref.partition(":")
-    try:
-        module = importlib.import_module(mod)
-    except ModuleNotFoundError as e:
-        if e.name == mod:  # the capability is not part of this build
-            return None
-        raise
-    return getattr(module, fn)
+    return getattr(importlib.import_module(mod), fn)
 
 
 def event_check(procedure: str) -> Callable | None:
@@ -52,8 +42,6 @@ def install(app, procedure: str = "", render: bool = False) -> list[str]:
         refs.extend(RENDER)
     done = []
     for ref in refs:
-        build = _resolve(ref)
-        if build is not None:
-            build(app)
-            done.append(ref)
+        _resolve(ref)(app)
+        done.append(ref)
     return done

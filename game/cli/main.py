@@ -15,10 +15,10 @@ import os
 import re
 import sys
 
-from chainsim.engine.argtypes import NEGATIVE_NUMBER
-from chainsim.engine.errors import UserError, printable
 from chainsim.game import __version__
 from chainsim.game.app.logs import setup_logging
+from chainsim.systems.engine.argtypes import NEGATIVE_NUMBER
+from chainsim.systems.engine.errors import UserError, printable
 
 # name -> one-line help; the module is chainsim.game.cli.commands.<name with - as _>
 COMMANDS: dict[str, str] = {

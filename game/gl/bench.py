@@ -33,22 +33,22 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from chainsim.components.input_events import Widget
+from chainsim.components.loader import PackResource
 from chainsim.components.resources import PendingInput
-from chainsim.engine import argtypes, limits
-from chainsim.engine.errors import UserError
-from chainsim.engine.meshgen import triangulated_grid
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script
-from chainsim.game.app.loader import PackResource
 from chainsim.game.app.options import window_size
 from chainsim.game.app.outputs import prepare_output_dir
 from chainsim.game.gl import meshbuf
 from chainsim.game.gl import render_system as render
 from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
 from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
-from chainsim.systems.ui.viewports import OrbitCamera, fraction_rect
-from chainsim.systems.ui.widgets import WidgetState, place
-from chainsim.systems.view import ViewState
+from chainsim.systems.engine import argtypes, limits
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.meshgen import triangulated_grid
+from chainsim.systems.view.cameras import ViewState
+from chainsim.systems.view.ui.viewports import OrbitCamera, fraction_rect
+from chainsim.systems.view.ui.widgets import WidgetState, place
 
 logger = logging.getLogger(__name__)
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import moderngl
 
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 
 
 class GLUnavailable(UserError):

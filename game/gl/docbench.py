@@ -1,4 +1,4 @@
-"""`chainsim bench docs`: what the in-window pages cost (chainsim.systems.ui.markdown laid out and drawn
+"""`chainsim bench docs`: what the in-window pages cost (chainsim.systems.view.ui.markdown laid out and drawn
 by chainsim.game.gl.docview) - once when a page opens, and every frame while it stays open.
 
 For each page (the key page F1 shows and every docs page of --pack), on the EGL context at --size:
@@ -24,15 +24,15 @@ import sys
 import time
 
 from chainsim.components.hud import HudState
-from chainsim.engine import argtypes, limits
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.options import window_size
 from chainsim.game.app.outputs import prepare_output_dir
 from chainsim.game.gl import render_system as render
 from chainsim.game.gl.renderer import Renderer
-from chainsim.systems.ui import docbox
-from chainsim.systems.ui import markdown as md
-from chainsim.systems.view import ViewState, main_view
+from chainsim.systems.engine import argtypes, limits
+from chainsim.systems.view.cameras import ViewState, main_view
+from chainsim.systems.view.ui import docbox
+from chainsim.systems.view.ui import markdown as md
 
 HELP = "cost of the in-window help pages: opening one and keeping it open, per frame"
 

@@ -1,17 +1,17 @@
-"""Drawing a page box: a docs page or the key overlay, laid out by chainsim.systems.ui.markdown.
+"""Drawing a page box: a docs page or the key overlay, laid out by chainsim.systems.view.ui.markdown.
 
 Headings are larger and accent-coloured, bold is drawn twice a pixel apart, italic leans, code is
 tinted, tables get a shaded header row and a grid. The box geometry (and the footer buttons the view
-system hit-tests) comes from chainsim.systems.ui.docbox. Layouts are cached per text and width, so
+system hit-tests) comes from chainsim.systems.view.ui.docbox. Layouts are cached per text and width, so
 an open page costs only its glyph quads per frame.
 """
 
 from __future__ import annotations
 
 from chainsim.game.gl.overlay import Overlay
-from chainsim.systems.ui import docbox
-from chainsim.systems.ui import markdown as md
-from chainsim.systems.ui.viewports import Rect
+from chainsim.systems.view.ui import docbox
+from chainsim.systems.view.ui import markdown as md
+from chainsim.systems.view.ui.viewports import Rect
 
 BOX_BG = (0.03, 0.035, 0.05, 0.96)
 TEXT = (0.92, 0.93, 0.95, 1.0)

@@ -10,7 +10,7 @@ normal points back at the source), so one additive pass does it: every fragment 
 mu * distance(source, fragment), negated for front faces, into a 32-bit float target (blending ONE,
 ONE; no depth test, no culling; GL's rasterisation rules cover each pixel centre once per surface
 crossing, so a closed mesh contributes exactly its chord). The camera is the C-arm's cone beam: the
-eye at the source, the round detector's cone as the field of view (chainsim.systems.ui.viewports.carm_camera).
+eye at the source, the round detector's cone as the field of view (chainsim.systems.view.ui.viewports.carm_camera).
 
 Display: L is shown on a logarithmic (linear-in-L) scale, bright where the beam got through and
 dark where it did not, as a fluoroscopy monitor shows it: air light, soft tissue grey, bone darker,
@@ -32,7 +32,7 @@ import numpy as np
 from scipy import ndimage
 
 from chainsim.game.gl.context import release_framebuffer
-from chainsim.systems.ui.viewports import Camera, Rect
+from chainsim.systems.view.ui.viewports import Camera, Rect
 
 IMAGE_PX = 512
 #: a view shown larger than LARGE_VIEW_PX framebuffer pixels a side gets images of LARGE_IMAGE_PX

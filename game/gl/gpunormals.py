@@ -8,7 +8,7 @@ one transform-feedback pass (GL 3.3 core, no rasteriser) runs a vertex shader pe
 its position into the position buffer and gathers the face normals of its triangles, found through
 the vertex -> triangle incidence held in two static integer textures (CSR offsets; for each entry the
 vertex's two other corners in the triangle's winding). The normal is the normalised sum of those face
-normals, the definition of chainsim.engine.kernels.normals, summed in the same CSR order; float32 on
+normals, the definition of chainsim.systems.engine.kernels.normals, summed in the same CSR order; float32 on
 the GPU instead of float64 on the CPU, so the two agree to float32 rounding, not bit for bit.
 """
 

@@ -7,7 +7,7 @@ the triangles touching those. ChainMail moves a local patch per pull (thesis 5.2
 in proportion to the patch, not the mesh. When most of the mesh moved, everything is rewritten: for
 meshes of GPU_NORMALS_MIN vertices or more only the float32 positions cross to the GPU and one
 transform-feedback pass there writes both vertex buffers (chainsim.game.gl.gpunormals); smaller meshes
-recompute normals on the CPU, on all threads where there are several (chainsim.engine.kernels.normals).
+recompute normals on the CPU, on all threads where there are several (chainsim.systems.engine.kernels.normals).
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ import time
 
 import numpy as np
 
-from chainsim.engine.kernels.normals import moved_normals_kernel, normals_into, vertex_normals_kernel
-from chainsim.engine.meshgen import links_from_polygons
 from chainsim.game.gl import gpunormals
 from chainsim.game.gl.gpunormals import GpuNormals
+from chainsim.systems.engine.kernels.normals import moved_normals_kernel, normals_into, vertex_normals_kernel
+from chainsim.systems.engine.meshgen import links_from_polygons
 
 _SERIALS = itertools.count()
 

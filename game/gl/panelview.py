@@ -1,7 +1,7 @@
 """Drawing the 2-D parts of a frame in window pixels: view captions, 3-D labels, the HUD, the aiming
 aid of an attached view, and the control panel with its widgets (thesis 3.3.4 controller).
 
-Widget placement and values come from chainsim.systems.ui.widgets (no GL); this module only turns
+Widget placement and values come from chainsim.systems.view.ui.widgets (no GL); this module only turns
 them into Overlay shapes and text. Numbers are shown with `widgets.format_value`, one format for
 every dial, slider and text.
 """
@@ -14,9 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from chainsim.game.gl.overlay import Overlay
-from chainsim.systems.ui import docbox
-from chainsim.systems.ui.viewports import Rect
-from chainsim.systems.ui.widgets import TITLE_PX, below_widgets, format_value
+from chainsim.systems.view.ui import docbox
+from chainsim.systems.view.ui.viewports import Rect
+from chainsim.systems.view.ui.widgets import TITLE_PX, below_widgets, format_value
 
 PANEL_BG = (0.13, 0.14, 0.17, 1.0)
 TEXT = (0.92, 0.93, 0.95, 1.0)
@@ -179,7 +179,7 @@ def hud(ov: Overlay, h, r: Rect, s: float) -> None:
     said = [[(t, MESSAGE) for t in f.wrap(text, width - 2 * pad)] for text in h.shown_messages()[-3:]]
     top = r.y + r.h - f.line_h - 14 * s  # under the viewport title
     if h.doc_open or h.notice:
-        # a page is open below (chainsim.systems.ui.docbox): the band ends above its top edge, so the
+        # a page is open below (chainsim.systems.view.ui.docbox): the band ends above its top edge, so the
         # oldest messages give way first, then the instruction's last lines
         room = max(int((top - (r.y + r.h - docbox.TOP_ROOM * s) - pad - 2 * s) // f.line_h), 1)
         while said and len(head) + sum(map(len, said)) > room and len(said) > 1:

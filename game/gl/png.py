@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 
 
 def read_rgba(fbo, viewport=None) -> np.ndarray:

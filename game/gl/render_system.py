@@ -22,20 +22,20 @@ import esper
 import numpy as np
 
 from chainsim.components.core import Label, Marker, MeshRef, PolyLine, Transform, Wireframe
-from chainsim.components.deformable import Deformable
-from chainsim.components.fluoro import DETECTOR_MM, SOURCE_TO_DETECTOR_MM, SOURCE_TO_ISO_MM, CArm
 from chainsim.components.hud import HudState
 from chainsim.components.resources import EntityIndex, InputState, PackResource, RunInfo, Settings
+from chainsim.components.stages import ORDER_RENDER
 from chainsim.game.gl.context import egl_context, offscreen_framebuffer, release_framebuffer
 from chainsim.game.gl.fluoro import FluoroDraw, XrayMesh, image_size
 from chainsim.game.gl.png import read_rgba, write_png
 from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
-from chainsim.systems.picking import surface_cache
-from chainsim.systems.stages import ORDER_RENDER
-from chainsim.systems.ui import docbox, keyhelp
-from chainsim.systems.ui.viewports import carm_camera
-from chainsim.systems.ui.widgets import WidgetState
-from chainsim.systems.view import ViewState, refresh_cameras
+from chainsim.systems.procedures.needle.carm import DETECTOR_MM, SOURCE_TO_DETECTOR_MM, SOURCE_TO_ISO_MM, CArm
+from chainsim.systems.tissue.deformable import Deformable
+from chainsim.systems.view.cameras import ViewState, refresh_cameras
+from chainsim.systems.view.picking import surface_cache
+from chainsim.systems.view.ui import docbox, keyhelp
+from chainsim.systems.view.ui.viewports import carm_camera
+from chainsim.systems.view.ui.widgets import WidgetState
 
 PLANE_COLORS = ((0.95, 0.35, 0.35, 0.22), (0.35, 0.9, 0.45, 0.22), (0.35, 0.55, 1.0, 0.22), (0.9, 0.8, 0.3, 0.22))
 XRAY_OPACITY = 0.3

@@ -26,7 +26,7 @@ from chainsim.game.gl.fluoro import FluoroDraw, FluoroRenderer
 from chainsim.game.gl.meshbuf import ORDER_DIRECTIONS, GpuMesh
 from chainsim.game.gl.overlay import Overlay
 from chainsim.game.gl.viewcache import ViewCache, base_key, item_keys
-from chainsim.systems.ui.viewports import Camera, Rect
+from chainsim.systems.view.ui.viewports import Camera, Rect
 
 SHADING = {"smooth": 0, "flat": 1, "unlit": 2}
 #: a cached view is drawn into its image after this many frames without change (chainsim.game.gl.viewcache)
@@ -71,7 +71,7 @@ class PanelDraw:
     name: str
     rect: Rect
     title: str
-    placed: list  # chainsim.systems.ui.widgets.Placed
+    placed: list  # chainsim.systems.view.ui.widgets.Placed
     values: dict
     disabled: set
     hint: str = ""  # help of the widget under the pointer, shown at the bottom

@@ -22,9 +22,9 @@ from chainsim.assets import ASSETS_DIR
 from chainsim.components.input_events import PickPoint, Widget
 from chainsim.game.app.headless import build_app, run_pack
 from chainsim.game.app.inputscript import load_script
-from chainsim.systems.ui import docbox
-from chainsim.systems.ui import widgets as wd
-from chainsim.systems.view import ViewState, main_view
+from chainsim.systems.view.cameras import ViewState, main_view
+from chainsim.systems.view.ui import docbox
+from chainsim.systems.view.ui import widgets as wd
 
 logger = logging.getLogger(__name__)
 

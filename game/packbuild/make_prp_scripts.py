@@ -30,13 +30,14 @@ import trimesh
 
 from chainsim.assets import ASSETS_DIR
 from chainsim.components.core import Transform
-from chainsim.components.procedure import landmark_errors, scene_from_pack
 from chainsim.components.registry import load_all
-from chainsim.engine.segment_tree import SegmentTree
 from chainsim.game.app.headless import run_pack
 from chainsim.game.packs import pack as packs
-from chainsim.systems.collision import NeedleObstacles
-from chainsim.systems.needle import initial_direction
+from chainsim.systems import manifest_modules
+from chainsim.systems.engine.segment_tree import SegmentTree
+from chainsim.systems.procedures.needle.collision import NeedleObstacles
+from chainsim.systems.procedures.needle.kinematics import initial_direction
+from chainsim.systems.procedures.needle.manifest import landmark_errors, scene_from_pack
 
 logger = logging.getLogger(__name__)
 
@@ -45,7 +46,7 @@ HIGH_DEG = 12.0
 
 def _skin(pack):
 
-    load_all()
+    load_all(manifest_modules())
     ent = pack.manifest["entities"]["skin"]
     mesh = pack.mesh(ent["mesh"]["mesh"])
     tr = ent.get("transform")

@@ -20,7 +20,7 @@ import numpy as np
 import trimesh
 
 from chainsim.assets import ASSETS_DIR
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 
 #: meshes decimated for display, with their target triangle counts
 TARGETS = {"skull": 16_000}

@@ -12,7 +12,7 @@ import moderngl
 import numpy as np
 import trimesh
 
-from chainsim.systems.ui.viewports import look_at
+from chainsim.systems.view.ui.viewports import look_at
 
 _VS = """
 #version 330

@@ -1,6 +1,6 @@
 """Validation of a pack manifest: one small check per part, every problem collected at once.
 
-`Validator` reads the manifest files (chainsim.engine.datafile: size, nesting and number limits)
+`Validator` reads the manifest files (chainsim.systems.engine.datafile: size, nesting and number limits)
 and checks tables against their schemas (chainsim.components.registry: every value bounded); the
 `check_*` functions each own one part of the manifest and are run in order by
 `chainsim.game.packs.pack.validate`. Problems read `file:line: key.path: what is wrong`, one line
@@ -26,14 +26,14 @@ from chainsim.components.registry import (
     convert,
     default_value,
 )
-from chainsim.engine import datafile, limits
-from chainsim.engine.errors import UserError, printable
-from chainsim.engine.meshes import MeshData, MeshError, check_primitive, max_mesh_bytes
 from chainsim.game.packs import schema as ms
 from chainsim.game.packs.discovery import MANIFEST, NAME_RE
 from chainsim.game.packs.model import PRESET_KEYS, Pack, build_mesh, locate, material_presets
 from chainsim.game.packs.requires import resolve_requires
 from chainsim.game.records import validate as records
+from chainsim.systems.engine import datafile, limits
+from chainsim.systems.engine.errors import UserError, printable
+from chainsim.systems.engine.meshes import MeshData, MeshError, check_primitive, max_mesh_bytes
 from chainsim.systems.procedures import PROCEDURES
 from chainsim.systems.procedures.needle import checks as needle_checks
 

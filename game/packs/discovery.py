@@ -23,8 +23,8 @@ from importlib.metadata import entry_points
 from pathlib import Path
 
 from chainsim.assets import ASSETS_DIR
-from chainsim.engine import datafile, limits
-from chainsim.engine.errors import UserError, printable
+from chainsim.systems.engine import datafile, limits
+from chainsim.systems.engine.errors import UserError, printable
 
 BUILTIN_DIR = ASSETS_DIR
 ENV_PATH = "CHAINSIM_PACK_PATH"

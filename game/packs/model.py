@@ -1,7 +1,7 @@
 """The loaded pack: its converted manifest, its files (kept inside the pack folder) and its meshes.
 
 `Pack` is what `chainsim.game.packs.pack.validate` returns; `build_mesh` turns a [meshes] entry into
-a MeshData in millimetres (chainsim.engine.meshes checks the file and the result against the mesh
+a MeshData in millimetres (chainsim.systems.engine.meshes checks the file and the result against the mesh
 limits); `inside` keeps a path inside one folder and `locate` keeps every path a manifest names inside
 its pack or, written `PACK:PATH`, inside a pack it requires (chainsim.game.packs.requires);
 `material_presets` reads the calibrated ChainMail materials a [materials] entry may name.
@@ -17,11 +17,11 @@ from typing import Any
 
 from chainsim.assets import ASSETS_DIR
 from chainsim.components.registry import SECTION_STYLE
-from chainsim.engine.errors import UserError
-from chainsim.engine.meshes import MeshData, check_mesh, load_file, primitive
-from chainsim.engine.reorder import reorder_mesh
 from chainsim.game.packs import schema as ms
 from chainsim.game.packs.requires import split_ref
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.meshes import MeshData, check_mesh, load_file, primitive
+from chainsim.systems.engine.reorder import reorder_mesh
 
 PRESET_FILE = ASSETS_DIR / "presets" / "materials.toml"
 PRESET_KEYS = {"alpha_min": "alpha_min", "alpha_max": "alpha_max", "beta": "beta", "relax": "relax_iterations"}

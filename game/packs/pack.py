@@ -32,6 +32,7 @@ from chainsim.game.packs.discovery import (
     resolve,
 )
 from chainsim.game.packs.model import PRESET_FILE, Pack, build_mesh, material_presets
+from chainsim.systems import manifest_modules
 
 __all__ = [
     "BUILTIN_DIR",
@@ -62,7 +63,7 @@ def validate(root: Path, *, load_meshes: bool = True, pack_paths=()) -> tuple[Pa
     This checks everything that needs no running App; chainsim.game.app.headless.validate_pack
     also starts each scene as `run` does (what `chainsim validate` reports).
     """
-    load_all()
+    load_all(manifest_modules())
     root = Path(root)
     if not root.is_dir():
         return None, [Problem(str(root), "", "not a folder")]

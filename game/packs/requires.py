@@ -18,9 +18,9 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from chainsim.engine import datafile, limits
-from chainsim.engine.errors import UserError
 from chainsim.game.packs.discovery import ENV_PATH, MANIFEST, NAME_RE, Found, discover, scan
+from chainsim.systems.engine import datafile, limits
+from chainsim.systems.engine.errors import UserError
 
 #: `PACK:PATH`: a pack name (as NAME_RE), a colon, a path inside that pack's folder
 REF_RE = re.compile(r"^([A-Za-z0-9][A-Za-z0-9_-]*):(.*)$", re.S)

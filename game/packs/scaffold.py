@@ -19,7 +19,7 @@ from pathlib import Path
 import tomli_w
 
 from chainsim.assets import ASSETS_DIR
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 
 TEMPLATES_DIR = ASSETS_DIR / "templates"
 #: template name -> what it gives (the `--template` help)

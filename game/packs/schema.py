@@ -15,14 +15,14 @@ The layout of a manifest:
     [points.NAME], [planes.NAME], [foramina.NAME], [paths.NAME]   named anatomy (millimetres)
 
 The needle-procedure tables ([needle_procedure], [roles.NAME], [[landmarks]], [[feedback]]) are
-declared with the data they describe, in chainsim.components.procedure (docs/needle-procedures.md).
+declared with the data they describe, in chainsim.systems.procedures.needle.manifest (docs/needle-procedures.md).
 """
 
 from __future__ import annotations
 
-from chainsim.components.procedure import MEASURES  # importing it registers the needle-procedure sections
 from chainsim.components.registry import Field, Schema, section
-from chainsim.engine import limits
+from chainsim.systems.engine import limits
+from chainsim.systems.procedures.needle.manifest import MEASURES  # importing it registers the needle-procedure sections
 
 FORMAT_VERSION = 1
 UNITS = ("mm", "cm", "m")

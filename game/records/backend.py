@@ -23,8 +23,8 @@ from collections.abc import Iterator, Sequence
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
-from chainsim.engine.errors import UserError
 from chainsim.game.records.schema import OWN_TABLES, SCHEMA_VERSION
+from chainsim.systems.engine.errors import UserError
 
 PG_SCHEMES = ("postgresql", "postgres")
 VERSION_TABLE = "chainsim_schema"

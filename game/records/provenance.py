@@ -22,8 +22,8 @@ import zlib
 from pathlib import Path
 from typing import Any
 
-from chainsim.engine import limits
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine import limits
+from chainsim.systems.engine.errors import UserError
 
 #: compressed size of one attempt's recording, and the same recording as JSON (docs/limits.md)
 MAX_RECORDING_BYTES = limits.MAX_RECORDING_BYTES

@@ -30,9 +30,9 @@ from typing import Any
 from urllib.parse import urlencode, urlsplit
 
 from chainsim.components.resources import Records, SavedLocally
-from chainsim.engine.errors import UserError
 from chainsim.game.records.store import NoDatabase, RecordStore
 from chainsim.game.records.validate import clean_attempt, clean_name, to_json
+from chainsim.systems.engine.errors import UserError
 
 logger = logging.getLogger(__name__)
 

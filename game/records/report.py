@@ -21,8 +21,8 @@ from typing import Any
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from chainsim.engine.errors import UserError
 from chainsim.game.records.validate import AIDS, printable
+from chainsim.systems.engine.errors import UserError
 
 CSV_COLUMNS = (
     "id",

@@ -36,8 +36,6 @@ from typing import Any
 import platformdirs
 
 from chainsim.components.resources import Records
-from chainsim.engine import limits
-from chainsim.engine.errors import UserError
 from chainsim.game.records.backend import (
     PgConnection,
     db_errors,
@@ -55,6 +53,8 @@ from chainsim.game.records.validate import (
     clean_questionnaire,
     to_json,
 )
+from chainsim.systems.engine import limits
+from chainsim.systems.engine.errors import UserError
 
 ENV_VAR = "CHAINSIM_DB"
 DB_FILENAME = "records.sqlite3"

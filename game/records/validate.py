@@ -15,8 +15,8 @@ import unicodedata
 from datetime import UTC, datetime
 from typing import Any
 
-from chainsim.engine import limits
-from chainsim.engine.errors import HIDDEN_CATEGORIES, UserError, printable
+from chainsim.systems.engine import limits
+from chainsim.systems.engine.errors import HIDDEN_CATEGORIES, UserError, printable
 
 NAME_MAX = limits.MAX_NAME_LENGTH
 
@@ -52,7 +52,7 @@ METRIC_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,63}")
 MAX_METRICS = 200
 FIELDS = REQUIRED + OPTIONAL
 
-# Unicode categories a name may not hold (chainsim.engine.errors.HIDDEN_CATEGORIES): controls,
+# Unicode categories a name may not hold (chainsim.systems.engine.errors.HIDDEN_CATEGORIES): controls,
 # format characters (right-to-left and other bidi overrides, zero-width joiners, the BOM),
 # surrogates, private use, unassigned, line and paragraph separators. They let a name display as
 # something it is not. `printable` (re-exported here) shows them escaped.

@@ -23,8 +23,8 @@ from collections.abc import Sequence
 from typing import Any
 from urllib.parse import quote
 
-from chainsim.engine.errors import UserError
 from chainsim.game.records.validate import KNOWN_TARGETS
+from chainsim.systems.engine.errors import UserError
 
 XAPI_VERSION = "1.0.3"
 DEFAULT_HOMEPAGE = "http://localhost/chainsim"

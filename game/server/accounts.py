@@ -23,9 +23,9 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
-from chainsim.engine.errors import UserError
 from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import clean_name
+from chainsim.systems.engine.errors import UserError
 
 ROLES = ("trainer", "trainee")
 PASSWORD_MIN, PASSWORD_MAX = 8, 1024

@@ -30,12 +30,12 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
 from starlette.routing import Route
 
-from chainsim.engine.errors import UserError
 from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import clean_key, clean_name
 from chainsim.game.server import accounts, scoring, throttle
 from chainsim.game.server.accounts import User
 from chainsim.game.server.auth import HTTPError, api_user, read_json
+from chainsim.systems.engine.errors import UserError
 
 IDEMPOTENCY_HEADER = "idempotency-key"
 

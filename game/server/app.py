@@ -22,12 +22,12 @@ from starlette.responses import JSONResponse, RedirectResponse, Response
 from starlette.routing import Mount
 from starlette.staticfiles import StaticFiles
 
-from chainsim.engine.errors import UserError
 from chainsim.game.records import remote, xapi
 from chainsim.game.server import api, scoring, train_routes, views
 from chainsim.game.server.auth import HTTPError
 from chainsim.game.server.storage import Storage, Unavailable
 from chainsim.game.server.throttle import Throttle
+from chainsim.systems.engine.errors import UserError
 
 logger = logging.getLogger(__name__)
 

@@ -38,7 +38,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 
 HELP = "real uploads to a local records server: replay speed, acknowledgement and scoring p50/p99, count check"
 PASSWORD = "bench-" + "x" * 12

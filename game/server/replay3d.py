@@ -34,8 +34,8 @@ from typing import Any
 
 import numpy as np
 
-from chainsim.engine.errors import UserError
 from chainsim.game.records import provenance
+from chainsim.systems.engine.errors import UserError
 
 #: needle samples per simulated second kept in the track (the browser interpolates between them)
 SAMPLE_HZ = 20.0
@@ -55,16 +55,16 @@ def replay_track(recording_text: str, pack_root: str, pack_paths: list[str]) -> 
     with t in seconds of the attempt's own clock."""
     import esper  # noqa: PLC0415 - worker process only
 
-    from chainsim.components.fluoro import CArm  # noqa: PLC0415
-    from chainsim.components.needle import Needle, NeedleState  # noqa: PLC0415
-    from chainsim.components.procedure import ProcedureState  # noqa: PLC0415
     from chainsim.components.resources import EntityIndex, PendingInput, Records  # noqa: PLC0415
     from chainsim.game.app.headless import app_for_pack, check_events  # noqa: PLC0415
     from chainsim.game.app.inputscript import parse_events  # noqa: PLC0415
     from chainsim.game.gl.renderer import Renderer  # noqa: PLC0415
     from chainsim.game.packs import pack as packs  # noqa: PLC0415
     from chainsim.game.server.scoring import _recording_fields  # noqa: PLC0415
+    from chainsim.systems.procedures.needle.carm import CArm  # noqa: PLC0415
+    from chainsim.systems.procedures.needle.components import Needle, NeedleState  # noqa: PLC0415
     from chainsim.systems.procedures.needle.handles import NeedleHandles  # noqa: PLC0415
+    from chainsim.systems.procedures.needle.manifest import ProcedureState  # noqa: PLC0415
 
     recording = provenance.decode_recording(recording_text)
     fields = _recording_fields(recording)

@@ -35,13 +35,13 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
-from chainsim.engine import limits
-from chainsim.engine.errors import UserError
 from chainsim.game.records import provenance
 from chainsim.game.records.backend import db_errors
 from chainsim.game.records.schema import LEGACY_METRICS
 from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import clean_attempt, clean_created_at, clean_name, to_json
+from chainsim.systems.engine import limits
+from chainsim.systems.engine.errors import UserError
 
 logger = logging.getLogger(__name__)
 

@@ -25,7 +25,7 @@ import time
 import urllib.request
 from pathlib import Path
 
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 
 HELP = "the trainer in browser tabs: fps, input-to-picture latency, bandwidth per session, sessions at 20 fps"
 CHROMIUM = "/usr/bin/chromium"

@@ -44,9 +44,9 @@ from starlette.responses import Response
 from starlette.routing import Route, WebSocketRoute
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
-from chainsim.engine.errors import UserError
 from chainsim.game.server import accounts, api, scoring, views
 from chainsim.game.server.auth import HTTPError, session
+from chainsim.systems.engine.errors import UserError
 
 logger = logging.getLogger(__name__)
 

@@ -120,7 +120,7 @@ class Channel:
         except queue.Empty:
             reply = None
         if reply is None:
-            from chainsim.engine.errors import UserError  # noqa: PLC0415
+            from chainsim.systems.engine.errors import UserError  # noqa: PLC0415
 
             raise UserError("the records server did not answer; the attempt is not saved")
         return reply
@@ -131,9 +131,9 @@ def server_records(channel: Channel, app, pack, settings: dict):
     recording and the pack's identity (``chainsim.game.app.headless.attempt_evidence``): the server
     checks and queues it as it does every upload, and scores it by replaying the recording."""
     from chainsim.components.resources import Records  # noqa: PLC0415
-    from chainsim.engine.errors import UserError  # noqa: PLC0415
     from chainsim.game.app.headless import attempt_evidence  # noqa: PLC0415
     from chainsim.game.records.validate import clean_attempt, to_json  # noqa: PLC0415
+    from chainsim.systems.engine.errors import UserError  # noqa: PLC0415
 
     filed: dict[int, tuple[str, str, int | None]] = {}
 
@@ -165,12 +165,12 @@ class Session:
         from chainsim.components.hud import HudState  # noqa: PLC0415
         from chainsim.components.input_events import Widget  # noqa: PLC0415
         from chainsim.components.resources import PendingInput, Settings  # noqa: PLC0415
-        from chainsim.engine.warmup import warm_up  # noqa: PLC0415
         from chainsim.game.app.compiling import needed_groups  # noqa: PLC0415
         from chainsim.game.app.headless import app_for_pack  # noqa: PLC0415
         from chainsim.game.gl.context import egl_context, offscreen_framebuffer  # noqa: PLC0415
         from chainsim.game.packs import pack as packs  # noqa: PLC0415
         from chainsim.game.ui.frameloop import FixedStepper  # noqa: PLC0415
+        from chainsim.systems.engine.warmup import warm_up  # noqa: PLC0415
 
         self.render = render
         self.channel = channel

@@ -37,7 +37,6 @@ from starlette.requests import Request
 from starlette.responses import HTMLResponse, RedirectResponse, Response
 from starlette.routing import Route
 
-from chainsim.engine.errors import UserError
 from chainsim.game.records import report, xapi
 from chainsim.game.records.store import RecordStore
 from chainsim.game.server import accounts, classpage, plots, replay3d, scoring, throttle
@@ -53,6 +52,7 @@ from chainsim.game.server.auth import (
     read_form,
     session,
 )
+from chainsim.systems.engine.errors import UserError
 from chainsim.systems.procedures.needle import debrief
 
 templates = Environment(loader=PackageLoader("chainsim.game.server", "templates"), autoescape=select_autoescape())

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import platformdirs
 
-from chainsim.engine import datafile
-from chainsim.engine.errors import UserError
 from chainsim.game.records.validate import clean_name
+from chainsim.systems.engine import datafile
+from chainsim.systems.engine.errors import UserError
 
 logger = logging.getLogger(__name__)
 

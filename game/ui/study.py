@@ -42,7 +42,7 @@ from chainsim.components.resources import Assessment, PackResource, PendingInput
 from chainsim.game.records import study as results
 from chainsim.game.records.store import RecordStore
 from chainsim.game.ui.questionnaire import POST, PRE, THESIS_RATINGS, Notice, Questionnaire
-from chainsim.systems.ui.widgets import WidgetState
+from chainsim.systems.view.ui.widgets import WidgetState
 
 logger = logging.getLogger(__name__)
 

@@ -31,13 +31,11 @@ from pathlib import Path
 import pyglet
 
 import chainsim.game.gl.render_system as render
+from chainsim.components.digest import world_digest
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll, Widget
 from chainsim.components.resources import Assessment, PendingInput, Settings
-from chainsim.engine.errors import UserError
-from chainsim.engine.warmup import GEOMETRY, Compiler
 from chainsim.game.app.compiling import KernelGate, needed_groups
-from chainsim.game.app.digest import world_digest
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script, write_recording
 from chainsim.game.app.options import user_settings
@@ -48,8 +46,10 @@ from chainsim.game.records.store import RecordStore
 from chainsim.game.records.store import default_path as default_records_path
 from chainsim.game.ui.frameloop import FixedStepper, FrameLog
 from chainsim.game.ui.signin import SignInForm, remember, remembered, status_line
-from chainsim.systems.input import InputLog
-from chainsim.systems.view import ViewState
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.warmup import GEOMETRY, Compiler
+from chainsim.systems.motion.input import InputLog
+from chainsim.systems.view.cameras import ViewState
 
 QUIT_QUESTION = (
     "# Quit without saving?\n\nThis attempt is not saved. Press **Esc** again to quit, or any other key to "

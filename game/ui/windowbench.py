@@ -32,14 +32,14 @@ from pathlib import Path
 
 import tomli_w
 
-from chainsim.engine import argtypes
-from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script
 from chainsim.game.app.outputs import prepare_output_dir
 from chainsim.game.packs.discovery import resolve
 from chainsim.game.packs.pack import load
-from chainsim.systems.view import ViewState
+from chainsim.systems.engine import argtypes
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.view.cameras import ViewState
 
 HELP = "frame rate of the real prp window under Xvfb, driven with xdotool (dial, orbit, see-through skin, live X-ray)"
 W, H = 1280, 800

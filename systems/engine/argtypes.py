@@ -3,7 +3,7 @@
 One set of argparse types for every command and benchmark, so a flag can never hand the program a
 NaN, an inf, a negative count or a count that would run for ever: `real(lo, hi)` (finite floats in
 a range, default +-MAX_COORD), `count(lo, hi)` (whole numbers in a range) and `size` (WIDTHxHEIGHT
-within MAX_PIXELS). The bounds come from chainsim.engine.limits (docs/limits.md). A bad value is
+within MAX_PIXELS). The bounds come from chainsim.systems.engine.limits (docs/limits.md). A bad value is
 argparse's one-line usage error, exit 2. (Names of classes and trainees are the records' own type:
 chainsim.game.app.options.name.)
 
@@ -18,7 +18,7 @@ import math
 import re
 from collections.abc import Callable
 
-from chainsim.engine import limits
+from chainsim.systems.engine import limits
 
 NEGATIVE_NUMBER = re.compile(r"^-(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$|^-(?:inf|infinity|nan)$", re.I)
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import math
 
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 
-#: waiting-list orders by name, in the kernels' code order (chainsim.engine.kernels.chainmail ORDER_*)
+#: waiting-list orders by name, in the kernels' code order (chainsim.systems.engine.kernels.chainmail ORDER_*)
 ORDERS = ("breadth-first", "balanced", "schill", "depth-first")
 #: older names still accepted wherever an order is named
 ORDER_ALIASES = {"fifo": "breadth-first"}

@@ -1,6 +1,6 @@
 """Reading the TOML and JSON files a user hands in: pack manifests, input scripts, recordings, protocols.
 
-One reader so every such file gets the same protection (limits in chainsim.engine.limits):
+One reader so every such file gets the same protection (limits in chainsim.systems.engine.limits):
 
 - size: the file is measured before it is read (MAX_MANIFEST_BYTES, MAX_SCRIPT_BYTES);
 - nesting: brackets and braces outside strings and comments are counted before the parser runs, so
@@ -22,8 +22,8 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from chainsim.engine import limits
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine import limits
+from chainsim.systems.engine.errors import UserError
 
 INT64 = 2**63
 

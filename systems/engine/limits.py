@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 
 
 @dataclass(frozen=True, slots=True)
@@ -287,7 +287,7 @@ def markdown() -> str:
         "has an upper bound, checked before any work starts (by `chainsim validate` for packs, by the",
         "loaders for files, by the argument parser for flags). Input beyond a limit is refused with one",
         "line naming the key, file or flag and the limit, exit code 2. This page is generated from",
-        "`chainsim.engine.limits` (`chainsim docs limits`); a test keeps it equal to the code.",
+        "`chainsim.systems.engine.limits` (`chainsim docs limits`); a test keeps it equal to the code.",
         "",
     ]
     for group in GROUPS:

@@ -3,7 +3,7 @@
 A small file can declare a huge mesh: a 1 MB .npz whose arrays expand to gigabytes, a .vtu whose
 zlib blocks do, a PLY header announcing 10^12 vertices. The file-size limit alone cannot see that,
 so each format's own headers are read first, cheaply, and the file is refused when what it declares
-is over the limits of chainsim.engine.limits (MAX_VERTICES, MAX_CELLS, the mesh size limit):
+is over the limits of chainsim.systems.engine.limits (MAX_VERTICES, MAX_CELLS, the mesh size limit):
 
     .npz    zip directory (uncompressed sizes) and each .npy header (dtype, shape)
     .vtu    NumberOfPoints / NumberOfCells, and every compressed block's declared size, verified by
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from chainsim.engine import limits
+from chainsim.systems.engine import limits
 
 
 class MeshCheckError(ValueError):

@@ -3,8 +3,8 @@
 Everything becomes a `MeshData` in millimetres: vertices (N, 3) float64, triangles (F, 3) int64 and,
 for volumes, tetrahedra (T, 4) int64. Errors name the file and what is wrong (they surface in
 `chainsim validate` and at load). Before a parser runs, the file's size and what its headers declare
-are checked (chainsim.engine.meshcheck); after, every vertex must be finite and within the coordinate
-limit and the counts within the mesh limits (chainsim.engine.limits, docs/limits.md), so a mesh never
+are checked (chainsim.systems.engine.meshcheck); after, every vertex must be finite and within the coordinate
+limit and the counts within the mesh limits (chainsim.systems.engine.limits, docs/limits.md), so a mesh never
 brings an inf or a NaN into the world and a primitive's resolution can never ask for 10^10 vertices.
 """
 
@@ -21,8 +21,8 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike
 
-from chainsim.engine import limits, meshcheck, meshgen
-from chainsim.engine.limits import max_mesh_bytes  # noqa: F401  (the mesh size limit, re-exported)
+from chainsim.systems.engine import limits, meshcheck, meshgen
+from chainsim.systems.engine.limits import max_mesh_bytes  # noqa: F401  (the mesh size limit, re-exported)
 
 SURFACE_EXT = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 VOLUME_EXT = (".msh", ".vtk", ".vtu", ".mesh")

@@ -7,11 +7,11 @@ Accepted inputs:
                              edges become links
     .msh .vtk .vtu .mesh     tetrahedral volumes through meshio: tetrahedron edges become links
 
-`load_mesh` returns a MeshData (optionally filled with tetrahedra by chainsim.engine.tetra, optionally reordered
-by chainsim.engine.reorder); `load_graph` returns the flat arrays the CLI and the benchmarks use. Every problem
+`load_mesh` returns a MeshData (optionally filled with tetrahedra by chainsim.systems.engine.tetra, optionally reordered
+by chainsim.systems.engine.reorder); `load_graph` returns the flat arrays the CLI and the benchmarks use. Every problem
 becomes a one-line UserError naming the file (or the argument) and what is expected. Sizes, counts
-and coordinates are bounded (chainsim.engine.limits): an .npz's zip directory and array headers are
-read before its arrays (chainsim.engine.meshcheck), and positions must be finite and within MAX_COORD.
+and coordinates are bounded (chainsim.systems.engine.limits): an .npz's zip directory and array headers are
+read before its arrays (chainsim.systems.engine.meshcheck), and positions must be finite and within MAX_COORD.
 """
 
 from __future__ import annotations
@@ -26,12 +26,12 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
-from chainsim.engine import limits, meshcheck
-from chainsim.engine import reorder as ro
-from chainsim.engine.errors import UserError
-from chainsim.engine.meshes import MeshData, MeshError, load_file
-from chainsim.engine.reorder import reorder_mesh
-from chainsim.engine.tetra import TetraError, tetrahedralize
+from chainsim.systems.engine import limits, meshcheck
+from chainsim.systems.engine import reorder as ro
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.meshes import MeshData, MeshError, load_file
+from chainsim.systems.engine.reorder import reorder_mesh
+from chainsim.systems.engine.tetra import TetraError, tetrahedralize
 
 GRAPH_EXT = ".npz"
 
@@ -50,7 +50,7 @@ def load_mesh(
 
     kind: "surface" (triangle links), "volume" (tetrahedra; a closed surface is filled with the built-in
     tetrahedraliser, cube size `pitch` or `cells` along the longest side), or "auto" (as the file is).
-    reorder: None, "rcm" or "morton" (chainsim.engine.reorder).
+    reorder: None, "rcm" or "morton" (chainsim.systems.engine.reorder).
     """
     where = where or str(path)
     try:

@@ -1,7 +1,7 @@
 """Rays and triangle meshes without GL: ray-triangle hits, nearest surface point, triangles of live links.
 
 A vectorised two-sided Moller-Trumbore over every triangle (in chunks, to bound memory); the picking
-system (chainsim.systems.picking) runs it on the meshes the renderer draws.
+system (chainsim.systems.view.picking) runs it on the meshes the renderer draws.
 """
 
 from __future__ import annotations

@@ -17,8 +17,8 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-from chainsim.engine import meshgen
-from chainsim.engine.meshes import MeshData
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.meshes import MeshData
 
 METHODS = ("rcm", "morton")
 

@@ -13,8 +13,8 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike
 
-from chainsim.engine import meshgen
-from chainsim.engine.meshes import MeshData, boundary_triangles
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.meshes import MeshData, boundary_triangles
 
 #: default number of cells along the longest side when no pitch is given
 DEFAULT_CELLS = 16

@@ -5,7 +5,7 @@ result on disk (cache=True). The kernels come in groups (`GROUPS`), each run onc
 with every argument type the app passes. `warm_up()` runs them in this process with a progress bar;
 with a warm cache that costs a fraction of a second (loading the cached machine code).
 
-`Compiler` runs the groups in child processes instead (`python -m chainsim.engine.warmup`, one
+`Compiler` runs the groups in child processes instead (`python -m chainsim.systems.engine.warmup`, one
 group at a time on request, `PROCESSES` of them taking the next group as each finishes): the window
 opens at once and reads the progress while they work, and a process holds no lock another needs
 (a thread compiling in the window's process would hold the GIL for seconds at a time). The groups a
@@ -29,23 +29,23 @@ from collections.abc import Callable, Iterable
 import numba
 import numpy as np
 
-from chainsim.engine.bodies.chainmail import ChainMailBody
-from chainsim.engine.bodies.hybrid import HybridBody
-from chainsim.engine.bodies.projective import ProjectiveBody
-from chainsim.engine.bodies.surface import SurfaceChainMailBody
-from chainsim.engine.bodies.xpbd import XPBDBody
-from chainsim.engine.chainmail_params import ORDERS
-from chainsim.engine.kernels import waves
-from chainsim.engine.kernels.chainmail import cascade
-from chainsim.engine.kernels.normals import (
+from chainsim.systems.engine.bodies.chainmail import ChainMailBody
+from chainsim.systems.engine.bodies.hybrid import HybridBody
+from chainsim.systems.engine.bodies.projective import ProjectiveBody
+from chainsim.systems.engine.bodies.surface import SurfaceChainMailBody
+from chainsim.systems.engine.bodies.xpbd import XPBDBody
+from chainsim.systems.engine.chainmail_params import ORDERS
+from chainsim.systems.engine.kernels import waves
+from chainsim.systems.engine.kernels.chainmail import cascade
+from chainsim.systems.engine.kernels.normals import (
     PARALLEL_THREADS,
     _normals_parallel,
     moved_normals_kernel,
     vertex_normals_kernel,
 )
-from chainsim.engine.meshgen import tet_grid, triangulated_grid
-from chainsim.engine.progress import progress
-from chainsim.engine.segment_tree import SegmentTree
+from chainsim.systems.engine.meshgen import tet_grid, triangulated_grid
+from chainsim.systems.engine.progress import progress
+from chainsim.systems.engine.segment_tree import SegmentTree
 
 #: child processes compiling at once (a third would only share the same cores on a two-core machine)
 PROCESSES = max(1, min(2, os.cpu_count() or 1))
@@ -313,7 +313,7 @@ class Compiler:
         retired = False
         try:
             proc = subprocess.Popen(
-                [sys.executable, "-m", "chainsim.engine.warmup", "--child"],
+                [sys.executable, "-m", "chainsim.systems.engine.warmup", "--child"],
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 stderr=subprocess.DEVNULL,

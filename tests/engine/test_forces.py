@@ -9,11 +9,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from chainsim.engine.bodies.chainmail import ChainMailBody
-from chainsim.engine.bodies.projective import ProjectiveBody
-from chainsim.engine.bodies.xpbd import XPBDBody, tet_rest_data
-from chainsim.engine.kernels.xpbd import tet_forces
-from chainsim.engine.meshgen import tet_grid
+from chainsim.systems.engine.bodies.chainmail import ChainMailBody
+from chainsim.systems.engine.bodies.projective import ProjectiveBody
+from chainsim.systems.engine.bodies.xpbd import XPBDBody, tet_rest_data
+from chainsim.systems.engine.kernels.xpbd import tet_forces
+from chainsim.systems.engine.meshgen import tet_grid
 from chainsim.tools.study import scenes as sc
 from chainsim.tools.study.fem_linear import LinearFEM
 
@@ -117,7 +117,7 @@ def test_projective_converged_grab_force_within_5_percent_of_linear_fem(linear_r
 
 
 def test_surface_xpbd_forces_are_minus_the_spring_gradient():
-    from chainsim.engine.meshgen import triangulated_grid
+    from chainsim.systems.engine.meshgen import triangulated_grid
 
     pos, tris = triangulated_grid(3, 3, dim=3)[:2]
     b = XPBDBody(pos, triangles=tris, E=1e4)

@@ -1,4 +1,4 @@
-"""The two-level tissue body (chainsim.engine.bodies.hybrid) and its kernels, against plain references
+"""The two-level tissue body (chainsim.systems.engine.bodies.hybrid) and its kernels, against plain references
 written here: trilinear weights from the textbook formula, the element stiffness from finite differences
 of the projective body's own forces and from an independent linear FEM, the wake front from a
 breadth-first search, and the settled shape from projective dynamics solved to convergence."""
@@ -10,13 +10,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine.bodies.factory import make_body
-from chainsim.engine.bodies.hybrid import HybridBody
-from chainsim.engine.bodies.projective import ProjectiveBody
-from chainsim.engine.errors import UserError
-from chainsim.engine.kernels.graph import build_graph
-from chainsim.engine.kernels.twolevel import trilinear_weights, wake_front
-from chainsim.engine.meshgen import links_from_cells, tet_grid
+from chainsim.systems.engine.bodies.factory import make_body
+from chainsim.systems.engine.bodies.hybrid import HybridBody
+from chainsim.systems.engine.bodies.projective import ProjectiveBody
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.kernels.graph import build_graph
+from chainsim.systems.engine.kernels.twolevel import trilinear_weights, wake_front
+from chainsim.systems.engine.meshgen import links_from_cells, tet_grid
 
 
 def _block(n=5, spacing=1.0):
@@ -209,8 +209,8 @@ def test_settings_are_checked_and_the_factory_builds_it():
 def test_local_forces_match_the_projective_local_step_on_the_listed_elements(seed, rot, scale):
     """With no refinement both use the given rotations; refined to convergence both reach F's polar
     rotation (their updates differ on the way: the batched one has no trigonometry)."""
-    from chainsim.engine.kernels.projective import local_step
-    from chainsim.engine.kernels.twolevel import local_forces
+    from chainsim.systems.engine.kernels.projective import local_step
+    from chainsim.systems.engine.kernels.twolevel import local_forces
 
     pos, tets, _, _ = _block(3)
     rng = np.random.default_rng(seed)

@@ -9,12 +9,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from chainsim.engine.bodies.projective import ProjectiveBody
-from chainsim.engine.bodies.xpbd import MAX_SUBSTEPS, XPBDBody, tet_rest_data
-from chainsim.engine.errors import UserError
-from chainsim.engine.kernels.projective import extract_rotation, local_step
-from chainsim.engine.kernels.xpbd import distance_sweep, tet_sweep
-from chainsim.engine.meshgen import tet_grid, triangulated_grid
+from chainsim.systems.engine.bodies.projective import ProjectiveBody
+from chainsim.systems.engine.bodies.xpbd import MAX_SUBSTEPS, XPBDBody, tet_rest_data
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.kernels.projective import extract_rotation, local_step
+from chainsim.systems.engine.kernels.xpbd import distance_sweep, tet_sweep
+from chainsim.systems.engine.meshgen import tet_grid, triangulated_grid
 from chainsim.tools.study import scenes as sc
 from chainsim.tools.study.fem_nonlinear import solve_neohookean
 from chainsim.tools.study.metrics import displacement_error
@@ -270,7 +270,7 @@ def test_step_refuses_a_bad_dt():
     st.floats(1e-4, 1e-1),
 )
 def test_stvk_sweep_matches_a_plain_reference(noise, w, E, nu, h):
-    from chainsim.engine.kernels.xpbd import stvk_sweep
+    from chainsim.systems.engine.kernels.xpbd import stvk_sweep
 
     x = REF_TET + noise
     tets = np.array([[0, 1, 2, 3]])

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from test_projective_energy import lame, minimise
 
-from chainsim.engine.bodies import projective
-from chainsim.engine.bodies.projective import ProjectiveBody
-from chainsim.engine.errors import UserError
-from chainsim.engine.meshgen import tet_grid, triangulated_grid
+from chainsim.systems.engine.bodies import projective
+from chainsim.systems.engine.bodies.projective import ProjectiveBody
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.meshgen import tet_grid, triangulated_grid
 
 PULL = 0.1  # of the block's height
 

@@ -17,8 +17,8 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from chainsim.engine.bodies.projective import ProjectiveBody
-from chainsim.engine.meshgen import tet_grid
+from chainsim.systems.engine.bodies.projective import ProjectiveBody
+from chainsim.systems.engine.meshgen import tet_grid
 
 
 def lame(E, nu):

@@ -9,9 +9,9 @@ import scipy.sparse as sp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine.bodies.projective import ProjectiveBody
-from chainsim.engine.errors import UserError
-from chainsim.engine.kernels.projective import extract_rotation, pcg3, spmv3
+from chainsim.systems.engine.bodies.projective import ProjectiveBody
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.kernels.projective import extract_rotation, pcg3, spmv3
 from chainsim.tools.study import scenes as sc
 
 
@@ -129,7 +129,7 @@ def test_bad_solver_settings_are_refused(kwargs, word):
 
 
 def test_make_body_passes_the_solver_settings():
-    from chainsim.engine.bodies.factory import make_body
+    from chainsim.systems.engine.bodies.factory import make_body
 
     s = sc.block(5)
     b = make_body("projective", s.pos, tets=s.tets, solver="cg", cg_iterations=7, rotation_iterations=2, dynamic=False)

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from test_projective_energy import gradient, lame, minimise
 
-from chainsim.engine.bodies.projective import ProjectiveBody
-from chainsim.engine.meshgen import tet_grid
+from chainsim.systems.engine.bodies.projective import ProjectiveBody
+from chainsim.systems.engine.meshgen import tet_grid
 
 MESHES = {"30mm-5mm": (7, 5.0), "4mm-1mm": (5, 1.0)}
 

@@ -9,14 +9,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from chainsim.components.deformable import Deformable, use_model
 from chainsim.components.resources import EntityIndex, PendingInput
-from chainsim.engine.bodies.factory import make_body
-from chainsim.engine.bodies.surface import clamp_pass
-from chainsim.engine.kernels.graph import build_graph
-from chainsim.engine.meshgen import links_from_cells, triangulated_grid
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script
+from chainsim.systems.engine.bodies.factory import make_body
+from chainsim.systems.engine.bodies.surface import clamp_pass
+from chainsim.systems.engine.kernels.graph import build_graph
+from chainsim.systems.engine.meshgen import links_from_cells, triangulated_grid
+from chainsim.systems.tissue.deformable import Deformable, use_model
 from tests.packs.test_cutting import CORNER, CUT_X, SCRIPTS, nearest
 
 

@@ -16,10 +16,10 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.optimize import minimize
 
-from chainsim.engine.bodies.xpbd import XPBDBody, tet_rest_data
-from chainsim.engine.errors import UserError
-from chainsim.engine.kernels.xpbd import corot_forces, corot_sweep
-from chainsim.engine.meshgen import tet_grid
+from chainsim.systems.engine.bodies.xpbd import XPBDBody, tet_rest_data
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.kernels.xpbd import corot_forces, corot_sweep
+from chainsim.systems.engine.meshgen import tet_grid
 
 FRAME = 1.0 / 60.0
 

@@ -105,7 +105,7 @@ _AS_NOBODY = r"""
 import contextlib, io, json, os, sys, tempfile
 import numpy as np
 import chainsim.game.cli.main as main
-from chainsim.engine import meshgen
+from chainsim.systems.engine import meshgen
 
 scratch = tempfile.mkdtemp()
 pos, links = meshgen.grid((3, 3))

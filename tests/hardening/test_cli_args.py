@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from chainsim.engine import meshgen
+from chainsim.systems.engine import meshgen
 
 from .conftest import assert_one_line_error, chainsim
 

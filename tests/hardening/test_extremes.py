@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from chainsim.components.core import MeshRef
+from chainsim.components.digest import world_digest
 from chainsim.components.input_events import (
     Key,
     MouseButton,
@@ -26,9 +27,8 @@ from chainsim.components.input_events import (
     Widget,
 )
 from chainsim.components.resources import EntityIndex, PackResource, PendingInput
-from chainsim.engine import limits
-from chainsim.game.app.digest import world_digest
 from chainsim.game.app.headless import build_app
+from chainsim.systems.engine import limits
 
 BIG = limits.MAX_COORD
 

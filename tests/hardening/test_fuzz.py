@@ -30,11 +30,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from chainsim.components.registry import COMPONENTS, SECTIONS, load_all
-from chainsim.engine import limits
-from chainsim.engine.errors import UserError
-from chainsim.engine.meshes import MeshError, load_file
-from chainsim.engine.meshimport import load_graph
 from chainsim.game.app.headless import validate_pack
+from chainsim.systems.engine import limits
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.meshes import MeshError, load_file
+from chainsim.systems.engine.meshimport import load_graph
 
 from .conftest import BASE_PACK
 

@@ -8,7 +8,8 @@ import pytest
 
 import chainsim.game.packs.schema  # noqa: F401  (registers the manifest sections)
 from chainsim.components.registry import COMPONENTS, SECTIONS, FieldError, convert, load_all
-from chainsim.engine import limits
+from chainsim.systems import manifest_modules
+from chainsim.systems.engine import limits
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "limits.md"
 
@@ -25,7 +26,7 @@ def test_every_limit_is_listed_with_its_value():
 
 
 def _fields():
-    load_all()
+    load_all(manifest_modules())
     for schema in list(SECTIONS.values()) + list(COMPONENTS.values()):
         for f in schema.fields:
             yield schema.name, f
@@ -55,7 +56,7 @@ def test_every_number_a_manifest_takes_is_finite_and_bounded(where, f):
 
 
 def test_counts_that_multiply_run_time_have_their_documented_limits():
-    load_all()
+    load_all(manifest_modules())
     assert SECTIONS["settings"].field("steps").max == limits.MAX_STEPS
     assert SECTIONS["materials"].field("relax").max == limits.MAX_RELAX
     assert COMPONENTS["deformable"].field("relax").max == limits.MAX_RELAX

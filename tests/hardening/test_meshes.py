@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 
-from chainsim.engine.meshes import MeshError, load_file
+from chainsim.systems.engine.meshes import MeshError, load_file
 
 from . import badfiles as bf
 from .conftest import assert_one_line_error
@@ -159,7 +159,7 @@ def test_bombs_are_small_files(tmp_path):
 def test_a_valid_compressed_vtu_within_the_limit_still_loads(tmp_path):
     import meshio
 
-    from chainsim.engine import meshgen
+    from chainsim.systems.engine import meshgen
 
     p, tets, _ = meshgen.tet_grid(5, 5, 5)
     for kw in ({"compression": "zlib"}, {"compression": "lzma"}, {"binary": False}):

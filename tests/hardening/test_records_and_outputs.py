@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from chainsim.engine import meshgen
-from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import build_app
 from chainsim.game.records.store import RecordStore
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.errors import UserError
 
 from .conftest import ROOT, assert_one_line_error
 

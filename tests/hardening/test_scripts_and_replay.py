@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from chainsim.engine import limits
+from chainsim.systems.engine import limits
 
 from .conftest import ROOT, assert_one_line_error, chainsim
 

@@ -10,7 +10,7 @@ from collections import deque
 
 import numpy as np
 
-from chainsim.engine import meshgen
+from chainsim.systems.engine import meshgen
 
 
 def adjacency(n, links, alive):

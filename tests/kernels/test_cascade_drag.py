@@ -10,8 +10,8 @@ from cascade_reference import MESH_KINDS, random_mesh, ref_cascade
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine.bodies.chainmail import ChainMailBody
-from chainsim.engine.kernels.chainmail import material_arrays
+from chainsim.systems.engine.bodies.chainmail import ChainMailBody
+from chainsim.systems.engine.kernels.chainmail import material_arrays
 
 SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

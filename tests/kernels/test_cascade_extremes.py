@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from cascade_reference import box, random_mesh, ref_cascade
 
-from chainsim.engine import meshgen
-from chainsim.engine.kernels.chainmail import (
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.kernels.chainmail import (
     ORDER_BALANCED,
     ORDER_BREADTH_FIRST,
     ORDER_DEPTH_FIRST,
@@ -17,7 +17,7 @@ from chainsim.engine.kernels.chainmail import (
     make_workspace,
     material_arrays,
 )
-from chainsim.engine.kernels.graph import build_graph, components
+from chainsim.systems.engine.kernels.graph import build_graph, components
 
 ORDERS = (ORDER_BREADTH_FIRST, ORDER_BALANCED, ORDER_SCHILL, ORDER_DEPTH_FIRST)
 

@@ -10,7 +10,7 @@ from cascade_reference import MESH_KINDS, box, random_mesh, ref_cascade
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine.kernels.chainmail import (
+from chainsim.systems.engine.kernels.chainmail import (
     ORDER_BALANCED,
     ORDER_BREADTH_FIRST,
     ORDER_DEPTH_FIRST,
@@ -19,7 +19,7 @@ from chainsim.engine.kernels.chainmail import (
     make_workspace,
     material_arrays,
 )
-from chainsim.engine.kernels.graph import build_graph
+from chainsim.systems.engine.kernels.graph import build_graph
 
 SETTINGS = settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

@@ -8,10 +8,10 @@ from cascade_reference import random_mesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine import meshgen
-from chainsim.engine.kernels.chainmail import cascade, material_arrays
-from chainsim.engine.kernels.graph import build_graph, components, degree
-from chainsim.engine.kernels.topology import add_links, cut_path, cut_plane_strip, cut_segment
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.kernels.chainmail import cascade, material_arrays
+from chainsim.systems.engine.kernels.graph import build_graph, components, degree
+from chainsim.systems.engine.kernels.topology import add_links, cut_path, cut_plane_strip, cut_segment
 
 
 def segments_cross(a, b, p, q):

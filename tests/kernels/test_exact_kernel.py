@@ -13,8 +13,8 @@ from exact_reference import link_terms, reach, ref_exact
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine import meshgen
-from chainsim.engine.kernels.chainmail import (
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.kernels.chainmail import (
     ORDER_BALANCED,
     ORDER_BREADTH_FIRST,
     ORDER_DEPTH_FIRST,
@@ -23,8 +23,8 @@ from chainsim.engine.kernels.chainmail import (
     make_workspace,
     material_arrays,
 )
-from chainsim.engine.kernels.exact import exact_limits, exact_move, violations
-from chainsim.engine.kernels.graph import build_graph
+from chainsim.systems.engine.kernels.exact import exact_limits, exact_move, violations
+from chainsim.systems.engine.kernels.graph import build_graph
 
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 ORDERS = (ORDER_BREADTH_FIRST, ORDER_BALANCED, ORDER_SCHILL, ORDER_DEPTH_FIRST)

@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from numba import njit
 
-from chainsim.engine.kernels.chainmail import (
+from chainsim.systems.engine.kernels.chainmail import (
     _NO_FIXED,
     ORDER_BREADTH_FIRST,
     _cascade_fifo,
@@ -19,8 +19,8 @@ from chainsim.engine.kernels.chainmail import (
     make_workspace,
     material_arrays,
 )
-from chainsim.engine.kernels.gather import LANES, lowest_bit, mask_of
-from chainsim.engine.kernels.graph import build_graph
+from chainsim.systems.engine.kernels.gather import LANES, lowest_bit, mask_of
+from chainsim.systems.engine.kernels.graph import build_graph
 
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

@@ -7,10 +7,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine import meshgen
-from chainsim.engine.kernels.chainmail import cascade, material_arrays
-from chainsim.engine.kernels.gibson import gibson_grid_move, relative_grid_move
-from chainsim.engine.kernels.graph import build_graph
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.kernels.chainmail import cascade, material_arrays
+from chainsim.systems.engine.kernels.gibson import gibson_grid_move, relative_grid_move
+from chainsim.systems.engine.kernels.graph import build_graph
 
 SHAPES = [(7, 5), (4, 6), (4, 3, 5), (5, 4, 3)]
 

@@ -10,10 +10,10 @@ from cascade_reference import random_mesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine import meshgen
-from chainsim.engine.kernels import topology
-from chainsim.engine.kernels.chainmail import material_arrays
-from chainsim.engine.kernels.graph import build_graph
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.kernels import topology
+from chainsim.systems.engine.kernels.chainmail import material_arrays
+from chainsim.systems.engine.kernels.graph import build_graph
 
 
 def assert_in_step(graph):

@@ -15,11 +15,11 @@ from cascade_reference import MESH_KINDS, random_mesh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine import meshgen
-from chainsim.engine.kernels import waves
-from chainsim.engine.kernels.chainmail import ORDER_BREADTH_FIRST, cascade, make_workspace, material_arrays
-from chainsim.engine.kernels.graph import build_graph
-from chainsim.engine.kernels.lean import LeanWorkspace, lean_move
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.kernels import waves
+from chainsim.systems.engine.kernels.chainmail import ORDER_BREADTH_FIRST, cascade, make_workspace, material_arrays
+from chainsim.systems.engine.kernels.graph import build_graph
+from chainsim.systems.engine.kernels.lean import LeanWorkspace, lean_move
 
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -151,10 +151,10 @@ def monkeypatch_session():
 SCRIPT = """
 import hashlib, sys
 import numpy as np
-from chainsim.engine import meshgen
-from chainsim.engine.kernels import waves
-from chainsim.engine.kernels.chainmail import cascade, material_arrays
-from chainsim.engine.kernels.graph import build_graph
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.kernels import waves
+from chainsim.systems.engine.kernels.chainmail import cascade, material_arrays
+from chainsim.systems.engine.kernels.graph import build_graph
 waves.PARALLEL_MIN = 0
 rest, _, links = meshgen.tet_grid(9, 8, 7)
 graph = build_graph(len(rest), links)

@@ -10,9 +10,9 @@ from cascade_reference import MESH_KINDS, random_mesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine.kernels.chainmail import cascade, material_arrays
-from chainsim.engine.kernels.graph import build_graph
-from chainsim.engine.kernels.relax import relax
+from chainsim.systems.engine.kernels.chainmail import cascade, material_arrays
+from chainsim.systems.engine.kernels.graph import build_graph
+from chainsim.systems.engine.kernels.relax import relax
 
 
 def numpy_relax(rest, pos, links, alive, active, iterations, step, fixed):

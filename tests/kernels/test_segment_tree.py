@@ -1,4 +1,4 @@
-"""The swept segment-triangle kernel of chainsim.systems.collision against a brute-force reference (thesis 3.3.6)."""
+"""The swept segment-triangle kernel of the needle procedure's collision against a brute-force one (thesis 3.3.6)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine.segment_tree import SegmentTree
+from chainsim.systems.engine.segment_tree import SegmentTree
 
 
 def brute_first_hit(p0, p1, vertices, triangles):

@@ -6,9 +6,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine import meshgen
-from chainsim.engine.kernels.graph import build_graph
-from chainsim.engine.kernels.surface import cylinder, normal_cascade, surface_move, surface_points
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.kernels.graph import build_graph
+from chainsim.systems.engine.kernels.surface import cylinder, normal_cascade, surface_move, surface_points
 
 
 def ref_normal_cascade(disp, links, rest_len, grab, target, shear):

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from chainsim.engine import meshgen
-from chainsim.engine.kernels.chainmail import cascade, make_workspace, material_arrays
-from chainsim.engine.kernels.graph import build_graph
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.kernels.chainmail import cascade, make_workspace, material_arrays
+from chainsim.systems.engine.kernels.graph import build_graph
 
 
 def test_new_arrays_are_checked_even_after_a_good_call_with_the_same_workspace():

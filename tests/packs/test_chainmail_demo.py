@@ -7,11 +7,11 @@ import esper
 import numpy as np
 import pytest
 
-from chainsim.components.deformable import Deformable, Pull
 from chainsim.components.resources import PackResource, PendingInput
 from chainsim.game.app.headless import build_app, run_pack
 from chainsim.game.app.inputscript import load_script
 from chainsim.game.packs import pack as packs
+from chainsim.systems.tissue.deformable import Deformable, Pull
 
 SCENES = ("patch", "brain", "volume")
 STEPS = 240
@@ -136,7 +136,7 @@ def volume_reference():
 
 
 def _pull_error(ref, model: str, frames: int, **settings) -> float:
-    from chainsim.engine.bodies.factory import make_body
+    from chainsim.systems.engine.bodies.factory import make_body
     from chainsim.tools.study.metrics import displacement_error
 
     rest, tets, fixed, g, u_ref = ref

@@ -11,12 +11,12 @@ import esper
 import numpy as np
 import pytest
 
-from chainsim.components.deformable import Deformable
+from chainsim.components.digest import world_digest
 from chainsim.components.resources import Assessment, EntityIndex, PendingInput, Settings
-from chainsim.game.app.digest import world_digest
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script
 from chainsim.game.packs import pack as packs
+from chainsim.systems.tissue.deformable import Deformable
 
 PACK = Path(__file__).resolve().parents[2] / "assets" / "cutting"
 SCRIPTS = PACK / "scripts"

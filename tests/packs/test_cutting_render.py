@@ -25,7 +25,7 @@ def cut_frame():
     except GLUnavailable as e:
         pytest.skip(f"no EGL OpenGL 3.3 context: {e}")
     from chainsim.game.gl.render_system import draw, read_pixels
-    from chainsim.systems.view import ViewState
+    from chainsim.systems.view.cameras import ViewState
 
     app = build_app("cutting", render=True)
     try:

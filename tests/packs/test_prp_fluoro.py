@@ -15,14 +15,14 @@ import esper
 import numpy as np
 import pytest
 
-from chainsim.components.fluoro import DOSE_RATE_MGY_S, SHOT_S, CArm
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, Widget
 from chainsim.components.resources import Assessment, EntityIndex, PendingInput
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script
+from chainsim.systems.procedures.needle.carm import DOSE_RATE_MGY_S, SHOT_S, CArm
 from chainsim.systems.procedures.needle.fluoro import OBLIQUE_DEG
-from chainsim.systems.ui.viewports import carm_source_direction
+from chainsim.systems.view.ui.viewports import carm_source_direction
 
 ROOT = Path(__file__).resolve().parents[2]
 PACK = Path(os.environ.get("CHAINSIM_PRP_TEST_PACK", ROOT / "assets" / "prp"))
@@ -86,7 +86,7 @@ def test_projections_point_the_beam_as_surgeons_use_them():
 
 
 def test_a_drag_in_the_carm_view_turns_the_arm_and_makes_it_free():
-    from chainsim.systems.view import ViewState
+    from chainsim.systems.view.cameras import ViewState
 
     app = build_app(str(PACK), size=(1280, 800))
     vs = app.resource(ViewState)

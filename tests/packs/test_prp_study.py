@@ -17,7 +17,7 @@ from chainsim.game.cli.commands.protocol import load_protocol
 from chainsim.game.records.store import RecordStore
 from chainsim.game.ui.questionnaire import POST, PRE
 from chainsim.game.ui.study import StudySession, latin_row, plan
-from chainsim.systems.ui.widgets import WidgetState
+from chainsim.systems.view.ui.widgets import WidgetState
 
 ROOT = Path(__file__).resolve().parents[2]
 PACK = Path(os.environ.get("CHAINSIM_PRP_TEST_PACK", ROOT / "assets" / "prp"))

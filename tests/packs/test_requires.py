@@ -170,7 +170,7 @@ def test_a_cycle_at_the_bottom_of_a_diamond_is_found(tmp_path, cli):
 
 
 def test_more_required_packs_than_the_limit_is_one_line(tmp_path, cli, monkeypatch):
-    from chainsim.engine import limits
+    from chainsim.systems.engine import limits
 
     monkeypatch.setattr(limits, "MAX_REQUIRED_PACKS", 5)
     top = _diamond(tmp_path, 4)

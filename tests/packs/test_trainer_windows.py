@@ -10,16 +10,16 @@ import numpy as np
 import pytest
 
 from chainsim.components.core import Marker, PolyLine, Transform
-from chainsim.components.deformable import Deformable, Pull
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, Resize, Widget
 from chainsim.components.resources import EntityIndex, PackResource, PendingInput
 from chainsim.game.app.headless import build_app
 from chainsim.systems.procedures.cutting.state import CuttingState
 from chainsim.systems.procedures.cutting.steps import tissue_bounds
-from chainsim.systems.ui import docbox
-from chainsim.systems.ui.viewports import box_corners
-from chainsim.systems.view import FIT_MARGIN, FIT_TOP, FIT_TOP_MAIN, ViewState, main_view
+from chainsim.systems.tissue.deformable import Deformable, Pull
+from chainsim.systems.view.cameras import FIT_MARGIN, FIT_TOP, FIT_TOP_MAIN, ViewState, main_view
+from chainsim.systems.view.ui import docbox
+from chainsim.systems.view.ui.viewports import box_corners
 
 
 def send(app, *events, steps: int = 3) -> None:
@@ -120,7 +120,7 @@ def test_the_cutting_help_button_opens_the_page_of_the_current_step(cutting):
 
 
 def test_f1_leads_on_to_the_help_pages(cutting):
-    from chainsim.systems.view import page_buttons
+    from chainsim.systems.view.cameras import page_buttons
 
     hud = cutting.resource(HudState)
     send(cutting, Key("f1", True), Key("f1", False))

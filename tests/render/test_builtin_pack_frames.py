@@ -21,7 +21,7 @@ def _scenes():
 
 @pytest.mark.parametrize("ref", _scenes())
 def test_scene_renders_a_frame(ref):
-    from chainsim.systems.view import ViewState
+    from chainsim.systems.view.cameras import ViewState
 
     app = open_app(ref, size=(320, 200))
     try:
@@ -55,9 +55,9 @@ def test_window_view_images_and_layers_draw_what_a_fresh_frame_draws(ref, script
     instrument drawn over the image of the rest). Through a whole scripted attempt - landmarks,
     aiming, insertion, X-rays; cuts, pulls, a flap opened - every sampled frame equals the same frame
     drawn afresh, but for a pixel or two where a moving item meets another surface at equal depth."""
+    from chainsim.components.loader import PackResource
     from chainsim.components.resources import PendingInput
     from chainsim.game.app.inputscript import load_script
-    from chainsim.game.app.loader import PackResource
     from chainsim.game.gl import render_system as render
     from chainsim.game.gl.renderer import Renderer
 

@@ -28,7 +28,7 @@ def test_every_line_of_the_debrief_is_inside_the_window(pack, size):
     from chainsim.game.gl import panelview
     from chainsim.game.gl.render_system import draw, read_pixels
     from chainsim.game.gl.renderer import Renderer
-    from chainsim.systems.view import ViewState
+    from chainsim.systems.view.cameras import ViewState
 
     app = build_app(pack, render=True, size=size)
     try:

@@ -19,7 +19,7 @@ from chainsim.components.input_events import Widget
 from chainsim.components.resources import Assessment, PendingInput
 from chainsim.game.app.inputscript import load_script
 from chainsim.game.gl.fluoro import grey
-from chainsim.systems.ui.viewports import Rect, carm_camera
+from chainsim.systems.view.ui.viewports import Rect, carm_camera
 
 ROOT = Path(__file__).resolve().parents[2]
 PACK = ROOT / "assets" / "prp"
@@ -166,7 +166,7 @@ def test_the_big_xray_key_enlarges_the_monitor_and_its_images():
     """v (the Big X-ray button): the C-arm view takes the surgeon's view's place, then the whole window,
     then the layout comes back; a large view gets images of 1024 pixels a side."""
     from chainsim.game.gl.fluoro import IMAGE_PX, LARGE_IMAGE_PX, image_size
-    from chainsim.systems.view import ViewState
+    from chainsim.systems.view.cameras import ViewState
 
     app = open_app(str(PACK))
     try:

@@ -9,9 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_normals_kernel import reference_normals
 
-from chainsim.engine.meshgen import triangulated_grid
 from chainsim.game.gl import meshbuf
 from chainsim.game.gl.gpunormals import GpuNormals, corner_incidence
+from chainsim.systems.engine.meshgen import triangulated_grid
 
 
 @pytest.fixture

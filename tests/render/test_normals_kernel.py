@@ -4,7 +4,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine.kernels.normals import moved_normals_kernel, vertex_normals_kernel
+from chainsim.systems.engine.kernels.normals import moved_normals_kernel, vertex_normals_kernel
 
 
 def reference_normals(pos, tris):
@@ -70,8 +70,8 @@ def test_moved_normals_renew_exactly_the_affected_vertices(seed, n, f, k):
 def test_gathered_normals_match_the_reference_and_the_serial_kernel(seed, n, f, dtype):
     """The gathering kernel (each vertex sums its own faces: the parallel path for whole-mesh uploads)
     against the plain reference, and bit for bit against the serial kernel: same sums in the same order."""
-    from chainsim.engine.kernels.normals import _gather
     from chainsim.game.gl.meshbuf import incidence
+    from chainsim.systems.engine.kernels.normals import _gather
 
     rng = np.random.default_rng(seed)
     pos, tris = random_mesh(rng, n, f)
@@ -87,8 +87,8 @@ def test_gathered_normals_match_the_reference_and_the_serial_kernel(seed, n, f, 
 def test_parallel_normals_are_the_same_for_any_thread_count(monkeypatch):
     import numba
 
-    from chainsim.engine.kernels import normals
     from chainsim.game.gl.meshbuf import incidence
+    from chainsim.systems.engine.kernels import normals
 
     monkeypatch.setattr(normals, "PARALLEL_TRIANGLES", 0)
     monkeypatch.setattr(normals, "PARALLEL_THREADS", 2)

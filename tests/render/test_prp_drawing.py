@@ -13,9 +13,9 @@ CAMERAS = [(35.0, 10.0, 420.0), (200.0, 20.0, 420.0), (90.0, -30.0, 300.0), (0.0
 
 @pytest.fixture(scope="module")
 def prp_app():
+    from chainsim.components.loader import PackResource
     from chainsim.components.resources import PendingInput
     from chainsim.game.app.inputscript import load_script
-    from chainsim.game.app.loader import PackResource
     from chainsim.game.gl import render_system as render
 
     app = open_app("prp", size=(640, 400))
@@ -35,7 +35,7 @@ def _pixels(app) -> np.ndarray:
 
 
 def _camera(app, yaw, pitch, distance):
-    from chainsim.systems.view import ViewState
+    from chainsim.systems.view.cameras import ViewState
 
     cam = app.resource(ViewState).get("surgeon").camera
     cam.yaw, cam.pitch, cam.distance = yaw, pitch, distance
@@ -112,12 +112,12 @@ def test_landmark_labels_show_where_their_point_can_be_seen(see_through):
     import trimesh
 
     from chainsim.components.input_events import Widget
+    from chainsim.components.loader import PackResource
     from chainsim.components.resources import PendingInput
     from chainsim.game.app.inputscript import load_script
-    from chainsim.game.app.loader import PackResource
     from chainsim.game.gl import render_system as render
     from chainsim.game.gl.renderer import Renderer
-    from chainsim.systems.view import ViewState
+    from chainsim.systems.view.cameras import ViewState
 
     app = open_app("prp", size=(640, 400))
     try:

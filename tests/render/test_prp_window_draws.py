@@ -13,9 +13,9 @@ from tests.render.conftest import open_app
 @pytest.mark.parametrize("see_through", [False, True])
 def test_turning_a_dial_draws_the_same_frames_with_and_without_the_shortcuts(see_through):
     from chainsim.components.input_events import Widget
+    from chainsim.components.loader import PackResource
     from chainsim.components.resources import PendingInput
     from chainsim.game.app.inputscript import load_script
-    from chainsim.game.app.loader import PackResource
     from chainsim.game.gl import render_system as render
     from chainsim.game.gl.renderer import Renderer
 

@@ -7,7 +7,7 @@ from conftest import frame_pixels, open_app
 from chainsim.components.input_events import MouseButton
 from chainsim.components.resources import PendingInput
 from chainsim.components.view_events import Picked
-from chainsim.systems.picking import pick
+from chainsim.systems.view.picking import pick
 
 THREE_VIEWS = """
 [layouts.three]
@@ -87,7 +87,7 @@ def test_silhouette_lands_where_the_camera_math_projects_it(make_pack):
     from matplotlib.path import Path as MPath
     from scipy.spatial import ConvexHull
 
-    from chainsim.systems.view import ViewState
+    from chainsim.systems.view.cameras import ViewState
 
     app = open_app(make_pack(BOX), size=(320, 240))
     try:
@@ -235,7 +235,7 @@ def test_xray_toggle_makes_a_layer_see_through(make_pack):
 def test_cpu_pick_returns_the_triangle_the_renderer_shows(gl_ctx):
     from chainsim.game.gl.render_system import RenderTarget
     from chainsim.game.gl.renderer import Renderer
-    from chainsim.systems.view import ViewState
+    from chainsim.systems.view.cameras import ViewState
 
     app = open_app("loop-demo", size=(480, 300))
     try:
@@ -313,9 +313,9 @@ fov = 40.0
 def test_deformed_vertices_are_uploaded_in_place_with_fresh_normals(make_pack):
     import esper
 
-    from chainsim.components.deformable import Deformable
     from chainsim.game.gl.meshbuf import vertex_normals
     from chainsim.game.gl.renderer import Renderer
+    from chainsim.systems.tissue.deformable import Deformable
 
     app = open_app(make_pack(DEFORM), size=(200, 200))
     try:
@@ -348,9 +348,9 @@ def test_deformed_vertices_are_uploaded_in_place_with_fresh_normals(make_pack):
 def test_cut_links_hide_their_triangles_in_drawing_and_picking(make_pack):
     import esper
 
-    from chainsim.components.deformable import Deformable
     from chainsim.game.gl.renderer import Renderer
-    from chainsim.systems.view import ViewState
+    from chainsim.systems.tissue.deformable import Deformable
+    from chainsim.systems.view.cameras import ViewState
 
     app = open_app(make_pack(DEFORM), size=(200, 200))
     try:
@@ -391,8 +391,8 @@ def test_partial_uploads_match_a_full_recompute_on_random_patches(gl_ctx):
     from hypothesis import given, settings
     from hypothesis import strategies as st
 
-    from chainsim.engine.meshgen import triangulated_grid
     from chainsim.game.gl.meshbuf import GpuMesh, runs, vertex_normals
+    from chainsim.systems.engine.meshgen import triangulated_grid
 
     pos0, tris, _ = triangulated_grid(15, 12, 2.0, dim=3)
     pos0 = np.asarray(pos0, float)
@@ -543,7 +543,7 @@ value = true
 def test_indicator_lights_show_the_hud_state(make_pack):
     from chainsim.components.hud import HudState
     from chainsim.game.gl.renderer import LIGHT_RGBA
-    from chainsim.systems.view import ViewState
+    from chainsim.systems.view.cameras import ViewState
 
     app = open_app(make_pack(PANEL), size=(400, 300))
     try:

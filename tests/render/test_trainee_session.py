@@ -28,9 +28,9 @@ needs_x = pytest.mark.skipif(
 
 def landmark_pixels():
     """Window pixels (top-left origin, as xdotool wants) of the ideal left landmarks."""
+    from chainsim.components.loader import PackResource
     from chainsim.game.app.headless import build_app
-    from chainsim.game.app.loader import PackResource
-    from chainsim.systems.view import ViewState, main_view
+    from chainsim.systems.view.cameras import ViewState, main_view
 
     app = build_app("prp")
     try:
@@ -123,7 +123,7 @@ class Session:
 
 def widget_centre(name: str) -> tuple[int, int]:
     from chainsim.game.app.headless import build_app
-    from chainsim.systems.view import ViewState
+    from chainsim.systems.view.cameras import ViewState
 
     app = build_app("prp")
     try:

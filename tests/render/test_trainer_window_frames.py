@@ -13,7 +13,7 @@ from chainsim.components.input_events import Widget
 from chainsim.components.resources import EntityIndex, PendingInput
 from chainsim.game.app.headless import build_app
 from chainsim.systems.procedures.demo.procedure import MARK_COLOR
-from chainsim.systems.view import ViewState
+from chainsim.systems.view.cameras import ViewState
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -80,7 +80,7 @@ def test_the_demo_draws_its_marked_element():
 
 def test_the_cutting_help_button_shows_its_page_over_the_viewer():
     from chainsim.game.gl.docview import BOX_BG
-    from chainsim.systems.ui import docbox
+    from chainsim.systems.view.ui import docbox
 
     app, rgba = frame("cutting", [Widget("help")])
     try:

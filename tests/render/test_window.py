@@ -126,7 +126,7 @@ def test_bench_window_drives_the_real_window_and_reports_each_phase(tmp_path):
     from chainsim.components.resources import PendingInput
     from chainsim.game.app.headless import build_app
     from chainsim.game.app.inputscript import load_script
-    from chainsim.systems.ui.widgets import WidgetState
+    from chainsim.systems.view.ui.widgets import WidgetState
 
     rec = out / "session.json"
     app = build_app("prp")
@@ -139,8 +139,8 @@ def test_bench_window_drives_the_real_window_and_reports_each_phase(tmp_path):
         # the Live switch was clicked on and off again: live seconds were counted, none run now
         import esper
 
-        from chainsim.components.fluoro import CArm
         from chainsim.components.resources import EntityIndex
+        from chainsim.systems.procedures.needle.carm import CArm
 
         with app.active():
             carm = esper.component_for_entity(app.resource(EntityIndex).get("carm"), CArm)

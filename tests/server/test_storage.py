@@ -13,10 +13,10 @@ import threading
 import pytest
 from conftest import REPO, attempt
 
-from chainsim.engine.errors import UserError
 from chainsim.game.records.schema import SCHEMA_VERSION, V1_DDL, V2_DDL
 from chainsim.game.records.store import ENV_VAR, RecordStore
 from chainsim.game.server import accounts
+from chainsim.systems.engine.errors import UserError
 
 
 def test_version_2_file_is_migrated_keeping_every_row(tmp_path):

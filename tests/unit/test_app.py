@@ -5,8 +5,8 @@ from __future__ import annotations
 import esper
 import pytest
 
-from chainsim.game.app.core import App
-from chainsim.systems.stages import ORDER_COLLISION, ORDER_DEFORMATION, ORDER_KINEMATICS
+from chainsim.components.app import App
+from chainsim.components.stages import ORDER_COLLISION, ORDER_DEFORMATION, ORDER_KINEMATICS
 
 
 class Ping:

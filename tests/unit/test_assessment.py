@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from test_needle import L1, Run, make_synthetic_pack, on_skin
 
 from chainsim.components.input_events import PickPoint, Widget
-from chainsim.components.procedure import LandmarkTarget, Plane, landmark_errors
+from chainsim.systems.procedures.needle.manifest import LandmarkTarget, Plane, landmark_errors
 
 coord = st.floats(-100.0, 100.0, allow_nan=False)
 point = st.tuples(coord, coord, coord)

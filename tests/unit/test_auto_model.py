@@ -6,12 +6,12 @@ import esper
 import numpy as np
 import pytest
 
-import chainsim.components.deformable as deformable
-from chainsim.components.deformable import MODEL_TABLE, Deformable, use_model
-from chainsim.engine.bodies.factory import ROW_PARAMS, Choice, choose_model, load_table, make_body
-from chainsim.engine.errors import UserError
-from chainsim.engine.meshgen import tet_grid
+import chainsim.systems.tissue.deformable as deformable
 from chainsim.game.app.headless import build_app
+from chainsim.systems.engine.bodies.factory import ROW_PARAMS, Choice, choose_model, load_table, make_body
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.meshgen import tet_grid
+from chainsim.systems.tissue.deformable import MODEL_TABLE, Deformable, use_model
 
 
 def _row(model, err, ms, nodes=1000, E=None, **params):

@@ -7,7 +7,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 from chainsim.tools.bench import models
 
 

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from chainsim.assets import ASSETS_DIR
-from chainsim.components.deformable import Deformable
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import PendingInput
-from chainsim.engine.bodies.factory import choose_model
 from chainsim.game.app.headless import build_app, run_pack
+from chainsim.systems.engine.bodies.factory import choose_model
+from chainsim.systems.tissue.deformable import Deformable
 
 CUT_SCRIPT = ASSETS_DIR / "cutting" / "scripts" / "cut-and-open.toml"
 
@@ -54,7 +54,7 @@ def test_a_dynamic_body_keeps_moving_toward_its_grab_between_requests():
         with app.active():
             ent, d = esper.get_component(Deformable)[0]
         top = int(np.argmax(d.rest[:, 2]))
-        from chainsim.components.deform_events import GrabRequest
+        from chainsim.systems.tissue.events import GrabRequest
 
         app.events.emit(GrabRequest(ent, np.array([top]), d.rest[top][None] + [0, 0, 2.0], frame="local"))
         gaps = []

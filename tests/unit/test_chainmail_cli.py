@@ -13,8 +13,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine import meshgen
 from chainsim.game.cli.main import main
+from chainsim.systems.engine import meshgen
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -322,9 +322,9 @@ def test_fifo_is_the_breadth_first_order(tmp_path):
 def test_without_exact_the_cli_is_the_plain_cascade(tmp_path, order):
     """Conformance: the CLI's result is the cascade kernel's, bit for bit (the kernel itself is checked
     against the thesis-rule reference in tests/kernels)."""
-    from chainsim.engine.chainmail_params import order_code
-    from chainsim.engine.kernels.chainmail import cascade, material_arrays
-    from chainsim.engine.kernels.graph import build_graph
+    from chainsim.systems.engine.chainmail_params import order_code
+    from chainsim.systems.engine.kernels.chainmail import cascade, material_arrays
+    from chainsim.systems.engine.kernels.graph import build_graph
 
     pos, _, links = meshgen.triangulated_grid(10, 10, dim=3)
     fixed = np.arange(10)
@@ -367,9 +367,9 @@ def test_exact_without_relaxation_is_one_exact_step(tmp_path):
     """--exact with --relax 0 is the exact step (kernels.exact.exact_move, bit for bit): every link inside,
     fixed elements kept, each element on every axis no further from rest than the cascade followed by the
     exact-limit pass puts it (the step's shape is the nearest); with --relax N the cascade path is kept."""
-    from chainsim.engine.kernels.chainmail import cascade, material_arrays
-    from chainsim.engine.kernels.exact import exact_limits, exact_move, violations
-    from chainsim.engine.kernels.graph import build_graph
+    from chainsim.systems.engine.kernels.chainmail import cascade, material_arrays
+    from chainsim.systems.engine.kernels.exact import exact_limits, exact_move, violations
+    from chainsim.systems.engine.kernels.graph import build_graph
 
     pos, _, links = meshgen.tet_grid(6, 6, 6)
     pos = np.ascontiguousarray(pos, dtype=np.float64)

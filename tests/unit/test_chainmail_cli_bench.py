@@ -6,8 +6,8 @@ import json
 
 import numpy as np
 
-from chainsim.engine import meshgen
 from chainsim.game.cli.main import main
+from chainsim.systems.engine import meshgen
 
 
 def test_single_mesh_timing_reports_json(tmp_path, capsys):

@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 
 from chainsim.components.core import Transform
-from chainsim.components.deformable import Deformable
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import MouseButton, MouseDrag, MouseMove, PickPoint, Widget
 from chainsim.components.resources import Assessment, EntityIndex, PendingInput
-from chainsim.components.tools import Forceps, Scissors
-from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import build_app
+from chainsim.systems.engine.errors import UserError
 from chainsim.systems.procedures.cutting.state import parse_point
+from chainsim.systems.procedures.cutting.tools import Forceps, Scissors
+from chainsim.systems.tissue.deformable import Deformable
 
 PACK = Path(__file__).resolve().parents[2] / "assets" / "cutting"
 CORNER = (40.0, 30.0, 0.0)
@@ -155,7 +155,7 @@ def test_reset_restores_both_layers_and_the_steps(app):
 
 
 def test_choosing_a_tool_moves_the_frozen_view_only(app):
-    from chainsim.systems.view import ViewState
+    from chainsim.systems.view.cameras import ViewState
 
     vs = app.resource(ViewState)
     viewer0 = vs.get("viewer").camera.eye.copy()
@@ -176,7 +176,7 @@ def test_choosing_a_tool_moves_the_frozen_view_only(app):
 
 
 def _pixel(app, viewport: str, point):
-    from chainsim.systems.view import ViewState
+    from chainsim.systems.view.cameras import ViewState
 
     vp = app.resource(ViewState).get(viewport)
     x, y, _ = vp.camera.project(np.asarray([point], float), vp.rect)[0]

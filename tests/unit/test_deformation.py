@@ -10,11 +10,11 @@ import esper
 import numpy as np
 import pytest
 
-from chainsim.components.deform_events import Deformed, GrabRequest, ReleaseRequest
-from chainsim.components.deformable import Deformable, Pull
-from chainsim.engine.errors import UserError
-from chainsim.game.app.digest import world_digest
+from chainsim.components.digest import world_digest
 from chainsim.game.app.headless import build_app
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.tissue.deformable import Deformable, Pull
+from chainsim.systems.tissue.events import Deformed, GrabRequest, ReleaseRequest
 
 PACK_HEAD = """
 [pack]
@@ -241,7 +241,7 @@ kind = "volume"
     try:
         _, d = body(app)
         from chainsim.components.resources import PackResource
-        from chainsim.engine import meshgen
+        from chainsim.systems.engine import meshgen
 
         mesh = app.resource(PackResource).pack.mesh("block")
         assert d.source == "volume"
@@ -349,7 +349,7 @@ def test_mouse_drags_are_ignored_unless_the_body_asks_for_them(tmp_path):
 
 
 def test_cut_kills_crossed_links_and_the_pieces_move_apart(tmp_path):
-    from chainsim.components.deform_events import CutRequest
+    from chainsim.systems.tissue.events import CutRequest
 
     app = build_app(make_pack(tmp_path, SHEET.format(material="rigid")))
     try:
@@ -375,7 +375,7 @@ def test_cut_kills_crossed_links_and_the_pieces_move_apart(tmp_path):
 
 
 def test_added_links_join_pieces_with_the_body_material(tmp_path):
-    from chainsim.components.deform_events import AddLinksRequest, CutRequest
+    from chainsim.systems.tissue.events import AddLinksRequest, CutRequest
 
     app = build_app(make_pack(tmp_path, SHEET.format(material="rigid")))
     try:
@@ -421,7 +421,7 @@ def test_orders_and_single_precision_keep_the_grab_and_the_limits(tmp_path, extr
 def test_exact_material_keeps_every_link_inside_while_dragging(tmp_path):
     """`exact = true` in a material: after each grab of a drag (relaxation included), no link of the body is
     outside its limits, held and fixed elements stay, and the pass's moves reach the renderer as dirty ids."""
-    from chainsim.engine.kernels.exact import violations
+    from chainsim.systems.engine.kernels.exact import violations
 
     pack = make_pack(
         tmp_path,

@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from chainsim.engine.kernels.chainmail import material_arrays
-from chainsim.engine.kernels.exact import violations
-from chainsim.engine.kernels.graph import build_graph
 from chainsim.game.cli.commands.chainmail import make_body, move
+from chainsim.systems.engine.kernels.chainmail import material_arrays
+from chainsim.systems.engine.kernels.exact import violations
+from chainsim.systems.engine.kernels.graph import build_graph
 from chainsim.tools.bench import exact_cases
 
 A_MIN, A_MAX, BETA = exact_cases.MATERIAL

@@ -10,9 +10,9 @@ import pytest
 
 from chainsim.components.core import Name, ScriptedMotion, Transform
 from chainsim.components.input_events import Key, Widget
-from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import build_app, run_pack
 from chainsim.game.app.inputscript import load_script
+from chainsim.systems.engine.errors import UserError
 
 
 def test_run_writes_summary_with_steps_time_systems_digest(tmp_path):
@@ -82,7 +82,7 @@ def test_scene_selection_spawns_only_its_entities():
 
 
 def test_input_script_events_are_released_at_their_time():
-    from chainsim.systems.input import InputLog
+    from chainsim.systems.motion.input import InputLog
 
     app = build_app("loop-demo")
     try:

@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine import meshgen
+from chainsim.systems.engine import meshgen
 
 
 @settings(max_examples=50, deadline=None)

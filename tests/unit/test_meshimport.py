@@ -11,12 +11,12 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine import meshgen
-from chainsim.engine.errors import UserError
-from chainsim.engine.meshes import MeshData
-from chainsim.engine.meshimport import check_graph, load_graph, load_mesh
-from chainsim.engine.reorder import inverse, morton_permutation, permute_mesh, rcm_permutation, reorder_mesh
-from chainsim.engine.tetra import TetraError, tetrahedralize
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.meshes import MeshData
+from chainsim.systems.engine.meshimport import check_graph, load_graph, load_mesh
+from chainsim.systems.engine.reorder import inverse, morton_permutation, permute_mesh, rcm_permutation, reorder_mesh
+from chainsim.systems.engine.tetra import TetraError, tetrahedralize
 
 
 def _links_set(links):

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from chainsim.components.input_events import PickPoint, Widget
-from chainsim.components.needle import NeedleState
-from chainsim.components.procedure import ProcedureState
 from chainsim.game.app.headless import build_app
+from chainsim.systems.procedures.needle.components import NeedleState
+from chainsim.systems.procedures.needle.manifest import ProcedureState
 
 ROOT = Path(__file__).resolve().parents[2]
 PACK = ROOT / "assets" / "prp"
@@ -170,7 +170,7 @@ def test_landmark1_places_needle_level_and_toward_midline(run):
     assert run.proc.side == "left"
     # the tip transform is the needle entity's: origin at the tip, local +Z along insertion
     from chainsim.components.core import Transform
-    from chainsim.engine import quaternion as Q
+    from chainsim.systems.engine import quaternion as Q
     from chainsim.systems.procedures.needle.handles import NeedleHandles as PrpHandles
 
     with run.app.active():
@@ -194,8 +194,8 @@ def test_dials_are_absolute_and_compose_horizontal_then_vertical(run):
 
 
 def test_rotation_refused_once_inserted_until_reset(run):
-    from chainsim.systems.needle import RotationRefused
-    from chainsim.systems.ui.widgets import WidgetState
+    from chainsim.systems.procedures.needle.kinematics import RotationRefused
+    from chainsim.systems.view.ui.widgets import WidgetState
 
     run.send(PickPoint("skin", tuple(L1)))
     run.send(Widget("rotate_horizontal", 12.0))
@@ -267,7 +267,7 @@ def test_right_side_entry_is_detected_from_landmark1(run):
 
 def test_foramen_entry_is_green_and_scored_dist_minus_r(run):
     from chainsim.components.hud import HudState
-    from chainsim.systems.collision import NeedleHit
+    from chainsim.systems.procedures.needle.collision import NeedleHit
 
     run.send(PickPoint("skin", tuple(L1)))
     run.aim_at(FORAMEN["left"] + [0.0, 0.0, PLATE_Z[0]])
@@ -288,8 +288,8 @@ def test_foramen_entry_is_green_and_scored_dist_minus_r(run):
 
 def test_huge_insertion_step_stops_at_bone_and_bounces_back(run):
     from chainsim.components.hud import HudState
-    from chainsim.components.needle import Needle
-    from chainsim.systems.collision import NeedleHit
+    from chainsim.systems.procedures.needle.collision import NeedleHit
+    from chainsim.systems.procedures.needle.components import Needle
     from chainsim.systems.procedures.needle.handles import NeedleHandles as PrpHandles
 
     with run.app.active():
@@ -382,7 +382,7 @@ def test_needle_is_hidden_until_landmark_1_places_it(run):
 
 
 def test_insert_before_landmark_is_refused(run):
-    from chainsim.systems.needle import InsertRefused
+    from chainsim.systems.procedures.needle.kinematics import InsertRefused
 
     run.send(Widget("insert", 10.0), Widget("rotate_horizontal", 5.0))
     assert not run.needle.placed and run.needle.depth == 0.0

@@ -13,8 +13,8 @@ import pytest
 from test_needle import FORAMEN, L1, PLATE_Z, Run, make_synthetic_pack, on_skin
 
 from chainsim.components.input_events import PickPoint, Widget
-from chainsim.engine.errors import UserError
-from chainsim.systems.collision import NeedleHit
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.procedures.needle.collision import NeedleHit
 
 
 def _pack(tmp_path, old: str, new: str):

@@ -55,7 +55,7 @@ def test_every_template_renders_a_snapshot(tmp_path, cli, template):
 
 
 def test_empty_template_a_drag_turns_the_view_as_its_step_says(tmp_path, cli):
-    from chainsim.systems.view import ViewState
+    from chainsim.systems.view.cameras import ViewState
 
     root = make(tmp_path, "empty", cli)
     from chainsim.components.resources import PendingInput
@@ -80,10 +80,10 @@ def _tissue_lift(root, script: str, steps: int) -> float:
     """The largest upward move of any element of the tissue after the script (mm)."""
     import esper
 
-    from chainsim.components.deformable import Deformable
     from chainsim.components.resources import PendingInput
     from chainsim.game.app.headless import build_app
     from chainsim.game.app.inputscript import load_script
+    from chainsim.systems.tissue.deformable import Deformable
 
     app = build_app(f"{root}/main", settings=None)
     try:
@@ -144,7 +144,7 @@ def test_a_title_with_quotes_and_backslashes_still_makes_valid_toml(tmp_path, te
 
 
 def test_a_refused_title_leaves_no_folder_behind(tmp_path):
-    from chainsim.engine.errors import UserError
+    from chainsim.systems.engine.errors import UserError
 
     with pytest.raises(UserError, match="title"):
         create("qp", tmp_path, title="bad\x1btitle")

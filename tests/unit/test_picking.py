@@ -1,4 +1,4 @@
-"""Ray picking and surface snapping (game/picking.py) and the Picked events of systems/view.py."""
+"""Ray picking and surface snapping (game/picking.py) and the Picked events of systems/view/cameras.py."""
 
 import esper
 import numpy as np
@@ -9,10 +9,10 @@ from chainsim.components.core import Transform
 from chainsim.components.input_events import MouseButton, MouseDrag, PickPoint
 from chainsim.components.resources import EntityIndex, PendingInput
 from chainsim.components.view_events import Picked
-from chainsim.engine.raycast import closest_on_mesh, ray_mesh, ray_triangles, triangle_links
 from chainsim.game.app.headless import build_app
-from chainsim.systems.picking import pick
-from chainsim.systems.view import ViewState
+from chainsim.systems.engine.raycast import closest_on_mesh, ray_mesh, ray_triangles, triangle_links
+from chainsim.systems.view.cameras import ViewState
+from chainsim.systems.view.picking import pick
 
 
 def _reference_hit(o, d, a, b, c):
@@ -197,7 +197,7 @@ def test_drag_on_a_fixed_view_grabs_the_surface_and_follows_the_cursor(tmp_path)
 
 
 def test_attached_view_rides_on_its_entity_and_does_not_pick(tmp_path):
-    from chainsim.systems.view import refresh_cameras
+    from chainsim.systems.view.cameras import refresh_cameras
 
     app = build_app(_pack(tmp_path))
     try:

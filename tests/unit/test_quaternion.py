@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from chainsim.engine import quaternion as Q
+from chainsim.systems.engine import quaternion as Q
 
 finite = st.floats(-1.0, 1.0, allow_nan=False)
 vec3 = st.tuples(finite, finite, finite).filter(lambda v: np.linalg.norm(v) > 1e-3)

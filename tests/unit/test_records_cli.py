@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from chainsim.engine.errors import UserError
 from chainsim.game.cli.commands import records as cmd
 from chainsim.game.records.report import CSV_COLUMNS
 from chainsim.game.records.store import ENV_VAR, RecordStore
 from chainsim.game.records.validate import AIDS
+from chainsim.systems.engine.errors import UserError
 
 REPO = Path(__file__).resolve().parents[2]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from chainsim.engine.errors import UserError
 from chainsim.game.records.schema import MIGRATIONS, SCHEMA_VERSION, V1_DDL
 from chainsim.game.records.store import ENV_VAR, RecordStore, default_path
 from chainsim.game.records.validate import AIDS
+from chainsim.systems.engine.errors import UserError
 
 
 def sample_attempt(i: int = 0, **over):

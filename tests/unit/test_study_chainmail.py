@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 from chainsim.tools.study import calibrate as cal
 from chainsim.tools.study.chainmail_model import ChainMailModel, ChainMailParams
 from chainsim.tools.study.metrics import displacement_error, pareto_front, realtime_size, volume_change

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from chainsim.engine.errors import UserError
-from chainsim.engine.meshgen import tet_grid
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.meshgen import tet_grid
 from chainsim.tools.study.fem_linear import LinearFEM, LockingWarning, solve_linear
 from chainsim.tools.study.fem_nonlinear import NeoHookeanFEM
 from chainsim.tools.study.scenes import block, cantilever

@@ -8,8 +8,8 @@ import tomllib
 import numpy as np
 import pytest
 
-from chainsim.engine.bodies.factory import load_table
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.bodies.factory import load_table
+from chainsim.systems.engine.errors import UserError
 from chainsim.tools.study import surgical, surgical_report
 
 

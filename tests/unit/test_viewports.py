@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from chainsim.systems.ui.viewports import OrbitCamera, Rect, attached_camera, fraction_rect, layout_rects
+from chainsim.systems.view.ui.viewports import OrbitCamera, Rect, attached_camera, fraction_rect, layout_rects
 
 
 @settings(max_examples=50, deadline=None)
@@ -113,7 +113,7 @@ def test_a_scene_without_layout_gets_one_orbit_view_framing_every_mesh(tmp_path)
     from chainsim.components.core import MeshRef, Transform
     from chainsim.components.resources import PackResource
     from chainsim.game.app.headless import build_app
-    from chainsim.systems.view import ViewState
+    from chainsim.systems.view.cameras import ViewState
 
     root = tmp_path / "bare"
     root.mkdir()
@@ -166,7 +166,7 @@ mesh = "ball"
     top=st.sampled_from([0.0, 30.0, 92.0]),
 )
 def test_fit_orbit_puts_every_corner_inside_and_touches_an_edge(centre, size, yaw, pitch, rect, top):
-    from chainsim.systems.ui.viewports import OrbitCamera, Rect, box_corners, fit_orbit
+    from chainsim.systems.view.ui.viewports import OrbitCamera, Rect, box_corners, fit_orbit
 
     lo = np.asarray(centre) - np.asarray(size) / 2
     hi = np.asarray(centre) + np.asarray(size) / 2

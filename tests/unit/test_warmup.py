@@ -66,7 +66,7 @@ def test_no_pack_needs_a_kernel_type_warmup_left_out(pack, monkeypatch):
 
 
 class _Compiling:
-    """A stand-in for chainsim.engine.warmup.Compiler whose groups finish when the test says so."""
+    """A stand-in for chainsim.systems.engine.warmup.Compiler whose groups finish when the test says so."""
 
     def __init__(self, total=7):
         self.done: list[str] = []
@@ -122,7 +122,7 @@ def test_a_scripted_window_stands_still_until_the_kernels_are_ready():
 
 
 def test_groups_sharing_kernels_compile_one_after_another():
-    from chainsim.engine import warmup
+    from chainsim.systems.engine import warmup
 
     bf64, sc64, bf32 = (warmup.chainmail_group(o, d) for o, d in (("breadth-first", "float64"),
                         ("schill", "float64"), ("breadth-first", "float32")))  # fmt: skip
@@ -137,9 +137,9 @@ def test_groups_sharing_kernels_compile_one_after_another():
 
 
 def test_the_scene_needs_its_own_models_kernels():
-    from chainsim.engine import warmup
     from chainsim.game.app.compiling import needed_groups
     from chainsim.game.app.headless import build_app
+    from chainsim.systems.engine import warmup
 
     app = build_app("prp")
     try:
@@ -158,8 +158,8 @@ def test_the_scene_needs_its_own_models_kernels():
 def test_first_uploads_take_numpys_normals_equal_to_the_kernels(monkeypatch):
     import numpy as np
 
-    from chainsim.engine.meshgen import triangulated_grid
     from chainsim.game.gl import meshbuf
+    from chainsim.systems.engine.meshgen import triangulated_grid
 
     pos, tris, _links = triangulated_grid(6, 5, spacing=1.0, dim=3)
     pos = pos + np.random.default_rng(1).normal(0.0, 0.3, pos.shape)
@@ -170,8 +170,8 @@ def test_first_uploads_take_numpys_normals_equal_to_the_kernels(monkeypatch):
 
 @pytest.mark.parametrize("threads", [1, 2, 4, 16])
 def test_warmup_leaves_out_only_groups_no_body_takes_with_that_many_threads(threads):
-    from chainsim.engine import warmup
-    from chainsim.engine.kernels import waves
+    from chainsim.systems.engine import warmup
+    from chainsim.systems.engine.kernels import waves
 
     groups = warmup.reachable(threads)
     assert set(groups) <= set(warmup.GROUPS)
@@ -184,9 +184,9 @@ def test_warmup_leaves_out_only_groups_no_body_takes_with_that_many_threads(thre
 
 @pytest.mark.parametrize("pack", sorted(p.name for p in (ROOT / "assets").iterdir() if (p / "pack.toml").is_file()))
 def test_every_group_a_built_in_pack_needs_is_compiled_by_warmup(pack):
-    from chainsim.engine import warmup
     from chainsim.game.app.compiling import needed_groups
     from chainsim.game.app.headless import build_app
+    from chainsim.systems.engine import warmup
 
     app = build_app(str(ROOT / "assets" / pack))
     try:
@@ -197,7 +197,7 @@ def test_every_group_a_built_in_pack_needs_is_compiled_by_warmup(pack):
 
 
 def test_a_group_a_pack_asks_for_after_the_rest_are_done_is_compiled():
-    from chainsim.engine import warmup
+    from chainsim.systems.engine import warmup
 
     c = warmup.Compiler(groups=[])
     assert c.ready() and c.ready([warmup.GEOMETRY]) is False

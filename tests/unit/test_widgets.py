@@ -1,4 +1,4 @@
-"""Widget model (game/widgets.py) and the view system's widget routing (systems/view.py)."""
+"""Widget model (game/widgets.py) and the view system's widget routing (systems/view/cameras.py)."""
 
 import esper
 import numpy as np
@@ -8,9 +8,9 @@ from chainsim.components.input_events import Key, MouseButton, MouseDrag, Widget
 from chainsim.components.resources import PendingInput
 from chainsim.components.view_events import WidgetRefused
 from chainsim.game.app.headless import build_app
-from chainsim.systems.ui import widgets as wd
-from chainsim.systems.ui.viewports import Rect
-from chainsim.systems.view import ViewState
+from chainsim.systems.view.cameras import ViewState
+from chainsim.systems.view.ui import widgets as wd
+from chainsim.systems.view.ui.viewports import Rect
 
 
 def _w(**kw):

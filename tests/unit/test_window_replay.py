@@ -5,14 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from chainsim.components.digest import world_digest
 from chainsim.components.input_events import MouseButton, Widget
 from chainsim.components.resources import PendingInput
-from chainsim.game.app.digest import world_digest
 from chainsim.game.app.headless import build_app, run_pack
 from chainsim.game.app.inputscript import load_script
 from chainsim.game.packbuild.make_prp_mouse_script import SCRIPTS
 from chainsim.game.ui.frameloop import FixedStepper
-from chainsim.systems.input import InputLog
+from chainsim.systems.motion.input import InputLog
 
 
 def window_session(frame_times):

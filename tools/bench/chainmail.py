@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import os
 
-from chainsim.engine import argtypes, limits
-from chainsim.engine.chainmail_params import ORDER_CHOICES
+from chainsim.systems.engine import argtypes, limits
+from chainsim.systems.engine.chainmail_params import ORDER_CHOICES
 from chainsim.tools.bench import run as impl
 
 HELP = "ChainMail speed: thesis 6.2 grids and worst case, scaling to 1M elements, or one mesh (--mesh)"

@@ -1,6 +1,6 @@
 """Where the level-parallel cascade beats the serial breadth-first one: soft drags by size and thread count.
 
-The figures behind `chainsim.engine.kernels.waves.parallel_wins`. For tet blocks of about 10k, 100k and 1M
+The figures behind `chainsim.systems.engine.kernels.waves.parallel_wins`. For tet blocks of about 10k, 100k and 1M
 elements (meshgen.tet_grid: 22^3, 47^3, 100^3) and each thread count (numba.set_num_threads), the centre
 element is dragged 12 frames, one rest spacing further each frame along a slanted direction, every frame
 from the last one's shape, on a soft material (alpha 0.85 / 1.15, beta 0.1): the `drag` rows of
@@ -10,7 +10,7 @@ so a busy machine loads both alike; one untimed drag first compiles and warms, t
 frame of the timed drags. Both must end in the same shape (the level-parallel result is the serial one bit
 for bit).
 
-Standalone on purpose: it imports only numpy, numba, scipy (kernels.graph) and chainsim.engine's kernels and
+Standalone on purpose: it imports only numpy, numba, scipy (kernels.graph) and chainsim.systems.engine's kernels and
 meshgen, never the app, so it runs from a bare checkout. Without an installed chainsim it maps the package
 onto this checkout's folders itself (a temporary `chainsim/engine` link to systems/engine).
 
@@ -42,19 +42,28 @@ DIRECTION = (0.3, 0.5, 0.8)
 
 
 def _import_engine():
-    """chainsim.engine from this checkout: through a temporary package folder when chainsim is not installed."""
+    """chainsim.systems.engine from this checkout: through a temporary package folder when chainsim is not installed."""
     try:
-        importlib.import_module("chainsim.engine.kernels.chainmail")
+        importlib.import_module("chainsim.systems.engine.kernels.chainmail")
     except ImportError:
         pkg = Path(tempfile.mkdtemp(prefix="chainsim-pkg-")) / "chainsim"
         pkg.mkdir()
         (pkg / "__init__.py").write_text("")
-        (pkg / "engine").symlink_to(ROOT / "systems" / "engine", target_is_directory=True)
+        (pkg / "systems").mkdir()
+        (pkg / "systems" / "__init__.py").write_text("")
+        (pkg / "systems" / "engine").symlink_to(ROOT / "systems" / "engine", target_is_directory=True)
         sys.path.insert(0, str(pkg.parent))
         for name in [m for m in sys.modules if m == "chainsim" or m.startswith("chainsim.")]:
             del sys.modules[name]
-    names = ("chainsim.engine.meshgen", "chainsim.engine.kernels.chainmail", "chainsim.engine.kernels.graph")
-    return (*(importlib.import_module(m) for m in names), importlib.import_module("chainsim.engine.kernels.waves"))
+    names = (
+        "chainsim.systems.engine.meshgen",
+        "chainsim.systems.engine.kernels.chainmail",
+        "chainsim.systems.engine.kernels.graph",
+    )
+    return (
+        *(importlib.import_module(m) for m in names),
+        importlib.import_module("chainsim.systems.engine.kernels.waves"),
+    )
 
 
 def _log(msg: str) -> None:

@@ -5,7 +5,7 @@ each frame's cascade starting from the shape the last one left. So a row here is
 the centre element of a tet block (one rest spacing further every frame, along a slanted direction),
 through the public `ChainMailBody.move`, on a soft material from the presets (assets/presets/
 materials.toml; cascade only, relaxation off, since the lean cascade has none), in float64 and float32.
-Beside it, frame by frame in alternation, the lean float64 FIFO cascade (chainsim.engine.kernels.lean)
+Beside it, frame by frame in alternation, the lean float64 FIFO cascade (chainsim.systems.engine.kernels.lean)
 drags its own copy of the block through the same targets, so both see the same frames and a busy
 machine loads both alike. The figures are medians over every frame of every repeat.
 
@@ -25,11 +25,11 @@ from importlib import resources
 import numba
 import numpy as np
 
-from chainsim.engine.bodies.chainmail import ChainMailBody
-from chainsim.engine.kernels import waves
-from chainsim.engine.kernels.chainmail import cascade, make_workspace, material_arrays
-from chainsim.engine.kernels.graph import build_graph
-from chainsim.engine.kernels.lean import LeanWorkspace, lean_move
+from chainsim.systems.engine.bodies.chainmail import ChainMailBody
+from chainsim.systems.engine.kernels import waves
+from chainsim.systems.engine.kernels.chainmail import cascade, make_workspace, material_arrays
+from chainsim.systems.engine.kernels.graph import build_graph
+from chainsim.systems.engine.kernels.lean import LeanWorkspace, lean_move
 from chainsim.tools.bench.meshes import tet_cube
 
 FRAMES = 12
@@ -194,7 +194,8 @@ def markdown(results: dict) -> list[str]:
         out.append(
             f"The centre element of a tet block dragged {FRAMES} frames, one rest spacing further each frame, every "
             "frame from the last one's shape (cascade only, breadth-first). Lean: the lean float64 FIFO cascade "
-            "(chainsim.engine.kernels.lean) on the same frames, timed alternately with the body frame by frame. "
+            "(chainsim.systems.engine.kernels.lean) on the same frames, timed alternately with the body frame by "
+            "frame. "
             "Medians over every frame of every repeat; ratio = body / lean (wall clock; CPU time in brackets).\n"
         )
         out.append("| material | elements | positions | body ms | lean ms | ratio | moved (last frame) |")
@@ -209,7 +210,7 @@ def markdown(results: dict) -> list[str]:
         out.append("## Level-parallel against serial breadth-first cascade, by size and thread count\n")
         out.append(
             f"Soft-tissue drags as above ({FRAMES} frames), through `cascade(..., parallel=...)`; medians. Rule: what "
-            "`chainsim.engine.kernels.waves.parallel_wins` picks for that size and thread count.\n"
+            "`chainsim.systems.engine.kernels.waves.parallel_wins` picks for that size and thread count.\n"
         )
         out.append("| elements | threads | serial ms | level-parallel ms | speed-up | rule picks |")
         out.append("|---:|---:|---:|---:|---:|---|")

@@ -19,8 +19,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from chainsim.engine import meshgen
-from chainsim.engine.meshimport import load_mesh
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.meshimport import load_mesh
 from chainsim.tools.bench.meshes import fast_tet_grid
 
 SKIN = Path(__file__).resolve().parents[2] / "assets" / "prp" / "meshes" / "skin.ply"

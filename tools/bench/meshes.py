@@ -19,7 +19,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull, Delaunay
 
-from chainsim.engine import meshgen
+from chainsim.systems.engine import meshgen
 
 
 def curved_patch(n: int = 345, radius: float = 80.0, width: float = 60.0, seed: int = 7):

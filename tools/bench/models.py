@@ -24,11 +24,11 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from chainsim.engine.bodies.hybrid import HybridBody
-from chainsim.engine.bodies.projective import ProjectiveBody
-from chainsim.engine.bodies.xpbd import XPBDBody
-from chainsim.engine.errors import UserError
-from chainsim.engine.progress import progress
+from chainsim.systems.engine.bodies.hybrid import HybridBody
+from chainsim.systems.engine.bodies.projective import ProjectiveBody
+from chainsim.systems.engine.bodies.xpbd import XPBDBody
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.progress import progress
 from chainsim.tools.study import scenes as sc
 from chainsim.tools.study import surgical
 from chainsim.tools.study.fem_linear import LinearFEM

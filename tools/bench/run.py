@@ -11,7 +11,7 @@ Parts:
            40 x 40 square path; every update moves the whole object.
   scaling  rigid full cascades on tetrahedral blocks and triangle sheets from 10^3 to 10^6 elements,
            with and without relaxation, in generated order, shuffled (random ids) and shuffled then
-           reordered (reverse Cuthill-McKee, chainsim.engine.reorder); plus a local grab on the largest mesh.
+           reordered (reverse Cuthill-McKee, chainsim.systems.engine.reorder); plus a local grab on the largest mesh.
   drag     soft presets dragged 12 frames through ChainMailBody.move, float64 and float32, at 100k and
            1M elements, beside the lean cascade on the same frames (tools/bench/drag.py).
   threads  the level-parallel cascade against the serial one on the same drags, by size and thread count.
@@ -39,17 +39,17 @@ import matplotlib.pyplot as plt
 import numba
 import numpy as np
 
-from chainsim.engine import meshgen
-from chainsim.engine.chainmail_params import ORDERS, check_material, order_code, order_name
-from chainsim.engine.errors import UserError
-from chainsim.engine.kernels.chainmail import cascade, make_workspace, material_arrays
-from chainsim.engine.kernels.exact import exact_limits, exact_move, violations
-from chainsim.engine.kernels.gibson import gibson_grid_move
-from chainsim.engine.kernels.graph import build_graph
-from chainsim.engine.kernels.lean import LeanWorkspace, lean_move
-from chainsim.engine.meshimport import load_graph
-from chainsim.engine.reorder import rcm_permutation
-from chainsim.systems.deformation import relax_moved
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.chainmail_params import ORDERS, check_material, order_code, order_name
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.kernels.chainmail import cascade, make_workspace, material_arrays
+from chainsim.systems.engine.kernels.exact import exact_limits, exact_move, violations
+from chainsim.systems.engine.kernels.gibson import gibson_grid_move
+from chainsim.systems.engine.kernels.graph import build_graph
+from chainsim.systems.engine.kernels.lean import LeanWorkspace, lean_move
+from chainsim.systems.engine.meshimport import load_graph
+from chainsim.systems.engine.reorder import rcm_permutation
+from chainsim.systems.tissue.deformation import relax_moved
 from chainsim.tools.bench import drag, exact_cases
 from chainsim.tools.bench.meshes import relabel, surface_sheet, tet_cube
 
@@ -494,7 +494,8 @@ def markdown(results: dict) -> str:
             "Ours: cascade-only updates per second (1000 / median ms). Thesis: Java + VRML frame rates on an "
             "AMD-K7, Tables 6.2-6.4. 'high' = small move of the centre element, 'low' = a move that every "
             "element follows. Moved = elements moved by our generalised run. Low vs lean: its time over the lean "
-            "cascade's (chainsim.engine.kernels.lean) for the same move, timed alternately in the same run (wall "
+            "cascade's (chainsim.systems.engine.kernels.lean) for the same move, timed alternately in the same run "
+            "(wall "
             "clock; CPU time in brackets).\n"
         )
         out.append(
@@ -541,7 +542,7 @@ def markdown(results: dict) -> str:
         out.append("## Scaling: rigid full cascade (every element moves), local grab, relaxation\n")
         out.append(
             "Wall-clock medians, CPU-time medians in brackets; the ratio to the generated order uses CPU time. "
-            "Lean: the lean cascade (chainsim.engine.kernels.lean: one material, no anchors, no cuts), timed "
+            "Lean: the lean cascade (chainsim.systems.engine.kernels.lean: one material, no anchors, no cuts), timed "
             "alternately with the rigid cascade in the same run; vs lean = rigid / lean (wall clock, CPU time in "
             "brackets: on a busy machine the longer call is preempted more often). Level-parallel: the "
             "breadth-first cascade wave by wave on numba's threads (same result), timed after them.\n"

@@ -25,7 +25,7 @@ import tomli_w
 from scipy.optimize import minimize
 
 from chainsim.assets import ASSETS_DIR
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 
 from .chainmail_model import ChainMailModel, ChainMailParams
 from .fem_linear import LockingWarning, check_material

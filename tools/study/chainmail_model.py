@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from chainsim.engine.bodies.chainmail import ChainMailBody
-from chainsim.engine.kernels.chainmail import make_workspace, material_arrays
-from chainsim.engine.kernels.graph import build_graph
+from chainsim.systems.engine.bodies.chainmail import ChainMailBody
+from chainsim.systems.engine.kernels.chainmail import make_workspace, material_arrays
+from chainsim.systems.engine.kernels.graph import build_graph
 
 
 @dataclass

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 
 from .sparse_assembly import SparsePattern, element_matrices
 from .tetmesh import shape_gradients

@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from chainsim.engine.meshgen import links_from_cells
+from chainsim.systems.engine.meshgen import links_from_cells
 
 from .fem_linear import isotropic_tangent, lame
 from .tetmesh import shape_gradients

@@ -14,8 +14,8 @@ import time
 import numpy as np
 from scipy.spatial import cKDTree
 
-from chainsim.engine.bodies.projective import ProjectiveBody
-from chainsim.engine.bodies.xpbd import XPBDBody
+from chainsim.systems.engine.bodies.projective import ProjectiveBody
+from chainsim.systems.engine.bodies.xpbd import XPBDBody
 
 FRAME_DT = 1.0 / 60.0
 MAX_FRAMES = 1500

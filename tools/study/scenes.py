@@ -1,4 +1,4 @@
-"""Study scenes on structured tetrahedral meshes (chainsim.engine.meshgen.tet_grid): a block with a fixed base
+"""Study scenes on structured tetrahedral meshes (chainsim.systems.engine.meshgen.tet_grid): a block with a fixed base
 pulled up at a top patch, a thin sheet with a fixed edge pulled at a corner (the forceps task of
 thesis 4.5.2) and a cantilever with a fixed end whose tip is pulled down.
 
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
-from chainsim.engine.meshgen import tet_grid
+from chainsim.systems.engine.meshgen import tet_grid
 
 
 @dataclass

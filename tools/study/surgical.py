@@ -28,9 +28,9 @@ import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 from scipy.spatial import cKDTree
 
-from chainsim.engine.bodies.factory import make_body
-from chainsim.engine.errors import UserError
-from chainsim.engine.meshgen import tet_grid
+from chainsim.systems.engine.bodies.factory import make_body
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.meshgen import tet_grid
 
 from .fem_linear import LockingWarning
 from .fem_nonlinear import solve_neohookean

@@ -13,7 +13,7 @@ import matplotlib
 import matplotlib.pyplot as plt
 import tomli_w
 
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 
 from .surgical import BLOCK_MM, FRAMES, LIFT_MM, PATCH_MM, model_table
 

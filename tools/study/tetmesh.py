@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from chainsim.engine.errors import UserError
-from chainsim.engine.meshgen import links_from_cells
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.meshgen import links_from_cells
 
 
 class DegenerateElementsError(UserError):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import importlib
 
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 
 NAME = "bench"
 HELP = "run a benchmark (chainmail, render, ...)"

@@ -5,12 +5,12 @@
                        [--stats] --out OUT.npz
 
 MESH is a .npz (positions (N, D), links (M, 2), optional fixed (K,)) or any mesh file the importer
-reads (chainsim.engine.meshimport). OUT.npz holds positions (N, D) after the move, order (the ids that moved, in
+reads (chainsim.systems.engine.meshimport). OUT.npz holds positions (N, D) after the move, order (the ids that moved, in
 the order they moved, grabbed first, each once) and sponsor (N,: the element whose move made each
 element move; -1 for the grabbed element and for elements that did not move). --relax 0 gives the raw
 cascade; N > 0 runs N relaxation sweeps (5.2.5) over the moved elements afterwards.
 
---exact gives the nearest shape with every link inside its limits (chainsim.engine.kernels.exact): with
+--exact gives the nearest shape with every link inside its limits (chainsim.systems.engine.kernels.exact): with
 --relax 0, one exact step instead of the cascade (exact_move; order then holds the ids that moved, in
 the order the step moved them, and sponsor is -1 throughout: the step has no sponsors); with --relax N,
 the cascade and relaxation, then the exact-limit pass. Fixed elements stay, and a grabbed element whose
@@ -34,15 +34,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from chainsim.engine import argtypes
-from chainsim.engine.bodies.chainmail import ChainMailBody
-from chainsim.engine.chainmail_params import ORDER_CHOICES, ORDERS, check_material, order_code, order_name
-from chainsim.engine.errors import UserError
-from chainsim.engine.kernels.chainmail import make_workspace, material_arrays
-from chainsim.engine.kernels.exact import ExactResult, exact_move, violations
-from chainsim.engine.kernels.graph import build_graph
-from chainsim.engine.meshimport import load_graph
 from chainsim.game.app.outputs import check_output_file
+from chainsim.systems.engine import argtypes
+from chainsim.systems.engine.bodies.chainmail import ChainMailBody
+from chainsim.systems.engine.chainmail_params import ORDER_CHOICES, ORDERS, check_material, order_code, order_name
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.kernels.chainmail import make_workspace, material_arrays
+from chainsim.systems.engine.kernels.exact import ExactResult, exact_move, violations
+from chainsim.systems.engine.kernels.graph import build_graph
+from chainsim.systems.engine.meshimport import load_graph
 
 NAME = "chainmail"
 HELP = "move one element of a mesh with Generalised ChainMail and save the result (.npz)"

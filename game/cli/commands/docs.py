@@ -1,7 +1,7 @@
 """`chainsim docs components|limits`: the modder reference and the limits, generated from the code.
 
 `components` is every manifest section and component, from the one registry; `limits` is every
-limit on user input, from chainsim.engine.limits (the text of docs/limits.md).
+limit on user input, from chainsim.systems.engine.limits (the text of docs/limits.md).
 """
 
 from __future__ import annotations
@@ -10,7 +10,8 @@ import numpy as np
 
 import chainsim.game.packs.schema  # noqa: F401  (importing it registers the manifest sections)
 from chainsim.components.registry import COMPONENTS, KINDS, REQUIRED, SECTION_STYLE, SECTIONS, load_all
-from chainsim.engine import limits
+from chainsim.systems import manifest_modules
+from chainsim.systems.engine import limits
 
 NAME = "docs"
 HELP = "print reference documentation (components: every manifest key; limits: every input limit)"
@@ -39,7 +40,7 @@ def _fmt_default(f) -> str:
 
 
 def render_reference() -> str:
-    load_all()
+    load_all(manifest_modules())
     out = [
         "# pack.toml reference (format 1)",
         "",

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import validate_pack
 from chainsim.game.packs.scaffold import DEFAULT_TEMPLATE, TEMPLATES, create
+from chainsim.systems.engine.errors import UserError
 
 NAME = "new-pack"
 HELP = "create a new asset pack folder from a template"

@@ -6,13 +6,13 @@ import os
 import sys
 import threading
 
-from chainsim.engine import argtypes, limits
-from chainsim.engine.errors import UserError
 from chainsim.game.app.options import add_mode_arguments, add_records_arguments
 from chainsim.game.app.outputs import check_output_file
 from chainsim.game.packs import pack as packs
 from chainsim.game.records import remote
 from chainsim.game.ui.window import run_window
+from chainsim.systems.engine import argtypes, limits
+from chainsim.systems.engine.errors import UserError
 
 NAME = "play"
 HELP = "open the simulator window on a pack"

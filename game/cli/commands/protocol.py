@@ -49,8 +49,6 @@ import matplotlib
 import matplotlib.pyplot as plt
 
 from chainsim.components.input_events import Widget
-from chainsim.engine import datafile, limits
-from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import run_pack
 from chainsim.game.app.inputscript import load_script
 from chainsim.game.app.options import name
@@ -77,6 +75,8 @@ from chainsim.game.ui.study import (
     saved_trials,
     study_name,
 )
+from chainsim.systems.engine import datafile, limits
+from chainsim.systems.engine.errors import UserError
 from chainsim.systems.procedures.needle.assessment import attempt_record
 
 logger = logging.getLogger(__name__)

@@ -12,12 +12,12 @@ import json
 import sys
 from pathlib import Path
 
-from chainsim.engine import argtypes, limits
-from chainsim.engine.errors import UserError
 from chainsim.game.cli.commands import records_server
 from chainsim.game.records import report as report
 from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import printable
+from chainsim.systems.engine import argtypes, limits
+from chainsim.systems.engine.errors import UserError
 
 NAME = "records"
 HELP = "view, export, plot or delete trainee records (classes, trainees, attempts)"

@@ -18,9 +18,9 @@ import os
 import sys
 from pathlib import Path
 
-from chainsim.engine.errors import UserError
 from chainsim.game.records import remote, report, xapi
 from chainsim.game.server import accounts
+from chainsim.systems.engine.errors import UserError
 
 ACTIONS = ("user", "login", "sync")
 LRS_AUTH_ENV = "CHAINSIM_LRS_AUTH"

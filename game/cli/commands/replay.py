@@ -9,10 +9,10 @@ known settings of the right type (docs/limits.md).
 
 from __future__ import annotations
 
-from chainsim.engine import limits
-from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import run_pack
 from chainsim.game.app.inputscript import parse_events, read_file
+from chainsim.systems.engine import limits
+from chainsim.systems.engine.errors import UserError
 
 NAME = "replay"
 HELP = "replay a recorded session and compare its final digest"

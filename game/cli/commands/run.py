@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import json
 
-from chainsim.engine import argtypes
-from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import run_pack
 from chainsim.game.app.options import (
     add_mode_arguments,
@@ -14,6 +12,8 @@ from chainsim.game.app.options import (
     window_size,
 )
 from chainsim.game.records import remote
+from chainsim.systems.engine import argtypes
+from chainsim.systems.engine.errors import UserError
 
 NAME = "run"
 HELP = "run a pack without a window and write OUT/summary.json"

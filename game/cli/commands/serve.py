@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 import logging
 
-from chainsim.engine.errors import UserError
 from chainsim.game.records import remote
 from chainsim.game.server.app import BASE_URL_ENV, serve
+from chainsim.systems.engine.errors import UserError
 
 NAME = "serve"
 HELP = "run the records server: trainers' dashboard and JSON API over the records database"

@@ -11,14 +11,14 @@ import sys
 
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import PackResource, PendingInput
-from chainsim.engine import argtypes
-from chainsim.engine.errors import UserError
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script
 from chainsim.game.app.options import window_size
 from chainsim.game.app.outputs import check_output_file
 from chainsim.game.gl.context import egl_context
 from chainsim.game.gl.render_system import screenshot
+from chainsim.systems.engine import argtypes
+from chainsim.systems.engine.errors import UserError
 
 NAME = "snapshot"
 HELP = "render a pack's window layout off screen to a PNG"

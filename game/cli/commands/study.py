@@ -7,10 +7,10 @@ import os
 import platform
 from pathlib import Path
 
-from chainsim.engine import argtypes, limits
-from chainsim.engine.errors import UserError
 from chainsim.game.app import pack_costs
 from chainsim.game.app.outputs import prepare_output_dir
+from chainsim.systems.engine import argtypes, limits
+from chainsim.systems.engine.errors import UserError
 from chainsim.tools.study import calibrate as cal
 from chainsim.tools.study import report, speed_accuracy, surgical, surgical_report
 from chainsim.tools.study.scenes import SCENES

@@ -1,6 +1,6 @@
 """`chainsim warmup`: compile every numba kernel ahead (after installing), so nothing waits later.
 
-The kernel groups compile in child processes side by side (chainsim.engine.warmup.Compiler), then
+The kernel groups compile in child processes side by side (chainsim.systems.engine.warmup.Compiler), then
 this process loads them all from numba's cache, which also compiles anything a child could not.
 Every kernel a built-in pack can reach on this machine is among them (warmup.reachable); `--all`
 adds the rest (ChainMail in float32, the parallel kernels numba never takes with this few threads)."""
@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import time
 
-from chainsim.engine.progress import progress
-from chainsim.engine.warmup import GROUPS, Compiler, reachable, warm_up
+from chainsim.systems.engine.progress import progress
+from chainsim.systems.engine.warmup import GROUPS, Compiler, reachable, warm_up
 
 NAME = "warmup"
 HELP = "compile the soft-tissue kernels now (a minute or two once per install) so no interaction waits on it"

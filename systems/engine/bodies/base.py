@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 
 #: the most elements a single grab may hold (bounds memory and per-step cost of attachments)
 MAX_GRAB = 1_000_000

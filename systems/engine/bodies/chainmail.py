@@ -14,14 +14,14 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike
 
-from chainsim.engine.bodies.base import Body, StepStats, check_ids
-from chainsim.engine.chainmail_params import order_code
-from chainsim.engine.errors import UserError
-from chainsim.engine.kernels import topology
-from chainsim.engine.kernels.chainmail import cascade, make_workspace, material_arrays
-from chainsim.engine.kernels.exact import exact_limits, exact_move
-from chainsim.engine.kernels.graph import Graph, build_graph
-from chainsim.engine.kernels.relax import relax
+from chainsim.systems.engine.bodies.base import Body, StepStats, check_ids
+from chainsim.systems.engine.chainmail_params import order_code
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.kernels import topology
+from chainsim.systems.engine.kernels.chainmail import cascade, make_workspace, material_arrays
+from chainsim.systems.engine.kernels.exact import exact_limits, exact_move
+from chainsim.systems.engine.kernels.graph import Graph, build_graph
+from chainsim.systems.engine.kernels.relax import relax
 
 #: below this many active elements relaxation runs on one thread: a parallel region's barriers cost
 #: far more than the work when the machine is busy (measured ~100x slower for a 1000-element patch)
@@ -37,7 +37,7 @@ def relax_moved(
     step: float = 1.0,
     fixed: ArrayLike | None = None,
 ) -> None:
-    """Relaxation of thesis 5.2.5 over `active` (chainsim.engine.kernels.relax), serial for small sets."""
+    """Relaxation of thesis 5.2.5 over `active` (chainsim.systems.engine.kernels.relax), serial for small sets."""
     if len(active) >= PARALLEL_RELAX_MIN:
         relax(rest, pos, graph, active, iterations, step=step, fixed=fixed)
         return

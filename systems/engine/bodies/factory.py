@@ -16,14 +16,14 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
-from chainsim.engine import meshgen
-from chainsim.engine.bodies.base import Body
-from chainsim.engine.bodies.chainmail import ChainMailBody
-from chainsim.engine.bodies.hybrid import HybridBody
-from chainsim.engine.bodies.projective import ProjectiveBody
-from chainsim.engine.bodies.surface import SurfaceChainMailBody
-from chainsim.engine.bodies.xpbd import XPBDBody
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.bodies.base import Body
+from chainsim.systems.engine.bodies.chainmail import ChainMailBody
+from chainsim.systems.engine.bodies.hybrid import HybridBody
+from chainsim.systems.engine.bodies.projective import ProjectiveBody
+from chainsim.systems.engine.bodies.surface import SurfaceChainMailBody
+from chainsim.systems.engine.bodies.xpbd import XPBDBody
+from chainsim.systems.engine.errors import UserError
 
 MODELS = ("chainmail", "xpbd", "projective", "hybrid", "surface")
 

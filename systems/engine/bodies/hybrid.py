@@ -1,5 +1,5 @@
 """Tissue that settles in a few frames: projective dynamics (the corotational energy of
-chainsim.engine.bodies.projective) solved by a two-level iteration, with sleeping far from the tool.
+chainsim.systems.engine.bodies.projective) solved by a two-level iteration, with sleeping far from the tool.
 
 Why two levels: projective dynamics' local-global iteration contracts by about 1 - 2 mu / (2 mu + 3
 lambda) per iteration (0.976 at nu = 0.45), because its global matrix is a Laplacian per axis and knows
@@ -54,13 +54,13 @@ from numpy.typing import ArrayLike
 from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 
-from chainsim.engine import meshgen
-from chainsim.engine.bodies.base import StepStats
-from chainsim.engine.bodies.chainmail import ChainMailBody
-from chainsim.engine.bodies.projective import ProjectiveBody
-from chainsim.engine.errors import UserError
-from chainsim.engine.kernels.projective import pcg3, spmv3
-from chainsim.engine.kernels.twolevel import local_forces, tet_stiffness, trilinear_weights, wake_front
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.bodies.base import StepStats
+from chainsim.systems.engine.bodies.chainmail import ChainMailBody
+from chainsim.systems.engine.bodies.projective import ProjectiveBody
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.kernels.projective import pcg3, spmv3
+from chainsim.systems.engine.kernels.twolevel import local_forces, tet_stiffness, trilinear_weights, wake_front
 
 STARTS = ("none", "chainmail", "linear")
 #: set-ups kept for held/awake sets seen before (a release and a re-grab of the same patch cost nothing)

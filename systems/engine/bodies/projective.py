@@ -40,13 +40,13 @@ import scipy.sparse as sp
 from numpy.typing import ArrayLike
 from scipy.sparse.linalg import splu
 
-from chainsim.engine import meshgen
-from chainsim.engine.bodies.base import Body, StepStats, check_elastic
-from chainsim.engine.bodies.xpbd import lumped_mass, tet_rest_data
-from chainsim.engine.errors import UserError
-from chainsim.engine.kernels.graph import build_graph
-from chainsim.engine.kernels.projective import local_step, local_step_tri, pcg3
-from chainsim.engine.kernels.topology import cut_segment
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.bodies.base import Body, StepStats, check_elastic
+from chainsim.systems.engine.bodies.xpbd import lumped_mass, tet_rest_data
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.kernels.graph import build_graph
+from chainsim.systems.engine.kernels.projective import local_step, local_step_tri, pcg3
+from chainsim.systems.engine.kernels.topology import cut_segment
 
 MAX_ITERATIONS = 10_000
 #: the global step: "direct" (sparse LU, factorised once per set of held elements) or "cg" (Jacobi-

@@ -11,7 +11,7 @@ The normal part here is exact: instead of the thesis's breadth-first cascade, in
 for one sponsor is not revisited for another, each element's offset is clamped into the band that the
 grabbed elements' targets allow at its graph distance (a Dijkstra pass from the grabbed elements, which
 stops where nothing changes), so every live link stays within its normal limit after every move.
-Cuts kill links of the shared graph (chainsim.engine.kernels.topology), which both parts read.
+Cuts kill links of the shared graph (chainsim.systems.engine.kernels.topology), which both parts read.
 """
 
 from __future__ import annotations
@@ -23,12 +23,12 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike
 
-from chainsim.engine import meshgen
-from chainsim.engine.bodies.base import Body, StepStats, check_positions
-from chainsim.engine.bodies.chainmail import ChainMailBody
-from chainsim.engine.errors import UserError
-from chainsim.engine.kernels import topology
-from chainsim.engine.kernels.graph import build_graph
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.bodies.base import Body, StepStats, check_positions
+from chainsim.systems.engine.bodies.chainmail import ChainMailBody
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.kernels import topology
+from chainsim.systems.engine.kernels.graph import build_graph
 
 
 @njit(cache=True)

@@ -15,12 +15,12 @@ import warnings
 import numpy as np
 from numpy.typing import ArrayLike
 
-from chainsim.engine import meshgen
-from chainsim.engine.bodies.base import Body, StepStats, check_elastic
-from chainsim.engine.errors import UserError
-from chainsim.engine.kernels.graph import build_graph
-from chainsim.engine.kernels.topology import cut_segment
-from chainsim.engine.kernels.xpbd import (
+from chainsim.systems.engine import meshgen
+from chainsim.systems.engine.bodies.base import Body, StepStats, check_elastic
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.kernels.graph import build_graph
+from chainsim.systems.engine.kernels.topology import cut_segment
+from chainsim.systems.engine.kernels.xpbd import (
     corot_energy,
     corot_forces,
     corot_sweep,

@@ -750,7 +750,7 @@ def cascade(
     left out of the result), or None. order: ORDER_BREADTH_FIRST, ORDER_DEPTH_FIRST, ORDER_BALANCED
     (branch depth `depth`) or ORDER_SCHILL. workspace: reuse one per mesh so a cascade costs what moves,
     not N (without one, a temporary of size N is made). parallel: breadth-first only, each wave's
-    candidates checked on numba's threads (chainsim.engine.kernels.waves); the result is the same. None
+    candidates checked on numba's threads (chainsim.systems.engine.kernels.waves); the result is the same. None
     lets the mesh size and numba's thread count decide (waves.parallel_wins); other orders run serially.
 
     Returns (order, sponsor_of_moved): the ids that moved in the order they moved (grabbed first), each

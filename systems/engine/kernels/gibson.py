@@ -1,7 +1,8 @@
 """Gibson's ChainMail on rectilinear grids (thesis 4.2), the baseline, and its relative-limit form (4.3).
 
 Elements sit on an nx x ny (x nz) grid, element (i, j[, k]) having id i + nx*(j + ny*k) (the layout of
-chainsim.engine.meshgen.grid); each is linked to its left/right (x), bottom/top (y) and back/front (z) neighbours.
+chainsim.systems.engine.meshgen.grid);
+each is linked to its left/right (x), bottom/top (y) and back/front (z) neighbours.
 
 Propagation uses one candidate list per direction, as 4.2.2 describes: the grabbed element puts every
 neighbour on the list of its direction; a moved x-list candidate adds its next x neighbour (same
@@ -225,7 +226,7 @@ def relative_grid_move(
 
     As gibson_grid_move, but a link of rest length L along axis a allows an along-axis offset in
     [min_rel[a] L, max_rel[a] L] and a sideways offset up to max_rel_shear[a] L. rest: float64 (N, D),
-    the undeformed grid (e.g. chainsim.engine.meshgen.grid with per-axis spacing arrays).
+    the undeformed grid (e.g. chainsim.systems.engine.meshgen.grid with per-axis spacing arrays).
     """
     dim, n, nx, ny, nz, grabbed, target, fixed_arr, has_fixed = _prepare(pos, shape, grabbed, target, fixed)
     if not isinstance(rest, np.ndarray) or rest.shape != pos.shape or rest.dtype != np.float64:

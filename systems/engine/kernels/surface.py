@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from chainsim.engine.meshgen import grid
+from chainsim.systems.engine.meshgen import grid
 
 from .gibson import relative_grid_move
 from .graph import Graph, build_graph

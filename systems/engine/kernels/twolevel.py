@@ -1,4 +1,4 @@
-"""Kernels of the two-level tissue solve (chainsim.engine.bodies.hybrid): the trilinear map from a coarse
+"""Kernels of the two-level tissue solve (chainsim.systems.engine.bodies.hybrid): the trilinear map from a coarse
 grid to the nodes of a tetrahedral mesh, the rest stiffness of linear elasticity per tetrahedron, and the
 front that wakes sleeping nodes when a disturbance reaches them.
 
@@ -147,7 +147,7 @@ def refine_rotations(F, Q, iterations):
 
 @njit(cache=True)
 def local_forces(x, tets, D, elems, w_arap, w_vol, quats, rot_iterations, rhs):
-    """The projective local step (chainsim.engine.kernels.projective.local_step: the same energy and
+    """The projective local step (chainsim.systems.engine.kernels.projective.local_step: the same energy and
     right-hand side) over the listed elements only, `elems` (an index array, so a sleeping body's frame
     costs its awake elements, not the whole element list), in three passes: every element's F, then
     `rot_iterations` refinements of every rotation at once (refine_rotations), then the targets and the

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from chainsim.engine.kernels.projective import rotation_into
+from chainsim.systems.engine.kernels.projective import rotation_into
 
 
 @njit(cache=True)

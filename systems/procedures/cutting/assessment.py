@@ -21,14 +21,14 @@ from __future__ import annotations
 import esper
 import numpy as np
 
-from chainsim.components.deformable import Deformable
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import Assessment, FailedSaves, PackResource, Records, SavedLocally, Settings
-from chainsim.components.tools import Forceps, Scissors
-from chainsim.engine.errors import UserError
-from chainsim.systems.deformation import DeformationState
+from chainsim.systems.engine.errors import UserError
 from chainsim.systems.procedures.cutting.state import MOVED_MM, CuttingState, link_stretch
+from chainsim.systems.procedures.cutting.tools import Forceps, Scissors
+from chainsim.systems.tissue.deformable import Deformable
+from chainsim.systems.tissue.deformation import DeformationState
 
 DEFAULT_CLASS = "default"
 DEFAULT_TRAINEE = "anonymous"

@@ -9,15 +9,11 @@ import math
 import esper
 import numpy as np
 
-from chainsim.components.deform_events import CutRequest, GrabRequest, ReleaseRequest
-from chainsim.components.deformable import Deformable
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Scroll, Widget
-from chainsim.components.tools import Forceps, Scissors
 from chainsim.components.view_events import Dragged, Picked
-from chainsim.engine.errors import UserError
-from chainsim.engine.raycast import ray_mesh
-from chainsim.systems.picking import entity_surface
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.raycast import ray_mesh
 from chainsim.systems.procedures.cutting.state import (
     TOOLS,
     CuttingState,
@@ -27,7 +23,11 @@ from chainsim.systems.procedures.cutting.state import (
     parse_point,
     world_positions,
 )
-from chainsim.systems.view import ViewState
+from chainsim.systems.procedures.cutting.tools import Forceps, Scissors
+from chainsim.systems.tissue.deformable import Deformable
+from chainsim.systems.tissue.events import CutRequest, GrabRequest, ReleaseRequest
+from chainsim.systems.view.cameras import ViewState
+from chainsim.systems.view.picking import entity_surface
 
 # -- the instruments -------------------------------------------------------------------------------
 

@@ -2,7 +2,7 @@
 
 `plugin(app)` is what `pack.procedure = "cutting"` installs. The pack provides deformable layers (each
 a ChainMail surface with one edge fixed), one entity with a `forceps` table and one with a `scissors`
-table; the procedure never deforms tissue itself, it asks `chainsim.systems.deformation` to (GrabRequest,
+table; the procedure never deforms tissue itself, it asks `chainsim.systems.tissue.deformation` to (GrabRequest,
 ReleaseRequest, CutRequest).
 
 Systems:
@@ -47,15 +47,12 @@ import esper
 import numpy as np
 
 from chainsim.components.core import Name, PolyLine, Transform
-from chainsim.components.deform_events import Deformed
-from chainsim.components.deformable import Deformable
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import MouseMove, Scroll, Widget
 from chainsim.components.resources import Assessment, EntityIndex, PackResource
-from chainsim.components.tools import Forceps, Scissors
+from chainsim.components.stages import ORDER_ASSESSMENT, ORDER_KINEMATICS, ORDER_PROCEDURE
 from chainsim.components.view_events import Dragged, Picked
-from chainsim.engine.errors import UserError
-from chainsim.systems.deformation import DeformationState
+from chainsim.systems.engine.errors import UserError
 from chainsim.systems.procedures.cutting.assessment import AssessmentSystem
 from chainsim.systems.procedures.cutting.instruments import ToolsSystem, widget_value
 from chainsim.systems.procedures.cutting.state import (
@@ -66,9 +63,12 @@ from chainsim.systems.procedures.cutting.state import (
     world_positions,
 )
 from chainsim.systems.procedures.cutting.steps import StepsSystem
-from chainsim.systems.stages import ORDER_ASSESSMENT, ORDER_KINEMATICS, ORDER_PROCEDURE
+from chainsim.systems.procedures.cutting.tools import Forceps, Scissors
+from chainsim.systems.tissue.deformable import Deformable
+from chainsim.systems.tissue.deformation import DeformationState
+from chainsim.systems.tissue.events import Deformed
 
-#: the key page's rows for what no widget shows (chainsim.systems.ui.keyhelp)
+#: the key page's rows for what no widget shows (chainsim.systems.view.ui.keyhelp)
 KEY_ROWS = [
     ("left-drag on the tissue in the Controller", "use the instrument: the forceps grip and carry, the scissors cut"),
     ("click on the tissue", "forceps: grip there; scissors: add a point to the cut path"),

@@ -9,9 +9,9 @@ import esper
 import numpy as np
 
 from chainsim.components.core import MeshRef, Transform
-from chainsim.components.deformable import Deformable
 from chainsim.components.resources import PackResource
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.tissue.deformable import Deformable
 
 TOOLS = ("forceps", "scissors")
 MOVED_MM = 0.01  # an element this far from rest counts as displaced

@@ -7,20 +7,20 @@ import esper
 import numpy as np
 
 from chainsim.components.core import Marker, PolyLine, Transform, Wireframe
-from chainsim.components.deform_events import ResetRequest
-from chainsim.components.deformable import Deformable
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import MouseMove
 from chainsim.components.resources import Assessment, PackResource
-from chainsim.components.tools import Forceps, Scissors
-from chainsim.systems.picking import pick
 from chainsim.systems.procedures.cutting.state import (
     CuttingState,
     world_positions,
 )
-from chainsim.systems.ui.viewports import OrbitCamera
-from chainsim.systems.ui.widgets import WidgetState
-from chainsim.systems.view import ViewState, frame_view
+from chainsim.systems.procedures.cutting.tools import Forceps, Scissors
+from chainsim.systems.tissue.deformable import Deformable
+from chainsim.systems.tissue.events import ResetRequest
+from chainsim.systems.view.cameras import ViewState, frame_view
+from chainsim.systems.view.picking import pick
+from chainsim.systems.view.ui.viewports import OrbitCamera
+from chainsim.systems.view.ui.widgets import WidgetState
 
 TOOL_COMPONENTS = {"forceps": Forceps, "scissors": Scissors}
 

@@ -1,7 +1,7 @@
 """The ChainMail demos (thesis 5.3 Figs 5.6-5.8) as something a person can try in the window.
 
 `plugin(app)` is what `pack.procedure = "demo"` installs. The pack's bodies are deformable and carry
-a scripted `pull` (chainsim.components.deformable.Pull) started by a widget; the deformation system
+a scripted `pull` (chainsim.systems.tissue.deformable.Pull) started by a widget; the deformation system
 does the pulling and the mouse drags. This procedure only adds what a person needs around them:
 
 * the element each pull drags is marked (a Marker entity that follows it) and the path it will be
@@ -24,21 +24,21 @@ import esper
 import numpy as np
 
 from chainsim.components.core import Marker, Name, PolyLine, Transform
-from chainsim.components.deform_events import ResetRequest
-from chainsim.components.deformable import Deformable, Pull
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import EntityIndex, PackResource
+from chainsim.components.stages import ORDER_PROCEDURE
 from chainsim.components.view_events import Dragged
-from chainsim.engine.errors import UserError
-from chainsim.systems.stages import ORDER_PROCEDURE
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.tissue.deformable import Deformable, Pull
+from chainsim.systems.tissue.events import ResetRequest
 
 STEP_IDS = ("pull", "drag")
 MARK_COLOR = (0.15, 1.0, 0.35, 1.0)
 PATH_COLOR = (0.15, 1.0, 0.35, 0.8)
 MARK_FRACTION = 0.012  # marker radius as a fraction of the body's size
 
-#: the key page's rows for what no widget shows (chainsim.systems.ui.keyhelp)
+#: the key page's rows for what no widget shows (chainsim.systems.view.ui.keyhelp)
 KEY_ROWS = [
     ("left-drag on the tissue in the Grab view", "pull the element under the cursor with the mouse"),
 ]

@@ -10,7 +10,7 @@ messages; saves attempts to the records store.
 
 Values, on the side the trainee works on (all millimetres unless said):
     landmark error  the pack's `landmark_score` over its [[landmarks]]
-                    (chainsim.components.procedure.landmark_errors; D_k, d_k, Dist_k per landmark k)
+                    (chainsim.systems.procedures.needle.manifest.landmark_errors; D_k, d_k, Dist_k per landmark k)
     needle error    E = Dist - R at the last contact: Dist from the tip to the target centre, R the
                     target's radius. Negative when the tip stopped inside the radius; None while the
                     needle has touched nothing. `first_contact_dist_mm`: Dist at the first contact.
@@ -37,10 +37,7 @@ import esper
 import numpy as np
 
 from chainsim.components.core import Marker, PolyLine, Transform
-from chainsim.components.fluoro import CArm
 from chainsim.components.input_events import Widget
-from chainsim.components.needle import NeedleState
-from chainsim.components.procedure import NeedleScene, ProcedureState, landmark_errors
 from chainsim.components.resources import (
     Assessment,
     EntityIndex,
@@ -50,12 +47,15 @@ from chainsim.components.resources import (
     SavedLocally,
     Settings,
 )
-from chainsim.engine.errors import UserError
+from chainsim.components.stages import ORDER_ASSESSMENT
+from chainsim.systems.engine.errors import UserError
 from chainsim.systems.procedures.needle import debrief as db
 from chainsim.systems.procedures.needle import fluoro
+from chainsim.systems.procedures.needle.carm import CArm
+from chainsim.systems.procedures.needle.components import NeedleState
 from chainsim.systems.procedures.needle.handles import NeedleHandles, hud
-from chainsim.systems.stages import ORDER_ASSESSMENT
-from chainsim.systems.ui.widgets import format_value
+from chainsim.systems.procedures.needle.manifest import NeedleScene, ProcedureState, landmark_errors
+from chainsim.systems.view.ui.widgets import format_value
 
 DEFAULT_CLASS = "default"
 DEFAULT_TRAINEE = "anonymous"

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from chainsim.systems.needle import ROTATION_WIDGETS
+from chainsim.systems.procedures.needle.kinematics import ROTATION_WIDGETS
 
 _STR, _INT, _FLOAT = "text", 1, 1.5  # sample values of each type a message may be given
 

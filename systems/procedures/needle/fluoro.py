@@ -36,13 +36,13 @@ import esper
 import numpy as np
 
 from chainsim.components.core import Name
-from chainsim.components.fluoro import LIVE_RATE_HZ, CArm
 from chainsim.components.input_events import Widget
-from chainsim.components.procedure import NeedleScene, ProcedureState, Target
 from chainsim.components.resources import EntityIndex, InputState, PackResource, Settings
+from chainsim.components.stages import ORDER_FLUORO
 from chainsim.components.view_events import ViewTurned
+from chainsim.systems.procedures.needle.carm import LIVE_RATE_HZ, CArm
 from chainsim.systems.procedures.needle.handles import Feedback, NeedleHandles, hud
-from chainsim.systems.stages import ORDER_FLUORO
+from chainsim.systems.procedures.needle.manifest import NeedleScene, ProcedureState, Target
 
 
 def fluoro_first(app) -> bool:

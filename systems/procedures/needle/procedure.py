@@ -1,8 +1,8 @@
 """The generic needle procedure (thesis 3.2.3 task analysis, 3.3.4 interface, 3.3.6 feedback).
 
 `plugin(app)` is what `pack.procedure = "needle"` installs: the NeedleScene resource read from the
-pack's [needle_procedure], [roles], [[landmarks]] (chainsim.components.procedure), the needle
-kinematics (chainsim.systems.needle), the swept collision test (chainsim.systems.collision), this
+pack's [needle_procedure], [roles], [[landmarks]] (chainsim.systems.procedures.needle.manifest), the needle
+kinematics (kinematics.py), the swept collision test (collision.py), this
 step machine, the assessment (.assessment) and the C-arm (.fluoro). Nothing here knows a procedure:
 every name, message, light and step comes from the pack (docs/needle-procedures.md).
 
@@ -36,20 +36,25 @@ import numpy as np
 
 from chainsim.components.core import Label, Marker, MeshRef, Name, Transform
 from chainsim.components.input_events import Widget
-from chainsim.components.needle import Needle, NeedleState
-from chainsim.components.procedure import NeedleScene, ProcedureState, scene_from_pack
 from chainsim.components.resources import EntityIndex, PackResource
+from chainsim.components.stages import ORDER_PROCEDURE
 from chainsim.components.view_events import Picked, WidgetRefused
-from chainsim.engine import quaternion as Q
-from chainsim.engine.errors import UserError
-from chainsim.systems import collision
-from chainsim.systems import needle as needle_sys
-from chainsim.systems.collision import NeedleHit
-from chainsim.systems.needle import ROTATION_WIDGETS, InsertRefused, NeedleAction, NeedleReset, RotationRefused
-from chainsim.systems.procedures.needle import assessment, fluoro
+from chainsim.systems.engine import quaternion as Q
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.procedures.needle import assessment, collision, fluoro
+from chainsim.systems.procedures.needle import kinematics as needle_sys
+from chainsim.systems.procedures.needle.collision import NeedleHit
+from chainsim.systems.procedures.needle.components import Needle, NeedleState
 from chainsim.systems.procedures.needle.handles import Feedback, NeedleHandles, hud
-from chainsim.systems.stages import ORDER_PROCEDURE
-from chainsim.systems.ui.widgets import WidgetState
+from chainsim.systems.procedures.needle.kinematics import (
+    ROTATION_WIDGETS,
+    InsertRefused,
+    NeedleAction,
+    NeedleReset,
+    RotationRefused,
+)
+from chainsim.systems.procedures.needle.manifest import NeedleScene, ProcedureState, scene_from_pack
+from chainsim.systems.view.ui.widgets import WidgetState
 
 #: what is said when the pack's [[feedback]] says nothing for an event
 DEFAULTS = {

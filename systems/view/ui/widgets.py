@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from chainsim.systems.ui.viewports import Rect
+from chainsim.systems.view.ui.viewports import Rect
 
 INTERACTIVE = ("button", "toggle", "slider", "dial")
 TITLE_PX = 26  # panel caption height

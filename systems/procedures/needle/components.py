@@ -6,7 +6,7 @@ needle goes. The pose is kept as an entry point, an orientation quaternion and a
 
     tip = entry + depth * rotate(q, +Z)
 
-Orientation is changed only by concatenated quaternion rotations (chainsim.engine.quaternion), never by
+Orientation is changed only by concatenated quaternion rotations (chainsim.systems.engine.quaternion), never by
 re-deriving angles, as in 3.3.5.
 """
 
@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from chainsim.components.registry import component, prop
-from chainsim.engine.quaternion import rotate
+from chainsim.systems.engine.quaternion import rotate
 
 
 @component(

@@ -32,7 +32,7 @@ DETECTOR_MM = 230.0
 class CArm:
     """Pose and counts of the C-arm (runtime component on the entity "carm")."""
 
-    azimuth_deg: float = 0.0  # see chainsim.systems.ui.viewports.carm_source_direction
+    azimuth_deg: float = 0.0  # see chainsim.systems.view.ui.viewports.carm_source_direction
     elevation_deg: float = 0.0
     iso: np.ndarray = field(default_factory=lambda: np.zeros(3))  # isocentre, world mm
     view: str = "lateral"  # the preset last chosen ("lateral", "submental"), or "free" once turned

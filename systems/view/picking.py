@@ -1,7 +1,7 @@
 """Picking without GL: ray -> (entity, triangle, point) on the current (possibly deformed) meshes, and a
 world point -> nearest surface point (thesis 3.3.4: landmarks are placed by clicking on the face).
 
-The ray test (chainsim.engine.raycast) is a vectorised, two-sided Moller-Trumbore over every triangle of each
+The ray test (chainsim.systems.engine.raycast) is a vectorised, two-sided Moller-Trumbore over every triangle of each
 candidate mesh
 (after a bounding-sphere cull), on the vertex positions the renderer draws: `Deformable.pos` when the
 entity has one, else the pack mesh, mapped through the entity's Transform. Triangles that lost an edge
@@ -16,9 +16,9 @@ import esper
 import numpy as np
 
 from chainsim.components.core import MeshRef, Name, Transform
-from chainsim.components.deformable import Deformable
 from chainsim.components.resources import PackResource
-from chainsim.engine.raycast import closest_on_mesh, ray_mesh, to_world, triangle_links
+from chainsim.systems.engine.raycast import closest_on_mesh, ray_mesh, to_world, triangle_links
+from chainsim.systems.tissue.deformable import Deformable
 
 
 @dataclass(slots=True)

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from chainsim.components.registry import Field, section
-from chainsim.engine.errors import UserError
+from chainsim.systems.engine.errors import UserError
 
 ROLE_KINDS = ("skin", "target", "obstacle", "tissue")
 ON_CONTACT = ("bounce", "stop", "warn")

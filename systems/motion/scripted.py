@@ -10,8 +10,8 @@ import esper
 import numpy as np
 
 from chainsim.components.core import ScriptedMotion, Transform
-from chainsim.engine import quaternion
-from chainsim.systems.stages import ORDER_KINEMATICS
+from chainsim.components.stages import ORDER_KINEMATICS
+from chainsim.systems.engine import quaternion
 
 
 def motion_system(app) -> None:

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll
 from chainsim.components.resources import InputState, PendingInput, Time
-from chainsim.systems.stages import ORDER_INPUT
+from chainsim.components.stages import ORDER_INPUT
 
 
 @dataclass(slots=True)

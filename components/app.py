@@ -26,7 +26,7 @@ import esper
 
 from chainsim.components.events import EventQueue
 from chainsim.components.resources import InputState, PendingInput, Settings, Time
-from chainsim.systems.stages import STAGES
+from chainsim.components.stages import STAGES
 
 #: at most this many fixed steps per frame, so a stalled frame cannot spiral
 MAX_STEPS_PER_FRAME = 32

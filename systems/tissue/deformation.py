@@ -1,14 +1,14 @@
 """Deformation: serves grab / release / cut / add-link requests on deformable bodies with ChainMail.
 
 Stage: simulation (ORDER_DEFORMATION; the scripted puller just before it). Reads GrabRequest,
-ReleaseRequest, CutRequest, AddLinksRequest (chainsim.components.deform_events), Widget events (to start pulls) and
+ReleaseRequest, CutRequest, AddLinksRequest (chainsim.systems.tissue.events), Widget events (to start pulls) and
 the view system's Dragged events (with `deformable.drag`, a mouse drag on a body pulls the element
 nearest the grab point; off by default so a procedure's own tools are the only hands on the tissue).
 Writes Deformable.pos / dirty / version / held / alive, emits Deformed.
 
 Each grab runs one Generalised ChainMail cascade (thesis 5.2.3) from the grabbed elements, then the
 relaxation of 5.2.5 over the elements that moved (grabbed, held and fixed elements stay put), then, for
-a material with `exact = true`, the exact-limit pass (chainsim.engine.kernels.exact). Cuts mark links
+a material with `exact = true`, the exact-limit pass (chainsim.systems.engine.kernels.exact). Cuts mark links
 dead (thesis 4.5.2); the renderer sees moved vertices through `dirty`.
 
 Installed only when some entity is deformable: a `deformable` table, or `simulation.kind` "surface" /
@@ -24,7 +24,16 @@ import esper
 import numpy as np
 
 from chainsim.components.core import MeshRef, Name, Simulation, Transform
-from chainsim.components.deform_events import (
+from chainsim.components.hud import HudState
+from chainsim.components.input_events import Widget
+from chainsim.components.resources import EntityIndex, PackResource
+from chainsim.components.stages import ORDER_DEFORMATION
+from chainsim.components.view_events import Dragged
+from chainsim.systems.engine.bodies.chainmail import relax_moved  # noqa: F401  (re-exported for the older callers)
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.kernels import topology
+from chainsim.systems.tissue.deformable import Deformable, Pull, mirror_chainmail, setup_deformable, use_model
+from chainsim.systems.tissue.events import (
     FRAMES,
     AddLinksRequest,
     CutRequest,
@@ -34,15 +43,6 @@ from chainsim.components.deform_events import (
     ResetRequest,
     as_points,
 )
-from chainsim.components.deformable import Deformable, Pull, mirror_chainmail, setup_deformable, use_model
-from chainsim.components.hud import HudState
-from chainsim.components.input_events import Widget
-from chainsim.components.resources import EntityIndex, PackResource
-from chainsim.components.view_events import Dragged
-from chainsim.engine.bodies.chainmail import relax_moved  # noqa: F401  (re-exported for the older callers)
-from chainsim.engine.errors import UserError
-from chainsim.engine.kernels import topology
-from chainsim.systems.stages import ORDER_DEFORMATION
 
 ORDER_PULL = ORDER_DEFORMATION - 10
 

@@ -8,14 +8,22 @@ body's link graph from its mesh. Nothing from the pack is executed.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import esper
 
 from chainsim.components.core import Name
 from chainsim.components.registry import COMPONENTS
 from chainsim.components.resources import EntityIndex, PackResource
-from chainsim.game.packs.pack import Pack
+
+
+class Pack(Protocol):
+    """What spawning needs of a loaded pack (chainsim.game.packs.pack.Pack is one): its validated
+    manifest and its scenes."""
+
+    manifest: dict[str, Any]
+
+    def scene(self, name: str | None = None) -> tuple[str, dict[str, Any]]: ...
 
 
 @dataclass(slots=True)

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from chainsim.engine import quaternion
+from chainsim.systems.engine import quaternion
 
 KINDS_3D = ("orbit", "attached", "fixed")
 

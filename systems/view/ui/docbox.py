@@ -6,12 +6,12 @@ leaves room at the top of the view for the step text and messages. The same rect
 renderer (what to draw where) and the view system (which clicks and wheel turns the box takes), so
 a click on a page button never reaches the face underneath.
 
-All rectangles are in window units, origin bottom-left (chainsim.systems.ui.viewports.Rect).
+All rectangles are in window units, origin bottom-left (chainsim.systems.view.ui.viewports.Rect).
 """
 
 from __future__ import annotations
 
-from chainsim.systems.ui.viewports import Rect
+from chainsim.systems.view.ui.viewports import Rect
 
 MARGIN = 16  # between the box and the view's edges
 TOP_ROOM = 116  # above the box: the view title, the step title and instruction, two messages

@@ -1,7 +1,7 @@
 """Requests to deformable bodies and what they report back (events on `app.events`).
 
 Anything that wants to deform tissue (a tool system, the mouse, a scripted puller, a test) emits one
-of the requests below; `chainsim.systems.deformation` serves them in the simulation stage and answers with
+of the requests below; `chainsim.systems.tissue.deformation` serves them in the simulation stage and answers with
 `Deformed`. Entities may be named by id or by manifest name.
 
 Coordinates: `frame="world"` (the default) means millimetres in the scene frame, as `Picked` events

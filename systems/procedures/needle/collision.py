@@ -15,7 +15,7 @@ Obstacles that only warn are tested along the sweep from the old tip, so each is
 in. Skin and tissue are not obstacles. On contact (the role's `on_contact`): the side's target stops
 the needle for good; bounce springs it back by the needle's `bounce`; stop leaves it where it touched.
 
-The segment query is the engine's (chainsim.engine.segment_tree).
+The segment query is the engine's (chainsim.systems.engine.segment_tree).
 """
 
 from __future__ import annotations
@@ -26,12 +26,12 @@ import esper
 import numpy as np
 
 from chainsim.components.core import MeshRef, Transform
-from chainsim.components.needle import Needle, NeedleState
-from chainsim.components.procedure import NeedleScene
 from chainsim.components.resources import EntityIndex, PackResource
-from chainsim.engine.segment_tree import SegmentTree
-from chainsim.systems.needle import apply_pose, sync_widgets
-from chainsim.systems.stages import ORDER_COLLISION
+from chainsim.components.stages import ORDER_COLLISION
+from chainsim.systems.engine.segment_tree import SegmentTree
+from chainsim.systems.procedures.needle.components import Needle, NeedleState
+from chainsim.systems.procedures.needle.kinematics import apply_pose, sync_widgets
+from chainsim.systems.procedures.needle.manifest import NeedleScene
 
 
 @dataclass(slots=True)

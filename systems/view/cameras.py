@@ -1,7 +1,7 @@
 """Cameras, picking and the control panel: turns pointer and key events into camera moves, `Picked` /
 `Dragged` events and `Widget` events (thesis 3.3.4 linked views and controller; 4.5.2 dragging tissue).
 
-Stage: input (ORDER_VIEW), after chainsim.systems.input. Reads: every input event on the queue, Transform /
+Stage: input (ORDER_VIEW), after chainsim.systems.motion.input. Reads: every input event on the queue, Transform /
 MeshRef / Deformable (picking, attached cameras), PackResource.layout, Settings. Writes: ViewState
 (viewport rectangles and cameras, resource), WidgetState, HudState (ages messages), the `visible` flag
 of MeshRef / Marker / PolyLine components of a layer switched by a toggle; emits Picked, Dragged,
@@ -27,14 +27,14 @@ NAME is "planes"); "view:NAME" shows/hides viewport NAME; "xray:NAME" draws laye
 "wire:NAME" draws layer NAME as its links (wireframe, thesis Figs 5.6-5.7).
 Key "f1" opens or closes the key page, "escape" closes an open page.
 
-Pages (chainsim.systems.ui.docbox): while a page, the key overlay or a notice is open over the main
+Pages (chainsim.systems.view.ui.docbox): while a page, the key overlay or a notice is open over the main
 view, the box takes the pointer - its footer buttons turn pages or close it, the wheel scrolls it -
 and a click on the main view around it does nothing, so nothing lands on the face underneath.
 The panel and the other views keep working.
 
 Framing: a viewport with `fit = true` is placed (its yaw and pitch kept) so the box around the
 visible meshes and their pull paths fills it, clear of its caption and of the step text
-(`frame_view`, chainsim.systems.ui.viewports.fit_orbit); again after a resize unless the trainee
+(`frame_view`, chainsim.systems.view.ui.viewports.fit_orbit); again after a resize unless the trainee
 moved it. Help: the `help` widget opens the current step's page, else the last shown, else the
 pack's first; the key page (F1) leads on to the pages with its "Help pages >" button.
 
@@ -52,17 +52,17 @@ import esper
 import numpy as np
 
 from chainsim.components.core import Marker, MeshRef, PolyLine, Transform
-from chainsim.components.deformable import Pull
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, PickPoint, Resize, Scroll, Widget
 from chainsim.components.resources import EntityIndex, InputState, PackResource, Settings
+from chainsim.components.stages import ORDER_VIEW
 from chainsim.components.view_events import Dragged, LayerChanged, Picked, ViewTurned, WidgetRefused
-from chainsim.engine.errors import UserError
-from chainsim.systems.picking import pick, snap
-from chainsim.systems.stages import ORDER_VIEW
-from chainsim.systems.ui import docbox
-from chainsim.systems.ui import widgets as wd
-from chainsim.systems.ui.viewports import (
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.tissue.deformable import Pull
+from chainsim.systems.view.picking import pick, snap
+from chainsim.systems.view.ui import docbox
+from chainsim.systems.view.ui import widgets as wd
+from chainsim.systems.view.ui.viewports import (
     KINDS_3D,
     Camera,
     OrbitCamera,
@@ -191,7 +191,7 @@ FIT_MARGIN = 12.0
 
 def frame_view(vs: ViewState, vp: Viewport, lo, hi) -> None:
     """Place an orbit or fixed view's camera (its yaw and pitch kept) so the box lo..hi fills the view,
-    clear of its caption and, in the main view, of the step text (chainsim.systems.ui.viewports.fit_orbit)."""
+    clear of its caption and, in the main view, of the step text (chainsim.systems.view.ui.viewports.fit_orbit)."""
     if vp.kind not in ("orbit", "fixed") or not isinstance(vp.camera, OrbitCamera) or vp.rect.w < 2 or vp.rect.h < 2:
         return
     top = FIT_TOP_MAIN if vp is main_view(vs) else FIT_TOP

@@ -43,11 +43,11 @@ import numpy as np
 from chainsim.components.core import MeshRef, Transform
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, Widget
-from chainsim.components.needle import Needle, NeedleState
 from chainsim.components.resources import EntityIndex, InputState
-from chainsim.engine import quaternion as Q
-from chainsim.systems.stages import ORDER_KINEMATICS
-from chainsim.systems.ui.widgets import WidgetState
+from chainsim.components.stages import ORDER_KINEMATICS
+from chainsim.systems.engine import quaternion as Q
+from chainsim.systems.procedures.needle.components import Needle, NeedleState
+from chainsim.systems.view.ui.widgets import WidgetState
 
 Z = np.array([0.0, 0.0, 1.0])
 ROTATION_WIDGETS = ("rotate_horizontal", "rotate_vertical")

@@ -4,7 +4,7 @@
 render mesh into a ChainMail object (elements = mesh vertices in the SAME order, links = triangle edges
 for a surface or tetrahedron edges for a volume, 5.2.1 and 5.2.6) with per-link material limits taken
 from a [materials] entry and optional inline overrides. An entity whose `simulation.kind` is "surface"
-or "volume" but has no `deformable` table gets a default one from `chainsim.systems.deformation` (same fields,
+or "volume" but has no `deformable` table gets a default one from `chainsim.systems.tissue.deformation` (same fields,
 material = the mesh's material), so both spellings lead to one component.
 
 Runtime state lives in the same dataclass: `rest` and `pos` (N, 3) in the entity's local frame, the
@@ -28,14 +28,14 @@ from chainsim.assets import ASSETS_DIR
 from chainsim.components.core import MeshRef
 from chainsim.components.registry import component, prop
 from chainsim.components.resources import Settings
-from chainsim.engine import limits, meshgen
-from chainsim.engine.bodies.chainmail import ChainMailBody
-from chainsim.engine.bodies.factory import choose_model, load_table, make_body
-from chainsim.engine.bodies.projective import SOLVERS as PROJECTIVE_SOLVERS
-from chainsim.engine.chainmail_params import ORDER_CHOICES, order_name
-from chainsim.engine.errors import UserError
-from chainsim.engine.kernels.chainmail import make_workspace, material_arrays
-from chainsim.engine.kernels.graph import build_graph
+from chainsim.systems.engine import limits, meshgen
+from chainsim.systems.engine.bodies.chainmail import ChainMailBody
+from chainsim.systems.engine.bodies.factory import choose_model, load_table, make_body
+from chainsim.systems.engine.bodies.projective import SOLVERS as PROJECTIVE_SOLVERS
+from chainsim.systems.engine.chainmail_params import ORDER_CHOICES, order_name
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.kernels.chainmail import make_workspace, material_arrays
+from chainsim.systems.engine.kernels.graph import build_graph
 
 ORDERS = ORDER_CHOICES  # breadth-first, balanced, schill, depth-first; fifo = breadth-first
 MODEL_CHOICES = ("chainmail", "xpbd", "projective", "hybrid", "surface", "auto")
@@ -417,7 +417,7 @@ def use_model(d: Deformable, model: str, where: str = "deformable", initial: boo
                 exact=d.exact_limits,
                 order=d.order,
             )
-        elif model == "hybrid":  # one two-level iteration a frame (chainsim.engine.bodies.hybrid)
+        elif model == "hybrid":  # one two-level iteration a frame (chainsim.systems.engine.bodies.hybrid)
             settings.update(iterations=d.iterations or 1)
         else:
             settings.update(

@@ -1,0 +1,1 @@
+"""The input and motion feature: releasing timed input events, and scripted motion along waypoints."""

@@ -1,0 +1,1 @@
+"""The view feature: cameras, picking on the (deformed) meshes, and the control panel's widgets."""
