@@ -76,7 +76,7 @@ def test_full_then_partial_uploads_keep_the_drawn_normals_right(gl_ctx, gpu_alwa
 
 
 def _draw(gl_ctx, pos, tris):
-    from chainsim.game.gl.bench import _frame
+    from chainsim.game.bench.render import _frame
     from chainsim.game.gl.context import offscreen_framebuffer, release_framebuffer
     from chainsim.game.gl.renderer import Renderer
 

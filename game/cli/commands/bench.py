@@ -12,12 +12,12 @@ HELP = "run a benchmark (chainmail, render, ...)"
 # name -> module; a benchmark module is imported only to build its sub-parser
 BENCHES = {
     "chainmail": "chainsim.tools.bench.chainmail",
-    "render": "chainsim.game.gl.bench",
-    "docs": "chainsim.game.gl.docbench",
-    "window": "chainsim.game.ui.windowbench",
+    "render": "chainsim.game.bench.render",
+    "docs": "chainsim.game.bench.docs",
+    "window": "chainsim.game.bench.window",
     "models": "chainsim.tools.bench.models",
-    "records": "chainsim.game.server.bench",
-    "train": "chainsim.game.server.train_bench",
+    "records": "chainsim.game.bench.records",
+    "train": "chainsim.game.bench.train",
 }
 
 

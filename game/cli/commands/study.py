@@ -7,8 +7,8 @@ import os
 import platform
 from pathlib import Path
 
-from chainsim.game.app import pack_costs
 from chainsim.game.app.outputs import prepare_output_dir
+from chainsim.game.bench import pack_costs
 from chainsim.systems.engine import argtypes, limits
 from chainsim.systems.engine.errors import UserError
 from chainsim.tools.study import calibrate as cal
