@@ -1,7 +1,7 @@
 """Events the view system emits for procedures and tools (the output side of picking and widgets).
 
-`Picked` is the one event consumers of clicks on the scene read (the needle procedure places landmarks on
-its skin role with it, thesis 3.3.4; the cutting trainer grabs tissue, 4.5.2). It is emitted once per click
+`Picked` is the one event consumers of clicks on the scene read (a procedure places its marked points on
+a surface with it, thesis 3.3.4; the cutting trainer grabs tissue, 4.5.2). It is emitted once per click
 (button pressed and released without moving more than a few pixels) on a visible, pickable mesh in a
 3-D viewport, and once per scripted `PickPoint` (snapped to the entity's surface, `viewport` = "").
 

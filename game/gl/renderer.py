@@ -745,7 +745,7 @@ class Renderer:
     # -- 2-D ---------------------------------------------------------------------------------
     def _overlay(self, frame: Frame) -> None:
         """Two layers: captions, labels, HUD, aiming aid and panels first; the page box over them, so
-        nothing of the scene (a landmark label) shows through an open page."""
+        nothing of the scene (a marked point's label) shows through an open page."""
         ov = self.overlay
         s = frame.scale
         waiting = []  # views whose labels wait for their queries: (overlay positions, fonts, view, rect, queries)

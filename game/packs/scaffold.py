@@ -25,7 +25,7 @@ TEMPLATES_DIR = ASSETS_DIR / "templates"
 #: template name -> what it gives (the `--template` help)
 TEMPLATES = {
     "tissue": "a soft block to pull with a button or the mouse (the default)",
-    "needle": "a needle procedure on the prp pack's head: landmarks, aiming, insertion, assessment",
+    "needle": "a needle procedure on the prp pack's head: points to mark, aiming, insertion, assessment",
     "empty": "one box in a view you can turn: the least a pack needs",
 }
 DEFAULT_TEMPLATE = "tissue"

@@ -3,7 +3,7 @@
 One statement per attempt: the trainee (an account of the programme's home page) *completed*
 the procedure (the pack, as an activity), with a result carrying success (the needle ended in
 its target, not on bone or nowhere: thesis 3.3.4's green light), the duration, the needle error
-of 6.1.5 as the raw score (millimetres beyond the foramen radius: lower is better, negative is
+of 6.1.5 as the raw score (millimetres beyond the target's radius: lower is better, negative is
 inside) and every metric of the attempt record as a result extension. The class is the
 statement's grouping activity. Statement ids are name-based UUIDs of (home page, attempt id),
 so exporting or posting the same attempt twice gives the same statement, which an LRS keeps once.

@@ -46,7 +46,7 @@ def metrics(attempts: Sequence[dict[str, Any]]) -> list[str]:
 
 
 def label(metric: str) -> str:
-    """``landmark_error_mm`` -> ``landmark error (mm)``."""
+    """``needle_error_mm`` -> ``needle error (mm)``."""
     for suffix, unit in _UNITS.items():
         if metric.endswith(suffix):
             return f"{metric[: -len(suffix)].replace('_', ' ')} ({unit})"

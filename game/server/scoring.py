@@ -195,7 +195,7 @@ def replay_record(recording_text: str, pack_root: str, pack_paths: list[str]) ->
     """Replay a recording headless on the pack at ``pack_root``; the attempt record its last Save made.
 
     Raises UserError when the recording does not replay to a Save (events the scene refuses, a Save the
-    procedure refuses, such as one before every landmark is placed)."""
+    procedure refuses, such as one before every marked point is placed)."""
     from chainsim.components.resources import PendingInput, Records  # noqa: PLC0415 - worker process only
     from chainsim.game.app.headless import app_for_pack, check_events  # noqa: PLC0415
     from chainsim.game.app.inputscript import parse_events  # noqa: PLC0415

@@ -117,7 +117,7 @@ def _geometry() -> None:
 def _moving_normals() -> None:
     # the argument types the app passes: float64 positions from the engine, float32 from the window's
     # GPU meshes (chainsim.game.gl.meshbuf: whole-mesh normals into float32 or float64, and the moved
-    # vertices' normals while a tool drags tissue); missing one froze a first forceps grip for seconds
+    # vertices' normals while a tool drags tissue); missing one froze a first instrument grip for seconds
     rest, _tets, _links, tris = _grid()
     tris = np.ascontiguousarray(tris, dtype=np.int64)
     n = int(tris.max()) + 1

@@ -1,5 +1,5 @@
 """Picking without GL: ray -> (entity, triangle, point) on the current (possibly deformed) meshes, and a
-world point -> nearest surface point (thesis 3.3.4: landmarks are placed by clicking on the face).
+world point -> nearest surface point (thesis 3.3.4: a point is marked by clicking on a surface).
 
 The ray test (chainsim.systems.engine.raycast) is a vectorised, two-sided Moller-Trumbore over every triangle of each
 candidate mesh

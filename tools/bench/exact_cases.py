@@ -3,7 +3,7 @@
     skin_case(fixed_rim, volume)   the prp face (assets/prp/meshes/skin.ply, 4426 elements; or filled with
                                    tetrahedra): the bottom rim (every element within 3 mm of the lowest
                                    point) fixed or not, one cheek element (the nearest to the left ideal
-                                   landmark 1, the needle entry) pulled along the outward surface normal
+                                   entry point, where the needle enters) pulled along the outward surface normal
     block_case()                   a 21^3 tetrahedral block (9261 elements), its base fixed, a top-centre
                                    element pulled up and sideways
     whole_body_cases(max_elements) tet blocks of 12^3, 38^3 and 100^3 elements (1.7k, 55k, 1M), base fixed,
@@ -24,7 +24,7 @@ from chainsim.systems.engine.meshimport import load_mesh
 from chainsim.tools.bench.meshes import fast_tet_grid
 
 SKIN = Path(__file__).resolve().parents[2] / "assets" / "prp" / "meshes" / "skin.ply"
-#: the left ideal landmark 1 of assets/prp/anatomy.toml (mm, head frame): the cheek the needle enters
+#: the left ideal entry point of assets/prp/anatomy.toml (mm, head frame): the cheek the needle enters
 CHEEK = np.array([-47.493, 52.487, -48.654])
 RIM_MM = 3.0
 PULLS_MM = (8.0, 22.0, 46.0)

@@ -33,7 +33,7 @@ from .fem_nonlinear import NeoHookeanFEM
 from .metrics import displacement_error
 from .scenes import block
 
-REFERENCE_TRACTION = 300.0  # Pa: a gentle forceps traction (about 0.03 N over 1 cm^2)
+REFERENCE_TRACTION = 300.0  # Pa: a gentle instrument traction (about 0.03 N over 1 cm^2)
 MIN_STRAIN, MAX_STRAIN = 1e-3, 0.5
 RELAX_OPTIONS = (0, 4, 16, 64)
 PRESETS_PATH = ASSETS_DIR / "presets" / "materials.toml"

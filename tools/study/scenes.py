@@ -1,5 +1,5 @@
 """Study scenes on structured tetrahedral meshes (chainsim.systems.engine.meshgen.tet_grid): a block with a fixed base
-pulled up at a top patch, a thin sheet with a fixed edge pulled at a corner (the forceps task of
+pulled up at a top patch, a thin sheet with a fixed edge pulled at a corner (the grip-and-pull task of
 thesis 4.5.2) and a cantilever with a fixed end whose tip is pulled down.
 
 Each scene fixes one set of nodes, grabs a small patch and imposes displacement `strain * length`

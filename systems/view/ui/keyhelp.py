@@ -21,7 +21,7 @@ def keys_markdown(widgets: list[dict], key_rows: list[tuple[str, str]], docs: li
         ("left-drag in a 3-D view", "turn the view"),
         ("right- or middle-drag", "pan the view"),
         ("wheel", "zoom the view; over a dial or slider: step it; over a page: scroll"),
-        ("click", "use a button or toggle; on a surface: pick that point (a landmark, a grip, a cut point)"),
+        ("click", "use a button or toggle; on a surface: pick that point (a marked point, a grip, a cut point)"),
     ]
     rows += list(key_rows)
     for w in widgets:
