@@ -134,14 +134,31 @@ def _run_window(args, session, compiler: Compiler) -> int:
     script = load_script(args.input) if getattr(args, "input", None) else None
     settings = user_settings(args)  # --db, --class, --trainee for procedures that save attempts
     app = build_app(args.pack, pack_paths=args.pack_path, headless=False, settings=settings)
+    window, ctx, width = _window_for(app, args.pack)
+    target = _attach_renderer(app, window, ctx, width)
+    ui = WindowSession(app, window, target, compiler, args=args, settings=settings, script=script)
+    ui.begin(session)
+    for name, handler in ui.handlers().items():  # as @window.event sets them
+        window.set_handler(name, handler)
+    try:
+        pyglet.app.run(1 / 60)
+    finally:
+        ui.frame_log.close()
+        app.close()
+    return ui.rc
+
+
+def _window_for(app, pack: str):
+    """(window, its moderngl context, its width asked for) for the pack's layout, or a UserError naming
+    the command that works without a window (the App is closed then)."""
     w, h = (int(x) for x in app.resource(Settings).get("window_size", [1280, 800]))
     try:
-        window = _open_window(pyglet, w, h, f"chainsim - {args.pack}")
+        window = _open_window(pyglet, w, h, f"chainsim - {pack}")
     except Exception as e:
         app.close()
         raise UserError(
             f"cannot open a window on this display ({type(e).__name__}: {e}); "
-            f"run headless instead: chainsim run {args.pack} --headless --steps 600 --out DIR"
+            f"run headless instead: chainsim run {pack} --headless --steps 600 --out DIR"
         ) from None
     try:
         ctx = window_context()
@@ -150,8 +167,14 @@ def _run_window(args, session, compiler: Compiler) -> int:
         app.close()
         raise UserError(
             f"this display has no OpenGL 3.3 ({type(e).__name__}: {e}); "
-            f"render off screen instead: chainsim snapshot {args.pack} --out shot.png"
+            f"render off screen instead: chainsim snapshot {pack} --out shot.png"
         ) from None
+    return window, ctx, w
+
+
+def _attach_renderer(app, window, ctx, w: int) -> render.RenderTarget:
+    """The renderer drawing into the window's framebuffer, at its resolution (HiDPI: `scale` framebuffer
+    pixels per window unit)."""
     fw, fh = window.get_framebuffer_size()
     target = render.RenderTarget(ctx, ctx.screen, fw / max(w, 1), offscreen=False, size=(fw, fh))
     app.insert_resource(target)
@@ -159,281 +182,315 @@ def _run_window(args, session, compiler: Compiler) -> int:
     if not getattr(window.config, "sample_buffers", 0):
         # without multisampling (software GL) a view's image can be kept and copied while it is unchanged
         app.resource(render.Renderer).cache_views()
-    pending: PendingInput = app.resource(PendingInput)
-    needed = needed_groups(app)
-    compiler.prefer(needed)
-    gate = None if compiler.ready(needed) else KernelGate(compiler, needed, scripted=bool(script))
-    # until the normals kernel is compiled the first uploads take numpy's normals (the same vectors)
-    meshbuf.KERNEL_NORMALS = compiler.ready([GEOMETRY])
-    view_state: ViewState = app.resource(ViewState)
-    if script:
-        pending.extend(script)
-    state = {"last": None, "closing": False, "rc": 0, "confirm": False}
-    hud: HudState = app.resource(HudState)
-    values = app.resource(Settings).values
-    records_path = Path(values["db"]).expanduser() if values.get("db") else default_records_path()
-    widget_events = app.events.reader(Widget)
-    layout_names = {w["name"] for w in app.resource(render.PackResource).layout.get("widgets", [])}
-    if "sign_in" in layout_names:  # only a trainer that saves attempts says who is signed in and where
-        hud.status = status_line(values, records_path)
-    form: dict = {"open": None}
+    return target
 
-    def open_sign_in() -> None:
-        given = {k: values.get(k) or remembered().get(k, "") for k in ("class", "trainee")}
-        form["open"] = SignInForm(given, records_path, login=server_login(values))
-        hud.notice = form["open"].markdown()
 
-    def form_changed() -> None:
-        f = form["open"]
+ARROWS = {
+    pyglet.window.key.LEFT: "left",
+    pyglet.window.key.RIGHT: "right",
+    pyglet.window.key.UP: "up",
+    pyglet.window.key.DOWN: "down",
+}
+MOTIONS = {
+    pyglet.window.key.MOTION_LEFT: "left",
+    pyglet.window.key.MOTION_RIGHT: "right",
+    pyglet.window.key.MOTION_UP: "up",
+    pyglet.window.key.MOTION_DOWN: "down",
+}
+
+
+class WindowSession:
+    """One window session: turns the window's events into the App's input events, keeps who has the
+    keyboard (a quit question, a study page, the sign-in form, else the controller), and runs the App
+    once per redraw."""
+
+    def __init__(self, app, window, target, compiler: Compiler, *, args, settings: dict, script) -> None:
+        self.app, self.window, self.target, self.compiler = app, window, target, compiler
+        self.args, self.settings = args, settings
+        self.rc = 0
+        self.last: float | None = None  # wall-clock time of the previous redraw
+        self.closing = False
+        self.confirm = False  # a quit question is shown
+        self.behind = ""  # the page the quit question covers
+        self.swallow_text = False  # the key that answered the question types nothing
+        self.said_ready = self.said_all = False
+        self.pending: PendingInput = app.resource(PendingInput)
+        needed = needed_groups(app)
+        compiler.prefer(needed)
+        self.gate = None if compiler.ready(needed) else KernelGate(compiler, needed, scripted=bool(script))
+        # until the normals kernel is compiled the first uploads take numpy's normals (the same vectors)
+        meshbuf.KERNEL_NORMALS = compiler.ready([GEOMETRY])
+        self.view_state: ViewState = app.resource(ViewState)
+        if script:
+            self.pending.extend(script)
+        self.scripted = bool(script)
+        self.hud: HudState = app.resource(HudState)
+        self.values = app.resource(Settings).values
+        self.records_path = Path(self.values["db"]).expanduser() if self.values.get("db") else default_records_path()
+        self.widget_events = app.events.reader(Widget)
+        self.layout_names = {w["name"] for w in app.resource(render.PackResource).layout.get("widgets", [])}
+        if "sign_in" in self.layout_names:  # only a trainer that saves attempts says who is signed in and where
+            self.hud.status = status_line(self.values, self.records_path)
+        self.form: SignInForm | None = None
+        self.study = None
+        self.pressed_at: dict[str, float] = {}  # when a key went down, in simulated time
+        self.stepper = FixedStepper(app, target)
+        self.frame_log = FrameLog(getattr(args, "frame_times", None))
+
+    def begin(self, session) -> None:
+        """Start the study session, or ask who is training unless --class and --trainee said so (or a
+        script is played)."""
+        self.study = session(self.app) if session is not None else None
+        if self.study is not None:
+            self.study.start()
+        elif (
+            "sign_in" in self.layout_names
+            and not self.scripted
+            and (not (self.values.get("class") and self.values.get("trainee")) or server_login(self.values) is not None)
+        ):
+            self.open_sign_in()
+
+    def handlers(self) -> dict:
+        """The window's event handlers, by event name (pyglet holds bound methods weakly: keep this object)."""
+        names = (
+            "on_mouse_motion on_mouse_press on_mouse_release on_mouse_drag on_mouse_scroll on_text "
+            "on_key_press on_text_motion on_key_release on_resize on_draw on_close"
+        )
+        return {name: getattr(self, name) for name in names.split()}
+
+    # --- sign-in, sending, leaving
+
+    def open_sign_in(self) -> None:
+        given = {k: self.values.get(k) or remembered().get(k, "") for k in ("class", "trainee")}
+        self.form = SignInForm(given, self.records_path, login=server_login(self.values))
+        self.hud.notice = self.form.markdown()
+
+    def form_changed(self) -> None:
+        f = self.form
         if f.done:
-            values["class"], values["trainee"] = f.values["class"], f.values["trainee"]
-            settings["class"], settings["trainee"] = f.values["class"], f.values["trainee"]
+            self.values["class"], self.values["trainee"] = f.values["class"], f.values["trainee"]
+            self.settings["class"], self.settings["trainee"] = f.values["class"], f.values["trainee"]
             remember(f.values)
-            hud.status = status_line(values, records_path)
-            hud.message(f"Signed in as {f.values['trainee']}, class {f.values['class']}.")
-            hud.notice = ""
-            form["open"] = None
+            self.hud.status = status_line(self.values, self.records_path)
+            self.hud.message(f"Signed in as {f.values['trainee']}, class {f.values['class']}.")
+            self.hud.notice = ""
+            self.form = None
         else:
-            hud.notice = f.markdown()
+            self.hud.notice = f.markdown()
 
-    study = session(app) if session is not None else None
-    if study is not None:
-        study.start()
-    # the trainer asks who is training, unless --class and --trainee said so (or a study names them)
-    elif (
-        "sign_in" in layout_names
-        and not script
-        and (not (values.get("class") and values.get("trainee")) or server_login(values) is not None)
-    ):
-        open_sign_in()
+    def now(self) -> float:
+        return self.app.time.sim_time
 
-    def now() -> float:
-        return app.time.sim_time
-
-    def send(ev, t: float | None = None) -> None:
+    def send(self, ev, t: float | None = None) -> None:
         """Queue a device event for the App, or hold it while the kernels it may need compile."""
-        if gate is not None and not gate.lets_through(ev, hud, view_state.hover):
-            gate.hold(time.perf_counter(), ev)
+        if self.gate is not None and not self.gate.lets_through(ev, self.hud, self.view_state.hover):
+            self.gate.hold(time.perf_counter(), ev)
             return
-        pending.push(now() if t is None else t, ev)
+        self.pending.push(self.now() if t is None else t, ev)
 
-    def finish() -> None:
+    def finish(self) -> None:
         """Save what was asked for, then close (once)."""
-        if state["closing"]:
+        if self.closing:
             return
-        state["closing"] = True
+        self.closing = True
         try:
-            if getattr(args, "screenshot", None):
-                path = render.screenshot(app, args.screenshot)
-                print(f"screenshot: {path}")
-            if getattr(args, "record", None):
-                log = app.get_resource(InputLog)
-                write_recording(
-                    args.record,
-                    pack=args.pack,
-                    scene=app.resource(render.PackResource).scene,
-                    dt=app.time.dt,
-                    steps=app.time.tick,
-                    events=log.items if log else [],
-                    digest=world_digest(app),
-                    settings=settings or None,
-                )
-                print(f"recording: {args.record}")
+            self._save_on_close()
         finally:
             # close outside the event dispatch that called us; GL objects go before their context
             def close(_dt):
-                app.close()
-                window.close()
+                self.app.close()
+                self.window.close()
                 pyglet.app.exit()
 
             pyglet.clock.schedule_once(close, 0.0)
 
-    @window.event
-    def on_mouse_motion(x, y, dx, dy):
-        send(MouseMove(float(x), float(y)))
+    def _save_on_close(self) -> None:
+        """--screenshot and --record."""
+        app, args = self.app, self.args
+        if getattr(args, "screenshot", None):
+            path = render.screenshot(app, args.screenshot)
+            print(f"screenshot: {path}")
+        if getattr(args, "record", None):
+            log = app.get_resource(InputLog)
+            write_recording(
+                args.record,
+                pack=args.pack,
+                scene=app.resource(render.PackResource).scene,
+                dt=app.time.dt,
+                steps=app.time.tick,
+                events=log.items if log else [],
+                digest=world_digest(app),
+                settings=self.settings or None,
+            )
+            print(f"recording: {args.record}")
 
-    @window.event
-    def on_mouse_press(x, y, button, modifiers):
-        send(MouseButton(float(x), float(y), _button(button), True))
+    def unsaved(self) -> bool:
+        return bool(self.app.resource(Assessment).values.get("unsaved"))
 
-    @window.event
-    def on_mouse_release(x, y, button, modifiers):
-        send(MouseButton(float(x), float(y), _button(button), False))
-
-    @window.event
-    def on_mouse_drag(x, y, dx, dy, buttons, modifiers):
-        send(MouseDrag(float(x), float(y), float(dx), float(dy), _button(buttons)))
-
-    @window.event
-    def on_mouse_scroll(x, y, scroll_x, scroll_y):
-        send(Scroll(float(x), float(y), float(scroll_y)))
-
-    def unsaved() -> bool:
-        return bool(app.resource(Assessment).values.get("unsaved"))
-
-    def ask_or_quit() -> None:
+    def ask_or_quit(self) -> None:
         """Quit, unless something would be lost: then ask (Esc again quits, any other key goes back)."""
-        question = study.end_question(unsaved()) if study is not None else (QUIT_QUESTION if unsaved() else None)
+        if self.study is not None:
+            question = self.study.end_question(self.unsaved())
+        else:
+            question = QUIT_QUESTION if self.unsaved() else None
         if question is None:
-            finish()
+            self.finish()
             return
-        state["confirm"] = True
-        state["behind"] = hud.notice  # the page the question covers comes back when the trainee says no
-        hud.notice = question
+        self.confirm = True
+        self.behind = self.hud.notice  # the page the question covers comes back when the trainee says no
+        self.hud.notice = question
 
-    @window.event
-    def on_text(text):
-        if state.pop("swallow_text", False) or state["confirm"]:
+    # --- the mouse
+
+    def on_mouse_motion(self, x, y, dx, dy):
+        self.send(MouseMove(float(x), float(y)))
+
+    def on_mouse_press(self, x, y, button, modifiers):
+        self.send(MouseButton(float(x), float(y), _button(button), True))
+
+    def on_mouse_release(self, x, y, button, modifiers):
+        self.send(MouseButton(float(x), float(y), _button(button), False))
+
+    def on_mouse_drag(self, x, y, dx, dy, buttons, modifiers):
+        self.send(MouseDrag(float(x), float(y), float(dx), float(dy), _button(buttons)))
+
+    def on_mouse_scroll(self, x, y, scroll_x, scroll_y):
+        self.send(Scroll(float(x), float(y), float(scroll_y)))
+
+    # --- the keyboard
+
+    def _page_has_keys(self) -> bool:
+        """A study page or the sign-in form takes the keyboard."""
+        return self.form is not None or (self.study is not None and self.study.form is not None)
+
+    def on_text(self, text):
+        swallow, self.swallow_text = self.swallow_text, False
+        if swallow or self.confirm:
             return pyglet.event.EVENT_HANDLED  # the key that answered the question types nothing
-        if study is not None and study.form is not None:
-            study.text(text)
+        if self.study is not None and self.study.form is not None:
+            self.study.text(text)
             return pyglet.event.EVENT_HANDLED
-        if form["open"] is not None:
-            form["open"].text(text)
-            form_changed()
+        if self.form is not None:
+            self.form.text(text)
+            self.form_changed()
             return pyglet.event.EVENT_HANDLED
 
-    @window.event
-    def on_key_press(symbol, modifiers):
-        if state["confirm"] and symbol != pyglet.window.key.F12:  # a screenshot leaves the question open
-            state["confirm"] = False
-            hud.notice = state.pop("behind", "")
-            if symbol == pyglet.window.key.ESCAPE:
-                finish()
-            else:
-                state["swallow_text"] = True
-            return pyglet.event.EVENT_HANDLED
-        if study is not None and study.form is not None and symbol != pyglet.window.key.F12:
+    def on_key_press(self, symbol, modifiers):
+        keys = pyglet.window.key
+        if self.confirm and symbol != keys.F12:  # a screenshot leaves the question open
+            self._answer_question(symbol)
+        elif self.study is not None and self.study.form is not None and symbol != keys.F12:
             # a questionnaire or a study page: the keys are its own (F12 still takes a screenshot)
-            if symbol == pyglet.window.key.ESCAPE:
-                ask_or_quit()  # ending early keeps what was saved, and says so first
+            if symbol == keys.ESCAPE:
+                self.ask_or_quit()  # ending early keeps what was saved, and says so first
             else:
-                study.key(key_name(symbol))
-            return pyglet.event.EVENT_HANDLED
-        if form["open"] is not None and symbol != pyglet.window.key.F12:
+                self.study.key(key_name(symbol))
+        elif self.form is not None and symbol != keys.F12:
             # typing a name: no key reaches the controller (F12 still takes a screenshot)
-            if symbol == pyglet.window.key.ESCAPE:
-                # Esc closes the page, as everywhere; attempts go to anonymous until Sign in is pressed
-                form["open"] = None
-                hud.notice = ""
-                if not values.get("trainee"):
-                    hud.message("Not signed in: attempts are saved as anonymous. Press Sign in to sign in.", 8.0)
+            self._sign_in_key(symbol)
+        elif symbol == keys.ESCAPE:
+            if self.hud.doc_open:
+                self.pending.push(self.now(), Key("escape", True))  # closes the page (the view system)
             else:
-                form["open"].key(key_name(symbol))
-                form_changed()
-            return pyglet.event.EVENT_HANDLED
-        if symbol == pyglet.window.key.ESCAPE:
-            if hud.doc_open:
-                pending.push(now(), Key("escape", True))  # closes the page (the view system)
-            else:
-                ask_or_quit()
-            return pyglet.event.EVENT_HANDLED
-        if symbol == pyglet.window.key.F12:
-            path = render.screenshot(app, f"chainsim-shot-{app.time.frame:06d}.png")
-            app.resource(HudState).message(f"saved {path}", 3.0)
-            return pyglet.event.EVENT_HANDLED
-        if symbol in ARROWS:
-            return pyglet.event.EVENT_HANDLED  # arrives through on_text_motion, with key repeat
-        pressed_at[key_name(symbol)] = now()
-        send(Key(key_name(symbol), True))
+                self.ask_or_quit()
+        elif symbol == keys.F12:
+            path = render.screenshot(self.app, f"chainsim-shot-{self.app.time.frame:06d}.png")
+            self.app.resource(HudState).message(f"saved {path}", 3.0)
+        elif symbol not in ARROWS:  # arrows arrive through on_text_motion, with key repeat
+            self.pressed_at[key_name(symbol)] = self.now()
+            self.send(Key(key_name(symbol), True))
         return pyglet.event.EVENT_HANDLED
 
-    # when a key goes down at simulated time t
-    pressed_at: dict[str, float] = {}
+    def _answer_question(self, symbol) -> None:
+        """Esc quits; any other key goes back to the page the question covered."""
+        self.confirm = False
+        self.hud.notice, self.behind = self.behind, ""
+        if symbol == pyglet.window.key.ESCAPE:
+            self.finish()
+        else:
+            self.swallow_text = True
 
-    ARROWS = {
-        pyglet.window.key.LEFT: "left",
-        pyglet.window.key.RIGHT: "right",
-        pyglet.window.key.UP: "up",
-        pyglet.window.key.DOWN: "down",
-    }
-    MOTIONS = {
-        pyglet.window.key.MOTION_LEFT: "left",
-        pyglet.window.key.MOTION_RIGHT: "right",
-        pyglet.window.key.MOTION_UP: "up",
-        pyglet.window.key.MOTION_DOWN: "down",
-    }
+    def _sign_in_key(self, symbol) -> None:
+        if symbol == pyglet.window.key.ESCAPE:
+            # Esc closes the page, as everywhere; attempts go to anonymous until Sign in is pressed
+            self.form = None
+            self.hud.notice = ""
+            if not self.values.get("trainee"):
+                self.hud.message("Not signed in: attempts are saved as anonymous. Press Sign in to sign in.", 8.0)
+        else:
+            self.form.key(key_name(symbol))
+            self.form_changed()
 
-    @window.event
-    def on_text_motion(motion):
+    def on_text_motion(self, motion):
         # held arrow keys repeat, so a dial on an arrow key keeps turning while it is held; not while a
         # form or study page has the keyboard (it took the arrow in on_key_press)
-        if form["open"] is not None or (study is not None and study.form is not None):
+        if self._page_has_keys():
             return pyglet.event.EVENT_HANDLED
         if motion in MOTIONS:
-            send(Key(MOTIONS[motion], True))
+            self.send(Key(MOTIONS[motion], True))
 
-    @window.event
-    def on_key_release(symbol, modifiers):
+    def on_key_release(self, symbol, modifiers):
         if symbol not in (pyglet.window.key.ESCAPE, pyglet.window.key.F12):
-            name, t = key_name(symbol), now()
+            name, t = key_name(symbol), self.now()
             # a key pressed and released within one frame (a quick Shift+R) is held for one step, so the
             # step that sees R also sees Shift down; otherwise both would be up before anything read them
-            if pressed_at.pop(name, None) == t:
-                t += app.time.dt
-            send(Key(name, False), t)
+            if self.pressed_at.pop(name, None) == t:
+                t += self.app.time.dt
+            self.send(Key(name, False), t)
 
-    @window.event
-    def on_resize(width, height):
-        fbw, fbh = window.get_framebuffer_size()
-        target.size = (int(fbw), int(fbh))
-        target.scale = fbw / max(int(width), 1)
-        send(Resize(max(int(width), 1), max(int(height), 1)))
+    # --- the window
+
+    def on_resize(self, width, height):
+        fbw, fbh = self.window.get_framebuffer_size()
+        self.target.size = (int(fbw), int(fbh))
+        self.target.scale = fbw / max(int(width), 1)
+        self.send(Resize(max(int(width), 1), max(int(height), 1)))
         return pyglet.event.EVENT_HANDLED
 
-    stepper = FixedStepper(app, target)
-
-    frame_log = FrameLog(getattr(args, "frame_times", None))
-
-    @window.event
-    def on_draw():
+    def on_draw(self):
         t = time.perf_counter()  # wall clock paces the window only; the App runs on simulated time
-        dt = 0.0 if state["last"] is None else t - state["last"]
-        state["last"] = t
-        if state["closing"]:
+        dt = 0.0 if self.last is None else t - self.last
+        self.last = t
+        if self.closing:
             return
-        if gate is not None:
-            if not state.get("said_ready") and gate.ready():
-                state["said_ready"] = True
-                print(
-                    f"kernels: the scene's ready {time.perf_counter() - compiler.started:.1f} s after start", flush=True
-                )
-            if not state.get("said_all") and compiler.ready():
-                state["said_all"] = True
-                print(f"kernels: all compiled {compiler.seconds:.1f} s after start", flush=True)
-            gate.show(hud)
-            if not meshbuf.KERNEL_NORMALS and compiler.ready([GEOMETRY]):
-                meshbuf.KERNEL_NORMALS = True
-            for t_ev, ev in gate.release(now(), app.time.dt):
-                pending.push(t_ev, ev)
-        if gate is not None and not gate.stepping():
-            stepper.carry = 0.0
-            render.draw(app)  # input waits for kernels: the scene stands still, the window still draws
-        elif stepper.advance(dt) == 0:
-            render.draw(app)  # no whole step yet: show the same state again
-        frame_log.add(t, dt, time.perf_counter() - t)
-        for ev in widget_events.read():
-            if ev.name == "sign_in" and form["open"] is None and study is None:
-                open_sign_in()
-        if study is not None:
-            study.update()
-            if study.finished:
-                finish()
-        if args.exit_after is not None and app.time.sim_time >= args.exit_after:
-            finish()
+        if self.gate is not None:
+            self._watch_kernels()
+        if self.gate is not None and not self.gate.stepping():
+            self.stepper.carry = 0.0
+            render.draw(self.app)  # input waits for kernels: the scene stands still, the window still draws
+        elif self.stepper.advance(dt) == 0:
+            render.draw(self.app)  # no whole step yet: show the same state again
+        self.frame_log.add(t, dt, time.perf_counter() - t)
+        for ev in self.widget_events.read():
+            if ev.name == "sign_in" and self.form is None and self.study is None:
+                self.open_sign_in()
+        if self.study is not None:
+            self.study.update()
+            if self.study.finished:
+                self.finish()
+        if self.args.exit_after is not None and self.app.time.sim_time >= self.args.exit_after:
+            self.finish()
 
-    @window.event
-    def on_close():
+    def _watch_kernels(self) -> None:
+        """While kernels compile: say when the scene and then everything is ready, show the gate's line,
+        and let held input through once its kernels are there."""
+        gate, compiler = self.gate, self.compiler
+        if not self.said_ready and gate.ready():
+            self.said_ready = True
+            print(f"kernels: the scene's ready {time.perf_counter() - compiler.started:.1f} s after start", flush=True)
+        if not self.said_all and compiler.ready():
+            self.said_all = True
+            print(f"kernels: all compiled {compiler.seconds:.1f} s after start", flush=True)
+        gate.show(self.hud)
+        if not meshbuf.KERNEL_NORMALS and compiler.ready([GEOMETRY]):
+            meshbuf.KERNEL_NORMALS = True
+        for t_ev, ev in gate.release(self.now(), self.app.time.dt):
+            self.pending.push(t_ev, ev)
+
+    def on_close(self):
         # the window's close button asks as Esc does; a second close (or Esc) while asked quits
-        if state["confirm"]:
-            finish()
+        if self.confirm:
+            self.finish()
         else:
-            ask_or_quit()
+            self.ask_or_quit()
         return pyglet.event.EVENT_HANDLED
-
-    try:
-        pyglet.app.run(1 / 60)
-    finally:
-        frame_log.close()
-        app.close()
-    return state["rc"]

@@ -85,260 +85,220 @@ def _row(scene, res_n, model, strain, u, ref, ref_name, t, iters, status, extra=
     return row
 
 
-def run_scene(name, resolutions, strains, limits, cm_settings, repeats, rows, timings, forces=None):
-    prev = None  # (scene, {strain: ref}, {strain: lin}, {strain: nl})
-    for res_n in resolutions:
-        scene = sc.SCENES[name](res_n)
-        n = scene.n_nodes
-        log(f"{name} n={res_n}: {n} nodes, {len(scene.tets)} tets")
-        c = scene.constrained
-        refs, lins, nls = {}, {}, {}
-        ref_name = None
-        fem = None
-        # --- linear FEM -------------------------------------------------------------------
-        if n <= limits["lin"]:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", LockingWarning)
-                lin = LinearFEM(scene.pos, scene.tets, E_STUDY, NU_STUDY, c)
-            timings.append(
-                {
-                    "scene": name,
-                    "nodes": n,
-                    "model": "linear FEM (precompute)",
-                    "seconds": lin.t_assemble + lin.t_factor,
-                }
-            )
-            lin_t = {}
-            for s in strains:
-                lin_t[s], r = median_time(lambda: lin.solve(scene.constrained_disp(s)), repeats)
-                lins[s] = r.u
-            log(f"  linear FEM: assemble {lin.t_assemble:.2f}s factor {lin.t_factor:.2f}s")
-        # --- nonlinear FEM ground truth ----------------------------------------------------
-        if n <= limits["nl"]:
-            stamps = {}
-            t0 = time.thread_time()
-            fem = NeoHookeanFEM(scene.pos, scene.tets, E_STUDY, NU_STUDY, c)
-            res = fem.solve_path(
-                scene.constrained_disp(1.0), strains, progress=lambda f: stamps.__setitem__(f, time.thread_time() - t0)
-            )
-            log(
-                f"  neo-Hookean FEM: {res.status}, {res.info['newton_total']} Newton iterations, "
-                f"{res.info['time']:.1f}s"
-            )
-            nls = res.u
-            for s in strains:
-                if s in nls:
-                    refs[s] = nls[s]
-            ref_name = "neo-Hookean FEM (same mesh)"
-            timings.append(
-                {
-                    "scene": name,
-                    "nodes": n,
-                    "model": "neo-Hookean FEM path",
-                    "seconds": res.info["time"],
-                    "status": res.status,
-                }
-            )
-            for s in strains:
-                if s in nls:
-                    rows.append(
-                        _row(
-                            scene,
-                            res_n,
-                            "neo-Hookean FEM",
-                            s,
-                            nls[s],
-                            refs.get(s),
-                            ref_name,
-                            stamps.get(s, np.nan),
-                            res.newton_iterations.get(s),
-                            "converged",
-                        )
-                    )
-                else:
-                    rows.append(
-                        _row(scene, res_n, "neo-Hookean FEM", s, None, None, ref_name, np.nan, None, res.status)
-                    )
-        elif prev is not None:
-            pscene, prefs, plins, pnls = prev
-            for s in strains:
-                if s not in prefs:
-                    continue
-                if s in lins and s in plins:
-                    corr = pscene.interpolate(prefs[s] - plins[s], scene.pos)
-                    refs[s] = lins[s] + corr
-                    ref_name = f"linear FEM + nonlinear correction from {pscene.n_nodes} nodes"
-                else:
-                    refs[s] = pscene.interpolate(prefs[s], scene.pos)
-                    ref_name = f"interpolated from {pscene.n_nodes}-node reference"
-        if lins:
-            for s in strains:
-                rows.append(
-                    _row(
-                        scene,
-                        res_n,
-                        "linear FEM",
-                        s,
-                        lins[s],
-                        refs.get(s),
-                        ref_name,
-                        lin_t[s],
-                        1,
-                        "ok",
-                        {"precompute_s": lin.t_assemble + lin.t_factor},
-                    )
-                )
-        # --- ChainMail ---------------------------------------------------------------------
-        cm = ChainMailModel(scene.pos, scene.links, scene.fixed)
-        warm = ChainMailParams(0.9, 1.1, 0.1, 1)
-        cm.solve(scene.grabbed, scene.grab_disp(0.01), warm)  # compile outside timing
-        for label, p in cm_settings.items():
-            for k in RELAX:
-                params = ChainMailParams(p.alpha_min, p.alpha_max, p.beta, k)
-                for s in strains:
-                    t, (u, info) = median_time(lambda: cm.solve(scene.grabbed, scene.grab_disp(s), params), repeats)
-                    rows.append(
-                        _row(
-                            scene,
-                            res_n,
-                            f"ChainMail {label} r{k}",
-                            s,
-                            u,
-                            refs.get(s),
-                            ref_name,
-                            t,
-                            k,
-                            "ok",
-                            {"moved": info["moved"]},
-                        )
-                    )
-        # worst case of thesis 6.2 (Fig. 6.4): a rigid object, every element moves in the cascade
-        t, (u, info) = median_time(
-            lambda: cm.solve(scene.grabbed, scene.grab_disp(PARETO_STRAIN), ChainMailParams(1.0, 1.0, 0.0, 0)), repeats
-        )
-        timings.append(
-            {"scene": name, "nodes": n, "model": "ChainMail rigid (worst case)", "seconds": t, "moved": info["moved"]}
-        )
-        log(f"  ChainMail: {len(cm_settings) * len(RELAX) * len(strains)} runs")
-        # --- baselines and live models (the simulator's XPBD and projective bodies) -----------
-        for s in strains:
-            for label, fn in (
-                ("baseline: grabbed patch only", baseline_patch),
-                ("baseline: distance blend", baseline_blend),
-            ):
-                rows.append(_row(scene, res_n, label, s, fn(scene, s), refs.get(s), ref_name, 0.0, 0, "ok"))
-        if n <= limits.get("live", 0):
-            for label, make in LIVE.items():
-                for s in strains:
-                    u, info = settle(make, scene, s, E_STUDY, NU_STUDY)
-                    rows.append(
-                        _row(
-                            scene,
-                            res_n,
-                            label,
-                            s,
-                            u,
-                            refs.get(s),
-                            ref_name,
-                            info["ms_per_frame"] / 1e3,
-                            info["frames"],
-                            info["status"],
-                            {"frames_to_settle": info["frames"], "grab_force_N": info.get("grab_force_N")},
-                        )
-                    )
-                log(f"  {label}: {[r['iterations'] for r in rows[-len(strains) :]]} frames to settle")
-        # --- forces: the grab reaction against a reference that does not lock -------------------
-        fs = PARETO_STRAIN
-        if forces is not None and n <= limits.get("force", 0) and fs in lins:
-            t0 = time.perf_counter()
-            ref = reference_forces(scene, fs, E_STUDY, NU_STUDY, lin, lins[fs], fem, nls.get(fs))
-            live = {
-                r["model"]: r["grab_force_N"]
-                for r in rows
-                if r["scene"] == name and r["nodes"] == n and r["strain"] == fs and r.get("grab_force_N") is not None
-            }
-            forces.append({"scene": name, "nodes": n, "strain": fs, **ref, "live": live})
-            log(f"  forces: reference {ref['reference']:.4g} N ({time.perf_counter() - t0:.1f}s), live {live}")
-        # --- mass-spring -------------------------------------------------------------------
-        ms = MassSpring(scene.pos, scene.tets, E_STUDY, fixed=scene.fixed)
-        if n <= limits["ms"]:
-            for s in strains:
-                r = ms.solve(c, scene.constrained_disp(s), scheme="symplectic")
-                rows.append(
-                    _row(
-                        scene,
-                        res_n,
-                        "mass-spring symplectic",
-                        s,
-                        r.u,
-                        refs.get(s),
-                        ref_name,
-                        r.info["t_run"],
-                        r.steps,
-                        r.status,
-                        {
-                            "t_step_ms": r.info["t_step"] * 1e3,
-                            "dt": r.dt,
-                            "dt_eq22": r.info["dt_eq22"],
-                            "dt_bound": r.info["dt_bound"],
-                        },
-                    )
-                )
-            log(f"  mass-spring symplectic: {[row['status'] for row in rows[-len(strains) :]]}")
-        if n <= limits["ms_explicit"]:
-            s = PARETO_STRAIN
-            r = ms.solve(c, scene.constrained_disp(s), scheme="explicit", max_steps=50_000)
-            rows.append(
-                _row(
-                    scene,
-                    res_n,
-                    "mass-spring explicit",
-                    s,
-                    r.u,
-                    refs.get(s),
-                    ref_name,
-                    r.info["t_run"],
-                    r.steps,
-                    r.status,
-                    {"t_step_ms": r.info["t_step"] * 1e3, "dt": r.dt},
-                )
-            )
-            log(f"  mass-spring explicit: {r.status} after {r.steps} steps")
-        # per-step cost at every size (the frame-rate fit uses it even where equilibrium is not run)
+class _Level:
+    """One resolution of a scene: its mesh, its FEM solutions and the reference every model's rows are
+    scored against; rows and timings go to the study's lists."""
 
-        x = scene.pos.copy()
-        v = np.zeros_like(x)
-        free = np.ones(n, np.bool_)
-        free[c] = False
-        noc = np.zeros(0, np.int64)
-        no3 = np.zeros((0, 3))
-        integrate(
-            x, v, ms.links, ms.rest, ms.k, 1.0 / ms.mass, 1.0, free, 1e-9, 1, SYMPLECTIC, 0.0, 1e30, noc, no3, no3, 0
+    def __init__(self, name, res_n, strains, repeats, rows, timings):
+        self.name, self.res_n, self.strains, self.repeats = name, res_n, strains, repeats
+        self.rows, self.timings = rows, timings
+        self.scene = sc.SCENES[name](res_n)
+        self.n = self.scene.n_nodes
+        self.refs, self.lins, self.nls, self.lin_t = {}, {}, {}, {}
+        self.ref_name = None
+        self.lin = self.fem = None
+
+    def add(self, model, strain, u, t, iters, status, extra=None) -> None:
+        self.rows.append(
+            _row(
+                self.scene,
+                self.res_n,
+                model,
+                strain,
+                u,
+                self.refs.get(strain),
+                self.ref_name,
+                t,
+                iters,
+                status,
+                extra,
+            )
         )
-        t, _ = median_time(
-            lambda: integrate(
-                x,
-                v,
-                ms.links,
-                ms.rest,
-                ms.k,
-                1.0 / ms.mass,
-                1.0,
-                free,
-                1e-9,
-                10,
-                SYMPLECTIC,
-                0.0,
-                1e30,
-                noc,
-                no3,
-                no3,
-                0,
-            ),
-            repeats,
+
+    def timing(self, model, seconds, **extra) -> None:
+        self.timings.append({"scene": self.name, "nodes": self.n, "model": model, "seconds": seconds, **extra})
+
+
+def run_scene(name, resolutions, strains, limits, cm_settings, repeats, rows, timings, forces=None):
+    prev = None  # the resolution below: its reference is carried up where the nonlinear FEM is too dear
+    for res_n in resolutions:
+        lv = _Level(name, res_n, strains, repeats, rows, timings)
+        log(f"{name} n={res_n}: {lv.n} nodes, {len(lv.scene.tets)} tets")
+        if lv.n <= limits["lin"]:
+            _linear_fem(lv)
+        if lv.n <= limits["nl"]:
+            _nonlinear_fem(lv)
+        elif prev is not None:
+            _carried_reference(lv, prev)
+        if lv.lins:
+            for s in strains:
+                lv.add(
+                    "linear FEM",
+                    s,
+                    lv.lins[s],
+                    lv.lin_t[s],
+                    1,
+                    "ok",
+                    {"precompute_s": lv.lin.t_assemble + lv.lin.t_factor},
+                )
+        _chainmail(lv, cm_settings)
+        _baselines(lv)
+        if lv.n <= limits.get("live", 0):
+            _live_models(lv)
+        if forces is not None and lv.n <= limits.get("force", 0) and PARETO_STRAIN in lv.lins:
+            _forces(lv, forces)
+        _mass_spring(lv, limits)
+        prev = lv
+
+
+def _linear_fem(lv: _Level) -> None:
+    """Linear FEM at every strain (its assembly and factorisation timed once)."""
+    scene = lv.scene
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LockingWarning)
+        lin = lv.lin = LinearFEM(scene.pos, scene.tets, E_STUDY, NU_STUDY, scene.constrained)
+    lv.timing("linear FEM (precompute)", lin.t_assemble + lin.t_factor)
+    for s in lv.strains:
+        lv.lin_t[s], r = median_time(lambda: lin.solve(scene.constrained_disp(s)), lv.repeats)
+        lv.lins[s] = r.u
+    log(f"  linear FEM: assemble {lin.t_assemble:.2f}s factor {lin.t_factor:.2f}s")
+
+
+def _nonlinear_fem(lv: _Level) -> None:
+    """The neo-Hookean FEM ground truth along the strain path; it is the reference on this mesh."""
+    scene, strains = lv.scene, lv.strains
+    stamps = {}
+    t0 = time.thread_time()
+    fem = lv.fem = NeoHookeanFEM(scene.pos, scene.tets, E_STUDY, NU_STUDY, scene.constrained)
+    res = fem.solve_path(
+        scene.constrained_disp(1.0), strains, progress=lambda f: stamps.__setitem__(f, time.thread_time() - t0)
+    )
+    log(f"  neo-Hookean FEM: {res.status}, {res.info['newton_total']} Newton iterations, {res.info['time']:.1f}s")
+    lv.nls = res.u
+    for s in strains:
+        if s in lv.nls:
+            lv.refs[s] = lv.nls[s]
+    lv.ref_name = "neo-Hookean FEM (same mesh)"
+    lv.timing("neo-Hookean FEM path", res.info["time"], status=res.status)
+    for s in strains:
+        if s in lv.nls:
+            lv.add("neo-Hookean FEM", s, lv.nls[s], stamps.get(s, np.nan), res.newton_iterations.get(s), "converged")
+        else:
+            lv.add("neo-Hookean FEM", s, None, np.nan, None, res.status)
+
+
+def _carried_reference(lv: _Level, prev: _Level) -> None:
+    """The reference of the resolution below, interpolated here; plus its nonlinear correction on top of
+    this mesh's linear FEM where both meshes have one."""
+    for s in lv.strains:
+        if s not in prev.refs:
+            continue
+        if s in lv.lins and s in prev.lins:
+            corr = prev.scene.interpolate(prev.refs[s] - prev.lins[s], lv.scene.pos)
+            lv.refs[s] = lv.lins[s] + corr
+            lv.ref_name = f"linear FEM + nonlinear correction from {prev.scene.n_nodes} nodes"
+        else:
+            lv.refs[s] = prev.scene.interpolate(prev.refs[s], lv.scene.pos)
+            lv.ref_name = f"interpolated from {prev.scene.n_nodes}-node reference"
+
+
+def _chainmail(lv: _Level, cm_settings) -> None:
+    """Every ChainMail material at every relaxation count and strain, and the rigid worst case."""
+    scene = lv.scene
+    cm = ChainMailModel(scene.pos, scene.links, scene.fixed)
+    warm = ChainMailParams(0.9, 1.1, 0.1, 1)
+    cm.solve(scene.grabbed, scene.grab_disp(0.01), warm)  # compile outside timing
+    for label, p in cm_settings.items():
+        for k in RELAX:
+            params = ChainMailParams(p.alpha_min, p.alpha_max, p.beta, k)
+            for s in lv.strains:
+                t, (u, info) = median_time(lambda: cm.solve(scene.grabbed, scene.grab_disp(s), params), lv.repeats)
+                lv.add(f"ChainMail {label} r{k}", s, u, t, k, "ok", {"moved": info["moved"]})
+    # worst case of thesis 6.2 (Fig. 6.4): a rigid object, every element moves in the cascade
+    rigid = ChainMailParams(1.0, 1.0, 0.0, 0)
+    t, (u, info) = median_time(lambda: cm.solve(scene.grabbed, scene.grab_disp(PARETO_STRAIN), rigid), lv.repeats)
+    lv.timing("ChainMail rigid (worst case)", t, moved=info["moved"])
+    log(f"  ChainMail: {len(cm_settings) * len(RELAX) * len(lv.strains)} runs")
+
+
+def _baselines(lv: _Level) -> None:
+    for s in lv.strains:
+        for label, fn in (
+            ("baseline: grabbed patch only", baseline_patch),
+            ("baseline: distance blend", baseline_blend),
+        ):
+            lv.add(label, s, fn(lv.scene, s), 0.0, 0, "ok")
+
+
+def _live_models(lv: _Level) -> None:
+    """The simulator's XPBD and projective bodies, settled at every strain."""
+    for label, make in LIVE.items():
+        for s in lv.strains:
+            u, info = settle(make, lv.scene, s, E_STUDY, NU_STUDY)
+            extra = {"frames_to_settle": info["frames"], "grab_force_N": info.get("grab_force_N")}
+            lv.add(label, s, u, info["ms_per_frame"] / 1e3, info["frames"], info["status"], extra)
+        log(f"  {label}: {[r['iterations'] for r in lv.rows[-len(lv.strains) :]]} frames to settle")
+
+
+def _forces(lv: _Level, forces: list) -> None:
+    """The grab reaction against a reference that does not lock, beside the live models' forces."""
+    fs, n = PARETO_STRAIN, lv.n
+    t0 = time.perf_counter()
+    ref = reference_forces(lv.scene, fs, E_STUDY, NU_STUDY, lv.lin, lv.lins[fs], lv.fem, lv.nls.get(fs))
+    live = {
+        r["model"]: r["grab_force_N"]
+        for r in lv.rows
+        if r["scene"] == lv.name and r["nodes"] == n and r["strain"] == fs and r.get("grab_force_N") is not None
+    }
+    forces.append({"scene": lv.name, "nodes": n, "strain": fs, **ref, "live": live})
+    log(f"  forces: reference {ref['reference']:.4g} N ({time.perf_counter() - t0:.1f}s), live {live}")
+
+
+def _mass_spring(lv: _Level, limits) -> None:
+    """Mass-spring to equilibrium (symplectic at every strain, explicit at one) within the budgets, and
+    the cost of one step at every size (the frame-rate fit uses it even where equilibrium is not run)."""
+    scene, c = lv.scene, lv.scene.constrained
+    ms = MassSpring(scene.pos, scene.tets, E_STUDY, fixed=scene.fixed)
+    if lv.n <= limits["ms"]:
+        for s in lv.strains:
+            r = ms.solve(c, scene.constrained_disp(s), scheme="symplectic")
+            dts = {"dt": r.dt, "dt_eq22": r.info["dt_eq22"], "dt_bound": r.info["dt_bound"]}
+            lv.add(
+                "mass-spring symplectic",
+                s,
+                r.u,
+                r.info["t_run"],
+                r.steps,
+                r.status,
+                {"t_step_ms": r.info["t_step"] * 1e3, **dts},
+            )
+        log(f"  mass-spring symplectic: {[row['status'] for row in lv.rows[-len(lv.strains) :]]}")
+    if lv.n <= limits["ms_explicit"]:
+        s = PARETO_STRAIN
+        r = ms.solve(c, scene.constrained_disp(s), scheme="explicit", max_steps=50_000)
+        extra = {"t_step_ms": r.info["t_step"] * 1e3, "dt": r.dt}
+        lv.add("mass-spring explicit", s, r.u, r.info["t_run"], r.steps, r.status, extra)
+        log(f"  mass-spring explicit: {r.status} after {r.steps} steps")
+    lv.timing("mass-spring step", _mass_spring_step(ms, scene, lv.repeats))
+
+
+def _mass_spring_step(ms: MassSpring, scene, repeats) -> float:
+    """Seconds per symplectic step of the free mass-spring mesh (one call compiles, ten are timed)."""
+    x = scene.pos.copy()
+    v = np.zeros_like(x)
+    free = np.ones(scene.n_nodes, np.bool_)
+    free[scene.constrained] = False
+    noc = np.zeros(0, np.int64)
+    no3 = np.zeros((0, 3))
+
+    def steps(k):
+        return integrate(
+            x, v, ms.links, ms.rest, ms.k, 1.0 / ms.mass, 1.0, free, 1e-9, k, SYMPLECTIC, 0.0, 1e30, noc, no3, no3, 0
         )
-        timings.append({"scene": name, "nodes": n, "model": "mass-spring step", "seconds": t / 10})
-        prev = (scene, refs, lins, nls)
+
+    steps(1)
+    t, _ = median_time(lambda: steps(10), repeats)
+    return t / 10
 
 
 def stability_sweep(strain=0.1, n=8):
