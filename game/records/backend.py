@@ -148,7 +148,8 @@ class PgConnection:
             import psycopg  # noqa: PLC0415 - optional: only a PostgreSQL store needs it
         except ImportError:
             raise UserError(
-                "PostgreSQL records need psycopg 3: pip install 'psycopg[binary]'; or use an SQLite file"
+                "PostgreSQL records need psycopg 3, which is not installed: pip install 'chainsim[server]'; "
+                "or use an SQLite file"
             ) from None
         self._psycopg = psycopg
         self.url = url

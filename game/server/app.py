@@ -23,7 +23,7 @@ from starlette.routing import Mount
 from starlette.staticfiles import StaticFiles
 
 from chainsim.game.records import remote, xapi
-from chainsim.game.server import api, scoring, train_routes, views
+from chainsim.game.server import BASE_URL_ENV, api, scoring, train_routes, views
 from chainsim.game.server.auth import HTTPError
 from chainsim.game.server.storage import Storage, Unavailable
 from chainsim.game.server.throttle import Throttle
@@ -31,8 +31,6 @@ from chainsim.systems.engine.errors import UserError
 
 logger = logging.getLogger(__name__)
 
-#: the programme's address for xAPI identities (default: the address the server listens on)
-BASE_URL_ENV = "CHAINSIM_SERVER_URL"
 
 SECURITY_HEADERS = {
     "Content-Security-Policy": (

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 
+from chainsim.game.server import require_web_stack
 from chainsim.systems.engine.errors import UserError
 
 NAME = "bench"
@@ -20,6 +21,9 @@ BENCHES = {
     "train": "chainsim.game.bench.train",
 }
 
+# benchmarks that start `chainsim serve`: without the server extra they stop before starting anything
+SERVES = ("records", "train")
+
 
 def add_parser(sub):
     p = sub.add_parser(NAME, help=HELP)
@@ -35,4 +39,6 @@ def add_parser(sub):
 def run(args) -> int:
     if not getattr(args, "_bench", None):
         raise UserError(f"name a benchmark: {', '.join(BENCHES)}")
+    if args.bench in SERVES:
+        require_web_stack(f"bench {args.bench}")
     return args._bench(args)

@@ -1,4 +1,7 @@
-"""`chainsim serve`: run the records server (dashboard and JSON API) over a records database."""
+"""`chainsim serve`: run the records server (dashboard and JSON API) over a records database.
+
+The server's web stack is the ``server`` extra: `chainsim serve --help` works without it, and
+`chainsim serve` says in one line what to install (chainsim.game.server.require_web_stack)."""
 
 from __future__ import annotations
 
@@ -6,7 +9,7 @@ import argparse
 import logging
 
 from chainsim.game.records import remote
-from chainsim.game.server.app import BASE_URL_ENV, serve
+from chainsim.game.server import BASE_URL_ENV, require_web_stack
 from chainsim.systems.engine.errors import UserError
 
 NAME = "serve"
@@ -55,6 +58,9 @@ def add_parser(sub):
 
 
 def run(args) -> int:
+    require_web_stack()
+    from chainsim.game.server.app import serve  # noqa: PLC0415 - the web stack, once it is known to be there
+
     if bool(args.certfile) != bool(args.keyfile):
         raise UserError("--certfile and --keyfile go together")
     if args.base_url is not None:
