@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import itertools
 import time as _wallclock  # profiling only: never feeds the simulation
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar, overload
 
 import esper
 
@@ -34,6 +34,8 @@ MAX_STEPS_PER_FRAME = 32
 _world_ids = itertools.count()
 
 System = Callable[["App"], None]
+
+T = TypeVar("T")
 
 
 @dataclass(slots=True)
@@ -78,18 +80,26 @@ class App:
         self.closed = False
 
     # -- resources -------------------------------------------------------------------------
-    def insert_resource(self, value: Any, kind: type | None = None) -> Any:
+    # Resources are keyed by type, so each accessor returns the type it was asked for: mypy then checks
+    # every `app.resource(Time).tick` in the systems against the resource's own class.
+    def insert_resource(self, value: T, kind: type[T] | None = None) -> T:
         """Store `value` as the resource of its type (or `kind`); replaces any previous one."""
         self._resources[kind or type(value)] = value
         return value
 
-    def resource(self, kind: type) -> Any:
+    def resource(self, kind: type[T]) -> T:
+        """The resource of type `kind`; KeyError (naming the type) when this App has none."""
         try:
             return self._resources[kind]
         except KeyError:
             raise KeyError(f"no resource of type {kind.__name__} in this App") from None
 
-    def get_resource(self, kind: type, default: Any = None) -> Any:
+    @overload
+    def get_resource(self, kind: type[T]) -> T | None: ...
+    @overload
+    def get_resource(self, kind: type[T], default: T) -> T: ...
+    def get_resource(self, kind: type[T], default: T | None = None) -> T | None:
+        """The resource of type `kind`, or `default` when this App has none."""
         return self._resources.get(kind, default)
 
     def has_resource(self, kind: type) -> bool:
@@ -99,7 +109,8 @@ class App:
     def add_system(self, stage: str, fn: System, *, order: int = 0, name: str | None = None) -> None:
         if stage not in self._systems:
             raise ValueError(f"unknown stage {stage!r}; stages are {', '.join(STAGES)}")
-        entry = SystemEntry(stage, order, next(self._seq), name or getattr(fn, "__name__", repr(fn)), fn)
+        label = name or str(getattr(fn, "__name__", repr(fn)))
+        entry = SystemEntry(stage, order, next(self._seq), label, fn)
         lst = self._systems[stage]
         lst.append(entry)
         lst.sort(key=lambda e: (e.order, e.seq))
@@ -117,7 +128,7 @@ class App:
 
     # -- the world ---------------------------------------------------------------------------
     @contextmanager
-    def active(self):
+    def active(self) -> Iterator[None]:
         """Make this App's world esper's current world (for code outside systems, e.g. loaders, tests)."""
         previous = esper.current_world
         esper.switch_world(self.world)
@@ -184,7 +195,7 @@ class App:
 
     def system_stats(self) -> dict[str, dict[str, float]]:
         """Mean and max wall-clock milliseconds per call, per system ("stage/name")."""
-        out = {}
+        out: dict[str, dict[str, float]] = {}
         for e in self.profile.entries:
             key = f"{e.stage}/{e.name}"
             out[key] = {
@@ -208,5 +219,5 @@ class App:
     def __enter__(self) -> App:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()

@@ -13,6 +13,8 @@ import struct
 import esper
 import numpy as np
 
+from chainsim.components.app import App
+
 
 def _feed(h, value) -> None:
     if isinstance(value, np.ndarray):
@@ -49,7 +51,7 @@ def _feed(h, value) -> None:
         h.update(b"R" + repr(value).encode())
 
 
-def world_digest(app) -> str:
+def world_digest(app: App) -> str:
     """SHA-256 over every entity's components and the simulation tick."""
     h = hashlib.sha256()
     _feed(h, app.time.tick)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Iterator
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, TypeVar, overload
 
 T = TypeVar("T")
 
@@ -28,7 +28,7 @@ class EventReader(Generic[T]):
 
     def read(self) -> list[T]:
         """Events of this reader's type emitted since the previous read, oldest first."""
-        out = []
+        out: list[T] = []
         last = self._seen
         for seq, _frame, ev in self._queue._items:
             if seq <= self._seen:
@@ -58,8 +58,13 @@ class EventQueue:
         if self.log is not None:
             self.log.append(event)
 
-    def reader(self, kind: type[T] | None = None) -> EventReader[T]:
-        """A new cursor that sees events emitted from now on."""
+    # typed by the event class it reads: `for ev in reader.read()` then knows each event's fields
+    @overload
+    def reader(self, kind: type[T]) -> EventReader[T]: ...
+    @overload
+    def reader(self, kind: None = None) -> EventReader[Any]: ...
+    def reader(self, kind: type[Any] | None = None) -> EventReader[Any]:
+        """A new cursor that sees events of type `kind` (every event when None) emitted from now on."""
         return EventReader(self, kind)
 
     def begin_frame(self, frame: int) -> None:

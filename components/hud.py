@@ -71,7 +71,7 @@ class HudState:
 
     def age(self, dt: float) -> None:
         """Count timed messages down and drop the expired ones."""
-        kept = []
+        kept: list[tuple[str, float | None]] = []
         for text, left in self.messages:
             if left is None:
                 kept.append((text, None))

@@ -117,7 +117,7 @@ def event_from_dict(d: dict[str, Any], where: str):
     if not isinstance(d, dict):
         raise UserError(f"{where}: each event must be a table, got {type(d).__name__}")
     kind = d.get("kind")
-    cls = EVENT_TYPES.get(kind)
+    cls = EVENT_TYPES.get(kind) if isinstance(kind, str) else None
     if cls is None:
         raise UserError(f"{where}: unknown event kind {kind!r}; expected one of {', '.join(sorted(EVENT_TYPES))}")
     allowed = {f.name for f in fields(cls)}

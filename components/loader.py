@@ -12,6 +12,7 @@ from typing import Any, Protocol
 
 import esper
 
+from chainsim.components.app import App
 from chainsim.components.core import Name
 from chainsim.components.registry import COMPONENTS
 from chainsim.components.resources import EntityIndex, PackResource
@@ -30,13 +31,13 @@ class Pack(Protocol):
 class SpawnContext:
     """What a component build hook may use."""
 
-    app: Any
+    app: App
     pack: Pack
     entity_name: str
     entity: int
 
 
-def spawn_scene(app, pack: Pack, scene: str | None = None) -> EntityIndex:
+def spawn_scene(app: App, pack: Pack, scene: str | None = None) -> EntityIndex:
     scene_name, spec = pack.scene(scene)
     app.insert_resource(PackResource(pack, scene_name, spec))
     wanted = spec.get("entities") or list(pack.manifest["entities"])
@@ -49,6 +50,7 @@ def spawn_scene(app, pack: Pack, scene: str | None = None) -> EntityIndex:
             built = []
             for cname, values in tables.items():
                 schema = COMPONENTS[cname]
+                assert schema.cls is not None  # @component registers every component schema with its class
                 comp = schema.cls(**values)
                 esper.add_component(ent, comp)
                 if schema.build is not None:

@@ -260,6 +260,7 @@ def _text(v, kind: str) -> str:
 def convert(f: Field, v: Any) -> Any:
     """Check `v` against field `f` and return the runtime value; raises FieldError."""
     k = f.kind
+    out: Any
     if k in ("str", "path", "mesh", "material", "entity"):
         out = _text(v, k)
     elif k == "enum":

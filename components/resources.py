@@ -6,7 +6,7 @@ fixed-step loop, never read from a clock, so a run is a pure function of its pac
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -63,12 +63,12 @@ class PendingInput:
     def push(self, t: float, event: Any) -> None:
         self.items.append((t, event))
 
-    def extend(self, timed_events) -> None:
+    def extend(self, timed_events: Iterable[tuple[float, Any]]) -> None:
         self.items.extend(timed_events)
         self.items.sort(key=lambda te: te[0])  # stable: same-time events keep script order
 
     def due(self, now: float) -> list[Any]:
-        out = []
+        out: list[Any] = []
         while self.cursor < len(self.items) and self.items[self.cursor][0] <= now + 1e-12:
             out.append(self.items[self.cursor][1])
             self.cursor += 1
@@ -105,7 +105,7 @@ class EntityIndex:
     def __getitem__(self, name: str) -> int:
         return self.by_name[name]
 
-    def get(self, name: str, default=None):
+    def get(self, name: str, default: int | None = None) -> int | None:
         return self.by_name.get(name, default)
 
 

@@ -129,8 +129,8 @@ class _Blocks:
 
     def verify_raw(self, raw: bytes) -> None:
         """Header and compressed blocks stored one after the other as bytes (appended raw data)."""
-        *head, hlen = self._header(raw)
-        self._blocks(*head, raw[hlen:])
+        nblocks, bsize, last, sizes, hlen = self._header(raw)
+        self._blocks(nblocks, bsize, last, sizes, raw[hlen:])
 
     def verify_base64(self, text: bytes) -> None:
         """Header and blocks as two base64 runs, as VTK writes them (inline or appended base64 data)."""
@@ -142,8 +142,8 @@ class _Blocks:
         if not 0 <= nblocks <= limits.MAX_CELLS:
             raise MeshCheckError(f"a compressed data array declares {nblocks:,} blocks")
         hchars = _chars((3 + nblocks) * self.size)
-        *head, _ = self._header(_b64(text[:hchars]))
-        self._blocks(*head, _b64(text[hchars:]))
+        nblocks, bsize, last, sizes, _ = self._header(_b64(text[:hchars]))
+        self._blocks(nblocks, bsize, last, sizes, _b64(text[hchars:]))
 
     def _blocks(self, nblocks: int, bsize: int, last: int, sizes: list[int], data: bytes) -> None:
         declared = nblocks * bsize if last == 0 or nblocks == 0 else (nblocks - 1) * bsize + last

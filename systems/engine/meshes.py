@@ -13,13 +13,13 @@ from __future__ import annotations
 import contextlib
 import io
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import meshio
 import numpy as np
 import trimesh
-from numpy.typing import ArrayLike
 
 from chainsim.systems.engine import limits, meshcheck, meshgen
 from chainsim.systems.engine.limits import max_mesh_bytes  # noqa: F401  (the mesh size limit, re-exported)
@@ -190,7 +190,7 @@ def check_mesh(mesh: MeshData, where: str) -> MeshData:
     return _check(mesh, where)
 
 
-def primitive_size(kind: str, resolution: ArrayLike) -> tuple[int, int]:
+def primitive_size(kind: str, resolution: Sequence[float] | np.ndarray) -> tuple[int, int]:
     """(vertices, cells) a primitive of this resolution has, computed without building it."""
     r = [max(1, int(round(min(float(x), 1e12)))) for x in resolution]
     if kind == "grid":
@@ -205,7 +205,7 @@ def primitive_size(kind: str, resolution: ArrayLike) -> tuple[int, int]:
     return 8, 12
 
 
-def check_primitive(kind: str, resolution: ArrayLike, where: str = "primitive") -> None:
+def check_primitive(kind: str, resolution: Sequence[float] | np.ndarray, where: str = "primitive") -> None:
     """Refuse a resolution whose mesh would be over MAX_VERTICES or MAX_CELLS (before building it)."""
     nv, nc = primitive_size(kind, resolution)
     if nv > limits.MAX_VERTICES or nc > limits.MAX_CELLS:
@@ -215,7 +215,14 @@ def check_primitive(kind: str, resolution: ArrayLike, where: str = "primitive") 
         )
 
 
-def primitive(kind: str, *, extents: ArrayLike, radius: float, height: float, resolution: ArrayLike) -> MeshData:
+def primitive(
+    kind: str,
+    *,
+    extents: Sequence[float] | np.ndarray,
+    radius: float,
+    height: float,
+    resolution: Sequence[float] | np.ndarray,
+) -> MeshData:
     """Built-in shapes so packs can have tools and test bodies without mesh files."""
     check_primitive(kind, resolution)
     res = [max(1, int(round(r))) for r in resolution]

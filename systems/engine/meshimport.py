@@ -31,7 +31,7 @@ from chainsim.systems.engine import reorder as ro
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.meshes import MeshData, MeshError, load_file
 from chainsim.systems.engine.reorder import reorder_mesh
-from chainsim.systems.engine.tetra import TetraError, tetrahedralize
+from chainsim.systems.engine.tetra import DEFAULT_CELLS, TetraError, tetrahedralize
 
 GRAPH_EXT = ".npz"
 
@@ -66,7 +66,7 @@ def load_mesh(
     has_tets = mesh.tets is not None and len(mesh.tets) > 0
     if kind == "volume" and not has_tets:
         try:
-            mesh = tetrahedralize(mesh, pitch=pitch, **({"cells": cells} if cells else {}))
+            mesh = tetrahedralize(mesh, pitch=pitch, cells=cells or DEFAULT_CELLS)
         except TetraError as e:
             raise UserError(f"{where}: cannot fill with tetrahedra: {e}") from None
     elif kind == "surface" and has_tets:

@@ -10,14 +10,20 @@ hour) keep a unit norm to round-off instead of drifting.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from typing import TypeAlias
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+#: a quaternion as the functions below take it: [w, x, y, z], an array or any sequence of 4 numbers
+#: (they index it, which a general ArrayLike such as a scalar does not allow)
+Quat: TypeAlias = np.ndarray | Sequence[float]
+
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
 
-def mul(a: ArrayLike, b: ArrayLike) -> np.ndarray:
+def mul(a: Quat, b: Quat) -> np.ndarray:
     """The Hamilton product a * b (thesis 3.3.5); as rotations: apply b, then a."""
     w1, x1, y1, z1 = float(a[0]), float(a[1]), float(a[2]), float(a[3])
     w2, x2, y2, z2 = float(b[0]), float(b[1]), float(b[2]), float(b[3])
@@ -31,16 +37,16 @@ def mul(a: ArrayLike, b: ArrayLike) -> np.ndarray:
     )
 
 
-def conjugate(q: ArrayLike) -> np.ndarray:
+def conjugate(q: Quat) -> np.ndarray:
     """(s, -v): the inverse rotation for a unit quaternion."""
     return np.array([q[0], -q[1], -q[2], -q[3]], dtype=np.float64)
 
 
-def norm(q: ArrayLike) -> float:
+def norm(q: Quat) -> float:
     return math.sqrt(float(q[0]) ** 2 + float(q[1]) ** 2 + float(q[2]) ** 2 + float(q[3]) ** 2)
 
 
-def normalize(q: ArrayLike) -> np.ndarray:
+def normalize(q: Quat) -> np.ndarray:
     """q / |q|, with the sign fixed so that w >= 0 (q and -q are the same rotation)."""
     w, x, y, z = float(q[0]), float(q[1]), float(q[2]), float(q[3])
     n = math.sqrt(w * w + x * x + y * y + z * z)
@@ -66,7 +72,7 @@ def from_axis_angle(axis: ArrayLike, angle_rad: float) -> np.ndarray:
     return np.array([math.cos(h), u[0] * s, u[1] * s, u[2] * s])
 
 
-def to_axis_angle(q: ArrayLike) -> tuple[np.ndarray, float]:
+def to_axis_angle(q: Quat) -> tuple[np.ndarray, float]:
     """(unit axis, angle in radians in [0, pi]); the axis is +Z for the identity."""
     q = normalize(q)
     s = math.sqrt(max(0.0, 1.0 - q[0] * q[0]))
@@ -76,7 +82,7 @@ def to_axis_angle(q: ArrayLike) -> tuple[np.ndarray, float]:
     return np.asarray(q[1:]) / s, angle
 
 
-def concat(*qs: ArrayLike) -> np.ndarray:
+def concat(*qs: Quat) -> np.ndarray:
     """mul(qs[-1], ... mul(qs[1], qs[0])): qs[0] applied first; renormalised."""
     out = np.asarray(qs[0], dtype=np.float64)
     for q in qs[1:]:
@@ -84,7 +90,7 @@ def concat(*qs: ArrayLike) -> np.ndarray:
     return normalize(out)
 
 
-def rotate(q: ArrayLike, v: ArrayLike) -> np.ndarray:
+def rotate(q: Quat, v: ArrayLike) -> np.ndarray:
     """Rotate vector(s) v, shape (3,) or (N, 3), by the unit quaternion q (q v q*)."""
     v = np.asarray(v, dtype=np.float64)
     w = float(q[0])
@@ -94,7 +100,7 @@ def rotate(q: ArrayLike, v: ArrayLike) -> np.ndarray:
     return v + w * t + np.cross(u, t)
 
 
-def to_matrix(q: ArrayLike) -> np.ndarray:
+def to_matrix(q: Quat) -> np.ndarray:
     """3 x 3 rotation matrix (column vectors) of a unit quaternion."""
     w, x, y, z = (float(c) for c in q)
     return np.array(

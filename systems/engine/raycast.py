@@ -16,7 +16,9 @@ EPS = 1e-12
 # -- geometry ------------------------------------------------------------------------------------
 
 
-def ray_triangles(origin: ArrayLike, direction: ArrayLike, v0: ArrayLike, v1: ArrayLike, v2: ArrayLike) -> np.ndarray:
+def ray_triangles(
+    origin: ArrayLike, direction: ArrayLike, v0: np.ndarray, v1: np.ndarray, v2: np.ndarray
+) -> np.ndarray:
     """Distance along the ray to each triangle (inf where missed); triangles given as (F, 3) corners."""
     o = np.asarray(origin, float)
     d = np.asarray(direction, float)

@@ -13,6 +13,8 @@ triangles / tetrahedra / links mapped to the new ids and the cells sorted by the
 
 from __future__ import annotations
 
+from typing import overload
+
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import reverse_cuthill_mckee
@@ -67,6 +69,10 @@ def inverse(perm: np.ndarray) -> np.ndarray:
     return inv
 
 
+@overload
+def _cells(cells: np.ndarray, inv: np.ndarray) -> np.ndarray: ...
+@overload
+def _cells(cells: None, inv: np.ndarray) -> None: ...
 def _cells(cells: np.ndarray | None, inv: np.ndarray) -> np.ndarray | None:
     if cells is None:
         return None

@@ -18,6 +18,7 @@ one child's entry could replace the other's and the kernel compile a second time
 
 from __future__ import annotations
 
+import functools
 import os
 import subprocess
 import sys
@@ -156,7 +157,7 @@ GROUPS: dict[str, Callable[[], None]] = {
     MOVING: _moving_normals,
     PARALLEL: lambda: _parallel_cascade(np.float64),  # long (a parallel kernel), shares nothing: begun early
     **{
-        chainmail_group(order, name): (lambda order=order, dtype=dtype: _chainmail(order, dtype))
+        chainmail_group(order, name): functools.partial(_chainmail, order, dtype)
         for order in ORDERS
         for name, dtype in PRECISIONS.items()
     },
@@ -322,16 +323,18 @@ class Compiler:
             )
             with self._lock:
                 self._procs.append(proc)
-            if proc.stdout.readline().strip() != "ready":
+            stdin, stdout = proc.stdin, proc.stdout
+            assert stdin is not None and stdout is not None  # both pipes (PIPE above)
+            if stdout.readline().strip() != "ready":
                 raise RuntimeError("the compiling process did not start")
             while True:
                 name = self._next(worker)
                 if name is None:  # no group left: _next has retired this feeder
                     retired = True
                     break
-                proc.stdin.write(name + "\n")
-                proc.stdin.flush()
-                reply = proc.stdout.readline().strip()
+                stdin.write(name + "\n")
+                stdin.flush()
+                reply = stdout.readline().strip()
                 with self._lock:
                     if reply == f"done {name}":
                         self.done.append(name)
@@ -349,7 +352,8 @@ class Compiler:
         finally:
             if proc is not None:
                 try:
-                    proc.stdin.close()
+                    if proc.stdin is not None:  # a pipe (PIPE above); typeshed leaves it optional
+                        proc.stdin.close()
                     proc.wait(timeout=10)
                 except Exception:
                     proc.kill()

@@ -131,7 +131,7 @@ class Workspace:
         self.q_key = np.empty(0, dtype=np.float64)  # violation (Schill)
         self.branch_head = np.empty(0, dtype=np.int64)
         self.branch_tail = np.empty(0, dtype=np.int64)
-        self.csr32 = None  # (graph, indptr, indices, padded indices) in int32 for the breadth-first order
+        self.csr32: tuple | None = None  # (graph, indptr, indices, padded indices) in int32 for the breadth-first order
         # The mesh arrays last checked with this workspace, held (not just their ids) so an identity
         # match means the very same arrays: interactive dragging re-checks only pos, grabbed, targets.
         self.checked: tuple = ()
@@ -834,7 +834,7 @@ def cascade(
     args = (rest, pos, *kargs, grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen)
     if order == ORDER_BREADTH_FIRST:
         if parallel:
-            count = waves.cascade_waves(*args, ws)
+            count = waves.cascade_waves(*args, ws)  # type: ignore[call-arg]  # mypy lets *args take every parameter
         else:
             csr = ws.narrow_csr(graph, kargs, padded=True)
             count = _cascade_fifo(
