@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from chainsim.components.app import App
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll
 from chainsim.components.resources import InputState, PendingInput, Time
 from chainsim.components.stages import ORDER_INPUT
@@ -22,7 +23,7 @@ class InputLog:
     items: list = field(default_factory=list)
 
 
-def input_system(app) -> None:
+def input_system(app: App) -> None:
     t: Time = app.time
     state: InputState = app.resource(InputState)
     pending: PendingInput = app.resource(PendingInput)
@@ -42,6 +43,6 @@ def input_system(app) -> None:
         app.events.emit(ev)
 
 
-def plugin(app) -> None:
+def plugin(app: App) -> None:
     app.insert_resource(InputLog())
     app.add_system("input", input_system, order=ORDER_INPUT, name="input")

@@ -9,12 +9,13 @@ from __future__ import annotations
 import esper
 import numpy as np
 
+from chainsim.components.app import App
 from chainsim.components.core import ScriptedMotion, Transform
 from chainsim.components.stages import ORDER_KINEMATICS
 from chainsim.systems.engine import quaternion
 
 
-def motion_system(app) -> None:
+def motion_system(app: App) -> None:
     dt = app.time.dt
     for _, (tr, mo) in esper.get_components(Transform, ScriptedMotion):
         pts = mo.waypoints.reshape(-1, 3)
@@ -50,7 +51,7 @@ def motion_system(app) -> None:
             tr.rotation = quaternion.normalize(tr.rotation)
 
 
-def plugin(app) -> None:
+def plugin(app: App) -> None:
     with app.active():
         needed = bool(esper.get_component(ScriptedMotion))
     if needed:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import esper
 import numpy as np
 
+from chainsim.components.app import App
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import Assessment, FailedSaves, PackResource, Records, SavedLocally, Settings
@@ -104,7 +105,7 @@ class AssessmentSystem:
         self.saved: list = []
         self.errors: list = []
 
-    def attempt_clock(self, app) -> None:
+    def attempt_clock(self, app: App) -> None:
         """A Reset tissue begins the next attempt; a step done is timed from the attempt's start."""
         st, now = self.st, app.time.sim_time
         if st.resets != self.resets:
@@ -118,7 +119,7 @@ class AssessmentSystem:
         if not self.closed:
             self.elapsed = now - self.start_s
 
-    def save(self, app, v: dict) -> None:
+    def save(self, app: App, v: dict) -> None:
         hud = app.get_resource(HudState)
 
         def say(text: str, seconds: float = 4.0) -> None:
@@ -155,7 +156,7 @@ class AssessmentSystem:
                 cls, who = filed[0], filed[1]
             say(f"Attempt {self.attempt} saved for {who} in class {cls}. Reset tissue (r) to begin the next.", 6.0)
 
-    def __call__(self, app) -> None:
+    def __call__(self, app: App) -> None:
         st = self.st
         self.attempt_clock(app)
         per = {}

@@ -9,6 +9,7 @@ import math
 import esper
 import numpy as np
 
+from chainsim.components.app import App
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Scroll, Widget
 from chainsim.components.view_events import Dragged, Picked
@@ -48,14 +49,14 @@ def widget_value(name: str, value):
 class ToolsSystem:
     """Simulation stage: turns the trainee's input into grab, release and cut requests."""
 
-    def __init__(self, app, st: CuttingState):
+    def __init__(self, app: App, st: CuttingState):
         self.st = st
 
-    def hud(self, app):
+    def hud(self, app: App):
 
         return app.get_resource(HudState)
 
-    def say(self, app, text: str) -> None:
+    def say(self, app: App, text: str) -> None:
         h = self.hud(app)
         if h is not None:
             h.message(text, 3.0)
@@ -66,7 +67,7 @@ class ToolsSystem:
         return esper.try_component(ent, Deformable)
 
     # forceps ---------------------------------------------------------------------------------
-    def grab(self, app, ent: int, point) -> bool:
+    def grab(self, app: App, ent: int, point) -> bool:
         st = self.st
         f = esper.component_for_entity(st.forceps, Forceps)
         d = self.body(ent)
@@ -92,7 +93,7 @@ class ToolsSystem:
         st.uses.append(st.open_use)
         return True
 
-    def open_forceps(self, app) -> None:
+    def open_forceps(self, app: App) -> None:
         st = self.st
         f = esper.component_for_entity(st.forceps, Forceps)
         if f.held_entity < 0:
@@ -109,7 +110,7 @@ class ToolsSystem:
         f.target = np.asarray(target, dtype=np.float64).copy()
         f.moving = bool(np.any(f.target != f.tip))
 
-    def push(self, app, depth: float) -> None:
+    def push(self, app: App, depth: float) -> None:
         f = esper.component_for_entity(self.st.forceps, Forceps)
         d = self.body(f.held_entity)
         if d is None:
@@ -118,7 +119,7 @@ class ToolsSystem:
         n = element_normal(app, f.held_entity, d, f.held_element)
         self.aim(f, f.target - n * float(depth))
 
-    def move_tip(self, app) -> None:
+    def move_tip(self, app: App) -> None:
         f = esper.component_for_entity(self.st.forceps, Forceps)
         if f.held_entity < 0 or not f.moving:
             return
@@ -135,7 +136,7 @@ class ToolsSystem:
         )
 
     # scissors --------------------------------------------------------------------------------
-    def touch(self, app, ent: int, point, normal=None) -> None:
+    def touch(self, app: App, ent: int, point, normal=None) -> None:
         st = self.st
         s = esper.component_for_entity(st.scissors, Scissors)
         p = np.asarray(point, dtype=np.float64)
@@ -173,7 +174,7 @@ class ToolsSystem:
         s.path_length += step
         st.cut_length += step
 
-    def lift_blade(self, app) -> None:
+    def lift_blade(self, app: App) -> None:
         st = self.st
         s = esper.component_for_entity(st.scissors, Scissors)
         if s.stroke_entity < 0:
@@ -186,14 +187,14 @@ class ToolsSystem:
         s.stroke_entity = -1
 
     # events ----------------------------------------------------------------------------------
-    def choose(self, app, tool: str) -> None:
+    def choose(self, app: App, tool: str) -> None:
         st = self.st
         self.open_forceps(app)
         self.lift_blade(app)
         st.tool = tool
         st.pending_view = tool
 
-    def on_widget(self, app, ev: Widget) -> None:
+    def on_widget(self, app: App, ev: Widget) -> None:
         st = self.st
         name = ev.name
         if name in TOOLS:
@@ -214,7 +215,7 @@ class ToolsSystem:
             else:
                 self.aim(f, f.target + value)
 
-    def on_pick(self, app, ev: Picked) -> None:
+    def on_pick(self, app: App, ev: Picked) -> None:
         if ev.button != "left":
             return
         if self.st.tool == "forceps":
@@ -228,7 +229,7 @@ class ToolsSystem:
         else:
             self.say(app, "Choose a tool in the toolbox first.")
 
-    def on_drag(self, app, ev: Dragged) -> None:
+    def on_drag(self, app: App, ev: Dragged) -> None:
         st = self.st
         if ev.button != "left":
             return
@@ -258,7 +259,7 @@ class ToolsSystem:
                 if ev.phase == "end":
                     self.lift_blade(app)
 
-    def on_layer(self, app, s: Scissors, eye, point) -> np.ndarray:
+    def on_layer(self, app: App, s: Scissors, eye, point) -> np.ndarray:
         """Where the line of sight through a drag point meets the layer being cut (the drag point itself
         lies on a plane facing the camera, which leaves the tissue as the cursor moves away): on the
         layer's live surface, else on the plane through the path's last point along the layer."""
@@ -280,7 +281,7 @@ class ToolsSystem:
             return np.asarray(point, dtype=np.float64)
         return eye + float((last - eye) @ n) / denom * ray
 
-    def on_scroll(self, app, ev: Scroll) -> None:
+    def on_scroll(self, app: App, ev: Scroll) -> None:
 
         vs = app.get_resource(ViewState)
         vp = vs.at(ev.x, ev.y) if vs is not None else None
@@ -290,7 +291,7 @@ class ToolsSystem:
         if f.held_entity >= 0:
             self.push(app, -f.scroll_step * ev.dy)
 
-    def __call__(self, app) -> None:
+    def __call__(self, app: App) -> None:
         st = self.st
         # Within one frame: the tool choice first, then touches and drags (the view system reports
         # them after the raw input events), then what the hand does with the tool.
@@ -314,7 +315,7 @@ class ToolsSystem:
             self.open_forceps(app)
 
 
-def _camera(app, viewport: str):
+def _camera(app: App, viewport: str):
 
     vs = app.get_resource(ViewState)
     vp = vs.get(viewport) if vs is not None and viewport else None

@@ -46,6 +46,7 @@ from __future__ import annotations
 import esper
 import numpy as np
 
+from chainsim.components.app import App
 from chainsim.components.core import Name, PolyLine, Transform
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import MouseMove, Scroll, Widget
@@ -86,7 +87,7 @@ def check_event(ev) -> None:
         widget_value(ev.name, ev.value)
 
 
-def plugin(app) -> None:
+def plugin(app: App) -> None:
     """Install the cutting trainer for a spawned pack (see the module docstring)."""
 
     pres: PackResource = app.resource(PackResource)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import esper
 import numpy as np
 
+from chainsim.components.app import App
 from chainsim.components.core import Marker, PolyLine, Transform, Wireframe
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import MouseMove
@@ -32,7 +33,7 @@ def tissue_bounds(st: CuttingState) -> tuple[np.ndarray, np.ndarray]:
     return pts.min(axis=0), pts.max(axis=0)
 
 
-def apply_view(app, st: CuttingState, tool: str) -> None:
+def apply_view(app: App, st: CuttingState, tool: str) -> None:
     """Jump the frozen (controller) views to the tool's best view of the tissue (thesis 4.5.2): an
     oblique view from the free edge for the forceps, so pulling up and back is a drag up the screen; a
     near top-down view for the scissors, so a drag across the screen runs across the tissue. The view
@@ -55,7 +56,7 @@ def apply_view(app, st: CuttingState, tool: str) -> None:
         frame_view(vs, vp, lo, hi)
 
 
-def reset_tissue(app, st: CuttingState) -> None:
+def reset_tissue(app: App, st: CuttingState) -> None:
     """Every layer back to its rest shape with all links restored; instruments open; steps restart."""
     for ent in st.layers:
         app.events.emit(ResetRequest(ent))  # served by the deformation system, which owns the tissue
@@ -125,7 +126,7 @@ def draw_tools(st: CuttingState) -> None:
     path.points = s.stroke + lift if cutting else np.zeros((0, 3))
 
 
-def hover_point(app, st: CuttingState, ev: MouseMove) -> np.ndarray | None:
+def hover_point(app: App, st: CuttingState, ev: MouseMove) -> np.ndarray | None:
     """The tissue point under the cursor in a 3-D view (where the idle instrument is drawn, so the mouse
     acts as the instrument, 4.5.2), or None off the tissue."""
 
@@ -139,7 +140,7 @@ def hover_point(app, st: CuttingState, ev: MouseMove) -> np.ndarray | None:
     return np.asarray(hit.point, dtype=np.float64)
 
 
-def set_wireframe(app, st: CuttingState, on: bool) -> None:
+def set_wireframe(app: App, st: CuttingState, on: bool) -> None:
     """Draw the layers as their links (to see them stretch) or shaded: a Wireframe component the
     renderer reads; the pack's materials are never changed."""
     st.wireframe = bool(on)
@@ -159,7 +160,7 @@ class StepsSystem:
     def __init__(self, st: CuttingState):
         self.st = st
 
-    def step_done(self, app, k: int) -> bool:
+    def step_done(self, app: App, k: int) -> bool:
         """Whether step k's `done_on` events (or, for a step without them, its id's: state.LEGACY_DONE_ON)
         have happened: any one completes the step."""
         st = self.st
@@ -174,7 +175,7 @@ class StepsSystem:
                 return True
         return False
 
-    def __call__(self, app) -> None:
+    def __call__(self, app: App) -> None:
 
         st = self.st
         hud = app.get_resource(HudState)
@@ -225,7 +226,7 @@ def _dead(ent: int) -> int:
     return int(len(d.alive) - np.count_nonzero(d.alive))
 
 
-def panel_lines(app, st: CuttingState) -> list[str]:
+def panel_lines(app: App, st: CuttingState) -> list[str]:
     v = app.resource(Assessment).values
     f = esper.component_for_entity(st.forceps, Forceps)
     tool = st.tool or "none - take the forceps or the scissors"

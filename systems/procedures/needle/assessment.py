@@ -36,6 +36,7 @@ from __future__ import annotations
 import esper
 import numpy as np
 
+from chainsim.components.app import App
 from chainsim.components.core import Marker, PolyLine, Transform
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import (
@@ -65,7 +66,7 @@ def _num(x):
     return None if x is None or not np.isfinite(x) else float(x)
 
 
-def compute(app) -> dict:
+def compute(app: App) -> dict:
     """The assessment values of the current attempt (JSON-ready)."""
 
     handles: NeedleHandles = app.resource(NeedleHandles)
@@ -153,7 +154,7 @@ def metric_values(pack, scene: NeedleScene, v: dict) -> dict:
     return out
 
 
-def xray_values(app) -> dict:
+def xray_values(app: App) -> dict:
     """The C-arm's counts for this attempt: single images, live seconds, exposure and dose (3.2.3)."""
     ent = app.resource(EntityIndex).get("carm")
     carm = esper.try_component(ent, CArm) if ent is not None else None
@@ -260,7 +261,7 @@ DETAIL_KEYS = (
 )
 
 
-def save(app, v: dict) -> int | None:
+def save(app: App, v: dict) -> int | None:
     """Save the attempt through the Records resource (Settings class/trainee); raises UserError on failure.
 
     Returns None, storing nothing, when the Records refuse all saves (a replay): the attempt is then
@@ -281,7 +282,7 @@ def save(app, v: dict) -> int | None:
     )
 
 
-def my_attempts(app, limit: int = 6) -> list[str]:
+def my_attempts(app: App, limit: int = 6) -> list[str]:
     """Panel lines for the current trainee's saved attempts, newest last (the View of Fig. 3.11)."""
     s = app.resource(Settings)
     cls, who = s.get("class") or DEFAULT_CLASS, s.get("trainee") or DEFAULT_TRAINEE
@@ -301,7 +302,7 @@ def my_attempts(app, limit: int = 6) -> list[str]:
     return lines
 
 
-def own_count(app) -> int | None:
+def own_count(app: App) -> int | None:
     """How many attempts the signed-in trainee has saved (the number My attempts gives the newest)."""
     try:
         return len(app.resource(Records).list_attempts(*_who(app)))
@@ -309,12 +310,12 @@ def own_count(app) -> int | None:
         return None
 
 
-def _who(app) -> tuple[str, str]:
+def _who(app: App) -> tuple[str, str]:
     s = app.resource(Settings)
     return s.get("class") or DEFAULT_CLASS, s.get("trainee") or DEFAULT_TRAINEE
 
 
-def newest_own(app) -> int | None:
+def newest_own(app: App) -> int | None:
     """Id of the signed-in trainee's newest saved attempt, if any."""
     try:
         rows = app.resource(Records).list_attempts(*_who(app))
@@ -323,7 +324,7 @@ def newest_own(app) -> int | None:
     return rows[-1]["id"] if rows else None
 
 
-def delete_own(app, attempt_id: int) -> None:
+def delete_own(app: App, attempt_id: int) -> None:
     """Delete one of the signed-in trainee's attempts (never someone else's)."""
     rec = app.resource(Records)
     if rec.delete_attempt is None:
@@ -331,7 +332,7 @@ def delete_own(app, attempt_id: int) -> None:
     rec.delete_attempt(*_who(app), attempt_id)
 
 
-def geometry(app, v: dict, trace: list) -> None:
+def geometry(app: App, v: dict, trace: list) -> None:
     """Add to `v` what the debrief draws: the needle path (thinned), the ideal path and the ideal
     place of each placed landmark (the nearest point its D and d would call perfect)."""
     scene: NeedleScene = app.resource(NeedleScene)
@@ -431,7 +432,7 @@ class DebriefDrawing:
 
 
 class AssessmentSystem:
-    def __init__(self, app):
+    def __init__(self, app: App):
         self.widgets = app.events.reader(Widget)
         self.errors: list[str] = []
         self.delete_armed: int | None = None  # the attempt a first Delete press chose
@@ -440,7 +441,7 @@ class AssessmentSystem:
         self.drawing = DebriefDrawing()
         self.drawn_path = 0  # points of the needle path the debrief drawing shows
 
-    def open_debrief(self, app, v: dict) -> None:
+    def open_debrief(self, app: App, v: dict) -> None:
         h = hud(app)
         scene, pack = app.resource(NeedleScene), app.resource(PackResource).pack
         h.debrief = debrief_rows(v, scene, pack)
@@ -456,12 +457,12 @@ class AssessmentSystem:
         ]
         self.panel_shown = list(h.panel_text)
 
-    def close_debrief(self, app) -> None:
+    def close_debrief(self, app: App) -> None:
         h = hud(app)
         h.debrief, h.debrief_paths = [], []
         self.drawing.show(None)
 
-    def __call__(self, app) -> None:
+    def __call__(self, app: App) -> None:
 
         handles: NeedleHandles = app.resource(NeedleHandles)
         ps0 = esper.component_for_entity(handles.procedure, ProcedureState)
@@ -535,7 +536,7 @@ class AssessmentSystem:
         v["save_errors"] = list(self.errors)
         app.resource(Assessment).values = v
 
-    def delete(self, app, h) -> None:
+    def delete(self, app: App, h) -> None:
         """Delete the trainee's newest attempt: the first press names it, the second deletes it."""
 
         try:
@@ -554,7 +555,7 @@ class AssessmentSystem:
             h.message(f"Not deleted: {e}", 8.0)
 
 
-def plugin(app) -> None:
+def plugin(app: App) -> None:
 
     if not app.has_resource(Assessment):
         app.insert_resource(Assessment())

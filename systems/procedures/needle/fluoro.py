@@ -35,6 +35,7 @@ from __future__ import annotations
 import esper
 import numpy as np
 
+from chainsim.components.app import App
 from chainsim.components.core import Name
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import EntityIndex, InputState, PackResource, Settings
@@ -45,7 +46,7 @@ from chainsim.systems.procedures.needle.handles import Feedback, NeedleHandles, 
 from chainsim.systems.procedures.needle.manifest import NeedleScene, ProcedureState, Target
 
 
-def fluoro_first(app) -> bool:
+def fluoro_first(app: App) -> bool:
     """Whether this run guides by X-ray only: the user's setting wins over the pack's [needle_procedure]."""
     s = app.resource(Settings)
     if s.get("fluoro_first") is not None:
@@ -84,28 +85,28 @@ def submental_pose(target: Target) -> tuple[float, float]:
 
 
 class CArmSystem:
-    def __init__(self, app):
+    def __init__(self, app: App):
         self.widgets = app.events.reader(Widget)
         self.turns = app.events.reader(ViewTurned)
         self.last_tick = app.time.tick
         self.switched = False  # live fluoroscopy switched on with the panel (the pedal needs a held key)
 
-    def carm(self, app) -> CArm:
+    def carm(self, app: App) -> CArm:
         return esper.component_for_entity(app.resource(EntityIndex).get("carm"), CArm)
 
-    def target(self, app) -> Target:
+    def target(self, app: App) -> Target:
         ps = esper.component_for_entity(app.resource(NeedleHandles).procedure, ProcedureState)
         scene: NeedleScene = app.resource(NeedleScene)
         return scene.target(ps.side or scene.sides[0])
 
-    def centre(self, app, carm: CArm) -> None:
+    def centre(self, app: App, carm: CArm) -> None:
         carm.iso = np.asarray(self.target(app).centre, float).copy()
 
     def image(self, carm: CArm) -> None:
         carm.image_id += 1
         carm.image_pose = (carm.azimuth_deg, carm.elevation_deg, tuple(float(c) for c in carm.iso))
 
-    def __call__(self, app) -> None:
+    def __call__(self, app: App) -> None:
         carm = self.carm(app)
         h = hud(app)
         ps = esper.component_for_entity(app.resource(NeedleHandles).procedure, ProcedureState)
@@ -167,7 +168,7 @@ class CArmSystem:
             carm.live_s += ticks * app.time.dt
 
 
-def plugin(app) -> None:
+def plugin(app: App) -> None:
     """Create the C-arm entity, centred on the first side's target in a lateral view, and its system."""
     index: EntityIndex = app.resource(EntityIndex)
     scene: NeedleScene = app.resource(NeedleScene)

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+from chainsim.components.app import App
 from chainsim.components.hud import HudState
 
 
-def hud(app):
+def hud(app: App):
     """The HUD resource (the view plugin's); one is made when running without it."""
     h = app.get_resource(HudState)
     if h is None:
@@ -44,7 +45,7 @@ class Feedback:
     def has(self, event: str) -> bool:
         return event in self.by_event
 
-    def fire(self, app, event: str, lights: dict, default: str = "", **values) -> bool:
+    def fire(self, app: App, event: str, lights: dict, default: str = "", **values) -> bool:
         """Show the event's messages and set its lights; `default` is said when the pack says nothing.
         Returns whether the pack declared feedback for the event."""
         entries = self.by_event.get(event, [])

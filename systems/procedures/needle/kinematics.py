@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import esper
 import numpy as np
 
+from chainsim.components.app import App
 from chainsim.components.core import MeshRef, Transform
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, Widget
@@ -108,7 +109,7 @@ def initial_direction(entry, aim_at=(0.0, 0.0, 0.0)) -> np.ndarray:
     return d / n
 
 
-def apply_pose(app, ent: int, needle: Needle, st: NeedleState) -> None:
+def apply_pose(app: App, ent: int, needle: Needle, st: NeedleState) -> None:
     """Write the tip Transform (origin at the tip, local +Z along insertion) and the shaft's."""
     tr = esper.try_component(ent, Transform)
     d = st.direction()
@@ -125,7 +126,7 @@ def apply_pose(app, ent: int, needle: Needle, st: NeedleState) -> None:
             str_.rotation = st.q.copy()
 
 
-def show(app, ent: int, needle: Needle, visible: bool) -> None:
+def show(app: App, ent: int, needle: Needle, visible: bool) -> None:
     """Show or hide the needle (tip and shaft): it is not drawn before landmark 1 places it."""
 
     index = app.get_resource(EntityIndex)
@@ -136,7 +137,7 @@ def show(app, ent: int, needle: Needle, visible: bool) -> None:
             ref.visible = bool(visible)
 
 
-def place(app, ent: int, needle: Needle, st: NeedleState, entry) -> None:
+def place(app: App, ent: int, needle: Needle, st: NeedleState, entry) -> None:
     """Put the tip at `entry` (landmark 1) pointing along `initial_direction`, unlocked, not inserted."""
     st.entry = np.asarray(entry, dtype=np.float64).copy()
     st.q0 = Q.look_rotation(initial_direction(st.entry, needle.aim_at), Z)
@@ -146,7 +147,7 @@ def place(app, ent: int, needle: Needle, st: NeedleState, entry) -> None:
     show(app, ent, needle, True)
 
 
-def reset(app, ent: int, needle: Needle, st: NeedleState) -> None:
+def reset(app: App, ent: int, needle: Needle, st: NeedleState) -> None:
     st.q = st.q0.copy()
     st.yaw = st.pitch = 0.0
     st.depth = st.target_depth = st.prev_depth = 0.0
@@ -158,7 +159,7 @@ def reset(app, ent: int, needle: Needle, st: NeedleState) -> None:
         apply_pose(app, ent, needle, st)
 
 
-def park(app, ent: int, needle: Needle, st: NeedleState) -> None:
+def park(app: App, ent: int, needle: Needle, st: NeedleState) -> None:
     """Back to where the pack placed the needle, before any landmark."""
     reset(app, ent, needle, st)
     st.placed = False
@@ -197,16 +198,16 @@ def rotate_vertical(st: NeedleState, delta_deg: float, max_pitch: float) -> floa
     return delta
 
 
-def _shift(app) -> bool:
+def _shift(app: App) -> bool:
     return bool(app.resource(InputState).keys & SHIFT_KEYS)
 
 
-def _widgets(app):
+def _widgets(app: App):
 
     return app.get_resource(WidgetState)
 
 
-def sync_widgets(app, st: NeedleState) -> None:
+def sync_widgets(app: App, st: NeedleState) -> None:
     """Mirror the needle's pose and lock state on the controller's dials (also after a collision)."""
     ws = _widgets(app)
     if ws is None:
@@ -224,11 +225,11 @@ def sync_widgets(app, st: NeedleState) -> None:
 
 
 class NeedleSystem:
-    def __init__(self, app):
+    def __init__(self, app: App):
         self.widgets = app.events.reader(Widget)
         self.keys = app.events.reader(Key)
 
-    def commands(self, app):
+    def commands(self, app: App):
         """(name, value, from_key) in event order; keys become increments."""
         out = []
         for ev in self.widgets.read():
@@ -239,7 +240,7 @@ class NeedleSystem:
                 out.append((name, sign, True))
         return out
 
-    def rotate(self, app, ent, needle, st, name, value, from_key) -> None:
+    def rotate(self, app: App, ent, needle, st, name, value, from_key) -> None:
         if not st.placed:
             app.events.emit(RotationRefused(name, "not_placed"))
             return
@@ -271,7 +272,7 @@ class NeedleSystem:
         sync_widgets(app, st)
         app.events.emit(NeedleAction(name, st.yaw if name == "rotate_horizontal" else st.pitch))
 
-    def insert(self, app, ent, needle, st, name, value, from_key) -> None:
+    def insert(self, app: App, ent, needle, st, name, value, from_key) -> None:
         if not st.placed:
             app.events.emit(InsertRefused("not_placed"))
             return
@@ -294,7 +295,7 @@ class NeedleSystem:
         sync_widgets(app, st)
         app.events.emit(NeedleAction(name, st.target_depth))
 
-    def __call__(self, app) -> None:
+    def __call__(self, app: App) -> None:
         cmds = self.commands(app)
         for ent, (needle, st) in esper.get_components(Needle, NeedleState):
             for name, value, from_key in cmds:
@@ -312,7 +313,7 @@ class NeedleSystem:
                     app.events.emit(NeedleReset(everything))
             self.move(app, ent, needle, st)
 
-    def move(self, app, ent, needle, st) -> None:
+    def move(self, app: App, ent, needle, st) -> None:
         st.prev_depth = st.depth
         if not st.placed:
             return
@@ -331,7 +332,7 @@ class NeedleSystem:
             app.events.emit(NeedleAction("withdrawn", 0.0))
 
 
-def init_state(app) -> None:
+def init_state(app: App) -> None:
     """Give every needle its runtime state, remembering where the pack parked it."""
     with app.active():
         for ent, _needle in esper.get_component(Needle):
@@ -345,7 +346,7 @@ def init_state(app) -> None:
             esper.add_component(ent, st)
 
 
-def plugin(app) -> None:
+def plugin(app: App) -> None:
 
     init_state(app)
     with app.active():

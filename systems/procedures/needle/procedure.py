@@ -34,6 +34,7 @@ from __future__ import annotations
 import esper
 import numpy as np
 
+from chainsim.components.app import App
 from chainsim.components.core import Label, Marker, MeshRef, Name, Transform
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import EntityIndex, PackResource
@@ -75,12 +76,12 @@ DEFAULTS = {
 }
 
 
-def widget_state(app):
+def widget_state(app: App):
     return app.get_resource(WidgetState)
 
 
 class ProcedureSystem:
-    def __init__(self, app):
+    def __init__(self, app: App):
         self.picks = app.events.reader(Picked)
         self.widgets = app.events.reader(Widget)
         self.actions = app.events.reader(NeedleAction)
@@ -113,25 +114,25 @@ class ProcedureSystem:
         self.reset_step = self.config.get("reset_step") or (ids[after] if after < len(ids) else "")
 
     # -- helpers --------------------------------------------------------------------------------
-    def state(self, app) -> ProcedureState:
+    def state(self, app: App) -> ProcedureState:
         return esper.component_for_entity(app.resource(NeedleHandles).procedure, ProcedureState)
 
-    def needle(self, app):
+    def needle(self, app: App):
         ent = app.resource(NeedleHandles).needle
         return ent, esper.component_for_entity(ent, Needle), esper.component_for_entity(ent, NeedleState)
 
-    def say(self, app, event: str, default_key: str | None = None, **values) -> None:
+    def say(self, app: App, event: str, default_key: str | None = None, **values) -> None:
         """The pack's feedback for `event`, or the built-in message."""
         default = DEFAULTS.get(default_key or event, "")
         self.feedback.fire(app, event, self.lights, default, **values)
 
-    def event(self, app, ps: ProcedureState, name: str) -> None:
+    def event(self, app: App, ps: ProcedureState, name: str) -> None:
         """An event a step may be done on: move on to the step after every step that names it."""
         for i, spec in enumerate(self.step_list):
             if name in spec.get("done_on", ()) and i + 1 < len(ps.step_ids):
                 self.goto(app, ps, ps.step_ids[i + 1])
 
-    def goto(self, app, ps: ProcedureState, step_id: str) -> None:
+    def goto(self, app: App, ps: ProcedureState, step_id: str) -> None:
         """Move forward to `step_id` (never back, except through `restart`)."""
         if step_id not in ps.step_ids:
             return
@@ -141,12 +142,12 @@ class ProcedureSystem:
         ps.step = k
         self.show_step(app, ps)
 
-    def restart(self, app, ps: ProcedureState, step_id: str) -> None:
+    def restart(self, app: App, ps: ProcedureState, step_id: str) -> None:
         if step_id in ps.step_ids:
             ps.step = ps.step_ids.index(step_id)
             self.show_step(app, ps)
 
-    def show_step(self, app, ps: ProcedureState) -> None:
+    def show_step(self, app: App, ps: ProcedureState) -> None:
         spec = self.steps.get(ps.step_id, {})
         h = hud(app)
         h.step_title = spec.get("title", ps.step_id)
@@ -162,7 +163,7 @@ class ProcedureSystem:
             h.close_doc()
 
     # -- landmarks ------------------------------------------------------------------------------
-    def begin_attempt(self, app, ps: ProcedureState) -> None:
+    def begin_attempt(self, app: App, ps: ProcedureState) -> None:
         """After a saved attempt, the first action starts a new one with its own clock and counts."""
         if not ps.closed:
             ps.touched = True
@@ -188,7 +189,7 @@ class ProcedureSystem:
         ps.first_dist = float("nan")
         ps.hit_point = np.full(3, np.nan)
 
-    def place_landmark(self, app, ps: ProcedureState, point) -> None:
+    def place_landmark(self, app: App, ps: ProcedureState, point) -> None:
         scene = self.scene
         n = len(scene.landmark_ids)
         if ps.placed >= n:
@@ -208,7 +209,7 @@ class ProcedureSystem:
         self.say(app, f"landmark:{lid}", "landmark", n=k + 1, side=ps.side, id=lid)
         self.event(app, ps, f"landmark:{lid}")
 
-    def show_landmark(self, app, k: int, p) -> None:
+    def show_landmark(self, app: App, k: int, p) -> None:
         handles: NeedleHandles = app.resource(NeedleHandles)
         spec = self.scene.landmark_specs[k]
         if handles.markers[k] is not None:
@@ -229,7 +230,7 @@ class ProcedureSystem:
                     np.asarray(spec["plane_normal"], float), np.asarray(spec["plane_up"], float)
                 )
 
-    def clear_landmarks(self, app, ps: ProcedureState) -> None:
+    def clear_landmarks(self, app: App, ps: ProcedureState) -> None:
         ps.landmarks[:] = np.nan
         ps.placed = 0
         ps.side = ""
@@ -241,7 +242,7 @@ class ProcedureSystem:
                 ref.visible = False
 
     # -- the system -----------------------------------------------------------------------------
-    def __call__(self, app) -> None:
+    def __call__(self, app: App) -> None:
         ps = self.state(app)
         scene = self.scene
         self.lights = {name: "off" for name in self.feedback.lights}
@@ -343,7 +344,7 @@ class ProcedureSystem:
             ps.step_times[sid] = ps.step_times.get(sid, 0.0) + ticks * app.time.dt
             ps.elapsed += ticks * app.time.dt
 
-    def next_step(self, app, ps: ProcedureState) -> None:
+    def next_step(self, app: App, ps: ProcedureState) -> None:
         """Next moves on one step, except past a landmark that is not placed yet."""
         lid = self.steps.get(ps.step_id, {}).get("landmark", "")
         ids = self.scene.landmark_ids
@@ -358,7 +359,7 @@ class ProcedureSystem:
         if ps.step + 1 < len(ps.step_ids):
             self.goto(app, ps, ps.step_ids[ps.step + 1])
 
-    def update_aim(self, app, ps: ProcedureState) -> None:
+    def update_aim(self, app: App, ps: ProcedureState) -> None:
         """The tip view's aiming aid: the entry side's target centre and the tip's distance to it."""
 
         h = hud(app)
@@ -376,7 +377,7 @@ class ProcedureSystem:
         h.aim_target = tuple(float(c) for c in centre)
         h.aim_note = f"{float(np.linalg.norm(st.tip() - centre)):.1f} mm"
 
-    def update_planes(self, app, ps: ProcedureState) -> None:
+    def update_planes(self, app: App, ps: ProcedureState) -> None:
         on = ps.aids_now.get(self.config.get("planes_aid") or "", False)
         handles: NeedleHandles = app.resource(NeedleHandles)
         for k, ent in enumerate(handles.planes):
@@ -461,7 +462,7 @@ def _check(pack, scene: NeedleScene, index: EntityIndex) -> None:
             )
 
 
-def plugin(app) -> None:
+def plugin(app: App) -> None:
 
     pres: PackResource = app.resource(PackResource)
     pack = pres.pack
