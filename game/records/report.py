@@ -23,6 +23,7 @@ from matplotlib.figure import Figure
 
 from chainsim.game.records.validate import AIDS, printable
 from chainsim.systems.engine.errors import UserError
+from chainsim.systems.procedures.needle import records as layout
 
 CSV_COLUMNS = (
     "id",
@@ -30,16 +31,10 @@ CSV_COLUMNS = (
     "trainee",
     "pack",
     "created_at",
-    "duration_s",
-    "landmark_error_mm",
-    "needle_error_mm",
+    # the fixed fields of the needle procedure's attempt (chainsim.systems.procedures.needle.records)
+    *(c.name for c in layout.COLUMNS[:3]),
     "target",
-    "skull_contacts",
-    "path_length_mm",
-    "redirections",
-    "xray_shots",
-    "exposure_s",
-    "dose_mgy",
+    *(c.name for c in layout.COLUMNS[3:]),
     *(f"aid_{name}" for name in AIDS),
     "step_times",
     "details",
@@ -140,16 +135,10 @@ def csv_rows(attempts: Sequence[dict[str, Any]]) -> list[list[Any]]:
                 a["trainee"],
                 a["pack"],
                 a["created_at"],
-                a["duration_s"],
-                a["landmark_error_mm"],
-                "" if a["needle_error_mm"] is None else a["needle_error_mm"],
+                *("" if a[c.name] is None else a[c.name] for c in layout.COLUMNS[:3]),
                 a["target"],
-                a["skull_contacts"],
-                a["path_length_mm"],
-                a.get("redirections", 0),
-                a.get("xray_shots", 0),
-                a.get("exposure_s", 0.0),
-                a.get("dose_mgy", 0.0),
+                *(a[c.name] for c in layout.COLUMNS[3:5]),
+                *(a.get(c.name, 0.0 if c.units else 0) for c in layout.COLUMNS[5:]),  # counts have no units
                 *(int(bool(a["aids"].get(name, False))) for name in AIDS),
                 json.dumps(a["step_times"], sort_keys=True),
                 json.dumps(a["details"], sort_keys=True),
@@ -171,23 +160,25 @@ def export_csv(attempts: Sequence[dict[str, Any]], path: Path) -> None:
 
 
 def plot_progress(attempts: Sequence[dict[str, Any]], path: Path, title: str) -> None:
-    """PNG of landmark error, needle error and the X-ray each attempt cost against attempt number (Agg)."""
+    """PNG of the two errors of 6.1.5 (the marked points', the needle's) and the X-ray each attempt cost
+    against attempt number (Agg); each error's axis is named by its words in the procedure's layout."""
     if not attempts:
         raise UserError(f"no attempts to plot for {title}")
     if Path(path).suffix.lower() != ".png":
         raise UserError(f"plot output {path} must end in .png")
 
     n = list(range(1, len(attempts) + 1))
-    landmark = [a["landmark_error_mm"] for a in attempts]
-    needle = [float("nan") if a["needle_error_mm"] is None else a["needle_error_mm"] for a in attempts]
+    words = {c.name: c.words.lower() for c in layout.COLUMNS}
+    marks = [a[layout.MARK_ERROR] for a in attempts]
+    needle = [float("nan") if a[layout.TARGET_ERROR] is None else a[layout.TARGET_ERROR] for a in attempts]
     shots = [a.get("xray_shots", 0) for a in attempts]
     exposure = [a.get("exposure_s", 0.0) for a in attempts]
 
     fig = Figure(figsize=(7.0, 7.5), dpi=100)
     FigureCanvasAgg(fig)
     ax_l, ax_n, ax_x = fig.subplots(3, 1, sharex=True)
-    ax_l.plot(n, landmark, marker="o", color="tab:blue")
-    ax_l.set_ylabel("landmark error E (mm)")
+    ax_l.plot(n, marks, marker="o", color="tab:blue")
+    ax_l.set_ylabel(f"{words[layout.MARK_ERROR]} E (mm)")
     ax_l.set_ylim(bottom=0)
     ax_l.grid(alpha=0.3)
     # Attempts with no needle contact have no needle error: join the others, mark the gaps.
@@ -198,7 +189,7 @@ def plot_progress(attempts: Sequence[dict[str, Any]], path: Path, title: str) ->
     for i in missing:
         ax_n.axvline(i, color="0.7", linestyle=":", linewidth=1)
     ax_n.axhline(0.0, color="0.4", linewidth=0.8)
-    ax_n.set_ylabel("needle error (mm)")
+    ax_n.set_ylabel(f"{words[layout.TARGET_ERROR]} (mm)")
     ax_n.grid(alpha=0.3)
     # X-ray: images as bars, seconds of exposure as a line on a second axis (thesis 3.2.3)
     ax_x.bar(n, shots, color="tab:gray", alpha=0.6, label="X-ray images")

@@ -1,16 +1,21 @@
 """Schema of the trainee-records database and its ordered migrations (thesis 3.3.4, 6.1.5).
 
 The assessment tool of section 3.3.4 files each attempt under a class and a trainee name; the
-metrics stored per attempt are those of 6.1.5 (landmark error E over the three marks, needle
-error from the tip to the foramen ovale) plus the aids that were switched on, which is what the
+metrics stored per attempt are those of 6.1.5 (the error E of the three marked points, the needle's
+error from its tip to the target opening) plus the aids that were switched on, which is what the
 with/without-feature comparison of 6.1.3-6.1.5 needs.
 
 The schema version lives in ``PRAGMA user_version``. ``MIGRATIONS[i]`` takes a database from
 version ``i`` to version ``i + 1``; each one runs inside the same transaction as the version bump,
 so a database is never left half-migrated. Never edit a shipped step: append a new one.
+
+The attempts table's fixed metric columns are the needle procedure's (its names come from
+chainsim.systems.procedures.needle.records, the text of every step is as shipped).
 """
 
 from __future__ import annotations
+
+from chainsim.systems.procedures.needle import records as layout
 
 # Version 1: the first released layout. Kept verbatim so tests can build a genuine v1 file.
 V1_DDL: tuple[str, ...] = (
@@ -28,15 +33,15 @@ V1_DDL: tuple[str, ...] = (
         UNIQUE (class_id, name)
     )
     """,
-    """
+    f"""
     CREATE TABLE attempts (
         id                INTEGER PRIMARY KEY,
         trainee_id        INTEGER NOT NULL REFERENCES trainees(id) ON DELETE CASCADE,
         pack              TEXT NOT NULL,
         created_at        TEXT NOT NULL,
         duration_s        REAL NOT NULL,
-        landmark_error_mm REAL NOT NULL,
-        needle_error_mm   REAL,
+        {layout.MARK_ERROR} REAL NOT NULL,
+        {layout.TARGET_ERROR}   REAL,
         target            TEXT NOT NULL,
         skull_contacts    INTEGER NOT NULL,
         path_length_mm    REAL NOT NULL,
@@ -46,7 +51,7 @@ V1_DDL: tuple[str, ...] = (
     """,
 )
 
-# Version 2: free-form extra metrics (D1..D3, d1..d3, landmark positions) and an index for the
+# Version 2: free-form extra metrics (D1..D3, d1..d3, the marked positions) and an index for the
 # per-trainee history queries that `list`, `export` and `plot` run.
 V2_DDL: tuple[str, ...] = (
     "ALTER TABLE attempts ADD COLUMN details TEXT NOT NULL DEFAULT '{}'",
@@ -153,17 +158,7 @@ V5_DDL: tuple[str, ...] = (
 # needs no new column. Every value the fixed columns of versions 1-5 hold is copied in under the
 # column's name, so attempts saved before keep all they had and read the same both ways. The fixed
 # columns stay (the reports, the server and exports read them).
-LEGACY_METRICS: tuple[str, ...] = (
-    "duration_s",
-    "landmark_error_mm",
-    "needle_error_mm",
-    "skull_contacts",
-    "path_length_mm",
-    "redirections",
-    "xray_shots",
-    "exposure_s",
-    "dose_mgy",
-)
+LEGACY_METRICS: tuple[str, ...] = tuple(c.name for c in layout.COLUMNS)
 V6_DDL: tuple[str, ...] = (
     """
     CREATE TABLE attempt_metrics (

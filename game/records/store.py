@@ -191,10 +191,11 @@ def _row_to_attempt(row: sqlite3.Row) -> dict[str, Any]:
     return out
 
 
-_ATTEMPT_SELECT = """
-    SELECT a.id, c.name AS class_name, t.name AS trainee, a.pack, a.created_at, a.duration_s,
-           a.landmark_error_mm, a.needle_error_mm, a.target, a.skull_contacts, a.path_length_mm,
-           a.redirections, a.xray_shots, a.exposure_s, a.dose_mgy, a.aids, a.step_times, a.details,
+# the attempt's fixed fields in their stored order: three metric columns, the target, the rest
+_FIXED = (*LEGACY_METRICS[:3], "target", *LEGACY_METRICS[3:])
+_ATTEMPT_SELECT = f"""
+    SELECT a.id, c.name AS class_name, t.name AS trainee, a.pack, a.created_at,
+           {", ".join(f"a.{name}" for name in _FIXED)}, a.aids, a.step_times, a.details,
            a.filed_by, a.client_created_at, a.pack_version, a.pack_hash, a.client_figures, a.differences,
            a.retracted_at, a.retracted_by, a.retract_reason
     FROM attempts a JOIN trainees t ON t.id = a.trainee_id JOIN classes c ON c.id = t.class_id
@@ -488,27 +489,17 @@ class RecordStore:
                 "INSERT INTO trainees (class_id, name) VALUES (?, ?)", (class_id, trainee)
             ).lastrowid
         cur = conn.execute(
-            """
-            INSERT INTO attempts (trainee_id, pack, created_at, duration_s, landmark_error_mm,
-                needle_error_mm, target, skull_contacts, path_length_mm, redirections, xray_shots,
-                exposure_s, dose_mgy, aids, step_times, details, idem_key, filed_by, client_created_at,
-                pack_version, pack_hash, client_figures, differences)
-            VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
+            f"""
+            INSERT INTO attempts (trainee_id, pack, created_at, {", ".join(_FIXED)}, aids, step_times,
+                details, idem_key, filed_by, client_created_at, pack_version, pack_hash, client_figures,
+                differences)
+            VALUES ({", ".join("?" * (13 + len(_FIXED)))})
             """,
             (
                 trainee_id,
                 a["pack"],
                 a["created_at"],
-                a["duration_s"],
-                a["landmark_error_mm"],
-                a["needle_error_mm"],
-                a["target"],
-                a["skull_contacts"],
-                a["path_length_mm"],
-                a["redirections"],
-                a["xray_shots"],
-                a["exposure_s"],
-                a["dose_mgy"],
+                *(a[name] for name in _FIXED),
                 to_json(a["aids"]),
                 to_json(a["step_times"]),
                 to_json(a["details"]),

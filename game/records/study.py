@@ -5,9 +5,10 @@ location with and without reference planes, rotation and insertion with the need
 without any clue) and the average post-session rating of each feature. Attempts made in a study
 carry `details.protocol` = {"study", "participant", "trial", "task", "condition", "order", ...}
 (written by `chainsim protocol`), questionnaires carry the study as their session; this module
-groups them. Location is scored by the landmark error, rotation and insertion by the needle error
-E = Dist - R (6.1.5); an attempt whose needle touched nothing has no needle error and is counted
-but not scored.
+groups them. Each task is scored by one attempt field, as the needle procedure's study declares it
+(chainsim.systems.procedures.needle.records: location by the error of the marked points, rotation
+and insertion by the needle error E = Dist - R, 6.1.5); an attempt whose needle touched nothing has
+no needle error and is counted but not scored.
 """
 
 from __future__ import annotations
@@ -15,9 +16,11 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import Any
 
+from chainsim.systems.procedures.needle import records as layout
+
 TASKS = ("location", "insertion")
 TASK_TITLE = {"location": "Location", "insertion": "Rotation and insertion"}
-TASK_METRIC = {"location": "landmark_error_mm", "insertion": "needle_error_mm"}
+TASK_METRIC = layout.TASK_METRIC
 #: thesis Table 6.1, mean error in cm, converted to mm
 THESIS_MM = {
     ("location", "reference_planes"): 3.2,
@@ -89,8 +92,8 @@ def format_table(tab: dict[tuple[str, str], dict[str, Any]], label: str) -> str:
         thesis += (f"{v['thesis_mm']:.1f}" if v["thesis_mm"] is not None else "-").center(width)
     return "\n".join(
         [
-            "Performance test results (after thesis Table 6.1; location: landmark error, rotation and "
-            "insertion: needle error E = Dist - R)",
+            f"Performance test results (after thesis Table 6.1; location: {layout.TASK_SCORED['location']}, "
+            f"rotation and insertion: {layout.TASK_SCORED['insertion']})",
             head1.rstrip(),
             head2.rstrip(),
             row.rstrip(),

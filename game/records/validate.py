@@ -17,37 +17,23 @@ from typing import Any
 
 from chainsim.systems.engine import limits
 from chainsim.systems.engine.errors import HIDDEN_CATEGORIES, UserError, printable
+from chainsim.systems.procedures.needle import records as layout
 
 NAME_MAX = limits.MAX_NAME_LENGTH
 
-# Aids of 3.3.4 / 6.1.3 whose effect on performance the thesis compares.
-AIDS = ("skin_transparent", "reference_planes", "landmark_planes", "tip_view", "collision_signals")
+# Aids of 3.3.4 / 6.1.3 whose effect on performance the thesis compares (the needle procedure names them).
+AIDS = layout.AIDS
 
 # What the needle tip ended on; pack-specific objects use the same lower_snake_case form.
 KNOWN_TARGETS = frozenset({"none", "skull", "mandible"})
 TARGET_RE = re.compile(r"[a-z][a-z0-9_]{0,63}")
 STEP_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}")
 
-REQUIRED = (
-    "pack",
-    "duration_s",
-    "landmark_error_mm",
-    "needle_error_mm",
-    "target",
-    "skull_contacts",
-    "path_length_mm",
-)
-OPTIONAL = (
-    "created_at",
-    "aids",
-    "step_times",
-    "details",
-    "redirections",
-    "xray_shots",
-    "exposure_s",
-    "dose_mgy",
-    "metrics",
-)
+# The attempt's fixed fields (the needle procedure's columns, chainsim.systems.procedures.needle.records):
+# the first five metric columns and the target are required, the X-ray's cost and redirections default to 0.
+_COLUMNS = tuple(c.name for c in layout.COLUMNS)
+REQUIRED = ("pack", *_COLUMNS[:3], "target", *_COLUMNS[3:5])
+OPTIONAL = ("created_at", "aids", "step_times", "details", *_COLUMNS[5:], "metrics")
 METRIC_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,63}")
 MAX_METRICS = 200
 FIELDS = REQUIRED + OPTIONAL
@@ -127,7 +113,7 @@ def clean_target(value: Any) -> str:
     if not isinstance(value, str) or not TARGET_RE.fullmatch(value):
         raise UserError(
             f"attempt field 'target' is {value!r}; expected one of {', '.join(sorted(KNOWN_TARGETS))}, "
-            "foramen_ovale_<side> or another lower_snake_case object name"
+            f"{layout.TARGET_FORM} or another lower_snake_case object name"
         )
     return value
 
@@ -220,15 +206,15 @@ def clean_attempt(attempt: Any) -> dict[str, Any]:
     missing = [f for f in REQUIRED if f not in attempt]
     if missing:
         raise UserError(f"attempt is missing field {missing[0]!r}; required: {', '.join(REQUIRED)}")
-    needle = attempt["needle_error_mm"]
+    mark, needle = attempt[layout.MARK_ERROR], attempt[layout.TARGET_ERROR]
     return {
         "pack": clean_name("pack", attempt["pack"]),
         "created_at": clean_created_at(attempt.get("created_at")),
         "duration_s": _number("duration_s", attempt["duration_s"]),
-        "landmark_error_mm": _number("landmark_error_mm", attempt["landmark_error_mm"]),
-        # 6.1.5 scores the needle as distance-to-centre minus the foramen radius, so a tip inside
+        layout.MARK_ERROR: _number(layout.MARK_ERROR, mark),
+        # 6.1.5 scores the needle as distance-to-centre minus the target's radius, so a tip inside
         # the opening is legitimately negative; None means the needle never touched anything.
-        "needle_error_mm": None if needle is None else _number("needle_error_mm", needle, minimum=None),
+        layout.TARGET_ERROR: None if needle is None else _number(layout.TARGET_ERROR, needle, minimum=None),
         "target": clean_target(attempt["target"]),
         "skull_contacts": _count("skull_contacts", attempt["skull_contacts"]),
         "path_length_mm": _number("path_length_mm", attempt["path_length_mm"]),

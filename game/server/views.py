@@ -15,8 +15,8 @@ procedure (pack) at a time.
     GET  /trainees/{id}?pack=&page=         one trainee's attempts of one pack, with verdicts
     GET  /trainees/{id}/plot/{pack}/{metric}.svg   (or .png) progress, class median, benchmark
     GET  /attempts/{id}                     one attempt in words and in 3-D: the verdict per metric
-                                            against the pack's benchmark, the landmark terms, step
-                                            times, aids, details
+                                            against the pack's benchmark, the marked points' terms,
+                                            step times, aids, details
     GET  /attempts/{id}/replay.json, /attempts/{id}/xray/{k}.png, /packs/{pack}/display.glb
     POST /attempts/{id}/retract             with a reason (audit log)
     GET  /export/attempts.csv, /export/attempts.xapi.json   ?class=C&trainee=T
@@ -54,6 +54,7 @@ from chainsim.game.server.auth import (
 )
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.procedures.needle import debrief
+from chainsim.systems.procedures.needle import records as layout
 
 templates = Environment(loader=PackageLoader("chainsim.game.server", "templates"), autoescape=select_autoescape())
 templates.globals["format_value"] = lambda v, units="": debrief.number(v, units) if isinstance(v, (int, float)) else v
@@ -355,29 +356,9 @@ def metric_specs(packs, name: str) -> dict:
     return hit[1]
 
 
-#: an attempt's fields said in words on its page: field -> (words, units)
-FIELD_WORDS = {
-    "pack": ("Procedure", ""),
-    "created_at": ("Saved", ""),
-    "target": ("Reached", ""),
-    "duration_s": ("Time", "s"),
-    "landmark_error_mm": ("Landmark error", "mm"),
-    "needle_error_mm": ("Needle error", "mm"),
-    "skull_contacts": ("Bone contacts", ""),
-    "path_length_mm": ("Insertion path length", "mm"),
-    "redirections": ("Redirections", ""),
-    "xray_shots": ("X-ray images", ""),
-    "exposure_s": ("X-ray exposure", "s"),
-    "dose_mgy": ("Estimated skin dose", "mGy"),
-    "side": ("Side", ""),
-    "needle_dist_mm": ("Tip to the target's centre at the last contact", "mm"),
-    "first_contact_dist_mm": ("Tip to the target's centre at the first contact", "mm"),
-    "rotation_refused": ("Refused rotations", ""),
-    "rotation_horizontal_deg": ("Horizontal turn", "deg"),
-    "rotation_vertical_deg": ("Vertical tilt", "deg"),
-    "fluoro_s": ("Live fluoroscopy", "s"),
-    "hit_point": ("Last contact point", "mm"),
-}
+#: an attempt's fields said in words on its page: field -> (words, units); the procedure's own fields
+#: as it words them (a pack's [metrics] labels and units come first, `metric_specs`)
+FIELD_WORDS = {"pack": ("Procedure", ""), "created_at": ("Saved", ""), **layout.FIELD_WORDS}
 
 
 def said(key: str, value) -> tuple[str, str]:
@@ -404,9 +385,9 @@ def said(key: str, value) -> tuple[str, str]:
 
 
 def attempt_view(a: dict, specs: dict) -> dict:
-    """What the attempt page shows: the verdict, one row per metric, the landmark terms and the rest."""
+    """What the attempt page shows: the verdict, one row per metric, the marked points' terms and the rest."""
     values = dict(a.get("metrics") or {})
-    for k in ("landmark_error_mm", "needle_error_mm", "duration_s", "path_length_mm", "redirections"):
+    for k in (layout.MARK_ERROR, layout.TARGET_ERROR, "duration_s", "path_length_mm", "redirections"):
         values.setdefault(k, a.get(k))
     if not specs:  # a pack the server does not have: its stored metrics, named, without verdicts
         specs = {k: {"label": said(k, None)[0], "units": said(k, None)[1] or ""} for k in values}
@@ -414,11 +395,11 @@ def attempt_view(a: dict, specs: dict) -> dict:
             specs[k]["units"] = FIELD_WORDS.get(k, ("", ""))[1]
     rows = debrief.verdicts(specs, values)
     d = dict(a.get("details") or {})
-    marks = d.get("landmarks") or []
-    ideal = d.get("ideal_landmarks") or []
-    landmarks = []
-    for k, p in enumerate(marks, start=1):
-        landmarks.append(
+    placed = d.get(layout.MARKS) or []
+    ideal = d.get(layout.IDEAL_MARKS) or []
+    marks = []
+    for k, p in enumerate(placed, start=1):
+        marks.append(
             {
                 "k": k,
                 "placed": said("p", p)[1] if p else "not placed",
@@ -427,7 +408,7 @@ def attempt_view(a: dict, specs: dict) -> dict:
                 "d": debrief.number(d.get(f"d{k}"), "mm"),
             }
         )
-    skip = {"landmarks", "ideal_landmarks", "needle_path", "ideal_path", "verdict", "contacts", "protocol"}
+    skip = {layout.MARKS, layout.IDEAL_MARKS, "needle_path", "ideal_path", "verdict", "contacts", "protocol"}
     skip |= {k for k in d if k[:1] in "Dd" and k[1:].isdigit() or k.startswith("Dist")}
     facts = [said(k, a.get(k)) for k in ("pack", "created_at", "target") if k in a]
     facts += [said(k, v) for k, v in d.items() if k not in skip]
@@ -439,7 +420,7 @@ def attempt_view(a: dict, specs: dict) -> dict:
         "rows": rows,
         "outcome": debrief.outcome(rows),
         "verdict": debrief.verdict_line(debrief.outcome(rows)) if any(r["passed"] is not None for r in rows) else "",
-        "landmarks": landmarks,
+        "marks": marks,
         "facts": facts,
     }
 
@@ -518,7 +499,7 @@ async def _track(request: Request) -> tuple[dict, dict, str]:
 
 async def attempt_replay(request: Request) -> Response:
     """The attempt's replay track (JSON): the needle over time, contacts, X-ray image addresses, and
-    the stored landmarks and paths the page draws beside it."""
+    the stored marked points and paths the page draws beside it (under their stored names)."""
     a, track, key = await _track(request)
     headers = _cached(request, key, 3600)
     if headers is None:
@@ -529,8 +510,8 @@ async def attempt_replay(request: Request) -> Response:
         {
             "pack": a["pack"],
             "mesh": f"/packs/{a['pack']}/display.glb",
-            "landmarks": d.get("landmarks") or [],
-            "ideal_landmarks": d.get("ideal_landmarks") or [],
+            layout.MARKS: d.get(layout.MARKS) or [],
+            layout.IDEAL_MARKS: d.get(layout.IDEAL_MARKS) or [],
             "ideal_path": d.get("ideal_path"),
             "needle_path": d.get("needle_path") or [],
         }

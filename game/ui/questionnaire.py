@@ -15,6 +15,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from chainsim.systems.procedures.needle import records as layout
+
 RATING = tuple(str(k) for k in range(1, 11))
 
 
@@ -35,22 +37,15 @@ PRE = (
     Question("viewer_3d", "Have you used 3-D viewers or games with a mouse-driven camera?", "choice", ("no", "yes")),
 )
 
-#: the post-session ratings; `id`s of features match the thesis's reported averages where it has one
+#: the post-session ratings of the procedure's features (its study names them; `id`s match the thesis's
+#: reported averages where it has one), then suggestions
 POST = (
-    Question("pages_understandable", "The help pages are easy to understand", "rating"),
-    Question("interface_easy", "The window and its controls are easy to learn and use", "rating"),
-    Question("graphics_understandable", "The 3-D graphics are easy to understand", "rating"),
-    Question("reference_planes", "Reference planes: useful for marking the landmarks", "rating"),
-    Question("landmark_planes", "Planes through landmarks: useful for rotation and insertion", "rating"),
-    Question("local_viewer", "Needle-tip view: useful for rotation and insertion", "rating"),
-    Question("signals", "Collision lights: useful for insertion", "rating"),
-    Question("transparent_skin", "Transparent skin: useful for understanding the 3-D anatomy", "rating"),
-    Question("carm_view", "C-arm (X-ray) view: useful for finding the foramen", "rating"),
+    *(Question(qid, text, "rating") for qid, text in layout.RATINGS),
     Question("improvements", "Suggestions for improving the trainer", "text"),
 )
 
 #: post-session averages the thesis reports (6.1.5), on the same 1-10 scale
-THESIS_RATINGS = {"reference_planes": 9.5, "local_viewer": 9.7, "landmark_planes": 8.8, "signals": 9.3}
+THESIS_RATINGS = layout.THESIS_RATINGS
 
 
 class Questionnaire:

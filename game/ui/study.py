@@ -5,8 +5,9 @@ participant through the protocol, as the thesis ran its volunteers:
 
 1. the pre-session questionnaire (background, chainsim.game.ui.questionnaire.PRE), typed in the window;
 2. the trials. Each [[trial]] of the protocol is a condition of a task (location: place the three
-   landmarks; insertion: aim and insert the needle from landmarks placed for you at the ideal points,
-   so every insertion starts the same, as the thesis reset its needle). The aids are set as the
+   points; insertion: aim and insert the needle from points marked for you at their ideal places,
+   so every insertion starts the same, as the thesis reset its needle; the needle procedure's study
+   declares the tasks, chainsim.systems.procedures.needle.records). The aids are set as the
    condition says and locked for the trial. The conditions of a task are run in cycles, each
    condition once per cycle, `repeat` cycles, and the order within a cycle is counterbalanced between
    participants (rows of a balanced Latin square, by the participant's number in the study), because
@@ -42,17 +43,13 @@ from chainsim.components.resources import Assessment, PackResource, PendingInput
 from chainsim.game.records import study as results
 from chainsim.game.records.store import RecordStore
 from chainsim.game.ui.questionnaire import POST, PRE, THESIS_RATINGS, Notice, Questionnaire
+from chainsim.systems.procedures.needle import records as layout
 from chainsim.systems.view.ui.widgets import WidgetState
 
 logger = logging.getLogger(__name__)
 
-AIDS = ("skin_transparent", "reference_planes", "landmark_planes", "tip_view", "collision_signals")
-TASK_DOES = {
-    "location": "Place the three landmarks on the face (1 beside the mouth, 2 at the pupil, 3 in front of the "
-    "ear), then press **Save attempt**.",
-    "insertion": "The landmarks are placed for you. Aim the needle with the two dials and insert it into the "
-    "foramen ovale, then press **Save attempt**.",
-}
+AIDS = layout.AIDS
+TASK_DOES = layout.TASK_DOES
 
 
 def latin_row(n: int, participant: int) -> list[int]:
@@ -339,8 +336,8 @@ class StudySession:
         self._show()
 
     def begin_trial(self) -> None:
-        """Set the trial's aids, start a fresh attempt (landmarks cleared) and, for an insertion trial,
-        place the ideal landmarks; tag what will be saved with the trial."""
+        """Set the trial's aids, start a fresh attempt (marked points cleared) and, for an insertion trial,
+        mark the ideal points; tag what will be saved with the trial."""
         app = self.app
         t = self.trials[self.k]
         self.state = "trial"
@@ -352,8 +349,8 @@ class StudySession:
         events.append((now + 0.05, Widget("reset", "all")))
         if t["task"] == "insertion":
             pts = app.resource(PackResource).pack.section("points")
-            for k in (1, 2, 3):
-                p = pts.get(f"landmark{k}_ideal_{self.side}")
+            for k in range(1, layout.MARK_COUNT + 1):
+                p = pts.get(layout.IDEAL_POINT.format(k=k, side=self.side))
                 if p is not None:
                     events.append((now + 0.06 + 0.02 * k, PickPoint("skin", tuple(np.asarray(p["position"], float)))))
         pending.extend(events)
@@ -395,7 +392,8 @@ class StudySession:
         self.form = Notice(
             f"# Study '{self.study}': all participants so far\n\n"
             "Mean error per task and condition over every participant's attempts (thesis Table 6.1: location "
-            "scored by the landmark error, rotation and insertion by the needle error E = Dist - R).\n\n"
+            f"scored by the {layout.TASK_SCORED['location']}, rotation and insertion by the "
+            f"{layout.TASK_SCORED['insertion']}).\n\n"
             f"{results.markdown_table(tab)}\n\n"
             "Post-session ratings, 1 = poor, 10 = very good:\n\n"
             f"{results.markdown_ratings(rates, labels, THESIS_RATINGS)}\n\n"

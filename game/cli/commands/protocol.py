@@ -77,6 +77,7 @@ from chainsim.game.ui.study import (
 )
 from chainsim.systems.engine import datafile, limits
 from chainsim.systems.engine.errors import UserError
+from chainsim.systems.procedures.needle import records as layout
 from chainsim.systems.procedures.needle.assessment import attempt_record
 
 logger = logging.getLogger(__name__)
@@ -84,7 +85,7 @@ logger = logging.getLogger(__name__)
 NAME = "protocol"
 HELP = "run a study protocol with a participant at the window (or scripted), print Table 6.1 over all participants"
 
-AIDS = ("skin_transparent", "reference_planes", "landmark_planes", "tip_view", "collision_signals")
+AIDS = layout.AIDS
 TOP_KEYS = {"format", "pack", "title", "description", "trial"}
 TRIAL_KEYS = {"name", "task", "condition", "scripts", "script", "repeat", "steps", "aids"}
 
@@ -413,7 +414,7 @@ def run_scripted(args, proto: dict) -> int:
                 raise UserError(f"pack '{pack.name}' produced no assessment; protocols need a procedure pack")
             err = a.get(TASK_METRIC[t["task"]])
             saved = None
-            if a.get("landmark_error_mm") is not None:
+            if a.get(layout.MARK_ERROR) is not None:
                 rec = attempt_record(pack.name, a)
                 rec["details"]["protocol"] = {
                     "study": study,

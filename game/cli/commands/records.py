@@ -18,6 +18,7 @@ from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import printable
 from chainsim.systems.engine import argtypes, limits
 from chainsim.systems.engine.errors import UserError
+from chainsim.systems.procedures.needle import records as layout
 
 NAME = "records"
 HELP = "view, export, plot or delete trainee records (classes, trainees, attempts)"
@@ -86,7 +87,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     a.add_argument("class_name", metavar="CLASS", help="class name")
     a.add_argument("name", help=f"trainee name (1-{limits.MAX_NAME_LENGTH} characters)")
 
-    a = action("plot", "PNG of one trainee's landmark and needle errors over attempts")
+    a = action("plot", "PNG of one trainee's errors (marked points, needle) and X-rays over attempts")
     a.add_argument("--class", dest="class_name", metavar="C", required=True, help="class name")
     a.add_argument("--trainee", metavar="T", required=True, help="trainee name")
     a.add_argument("--out", required=True, type=Path, metavar="FILE.png", help="output PNG file")
@@ -94,14 +95,17 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 _positive_id = argtypes.count(1, limits.MAX_ATTEMPT_ID)
+#: the fixed fields `list` shows (the needle procedure's; the dose is left to `show` and the exports)
+_LISTED = layout.COLUMNS[:8]
 
 
 def _summary(a: dict) -> str:
-    needle = "-" if a["needle_error_mm"] is None else f"{a['needle_error_mm']:.2f} mm"
+    errors = []
+    for c in layout.COLUMNS[1:3]:  # the two errors of 6.1.5, in mm; the needle's is None when it touched nothing
+        errors.append(f"{c.short.removesuffix('_mm')} " + ("-" if a[c.name] is None else f"{a[c.name]:.2f} mm"))
     return (
         f"attempt {a['id']}: {printable(a['class_name'])}/{printable(a['trainee'])} {printable(a['pack'])} "
-        f"{printable(a['created_at'])} "
-        f"landmark {a['landmark_error_mm']:.2f} mm, needle {needle}, target {a['target']}"
+        f"{printable(a['created_at'])} {', '.join(errors)}, target {a['target']}"
     )
 
 
@@ -135,15 +139,9 @@ def run(args: argparse.Namespace) -> int:
                         "class",
                         "trainee",
                         "pack",
-                        "time_s",
-                        "landmark_mm",
-                        "needle_mm",
+                        *(c.short for c in _LISTED[:3]),
                         "target",
-                        "contacts",
-                        "path_mm",
-                        "redirect",
-                        "xrays",
-                        "exposure_s",
+                        *(c.short for c in _LISTED[3:]),
                     ],
                     [
                         [
@@ -152,15 +150,9 @@ def run(args: argparse.Namespace) -> int:
                             a["class_name"],
                             a["trainee"],
                             a["pack"],
-                            a["duration_s"],
-                            a["landmark_error_mm"],
-                            a["needle_error_mm"],
+                            *(a[c.name] for c in _LISTED[:3]),
                             a["target"],
-                            a["skull_contacts"],
-                            a["path_length_mm"],
-                            a["redirections"],
-                            a["xray_shots"],
-                            a["exposure_s"],
+                            *(a[c.name] for c in _LISTED[3:]),
                         ]
                         for a in rows
                     ],
