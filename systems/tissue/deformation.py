@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import esper
 import numpy as np
 
+from chainsim.components.app import App
 from chainsim.components.core import MeshRef, Name, Simulation, Transform
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Widget
@@ -87,7 +88,7 @@ def _to_world(ent: int, pts: np.ndarray) -> np.ndarray:
     return pts @ m[:3, :3].T + m[:3, 3]
 
 
-def _entity(app, ref) -> int | None:
+def _entity(app: App, ref) -> int | None:
     if isinstance(ref, str):
         index = app.get_resource(EntityIndex)
         return index.get(ref) if index is not None else None
@@ -256,7 +257,7 @@ def reset(d: Deformable) -> int:
     return moved
 
 
-def deformation_system(app) -> None:
+def deformation_system(app: App) -> None:
     """Serve every request in the order it was emitted (a release after a grab undoes that grab's hold)."""
     st: DeformationState = app.resource(DeformationState)
     if not st.announced:
@@ -305,13 +306,13 @@ def model_lines(auto_only: bool = False) -> list[str]:
     return out
 
 
-def _say(app, text: str, seconds: float) -> None:
+def _say(app: App, text: str, seconds: float) -> None:
     hud = app.get_resource(HudState)
     if hud is not None:
         hud.message(text, seconds)
 
 
-def switch_models(app, st: DeformationState, value: str) -> None:
+def switch_models(app: App, st: DeformationState, value: str) -> None:
     """Put every deformable body under another model, from rest: `value` names one or is "next"."""
     for _ent, d in esper.get_component(Deformable):
         mesh = d.mesh_data
@@ -335,7 +336,7 @@ def switch_models(app, st: DeformationState, value: str) -> None:
         _say(app, f"Tissue model: {', '.join(models)} (m switches)", 3.0)
 
 
-def _serve(app, st: DeformationState, req, counts: dict) -> None:
+def _serve(app: App, st: DeformationState, req, counts: dict) -> None:
     ent = _entity(app, req.entity)
     d = esper.try_component(ent, Deformable) if ent is not None and esper.entity_exists(ent) else None
     if d is None:
@@ -403,7 +404,7 @@ def _path_target(p: Pull, start: np.ndarray) -> tuple[np.ndarray, bool]:
     return pts[-1].copy(), True
 
 
-def pull_system(app) -> None:
+def pull_system(app: App) -> None:
     """Turns `pull` components into GrabRequests along their paths (simulated time only)."""
     st: DeformationState = app.resource(DeformationState)
     pressed = {w.name for w in st.widgets.read()}
@@ -444,7 +445,7 @@ def _pull_element(ent: int, p: Pull, d: Deformable) -> int:
     return int(np.argmin(np.sum((d.rest - at) ** 2, axis=1)))
 
 
-def _default_deformables(app) -> None:
+def _default_deformables(app: App) -> None:
     """Entities with simulation.kind surface/volume and a mesh but no deformable table get one."""
 
     pres = app.get_resource(PackResource)
@@ -463,7 +464,7 @@ def _default_deformables(app) -> None:
             esper.add_component(ent, d)
 
 
-def plugin(app) -> None:
+def plugin(app: App) -> None:
     with app.active():
         _default_deformables(app)
         needed = bool(esper.get_component(Deformable))

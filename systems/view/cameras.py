@@ -51,6 +51,7 @@ from dataclasses import dataclass, field
 import esper
 import numpy as np
 
+from chainsim.components.app import App
 from chainsim.components.core import Marker, MeshRef, PolyLine, Transform
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, PickPoint, Resize, Scroll, Widget
@@ -221,7 +222,7 @@ def fit_views(vs: ViewState, resized: bool = False) -> None:
         vp.home = (cam.target.copy(), cam.distance, cam.yaw, cam.pitch)
 
 
-def scene_bounds(app) -> tuple[np.ndarray, np.ndarray] | None:
+def scene_bounds(app: App) -> tuple[np.ndarray, np.ndarray] | None:
     """World box of the visible meshes at rest and of the paths their scripted pulls will take
     (so a pulled element stays in view); None for a scene without meshes."""
     pack = app.resource(PackResource).pack
@@ -314,7 +315,7 @@ def build_view_state(layout: dict, size: tuple[int, int]) -> ViewState:
     return vs
 
 
-def refresh_cameras(app, vs: ViewState) -> None:
+def refresh_cameras(app: App, vs: ViewState) -> None:
     """Place attached cameras on their entities (call before drawing or picking)."""
     index = app.get_resource(EntityIndex)
     for vp in vs.viewports:
@@ -335,7 +336,7 @@ def refresh_cameras(app, vs: ViewState) -> None:
         )
 
 
-def set_layer(app, layer: str, visible: bool) -> None:
+def set_layer(app: App, layer: str, visible: bool) -> None:
     """Show or hide a visibility group (see the module docstring for the `view:` and `xray:` forms)."""
     vs: ViewState = app.resource(ViewState)
     if layer.startswith("view:"):
@@ -358,23 +359,23 @@ def set_layer(app, layer: str, visible: bool) -> None:
 class ViewSystem:
     """The system object: holds its event reader and the events it emitted itself."""
 
-    def __init__(self, app):
+    def __init__(self, app: App):
         self.reader = app.events.reader(None)
         self.own: list = []
 
-    def emit(self, app, ev) -> None:
+    def emit(self, app: App, ev) -> None:
         self.own.append(ev)
         app.events.emit(ev)
 
     # -- widgets ---------------------------------------------------------------------------------
-    def use_widget(self, app, name: str, value) -> None:
+    def use_widget(self, app: App, name: str, value) -> None:
         st: wd.WidgetState = app.resource(wd.WidgetState)
         if not st.enabled(name):
             return
         self.emit(app, Widget(name, value))
         self.apply(app, name, value)
 
-    def apply(self, app, name: str, value) -> None:
+    def apply(self, app: App, name: str, value) -> None:
         st: wd.WidgetState = app.resource(wd.WidgetState)
         if not wd.apply_widget(st, name, value):
             return
@@ -412,15 +413,15 @@ class ViewSystem:
         return vp.camera.ray(x + 0.5, y + 0.5, vp.rect)
 
     # -- the page box ----------------------------------------------------------------------------
-    def page_open(self, app) -> bool:
+    def page_open(self, app: App) -> bool:
         h = app.resource(HudState)
         return bool(h.notice) or h.doc_open
 
-    def page_box(self, app, vs: ViewState):
+    def page_box(self, app: App, vs: ViewState):
         main = main_view(vs)
         return docbox.box(main.rect) if main is not None and self.page_open(app) else None
 
-    def page_button(self, app, name: str) -> None:
+    def page_button(self, app: App, name: str) -> None:
         h: HudState = app.resource(HudState)
         if name == "close":
             h.close_doc()
@@ -437,7 +438,7 @@ class ViewSystem:
             if 0 <= k < len(names):
                 h.open_doc(names[k])
 
-    def press(self, app, vs: ViewState, ev: MouseButton) -> None:
+    def press(self, app: App, vs: ViewState, ev: MouseButton) -> None:
         vp = vs.at(ev.x, ev.y)
         vs.active = vp.name if vp else None
         vs.press = (ev.x, ev.y, ev.button)
@@ -477,7 +478,7 @@ class ViewSystem:
         t = float((gp - o) @ n) / denom if abs(denom) > 1e-12 else 0.0
         return tuple(float(c) for c in (o + t * d))
 
-    def drag(self, app, vs: ViewState, ev: MouseDrag) -> None:
+    def drag(self, app: App, vs: ViewState, ev: MouseDrag) -> None:
         vs.travel += abs(ev.dx) + abs(ev.dy)
         if vs.active == PAGE:
             return
@@ -508,7 +509,7 @@ class ViewSystem:
         elif vp.kind == "fluoro" and vp.interactive:
             self.emit(app, ViewTurned(vp.name, float(ev.dx), float(ev.dy), ev.button))
 
-    def release(self, app, vs: ViewState, ev: MouseButton) -> None:
+    def release(self, app: App, vs: ViewState, ev: MouseButton) -> None:
         if vs.active == PAGE:
             vs.active, vs.press, vs.widget, vs.grab, vs.travel = None, None, None, None, 0.0
             return
@@ -533,7 +534,7 @@ class ViewSystem:
                     )
         vs.active, vs.press, vs.widget, vs.grab, vs.travel = None, None, None, None, 0.0
 
-    def scroll_widget(self, app, vs: ViewState, vp: Viewport, ev: Scroll) -> None:
+    def scroll_widget(self, app: App, vs: ViewState, vp: Viewport, ev: Scroll) -> None:
         """The wheel over a slider or dial steps it (up = more)."""
         p = wd.hit(vs.panels.get(vp.name, []), ev.x, ev.y)
         st: wd.WidgetState = app.resource(wd.WidgetState)
@@ -545,7 +546,7 @@ class ViewSystem:
         if new != cur:
             self.use_widget(app, name, new)
 
-    def pick_point(self, app, ev: PickPoint) -> None:
+    def pick_point(self, app: App, ev: PickPoint) -> None:
 
         index: EntityIndex = app.resource(EntityIndex)
         ent = index.get(ev.entity)
@@ -559,7 +560,7 @@ class ViewSystem:
         self.emit(app, Picked("", ent, hit.name, hit.triangle, tuple(float(c) for c in hit.point), ev.button))
 
     # -- the system ------------------------------------------------------------------------------
-    def __call__(self, app) -> None:
+    def __call__(self, app: App) -> None:
         vs: ViewState = app.resource(ViewState)
         app.resource(HudState).age(app.time.frame_dt)
         events = self.reader.read()
@@ -624,7 +625,7 @@ DOC_SCROLL = {"pagedown": 12, "pageup": -12}
 PAGE = "\x00page"  # ViewState.active while the page box holds the pointer
 
 
-def default_layout(app) -> dict:
+def default_layout(app: App) -> dict:
     """One orbit viewport framing every mesh, for scenes that name no layout."""
 
     pack = app.resource(PackResource).pack
@@ -661,7 +662,7 @@ def default_layout(app) -> dict:
     return {"viewports": [vp], "widgets": []}
 
 
-def plugin(app) -> None:
+def plugin(app: App) -> None:
     pres: PackResource = app.resource(PackResource)
     layout = pres.layout
     if not layout.get("viewports"):

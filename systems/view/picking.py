@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import esper
 import numpy as np
 
+from chainsim.components.app import App
 from chainsim.components.core import MeshRef, Name, Transform
 from chainsim.components.resources import PackResource
 from chainsim.systems.engine.raycast import closest_on_mesh, ray_mesh, to_world, triangle_links
@@ -65,14 +66,14 @@ class SurfaceCache:
         return s.live
 
 
-def surface_cache(app) -> SurfaceCache:
+def surface_cache(app: App) -> SurfaceCache:
     c = app.get_resource(SurfaceCache)
     if c is None:
         c = app.insert_resource(SurfaceCache())
     return c
 
 
-def entity_surface(app, ent: int, mesh_ref=None, transform=None):
+def entity_surface(app: App, ent: int, mesh_ref=None, transform=None):
     """(world vertices, triangles, triangle ids) of an entity's current surface, or None."""
 
     mesh_ref = mesh_ref or esper.try_component(ent, MeshRef)
@@ -93,7 +94,7 @@ def _deformable(ent: int):
     return esper.try_component(ent, Deformable)
 
 
-def pick(app, origin, direction) -> Hit | None:
+def pick(app: App, origin, direction) -> Hit | None:
     """Nearest hit over visible, pickable mesh entities (call inside `app.active()` or a system)."""
 
     d = np.asarray(direction, float)
@@ -126,7 +127,7 @@ def pick(app, origin, direction) -> Hit | None:
     return best
 
 
-def snap(app, entity: int, point) -> Hit | None:
+def snap(app: App, entity: int, point) -> Hit | None:
     """The surface point of `entity` nearest to a world point (scripted PickPoint events)."""
 
     surf = entity_surface(app, entity)

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import esper
 import numpy as np
 
+from chainsim.components.app import App
 from chainsim.components.core import MeshRef, Transform
 from chainsim.components.resources import PackResource
 from chainsim.systems.engine.errors import UserError
@@ -108,7 +109,7 @@ def nearest_element(ent: int, d: Deformable, point) -> tuple[int, float]:
     return i, math.sqrt(float(d2[i]))
 
 
-def element_normal(app, ent: int, d: Deformable, element: int) -> np.ndarray:
+def element_normal(app: App, ent: int, d: Deformable, element: int) -> np.ndarray:
     """Unit world normal of a layer at an element: the area-weighted mean of its triangles' normals
     (the side the triangles wind counter-clockwise around, i.e. away from the layers beneath)."""
     pres: PackResource = app.resource(PackResource)

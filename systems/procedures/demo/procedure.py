@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import esper
 import numpy as np
 
+from chainsim.components.app import App
 from chainsim.components.core import Marker, Name, PolyLine, Transform
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Widget
@@ -115,7 +116,7 @@ class DemoSystem:
             return dragged
         return False
 
-    def panel_lines(self, app) -> list[str]:
+    def panel_lines(self, app: App) -> list[str]:
         """What the panel says under the buttons: this demo, the model running it, the other demos."""
         pres: PackResource = app.resource(PackResource)
         scenes = pres.pack.section("scenes")
@@ -128,7 +129,7 @@ class DemoSystem:
             lines.append(f"Other demos: chainsim play {pres.pack.name}/{others[0]}{rest}")
         return lines
 
-    def __call__(self, app) -> None:
+    def __call__(self, app: App) -> None:
         st = self.st
         hud = app.get_resource(HudState)
         for ev in st.widgets.read():
@@ -164,7 +165,7 @@ class DemoSystem:
             hud.step_title, hud.step_instruction = DONE_TITLE, DONE_TEXT
 
 
-def plugin(app) -> None:
+def plugin(app: App) -> None:
     """Install the demo procedure for a spawned pack (see the module docstring)."""
     pres: PackResource = app.resource(PackResource)
     pack = pres.pack

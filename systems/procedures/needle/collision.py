@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import esper
 import numpy as np
 
+from chainsim.components.app import App
 from chainsim.components.core import MeshRef, Transform
 from chainsim.components.resources import EntityIndex, PackResource
 from chainsim.components.stages import ORDER_COLLISION
@@ -54,7 +55,7 @@ class NeedleObstacles:
         return best
 
 
-def build_obstacles(app, names) -> NeedleObstacles:
+def build_obstacles(app: App, names) -> NeedleObstacles:
     """Meshes of the named entities (targets and obstacles), through their Transform (static scenery)."""
 
     pack = app.resource(PackResource).pack
@@ -92,7 +93,7 @@ class NeedleHit:
     role: str = ""
 
 
-def collision_system(app) -> None:
+def collision_system(app: App) -> None:
 
     obs: NeedleObstacles = app.resource(NeedleObstacles)
     scene: NeedleScene = app.resource(NeedleScene)
@@ -151,7 +152,7 @@ def _role_name(scene: NeedleScene, entity: str, side: str) -> str:
     return role.name if role is not None else ""
 
 
-def plugin(app) -> None:
+def plugin(app: App) -> None:
     """Install the collision test over the NeedleScene resource's targets and obstacles (put there first)."""
     app.insert_resource(build_obstacles(app, app.resource(NeedleScene).obstacles()))
 
