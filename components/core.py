@@ -8,6 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from chainsim.components.registry import component, prop
 from chainsim.systems.engine import quaternion
@@ -34,6 +35,24 @@ class Transform:
         m[:3, :3] = r * self.scale
         m[:3, 3] = self.position
         return m
+
+    # every local <-> world conversion of points goes through these two, so that the mesh a body
+    # simulates, the one drawn, picked and collided with, and the points scripts name agree to the bit
+    def apply(self, points: ArrayLike) -> np.ndarray:
+        """Local point(s), shape (3,) or (N, 3) -> world: scaled, rotated by the quaternion, moved by the
+        position (float64)."""
+        m = self.matrix()
+        return np.asarray(points, dtype=np.float64) @ m[:3, :3].T + m[:3, 3]
+
+    def inverse_apply(self, points: ArrayLike) -> np.ndarray:
+        """World point(s), shape (3,) or (N, 3) -> local: the inverse of `apply`."""
+        m = np.linalg.inv(self.matrix())
+        return np.asarray(points, dtype=np.float64) @ m[:3, :3].T + m[:3, 3]
+
+
+def to_world(tr: Transform | None, points: ArrayLike) -> np.ndarray:
+    """`tr.apply(points)`; an entity without a transform sits at the origin, unrotated, unscaled."""
+    return (tr if tr is not None else Transform()).apply(points)
 
 
 @component("mesh", help="Draw (and pick, and collide with) a mesh from the pack's [meshes].")

@@ -65,10 +65,6 @@ def closest_on_mesh(vertices: np.ndarray, triangles: np.ndarray, point: ArrayLik
     return i, cp[i].copy()
 
 
-def to_world(matrix: np.ndarray, local: np.ndarray) -> np.ndarray:
-    return local @ matrix[:3, :3].T + matrix[:3, 3]
-
-
 def triangle_links(triangles: np.ndarray, links: np.ndarray) -> np.ndarray:
     """(F, 3) link id of each triangle edge (v0v1, v1v2, v2v0), -1 where the edge is not a link."""
     if len(links) == 0 or len(triangles) == 0:

@@ -73,19 +73,13 @@ def _to_local(ent: int, pts: np.ndarray, frame: str) -> np.ndarray:
         return pts
 
     tr = esper.try_component(ent, Transform)
-    if tr is None:
-        return pts
-    m = np.linalg.inv(tr.matrix())
-    return pts @ m[:3, :3].T + m[:3, 3]
+    return pts if tr is None else tr.inverse_apply(pts)
 
 
 def _to_world(ent: int, pts: np.ndarray) -> np.ndarray:
 
     tr = esper.try_component(ent, Transform)
-    if tr is None:
-        return pts
-    m = tr.matrix()
-    return pts @ m[:3, :3].T + m[:3, 3]
+    return pts if tr is None else tr.apply(pts)
 
 
 def _entity(app: App, ref) -> int | None:

@@ -52,7 +52,7 @@ import esper
 import numpy as np
 
 from chainsim.components.app import App
-from chainsim.components.core import Marker, MeshRef, PolyLine, Transform
+from chainsim.components.core import Marker, MeshRef, PolyLine, Transform, to_world
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, PickPoint, Resize, Scroll, Widget
 from chainsim.components.resources import EntityIndex, InputState, PackResource, Settings
@@ -232,18 +232,14 @@ def scene_bounds(app: App) -> tuple[np.ndarray, np.ndarray] | None:
             if not ref.visible:
                 continue
             tr = esper.try_component(ent, Transform)
-            m = tr.matrix() if tr is not None else np.eye(4)
-            pts = [pack.mesh(ref.mesh).vertices]
+            pts = [to_world(tr, pack.mesh(ref.mesh).vertices)]
             pull = esper.try_component(ent, Pull)
             if pull is not None and len(pull.waypoints):
                 way = np.asarray(pull.waypoints, float).reshape(-1, 3)
-                if pull.frame == "world":
-                    way = (way - m[:3, 3]) @ np.linalg.inv(m[:3, :3]).T
-                pts.append(way)
-            v = np.vstack(pts)
-            if not len(v):
+                pts.append(way if pull.frame == "world" else to_world(tr, way))
+            w = np.vstack(pts)
+            if not len(w):
                 continue
-            w = v @ m[:3, :3].T + m[:3, 3]
             lo, hi = np.minimum(lo, w.min(axis=0)), np.maximum(hi, w.max(axis=0))
     if not np.all(np.isfinite(lo)):
         return None
@@ -633,9 +629,7 @@ def default_layout(app: App) -> dict:
     with app.active():
         for ent, ref in esper.get_component(MeshRef):
             tr = esper.try_component(ent, Transform)
-            v = pack.mesh(ref.mesh).vertices
-            m = tr.matrix() if tr is not None else np.eye(4)
-            w = v @ m[:3, :3].T + m[:3, 3]
+            w = to_world(tr, pack.mesh(ref.mesh).vertices)
             lo, hi = np.minimum(lo, w.min(axis=0)), np.maximum(hi, w.max(axis=0))
     if not np.all(np.isfinite(lo)):
         lo, hi = np.full(3, -100.0), np.full(3, 100.0)

@@ -16,9 +16,9 @@ import esper
 import numpy as np
 
 from chainsim.components.app import App
-from chainsim.components.core import MeshRef, Name, Transform
+from chainsim.components.core import MeshRef, Name, Transform, to_world
 from chainsim.components.resources import PackResource
-from chainsim.systems.engine.raycast import closest_on_mesh, ray_mesh, to_world, triangle_links
+from chainsim.systems.engine.raycast import closest_on_mesh, ray_mesh, triangle_links
 from chainsim.systems.tissue.deformable import Deformable
 
 
@@ -85,9 +85,8 @@ def entity_surface(app: App, ent: int, mesh_ref=None, transform=None):
     deform = _deformable(ent)
     local = np.asarray(deform.pos, float) if deform is not None and len(getattr(deform, "pos", ())) else mesh.vertices
     transform = transform or esper.try_component(ent, Transform)
-    m = transform.matrix() if transform is not None else np.eye(4)
     tri_ids = surface_cache(app).live_triangles(ent, mesh.triangles, deform)
-    return to_world(m, local), mesh.triangles, tri_ids
+    return to_world(transform, local), mesh.triangles, tri_ids
 
 
 def _deformable(ent: int):

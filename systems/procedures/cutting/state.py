@@ -9,7 +9,7 @@ import esper
 import numpy as np
 
 from chainsim.components.app import App
-from chainsim.components.core import MeshRef, Transform
+from chainsim.components.core import MeshRef, Transform, to_world
 from chainsim.components.resources import PackResource
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.tissue.deformable import Deformable
@@ -91,14 +91,8 @@ class CuttingState:
 # -- geometry helpers ------------------------------------------------------------------------------
 
 
-def _matrix(ent: int) -> np.ndarray:
-    tr = esper.try_component(ent, Transform)
-    return tr.matrix() if tr is not None else np.eye(4)
-
-
 def world_positions(ent: int, d: Deformable) -> np.ndarray:
-    m = _matrix(ent)
-    return np.asarray(d.pos, dtype=np.float64) @ m[:3, :3].T + m[:3, 3]
+    return to_world(esper.try_component(ent, Transform), d.pos)
 
 
 def nearest_element(ent: int, d: Deformable, point) -> tuple[int, float]:

@@ -24,7 +24,7 @@ import esper
 import numpy as np
 
 from chainsim.components.app import App
-from chainsim.components.core import Marker, Name, PolyLine, Transform
+from chainsim.components.core import Marker, Name, PolyLine, Transform, to_world
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import EntityIndex, PackResource
@@ -57,24 +57,22 @@ class DemoState:
     drags: object = None
 
 
-def _matrix(ent: int) -> np.ndarray:
-    tr = esper.try_component(ent, Transform)
-    return tr.matrix() if tr is not None else np.eye(4)
+def _world(ent: int, points) -> np.ndarray:
+    return to_world(esper.try_component(ent, Transform), points)
 
 
 def _pull_path(ent: int, p: Pull, d: Deformable) -> np.ndarray:
     """World points: the pulled element now, then the waypoints still ahead of it (all of them before
     the pull starts)."""
-    m = _matrix(ent)
-    here = d.pos[p.resolved].astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+    here = _world(ent, d.pos[p.resolved])
     if p.done:
         return np.zeros((0, 3))
     way = np.asarray(p.waypoints, np.float64).reshape(-1, 3)
     # before the pull starts the waypoints are in the pull's frame; once started they are local
     if p.started or p.frame == "local":
-        way = way @ m[:3, :3].T + m[:3, 3]
+        way = _world(ent, way)
     if p.started:  # only what is left of the path
-        seg = np.linalg.norm(np.diff(np.vstack([p.start_at @ m[:3, :3].T + m[:3, 3], way]), axis=0), axis=1)
+        seg = np.linalg.norm(np.diff(np.vstack([_world(ent, p.start_at), way]), axis=0), axis=1)
         k = int(np.searchsorted(np.cumsum(seg), p.travelled, side="right"))
         way = way[k:]
     return np.vstack([here[None, :], way])
@@ -96,10 +94,7 @@ def place_marks(st: DemoState) -> None:
         d = esper.component_for_entity(ent, Deformable)
         if p.resolved < 0 or p.resolved >= len(d.pos):
             continue
-        m = _matrix(ent)
-        esper.component_for_entity(marker, Transform).position = (
-            d.pos[p.resolved].astype(np.float64) @ m[:3, :3].T + m[:3, 3]
-        )
+        esper.component_for_entity(marker, Transform).position = _world(ent, d.pos[p.resolved])
         line = esper.component_for_entity(marker, PolyLine)
         line.points = _pull_path(ent, p, d)
         line.visible = len(line.points) >= 2

@@ -26,7 +26,7 @@ import esper
 import numpy as np
 
 from chainsim.components.app import App
-from chainsim.components.core import MeshRef, Transform
+from chainsim.components.core import MeshRef, Transform, to_world
 from chainsim.components.resources import EntityIndex, PackResource
 from chainsim.components.stages import ORDER_COLLISION
 from chainsim.systems.engine.segment_tree import SegmentTree
@@ -70,9 +70,7 @@ def build_obstacles(app: App, names) -> NeedleObstacles:
             if ref is None:
                 continue
             mesh = pack.mesh(ref.mesh)
-            tr = esper.try_component(ent, Transform)
-            m = tr.matrix() if tr is not None else np.eye(4)
-            world = mesh.vertices @ m[:3, :3].T + m[:3, 3]
+            world = to_world(esper.try_component(ent, Transform), mesh.vertices)
             obs.names.append(name)
             obs.trees.append(SegmentTree.build(world, mesh.triangles))
     return obs
