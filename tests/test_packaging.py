@@ -1,4 +1,5 @@
-"""Packaging: every code folder is importable under `chainsim` through pyproject's package mapping."""
+"""Packaging: every code folder is importable under `chainsim` through pyproject's package mapping, and the
+wheel carries what users run: everything but the pack builders (game/packbuild/), which need a checkout."""
 
 from __future__ import annotations
 
@@ -8,6 +9,13 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 PYPROJECT = tomllib.loads((REPO / "pyproject.toml").read_text())
+
+#: packages a checkout has and the wheel leaves out (.ci/run checks the built wheel holds none of them)
+CHECKOUT_ONLY = "chainsim.game.packbuild"
+
+
+def _checkout_only(package: str) -> bool:
+    return package == CHECKOUT_ONLY or package.startswith(CHECKOUT_ONLY + ".")
 
 
 def _folder_of(package: str, mapping: dict[str, str]) -> Path:
@@ -36,7 +44,33 @@ def test_every_package_folder_is_listed_and_every_listed_package_exists():
             )
             if owner != pkg:
                 continue  # a folder mapped under another name (systems/engine -> chainsim.systems.engine)
-            assert name in listed, f"{init.parent.relative_to(REPO)} is a package but {name} is not in pyproject"
+            if _checkout_only(name):
+                assert name not in listed, f"{name} builds packs from a checkout's data: not for the wheel"
+            else:
+                assert name in listed, f"{init.parent.relative_to(REPO)} is a package but {name} is not in pyproject"
+
+
+def test_the_pack_builders_stay_out_of_the_wheel_and_run_from_a_checkout():
+    import importlib
+
+    listed = PYPROJECT["tool"]["setuptools"]["packages"]
+    assert not [p for p in listed if _checkout_only(p)]
+    builders = sorted((REPO / "game" / "packbuild").rglob("*.py"))
+    assert len(builders) > 10
+    # one builder per procedure folder, importable from this checkout (the editable install maps chainsim.game)
+    for sub in ("needle", "cutting"):
+        assert (REPO / "game" / "packbuild" / sub / "__init__.py").is_file()
+    for mod in ("needle.prepare_prp", "needle.make_prp_scripts", "cutting.make_cutting_pack"):
+        assert callable(importlib.import_module(f"{CHECKOUT_ONLY}.{mod}").main)
+    # nothing the wheel ships imports them
+    shipped = [f for root in ("components", "systems", "tools", "game") for f in (REPO / root).rglob("*.py")]
+    users = [
+        f.relative_to(REPO).as_posix()
+        for f in shipped
+        if "packbuild" not in f.relative_to(REPO).parts
+        and re.search(r"^\s*(from|import) chainsim\.game\.packbuild", f.read_text(), re.M)
+    ]
+    assert not users, f"shipped modules import the pack builders: {users}"
 
 
 def test_version_is_written_once():

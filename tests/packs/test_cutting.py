@@ -88,7 +88,7 @@ def test_pack_validates_and_names_the_cutting_procedure():
 
 
 def test_meshes_are_what_the_generator_writes():
-    from chainsim.game.packbuild.make_cutting_pack import main
+    from chainsim.game.packbuild.cutting.make_cutting_pack import main
 
     assert main(["--check"]) == 0
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from chainsim.components.input_events import MouseButton, MouseDrag, MouseMove
 from chainsim.game.app.headless import run_pack
 from chainsim.game.app.inputscript import load_script
-from chainsim.game.packbuild.make_prp_mouse_script import SCRIPTS, build
+from chainsim.game.packbuild.needle.make_prp_mouse_script import SCRIPTS, build
 
 MOUSE = SCRIPTS / "correct-mouse.toml"
 

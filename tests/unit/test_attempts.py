@@ -9,7 +9,7 @@ from chainsim.components.input_events import Widget
 from chainsim.components.resources import PendingInput
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script
-from chainsim.game.packbuild.make_prp_mouse_script import SCRIPTS
+from chainsim.game.packbuild.needle.make_prp_mouse_script import SCRIPTS
 from chainsim.game.records.store import RecordStore
 
 DT = 1.0 / 120.0

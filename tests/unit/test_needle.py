@@ -138,7 +138,7 @@ class Run:
 
     def aim_at(self, point):
         """Dial angles that aim the placed needle at `point`, sent as widget events."""
-        from chainsim.game.packbuild.make_prp_scripts import dial_angles
+        from chainsim.game.packbuild.needle.make_prp_scripts import dial_angles
 
         yaw, pitch = dial_angles(self.needle.entry, np.asarray(point, float) - self.needle.entry)
         self.send(Widget("rotate_horizontal", yaw), Widget("rotate_vertical", pitch))

@@ -10,7 +10,7 @@ from chainsim.components.input_events import MouseButton, Widget
 from chainsim.components.resources import PendingInput
 from chainsim.game.app.headless import build_app, run_pack
 from chainsim.game.app.inputscript import load_script
-from chainsim.game.packbuild.make_prp_mouse_script import SCRIPTS
+from chainsim.game.packbuild.needle.make_prp_mouse_script import SCRIPTS
 from chainsim.game.ui.frameloop import FixedStepper
 from chainsim.systems.motion.input import InputLog
 

@@ -1,6 +1,6 @@
 """Offscreen preview renders of the prp anatomy (skull, skin, foramina, landmarks, planes).
 
-Used by tools/prepare_prp.py to write a picture people can check at a glance (thesis 3.3.3: the
+Used by prepare_prp to write a picture people can check at a glance (thesis 3.3.3: the
 anatomy is what the trainee builds spatial skill on, so it must look right). Orthographic views,
 flat two-light shading, order-independent enough for a few translucent layers (opaque first, then
 translucent sorted back to front per mesh). Needs an EGL context (Mesa llvmpipe is enough).

@@ -1,6 +1,6 @@
 """Lighter copies of the prp pack's densest surfaces, drawn in the window in place of the full ones.
 
-    python -m chainsim.game.packbuild.prp_display [--pack assets/prp] [--faces 16000]
+    python -m chainsim.game.packbuild.needle.prp_display [--pack assets/prp] [--faces 16000]
 
 Under a software renderer (Mesa llvmpipe) the window's frame time grows with the triangles it sets
 up; the skull (67k triangles, thesis 3.3.3) is most of them although the trainee sees it only

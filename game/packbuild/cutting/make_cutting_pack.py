@@ -7,8 +7,8 @@ direction. Interior vertices are shifted by a small seeded in-plane jitter: the 
 unstructured triangle mesh as Generalised ChainMail expects (5.2.1), and a cut path never runs
 exactly along a grid line. Rim vertices keep their rim coordinate so the fixed edge is straight.
 
-    python -m chainsim.game.packbuild.make_cutting_pack            # (re)write the meshes
-    python -m chainsim.game.packbuild.make_cutting_pack --check    # exit 1 if the committed files differ
+    python -m chainsim.game.packbuild.cutting.make_cutting_pack            # (re)write the meshes
+    python -m chainsim.game.packbuild.cutting.make_cutting_pack --check    # exit 1 if the committed files differ
 """
 
 from __future__ import annotations
