@@ -28,24 +28,41 @@ from chainsim.assets import ASSETS_DIR
 from chainsim.components.core import MeshRef
 from chainsim.components.registry import component, prop
 from chainsim.components.resources import Settings
-from chainsim.systems.engine import limits, meshgen
+from chainsim.systems.engine import limits, meshgen, model_params
 from chainsim.systems.engine.bodies.chainmail import ChainMailBody
 from chainsim.systems.engine.bodies.factory import choose_model, load_table, make_body
-from chainsim.systems.engine.bodies.projective import SOLVERS as PROJECTIVE_SOLVERS
 from chainsim.systems.engine.chainmail_params import ORDER_CHOICES, order_name
 from chainsim.systems.engine.errors import UserError
-from chainsim.systems.engine.kernels.chainmail import make_workspace, material_arrays
+from chainsim.systems.engine.kernels.chainmail import make_workspace
 from chainsim.systems.engine.kernels.graph import build_graph
+from chainsim.systems.engine.model_params import manifest_spec
 
 ORDERS = ORDER_CHOICES  # breadth-first, balanced, schill, depth-first; fifo = breadth-first
-MODEL_CHOICES = ("chainmail", "xpbd", "projective", "hybrid", "surface", "auto")
+MODEL_CHOICES = (*model_params.MODELS, "auto")
 #: the speed-accuracy table `model = "auto"` chooses from (written by `chainsim study speed-accuracy`)
 MODEL_TABLE = ASSETS_DIR / "presets" / "models.toml"
 SOURCES = ("auto", "surface", "volume")
 INHERIT = -1.0  # an inline material value of -1 means "take it from the material"
 
-#: [materials] defaults when an entity names no material (the manifest's own defaults)
-DEFAULT_MATERIAL = {"alpha_min": 0.8, "alpha_max": 1.2, "beta": 0.1, "relax": 2, "exact": False}
+#: the ChainMail keys of a [materials] entry
+MATERIAL_KEYS = ("alpha_min", "alpha_max", "beta", "relax", "exact")
+#: [materials] defaults when an entity names no material (the manifest's own defaults, model_params)
+DEFAULT_MATERIAL = {k: model_params.params("chainmail")[k].manifest_default for k in MATERIAL_KEYS}
+#: a volume model's settings, shared by the models that take them (named in each key's help)
+ELASTIC_MODELS = ("xpbd", "projective", "hybrid")
+
+
+def _pack_only(*args, **kw):
+    """A manifest key left out of the world digest: like the limits it sets (amin, amax, beta_l), it is
+    derived from the pack, and packs that do not use it keep the digests they had."""
+    f = prop(*args, **kw)
+    return field(default_factory=f.default_factory, metadata={**f.metadata, "digest": False})
+
+
+def _model_prop(name: str, models: tuple[str, ...], prefix: bool = True):
+    """A manifest key declared once, with the models' parameters (chainsim.systems.engine.model_params)."""
+    spec = manifest_spec(name, models, prefix=prefix)
+    return prop(spec.pop("kind"), spec.pop("default"), **spec)
 
 
 def _nodigest(factory):
@@ -95,8 +112,20 @@ class Deformable:
         min=-1,
         max=limits.MAX_RELAX,
     )
-    relax_step: float = prop(
-        "float", 1.0, help="Fraction of the way to the relaxed position per iteration.", min=0.0, max=1.0
+    relax_step: float = _model_prop("relax_step", ("chainmail",), prefix=False)
+    regions: list = _pack_only(
+        "str_list",
+        [],
+        help="[materials] entries for parts of the body (layers, regions), one per box of `region_boxes`: a link "
+        "whose midpoint lies in a box takes that material's alpha_min, alpha_max and beta (a later box wins); "
+        "relax and exact stay the body's.",
+    )
+    region_boxes: np.ndarray = _pack_only(
+        "float_list",
+        [],
+        units="mm",
+        help="One local box per entry of `regions`: [xmin, ymin, zmin, xmax, ymax, zmax, ...].",
+        stride=6,
     )
     fixed: np.ndarray = prop(
         "int_list", [], help="Element (vertex) ids that never move.", min=0, max=limits.MAX_VERTICES - 1
@@ -110,17 +139,9 @@ class Deformable:
     fixed_boundary: bool = prop(
         "bool", False, help="Pin the open rim of a surface (vertices on edges used by one triangle)."
     )
-    order: str = prop(
-        "enum",
-        "breadth-first",
-        choices=ORDERS,
-        help="Waiting-list order: breadth-first (a queue; fifo is the same), depth-first (5.2.3 as written: new "
-        "neighbours at the front), balanced (round robin of Fig. 5.3), schill (largest violation first).",
-    )
-    depth: int = prop(
-        "int", 2, help="Branch depth per turn for the balanced order.", min=1, max=limits.MAX_BRANCH_DEPTH
-    )
-    dtype: str = prop("enum", "float64", choices=("float64", "float32"), help="Precision of positions.")
+    order: str = _model_prop("order", ("chainmail",), prefix=False)
+    depth: int = _model_prop("depth", ("chainmail",), prefix=False)
+    dtype: str = _model_prop("dtype", ("chainmail",), prefix=False)
     drag: bool = prop(
         "bool",
         False,
@@ -135,43 +156,17 @@ class Deformable:
         "on a sheet, thesis 4.4), or auto "
         "(the cheapest meeting error_budget / time_budget_ms in the study's table).",
     )
-    E: float = prop("float", 3000.0, units="Pa", help="xpbd/projective: Young's modulus.", min=1e-6, max=1e12)
-    nu: float = prop("float", 0.45, help="xpbd/projective: Poisson's ratio, 0 <= nu < 0.5.", min=0.0, max=0.4999)
-    density: float = prop("float", 1000.0, units="kg/m^3", help="xpbd/projective: mass density.", min=1e-6, max=1e6)
-    damping: float = prop("float", 0.05, help="xpbd/projective: velocity damping per step, 0..0.99.", min=0.0, max=0.99)
-    substeps: int = prop(
-        "int",
-        0,
-        help="xpbd: substeps per simulation step (0: as many as the element size and stiffness need, "
-        "docs/choosing-a-model.md).",
-        min=0,
-        max=1000,
-    )
-    iterations: int = prop(
-        "int",
-        0,
-        help="xpbd: iterations per substep (0: 1); projective: local-global iterations (0: 10).",
-        min=0,
-        max=1000,
-    )
-    solver: str = prop(
-        "enum",
-        "direct",
-        choices=PROJECTIVE_SOLVERS,
-        help="projective: global step by a prefactorised sparse solve (direct: fewest frames to settle) or "
-        "warm-started conjugate gradients (cg: no factorisation, cheaper frames, more of them; "
-        "docs/choosing-a-model.md).",
-    )
-    cg_iterations: int = prop(
-        "int", 20, help="projective with solver = cg: conjugate-gradient steps per global step.", min=1, max=10_000
-    )
-    rotation_iterations: int = prop(
-        "int", 4, help="projective: iterations of the per-tetrahedron rotation fit in each local step.", min=1, max=100
-    )
-    unit: float = prop(
-        "float", 0.001, units="m", help="xpbd/projective: metres per mesh length unit.", min=1e-9, max=1e3
-    )
-    thickness: float = prop("float", 1.0, units="mesh units", help="xpbd surfaces: sheet thickness.", min=1e-9, max=1e6)
+    E: float = _model_prop("E", ELASTIC_MODELS)
+    nu: float = _model_prop("nu", ELASTIC_MODELS)
+    density: float = _model_prop("density", ELASTIC_MODELS)
+    damping: float = _model_prop("damping", ("xpbd", "projective"))
+    substeps: int = _model_prop("substeps", ("xpbd",))
+    iterations: int = _model_prop("iterations", ("xpbd", "projective", "hybrid"))
+    solver: str = _model_prop("solver", ("projective",))
+    cg_iterations: int = _model_prop("cg_iterations", ("projective",))
+    rotation_iterations: int = _model_prop("rotation_iterations", ("projective",))
+    unit: float = _model_prop("unit", ELASTIC_MODELS)
+    thickness: float = _model_prop("thickness", ("xpbd", "projective"))
     error_budget: float = prop(
         "float", 0.0, help="auto: largest RMS error / imposed displacement allowed (0: no limit).", min=0.0, max=10.0
     )
@@ -187,6 +182,8 @@ class Deformable:
     amin: np.ndarray = _nodigest(lambda: np.zeros(0))
     amax: np.ndarray = _nodigest(lambda: np.zeros(0))
     beta_l: np.ndarray = _nodigest(lambda: np.zeros(0))
+    # the resolved material and (box, material) regions the per-link limits come from
+    material_spec: object = field(default=None, metadata={"digest": False})
     fixed_mask: np.ndarray = _nodigest(lambda: np.zeros(0, dtype=np.bool_))
     relax_iterations: int = field(default=0, metadata={"digest": False})
     exact_limits: bool = field(default=False, metadata={"digest": False})  # the material's `exact`
@@ -225,31 +222,67 @@ class Deformable:
         self._dirty_seen = self.dirty
 
 
+def _named_material(materials: dict, name: str, where: str) -> dict:
+    if name not in materials:
+        known = ", ".join(sorted(materials)) or "none"
+        raise UserError(f"{where}: no material '{name}' in [materials] (known: {known})")
+    return {k: materials[name].get(k, v) for k, v in DEFAULT_MATERIAL.items()}
+
+
+def _check_limits(mat: dict, where: str) -> None:
+    """The ChainMail limits of `mat` against their declaration (chainsim.systems.engine.model_params)."""
+    decl = model_params.params("chainmail")
+    for key in ("alpha_min", "alpha_max", "beta"):
+        decl[key].check(mat[key], f"{where}.")
+
+
 def resolve_material(d: Deformable, materials: dict, mesh_material: str, where: str) -> dict:
     """alpha_min/alpha_max/beta/relax/exact from the named material and the inline overrides; checked."""
     name = d.material or mesh_material
-    if name:
-        if name not in materials:
-            known = ", ".join(sorted(materials)) or "none"
-            raise UserError(f"{where}.material: no material '{name}' in [materials] (known: {known})")
-        base = {k: materials[name].get(k, v) for k, v in DEFAULT_MATERIAL.items()}
-    else:
-        base = dict(DEFAULT_MATERIAL)
+    base = _named_material(materials, name, f"{where}.material") if name else dict(DEFAULT_MATERIAL)
     for key in ("alpha_min", "alpha_max", "beta"):
         v = getattr(d, key)
         if v != INHERIT:
             base[key] = float(v)
     if d.relax != -1:
         base["relax"] = int(d.relax)
-    if not (0.0 <= base["alpha_min"] <= 1.0):
-        raise UserError(f"{where}.alpha_min: must be in [0, 1], got {base['alpha_min']:g}")
-    if not (base["alpha_max"] >= 1.0):
-        raise UserError(f"{where}.alpha_max: must be >= 1, got {base['alpha_max']:g}")
-    if not (base["beta"] >= 0.0):
-        raise UserError(f"{where}.beta: must be >= 0, got {base['beta']:g}")
+    _check_limits(base, where)
     if base["relax"] < 0:
         raise UserError(f"{where}.relax: must be >= 0 (or -1 for the material's), got {base['relax']}")
     return base
+
+
+def resolve_regions(d: Deformable, materials: dict, where: str) -> list[tuple[np.ndarray, dict]]:
+    """(box, material) for each entry of `regions`, in order; checked."""
+    boxes = np.asarray(d.region_boxes, dtype=np.float64)
+    if len(boxes) != 6 * len(d.regions):
+        raise UserError(
+            f"{where}.region_boxes: expected one box of 6 numbers per region ({len(d.regions)} regions), "
+            f"got {len(boxes)} numbers"
+        )
+    out = []
+    for k, name in enumerate(d.regions):
+        box = boxes[6 * k : 6 * k + 6]
+        if np.any(box[:3] > box[3:]):
+            raise UserError(f"{where}.region_boxes: box {k} needs [xmin, ymin, zmin, xmax, ymax, zmax] with min <= max")
+        mat = _named_material(materials, name, f"{where}.regions[{k}]")
+        _check_limits(mat, f"{where}.regions[{k}]")
+        out.append((box, mat))
+    return out
+
+
+def link_limits(links: np.ndarray, verts: np.ndarray, spec: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-link (amin, amax, beta) for `links` from `spec` = (material, regions): the material's limits,
+    and in each region's box (by link midpoint, later regions winning) the region material's."""
+    mat, regions = spec
+    m = len(links)
+    amin, amax, beta = (np.full(m, float(mat[k])) for k in ("alpha_min", "alpha_max", "beta"))
+    if regions and m:
+        mid = 0.5 * (np.asarray(verts[links[:, 0]], np.float64) + np.asarray(verts[links[:, 1]], np.float64))
+        for box, rmat in regions:
+            inside = np.all((mid >= box[:3]) & (mid <= box[3:]), axis=1)
+            amin[inside], amax[inside], beta[inside] = rmat["alpha_min"], rmat["alpha_max"], rmat["beta"]
+    return amin, amax, beta
 
 
 def body_links(mesh, source: str, where: str) -> np.ndarray:
@@ -292,7 +325,9 @@ def setup_deformable(
     n = len(verts)
     links = body_links(mesh, d.source, where)
     graph = build_graph(n, links)
-    amin, amax, beta = material_arrays(graph.n_links, mat["alpha_min"], mat["alpha_max"], mat["beta"], dtype=np.float64)
+    # the per-link limits, built once here: every ChainMail body of this component gets these arrays
+    spec = (mat, resolve_regions(d, materials, where))
+    amin, amax, beta = link_limits(graph.links, verts, spec)
     fixed = np.zeros(n, dtype=np.bool_)
     ids = np.asarray(d.fixed, dtype=np.int64)
     if len(ids):
@@ -311,6 +346,7 @@ def setup_deformable(
     d.graph = graph
     d.alive = graph.alive  # the same array the kernels read: cutting flips it in place
     d.amin, d.amax, d.beta_l = amin, amax, beta
+    d.material_spec = spec
     d.fixed_mask = fixed
     d.relax_iterations = int(mat["relax"])
     d.exact_limits = bool(mat["exact"])
@@ -327,21 +363,24 @@ def setup_deformable(
     return d
 
 
-def chainmail_body(d: Deformable) -> ChainMailBody:
-    """A fresh ChainMail body from `d`'s rest shape, links and limits; `d` mirrors its arrays."""
-    body = ChainMailBody(
+def chainmail_body(d: Deformable, fresh: bool = True) -> ChainMailBody:
+    """A ChainMail body from `d`'s rest shape, links and per-link limits (the arrays themselves, as the
+    component built them); `d` mirrors its arrays. `fresh`: a new graph (every link alive) rather than
+    the one the component built at spawn."""
+    body = make_body(
+        "chainmail",
         d.rest,
-        d.chainmail_links,
-        d.amin[0] if len(d.amin) else 0.8,
-        d.amax[0] if len(d.amax) else 1.2,
-        d.beta_l[0] if len(d.beta_l) else 0.1,
+        links=d.chainmail_links if fresh else d.graph,
+        fixed=d.fixed_mask,
+        alpha_min=d.amin,
+        alpha_max=d.amax,
+        beta=d.beta_l,
         relax=d.relax_iterations,
         relax_step=d.relax_step,
         order=d.order,
         depth=d.depth,
         exact=d.exact_limits,
-        fixed=d.fixed_mask,
-        dtype=d.rest.dtype,
+        dtype=d.dtype,
     )
     mirror_chainmail(d, body)
     return body
@@ -355,6 +394,15 @@ def mirror_chainmail(d: Deformable, body: ChainMailBody) -> None:
     d.amin, d.amax, d.beta_l = body.amin, body.amax, body.beta
     d.workspace = body.workspace
     d.held = body.held
+
+
+def surface_limits(d: Deformable, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-link limits for a SurfaceChainMail body, whose links are the triangles' edges: the component's
+    own arrays where its links are those edges, else the same material and regions on the sheet's links."""
+    links = meshgen.links_from_cells(np.asarray(triangles, dtype=np.int64))
+    if len(d.amin) == len(links) and np.array_equal(links, d.chainmail_links):
+        return d.amin, d.amax, d.beta_l
+    return link_limits(links, d.rest, d.material_spec)
 
 
 def auto_scene(d: Deformable, volume: bool) -> str:
@@ -394,7 +442,7 @@ def use_model(d: Deformable, model: str, where: str = "deformable", initial: boo
             d.amax = np.full(n, float(row.get("alpha_max", d.amax[0] if len(d.amax) else 1.2)))
             d.beta_l = np.full(n, float(row.get("beta", d.beta_l[0] if len(d.beta_l) else 0.1)))
             d.relax_iterations = int(row.get("relax", d.relax_iterations))
-        d.body = chainmail_body(d)
+        d.body = chainmail_body(d, fresh=not initial)
     else:
         d.pos = d.rest.copy()
         d.held = _empty_ids()
@@ -408,11 +456,12 @@ def use_model(d: Deformable, model: str, where: str = "deformable", initial: boo
         }
         if model == "xpbd":
             settings.update(substeps=d.substeps or "auto", iterations=d.iterations or 1)
-        elif model == "surface":  # SurfaceChainMail with the material's limits (thesis 4.4)
+        elif model == "surface":  # SurfaceChainMail with the material's per-link limits (thesis 4.4)
+            amin, amax, beta = surface_limits(d, mesh.triangles)
             settings.update(
-                alpha_min=float(d.amin[0]) if len(d.amin) else 0.8,
-                alpha_max=float(d.amax[0]) if len(d.amax) else 1.2,
-                beta=float(d.beta_l[0]) if len(d.beta_l) else 0.1,
+                alpha_min=amin,
+                alpha_max=amax,
+                beta=beta,
                 relax=d.relax_iterations,
                 exact=d.exact_limits,
                 order=d.order,

@@ -22,10 +22,13 @@ from chainsim.systems.engine.kernels.chainmail import cascade, make_workspace, m
 from chainsim.systems.engine.kernels.exact import exact_limits, exact_move
 from chainsim.systems.engine.kernels.graph import Graph, build_graph
 from chainsim.systems.engine.kernels.relax import relax
+from chainsim.systems.engine.model_params import defaults
 
 #: below this many active elements relaxation runs on one thread: a parallel region's barriers cost
 #: far more than the work when the machine is busy (measured ~100x slower for a 1000-element patch)
 PARALLEL_RELAX_MIN = 100_000
+#: the body's defaults, from the one declaration of its parameters
+_D = defaults("chainmail")
 
 
 def relax_moved(
@@ -49,6 +52,25 @@ def relax_moved(
         numba.set_num_threads(previous)
 
 
+def link_limits(n_links: int, alpha_min: ArrayLike, alpha_max: ArrayLike, beta: ArrayLike) -> tuple[np.ndarray, ...]:
+    """Per-link (amin, amax, beta): a scalar fills every link; an array of one float64 value per link is
+    used as it is, not copied (the component that built it reads the body's limits through it)."""
+    if all(np.ndim(v) == 0 for v in (alpha_min, alpha_max, beta)):
+        return material_arrays(n_links, alpha_min, alpha_max, beta)
+    out = []
+    for name, value in (("alpha_min", alpha_min), ("alpha_max", alpha_max), ("beta", beta)):
+        if np.ndim(value) == 0:
+            out.append(np.full(n_links, float(value)))
+            continue
+        arr = np.ascontiguousarray(value, dtype=np.float64)
+        if arr.shape != (n_links,):
+            raise UserError(f"{name}: expected a number or one value per link ({n_links}), got shape {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise UserError(f"{name}: must be finite numbers (link {int(np.flatnonzero(~np.isfinite(arr))[0])})")
+        out.append(arr)
+    return tuple(out)
+
+
 class ChainMailBody(Body):
     """A ChainMail object: elements `rest` (N, D), `links` (M, 2) or a built Graph, per-link limits."""
 
@@ -58,17 +80,17 @@ class ChainMailBody(Body):
         self,
         rest: ArrayLike,
         links: ArrayLike,
-        alpha_min: ArrayLike = 0.8,
-        alpha_max: ArrayLike = 1.2,
-        beta: ArrayLike = 0.1,
+        alpha_min: ArrayLike = _D["alpha_min"],
+        alpha_max: ArrayLike = _D["alpha_max"],
+        beta: ArrayLike = _D["beta"],
         *,
-        relax: int = 0,
-        relax_step: float = 1.0,
-        order: str = "breadth-first",
-        depth: int = 2,
-        exact: bool = False,
+        relax: int = _D["relax"],
+        relax_step: float = _D["relax_step"],
+        order: str = _D["order"],
+        depth: int = _D["depth"],
+        exact: bool = _D["exact"],
         fixed: ArrayLike | None = None,
-        dtype: type | np.dtype = np.float64,
+        dtype: type | np.dtype | str = _D["dtype"],
     ) -> None:
         r = np.ascontiguousarray(rest, dtype=dtype)
         if r.ndim != 2 or r.shape[1] not in (1, 2, 3):
@@ -79,12 +101,7 @@ class ChainMailBody(Body):
         self.positions = r.copy()
         n = len(r)
         self.graph = links if isinstance(links, Graph) else build_graph(n, links)
-        if np.ndim(alpha_min) == 0:
-            self.amin, self.amax, self.beta = material_arrays(self.graph.n_links, alpha_min, alpha_max, beta)
-        else:
-            self.amin, self.amax, self.beta = (
-                np.ascontiguousarray(a, dtype=np.float64) for a in (alpha_min, alpha_max, beta)
-            )
+        self.amin, self.amax, self.beta = link_limits(self.graph.n_links, alpha_min, alpha_max, beta)
         self.fixed = np.zeros(n, dtype=np.bool_)
         if fixed is not None:
             f = np.asarray(fixed)

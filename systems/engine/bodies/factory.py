@@ -1,9 +1,10 @@
 """Making a body by model name, and choosing a model for a budget from the study's table.
 
-`make_body("xpbd" | "projective", rest, tets=..., triangles=..., **settings: float)` builds one through the
-body API; `choose_model(...)` reads the speed-accuracy table the study writes (thesis 6.2 extended)
-and picks the cheapest model and setting that meets an error and/or time budget for the nearest
-scene and mesh size, saying why.
+`make_body(model, rest, tets=..., triangles=..., **settings)` builds any of the models through the body
+API, its settings checked against the one declaration of each model's parameters (model_params);
+`choose_model(...)` reads the speed-accuracy table the study writes (thesis 6.2 extended) and picks
+the cheapest model and setting that meets an error and/or time budget for the nearest scene and mesh
+size, saying why.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
-from chainsim.systems.engine import meshgen
+from chainsim.systems.engine import meshgen, model_params
 from chainsim.systems.engine.bodies.base import Body
 from chainsim.systems.engine.bodies.chainmail import ChainMailBody
 from chainsim.systems.engine.bodies.hybrid import HybridBody
@@ -25,7 +26,7 @@ from chainsim.systems.engine.bodies.surface import SurfaceChainMailBody
 from chainsim.systems.engine.bodies.xpbd import XPBDBody
 from chainsim.systems.engine.errors import UserError
 
-MODELS = ("chainmail", "xpbd", "projective", "hybrid", "surface")
+MODELS = model_params.MODELS
 
 
 def make_body(
@@ -35,40 +36,33 @@ def make_body(
     tets: ArrayLike | None = None,
     triangles: ArrayLike | None = None,
     fixed: ArrayLike | None = None,
-    **settings: float | str | bool,
+    links: ArrayLike | None = None,
+    **settings: object,
 ) -> Body:
-    """A body of `model` on `tets` (or surface `triangles`): ChainMail on the mesh's edges (settings
-    alpha_min, alpha_max, beta, relax), XPBD or projective dynamics (their constructor's settings)."""
+    """A body of `model` on `tets` (or surface `triangles`). `settings` are any of the model's parameters
+    (chainsim.systems.engine.model_params: each is checked against its declaration; ones the model does
+    not take are left out, so one set of settings builds any model). ChainMail runs on `links` (default:
+    the cells' edges) and, like SurfaceChainMail, takes alpha_min, alpha_max and beta as numbers or as
+    arrays of one value per link, handed to the body's kernels as they are."""
+    kw = model_params.settings(model_params.model_name(model), settings)
     has_tets = tets is not None and len(tets) > 0
     if model == "chainmail":
-        cells = tets if has_tets else triangles
-        if cells is None or len(cells) == 0:
-            raise UserError("a ChainMail body needs tetrahedra or triangles (its links are their edges)")
-        links = meshgen.links_from_cells(np.asarray(cells, dtype=np.int64))
-        kw = {k: settings[k] for k in ("relax", "exact", "order", "dtype") if k in settings}
-        limits = [float(settings.get(k, d)) for k, d in (("alpha_min", 0.8), ("alpha_max", 1.2), ("beta", 0.1))]
-        return ChainMailBody(rest, links, *limits, fixed=fixed, **kw)
+        if links is None:
+            cells = tets if has_tets else triangles
+            if cells is None or len(cells) == 0:
+                raise UserError("a ChainMail body needs tetrahedra or triangles (its links are their edges)")
+            links = meshgen.links_from_cells(np.asarray(cells, dtype=np.int64))
+        return ChainMailBody(rest, links, fixed=fixed, **kw)
     if model == "xpbd":
-        keys = ("E", "nu", "density", "damping", "substeps", "iterations", "unit", "thickness", "bending")
-        keys += ("constraints",)
-        kw = {k: settings[k] for k in keys if k in settings}
         return XPBDBody(rest, tets if has_tets else None, None if has_tets else triangles, fixed=fixed, **kw)
     if model == "projective":
-        keys = ("E", "nu", "density", "damping", "iterations", "unit", "thickness")
-        keys += ("dynamic", "solver", "cg_iterations", "rotation_iterations")
-        kw = {k: settings[k] for k in keys if k in settings}
         return ProjectiveBody(rest, tets if has_tets else None, None if has_tets else triangles, fixed=fixed, **kw)
     if model == "hybrid":  # HybridBody refuses a mesh without tetrahedra
-        kw = {k: settings[k] for k in HYBRID_PARAMS + ("E", "nu", "density", "unit") if k in settings}
-        kw.update({k: settings[k] for k in ("alpha_min", "alpha_max", "beta") if k in settings})
         return HybridBody(rest, tets if has_tets else None, fixed=fixed, **kw)
-    if model == "surface":  # SurfaceChainMail on a sheet's triangles (thesis 4.4)
-        if has_tets or triangles is None or len(triangles) == 0:
-            raise UserError("a surface ChainMail body needs a triangle surface (volumes: chainmail or hybrid)")
-        kw = {k: settings[k] for k in ("relax", "exact", "order") if k in settings}
-        limits = [float(settings.get(k, d)) for k, d in (("alpha_min", 0.8), ("alpha_max", 1.2), ("beta", 0.1))]
-        return SurfaceChainMailBody(rest, triangles, *limits, fixed=fixed, **kw)
-    raise UserError(f"model: expected one of {', '.join(MODELS)}, got {model!r}")
+    # SurfaceChainMail on a sheet's triangles (thesis 4.4)
+    if has_tets or triangles is None or len(triangles) == 0:
+        raise UserError("a surface ChainMail body needs a triangle surface (volumes: chainmail or hybrid)")
+    return SurfaceChainMailBody(rest, triangles, fixed=fixed, **kw)
 
 
 #: the hybrid body's settings (a table row may give any of them)

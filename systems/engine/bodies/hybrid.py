@@ -38,7 +38,8 @@ many frames). A piece that nothing holds (cut free) keeps its place: statics giv
 
 Sleeping (`sleep` > 0): only awake nodes are solved; sleepers are held where they are. A grab wakes the
 held nodes and `wake_rings` rings around them; after each frame the sleepers next to an awake node that
-moved more than `sleep` times the displacement scale wake (with `wake_rings` rings), so the awake region
+moved more than `sleep` times the displacement scale wake (with `wake_rings` rings, doubled at each
+further wake so that a spreading disturbance costs few set-ups), so the awake region
 follows the disturbance outwards; with nothing grabbed and every change below the threshold, the body
 falls asleep. The cost of a frame is then that of the awake region, not of the body.
 """
@@ -61,10 +62,16 @@ from chainsim.systems.engine.bodies.projective import ProjectiveBody
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.kernels.projective import pcg3, spmv3
 from chainsim.systems.engine.kernels.twolevel import local_forces, tet_stiffness, trilinear_weights, wake_front
+from chainsim.systems.engine.model_params import HYBRID_STARTS, defaults
 
-STARTS = ("none", "chainmail", "linear")
+STARTS = HYBRID_STARTS
+#: the body's defaults, from the one declaration of its parameters
+_D = defaults("hybrid")
 #: set-ups kept for held/awake sets seen before (a release and a re-grab of the same patch cost nothing)
 CACHE = 4
+
+
+MAX_RINGS = 64  # the most rings one wake adds
 
 
 class HybridBody(ProjectiveBody):
@@ -77,21 +84,21 @@ class HybridBody(ProjectiveBody):
         rest: ArrayLike,
         tets: ArrayLike,
         *,
-        E: float = 3000.0,
-        nu: float = 0.45,
-        density: float = 1000.0,
-        iterations: int = 1,
-        cg_iterations: int = 6,
-        rotation_iterations: int = 3,
-        coarse: float = 3.0,
-        start: str = "linear",
-        sleep: float = 0.0,
-        wake_rings: int = 4,
-        unit: float = 1.0,
+        E: float = _D["E"],
+        nu: float = _D["nu"],
+        density: float = _D["density"],
+        iterations: int = _D["iterations"],
+        cg_iterations: int = _D["cg_iterations"],
+        rotation_iterations: int = _D["rotation_iterations"],
+        coarse: float = _D["coarse"],
+        start: str = _D["start"],
+        sleep: float = _D["sleep"],
+        wake_rings: int = _D["wake_rings"],
+        unit: float = _D["unit"],
         fixed: ArrayLike | None = None,
-        alpha_min: float = 0.8,
-        alpha_max: float = 1.2,
-        beta: float = 0.1,
+        alpha_min: ArrayLike = _D["alpha_min"],
+        alpha_max: ArrayLike = _D["alpha_max"],
+        beta: ArrayLike = _D["beta"],
     ) -> None:
         if tets is None or len(tets) == 0:
             raise UserError("a hybrid body needs tetrahedra (surfaces: use surface, projective or xpbd)")
@@ -119,6 +126,7 @@ class HybridBody(ProjectiveBody):
         if not (1 <= int(wake_rings) <= 1000):
             raise UserError(f"wake_rings: expected 1..1000, got {wake_rings}")
         self.coarse, self.start, self.sleep, self.wake_rings = float(coarse), start, float(sleep), int(wake_rings)
+        self._rings = self.wake_rings
         self._released = False
         self.coarse_off = False  # set once the coarse step stopped converging (see _solve)
         self._fnorm = 0.0
@@ -138,6 +146,7 @@ class HybridBody(ProjectiveBody):
             self._chain = ChainMailBody(self.rest, self.graph, alpha_min, alpha_max, beta, fixed=self.fixed)
         self.awake = np.ones(self.n, dtype=np.bool_) if not self.sleep else np.zeros(self.n, dtype=np.bool_)
         self._setups: dict = {}
+        self._matrices: tuple | None = None
         self._setup = None
         self._last_targets = None
         self._sleep_scale = 0.0
@@ -173,6 +182,38 @@ class HybridBody(ProjectiveBody):
         anchored[label[held]] = True
         return ~anchored[label]
 
+    def _assembled(self, touch: np.ndarray) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+        """Projective dynamics' global matrix L (n x n, one per axis) and the rest stiffness K (3n x 3n),
+        assembled from the live elements around the awake region with a margin, so the rows of every
+        solved node are whole. Assembled again only when elements are cut or the awake region outgrows
+        the margin (which grows with the wake rings): a spreading disturbance costs a few assemblies,
+        and a body that sleeps never assembles the elements far from the tool."""
+        key = self.active.tobytes()
+        m = self._matrices
+        if m is not None and m[0] == key and not np.any(touch & ~m[3]):
+            return m[1], m[2]
+        if self.sleep:
+            near = self.awake.copy()
+            rows = np.repeat(np.arange(self.n), np.diff(self.graph.indptr))
+            for _ in range(2 * self._rings + 1):
+                grown = near.copy()
+                grown[self.graph.indices[near[rows]]] = True
+                near = grown
+            elems = self.active & near[self.tets].any(axis=1)
+        else:
+            elems = self.active.copy()
+        t = self.tets[elems]
+        D = self.D[elems]
+        w = (self.w_arap + self.w_vol)[elems]
+        blocks = (np.einsum("tkc,tlc->tkl", D, D) * w[:, None, None]).ravel()
+        rows, cols = np.repeat(t, 4, axis=1).ravel(), np.tile(t, (1, 4)).ravel()
+        L = sp.csr_matrix((blocks, (rows, cols)), shape=(self.n, self.n))
+        dof = (3 * t[:, :, None] + np.arange(3)).reshape(len(t), 12)
+        kr, kc = np.repeat(dof, 12, axis=1).ravel(), np.tile(dof, (1, 12)).ravel()
+        K = sp.csr_matrix((self.K_e[elems].ravel(), (kr, kc)), shape=(3 * self.n, 3 * self.n))
+        self._matrices = (key, L, K, elems)
+        return L, K
+
     def _prepare_hybrid(self) -> dict:
         held = self.fixed.copy()
         held[self.grab_ids] = True
@@ -184,22 +225,15 @@ class HybridBody(ProjectiveBody):
         held |= self._floating(held)
         solve = ~held & self.awake
         free = np.flatnonzero(solve)
-        loc = np.full(self.n, -1, dtype=np.int64)
-        loc[free] = np.arange(len(free))
         # elements with a node to solve for: the only ones whose forces matter this frame
         touch = self.active & solve[self.tets].any(axis=1)
-        t = self.tets[touch]
-        # projective dynamics' global matrix L (one per axis), split into solved and other columns
-        D = self.D[touch]
-        w = (self.w_arap + self.w_vol)[touch]
-        blocks = (np.einsum("tkc,tlc->tkl", D, D) * w[:, None, None]).ravel()
-        rows, cols = np.repeat(t, 4, axis=1).ravel(), np.tile(t, (1, 4)).ravel()
-        keep = solve[rows]
-        rows, cols, blocks = rows[keep], cols[keep], blocks[keep]
-        inner = solve[cols]
+        # the matrices of the solved nodes are cut from the whole body's (assembled once per set of live
+        # elements), so a region that wakes costs a slice and a coarse factorisation, not an assembly
+        L, K = self._assembled(touch)
         nf = len(free)
-        L_ff = sp.csr_matrix((blocks[inner], (loc[rows[inner]], loc[cols[inner]])), shape=(nf, nf))
-        L_fo = sp.csr_matrix((blocks[~inner], (loc[rows[~inner]], cols[~inner])), shape=(nf, self.n))
+        L_rows = L[free]
+        L_ff = L_rows[:, free].tocsr()
+        L_fo = L_rows.multiply(~solve[None, :]).tocsr()  # columns of the nodes held or asleep
         diag = L_ff.diagonal()
         if nf and np.any(diag <= 0.0):  # a node with no live element keeps its place
             L_ff = L_ff + sp.diags(np.where(diag <= 0.0, 1.0, 0.0))
@@ -216,15 +250,10 @@ class HybridBody(ProjectiveBody):
             "coarse": None,
         }
         if self.coarse and nf:
-            # K on the solved dofs (3 i + axis), from the elements that touch them
-            dof = (3 * t[:, :, None] + np.arange(3)).reshape(len(t), 12)
-            kr, kc = np.repeat(dof, 12, axis=1).ravel(), np.tile(dof, (1, 12)).ravel()
-            kv = self.K_e[touch].ravel()
-            node_r, node_c = kr // 3, kc // 3
-            ok = solve[node_r] & solve[node_c]
-            K_ff = sp.csr_matrix(
-                (kv[ok], (3 * loc[node_r[ok]] + kr[ok] % 3, 3 * loc[node_c[ok]] + kc[ok] % 3)), shape=(3 * nf, 3 * nf)
-            )
+            # K on the solved dofs (3 i + axis)
+            dofs = (3 * free[:, None] + np.arange(3)).ravel()
+            K_rows = K[dofs]
+            K_ff = K_rows[:, dofs].tocsr()
             ids, cw = self._cids[free], self._cw[free]
             used, cidx = np.unique(ids, return_inverse=True)
             P = sp.csr_matrix((cw.ravel(), (np.repeat(np.arange(nf), 8), cidx.ravel())), shape=(nf, len(used)))
@@ -236,8 +265,7 @@ class HybridBody(ProjectiveBody):
             factor = splu(Kc, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
             s["coarse"] = (K_ff, P3, factor)
             # K from the held dofs into the solved ones: the linear response to a move of the grabbed nodes
-            oh = solve[node_r] & ~solve[node_c]
-            s["K_fh"] = sp.csr_matrix((kv[oh], (3 * loc[node_r[oh]] + kr[oh] % 3, kc[oh])), shape=(3 * nf, 3 * self.n))
+            s["K_fh"] = K_rows.multiply(np.repeat(~solve, 3)[None, :]).tocsr()
         s["seconds"] = time.perf_counter() - t0
         if len(self._setups) >= CACHE:
             self._setups.pop(next(iter(self._setups)))
@@ -328,9 +356,12 @@ class HybridBody(ProjectiveBody):
             # body's own displacement shrinks towards zero, and a threshold relative to it never falls
             self._sleep_scale = max(self._sleep_scale, scale)
             threshold = self.sleep * self._sleep_scale
-            woke = wake_front(self.graph.indptr, self.graph.indices, self.awake, change, threshold, self.wake_rings)
+            woke = wake_front(self.graph.indptr, self.graph.indices, self.awake, change, threshold, self._rings)
             if woke:
                 self._setup = None
+                # each wake costs a new set-up; waking twice as far each time the front reaches the edge
+                # again bounds the set-ups of a spreading disturbance by a logarithm of its reach
+                self._rings = min(2 * self._rings, MAX_RINGS)
             # converging linearly, about last * rate / (1 - rate) is still to go: a body that creeps
             # slowly is not at rest, and freezing it would keep the creep's shape
             rate = last / self._prev_last if self._prev_last > 0.0 else 1.0
@@ -339,6 +370,7 @@ class HybridBody(ProjectiveBody):
             if not woke and len(self.grab_ids) == 0 and remaining <= threshold:
                 self.awake[:] = False  # nothing held and nothing moving: the body sleeps
                 self._setup = None
+                self._rings = self.wake_rings
                 self._sleep_scale = 0.0
         np.divide(x, self.unit, out=self._positions)
         extra = {"setup_s": s["seconds"], "awake": int(self.awake.sum()), "solved": len(free)}

@@ -47,12 +47,15 @@ from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.kernels.graph import build_graph
 from chainsim.systems.engine.kernels.projective import local_step, local_step_tri, pcg3
 from chainsim.systems.engine.kernels.topology import cut_segment
+from chainsim.systems.engine.model_params import PROJECTIVE_SOLVERS, defaults
 
 MAX_ITERATIONS = 10_000
 #: the global step: "direct" (sparse LU, factorised once per set of held elements) or "cg" (Jacobi-
 #: preconditioned conjugate gradients, warm-started from the last frame, at most cg_iterations steps:
 #: no factorisation, cheaper per frame on large meshes, more frames to converge)
-SOLVERS = ("direct", "cg")
+SOLVERS = PROJECTIVE_SOLVERS
+#: the body's defaults, from the one declaration of its parameters
+_D = defaults("projective")
 #: free nodes (not fixed) above which the direct solver is not used: its factorisation takes seconds and
 #: hundreds of MB beyond this on a solid mesh, and grows about as the square of the count
 DIRECT_MAX_NODES = 25_000
@@ -71,22 +74,24 @@ class ProjectiveBody(Body):
         tets: ArrayLike | None = None,
         triangles: ArrayLike | None = None,
         *,
-        E: float = 3000.0,
-        nu: float = 0.45,
-        density: float = 1000.0,
-        iterations: int = 10,
+        E: float = _D["E"],
+        nu: float = _D["nu"],
+        density: float = _D["density"],
+        iterations: int = _D["iterations"],
         tolerance: float = 1e-6,
-        damping: float = 0.05,
-        dynamic: bool = True,
-        unit: float = 1.0,
-        thickness: float = 1.0,
-        solver: str | None = None,
-        cg_iterations: int = 20,
-        rotation_iterations: int = 4,
+        damping: float = _D["damping"],
+        dynamic: bool = _D["dynamic"],
+        unit: float = _D["unit"],
+        thickness: float = _D["thickness"],
+        solver: str | None = _D["solver"],
+        cg_iterations: int = _D["cg_iterations"],
+        rotation_iterations: int = _D["rotation_iterations"],
         fixed: ArrayLike | None = None,
     ) -> None:
         super().__init__(rest, fixed)
         self.mu, self.lam = check_elastic(E, nu, density)
+        if solver == "auto":
+            solver = None  # the body chooses: direct up to DIRECT_MAX_NODES free nodes, CG above
         if solver is not None and solver not in SOLVERS:
             raise UserError(f"solver: expected one of {', '.join(SOLVERS)}, got {solver!r}")
         if not (math.isfinite(tolerance) and tolerance >= 0.0):

@@ -29,6 +29,7 @@ from chainsim.systems.engine.bodies.chainmail import ChainMailBody
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.kernels import topology
 from chainsim.systems.engine.kernels.graph import build_graph
+from chainsim.systems.engine.model_params import defaults
 
 
 @njit(cache=True)
@@ -99,6 +100,10 @@ def clamp_pass(disp, indptr, indices, link, alive, lim, sources, values, pinned,
     return changed
 
 
+#: the body's defaults, from the one declaration of its parameters
+_D = defaults("surface")
+
+
 class SurfaceChainMailBody(Body):
     """A sheet of `triangles` over `rest` (N, 3) under SurfaceChainMail (thesis 4.4): in-plane limits
     alpha_min..alpha_max and shear beta, normal offsets limited to beta times the rest separation."""
@@ -109,13 +114,13 @@ class SurfaceChainMailBody(Body):
         self,
         rest: ArrayLike,
         triangles: ArrayLike,
-        alpha_min: float = 0.8,
-        alpha_max: float = 1.2,
-        beta: float = 0.1,
+        alpha_min: ArrayLike = _D["alpha_min"],
+        alpha_max: ArrayLike = _D["alpha_max"],
+        beta: ArrayLike = _D["beta"],
         *,
-        relax: int = 0,
-        exact: bool = False,
-        order: str = "breadth-first",
+        relax: int = _D["relax"],
+        exact: bool = _D["exact"],
+        order: str = _D["order"],
         fixed: ArrayLike | None = None,
     ) -> None:
         super().__init__(rest, fixed)
@@ -143,7 +148,10 @@ class SurfaceChainMailBody(Body):
             fixed=self.fixed,
         )
         links = self.graph.links
-        self.normal_limit = float(beta) * np.linalg.norm(self.uv_rest[links[:, 1]] - self.uv_rest[links[:, 0]], axis=1)
+        # beta per link, as the plane's ChainMail holds it (a number or one value per link of the graph)
+        self.normal_limit = self.plane.beta * np.linalg.norm(
+            self.uv_rest[links[:, 1]] - self.uv_rest[links[:, 0]], axis=1
+        )
         self._applied = (np.zeros(0, dtype=np.int64), np.zeros((0, 3)))
 
     # -- the two parts of a move ------------------------------------------------------------------

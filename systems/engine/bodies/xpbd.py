@@ -30,8 +30,11 @@ from chainsim.systems.engine.kernels.xpbd import (
     tet_forces,
     tet_sweep,
 )
+from chainsim.systems.engine.model_params import XPBD_CONSTRAINTS, defaults
 
-CONSTRAINTS = ("auto", "corotational", "neohookean", "stvk")
+CONSTRAINTS = XPBD_CONSTRAINTS
+#: the body's defaults, from the one declaration of its parameters
+_D = defaults("xpbd")
 
 MAX_SUBSTEPS = 1000
 MAX_ITERATIONS = 1000
@@ -77,17 +80,17 @@ class XPBDBody(Body):
         tets: ArrayLike | None = None,
         triangles: ArrayLike | None = None,
         *,
-        E: float = 3000.0,
-        nu: float = 0.45,
-        density: float = 1000.0,
-        damping: float = 0.05,
-        substeps: int | str = "auto",
-        iterations: int = 1,
-        thickness: float = 1.0,
-        bending: float = 0.01,
-        unit: float = 1.0,
+        E: float = _D["E"],
+        nu: float = _D["nu"],
+        density: float = _D["density"],
+        damping: float = _D["damping"],
+        substeps: int | str = _D["substeps"],
+        iterations: int = _D["iterations"],
+        thickness: float = _D["thickness"],
+        bending: float = _D["bending"],
+        unit: float = _D["unit"],
         gravity: ArrayLike = (0.0, 0.0, 0.0),
-        constraints: str = "auto",
+        constraints: str = _D["constraints"],
         fixed: ArrayLike | None = None,
     ) -> None:
         super().__init__(rest, fixed)
