@@ -153,7 +153,13 @@ def main_view(vs: ViewState) -> Viewport | None:
     first visible 3-D view."""
     shown = [vp for vp in vs.viewports if vp.visible and vp.is_3d]
     orbit = [vp for vp in shown if vp.kind == "orbit"]
-    return (orbit or shown or [None])[0]
+    views = orbit or shown
+    return views[0] if views else None
+
+
+def _xyz(p) -> tuple[float, float, float]:
+    """A point as the three plain floats the view events carry."""
+    return (float(p[0]), float(p[1]), float(p[2]))
 
 
 CAMERA_PRESETS = ("front", "side", "below", "reset")
@@ -398,7 +404,8 @@ class ViewSystem:
                     frame_view(vs, vp, *vs.scene_box)
                     if name == "camera:reset":
                         cam = vp.camera
-                        vp.home = (cam.target.copy(), cam.distance, cam.yaw, cam.pitch)
+                        if isinstance(cam, OrbitCamera):  # the views frame_view places
+                            vp.home = (cam.target.copy(), cam.distance, cam.yaw, cam.pitch)
         spec = st.specs.get(name)
         if spec is not None and spec["kind"] == "toggle" and spec.get("layer"):
             set_layer(app, spec["layer"], bool(st.values[name]))
@@ -406,6 +413,7 @@ class ViewSystem:
     # -- pointer ---------------------------------------------------------------------------------
     def ray(self, vp: Viewport, x: float, y: float):
         # window events carry whole pixels: aim through the pixel centre, as the renderer samples it
+        assert vp.camera is not None  # only 3-D views are aimed through
         return vp.camera.ray(x + 0.5, y + 0.5, vp.rect)
 
     # -- the page box ----------------------------------------------------------------------------
@@ -446,9 +454,9 @@ class ViewSystem:
         b = self.page_box(app, vs)
         if b is not None and vp is main_view(vs):  # the page takes the pointer over the main view
             vs.active = PAGE
-            hit = docbox.button_at(b, ev.x, ev.y, page_buttons(app.resource(HudState)))
-            if hit is not None and ev.button == "left":
-                self.page_button(app, hit)
+            button = docbox.button_at(b, ev.x, ev.y, page_buttons(app.resource(HudState)))
+            if button is not None and ev.button == "left":
+                self.page_button(app, button)
             return
         if vp.kind == "panel":
             p = wd.hit(vs.panels.get(vp.name, []), ev.x, ev.y)
@@ -462,17 +470,18 @@ class ViewSystem:
             o, d = self.ray(vp, ev.x, ev.y)
             hit = pick(app, o, d)
             if hit is not None:
-                gp = tuple(float(c) for c in hit.point)
+                gp = _xyz(hit.point)
                 vs.grab = (vp.name, hit.entity, hit.name, hit.triangle, gp)
                 self.emit(app, Dragged(vp.name, hit.entity, hit.name, "start", hit.triangle, gp, gp, ev.button))
 
     def drag_point(self, vs: ViewState, vp: Viewport, x: float, y: float):
         o, d = self.ray(vp, x, y)
+        assert vs.grab is not None and vp.camera is not None  # called while a grab in a 3-D view is on
         gp = np.asarray(vs.grab[4])
         n = vp.camera.forward
         denom = float(d @ n)
         t = float((gp - o) @ n) / denom if abs(denom) > 1e-12 else 0.0
-        return tuple(float(c) for c in (o + t * d))
+        return _xyz(o + t * d)
 
     def drag(self, app: App, vs: ViewState, ev: MouseDrag) -> None:
         vs.travel += abs(ev.dx) + abs(ev.dy)
@@ -524,9 +533,7 @@ class ViewSystem:
                 if hit is not None:
                     self.emit(
                         app,
-                        Picked(
-                            vp.name, hit.entity, hit.name, hit.triangle, tuple(float(c) for c in hit.point), ev.button
-                        ),
+                        Picked(vp.name, hit.entity, hit.name, hit.triangle, _xyz(hit.point), ev.button),
                     )
         vs.active, vs.press, vs.widget, vs.grab, vs.travel = None, None, None, None, 0.0
 
@@ -553,7 +560,7 @@ class ViewSystem:
         hit = snap(app, ent, ev.point)
         if hit is None:
             raise UserError(f"pick event: entity '{ev.entity}' has no triangle mesh to pick on")
-        self.emit(app, Picked("", ent, hit.name, hit.triangle, tuple(float(c) for c in hit.point), ev.button))
+        self.emit(app, Picked("", ent, hit.name, hit.triangle, _xyz(hit.point), ev.button))
 
     # -- the system ------------------------------------------------------------------------------
     def __call__(self, app: App) -> None:
@@ -593,7 +600,7 @@ class ViewSystem:
                 elif vp is not None and vp.kind == "panel":
                     self.scroll_widget(app, vs, vp, ev)
             elif isinstance(ev, Key) and ev.pressed:
-                h: HudState = app.resource(HudState)
+                h = app.resource(HudState)
                 if ev.key == "f1":
                     if h.doc_open and h.doc_name == "keys":
                         h.close_doc()
@@ -661,7 +668,8 @@ def plugin(app: App) -> None:
     layout = pres.layout
     if not layout.get("viewports"):
         layout = {"viewports": default_layout(app)["viewports"], "widgets": layout.get("widgets", [])}
-    size = tuple(int(v) for v in app.resource(Settings).get("window_size", (1280, 800)))
+    width, height = app.resource(Settings).get("window_size", (1280, 800))
+    size = (int(width), int(height))
     app.resource(InputState).window_size = size
     vs = app.insert_resource(build_view_state(layout, size))
     vs.scene_box = scene_bounds(app)

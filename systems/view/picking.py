@@ -33,8 +33,8 @@ class Hit:
 
 @dataclass(slots=True)
 class _Surface:
+    tri_links: np.ndarray  # per triangle, its three links (-1: none)
     graph_id: int = 0
-    tri_links: np.ndarray | None = None
     dead: int = -1
     live: np.ndarray | None = None  # indices of triangles still drawn
 

@@ -169,10 +169,11 @@ def parse(markdown: str) -> list[Block]:
             blocks.append(Block("table", rows=rows))
             continue
         mb, mn = _BULLET.match(t), _NUMBER.match(t)
-        if mb or mn:
+        m = mb or mn
+        if m is not None:
             flush_para()
-            indent = len((mb or mn).group(1))
-            text = [mb.group(2) if mb else mn.group(3)]
+            indent = len(m.group(1))
+            text = [m.group(2) if mb else m.group(3)]
             i += 1
             # continuation lines: indented further than the marker, not a new item
             while (
@@ -184,7 +185,7 @@ def parse(markdown: str) -> list[Block]:
             ):
                 text.append(lines[i].strip())
                 i += 1
-            kind, marker = ("bullet", "\u2022") if mb else ("number", f"{mn.group(2)}.")
+            kind, marker = ("bullet", "\u2022") if mb else ("number", f"{m.group(2)}.")
             blocks.append(Block(kind, inline(" ".join(text)), level=indent // 2, marker=marker))
             continue
         para.append(t)
