@@ -2,10 +2,11 @@
 
 A long run must not end in a traceback because its output path names a folder, a missing folder or
 a read-only one. `check_output_file` and `prepare_output_dir` are called before anything runs and
-say, in one line naming the flag, what is wrong; `write_text_atomic`/`write_bytes_atomic` write to a
-temporary file in the same folder and rename it into place, so an interrupted or failed write never
-leaves half a file where a good one was. Permission checks use os.access, which reports what the
-running user may do (root ignores permissions, so tests run them as an unprivileged user).
+say, in one line naming the flag, what is wrong; `write_text_atomic`/`write_bytes_atomic` write through
+`chainsim.systems.engine.atomicfile` (a temporary file in the same folder renamed into place), so an
+interrupted or failed write never leaves half a file where a good one was. Permission checks use
+os.access, which reports what the running user may do (root ignores permissions, so tests run them as
+an unprivileged user).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from chainsim.systems.engine import atomicfile
 from chainsim.systems.engine.errors import UserError
 
 
@@ -59,21 +61,10 @@ def prepare_output_dir(path: str | os.PathLike, flag: str) -> Path:
 def write_bytes_atomic(path: str | os.PathLike, data: bytes, flag: str) -> None:
     """Write `data` to a temporary file beside `path`, then rename it into place; one line on failure."""
     p = check_output_file(path, flag)
-    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
     try:
-        with open(tmp, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, p)
+        atomicfile.write_bytes(p, data)
     except OSError as e:
         raise UserError(f"{flag} {p}: cannot write ({e.strerror or e})") from None
-    finally:
-        if tmp.exists():
-            try:
-                tmp.unlink()
-            except OSError:
-                pass
 
 
 def write_text_atomic(path: str | os.PathLike, text: str, flag: str) -> None:

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
 
+from chainsim.systems.engine.atomicfile import atomic_open
 from chainsim.systems.engine.errors import UserError
 
 
@@ -24,9 +24,8 @@ def write_png(path, rgba: np.ndarray) -> Path:
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        Image.fromarray(rgba[:, :, :3] if rgba.shape[2] == 4 else rgba, "RGB").save(tmp, format="PNG")
-        os.replace(tmp, path)
+        with atomic_open(path, "wb") as fh:
+            Image.fromarray(rgba[:, :, :3] if rgba.shape[2] == 4 else rgba, "RGB").save(fh, format="PNG")
     except OSError as e:
         raise UserError(f"{path}: cannot write the PNG ({e.strerror or e})") from None
     return path

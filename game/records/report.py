@@ -12,8 +12,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
-import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -22,6 +20,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from chainsim.game.records.validate import AIDS, printable
+from chainsim.systems.engine.atomicfile import atomic_open
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.procedures.needle import records as layout
 
@@ -73,7 +72,7 @@ def _cell(value: Any) -> str:
 
 
 def atomic_write(path: Path, write: Callable[[io.TextIOBase | io.BufferedIOBase], None], *, binary: bool) -> None:
-    """Write via a temp file in the same folder, fsync, then rename over ``path``."""
+    """Write through `write(fh)` atomically (chainsim.systems.engine.atomicfile), after checking the folder."""
     path = Path(path)
     if path.is_dir():
         raise UserError(f"output {path} is a directory; expected a file name")
@@ -81,33 +80,10 @@ def atomic_write(path: Path, write: Callable[[io.TextIOBase | io.BufferedIOBase]
     if not folder.is_dir():
         raise UserError(f"output folder {folder} does not exist")
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-    except OSError as exc:
-        raise UserError(f"cannot write {path}: {exc.strerror}") from None
-    try:
-        mode = "wb" if binary else "w"
-        kwargs = {} if binary else {"encoding": "utf-8", "newline": ""}
-        with os.fdopen(fd, mode, **kwargs) as fh:
+        with atomic_open(path, "wb" if binary else "w", newline="") as fh:
             write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        # mkstemp makes the file owner-only; give the result the usual umask-based mode.
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except BaseException as exc:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        if isinstance(exc, OSError):
-            raise UserError(f"cannot write {path}: {exc.strerror or exc}") from None
-        raise
-
-
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
+    except OSError as exc:
+        raise UserError(f"cannot write {path}: {exc.strerror or exc}") from None
 
 
 #: first characters a spreadsheet reads as the start of a formula (OWASP's list for CSV injection)

@@ -12,13 +12,12 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 from pathlib import Path
 
 import platformdirs
 
 from chainsim.game.records.validate import clean_name
-from chainsim.systems.engine import datafile
+from chainsim.systems.engine import atomicfile, datafile
 from chainsim.systems.engine.errors import UserError
 
 logger = logging.getLogger(__name__)
@@ -53,9 +52,7 @@ def remember(values: dict[str, str]) -> None:
     path = remembered_path()
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps({k: values[k] for k, _ in FIELDS}), encoding="utf-8")
-        os.replace(tmp, path)
+        atomicfile.write_text(path, json.dumps({k: values[k] for k, _ in FIELDS}))
     except OSError as e:  # not remembering is no reason to stop
         logger.warning("could not remember the sign-in in %s: %s", path, e.strerror)
 

@@ -39,7 +39,7 @@ import matplotlib.pyplot as plt
 import numba
 import numpy as np
 
-from chainsim.systems.engine import meshgen
+from chainsim.systems.engine import atomicfile, meshgen
 from chainsim.systems.engine.chainmail_params import ORDERS, check_material, order_code, order_name
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.kernels.chainmail import cascade, make_workspace, material_arrays
@@ -640,12 +640,6 @@ def plot(results: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
-
-
 def run_suite(args) -> int:
 
     parts = {p.strip() for p in args.parts.split(",") if p.strip()}
@@ -690,8 +684,8 @@ def run_suite(args) -> int:
         results["threads"] = drag.threads_part(args.quick, args.repeat, max_el)
     results["wall_s"] = time.perf_counter() - t0
     md = markdown(results)
-    _write_atomic(out / "results.json", json.dumps(results, indent=1))
-    _write_atomic(out / "results.md", md)
+    atomicfile.write_text(out / "results.json", json.dumps(results, indent=1))
+    atomicfile.write_text(out / "results.md", md)
     plot(results, out / "results.png")
     print(md)
     print(f"wrote {out / 'results.md'}, results.json, results.png", file=sys.stderr)

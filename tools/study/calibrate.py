@@ -25,6 +25,7 @@ import tomli_w
 from scipy.optimize import minimize
 
 from chainsim.assets import ASSETS_DIR
+from chainsim.systems.engine import atomicfile
 from chainsim.systems.engine.errors import UserError
 
 from .chainmail_model import ChainMailModel, ChainMailParams
@@ -144,9 +145,7 @@ def write_preset(name: str, preset: dict, path: str | os.PathLike | None = None)
     text = "\n".join(lines) + "\n" + tomli_w.dumps({key: presets[key] for key in sorted(presets)})
     try:
         p.parent.mkdir(parents=True, exist_ok=True)
-        tmp = p.with_suffix(p.suffix + ".tmp")
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, p)
+        atomicfile.write_text(p, text)
     except OSError as e:
         raise UserError(f"--out {p}: cannot write ({e.strerror})") from None
     return p

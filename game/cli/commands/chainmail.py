@@ -27,7 +27,6 @@ written. The result is written to a temporary file and renamed into place only w
 from __future__ import annotations
 
 import math
-import os
 import sys
 from pathlib import Path
 from typing import NamedTuple
@@ -36,6 +35,7 @@ import numpy as np
 
 from chainsim.game.app.outputs import check_output_file
 from chainsim.systems.engine import argtypes
+from chainsim.systems.engine.atomicfile import atomic_open
 from chainsim.systems.engine.bodies.chainmail import ChainMailBody
 from chainsim.systems.engine.chainmail_params import ORDER_CHOICES, ORDERS, check_material, order_code, order_name
 from chainsim.systems.engine.errors import UserError
@@ -214,22 +214,11 @@ def simulate(
 def write_result(out: Path, positions, order, sponsor, **extra) -> None:
     """Write OUT.npz atomically: a temporary file in the same folder, renamed when complete."""
 
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
     try:
-        with open(tmp, "wb") as fh:
+        with atomic_open(out, "wb") as fh:
             np.savez(fh, positions=positions, order=order, sponsor=sponsor, **extra)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, out)
     except OSError as e:
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
         raise UserError(f"--out: cannot write {out} ({e.strerror or e})") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def stats_lines(body: Body, m: Move, args) -> list[str]:
