@@ -554,16 +554,19 @@ def check_procedure(v: Validator, man: dict) -> None:
             break
 
 
-_KEY_PREFIX = re.compile(
-    r"^((?:entities|meshes|materials|scenes|layouts|settings|pack|points|planes|foramina|paths)"
-    r"(?:\.[A-Za-z0-9_\-]+)+): (.*)$",
-    re.S,
-)
+#: the shell's tables a start-up message may name a key of; every named table a feature or procedure declares
+#: (its anatomy, say) may be named too, as registered when the message is placed
+_SHELL_TABLES = ("entities", "meshes", "materials", "scenes", "layouts", "settings", "pack")
+
+
+def _key_prefix() -> re.Pattern[str]:
+    tables = sorted({*_SHELL_TABLES, *(name for name, style in SECTION_STYLE.items() if style == "named")})
+    return re.compile(rf"^((?:{'|'.join(map(re.escape, tables))})(?:\.[A-Za-z0-9_\-]+)+): (.*)$", re.S)
 
 
 def problem_at(pack: Pack, scene: str, message: str) -> Problem:
     """A Problem for a message about a validated pack (from starting `scene`), placed at the key it names."""
-    m = _KEY_PREFIX.match(message)
+    m = _key_prefix().match(message)
     key, text = (
         (m.group(1), m.group(2)) if m else (f"scenes.{scene}" if scene in pack.section("scenes") else "", message)
     )

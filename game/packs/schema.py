@@ -12,17 +12,20 @@ The layout of a manifest:
     [[steps]]               the procedure's steps, in order
     [metrics.NAME]          what the assessment reports
     [docs.NAME]             pages shown in the app
-    [points.NAME], [planes.NAME], [foramina.NAME], [paths.NAME]   named anatomy (millimetres)
+    [points.NAME], [planes.NAME], [paths.NAME]   named anatomy (millimetres)
 
-The needle-procedure tables ([needle_procedure], [roles.NAME], [[landmarks]], [[feedback]]) are
-declared with the data they describe, in chainsim.systems.procedures.needle.manifest (docs/needle-procedures.md).
+A procedure's own tables (the needle procedure's [needle_procedure], [roles.NAME], its target openings
+and the rest), and the keys it adds to [[steps]] and [metrics.NAME] with their help, are declared with
+the data they describe, in the procedure's folder (chainsim.systems.procedures.needle.manifest,
+docs/needle-procedures.md): nothing here names a procedure's vocabulary.
 """
 
 from __future__ import annotations
 
 from chainsim.components.registry import Field, Schema, section
 from chainsim.systems.engine import limits
-from chainsim.systems.procedures.needle.manifest import MEASURES  # importing it registers the needle-procedure sections
+from chainsim.systems.engine.model_params import manifest_spec
+from chainsim.systems.procedures.needle import manifest as needle  # importing it registers its sections
 
 FORMAT_VERSION = 1
 UNITS = ("mm", "cm", "m")
@@ -30,6 +33,8 @@ UNIT_SCALE_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
 PRIMITIVES = ("box", "sphere", "cylinder", "capsule", "cone", "grid", "tet_block")
 VIEWPORT_KINDS = ("orbit", "attached", "panel", "fixed", "fluoro")
 WIDGET_KINDS = ("button", "toggle", "slider", "dial", "light", "text")
+#: the ChainMail keys of a [materials] entry
+MATERIAL_KEYS = ("alpha_min", "alpha_max", "beta", "relax", "exact")
 
 section(
     "pack",
@@ -62,8 +67,7 @@ section(
             "procedure",
             "str",
             "",
-            help="Procedure the pack uses: 'needle' (the generic needle procedure its [needle_procedure], [roles], "
-            "[[landmarks]], [[steps]] and [[feedback]] describe; 'prp' is its old name) or 'cutting'; empty for none.",
+            help=f"Procedure the pack uses: 'needle' ({needle.PROCEDURE_HELP}) or 'cutting'; empty for none.",
         ),
     ],
 )
@@ -164,31 +168,8 @@ section(
             "",
             help="Named ChainMail preset from assets/presets/materials.toml (overridden by explicit values).",
         ),
-        Field(
-            "alpha_min",
-            "float",
-            0.8,
-            help="ChainMail compression limit relative to the rest link (thesis 5.2.2).",
-            min=0.0,
-            max=1.0,
-        ),
-        Field("alpha_max", "float", 1.2, help="ChainMail stretch limit relative to the rest link.", min=1.0),
-        Field("beta", "float", 0.1, help="ChainMail shear limit relative to the rest link.", min=0.0),
-        Field(
-            "relax",
-            "int",
-            2,
-            help="Relaxation iterations after each cascade (thesis 5.2.5).",
-            min=0,
-            max=limits.MAX_RELAX,
-        ),
-        Field(
-            "exact",
-            "bool",
-            False,
-            help="After each cascade and relaxation put every link back inside its limits (a pull past what the "
-            "limits allow from the fixed elements stops at the nearest reachable point).",
-        ),
+        # the ChainMail keys, declared with the model's parameters (chainsim.systems.engine.model_params)
+        *(Field(key, **manifest_spec(key)) for key in MATERIAL_KEYS),
     ],
 )
 
@@ -317,17 +298,12 @@ section(
             "done_on",
             "str_list",
             [],
-            help="Events that complete this step. Needle procedure (click:ROLE, landmark:ID, dial:WIDGET, "
-            "depth, contact:ROLE, button:WIDGET; docs/needle-procedures.md): steps only move forward, and Next "
-            "moves on one step. Cutting procedure (carried:MM, cut:MM, opened:MM; docs/making-a-pack.md): any "
-            "one completes the step, in whatever order the trainee works.",
+            help=f"Events that complete this step. Needle procedure ({needle.DONE_ON_HELP}; "
+            "docs/needle-procedures.md): steps only move forward, and Next moves on one step. Cutting procedure "
+            "(carried:MM, cut:MM, opened:MM; docs/making-a-pack.md): any one completes the step, in whatever order "
+            "the trainee works.",
         ),
-        Field(
-            "landmark",
-            "str",
-            "",
-            help="Needle procedure: the landmark placed in this step; Next cannot leave the step before it is placed.",
-        ),
+        *needle.STEP_FIELDS,
         Field("open_docs", "bool", False, help="Open the step's docs page when the step begins."),
     ],
 )
@@ -341,19 +317,7 @@ section(
         Field("units", "str", "", help="Units of the value."),
         Field("help", "str", "", help="How it is computed (cite the method)."),
         Field("lower_is_better", "bool", True, help="Direction of improvement."),
-        Field(
-            "measure",
-            "enum",
-            "",
-            choices=MEASURES,
-            help="Needle procedure: which value of the vocabulary this metric is (duration s, step_time s of "
-            "`step`, path_length mm, contacts with `role`, first_contact_distance mm tip to target centre, "
-            "needle_error mm = Dist - R at the last contact, landmark_error mm, redirections, refused_rotations, "
-            "xray_shots, exposure s, dose mGy); stored per attempt in the records' metrics table under this "
-            "metric's name. Empty: the assessment value of the same name, if any.",
-        ),
-        Field("role", "str", "", help="measure = contacts: the role whose contacts are counted."),
-        Field("step", "str", "", help="measure = step_time: the step timed."),
+        *needle.METRIC_FIELDS,
         Field(
             "benchmark",
             "float",
@@ -402,20 +366,6 @@ section(
         Field("point", "vec3", units="mm", help="A point on the plane."),
         Field("normal", "vec3", help="Plane normal (normalised on use)."),
         Field("help", "str", "", help="What the plane is."),
-    ],
-)
-
-section(
-    "foramina",
-    "named",
-    "A target opening for a needle.",
-    [
-        Field("centre", "vec3", units="mm", help="Centre of the opening."),
-        Field("axis", "vec3", help="Direction through the opening."),
-        Field("width_mm", "float", units="mm", help="Long axis of the opening.", min=0.0),
-        Field("height_mm", "float", units="mm", help="Short axis of the opening.", min=0.0),
-        Field("radius_mm", "float", units="mm", help="Radius R used by the needle error E = Dist - R.", min=0.0),
-        Field("help", "str", "", help="Notes."),
     ],
 )
 

@@ -227,6 +227,58 @@ section(
     ],
 )
 
+section(
+    "foramina",
+    "named",
+    "A target opening for a needle.",
+    [
+        Field("centre", "vec3", units="mm", help="Centre of the opening."),
+        Field("axis", "vec3", help="Direction through the opening."),
+        Field("width_mm", "float", units="mm", help="Long axis of the opening.", min=0.0),
+        Field("height_mm", "float", units="mm", help="Short axis of the opening.", min=0.0),
+        Field("radius_mm", "float", units="mm", help="Radius R used by the needle error E = Dist - R.", min=0.0),
+        Field("help", "str", "", help="Notes."),
+    ],
+)
+
+# -- this procedure's part in the shell's shared tables (chainsim.game.packs.schema) ----------------------
+#
+# [pack], [[steps]] and [metrics.NAME] are declared by the shell for every procedure; what they say of
+# the needle procedure, and the keys only it reads, are declared here, with the rest of its vocabulary.
+
+#: pack.procedure's help: what the procedure 'needle' is
+PROCEDURE_HELP = (
+    "the generic needle procedure its [needle_procedure], [roles], [[landmarks]], [[steps]] and [[feedback]] "
+    "describe; 'prp' is its old name"
+)
+#: the events a step's done_on may name (the full list: EVENTS, docs/needle-procedures.md)
+DONE_ON_HELP = "click:ROLE, landmark:ID, dial:WIDGET, depth, contact:ROLE, button:WIDGET"
+#: the keys a [[steps]] table has for this procedure
+STEP_FIELDS = (
+    Field(
+        "landmark",
+        "str",
+        "",
+        help="Needle procedure: the landmark placed in this step; Next cannot leave the step before it is placed.",
+    ),
+)
+#: the keys a [metrics.NAME] table has for this procedure: which value of the vocabulary it stores
+METRIC_FIELDS = (
+    Field(
+        "measure",
+        "enum",
+        "",
+        choices=MEASURES,
+        help="Needle procedure: which value of the vocabulary this metric is (duration s, step_time s of "
+        "`step`, path_length mm, contacts with `role`, first_contact_distance mm tip to target centre, "
+        "needle_error mm = Dist - R at the last contact, landmark_error mm, redirections, refused_rotations, "
+        "xray_shots, exposure s, dose mGy); stored per attempt in the records' metrics table under this "
+        "metric's name. Empty: the assessment value of the same name, if any.",
+    ),
+    Field("role", "str", "", help="measure = contacts: the role whose contacts are counted."),
+    Field("step", "str", "", help="measure = step_time: the step timed."),
+)
+
 
 @dataclass(slots=True)
 class Plane:
