@@ -110,7 +110,7 @@ def add_arguments(p) -> None:
         default=1.9,
         metavar="SECONDS",
         help="with --pack: how far the scene script plays before timing (default 1.9 s: in prp the "
-        "landmarks are placed and the needle waits at the skin for the dials)",
+        "points are marked and the needle waits at the skin for the dials)",
     )
 
 

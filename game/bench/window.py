@@ -5,7 +5,7 @@ Xvfb, driven with xdotool.
 (`chainsim play prp --frame-times`), buffer swaps and event handling included, through the actions
 that redraw the most: keeping still, turning the Horizontal dial by dragging it, orbiting the
 surgeon's view by dragging in it, the same with the skin see-through (its toggle clicked), then live
-fluoroscopy (the Live switch clicked) kept still and with the dial turning. The landmarks are placed
+fluoroscopy (the Live switch clicked) kept still and with the dial turning. The points are marked
 by an input script first, as the dials only turn in the aiming step.
 
     chainsim bench window [--out DIR] [--seconds 6] [--python PATH]
@@ -43,7 +43,7 @@ from chainsim.systems.view.cameras import ViewState
 
 HELP = "frame rate of the real prp window under Xvfb, driven with xdotool (dial, orbit, see-through skin, live X-ray)"
 W, H = 1280, 800
-LANDMARKS_UNTIL = 1.6  # s of the pack's correct script: the three landmark picks
+MARKS_UNTIL = 1.6  # s of the pack's correct script: its three picks on the face
 
 
 def _widgets() -> dict[str, tuple[int, int]]:
@@ -60,12 +60,12 @@ def _widgets() -> dict[str, tuple[int, int]]:
         app.close()
 
 
-def _landmark_script(path: Path) -> None:
-    """The pack's correct script cut after its landmark picks."""
+def _marks_script(path: Path) -> None:
+    """The pack's correct script cut after its picks on the face."""
     pack = load(resolve("prp")[0])
     data = tomllib.loads(pack.file("scripts/correct.toml").read_text(encoding="utf-8"))
-    data["event"] = [e for e in data["event"] if float(e["t"]) <= LANDMARKS_UNTIL]
-    data["description"] = "the three landmarks of the correct attempt"
+    data["event"] = [e for e in data["event"] if float(e["t"]) <= MARKS_UNTIL]
+    data["description"] = "the three marked points of the correct attempt"
     path.write_text(tomli_w.dumps(data), encoding="utf-8")
     load_script(path)  # the cut-down script must still read
 
@@ -97,8 +97,8 @@ def run(args) -> int:
     out = prepare_output_dir(args.out, "--out")
     chainsim = [args.python or sys.executable, "-m", "chainsim.game.cli.main"]
     widgets = _widgets()
-    script = out / "landmarks.toml"
-    _landmark_script(script)
+    script = out / "marks.toml"
+    _marks_script(script)
     display = f":{70 + os.getpid() % 50}"
     env = {**os.environ, "DISPLAY": display}
     env.pop("PYGLET_HEADLESS", None)
@@ -155,7 +155,7 @@ def run(args) -> int:
                 shot = out / f"{name.replace(' ', '-')}.png"
                 subprocess.run(["import", "-window", "root", str(shot)], env=env, check=False)
 
-        time.sleep(LANDMARKS_UNTIL + 1.5)
+        time.sleep(MARKS_UNTIL + 1.5)
         dial, view = drag(widgets["rotate_horizontal"], 2), drag(widgets["surgeon"], 3)
         phase("still", still, 3.0)
         phase("turning a dial", dial, args.seconds)
