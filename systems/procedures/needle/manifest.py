@@ -9,9 +9,12 @@ described entirely by pack data, read by the generic systems in chainsim.systems
                          obstacle (bounce | stop | warn on contact), tissue (deformable, not an obstacle)
     [[landmarks]]        the points the trainee clicks, in order, each scored by its distance to a
                          named point (minus an ideal distance) and to a named plane
-    [[steps]]            (declared in game/packs/schema.py) gain `done_on`, `landmark` and `open_docs`
+    [[steps]]            (the shell's table, game/packs/schema.py) gain `landmark` (STEP_FIELDS, here);
+                         `done_on` names this procedure's events
     [[feedback]]         per event: a message, a light and its colour
-    [metrics.NAME]       (game/packs/schema.py) gain `measure`: which value of the vocabulary is stored
+    [metrics.NAME]       (the shell's table) gain `measure`, `role`, `step` (METRIC_FIELDS, here): which
+                         value of the vocabulary is stored
+    [foramina.NAME]      the target openings a role's `opening` names
 
 Every key is declared here with `section()`, so `chainsim validate` checks it and `chainsim docs
 components` lists it; docs/needle-procedures.md is the modder's guide. A text may contain `{side}`,
