@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TypeAlias
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -12,6 +14,10 @@ from chainsim.systems.engine.errors import UserError
 
 #: the most elements a single grab may hold (bounds memory and per-step cost of attachments)
 MAX_GRAB = 1_000_000
+
+#: cells or links as the bodies take them: an (N, k) index array or a list of k-lists (they take its
+#: len(), which a general ArrayLike such as a scalar does not have)
+Cells: TypeAlias = np.ndarray | Sequence[Sequence[int]]
 
 
 @dataclass
@@ -84,7 +90,7 @@ class Body:
 
     model = "body"
 
-    def __init__(self, rest: np.ndarray, fixed: ArrayLike | None = None) -> None:
+    def __init__(self, rest: ArrayLike, fixed: ArrayLike | None = None) -> None:
         self.rest = check_positions("rest positions", rest).copy()
         n = len(self.rest)
         self.positions = self.rest.copy()

@@ -14,12 +14,12 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike
 
-from chainsim.systems.engine.bodies.base import Body, StepStats, check_ids
+from chainsim.systems.engine.bodies.base import Body, Cells, StepStats, check_ids
 from chainsim.systems.engine.chainmail_params import order_code
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.kernels import topology
 from chainsim.systems.engine.kernels.chainmail import cascade, make_workspace, material_arrays
-from chainsim.systems.engine.kernels.exact import exact_limits, exact_move
+from chainsim.systems.engine.kernels.exact import ExactResult, exact_limits, exact_move
 from chainsim.systems.engine.kernels.graph import Graph, build_graph
 from chainsim.systems.engine.kernels.relax import relax
 from chainsim.systems.engine.model_params import defaults
@@ -35,7 +35,7 @@ def relax_moved(
     rest: ArrayLike,
     pos: ArrayLike,
     graph: Graph,
-    active: ArrayLike,
+    active: np.ndarray,
     iterations: int,
     step: float = 1.0,
     fixed: ArrayLike | None = None,
@@ -60,7 +60,7 @@ def link_limits(n_links: int, alpha_min: ArrayLike, alpha_max: ArrayLike, beta: 
     out = []
     for name, value in (("alpha_min", alpha_min), ("alpha_max", alpha_max), ("beta", beta)):
         if np.ndim(value) == 0:
-            out.append(np.full(n_links, float(value)))
+            out.append(np.full(n_links, value, dtype=np.float64))
             continue
         arr = np.ascontiguousarray(value, dtype=np.float64)
         if arr.shape != (n_links,):
@@ -79,7 +79,7 @@ class ChainMailBody(Body):
     def __init__(
         self,
         rest: ArrayLike,
-        links: ArrayLike,
+        links: Cells | Graph,
         alpha_min: ArrayLike = _D["alpha_min"],
         alpha_max: ArrayLike = _D["alpha_max"],
         beta: ArrayLike = _D["beta"],
@@ -111,7 +111,7 @@ class ChainMailBody(Body):
                 self.fixed[check_ids("fixed", f, n)] = True
         self.relax_iterations, self.relax_step = int(relax), float(relax_step)
         self.order, self.depth, self.exact = order, int(depth), bool(exact)
-        self._order_cache = (None, 0)
+        self._order_cache: tuple[str | None, int] = (None, 0)
         self.workspace = make_workspace(n)
         self.held = np.zeros(0, dtype=np.int64)
         self.grab_ids = np.zeros(0, dtype=np.int64)
@@ -119,7 +119,7 @@ class ChainMailBody(Body):
         self.moved = np.zeros(0, dtype=np.int64)
         self.last_order = np.zeros(0, dtype=np.int64)
         self.last_sponsor = np.zeros(0, dtype=np.int64)
-        self.last_exact = None
+        self.last_exact: ExactResult | None = None
         self.last_shortfall = 0.0
         self.stats = StepStats()
 
@@ -139,6 +139,7 @@ class ChainMailBody(Body):
         # usual frame needs no mask of its own: the body's anchors as they are, with no O(N) copy or
         # scan per frame (the kernel tests the anchor flag only of the few neighbours it checks).
         held = self.held
+        others: np.ndarray | tuple[()]
         if len(held) == 0 or (len(held) == k == 1 and held[0] == ids[0]):
             others = ()
         else:
@@ -267,7 +268,7 @@ class ChainMailBody(Body):
         kw = {k: v for k, v in (("normal", normal), ("depth", depth)) if v is not None}
         return int(len(topology.cut_path(self.positions, self.graph, np.asarray(points, float), **kw)))
 
-    def add_links(self, links: ArrayLike) -> int:
+    def add_links(self, links: Cells) -> int:
         """Join element pairs with new links carrying the first link's limits; returns how many."""
         links = np.asarray(links, dtype=np.int64).reshape(-1, 2)
         m_before = self.graph.n_links

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from chainsim.systems.engine import meshgen, model_params
-from chainsim.systems.engine.bodies.base import Body
+from chainsim.systems.engine.bodies.base import Body, Cells
 from chainsim.systems.engine.bodies.chainmail import ChainMailBody
 from chainsim.systems.engine.bodies.hybrid import HybridBody
 from chainsim.systems.engine.bodies.projective import ProjectiveBody
@@ -33,10 +33,10 @@ def make_body(
     model: str,
     rest: ArrayLike,
     *,
-    tets: ArrayLike | None = None,
-    triangles: ArrayLike | None = None,
+    tets: Cells | None = None,
+    triangles: Cells | None = None,
     fixed: ArrayLike | None = None,
-    links: ArrayLike | None = None,
+    links: Cells | None = None,
     **settings: object,
 ) -> Body:
     """A body of `model` on `tets` (or surface `triangles`). `settings` are any of the model's parameters

@@ -56,7 +56,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 
 from chainsim.systems.engine import meshgen
-from chainsim.systems.engine.bodies.base import StepStats
+from chainsim.systems.engine.bodies.base import Cells, StepStats
 from chainsim.systems.engine.bodies.chainmail import ChainMailBody
 from chainsim.systems.engine.bodies.projective import ProjectiveBody
 from chainsim.systems.engine.errors import UserError
@@ -82,7 +82,7 @@ class HybridBody(ProjectiveBody):
     def __init__(
         self,
         rest: ArrayLike,
-        tets: ArrayLike,
+        tets: Cells | None,
         *,
         E: float = _D["E"],
         nu: float = _D["nu"],
@@ -130,7 +130,7 @@ class HybridBody(ProjectiveBody):
         self._released = False
         self.coarse_off = False  # set once the coarse step stopped converging (see _solve)
         self._fnorm = 0.0
-        self._guarded = None
+        self._guarded: dict | None = None
         self._x_before = np.zeros((0, 3))
         rest_si = self.rest * self.unit
         links = meshgen.links_from_cells(self.tets)
@@ -147,8 +147,8 @@ class HybridBody(ProjectiveBody):
         self.awake = np.ones(self.n, dtype=np.bool_) if not self.sleep else np.zeros(self.n, dtype=np.bool_)
         self._setups: dict = {}
         self._matrices: tuple | None = None
-        self._setup = None
-        self._last_targets = None
+        self._setup: dict | None = None  # the solve's set-up for the current held and awake set
+        self._last_targets: np.ndarray | None = None
         self._sleep_scale = 0.0
         self._prev_last = 0.0
 

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 import time
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -41,7 +42,7 @@ from numpy.typing import ArrayLike
 from scipy.sparse.linalg import splu
 
 from chainsim.systems.engine import meshgen
-from chainsim.systems.engine.bodies.base import Body, StepStats, check_elastic
+from chainsim.systems.engine.bodies.base import Body, Cells, StepStats, check_elastic
 from chainsim.systems.engine.bodies.xpbd import lumped_mass, tet_rest_data
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.kernels.graph import build_graph
@@ -67,12 +68,18 @@ class ProjectiveBody(Body):
     """Projective-dynamics body on tetrahedra; `dynamic=False` solves statics (no inertia term)."""
 
     model = "projective"
+    # made by _prepare for the current step, held set and solver (None: to be made again)
+    _factor: Any  # scipy's SuperLU factorisation of the free block
+    _factor_key: tuple | None
+    _dt: float | None
+    _rhs: np.ndarray | None
+    _rate: float | None  # the last steps' convergence rate
 
     def __init__(
         self,
         rest: ArrayLike,
-        tets: ArrayLike | None = None,
-        triangles: ArrayLike | None = None,
+        tets: Cells | None = None,
+        triangles: Cells | None = None,
         *,
         E: float = _D["E"],
         nu: float = _D["nu"],
@@ -205,7 +212,7 @@ class ProjectiveBody(Body):
         return self._positions
 
     @positions.setter
-    def positions(self, value: ArrayLike) -> None:
+    def positions(self, value: np.ndarray) -> None:
         self._positions = value
         if hasattr(self, "x"):
             self.x[:] = np.asarray(value) * self.unit

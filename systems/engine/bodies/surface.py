@@ -24,7 +24,7 @@ from numba import njit
 from numpy.typing import ArrayLike
 
 from chainsim.systems.engine import meshgen
-from chainsim.systems.engine.bodies.base import Body, StepStats, check_positions
+from chainsim.systems.engine.bodies.base import Body, Cells, StepStats, check_positions
 from chainsim.systems.engine.bodies.chainmail import ChainMailBody
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.kernels import topology
@@ -113,7 +113,7 @@ class SurfaceChainMailBody(Body):
     def __init__(
         self,
         rest: ArrayLike,
-        triangles: ArrayLike,
+        triangles: Cells,
         alpha_min: ArrayLike = _D["alpha_min"],
         alpha_max: ArrayLike = _D["alpha_max"],
         beta: ArrayLike = _D["beta"],

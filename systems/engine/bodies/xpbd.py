@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from chainsim.systems.engine import meshgen
-from chainsim.systems.engine.bodies.base import Body, StepStats, check_elastic
+from chainsim.systems.engine.bodies.base import Body, Cells, StepStats, check_elastic
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.kernels.graph import build_graph
 from chainsim.systems.engine.kernels.topology import cut_segment
@@ -58,12 +58,20 @@ def tet_rest_data(rest_si: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np
 
 
 def lumped_mass(
-    n: int, tets: np.ndarray | None, vol: np.ndarray | None, tris: ArrayLike, area: np.ndarray | None, density: float
+    n: int,
+    tets: np.ndarray | None,
+    vol: np.ndarray | None,
+    tris: np.ndarray | None,
+    area: np.ndarray | None,
+    density: float,
 ) -> np.ndarray:
+    """Each vertex's share of the mass of its tetrahedra (volume `vol`) or triangles (`area`)."""
     m = np.zeros(n)
     if tets is not None and len(tets):
+        assert vol is not None  # given with the tetrahedra
         np.add.at(m, tets.ravel(), np.repeat(vol * density / 4.0, 4))
     if tris is not None and len(tris):
+        assert area is not None  # given with the triangles
         np.add.at(m, tris.ravel(), np.repeat(area * density / 3.0, 3))
     m[m <= 0.0] = max(float(m.max()) if m.size else 1.0, 1e-12)  # isolated vertices get a mass too
     return m
@@ -73,12 +81,16 @@ class XPBDBody(Body):
     """XPBD body on tetrahedra (`tets`) or, without them, on surface triangles (`triangles`)."""
 
     model = "xpbd"
+    # per-solve state, made on the first step after the held set changes (_grab_changed clears _w)
+    vol: np.ndarray | None
+    _w: np.ndarray | None
+    _fixed_seen: np.ndarray
 
     def __init__(
         self,
         rest: ArrayLike,
-        tets: ArrayLike | None = None,
-        triangles: ArrayLike | None = None,
+        tets: Cells | None = None,
+        triangles: Cells | None = None,
         *,
         E: float = _D["E"],
         nu: float = _D["nu"],
@@ -207,7 +219,7 @@ class XPBDBody(Body):
         return self._positions
 
     @positions.setter
-    def positions(self, value: ArrayLike) -> None:
+    def positions(self, value: np.ndarray) -> None:
         self._positions = value
         if hasattr(self, "x"):
             self.x[:] = np.asarray(value) * self.unit
@@ -257,6 +269,7 @@ class XPBDBody(Body):
             nt = len(self.tets) if self.tets is not None else 0
             self._lam_d, self._lam_h, self._lam_p = np.zeros(nt), np.zeros(nt), np.zeros(len(self.pairs))
             self._prev = np.empty_like(self.x)
+        assert self._w is not None  # made just above when it was missing
         w, lam_d, lam_h, lam_p, prev = self._w, self._lam_d, self._lam_h, self._lam_p, self._prev
         target = self.grab_targets * self.unit
         start = self.x[self.grab_ids].copy()

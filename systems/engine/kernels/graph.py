@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+from numpy.typing import ArrayLike
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -196,7 +197,7 @@ def _check_links(n: int, links) -> np.ndarray:
     return links
 
 
-def build_graph(n: int, links: np.ndarray, alive: np.ndarray | None = None) -> Graph:
+def build_graph(n: int, links: ArrayLike, alive: np.ndarray | None = None) -> Graph:
     """CSR graph of `n` elements joined by undirected `links` (M, 2); link ids are row numbers.
 
     Within each element's row the neighbours are listed in increasing link id, so a cascade's visiting
