@@ -12,6 +12,7 @@ adds the limits of the records store.
 
 from __future__ import annotations
 
+import functools
 import re
 import string
 from typing import Any
@@ -150,28 +151,57 @@ def value_names(man: dict) -> set[str]:
     return names
 
 
+class _Tables:
+    """The needle pack's tables `problems` reads, and the sides its `{side}` names are formatted for."""
+
+    def __init__(self, man: dict) -> None:
+        self.man = man
+        self.npc = man.get("needle_procedure", {})
+        self.roles: dict = man.get("roles", {})
+        self.specs: list = man.get("landmarks", [])
+        self.steps: list = man.get("steps", [])
+        self.entities, self.points, self.planes, self.foramina = (
+            man.get(k, {}) for k in ("entities", "points", "planes", "foramina")
+        )
+        self.sides = list(self.npc.get("sides") or [])
+        self.each_side = self.sides or [""]
+
+    @functools.cached_property
+    def ids(self) -> list[str]:
+        return [sp.get("id", "") for sp in self.specs]
+
+    @functools.cached_property
+    def step_ids(self) -> list[str]:
+        return [st.get("id", "") for st in self.steps]
+
+    def expand(self, name: str) -> list[str]:
+        return [name.format(side=s) for s in self.each_side]
+
+
 def problems(man: dict) -> list[tuple[str, str]]:
     """(key path, message) for everything in a needle pack's tables that would fail a run."""
-    out: list[tuple[str, str]] = []
-    npc = man.get("needle_procedure", {})
-    roles: dict = man.get("roles", {})
-    specs: list = man.get("landmarks", [])
-    steps: list = man.get("steps", [])
-    entities, points, planes, foramina = (man.get(k, {}) for k in ("entities", "points", "planes", "foramina"))
-    sides = list(npc.get("sides") or [])
-    each_side = sides or [""]
+    t = _Tables(man)
+    out = _side_name_problems(t)
+    if out:
+        return out  # every {side} name below would only repeat these
+    for check in (_role_problems, _landmark_problems, _step_problems, _metric_problems, _ideal_path_problems):
+        out += check(t)
+    return out
 
-    # every {side} name: formatted for each side; with no sides listed, {side} has nothing to stand for
+
+def _side_name_problems(t: _Tables) -> list[tuple[str, str]]:
+    """Every {side} name formats for each side; with no sides listed, {side} has nothing to stand for."""
+    out = []
     side_names: list[tuple[str, str]] = []
-    for rname, r in roles.items():
+    for rname, r in t.roles.items():
         side_names += [(f"roles.{rname}.entities", e) for e in r.get("entities", [])]
         side_names += [(f"roles.{rname}.labels", e) for e in r.get("labels", [])]
         side_names += [(f"roles.{rname}.{k}", r[k]) for k in ("opening", "point") if r.get(k)]
-    for i, sp in enumerate(specs):
+    for i, sp in enumerate(t.specs):
         for k in ("points", "planes", "plane_through"):
             side_names += [(f"landmarks.{i}.{k}", n) for n in sp.get(k, [])]
-    if isinstance(npc.get("ideal_path"), str) and npc["ideal_path"]:
-        side_names.append(("needle_procedure.ideal_path", npc["ideal_path"]))  # the debrief formats it per side
+    if isinstance(t.npc.get("ideal_path"), str) and t.npc["ideal_path"]:
+        side_names.append(("needle_procedure.ideal_path", t.npc["ideal_path"]))  # the debrief formats it per side
     bad_names = set()
     for key, name in side_names:
         msg = format_problem(name, SIDE_VALUES, strict=True)
@@ -179,7 +209,7 @@ def problems(man: dict) -> list[tuple[str, str]]:
             out.append((key, f"'{name[:60]}' {msg}"))
             bad_names.add(name)
     uses_side = next(((k, n) for k, n in side_names if "{side}" in n and n not in bad_names), None)
-    if not sides and uses_side:
+    if not t.sides and uses_side:
         out.append(
             (
                 "needle_procedure.sides",
@@ -187,53 +217,51 @@ def problems(man: dict) -> list[tuple[str, str]]:
                 'for (e.g. sides = ["left", "right"]) or write the names without {side}',
             )
         )
-        return out  # every {side} name below would only repeat this
-    if bad_names:
-        return out
+    return out
 
-    def expand(name: str) -> list[str]:
-        return [name.format(side=s) for s in each_side]
 
-    # roles: their entities exist; the target has an opening or a point on every side
+def _role_problems(t: _Tables) -> list[tuple[str, str]]:
+    """Roles: their entities exist; the target has an opening or a point on every side."""
+    out = []
+    roles, npc = t.roles, t.npc
     for rname, r in roles.items():
         for e in r.get("entities", []):
-            missing = [x for x in expand(e) if x not in entities]
+            missing = [x for x in t.expand(e) if x not in t.entities]
             if missing:
-                known = ", ".join(sorted(entities)[:12]) or "none"
+                known = ", ".join(sorted(t.entities)[:12]) or "none"
                 out.append((f"roles.{rname}.entities", f"'{missing[0]}' is not an entity of the pack ({known})"))
                 break
     target = npc.get("target") or next((n for n, r in roles.items() if r.get("role") == "target"), "")
     if not target or target not in roles or roles[target].get("role") != "target":
         key = "needle_procedure.target" if npc.get("target") else "roles"
         out.append((key, f"needs a [roles.NAME] with role = 'target'{f', not {target!r}' if target else ''}"))
+    elif roles[target].get("opening"):
+        for key in t.expand(roles[target]["opening"]):
+            if key not in t.foramina:
+                known = ", ".join(sorted(t.foramina)) or "none"
+                out.append((f"roles.{target}.opening", f"no [foramina.{key}] (foramina: {known})"))
+                break
     else:
-        t = roles[target]
-        if t.get("opening"):
-            for key in expand(t["opening"]):
-                if key not in foramina:
-                    known = ", ".join(sorted(foramina)) or "none"
-                    out.append((f"roles.{target}.opening", f"no [foramina.{key}] (foramina: {known})"))
-                    break
-        else:
-            for key in expand(t.get("point", "")):
-                if key not in points:
-                    out.append(
-                        (f"roles.{target}", f"needs an opening ([foramina]) or a point ([points.{key or 'NAME'}])")
-                    )
-                    break
+        for key in t.expand(roles[target].get("point", "")):
+            if key not in t.points:
+                out.append((f"roles.{target}", f"needs an opening ([foramina]) or a point ([points.{key or 'NAME'}])"))
+                break
+    return out
 
-    # landmarks: ids unique, their role, entities, points and planes on every side
-    ids = [sp.get("id", "") for sp in specs]
-    if not specs:
+
+def _landmark_problems(t: _Tables) -> list[tuple[str, str]]:
+    """Landmarks: ids unique, their role, entities, points and planes on every side."""
+    out = []
+    if not t.specs:
         out.append(("landmarks", "the needle procedure needs at least one [[landmarks]] (the entry point)"))
-    for i, sp in enumerate(specs):
+    for i, sp in enumerate(t.specs):
         key = f"landmarks.{i}"
-        if ids.count(sp.get("id")) > 1:
+        if t.ids.count(sp.get("id")) > 1:
             out.append((f"{key}.id", f"duplicate landmark id '{sp.get('id')}'"))
-        if sp.get("on") not in roles:
-            out.append((f"{key}.on", f"no role '{sp.get('on')}' in [roles] (roles: {', '.join(roles) or 'none'})"))
+        if sp.get("on") not in t.roles:
+            out.append((f"{key}.on", f"no role '{sp.get('on')}' in [roles] (roles: {', '.join(t.roles) or 'none'})"))
         for k in ("marker", "plane_entity"):
-            if sp.get(k) and sp[k] not in entities:
+            if sp.get(k) and sp[k] not in t.entities:
                 out.append((f"{key}.{k}", f"no entity named '{sp[k]}'"))
         if sp.get("plane_entity"):  # the plane's box is turned to face plane_normal with plane_up up
             n, up = (np.asarray(sp.get(k, (0.0, 0.0, 0.0)), dtype=np.float64) for k in ("plane_normal", "plane_up"))
@@ -241,59 +269,70 @@ def problems(man: dict) -> list[tuple[str, str]]:
                 out.append((f"{key}.plane_normal", "must not be zero (the plane entity is turned to face it)"))
             elif np.linalg.norm(np.cross(n, up)) < 1e-9 * np.linalg.norm(n) * max(np.linalg.norm(up), 1.0):
                 out.append((f"{key}.plane_up", "must not be zero nor parallel to plane_normal"))
-        for s in each_side:
-            names = [n.format(side=s) for n in sp.get("points", [])]
-            if names and not any(n in points for n in names):
-                out.append((f"{key}.points", f"none of {', '.join(names[:3])} is in [points]"))
-                break
-            through = [n.format(side=s) for n in sp.get("plane_through", [])]
-            if through and not any(n.format(side=s) in planes for n in sp.get("planes", [])):
-                msg = _plane_through_problem(points, through)
-                if msg:
-                    out.append((f"{key}.plane_through", msg))
-                    break
+        out += _landmark_side_problems(t, key, sp)
         for n in sp.get("planes", []):
-            for name in expand(n):
-                if name in planes and np.linalg.norm(planes[name].get("normal", [0, 0, 0])) < 1e-12:
+            for name in t.expand(n):
+                if name in t.planes and np.linalg.norm(t.planes[name].get("normal", [0, 0, 0])) < 1e-12:
                     out.append((f"planes.{name}.normal", "must not be zero"))
     for k in ("entry", "side_from"):
-        if npc.get(k) and npc[k] not in ids:
-            out.append((f"needle_procedure.{k}", f"'{npc[k]}' is not a landmark id ({', '.join(ids) or 'none'})"))
+        if t.npc.get(k) and t.npc[k] not in t.ids:
+            out.append((f"needle_procedure.{k}", f"'{t.npc[k]}' is not a landmark id ({', '.join(t.ids) or 'none'})"))
+    return out
 
-    # steps, events and the steps the procedure goes back to
-    step_ids = [st.get("id", "") for st in steps]
+
+def _landmark_side_problems(t: _Tables, key: str, sp: dict) -> list[tuple[str, str]]:
+    """A landmark's points, or the points its plane goes through, on every side (the first side that
+    fails is named)."""
+    for s in t.each_side:
+        names = [n.format(side=s) for n in sp.get("points", [])]
+        if names and not any(n in t.points for n in names):
+            return [(f"{key}.points", f"none of {', '.join(names[:3])} is in [points]")]
+        through = [n.format(side=s) for n in sp.get("plane_through", [])]
+        if through and not any(n.format(side=s) in t.planes for n in sp.get("planes", [])):
+            msg = _plane_through_problem(t.points, through)
+            if msg:
+                return [(f"{key}.plane_through", msg)]
+    return []
+
+
+def _step_problems(t: _Tables) -> list[tuple[str, str]]:
+    """Steps, their events and the steps the procedure goes back to; feedback: its event, and its
+    message formatted with the values that event gives; the aids the procedure reads."""
+    out = []
+    npc, ids, step_ids = t.npc, t.ids, t.step_ids
     for k in ("reset_step", "reset_all_step"):
         if npc.get(k) and npc[k] not in step_ids:
             out.append((f"needle_procedure.{k}", f"'{npc[k]}' is not a step id ({', '.join(step_ids) or 'none'})"))
-    for i, st in enumerate(steps):
+    for i, st in enumerate(t.steps):
         if st.get("landmark") and st["landmark"] not in ids:
             out.append((f"steps.{i}.landmark", f"'{st['landmark']}' is not a landmark id ({', '.join(ids) or 'none'})"))
         for ev in st.get("done_on", []):
-            msg = event_problem(ev, roles, ids)
+            msg = event_problem(ev, t.roles, ids)
             if msg:
                 out.append((f"steps.{i}.done_on", msg))
                 break
-
-    # feedback: its event, and its message formatted with the values that event gives
-    for i, fb in enumerate(man.get("feedback", [])):
+    for i, fb in enumerate(t.man.get("feedback", [])):
         ev = fb.get("on", "")
-        msg = event_problem(ev, roles, ids)
+        msg = event_problem(ev, t.roles, ids)
         if msg:
             out.append((f"feedback.{i}.on", msg))
             continue
         msg = format_problem(fb.get("message", ""), event_values(ev))
         if msg:
             out.append((f"feedback.{i}.message", msg))
-
-    # aids and lights the procedure reads
     aids = list(npc.get("aids", []))
     for k in ("signals_aid", "planes_aid"):
         if npc.get(k) and npc[k] not in aids:
             out.append((f"needle_procedure.{k}", f"'{npc[k]}' is not one of the aids ({', '.join(aids) or 'none'})"))
+    return out
 
-    # metrics: what each measures resolves
-    names = value_names(man)
-    for mname, m in man.get("metrics", {}).items():
+
+def _metric_problems(t: _Tables) -> list[tuple[str, str]]:
+    """Metrics: what each measures resolves, and a critical value says what the error is."""
+    out = []
+    names = value_names(t.man)
+    roles, step_ids = t.roles, t.step_ids
+    for mname, m in t.man.get("metrics", {}).items():
         measure = m.get("measure", "")
         if measure == "step_time" and m.get("step") not in step_ids:
             out.append(
@@ -312,19 +351,23 @@ def problems(man: dict) -> list[tuple[str, str]]:
         # a critical error the debrief could not name would fail an attempt without saying why
         if m.get("critical") is not None and not m.get("critical_note"):
             out.append((f"metrics.{mname}.critical_note", "a critical value needs a critical_note: the error in words"))
-    # the debrief draws the ideal path on every side the trainee may work on
-    ideal = npc.get("ideal_path", "")
-    if ideal:
-        paths = man.get("paths", {})
-        for side in list(npc.get("sides") or []) or [""]:
-            if ideal.format(side=side) not in paths:
-                out.append(
-                    (
-                        "needle_procedure.ideal_path",
-                        f"no [paths.{ideal.format(side=side)}] (side '{side}'); known: {', '.join(paths) or 'none'}",
-                    )
-                )
     return out
+
+
+def _ideal_path_problems(t: _Tables) -> list[tuple[str, str]]:
+    """The debrief draws the ideal path on every side the trainee may work on."""
+    ideal = t.npc.get("ideal_path", "")
+    if not ideal:
+        return []
+    paths = t.man.get("paths", {})
+    return [
+        (
+            "needle_procedure.ideal_path",
+            f"no [paths.{ideal.format(side=side)}] (side '{side}'); known: {', '.join(paths) or 'none'}",
+        )
+        for side in t.each_side
+        if ideal.format(side=side) not in paths
+    ]
 
 
 def hit_entities(man: dict) -> list[tuple[str, str]]:
