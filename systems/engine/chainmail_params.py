@@ -1,17 +1,14 @@
-"""ChainMail parameters shared by every front end: order names and the material-limit checks (thesis 5.2.2)."""
+"""ChainMail parameters shared by every front end: order names and the material-limit checks (thesis 5.2.2),
+from their declaration in chainsim.systems.engine.model_params."""
 
 from __future__ import annotations
 
 import math
 
 from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.model_params import ORDER_ALIASES, ORDER_CHOICES, ORDERS, params
 
-#: waiting-list orders by name, in the kernels' code order (chainsim.systems.engine.kernels.chainmail ORDER_*)
-ORDERS = ("breadth-first", "balanced", "schill", "depth-first")
-#: older names still accepted wherever an order is named
-ORDER_ALIASES = {"fifo": "breadth-first"}
-#: every name a user may give: the orders, then their aliases
-ORDER_CHOICES = ORDERS + tuple(ORDER_ALIASES)
+__all__ = ["ORDERS", "ORDER_ALIASES", "ORDER_CHOICES", "order_name", "order_code", "check_finite", "check_material"]
 
 
 def order_name(name: str) -> str:
@@ -33,13 +30,8 @@ def check_finite(name: str, v: float) -> None:
 
 
 def check_material(alpha_min: float, alpha_max: float, beta: float, prefix: str = "--") -> None:
-    """alpha_min in [0, 1], alpha_max >= 1, beta >= 0, all finite; `prefix` names them as the user wrote them."""
-    names = (f"{prefix}alpha-min", f"{prefix}alpha-max", f"{prefix}beta")
-    for name, v in zip(names, (alpha_min, alpha_max, beta)):
-        check_finite(name, v)
-    if not 0.0 <= alpha_min <= 1.0:
-        raise UserError(f"{names[0]}: must be in [0, 1], got {alpha_min:g}")
-    if alpha_max < 1.0:
-        raise UserError(f"{names[1]}: must be >= 1, got {alpha_max:g}")
-    if beta < 0.0:
-        raise UserError(f"{names[2]}: must be >= 0, got {beta:g}")
+    """alpha_min in [0, 1], alpha_max >= 1, beta >= 0, all finite (their declaration in model_params);
+    `prefix` names them as the user wrote them."""
+    decl = params("chainmail")
+    for key, v in (("alpha_min", alpha_min), ("alpha_max", alpha_max), ("beta", beta)):
+        decl[key].check(v, label=f"{prefix}{key.replace('_', '-')}")

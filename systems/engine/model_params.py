@@ -18,10 +18,15 @@ from typing import Any
 import numpy as np
 
 from chainsim.systems.engine import limits
-from chainsim.systems.engine.chainmail_params import ORDER_CHOICES
 from chainsim.systems.engine.errors import UserError
 
 KINDS = ("float", "int", "bool", "enum")
+#: ChainMail's waiting-list orders by name, in the kernels' code order (kernels.chainmail ORDER_*)
+ORDERS = ("breadth-first", "balanced", "schill", "depth-first")
+#: older names still accepted wherever an order is named
+ORDER_ALIASES = {"fifo": "breadth-first"}
+#: every name a user may give: the orders, then their aliases
+ORDER_CHOICES = ORDERS + tuple(ORDER_ALIASES)
 _SAME = object()  # pack_default not given: the pack's default is the body's
 
 
@@ -53,9 +58,10 @@ class Param:
             return f"<= {self.max:g}"
         return ""
 
-    def check(self, value: Any, where: str = "") -> None:
-        """UserError naming `where`+name unless `value` is of this kind and within range."""
-        name = f"{where}{self.name}"
+    def check(self, value: Any, where: str = "", label: str = "") -> None:
+        """UserError naming `where`+name (or `label`, the name as the user wrote it) unless `value` is of
+        this kind and within range."""
+        name = label or f"{where}{self.name}"
         if self.auto and value == "auto":
             return
         if self.kind == "enum":
@@ -247,6 +253,22 @@ MODEL_HELP = {
     "hybrid": "Static projective dynamics with a linear start, a coarse correction and sleeping (tetrahedra only).",
     "surface": "SurfaceChainMail on a triangle sheet (thesis 4.4); limits may be given per link.",
 }
+#: where a pack sets each model's parameters: a [materials] entry or the entity's `deformable` table (the
+#: others keep the body's default in a pack, or take an `auto` row's value)
+_VOLUME_KEYS = ("E", "nu", "density", "damping", "iterations", "unit", "thickness")
+PACK_TABLE: dict[str, dict[str, str]] = {
+    "chainmail": {
+        **dict.fromkeys(("alpha_min", "alpha_max", "beta", "relax", "exact"), "materials"),
+        **dict.fromkeys(("order", "relax_step", "depth", "dtype"), "deformable"),
+    },
+    "xpbd": dict.fromkeys((*_VOLUME_KEYS, "substeps"), "deformable"),
+    "projective": dict.fromkeys((*_VOLUME_KEYS, "solver", "cg_iterations", "rotation_iterations"), "deformable"),
+    "hybrid": dict.fromkeys(("E", "nu", "density", "iterations", "unit"), "deformable"),
+    "surface": {
+        **dict.fromkeys(("alpha_min", "alpha_max", "beta", "relax", "exact"), "materials"),
+        "order": "deformable",
+    },
+}
 #: ChainMail limits that may be arrays of one value per link
 PER_LINK = ("alpha_min", "alpha_max", "beta")
 
@@ -319,13 +341,16 @@ def markdown() -> str:
     out = []
     for model, ps in MODEL_PARAMS.items():
         out += [f"### `{model}`", "", MODEL_HELP[model], ""]
-        out += ["| parameter | type | default (body) | default (pack) | range | units | meaning |"]
+        out += ["| parameter | type | range | units | default | in a pack (default there) | meaning |"]
         out += ["|---|---|---|---|---|---|---|"]
         for p in ps:
             kind = p.kind + (f" ({', '.join(p.choices)})" if p.choices else "")
+            table = PACK_TABLE[model].get(p.name)
+            pack = f"`[materials]` ({_fmt(p.manifest_default)})" if table == "materials" else "no"
+            if table == "deformable":
+                pack = f"`deformable` ({_fmt(p.manifest_default)})"
             out.append(
-                f"| `{p.name}` | {kind} | {_fmt(p.default)} | {_fmt(p.manifest_default)} | {p.range_text()} "
-                f"| {p.units} | {p.help} |"
+                f"| `{p.name}` | {kind} | {p.range_text()} | {p.units} | {_fmt(p.default)} | {pack} | {p.help} |"
             )
         out.append("")
     return "\n".join(out)

@@ -1,7 +1,10 @@
-"""`chainsim docs components|limits`: the modder reference and the limits, generated from the code.
+"""`chainsim docs components|limits|models`: the modder reference, the limits and the models' parameters,
+generated from the code.
 
 `components` is every manifest section and component, from the one registry; `limits` is every
-limit on user input, from chainsim.systems.engine.limits (the text of docs/limits.md).
+limit on user input, from chainsim.systems.engine.limits (the text of docs/limits.md); `models` is every
+deformation model's parameters, from their one declaration in chainsim.systems.engine.model_params (the
+tables of docs/choosing-a-model.md).
 """
 
 from __future__ import annotations
@@ -11,15 +14,18 @@ import numpy as np
 import chainsim.game.packs.schema  # noqa: F401  (importing it registers the manifest sections)
 from chainsim.components.registry import COMPONENTS, KINDS, REQUIRED, SECTION_STYLE, SECTIONS, load_all
 from chainsim.systems import manifest_modules
-from chainsim.systems.engine import limits
+from chainsim.systems.engine import limits, model_params
 
 NAME = "docs"
-HELP = "print reference documentation (components: every manifest key; limits: every input limit)"
+HELP = (
+    "print reference documentation (components: every manifest key; limits: every input limit; "
+    "models: every deformation model's parameters)"
+)
 
 
 def add_parser(sub):
     p = sub.add_parser(NAME, help=HELP)
-    p.add_argument("topic", choices=["components", "limits"], help="what to print")
+    p.add_argument("topic", choices=["components", "limits", "models"], help="what to print")
     return p
 
 
@@ -82,6 +88,9 @@ def render_reference() -> str:
 def run(args) -> int:
     if args.topic == "limits":
         print(limits.markdown(), end="")
+        return 0
+    if args.topic == "models":
+        print(model_params.markdown(), end="")
         return 0
     print(render_reference())
     return 0
