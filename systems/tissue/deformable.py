@@ -20,6 +20,7 @@ widget event), the element is dragged along a path of waypoints at a constant sp
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import esper
 import numpy as np
@@ -34,7 +35,8 @@ from chainsim.systems.engine.bodies.factory import choose_model, load_table, mak
 from chainsim.systems.engine.chainmail_params import ORDER_CHOICES, order_name
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.kernels.chainmail import make_workspace
-from chainsim.systems.engine.kernels.graph import build_graph
+from chainsim.systems.engine.kernels.graph import Graph, build_graph
+from chainsim.systems.engine.meshes import MeshData
 from chainsim.systems.engine.model_params import manifest_spec
 
 ORDERS = ORDER_CHOICES  # breadth-first, balanced, schill, depth-first; fifo = breadth-first
@@ -178,29 +180,30 @@ class Deformable:
     alive: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.bool_))
     held: np.ndarray = field(default_factory=_empty_ids)
     rest: np.ndarray = _nodigest(lambda: np.zeros((0, 3)))
-    graph: object = field(default=None, metadata={"digest": False})
+    graph: Graph | None = field(default=None, metadata={"digest": False})  # set at spawn (setup_deformable)
     amin: np.ndarray = _nodigest(lambda: np.zeros(0))
     amax: np.ndarray = _nodigest(lambda: np.zeros(0))
     beta_l: np.ndarray = _nodigest(lambda: np.zeros(0))
     # the resolved material and (box, material) regions the per-link limits come from
-    material_spec: object = field(default=None, metadata={"digest": False})
+    material_spec: tuple | None = field(default=None, metadata={"digest": False})
     fixed_mask: np.ndarray = _nodigest(lambda: np.zeros(0, dtype=np.bool_))
     relax_iterations: int = field(default=0, metadata={"digest": False})
     exact_limits: bool = field(default=False, metadata={"digest": False})  # the material's `exact`
     last_shortfall: float = field(default=0.0, metadata={"digest": False})  # of the last grab (exact only)
     workspace: object = field(default=None, metadata={"digest": False})
     dirty: np.ndarray = _nodigest(_empty_ids)
-    body: object = field(default=None, metadata={"digest": False})  # the ChainMail, XPBD or projective body
+    # the ChainMail, XPBD, projective, hybrid or SurfaceChainMail body: each model's path uses its own API
+    body: Any = field(default=None, metadata={"digest": False})
     chainmail_links: np.ndarray = _nodigest(lambda: np.zeros((0, 2), dtype=np.int64))
     model_used: str = field(default="chainmail", metadata={"digest": False})
     model_reason: str = field(default="", metadata={"digest": False})
-    mesh_data: object = field(default=None, metadata={"digest": False})  # to rebuild on a model switch
+    mesh_data: MeshData | None = field(default=None, metadata={"digest": False})  # to rebuild on a model switch
     held_targets: np.ndarray = _nodigest(lambda: np.zeros((0, 3)))
     transient: np.ndarray = _nodigest(_empty_ids)  # grabbed for one step only (a GrabRequest without hold)
     last_order: np.ndarray = _nodigest(_empty_ids)
     last_sponsor: np.ndarray = _nodigest(_empty_ids)
     _dirty_mask: np.ndarray = _nodigest(lambda: np.zeros(0, dtype=np.bool_))
-    _dirty_seen: object = field(default=None, metadata={"digest": False})
+    _dirty_seen: np.ndarray | None = field(default=None, metadata={"digest": False})
 
     @property
     def n_elements(self) -> int:
@@ -321,7 +324,7 @@ def setup_deformable(
 
     mat = resolve_material(d, materials, mesh_material, where)
     dtype = np.float32 if d.dtype == "float32" else np.float64
-    verts = np.ascontiguousarray(mesh.vertices, dtype=dtype)
+    verts: np.ndarray = np.ascontiguousarray(mesh.vertices, dtype=dtype)
     n = len(verts)
     links = body_links(mesh, d.source, where)
     graph = build_graph(n, links)
@@ -382,6 +385,7 @@ def chainmail_body(d: Deformable, fresh: bool = True) -> ChainMailBody:
         exact=d.exact_limits,
         dtype=d.dtype,
     )
+    assert isinstance(body, ChainMailBody)
     mirror_chainmail(d, body)
     return body
 
@@ -402,6 +406,7 @@ def surface_limits(d: Deformable, triangles: np.ndarray) -> tuple[np.ndarray, np
     links = meshgen.links_from_cells(np.asarray(triangles, dtype=np.int64))
     if len(d.amin) == len(links) and np.array_equal(links, d.chainmail_links):
         return d.amin, d.amax, d.beta_l
+    assert d.material_spec is not None  # set at spawn (setup_deformable)
     return link_limits(links, d.rest, d.material_spec)
 
 
@@ -444,9 +449,10 @@ def use_model(d: Deformable, model: str, where: str = "deformable", initial: boo
             d.relax_iterations = int(row.get("relax", d.relax_iterations))
         d.body = chainmail_body(d, fresh=not initial)
     else:
+        assert mesh is not None  # set at spawn (setup_deformable): the other models are built from it
         d.pos = d.rest.copy()
         d.held = _empty_ids()
-        settings = {
+        settings: dict[str, Any] = {
             "E": d.E,
             "nu": d.nu,
             "density": d.density,

@@ -19,12 +19,14 @@ of rigid bodies gets no deformation system at all.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import esper
 import numpy as np
 
 from chainsim.components.app import App
 from chainsim.components.core import MeshRef, Name, Simulation, Transform
+from chainsim.components.events import EventReader
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import EntityIndex, PackResource
@@ -52,8 +54,8 @@ ORDER_PULL = ORDER_DEFORMATION - 10
 class DeformationState:
     """Event cursors of the deformation systems, and counters for summaries."""
 
-    requests: object = None  # one cursor over all events, so requests are served in emission order
-    widgets: object = None
+    requests: EventReader[Any]  # one cursor over all events, so requests are served in emission order
+    widgets: EventReader[Widget]
     drag_type: type | None = None  # view_events.Dragged, when the view system is part of the build
     dragging: dict = field(default_factory=dict)  # entity -> (element, its local start, world grab point)
     cascades: int = 0
@@ -172,6 +174,7 @@ def cut(d: Deformable, ent: int, req: CutRequest) -> int:
     before = int(np.count_nonzero(d.alive))
     if _dynamic(d):
         return _cut_body(d, ent, req)
+    assert d.graph is not None  # the ChainMail links, set at spawn
     if req.polyline is not None:
         pts = _to_local(ent, as_points(req.polyline, "CutRequest.polyline"), req.frame)
         if len(pts) < 2:
@@ -245,6 +248,7 @@ def reset(d: Deformable) -> int:
         return moved
     d.body.reset()
     d.held = d.body.held
+    assert d.graph is not None  # the ChainMail links, set at spawn
     d.alive = d.graph.alive
     d.mark_dirty(np.arange(d.n_elements))
     d.version += 1
@@ -333,7 +337,7 @@ def switch_models(app: App, st: DeformationState, value: str) -> None:
 def _serve(app: App, st: DeformationState, req, counts: dict) -> None:
     ent = _entity(app, req.entity)
     d = esper.try_component(ent, Deformable) if ent is not None and esper.entity_exists(ent) else None
-    if d is None:
+    if ent is None or d is None:
         st.errors.append(f"{type(req).__name__}: no deformable entity {req.entity!r}")
         return
     c = counts.setdefault(ent, [0, 0, 0])
@@ -379,7 +383,7 @@ def _drag_requests(st: DeformationState, ev) -> list:
         return []
     v, start, grab_point = st.dragging[ent]
     target = start + (np.asarray(ev.point, dtype=np.float64) - grab_point)
-    out = [GrabRequest(ent, np.array([v]), target[None, :], frame="world")]
+    out: list[GrabRequest | ReleaseRequest] = [GrabRequest(ent, np.array([v]), target[None, :], frame="world")]
     if ev.phase == "end":
         out.append(ReleaseRequest(ent, np.array([v])))
         del st.dragging[ent]

@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.kernels.graph import Graph
 
 #: the most elements a single grab may hold (bounds memory and per-step cost of attachments)
 MAX_GRAB = 1_000_000
@@ -89,6 +90,7 @@ class Body:
     """
 
     model = "body"
+    graph: Graph  # every model builds one: the links a blade can cut
 
     def __init__(self, rest: ArrayLike, fixed: ArrayLike | None = None) -> None:
         self.rest = check_positions("rest positions", rest).copy()

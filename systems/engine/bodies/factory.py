@@ -25,6 +25,7 @@ from chainsim.systems.engine.bodies.projective import ProjectiveBody
 from chainsim.systems.engine.bodies.surface import SurfaceChainMailBody
 from chainsim.systems.engine.bodies.xpbd import XPBDBody
 from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.kernels.graph import Graph
 
 MODELS = model_params.MODELS
 
@@ -36,7 +37,7 @@ def make_body(
     tets: Cells | None = None,
     triangles: Cells | None = None,
     fixed: ArrayLike | None = None,
-    links: Cells | None = None,
+    links: Cells | Graph | None = None,
     **settings: object,
 ) -> Body:
     """A body of `model` on `tets` (or surface `triangles`). `settings` are any of the model's parameters
