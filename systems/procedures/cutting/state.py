@@ -10,9 +10,13 @@ import numpy as np
 
 from chainsim.components.app import App
 from chainsim.components.core import MeshRef, Transform, to_world
+from chainsim.components.events import EventReader
+from chainsim.components.input_events import MouseMove, Scroll, Widget
 from chainsim.components.resources import PackResource
+from chainsim.components.view_events import Dragged, Picked
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.tissue.deformable import Deformable
+from chainsim.systems.tissue.events import Deformed
 
 TOOLS = ("forceps", "scissors")
 MOVED_MM = 0.01  # an element this far from rest counts as displaced
@@ -70,20 +74,20 @@ class CuttingState:
     cut_length: float = 0.0  # mm since the last reset
     wireframe: bool = False
     resets: int = 0
-    uses: list = field(default_factory=list)  # ToolUse, in order
+    uses: list[ToolUse] = field(default_factory=list)  # in order
     open_use: ToolUse | None = None
     path_entity: int = -1  # runtime entity drawing the current cut path
     pending_view: str = ""  # tool whose best view is still to be applied
     drag_origin: tuple | None = None  # (tip, grab point) at the start of a forceps drag
     hover: np.ndarray | None = None  # world point of the tissue under the cursor (the idle tool sits there)
-    # readers (made at build time so no event is missed)
-    widgets: object = None
-    picks: object = None
-    drags: object = None
-    scrolls: object = None
-    moves: object = None
-    deformed: object = None
-    tool_widgets: object = None
+    # readers (made at build time, by the plugin, so no event is missed)
+    widgets: EventReader[Widget] = field(init=False)
+    picks: EventReader[Picked] = field(init=False)
+    drags: EventReader[Dragged] = field(init=False)
+    scrolls: EventReader[Scroll] = field(init=False)
+    moves: EventReader[MouseMove] = field(init=False)
+    deformed: EventReader[Deformed] = field(init=False)
+    tool_widgets: EventReader[Widget] = field(init=False)
     # cached assessment per layer: entity -> (version, alive count, values)
     cache: dict = field(default_factory=dict)
 
@@ -136,6 +140,7 @@ def parse_point(value, where: str) -> np.ndarray:
 
 def link_stretch(d: Deformable) -> float:
     """Largest current / rest length over the live links of a body (1.0 when nothing is stretched)."""
+    assert d.graph is not None  # set at spawn
     links = d.graph.links[d.alive]
     if len(links) == 0:
         return 1.0

@@ -25,6 +25,7 @@ import numpy as np
 
 from chainsim.components.app import App
 from chainsim.components.core import Marker, Name, PolyLine, Transform, to_world
+from chainsim.components.events import EventReader
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import EntityIndex, PackResource
@@ -53,8 +54,9 @@ class DemoState:
     marks: dict = field(default_factory=dict)  # pulled entity -> marker entity
     steps_done: list = field(default_factory=list)
     resets: int = 0
-    widgets: object = None
-    drags: object = None
+    # readers (made at build time, by the plugin, so no event is missed)
+    widgets: EventReader[Widget] = field(init=False)
+    drags: EventReader[Dragged] = field(init=False)
 
 
 def _world(ent: int, points) -> np.ndarray:

@@ -414,10 +414,10 @@ class DebriefDrawing:
             m.visible = p is not None
             if p is not None:
                 esper.component_for_entity(mark, Transform).position = np.asarray(p, float)
-            lines.append((off, None if p is None else [v["landmarks"][k], p]))
+            lines.append((off, None if p is None or v is None else [v["landmarks"][k], p]))
         for ent, pts in lines:
             pl = esper.component_for_entity(ent, PolyLine)
-            pl.visible = bool(pts) and len(pts) >= 2
+            pl.visible = pts is not None and len(pts) >= 2
             if pl.visible:
                 pl.points = np.asarray(pts, float).reshape(-1, 3)
 

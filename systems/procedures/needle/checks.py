@@ -73,7 +73,7 @@ def format_problem(text: str, values: list[dict[str, Any]], strict: bool = False
     given = ", ".join("{" + k + "}" for k in allowed) or "none"
     try:
         for name in _fields(text):
-            root = re.match(r"[^.\[]*", name).group()
+            root = re.split(r"[.\[]", name, maxsplit=1)[0]
             if name != root:
                 return f"'{{{name}}}': a field is a plain name, without . or [ ] (fields: {given})"
             if root not in allowed:
@@ -267,7 +267,7 @@ def _landmark_problems(t: _Tables) -> list[tuple[str, str]]:
             n, up = (np.asarray(sp.get(k, (0.0, 0.0, 0.0)), dtype=np.float64) for k in ("plane_normal", "plane_up"))
             if np.linalg.norm(n) < 1e-9:
                 out.append((f"{key}.plane_normal", "must not be zero (the plane entity is turned to face it)"))
-            elif np.linalg.norm(np.cross(n, up)) < 1e-9 * np.linalg.norm(n) * max(np.linalg.norm(up), 1.0):
+            elif np.linalg.norm(np.cross(n, up)) < 1e-9 * np.linalg.norm(n) * max(float(np.linalg.norm(up)), 1.0):
                 out.append((f"{key}.plane_up", "must not be zero nor parallel to plane_normal"))
         out += _landmark_side_problems(t, key, sp)
         for n in sp.get("planes", []):

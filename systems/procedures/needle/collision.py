@@ -91,6 +91,11 @@ class NeedleHit:
     role: str = ""
 
 
+def _xyz(p) -> tuple[float, float, float]:
+    """A point as the three plain floats NeedleHit carries."""
+    return (float(p[0]), float(p[1]), float(p[2]))
+
+
 def collision_system(app: App) -> None:
 
     obs: NeedleObstacles = app.resource(NeedleObstacles)
@@ -113,11 +118,7 @@ def collision_system(app: App) -> None:
                 point = st.entry + wdepth * d
                 st.contacts[_role_name(scene, wname, side)] = st.contacts.get(_role_name(scene, wname, side), 0) + 1
                 dist = float(np.linalg.norm(point - target.centre))
-                app.events.emit(
-                    NeedleHit(
-                        wname, tuple(float(c) for c in point), dist, float(wdepth), _role_name(scene, wname, side)
-                    )
-                )
+                app.events.emit(NeedleHit(wname, _xyz(point), dist, float(wdepth), _role_name(scene, wname, side)))
         if not name:
             continue
         hit_depth = t * st.depth
@@ -142,7 +143,7 @@ def collision_system(app: App) -> None:
         st.prev_depth = stop
         apply_pose(app, ent, needle, st)
         sync_widgets(app, st)  # the depth slider shows where the needle is going after the contact
-        app.events.emit(NeedleHit(name, tuple(float(c) for c in point), dist, float(hit_depth), rname))
+        app.events.emit(NeedleHit(name, _xyz(point), dist, float(hit_depth), rname))
 
 
 def _role_name(scene: NeedleScene, entity: str, side: str) -> str:

@@ -407,7 +407,7 @@ def scene_from_pack(pack) -> NeedleScene:
     tspec = pack.section("roles")[target_role]
     targets: dict[str, Target] = {}
     for s in sides:
-        ents = tuple(e.format(side=s) for e in tspec.get("entities", []))
+        target_ents = tuple(e.format(side=s) for e in tspec.get("entities", []))
         if tspec.get("opening"):
             key = tspec["opening"].format(side=s)
             fo = foramina.get(key)
@@ -415,7 +415,7 @@ def scene_from_pack(pack) -> NeedleScene:
                 raise UserError(f"{where}: [roles.{target_role}] opening needs [foramina.{key}] (centre, radius_mm)")
             ax = np.asarray(fo["axis"], dtype=np.float64)
             ax = ax / np.linalg.norm(ax) if np.linalg.norm(ax) > 1e-12 else np.array([0.0, 0.0, 1.0])
-            targets[s] = Target(ents, np.asarray(fo["centre"], dtype=np.float64), float(fo["radius_mm"]), ax)
+            targets[s] = Target(target_ents, np.asarray(fo["centre"], dtype=np.float64), float(fo["radius_mm"]), ax)
         else:
             key = tspec.get("point", "").format(side=s)
             if key not in points:
@@ -424,7 +424,7 @@ def scene_from_pack(pack) -> NeedleScene:
                     f"or a point ([points.{key or 'NAME'}])"
                 )
             c = np.asarray(points[key]["position"], dtype=np.float64)
-            targets[s] = Target(ents, c, float(tspec.get("radius_mm", 0.0)), np.array([0.0, 0.0, 1.0]))
+            targets[s] = Target(target_ents, c, float(tspec.get("radius_mm", 0.0)), np.array([0.0, 0.0, 1.0]))
     specs = list(pack.section("landmarks"))
     ids = tuple(sp["id"] for sp in specs)
     if len(set(ids)) != len(ids):
