@@ -38,8 +38,7 @@ many frames). A piece that nothing holds (cut free) keeps its place: statics giv
 
 Sleeping (`sleep` > 0): only awake nodes are solved; sleepers are held where they are. A grab wakes the
 held nodes and `wake_rings` rings around them; after each frame the sleepers next to an awake node that
-moved more than `sleep` times the displacement scale wake (with `wake_rings` rings, doubled at each
-further wake so that a spreading disturbance costs few set-ups), so the awake region
+moved more than `sleep` times the displacement scale wake (with `wake_rings` rings), so the awake region
 follows the disturbance outwards; with nothing grabbed and every change below the threshold, the body
 falls asleep. The cost of a frame is then that of the awake region, not of the body.
 """
@@ -52,7 +51,6 @@ import time
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
-from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 
 from chainsim.systems.engine import meshgen
@@ -61,7 +59,15 @@ from chainsim.systems.engine.bodies.chainmail import ChainMailBody
 from chainsim.systems.engine.bodies.projective import ProjectiveBody
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.kernels.projective import pcg3, spmv3
-from chainsim.systems.engine.kernels.twolevel import local_forces, tet_stiffness, trilinear_weights, wake_front
+from chainsim.systems.engine.kernels.twolevel import (
+    assemble_tets,
+    local_forces,
+    tet_components,
+    tet_pattern,
+    tet_stiffness,
+    trilinear_weights,
+    wake_front,
+)
 from chainsim.systems.engine.model_params import HYBRID_STARTS, defaults
 
 STARTS = HYBRID_STARTS
@@ -71,7 +77,7 @@ _D = defaults("hybrid")
 CACHE = 4
 
 
-MAX_RINGS = 64  # the most rings one wake adds
+MARGIN_RINGS = 12  # rings of elements assembled beyond the awake region (sleeping bodies)
 
 
 class HybridBody(ProjectiveBody):
@@ -126,7 +132,6 @@ class HybridBody(ProjectiveBody):
         if not (1 <= int(wake_rings) <= 1000):
             raise UserError(f"wake_rings: expected 1..1000, got {wake_rings}")
         self.coarse, self.start, self.sleep, self.wake_rings = float(coarse), start, float(sleep), int(wake_rings)
-        self._rings = self.wake_rings
         self._released = False
         self.coarse_off = False  # set once the coarse step stopped converging (see _solve)
         self._fnorm = 0.0
@@ -147,6 +152,7 @@ class HybridBody(ProjectiveBody):
         self.awake = np.ones(self.n, dtype=np.bool_) if not self.sleep else np.zeros(self.n, dtype=np.bool_)
         self._setups: dict = {}
         self._matrices: tuple | None = None
+        self._floating_cache: tuple | None = None
         self._setup: dict | None = None  # the solve's set-up for the current held and awake set
         self._last_targets: np.ndarray | None = None
         self._sleep_scale = 0.0
@@ -171,23 +177,21 @@ class HybridBody(ProjectiveBody):
         """Nodes of pieces (connected through live elements) that nothing holds: a piece cut free, or a
         body let go with no fixed node. Statics gives such a piece no unique place (it may move rigidly
         at no cost, so its matrices are singular): it keeps where it is."""
-        t = self.tets[self.active]
-        if not len(t):
-            return np.ones(self.n, dtype=np.bool_)
-        rows = np.repeat(t, 4, axis=1).ravel()
-        cols = np.tile(t, (1, 4)).ravel()
-        adj = sp.csr_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(self.n, self.n))
-        _, label = connected_components(adj, directed=False)
-        anchored = np.zeros(label.max() + 1, dtype=np.bool_)
+        key = (held.tobytes(), self.active.tobytes())
+        if self._floating_cache is not None and self._floating_cache[0] == key:
+            return self._floating_cache[1]  # a drag keeps its held set: the pieces are those of last frame
+        label = tet_components(self.n, self.tets, self.active)
+        anchored = np.zeros(self.n, dtype=np.bool_)
         anchored[label[held]] = True
-        return ~anchored[label]
+        self._floating_cache = (key, ~anchored[label])
+        return self._floating_cache[1]
 
     def _assembled(self, touch: np.ndarray) -> tuple[sp.csr_matrix, sp.csr_matrix]:
         """Projective dynamics' global matrix L (n x n, one per axis) and the rest stiffness K (3n x 3n),
         assembled from the live elements around the awake region with a margin, so the rows of every
         solved node are whole. Assembled again only when elements are cut or the awake region outgrows
-        the margin (which grows with the wake rings): a spreading disturbance costs a few assemblies,
-        and a body that sleeps never assembles the elements far from the tool."""
+        the margin: a spreading disturbance costs an assembly every few wakes, and a body that sleeps
+        never assembles the elements far from the tool."""
         key = self.active.tobytes()
         m = self._matrices
         if m is not None and m[0] == key and not np.any(touch & ~m[3]):
@@ -195,22 +199,18 @@ class HybridBody(ProjectiveBody):
         if self.sleep:
             near = self.awake.copy()
             rows = np.repeat(np.arange(self.n), np.diff(self.graph.indptr))
-            for _ in range(2 * self._rings + 1):
+            for _ in range(MARGIN_RINGS):
                 grown = near.copy()
                 grown[self.graph.indices[near[rows]]] = True
                 near = grown
             elems = self.active & near[self.tets].any(axis=1)
         else:
             elems = self.active.copy()
-        t = self.tets[elems]
-        D = self.D[elems]
-        w = (self.w_arap + self.w_vol)[elems]
-        blocks = (np.einsum("tkc,tlc->tkl", D, D) * w[:, None, None]).ravel()
-        rows, cols = np.repeat(t, 4, axis=1).ravel(), np.tile(t, (1, 4)).ravel()
-        L = sp.csr_matrix((blocks, (rows, cols)), shape=(self.n, self.n))
-        dof = (3 * t[:, :, None] + np.arange(3)).reshape(len(t), 12)
-        kr, kc = np.repeat(dof, 12, axis=1).ravel(), np.tile(dof, (1, 12)).ravel()
-        K = sp.csr_matrix((self.K_e[elems].ravel(), (kr, kc)), shape=(3 * self.n, 3 * self.n))
+        ids = np.flatnonzero(elems)
+        indptr, indices = tet_pattern(self.n, self.tets, ids)
+        l_data, k_data = assemble_tets(indptr, indices, self.tets, ids, self.D, self.w_arap + self.w_vol, self.K_e)
+        L = sp.csr_matrix((l_data, indices, indptr), shape=(self.n, self.n))
+        K = sp.bsr_matrix((k_data, indices, indptr), shape=(3 * self.n, 3 * self.n)).tocsr()
         self._matrices = (key, L, K, elems)
         return L, K
 
@@ -356,12 +356,9 @@ class HybridBody(ProjectiveBody):
             # body's own displacement shrinks towards zero, and a threshold relative to it never falls
             self._sleep_scale = max(self._sleep_scale, scale)
             threshold = self.sleep * self._sleep_scale
-            woke = wake_front(self.graph.indptr, self.graph.indices, self.awake, change, threshold, self._rings)
+            woke = wake_front(self.graph.indptr, self.graph.indices, self.awake, change, threshold, self.wake_rings)
             if woke:
                 self._setup = None
-                # each wake costs a new set-up; waking twice as far each time the front reaches the edge
-                # again bounds the set-ups of a spreading disturbance by a logarithm of its reach
-                self._rings = min(2 * self._rings, MAX_RINGS)
             # converging linearly, about last * rate / (1 - rate) is still to go: a body that creeps
             # slowly is not at rest, and freezing it would keep the creep's shape
             rate = last / self._prev_last if self._prev_last > 0.0 else 1.0
@@ -370,7 +367,6 @@ class HybridBody(ProjectiveBody):
             if not woke and len(self.grab_ids) == 0 and remaining <= threshold:
                 self.awake[:] = False  # nothing held and nothing moving: the body sleeps
                 self._setup = None
-                self._rings = self.wake_rings
                 self._sleep_scale = 0.0
         np.divide(x, self.unit, out=self._positions)
         extra = {"setup_s": s["seconds"], "awake": int(self.awake.sum()), "solved": len(free)}

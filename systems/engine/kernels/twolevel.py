@@ -1,8 +1,9 @@
 """Kernels of the two-level tissue solve (chainsim.systems.engine.bodies.hybrid): the trilinear map from a coarse
-grid to the nodes of a tetrahedral mesh, the rest stiffness of linear elasticity per tetrahedron, and the
-front that wakes sleeping nodes when a disturbance reaches them.
+grid to the nodes of a tetrahedral mesh, the rest stiffness of linear elasticity per tetrahedron, the
+front that wakes sleeping nodes when a disturbance reaches them, and the assembly of the sparse
+matrices over a set of tetrahedra (their pattern, their values, and the pieces they join).
 
-All are pure functions on arrays; the body assembles sparse matrices from their output.
+All are pure functions on arrays; the body wraps their output in scipy sparse matrices.
 """
 
 from __future__ import annotations
@@ -202,3 +203,90 @@ def local_forces(x, tets, D, elems, w_arap, w_vol, quats, rot_iterations, rhs):
             rhs[i3, r] += g3
             rhs[i0, r] -= g1 + g2 + g3
     return rhs
+
+
+@njit(cache=True)
+def tet_pattern(n, tets, elems):
+    """The sparsity pattern of a matrix over nodes assembled from tetrahedra `elems`: CSR (indptr,
+    indices) with row a holding every node that shares one of those tetrahedra with a (a included),
+    sorted. Rows are gathered per node and sorted one by one (each a few dozen entries), so the cost
+    is linear in the tetrahedra rather than a sort of all their 16 pairs."""
+    start = np.zeros(n + 1, dtype=np.int64)
+    for e in elems:
+        for k in range(4):
+            start[tets[e, k] + 1] += 4
+    for a in range(n):
+        start[a + 1] += start[a]
+    buf = np.empty(start[n], dtype=np.int64)
+    fill = start[:n].copy()
+    for e in elems:
+        for k in range(4):
+            a = tets[e, k]
+            for m in range(4):
+                buf[fill[a]] = tets[e, m]
+                fill[a] += 1
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    out = np.empty(start[n], dtype=np.int64)
+    m = 0
+    for a in range(n):
+        row = np.sort(buf[start[a] : start[a + 1]])
+        last = -1
+        for v in row:
+            if v != last:
+                out[m] = v
+                m += 1
+                last = v
+        indptr[a + 1] = m
+    return indptr, out[:m].copy()
+
+
+@njit(cache=True)
+def assemble_tets(indptr, indices, tets, elems, D, w, K_e):
+    """Projective dynamics' global matrix (sum over elements of w D D^T, one value per node pair) and
+    the rest stiffness (3 x 3 per node pair, from K_e's 12 x 12 element matrices, dof 3 k + axis) of
+    tetrahedra `elems`, into the pattern of tet_pattern: data arrays (nnz,) and (nnz, 3, 3)."""
+    nnz = indices.shape[0]
+    L = np.zeros(nnz)
+    K = np.zeros((nnz, 3, 3))
+    for e in elems:
+        for k in range(4):
+            a = tets[e, k]
+            lo, hi = indptr[a], indptr[a + 1]
+            for m in range(4):
+                b = tets[e, m]
+                p = lo + np.searchsorted(indices[lo:hi], b)
+                s = 0.0
+                for c in range(D.shape[2]):
+                    s += D[e, k, c] * D[e, m, c]
+                L[p] += w[e] * s
+                for i in range(3):
+                    for j in range(3):
+                        K[p, i, j] += K_e[e, 3 * k + i, 3 * m + j]
+    return L, K
+
+
+@njit(cache=True)
+def tet_components(n, tets, active):
+    """For each node, a representative of its piece: nodes joined through live tetrahedra share one
+    (union-find with path halving); a node in no live tetrahedron is its own piece."""
+    parent = np.arange(n)
+    for e in range(tets.shape[0]):
+        if not active[e]:
+            continue
+        for k in range(1, 4):
+            a, b = tets[e, 0], tets[e, k]
+            while parent[a] != a:
+                parent[a] = parent[parent[a]]
+                a = parent[a]
+            while parent[b] != b:
+                parent[b] = parent[parent[b]]
+                b = parent[b]
+            if a != b:
+                parent[max(a, b)] = min(a, b)
+    root = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        a = i
+        while parent[a] != a:
+            a = parent[a]
+        root[i] = a
+    return root
