@@ -314,56 +314,7 @@ class Overlay:
             y1, y0 = top - iy0, top - iy1  # the inked box's top and bottom
             # the slant moves each height by slant x (height above the cell bottom), as for a whole cell
             lean0, lean1 = slant * (y0 - bottom), slant * (y1 - bottom)
-            glyphs += [
-                x0 + lean0,
-                y0,
-                u0,
-                v1,
-                r,
-                g,
-                b,
-                a,
-                x1 + lean0,
-                y0,
-                u1,
-                v1,
-                r,
-                g,
-                b,
-                a,
-                x1 + lean1,
-                y1,
-                u1,
-                v0,
-                r,
-                g,
-                b,
-                a,
-                x0 + lean0,
-                y0,
-                u0,
-                v1,
-                r,
-                g,
-                b,
-                a,
-                x1 + lean1,
-                y1,
-                u1,
-                v0,
-                r,
-                g,
-                b,
-                a,
-                x0 + lean1,
-                y1,
-                u0,
-                v0,
-                r,
-                g,
-                b,
-                a,
-            ]
+            glyphs += _glyph_vertices(x0, x1, y0, y1, lean0, lean1, u0, v0, u1, v1, (r, g, b, a))
             pen += f.advance[ch]
         self._laid_out[key] = (glyphs[start:], pen)
         return pen
@@ -397,3 +348,17 @@ class Overlay:
         self.font.release()
         for f in self.small.values():
             f.release()
+
+
+def _glyph_vertices(x0, x1, y0, y1, lean0, lean1, u0, v0, u1, v1, rgba) -> list[float]:
+    """One glyph's quad as two triangles, (x, y, u, v, r, g, b, a) per corner; the top corners lean
+    right by `lean1`, the bottom ones by `lean0` (italic)."""
+    corners = (
+        (x0 + lean0, y0, u0, v1),
+        (x1 + lean0, y0, u1, v1),
+        (x1 + lean1, y1, u1, v0),
+        (x0 + lean0, y0, u0, v1),
+        (x1 + lean1, y1, u1, v0),
+        (x0 + lean1, y1, u0, v0),
+    )
+    return [c for corner in corners for c in (*corner, *rgba)]

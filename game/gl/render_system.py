@@ -165,7 +165,6 @@ def page(app):
 def collect_frame(app):
     """Build the `Frame` for the current world (creates / updates GPU meshes as needed)."""
 
-    renderer: Renderer = app.resource(Renderer)
     target: RenderTarget = app.resource(RenderTarget)
     pack = app.resource(PackResource).pack
     vs: ViewState = app.resource(ViewState)
@@ -176,63 +175,7 @@ def collect_frame(app):
         scale=target.scale,
         background=tuple(float(c) for c in settings.get("background", (0.08, 0.09, 0.11, 1.0))),
     )
-    D = _deformable_type()
-    cache = surface_cache(app)
-    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    alive_ents = set()
-    drawn_meshes: dict[str, list[MeshDraw]] = {}  # pack mesh name -> its entities' draws
-    enclosed: list[tuple[MeshDraw, str]] = []  # draw, name of the mesh the pack says encloses it
-    for ent, ref in esper.get_component(MeshRef):
-        alive_ents.add(ent)
-        if not ref.visible:
-            continue
-        d = esper.try_component(ent, D) if D is not None else None
-        # a mesh that never deforms is drawn from its lighter display copy where the pack has one
-        # (kept under its own key: the C-arm image draws the full mesh under the entity's)
-        md = pack.mesh(ref.mesh) if d is not None else pack.display_mesh(ref.mesh)
-        if len(md.triangles) == 0 and md.links is None:
-            continue
-        tr = esper.try_component(ent, Transform)
-        model = tr.matrix() if tr is not None else np.eye(4)
-        local = np.asarray(d.pos) if d is not None and len(getattr(d, "pos", ())) == len(md.vertices) else md.vertices
-        graph = getattr(d, "graph", None) if d is not None else None
-        links = np.asarray(graph.links) if graph is not None else None
-        key = ent if md is pack.mesh(ref.mesh) else (DISPLAY, ent)
-        alive_ents.add(key)
-        gm = renderer.mesh(key, local, md.triangles, links if links is not None else md.links)
-        if d is not None:
-            gm.upload(local)
-            alive = getattr(d, "alive", None)
-            if alive is not None and len(alive) and graph is not None:
-                dead = int(len(alive) - np.count_nonzero(alive))
-                if dead != getattr(gm, "dead_links", 0):
-                    gm.dead_links = dead
-                    gm.set_links(links[alive])
-                    gm.set_triangles(cache.live_triangles(ent, md.triangles, d))
-        mat = _material(pack, ref.material)
-        color = [float(c) for c in mat["color"]]
-        color[3] *= float(mat.get("opacity", 1.0))
-        if ref.layer and ref.layer in vs.xray:
-            color[3] = min(color[3], XRAY_OPACITY)
-        if color[3] <= 0.0:
-            continue
-        wire = (
-            bool(mat.get("wireframe", False))
-            or (bool(ref.layer) and ref.layer in vs.wire)
-            or esper.has_component(ent, Wireframe)
-        )
-        frame.meshes.append(MeshDraw(gm, model, tuple(color), wire, mat.get("shading", "smooth"), ent))
-        drawn_meshes.setdefault(ref.mesh, []).append(frame.meshes[-1])
-        enclosed.append((frame.meshes[-1], pack.manifest["meshes"][ref.mesh].get("inside", "")))
-        blo, bhi = gm.box()
-        c = (model @ np.r_[0.5 * (blo + bhi), 1.0])[:3]
-        ext = np.abs(model[:3, :3]) @ (bhi - blo) / 2
-        lo, hi = np.minimum(lo, c - ext), np.maximum(hi, c + ext)
-    for md, outer in enclosed:
-        if outer and len(drawn_meshes.get(outer, ())) == 1:  # one enclosing entity, or none is meant
-            md.inside = drawn_meshes[outer][0]
-    for key in [k for k in renderer.meshes if k not in alive_ents]:
-        renderer.forget(key)  # entity removed
+    _collect_meshes(app, frame, pack, vs)
     for ent, (mk, tr) in esper.get_components(Marker, Transform):
         if mk.visible:
             frame.markers.append(
@@ -249,6 +192,97 @@ def collect_frame(app):
         frame.planes = _plane_quads(pack, PLANE_PATCH_MM)
         for corners, color in frame.planes:
             frame.lines.append((np.vstack([corners, corners[:1]]), (*color[:3], 0.9)))
+    _collect_views(app, frame, vs)
+    frame.hud = app.get_resource(HudState)
+    frame.fluoro = fluoro_draw(app)
+    shown3d = [v for v in frame.views if v.kind not in ("panel", "fluoro")]
+    orbit = [v for v in shown3d if v.kind == "orbit"]
+    frame.hud_view = (orbit or shown3d)[0].name if shown3d else ""
+    shown = page(app)
+    if shown is not None and frame.hud_view:
+        title, text, buttons = shown
+        frame.doc = (title, text, 0 if frame.hud.notice else frame.hud.doc_scroll, buttons)
+        frame.doc_box = docbox.box(vs.get(frame.hud_view).rect)
+    return frame
+
+
+def _collect_meshes(app, frame: Frame, pack, vs: ViewState) -> None:
+    """Every visible mesh entity's draw (its GPU mesh uploaded where the body moved or was cut), each
+    told the mesh that encloses it; GPU meshes of removed entities are let go."""
+    renderer: Renderer = app.resource(Renderer)
+    D = _deformable_type()
+    cache = surface_cache(app)
+    alive_ents = set()
+    drawn_meshes: dict[str, list[MeshDraw]] = {}  # pack mesh name -> its entities' draws
+    enclosed: list[tuple[MeshDraw, str]] = []  # draw, name of the mesh the pack says encloses it
+    for ent, ref in esper.get_component(MeshRef):
+        alive_ents.add(ent)
+        if not ref.visible:
+            continue
+        d = esper.try_component(ent, D) if D is not None else None
+        # a mesh that never deforms is drawn from its lighter display copy where the pack has one
+        # (kept under its own key: the C-arm image draws the full mesh under the entity's)
+        md = pack.mesh(ref.mesh) if d is not None else pack.display_mesh(ref.mesh)
+        if len(md.triangles) == 0 and md.links is None:
+            continue
+        key = ent if md is pack.mesh(ref.mesh) else (DISPLAY, ent)
+        alive_ents.add(key)
+        gm = _gpu_mesh(renderer, cache, ent, key, md, d)
+        draw = _mesh_draw(pack, vs, ent, ref, gm)
+        if draw is None:
+            continue
+        frame.meshes.append(draw)
+        drawn_meshes.setdefault(ref.mesh, []).append(draw)
+        enclosed.append((draw, pack.manifest["meshes"][ref.mesh].get("inside", "")))
+        gm.box()  # the box is taken after this frame's upload (it only grows after partial ones)
+    for md, outer in enclosed:
+        if outer and len(drawn_meshes.get(outer, ())) == 1:  # one enclosing entity, or none is meant
+            md.inside = drawn_meshes[outer][0]
+    for key in [k for k in renderer.meshes if k not in alive_ents]:
+        renderer.forget(key)  # entity removed
+
+
+def _gpu_mesh(renderer: Renderer, cache, ent: int, key, md, d):
+    """The entity's GPU mesh, with the body's current positions and, after a cut, its live links and
+    triangles."""
+    local = np.asarray(d.pos) if d is not None and len(getattr(d, "pos", ())) == len(md.vertices) else md.vertices
+    graph = getattr(d, "graph", None) if d is not None else None
+    links = np.asarray(graph.links) if graph is not None else None
+    gm = renderer.mesh(key, local, md.triangles, links if links is not None else md.links)
+    if d is not None:
+        gm.upload(local)
+        alive = getattr(d, "alive", None)
+        if alive is not None and len(alive) and graph is not None:
+            dead = int(len(alive) - np.count_nonzero(alive))
+            if dead != getattr(gm, "dead_links", 0):
+                gm.dead_links = dead
+                gm.set_links(links[alive])
+                gm.set_triangles(cache.live_triangles(ent, md.triangles, d))
+    return gm
+
+
+def _mesh_draw(pack, vs: ViewState, ent: int, ref: MeshRef, gm) -> MeshDraw | None:
+    """How the entity's mesh is drawn (colour, see-through layers, wireframe, shading); None when it is
+    wholly transparent."""
+    mat = _material(pack, ref.material)
+    color = [float(c) for c in mat["color"]]
+    color[3] *= float(mat.get("opacity", 1.0))
+    if ref.layer and ref.layer in vs.xray:
+        color[3] = min(color[3], XRAY_OPACITY)
+    if color[3] <= 0.0:
+        return None
+    wire = (
+        bool(mat.get("wireframe", False))
+        or (bool(ref.layer) and ref.layer in vs.wire)
+        or esper.has_component(ent, Wireframe)
+    )
+    tr = esper.try_component(ent, Transform)
+    model = tr.matrix() if tr is not None else np.eye(4)
+    return MeshDraw(gm, model, tuple(color), wire, mat.get("shading", "smooth"), ent)
+
+
+def _collect_views(app, frame: Frame, vs: ViewState) -> None:
+    """The shown viewports, and the widgets placed on each panel with the hovered one's help."""
     st: WidgetState = app.resource(WidgetState)
     index = app.get_resource(EntityIndex)
     for vp in vs.viewports:
@@ -264,17 +298,6 @@ def collect_frame(app):
             frame.panels.append(
                 PanelDraw(vp.name, vp.rect, vp.spec.get("title", ""), placed, st.values, st.disabled, hint)
             )
-    frame.hud = app.get_resource(HudState)
-    frame.fluoro = fluoro_draw(app)
-    shown3d = [v for v in frame.views if v.kind not in ("panel", "fluoro")]
-    orbit = [v for v in shown3d if v.kind == "orbit"]
-    frame.hud_view = (orbit or shown3d)[0].name if shown3d else ""
-    shown = page(app)
-    if shown is not None and frame.hud_view:
-        title, text, buttons = shown
-        frame.doc = (title, text, 0 if frame.hud.notice else frame.hud.doc_scroll, buttons)
-        frame.doc_box = docbox.box(vs.get(frame.hud_view).rect)
-    return frame
 
 
 VIEW_NAMES = {"lateral": "Lateral", "submental": "Submental-oblique", "free": "Free angle"}

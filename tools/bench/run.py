@@ -489,101 +489,129 @@ def markdown(results: dict) -> str:
         "after warm-up.\n",
     ]
     if results.get("thesis"):
-        out.append("## Thesis 6.2: update rates on square grids (updates/s; thesis: browser frames/s)\n")
-        out.append(
-            "Ours: cascade-only updates per second (1000 / median ms). Thesis: Java + VRML frame rates on an "
-            "AMD-K7, Tables 6.2-6.4. 'high' = small move of the centre element, 'low' = a move that every "
-            "element follows. Moved = elements moved by our generalised run. Low vs lean: its time over the lean "
-            "cascade's (chainsim.systems.engine.kernels.lean) for the same move, timed alternately in the same run "
-            "(wall "
-            "clock; CPU time in brackets).\n"
-        )
-        out.append(
-            "Rates from wall-clock medians; in brackets, from CPU-time medians (what the process itself "
-            "ran; differs only on a busy machine).\n"
-        )
-        out.append(
-            "| table | material | grid | ours gen. high | thesis gen. high | ratio | ours gen. low | thesis gen. low "
-            "| ratio | moved low | low vs lean | ours Gibson high | ours Gibson low | thesis Gibson high / low |"
-        )
-        out.append("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|")
-        for r in results["thesis"]:
-            th = r["thesis"]
-            hi, lo = 1000 / r["gen_high_ms"], 1000 / r["gen_low_ms"]
-            chi, clo = 1000 / max(r["gen_high_cpu_ms"], 1e-6), 1000 / max(r["gen_low_cpu_ms"], 1e-6)
-            out.append(
-                f"| {TABLE_OF[r['material']]} | {r['material']} | {r['side']}x{r['side']} | {hi:,.0f} ({chi:,.0f}) | "
-                f"{th['generalised_high']:g} | {hi / th['generalised_high']:,.0f}x "
-                f"({chi / th['generalised_high']:,.0f}x) | "
-                f"{lo:,.0f} ({clo:,.0f}) | {th['generalised_low']:g} | {lo / th['generalised_low']:,.0f}x "
-                f"({clo / th['generalised_low']:,.0f}x) | {r['gen_low_moved']} | "
-                f"{r['gen_low_ms'] / r['lean_low_ms']:.2f} ({_cpu_ratio(r, 'gen_low', 'lean_low')}) | "
-                f"{_fmt_rate(r['gib_high_ms'])} | "
-                f"{_fmt_rate(r['gib_low_ms'])} | "
-                f"{th['gibson_high']:g} / {th['gibson_low']:g} |"
-            )
-        out.append("")
+        out += _thesis_section(results["thesis"])
     if results.get("worst"):
-        out.append("## Fig. 6.4 worst case: rigid grid, centre element 20 times around a 40 x 40 square\n")
-        out.append(
-            "| grid | elements | updates | generalised ms/update (cpu) | generalised total s "
-            "| Gibson ms/update (cpu) | Gibson total s |"
-        )
-        out.append("|---|---:|---:|---:|---:|---:|---:|")
-        for r in results["worst"]:
-            out.append(
-                f"| {r['side']}x{r['side']} | {r['elements']} | {r['updates']} | "
-                f"{r['generalised_ms_per_update']:.4f} ({r['generalised_cpu_ms_per_update']:.4f}) | "
-                f"{r['generalised_total_s']:.3f} | {r['gibson_ms_per_update']:.4f} "
-                f"({r['gibson_cpu_ms_per_update']:.4f}) | {r['gibson_total_s']:.3f} |"
-            )
-        out.append("")
+        out += _worst_section(results["worst"])
     if results.get("scaling"):
-        out.append("## Scaling: rigid full cascade (every element moves), local grab, relaxation\n")
-        out.append(
-            "Wall-clock medians, CPU-time medians in brackets; the ratio to the generated order uses CPU time. "
-            "Lean: the lean cascade (chainsim.systems.engine.kernels.lean: one material, no anchors, no cuts), timed "
-            "alternately with the rigid cascade in the same run; vs lean = rigid / lean (wall clock, CPU time in "
-            "brackets: on a busy machine the longer call is preempted more often). Level-parallel: the "
-            "breadth-first cascade wave by wave on numba's threads (same result), timed after them.\n"
-        )
-        out.append(
-            "| mesh | elements | links/elem | order | rigid ms | lean ms | vs lean | level-parallel ms (threads) "
-            "| with relax(2) ms | ratio to ordered | local grab ms | local moved |"
-        )
-        out.append("|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|")
-        for r in results["scaling"]:
-            rel = f"{r['rigid_relax2_ms']:.3f} ({r['rigid_relax2_cpu_ms']:.3f})" if "rigid_relax2_ms" in r else "-"
-            out.append(
-                f"| {r['mesh']} | {r['elements']:,} | {r['links_per_element']:.1f} | {r['variant']} | "
-                f"{r['rigid_ms']:.3f} ({r['rigid_cpu_ms']:.3f}) | {r['lean_ms']:.3f} ({_cpu(r, 'lean_cpu_ms')}) | "
-                f"{r['lean_ratio']:.2f} ({_cpu(r, 'lean_cpu_ratio', 2)}) | "
-                f"{r['parallel_ms']:.3f} ({r['threads']}) | {rel} | {r['ratio_to_ordered']:.2f} | "
-                f"{r['local_ms']:.4f} ({r['local_cpu_ms']:.4f}) | {r['local_moved']} |"
-            )
-        out.append("")
+        out += _scaling_section(results["scaling"])
     if results.get("exact"):
-        out.append("## Exact limits: links the cascade leaves outside, and the exact step\n")
-        out.append(
-            "Material 0.8 / 1.2, beta 0.1 (tools/bench/exact_cases.py). Plain: one cascade from rest; outside: "
-            "share of all links outside their box after it, and the worst distance from a box in rest lengths. "
-            "Exact: one exact step from rest instead (exact_move, no cascade). Times are CPU-time medians (the "
-            "wall clock is in results.json); ratio: exact over plain; residual: the worst distance from a box after "
-            "it (rest lengths); short: how far the grabbed element stopped from its target (0: reached).\n"
-        )
-        out.append(
-            "| case | pull mm | order | moved | plain ms | outside | worst | exact ms | ratio | residual | short mm |"
-        )
-        out.append("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|")
-        for r in results["exact"]:
-            out.append(
-                f"| {r['case']} | {r['pull_mm']:g} | {r['order']} | {r['moved']} | {r['plain_cpu_ms']:.3f} | "
-                f"{100 * r['outside_share']:.2f} % | {r['outside_worst']:.2f} | {r['exact_cpu_ms']:.3f} | "
-                f"{r['exact_ratio']:.1f}x | {r['residual']:.1e} | {r['shortfall_mm']:.2f} |"
-            )
-        out.append("")
+        out += _exact_section(results["exact"])
     out += drag.markdown(results)
     return "\n".join(out)
+
+
+def _thesis_section(rows: list[dict]) -> list[str]:
+    """Thesis 6.2, Tables 6.2-6.4: our update rates on square grids beside the published ones."""
+    out = []
+    out.append("## Thesis 6.2: update rates on square grids (updates/s; thesis: browser frames/s)\n")
+    out.append(
+        "Ours: cascade-only updates per second (1000 / median ms). Thesis: Java + VRML frame rates on an "
+        "AMD-K7, Tables 6.2-6.4. 'high' = small move of the centre element, 'low' = a move that every "
+        "element follows. Moved = elements moved by our generalised run. Low vs lean: its time over the lean "
+        "cascade's (chainsim.systems.engine.kernels.lean) for the same move, timed alternately in the same run "
+        "(wall "
+        "clock; CPU time in brackets).\n"
+    )
+    out.append(
+        "Rates from wall-clock medians; in brackets, from CPU-time medians (what the process itself "
+        "ran; differs only on a busy machine).\n"
+    )
+    out.append(
+        "| table | material | grid | ours gen. high | thesis gen. high | ratio | ours gen. low | thesis gen. low "
+        "| ratio | moved low | low vs lean | ours Gibson high | ours Gibson low | thesis Gibson high / low |"
+    )
+    out.append("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|")
+    for r in rows:
+        th = r["thesis"]
+        hi, lo = 1000 / r["gen_high_ms"], 1000 / r["gen_low_ms"]
+        chi, clo = 1000 / max(r["gen_high_cpu_ms"], 1e-6), 1000 / max(r["gen_low_cpu_ms"], 1e-6)
+        out.append(
+            f"| {TABLE_OF[r['material']]} | {r['material']} | {r['side']}x{r['side']} | {hi:,.0f} ({chi:,.0f}) | "
+            f"{th['generalised_high']:g} | {hi / th['generalised_high']:,.0f}x "
+            f"({chi / th['generalised_high']:,.0f}x) | "
+            f"{lo:,.0f} ({clo:,.0f}) | {th['generalised_low']:g} | {lo / th['generalised_low']:,.0f}x "
+            f"({clo / th['generalised_low']:,.0f}x) | {r['gen_low_moved']} | "
+            f"{r['gen_low_ms'] / r['lean_low_ms']:.2f} ({_cpu_ratio(r, 'gen_low', 'lean_low')}) | "
+            f"{_fmt_rate(r['gib_high_ms'])} | "
+            f"{_fmt_rate(r['gib_low_ms'])} | "
+            f"{th['gibson_high']:g} / {th['gibson_low']:g} |"
+        )
+    out.append("")
+    return out
+
+
+def _worst_section(rows: list[dict]) -> list[str]:
+    """Fig. 6.4's worst case: a rigid grid whose centre element goes round a square."""
+    out = []
+    out.append("## Fig. 6.4 worst case: rigid grid, centre element 20 times around a 40 x 40 square\n")
+    out.append(
+        "| grid | elements | updates | generalised ms/update (cpu) | generalised total s "
+        "| Gibson ms/update (cpu) | Gibson total s |"
+    )
+    out.append("|---|---:|---:|---:|---:|---:|---:|")
+    for r in rows:
+        out.append(
+            f"| {r['side']}x{r['side']} | {r['elements']} | {r['updates']} | "
+            f"{r['generalised_ms_per_update']:.4f} ({r['generalised_cpu_ms_per_update']:.4f}) | "
+            f"{r['generalised_total_s']:.3f} | {r['gibson_ms_per_update']:.4f} "
+            f"({r['gibson_cpu_ms_per_update']:.4f}) | {r['gibson_total_s']:.3f} |"
+        )
+    out.append("")
+    return out
+
+
+def _scaling_section(rows: list[dict]) -> list[str]:
+    """The rigid full cascade, a local grab and relaxation on meshes of growing size and each order."""
+    out = []
+    out.append("## Scaling: rigid full cascade (every element moves), local grab, relaxation\n")
+    out.append(
+        "Wall-clock medians, CPU-time medians in brackets; the ratio to the generated order uses CPU time. "
+        "Lean: the lean cascade (chainsim.systems.engine.kernels.lean: one material, no anchors, no cuts), timed "
+        "alternately with the rigid cascade in the same run; vs lean = rigid / lean (wall clock, CPU time in "
+        "brackets: on a busy machine the longer call is preempted more often). Level-parallel: the "
+        "breadth-first cascade wave by wave on numba's threads (same result), timed after them.\n"
+    )
+    out.append(
+        "| mesh | elements | links/elem | order | rigid ms | lean ms | vs lean | level-parallel ms (threads) "
+        "| with relax(2) ms | ratio to ordered | local grab ms | local moved |"
+    )
+    out.append("|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for r in rows:
+        rel = f"{r['rigid_relax2_ms']:.3f} ({r['rigid_relax2_cpu_ms']:.3f})" if "rigid_relax2_ms" in r else "-"
+        out.append(
+            f"| {r['mesh']} | {r['elements']:,} | {r['links_per_element']:.1f} | {r['variant']} | "
+            f"{r['rigid_ms']:.3f} ({r['rigid_cpu_ms']:.3f}) | {r['lean_ms']:.3f} ({_cpu(r, 'lean_cpu_ms')}) | "
+            f"{r['lean_ratio']:.2f} ({_cpu(r, 'lean_cpu_ratio', 2)}) | "
+            f"{r['parallel_ms']:.3f} ({r['threads']}) | {rel} | {r['ratio_to_ordered']:.2f} | "
+            f"{r['local_ms']:.4f} ({r['local_cpu_ms']:.4f}) | {r['local_moved']} |"
+        )
+    out.append("")
+    return out
+
+
+def _exact_section(rows: list[dict]) -> list[str]:
+    """Exact limits: the links a plain cascade leaves outside their box, and the exact step's cost."""
+    out = []
+    out.append("## Exact limits: links the cascade leaves outside, and the exact step\n")
+    out.append(
+        "Material 0.8 / 1.2, beta 0.1 (tools/bench/exact_cases.py). Plain: one cascade from rest; outside: "
+        "share of all links outside their box after it, and the worst distance from a box in rest lengths. "
+        "Exact: one exact step from rest instead (exact_move, no cascade). Times are CPU-time medians (the "
+        "wall clock is in results.json); ratio: exact over plain; residual: the worst distance from a box after "
+        "it (rest lengths); short: how far the grabbed element stopped from its target (0: reached).\n"
+    )
+    out.append(
+        "| case | pull mm | order | moved | plain ms | outside | worst | exact ms | ratio | residual | short mm |"
+    )
+    out.append("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for r in rows:
+        out.append(
+            f"| {r['case']} | {r['pull_mm']:g} | {r['order']} | {r['moved']} | {r['plain_cpu_ms']:.3f} | "
+            f"{100 * r['outside_share']:.2f} % | {r['outside_worst']:.2f} | {r['exact_cpu_ms']:.3f} | "
+            f"{r['exact_ratio']:.1f}x | {r['residual']:.1e} | {r['shortfall_mm']:.2f} |"
+        )
+    out.append("")
+    return out
 
 
 def plot(results: dict, path: Path) -> None:
@@ -696,20 +724,8 @@ def run_suite(args) -> int:
 
 
 def run_mesh(args) -> int:
-
-    check_material(args.alpha_min, args.alpha_max, args.beta)
-    if args.grab is None or args.to is None:
-        raise UserError("--mesh needs --grab I and --to X [Y [Z]]")
-    if not all(math.isfinite(v) for v in args.to):
-        raise UserError("--to: coordinates must be finite")
-    if args.repeat < 0:
-        raise UserError(f"--repeat: must be >= 0, got {args.repeat}")
-    pos, links, fixed_ids = load_graph(args.mesh)
+    pos, links, fixed_ids = _mesh_for(args)
     n, dim = pos.shape
-    if not 0 <= args.grab < n:
-        raise UserError(f"--grab: element id must be in 0..{n - 1}, got {args.grab}")
-    if len(args.to) != dim:
-        raise UserError(f"--to: the mesh is {dim}-D, so give {dim} coordinate(s); got {len(args.to)}")
     fixed = np.zeros(n, dtype=np.bool_)
     fixed[fixed_ids] = True
     body = Body(pos, links, args.alpha_min, args.alpha_max, args.beta, fixed=fixed)
@@ -760,17 +776,41 @@ def run_mesh(args) -> int:
         result["violations"][name] = {"moved": body.moved, "outside_share": v.share, "worst": v.worst}
     if args.json:
         print(json.dumps(result))
-        return 0
+    else:
+        _print_mesh_result(result, reps)
+    return 0
+
+
+def _mesh_for(args):
+    """(positions, links, fixed ids) of --mesh, once the material, --grab, --to and --repeat are checked."""
+    check_material(args.alpha_min, args.alpha_max, args.beta)
+    if args.grab is None or args.to is None:
+        raise UserError("--mesh needs --grab I and --to X [Y [Z]]")
+    if not all(math.isfinite(v) for v in args.to):
+        raise UserError("--to: coordinates must be finite")
+    if args.repeat < 0:
+        raise UserError(f"--repeat: must be >= 0, got {args.repeat}")
+    pos, links, fixed_ids = load_graph(args.mesh)
+    n, dim = pos.shape
+    if not 0 <= args.grab < n:
+        raise UserError(f"--grab: element id must be in 0..{n - 1}, got {args.grab}")
+    if len(args.to) != dim:
+        raise UserError(f"--to: the mesh is {dim}-D, so give {dim} coordinate(s); got {len(args.to)}")
+    return pos, links, fixed_ids
+
+
+def _print_mesh_result(result: dict, reps: int) -> None:
+    r = result
     print(
-        f"{result['mesh']}: {n} elements, {result['links']} links; one {result['order']} cascade moving "
-        f"{result['elements_moved']} elements: median {result['median_ms']:.4f} ms over {reps} runs; the lean "
+        f"{r['mesh']}: {r['elements']} elements, {r['links']} links; one {r['order']} cascade moving "
+        f"{r['elements_moved']} elements: median {r['median_ms']:.4f} ms over {reps} runs; the lean "
         f"cascade {result['lean_median_ms']:.4f} ms (ratio {result['lean_ratio']:.2f}; CPU time "
         f"{result['cpu_median_ms']:.4f} against {result['lean_cpu_median_ms']:.4f} ms, {result['lean_cpu_ratio']:.2f})"
     )
-    if args.exact:
+    if "exact" in result:
         e = result["exact"]
         print(
-            f"with {'the exact-limit pass' if args.relax else 'the exact step'}: median {e['median_ms']:.4f} ms "
+            f"with {'the exact-limit pass' if result['relax'] else 'the exact step'}: median {e['median_ms']:.4f} ms "
             f"({e['ratio']:.2f}x the plain cascade), "
             f"worst residual {e['residual']:.2g} rest lengths, shortfall {e['shortfall']:.6g}"
         )
@@ -780,4 +820,3 @@ def run_mesh(args) -> int:
             f"  {name:14s} {v['moved']:8d} moved  {100 * v['outside_share']:6.2f} % outside, "
             f"worst {v['worst']:.3g} rest lengths"
         )
-    return 0

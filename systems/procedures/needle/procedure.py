@@ -244,54 +244,18 @@ class ProcedureSystem:
     # -- the system -----------------------------------------------------------------------------
     def __call__(self, app: App) -> None:
         ps = self.state(app)
-        scene = self.scene
         self.lights = {name: "off" for name in self.feedback.lights}
         self.lights.update(ps.lights)
-        ws = widget_state(app)
-        # aids: an aid counts for the attempt if it was on at any time (the trainee had it)
-        for name in self.config.get("aids", ()):
-            on = (
-                bool(ws.values.get(name, False))
-                if ws is not None and name in ws.values
-                else bool(self.layout_widgets.get(name, {}).get("value", False))
-            )
-            ps.aids[name] = ps.aids.get(name, False) or on
-            ps.aids_now[name] = on
-        n = len(scene.landmark_ids)
-        if self.picks is not None:
-            for ev in self.picks.read():
-                on = scene.landmark_specs[min(ps.placed, n - 1)]["on"] if n else ""
-                role = scene.roles.get(on)
-                if role is None or ev.entity_name not in role.entities:
-                    self.say(app, "click_elsewhere", entity=ev.entity_name, n=ps.placed + 1)
-                    continue
-                self.event(app, ps, f"click:{on}")
-                if ps.placed < n:
-                    self.begin_attempt(app, ps)
-                self.place_landmark(app, ps, ev.point)
+        self._read_aids(app, ps)
+        self._read_picks(app, ps)
         for ev in self.widgets.read():
             if ev.name == "next":
                 self.next_step(app, ps)
             if self.feedback.has(f"button:{ev.name}"):
                 self.say(app, f"button:{ev.name}")
             self.event(app, ps, f"button:{ev.name}")
-        entry_n = scene.entry + 1
-        for ev in self.resets.read():
-            self.begin_attempt(app, ps)
-            hud(app).panel_text = []
-            self.clear_contact(ps)
-            ps.finished = False
-            if ev.all:
-                self.clear_landmarks(app, ps)
-                ps.aids = dict(ps.aids_now)  # a new attempt: its own aids, times and counts
-                ps.step_times = {}
-                ps.elapsed = 0.0
-                ps.finished = False
-                self.restart(app, ps, self.reset_all_step)
-                self.say(app, "reset_all")
-            else:
-                self.restart(app, ps, self.reset_step if ps.placed else self.reset_all_step)
-                self.say(app, "reset")
+        self._read_resets(app, ps)
+        entry_n = self.scene.entry + 1
         for ev in self.widget_refused.read():
             if ev.name in ROTATION_WIDGETS:
                 self.say(app, "refused:locked")
@@ -309,26 +273,7 @@ class ProcedureSystem:
             elif ev.kind in ("insert", "withdraw") and ev.value > 0:
                 self.event(app, ps, "depth")
         for ev in self.hits.read():
-            ps.target = ev.object
-            ps.needle_dist = float(ev.distance_to_target_mm)
-            if not np.isfinite(ps.first_dist):
-                ps.first_dist = ps.needle_dist
-            ps.hit_point = np.asarray(ev.point, dtype=np.float64)
-            radius = scene.target(ps.side or scene.sides[0]).radius
-            is_target = ev.role == scene.target_role
-            if is_target:
-                ps.finished = True
-            self.say(
-                app,
-                f"contact:{ev.role}",
-                "contact:target" if is_target else "contact",
-                what=scene.label(ev.object),
-                dist_mm=ev.distance_to_target_mm,
-                error_mm=ev.distance_to_target_mm - radius,
-                radius_mm=radius,
-                side=ps.side,
-            )
-            self.event(app, ps, f"contact:{ev.role}")
+            self._contact(app, ps, ev)
         ps.lights = dict(self.lights)
         show = ps.aids_now.get(self.config.get("signals_aid") or "", True)
         h = hud(app)
@@ -343,6 +288,79 @@ class ProcedureSystem:
             sid = ps.step_id
             ps.step_times[sid] = ps.step_times.get(sid, 0.0) + ticks * app.time.dt
             ps.elapsed += ticks * app.time.dt
+
+    def _read_aids(self, app: App, ps: ProcedureState) -> None:
+        """An aid counts for the attempt if it was on at any time (the trainee had it)."""
+        ws = widget_state(app)
+        for name in self.config.get("aids", ()):
+            on = (
+                bool(ws.values.get(name, False))
+                if ws is not None and name in ws.values
+                else bool(self.layout_widgets.get(name, {}).get("value", False))
+            )
+            ps.aids[name] = ps.aids.get(name, False) or on
+            ps.aids_now[name] = on
+
+    def _read_picks(self, app: App, ps: ProcedureState) -> None:
+        """A click on what the next landmark lies on places it; a click elsewhere says where to click."""
+        if self.picks is None:
+            return
+        scene = self.scene
+        n = len(scene.landmark_ids)
+        for ev in self.picks.read():
+            on = scene.landmark_specs[min(ps.placed, n - 1)]["on"] if n else ""
+            role = scene.roles.get(on)
+            if role is None or ev.entity_name not in role.entities:
+                self.say(app, "click_elsewhere", entity=ev.entity_name, n=ps.placed + 1)
+                continue
+            self.event(app, ps, f"click:{on}")
+            if ps.placed < n:
+                self.begin_attempt(app, ps)
+            self.place_landmark(app, ps, ev.point)
+
+    def _read_resets(self, app: App, ps: ProcedureState) -> None:
+        """Reset goes back to the needle's step (to the first when nothing is placed); reset all starts a
+        new attempt, with its own aids, times and counts."""
+        for ev in self.resets.read():
+            self.begin_attempt(app, ps)
+            hud(app).panel_text = []
+            self.clear_contact(ps)
+            ps.finished = False
+            if ev.all:
+                self.clear_landmarks(app, ps)
+                ps.aids = dict(ps.aids_now)
+                ps.step_times = {}
+                ps.elapsed = 0.0
+                ps.finished = False
+                self.restart(app, ps, self.reset_all_step)
+                self.say(app, "reset_all")
+            else:
+                self.restart(app, ps, self.reset_step if ps.placed else self.reset_all_step)
+                self.say(app, "reset")
+
+    def _contact(self, app: App, ps: ProcedureState, ev) -> None:
+        """The needle touched something: what, how far from the target, and whether it is the target."""
+        scene = self.scene
+        ps.target = ev.object
+        ps.needle_dist = float(ev.distance_to_target_mm)
+        if not np.isfinite(ps.first_dist):
+            ps.first_dist = ps.needle_dist
+        ps.hit_point = np.asarray(ev.point, dtype=np.float64)
+        radius = scene.target(ps.side or scene.sides[0]).radius
+        is_target = ev.role == scene.target_role
+        if is_target:
+            ps.finished = True
+        self.say(
+            app,
+            f"contact:{ev.role}",
+            "contact:target" if is_target else "contact",
+            what=scene.label(ev.object),
+            dist_mm=ev.distance_to_target_mm,
+            error_mm=ev.distance_to_target_mm - radius,
+            radius_mm=radius,
+            side=ps.side,
+        )
+        self.event(app, ps, f"contact:{ev.role}")
 
     def next_step(self, app: App, ps: ProcedureState) -> None:
         """Next moves on one step, except past a landmark that is not placed yet."""
