@@ -92,7 +92,7 @@ class AssessmentSystem:
     """Procedure stage, after the steps: the summary's assessment values (recomputed only for layers
     that changed since the last frame) and Save attempt."""
 
-    def __init__(self, st: CuttingState, app=None):
+    def __init__(self, st: CuttingState, app: App | None = None):
         self.st = st
         # made at build time, so no Save pressed before the first frame is missed
         self.widgets = app.events.reader(Widget) if app is not None else None
