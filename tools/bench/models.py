@@ -149,15 +149,43 @@ def run(args) -> int:
         raise UserError(f"--n: expected 4..60 nodes per edge, got {args.n}")
     if not (1 <= args.frames <= 100_000):
         raise UserError(f"--frames: expected 1..100000, got {args.frames}")
-    chosen = SETTINGS
-    if args.only:
-        want = [w.strip() for w in args.only.split(";") if w.strip()]
-        chosen = {k: v for k, v in SETTINGS.items() if any(k.startswith(w) for w in want)}
-        if not chosen:
-            raise UserError(f"--only: no setting starts with {args.only!r}; settings: {'; '.join(SETTINGS)}")
+    chosen = _chosen(args.only)
     numba.set_num_threads(1)
     # settings under XPBD's substep rule are measured on purpose: their warning is the table's business
     warnings.filterwarnings("ignore", message="xpbd: .* substeps", category=UserWarning)
+    scene, refs = _scene_and_references(args)
+    rows = [_measure(name, make, scene, refs, args.frames) for name, make in chosen.items()]
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    where = (
+        f"the 30 x 30 x 20 mm tissue block of {scene.b.spacing:g} mm tetrahedra, E = {scene.E:g} Pa, "
+        f"nu = {scene.nu:g}, lifted"
+        if args.scene == "tissue"
+        else "the 1 m block at 3 kPa, pulled"
+    )
+    info = {"load_average": os.getloadavg(), "nodes": scene.n_nodes, "budget_ms": BUDGET_MS, "scene": where}
+    info["rows"] = rows
+    (out / "results.json").write_text(json.dumps(info, indent=1))
+    md = _markdown(info, args.frames)
+    (out / "results.md").write_text("\n".join(md) + "\n")
+    print("\n".join(md))
+    return 0
+
+
+def _chosen(only: str | None) -> dict:
+    """The settings --only names (each `;`-separated word starts a setting's name); all without it."""
+    if not only:
+        return SETTINGS
+    want = [w.strip() for w in only.split(";") if w.strip()]
+    chosen = {k: v for k, v in SETTINGS.items() if any(k.startswith(w) for w in want)}
+    if not chosen:
+        raise UserError(f"--only: no setting starts with {only!r}; settings: {'; '.join(SETTINGS)}")
+    return chosen
+
+
+def _scene_and_references(args):
+    """The scene (--scene tissue: the surgical tissue block; else the study's 1 m block) and its
+    reference displacements at the first pull and at the next one."""
     if args.scene == "tissue":
         if not (1e3 <= args.E <= 1e6) or not (0.0 <= args.nu <= 0.499):
             raise UserError(f"--E / --nu: expected 1e3..1e6 Pa and 0..0.499, got {args.E:g} and {args.nu:g}")
@@ -172,56 +200,48 @@ def run(args) -> int:
     else:
         scene, refs = reference(args.n, (STRAIN, STRAIN + STEP))
         scene.E, scene.nu, scene.unit = E, NU, 1.0
-    rows = []
-    for name, make in chosen.items():
-        warm = make(scene)
-        warm.grab(scene.grabbed, scene.pos[scene.grabbed] + scene.grab_disp(STRAIN))
-        warm.step(1 / 60)  # compilation and factorisation outside the timing
-        body = make(scene)
-        t0 = time.thread_time()
-        body.grab(scene.grabbed, scene.pos[scene.grabbed] + scene.grab_disp(STRAIN))
-        body.step(1 / 60)  # the first frame after a new held set pays any factorisation: timed apart
-        first_ms = 1e3 * (time.thread_time() - t0)
-        solved: list[int] = []
-        reached, err, times = _phase(body, scene, refs[STRAIN], STRAIN, args.frames, name, solved)
-        reached = None if reached is None else reached + 1
-        # from the converged state: the tool moves on by 5 % (a new target, the same held set)
-        again, err2, times2 = (None, None, [])
-        if reached is not None:
-            again, err2, times2 = _phase(
-                body, scene, refs[STRAIN + STEP], STRAIN + STEP, args.frames, name + " +5%", solved
-            )
-        warm_ms = 1e3 * float(np.median(times2 or times))
-        rows.append(
-            {
-                "setting": name,
-                "nodes": scene.n_nodes,
-                "ms_per_frame_median": warm_ms,
-                "ms_per_frame_p90": 1e3 * float(np.percentile(times2 or times, 90)),
-                "over_budget": warm_ms / BUDGET_MS,
-                "first_frame_ms": first_ms,
-                "frames_to_5_percent_from_rest": reached,
-                "rms_error_from_rest": err,
-                "frames_to_5_percent_after_next_pull": again,
-                "rms_error_after_next_pull": err2,
-                # the active region: the nodes a frame solves (all free nodes unless the body sleeps)
-                "solved_nodes_median": int(np.median(solved)) if solved else None,
-                "solved_nodes_max": max(solved) if solved else None,
-            }
-        )
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    where = (
-        f"the 30 x 30 x 20 mm tissue block of {scene.b.spacing:g} mm tetrahedra, E = {scene.E:g} Pa, "
-        f"nu = {scene.nu:g}, lifted"
-        if args.scene == "tissue"
-        else "the 1 m block at 3 kPa, pulled"
-    )
-    info = {"load_average": os.getloadavg(), "nodes": scene.n_nodes, "budget_ms": BUDGET_MS, "scene": where}
-    info["rows"] = rows
-    (out / "results.json").write_text(json.dumps(info, indent=1))
+    return scene, refs
+
+
+def _measure(name: str, make, scene, refs: dict, frames: int) -> dict:
+    """One setting's row: frame times, the first frame apart, and the frames to 5 % from rest and
+    after the next pull."""
+    warm = make(scene)
+    warm.grab(scene.grabbed, scene.pos[scene.grabbed] + scene.grab_disp(STRAIN))
+    warm.step(1 / 60)  # compilation and factorisation outside the timing
+    body = make(scene)
+    t0 = time.thread_time()
+    body.grab(scene.grabbed, scene.pos[scene.grabbed] + scene.grab_disp(STRAIN))
+    body.step(1 / 60)  # the first frame after a new held set pays any factorisation: timed apart
+    first_ms = 1e3 * (time.thread_time() - t0)
+    solved: list[int] = []
+    reached, err, times = _phase(body, scene, refs[STRAIN], STRAIN, frames, name, solved)
+    reached = None if reached is None else reached + 1
+    # from the converged state: the tool moves on by 5 % (a new target, the same held set)
+    again, err2, times2 = (None, None, [])
+    if reached is not None:
+        again, err2, times2 = _phase(body, scene, refs[STRAIN + STEP], STRAIN + STEP, frames, name + " +5%", solved)
+    warm_ms = 1e3 * float(np.median(times2 or times))
+    return {
+        "setting": name,
+        "nodes": scene.n_nodes,
+        "ms_per_frame_median": warm_ms,
+        "ms_per_frame_p90": 1e3 * float(np.percentile(times2 or times, 90)),
+        "over_budget": warm_ms / BUDGET_MS,
+        "first_frame_ms": first_ms,
+        "frames_to_5_percent_from_rest": reached,
+        "rms_error_from_rest": err,
+        "frames_to_5_percent_after_next_pull": again,
+        "rms_error_after_next_pull": err2,
+        # the active region: the nodes a frame solves (all free nodes unless the body sleeps)
+        "solved_nodes_median": int(np.median(solved)) if solved else None,
+        "solved_nodes_max": max(solved) if solved else None,
+    }
+
+
+def _markdown(info: dict, frames: int) -> list[str]:
     md = [
-        f"{scene.n_nodes} nodes, {where} 10 % from rest then 5 % more from the converged state, "
+        f"{info['nodes']} nodes, {info['scene']} 10 % from rest then 5 % more from the converged state, "
         f"one thread, load average {info['load_average'][0]:.1f}. ms/frame: median (and 90th percentile) "
         f"of the warm frames; / {BUDGET_MS:g} ms: the median over the frame budget.",
         "",
@@ -229,8 +249,8 @@ def run(args) -> int:
         "frames to 5 % after the next 5 % pull | RMS at end | nodes solved a frame (median, most) |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    for r in rows:
-        a = r["frames_to_5_percent_from_rest"] or f"not within {args.frames}"
+    for r in info["rows"]:
+        a = r["frames_to_5_percent_from_rest"] or f"not within {frames}"
         b = r["frames_to_5_percent_after_next_pull"] or ("-" if r["rms_error_after_next_pull"] is None else "no")
         end = r["rms_error_after_next_pull"] if r["rms_error_after_next_pull"] is not None else r["rms_error_from_rest"]
         md.append(
@@ -238,6 +258,4 @@ def run(args) -> int:
             f"{r['over_budget']:.2f} | {r['first_frame_ms']:.0f} | {a} | {b} | {end:.3f} | "
             f"{r['solved_nodes_median']}, {r['solved_nodes_max']} |"
         )
-    (out / "results.md").write_text("\n".join(md) + "\n")
-    print("\n".join(md))
-    return 0
+    return md
