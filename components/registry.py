@@ -145,7 +145,6 @@ def component(name: str, *, help: str, build: Callable | None = None):
                 default = REQUIRED
             fields.append(Field(f.name, default=default, **meta))
         COMPONENTS[name] = Schema(name, help, tuple(fields), cls=cls, build=build)
-        cls.component_name = name
         return cls
 
     return deco

@@ -120,7 +120,6 @@ class Assessment:
 class RunInfo:
     """How this App was started (front ends and procedures may read it)."""
 
-    pack_ref: str
     pack_name: str
     scene: str
     headless: bool

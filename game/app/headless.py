@@ -93,7 +93,6 @@ def app_for_pack(
     pack: packs.Pack,
     scene: str | None,
     *,
-    ref: str | None = None,
     settings: dict | None = None,
     dt: float | None = None,
     render: bool = False,
@@ -118,9 +117,7 @@ def app_for_pack(
         app.insert_resource(FailedSaves())
         spawn_scene(app, pack, scene)
         scene_name = app.resource(PackResource).scene
-        app.insert_resource(
-            RunInfo(ref or pack.name, pack.name, scene_name, headless, render, out_dir, screenshot_every)
-        )
+        app.insert_resource(RunInfo(pack.name, scene_name, headless, render, out_dir, screenshot_every))
         app.insert_resource(Assessment())
         if save:
             app.insert_resource(refusing_records(save))
@@ -168,7 +165,7 @@ def build_app(ref: str, *, pack_paths=(), scene: str | None = None, **kwargs) ->
     """`PACK[/SCENE]` or a pack folder -> a started App (see `app_for_pack` for the keyword arguments);
     `scene`, when given, is the scene to start whatever the reference names (a replay's recorded one)."""
     root, ref_scene = packs.resolve(ref, pack_paths)
-    return app_for_pack(packs.load(root, pack_paths), scene or ref_scene, ref=ref, **kwargs)
+    return app_for_pack(packs.load(root, pack_paths), scene or ref_scene, **kwargs)
 
 
 def check_events(app: App, events, where: str) -> None:

@@ -374,13 +374,12 @@ class Renderer:
             self._scene(frame, cam, local, cv.fbo, hide, skip=live_set, part="opaque" if see_through else "all")
             cv.seen = self._seen(self._labels_seen.pop((0, 0, r.w, r.h), []))
             if see_through:
-                over_fbo, over_image = vc.over(cv)
+                over_fbo, _ = vc.over(cv)
                 over_fbo.use()
                 vc.copy(cv, local, depth=True)
                 self._scene(frame, cam, local, over_fbo, hide, skip=live_set, part="see-through")
             cv.key = layer_key
             cv.layers += 1
-            vc.layers_drawn += 1
             fbo.use()
             ctx.scissor = (r.x, r.y, r.w, r.h)
             ctx.viewport = (r.x, r.y, r.w, r.h)

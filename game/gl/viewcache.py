@@ -98,7 +98,6 @@ class ViewCache:
         self.reused = 0
         self.direct = 0
         self.layered = 0
-        self.layers_drawn = 0
         self.blitter = Blitter(ctx)
         self.blits = 0  # copies done by blitting rather than drawing
 

@@ -189,7 +189,6 @@ class Seat:
     error: str = ""
     tasks: list = field(default_factory=list)
     frames: int = 0
-    bytes_out: int = 0
 
 
 class Trainer:
@@ -249,10 +248,6 @@ class Trainer:
             if task is not asyncio.current_task():
                 task.cancel()
 
-    async def end_all(self) -> None:
-        for seat in list(self.running.values()):
-            await self.end(seat, "server stopping")
-
     async def send_child(self, seat: Seat, msg: dict) -> None:
         if seat.proc.stdin is None or seat.proc.returncode is not None:
             return
@@ -271,7 +266,6 @@ class Trainer:
                 if head[:1] == b"F":
                     ws = seat.socket
                     seat.frames += 1
-                    seat.bytes_out += len(payload)
                     if ws is not None:
                         try:
                             await ws.send_bytes(payload)

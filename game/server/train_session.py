@@ -180,7 +180,7 @@ class Session:
         self.settings = {"class": cfg["class"], "trainee": cfg["trainee"]}
         pack = packs.load(cfg["root"], cfg.get("pack_paths", []))
         # the window's App (headless=False: the window's settings), saving through the records server
-        app = app_for_pack(pack, None, ref=pack.name, settings=self.settings, headless=False, save="")
+        app = app_for_pack(pack, None, settings=self.settings, headless=False, save="")
         self.app = app
         app.insert_resource(server_records(channel, app, pack, self.settings))
         w, h = (int(x) for x in app.resource(Settings).get("window_size", [1280, 800]))

@@ -17,8 +17,6 @@ from dataclasses import dataclass
 
 from chainsim.systems.procedures.needle import records as layout
 
-RATING = tuple(str(k) for k in range(1, 11))
-
 
 @dataclass(frozen=True)
 class Question:

@@ -72,16 +72,6 @@ def from_axis_angle(axis: ArrayLike, angle_rad: float) -> np.ndarray:
     return np.array([math.cos(h), u[0] * s, u[1] * s, u[2] * s])
 
 
-def to_axis_angle(q: Quat) -> tuple[np.ndarray, float]:
-    """(unit axis, angle in radians in [0, pi]); the axis is +Z for the identity."""
-    q = normalize(q)
-    s = math.sqrt(max(0.0, 1.0 - q[0] * q[0]))
-    angle = 2.0 * math.atan2(s, q[0])
-    if s < 1e-12:
-        return np.array([0.0, 0.0, 1.0]), 0.0
-    return np.asarray(q[1:]) / s, angle
-
-
 def concat(*qs: Quat) -> np.ndarray:
     """mul(qs[-1], ... mul(qs[1], qs[0])): qs[0] applied first; renormalised."""
     out = np.asarray(qs[0], dtype=np.float64)

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import numpy as np
 import trimesh
-from numpy.typing import ArrayLike
 
 from chainsim.systems.engine import meshgen
 from chainsim.systems.engine.meshes import MeshData, boundary_triangles
@@ -22,14 +21,6 @@ DEFAULT_CELLS = 16
 
 class TetraError(ValueError):
     """A surface that cannot be filled (open, empty, or too fine for the requested pitch)."""
-
-
-def tet_block(shape: tuple[int, int, int], spacing: float = 1.0, origin: ArrayLike = (0.0, 0.0, 0.0)) -> MeshData:
-    """Structured block of nx*ny*nz elements as a MeshData (tets + outward boundary triangles)."""
-
-    pos, tets, _ = meshgen.tet_grid(*shape, spacing=spacing)
-    pos = pos + np.asarray(origin, dtype=np.float64)
-    return MeshData(pos, boundary_triangles(tets), tets)
 
 
 def tetrahedralize(

@@ -244,7 +244,7 @@ class Compiler:
 
     `first` names the groups wanted soonest (a pack's own); they are handed out before the others.
     `done` (groups finished, failed ones too: their kernels then compile where they are first called),
-    `failed` (name -> why) and `fraction()` say how far it got, from any thread; `ready(names)` whether
+    `failed` (name -> why) say how far it got, from any thread; `ready(names)` whether
     those groups are done;
     `wait()` blocks until all are. `seconds` is the time from start to the last group. `groups`
     defaults to the `reachable` ones; a group `first` or `prefer` names joins them.
@@ -383,10 +383,6 @@ class Compiler:
         with self._lock:
             have = set(self.done)
         return all(n in have or n not in GROUPS for n in names)
-
-    def fraction(self) -> float:
-        with self._lock:
-            return len(self.done) / self.total if self.total else 1.0
 
     def compiling(self) -> list[str]:
         """The groups being compiled now."""

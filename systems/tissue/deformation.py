@@ -58,9 +58,6 @@ class DeformationState:
     widgets: EventReader[Widget]
     drag_type: type | None = None  # view_events.Dragged, when the view system is part of the build
     dragging: dict = field(default_factory=dict)  # entity -> (element, its local start, world grab point)
-    cascades: int = 0
-    switches: int = 0
-    moved_total: int = 0
     errors: list = field(default_factory=list)
     announced: bool = False  # the HUD has said which model `auto` chose, and why
 
@@ -327,8 +324,6 @@ def switch_models(app: App, st: DeformationState, value: str) -> None:
             use_model(d, model)
         except UserError as e:
             st.errors.append(f"model switch: {e}")
-        else:
-            st.switches += 1
     models = sorted({d.model_used for _e, d in esper.get_component(Deformable)})
     if models:
         _say(app, f"Tissue model: {', '.join(models)} (m switches)", 3.0)
@@ -345,8 +340,6 @@ def _serve(app: App, st: DeformationState, req, counts: dict) -> None:
         if isinstance(req, GrabRequest):
             pts = _to_local(ent, as_points(req.targets, "GrabRequest.targets"), req.frame)
             changed = grab(d, req.ids, pts, hold=req.hold)
-            st.cascades += 1
-            st.moved_total += len(changed)
             c[0] += len(changed)
         elif isinstance(req, ReleaseRequest):
             release(d, req.ids)

@@ -113,7 +113,6 @@ class ViewState:
     xray: set[str] = field(default_factory=set)
     wire: set[str] = field(default_factory=set)
     panels: dict[str, list[wd.Placed]] = field(default_factory=dict)
-    show_help: bool = False  # the key page is open (kept in step with HudState)
     hover: str = ""  # widget under the pointer (its `help` is shown in the panel)
     # pointer capture (runtime)
     active: str | None = None
@@ -388,7 +387,6 @@ class ViewSystem:
                 h.close_doc()
             else:
                 open_help(h, list(app.resource(PackResource).pack.section("docs")), page)
-            app.resource(ViewState).show_help = h.doc_open and h.doc_name == "keys"
         if name.startswith("enlarge:"):
             vs = app.resource(ViewState)
             step = 0 if vs.enlarged != name[8:] else vs.enlarge
@@ -429,13 +427,10 @@ class ViewSystem:
         h: HudState = app.resource(HudState)
         if name == "close":
             h.close_doc()
-            vs = app.resource(ViewState)
-            vs.show_help = False
             return
         names = list(app.resource(PackResource).pack.section("docs"))
         if name == "docs":  # from the key page on to the help pages
             open_help(h, names)
-            app.resource(ViewState).show_help = False
             return
         if h.doc_name in names:
             k = names.index(h.doc_name) + (1 if name == "next" else -1)
@@ -606,10 +601,8 @@ class ViewSystem:
                         h.close_doc()
                     else:
                         h.open_doc("keys")
-                    vs.show_help = h.doc_open
                 elif ev.key == "escape" and h.doc_open:
                     h.close_doc()
-                    vs.show_help = False
                 if h.doc_open and ev.key in DOC_SCROLL:
                     h.doc_scroll = max(0, h.doc_scroll + DOC_SCROLL[ev.key])
                 st: wd.WidgetState = app.resource(wd.WidgetState)

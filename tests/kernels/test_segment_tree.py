@@ -47,7 +47,7 @@ def test_kernel_matches_brute_force_on_random_soup(seed, n_tri, seg):
     p0, p1 = np.array(seg[:3]), np.array(seg[3:])
     tree = SegmentTree.build(vertices, triangles)
     t, i = tree.first_hit(p0, p1)
-    bt, bi = brute_first_hit(p0, p1, vertices, triangles)
+    bt, _ = brute_first_hit(p0, p1, vertices, triangles)
     if np.isinf(bt):
         assert np.isinf(t) and i == -1
     else:

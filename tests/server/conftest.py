@@ -269,11 +269,6 @@ def save_scored(server: Server, who: str, body: dict, key: str | None = None, to
     return stored
 
 
-class NoRedirect(urllib.request.HTTPRedirectHandler):
-    def redirect_request(self, *args, **kwargs):
-        return None
-
-
 def populate(db: str) -> None:
     with RecordStore(db) as store:
         for name, role, classes in PEOPLE:

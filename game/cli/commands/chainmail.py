@@ -189,28 +189,6 @@ def move(body: Body, grab: int, target, relax_n=0, relax_step=1.0, order="breadt
     return Move(cm.positions, cm.last_order.astype(np.int64), sponsor, cm.last_exact if exact else None)
 
 
-def simulate(
-    positions,
-    links,
-    fixed_ids,
-    grab: int,
-    target,
-    alpha_min,
-    alpha_max,
-    beta,
-    relax_n=0,
-    relax_step=1.0,
-    order="breadth-first",
-    exact=False,
-):
-    """Run one move; returns (positions, order, sponsor (N,)), plus the ExactResult with exact=True."""
-    body = make_body(positions, links, fixed_ids, alpha_min, alpha_max, beta)
-    m = move(body, grab, target, relax_n, relax_step, order, exact)
-    if exact:
-        return m.positions, m.order, m.sponsor, m.exact
-    return m.positions, m.order, m.sponsor
-
-
 def write_result(out: Path, positions, order, sponsor, **extra) -> None:
     """Write OUT.npz atomically: a temporary file in the same folder, renamed when complete."""
 

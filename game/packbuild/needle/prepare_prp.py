@@ -341,7 +341,7 @@ def build(shared: Path, out: Path, params: BuildParams | None = None) -> dict:
     say("[2/6] moving the bones to the head frame, posing the mandible")
     head = {name: clean(reflect_mesh(m, origin_bp)) for name, m in bones.items()}
     maxillae = trimesh.util.concatenate([head[n] for n in MAXILLAE])
-    mandible, jaw_deg, jaw_pivot, jaw_axis = close_mandible(head[MANDIBLE], maxillae)
+    mandible, jaw_deg, jaw_pivot, _ = close_mandible(head[MANDIBLE], maxillae)
     say(f"  mandible closed: rotated {jaw_deg:+.1f} deg about the condylar axis through {np.round(jaw_pivot, 1)}")
     skull = clean(trimesh.util.concatenate([m for n, m in head.items() if n not in (MANDIBLE, HYOID)]))
     bite_before = occlusion(skull, mandible)

@@ -17,7 +17,6 @@ import numpy as np
 import trimesh
 
 #: eye opening (palpebral fissure) and iris sizes of adults, mm
-FISSURE_WIDTH_MM = 30.0
 FISSURE_UPPER_MM = 5.5  # upper lid above the pupil centre
 FISSURE_LOWER_MM = 4.5  # lower lid below it
 IRIS_RADIUS_MM = 5.9

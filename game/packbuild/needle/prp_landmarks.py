@@ -97,7 +97,7 @@ def inside_closed(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
     return count % 2 == 1
 
 
-def depth_map(mesh, xs, zs, y_start: float = 400.0):
+def depth_map(mesh, xs, zs):
     """Frontal depth map: the most anterior y of the mesh at each (x, z) (nan where none)."""
     gx, gz = np.meshgrid(xs, zs, indexing="ij")
     pts = np.c_[gx.ravel(), np.zeros(gx.size), gz.ravel()]
@@ -130,7 +130,7 @@ def orbit_centres(skull: trimesh.Trimesh) -> dict[str, np.ndarray]:
     depth map (medial/lateral along a row, superior/inferior along a column), iterated."""
     xs = np.arange(-70.0, 70.01, 1.0)
     zs = np.arange(-30.0, 70.01, 1.0)
-    y = depth_map(skull, xs, zs, 400.0)
+    y = depth_map(skull, xs, zs)
     out = {}
     for side, sgn in (("left", 1.0), ("right", -1.0)):
         cx, cz = sgn * 28.0, 20.0  # a start inside the orbit of an adult skull in this frame

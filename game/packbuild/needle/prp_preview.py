@@ -93,13 +93,3 @@ def marker(p, radius=1.5) -> trimesh.Trimesh:
     s = trimesh.creation.icosphere(subdivisions=1, radius=radius)
     s.apply_translation(p)
     return s
-
-
-def plane_quad(point, normal, half=40.0) -> trimesh.Trimesh:
-    n = np.asarray(normal, float) / np.linalg.norm(normal)
-    a = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-    a /= np.linalg.norm(a)
-    b = np.cross(n, a)
-    p = np.asarray(point, float)
-    v = np.array([p + half * (sa * a + sb * b) for sa, sb in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
-    return trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3]], process=False)

@@ -71,7 +71,6 @@ class ProjectiveBody(Body):
     # made by _prepare for the current step, held set and solver (None: to be made again)
     _factor: Any  # scipy's SuperLU factorisation of the free block
     _factor_key: tuple | None
-    _dt: float | None
     _rhs: np.ndarray | None
     _rate: float | None  # the last steps' convergence rate
 
@@ -159,7 +158,6 @@ class ProjectiveBody(Body):
         self.v = np.zeros_like(self.x)
         self._factor = None
         self._factor_key = None
-        self._dt = None
         self._rhs = None
         self._scale = max(float(np.ptp(rest_si, axis=0).max()), 1e-300)
         self.refactor_seconds = 0.0

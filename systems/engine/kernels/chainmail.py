@@ -8,7 +8,7 @@ with it as sponsor (5.2.3). Every element moves at most once per cascade (termin
 element that has not moved may be checked again by a later sponsor.
 
 Four orders for the waiting list:
-  ORDER_BREADTH_FIRST  a plain queue (ORDER_FIFO is the same order under its older name);
+  ORDER_BREADTH_FIRST  a plain queue;
   ORDER_DEPTH_FIRST    the list exactly as 5.2.3 words it: a moved element's neighbours go to the FRONT of
                        the waiting list, in their listed order, so one branch runs to its leaves first;
   ORDER_BALANCED       the round robin of 5.2.3 (Fig. 5.3): one branch per candidate enqueued by the grabbed
@@ -44,7 +44,6 @@ from .graph import Graph
 from .prefetch import prefetch
 
 ORDER_BREADTH_FIRST = 0
-ORDER_FIFO = ORDER_BREADTH_FIRST  # the older name of the same order
 ORDER_BALANCED = 1
 ORDER_SCHILL = 2
 ORDER_DEPTH_FIRST = 3

@@ -70,7 +70,6 @@ class CuttingState:
     step_ids: list = field(default_factory=list)
     step_events: list = field(default_factory=list)  # per step: [(kind, mm)] that complete it
     steps_done: list = field(default_factory=list)  # in the order they were done
-    links_cut: dict = field(default_factory=dict)  # layer name -> links cut since the last reset
     cut_length: float = 0.0  # mm since the last reset
     wireframe: bool = False
     resets: int = 0

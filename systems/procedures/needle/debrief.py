@@ -16,7 +16,6 @@ import numpy as np
 
 #: debrief row tones: how the window colours a row (PASS, FAIL and PLAIN are metric rows, set in columns)
 HEAD, PASS, FAIL, PLAIN, NOTE, ADVICE, CRITICAL = "head", "pass", "fail", "plain", "note", "advice", "critical"
-METRIC_TONES = (PASS, FAIL, PLAIN)
 
 
 def number(x: float | None, units: str = "") -> str:

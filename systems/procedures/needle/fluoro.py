@@ -60,7 +60,6 @@ DEG_PER_PX = 0.4
 #: submental-oblique: turned this far from straight up the canal toward the entry side (thesis
 #: 3.2.3; clinically the head is turned 15-20 degrees away from the painful side)
 OBLIQUE_DEG = 17.5
-WIDGETS = ("xray_lateral", "xray_submental", "xray_take", "fluoro_live", "carm_azimuth", "carm_elevation")
 
 
 def _on_minus_x(target: Target) -> bool:

@@ -53,30 +53,6 @@ MEASURES = (
     "exposure",
     "dose",
 )
-#: the events a step's `done_on` and a feedback's `on` may name (ARG: a role, landmark or widget name)
-EVENTS = (
-    ("click:ROLE", "a click on an entity of that role (landmark roles place the next landmark)"),
-    ("click_elsewhere", "a click that places nothing ({entity}: what was clicked)"),
-    ("landmark:ID", "that landmark was placed ({n}: its number, {side})"),
-    ("landmarks_full", "a click after every landmark is placed"),
-    ("landmark_missing", "Next pressed in a landmark step whose landmark is not placed ({n}, {instruction})"),
-    ("dial:WIDGET", "the needle was turned with that control (rotate_horizontal, rotate_vertical)"),
-    ("depth", "the needle was inserted (its depth set above 0)"),
-    ("withdrawn", "the needle came back to the skin; the dials are free again"),
-    (
-        "contact:ROLE",
-        "the tip touched an entity of that role ({what}, {dist_mm}: tip to the target centre, {radius_mm}, "
-        "{error_mm} = dist - radius, {side})",
-    ),
-    ("refused:locked", "a turn while the needle is in (rotation locked)"),
-    ("refused:not_placed", "a turn or an insertion before the entry landmark placed the needle"),
-    ("refused:in_target", "an insertion with the tip already in the target"),
-    ("refused:max_depth", "an insertion past the needle's max_depth"),
-    ("reset", "Reset: the needle back to the entry landmark"),
-    ("reset_all", "Reset with shift: the landmarks cleared as well"),
-    ("attempt", "a new attempt begins after a saved one ({attempt})"),
-    ("button:WIDGET", "a control-panel button was pressed"),
-)
 
 section(
     "needle_procedure",
@@ -254,7 +230,7 @@ PROCEDURE_HELP = (
     "the generic needle procedure its [needle_procedure], [roles], [[landmarks]], [[steps]] and [[feedback]] "
     "describe; 'prp' is its old name"
 )
-#: the events a step's done_on may name (the full list: EVENTS, docs/needle-procedures.md)
+#: the events a step's done_on may name (the full list: docs/needle-procedures.md)
 DONE_ON_HELP = "click:ROLE, landmark:ID, dial:WIDGET, depth, contact:ROLE, button:WIDGET"
 #: the keys a [[steps]] table has for this procedure
 STEP_FIELDS = (

@@ -17,9 +17,6 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-#: run styles: body text and its emphasis, headings by level, code, dim (table grid text)
-STYLES = ("body", "bold", "italic", "bolditalic", "code", "h1", "h2", "h3")
-
 Measure = Callable[[str, str], float]
 
 
