@@ -1,8 +1,10 @@
-"""Each feature alone: a bare App (no pack, no loader, no other plugin) with exactly one feature plugin,
+"""Each feature alone: a bare App (no pack loader, no other plugin) with exactly one feature plugin,
 its entities made by hand, checked through its components and events.
 
-A feature that works here needs nothing of the others: no PackResource, EntityIndex or HudState, and no
-system another plugin would have added.
+A feature that works here needs nothing of the others: no EntityIndex or HudState it does not make
+itself, and no system another plugin would have added. The tissue, motion and input features need no
+pack at all; the view draws and picks the pack's meshes in the pack's layout, so its test hands it a
+PackResource over a two-method stand-in for a pack (a mesh by name, a section by name).
 """
 
 from __future__ import annotations
@@ -12,17 +14,19 @@ import numpy as np
 import pytest
 
 from chainsim.components.app import App
-from chainsim.components.core import ScriptedMotion, Transform
+from chainsim.components.core import MeshRef, Name, ScriptedMotion, Transform
 from chainsim.components.input_events import Key, MouseButton, MouseMove
-from chainsim.components.resources import InputState, PendingInput
+from chainsim.components.resources import InputState, PackResource, PendingInput
 from chainsim.components.stages import STAGES
-from chainsim.systems.engine.meshes import MeshData
+from chainsim.components.view_events import Picked
+from chainsim.systems.engine.meshes import MeshData, primitive
 from chainsim.systems.engine.meshgen import triangulated_grid
 from chainsim.systems.motion import input as input_feature
 from chainsim.systems.motion import scripted
 from chainsim.systems.tissue import deformation
 from chainsim.systems.tissue.deformable import Deformable, setup_deformable
 from chainsim.systems.tissue.events import Deformed, GrabRequest, ReleaseRequest
+from chainsim.systems.view import cameras
 
 DT = 0.01
 
@@ -126,3 +130,45 @@ def test_the_input_plugin_alone_releases_due_events_into_input_state_and_the_eve
         log = app.resource(input_feature.InputLog)
         assert [ev for _t, ev in log.items] == [MouseMove(5.0, 6.0), Key("space"), MouseButton(7.0, 8.0, "left")]
         assert [t for t, _ev in log.items] == pytest.approx([0.0, 0.0, 0.05])
+
+
+# -- view ------------------------------------------------------------------------------------------------
+
+
+class _Pack:
+    """What the view reads of a pack: its meshes by name and its sections (no layout: the default view)."""
+
+    def __init__(self, meshes: dict[str, MeshData]):
+        self.meshes = meshes
+
+    def mesh(self, name: str) -> MeshData:
+        return self.meshes[name]
+
+    def section(self, name: str) -> dict:
+        return {}
+
+
+def test_the_view_plugin_alone_picks_the_mesh_under_a_click():
+    with App(dt=DT, name="view-alone") as app:
+        box = primitive("box", extents=(20.0, 20.0, 20.0), radius=1.0, height=1.0, resolution=(1, 1, 1))
+        app.insert_resource(PackResource(_Pack({"box": box}), "main", {}))
+        with app.active():
+            ent = esper.create_entity(Name("block"), MeshRef("box"), Transform(position=np.array([5.0, 0.0, 0.0])))
+        app.add_plugin(cameras.plugin)
+        assert _systems(app) == {"input": ["view"]}
+        picked = app.events.reader(Picked)
+
+        # the default view frames every mesh: a click in the middle of the window lands on the box
+        w, h = app.resource(InputState).window_size
+        app.events.emit(MouseButton(w / 2, h / 2, "left", pressed=True))
+        app.events.emit(MouseButton(w / 2, h / 2, "left", pressed=False))
+        app.update()
+        (ev,) = picked.read()
+        assert (ev.entity, ev.entity_name, ev.viewport) == (ent, "block", "main")
+        assert np.all(np.abs(np.asarray(ev.point) - [5.0, 0.0, 0.0]) <= 10.0 + 1e-9)  # on the box
+        assert max(np.abs(np.asarray(ev.point) - [5.0, 0.0, 0.0])) == pytest.approx(10.0)  # on its surface
+
+        app.events.emit(MouseButton(2.0, 2.0, "left", pressed=True))  # a corner of the window: nothing there
+        app.events.emit(MouseButton(2.0, 2.0, "left", pressed=False))
+        app.update()
+        assert picked.read() == []
