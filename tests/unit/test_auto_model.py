@@ -104,7 +104,7 @@ def test_every_row_of_the_shipped_table_builds_exactly_its_setting(monkeypatch):
             _ent, d = esper.get_component(Deformable)[0]
         for r in rows:
             assert set(r["params"]) <= set(ROW_PARAMS[r["model"]])
-            choice = Choice(r["model"], r["setting"], r["rms_error"], r["ms_per_update"], "test", dict(r["params"]))
+            choice = Choice(r["model"], r["setting"], r["rms_error"], "test", dict(r["params"]))
             monkeypatch.setattr(deformable, "choose_model", lambda *a, _c=choice, **k: _c)
             use_model(d, "auto")
             _check_body(d.body, r["model"], r["params"])

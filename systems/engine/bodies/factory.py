@@ -92,7 +92,6 @@ class Choice:
     model: str
     setting: str
     rms_error: float
-    ms_per_update: float
     reason: str
     params: dict = field(default_factory=dict)
 
@@ -172,6 +171,4 @@ def choose_model(
     else:
         best = min(cand, key=lambda r: r["ms"])
         why = f"nothing fits {budget} ms: the fastest on {where}"
-    return Choice(
-        best["model"], str(best["setting"]), float(best["rms_error"]), best["ms"], why, dict(best.get("params", {}))
-    )
+    return Choice(best["model"], str(best["setting"]), float(best["rms_error"]), why, dict(best.get("params", {})))
