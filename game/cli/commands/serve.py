@@ -20,7 +20,7 @@ database: --db PATH or postgresql://USER@HOST/DBNAME, else $CHAINSIM_DB, else th
 accounts: chainsim records user add --role trainer --class C NAME (see docs/records-server.md).
 examples:
   chainsim serve --db programme.sqlite3 --port 8000
-  chainsim serve --db postgresql://chainsim@db.example.org/records --host 0.0.0.0 --certfile c.pem --keyfile k.pem \
+  chainsim serve --db postgresql://chainsim@db.example.org/records --host 0.0.0.0 --certfile c.pem --keyfile k.pem \\
       --base-url https://training.example.org
 """
 
