@@ -25,7 +25,7 @@ NAME_MAX = limits.MAX_NAME_LENGTH
 AIDS = layout.AIDS
 
 # What the needle tip ended on; pack-specific objects use the same lower_snake_case form.
-KNOWN_TARGETS = frozenset({"none", "skull", "mandible"})
+KNOWN_TARGETS = layout.KNOWN_TARGETS
 TARGET_RE = re.compile(r"[a-z][a-z0-9_]{0,63}")
 STEP_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}")
 

@@ -25,6 +25,7 @@ from urllib.parse import quote
 
 from chainsim.game.records.validate import KNOWN_TARGETS
 from chainsim.systems.engine.errors import UserError
+from chainsim.systems.procedures.needle import records as layout
 
 XAPI_VERSION = "1.0.3"
 DEFAULT_HOMEPAGE = "http://localhost/chainsim"
@@ -69,7 +70,7 @@ def statement(attempt: dict[str, Any], homepage: str = DEFAULT_HOMEPAGE) -> dict
         "duration": iso_duration(attempt["duration_s"]),
         "extensions": {**metrics, f"{ext}/target": attempt["target"]},
     }
-    needle = attempt.get("needle_error_mm")
+    needle = attempt.get(layout.TARGET_ERROR)
     if isinstance(needle, numbers.Real):
         result["score"] = {"raw": float(needle)}
     return {

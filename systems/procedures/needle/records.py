@@ -51,6 +51,8 @@ COLUMNS: tuple[Column, ...] = (
 #: the aids of thesis 3.3.4 / 6.1.3 whose effect the study compares, as an attempt records them
 AIDS = ("skin_transparent", "reference_planes", "landmark_planes", "tip_view", "collision_signals")
 
+#: what the tip may end on that is not a target: nothing, or bone (an attempt so ended did not succeed)
+KNOWN_TARGETS = frozenset({"none", "skull", "mandible"})
 #: what an attempt's target looks like beside the known ones, for the message refusing a malformed one
 TARGET_FORM = "foramen_ovale_<side>"
 
