@@ -724,6 +724,109 @@ def _check_mesh(rest, pos, graph, amin, amax, beta) -> None:
         graph.bind_materials(amin, amax, beta)
 
 
+def _grab_arrays(grabbed, targets, fixed, n: int, dim: int, dtype):
+    """cascade's grabbed ids (int64, 1-D, at least one), targets (K, D) of the positions' dtype and
+    fixed mask (or none), as the kernels take them; ValueError on a wrong shape."""
+    if type(grabbed) is not np.ndarray or grabbed.dtype != _INT64 or grabbed.ndim != 1:
+        grabbed = np.ascontiguousarray(np.atleast_1d(np.asarray(grabbed)), dtype=np.int64)
+        if grabbed.ndim != 1:
+            raise ValueError("grabbed must be a 1-D array of element ids")
+    k = grabbed.shape[0]
+    if k < 1:
+        raise ValueError("grabbed must hold at least one element id")
+    if type(targets) is not np.ndarray or targets.dtype != dtype or not targets.flags.c_contiguous:
+        targets = np.ascontiguousarray(targets, dtype=dtype)
+    if targets.shape != (k, dim):
+        if targets.ndim == 1 and k == 1 and targets.shape[0] == dim:
+            targets = targets.reshape(1, dim)
+        else:
+            raise ValueError(f"targets must have shape ({k}, {dim}), got {targets.shape}")
+    if fixed is None:
+        fixed_arr, has_fixed = _NO_FIXED, False
+    else:
+        fixed_arr = fixed
+        if type(fixed_arr) is not np.ndarray or fixed_arr.dtype != _BOOL or fixed_arr.shape != (n,):
+            fixed_arr = np.ascontiguousarray(fixed, dtype=np.bool_)
+            if fixed_arr.shape != (n,):
+                raise ValueError(f"fixed must be a bool array of shape ({n},) or None, got {fixed_arr.shape}")
+        has_fixed = True
+    return grabbed, targets, fixed_arr, has_fixed
+
+
+def _run_cascade(rest, pos, graph, kargs, grabbed, targets, fixed_arr, has_fixed, order, depth, parallel, ws) -> int:
+    """One cascade in the chosen order's kernel; returns how many elements moved (negative: a start
+    error, _START_ERRORS)."""
+    gen = ws.next_generation()
+    args = (rest, pos, *kargs, grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen)
+    if order == ORDER_BREADTH_FIRST:
+        if parallel:
+            count = waves.cascade_waves(*args, ws)  # type: ignore[call-arg]  # mypy lets *args take every parameter
+        else:
+            csr = ws.narrow_csr(graph, kargs, padded=True)
+            count = _cascade_fifo(
+                rest, pos, *csr, grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen, ws.out_order, ws.out_sponsor,
+                graph.n_dead > 0,
+            )  # fmt: skip
+    elif order == ORDER_DEPTH_FIRST:
+        count = _cascade_depth_first(*args, ws.q_entry, ws.q_sponsor, ws.out_order, ws.out_sponsor)
+    elif order == ORDER_BALANCED:
+        count = _cascade_balanced(
+            *args,
+            int(depth),
+            ws.q_entry,
+            ws.q_sponsor,
+            ws.q_aux,
+            ws.q_next,
+            ws.branch_head,
+            ws.branch_tail,
+            ws.out_order,
+            ws.out_sponsor,
+        )
+    else:
+        count = _cascade_schill(*args, ws.q_entry, ws.q_sponsor, ws.q_key, ws.q_aux, ws.out_order, ws.out_sponsor)
+    return count
+
+
+def _parallel(order, depth, parallel, n: int) -> bool:
+    """Check cascade's order and depth; whether it runs on numba's threads (parallel=None: where that wins)."""
+    if order not in _ORDERS:
+        raise ValueError(
+            "order must be ORDER_BREADTH_FIRST (0), ORDER_BALANCED (1), ORDER_SCHILL (2) or ORDER_DEPTH_FIRST (3), "
+            f"got {order!r}"
+        )
+    if order == ORDER_BALANCED and depth < 1:
+        raise ValueError(f"depth must be >= 1, got {depth}")
+    if parallel is None:
+        # the size first, then the most threads numba may run: asking numba for its current thread count
+        # costs about ten microseconds (a drag frame on a small patch costs not many more), and the rule
+        # never picks the kernel for fewer threads where it does not for more
+        parallel = (
+            order == ORDER_BREADTH_FIRST
+            and n >= waves.AUTO_MIN_ELEMENTS
+            and waves.parallel_wins(n, numba.config.NUMBA_NUM_THREADS)
+            and waves.parallel_wins(n, numba.get_num_threads())
+        )
+    if parallel and order != ORDER_BREADTH_FIRST:
+        raise ValueError("parallel=True runs the breadth-first order only")
+    return parallel
+
+
+def _workspace_for(workspace, n: int, order, grabbed, graph) -> Workspace:
+    """The workspace the cascade runs in (a temporary one without it), its queues sized for the order."""
+    k = grabbed.shape[0]
+    ws = workspace if workspace is not None else Workspace(n)
+    if ws.n != n:
+        raise ValueError(f"workspace was made for {ws.n} elements, mesh has {n}")
+    if order == ORDER_BALANCED:
+        if grabbed.min() < 0 or grabbed.max() >= n:
+            raise ValueError(_START_ERRORS[-1].replace("N)", f"{n})"))
+        branches = int((graph.indptr[grabbed + 1] - graph.indptr[grabbed]).sum())
+        ws.ensure(graph.indices.shape[0] + k, order, branches)
+    elif order in (ORDER_SCHILL, ORDER_DEPTH_FIRST):
+        ws.ensure(graph.indices.shape[0] + k, order)
+    return ws
+
+
 def cascade(
     rest,
     pos,
@@ -776,87 +879,10 @@ def cascade(
         if workspace is not None and workspace.n == pos.shape[0]:
             workspace.checked = (pos, rest, graph, amin, amax, beta, graph.entry_amin, kargs)
     n, dim = pos.shape
-    if type(grabbed) is not np.ndarray or grabbed.dtype != _INT64 or grabbed.ndim != 1:
-        grabbed = np.ascontiguousarray(np.atleast_1d(np.asarray(grabbed)), dtype=np.int64)
-        if grabbed.ndim != 1:
-            raise ValueError("grabbed must be a 1-D array of element ids")
-    k = grabbed.shape[0]
-    if k < 1:
-        raise ValueError("grabbed must hold at least one element id")
-    if type(targets) is not np.ndarray or targets.dtype != pos.dtype or not targets.flags.c_contiguous:
-        targets = np.ascontiguousarray(targets, dtype=pos.dtype)
-    if targets.shape != (k, dim):
-        if targets.ndim == 1 and k == 1 and targets.shape[0] == dim:
-            targets = targets.reshape(1, dim)
-        else:
-            raise ValueError(f"targets must have shape ({k}, {dim}), got {targets.shape}")
-    if fixed is None:
-        fixed_arr, has_fixed = _NO_FIXED, False
-    else:
-        fixed_arr = fixed
-        if type(fixed_arr) is not np.ndarray or fixed_arr.dtype != _BOOL or fixed_arr.shape != (n,):
-            fixed_arr = np.ascontiguousarray(fixed, dtype=np.bool_)
-            if fixed_arr.shape != (n,):
-                raise ValueError(f"fixed must be a bool array of shape ({n},) or None, got {fixed_arr.shape}")
-        has_fixed = True
-    if order not in _ORDERS:
-        raise ValueError(
-            "order must be ORDER_BREADTH_FIRST (0), ORDER_BALANCED (1), ORDER_SCHILL (2) or ORDER_DEPTH_FIRST (3), "
-            f"got {order!r}"
-        )
-    if order == ORDER_BALANCED and depth < 1:
-        raise ValueError(f"depth must be >= 1, got {depth}")
-    if parallel is None:
-        # the size first, then the most threads numba may run: asking numba for its current thread count
-        # costs about ten microseconds (a drag frame on a small patch costs not many more), and the rule
-        # never picks the kernel for fewer threads where it does not for more
-        parallel = (
-            order == ORDER_BREADTH_FIRST
-            and pos.shape[0] >= waves.AUTO_MIN_ELEMENTS
-            and waves.parallel_wins(pos.shape[0], numba.config.NUMBA_NUM_THREADS)
-            and waves.parallel_wins(pos.shape[0], numba.get_num_threads())
-        )
-    if parallel and order != ORDER_BREADTH_FIRST:
-        raise ValueError("parallel=True runs the breadth-first order only")
-
-    ws = workspace if workspace is not None else Workspace(n)
-    if ws.n != n:
-        raise ValueError(f"workspace was made for {ws.n} elements, mesh has {n}")
-    if order == ORDER_BALANCED:
-        if grabbed.min() < 0 or grabbed.max() >= n:
-            raise ValueError(_START_ERRORS[-1].replace("N)", f"{n})"))
-        branches = int((graph.indptr[grabbed + 1] - graph.indptr[grabbed]).sum())
-        ws.ensure(graph.indices.shape[0] + k, order, branches)
-    elif order in (ORDER_SCHILL, ORDER_DEPTH_FIRST):
-        ws.ensure(graph.indices.shape[0] + k, order)
-    gen = ws.next_generation()
-    args = (rest, pos, *kargs, grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen)
-    if order == ORDER_BREADTH_FIRST:
-        if parallel:
-            count = waves.cascade_waves(*args, ws)  # type: ignore[call-arg]  # mypy lets *args take every parameter
-        else:
-            csr = ws.narrow_csr(graph, kargs, padded=True)
-            count = _cascade_fifo(
-                rest, pos, *csr, grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen, ws.out_order, ws.out_sponsor,
-                graph.n_dead > 0,
-            )  # fmt: skip
-    elif order == ORDER_DEPTH_FIRST:
-        count = _cascade_depth_first(*args, ws.q_entry, ws.q_sponsor, ws.out_order, ws.out_sponsor)
-    elif order == ORDER_BALANCED:
-        count = _cascade_balanced(
-            *args,
-            int(depth),
-            ws.q_entry,
-            ws.q_sponsor,
-            ws.q_aux,
-            ws.q_next,
-            ws.branch_head,
-            ws.branch_tail,
-            ws.out_order,
-            ws.out_sponsor,
-        )
-    else:
-        count = _cascade_schill(*args, ws.q_entry, ws.q_sponsor, ws.q_key, ws.q_aux, ws.out_order, ws.out_sponsor)
+    grabbed, targets, fixed_arr, has_fixed = _grab_arrays(grabbed, targets, fixed, n, dim, pos.dtype)
+    parallel = _parallel(order, depth, parallel, n)
+    ws = _workspace_for(workspace, n, order, grabbed, graph)
+    count = _run_cascade(rest, pos, graph, kargs, grabbed, targets, fixed_arr, has_fixed, order, depth, parallel, ws)
     if count < 0:
         raise ValueError(_START_ERRORS[count].replace("N)", f"{n})"))
     moved = ws.out_order[:count]
