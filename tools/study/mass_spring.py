@@ -244,24 +244,9 @@ class MassSpring:
         t1 = time.thread_time()
         blowup = 1e3 * (np.abs(self.pos).max() + np.abs(x).max() + 1.0)
         code, steps, resid = integrate(
-            x,
-            v,
-            self.links,
-            self.rest,
-            self.k,
-            1.0 / self.mass,
-            gamma,
-            free,
-            float(dt),
-            int(max_steps),
-            SCHEMES[scheme],
-            tol * max(r0, 1e-300),
-            blowup,
-            c,
-            np.ascontiguousarray(self.pos[c]),
-            cdisp,
-            ramp_steps,
-        )
+            x, v, self.links, self.rest, self.k, 1.0 / self.mass, gamma, free, float(dt), int(max_steps),
+            SCHEMES[scheme], tol * max(r0, 1e-300), blowup, c, np.ascontiguousarray(self.pos[c]), cdisp, ramp_steps,
+        )  # fmt: skip
         t_run = time.thread_time() - t1
         status = _STATUS[int(code)]
         u = None if status == "diverged" or not np.all(np.isfinite(x)) else x - self.pos
