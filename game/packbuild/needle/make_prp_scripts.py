@@ -52,8 +52,7 @@ def _skin(pack):
     tr = ent.get("transform")
     v = mesh.vertices
     if tr is not None:
-        m = Transform(np.asarray(tr["position"]), np.asarray(tr["rotation"]), float(tr["scale"])).matrix()
-        v = v @ m[:3, :3].T + m[:3, 3]
+        v = Transform(np.asarray(tr["position"]), np.asarray(tr["rotation"]), float(tr["scale"])).apply(v)
     return trimesh.Trimesh(v, mesh.triangles, process=False)
 
 
