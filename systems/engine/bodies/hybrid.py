@@ -258,12 +258,13 @@ class HybridBody(ProjectiveBody):
             used, cidx = np.unique(ids, return_inverse=True)
             P = sp.csr_matrix((cw.ravel(), (np.repeat(np.arange(nf), 8), cidx.ravel())), shape=(nf, len(used)))
             P3 = sp.kron(P, sp.eye(3), format="csr")
-            Kc = (P3.T @ K_ff @ P3).tocsc()
+            KP = (K_ff @ P3).tocsr()  # the coarse step's force change K P y in one product with fewer entries
+            Kc = (P3.T @ KP).tocsc()
             cd = Kc.diagonal()
             if np.any(cd <= 1e-300 * max(cd.max(), 1e-300)):
                 Kc = Kc + sp.diags(np.where(cd <= 1e-300 * max(cd.max(), 1e-300), 1.0, 0.0))
             factor = splu(Kc, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-            s["coarse"] = (K_ff, P3, factor)
+            s["coarse"] = (KP, P3, factor)
             # K from the held dofs into the solved ones: the linear response to a move of the grabbed nodes
             s["K_fh"] = K_rows.multiply(np.repeat(~solve, 3)[None, :]).tocsr()
         s["seconds"] = time.perf_counter() - t0
@@ -302,9 +303,11 @@ class HybridBody(ProjectiveBody):
             # the linear response (rest stiffness: forces -K_fh jump, one coarse solve and the CG smoothing),
             # so the first local step sees a body already near the new shape, not one ring of elements
             # stretched by the whole jump
-            delta = np.zeros((self.n, 3))
-            delta[self.grab_ids] = jump
-            predicted = self._correct(s, -(s["K_fh"] @ delta.ravel()).reshape(-1, 3), x)
+            key = self.grab_ids.tobytes()
+            if s.get("K_fg_key") != key:  # only the grabbed nodes' columns of K_fh act on a jump
+                s["K_fg"] = s["K_fh"][:, (3 * self.grab_ids[:, None] + np.arange(3)).ravel()].tocsr()
+                s["K_fg_key"] = key
+            predicted = self._correct(s, -(s["K_fg"] @ jump.ravel()).reshape(-1, 3), x)
         disp = float(np.max(np.abs(x - self.rest * self.unit))) if len(x) else 0.0
         scale = max(disp, 1e-12 * self._scale)
         change = np.zeros(self.n)
@@ -380,10 +383,10 @@ class HybridBody(ProjectiveBody):
         r, z, p, q, d = s["scratch"]
         step = np.zeros_like(f)
         if s["coarse"] is not None and not self.coarse_off:
-            K_ff, P3, factor = s["coarse"]
-            dc = P3 @ factor.solve(P3.T @ f.ravel())
-            f = f - (K_ff @ dc).reshape(-1, 3)
-            step += dc.reshape(-1, 3)
+            KP, P3, factor = s["coarse"]
+            y = factor.solve(P3.T @ f.ravel())
+            f = f - (KP @ y).reshape(-1, 3)
+            step += (P3 @ y).reshape(-1, 3)
         d[:] = 0.0
         pcg3(indptr, indices, data, s["inv_diag"], f, d, self.cg_iterations, 1e-10, r, z, p, q)
         step += d
