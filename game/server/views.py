@@ -33,6 +33,7 @@ import json
 from typing import Any
 
 from jinja2 import Environment, PackageLoader, select_autoescape
+from markupsafe import Markup
 from starlette.requests import Request
 from starlette.responses import HTMLResponse, RedirectResponse, Response
 from starlette.routing import Route
@@ -421,6 +422,9 @@ def attempt_view(a: dict, specs: dict) -> dict:
         "outcome": debrief.outcome(rows),
         "verdict": debrief.verdict_line(debrief.outcome(rows)) if any(r["passed"] is not None for r in rows) else "",
         "marks": marks,
+        "marks_heading": layout.MARKS_HEADING,
+        "marks_column": layout.MARKS_COLUMN,
+        "marks_note": Markup(layout.MARKS_NOTE),  # the procedure's own text, with its subscripts
         "facts": facts,
     }
 

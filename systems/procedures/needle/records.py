@@ -59,6 +59,15 @@ TARGET_FORM = "foramen_ovale_<side>"
 #: details keys: the points the trainee marked and their ideal positions (x, y, z mm; None: not placed)
 MARKS = "landmarks"
 IDEAL_MARKS = "ideal_landmarks"
+#: the attempt page's table of the marked points: its heading, the column naming a point, and what the
+#: terms D and d per point are (HTML, this module's own text)
+MARKS_HEADING = "Landmarks"
+MARKS_COLUMN = "landmark"
+MARKS_NOTE = (
+    "For landmark k, D<sub>k</sub> (D1, D2, D3) is how far its distance to its anatomical point is from the "
+    "ideal distance, and d<sub>k</sub> (d1, d2, d3) is its distance to the landmark's plane (thesis 6.1.5); "
+    "0 mm is a perfect landmark. The landmark error is the mean of every D and d."
+)
 
 #: details and assessment fields said in words on an attempt's page: field -> (words, units)
 FIELD_WORDS: dict[str, tuple[str, str]] = {
