@@ -294,36 +294,14 @@ def run_pack(
         n = int(steps if steps is not None else app.resource(Settings).get("steps", 600))
         for _ in _steps(n):
             app.update(app.time.dt)
-        digest = world_digest(app)
-        log = app.get_resource(InputLog)
-        summary = {
-            "pack": pres.pack.name,
-            "scene": pres.scene,
-            "steps": app.time.tick,
-            "frames": app.time.frame,
-            "dt": app.time.dt,
-            "simulated_time_s": app.time.sim_time,
-            "systems": app.system_stats(),
-            "digest": digest,
-            "events_applied": len(log.items) if log else 0,
-        }
-        models = body_models(app)
-        if models:
-            summary["models"] = models
-        assessment = app.resource(Assessment).values
-        if assessment:
-            summary["assessment"] = _jsonable(assessment)
+        summary = _summary(app)
         if record:
+            log = app.get_resource(InputLog)
+            applied = log.items if log else timed
             write_recording(
-                record,
-                pack=ref,
-                scene=pres.scene,
-                dt=app.time.dt,
-                steps=n,
-                events=log.items if log else timed,
-                digest=digest,
-                settings=settings,
-            )
+                record, pack=ref, scene=pres.scene, dt=app.time.dt, steps=n, events=applied,
+                digest=summary["digest"], settings=settings,
+            )  # fmt: skip
         failed = app.resource(FailedSaves).messages
         if failed:
             summary["save_errors"] = list(failed)
@@ -335,6 +313,32 @@ def run_pack(
         return summary
     finally:
         app.close()
+
+
+def _summary(app) -> dict[str, Any]:
+    """What a headless run reports: the pack and scene, steps and time, per-system costs, the world's
+    digest, the input applied, the bodies' models and the assessment."""
+    digest = world_digest(app)
+    pres: PackResource = app.resource(PackResource)
+    log = app.get_resource(InputLog)
+    summary = {
+        "pack": pres.pack.name,
+        "scene": pres.scene,
+        "steps": app.time.tick,
+        "frames": app.time.frame,
+        "dt": app.time.dt,
+        "simulated_time_s": app.time.sim_time,
+        "systems": app.system_stats(),
+        "digest": digest,
+        "events_applied": len(log.items) if log else 0,
+    }
+    models = body_models(app)
+    if models:
+        summary["models"] = models
+    assessment = app.resource(Assessment).values
+    if assessment:
+        summary["assessment"] = _jsonable(assessment)
+    return summary
 
 
 def body_models(app) -> dict:
