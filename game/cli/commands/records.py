@@ -109,6 +109,58 @@ def _summary(a: dict) -> str:
     )
 
 
+def _attempts_table(rows) -> str:
+    """`records list`: one line per attempt, the listed metrics around its target."""
+    return report.table(
+        [
+            "id",
+            "created_at",
+            "class",
+            "trainee",
+            "pack",
+            *(c.short for c in _LISTED[:3]),
+            "target",
+            *(c.short for c in _LISTED[3:]),
+        ],
+        [
+            [
+                a["id"],
+                a["created_at"],
+                a["class_name"],
+                a["trainee"],
+                a["pack"],
+                *(a[c.name] for c in _LISTED[:3]),
+                a["target"],
+                *(a[c.name] for c in _LISTED[3:]),
+            ]
+            for a in rows
+        ],
+    )
+
+
+def _show(a: dict) -> None:
+    """`records show`: every field of one attempt, one a line."""
+    width = max(len(k) for k in a)
+    for key, value in a.items():
+        text = json.dumps(value, sort_keys=True) if isinstance(value, dict) else ("-" if value is None else value)
+        print(f"{key.ljust(width)}  {printable(str(text))}")
+
+
+def _export(args, store) -> None:
+    """`records export`: the attempts as CSV (--csv / --out) or as xAPI statements (--format xapi)."""
+    fmt = args.format or "csv"
+    if fmt == "csv" and (args.csv or args.out) is None:
+        raise UserError("export needs --csv FILE (or --format xapi --out FILE)")
+    if fmt == "xapi" and args.csv is not None:
+        raise UserError("--csv writes CSV; with --format xapi use --out FILE")
+    rows = store.list_attempts(args.class_name, args.trainee)
+    if fmt == "xapi":
+        records_server.export_xapi(args, rows)
+    else:
+        report.export_csv(rows, args.csv or args.out)
+        print(f"wrote {len(rows)} attempt(s) to {args.csv or args.out}", file=sys.stderr)
+
+
 def run(args: argparse.Namespace) -> int:
 
     with RecordStore(args.db, create=args.action not in READ_ONLY) as store:
@@ -130,54 +182,11 @@ def run(args: argparse.Namespace) -> int:
                 )
             )
         elif act == "list":
-            rows = store.list_attempts(args.class_name, args.trainee)
-            print(
-                report.table(
-                    [
-                        "id",
-                        "created_at",
-                        "class",
-                        "trainee",
-                        "pack",
-                        *(c.short for c in _LISTED[:3]),
-                        "target",
-                        *(c.short for c in _LISTED[3:]),
-                    ],
-                    [
-                        [
-                            a["id"],
-                            a["created_at"],
-                            a["class_name"],
-                            a["trainee"],
-                            a["pack"],
-                            *(a[c.name] for c in _LISTED[:3]),
-                            a["target"],
-                            *(a[c.name] for c in _LISTED[3:]),
-                        ]
-                        for a in rows
-                    ],
-                )
-            )
+            print(_attempts_table(store.list_attempts(args.class_name, args.trainee)))
         elif act == "show":
-            a = store.get_attempt(args.id)
-            width = max(len(k) for k in a)
-            for key, value in a.items():
-                text = (
-                    json.dumps(value, sort_keys=True) if isinstance(value, dict) else ("-" if value is None else value)
-                )
-                print(f"{key.ljust(width)}  {printable(str(text))}")
+            _show(store.get_attempt(args.id))
         elif act == "export":
-            fmt = args.format or "csv"
-            if fmt == "csv" and (args.csv or args.out) is None:
-                raise UserError("export needs --csv FILE (or --format xapi --out FILE)")
-            if fmt == "xapi" and args.csv is not None:
-                raise UserError("--csv writes CSV; with --format xapi use --out FILE")
-            rows = store.list_attempts(args.class_name, args.trainee)
-            if fmt == "xapi":
-                records_server.export_xapi(args, rows)
-            else:
-                report.export_csv(rows, args.csv or args.out)
-                print(f"wrote {len(rows)} attempt(s) to {args.csv or args.out}", file=sys.stderr)
+            _export(args, store)
         elif act == "delete":
             a = store.get_attempt(args.id)
             if not args.yes:
