@@ -375,13 +375,9 @@ def restart(args, proto: dict) -> None:
     print(f"retracted {len(saved)} trials of {args.participant}; the session starts at trial 1")
 
 
-def run_scripted(args, proto: dict) -> int:
-    """The smoke test: every trial's scripts headless, saved and tabled - and labelled as scripted."""
-    root, _scene = packs.resolve(proto["pack"], args.pack_path)
-    pack = packs.load(root, args.pack_path)
-    check_target(args.db)  # a mistyped or read-only database is refused before the first trial
-    out = _out_dir(args)
-    # check every script before anything runs or is saved
+def _scripted_plan(proto: dict, root) -> list[tuple]:
+    """(trial, script path, its events, repeat) for every attempt of a --scripted run; every script is
+    checked before anything runs or is saved."""
     plan = []
     for t in proto["trials"]:
         if not t["scripts"]:
@@ -391,6 +387,16 @@ def run_scripted(args, proto: dict) -> int:
             events = load_script(path)
             for r in range(t["repeat"]):
                 plan.append((t, path, events, r))
+    return plan
+
+
+def run_scripted(args, proto: dict) -> int:
+    """The smoke test: every trial's scripts headless, saved and tabled - and labelled as scripted."""
+    root, _scene = packs.resolve(proto["pack"], args.pack_path)
+    pack = packs.load(root, args.pack_path)
+    check_target(args.db)  # a mistyped or read-only database is refused before the first trial
+    out = _out_dir(args)
+    plan = _scripted_plan(proto, root)
     study = study_name(proto)
     logger.warning("SCRIPTED smoke test: input scripts, not people, make these attempts.")
     store = RecordStore(args.db)
