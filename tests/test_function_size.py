@@ -47,7 +47,6 @@ ALLOWED: dict[str, tuple[int, str]] = {
     # not split yet
     "game/server/replay3d.py::replay_track": (98, "to split: replay, then the track's samples and contacts"),
     "systems/procedures/needle/manifest.py::scene_from_pack": (96, "to split: one reader per table"),
-    "systems/view/ui/markdown.py::parse": (81, "to split: block kinds"),
 }
 
 

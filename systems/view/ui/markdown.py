@@ -110,6 +110,36 @@ _BULLET = re.compile(r"^(\s*)[-*+]\s+(.*)$")
 _NUMBER = re.compile(r"^(\s*)(\d+)[.)]\s+(.*)$")
 
 
+def _table_at(lines: list[str], i: int) -> tuple[Block, int]:
+    """The table whose header is lines[i] (its separator row next); (block, the line after it)."""
+    rows = [[inline(c) for c in _cells(lines[i].rstrip())]]
+    i += 2
+    while i < len(lines) and lines[i].strip().startswith("|"):
+        rows.append([inline(c) for c in _cells(lines[i])])
+        i += 1
+    return Block("table", rows=rows), i
+
+
+def _item_at(lines: list[str], i: int, m: re.Match, bullet: bool) -> tuple[Block, int]:
+    """The list item at lines[i] (`m`: its marker matched) with its continuation lines; (block, the
+    line after it)."""
+    indent = len(m.group(1))
+    text = [m.group(2) if bullet else m.group(3)]
+    i += 1
+    # continuation lines: indented further than the marker, not a new item
+    while (
+        i < len(lines)
+        and lines[i].strip()
+        and len(lines[i]) - len(lines[i].lstrip()) > indent
+        and not _BULLET.match(lines[i])
+        and not _NUMBER.match(lines[i])
+    ):
+        text.append(lines[i].strip())
+        i += 1
+    kind, marker = ("bullet", "\u2022") if bullet else ("number", f"{m.group(2)}.")
+    return Block(kind, inline(" ".join(text)), level=indent // 2, marker=marker), i
+
+
 def parse(markdown: str) -> list[Block]:
     """Blocks of a Markdown page, in order."""
     lines = markdown.splitlines()
@@ -158,32 +188,15 @@ def parse(markdown: str) -> list[Block]:
             continue
         if t.lstrip().startswith("|") and i + 1 < len(lines) and _SEP.match(lines[i + 1]):
             flush_para()
-            rows = [[inline(c) for c in _cells(t)]]
-            i += 2
-            while i < len(lines) and lines[i].strip().startswith("|"):
-                rows.append([inline(c) for c in _cells(lines[i])])
-                i += 1
-            blocks.append(Block("table", rows=rows))
+            block, i = _table_at(lines, i)
+            blocks.append(block)
             continue
         mb, mn = _BULLET.match(t), _NUMBER.match(t)
         m = mb or mn
         if m is not None:
             flush_para()
-            indent = len(m.group(1))
-            text = [m.group(2) if mb else m.group(3)]
-            i += 1
-            # continuation lines: indented further than the marker, not a new item
-            while (
-                i < len(lines)
-                and lines[i].strip()
-                and len(lines[i]) - len(lines[i].lstrip()) > indent
-                and not _BULLET.match(lines[i])
-                and not _NUMBER.match(lines[i])
-            ):
-                text.append(lines[i].strip())
-                i += 1
-            kind, marker = ("bullet", "\u2022") if mb else ("number", f"{m.group(2)}.")
-            blocks.append(Block(kind, inline(" ".join(text)), level=indent // 2, marker=marker))
+            block, i = _item_at(lines, i, m, bullet=mb is not None)
+            blocks.append(block)
             continue
         para.append(t)
         i += 1
