@@ -46,7 +46,6 @@ ALLOWED: dict[str, tuple[int, str]] = {
     "game/bench/records.py::run_bench": (98, "benchmark driver: the timed sequence"),
     # not split yet
     "game/server/replay3d.py::replay_track": (98, "to split: replay, then the track's samples and contacts"),
-    "systems/procedures/needle/manifest.py::scene_from_pack": (96, "to split: one reader per table"),
 }
 
 

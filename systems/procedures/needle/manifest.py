@@ -358,80 +358,85 @@ def _first(table: dict, names, side: str):
     return None, None
 
 
+def _role(name: str, spec: dict, sides) -> Role:
+    """A [roles.NAME] table: its entities (a `{side}` name once per side) and their labels."""
+    ents: list[str] = []
+    labels: dict[str, str] = {}
+    names = spec.get("labels", [])
+    for i, e in enumerate(spec.get("entities", [])):
+        for s in sides if "{side}" in e else ("",):
+            one = e.format(side=s)
+            if one not in ents:
+                ents.append(one)
+            if i < len(names):
+                labels[one] = names[i].format(side=s)
+    return Role(name, spec["role"], tuple(ents), spec.get("on_contact", "bounce"), labels)
+
+
+def _target(target_role: str, tspec: dict, s: str, foramina, points, where: str) -> Target:
+    """The target on side `s`: its opening ([foramina]: centre, radius and axis) or its point."""
+    target_ents = tuple(e.format(side=s) for e in tspec.get("entities", []))
+    if tspec.get("opening"):
+        key = tspec["opening"].format(side=s)
+        fo = foramina.get(key)
+        if fo is None:
+            raise UserError(f"{where}: [roles.{target_role}] opening needs [foramina.{key}] (centre, radius_mm)")
+        ax = np.asarray(fo["axis"], dtype=np.float64)
+        ax = ax / np.linalg.norm(ax) if np.linalg.norm(ax) > 1e-12 else np.array([0.0, 0.0, 1.0])
+        return Target(target_ents, np.asarray(fo["centre"], dtype=np.float64), float(fo["radius_mm"]), ax)
+    key = tspec.get("point", "").format(side=s)
+    if key not in points:
+        raise UserError(
+            f"{where}: [roles.{target_role}] needs an opening ([foramina]) or a point ([points.{key or 'NAME'}])"
+        )
+    c = np.asarray(points[key]["position"], dtype=np.float64)
+    return Target(target_ents, c, float(tspec.get("radius_mm", 0.0)), np.array([0.0, 0.0, 1.0]))
+
+
+def _landmark_target(sp: dict, s: str, points, planes, where: str) -> LandmarkTarget:
+    """Where a [[landmarks]] entry should be on side `s`: its point and its plane (named, through three
+    points, or the fallback normal through the point)."""
+    t = LandmarkTarget(ideal_mm=float(sp.get("ideal_mm", 0.0)))
+    if sp.get("points"):
+        _name, p = _first(points, sp["points"], s)
+        if p is None:
+            want = " or ".join(f"[points.{n.format(side=s)}]" for n in sp["points"][:2])
+            known = ", ".join(sorted(points)) or "none"
+            raise UserError(f"{where}: landmark '{sp['id']}' needs {want} (known points: {known})")
+        t.point = np.asarray(p["position"], dtype=np.float64)
+    pname, pl = _first(planes, sp.get("planes", []), s)
+    through = sp.get("plane_through") or []
+    if pl is None and through:
+        pl = _plane_through(points, [n.format(side=s) for n in through], f"{where}: landmark '{sp['id']}'")
+        pname = "plane_through"
+    if pl is not None:
+        n = np.asarray(pl["normal"], dtype=np.float64)
+        if np.linalg.norm(n) < 1e-12:
+            raise UserError(f"{where}: [planes.{pname}] normal must not be zero")
+        t.plane = Plane(np.asarray(pl["point"], dtype=np.float64), n / np.linalg.norm(n))
+    elif t.point is not None and np.linalg.norm(sp.get("plane_fallback", np.zeros(3))) > 1e-12:
+        n = np.asarray(sp["plane_fallback"], dtype=np.float64)
+        t.plane = Plane(t.point.copy(), n / np.linalg.norm(n))
+    return t
+
+
 def scene_from_pack(pack) -> NeedleScene:
     """Read the needle-procedure tables; one UserError line for what is missing or inconsistent."""
     np_ = pack.section("needle_procedure")
     sides = tuple(np_.get("sides") or ()) or ("",)
     points, planes, foramina = pack.section("points"), pack.section("planes"), pack.section("foramina")
     where = f"pack '{pack.name}'"
-    roles: dict[str, Role] = {}
-    for name, spec in pack.section("roles").items():
-        ents: list[str] = []
-        labels: dict[str, str] = {}
-        names = spec.get("labels", [])
-        for i, e in enumerate(spec.get("entities", [])):
-            for s in sides if "{side}" in e else ("",):
-                one = e.format(side=s)
-                if one not in ents:
-                    ents.append(one)
-                if i < len(names):
-                    labels[one] = names[i].format(side=s)
-        roles[name] = Role(name, spec["role"], tuple(ents), spec.get("on_contact", "bounce"), labels)
+    roles = {name: _role(name, spec, sides) for name, spec in pack.section("roles").items()}
     target_role = np_.get("target") or next((n for n, r in roles.items() if r.kind == "target"), "")
     if target_role not in roles or roles[target_role].kind != "target":
         raise UserError(f"{where}: the needle procedure needs a [roles.NAME] with role = 'target'")
     tspec = pack.section("roles")[target_role]
-    targets: dict[str, Target] = {}
-    for s in sides:
-        target_ents = tuple(e.format(side=s) for e in tspec.get("entities", []))
-        if tspec.get("opening"):
-            key = tspec["opening"].format(side=s)
-            fo = foramina.get(key)
-            if fo is None:
-                raise UserError(f"{where}: [roles.{target_role}] opening needs [foramina.{key}] (centre, radius_mm)")
-            ax = np.asarray(fo["axis"], dtype=np.float64)
-            ax = ax / np.linalg.norm(ax) if np.linalg.norm(ax) > 1e-12 else np.array([0.0, 0.0, 1.0])
-            targets[s] = Target(target_ents, np.asarray(fo["centre"], dtype=np.float64), float(fo["radius_mm"]), ax)
-        else:
-            key = tspec.get("point", "").format(side=s)
-            if key not in points:
-                raise UserError(
-                    f"{where}: [roles.{target_role}] needs an opening ([foramina]) "
-                    f"or a point ([points.{key or 'NAME'}])"
-                )
-            c = np.asarray(points[key]["position"], dtype=np.float64)
-            targets[s] = Target(target_ents, c, float(tspec.get("radius_mm", 0.0)), np.array([0.0, 0.0, 1.0]))
+    targets = {s: _target(target_role, tspec, s, foramina, points, where) for s in sides}
     specs = list(pack.section("landmarks"))
     ids = tuple(sp["id"] for sp in specs)
     if len(set(ids)) != len(ids):
         raise UserError(f"{where}: two [[landmarks]] share an id ({', '.join(ids)})")
-    lt: dict[str, list[LandmarkTarget]] = {}
-    for s in sides:
-        row = []
-        for sp in specs:
-            t = LandmarkTarget(ideal_mm=float(sp.get("ideal_mm", 0.0)))
-            if sp.get("points"):
-                _name, p = _first(points, sp["points"], s)
-                if p is None:
-                    want = " or ".join(f"[points.{n.format(side=s)}]" for n in sp["points"][:2])
-                    known = ", ".join(sorted(points)) or "none"
-                    raise UserError(f"{where}: landmark '{sp['id']}' needs {want} (known points: {known})")
-                t.point = np.asarray(p["position"], dtype=np.float64)
-            pname, pl = _first(planes, sp.get("planes", []), s)
-            through = sp.get("plane_through") or []
-            if pl is None and through:
-                pl = _plane_through(points, [n.format(side=s) for n in through], f"{where}: landmark '{sp['id']}'")
-                pname = "plane_through"
-            if pl is not None:
-                n = np.asarray(pl["normal"], dtype=np.float64)
-                if np.linalg.norm(n) < 1e-12:
-                    raise UserError(f"{where}: [planes.{pname}] normal must not be zero")
-                t.plane = Plane(np.asarray(pl["point"], dtype=np.float64), n / np.linalg.norm(n))
-            elif t.point is not None and np.linalg.norm(sp.get("plane_fallback", np.zeros(3))) > 1e-12:
-                n = np.asarray(sp["plane_fallback"], dtype=np.float64)
-                t.plane = Plane(t.point.copy(), n / np.linalg.norm(n))
-            row.append(t)
-        lt[s] = row
+    lt = {s: [_landmark_target(sp, s, points, planes, where) for sp in specs] for s in sides}
 
     def index_of(key: str, default: int) -> int:
         lid = np_.get(key) or ""
