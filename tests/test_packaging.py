@@ -33,7 +33,7 @@ def test_every_package_folder_is_listed_and_every_listed_package_exists():
     mapping, listed = setup["package-dir"], set(setup["packages"])
     for pkg in listed:
         assert (_folder_of(pkg, mapping) / "__init__.py").is_file(), f"{pkg} is listed but has no __init__.py"
-    # every folder with an __init__.py under a mapped root is listed (the engine is its own root)
+    # every folder with an __init__.py under a mapped root is listed
     for pkg, folder in mapping.items():
         for init in (REPO / folder).rglob("__init__.py"):
             rel = init.parent.relative_to(REPO / folder)
@@ -43,7 +43,7 @@ def test_every_package_folder_is_listed_and_every_listed_package_exists():
                 key=lambda p: len(mapping[p]),
             )
             if owner != pkg:
-                continue  # a folder mapped under another name (systems/engine -> chainsim.systems.engine)
+                continue
             if _checkout_only(name):
                 assert name not in listed, f"{name} builds packs from a checkout's data: not for the wheel"
             else:
@@ -71,6 +71,17 @@ def test_the_pack_builders_stay_out_of_the_wheel_and_run_from_a_checkout():
         and re.search(r"^\s*(from|import) chainsim\.game\.packbuild", f.read_text(), re.M)
     ]
     assert not users, f"shipped modules import the pack builders: {users}"
+
+
+def test_the_folder_tree_is_the_import_tree():
+    """Only the top-level folders are mapped, each to chainsim.<folder>: below them a module's dotted name
+    is its path, so a reader (and any tool that reads paths) sees the house the code imports."""
+    mapping = PYPROJECT["tool"]["setuptools"]["package-dir"]
+    for pkg, folder in mapping.items():
+        assert "/" not in folder and pkg == f"chainsim.{folder}", f"{pkg} is mapped to {folder}"
+    for pkg in PYPROJECT["tool"]["setuptools"]["packages"]:
+        folder = _folder_of(pkg, mapping).relative_to(REPO)
+        assert "chainsim." + ".".join(folder.parts) == pkg
 
 
 def test_version_is_written_once():
