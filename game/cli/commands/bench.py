@@ -17,6 +17,7 @@ BENCHES = {
     "docs": "chainsim.game.bench.docs",
     "window": "chainsim.game.bench.window",
     "models": "chainsim.tools.bench.models",
+    "sheet": "chainsim.tools.bench.sheet",
     "sleeping": "chainsim.tools.bench.sleeping",
     "records": "chainsim.game.bench.records",
     "train": "chainsim.game.bench.train",
