@@ -256,7 +256,7 @@ def add_arguments(p) -> None:
         "--quick",
         action="store_true",
         help="the reference on a 2 mm slab of 2 layers (1,323 nodes; about 10 s in all) instead of a 1 mm slab "
-        "of 4 layers (8,405 nodes; about 2 minutes)",
+        "of 4 layers (8,405 nodes; under a minute)",
     )
     p.add_argument("--E", type=float, default=1e4, help="Young's modulus in Pa (1e3..1e6, default 10 kPa)")
     p.add_argument("--nu", type=float, default=0.45, help="Poisson's ratio (0..0.49)")
