@@ -1,10 +1,11 @@
 """Writing a file so that it is either the old one or the whole new one, never half of either.
 
-Every output the program keeps (recordings, reports, screenshots, result files, presets, remembered
-sign-ins) is written through `atomic_open`: into a temporary file beside the target (same folder,
-so the rename cannot cross file systems), flushed and fsynced, then renamed over the target with
-os.replace. A failure or an interrupt while writing removes the temporary file and leaves whatever
-was at the target untouched. The engine is the bottom layer, so every layer above can use this.
+Outputs a user keeps and may overwrite (recordings, run summaries, records exports and plots,
+screenshots, chainmail results, material presets, benchmark results, the remembered sign-in) are
+written through `atomic_open`: into a temporary file beside the target (same folder, so the rename
+cannot cross file systems), flushed and fsynced, then renamed over the target with os.replace. A
+failure or an interrupt while writing removes the temporary file and leaves whatever was at the
+target untouched. The engine is the bottom layer, so every layer above can use this.
 """
 
 from __future__ import annotations
