@@ -33,25 +33,32 @@ from chainsim.systems.engine.model_params import defaults
 
 
 @njit(cache=True)
-def graph_distances(indptr, indices, link, alive, lim, source):
-    """Shortest distance from `source` over live links weighted by `lim` (inf where unreachable)."""
+def bound_from(indptr, indices, link, alive, lim, sources, values):
+    """For every element v, min over k of values[k] + dist(sources[k], v), the shortest distance over
+    live links weighted by `lim` (inf where no source reaches): one multi-source pass, whatever the
+    number of sources."""
     n = indptr.shape[0] - 1
-    dist = np.full(n, np.inf)
-    dist[source] = 0.0
-    heap = [(0.0, source)]
+    best = np.full(n, np.inf)
+    heap = [(0.0, 0)]
+    heap.pop()
+    for k in range(sources.shape[0]):
+        s = sources[k]
+        if values[k] < best[s]:
+            best[s] = values[k]
+            heapq.heappush(heap, (values[k], s))
     while len(heap):
-        dv, e = heapq.heappop(heap)
-        if dv > dist[e]:
+        bv, e = heapq.heappop(heap)
+        if bv > best[e]:
             continue
         for j in range(indptr[e], indptr[e + 1]):
             if not alive[link[j]]:
                 continue
             f = indices[j]
-            nd = dv + lim[link[j]]
-            if nd < dist[f]:
-                dist[f] = nd
-                heapq.heappush(heap, (nd, f))
-    return dist
+            nb = bv + lim[link[j]]
+            if nb < best[f]:
+                best[f] = nb
+                heapq.heappush(heap, (nb, f))
+    return best
 
 
 @njit(cache=True)
@@ -160,14 +167,22 @@ class SurfaceChainMailBody(Body):
         pinned = self.fixed.copy()
         held = self.plane.held[~np.isin(self.plane.held, ids)]
         pinned[held] = True
-        targets = targets.copy()
-        for k, e in enumerate(ids):  # what the pinned elements allow at this distance (4.4.2's limit)
-            dist = graph_distances(g.indptr, g.indices, g.link, g.alive, self.normal_limit, int(e))
+        # what the pinned elements allow each grabbed one at its distance from them (4.4.2's limit): the
+        # band max_p(disp_p - dist) .. min_p(disp_p + dist), both sides in one pass over the sheet each
+        # (one element grabbed, as forceps hold: one pass from it instead)
+        graph = (g.indptr, g.indices, g.link, g.alive, self.normal_limit)
+        if len(ids) == 1:
+            dist = bound_from(*graph, ids, np.zeros(1))
             near = pinned & np.isfinite(dist)
             if near.any():
-                lo = np.max(self.disp[near] - dist[near])
-                hi = np.min(self.disp[near] + dist[near])
-                targets[k] = min(max(targets[k], lo), hi)
+                lo1 = np.max(self.disp[near] - dist[near])
+                hi1 = np.min(self.disp[near] + dist[near])
+                targets = np.minimum(np.maximum(targets, lo1), hi1)
+        else:
+            src = np.flatnonzero(pinned)
+            hi = bound_from(*graph, src, self.disp[src])[ids]
+            lo = -bound_from(*graph, src, -self.disp[src])[ids]
+            targets = np.minimum(np.maximum(targets, lo), hi)
         pinned[ids] = False
         args = (g.indptr, g.indices, g.link, g.alive, self.normal_limit, ids, targets, pinned)
         clamp_pass(self.disp, *args, 1.0)
