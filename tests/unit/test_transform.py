@@ -11,9 +11,7 @@ from chainsim.components.core import Transform, to_world
 
 finite = st.floats(-1e3, 1e3, allow_nan=False)
 vec3 = st.tuples(finite, finite, finite)
-axis = st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1)).filter(
-    lambda a: sum(c * c for c in a) > 1e-4
-)
+axis = st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1)).filter(lambda a: sum(c * c for c in a) > 1e-4)
 angle = st.floats(-2 * math.pi, 2 * math.pi)
 scale = st.floats(1e-3, 1e3)
 points = st.lists(vec3, min_size=1, max_size=8)
