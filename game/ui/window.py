@@ -25,6 +25,7 @@ on closing, `--record FILE` saves the session.
 
 from __future__ import annotations
 
+import functools
 import time
 from pathlib import Path
 
@@ -185,18 +186,16 @@ def _attach_renderer(app, window, ctx, w: int) -> render.RenderTarget:
     return target
 
 
-ARROWS = {
-    pyglet.window.key.LEFT: "left",
-    pyglet.window.key.RIGHT: "right",
-    pyglet.window.key.UP: "up",
-    pyglet.window.key.DOWN: "down",
-}
-MOTIONS = {
-    pyglet.window.key.MOTION_LEFT: "left",
-    pyglet.window.key.MOTION_RIGHT: "right",
-    pyglet.window.key.MOTION_UP: "up",
-    pyglet.window.key.MOTION_DOWN: "down",
-}
+@functools.cache
+def _arrows() -> tuple[dict[int, str], dict[int, str]]:
+    """(arrow key symbols, text-motion codes) -> "left", "right", "up", "down". Built on first use, not
+    at import: loading pyglet.window (headless: EGL) leaves an off-screen moderngl context the process
+    already draws with failing with GL_INVALID_OPERATION, and the study session imports this module
+    beside one."""
+    k = pyglet.window.key
+    arrows = {k.LEFT: "left", k.RIGHT: "right", k.UP: "up", k.DOWN: "down"}
+    motions = {k.MOTION_LEFT: "left", k.MOTION_RIGHT: "right", k.MOTION_UP: "up", k.MOTION_DOWN: "down"}
+    return arrows, motions
 
 
 class WindowSession:
@@ -396,7 +395,7 @@ class WindowSession:
         elif symbol == keys.F12:
             path = render.screenshot(self.app, f"chainsim-shot-{self.app.time.frame:06d}.png")
             self.app.resource(HudState).message(f"saved {path}", 3.0)
-        elif symbol not in ARROWS:  # arrows arrive through on_text_motion, with key repeat
+        elif symbol not in _arrows()[0]:  # arrows arrive through on_text_motion, with key repeat
             self.pressed_at[key_name(symbol)] = self.now()
             self.send(Key(key_name(symbol), True))
         return pyglet.event.EVENT_HANDLED
@@ -426,8 +425,9 @@ class WindowSession:
         # form or study page has the keyboard (it took the arrow in on_key_press)
         if self._page_has_keys():
             return pyglet.event.EVENT_HANDLED
-        if motion in MOTIONS:
-            self.send(Key(MOTIONS[motion], True))
+        motions = _arrows()[1]
+        if motion in motions:
+            self.send(Key(motions[motion], True))
 
     def on_key_release(self, symbol, modifiers):
         if symbol not in (pyglet.window.key.ESCAPE, pyglet.window.key.F12):
