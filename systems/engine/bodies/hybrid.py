@@ -263,6 +263,10 @@ class HybridBody(ProjectiveBody):
             cd = Kc.diagonal()
             if np.any(cd <= 1e-300 * max(cd.max(), 1e-300)):
                 Kc = Kc + sp.diags(np.where(cd <= 1e-300 * max(cd.max(), 1e-300), 1.0, 0.0))
+            # a small awake region can cover fewer solved nodes than coarse nodes, so that P^T K P has
+            # directions y with P y = 0: singular, but the forces never reach them (f . P y = 0). A shift
+            # of 1e-10 of the largest diagonal keeps the factorisation defined and gives them no step
+            Kc = (Kc + sp.diags(np.full(Kc.shape[0], 1e-10 * cd.max()))).tocsc()
             factor = splu(Kc, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
             s["coarse"] = (KP, P3, factor)
             # K from the held dofs into the solved ones: the linear response to a move of the grabbed nodes
