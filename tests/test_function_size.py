@@ -32,7 +32,6 @@ ALLOWED: dict[str, tuple[int, str]] = {
     "systems/engine/kernels/gibson.py::_grid_kernel": (93, _KERNEL),
     # body models: a solver step or constructor that sets up one model's arrays in order
     "systems/engine/bodies/chainmail.py::ChainMailBody.move": (102, "to split: grab, cascade, relax, limits"),
-    "systems/engine/bodies/hybrid.py::HybridBody._solve": (100, "to split: the hybrid solve's phases"),
     "systems/engine/bodies/xpbd.py::XPBDBody.__init__": (91, "to split: XPBD constraint setup"),
     "systems/engine/bodies/projective.py::ProjectiveBody.__init__": (88, "to split: projective system setup"),
     # pack-building scripts: one recipe read top to bottom, run once when the pack's data is rebuilt

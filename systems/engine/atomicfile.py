@@ -16,11 +16,13 @@ import re
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 
 @contextlib.contextmanager
-def atomic_open(path: str | os.PathLike, mode: str = "w", *, encoding: str = "utf-8", newline=None) -> Iterator[IO]:
+def atomic_open(
+    path: str | os.PathLike, mode: str = "w", *, encoding: str = "utf-8", newline: str | None = None
+) -> Iterator[IO]:
     """A file open for writing ("w" text or "wb" bytes) whose content replaces `path` when the block ends
     without an exception. OSError from creating, writing or renaming reaches the caller, which says
     what could not be written in its own words."""
@@ -29,7 +31,7 @@ def atomic_open(path: str | os.PathLike, mode: str = "w", *, encoding: str = "ut
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        kwargs = {} if mode == "wb" else {"encoding": encoding, "newline": newline}
+        kwargs: dict[str, Any] = {} if mode == "wb" else {"encoding": encoding, "newline": newline}
         with os.fdopen(fd, mode, **kwargs) as fh:
             yield fh
             fh.flush()

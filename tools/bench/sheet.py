@@ -2,7 +2,7 @@
 against a sheet reference none of them is built from, as the cutting trainer's layers are run.
 
 The scene: a 40 x 40 mm tissue layer 2 mm thick (E from --E, nu from --nu), clamped along its four edges, a
-central 4 x 4 mm patch held through its thickness (forceps) and lifted by each of --lifts (default 2, 4 and
+central 4 x 4 mm patch held through its thickness (a grasping tool) and lifted by each of --lifts (default 2, 4 and
 6 mm) from rest. The reference: the study's neo-Hookean P1 FEM (tools/study/fem_nonlinear.py) on a thin
 tetrahedral slab of the sheet (`--element-mm` in-plane, `--layers` elements through the thickness), its
 clamped edges and lifted patch prescribed through the thickness; its discretisation error is measured
@@ -18,7 +18,7 @@ runs --frames frames holding the lift (the error at the end; the frames to settl
 which it stays within 1 % of the lift of its final shape; the frames to come within 5 % of the
 reference), then 20 frames with the tool moving +-0.05 mm each frame: their median is the ms per frame
 (a ChainMail body does its work only when its target moves, so the held frames would show it free); the
-same with one grabbed element, as the cutting trainer's forceps hold.
+same with one grabbed element, as the cutting trainer's grasping tool holds.
 """
 
 from __future__ import annotations
@@ -229,7 +229,7 @@ def measure(s: Sheet, refs: dict, model: str, setting: str, params: dict, E: flo
         }
     row["first_frame_ms"] = float(np.median(firsts))
     row["ms_per_frame"] = float(np.median(movings))
-    # the cost with one grabbed element (the cutting trainer's forceps hold one): ChainMail's normal band
+    # the cost with one grabbed element (the cutting trainer's grasping tool holds one): ChainMail's normal band
     # does work per grabbed element
     one = dataclasses.replace(s, surf_grabbed=s.surf_grabbed[[len(s.surf_grabbed) // 2]])  # the centre
     row["ms_per_frame_one_element"] = hold(one, model, params, E, nu, max(refs), 1)[2]

@@ -12,6 +12,7 @@ from numpy.typing import ArrayLike
 
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.kernels.graph import Graph
+from chainsim.systems.engine.kernels.rows import changed_rows
 
 #: the most elements a single grab may hold (bounds memory and per-step cost of attachments)
 MAX_GRAB = 1_000_000
@@ -137,10 +138,10 @@ class Body:
         """Advance by `dt` seconds (static models solve for the current grab)."""
         before = self.positions.copy()
         stats = self._solve(check_dt(dt))
-        moved = np.flatnonzero(np.any(self.positions != before, axis=1))
+        moved, finite = changed_rows(self.positions, before)
         self.moved = moved
         stats.moved = len(moved)
-        if not np.all(np.isfinite(self.positions)):  # never hand back a NaN: restore and say so
+        if not finite:  # never hand back a NaN: restore and say so
             self.positions[:] = before
             raise UserError(f"{self.model}: the step diverged (non-finite positions); lower dt or stiffness")
         self.stats = stats

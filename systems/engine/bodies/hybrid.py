@@ -153,6 +153,9 @@ class HybridBody(ProjectiveBody):
         self._setups: dict = {}
         self._matrices: tuple | None = None
         self._floating_cache: tuple | None = None
+        self._synced: dict | None = None  # the set-up whose frame last wrote every position
+        self._other_disp = 0.0
+        self._rest_si = self.rest * self.unit
         self._setup: dict | None = None  # the solve's set-up for the current held and awake set
         self._last_targets: np.ndarray | None = None
         self._sleep_scale = 0.0
@@ -282,13 +285,7 @@ class HybridBody(ProjectiveBody):
         t0 = time.perf_counter()
         x = self.x
         targets = self.grab_targets * self.unit
-        if self._chain is not None and len(self.grab_ids):
-            moved = self._last_targets is None or not np.array_equal(self._last_targets, targets)
-            if moved:  # a new target: the cascade spreads it through the body in one pass, the solve refines
-                self._chain.positions[:] = x / self.unit
-                self._chain.held = np.zeros(0, dtype=np.int64)
-                self._chain.move(self.grab_ids, self.grab_targets)
-                x[:] = self._chain.positions * self.unit
+        self._chainmail_start(x, targets)
         still = self._last_targets is not None and np.array_equal(self._last_targets, targets)
         self._last_targets = targets.copy()
         if self._released:
@@ -298,86 +295,116 @@ class HybridBody(ProjectiveBody):
         if self._setup is None:
             self._setup = self._prepare_hybrid()
         s = self._setup
+        # nodes neither solved nor grabbed (fixed, asleep, floating) keep their place while the set-up
+        # holds, so their largest displacement and their positions need no pass over the whole body
+        partial = self._chain is None and s is self._synced
+        if not partial:
+            other = np.ones(self.n, dtype=np.bool_)
+            other[s["free"]] = False
+            other[self.grab_ids] = False
+            d_other = np.abs(x[other] - self._rest_si[other])
+            self._other_disp = float(d_other.max()) if d_other.size else 0.0
         free = s["free"]
         jump = targets - x[self.grab_ids]
-        predicted = None
         x[self.grab_ids] = targets
-        if self.start == "linear" and s["coarse"] is not None and len(free) and np.any(jump):
-            # a new target: before the nonlinear step, spread the grabbed nodes' jump through the body by
-            # the linear response (rest stiffness: forces -K_fh jump, one coarse solve and the CG smoothing),
-            # so the first local step sees a body already near the new shape, not one ring of elements
-            # stretched by the whole jump
-            key = self.grab_ids.tobytes()
-            if s.get("K_fg_key") != key:  # only the grabbed nodes' columns of K_fh act on a jump
-                s["K_fg"] = s["K_fh"][:, (3 * self.grab_ids[:, None] + np.arange(3)).ravel()].tocsr()
-                s["K_fg_key"] = key
-            predicted = self._correct(s, -(s["K_fg"] @ jump.ravel()).reshape(-1, 3), x)
-        disp = float(np.max(np.abs(x - self.rest * self.unit))) if len(x) else 0.0
+        predicted = self._linear_start(s, jump, x)
+        moving = np.concatenate([free, self.grab_ids])
+        disp = max(self._other_disp, float(np.max(np.abs(x[moving] - self._rest_si[moving]), initial=0.0)))
         scale = max(disp, 1e-12 * self._scale)
         change = np.zeros(self.n)
-        done = 0
-        last = 0.0
+        done, last = 0, 0.0
         if len(free):
-            rhs = self._rhs if self._rhs is not None and self._rhs.shape == x.shape else np.zeros_like(x)
-            self._rhs = rhs
             step = predicted if predicted is not None else np.zeros((len(free), 3))
-            for _ in range(self.iterations):
-                done += 1
-                local_forces(
-                    x,
-                    self.tets,
-                    self.D,
-                    s["elems"],
-                    self.w_arap,
-                    self.w_vol,
-                    self.quats,
-                    self.rotation_iterations,
-                    rhs,
-                )
-                # forces on the solved nodes: f = rhs - L x (minus the energy's gradient)
-                xf = x[free]
-                Lx = np.empty_like(xf)
-                spmv3(*s["L_ff"], xf, Lx)
-                f = rhs[free] - Lx - s["L_fo"] @ x
-                fnorm = float(np.sqrt(np.sum(f * f)))
-                same = still and s is self._guarded and len(self._x_before) == len(free)
-                if same and s["coarse"] is not None and not self.coarse_off and fnorm > 2.0 * self._fnorm > 0.0:
-                    # the forces doubled under a still target: the rest-Hessian step no longer
-                    # converges (measured: nu 0.49 at 100 kPa on 10k nodes, where K's volume term is far
-                    # from the deformed one); undo the last step and go on without the coarse step, as
-                    # projective dynamics with CG, whose steps never raise the energy
-                    x[free] = self._x_before
-                    self.coarse_off = True
-                    self.notice = "hybrid: the coarse step stopped converging here; continuing without it"
-                    self._setups.clear()
-                    self._setup = None
-                    break
-                self._fnorm, self._guarded = fnorm, s
-                self._x_before = x[free]
-                still = True  # the next iteration of this frame compares with this one
-                step = self._correct(s, f, x)
-                last = float(np.max(np.abs(step))) if len(step) else 0.0
+            done, last, step = self._iterate(s, x, still, step)
             change[free] = np.sqrt(np.sum(step * step, axis=1))
         if self.sleep:
-            # measured against the largest displacement since the body last slept: after a release the
-            # body's own displacement shrinks towards zero, and a threshold relative to it never falls
-            self._sleep_scale = max(self._sleep_scale, scale)
-            threshold = self.sleep * self._sleep_scale
-            woke = wake_front(self.graph.indptr, self.graph.indices, self.awake, change, threshold, self.wake_rings)
-            if woke:
-                self._setup = None
-            # converging linearly, about last * rate / (1 - rate) is still to go: a body that creeps
-            # slowly is not at rest, and freezing it would keep the creep's shape
-            rate = last / self._prev_last if self._prev_last > 0.0 else 1.0
-            remaining = last / (1.0 - rate) if rate < 1.0 else math.inf
-            self._prev_last = last
-            if not woke and len(self.grab_ids) == 0 and remaining <= threshold:
-                self.awake[:] = False  # nothing held and nothing moving: the body sleeps
-                self._setup = None
-                self._sleep_scale = 0.0
-        np.divide(x, self.unit, out=self._positions)
+            self._sleep_or_wake(change, scale, last)
+        if partial:
+            self._positions[moving] = x[moving] / self.unit
+        else:
+            np.divide(x, self.unit, out=self._positions)
+            self._synced = s
         extra = {"setup_s": s["seconds"], "awake": int(self.awake.sum()), "solved": len(free)}
         return StepStats(done, last / scale if scale > 0 else 0.0, 0, time.perf_counter() - t0, extra)
+
+    def _chainmail_start(self, x: np.ndarray, targets: np.ndarray) -> None:
+        """`start = "chainmail"`: a new target is spread through the body by one cascade, the solve refines."""
+        if self._chain is None or not len(self.grab_ids):
+            return
+        if self._last_targets is None or not np.array_equal(self._last_targets, targets):
+            self._chain.positions[:] = x / self.unit
+            self._chain.held = np.zeros(0, dtype=np.int64)
+            self._chain.move(self.grab_ids, self.grab_targets)
+            x[:] = self._chain.positions * self.unit
+
+    def _linear_start(self, s: dict, jump: np.ndarray, x: np.ndarray) -> np.ndarray | None:
+        """`start = "linear"`: before the nonlinear step, spread the grabbed nodes' jump through the body by
+        the linear response (rest stiffness: forces -K_fh jump, one coarse solve and the CG smoothing), so
+        the first local step sees a body already near the new shape, not one ring of elements stretched by
+        the whole jump. Returns the step taken, or None where there was none."""
+        if not (self.start == "linear" and s["coarse"] is not None and len(s["free"]) and np.any(jump)):
+            return None
+        key = self.grab_ids.tobytes()
+        if s.get("K_fg_key") != key:  # only the grabbed nodes' columns of K_fh act on a jump
+            s["K_fg"] = s["K_fh"][:, (3 * self.grab_ids[:, None] + np.arange(3)).ravel()].tocsr()
+            s["K_fg_key"] = key
+        return self._correct(s, -(s["K_fg"] @ jump.ravel()).reshape(-1, 3), x)
+
+    def _iterate(self, s: dict, x: np.ndarray, still: bool, step: np.ndarray) -> tuple[int, float, np.ndarray]:
+        """The frame's nonlinear iterations (local step, forces, two-level correction), with the guard that
+        leaves out the coarse step once it stops converging. Returns (iterations, largest step, last step)."""
+        free = s["free"]
+        rhs = self._rhs if self._rhs is not None and self._rhs.shape == x.shape else np.zeros_like(x)
+        self._rhs = rhs
+        done, last = 0, 0.0
+        for _ in range(self.iterations):
+            done += 1
+            local_forces(
+                x, self.tets, self.D, s["elems"], self.w_arap, self.w_vol, self.quats, self.rotation_iterations, rhs
+            )
+            # forces on the solved nodes: f = rhs - L x (minus the energy's gradient)
+            xf = x[free]
+            Lx = np.empty_like(xf)
+            spmv3(*s["L_ff"], xf, Lx)
+            f = rhs[free] - Lx - s["L_fo"] @ x
+            fnorm = float(np.sqrt(np.sum(f * f)))
+            same = still and s is self._guarded and len(self._x_before) == len(free)
+            if same and s["coarse"] is not None and not self.coarse_off and fnorm > 2.0 * self._fnorm > 0.0:
+                # the forces doubled under a still target: the rest-Hessian step no longer
+                # converges (measured: nu 0.49 at 100 kPa on 10k nodes, where K's volume term is far
+                # from the deformed one); undo the last step and go on without the coarse step, as
+                # projective dynamics with CG, whose steps never raise the energy
+                x[free] = self._x_before
+                self.coarse_off = True
+                self.notice = "hybrid: the coarse step stopped converging here; continuing without it"
+                self._setups.clear()
+                self._setup = None
+                break
+            self._fnorm, self._guarded = fnorm, s
+            self._x_before = x[free]
+            still = True  # the next iteration of this frame compares with this one
+            step = self._correct(s, f, x)
+            last = float(np.max(np.abs(step))) if len(step) else 0.0
+        return done, last, step
+
+    def _sleep_or_wake(self, change: np.ndarray, scale: float, last: float) -> None:
+        """After a frame: wake the sleepers the disturbance reached, or put a body at rest to sleep."""
+        # measured against the largest displacement since the body last slept: after a release the
+        # body's own displacement shrinks towards zero, and a threshold relative to it never falls
+        self._sleep_scale = max(self._sleep_scale, scale)
+        threshold = self.sleep * self._sleep_scale
+        woke = wake_front(self.graph.indptr, self.graph.indices, self.awake, change, threshold, self.wake_rings)
+        if woke:
+            self._setup = None
+        # converging linearly, about last * rate / (1 - rate) is still to go: a body that creeps
+        # slowly is not at rest, and freezing it would keep the creep's shape
+        rate = last / self._prev_last if self._prev_last > 0.0 else 1.0
+        remaining = last / (1.0 - rate) if rate < 1.0 else math.inf
+        self._prev_last = last
+        if not woke and len(self.grab_ids) == 0 and remaining <= threshold:
+            self.awake[:] = False  # nothing held and nothing moving: the body sleeps
+            self._setup = None
+            self._sleep_scale = 0.0
 
     def _correct(self, s: dict, f: np.ndarray, x: np.ndarray) -> np.ndarray:
         """One two-level correction for forces f on the solved nodes: the coarse step, then CG smoothing of
@@ -433,4 +460,5 @@ class HybridBody(ProjectiveBody):
         if self.sleep:
             self.awake[:] = False
         self._setup = None
+        self._synced = None
         self._last_targets = None

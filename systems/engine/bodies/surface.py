@@ -169,7 +169,7 @@ class SurfaceChainMailBody(Body):
         pinned[held] = True
         # what the pinned elements allow each grabbed one at its distance from them (4.4.2's limit): the
         # band max_p(disp_p - dist) .. min_p(disp_p + dist), both sides in one pass over the sheet each
-        # (one element grabbed, as forceps hold: one pass from it instead)
+        # (one element grabbed, as a tool holds one: one pass from it instead)
         graph = (g.indptr, g.indices, g.link, g.alive, self.normal_limit)
         if len(ids) == 1:
             dist = bound_from(*graph, ids, np.zeros(1))
