@@ -64,6 +64,7 @@ def _chainmail(order: str, dtype) -> None:
     for fixed in ([0], None):
         body = ChainMailBody(rest, links, relax=2, exact=True, order=order, dtype=dtype, fixed=fixed)
         body.grab([len(rest) - 1], rest[-1] + 0.5)
+        body.step()  # every body's step checks its rows (kernels.rows), one version per precision
         body.cut(rest[0] - 1.0, rest[-1] + 1.0, normal=[0.0, 0.0, 1.0], depth=10.0)
 
 
