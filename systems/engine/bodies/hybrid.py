@@ -23,7 +23,7 @@ SIMD lanes (kernels.twolevel.local_forces).
 
 A new grab target (`start = "linear"`, the default): before the frame's nonlinear step the jump of the
 grabbed nodes is spread through the body by the rest stiffness (forces -K jump on the solved nodes, one
-coarse solve and the smoothing), so the local step sees a body already near its new shape rather than
+coarse solve), so the local step sees a body already near its new shape rather than
 one ring of elements stretched by the whole jump; that ring is what made the first frame of a grab
 poor. With `start = "chainmail"` the start is one ChainMail cascade (thesis 5.2.3) from the current
 shape instead, the idea of starting physics from the cascade's one-pass spread (measured in `chainsim
@@ -339,16 +339,23 @@ class HybridBody(ProjectiveBody):
 
     def _linear_start(self, s: dict, jump: np.ndarray, x: np.ndarray) -> np.ndarray | None:
         """`start = "linear"`: before the nonlinear step, spread the grabbed nodes' jump through the body by
-        the linear response (rest stiffness: forces -K_fh jump, one coarse solve and the CG smoothing), so
-        the first local step sees a body already near the new shape, not one ring of elements stretched by
-        the whole jump. Returns the step taken, or None where there was none."""
-        if not (self.start == "linear" and s["coarse"] is not None and len(s["free"]) and np.any(jump)):
+        the linear response on the coarse grid (forces -K_fh jump, one coarse solve), so the first local
+        step sees a body already near the new shape, not one ring of elements stretched by the whole jump.
+        Only the coarse step: what it leaves is the nonlinear step's to smooth (smoothing here too took a
+        third more time a moving frame for the same frames to settle, chainsim bench models). Returns the
+        step taken, or None where there was none."""
+        if not (self.start == "linear" and s["coarse"] is not None and not self.coarse_off):
+            return None
+        if not (len(s["free"]) and np.any(jump)):
             return None
         key = self.grab_ids.tobytes()
         if s.get("K_fg_key") != key:  # only the grabbed nodes' columns of K_fh act on a jump
             s["K_fg"] = s["K_fh"][:, (3 * self.grab_ids[:, None] + np.arange(3)).ravel()].tocsr()
             s["K_fg_key"] = key
-        return self._correct(s, -(s["K_fg"] @ jump.ravel()).reshape(-1, 3), x)
+        _, P3, factor = s["coarse"]
+        step = (P3 @ factor.solve(P3.T @ -(s["K_fg"] @ jump.ravel()))).reshape(-1, 3)
+        x[s["free"]] += step
+        return step
 
     def _iterate(self, s: dict, x: np.ndarray, still: bool, step: np.ndarray) -> tuple[int, float, np.ndarray]:
         """The frame's nonlinear iterations (local step, forces, two-level correction), with the guard that

@@ -9,7 +9,7 @@ All are pure functions on arrays; the body wraps their output in scipy sparse ma
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 
 @njit(cache=True)
@@ -99,7 +99,7 @@ def wake_front(indptr, indices, awake, change, threshold, rings):
     return woke
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, parallel=True)
 def refine_rotations(F, Q, iterations):
     """Refine unit quaternions Q (M, 4) (w, x, y, z) towards the rotations of the matrices F (M, 9),
     row-major, `iterations` times, all elements per pass, with no branch and no trigonometry, so the
@@ -109,7 +109,7 @@ def refine_rotations(F, Q, iterations):
     rotation) and, for the small corrections of a warm start, the same step to second order."""
     m = F.shape[0]
     for _ in range(iterations):
-        for t in range(m):
+        for t in prange(m):  # elements apart, in the threads numba has (SIMD lanes within each)
             w = Q[t, 0]
             qx = Q[t, 1]
             qy = Q[t, 2]
@@ -146,18 +146,19 @@ def refine_rotations(F, Q, iterations):
             Q[t, 3] = nz * nq
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def local_forces(x, tets, D, elems, w_arap, w_vol, quats, rot_iterations, rhs):
     """The projective local step (chainsim.systems.engine.kernels.projective.local_step: the same energy and
     right-hand side) over the listed elements only, `elems` (an index array, so a sleeping body's frame
-    costs its awake elements, not the whole element list), in three passes: every element's F, then
-    `rot_iterations` refinements of every rotation at once (refine_rotations), then the targets and the
-    scatter into rhs (N, 3, overwritten). quats (T, 4) are read and written for the listed elements."""
-    rhs[:] = 0.0
+    costs its awake elements, not the whole element list), in four passes: every element's F, then
+    `rot_iterations` refinements of every rotation at once (refine_rotations), then each element's three
+    corner forces, then their scatter into rhs (N, 3, overwritten). The first three take the elements
+    apart in numba's threads; the scatter, where elements share nodes, runs in order, so the sums are the
+    same whatever the thread count. quats (T, 4) are read and written for the listed elements."""
     m = elems.shape[0]
     Fs = np.empty((m, 9))
     Q = np.empty((m, 4))
-    for k in range(m):
+    for k in prange(m):
         t = elems[k]
         i0, i1, i2, i3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
         for r in range(3):
@@ -169,35 +170,47 @@ def local_forces(x, tets, D, elems, w_arap, w_vol, quats, rot_iterations, rhs):
         for c in range(4):
             Q[k, c] = quats[t, c]
     refine_rotations(Fs, Q, rot_iterations)
-    R = np.empty(9)
-    for k in range(m):
+    G = np.empty((m, 3, 3))  # per element, per axis r: the forces on corners 1, 2, 3 (corner 0 takes minus their sum)
+    for k in prange(m):
         t = elems[k]
         w, qx, qy, qz = Q[k, 0], Q[k, 1], Q[k, 2], Q[k, 3]
         for c in range(4):
             quats[t, c] = Q[k, c]
-        R[0] = 1 - 2 * (qy * qy + qz * qz)
-        R[1] = 2 * (qx * qy - w * qz)
-        R[2] = 2 * (qx * qz + w * qy)
-        R[3] = 2 * (qx * qy + w * qz)
-        R[4] = 1 - 2 * (qx * qx + qz * qz)
-        R[5] = 2 * (qy * qz - w * qx)
-        R[6] = 2 * (qx * qz - w * qy)
-        R[7] = 2 * (qy * qz + w * qx)
-        R[8] = 1 - 2 * (qx * qx + qy * qy)
-        trs = 0.0
-        for j in range(9):
-            trs += R[j] * Fs[k, j]
+        r0 = 1 - 2 * (qy * qy + qz * qz)
+        r1 = 2 * (qx * qy - w * qz)
+        r2 = 2 * (qx * qz + w * qy)
+        r3 = 2 * (qx * qy + w * qz)
+        r4 = 1 - 2 * (qx * qx + qz * qz)
+        r5 = 2 * (qy * qz - w * qx)
+        r6 = 2 * (qx * qz - w * qy)
+        r7 = 2 * (qy * qz + w * qx)
+        r8 = 1 - 2 * (qx * qx + qy * qy)
+        trs = (
+            r0 * Fs[k, 0] + r1 * Fs[k, 1] + r2 * Fs[k, 2] + r3 * Fs[k, 3] + r4 * Fs[k, 4]
+            + r5 * Fs[k, 5] + r6 * Fs[k, 6] + r7 * Fs[k, 7] + r8 * Fs[k, 8]
+        )  # fmt: skip
         # volume target as in projective.local_step: M = w_a R + w_v (F - (tr(R^T F) - 3) / 3 R)
         wv = w_vol[t]
         wr = w_arap[t] - wv * (trs - 3.0) / 3.0
+        for r in range(3):
+            if r == 0:
+                a0, a1, a2 = r0, r1, r2
+            elif r == 1:
+                a0, a1, a2 = r3, r4, r5
+            else:
+                a0, a1, a2 = r6, r7, r8
+            m0 = wr * a0 + wv * Fs[k, 3 * r]
+            m1 = wr * a1 + wv * Fs[k, 3 * r + 1]
+            m2 = wr * a2 + wv * Fs[k, 3 * r + 2]
+            G[k, r, 0] = m0 * D[t, 1, 0] + m1 * D[t, 1, 1] + m2 * D[t, 1, 2]
+            G[k, r, 1] = m0 * D[t, 2, 0] + m1 * D[t, 2, 1] + m2 * D[t, 2, 2]
+            G[k, r, 2] = m0 * D[t, 3, 0] + m1 * D[t, 3, 1] + m2 * D[t, 3, 2]
+    rhs[:] = 0.0
+    for k in range(m):
+        t = elems[k]
         i0, i1, i2, i3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
         for r in range(3):
-            m0 = wr * R[3 * r] + wv * Fs[k, 3 * r]
-            m1 = wr * R[3 * r + 1] + wv * Fs[k, 3 * r + 1]
-            m2 = wr * R[3 * r + 2] + wv * Fs[k, 3 * r + 2]
-            g1 = m0 * D[t, 1, 0] + m1 * D[t, 1, 1] + m2 * D[t, 1, 2]
-            g2 = m0 * D[t, 2, 0] + m1 * D[t, 2, 1] + m2 * D[t, 2, 2]
-            g3 = m0 * D[t, 3, 0] + m1 * D[t, 3, 1] + m2 * D[t, 3, 2]
+            g1, g2, g3 = G[k, r, 0], G[k, r, 1], G[k, r, 2]
             rhs[i1, r] += g1
             rhs[i2, r] += g2
             rhs[i3, r] += g3
