@@ -49,6 +49,8 @@ def test_bench_models_on_the_tissue_block_settles_projective_and_xpbd_under_its_
         ({"only": "mass-spring"}, "--only"),
         ({"scene": "tissue", "E": 5.0}, "--E"),
         ({"scene": "tissue", "element_mm": 0.1}, "--element-mm"),
+        ({"threads": 0}, "--threads"),
+        ({"threads": 10_000}, "--threads"),
     ],
 )
 def test_bench_models_refuses_bad_arguments(tmp_path, kw, word):

@@ -31,11 +31,11 @@ import numpy as np
 from chainsim.systems.engine.argtypes import count, real
 from chainsim.systems.engine.bodies.hybrid import HybridBody
 from chainsim.systems.engine.errors import UserError
-from chainsim.systems.engine.meshgen import tet_grid
 from chainsim.systems.engine.progress import progress
+from chainsim.tools.study import surgical
 
 HELP = "a local pull on a 10k- and a 110k-node slab with and without sleeping: ms per frame, awake nodes, error"
-DEPTH_MM, PATCH_MM = 20.0, 6.0
+DEPTH_MM, PATCH_MM = surgical.BLOCK_MM[2], surgical.PATCH_MM
 SETTING = dict(start="linear", cg_iterations=3, rotation_iterations=2)
 
 
@@ -52,14 +52,10 @@ def add_arguments(p) -> None:
 
 
 def slab(width: float, element: float):
-    """A width x width x 20 mm slab fixed at the bottom, with a 6 mm square patch at the top centre."""
-    shape = (int(round(width / element)) + 1, int(round(width / element)) + 1, int(round(DEPTH_MM / element)) + 1)
-    pos, tets, _ = tet_grid(*shape, spacing=element)
-    fixed = np.flatnonzero(pos[:, 2] < 1e-9)
-    c = width / 2
-    top = pos[:, 2] > pos[:, 2].max() - 1e-9
-    patch = top & (np.abs(pos[:, 0] - c) <= PATCH_MM / 2 + 1e-9) & (np.abs(pos[:, 1] - c) <= PATCH_MM / 2 + 1e-9)
-    return pos, tets, fixed, np.flatnonzero(patch)
+    """A width x width x 20 mm slab fixed at the bottom, with the study's 6 mm square patch at the top
+    centre: the surgical study's block (chainsim.tools.study.surgical.block), only wider."""
+    b = surgical.block(element, (width, width, DEPTH_MM))
+    return b.pos, b.tets, b.fixed, b.grabbed
 
 
 def _widths(text: str) -> list[float]:

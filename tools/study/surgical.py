@@ -104,12 +104,14 @@ class Block:
         return np.stack([RegularGridInterpolator(axes, grid[..., c])(pts) for c in range(3)], axis=1)
 
 
-def block(spacing: float) -> Block:
-    shape = tuple(int(round(s / spacing)) + 1 for s in BLOCK_MM)
+def block(spacing: float, size_mm: tuple[float, float, float] = BLOCK_MM) -> Block:
+    """A size_mm block of tetrahedra `spacing` mm apart, fixed at the bottom, with the PATCH_MM square at the
+    top centre grabbed."""
+    shape = tuple(int(round(s / spacing)) + 1 for s in size_mm)
     pos, tets, _ = tet_grid(*shape, spacing=spacing)
     fixed = np.flatnonzero(pos[:, 2] < 1e-9)
-    cx, cy = BLOCK_MM[0] / 2, BLOCK_MM[1] / 2
-    top = (pos[:, 2] > BLOCK_MM[2] - 1e-9) & (np.abs(pos[:, 0] - cx) <= PATCH_MM / 2 + 1e-9)
+    cx, cy = size_mm[0] / 2, size_mm[1] / 2
+    top = (pos[:, 2] > size_mm[2] - 1e-9) & (np.abs(pos[:, 0] - cx) <= PATCH_MM / 2 + 1e-9)
     grabbed = np.flatnonzero(top & (np.abs(pos[:, 1] - cy) <= PATCH_MM / 2 + 1e-9))
     return Block(spacing, shape, pos, tets, fixed, grabbed)
 

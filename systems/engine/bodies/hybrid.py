@@ -200,12 +200,8 @@ class HybridBody(ProjectiveBody):
         if m is not None and m[0] == key and not np.any(touch & ~m[3]):
             return m[1], m[2]
         if self.sleep:
-            near = self.awake.copy()
-            rows = np.repeat(np.arange(self.n), np.diff(self.graph.indptr))
-            for _ in range(MARGIN_RINGS):
-                grown = near.copy()
-                grown[self.graph.indices[near[rows]]] = True
-                near = grown
+            near = self.awake.copy()  # the awake region grown by MARGIN_RINGS rings: the wake front's own rings
+            wake_front(self.graph.indptr, self.graph.indices, near, np.ones(self.n), 0.5, MARGIN_RINGS)
             elems = self.active & near[self.tets].any(axis=1)
         else:
             elems = self.active.copy()
