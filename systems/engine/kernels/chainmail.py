@@ -22,7 +22,9 @@ box, and says nothing of elements moved by different sponsors. kernels.exact put
 
 Cost follows what moves: the "already moved" flag is a generation stamp in a reusable Workspace, so
 nothing of size N is cleared or allocated per cascade. The breadth-first loop asks which of a sponsor's
-neighbours have not moved sixteen entries at a time (kernels.gather) and visits only those.
+neighbours have not moved sixteen entries at a time (kernels.gather) and visits only those; it asks a few
+sponsors ahead of their turn, so the rows of those neighbours are on their way from memory by then, and
+keeps the answer for the turn itself.
 
 Material limits are per link (arrays of length M), so inhomogeneous tissue is just different numbers on
 different links. With d = rest[B] - rest[A] and o_a the sum of |d_b| over the other axes, the box on axis
@@ -197,9 +199,17 @@ def make_workspace(n: int) -> Workspace:
 #: are still cached then; the CSR row start is asked for twice as far ahead, so that the neighbour list
 #: itself can be asked for at the nearer distance
 _AHEAD = 12
-#: how many queued sponsors ahead it asks for the rows of a sponsor's first unmoved neighbour: once that
-#: sponsor's neighbour list has arrived (asked for _AHEAD sponsors ahead), and early enough for the rows
+#: how many queued sponsors ahead it finds which of a sponsor's neighbours have not moved and asks for
+#: their rows: once that sponsor's neighbour list has arrived (asked for _AHEAD sponsors ahead), and early
+#: enough for the rows
 _NEAR = 6
+
+
+#: the look-ahead ring: the unmoved-neighbour masks found _NEAR sponsors ahead wait there for their
+#: sponsor's turn (slot = queue index mod _RING, a power of two above _NEAR), with the sponsor's id, so that
+#: the turn itself needs no second gather; the mask is a superset then (stamps only ever turn to the current
+#: generation) and each entry's stamp is read again before its check
+_RING = 8
 
 
 @njit(cache=True, inline="always")
@@ -273,6 +283,8 @@ def _fifo_loop_3d(
     am = eamin[0]
     ax = eamax[0]
     be = ebeta[0]
+    owners = np.full(_RING, -1, dtype=np.int64)
+    masks = np.zeros(_RING, dtype=np.int64)
     head = 0
     while head < count:
         # Once every element has moved no check can move another: the sponsors still queued (the
@@ -280,8 +292,9 @@ def _fifo_loop_3d(
         # mesh the count never reaches n.)
         if count == n:
             break
-        # The rows of the sponsors served next, asked for ahead (kernels.prefetch): on a mesh larger
-        # than the caches, waiting for them is most of a cascade's time.
+        # The rows of the sponsors served next, asked for ahead (kernels.prefetch): on a mesh larger than
+        # the caches, waiting for them is most of a cascade's time. _NEAR ahead, which of a sponsor's
+        # neighbours have not moved yet (kept in the ring for its turn) and their rows.
         if head + 2 * _AHEAD < count:
             s2 = out_order[head + 2 * _AHEAD]
             prefetch(indptr, s2)
@@ -292,16 +305,17 @@ def _fifo_loop_3d(
             prefetch(indices, indptr[s1])
             prefetch(indices, indptr[s1 + 1] - 1)
         if head + _NEAR < count:
-            # and nearer still, the stamps of a queued sponsor's neighbours (one gather, which also brings
-            # them in for its own scan) and the rows of the first of them still unmoved, the one it will
-            # most likely check first (should a sponsor served before it move that one, the prefetch is
-            # wasted, the result the same)
             s0 = out_order[head + _NEAR]
             first = indptr[s0]
             ahead = unmoved_mask(indices, first, min(indptr[s0 + 1] - first, LANES), stamp, gen)
-            e0 = indices[first + lowest_bit(ahead)] if ahead != 0 else s0
-            prefetch(pos, e0)
-            prefetch(rest, e0)
+            slot = (head + _NEAR) & (_RING - 1)
+            owners[slot] = s0
+            masks[slot] = ahead
+            while ahead != 0:
+                e = indices[first + lowest_bit(ahead)]
+                ahead &= ahead - 1
+                prefetch(pos, e)
+                prefetch(rest, e)
         s = out_order[head]
         head += 1
         # the sponsor's rows loaded once per sponsor; the same arithmetic as try_move otherwise
@@ -317,7 +331,10 @@ def _fifo_loop_3d(
         # time (kernels.gather), and only those entries are visited, in their listed order.
         while start < stop:
             width = min(stop - start, LANES)
-            mask = unmoved_mask(indices, start, width, stamp, gen)
+            if start == indptr[s] and owners[(head - 1) & (_RING - 1)] == s:
+                mask = masks[(head - 1) & (_RING - 1)]
+            else:
+                mask = unmoved_mask(indices, start, width, stamp, gen)
             while mask != 0:
                 j = start + lowest_bit(mask)
                 mask &= mask - 1
@@ -368,11 +385,13 @@ def _fifo_loop_nd(
 ):  # fmt: skip
     """_fifo_loop_3d for positions of any dimension, the box of each candidate from kernels.boxes."""
     n = pos.shape[0]
+    owners = np.full(_RING, -1, dtype=np.int64)
+    masks = np.zeros(_RING, dtype=np.int64)
     head = 0
     while head < count:
         if count == n:
             break
-        # asked for ahead as in _fifo_loop_3d
+        # asked for ahead, and the ring kept, as in _fifo_loop_3d
         if head + 2 * _AHEAD < count:
             s2 = out_order[head + 2 * _AHEAD]
             prefetch(indptr, s2)
@@ -383,23 +402,27 @@ def _fifo_loop_nd(
             prefetch(indices, indptr[s1])
             prefetch(indices, indptr[s1 + 1] - 1)
         if head + _NEAR < count:
-            # and nearer still, the stamps of a queued sponsor's neighbours (one gather, which also brings
-            # them in for its own scan) and the rows of the first of them still unmoved, the one it will
-            # most likely check first (should a sponsor served before it move that one, the prefetch is
-            # wasted, the result the same)
             s0 = out_order[head + _NEAR]
             first = indptr[s0]
             ahead = unmoved_mask(indices, first, min(indptr[s0 + 1] - first, LANES), stamp, gen)
-            e0 = indices[first + lowest_bit(ahead)] if ahead != 0 else s0
-            prefetch(pos, e0)
-            prefetch(rest, e0)
+            slot = (head + _NEAR) & (_RING - 1)
+            owners[slot] = s0
+            masks[slot] = ahead
+            while ahead != 0:
+                e = indices[first + lowest_bit(ahead)]
+                ahead &= ahead - 1
+                prefetch(pos, e)
+                prefetch(rest, e)
         s = out_order[head]
         head += 1
         start = indptr[s]
         stop = indptr[s + 1]
         while start < stop:
             width = min(stop - start, LANES)
-            mask = unmoved_mask(indices, start, width, stamp, gen)
+            if start == indptr[s] and owners[(head - 1) & (_RING - 1)] == s:
+                mask = masks[(head - 1) & (_RING - 1)]
+            else:
+                mask = unmoved_mask(indices, start, width, stamp, gen)
             while mask != 0:
                 j = start + lowest_bit(mask)
                 mask &= mask - 1

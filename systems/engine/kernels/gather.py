@@ -110,12 +110,19 @@ def _unmoved_mask(indices, start, count, stamp, gen):
         return vector
 
     def scalar(indices, start, count, stamp, gen):
-        m = np.int64(0)
-        for k in range(count):
-            m |= np.int64(stamp[indices[start + k]] != gen) << k
-        return m
+        return _scan_mask(indices, start, count, stamp, gen)
 
     return scalar
+
+
+@njit(cache=True)
+def _scan_mask(indices, start, count, stamp, gen):
+    # a function of its own rather than code inlined at every use: numba's inliner loses track of the
+    # loop's variables when one kernel inlines the overload twice
+    m = np.int64(0)
+    for k in range(count):
+        m |= np.int64(stamp[indices[start + k]] != gen) << k
+    return m
 
 
 @njit(cache=True)
