@@ -23,8 +23,8 @@ box, and says nothing of elements moved by different sponsors. kernels.exact put
 Cost follows what moves: the "already moved" flag is a generation stamp in a reusable Workspace, so
 nothing of size N is cleared or allocated per cascade. The breadth-first loop asks which of a sponsor's
 neighbours have not moved sixteen entries at a time (kernels.gather) and visits only those; it asks a few
-sponsors ahead of their turn, so the rows of those neighbours are on their way from memory by then, and
-keeps the answer for the turn itself.
+sponsors ahead of their turn, so the rows of the first such neighbour are on their way from memory by
+then, and keeps the answer for the turn itself.
 
 Material limits are per link (arrays of length M), so inhomogeneous tissue is just different numbers on
 different links. With d = rest[B] - rest[A] and o_a the sum of |d_b| over the other axes, the box on axis
@@ -200,7 +200,7 @@ def make_workspace(n: int) -> Workspace:
 #: itself can be asked for at the nearer distance
 _AHEAD = 12
 #: how many queued sponsors ahead it finds which of a sponsor's neighbours have not moved and asks for
-#: their rows: once that sponsor's neighbour list has arrived (asked for _AHEAD sponsors ahead), and early
+#: the first one's rows: once that sponsor's neighbour list has arrived (asked for _AHEAD sponsors ahead), and early
 #: enough for the rows
 _NEAR = 6
 
@@ -294,7 +294,9 @@ def _fifo_loop_3d(
             break
         # The rows of the sponsors served next, asked for ahead (kernels.prefetch): on a mesh larger than
         # the caches, waiting for them is most of a cascade's time. _NEAR ahead, which of a sponsor's
-        # neighbours have not moved yet (kept in the ring for its turn) and their rows.
+        # neighbours have not moved (kept in the ring for its turn) and the rows of the first of them: asking
+        # for all of them costs more, where a cascade ends, than it saves. (Should a sponsor served before
+        # move that one, the prefetch is wasted, the result the same.)
         if head + 2 * _AHEAD < count:
             s2 = out_order[head + 2 * _AHEAD]
             prefetch(indptr, s2)
@@ -311,11 +313,9 @@ def _fifo_loop_3d(
             slot = (head + _NEAR) & (_RING - 1)
             owners[slot] = s0
             masks[slot] = ahead
-            while ahead != 0:
-                e = indices[first + lowest_bit(ahead)]
-                ahead &= ahead - 1
-                prefetch(pos, e)
-                prefetch(rest, e)
+            e0 = indices[first + lowest_bit(ahead)] if ahead != 0 else s0
+            prefetch(pos, e0)
+            prefetch(rest, e0)
         s = out_order[head]
         head += 1
         # the sponsor's rows loaded once per sponsor; the same arithmetic as try_move otherwise
@@ -408,11 +408,9 @@ def _fifo_loop_nd(
             slot = (head + _NEAR) & (_RING - 1)
             owners[slot] = s0
             masks[slot] = ahead
-            while ahead != 0:
-                e = indices[first + lowest_bit(ahead)]
-                ahead &= ahead - 1
-                prefetch(pos, e)
-                prefetch(rest, e)
+            e0 = indices[first + lowest_bit(ahead)] if ahead != 0 else s0
+            prefetch(pos, e0)
+            prefetch(rest, e0)
         s = out_order[head]
         head += 1
         start = indptr[s]
