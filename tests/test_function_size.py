@@ -27,7 +27,7 @@ ALLOWED: dict[str, tuple[int, str]] = {
     "systems/engine/kernels/exact.py::_closure_walk_nd": (122, _KERNEL),
     "systems/engine/kernels/exact.py::_reach": (109, _KERNEL),
     "systems/engine/kernels/exact.py::_settle_targets": (94, _KERNEL),
-    "systems/engine/kernels/chainmail.py::_fifo_loop_3d": (102, _KERNEL),
+    "systems/engine/kernels/chainmail.py::_fifo_loop_3d": (103, _KERNEL),
     "systems/engine/kernels/chainmail.py::_cascade_balanced": (87, _KERNEL),
     "systems/engine/kernels/gibson.py::_grid_kernel": (93, _KERNEL),
     # body models: a solver step or constructor that sets up one model's arrays in order

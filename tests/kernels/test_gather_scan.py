@@ -14,6 +14,7 @@ from numba import njit
 
 from chainsim.systems.engine.kernels.chainmail import (
     _NO_FIXED,
+    _NO_ROWS,
     ORDER_BREADTH_FIRST,
     _cascade_fifo,
     cascade,
@@ -128,6 +129,62 @@ def test_masks_kept_from_the_look_ahead_never_move_an_element_twice(seed, dim, d
         np.testing.assert_array_equal(pos, want[0])
 
 
+@SETTINGS
+@given(st.integers(0, 2**32 - 1))
+def test_rows_of_sixteen_hold_the_first_fifteen_neighbours_and_mark_the_rows_that_overflow(seed):
+    """Workspace.rows16 against a plain construction: each element's row is one 64-byte line holding its
+    first fifteen neighbours in CSR order, n in the lanes it does not fill, and in its last lane n + 1
+    exactly where it has more than fifteen neighbours."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 60))
+    links = rng.integers(0, n, (int(rng.integers(1, 8 * n)), 2))
+    links = links[links[:, 0] != links[:, 1]]
+    graph = build_graph(n, links)
+    rows = make_workspace(n).rows16(graph)
+    assert rows.dtype == np.int32 and rows.shape == (LANES * n,) and rows.ctypes.data % 64 == 0
+    for i in range(n):
+        nbrs = graph.indices[graph.indptr[i] : graph.indptr[i + 1]].tolist()
+        want = nbrs[: LANES - 1] + [n] * (LANES - 1 - min(len(nbrs), LANES - 1))
+        want.append(n + 1 if len(nbrs) > LANES - 1 else n)
+        assert rows[LANES * i : LANES * (i + 1)].tolist() == want
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.integers(0, 2**32 - 1), st.sampled_from([np.float64, np.float32]), st.booleans())
+def test_3d_cascade_where_rows_hold_fourteen_to_seventeen_neighbours_matches_reference(seed, dtype, features):
+    """Rows just under, at and just over the fifteen lanes a row of sixteen gives neighbours (the rest from
+    the CSR lists, after the row), with cut links, anchors and per-link materials or without."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(20, 50))
+    links = []
+    for i in range(n):
+        for j in rng.choice(n, int(rng.integers(7, 10)), replace=False):
+            if j != i:
+                links.append((i, int(j)))
+    links = np.array(links, dtype=np.int64)  # about 14 to 17 neighbours an element once both ends count
+    m = len(links)
+    rest = rng.uniform(-3.0, 3.0, (n, 3)).astype(dtype)
+    per_link = (rng.uniform(0.5, 1.0, m), rng.uniform(1.0, 1.5, m), rng.uniform(0.0, 0.2, m))
+    mats = per_link if features else (0.8, 1.2, 0.1)
+    amin, amax, beta = material_arrays(m, *mats)
+    alive = rng.random(m) > 0.15 if features else np.ones(m, bool)
+    fixed = rng.random(n) < 0.1 if features else None
+    graph = build_graph(n, links)
+    graph.set_alive(~alive, False)
+    degrees = np.diff(graph.indptr)
+    assert degrees.max() > LANES - 1 >= degrees.min()
+    pos = rest.copy()
+    ws = make_workspace(n)
+    for _ in range(3):
+        grab = np.array([int(rng.integers(n))])
+        target = (pos[grab] + rng.normal(scale=1.5, size=(1, 3))).astype(dtype)
+        want = ref_cascade(rest, pos, links, alive, amin, amax, beta, grab, target, fixed)
+        moved, sponsor = cascade(rest, pos, graph, amin, amax, beta, grab, target, fixed=fixed, workspace=ws)
+        np.testing.assert_array_equal(moved, want[1])
+        np.testing.assert_array_equal(sponsor, want[2])
+        np.testing.assert_array_equal(pos, want[0])
+
+
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.integers(0, 2**32 - 1), st.integers(1, 3))
 def test_breadth_first_loop_on_int64_lists_matches_reference(seed, dim):
@@ -146,9 +203,10 @@ def test_breadth_first_loop_on_int64_lists_matches_reference(seed, dim):
     want = ref_cascade(rest, pos, links, graph.alive, amin, amax, beta, grab, target)
     ws = make_workspace(n)
     got = pos.copy()
+    indptr, indices, *link_data = graph.kernel_args
     count = _cascade_fifo(
-        rest, got, *graph.kernel_args, grab, target, _NO_FIXED, False, ws.stamp, ws.next_generation(),
-        ws.out_order, ws.out_sponsor, True,
+        rest, got, indptr, indices, _NO_ROWS, *link_data, grab, target, _NO_FIXED, False, ws.stamp,
+        ws.next_generation(), ws.out_order, ws.out_sponsor, True,
     )  # fmt: skip
     assert graph.indices.dtype == np.int64
     np.testing.assert_array_equal(ws.out_order[:count], want[1])

@@ -24,7 +24,9 @@ Cost follows what moves: the "already moved" flag is a generation stamp in a reu
 nothing of size N is cleared or allocated per cascade. The breadth-first loop asks which of a sponsor's
 neighbours have not moved sixteen entries at a time (kernels.gather) and visits only those; it asks a few
 sponsors ahead of their turn, so the rows of the first such neighbour are on their way from memory by
-then, and keeps the answer for the turn itself.
+then, and keeps the answer for the turn itself. On 3-D meshes it walks the neighbour lists as rows of
+sixteen ids, one cache line each (Workspace.rows16): a sponsor's list is then one line fetched and one
+vector load, with no row start to look up first.
 
 Material limits are per link (arrays of length M), so inhomogeneous tissue is just different numbers on
 different links. With d = rest[B] - rest[A] and o_a the sum of |d_b| over the other axes, the box on axis
@@ -121,7 +123,8 @@ class Workspace:
         if n < 0:
             raise ValueError(f"workspace size must be >= 0, got {n}")
         self.n = n
-        self.stamp = np.zeros(n, dtype=np.int32)
+        # two more stamps than elements: the padding (n) and overflow (n + 1) lanes of the 3-D loop's rows
+        self.stamp = np.zeros(n + 2, dtype=np.int32)
         self.gen = 0
         self.out_order = np.empty(n, dtype=np.int64)
         self.out_sponsor = np.empty(n, dtype=np.int64)
@@ -133,6 +136,7 @@ class Workspace:
         self.branch_head = np.empty(0, dtype=np.int64)
         self.branch_tail = np.empty(0, dtype=np.int64)
         self.csr32: tuple | None = None  # (graph, indptr, indices, padded indices) in int32 for the breadth-first order
+        self.rows16_kept: tuple | None = None  # (graph, rows) for the 3-D breadth-first loop (rows16)
         # The mesh arrays last checked with this workspace, held (not just their ids) so an identity
         # match means the very same arrays: interactive dragging re-checks only pos, grabbed, targets.
         self.checked: tuple = ()
@@ -177,12 +181,43 @@ class Workspace:
             c = self.csr32 = (graph, graph.indptr.astype(np.int32), ids[:m], ids)
         return (c[1], c[3] if padded else c[2], *kargs[2:])
 
+    def rows16(self, graph: Graph) -> np.ndarray:
+        """The graph's neighbour lists as rows of sixteen int32 ids, each row one 64-byte cache line (kept
+        per graph, like csr32): what the 3-D breadth-first loop walks. A row holds its element's first
+        fifteen neighbours in CSR order; its unused lanes hold n (an element id whose stamp always reads
+        "moved") and its last lane, for an element with more than fifteen neighbours, n + 1 (whose stamp
+        never does), which sends the loop to the CSR lists for the rest. Empty when ids do not fit int32."""
+        c = self.rows16_kept
+        if c is None or c[0] is not graph:
+            n = graph.indptr.shape[0] - 1
+            if n + 2 >= 2**31 - 1 or 16 * (n + 1) >= 2**62:
+                return _NO_ROWS
+            raw = np.empty(LANES * (n + 2), dtype=np.int32)  # a row's worth of slack for the alignment
+            first = (-raw.ctypes.data % 64) // 4
+            rows = raw[first : first + LANES * n]
+            _fill_rows(graph.indptr, graph.indices, rows, n)
+            c = self.rows16_kept = (graph, rows)
+        return c[1]
+
     def next_generation(self) -> int:
         self.gen += 1
         if self.gen >= _GEN_LIMIT:  # practically never; keeps stamps unambiguous
             self.stamp[:] = 0
             self.gen = 1
         return self.gen
+
+
+_NO_ROWS = np.zeros(0, dtype=np.int32)
+
+
+@njit(cache=True)
+def _fill_rows(indptr, indices, rows, n):
+    for i in range(n):
+        lo = indptr[i]
+        deg = indptr[i + 1] - lo
+        for k in range(LANES - 1):
+            rows[LANES * i + k] = indices[lo + k] if k < deg else n
+        rows[LANES * i + LANES - 1] = n + 1 if deg > LANES - 1 else n
 
 
 def make_workspace(n: int) -> Workspace:
@@ -231,6 +266,7 @@ def _cascade_fifo(
     pos,
     indptr,
     indices,
+    rows,
     ealive,
     eamin,
     eamax,
@@ -254,31 +290,37 @@ def _cascade_fifo(
     if count < 0:
         return count
     return _fifo_loop(
-        rest, pos, indptr, indices, ealive, has_dead, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen,
+        rest, pos, indptr, indices, rows, ealive, has_dead, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen,
         out_order, out_sponsor, count,
     )  # fmt: skip
 
 
 @njit(cache=True)
 def _fifo_loop(
-    rest, pos, indptr, indices, ealive, has_dead, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen, out_order,
-    out_sponsor, count,
+    rest, pos, indptr, indices, rows, ealive, has_dead, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen,
+    out_order, out_sponsor, count,
 ):  # fmt: skip
     """The breadth-first cascade from the grabbed elements out_order[:count] (moved and stamped).
-    Returns the final count."""
-    args = (rest, pos, indptr, indices, ealive, has_dead, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen,
-            out_order, out_sponsor, count)  # fmt: skip
-    if pos.shape[1] == 3:
-        return _fifo_loop_3d(*args)
-    return _fifo_loop_nd(*args)
+    Returns the final count. 3-D meshes walk the rows of sixteen (Workspace.rows16) where given."""
+    if pos.shape[1] == 3 and rows.shape[0] > 0:
+        return _fifo_loop_3d(
+            rest, pos, indptr, indices, rows, ealive, has_dead, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen,
+            out_order, out_sponsor, count,
+        )  # fmt: skip
+    return _fifo_loop_nd(
+        rest, pos, indptr, indices, ealive, has_dead, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen, out_order,
+        out_sponsor, count,
+    )  # fmt: skip
 
 
 @njit(cache=True)
 def _fifo_loop_3d(
-    rest, pos, indptr, indices, ealive, has_dead, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen, out_order,
-    out_sponsor, count,
+    rest, pos, indptr, indices, rows, ealive, has_dead, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen,
+    out_order, out_sponsor, count,
 ):  # fmt: skip
     n = pos.shape[0]
+    stamp[n] = gen  # the rows' padding lanes: never a candidate
+    stamp[n + 1] = -1  # their overflow lane: always looked at (generations start at 1)
     # one material for every link (ms == 0): its limits read once, not per candidate
     am = eamin[0]
     ax = eamax[0]
@@ -287,37 +329,33 @@ def _fifo_loop_3d(
     masks = np.zeros(_RING, dtype=np.int64)
     head = 0
     while head < count:
-        # Once every element has moved no check can move another: the sponsors still queued (the
-        # last wave, when a drag carries the whole body) have nothing left to do. (With an anchor in the
-        # mesh the count never reaches n.)
+        # Once every element has moved no check can move another: the sponsors still queued (the last
+        # wave, when a drag carries the whole body) have nothing left to do (never, with an anchor).
         if count == n:
             break
         # The rows of the sponsors served next, asked for ahead (kernels.prefetch): on a mesh larger than
         # the caches, waiting for them is most of a cascade's time. _NEAR ahead, which of a sponsor's
         # neighbours have not moved (kept in the ring for its turn) and the rows of the first of them: asking
-        # for all of them costs more, where a cascade ends, than it saves. (Should a sponsor served before
-        # move that one, the prefetch is wasted, the result the same.)
+        # for all of them costs more, where a cascade ends, than it saves. (A wasted prefetch, or one past
+        # the end for n + 1, changes nothing.)
         if head + 2 * _AHEAD < count:
             s2 = out_order[head + 2 * _AHEAD]
-            prefetch(indptr, s2)
+            prefetch(rows, LANES * s2)
             prefetch(pos, s2)
             prefetch(rest, s2)
-        if head + _AHEAD < count:
-            s1 = out_order[head + _AHEAD]
-            prefetch(indices, indptr[s1])
-            prefetch(indices, indptr[s1 + 1] - 1)
         if head + _NEAR < count:
             s0 = out_order[head + _NEAR]
-            first = indptr[s0]
-            ahead = unmoved_mask(indices, first, min(indptr[s0 + 1] - first, LANES), stamp, gen)
+            ahead = unmoved_mask(rows, LANES * s0, LANES, stamp, gen)
             slot = (head + _NEAR) & (_RING - 1)
             owners[slot] = s0
             masks[slot] = ahead
-            e0 = indices[first + lowest_bit(ahead)] if ahead != 0 else s0
+            e0 = rows[LANES * s0 + lowest_bit(ahead)] if ahead != 0 else s0
             prefetch(pos, e0)
             prefetch(rest, e0)
         s = out_order[head]
+        slot = head & (_RING - 1)
         head += 1
+        mask = masks[slot] if owners[slot] == s else unmoved_mask(rows, LANES * s, LANES, stamp, gen)
         # the sponsor's rows loaded once per sponsor; the same arithmetic as try_move otherwise
         r0 = np.float64(rest[s, 0])
         r1 = np.float64(rest[s, 1])
@@ -325,56 +363,78 @@ def _fifo_loop_3d(
         b0 = np.float64(pos[s, 0])
         b1 = np.float64(pos[s, 1])
         b2 = np.float64(pos[s, 2])
-        start = indptr[s]
-        stop = indptr[s + 1]
-        # Most of a sponsor's neighbours have moved already; which have not is asked sixteen entries at a
-        # time (kernels.gather), and only those entries are visited, in their listed order.
-        while start < stop:
-            width = min(stop - start, LANES)
-            if start == indptr[s] and owners[(head - 1) & (_RING - 1)] == s:
-                mask = masks[(head - 1) & (_RING - 1)]
-            else:
-                mask = unmoved_mask(indices, start, width, stamp, gen)
-            while mask != 0:
-                j = start + lowest_bit(mask)
-                mask &= mask - 1
-                e = indices[j]
-                # stamp again: a link listed twice may have moved e earlier in this very row
-                if stamp[e] == gen or (has_dead and not ealive[j]) or (has_fixed and fixed[e]):
+        # only the lanes whose neighbour had not moved (kernels.gather), in their listed order; the last
+        # lane's bit, set only where the row overflows, sends the loop to the CSR lists after the row
+        over = mask >> (LANES - 1)
+        mask &= (np.int64(1) << (LANES - 1)) - 1
+        while mask != 0:
+            lane = lowest_bit(mask)
+            mask &= mask - 1
+            e = rows[LANES * s + lane]
+            # stamp again: the mask was taken before the sponsors served since, and a link listed twice
+            # may have moved e earlier in this very row
+            if stamp[e] == gen or (has_fixed and fixed[e]):
+                continue
+            if has_dead or ms != 0:  # a lane's link is the row's CSR entry in the same place
+                j = indptr[s] + lane
+                if has_dead and not ealive[j]:
                     continue
                 if ms != 0:
                     am = eamin[j]
                     ax = eamax[j]
                     be = ebeta[j]
-                d0 = np.float64(rest[e, 0]) - r0
-                d1 = np.float64(rest[e, 1]) - r1
-                d2 = np.float64(rest[e, 2]) - r2
-                a0 = abs(d0)
-                a1 = abs(d1)
-                a2 = abs(d2)
-                # the clamps of kernels.boxes for the three axes, as selects (no branch on the data)
-                x0 = pos[e, 0]
-                x1 = pos[e, 1]
-                x2 = pos[e, 2]
-                lo, hi = _box_lo_hi(b0, d0, a0, a1 + a2, am, ax, be)
-                f = np.float64(x0)
-                c0 = pos.dtype.type(lo if f < lo else (hi if f > hi else f))
-                lo, hi = _box_lo_hi(b1, d1, a1, a0 + a2, am, ax, be)
-                f = np.float64(x1)
-                c1 = pos.dtype.type(lo if f < lo else (hi if f > hi else f))
-                lo, hi = _box_lo_hi(b2, d2, a2, a0 + a1, am, ax, be)
-                f = np.float64(x2)
-                c2 = pos.dtype.type(lo if f < lo else (hi if f > hi else f))
-                # a move that rounds back to the stored value (float32) is no move
-                if (c0 != x0) | (c1 != x1) | (c2 != x2):
-                    pos[e, 0] = c0
-                    pos[e, 1] = c1
-                    pos[e, 2] = c2
-                    stamp[e] = gen
-                    out_order[count] = e
-                    out_sponsor[count] = s
-                    count += 1
-            start += width
+            d0 = np.float64(rest[e, 0]) - r0
+            d1 = np.float64(rest[e, 1]) - r1
+            d2 = np.float64(rest[e, 2]) - r2
+            a0 = abs(d0)
+            a1 = abs(d1)
+            a2 = abs(d2)
+            # the clamps of kernels.boxes for the three axes, as selects (no branch on the data)
+            x0 = pos[e, 0]
+            x1 = pos[e, 1]
+            x2 = pos[e, 2]
+            lo, hi = _box_lo_hi(b0, d0, a0, a1 + a2, am, ax, be)
+            f = np.float64(x0)
+            c0 = pos.dtype.type(lo if f < lo else (hi if f > hi else f))
+            lo, hi = _box_lo_hi(b1, d1, a1, a0 + a2, am, ax, be)
+            f = np.float64(x1)
+            c1 = pos.dtype.type(lo if f < lo else (hi if f > hi else f))
+            lo, hi = _box_lo_hi(b2, d2, a2, a0 + a1, am, ax, be)
+            f = np.float64(x2)
+            c2 = pos.dtype.type(lo if f < lo else (hi if f > hi else f))
+            # a move that rounds back to the stored value (float32) is no move
+            if (c0 != x0) | (c1 != x1) | (c2 != x2):
+                pos[e, 0] = c0
+                pos[e, 1] = c1
+                pos[e, 2] = c2
+                stamp[e] = gen
+                out_order[count] = e
+                out_sponsor[count] = s
+                count += 1
+        if over:
+            count = _fifo_overflow(
+                rest, pos, indptr, indices, ealive, has_dead, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen,
+                out_order, out_sponsor, count, s,
+            )  # fmt: skip
+    return count
+
+
+@njit(cache=True)
+def _fifo_overflow(
+    rest, pos, indptr, indices, ealive, has_dead, eamin, eamax, ebeta, ms, fixed, has_fixed, stamp, gen, out_order,
+    out_sponsor, count, s,
+):  # fmt: skip
+    """Sponsor s's neighbours from its sixteenth CSR entry on (those its row of sixteen has no lane for), in
+    listed order, for _fifo_loop_3d; returns the new count."""
+    for j in range(indptr[s] + LANES - 1, indptr[s + 1]):
+        e = indices[j]
+        if stamp[e] == gen or (has_dead and not ealive[j]) or (has_fixed and fixed[e]):
+            continue
+        if try_move(rest, pos, e, s, eamin[j * ms], eamax[j * ms], ebeta[j * ms]):
+            stamp[e] = gen
+            out_order[count] = e
+            out_sponsor[count] = s
+            count += 1
     return count
 
 
@@ -783,10 +843,13 @@ def _run_cascade(rest, pos, graph, kargs, grabbed, targets, fixed_arr, has_fixed
         if parallel:
             count = waves.cascade_waves(*args, ws)  # type: ignore[call-arg]  # mypy lets *args take every parameter
         else:
-            csr = ws.narrow_csr(graph, kargs, padded=True)
+            # 3-D meshes walk rows of sixteen and read the CSR lists only past a row's end or for a lane's
+            # link data, so the graph's own arrays serve them; other dimensions walk an int32 copy
+            rows = ws.rows16(graph) if pos.shape[1] == 3 else _NO_ROWS
+            csr = kargs if rows.shape[0] else ws.narrow_csr(graph, kargs, padded=True)
             count = _cascade_fifo(
-                rest, pos, *csr, grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen, ws.out_order, ws.out_sponsor,
-                graph.n_dead > 0,
+                rest, pos, csr[0], csr[1], rows, *csr[2:], grabbed, targets, fixed_arr, has_fixed, ws.stamp, gen,
+                ws.out_order, ws.out_sponsor, graph.n_dead > 0,
             )  # fmt: skip
     elif order == ORDER_DEPTH_FIRST:
         count = _cascade_depth_first(*args, ws.q_entry, ws.q_sponsor, ws.out_order, ws.out_sponsor)
