@@ -17,7 +17,8 @@ from numba.extending import intrinsic
 
 @intrinsic
 def prefetch(typingctx, arr, row):
-    """Start loading arr[row] (arr[row, 0] for a 2-D array) into the caches, for reading."""
+    """Start loading arr[row] into the caches, for reading (for a 2-D array its first and last items: a
+    row of three float64 crosses a cache line in three rows of eight)."""
     if not isinstance(arr, types.Array) or not isinstance(row, types.Integer):
         return None
     sig = types.void(arr, row)
@@ -26,14 +27,18 @@ def prefetch(typingctx, arr, row):
         aryty, rowty = signature.args
         ary = context.make_array(aryty)(context, builder, args[0])
         i = context.cast(builder, args[1], rowty, types.intp)
-        idx = [i] + [ir.Constant(i.type, 0)] * (aryty.ndim - 1)
-        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, idx, wraparound=False, boundscheck=False)
         i8p = ir.IntType(8).as_pointer()
         i32 = ir.IntType(32)
         fnty = ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32])
         fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0")
-        # read (0), keep in all cache levels (3), data cache (1)
-        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        ends = [ir.Constant(i.type, 0)]
+        if aryty.ndim == 2:  # a row may straddle two cache lines: ask for its last item's too
+            ends.append(builder.sub(cgutils.unpack_tuple(builder, ary.shape, 2)[1], ir.Constant(i.type, 1)))
+        for last in ends:
+            idx = [i] + [last] * (aryty.ndim - 1)
+            ptr = cgutils.get_item_pointer(context, builder, aryty, ary, idx, wraparound=False, boundscheck=False)
+            # read (0), keep in all cache levels (3), data cache (1)
+            builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
         return context.get_dummy_value()
 
     return sig, codegen
