@@ -28,14 +28,20 @@ SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[Healt
 
 
 @SETTINGS
-@given(st.integers(0, 2**32 - 1), st.sampled_from([np.int32, np.int64]))
-def test_mask_marks_exactly_the_entries_whose_stamp_differs(seed, id_dtype):
+@given(st.integers(0, 2**32 - 1), st.sampled_from([np.int32, np.int64]), st.sampled_from([np.int32, np.uint8]))
+def test_mask_marks_exactly_the_entries_whose_stamp_differs(seed, id_dtype, stamp_dtype):
     rng = np.random.default_rng(seed)
     n = int(rng.integers(1, 200))
     m = int(rng.integers(1, 100))
     ids = np.zeros(m + LANES, dtype=id_dtype)  # padded as the cascade's CSR copy is
     ids[:m] = rng.integers(0, n, m)
-    stamp = rng.integers(0, 3, n).astype(np.int32)
+    # byte stamps are read four bytes at a time: three bytes of slack after them, as a Workspace keeps,
+    # holding values that must not leak into the comparison
+    stamp = rng.integers(0, 256, n + 3).astype(stamp_dtype)[:n] if stamp_dtype == np.uint8 else None
+    if stamp is None:
+        stamp = rng.integers(0, 3, n).astype(np.int32)
+    else:
+        stamp[:] = rng.integers(0, 3, n)
     gen = np.int32(rng.integers(0, 3))
     start = int(rng.integers(0, m))
     count = int(rng.integers(0, min(LANES, m - start) + 1))
@@ -183,6 +189,30 @@ def test_3d_cascade_where_rows_hold_fourteen_to_seventeen_neighbours_matches_ref
         np.testing.assert_array_equal(moved, want[1])
         np.testing.assert_array_equal(sponsor, want[2])
         np.testing.assert_array_equal(pos, want[0])
+
+
+def test_a_workspace_reused_past_the_byte_stamps_wrap_keeps_matching_the_reference():
+    """Stamps are bytes, so every 253rd cascade on a workspace clears them and starts the generations
+    again. A first pull moves every element (stamped with generation 1); 252 holds then move nothing but
+    the held element; the pull after the wrap, generation 1 again, must not find the others "moved"."""
+    rng = np.random.default_rng(3)
+    n = 40
+    links = np.array([(i, int(j)) for i in range(n) for j in rng.choice(n, 5, replace=False) if j != i])
+    rest = rng.uniform(-3.0, 3.0, (n, 3))
+    amin, amax, beta = material_arrays(len(links), 0.8, 1.2, 0.1)
+    graph = build_graph(n, links)
+    pos = rest.copy()
+    ws = make_workspace(n)
+    grab = np.array([0])
+    for k in range(254):
+        target = pos[grab] + (5.0 if k in (0, 253) else 0.0)
+        want = ref_cascade(rest, pos, links, np.ones(len(links), bool), amin, amax, beta, grab, target)
+        moved, _sponsor = cascade(rest, pos, graph, amin, amax, beta, grab, target, workspace=ws)
+        np.testing.assert_array_equal(moved, want[1])
+        np.testing.assert_array_equal(pos, want[0])
+        if k in (0, 253):
+            assert ws.gen == 1 and len(moved) == n  # the whole mesh followed, both times
+    assert ws.stamp.dtype == np.uint8
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -54,7 +54,7 @@ ORDER_DEPTH_FIRST = 3
 _ORDERS = (ORDER_BREADTH_FIRST, ORDER_BALANCED, ORDER_SCHILL, ORDER_DEPTH_FIRST)
 
 _NO_FIXED = np.zeros(1, dtype=np.bool_)
-_GEN_LIMIT = 2**31 - 2  # int32 stamps: a quarter of a cache line less per element than int64
+_GEN_LIMIT = 254  # byte stamps (255 marks the overflow lane): cleared once every 254 cascades
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -112,10 +112,13 @@ class Workspace:
     """Scratch reused across cascades on one mesh.
 
     stamp[i] == gen means element i has moved in the current cascade; bumping `gen` clears every flag
-    at once. The output buffers are N long; the waiting-list buffers of the balanced and Schill orders
-    are grown on demand (to the CSR size plus K) and then kept. The breadth-first order needs no queue;
-    it walks a copy of the graph's CSR arrays in int32 (`csr32`, made once per graph when the sizes fit):
-    half the bytes of the neighbour lists it streams, which on large meshes is much of its time.
+    at once. Stamps are bytes, so a million elements' fit in a core's own cache, and every 253rd
+    generation clears them in one pass. The output buffers are N long; the waiting-list buffers of the
+    balanced and Schill orders are grown on demand (to the CSR size plus K) and then kept. The
+    breadth-first order needs no queue: on 3-D meshes it walks the neighbour lists as rows of sixteen
+    (`rows16`), otherwise a copy of the graph's CSR arrays in int32 (`csr32`, made once per graph when the
+    sizes fit), half the bytes of the neighbour lists it streams, which on large meshes is much of its
+    time.
     """
 
     def __init__(self, n: int):
@@ -123,8 +126,10 @@ class Workspace:
         if n < 0:
             raise ValueError(f"workspace size must be >= 0, got {n}")
         self.n = n
-        # two more stamps than elements: the padding (n) and overflow (n + 1) lanes of the 3-D loop's rows
-        self.stamp = np.zeros(n + 2, dtype=np.int32)
+        # one byte a stamp (the whole array stays in a core's cache up to a few million elements), and two
+        # more than elements: the padding (n) and overflow (n + 1) lanes of the 3-D loop's rows; the three
+        # bytes after them are for the gather, which reads a byte stamp as the low byte of four
+        self.stamp = np.zeros(n + 5, dtype=np.uint8)[: n + 2]
         self.gen = 0
         self.out_order = np.empty(n, dtype=np.int64)
         self.out_sponsor = np.empty(n, dtype=np.int64)
@@ -201,7 +206,7 @@ class Workspace:
 
     def next_generation(self) -> int:
         self.gen += 1
-        if self.gen >= _GEN_LIMIT:  # practically never; keeps stamps unambiguous
+        if self.gen >= _GEN_LIMIT:  # every 253rd cascade: the one pass over the stamps that keeps them unambiguous
             self.stamp[:] = 0
             self.gen = 1
         return self.gen
@@ -320,7 +325,7 @@ def _fifo_loop_3d(
 ):  # fmt: skip
     n = pos.shape[0]
     stamp[n] = gen  # the rows' padding lanes: never a candidate
-    stamp[n + 1] = -1  # their overflow lane: always looked at (generations start at 1)
+    stamp[n + 1] = 255  # their overflow lane: always looked at (generations are 1 to 254)
     # one material for every link (ms == 0): its limits read once, not per candidate
     am = eamin[0]
     ax = eamax[0]

@@ -8,11 +8,13 @@ entries with one vector load of the neighbour ids, one gather of their stamps an
 bit mask; the cascade then checks only the entries whose bit is set, lowest first (`lowest_bit`), which
 is the order of the entries themselves, so the result is the one an entry-by-entry scan gives.
 
-The vector form needs int32 neighbour ids and int32 stamps, and sixteen readable ids from `start` on:
-the CSR copy the cascade walks is padded with sixteen zeros (Workspace.narrow_csr), so a row near the
-end reads element 0's stamp in lanes that the count masks off. Other dtypes take a plain loop with the
-same result. LLVM lowers the gather to one instruction where the CPU has one (AVX-512, AVX2) and to
-sixteen loads elsewhere.
+The vector form needs int32 neighbour ids, int32 or byte stamps, and sixteen readable ids from `start`
+on: the CSR copy the cascade walks is padded with sixteen zeros (Workspace.narrow_csr), so a row near
+the end reads element 0's stamp in lanes that the count masks off (the 3-D loop's rows of sixteen are
+whole). A byte stamp is gathered as the low byte of four, so a byte-stamp array must have three readable
+bytes after its end (a Workspace's has). Other dtypes take a plain loop with the same result. LLVM
+lowers the gather to one instruction where the CPU has one (AVX-512, AVX2) and to sixteen loads
+elsewhere.
 """
 
 from __future__ import annotations
@@ -36,12 +38,13 @@ def _splat(builder, value, vty):
 
 @intrinsic
 def _gather_ne16(typingctx, indices, start, stamp, gen):
-    """Bits k (0..15) set where stamp[indices[start + k]] != gen; int32 arrays, no bounds checks."""
+    """Bits k (0..15) set where stamp[indices[start + k]] != gen; int32 ids, int32 or byte stamps, no bounds
+    checks."""
     ok = (
         isinstance(indices, types.Array)
         and isinstance(stamp, types.Array)
         and indices.dtype == types.int32
-        and stamp.dtype == types.int32
+        and stamp.dtype in (types.int32, types.uint8)
         and indices.ndim == 1
         and stamp.ndim == 1
         and isinstance(start, types.Integer)
@@ -50,6 +53,7 @@ def _gather_ne16(typingctx, indices, start, stamp, gen):
     if not ok:
         return None
     sig = types.int64(indices, start, stamp, gen)
+    width = stamp.dtype.bitwidth // 8  # bytes a stamp
 
     def codegen(context, builder, signature, args):
         ity, sty, stty, gty = signature.args
@@ -62,15 +66,18 @@ def _gather_ne16(typingctx, indices, start, stamp, gen):
         first = context.cast(builder, args[1], sty, types.intp)
         ids_ptr = cgutils.get_item_pointer(context, builder, ity, ids_arr, [first], wraparound=False, boundscheck=False)
         ids = builder.load(builder.bitcast(ids_ptr, v_i32.as_pointer()), align=4)
-        # addresses of the stamps: base + 4 * id (LLVM folds this into the gather's scaled index)
+        # addresses of the stamps: base + width * id (LLVM folds this into the gather's scaled index); a
+        # byte stamp is read as the low byte of four (the array holds three bytes more than its stamps)
         base = _splat(builder, builder.ptrtoint(stamp_arr.data, i64), v_i64)
-        addr = builder.add(base, builder.mul(builder.sext(ids, v_i64), ir.Constant(v_i64, [4] * LANES)))
+        addr = builder.add(base, builder.mul(builder.sext(ids, v_i64), ir.Constant(v_i64, [width] * LANES)))
         v_ptr = ir.VectorType(i32.as_pointer(), LANES)
         ptrs = builder.inttoptr(addr, v_ptr)
         fnty = ir.FunctionType(v_i32, [v_ptr, i32, v_i1, v_i32])
         fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.masked.gather.v16i32.v16p0")
         all_lanes = ir.Constant(v_i1, [1] * LANES)
-        stamps = builder.call(fn, [ptrs, ir.Constant(i32, 4), all_lanes, ir.Constant(v_i32, ir.Undefined)])
+        stamps = builder.call(fn, [ptrs, ir.Constant(i32, width), all_lanes, ir.Constant(v_i32, ir.Undefined)])
+        if width == 1:
+            stamps = builder.and_(stamps, ir.Constant(v_i32, [0xFF] * LANES))
         g = context.cast(builder, args[3], gty, types.int32)
         ne = builder.icmp_unsigned("!=", stamps, _splat(builder, g, v_i32))
         return builder.zext(builder.bitcast(ne, ir.IntType(LANES)), i64)
@@ -102,7 +109,8 @@ def unmoved_mask(indices, start, count, stamp, gen):
 
 @overload(unmoved_mask, inline="always")
 def _unmoved_mask(indices, start, count, stamp, gen):
-    if indices.dtype == types.int32 and stamp.dtype == types.int32 and indices.ndim == 1 and stamp.ndim == 1:
+    vector = indices.dtype == types.int32 and stamp.dtype in (types.int32, types.uint8)
+    if vector and indices.ndim == 1 and stamp.ndim == 1:
 
         def vector(indices, start, count, stamp, gen):
             return _gather_ne16(indices, start, stamp, gen) & ((np.int64(1) << count) - 1)
