@@ -197,15 +197,24 @@ MEASURED_SPEEDUP = {
 }  # fmt: skip
 
 
+#: how much faster the serial kernel has become since that run, at least (soft drags against the lean cascade
+#: on the 2-core machine, quiet: 0.73x -> 0.49-0.51x at 100k, 0.64x -> 0.45-0.46x at 1M; the crossover run
+#: predates even the first of these)
+SERIAL_GAIN_SINCE = 1.4
+
+
 def test_the_level_parallel_choice_rule_follows_the_measured_crossover():
-    """Picked where it won clearly, never where it lost or tied; never on 1 or 2 threads."""
+    """Picked where it won clearly even after the serial kernel's later gain, never where it would then lose
+    or tie; never on 1 to 7 threads."""
     for (n, threads), speedup in MEASURED_SPEEDUP.items():
+        now = speedup / SERIAL_GAIN_SINCE
         if waves.parallel_wins(n, threads):
-            assert speedup >= 1.1, (n, threads, speedup)
-        if speedup >= 1.4:
-            assert waves.parallel_wins(n, threads), (n, threads, speedup)
-    assert waves.parallel_wins(300_000, 4) and not waves.parallel_wins(299_999, 7)
-    assert waves.parallel_wins(100_000, 8) and not waves.parallel_wins(99_999, 64)
+            assert now >= 1.1, (n, threads, now)
+        if now >= 1.3:
+            assert waves.parallel_wins(n, threads), (n, threads, now)
+    assert waves.parallel_wins(300_000, 8) and not waves.parallel_wins(299_999, 15)
+    assert waves.parallel_wins(100_000, 16) and not waves.parallel_wins(99_999, 64)
+    assert not waves.parallel_wins(10**8, 7)
     for n in (10**3, 10**5, 10**6, 10**7, 10**8):
         assert not waves.parallel_wins(n, 1)
         assert not waves.parallel_wins(n, 2)

@@ -50,14 +50,16 @@ from .boxes import start_cascade
 #: waves with fewer sponsors than this run on the calling thread
 PARALLEL_MIN = 512
 #: When a cascade picks this kernel by itself (cascade(..., parallel=None), what bodies do): (threads, elements)
-#: steps, each "with at least this many of numba's threads, on meshes of at least this many elements". Set from
+#: steps, each "with at least this many of numba's threads, on meshes of at least this many elements". From
 #: soft drags on tet blocks of 10k to 1M elements with 1, 2, 4, 8 and 16 threads on a 16-core machine
 #: (tools/bench/crossover.py; figures in docs/chainmail.md): on 1 and 2 threads it lost at every size
-#: (0.5-0.7x: the three parallel passes a wave cost more than the extra core gives); on 4 threads it tied at
-#: 100k (1.02x) and won from 300k (1.15x, 1.4x at 1M); on 8 and 16 threads it lost or tied at 30k and below
-#: and won from 100k (1.5x and 2.1x there, up to 2.4x). A step starts at the smallest measured size that won
-#: by more than a tie, so the rule never picks the kernel where it lost.
-AUTO_STEPS = ((8, 100_000), (4, 300_000))
+#: (0.5-0.7x: the three parallel passes a wave cost more than the extra core gives); it won from 100k on 8
+#: and 16 threads (1.5x and 2.1x there, up to 2.4x) and from 300k on 4 (1.15x, 1.4x at 1M). The serial kernel
+#: has since become at least 1.4 times faster (its look-ahead ring, rows of sixteen and byte stamps: soft
+#: drags from 0.73x to 0.50x of the lean cascade at 100k and from 0.64x to 0.45x at 1M on a 2-core machine),
+#: so the steps keep only what still wins clearly with that speed-up taken off the measured one: 16 threads
+#: from 100k, 8 from 300k. A 16-core run of the crossover script again would tell how much more it can take.
+AUTO_STEPS = ((16, 100_000), (8, 300_000))
 #: the least threads and elements of any step: below either, a cascade stays serial without asking further
 #: (cascade checks the size first, before asking numba for its thread count)
 AUTO_MIN_THREADS = min(t for t, _ in AUTO_STEPS)
