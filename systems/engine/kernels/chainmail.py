@@ -195,7 +195,7 @@ class Workspace:
         c = self.rows16_kept
         if c is None or c[0] is not graph:
             n = graph.indptr.shape[0] - 1
-            if n + 2 >= 2**31 - 1 or 16 * (n + 1) >= 2**62:
+            if n + 2 >= 2**31 - 1:  # the padding and overflow ids must fit int32 too
                 return _NO_ROWS
             raw = np.empty(LANES * (n + 2), dtype=np.int32)  # a row's worth of slack for the alignment
             first = (-raw.ctypes.data % 64) // 4
