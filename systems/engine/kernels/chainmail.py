@@ -54,7 +54,7 @@ ORDER_DEPTH_FIRST = 3
 _ORDERS = (ORDER_BREADTH_FIRST, ORDER_BALANCED, ORDER_SCHILL, ORDER_DEPTH_FIRST)
 
 _NO_FIXED = np.zeros(1, dtype=np.bool_)
-_GEN_LIMIT = 254  # byte stamps (255 marks the overflow lane): cleared once every 254 cascades
+_GEN_LIMIT = 254  # byte stamps (255 marks the overflow lane): generations 1 to 253, then cleared
 
 
 # ----------------------------------------------------------------------------------------------------
