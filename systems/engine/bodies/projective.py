@@ -27,7 +27,9 @@ grab displacement and the body's displacement from rest), so a creeping body kee
 Size: a sparse factorisation's fill grows about as the square of the node count on a solid mesh (here
 0.09 s at 4k free nodes of a cube, 3.3 s at 22k, 11.5 s and 37M factor entries at 39k); above
 `DIRECT_MAX_NODES` free nodes the default solver is CG, said in `notice`, and an explicit
-`solver="direct"` is refused.
+`solver="direct"` is refused. When a frame's estimated CPU is past a 60 Hz frame (at the defaults, from
+about 2k nodes of a solid block), `notice` says that too, with the nearest setting that fits
+(chainsim.systems.engine.framecost).
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ import scipy.sparse as sp
 from numpy.typing import ArrayLike
 from scipy.sparse.linalg import splu
 
-from chainsim.systems.engine import meshgen
+from chainsim.systems.engine import framecost, meshgen
 from chainsim.systems.engine.bodies.base import Body, Cells, StepStats, check_elastic
 from chainsim.systems.engine.bodies.xpbd import lumped_mass, tet_rest_data
 from chainsim.systems.engine.errors import UserError
@@ -154,14 +156,7 @@ class ProjectiveBody(Body):
         self.quats[:, 0] = 1.0
         self.mass = lumped_mass(self.n, self.tets, self.vol, None, None, density)
         self.graph = build_graph(self.n, meshgen.links_from_cells(self.tets))
-        self.x = rest_si.copy()
-        self.v = np.zeros_like(self.x)
-        self._factor = None
-        self._factor_key = None
-        self._rhs = None
-        self._scale = max(float(np.ptp(rest_si, axis=0).max()), 1e-300)
-        self.refactor_seconds = 0.0
-        self._rate = None
+        self._init_state(rest_si)
 
     def _init_surface(self, triangles, iterations, tolerance, damping, dynamic, unit, thickness, density) -> None:
         """Membrane triangles (as-rigid-as-possible in their plane); no volume term, no bending."""
@@ -196,6 +191,11 @@ class ProjectiveBody(Body):
         self.quats = np.zeros((0, 4))
         self.mass = lumped_mass(self.n, None, None, tri, self.vol, density)
         self.graph = build_graph(self.n, meshgen.links_from_polygons(tri))
+        self._init_state(rest_si)
+
+    def _init_state(self, rest_si: np.ndarray) -> None:
+        """The state both kinds of element start from, and the notice of what a frame will cost (joined
+        to the solver switch's, if any)."""
         self.x = rest_si.copy()
         self.v = np.zeros_like(self.x)
         self._factor = None
@@ -204,6 +204,27 @@ class ProjectiveBody(Body):
         self._scale = max(float(np.ptp(rest_si, axis=0).max()), 1e-300)
         self.refactor_seconds = 0.0
         self._rate = None
+        # the hybrid body builds on this set-up but runs its own iteration: this estimate is not its cost
+        if self.model == "projective":
+            self.notice = framecost.join(self.notice, framecost.projective_notice(self.frame_cost()))
+
+    def frame_cost(self) -> framecost.ProjectiveFrame:
+        """What a 60 Hz frame of this body is made of, for the estimate of its cost
+        (chainsim.systems.engine.framecost)."""
+        free = ~self.fixed
+        factor = framecost.factor_entries(self.rest[free], self.surface) if self.solver == "direct" else 0.0
+        return framecost.ProjectiveFrame(
+            free=int(free.sum()),
+            elements=int(self.active.sum()),
+            surface=self.surface,
+            dynamic=self.dynamic,
+            matrix_entries=framecost.matrix_entries(free, self.graph.links),
+            factor=factor,
+            solver=self.solver,
+            iterations=self.iterations,
+            cg_iterations=self.cg_iterations,
+            rotation_iterations=self.rotation_iterations,
+        )
 
     @property
     def positions(self) -> np.ndarray:

@@ -15,7 +15,7 @@ import warnings
 import numpy as np
 from numpy.typing import ArrayLike
 
-from chainsim.systems.engine import meshgen
+from chainsim.systems.engine import framecost, meshgen
 from chainsim.systems.engine.bodies.base import Body, Cells, StepStats, check_elastic
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.kernels.graph import build_graph
@@ -122,7 +122,6 @@ class XPBDBody(Body):
         self.substeps_setting = substeps if substeps == "auto" else int(substeps)
         self.substeps = 1 if substeps == "auto" else int(substeps)  # the count the last step used
         self._substeps_for: dict[float, int] = {}
-        self.notice = ""
         self.unit = float(unit)
         self.gravity = np.asarray(gravity, dtype=np.float64)
         if constraints not in CONSTRAINTS:
@@ -175,8 +174,8 @@ class XPBDBody(Body):
         lk = self.graph.links
         edge = np.linalg.norm(rest_si[lk[:, 0]] - rest_si[lk[:, 1]], axis=1) if len(lk) else np.ones(1)
         self.min_edge = float(max(edge.min(), 1e-300))
-        self.x = rest_si.copy()
-        self.v = np.zeros_like(self.x)
+        self.x, self.v = rest_si.copy(), np.zeros_like(rest_si)
+        self.notice = framecost.xpbd_notice(self.frame_cost())  # a line when a frame costs more than 60 Hz allows
 
     def _distance_constraints(self, rest_si, thickness, bending):
         if self.tets is not None:
@@ -232,6 +231,17 @@ class XPBDBody(Body):
         COURANT of the shortest edge per substep."""
         return max(1, math.ceil(dt * self.wave_speed / (COURANT * self.min_edge) - 1e-9))
 
+    def frame_cost(self) -> framecost.XPBDFrame:
+        """What a 60 Hz frame of this body is made of, for the estimate of its cost
+        (chainsim.systems.engine.framecost)."""
+        rule = self.substeps_needed(framecost.FRAME_S)
+        by_rule = self.substeps_setting == "auto"
+        tets = int(self.tet_active.sum()) if self.tets is not None else 0
+        substeps = rule if by_rule else int(self.substeps_setting)
+        return framecost.XPBDFrame(
+            self.n, tets, len(self.pairs), self.constraints, substeps, rule, by_rule, self.iterations
+        )
+
     def _resolve_substeps(self, dt: float) -> int:
         n = self._substeps_for.get(dt)
         if n is not None:
@@ -250,9 +260,11 @@ class XPBDBody(Body):
         else:
             n = int(self.substeps_setting)
             if n < need:
-                # honoured (a researcher may measure exactly this), but never silently
-                self.notice = f"{what}; {n} given, so the body may come out too soft or invert under a hard pull"
-                warnings.warn(self.notice, stacklevel=3)
+                # honoured (a researcher may measure exactly this), but never silently; the frame's cost
+                # stays said beside it
+                line = f"{what}; {n} given, so the body may come out too soft or invert under a hard pull"
+                self.notice = framecost.join(framecost.xpbd_notice(self.frame_cost()), line)
+                warnings.warn(line, stacklevel=3)
         self._substeps_for[dt] = n
         return n
 
