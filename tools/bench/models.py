@@ -10,6 +10,8 @@ thread's CPU time, or the wall clock with --threads above 1); and the active reg
 frame solves: every free node, unless the body sleeps far from the tool). The reference: on the
 tissue block, neo-Hookean P1 FEM on the same mesh; on the 1 m block, linear FEM on this mesh plus the
 nonlinear correction of neo-Hookean FEM on a coarse mesh. Bounded: at most --frames frames per phase.
+`--parts long` runs the tissue block's holds, drags and far pulls of tools/study/long_runs.py instead (or
+as well, with `--parts settle,long`).
 """
 
 from __future__ import annotations
@@ -33,6 +35,8 @@ from chainsim.tools.study import scenes as sc
 from chainsim.tools.study import surgical
 from chainsim.tools.study.fem_linear import LinearFEM
 from chainsim.tools.study.fem_nonlinear import solve_neohookean
+from chainsim.tools.study.long_runs import bench as bench_long_runs
+from chainsim.tools.study.long_runs import parts as parse_parts
 from chainsim.tools.study.metrics import displacement_error
 
 HELP = "XPBD and projective dynamics at ~10k nodes: ms per frame and frames to 5 % of the reference"
@@ -111,6 +115,12 @@ def add_arguments(p) -> None:
         help="semicolon-separated subset of the settings, each named by its start ('xpbd, 1;projective statics, CG')",
     )
     p.add_argument("--out", default="runs/bench-models", help="folder for results.json and results.md")
+    p.add_argument(
+        "--parts",
+        default="settle",
+        help="comma-separated: settle (the two pulls above), long (holds, drags and far pulls for seconds on the "
+        "tissue block, tools/study/long_runs.py: long-runs.md and .json in --out); default settle",
+    )
 
 
 def reference(n: int, strains=(STRAIN,)):
@@ -163,7 +173,8 @@ def run(args) -> int:
         raise UserError(f"--n: expected 4..60 nodes per edge, got {args.n}")
     if not (1 <= args.frames <= 100_000):
         raise UserError(f"--frames: expected 1..100000, got {args.frames}")
-    chosen = _chosen(args.only)
+    parts = parse_parts(getattr(args, "parts", None), ("settle", "long"), "settle")
+    chosen = _chosen(args.only) if "settle" in parts else {}  # the long runs name their own settings
     threads = getattr(args, "threads", 1)
     if not (1 <= threads <= numba.config.NUMBA_NUM_THREADS):
         raise UserError(f"--threads: expected 1..{numba.config.NUMBA_NUM_THREADS} on this machine, got {threads}")
@@ -173,6 +184,10 @@ def run(args) -> int:
     _clock = time.thread_time if threads == 1 else time.perf_counter
     # settings under XPBD's substep rule are measured on purpose: their warning is the table's business
     warnings.filterwarnings("ignore", message="xpbd: .* substeps", category=UserWarning)
+    if "long" in parts:
+        print(bench_long_runs(args))
+        if "settle" not in parts:
+            return 0
     scene, refs = _scene_and_references(args)
     rows = [_measure(name, make, scene, refs, args.frames) for name, make in chosen.items()]
     out = Path(args.out)

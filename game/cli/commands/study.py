@@ -12,7 +12,7 @@ from chainsim.game.bench import pack_costs
 from chainsim.systems.engine import argtypes, limits
 from chainsim.systems.engine.errors import UserError
 from chainsim.tools.study import calibrate as cal
-from chainsim.tools.study import report, speed_accuracy, surgical, surgical_report
+from chainsim.tools.study import long_runs, report, speed_accuracy, surgical, surgical_report
 from chainsim.tools.study.scenes import SCENES
 
 logger = logging.getLogger(__name__)
@@ -30,6 +30,13 @@ def add_parser(sub):
         "report.md, a plot, results.json and the model table rows",
     )
     sg.add_argument("--quick", action="store_true", help="two mesh sizes, one material (about a minute)")
+    sg.add_argument(
+        "--parts",
+        default="table",
+        help="comma-separated: table (every setting after half a second, the model table's rows), long (holds, "
+        "drags and far pulls for seconds, tools/study/long_runs.py: long-runs.md and .json; the 1.25 mm mesh, "
+        "2.5 mm with --quick); default table",
+    )
     sg.add_argument("--out", required=True, help="output folder")
     sg.add_argument(
         "--table", default=None, help="model table to merge the rows into (assets/presets/models.toml in a checkout)"
@@ -86,6 +93,16 @@ def platform_line() -> str:
     return f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, load {load:.1f}"
 
 
+def _long_runs(args, out: Path) -> None:
+    """The long runs on the study's block (the 2.5 mm mesh with --quick); the FEM solutions are kept in
+    --out so that a later run there reads them."""
+    element = long_runs.QUICK_MM if args.quick else long_runs.DEFAULT_MM
+    results = long_runs.run(element, cache=out / "long-runs-fem", progress=lambda m: logger.info(f"study   {m}"))
+    command = "chainsim study surgical --parts long" + (" --quick" if args.quick else "") + f" --out {args.out}"
+    md = long_runs.write(results, out, command, platform_line())
+    print(md.read_text(encoding="utf-8"))
+
+
 def run(args) -> int:
 
     cmd = getattr(args, "study_cmd", None)
@@ -108,11 +125,15 @@ def run(args) -> int:
     if cmd == "surgical":
         if args.table is not None and not Path(args.table).parent.is_dir():
             raise UserError(f"--table {args.table}: its folder does not exist (expected a model table's path)")
-        prepare_output_dir(args.out, "--out")
-        results = surgical.run("quick" if args.quick else "full", progress=lambda m: logger.info(f"study   {m}"))
-        command = "chainsim study surgical" + (" --quick" if args.quick else "") + f" --out {args.out}"
-        md = surgical_report.write(results, args.out, command, platform_line(), args.table)
-        print(md)
+        parts = long_runs.parts(getattr(args, "parts", None), ("table", "long"), "table")
+        out = prepare_output_dir(args.out, "--out")
+        if "table" in parts:
+            results = surgical.run("quick" if args.quick else "full", progress=lambda m: logger.info(f"study   {m}"))
+            command = "chainsim study surgical" + (" --quick" if args.quick else "") + f" --out {args.out}"
+            md = surgical_report.write(results, args.out, command, platform_line(), args.table)
+            print(md)
+        if "long" in parts:
+            _long_runs(args, out)
         return 0
     if cmd == "calibrate":
         if args.E is not None and not args.E > 0:
