@@ -132,7 +132,8 @@ def test_a_run_too_slow_for_its_bound_stops_and_says_so():
     assert u is None and info["status"].startswith("stopped after 3 frames") and info["frames_run"] == 3
 
 
-def test_bench_models_runs_the_long_part_on_the_coarse_tissue_block(tmp_path):
+def test_bench_models_runs_the_long_part_on_the_coarse_tissue_block(tmp_path, monkeypatch):
+    monkeypatch.setattr(lr, "CACHE", tmp_path / "fem")
     args = SimpleNamespace(
         scene="tissue", element_mm=5.0, E=3e4, nu=0.45, n=6, frames=10, only="projective statics", out=str(tmp_path)
     )
@@ -141,6 +142,7 @@ def test_bench_models_runs_the_long_part_on_the_coarse_tissue_block(tmp_path):
     info = json.loads((tmp_path / "long-runs.json").read_text())
     assert info["nodes"] == 245 and {r["setting"] for r in info["rows"]} == {"projective statics, CG 6, 1 it"}
     assert len(info["rows"]) == len(lr.SCENARIOS) and not (tmp_path / "results.json").exists()
+    assert info["fem_cache"] == str(tmp_path / "fem") and list((tmp_path / "fem").glob("*.npz"))
 
 
 @pytest.mark.parametrize(

@@ -28,8 +28,9 @@ far pull does to the shape:
   a frame, the first frame left out (it pays any factorisation).
 
 A model that takes a `sleep` setting (the hybrid body) runs every scenario twice: without sleeping and
-with far nodes sleeping (SLEEP). The FEM solutions are kept in a cache folder when one is given, so a
-later run on the same mesh, material and targets reads them instead of solving again.
+with far nodes sleeping (SLEEP). The FEM solutions are kept in a cache folder when one is given (the
+command lines use CACHE, in the system's temporary folder, so that none lands beside a report), so a later
+run on the same mesh, material and targets reads them instead of solving again (minutes at 10k nodes).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ import logging
 import math
 import os
 import platform
+import tempfile
 import time
 import warnings
 from collections.abc import Callable
@@ -66,6 +68,7 @@ SLEEP = 0.015  # the sleeping variant's threshold (a share of the displacement s
 CORNER_MM = surgical.PATCH_MM  # the corner region: this square at a top corner of the block
 MAX_RUN_S = 300.0  # a run whose warm frames would take longer than this (CPU) is stopped early
 MOVED = 0.01  # a node counts as moved when its displacement exceeds this share of the pull
+CACHE = Path(tempfile.gettempdir()) / "chainsim-long-runs-fem"  # the command lines' FEM cache
 FEM_VERSION = 1  # part of the cache key: a change to how the references are solved invalidates the cache
 
 #: the settings run: (model, name, params); models that take `sleep` also run with SLEEP
@@ -358,6 +361,7 @@ def run(
         "scenarios": [{**asdict(sc), "pull_mm": sc.pull, "held_nodes": len(region(b, sc.region))} for sc in chosen],
         "fem": _fem_figures(b, chosen, refs),
         "references": ref_info,
+        "fem_cache": str(cache) if cache is not None else None,
         "rows": rows,
     }
 
@@ -479,7 +483,7 @@ def bench(args) -> str:
     only = [w.strip() for w in (getattr(args, "only", None) or "").split(";") if w.strip()]
     variants(only)  # a bad --only is one line before any reference is solved
     out = Path(args.out)
-    results = run(element, E, nu, only=only, cache=out / "long-runs-fem", threads=None, progress=logger.info)
+    results = run(element, E, nu, only=only, cache=CACHE, threads=None, progress=logger.info)
     command = f"chainsim bench models --parts long --element-mm {element:g} --E {E:g} --nu {nu:g}"
     command += f" --only {';'.join(only)!r}" if only else ""
     command += f" --threads {args.threads}" if getattr(args, "threads", 1) != 1 else ""

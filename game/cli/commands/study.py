@@ -94,10 +94,10 @@ def platform_line() -> str:
 
 
 def _long_runs(args, out: Path) -> None:
-    """The long runs on the study's block (the 2.5 mm mesh with --quick); the FEM solutions are kept in
-    --out so that a later run there reads them."""
+    """The long runs on the study's block (the 2.5 mm mesh with --quick), their FEM solutions kept for the
+    next run (long_runs.CACHE)."""
     element = long_runs.QUICK_MM if args.quick else long_runs.DEFAULT_MM
-    results = long_runs.run(element, cache=out / "long-runs-fem", progress=lambda m: logger.info(f"study   {m}"))
+    results = long_runs.run(element, cache=long_runs.CACHE, progress=lambda m: logger.info(f"study   {m}"))
     command = "chainsim study surgical --parts long" + (" --quick" if args.quick else "") + f" --out {args.out}"
     md = long_runs.write(results, out, command, platform_line())
     print(md.read_text(encoding="utf-8"))
