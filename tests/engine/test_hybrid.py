@@ -181,7 +181,9 @@ def test_sleeping_solves_only_near_the_tool_and_stays_close_to_the_full_solve():
         return body
 
     full, asleep = run(0.0), run(0.01)
-    assert asleep.stats.extra["awake"] < 0.7 * len(pos)
+    # the far end sleeps (the lift moves about 500 of the 1,125 nodes by more than the threshold; the
+    # awake region covers them with a few rings to spare)
+    assert asleep.stats.extra["awake"] < 0.8 * len(pos)
     err = np.sqrt(np.mean(np.sum((asleep.positions - full.positions) ** 2, axis=1))) / lift
     assert err < 0.02
     # released and settled, the body falls asleep at rest
@@ -224,7 +226,8 @@ def test_local_forces_match_the_projective_local_step_on_the_listed_elements(see
     ref_q, got_q = q0.copy(), q0.copy()
     ref, got = np.zeros_like(x), np.full_like(x, np.nan)
     local_step(x, tets, body.D, pick, body.w_arap, body.w_vol, ref_q, rot, ref)
-    local_forces(x, tets, body.D, np.flatnonzero(pick), body.w_arap, body.w_vol, got_q, rot, got)
+    # with the compression barrier off (j_barrier 0) the forces are projective dynamics' own
+    local_forces(x, tets, body.D, np.flatnonzero(pick), body.w_arap, body.w_vol, got_q, rot, got, 0.0)
     np.testing.assert_allclose(got, ref, rtol=1e-7, atol=1e-7 * np.abs(ref).max())
     sign = np.sign(np.sum(got_q * ref_q, axis=1))[:, None]  # q and -q are one rotation
     np.testing.assert_allclose((got_q * sign)[pick], ref_q[pick], atol=1e-7)
@@ -277,3 +280,62 @@ def test_a_small_awake_region_with_more_coarse_nodes_than_it_can_span_still_solv
     # the free nodes follow: the lift reaches the nodes within 8 mm below the patch
     below = np.flatnonzero((np.abs(pos[:, 0] - 5.0) < 1e-9) & (np.abs(pos[:, 1] - 5.0) < 1e-9) & (pos[:, 2] > 12.0))
     assert np.all(body.positions[below, 2] - pos[below, 2] > 0.0)
+
+
+def _plain_energy(x, tets, D, elems, mu_v, lam_v, j_b):
+    """The hybrid body's energy written out per element with numpy's polar decomposition (SVD), the
+    compression barrier included: the reference the kernel's energy and forces are checked against."""
+    total = 0.0
+    for t in elems:
+        F = x[tets[t]].T @ D[t]
+        U, S, Vt = np.linalg.svd(F)
+        R = U @ Vt
+        if np.linalg.det(R) < 0:  # the nearest rotation (not reflection)
+            U[:, -1] *= -1
+            R = U @ Vt
+        total += mu_v[t] * np.sum((F - R) ** 2) + 0.5 * lam_v[t] * (np.trace(R.T @ F) - 3.0) ** 2
+        J = np.linalg.det(F)
+        if J < j_b:
+            kappa = lam_v[t] + 2.0 * mu_v[t] / 3.0
+            jc = max(J, 0.01)
+            slope = -kappa * (j_b - jc) * (j_b + jc) / jc**2
+            total += kappa * (j_b - jc) ** 2 / jc + slope * (J - jc)
+    return total
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.floats(0.0, 0.35), st.sampled_from([0.0, 0.5, 0.9]))
+def test_local_forces_are_minus_the_gradient_of_the_energy_they_return_barrier_included(seed, squeeze, j_b):
+    """Energy and min det F against a plain SVD reference, forces against its finite differences, on
+    random shapes that squeeze some elements below the barrier's ratio."""
+    from chainsim.systems.engine.kernels.twolevel import local_forces
+
+    pos, tets, _, _ = _block(2)
+    rng = np.random.default_rng(seed)
+    body = HybridBody(pos, tets, E=2000.0, nu=0.4, coarse=0.0)
+    x = pos + 0.05 * rng.normal(size=pos.shape)
+    x[:, 2] *= 1.0 - squeeze  # squeezed flat by up to a third: ratios near and under j_b
+    elems = np.flatnonzero(rng.random(len(tets)) < 0.7)
+    quats = np.tile([1.0, 0.0, 0.0, 0.0], (len(tets), 1))
+    rhs = np.zeros_like(x)
+    energy, min_j = local_forces(x, tets, body.D, elems, body.w_arap, body.w_vol, quats, 100, rhs, j_b)
+    mu_v, lam_v = body.w_arap / 2.0, body.w_vol / 3.0
+    ref = _plain_energy(x, tets, body.D, elems, mu_v, lam_v, j_b)
+    assert energy == pytest.approx(ref, rel=1e-8, abs=1e-12 * abs(ref))
+    dets = [np.linalg.det(x[tets[t]].T @ body.D[t]) for t in elems]
+    assert min_j == pytest.approx(min(dets), rel=1e-10)
+    # forces = rhs - L x over the listed elements: minus the energy's gradient
+    L = np.zeros((len(x), len(x)))
+    for t in elems:
+        L[np.ix_(tets[t], tets[t])] += (body.w_arap[t] + body.w_vol[t]) * body.D[t] @ body.D[t].T
+    forces = rhs - L @ x
+    h = 1e-6
+    for i, a in zip(rng.integers(0, len(x), 6), rng.integers(0, 3, 6)):
+        xp, xm = x.copy(), x.copy()
+        xp[i, a] += h
+        xm[i, a] -= h
+        grad = (
+            _plain_energy(xp, tets, body.D, elems, mu_v, lam_v, j_b)
+            - _plain_energy(xm, tets, body.D, elems, mu_v, lam_v, j_b)
+        ) / (2 * h)
+        assert -grad == pytest.approx(forces[i, a], rel=1e-4, abs=1e-6 * np.abs(forces).max())

@@ -146,18 +146,80 @@ def refine_rotations(F, Q, iterations):
             Q[t, 3] = nz * nq
 
 
+@njit(cache=True, inline="always")
+def volume_barrier(J, kappa, j_barrier):
+    """The compression barrier psi(J) = kappa (j_b - J)^2 / J below j_b (zero above, with zero slope
+    there, so the energy stays C1), and -psi'(J), the push outwards per unit of dJ. kappa is the bulk
+    modulus times the rest volume. The corotational energy alone charges a squeezed element through the
+    sum of its stretches, not its volume, so a far shear could fold elements flat at little cost; the
+    barrier makes that cost grow without bound, as the neo-Hookean energy's -ln J does. Below J = 0.01
+    it continues along its tangent, finite for an element that is already inverted, which it pushes out."""
+    if J >= j_barrier:
+        return 0.0, 0.0
+    jc = max(J, 0.01)
+    d = j_barrier - jc
+    slope = -kappa * d * (j_barrier + jc) / (jc * jc)  # psi'(jc)
+    return kappa * d * d / jc + slope * (J - jc), -slope
+
+
+@njit(cache=True, inline="always")
+def element_forces(F, q, Dt, w_a, w_v, j_barrier, G):
+    """One element's share of the local step: its corner forces G (3 axes x corners 1..3; corner 0 takes
+    minus their sum) for deformation gradient F (9, row-major), rotation q and shape gradients Dt (4, 3);
+    returns its energy and det F."""
+    w, qx, qy, qz = q[0], q[1], q[2], q[3]
+    # R's rows as scalars: an array here would be a heap allocation per element in the threads' loop
+    r0, r1, r2 = 1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - w * qz), 2 * (qx * qz + w * qy)
+    r3, r4, r5 = 2 * (qx * qy + w * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - w * qx)
+    r6, r7, r8 = 2 * (qx * qz - w * qy), 2 * (qy * qz + w * qx), 1 - 2 * (qx * qx + qy * qy)
+    trs = r0 * F[0] + r1 * F[1] + r2 * F[2] + r3 * F[3] + r4 * F[4] + r5 * F[5] + r6 * F[6] + r7 * F[7] + r8 * F[8]
+    ff = 0.0
+    for c in range(9):
+        ff += F[c] * F[c]
+    # w_a = 2 mu V and w_v = 3 lambda V: |F - R|^2 = |F|^2 - 2 tr(R^T F) + 3
+    energy = 0.5 * w_a * (ff - 2.0 * trs + 3.0) + w_v / 6.0 * (trs - 3.0) * (trs - 3.0)
+    J = F[0] * (F[4] * F[8] - F[5] * F[7]) - F[1] * (F[3] * F[8] - F[5] * F[6]) + F[2] * (F[3] * F[7] - F[4] * F[6])
+    e_b, push = volume_barrier(J, (w_a + w_v) / 3.0, j_barrier)
+    # volume target as in projective.local_step: M = w_a R + w_v (F - (tr(R^T F) - 3) / 3 R)
+    wr = w_a - w_v * (trs - 3.0) / 3.0
+    for r in range(3):
+        if r == 0:
+            a0, a1, a2 = r0, r1, r2
+        elif r == 1:
+            a0, a1, a2 = r3, r4, r5
+        else:
+            a0, a1, a2 = r6, r7, r8
+        # the barrier's force: -psi'(J) dJ/dF, and dJ/dF is F's cofactor matrix (row r: the cross
+        # product of F's other two rows)
+        ra, rb = 3 * ((r + 1) % 3), 3 * ((r + 2) % 3)
+        m0 = wr * a0 + w_v * F[3 * r] + push * (F[ra + 1] * F[rb + 2] - F[ra + 2] * F[rb + 1])
+        m1 = wr * a1 + w_v * F[3 * r + 1] + push * (F[ra + 2] * F[rb] - F[ra] * F[rb + 2])
+        m2 = wr * a2 + w_v * F[3 * r + 2] + push * (F[ra] * F[rb + 1] - F[ra + 1] * F[rb])
+        for j in range(3):
+            G[r, j] = m0 * Dt[j + 1, 0] + m1 * Dt[j + 1, 1] + m2 * Dt[j + 1, 2]
+    return energy + e_b, J
+
+
 @njit(cache=True, parallel=True)
-def local_forces(x, tets, D, elems, w_arap, w_vol, quats, rot_iterations, rhs):
+def local_forces(x, tets, D, elems, w_arap, w_vol, quats, rot_iterations, rhs, j_barrier):
     """The projective local step (chainsim.systems.engine.kernels.projective.local_step: the same energy and
     right-hand side) over the listed elements only, `elems` (an index array, so a sleeping body's frame
     costs its awake elements, not the whole element list), in four passes: every element's F, then
     `rot_iterations` refinements of every rotation at once (refine_rotations), then each element's three
     corner forces, then their scatter into rhs (N, 3, overwritten). The first three take the elements
     apart in numba's threads; the scatter, where elements share nodes, runs in order, so the sums are the
-    same whatever the thread count. quats (T, 4) are read and written for the listed elements."""
+    same whatever the thread count. quats (T, 4) are read and written for the listed elements.
+
+    Returns (energy, min_j): the listed elements' energy sum mu V |F - R|^2 + lambda V / 2 (tr(R^T F) - 3)^2
+    at the refined rotations (an upper bound of the energy at the exact polar rotations, equal to it once
+    they have converged), and the smallest det F among them. The solver's line search reads both: the
+    energy must fall, and no element may be turned inside out (det F <= 0), which this energy, unlike the
+    neo-Hookean one, does not forbid by itself."""
     m = elems.shape[0]
     Fs = np.empty((m, 9))
     Q = np.empty((m, 4))
+    En = np.empty(m)
+    Js = np.empty(m)
     for k in prange(m):
         t = elems[k]
         i0, i1, i2, i3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
@@ -173,38 +235,9 @@ def local_forces(x, tets, D, elems, w_arap, w_vol, quats, rot_iterations, rhs):
     G = np.empty((m, 3, 3))  # per element, per axis r: the forces on corners 1, 2, 3 (corner 0 takes minus their sum)
     for k in prange(m):
         t = elems[k]
-        w, qx, qy, qz = Q[k, 0], Q[k, 1], Q[k, 2], Q[k, 3]
         for c in range(4):
             quats[t, c] = Q[k, c]
-        r0 = 1 - 2 * (qy * qy + qz * qz)
-        r1 = 2 * (qx * qy - w * qz)
-        r2 = 2 * (qx * qz + w * qy)
-        r3 = 2 * (qx * qy + w * qz)
-        r4 = 1 - 2 * (qx * qx + qz * qz)
-        r5 = 2 * (qy * qz - w * qx)
-        r6 = 2 * (qx * qz - w * qy)
-        r7 = 2 * (qy * qz + w * qx)
-        r8 = 1 - 2 * (qx * qx + qy * qy)
-        trs = (
-            r0 * Fs[k, 0] + r1 * Fs[k, 1] + r2 * Fs[k, 2] + r3 * Fs[k, 3] + r4 * Fs[k, 4]
-            + r5 * Fs[k, 5] + r6 * Fs[k, 6] + r7 * Fs[k, 7] + r8 * Fs[k, 8]
-        )  # fmt: skip
-        # volume target as in projective.local_step: M = w_a R + w_v (F - (tr(R^T F) - 3) / 3 R)
-        wv = w_vol[t]
-        wr = w_arap[t] - wv * (trs - 3.0) / 3.0
-        for r in range(3):
-            if r == 0:
-                a0, a1, a2 = r0, r1, r2
-            elif r == 1:
-                a0, a1, a2 = r3, r4, r5
-            else:
-                a0, a1, a2 = r6, r7, r8
-            m0 = wr * a0 + wv * Fs[k, 3 * r]
-            m1 = wr * a1 + wv * Fs[k, 3 * r + 1]
-            m2 = wr * a2 + wv * Fs[k, 3 * r + 2]
-            G[k, r, 0] = m0 * D[t, 1, 0] + m1 * D[t, 1, 1] + m2 * D[t, 1, 2]
-            G[k, r, 1] = m0 * D[t, 2, 0] + m1 * D[t, 2, 1] + m2 * D[t, 2, 2]
-            G[k, r, 2] = m0 * D[t, 3, 0] + m1 * D[t, 3, 1] + m2 * D[t, 3, 2]
+        En[k], Js[k] = element_forces(Fs[k], Q[k], D[t], w_arap[t], w_vol[t], j_barrier, G[k])
     rhs[:] = 0.0
     for k in range(m):
         t = elems[k]
@@ -215,7 +248,61 @@ def local_forces(x, tets, D, elems, w_arap, w_vol, quats, rot_iterations, rhs):
             rhs[i2, r] += g2
             rhs[i3, r] += g3
             rhs[i0, r] -= g1 + g2 + g3
-    return rhs
+    energy = 0.0
+    min_j = np.inf
+    for k in range(m):  # in order: the same sum whatever the thread count
+        energy += En[k]
+        min_j = min(min_j, Js[k])
+    return energy, min_j
+
+
+@njit(cache=True)
+def ring_max(indptr, indices, nodes, values, passes):
+    """values (N,) with each of `nodes` raised to the largest value within `passes` rings of it among
+    `nodes` (graph CSR indptr/indices); the others unchanged. Returns a new array."""
+    n = values.shape[0]
+    inside = np.zeros(n, dtype=np.bool_)
+    for i in nodes:
+        inside[i] = True
+    cur = values.copy()
+    for _ in range(passes):
+        nxt = cur.copy()
+        for i in nodes:
+            best = cur[i]
+            for k in range(indptr[i], indptr[i + 1]):
+                j = indices[k]
+                if inside[j] and cur[j] > best:
+                    best = cur[j]
+            nxt[i] = best
+        cur = nxt
+    return cur
+
+
+@njit(cache=True, parallel=True)
+def min_det(x, tets, D, elems):
+    """The smallest det F (volume ratio) among the listed tetrahedra at positions x: the start of a
+    frame checks a move of the grabbed nodes with it before any rotation is fitted."""
+    m = elems.shape[0]
+    Js = np.empty(m)
+    for k in prange(m):
+        t = elems[k]
+        i0, i1, i2, i3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
+        F = np.empty((3, 3))
+        for r in range(3):
+            e1 = x[i1, r] - x[i0, r]
+            e2 = x[i2, r] - x[i0, r]
+            e3 = x[i3, r] - x[i0, r]
+            for c in range(3):
+                F[r, c] = e1 * D[t, 1, c] + e2 * D[t, 2, c] + e3 * D[t, 3, c]
+        Js[k] = (
+            F[0, 0] * (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1])
+            - F[0, 1] * (F[1, 0] * F[2, 2] - F[1, 2] * F[2, 0])
+            + F[0, 2] * (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0])
+        )
+    out = np.inf
+    for k in range(m):
+        out = min(out, Js[k])
+    return out
 
 
 @njit(cache=True)
