@@ -390,3 +390,71 @@ def tet_components(n, tets, active):
             a = parent[a]
         root[i] = a
     return root
+
+
+@njit(cache=True, parallel=True)
+def bspmv3(indptr, indices, blocks, x, out):
+    """out = K x for a block-CSR matrix of 3 x 3 blocks (blocks (nnzb, 3, 3)) and x, out (n, 3); rows
+    apart in numba's threads (each row's sum in the same order whatever their number)."""
+    for i in prange(indptr.shape[0] - 1):
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        for k in range(indptr[i], indptr[i + 1]):
+            j = indices[k]
+            x0, x1, x2 = x[j, 0], x[j, 1], x[j, 2]
+            a0 += blocks[k, 0, 0] * x0 + blocks[k, 0, 1] * x1 + blocks[k, 0, 2] * x2
+            a1 += blocks[k, 1, 0] * x0 + blocks[k, 1, 1] * x1 + blocks[k, 1, 2] * x2
+            a2 += blocks[k, 2, 0] * x0 + blocks[k, 2, 1] * x1 + blocks[k, 2, 2] * x2
+        out[i, 0] = a0
+        out[i, 1] = a1
+        out[i, 2] = a2
+
+
+@njit(cache=True)
+def _block_precondition(inv_blocks, r, z):
+    """z = B^-1 r with B^-1 the inverses of the 3 x 3 diagonal blocks; returns r . z."""
+    rz = 0.0
+    for i in range(r.shape[0]):
+        for a in range(3):
+            z[i, a] = inv_blocks[i, a, 0] * r[i, 0] + inv_blocks[i, a, 1] * r[i, 1] + inv_blocks[i, a, 2] * r[i, 2]
+            rz += r[i, a] * z[i, a]
+    return rz
+
+
+@njit(cache=True)
+def block_pcg(indptr, indices, blocks, inv_blocks, b, x, iterations, r, z, p, q):
+    """Conjugate gradients on K x = b (K symmetric positive definite, block CSR of 3 x 3 blocks: the rest
+    stiffness of the solved nodes), preconditioned by the inverses of K's 3 x 3 diagonal blocks, from x = 0
+    (x overwritten), at most `iterations` steps. Unlike projective dynamics' matrix, which carries the
+    volume stiffness in every direction, K couples the axes as the volume term does, so the steps it
+    gives a nearly incompressible body are not shrunk by the ratio lambda / mu. r, z, p, q: (n, 3)
+    scratch. Returns the steps taken."""
+    n = b.shape[0]
+    x[:] = 0.0
+    r[:] = b
+    rz = _block_precondition(inv_blocks, r, z)
+    p[:] = z
+    done = 0
+    for _ in range(iterations):
+        if not rz > 0.0:
+            break
+        bspmv3(indptr, indices, blocks, p, q)
+        pq = 0.0
+        for i in range(n):
+            pq += p[i, 0] * q[i, 0] + p[i, 1] * q[i, 1] + p[i, 2] * q[i, 2]
+        if not pq > 0.0:
+            break
+        alpha = rz / pq
+        for i in range(n):
+            for a in range(3):
+                x[i, a] += alpha * p[i, a]
+                r[i, a] -= alpha * q[i, a]
+        rz_new = _block_precondition(inv_blocks, r, z)
+        beta = rz_new / rz
+        rz = rz_new
+        for i in range(n):
+            for a in range(3):
+                p[i, a] = z[i, a] + beta * p[i, a]
+        done += 1
+    return done
