@@ -93,7 +93,7 @@ START_SQUEEZE = 0.9
 #: local step (measured on the 10k-node block: 3 mm lift within 1 % of its answer by frame 20, not 60)
 MOMENTUM = 0.5
 #: halvings of a frame's start (the grabbed nodes' move) and of a two-level step before giving up
-START_HALVINGS = 6
+START_HALVINGS = 10
 LINE_HALVINGS = 5
 #: the energy must fall by this share of what the step's slope promises (Armijo's condition)
 ARMIJO = 1e-4
@@ -167,6 +167,7 @@ class HybridBody(ProjectiveBody):
         self._prev_step = 0.0
         self._short_frames = 0
         self._momentum: tuple | None = None
+        self._grab_key = b""
         self._f_peak = 0.0  # the largest force on a solved node since the targets last moved
         rest_si = self.rest * self.unit
         links = meshgen.links_from_cells(self.tets)
@@ -207,7 +208,9 @@ class HybridBody(ProjectiveBody):
             self._cache, self._converged = None, False  # set from outside: the last evaluation is stale
 
     def _grab_changed(self) -> None:
-        self._converged = False
+        key = self.grab_ids.tobytes()
+        if key != self._grab_key:  # other nodes held: not at rest (new targets are _solve's to see)
+            self._converged, self._grab_key = False, key
         self._released = len(self.grab_ids) == 0
         if self.sleep and len(self.grab_ids):
             self._wake_around(self.grab_ids)
@@ -429,7 +432,7 @@ class HybridBody(ProjectiveBody):
         # iterations between moves let the body make room, as the load steps of a nonlinear FEM do
         floor = -math.inf
         if len(s["elems"]):
-            floor = max(J_FLOOR, min(J_START, START_SQUEEZE * min_det(x, self.tets, self.D, s["elems"])))
+            floor = max(J_FLOOR, START_SQUEEZE * min(J_START, min_det(x, self.tets, self.D, s["elems"])))
         alpha = 1.0
         for _ in range(START_HALVINGS + 1):
             x[g] = xg + alpha * jump
