@@ -1,0 +1,130 @@
+"""The hybrid body's solver kernels against plain references on drawn inputs: the block matrix product
+and block-preconditioned CG against scipy and numpy, the smallest volume ratio against numpy's
+determinants, and the drift that a front node reports against a plain breadth-first search."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from chainsim.systems.engine.kernels.twolevel import block_pcg, bspmv3, min_det, ring_max, volume_barrier
+
+finite = st.floats(-10, 10, allow_nan=False)
+
+
+@st.composite
+def spd_blocks(draw):
+    """A random symmetric positive definite matrix of 3 x 3 blocks (n blocks a side) with a random block
+    pattern, as block CSR, and a right-hand side."""
+    n = draw(st.integers(1, 12))
+    keep = draw(arrays(np.bool_, (n, n)))
+    A = draw(arrays(np.float64, (3 * n, 3 * n), elements=finite))
+    mask = np.kron(keep | keep.T | np.eye(n, dtype=bool), np.ones((3, 3), dtype=bool))
+    M = np.where(mask, A @ A.T, 0.0)
+    M = M + (3 * n) * np.eye(3 * n)  # positive definite, on its block pattern
+    b = draw(arrays(np.float64, (n, 3), elements=finite))
+    return M, b
+
+
+def _bsr(M):
+    B = sp.csr_matrix(M).tobsr(blocksize=(3, 3))
+    B.sort_indices()
+    return B.indptr.astype(np.int64), B.indices.astype(np.int64), np.ascontiguousarray(B.data)
+
+
+@settings(max_examples=60, deadline=None)
+@given(spd_blocks())
+def test_block_product_matches_the_dense_product(case):
+    M, b = case
+    out = np.full_like(b, np.nan)
+    bspmv3(*_bsr(M), b, out)
+    np.testing.assert_allclose(out.ravel(), M @ b.ravel(), rtol=1e-10, atol=1e-10 * max(1.0, np.abs(M).max()))
+
+
+@settings(max_examples=60, deadline=None)
+@given(spd_blocks(), st.integers(1, 40))
+def test_block_pcg_reduces_the_energy_norm_error_and_solves_with_enough_steps(case, steps):
+    M, b = case
+    n = len(b)
+    indptr, indices, blocks = _bsr(M)
+    inv = np.linalg.inv(np.stack([M[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] for i in range(n)]))
+    x = np.full_like(b, np.nan)  # overwritten: the solve starts from zero
+    scratch = [np.zeros_like(b) for _ in range(4)]
+    block_pcg(indptr, indices, blocks, inv, b, x, steps, *scratch)
+    exact = np.linalg.solve(M, b.ravel())
+    err = x.ravel() - exact
+
+    def energy_norm(e):
+        return float(e @ M @ e)
+
+    # CG from zero never leaves the error larger (in K's norm) than the zero start's, and with as many
+    # steps as unknowns it solves (round-off aside)
+    assert energy_norm(err) <= energy_norm(exact) * (1 + 1e-9) + 1e-12
+    if steps >= 3 * n:
+        np.testing.assert_allclose(x.ravel(), exact, rtol=1e-6, atol=1e-8 * max(1.0, np.abs(exact).max()))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 30))
+def test_min_det_is_the_smallest_volume_ratio(seed, count):
+    rng = np.random.default_rng(seed)
+    rest = rng.normal(size=(count * 4, 3))
+    tets = np.arange(count * 4, dtype=np.int64).reshape(count, 4)
+    x = rest + 0.5 * rng.normal(size=rest.shape)  # inverted elements included
+    Dm = np.stack([np.stack([rest[t[k]] - rest[t[0]] for k in (1, 2, 3)], axis=1) for t in tets])
+    inv = np.linalg.inv(Dm)
+    D = np.zeros((count, 4, 3))
+    D[:, 1:, :] = inv
+    D[:, 0, :] = -inv.sum(axis=1)
+    elems = np.flatnonzero(rng.random(count) < 0.7)
+    if len(elems) == 0:
+        elems = np.array([0], dtype=np.int64)
+    ref = min(
+        np.linalg.det(np.stack([x[t[k]] - x[t[0]] for k in (1, 2, 3)], axis=1)) / np.linalg.det(Dm[e])
+        for e, t in zip(elems, tets[elems])
+    )
+    assert min_det(x, tets, D, elems) == pytest.approx(ref, rel=1e-9, abs=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(0, 4))
+def test_ring_max_is_the_largest_value_within_the_rings_among_the_listed_nodes(seed, passes):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 40))
+    A = rng.random((n, n)) < 0.1
+    A = A | A.T
+    np.fill_diagonal(A, False)
+    G = sp.csr_matrix(A)
+    indptr, indices = G.indptr.astype(np.int64), G.indices.astype(np.int64)
+    nodes = np.flatnonzero(rng.random(n) < 0.6).astype(np.int64)
+    values = rng.random(n)
+    got = ring_max(indptr, indices, nodes, values, passes)
+    inside = np.zeros(n, dtype=bool)
+    inside[nodes] = True
+    want = values.copy()
+    for i in nodes:  # breadth-first within the listed nodes, `passes` rings out
+        seen, ring = {i}, {i}
+        for _ in range(passes):
+            ring = {j for a in ring for j in indices[indptr[a] : indptr[a + 1]] if inside[j]} - seen
+            seen |= ring
+        want[i] = max(values[j] for j in seen)
+    np.testing.assert_array_equal(got, want)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(-2.0, 2.0), st.floats(0.1, 0.95), st.floats(1e-3, 1e3))
+def test_the_barrier_is_zero_above_its_ratio_continuous_and_its_push_is_minus_its_slope(J, j_b, kappa):
+    e, push = volume_barrier(J, kappa, j_b)
+    if J >= j_b:
+        assert e == 0.0 and push == 0.0
+        return
+    assert e > 0.0 and push > 0.0  # it costs and pushes outwards
+    h = 1e-6
+    slope = (volume_barrier(J + h, kappa, j_b)[0] - volume_barrier(J - h, kappa, j_b)[0]) / (2 * h)
+    assert -slope == pytest.approx(push, rel=1e-4)
+    # continuous with zero slope where it starts, so the energy stays smooth
+    assert volume_barrier(j_b - 1e-9, kappa, j_b)[0] < 1e-12 * kappa + 1e-15
