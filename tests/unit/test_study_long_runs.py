@@ -164,3 +164,7 @@ def test_study_surgical_refuses_an_unknown_part_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "--parts" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_a_blown_up_figure_stays_one_short_cell():
+    assert lr._f(-4.84e33, "{:.2f}") == "-4.84e+33" and lr._f(-0.284, "{:.2f}") == "-0.28" and lr._f(None) == "-"
