@@ -44,6 +44,7 @@ from chainsim.systems.engine.kernels.normals import (
     moved_normals_kernel,
     vertex_normals_kernel,
 )
+from chainsim.systems.engine.kernels.projective import pcg3
 from chainsim.systems.engine.meshgen import tet_grid, triangulated_grid
 from chainsim.systems.engine.progress import progress
 from chainsim.systems.engine.segment_tree import SegmentTree
@@ -88,6 +89,7 @@ def _models() -> None:
         lambda: ProjectiveBody(rest[: tris.max() + 1], triangles=tris, fixed=[0]),
         # the m key reaches these too: hybrid on volumes, SurfaceChainMail on sheets (the cutting layers)
         lambda: HybridBody(rest, tets, fixed=[0]),
+        lambda: HybridBody(rest, tets, fixed=[0], sleep=0.01),  # the wake front and its drift rings
         lambda: SurfaceChainMailBody(rest[: tris.max() + 1], tris, fixed=[0]),
     ):
         body = make()
@@ -97,6 +99,11 @@ def _models() -> None:
             body.step(1 / 60)
         body.release()
         body.step(1 / 60)
+    # the hybrid line search's last resort (projective dynamics' CG step), which a small pull never needs
+    n = len(rest)
+    indptr, indices = np.arange(n + 1, dtype=np.int64), np.arange(n, dtype=np.int64)
+    pcg3(indptr, indices, np.ones(n), np.ones(n), np.ones((n, 3)), np.zeros((n, 3)), 2, 1e-10,
+         *(np.zeros((n, 3)) for _ in range(4)))  # fmt: skip
 
 
 def _csr(tris: np.ndarray, n: int):
