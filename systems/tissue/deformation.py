@@ -293,10 +293,10 @@ def model_lines(auto_only: bool = False) -> list[str]:
     """One line per soft body naming the model it runs and why (for `auto`: the choice and its reason)."""
     out = []
     for ent, d in esper.get_component(Deformable):
-        if auto_only and not d.model_reason.startswith("auto"):
+        if auto_only and not d.model_reason.startswith("auto") and "; " not in d.model_reason:
             continue
         name = esper.component_for_entity(ent, Name).value if esper.has_component(ent, Name) else f"body {ent}"
-        why = d.model_reason if d.model_reason.startswith("auto") else ""
+        why = d.model_reason if d.model_reason.startswith("auto") else d.model_reason.partition("; ")[2]
         out.append(f"{name}: {d.model_used}" + (f" - {why}" if why else ""))
     return out
 

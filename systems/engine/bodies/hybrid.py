@@ -511,11 +511,12 @@ class HybridBody(ProjectiveBody):
             taken = 0.0
             tries = ((True, True), (True, False), (False, False)) if s["coarse"] is not None else ((False, False),)
             for coarse, heavy in tries:
-                if heavy and (self._momentum is None or self._momentum[0] is not s):
+                carried = self._momentum[1] if self._momentum is not None and self._momentum[0] is s else None
+                if heavy and carried is None:
                     continue
                 d = self._direction(s, f, coarse)
-                if heavy:
-                    d += MOMENTUM * self._momentum[1]
+                if heavy and carried is not None:
+                    d += MOMENTUM * carried
                 slope = float(np.sum(f * d))
                 if not slope > 0.0:
                     continue
