@@ -168,3 +168,32 @@ def test_study_surgical_refuses_an_unknown_part_in_one_line(tmp_path, capsys):
 
 def test_a_blown_up_figure_stays_one_short_cell():
     assert lr._f(-4.84e33, "{:.2f}") == "-4.84e+33" and lr._f(-0.284, "{:.2f}") == "-0.28" and lr._f(None) == "-"
+
+
+def test_frames_to_a_level_count_from_the_last_arrival():
+    # 10 %: reached on frame 3, left on frame 4, back on frame 5 for good; 1 %: on the last frame only
+    err = [0.5, 0.2, 0.08, 0.12, 0.04, 0.02, 0.009]
+    assert lr.frames_to(err, (0.10, 0.05, 0.01)) == [5, 5, 7]
+    assert lr.frames_to([0.5, 0.3], (0.10,)) == [None]  # never within
+    assert lr.frames_to([0.0, 0.0], (0.01,)) == [1]  # within from the first frame
+    assert lr.frames_to([0.05, float("nan")], (0.10,)) == [None]  # a blown-up end is not within
+    assert lr.frames_to([], (0.10,)) == [None]
+
+
+def test_the_stiffness_part_runs_on_the_quick_mesh_through_the_study_command(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(lr, "CACHE", tmp_path / "fem")
+    monkeypatch.setattr(lr, "STIFF_MATERIALS", [(3e4, 0.45)])
+    monkeypatch.setattr(lr, "STIFF_FRAMES", 6)
+    assert main(["study", "surgical", "--quick", "--parts", "stiffness", "--out", str(tmp_path / "o")]) == 0
+    res = json.loads((tmp_path / "o" / "stiffness.json").read_text())
+    assert res["nodes"] == 1521 and res["frames"] == 6
+    assert [r["setting"] for r in res["rows"]] == [s[1] for s in lr.STIFF_SETTINGS]
+    for r in res["rows"]:
+        assert r["status"] == "ran", r
+        assert len(r["own_frames"]) == len(r["fem_frames"]) == 3 and r["cpu_ms"] > 0
+        assert 0 <= r["own_end"] < 1 and 0 < r["fem_end"] < 1 and 0 < r["own_fem_error"] < 1
+        # the counts are the levels' order: a tighter level is never reached sooner
+        reached = [n for n in r["own_frames"] if n is not None]
+        assert reached == sorted(reached)
+    assert "| hybrid (defaults) | 30 | 0.45 |" in (tmp_path / "o" / "stiffness.md").read_text()
+    assert "# Stiffness" in capsys.readouterr().out

@@ -31,6 +31,13 @@ A model that takes a `sleep` setting (the hybrid body) runs every scenario twice
 with far nodes sleeping (SLEEP). The FEM solutions are kept in a cache folder when one is given (the
 command lines use CACHE, in the system's temporary folder, so that none lands beside a report), so a later
 run on the same mesh, material and targets reads them instead of solving again (minutes at 10k nodes).
+
+The stiffness part (`chainsim study surgical --parts stiffness`) holds the 3 mm patch lift from rest for
+5 s at four materials, soft to nearly incompressible (STIFF_MATERIALS), and counts the frames each setting
+takes to come within 10, 5 and 1 % of its own converged answer (the same body with CONVERGED_ITERATIONS
+iterations a frame; |u - u*| / |u*| over the displacement field) and of the FEM (RMS over the lift). Its
+own answer says how fast the solver settles; the FEM says where it settles, and the two differ by what
+the model's energy gets wrong.
 """
 
 from __future__ import annotations
@@ -494,3 +501,189 @@ def bench(args) -> str:
     command += f" --threads {args.threads}" if getattr(args, "threads", 1) != 1 else ""
     md = write(results, out, command, machine())
     return md.read_text(encoding="utf-8")
+
+
+# -- stiffness: how many frames a held lift takes to settle, soft to nearly incompressible -----------------
+#: the materials (E in Pa, nu): soft to stiff at nu 0.45, then towards incompressible, where a solver whose
+#: iteration ignores the coupling of the axes through the volume term slows down most
+STIFF_MATERIALS = [(1e3, 0.45), (3e4, 0.45), (1e5, 0.49), (3e4, 0.499)]
+STIFF_FRAMES = 300  # 5 s held
+STIFF_LEVELS = (0.10, 0.05, 0.01)
+CONVERGED_ITERATIONS = 40  # the model's own answer: the same body with this many iterations a frame
+#: the FEM's displacement under displacement loads alone does not depend on E (the stress scales with it),
+#: so one solve per nu, at this E, serves every stiffness (and shares the hold's cached reference)
+FEM_E = 3e4
+STIFF_SETTINGS = [
+    ("hybrid", "hybrid (defaults)", {}),
+    (
+        "projective",
+        "projective statics, CG 6, 1 it",
+        {"dynamic": False, "solver": "cg", "cg_iterations": 6, "iterations": 1, "rotation_iterations": 1},
+    ),
+]
+
+
+def frames_to(errors, levels=STIFF_LEVELS) -> list[int | None]:
+    """Per level, the first frame (1-based) from which every later error stays at or below it; None where the
+    last frame's is above. A run that dips below a level and comes back above counts from its last arrival,
+    so a frame count says the body has stayed there, not that it passed by."""
+    e = np.asarray(errors, dtype=float)
+    out: list[int | None] = []
+    for level in levels:
+        within = e <= level  # NaN counts as outside
+        if not len(e) or not within[-1]:
+            out.append(None)
+            continue
+        outside = np.flatnonzero(~within)
+        out.append(int(outside[-1]) + 2 if len(outside) else 1)
+    return out
+
+
+def _lift(body, b: surgical.Block, frames: int, each: Callable[[np.ndarray], None]) -> list[float]:
+    """Lift the patch 3 mm at once from rest and hold it `frames` frames, `each` given every frame's
+    displacement (not kept: 300 frames of a 10k-node field are 80 MB); each warm frame's CPU ms."""
+    held = b.grabbed
+    body.grab(held, b.pos[held] + np.array([0.0, 0.0, surgical.LIFT_MM]))
+    cpu = []
+    for _ in range(frames):
+        c0 = time.process_time()
+        body.step(1.0 / FPS)
+        cpu.append(1e3 * (time.process_time() - c0))
+        each(body.positions - b.pos)
+    return cpu[1:] or cpu
+
+
+def _stiff_body(model: str, params: dict, b: surgical.Block, E: float, nu: float):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return make_body(model, b.pos, tets=b.tets, fixed=b.fixed, **{**params, "E": E, "nu": nu, "unit": 1e-3})
+
+
+def stiffness_row(
+    b: surgical.Block, model: str, name: str, params: dict, E: float, nu: float, ref: np.ndarray | None, frames: int
+) -> dict:
+    """One setting at one material: its own converged answer (CONVERGED_ITERATIONS a frame), then the
+    setting's run, with the frames to each of STIFF_LEVELS of both that answer and the FEM `ref`."""
+    row: dict = {"setting": name, "model": model, "params": params, "E": E, "nu": nu, "frames": frames}
+    last: list[np.ndarray] = []  # the converged run's last two frames
+
+    def keep(u: np.ndarray) -> None:
+        last[:] = [*last[-1:], u]
+
+    try:
+        _lift(_stiff_body(model, {**params, "iterations": CONVERGED_ITERATIONS}, b, E, nu), b, frames, keep)
+        star = last[-1]
+        scale = float(np.linalg.norm(star))
+        own_err: list[float] = []
+        fem_err: list[float] = []
+
+        def each(u: np.ndarray) -> None:
+            own_err.append(float(np.linalg.norm(u - star)) / scale if scale else math.nan)
+            if ref is not None:
+                fem_err.append(float(np.sqrt(np.mean(np.sum((u - ref) ** 2, axis=1)))) / surgical.LIFT_MM)
+
+        cpu = _lift(_stiff_body(model, params, b, E, nu), b, frames, each)
+    except UserError as e:  # a setting the model refuses, or a step that diverged
+        return {**row, "status": f"refused: {e}"}
+    # how still the converged run was at its end: its last frame's change relative to its answer
+    row["own_last_change"] = float(np.linalg.norm(last[-1] - last[0])) / scale if len(last) == 2 and scale else None
+    row.update(status="ran", cpu_ms=float(np.median(cpu)), own_frames=frames_to(own_err), own_end=own_err[-1])
+    row["own_fem_error"] = None
+    if ref is not None:
+        row.update(fem_frames=frames_to(fem_err), fem_end=fem_err[-1])
+        row["own_fem_error"] = float(np.sqrt(np.mean(np.sum((star - ref) ** 2, axis=1)))) / surgical.LIFT_MM
+    return row
+
+
+def stiffness(
+    element_mm: float = DEFAULT_MM,
+    *,
+    materials: list[tuple[float, float]] | None = None,
+    frames: int | None = None,
+    only: list[str] | None = None,
+    cache: Path | None = None,
+    threads: int | None = 1,
+    progress: Callable[[str], None] | None = None,
+) -> dict:
+    """The 3 mm patch lift held from rest for `frames` frames at each of `materials` (STIFF_MATERIALS), for
+    each of STIFF_SETTINGS (those whose name starts with a word of `only`); `frames`: STIFF_FRAMES unless told."""
+    b = surgical.block(element_mm)
+    frames = frames or STIFF_FRAMES
+    settings = [s for s in STIFF_SETTINGS if not only or any(s[1].startswith(w) for w in only)]
+    if not settings:
+        raise UserError(f"stiffness: no setting starts with {'; '.join(only or [])!r}")
+    before = numba.get_num_threads()
+    if threads is not None:
+        numba.set_num_threads(threads)
+    rows, refs = [], []
+    try:
+        for E, nu in materials or STIFF_MATERIALS:
+            if progress:
+                progress(f"stiffness: neo-Hookean reference at nu {nu:g} on {len(b.pos)} nodes")
+            ref, info = reference(b, b.grabbed, (0.0, 0.0, surgical.LIFT_MM), FEM_E, nu, cache)
+            refs.append({"E": E, "nu": nu, **info})
+            for model, name, params in settings:
+                if progress:
+                    progress(f"stiffness: {name} at {E:g} Pa, nu {nu:g} ({frames} frames, and its own answer)")
+                rows.append(stiffness_row(b, model, name, params, E, nu, ref, frames))
+    finally:
+        numba.set_num_threads(before)
+    return {
+        "element_mm": element_mm,
+        "nodes": len(b.pos),
+        "fps": FPS,
+        "frames": frames,
+        "levels": list(STIFF_LEVELS),
+        "converged_iterations": CONVERGED_ITERATIONS,
+        "threads": threads if threads is not None else before,
+        "references": refs,
+        "fem_cache": str(cache) if cache is not None else None,
+        "rows": rows,
+    }
+
+
+def stiffness_markdown(results: dict, command: str, machine: str) -> str:
+    """The stiffness runs as one table: frames to each level of the model's own answer and of the FEM."""
+    lv = "/".join(f"{x:.0%}" for x in results["levels"])
+
+    def counts(v) -> str:
+        return " / ".join("-" if n is None else str(n) for n in v) if v is not None else "-"
+
+    L = [
+        "# Stiffness: a held lift settling, soft to nearly incompressible",
+        "",
+        f"The 3 mm patch lift of the {surgical.BLOCK_MM[0]:g} x {surgical.BLOCK_MM[1]:g} x {surgical.BLOCK_MM[2]:g} "
+        f"mm block of {results['element_mm']:g} mm tetrahedra ({results['nodes']} nodes), at once from rest and "
+        f"held {results['frames']} frames at {results['fps']} Hz. Frames to {lv}: the first frame from which the "
+        "error stays within that share to the end (-: not by the end). Own answer: the same body with "
+        f"{results['converged_iterations']} iterations a frame after {results['frames']} frames; its error is "
+        "|u - u*| / |u*| over the whole displacement field. FEM: RMS nodal distance to the converged "
+        "neo-Hookean P1 FEM over the lift. ms: median CPU per frame after the first "
+        f"({results['threads']} numba thread(s)).",
+        "",
+        f"Made with `{command}` on {machine}.",
+        "",
+        f"| setting | E (kPa) | nu | frames to {lv} of own answer | own at end | frames to {lv} of FEM "
+        "| FEM at end | own answer vs FEM | CPU ms | status |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for r in results["rows"]:
+        L.append(
+            f"| {r['setting']} | {r['E'] / 1e3:g} | {r['nu']:g} | {counts(r.get('own_frames'))} | "
+            f"{_f(r.get('own_end'), '{:.4f}')} | {counts(r.get('fem_frames'))} | {_f(r.get('fem_end'), '{:.4f}')} | "
+            f"{_f(r.get('own_fem_error'), '{:.4f}')} | {_f(r.get('cpu_ms'), '{:.1f}')} | {r['status']} |"
+        )
+    return "\n".join(L) + "\n"
+
+
+def write_stiffness(results: dict, out_dir, command: str, machine: str) -> Path:
+    """stiffness.json and stiffness.md in `out_dir`; the markdown's path."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        (out / "stiffness.json").write_text(json.dumps(results, indent=1, default=str), encoding="utf-8")
+        md = out / "stiffness.md"
+        md.write_text(stiffness_markdown(results, command, machine), encoding="utf-8")
+    except OSError as e:
+        raise UserError(f"{out}: cannot write the stiffness runs' results ({e.strerror or e})") from None
+    return md

@@ -35,7 +35,9 @@ def add_parser(sub):
         default="table",
         help="comma-separated: table (every setting after half a second, the model table's rows), long (holds, "
         "drags and far pulls for seconds, tools/study/long_runs.py: long-runs.md and .json; the 1.25 mm mesh, "
-        "2.5 mm with --quick); default table",
+        "2.5 mm with --quick), stiffness (the 3 mm lift held from rest for 5 s at four stiffnesses up to nu "
+        "0.499: frames to 10/5/1 %% of the model's own answer and of the FEM, tools/study/long_runs.py: stiffness.md "
+        "and .json); default table",
     )
     sg.add_argument("--out", required=True, help="output folder")
     sg.add_argument(
@@ -103,6 +105,15 @@ def _long_runs(args, out: Path) -> None:
     print(md.read_text(encoding="utf-8"))
 
 
+def _stiffness(args, out: Path) -> None:
+    """The held lift at each stiffness (long_runs.stiffness), on the same mesh as the long runs."""
+    element = long_runs.QUICK_MM if args.quick else long_runs.DEFAULT_MM
+    results = long_runs.stiffness(element, cache=long_runs.CACHE, progress=lambda m: logger.info(f"study   {m}"))
+    command = "chainsim study surgical --parts stiffness" + (" --quick" if args.quick else "") + f" --out {args.out}"
+    md = long_runs.write_stiffness(results, out, command, platform_line())
+    print(md.read_text(encoding="utf-8"))
+
+
 def run(args) -> int:
 
     cmd = getattr(args, "study_cmd", None)
@@ -125,7 +136,7 @@ def run(args) -> int:
     if cmd == "surgical":
         if args.table is not None and not Path(args.table).parent.is_dir():
             raise UserError(f"--table {args.table}: its folder does not exist (expected a model table's path)")
-        parts = long_runs.parts(getattr(args, "parts", None), ("table", "long"), "table")
+        parts = long_runs.parts(getattr(args, "parts", None), ("table", "long", "stiffness"), "table")
         out = prepare_output_dir(args.out, "--out")
         if "table" in parts:
             results = surgical.run("quick" if args.quick else "full", progress=lambda m: logger.info(f"study   {m}"))
@@ -134,6 +145,8 @@ def run(args) -> int:
             print(md)
         if "long" in parts:
             _long_runs(args, out)
+        if "stiffness" in parts:
+            _stiffness(args, out)
         return 0
     if cmd == "calibrate":
         if args.E is not None and not args.E > 0:
