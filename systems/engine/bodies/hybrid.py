@@ -426,19 +426,21 @@ class HybridBody(ProjectiveBody):
                 s["K_fg"] = s["K_fh"][:, (3 * g[:, None] + np.arange(3)).ravel()].tocsr()
                 s["K_fg_key"] = key
             _, P3, factor = s["coarse"]
-            lin = (P3 @ factor.solve(P3.T @ -(s["K_fg"] @ jump.ravel()))).reshape(-1, 3)
+            y = factor.solve(P3.T @ -(s["K_fg"] @ jump.ravel()))
+            lin = (P3 @ y).reshape(-1, 3)
         xg, xf = x[g].copy(), x[free].copy()
         # a frame's move may squeeze the most squeezed element by a tenth more, never below J_FLOOR: the
         # iterations between moves let the body make room, as the load steps of a nonlinear FEM do
         floor = -math.inf
         if len(s["elems"]):
             floor = max(J_FLOOR, START_SQUEEZE * min(J_START, min_det(x, self.tets, self.D, s["elems"])))
-        alpha = 1.0
+        alpha, min_j = 1.0, math.inf
         for _ in range(START_HALVINGS + 1):
             x[g] = xg + alpha * jump
             if lin is not None:
                 x[free] = xf + alpha * lin
-            if not len(s["elems"]) or min_det(x, self.tets, self.D, s["elems"]) >= floor:
+            min_j = min_det(x, self.tets, self.D, s["elems"]) if len(s["elems"]) else math.inf
+            if min_j >= floor:
                 break
             alpha *= 0.5
         else:
@@ -446,7 +448,17 @@ class HybridBody(ProjectiveBody):
             x[g], x[free] = xg, xf
         if alpha == 1.0:
             x[g] = xg + jump  # exactly on target, with no round-off of xg + jump - xg
-        self._cache = None
+        c = self._cache
+        if lin is not None and alpha > 0.0 and c is not None and c[0] is s:
+            # the forces after the move, to first order: the last frame's less K times the move (the
+            # coarse part through K P y). A moving tool then costs one local step a frame, as a still
+            # one does, not two; the step's trial point is evaluated exactly, and its energy is unknown
+            # here (nan: _iterate tests the step by its curvature and det F, not by the energy)
+            KP = s["coarse"][0]
+            moved = KP @ y + s["K_fg"] @ jump.ravel()
+            self._cache = (s, math.nan, min_j, c[3] - alpha * moved.reshape(-1, 3))
+        else:
+            self._cache = None
         return None if lin is None or alpha == 0.0 else alpha * lin
 
     def _say_short(self, short: float, scale: float) -> None:
@@ -524,7 +536,8 @@ class HybridBody(ProjectiveBody):
                 for _ in range(LINE_HALVINGS + 2):
                     x[free] = base + alpha * d
                     e1, j1, f1 = self._evaluate(s, x)
-                    ok = e1 <= energy - ARMIJO * alpha * slope + 1e-12 * abs(energy) and j1 >= min(J_FLOOR, min_j)
+                    descends = math.isnan(energy) or e1 <= energy - ARMIJO * alpha * slope + 1e-12 * abs(energy)
+                    ok = descends and j1 >= min(J_FLOOR, min_j)
                     if secant:
                         secant = False
                         # the energy's curvature along d from the slopes at both ends gives its minimum on
