@@ -13,8 +13,6 @@ outside the timed region.
 
 from __future__ import annotations
 
-import os
-
 from chainsim.systems.engine import argtypes, limits
 from chainsim.systems.engine.chainmail_params import ORDER_CHOICES
 from chainsim.tools.bench import run as impl
@@ -72,14 +70,14 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    # numba's OpenMP threads spin for a while after each parallel region (libgomp's default is long),
-    # taking a core from the serial kernels timed next on a machine with few cores; falling asleep at
-    # once instead (OMP_WAIT_POLICY=PASSIVE) would make every wave of the level-parallel cascade wake
-    # them again. A short spin (tens of microseconds) keeps them awake across one cascade's waves only.
-    # Read when the first parallel region starts; either variable set by the caller wins.
-    if "OMP_WAIT_POLICY" not in os.environ:
-        os.environ.setdefault("GOMP_SPINCOUNT", "20000")
-
+    # No wait policy of its own: the level-parallel rows run under the engine's
+    # (chainsim.systems.engine.threads: idle workers sleep at once unless the caller sets OMP_WAIT_POLICY,
+    # GOMP_SPINCOUNT, KMP_BLOCKTIME or NUMBA_THREADING_LAYER), the one a body's cascade runs under, so
+    # they time the cascade a body gets: each wave wakes the workers again, and no idle worker takes a
+    # core from the serial kernels timed next. GOMP_SPINCOUNT=20000 (tens of microseconds, what this
+    # bench used to set) keeps them awake from one wave to the next instead, the cascade's best case on a
+    # quiet machine (waves.AUTO_STEPS was measured with libgomp's own spin, 3 ms); on a busy machine a
+    # spinning worker takes turns with the one still working.
     if args.mesh:
         return impl.run_mesh(args)
     return impl.run_suite(args)
