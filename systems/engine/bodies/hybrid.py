@@ -215,16 +215,8 @@ class HybridBody(ProjectiveBody):
         self._anchor = self.rest * self.unit
 
     # -- set-up per held and awake set ----------------------------------------------------------
-    @property
-    def positions(self) -> np.ndarray:
-        return self._positions
-
-    @positions.setter
-    def positions(self, value: np.ndarray) -> None:
-        self._positions = value
-        if hasattr(self, "x"):
-            self.x[:] = np.asarray(value) * self.unit
-            self._cache, self._converged = None, False  # set from outside: the last evaluation is stale
+    def _placed(self) -> None:
+        self._cache, self._converged = None, False  # set from outside: the last evaluation is stale
 
     def _grab_changed(self) -> None:
         key = self.grab_ids.tobytes()

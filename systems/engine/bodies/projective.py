@@ -235,6 +235,10 @@ class ProjectiveBody(Body):
         self._positions = value
         if hasattr(self, "x"):
             self.x[:] = np.asarray(value) * self.unit
+            self._placed()
+
+    def _placed(self) -> None:
+        """Hook: the positions were set from outside the solve."""
 
     def _stiffness(self) -> sp.csr_matrix:
         """Sum over live tets of (w_a + w_v) D D^T scattered to the corners (one matrix for x, y, z)."""
