@@ -494,10 +494,8 @@ def use_model(d: Deformable, model: str, where: str = "deformable", initial: boo
         d.graph = body.graph
         d.alive = body.graph.alive
     d.model_used = model
-    d.model_reason = reason or f"{model} (as the pack or --model asks)"
-    notice = getattr(d.body, "notice", "") if d.body is not None else ""
-    if notice:  # what a frame will cost here and which setting fits, said where the choice is shown
-        d.model_reason += f"; {notice}"
+    notice = getattr(d.body, "notice", "")  # what a frame will cost here, said where the choice is
+    d.model_reason = (reason or f"{model} (as the pack or --model asks)") + (f"; {notice}" if notice else "")
     if not initial:  # a switch at run time: everything is redrawn
         d.mark_dirty(np.arange(d.n_elements))
         d.version += 1

@@ -179,15 +179,7 @@ class HybridBody(ProjectiveBody):
             raise UserError(f"wake_rings: expected 1..1000, got {wake_rings}")
         self.coarse, self.start, self.sleep, self.wake_rings = float(coarse), start, float(sleep), int(wake_rings)
         self._released = False
-        # the last evaluation (set-up, energy, smallest det F, forces on its solved nodes), valid while x
-        # is where it was evaluated: a still frame starts from it, with no local step of its own
-        self._cache: tuple | None = None
-        self._converged = False  # at rest under the current targets: frames cost nothing until they move
-        self._prev_step = 0.0
-        self._short_frames = 0
-        self._momentum: tuple | None = None
-        self._grab_key = b""
-        self._f_peak = 0.0  # the largest force on a solved node since the targets last moved
+        self._init_iteration()
         rest_si = self.rest * self.unit
         links = meshgen.links_from_cells(self.tets)
         self.edge = float(np.mean(np.linalg.norm(rest_si[links[:, 0]] - rest_si[links[:, 1]], axis=1)))
@@ -213,6 +205,17 @@ class HybridBody(ProjectiveBody):
         self._prev_last = 0.0
         # where each node was when it last woke its neighbours (sleeping bodies; see _sleep_or_wake)
         self._anchor = self.rest * self.unit
+
+    def _init_iteration(self) -> None:
+        # the last evaluation (set-up, energy, smallest det F, forces on its solved nodes), valid while x
+        # is where it was evaluated: a still frame starts from it, with no local step of its own
+        self._cache: tuple | None = None
+        self._converged = False  # at rest under the current targets: frames cost nothing until they move
+        self._prev_step = 0.0
+        self._short_frames = 0
+        self._momentum: tuple | None = None
+        self._grab_key = b""
+        self._f_peak = 0.0  # the largest force on a solved node since the targets last moved
 
     # -- set-up per held and awake set ----------------------------------------------------------
     def _placed(self) -> None:
@@ -543,32 +546,7 @@ class HybridBody(ProjectiveBody):
                 slope = float(np.sum(f * d))
                 if not slope > 0.0:
                     continue
-                alpha, secant, good = 1.0, True, None
-                for _ in range(LINE_HALVINGS + 2):
-                    x[free] = base + alpha * d
-                    e1, j1, f1 = self._evaluate(s, x)
-                    descends = math.isnan(energy) or e1 <= energy - ARMIJO * alpha * slope + 1e-12 * abs(energy)
-                    ok = descends and j1 >= min(J_FLOOR, min_j)
-                    if secant:
-                        secant = False
-                        # the energy's curvature along d from the slopes at both ends gives its minimum on
-                        # the line: a step that overshoots it (the rest Hessian's coarse step far from
-                        # rest) is shortened to it, one that falls well short is lengthened, once
-                        curv = (slope - float(np.sum(f1 * d))) / alpha
-                        best = slope / curv if curv > 0.0 else 2.0 * alpha
-                        if best < 0.7 * alpha or (ok and best > 1.4 * alpha):
-                            good = (alpha, e1, j1, f1) if ok else None
-                            alpha = min(max(best, 0.05 * alpha), 2.0 * alpha)
-                            continue
-                    if ok:
-                        taken = alpha
-                        break
-                    if good is not None:  # the lengthened step failed: back to the one that held
-                        taken, e1, j1, f1 = good
-                        x[free] = base + taken * d
-                        self._cache = (s, e1, j1, f1)
-                        break
-                    alpha *= 0.5
+                taken, e1, j1, f1 = self._line_search(s, x, base, d, slope, energy, min_j)
                 if taken:
                     break
             if not taken:  # no step descends: at the energy's answer, as far as round-off tells, if the
@@ -593,6 +571,40 @@ class HybridBody(ProjectiveBody):
                 self._converged = True  # at rest under a still tool: later frames cost nothing
                 break
         return done, last, total
+
+    def _line_search(
+        self, s: dict, x: np.ndarray, base: np.ndarray, d: np.ndarray, slope: float, energy: float, min_j: float
+    ) -> tuple[float, float, float, np.ndarray]:
+        """Move the solved nodes to base + alpha d for the largest alpha tried that lowers the energy
+        (Armijo; an unknown energy, nan, is not tested) and keeps det F above J_FLOOR (or where it was).
+        Returns (alpha, 0 if none held, and the energy, smallest det F and forces there)."""
+        free = s["free"]
+        alpha, secant, good = 1.0, True, None
+        e1, j1, f1 = energy, min_j, np.zeros_like(d)
+        for _ in range(LINE_HALVINGS + 2):
+            x[free] = base + alpha * d
+            e1, j1, f1 = self._evaluate(s, x)
+            descends = math.isnan(energy) or e1 <= energy - ARMIJO * alpha * slope + 1e-12 * abs(energy)
+            ok = descends and j1 >= min(J_FLOOR, min_j)
+            if secant:
+                secant = False
+                # the energy's curvature along d from the slopes at both ends gives its minimum on the
+                # line: a step that overshoots it (the rest Hessian's coarse step far from rest) is
+                # shortened to it, one that falls well short is lengthened, once
+                curv = (slope - float(np.sum(f1 * d))) / alpha
+                best = slope / curv if curv > 0.0 else 2.0 * alpha
+                if best < 0.7 * alpha or (ok and best > 1.4 * alpha):
+                    good = (alpha, e1, j1, f1) if ok else None
+                    alpha = min(max(best, 0.05 * alpha), 2.0 * alpha)
+                    continue
+            if ok:
+                return alpha, e1, j1, f1
+            if good is not None:  # the lengthened step failed: back to the one that held
+                x[free] = base + good[0] * d
+                self._cache = (s, *good[1:])
+                return good
+            alpha *= 0.5
+        return 0.0, e1, j1, f1
 
     def _balanced(self, f: np.ndarray) -> bool:
         """Whether the forces left are a small share of the largest seen since the targets last moved: a
