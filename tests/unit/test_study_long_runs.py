@@ -197,3 +197,19 @@ def test_the_stiffness_part_runs_on_the_quick_mesh_through_the_study_command(tmp
         assert reached == sorted(reached)
     assert "| hybrid (defaults) | 30 | 0.45 |" in (tmp_path / "o" / "stiffness.md").read_text()
     assert "# Stiffness" in capsys.readouterr().out
+
+
+def test_bench_models_runs_the_stiffness_part(tmp_path, monkeypatch):
+    monkeypatch.setattr(lr, "CACHE", tmp_path / "fem")
+    monkeypatch.setattr(lr, "STIFF_MATERIALS", [(3e4, 0.49)])
+    monkeypatch.setattr(lr, "STIFF_FRAMES", 4)
+    args = SimpleNamespace(
+        scene="tissue", element_mm=5.0, E=3e4, nu=0.45, n=6, frames=10, only="hybrid", out=str(tmp_path)
+    )
+    args.parts = "stiffness"
+    assert models.run(args) == 0
+    info = json.loads((tmp_path / "stiffness.json").read_text())
+    assert info["nodes"] == 245 and [(r["setting"], r["nu"]) for r in info["rows"]] == [("hybrid (defaults)", 0.49)]
+    assert info["rows"][0]["status"] == "ran" and not (tmp_path / "long-runs.json").exists()
+    with pytest.raises(UserError, match="no setting starts with"):
+        models.run(SimpleNamespace(**{**vars(args), "only": "xpbd"}))

@@ -13,7 +13,7 @@ solves: every free node, unless the body sleeps far from the tool). The referenc
 block, neo-Hookean P1 FEM on the same mesh; on the 1 m block, linear FEM on this mesh plus the
 nonlinear correction of neo-Hookean FEM on a coarse mesh. Bounded: at most --frames frames per phase.
 `--parts long` runs the tissue block's holds, drags and far pulls of tools/study/long_runs.py instead (or
-as well, with `--parts settle,long`).
+as well, with `--parts settle,long`); `--parts stiffness` its held lift at four stiffnesses.
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ from chainsim.tools.study import surgical
 from chainsim.tools.study.fem_linear import LinearFEM
 from chainsim.tools.study.fem_nonlinear import solve_neohookean
 from chainsim.tools.study.long_runs import bench as bench_long_runs
+from chainsim.tools.study.long_runs import bench_stiffness
 from chainsim.tools.study.long_runs import parts as parse_parts
 from chainsim.tools.study.metrics import displacement_error
 
@@ -142,7 +143,9 @@ def add_arguments(p) -> None:
         "--parts",
         default="settle",
         help="comma-separated: settle (the two pulls above), long (holds, drags and far pulls for seconds on the "
-        "tissue block, tools/study/long_runs.py: long-runs.md and .json in --out); default settle",
+        "tissue block, tools/study/long_runs.py: long-runs.md and .json in --out), stiffness (the 3 mm lift held "
+        "from rest at four stiffnesses up to nu 0.499, frames to 10/5/1 %% of the model's own answer and of the FEM: "
+        "stiffness.md and .json in --out); default settle",
     )
 
 
@@ -270,7 +273,7 @@ def run(args) -> int:
         raise UserError(f"--n: expected 4..60 nodes per edge, got {args.n}")
     if not (1 <= args.frames <= 100_000):
         raise UserError(f"--frames: expected 1..100000, got {args.frames}")
-    parts = parse_parts(getattr(args, "parts", None), ("settle", "long"), "settle")
+    parts = parse_parts(getattr(args, "parts", None), ("settle", "long", "stiffness"), "settle")
     chosen = _chosen(args.only) if "settle" in parts else {}  # the long runs name their own settings
     threads = getattr(args, "threads", 1)
     if not (1 <= threads <= numba.config.NUMBA_NUM_THREADS):
@@ -285,8 +288,10 @@ def run(args) -> int:
     warnings.filterwarnings("ignore", message="xpbd: .* substeps", category=UserWarning)
     if "long" in parts:
         print(bench_long_runs(args))
-        if "settle" not in parts:
-            return 0
+    if "stiffness" in parts:
+        print(bench_stiffness(args))
+    if "settle" not in parts:
+        return 0
     scene, refs = _scene_and_references(args)
     with busy_processes(busy):
         rows = _rows(chosen, scene, refs, args.frames, threads)

@@ -695,3 +695,20 @@ def write_stiffness(results: dict, out_dir, command: str, machine: str) -> Path:
     except OSError as e:
         raise UserError(f"{out}: cannot write the stiffness runs' results ({e.strerror or e})") from None
     return md
+
+
+def bench_stiffness(args) -> str:
+    """`chainsim bench models --parts stiffness`: the held lift at each of STIFF_MATERIALS (not --E / --nu: the
+    part is the sweep) on the tissue block of --element-mm, the settings --only names; writes stiffness.json/.md
+    in --out, returns the text."""
+    if getattr(args, "scene", "tissue") != "tissue":
+        raise UserError("--parts stiffness: runs on the tissue block (--scene tissue)")
+    element = getattr(args, "element_mm", DEFAULT_MM)
+    if not (0.5 <= element <= 5.0):
+        raise UserError(f"--element-mm: expected 0.5..5 mm, got {element:g}")
+    only = [w.strip() for w in (getattr(args, "only", None) or "").split(";") if w.strip()]
+    results = stiffness(element, only=only, cache=CACHE, threads=None, progress=logger.info)
+    command = f"chainsim bench models --parts stiffness --element-mm {element:g}"
+    command += f" --only {';'.join(only)!r}" if only else ""
+    command += f" --threads {args.threads}" if getattr(args, "threads", 1) != 1 else ""
+    return write_stiffness(results, Path(args.out), command, machine()).read_text(encoding="utf-8")
