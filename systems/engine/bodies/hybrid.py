@@ -447,7 +447,9 @@ class HybridBody(ProjectiveBody):
         # iterations between moves let the body make room, as the load steps of a nonlinear FEM do
         floor = -math.inf
         if len(s["elems"]):
-            floor = max(J_FLOOR, START_SQUEEZE * min(J_START, min_det(x, self.tets, self.D, s["elems"])))
+            c = self._cache  # the last evaluation's smallest ratio is the one here, when it is of this x
+            before = c[2] if c is not None and c[0] is s else min_det(x, self.tets, self.D, s["elems"])
+            floor = max(J_FLOOR, START_SQUEEZE * min(J_START, before))
         alpha, min_j = 1.0, math.inf
         for _ in range(START_HALVINGS + 1):
             x[g] = xg + alpha * jump
