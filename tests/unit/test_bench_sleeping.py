@@ -20,12 +20,27 @@ def test_the_wider_slab_solves_about_the_same_region_and_the_extra_error_is_meas
     rows = json.loads((out / "results.json").read_text())["rows"]
     small, wide = rows
     assert wide["nodes"] > 5 * small["nodes"]
-    # sleeping: the region a frame solves follows the tool, not the body
-    assert wide["solved_max"] < 0.7 * wide["nodes"]
+    # sleeping: the region a frame solves follows the disturbance, not the body: about the nodes the
+    # same pull moves by more than the threshold when the body is solved whole, not all of them
+    assert wide["solved_max"] < 0.9 * wide["nodes"]
+    assert wide["solved_max"] < 1.15 * _reach(80.0)
     # the extra error is measured against the whole solve, and it is small but not nothing
     for r in rows:
         assert 0.0 <= r["extra_rms_end"] < 0.1 and np.isfinite(r["extra_worst_node"])
     assert "extra error RMS" in (out / "results.md").read_text()
+
+
+def _reach(width: float) -> int:
+    """How many nodes the bench's pull (3 mm over 3 frames, then held) moves by more than the sleep
+    threshold (0.015 of the lift) when the slab is solved whole."""
+    from chainsim.systems.engine.bodies.hybrid import HybridBody
+
+    pos, tets, fixed, patch = sleeping.slab(width, 2.5)
+    body = HybridBody(pos, tets, E=3e4, nu=0.45, fixed=fixed, unit=1e-3, **sleeping.SETTING)
+    for f in range(5):
+        body.grab(patch, pos[patch] + [0.0, 0.0, 3.0 * min(1.0, (f + 1) / 3)])
+        body.step(1 / 60)
+    return int((np.linalg.norm(body.positions - pos, axis=1) > 0.015 * 3.0).sum())
 
 
 def test_the_slab_is_fixed_at_the_bottom_and_pulled_at_a_central_patch():
