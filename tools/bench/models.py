@@ -144,7 +144,7 @@ def add_arguments(p) -> None:
         default="settle",
         help="comma-separated: settle (the two pulls above), long (holds, drags and far pulls for seconds on the "
         "tissue block, tools/study/long_runs.py: long-runs.md and .json in --out), stiffness (the 3 mm lift held "
-        "from rest at four stiffnesses up to nu 0.499, frames to 10/5/1 %% of the model's own answer and of the FEM: "
+        "from rest at four stiffnesses up to nu 0.499, frames to 10/5/1 % of the model's own answer and of the FEM: "
         "stiffness.md and .json in --out); default settle",
     )
 

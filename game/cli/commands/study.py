@@ -36,7 +36,7 @@ def add_parser(sub):
         help="comma-separated: table (every setting after half a second, the model table's rows), long (holds, "
         "drags and far pulls for seconds, tools/study/long_runs.py: long-runs.md and .json; the 1.25 mm mesh, "
         "2.5 mm with --quick), stiffness (the 3 mm lift held from rest for 5 s at four stiffnesses up to nu "
-        "0.499: frames to 10/5/1 %% of the model's own answer and of the FEM, tools/study/long_runs.py: stiffness.md "
+        "0.499: frames to 10/5/1 % of the model's own answer and of the FEM, tools/study/long_runs.py: stiffness.md "
         "and .json); default table",
     )
     sg.add_argument("--out", required=True, help="output folder")
