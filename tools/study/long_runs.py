@@ -453,17 +453,22 @@ def markdown(results: dict, command: str, machine: str) -> str:
     return "\n".join(L) + "\n"
 
 
-def write(results: dict, out_dir, command: str, machine: str) -> Path:
-    """long-runs.json and long-runs.md in `out_dir`; the markdown's path."""
+def _write(results: dict, out_dir, stem: str, text: str, what: str) -> Path:
+    """STEM.json and STEM.md (holding `text`) in `out_dir`; the markdown's path."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     try:
-        (out / "long-runs.json").write_text(json.dumps(results, indent=1, default=str), encoding="utf-8")
-        md = out / "long-runs.md"
-        md.write_text(markdown(results, command, machine), encoding="utf-8")
+        (out / f"{stem}.json").write_text(json.dumps(results, indent=1, default=str), encoding="utf-8")
+        md = out / f"{stem}.md"
+        md.write_text(text, encoding="utf-8")
     except OSError as e:
-        raise UserError(f"{out}: cannot write the long runs' results ({e.strerror or e})") from None
+        raise UserError(f"{out}: cannot write the {what}' results ({e.strerror or e})") from None
     return md
+
+
+def write(results: dict, out_dir, command: str, machine: str) -> Path:
+    """long-runs.json and long-runs.md in `out_dir`; the markdown's path."""
+    return _write(results, out_dir, "long-runs", markdown(results, command, machine), "long runs")
 
 
 # -- the command lines' parts ----------------------------------------------------------------------------
@@ -686,15 +691,7 @@ def stiffness_markdown(results: dict, command: str, machine: str) -> str:
 
 def write_stiffness(results: dict, out_dir, command: str, machine: str) -> Path:
     """stiffness.json and stiffness.md in `out_dir`; the markdown's path."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    try:
-        (out / "stiffness.json").write_text(json.dumps(results, indent=1, default=str), encoding="utf-8")
-        md = out / "stiffness.md"
-        md.write_text(stiffness_markdown(results, command, machine), encoding="utf-8")
-    except OSError as e:
-        raise UserError(f"{out}: cannot write the stiffness runs' results ({e.strerror or e})") from None
-    return md
+    return _write(results, out_dir, "stiffness", stiffness_markdown(results, command, machine), "stiffness runs")
 
 
 def bench_stiffness(args) -> str:
