@@ -418,7 +418,7 @@ class HybridBody(ProjectiveBody):
             x[:] = self._chain.positions * self.unit
             self._cache = None
 
-    def _start(self, s: dict, jump: np.ndarray, x: np.ndarray) -> np.ndarray | None:
+    def _start(self, s: dict, jump: np.ndarray, x: np.ndarray) -> None:
         """Move the grabbed nodes by `jump` towards their targets and, with `start = "linear"`, spread the
         jump through the body by the linear response on the coarse grid (forces -K_fh jump, one coarse
         solve), so the first local step sees a body already near the new shape, not one ring of elements
@@ -429,9 +429,9 @@ class HybridBody(ProjectiveBody):
         where it already was): a far jump in one frame (a 12 mm shear of a 6 mm patch) otherwise folds the
         ring of elements around the grabbed nodes over, and an energy that does not forbid inversion keeps
         them folded. The grabbed nodes then reach their targets over the next frames, as the body makes
-        room. Returns the free nodes' step, or None where they took none."""
+        room."""
         if not (len(self.grab_ids) and np.any(jump)):
-            return None
+            return
         free, g = s["free"], self.grab_ids
         lin = None
         if self.start == "linear" and s["coarse"] is not None and len(free):
@@ -475,7 +475,6 @@ class HybridBody(ProjectiveBody):
             self._cache = (s, math.nan, min_j, c[3] - alpha * moved.reshape(-1, 3))
         else:
             self._cache = None
-        return None if lin is None or alpha == 0.0 else alpha * lin
 
     def _say_short(self, short: float, scale: float) -> None:
         """One line when the grabbed nodes stay short of their targets because reaching them would turn
@@ -537,14 +536,7 @@ class HybridBody(ProjectiveBody):
             done += 1
             base = x[free].copy()
             taken = 0.0
-            tries = ((True, True), (True, False), (False, False)) if s["coarse"] is not None else ((False, False),)
-            for coarse, heavy in tries:
-                carried = self._momentum[1] if self._momentum is not None and self._momentum[0] is s else None
-                if heavy and carried is None:
-                    continue
-                d = self._direction(s, f, coarse)
-                if heavy and carried is not None:
-                    d += MOMENTUM * carried
+            for d in self._directions(s, f):
                 slope = float(np.sum(f * d))
                 if not slope > 0.0:
                     continue
@@ -607,6 +599,18 @@ class HybridBody(ProjectiveBody):
                 return good
             alpha *= 0.5
         return 0.0, e1, j1, f1
+
+    def _directions(self, s: dict, f: np.ndarray):
+        """The steps the line search tries, in order, each made only if the one before it fails: the
+        two-level step with momentum (under a still target), the two-level step alone, projective
+        dynamics' CG step."""
+        if s["coarse"] is not None:
+            d = self._direction(s, f, True)
+            carried = self._momentum[1] if self._momentum is not None and self._momentum[0] is s else None
+            if carried is not None:
+                yield d + MOMENTUM * carried
+            yield d
+        yield self._direction(s, f, False)
 
     def _balanced(self, f: np.ndarray) -> bool:
         """Whether the forces left are a small share of the largest seen since the targets last moved: a
