@@ -162,6 +162,29 @@ def volume_barrier(J, kappa, j_barrier):
     return kappa * d * d / jc + slope * (J - jc), -slope
 
 
+@njit(cache=True, parallel=True)
+def gradients(x, tets, D, elems):
+    """The deformation gradients (m, 9), row-major, of the listed tetrahedra at positions x: F = X D."""
+    m = elems.shape[0]
+    Fs = np.empty((m, 9))
+    for k in prange(m):
+        t = elems[k]
+        i0, i1, i2, i3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
+        for r in range(3):
+            e1 = x[i1, r] - x[i0, r]
+            e2 = x[i2, r] - x[i0, r]
+            e3 = x[i3, r] - x[i0, r]
+            for c in range(3):
+                Fs[k, 3 * r + c] = e1 * D[t, 1, c] + e2 * D[t, 2, c] + e3 * D[t, 3, c]
+    return Fs
+
+
+@njit(cache=True, inline="always")
+def det9(F):
+    """det of a 3 x 3 matrix given as its 9 entries, row-major."""
+    return F[0] * (F[4] * F[8] - F[5] * F[7]) - F[1] * (F[3] * F[8] - F[5] * F[6]) + F[2] * (F[3] * F[7] - F[4] * F[6])
+
+
 @njit(cache=True, inline="always")
 def element_forces(F, q, Dt, w_a, w_v, j_barrier, G):
     """One element's share of the local step: its corner forces G (3 axes x corners 1..3; corner 0 takes
@@ -178,7 +201,7 @@ def element_forces(F, q, Dt, w_a, w_v, j_barrier, G):
         ff += F[c] * F[c]
     # w_a = 2 mu V and w_v = 3 lambda V: |F - R|^2 = |F|^2 - 2 tr(R^T F) + 3
     energy = 0.5 * w_a * (ff - 2.0 * trs + 3.0) + w_v / 6.0 * (trs - 3.0) * (trs - 3.0)
-    J = F[0] * (F[4] * F[8] - F[5] * F[7]) - F[1] * (F[3] * F[8] - F[5] * F[6]) + F[2] * (F[3] * F[7] - F[4] * F[6])
+    J = det9(F)
     e_b, push = volume_barrier(J, (w_a + w_v) / 3.0, j_barrier)
     # volume target as in projective.local_step: M = w_a R + w_v (F - (tr(R^T F) - 3) / 3 R)
     wr = w_a - w_v * (trs - 3.0) / 3.0
@@ -216,21 +239,13 @@ def local_forces(x, tets, D, elems, w_arap, w_vol, quats, rot_iterations, rhs, j
     energy must fall, and no element may be turned inside out (det F <= 0), which this energy, unlike the
     neo-Hookean one, does not forbid by itself."""
     m = elems.shape[0]
-    Fs = np.empty((m, 9))
+    Fs = gradients(x, tets, D, elems)
     Q = np.empty((m, 4))
     En = np.empty(m)
     Js = np.empty(m)
     for k in prange(m):
-        t = elems[k]
-        i0, i1, i2, i3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
-        for r in range(3):
-            e1 = x[i1, r] - x[i0, r]
-            e2 = x[i2, r] - x[i0, r]
-            e3 = x[i3, r] - x[i0, r]
-            for c in range(3):
-                Fs[k, 3 * r + c] = e1 * D[t, 1, c] + e2 * D[t, 2, c] + e3 * D[t, 3, c]
         for c in range(4):
-            Q[k, c] = quats[t, c]
+            Q[k, c] = quats[elems[k], c]
     refine_rotations(Fs, Q, rot_iterations)
     G = np.empty((m, 3, 3))  # per element, per axis r: the forces on corners 1, 2, 3 (corner 0 takes minus their sum)
     for k in prange(m):
@@ -283,22 +298,10 @@ def min_det(x, tets, D, elems):
     """The smallest det F (volume ratio) among the listed tetrahedra at positions x: the start of a
     frame checks a move of the grabbed nodes with it before any rotation is fitted."""
     m = elems.shape[0]
+    Fs = gradients(x, tets, D, elems)
     Js = np.empty(m)
     for k in prange(m):
-        t = elems[k]
-        i0, i1, i2, i3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
-        F = np.empty((3, 3))
-        for r in range(3):
-            e1 = x[i1, r] - x[i0, r]
-            e2 = x[i2, r] - x[i0, r]
-            e3 = x[i3, r] - x[i0, r]
-            for c in range(3):
-                F[r, c] = e1 * D[t, 1, c] + e2 * D[t, 2, c] + e3 * D[t, 3, c]
-        Js[k] = (
-            F[0, 0] * (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1])
-            - F[0, 1] * (F[1, 0] * F[2, 2] - F[1, 2] * F[2, 0])
-            + F[0, 2] * (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0])
-        )
+        Js[k] = det9(Fs[k])
     out = np.inf
     for k in range(m):
         out = min(out, Js[k])
