@@ -139,3 +139,24 @@ def test_auto_takes_the_hybrid_body_where_the_shipped_table_measures_it_best():
     pos, tets, _ = tet_grid(4, 4, 4, spacing=1.25)
     body = make_body(c.model, pos, tets=tets, **c.params)
     _check_body(body, c.model, c.params)
+
+
+def test_a_bodys_cost_notice_is_said_with_its_model_at_the_scenes_start(monkeypatch):
+    from chainsim.systems.engine import framecost
+    from chainsim.systems.tissue.deformation import model_lines
+
+    app = build_app("chainmail-demo/volume", settings={"model": "chainmail"})
+    try:
+        with app.active():
+            _ent, d = esper.get_component(Deformable)[0]
+            use_model(d, "projective")
+            assert d.model_reason == "projective (as the pack or --model asks)"  # fits a frame: nothing said
+            assert model_lines(auto_only=True) == []
+            monkeypatch.setattr(framecost, "FRAME_MS", 1e-6)  # a machine where no frame fits
+            use_model(d, "projective")
+            assert d.body.notice and "\n" not in d.body.notice
+            assert d.model_reason.endswith(f"; {d.body.notice}")
+            [line] = model_lines(auto_only=True)
+            assert line.endswith(f": projective - {d.body.notice}")
+    finally:
+        app.close()
