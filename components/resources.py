@@ -158,6 +158,14 @@ class Records:
 
 
 @dataclass(slots=True)
+class RunOutputs:
+    """Files a run writes into its --out folder beside summary.json: name -> a function giving the text
+    (a procedure puts its own here, e.g. the needle's needle_trace.csv)."""
+
+    files: dict = field(default_factory=dict)
+
+
+@dataclass(slots=True)
 class FailedSaves:
     """Saves the user asked for that did not happen, one message each.
 

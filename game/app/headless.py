@@ -29,6 +29,7 @@ from chainsim.components.resources import (
     PendingInput,
     Records,
     RunInfo,
+    RunOutputs,
     Settings,
 )
 from chainsim.game.app import plugins
@@ -115,6 +116,7 @@ def app_for_pack(
     app = App(dt=step, settings=pack_settings, name=pack.name)
     try:
         app.insert_resource(FailedSaves())
+        app.insert_resource(RunOutputs())
         spawn_scene(app, pack, scene)
         scene_name = app.resource(PackResource).scene
         app.insert_resource(RunInfo(pack.name, scene_name, headless, render, out_dir, screenshot_every))
@@ -307,6 +309,8 @@ def run_pack(
             summary["save_errors"] = list(failed)
         if out:
             write_text_atomic(Path(out) / "summary.json", json.dumps(summary, indent=2, sort_keys=True), "--out")
+            for name, text in app.resource(RunOutputs).files.items():
+                write_text_atomic(Path(out) / name, text(), "--out")
         if failed:
             more = f" (and {len(failed) - 1} more)" if len(failed) > 1 else ""
             raise UserError(f"the attempt was not saved: {failed[0]}{more}")

@@ -39,6 +39,9 @@ class MeshData:
     triangles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
     tets: np.ndarray | None = None
     links: np.ndarray | None = None  # explicit links (grids); otherwise derived from cells
+    # a volume file's point data `fixed` (nonzero: pinned) and cell data `layer` (per tetrahedron)
+    fixed: np.ndarray | None = None
+    layers: np.ndarray | None = None
 
     def edge_links(self) -> np.ndarray:
         """Undirected links: given ones, else tetrahedron edges, else triangle edges."""
@@ -152,6 +155,7 @@ def _load_volume(path: Path, where: str, scale: float) -> MeshData:
         raise MeshError(f"{where}: not a readable volume mesh ({_why(e)})") from None
     tets = [c.data for c in m.cells if c.type == "tetra"]
     tris = [c.data for c in m.cells if c.type == "triangle"]
+    fixed, layers = _volume_data(m, where)
     try:
         pts = np.asarray(m.points, dtype=np.float64)
     except (TypeError, ValueError) as e:
@@ -174,7 +178,25 @@ def _load_volume(path: Path, where: str, scale: float) -> MeshData:
         if tris
         else (boundary_triangles(t4) if t4 is not None else np.zeros((0, 3), np.int64))
     )
-    return MeshData(pts, surf, t4)
+    if fixed is not None and len(fixed) != len(pts):
+        raise MeshError(f"{where}: point data 'fixed' has {len(fixed)} values for {len(pts)} points")
+    if layers is not None and (t4 is None or len(layers) != len(t4)):
+        raise MeshError(f"{where}: cell data 'layer' does not give one value per tetrahedron")
+    return MeshData(pts, surf, t4, fixed=fixed, layers=layers)
+
+
+def _volume_data(m, where: str) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The pinned points (point data `fixed`) and each tetrahedron's layer (cell data `layer`), if given."""
+    fixed = layers = None
+    try:
+        if "fixed" in m.point_data:
+            fixed = np.asarray(m.point_data["fixed"]).reshape(-1) != 0
+        if "layer" in m.cell_data:
+            blocks = [np.asarray(b).reshape(-1) for c, b in zip(m.cells, m.cell_data["layer"]) if c.type == "tetra"]
+            layers = np.concatenate(blocks).astype(np.int64) if blocks else None
+    except (TypeError, ValueError) as e:
+        raise MeshError(f"{where}: point data 'fixed' or cell data 'layer' is not numbers ({_why(e)})") from None
+    return fixed, layers
 
 
 def boundary_triangles(tets: np.ndarray) -> np.ndarray:

@@ -342,6 +342,8 @@ def setup_deformable(
         if box.shape != (6,) or np.any(box[:3] > box[3:]):
             raise UserError(f"{where}.fixed_box: expected [xmin, ymin, zmin, xmax, ymax, zmax] with min <= max")
         fixed |= np.all((verts >= box[:3]) & (verts <= box[3:]), axis=1)
+    if getattr(mesh, "fixed", None) is not None:  # a volume file's own pinned points (its point data)
+        fixed |= mesh.fixed
     if d.fixed_boundary:
         fixed[boundary_vertices(np.asarray(mesh.triangles, dtype=np.int64))] = True
     d.rest = verts.copy()

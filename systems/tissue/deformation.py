@@ -65,7 +65,7 @@ class DeformationState:
 # -- frames --------------------------------------------------------------------------------------
 
 
-def _to_local(ent: int, pts: np.ndarray, frame: str) -> np.ndarray:
+def to_local(ent: int, pts: np.ndarray, frame: str) -> np.ndarray:
     if frame not in FRAMES:
         raise ValueError(f"frame must be one of {', '.join(FRAMES)}, got {frame!r}")
     if frame == "local":
@@ -173,15 +173,15 @@ def cut(d: Deformable, ent: int, req: CutRequest) -> int:
         return _cut_body(d, ent, req)
     assert d.graph is not None  # the ChainMail links, set at spawn
     if req.polyline is not None:
-        pts = _to_local(ent, as_points(req.polyline, "CutRequest.polyline"), req.frame)
+        pts = to_local(ent, as_points(req.polyline, "CutRequest.polyline"), req.frame)
         if len(pts) < 2:
             raise ValueError("CutRequest.polyline: needs at least 2 points")
         topology.cut_path(d.pos, d.graph, pts, **_blade_kwargs(ent, req))
     else:
         if req.p0 is None or req.p1 is None:
             raise ValueError("CutRequest: give p0 and p1, or a polyline")
-        p0 = _to_local(ent, as_points(req.p0, "CutRequest.p0"), req.frame)[0]
-        p1 = _to_local(ent, as_points(req.p1, "CutRequest.p1"), req.frame)[0]
+        p0 = to_local(ent, as_points(req.p0, "CutRequest.p0"), req.frame)[0]
+        p1 = to_local(ent, as_points(req.p1, "CutRequest.p1"), req.frame)[0]
         topology.cut_segment(d.pos, d.graph, p0, p1, **_blade_kwargs(ent, req))
     cut_count = before - int(np.count_nonzero(d.alive))
     if cut_count:
@@ -193,15 +193,15 @@ def _cut_body(d: Deformable, ent: int, req: CutRequest) -> int:
     """xpbd / projective: the blade removes the links it crosses and the constraints built on them."""
     kw = _blade_kwargs(ent, req)
     if req.polyline is not None:
-        pts = _to_local(ent, as_points(req.polyline, "CutRequest.polyline"), req.frame)
+        pts = to_local(ent, as_points(req.polyline, "CutRequest.polyline"), req.frame)
         if len(pts) < 2:
             raise ValueError("CutRequest.polyline: needs at least 2 points")
         n = d.body.cut_path(pts, **kw)
     else:
         if req.p0 is None or req.p1 is None:
             raise ValueError("CutRequest: give p0 and p1, or a polyline")
-        p0 = _to_local(ent, as_points(req.p0, "CutRequest.p0"), req.frame)[0]
-        p1 = _to_local(ent, as_points(req.p1, "CutRequest.p1"), req.frame)[0]
+        p0 = to_local(ent, as_points(req.p0, "CutRequest.p0"), req.frame)[0]
+        p1 = to_local(ent, as_points(req.p1, "CutRequest.p1"), req.frame)[0]
         n = d.body.cut(p0, p1, **kw)
     if n:
         d.version += 1
@@ -338,7 +338,7 @@ def _serve(app: App, st: DeformationState, req, counts: dict) -> None:
     c = counts.setdefault(ent, [0, 0, 0])
     try:
         if isinstance(req, GrabRequest):
-            pts = _to_local(ent, as_points(req.targets, "GrabRequest.targets"), req.frame)
+            pts = to_local(ent, as_points(req.targets, "GrabRequest.targets"), req.frame)
             changed = grab(d, req.ids, pts, hold=req.hold)
             c[0] += len(changed)
         elif isinstance(req, ReleaseRequest):
@@ -364,7 +364,7 @@ def _drag_requests(st: DeformationState, ev) -> list:
     if d is None or not d.drag:
         return []
     if ev.phase == "start":
-        local = _to_local(ent, np.asarray([ev.grab_point], dtype=np.float64), "world")[0]
+        local = to_local(ent, np.asarray([ev.grab_point], dtype=np.float64), "world")[0]
         v = int(np.argmin(np.sum((d.pos - local) ** 2, axis=1)))
         st.dragging[ent] = (
             v,
@@ -408,7 +408,7 @@ def pull_system(app: App) -> None:
                 if p.resolved < 0:
                     p.resolved = _pull_element(ent, p, d)
                 if p.frame == "world":
-                    p.waypoints = _to_local(ent, p.waypoints, "world")
+                    p.waypoints = to_local(ent, p.waypoints, "world")
                 p.start_at = d.pos[p.resolved].astype(np.float64)
             else:
                 continue
@@ -432,7 +432,7 @@ def _pull_element(ent: int, p: Pull, d: Deformable) -> int:
         return int(p.element)
     at = np.asarray(p.at, dtype=np.float64)[None, :]
     if p.frame == "world":
-        at = _to_local(ent, at, "world")
+        at = to_local(ent, at, "world")
     return int(np.argmin(np.sum((d.rest - at) ** 2, axis=1)))
 
 

@@ -42,7 +42,7 @@ from chainsim.components.stages import ORDER_PROCEDURE
 from chainsim.components.view_events import Picked, WidgetRefused
 from chainsim.systems.engine import quaternion as Q
 from chainsim.systems.engine.errors import UserError
-from chainsim.systems.procedures.needle import assessment, collision, fluoro
+from chainsim.systems.procedures.needle import assessment, collision, fluoro, tissue
 from chainsim.systems.procedures.needle import kinematics as needle_sys
 from chainsim.systems.procedures.needle.collision import NeedleHit
 from chainsim.systems.procedures.needle.components import Needle, NeedleState
@@ -517,6 +517,7 @@ def plugin(app: App) -> None:
     app.insert_resource(NeedleHandles(needles[0], proc, markers, planes, labels))
     needle_sys.plugin(app)
     collision.plugin(app)
+    tissue.plugin(app)
     system = ProcedureSystem(app)
     with app.active():
         system.show_step(app, ps)
