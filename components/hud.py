@@ -30,6 +30,9 @@ class HudState:
     aim_view: str = ""
     aim_target: tuple | None = None
     aim_note: str = ""
+    # the needle's force gauge, drawn over the aim view: (axial N, lateral N, full scale N, caption, pop
+    # text shown briefly after a layer gives); () none
+    force_gauge: tuple = ()
     # rows of the key overlay (F1) that no widget shows: (keys, what they do); procedures add theirs
     key_rows: list[tuple[str, str]] = field(default_factory=list)
     # one line along the bottom of the panel: who is signed in and where records are kept

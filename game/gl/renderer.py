@@ -772,6 +772,8 @@ class Renderer:
                 panelview.debrief_paths(ov, view.camera, r, hud.debrief_paths, s)
             if hud is not None and view.name == hud.aim_view and view.camera is not None:
                 panelview.aim(ov, view.camera, r, hud.aim_target, hud.aim_note, s)
+                if hud.force_gauge:
+                    panelview.force_gauge(ov, r, hud.force_gauge, s)
             if hud is not None and view.name == frame.hud_view:
                 panelview.hud(ov, hud, r, s)
         for p in frame.panels:

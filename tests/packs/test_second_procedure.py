@@ -33,8 +33,12 @@ def test_pack_is_data_only_and_borrows_prp_meshes():
     manifest = tomllib.loads((PACK / "pack.toml").read_text())
     assert manifest["pack"]["requires"] == ["prp"]
     files = [m["path"] for m in manifest["meshes"].values() if "path" in m]
-    assert files and all(p.startswith("prp:meshes/") for p in files)
-    assert not (PACK / "meshes").exists()
+    # its anatomy is prp's; its own files are the tissue volumes the pack builder made from that anatomy
+    own = sorted(p for p in files if not p.startswith("prp:meshes/"))
+    assert own == ["meshes/tissue_left.vtu", "meshes/tissue_right.vtu"]
+    assert sorted(p.name for p in (PACK / "meshes").iterdir()) == [
+        "skin_around_tissue.ply", "tissue_left.vtu", "tissue_right.vtu"
+    ]
 
 
 def test_validates(cli):

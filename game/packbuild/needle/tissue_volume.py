@@ -16,6 +16,8 @@ the path crosses at known depths.
   or mandible, ray cast), or at `max_depth`, never shallower than the fixed layers plus `deep_min`.
 - Each hexahedron of the (i, j, k) grid is split into six tetrahedra around its main diagonal (the
   split conforms between neighbours), oriented positively.
+- The drawn skin (`skin_around_tissue.ply`) is the pack's display skin less the triangles over the
+  volumes, whose own skin face moves with the tissue and is drawn in their place.
 - Point data `fixed` pins the bottom (on bone) and the side walls (where the tissue goes on beyond
   the modelled region); cell data `layer` numbers each tetrahedron's layer (1 = the first in the
   pack's list); the file's triangle cells are the skin face only, so only the skin is drawn.
@@ -63,6 +65,7 @@ class VolumeSpec:
 
     paths: tuple[str, ...]  # anatomy [paths] names, one volume each
     skin: str
+    display: str  # the drawn skin, from which skin_around_tissue.ply is cut
     bones: tuple[str, ...]
     layers: tuple[LayerSpec, ...]  # the last one is deep: it reaches bone
     half_width: float
@@ -78,6 +81,7 @@ SPECS = {
     "prp": VolumeSpec(
         paths=("left", "right"),
         skin="meshes/skin.ply",
+        display="meshes/skin_display.ply",
         bones=("meshes/skull.ply", "meshes/mandible.ply"),
         layers=(
             LayerSpec("skin", 1.8, 1),
@@ -95,10 +99,11 @@ SPECS = {
     "mental-block": VolumeSpec(
         paths=("mental_left", "mental_right"),
         skin="prp:meshes/skin.ply",
+        display="prp:meshes/skin_display.ply",
         bones=("prp:meshes/mandible.ply", "prp:meshes/skull.ply"),
         layers=(
             LayerSpec("skin", 2.0, 1),
-            LayerSpec("subcutaneous", 4.0, 2),
+            LayerSpec("subcutaneous", 5.0, 2),
             LayerSpec("muscle", 5.0, 2),
             LayerSpec("deep", 1.0, 0),
         ),
@@ -290,6 +295,21 @@ def check_quality(mesh: meshio.Mesh, skin: trimesh.Trimesh) -> dict:
     return out
 
 
+def skin_with_holes(display: trimesh.Trimesh, volumes: list[tuple[np.ndarray, np.ndarray, float]]) -> trimesh.Trimesh:
+    """The drawn skin less its triangles over each volume's footprint, where the volume's own skin face
+    (which moves) is drawn instead; `volumes`: (entry, direction, half width) each. The hole stays inside
+    the footprint, so the two surfaces overlap (coincident, same material) rather than leave a gap."""
+    keep = np.ones(len(display.faces), dtype=bool)
+    for entry, d, half in volumes:
+        u, v = _basis(d)
+        rel = display.vertices - entry
+        inside = (np.abs(rel @ u) < half) & (np.abs(rel @ v) < half) & (np.abs(rel @ d) < 30.0)
+        keep &= ~np.all(inside[display.faces], axis=1)
+    out = trimesh.Trimesh(display.vertices, display.faces[keep], process=False)
+    out.remove_unreferenced_vertices()
+    return out
+
+
 def build(pack: str, write: bool = True) -> dict:
     """Build (and write, unless `write` is false) every path's volume of `pack`; returns the quality figures."""
     spec = SPECS[pack]
@@ -298,14 +318,21 @@ def build(pack: str, write: bool = True) -> dict:
     skin = trimesh.load(_pack_path(pack_dir, spec.skin), process=False)
     bones = [trimesh.load(_pack_path(pack_dir, b), process=False) for b in spec.bones]
     report = {}
+    footprints = []
     for name in spec.paths:
         path = anatomy["paths"][name]
         mesh = column_volume(skin, bones, path["entry"], path["target"], spec)
         report[name] = check_quality(mesh, skin)
+        entry = np.asarray(path["entry"], float)
+        d = np.asarray(path["target"], float) - entry
+        footprints.append((entry, d / np.linalg.norm(d), spec.half_width))
         if write:
             out = pack_dir / "meshes" / f"tissue_{name.split('_')[-1]}.vtu"
             out.parent.mkdir(exist_ok=True)
             meshio.write(str(out), mesh, binary=True, compression="zlib")
+    if write:
+        display = trimesh.load(_pack_path(pack_dir, spec.display), process=False)
+        skin_with_holes(display, footprints).export(pack_dir / "meshes" / "skin_around_tissue.ply")
     return report
 
 

@@ -56,6 +56,7 @@ from chainsim.systems.procedures.needle.carm import CArm
 from chainsim.systems.procedures.needle.components import NeedleState
 from chainsim.systems.procedures.needle.handles import NeedleHandles, hud
 from chainsim.systems.procedures.needle.manifest import NeedleScene, ProcedureState, landmark_errors
+from chainsim.systems.procedures.needle.tissue import NeedleTissue
 from chainsim.systems.view.ui.widgets import format_value
 
 DEFAULT_CLASS = "default"
@@ -114,6 +115,7 @@ def compute(app: App) -> dict:
     for r in obstacle_roles:
         out[f"{r}_contacts"] = int(st.contacts.get(r, 0))
     out.update(xray_values(app))
+    out.update(tissue_values(app, handles.needle))
     for k in range(1, len(scene.landmark_ids) + 1):
         out[f"D{k}"] = lm.get(f"D{k}")
         out[f"d{k}"] = lm.get(f"d{k}")
@@ -134,6 +136,8 @@ MEASURE_KEYS = {
     "xray_shots": "xray_shots",
     "exposure": "exposure_s",
     "dose": "dose_mgy",
+    "peak_force": "peak_axial_N",
+    "repunctures": "repunctures",
 }
 
 
@@ -146,12 +150,28 @@ def metric_values(pack, scene: NeedleScene, v: dict) -> dict:
             x = v["contacts"].get(spec.get("role", ""), 0)
         elif m == "step_time":
             x = v["step_times"].get(spec.get("step", ""), 0.0)
+        elif m == "punctures":
+            x = v.get("punctures", {}).get(spec.get("layer", ""), 0)
         elif m:
             x = v.get(MEASURE_KEYS[m])
         else:
             x = v.get(name)
         out[name] = None if x is None or isinstance(x, (dict, list, str)) else float(x)
     return out
+
+
+def tissue_values(app: App, needle: int) -> dict:
+    """What the needle did to the tissue this attempt (none without tissue): peak axial force, punctures
+    per layer, skin re-punctures (a new hole) and re-entries (through an old one)."""
+    nt = esper.try_component(needle, NeedleTissue)
+    if nt is None:
+        return {}
+    return {
+        "peak_axial_N": float(nt.peak_axial),
+        "punctures": {k: int(v) for k, v in nt.punctures.items()},
+        "repunctures": int(nt.repunctures),
+        "reentries": int(nt.reentries),
+    }
 
 
 def xray_values(app: App) -> dict:
@@ -258,6 +278,10 @@ DETAIL_KEYS = (
     "ideal_path",
     "ideal_landmarks",
     "verdict",
+    "peak_axial_N",
+    "punctures",
+    "repunctures",
+    "reentries",
 )
 
 

@@ -56,6 +56,14 @@ class Needle:
         help="Speed of backward motion (bounce and withdrawal); forward insertion is immediate and swept.",
         min=1e-3,
     )
+    insert_speed: float = prop(
+        "float",
+        0.0,
+        units="mm/s",
+        help="Speed of forward insertion toward the requested depth (0: the depth is reached in one step). "
+        "Soft tissue's friction grows with speed, so a pack with tissue sets a hand's speed.",
+        min=0.0,
+    )
     contact_epsilon: float = prop(
         "float", 0.2, units="mm", help="Gap left between the tip and the surface it touched.", min=0.0
     )

@@ -27,8 +27,9 @@ as in the thesis, until the needle is withdrawn back to the skin (depth 0) - the
 where they are, as a surgeon withdraws and redirects, and the next turn counts as a redirection -
 or until a reset (which also zeroes the dials). The needle is hidden until landmark 1 places it.
 
-Forward insertion reaches the requested depth within one step; the collision system that runs next
-tests the whole swept segment, so a jump of any length cannot pass through bone. Backward motion
+Forward insertion reaches the requested depth within one step, or at the needle's `insert_speed` where
+the pack sets one (the tissue's friction depends on speed); the collision system that runs next tests
+the whole swept segment, so a jump of any length cannot pass through bone. Backward motion
 (withdrawal, the bounce after touching bone) runs at `withdraw_speed` so it can be seen.
 """
 
@@ -318,7 +319,9 @@ class NeedleSystem:
         if not st.placed:
             return
         if st.target_depth > st.depth:
-            st.depth = st.target_depth
+            # immediate (0), or at the needle's insertion speed: forces that depend on speed need one
+            step = needle.insert_speed * app.time.dt if needle.insert_speed > 0 else np.inf
+            st.depth = min(st.target_depth, st.depth + step)
         elif st.target_depth < st.depth:
             st.depth = max(st.target_depth, st.depth - needle.withdraw_speed * app.time.dt)
         if st.depth != st.prev_depth:

@@ -52,6 +52,9 @@ MEASURES = (
     "xray_shots",
     "exposure",
     "dose",
+    "peak_force",
+    "punctures",
+    "repunctures",
 )
 
 section(
@@ -251,11 +254,13 @@ METRIC_FIELDS = (
         help="Needle procedure: which value of the vocabulary this metric is (duration s, step_time s of "
         "`step`, path_length mm, contacts with `role`, first_contact_distance mm tip to target centre, "
         "needle_error mm = Dist - R at the last contact, landmark_error mm, redirections, refused_rotations, "
-        "xray_shots, exposure s, dose mGy); stored per attempt in the records' metrics table under this "
+        "xray_shots, exposure s, dose mGy, peak_force N axial on the needle, punctures of `layer`, repunctures: the "
+        "skin punctured again at a new place); stored per attempt in the records' metrics table under this "
         "metric's name. Empty: the assessment value of the same name, if any.",
     ),
     Field("role", "str", "", help="measure = contacts: the role whose contacts are counted."),
     Field("step", "str", "", help="measure = step_time: the step timed."),
+    Field("layer", "str", "", help="measure = punctures: the [tissue_layers] layer whose punctures are counted."),
 )
 
 

@@ -31,6 +31,7 @@ import numpy as np
 
 from chainsim.components.app import App
 from chainsim.components.core import Transform, to_world
+from chainsim.components.hud import HudState
 from chainsim.components.registry import Field, section
 from chainsim.components.resources import EntityIndex, PackResource, RunOutputs
 from chainsim.components.stages import ORDER_COLLISION
@@ -38,6 +39,7 @@ from chainsim.systems.engine.errors import UserError
 from chainsim.systems.procedures.needle import needle_force
 from chainsim.systems.procedures.needle.collision import NeedleHit
 from chainsim.systems.procedures.needle.components import Needle, NeedleState
+from chainsim.systems.procedures.needle.manifest import NeedleScene
 from chainsim.systems.tissue import deformation
 from chainsim.systems.tissue.deformable import Deformable
 
@@ -216,6 +218,8 @@ class NeedleTissue:
     held: dict = field(default_factory=dict)  # body index -> node ids held last frame
     tip_layer: str = ""
     skin_tent: float = 0.0
+    pop: str = ""  # the last layer that gave, shown until pop_until (simulated s)
+    pop_until: float = 0.0
 
 
 @dataclass(slots=True)
@@ -359,6 +363,8 @@ def ray_crossings(scene: NeedleTissueScene, entry: np.ndarray, d: np.ndarray, re
 
 # -- the system ------------------------------------------------------------------------------------------
 
+#: how long (simulated s) the gauge says which layer gave way
+POP_SECONDS = 1.0
 #: how far behind the entry the needle's line is tested (an entry point a little inside the skin)
 REACH_BACK = 10.0
 
@@ -399,10 +405,13 @@ class NeedleTissueSystem:
     def __init__(self, app: App, scene: NeedleTissueScene) -> None:
         self.scene = scene
         self.hits = app.events.reader(NeedleHit)
+        # the gauge's full scale: twice the largest puncture force, so a pop happens mid-scale or above
+        self.full_scale = 2.0 * float(scene.layers.puncture.max())
 
     def __call__(self, app: App) -> None:
         scene = self.scene
-        bone = any(h.role and h.role != "target" for h in self.hits.read())
+        roles = app.resource(NeedleScene).roles
+        bone = any(h.role in roles and roles[h.role].kind == "obstacle" for h in self.hits.read())
         dt = app.time.dt
         trace: NeedleTrace = app.resource(NeedleTrace)
         for ent, (needle, st) in esper.get_components(Needle, NeedleState):
@@ -413,11 +422,24 @@ class NeedleTissueSystem:
             events = self.step(app, nt, st, dt)
             if bone:
                 events.append("bone")
+            self._gauge(app, nt, events)
             tip = st.depth - nt.contact_depth if nt.contact else 0.0
             trace.rows.append(
                 (app.time.sim_time, max(tip, 0.0), nt.axial, nt.lateral, nt.tip_layer, ";".join(events), nt.skin_tent)
             )
             break  # one needle
+
+    def _gauge(self, app: App, nt: NeedleTissue, events: list[str]) -> None:
+        """The force gauge over the tip view; a layer giving way shows as a pop for POP_SECONDS."""
+        hud = app.get_resource(HudState)
+        if hud is None:
+            return
+        pops = [e.partition(":")[2] for e in events if e.startswith("puncture:")]
+        if pops:
+            nt.pop, nt.pop_until = "pop: " + ", ".join(pops), app.time.sim_time + POP_SECONDS
+        pop = nt.pop if app.time.sim_time < nt.pop_until else ""
+        caption = f"tip in {nt.tip_layer}" if nt.tip_layer else ("pressing the skin" if nt.tent > 0 else "")
+        hud.force_gauge = (nt.axial, nt.lateral, self.full_scale, caption, pop)
 
     # -- one frame for one needle ------------------------------------------------------------
     def step(self, app: App, nt: NeedleTissue, st: NeedleState, dt: float) -> list[str]:
@@ -452,7 +474,7 @@ class NeedleTissueSystem:
     def _advance(self, nt: NeedleTissue, depth: float, events: list[str]) -> None:
         scene = self.scene
         first = nt.crossings[0]
-        if not nt.contact and depth > first.depth:
+        if not nt.contact and depth > first.depth + 1e-6:
             nt.contact, nt.contact_depth = True, first.depth
             events.append("contact")
         nt.tent = 0.0
