@@ -232,7 +232,9 @@ def _lower_envelope(depth: np.ndarray, n: int, spacing: float) -> np.ndarray:
     f = depth.reshape(n, n).copy()
     for _ in range(2 * n):
         p = np.pad(f, 1, mode="edge")
-        g = np.minimum.reduce([f, p[:-2, 1:-1] + spacing, p[2:, 1:-1] + spacing, p[1:-1, :-2] + spacing, p[1:-1, 2:] + spacing])
+        g = np.minimum.reduce(
+            [f, p[:-2, 1:-1] + spacing, p[2:, 1:-1] + spacing, p[1:-1, :-2] + spacing, p[1:-1, 2:] + spacing]
+        )
         if np.array_equal(g, f):
             break
         f = g

@@ -179,6 +179,7 @@ class HybridBody(ProjectiveBody):
             raise UserError(f"wake_rings: expected 1..1000, got {wake_rings}")
         self.coarse, self.start, self.sleep, self.wake_rings = float(coarse), start, float(sleep), int(wake_rings)
         self._released = False
+        self._at_rest = True  # at the rest shape with nothing held: a step has nothing to do
         self._init_iteration()
         rest_si = self.rest * self.unit
         links = meshgen.links_from_cells(self.tets)
@@ -220,12 +221,16 @@ class HybridBody(ProjectiveBody):
     # -- set-up per held and awake set ----------------------------------------------------------
     def _placed(self) -> None:
         self._cache, self._converged = None, False  # set from outside: the last evaluation is stale
+        # placed at its rest shape (as a tissue component hands a new body its positions) it is still at rest
+        self._at_rest = not len(self.grab_ids) and np.array_equal(self._positions, self.rest)
 
     def _grab_changed(self) -> None:
         key = self.grab_ids.tobytes()
         if key != self._grab_key:  # other nodes held: not at rest (new targets are _solve's to see)
             self._converged, self._grab_key = False, key
         self._released = len(self.grab_ids) == 0
+        if len(self.grab_ids):
+            self._at_rest = False
         if self.sleep and len(self.grab_ids):
             self._wake_around(self.grab_ids)
         self._setup = None
@@ -361,8 +366,9 @@ class HybridBody(ProjectiveBody):
         self._last_targets = targets.copy()
         if self._released:
             self._released = False
-            if self._settle_at_rest():
-                return StepStats(0, 0.0, 0, time.perf_counter() - t0, {"setup_s": 0.0, "awake": 0, "solved": 0})
+            self._at_rest = self._settle_at_rest()
+        if self._at_rest and not len(self.grab_ids):
+            return StepStats(0, 0.0, 0, time.perf_counter() - t0, {"setup_s": 0.0, "awake": 0, "solved": 0})
         if self._setup is None:
             self._setup = self._prepare_hybrid()
         s = self._setup
@@ -712,6 +718,7 @@ class HybridBody(ProjectiveBody):
 
     def reset(self) -> None:
         super().reset()
+        self._at_rest = True
         self._cache = None
         self._converged = False
         self._prev_step = 0.0

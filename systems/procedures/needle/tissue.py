@@ -91,17 +91,28 @@ section(
 section(
     "tissue_layers",
     "named",
-    "One layer of a needle pack's tissue: its mesh number, material and needle-force parameters, each with "
-    "its source.",
+    "One layer of a needle pack's tissue: its mesh number, material and needle-force parameters, each with its source.",
     [
         Field("mesh_layer", "int", help="The layer number in the tissue meshes' cell data `layer`.", min=1, max=1000),
         Field("E_kPa", "float", help="Young's modulus (small strain).", units="kPa", min=0.01, max=1e6),
         Field("nu", "float", 0.45, help="Poisson's ratio.", min=0.0, max=0.4999),
         Field(
-            "puncture_N", "float", help="Axial force at which the tip punctures the layer.", units="N", min=1e-4,
+            "puncture_N",
+            "float",
+            help="Axial force at which the tip punctures the layer.",
+            units="N",
+            min=1e-4,
             max=100.0,
         ),
-        Field("cutting_N", "float", 0.0, help="Force to cut through the layer at the tip.", units="N", min=0.0, max=100.0),
+        Field(
+            "cutting_N",
+            "float",
+            0.0,
+            help="Force to cut through the layer at the tip.",
+            units="N",
+            min=0.0,
+            max=100.0,
+        ),
         Field(
             "friction_static_N_per_mm",
             "float",
@@ -193,6 +204,7 @@ class Crossing:
     point: np.ndarray  # rest crossing point (world)
     layer_in: int  # layer entered going deeper
     layer_out: int  # layer left going deeper (-1: outside)
+    room: float = np.inf  # tissue behind it along the line before the line leaves the body (mm)
 
 
 @dataclass(slots=True)
@@ -216,6 +228,7 @@ class NeedleTissue:
     repunctures: int = 0  # skin punctured again at a new place
     reentries: int = 0
     held: dict = field(default_factory=dict)  # body index -> node ids held last frame
+    held_at: dict = field(default_factory=dict)  # body index -> their targets (world mm)
     tip_layer: str = ""
     skin_tent: float = 0.0
     pop: str = ""  # the last layer that gave, shown until pop_until (simulated s)
@@ -307,15 +320,25 @@ def read_scene(app: App) -> NeedleTissueScene | None:
                 mesh = d.mesh_data
                 if mesh.layers is None:
                     raise UserError(f"needle_tissue.bodies: '{name}': its mesh has no cell data 'layer'")
+                if len(mesh.layers) and int(mesh.layers.min()) < 1:
+                    raise UserError(f"needle_tissue.bodies: '{name}': its cell data 'layer' must be 1 or more")
                 idx = np.array([layers.index(int(x)) for x in range(int(mesh.layers.max()) + 1)])
                 missing = sorted(set(np.unique(mesh.layers).tolist()) - set(layers.number.tolist()))
                 if missing:
                     raise UserError(
-                        f"needle_tissue.bodies: '{name}': mesh layer {missing[0]} has no [tissue_layers] entry"
+                        f"tissue_layers: '{name}' has tetrahedra of mesh layer {missing[0]} but no "
+                        f"[tissue_layers.NAME] has mesh_layer = {missing[0]}"
                     )
                 rest = to_world(esper.try_component(ent, Transform), d.rest.astype(np.float64))
                 f, s, nrm = boundaries(mesh.tets, idx[mesh.layers], rest)
                 bodies.append(TissueBody(ent, name, f, s, nrm, rest))
+    in_meshes = {int(x) for b in bodies for x in np.unique(b.sides) if x >= 0}
+    for i, name in enumerate(layers.names):
+        if i not in in_meshes:
+            raise UserError(
+                f"tissue_layers.{name}.mesh_layer: no tetrahedron of {', '.join(b.name for b in bodies)} has layer "
+                f"{int(layers.number[i])}; expected one of the meshes' cell data `layer` values"
+            )
     return NeedleTissueScene(
         layers, bodies, float(table["contact_radius_mm"]), float(table["hole_radius_mm"]),
         float(table["stick_band_mm_s"]),
@@ -328,6 +351,7 @@ def read_scene(app: App) -> NeedleTissueScene | None:
 def ray_crossings(scene: NeedleTissueScene, entry: np.ndarray, d: np.ndarray, reach: float) -> list[Crossing]:
     """Where the needle's line (from `reach` behind `entry`, onwards) crosses the layer boundaries."""
     out = []
+    exits: list[tuple[int, float]] = []
     o = entry - reach * d
     for bi, body in enumerate(scene.bodies):
         p = body.rest_world
@@ -348,10 +372,19 @@ def ray_crossings(scene: NeedleTissueScene, entry: np.ndarray, d: np.ndarray, re
             going_in = float(body.normals[fi] @ d) < 0  # against the normal: from side 1 into side 0
             lin, lout = (body.sides[fi, 0], body.sides[fi, 1]) if going_in else (body.sides[fi, 1], body.sides[fi, 0])
             if lin < 0:
+                exits.append((bi, float(t[fi]) - reach))
                 continue  # leaving the tissue at its far side
             depth = float(t[fi]) - reach
+            if lout < 0:
+                # the entry point is on the skin: a skin face the needle's line meets just behind it (the
+                # volume's skin face is a chord of the skin surface) is met at the entry itself
+                depth = max(depth, 0.0)
             out.append(Crossing(bi, depth, body.faces[fi].copy(), o + t[fi] * d, int(lin), int(lout)))
     out.sort(key=lambda c: c.depth)
+    for c in out:
+        beyond = [x for b, x in exits if b == c.body and x > c.depth + 1e-9]
+        if beyond:
+            c.room = min(beyond) - c.depth
     # one crossing per place: a line through an edge or a node meets two or more faces there
     kept: list[Crossing] = []
     for c in out:
@@ -363,6 +396,8 @@ def ray_crossings(scene: NeedleTissueScene, entry: np.ndarray, d: np.ndarray, re
 
 # -- the system ------------------------------------------------------------------------------------------
 
+#: the pressed face moves with the tip through at most this share of the tissue behind it
+TENT_ROOM = 0.5
 #: how long (simulated s) the gauge says which layer gave way
 POP_SECONDS = 1.0
 #: how far behind the entry the needle's line is tested (an entry point a little inside the skin)
@@ -409,12 +444,11 @@ class NeedleTissueSystem:
         self.full_scale = 2.0 * float(scene.layers.puncture.max())
 
     def __call__(self, app: App) -> None:
-        scene = self.scene
         roles = app.resource(NeedleScene).roles
         bone = any(h.role in roles and roles[h.role].kind == "obstacle" for h in self.hits.read())
         dt = app.time.dt
         trace: NeedleTrace = app.resource(NeedleTrace)
-        for ent, (needle, st) in esper.get_components(Needle, NeedleState):
+        for ent, (_needle, st) in esper.get_components(Needle, NeedleState):
             nt = esper.try_component(ent, NeedleTissue)
             if nt is None:
                 nt = NeedleTissue()
@@ -487,11 +521,14 @@ class NeedleTissueSystem:
                 self._pass(nt, c)
                 continue
             tent = depth - c.depth
-            if _stiffness(scene, c.layer_in) * tent < scene.layers.puncture[c.layer_in]:
+            press = needle_force.press_force(_stiffness(scene, c.layer_in), tent, c.room)
+            if press < scene.layers.puncture[c.layer_in]:
                 nt.tent = tent
                 break
             name = _name(scene, c.layer_in)
             events.append(f"puncture:{name}")
+            # the boundary gave when the press reached its threshold, within this frame
+            nt.peak_axial = max(nt.peak_axial, float(scene.layers.puncture[c.layer_in]))
             if c.layer_out < 0 and nt.punctures.get(name, 0) > 0:
                 nt.repunctures += 1
             nt.punctures[name] = nt.punctures.get(name, 0) + 1
@@ -503,7 +540,7 @@ class NeedleTissueSystem:
         nt.offsets = np.append(nt.offsets, 0.0)
 
     def _withdraw(self, app: App, nt: NeedleTissue, depth: float, events: list[str]) -> None:
-        while nt.punctured > 0 and depth < nt.crossings[nt.punctured - 1].depth:
+        while nt.punctured > 0 and depth <= nt.crossings[nt.punctured - 1].depth:
             c = nt.crossings[nt.punctured - 1]
             events.append(f"exit:{_name(self.scene, c.layer_in)}")
             nt.punctured -= 1
@@ -530,15 +567,17 @@ class NeedleTissueSystem:
         scene, L = self.scene, self.scene.layers
         lengths = _lengths(nt, len(L.names), depth)
         k_tent = cutting = 0.0
+        room = np.inf
         if nt.punctured < len(nt.crossings) and nt.tent > 0:
             k_tent = _stiffness(scene, nt.crossings[nt.punctured].layer_in)
+            room = nt.crossings[nt.punctured].room
         tip = nt.crossings[nt.punctured - 1].layer_in if nt.punctured else -1
         nt.tip_layer = _name(scene, tip)
         if tip >= 0:
             cutting = float(L.cutting[tip])
         stick = sum(_stiffness(scene, nt.crossings[i].layer_in) * nt.offsets[i] for i in range(nt.punctured))
         total, f_s, f_c, f_f = needle_force.evaluate(
-            nt.tent, k_tent, advancing and tip >= 0 and nt.tent == 0.0, cutting, lengths, L.dyn, L.visc, L.static,
+            nt.tent, k_tent, room, advancing and tip >= 0 and nt.tent == 0.0, cutting, lengths, L.dyn, L.visc, L.static,
             v, scene.stick_band, stick,
         )  # fmt: skip
         nt.axial, nt.terms = total, (f_s, f_c, f_f)
@@ -552,7 +591,11 @@ class NeedleTissueSystem:
         for i in range(min(nt.punctured, len(nt.crossings))):
             c = nt.crossings[i]
             body = scene.bodies[c.body]
-            shaft = st.entry + (c.depth + nt.offsets[i]) * d  # where the needle now holds this point
+            # where the needle now holds this point: dragged along, by at most TENT_ROOM of the layer behind
+            # it, so held boundaries never crush the layers between them
+            gap = min(c.room, nt.crossings[i + 1].depth - c.depth if i + 1 < len(nt.crossings) else np.inf)
+            drag = float(np.clip(nt.offsets[i], -TENT_ROOM * gap, TENT_ROOM * gap))
+            shaft = st.entry + (c.depth + drag) * d
             move = shaft - c.point
             ids, targets = want.setdefault(c.body, ([], []))
             ids.extend(c.nodes.tolist())
@@ -564,7 +607,9 @@ class NeedleTissueSystem:
             body = scene.bodies[c.body]
             ids, targets = want.setdefault(c.body, ([], []))
             ids.extend(c.nodes.tolist())
-            targets.extend((body.rest_world[c.nodes] + nt.tent * d).tolist())
+            # the face goes with the tip, but never more than TENT_ROOM of the tissue behind it (the force
+            # model's stiffening makes it give before that in all but the softest tissue)
+            targets.extend((body.rest_world[c.nodes] + min(nt.tent, TENT_ROOM * c.room) * d).tolist())
         nt.lateral = float(np.linalg.norm(lateral))
         with app.active():
             for bi, body in enumerate(scene.bodies):
@@ -577,13 +622,17 @@ class NeedleTissueSystem:
                 if len(ids_a):
                     ids_a, first = np.unique(ids_a, return_index=True)
                     tw = np.asarray(targets, dtype=np.float64)[first]
-                    local = deformation.to_local(body.entity, tw, "world")
-                    gone = np.setdiff1d(old, ids_a)
-                    if len(gone):
-                        deformation.release(dcomp, gone)
-                    deformation.grab(dcomp, ids_a, local, hold=True)
+                    last = nt.held_at.get(bi)
+                    # a grab that changes nothing is not made again: a body starts over on every new grab
+                    if last is None or not np.array_equal(old, ids_a) or not np.array_equal(last, tw):
+                        gone = np.setdiff1d(old, ids_a)
+                        if len(gone):
+                            deformation.release(dcomp, gone)
+                        deformation.grab(dcomp, ids_a, deformation.to_local(body.entity, tw, "world"), hold=True)
+                    nt.held_at[bi] = tw
                 elif len(old):
                     deformation.release(dcomp, old)
+                    nt.held_at.pop(bi, None)
                 nt.held[bi] = ids_a
             # the skin under the tip: how far the crossed skin face has moved from rest
             if nt.crossings and nt.contact:
@@ -601,6 +650,7 @@ class NeedleTissueSystem:
                 if dcomp is not None and len(ids):
                     deformation.release(dcomp, ids)
                 nt.held[bi] = np.zeros(0, dtype=np.int64)
+                nt.held_at.pop(bi, None)
         nt.punctured = 0
         nt.offsets = np.zeros(0)
         nt.tent = 0.0
