@@ -89,9 +89,10 @@ def test_one_huge_insertion_step_never_passes_the_skull():
     events = [
         (t, e) for t, e in load_script(SCRIPTS / "skull-hit.toml") if not (isinstance(e, Widget) and e.name == "insert")
     ]
-    events.append((3.0, Widget("insert", 400.0)))  # far past the far side of the head, in one step
+    events.append((3.0, Widget("insert", 400.0)))  # far past the far side of the head, in one command
     events.sort(key=lambda te: te[0])
-    s = run_pack(str(PACK), 480, events=events)
+    # the pack advances the needle at its insert_speed: time for it to get to the skull and spring back
+    s = run_pack(str(PACK), 1000, events=events)
     a = s["assessment"]
     assert a["target"] == "skull" and a["skull_contacts"] == 1
     entry = np.asarray(a["landmarks"][0])

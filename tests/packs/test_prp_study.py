@@ -105,9 +105,10 @@ class Participant:
         if t["task"] == "location":
             events += [(now + 0.1 * (k + 1), p) for k, p in enumerate(self.picks)]
         events += [(now + 0.5 + 0.05 * k, e) for k, e in enumerate(self.aim)]
-        events.append((now + 1.5, Widget("save", None)))
+        # the pack advances the needle at its insert_speed (40 mm/s): about 2 s to the foramen
+        events.append((now + 3.0, Widget("save", None)))
         pend.extend(events)
-        self.steps(1.7)
+        self.steps(3.2)
         return t, locked
 
 

@@ -21,6 +21,7 @@ BENCHES = {
     "sleeping": "chainsim.tools.bench.sleeping",
     "records": "chainsim.game.bench.records",
     "train": "chainsim.game.bench.train",
+    "needle": "chainsim.game.bench.needle",
 }
 
 # benchmarks that start `chainsim serve`: without the server extra they stop before starting anything

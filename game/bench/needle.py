@@ -1,0 +1,253 @@
+"""`chainsim bench needle`: the needle packs' tissue, model by model: frame cost, forces, tenting, punctures.
+
+Each needle pack with tissue ([needle_tissue]) is run headless along its textbook path (the anatomy's
+first [paths] entry): the needle is placed at the entry, aimed at the target, advanced at the pack's
+insert_speed to `--depth` (default: the path's length less 2 mm, or the tissue's end), held a second and
+withdrawn. The same attempt runs once per model the tissue can take, and the report gives, per pack
+and model:
+
+- ms per frame (the whole App update, median and p90 over the frames the needle moves or holds): the
+  trainer holds 60 frames a second where that fits in 16.7 ms;
+- the skin's tent at the skin's puncture (its largest displacement under the tip before it gave, from
+  the tissue mesh itself, mm) and the depth of each
+  layer's puncture along the needle (mm);
+- how each differs from the same attempt with the most accurate setting (`--reference`, default XPBD
+  under its substep rule, the study's most accurate model): the tent at puncture and the RMS and worst
+  displacement difference of the skin's nodes over the hold, mm;
+- force evaluations per second of the needle's force model (needle_force.axial_force called from
+  Python, as a haptic loop would; the issue's budget is 50 us each).
+
+Results go to OUT/results.json and OUT/results.md, and the first model's force-depth curves to
+OUT/force_depth.png.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import statistics
+import time
+import tomllib
+from pathlib import Path
+
+import esper
+import numpy as np
+
+from chainsim.components.input_events import PickPoint, Widget
+from chainsim.components.resources import PendingInput
+from chainsim.game.app.headless import build_app
+from chainsim.game.packs.pack import discover
+from chainsim.systems.engine.argtypes import count
+from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.progress import progress
+from chainsim.systems.procedures.needle import needle_force
+from chainsim.systems.procedures.needle.tissue import NeedleTissueScene, NeedleTrace
+from chainsim.systems.tissue.deformable import Deformable
+
+logger = logging.getLogger(__name__)
+
+HELP = "the needle packs' tissue per model: ms per frame, tenting and punctures, difference from the reference"
+MODELS = ("hybrid", "chainmail", "projective", "xpbd")
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--packs", default="", help="needle packs to run, comma-separated (default: every one with tissue)")
+    p.add_argument("--models", default=",".join(MODELS), help=f"models, comma-separated (default {','.join(MODELS)})")
+    p.add_argument("--reference", default="xpbd", choices=MODELS, help="the most accurate setting (default xpbd)")
+    p.add_argument("--hold", type=count(1, 600), default=60, help="frames the needle is held at depth (default 60)")
+    p.add_argument("--out", default="runs/bench-needle", help="folder for results.json and results.md")
+
+
+def needle_packs(names: str) -> list:
+    found = [f for f in discover() if f.source == "builtin"]
+    chosen = [f for f in found if not names or f.name in names.split(",")]
+    out = []
+    for f in chosen:
+        manifest = tomllib.loads((Path(f.path) / "pack.toml").read_text())
+        if manifest.get("needle_tissue", {}).get("bodies"):
+            out.append((f.name, Path(f.path), manifest))
+    if names and len(out) != len(names.split(",")):
+        raise UserError(f"--packs: expected needle packs with tissue, got {names!r}")
+    return out
+
+
+def attempt(root: Path, manifest: dict) -> tuple[list, float, float]:
+    """Events placing the needle at the first path's entry and aiming it at the target, then the depth the
+    needle advances to and the time it gets there."""
+    anatomy = tomllib.loads((root / "anatomy.toml").read_text())
+    path = next(iter(anatomy["paths"].values()))
+    entry, target = np.array(path["entry"], float), np.array(path["target"], float)
+    d = (target - entry) / np.linalg.norm(target - entry)
+    needle = manifest["entities"]["needle"]["needle"]
+    aim = np.array(needle.get("aim_at", [0.0, 0.0, 0.0]), float)
+    start = np.array([aim[0] - entry[0], aim[1] - entry[1], 0.0])
+    start /= np.linalg.norm(start)
+    flat = np.array([d[0], d[1], 0.0]) / np.linalg.norm(d[:2])
+    yaw = float(np.degrees(np.arctan2(start[0] * flat[1] - start[1] * flat[0], start @ flat)))
+    pitch = float(np.degrees(np.arcsin(d[2])))
+    depth = float(np.linalg.norm(target - entry)) - 2.0
+    n_landmarks = max(1, len(manifest.get("landmarks", [])))
+    ev = [(0.2 + 0.1 * i, PickPoint("skin", tuple(map(float, entry)))) for i in range(n_landmarks)]
+    ev += [
+        (1.0, Widget("rotate_horizontal", yaw)),
+        (1.2, Widget("rotate_vertical", pitch)),
+        (1.5, Widget("insert", depth)),
+    ]
+    return ev, depth, 1.5 + depth / float(needle.get("insert_speed") or 1e9)
+
+
+def run_one(pack: str, root: Path, manifest: dict, model: str, hold: int) -> dict:
+    events, depth, reached = attempt(root, manifest)
+    app = build_app(pack, settings={"model": model}, save="a benchmark saves nothing")
+    try:
+        dt = app.time.dt
+        withdraw = reached + hold * dt
+        speed = float(manifest["entities"]["needle"]["needle"].get("withdraw_speed", 60.0))
+        events.append((withdraw, Widget("insert", 0.0)))
+        app.resource(PendingInput).extend(events)
+        n = int((withdraw + depth / speed + 0.5) / dt)
+        frame_ms, skin = [], []
+        scene: NeedleTissueScene = app.resource(NeedleTissueScene)
+        with app.active():
+            bodies = [esper.component_for_entity(b.entity, Deformable) for b in scene.bodies]
+        top = [np.unique(d.mesh_data.triangles) for d in bodies]
+        for _ in range(n):
+            t0 = time.perf_counter()
+            app.update(dt)
+            ms = (time.perf_counter() - t0) * 1e3
+            t = app.time.sim_time
+            if 1.5 <= t <= withdraw:
+                frame_ms.append(ms)
+            if reached + 0.5 * hold * dt <= t <= withdraw:
+                skin.append(np.concatenate([d.pos[ids] for d, ids in zip(bodies, top)]))
+        rows = app.resource(NeedleTrace).rows
+        punctures: dict[str, float] = {}
+        tent_at_pop, deepest = float("nan"), 0.0
+        for r in rows:
+            deepest = max(deepest, float(r[6]))  # the skin's largest tent so far
+            for e in filter(None, r[5].split(";")):
+                if e.startswith("puncture:") and e[9:] not in punctures:
+                    punctures[e[9:]] = round(float(r[1]), 3)
+                    if e == "puncture:skin":
+                        tent_at_pop = deepest
+        return {
+            "pack": pack,
+            "model": model,
+            "used": bodies[0].model_used,
+            "frames": len(frame_ms),
+            "frame_ms_median": statistics.median(frame_ms),
+            "frame_ms_p90": float(np.percentile(frame_ms, 90)),
+            "peak_axial_N": max(r[2] for r in rows),
+            "skin_tent_at_puncture_mm": tent_at_pop,
+            "puncture_depth_mm": punctures,
+            "_skin": np.stack(skin) if skin else np.zeros((0, 0, 3)),
+            "_curve": [(float(r[0]), float(r[1]), float(r[2]), r[5]) for r in rows],
+        }
+    finally:
+        app.close()
+
+
+def force_rate(seconds: float = 0.5) -> tuple[float, float]:
+    """Evaluations per second of the force model from Python, and microseconds each."""
+    L = np.array([2.0, 6.0, 8.0, 20.0])
+    c = np.full(4, 0.0106)
+    args = (3.0, 0.2, 40.0, True, 0.3, L, c, c * 0.02, c * 1.7, 40.0, 0.5, 0.1)
+    needle_force.axial_force(*args)  # compiled (or loaded) before timing
+    n, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        for _ in range(1000):
+            needle_force.axial_force(*args)
+        n += 1000
+    rate = n / (time.perf_counter() - t0)
+    return rate, 1e6 / rate
+
+
+def compare(results: list[dict], reference: str) -> None:
+    """Each run's difference from its pack's reference run (tent at puncture, skin nodes over the hold)."""
+    for r in results:
+        ref = next((x for x in results if x["pack"] == r["pack"] and x["model"] == reference), None)
+        if ref is None:
+            continue
+        r["tent_difference_mm"] = abs(r["skin_tent_at_puncture_mm"] - ref["skin_tent_at_puncture_mm"])
+        a, b = r["_skin"], ref["_skin"]
+        k = min(len(a), len(b))
+        if k:
+            diff = np.linalg.norm(a[:k] - b[:k], axis=2)
+            r["skin_rms_difference_mm"] = float(np.sqrt(np.mean(diff**2)))
+            r["skin_max_difference_mm"] = float(diff.max())
+
+
+def plot(results: list[dict], model: str, path: Path) -> None:
+    """Axial force against time and tip depth for each pack's run with `model`, pops marked."""
+    import matplotlib  # noqa: PLC0415 - only this report draws
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    runs = [r for r in results if r["model"] == model]
+    fig, axes = plt.subplots(1, len(runs), figsize=(5.5 * len(runs), 3.8), squeeze=False)
+    for ax, r in zip(axes[0], runs):
+        t, depth, axial, ev = zip(*r["_curve"])
+        going_in = np.r_[True, np.diff(depth) >= 0]
+        d, f = np.array(depth), np.array(axial)
+        ax.plot(d[going_in], f[going_in], color="tab:blue", label="inserting")
+        ax.plot(d[~going_in], f[~going_in], color="tab:orange", label="withdrawing")
+        for di, fi, e in zip(d, f, ev):
+            for name in (x[9:] for x in e.split(";") if x.startswith("puncture:")):
+                ax.annotate(name, (di, fi), textcoords="offset points", xytext=(3, 6), fontsize=8)
+                ax.plot([di], [fi], "v", color="tab:red")
+        ax.axhline(0, color="0.7", lw=0.8)
+        ax.set_xlabel("tip depth from first skin contact (mm)")
+        ax.set_ylabel("axial force on the needle (N)")
+        ax.set_title(f"{r['pack']}: {r['used']}")
+        ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def markdown(results: list[dict], rate: float, us: float) -> str:
+    lines = [
+        "| pack | model | ms/frame median | p90 | peak axial N | skin tent at puncture mm | vs reference: tent mm |"
+        " skin RMS mm | skin max mm | punctures (depth mm) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in results:
+        pops = ", ".join(f"{k} {v:.1f}" for k, v in r["puncture_depth_mm"].items())
+        lines.append(
+            f"| {r['pack']} | {r['used']} | {r['frame_ms_median']:.2f} | {r['frame_ms_p90']:.2f} | "
+            f"{r['peak_axial_N']:.2f} | {r['skin_tent_at_puncture_mm']:.2f} | {r.get('tent_difference_mm', 0):.2f} | "
+            f"{r.get('skin_rms_difference_mm', 0):.3f} | {r.get('skin_max_difference_mm', 0):.3f} | {pops} |"
+        )
+    lines.append("")
+    lines.append(f"Force model: {rate:,.0f} evaluations per second from Python, {us:.2f} us each (budget 50 us).")
+    return "\n".join(lines) + "\n"
+
+
+def run(args) -> int:
+    models = [m for m in args.models.split(",") if m]
+    bad = [m for m in models if m not in MODELS]
+    if bad:
+        raise UserError(f"--models: unknown model {bad[0]!r}; expected some of {', '.join(MODELS)}")
+    if args.reference not in models:
+        models.append(args.reference)
+    packs = needle_packs(args.packs)
+    results = []
+    for (name, root, manifest), model in progress(
+        [(p, m) for p in packs for m in models], desc="needle runs", unit="run"
+    ):
+        results.append(run_one(name, root, manifest, model, args.hold))
+    compare(results, args.reference)
+    rate, us = force_rate()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    plot(results, models[0], out / "force_depth.png")
+    clean = [{k: v for k, v in r.items() if not k.startswith("_")} for r in results]
+    (out / "results.json").write_text(
+        json.dumps({"runs": clean, "force_evaluations_per_s": rate, "force_us": us}, indent=2)
+    )
+    text = markdown(clean, rate, us)
+    (out / "results.md").write_text(text)
+    print(text, end="")
+    print(f"results: {out / 'results.json'}")
+    return 0
