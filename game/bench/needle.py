@@ -15,7 +15,7 @@ and model:
   under its substep rule, the study's most accurate model): the tent at puncture and the RMS and worst
   displacement difference of the skin's nodes over the hold, mm;
 - force evaluations per second of the needle's force model (needle_force.axial_force called from
-  Python, as a haptic loop would; the issue's budget is 50 us each).
+  Python, as a haptic loop would, against a budget of 50 us each: a 1 kHz loop's share).
 
 Results go to OUT/results.json and OUT/results.md, and the first model's force-depth curves to
 OUT/force_depth.png.

@@ -238,6 +238,10 @@ def aim(ov: Overlay, camera, r: Rect, target, note: str, s: float) -> None:
     backed_label(ov, text, tx, ty, AIM, s)
 
 
+#: the force gauge's bar: green below half scale, yellow, red near full scale
+GAUGE_COLOURS = ((0.35, 0.85, 0.45, 0.95), (0.95, 0.8, 0.2, 0.95), (0.95, 0.3, 0.25, 0.95))
+
+
 def force_gauge(ov: Overlay, r: Rect, gauge: tuple, s: float) -> None:
     """The needle's axial force as a bar along the foot of the view (green, yellow past half scale, red
     near it), its figures and layer above, and the pop of a layer giving way in large letters."""
@@ -246,7 +250,7 @@ def force_gauge(ov: Overlay, r: Rect, gauge: tuple, s: float) -> None:
     x0, y0 = r.x + 8 * s, r.y + 8 * s
     w, h = r.w * 0.6, 9 * s
     frac = min(max(axial / full, 0.0), 1.0) if full > 0 else 0.0
-    colour = (0.35, 0.85, 0.45, 0.95) if frac < 0.5 else (0.95, 0.8, 0.2, 0.95) if frac < 0.85 else (0.95, 0.3, 0.25, 0.95)
+    colour = GAUGE_COLOURS[0] if frac < 0.5 else GAUGE_COLOURS[1] if frac < 0.85 else GAUGE_COLOURS[2]
     ov.rect(x0 - 2 * s, y0 - 2 * s, w + 4 * s, h + 4 * s, (0.0, 0.0, 0.0, 0.6))
     ov.rect(x0, y0, w * frac, h, colour)
     text = f"{axial:.2f} N axial, {lateral:.2f} N lateral" + (f", {caption}" if caption else "")

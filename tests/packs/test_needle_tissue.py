@@ -191,7 +191,11 @@ def test_the_tissue_is_dragged_in_and_back_and_the_skin_tents_under_the_tip(inse
 
 def test_trace_columns_and_one_row_per_frame(insertion):
     pack, _, _, rows, summary = insertion
-    assert list(rows[0]) == ["time_s", "tip_depth_mm", "axial_N", "lateral_N", "layer", "event", "skin_tent_mm"]
+    assert list(rows[0])[:7] == ["time_s", "tip_depth_mm", "axial_N", "lateral_N", "layer", "event", "skin_tent_mm"]
+    # and the axial force's terms, which add up to it
+    for r in rows:
+        terms = float(r["stiffness_N"]) + float(r["cutting_N"]) + float(r["friction_N"])
+        assert terms == pytest.approx(float(r["axial_N"]), abs=2e-5)
     assert len(rows) == summary["steps"]
     layers = set(manifest(pack)["tissue_layers"])
     assert {r["layer"] for r in rows} <= layers | {""}

@@ -37,7 +37,9 @@ def test_pack_is_data_only_and_borrows_prp_meshes():
     own = sorted(p for p in files if not p.startswith("prp:meshes/"))
     assert own == ["meshes/tissue_left.vtu", "meshes/tissue_right.vtu"]
     assert sorted(p.name for p in (PACK / "meshes").iterdir()) == [
-        "skin_around_tissue.ply", "tissue_left.vtu", "tissue_right.vtu"
+        "skin_around_tissue.ply",
+        "tissue_left.vtu",
+        "tissue_right.vtu",
     ]
 
 

@@ -241,12 +241,15 @@ class NeedleTrace:
 
     rows: list = field(default_factory=list)
 
-    HEADER = "time_s,tip_depth_mm,axial_N,lateral_N,layer,event,skin_tent_mm"
+    # the fixed columns first (docs/needle-procedures.md), then the axial force's three terms
+    HEADER = "time_s,tip_depth_mm,axial_N,lateral_N,layer,event,skin_tent_mm,stiffness_N,cutting_N,friction_N"
 
     def csv(self) -> str:
         lines = [self.HEADER]
-        for t, depth, ax, lat, layer, event, tent in self.rows:
-            lines.append(f"{t:.6f},{depth:.4f},{ax:.5f},{lat:.5f},{layer},{event},{tent:.4f}")
+        for t, depth, ax, lat, layer, event, tent, (f_s, f_c, f_f) in self.rows:
+            lines.append(
+                f"{t:.6f},{depth:.4f},{ax:.5f},{lat:.5f},{layer},{event},{tent:.4f},{f_s:.5f},{f_c:.5f},{f_f:.5f}"
+            )
         return "\n".join(lines) + "\n"
 
 
@@ -315,7 +318,7 @@ def read_scene(app: App) -> NeedleTissueScene | None:
             for name in dict.fromkeys(pattern.replace("{side}", s) for s in sides):
                 ent = index.get(name)
                 d = esper.try_component(ent, Deformable) if ent is not None else None
-                if d is None or d.mesh_data is None or d.mesh_data.tets is None:
+                if ent is None or d is None or d.mesh_data is None or d.mesh_data.tets is None:
                     raise UserError(f"needle_tissue.bodies: '{name}' is not a deformable tetrahedral entity")
                 mesh = d.mesh_data
                 if mesh.layers is None:
@@ -459,8 +462,11 @@ class NeedleTissueSystem:
             self._gauge(app, nt, events)
             tip = st.depth - nt.contact_depth if nt.contact else 0.0
             trace.rows.append(
-                (app.time.sim_time, max(tip, 0.0), nt.axial, nt.lateral, nt.tip_layer, ";".join(events), nt.skin_tent)
-            )
+                (
+                    app.time.sim_time, max(tip, 0.0), nt.axial, nt.lateral, nt.tip_layer, ";".join(events),
+                    nt.skin_tent, nt.terms,
+                )
+            )  # fmt: skip
             break  # one needle
 
     def _gauge(self, app: App, nt: NeedleTissue, events: list[str]) -> None:
