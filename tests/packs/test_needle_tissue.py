@@ -214,3 +214,48 @@ def test_replaying_the_recording_writes_the_same_trace(tmp_path, cli):
     trace = (first / "needle_trace.csv").read_bytes()
     assert b"puncture:skin" in trace and b"exit:" in trace
     assert trace == (second / "needle_trace.csv").read_bytes()
+
+
+def analytic_axial(pack: str, crossings: list, leave: float, depth: float, v: float) -> float:
+    """Okamura et al.'s force for a tip at `depth` advancing at `v` through the layers met at `crossings`,
+    written from the pack's data alone: the press on the first boundary not yet given (a flat punch,
+    stiffening as the tissue behind it closes), cutting in the layer the tip is in, and dynamic plus
+    viscous friction over the length inserted in each layer."""
+    man = manifest(pack)
+    layers = {v_["mesh_layer"]: v_ for v_ in man["tissue_layers"].values()}
+    radius = man["needle_tissue"]["contact_radius_mm"]
+    force, popped, pop_at = 0.0, [], []
+    for s, number in crossings:
+        s = max(s, 0.0)
+        spec = layers[number]
+        if depth <= s:
+            break
+        k = 2 * radius * spec["E_kPa"] * 1e-3 / (1 - spec["nu"] ** 2)
+        h = leave - s
+        t = depth - s
+        press = k * t * h / (h - t) if t < h else np.inf
+        if press < spec["puncture_N"]:
+            force += press
+            break
+        popped.append((s, spec))
+    if popped and force == 0.0 and depth < leave:  # cutting while the tip is in the tissue
+        force += popped[-1][1]["cutting_N"]
+    for i, (s, spec) in enumerate(popped):
+        end = popped[i + 1][0] if i + 1 < len(popped) else depth
+        length = min(end, depth, leave) - s
+        force += length * (spec["friction_dynamic_N_per_mm"] + spec["friction_viscous_Ns_per_mm2"] * v)
+    return force
+
+
+def test_the_force_depth_curve_follows_okamuras_form(insertion):
+    """RMS difference between the simulated axial force and the analytic curve over the insertion at
+    constant speed (the frames where a layer gives are where the two can differ by a frame's travel)."""
+    pack, path, mesh_file, rows, _ = insertion
+    speed = manifest(pack)["entities"]["needle"]["needle"]["insert_speed"]
+    crossings, leave = boundaries_along(pack, mesh_file, path)
+    depth = np.array([float(r["tip_depth_mm"]) for r in rows])
+    sim = np.array([float(r["axial_N"]) for r in rows])
+    moving = [i for i in range(1, len(rows)) if depth[i] > depth[i - 1] + 1e-9]
+    want = np.array([analytic_axial(pack, crossings, leave, depth[i], speed) for i in moving])
+    rmse = float(np.sqrt(np.mean((sim[moving] - want) ** 2)))
+    assert rmse < 0.05, rmse

@@ -86,7 +86,8 @@ def test_full_depth_in_one_frame_punctures_every_layer_in_order(tmp_path):
         rows = [r for r in app.resource(NeedleTrace).rows if r[5]]
         first = [r for r in rows if "puncture:" in r[5]]
         assert len(first) == 1  # all in one frame
-        assert first[0][5] == "contact;puncture:skin;puncture:subcutaneous;puncture:muscle;puncture:deep"
+        # past the tissue's far side (it ends before the skull base along prp's path) in the same frame
+        assert first[0][5] == "contact;puncture:skin;puncture:subcutaneous;puncture:muscle;puncture:deep;exit:deep"
         tissue_checks(app)
         assert np.isfinite(needle_tissue(app).axial)
     finally:
@@ -237,3 +238,32 @@ def test_bad_tissue_data_fails_validate_naming_the_key(tmp_path, edit, key):
     text = " ".join(str(p) for p in problems)
     assert key in text, text
     assert "Traceback" not in text
+
+
+def test_turning_the_needle_inside_the_tissue_moves_the_tissue(tmp_path):
+    # a pack that lets the needle turn while it is in (lock_on_insert = false)
+    root = pack_copy(
+        tmp_path, lambda s: s.replace("contact_epsilon = 0.2\n", "contact_epsilon = 0.2\nlock_on_insert = false\n", 1)
+    )
+    script = insertion_script("prp", "left", 20.0)
+    turned = re.search(r'name = "rotate_horizontal"\nvalue = ([-0-9.e]+)', script)
+    yaw = float(turned.group(1))
+    script += f'\n[[event]]\nt = 4.0\nkind = "widget"\nname = "rotate_horizontal"\nvalue = {yaw + 6.0}\n'
+    app = run_app(root, script, 3.9, tmp_path)
+    try:
+        scene = app.resource(NeedleTissueScene)
+        with app.active():
+            d = esper.component_for_entity(scene.bodies[0].entity, Deformable)
+            held = d.held.copy()
+            before = d.pos[held].copy()
+        assert len(held) and needle_tissue(app).lateral < 1e-6
+        for _ in range(60):
+            app.update(app.time.dt)
+        nt = needle_tissue(app)
+        with app.active():
+            moved = np.linalg.norm(d.pos[held] - before, axis=1)
+        assert nt.lateral > 0.01  # the tissue pushes back on the turned shaft
+        assert moved.max() > 0.5  # and the tissue held on the shaft went with it
+        tissue_checks(app)
+    finally:
+        app.close()

@@ -230,6 +230,7 @@ class NeedleTissue:
     held: dict = field(default_factory=dict)  # body index -> node ids held last frame
     held_at: dict = field(default_factory=dict)  # body index -> their targets (world mm)
     tip_layer: str = ""
+    beyond: bool = False  # the tip is past the far side of the tissue
     skin_tent: float = 0.0
     pop: str = ""  # the last layer that gave, shown until pop_until (simulated s)
     pop_until: float = 0.0
@@ -417,13 +418,22 @@ def _pose_key(st: NeedleState) -> tuple:
 
 
 def _lengths(nt: NeedleTissue, n_layers: int, depth: float) -> np.ndarray:
-    """Shaft length (mm) in each layer: from each punctured crossing to the next one or the tip."""
+    """Shaft length (mm) in each layer: from each punctured crossing to the next one, the tip, or where the
+    line leaves the tissue."""
     out = np.zeros(n_layers)
     for i in range(nt.punctured):
         c = nt.crossings[i]
         end = nt.crossings[i + 1].depth if i + 1 < nt.punctured else depth
-        out[c.layer_in] += max(0.0, min(end, depth) - c.depth)
+        out[c.layer_in] += max(0.0, min(end, depth, c.depth + c.room) - c.depth)
     return out
+
+
+def _beyond(nt: NeedleTissue, depth: float) -> bool:
+    """The tip has passed through the far side of the tissue (past the last boundary's room)."""
+    if not nt.punctured:
+        return False
+    c = nt.crossings[nt.punctured - 1]
+    return depth > c.depth + c.room
 
 
 def _name(scene: NeedleTissueScene, layer: int) -> str:
@@ -501,6 +511,10 @@ class NeedleTissueSystem:
         if nt.crossings:
             self._withdraw(app, nt, depth, events)
             self._advance(nt, depth, events)
+            beyond = _beyond(nt, depth)
+            if beyond and not nt.beyond:  # out through the far side of the modelled tissue
+                events.append(f"exit:{_name(scene, nt.crossings[nt.punctured - 1].layer_in)}")
+            nt.beyond = beyond
         self._drag(nt, depth, move)
         self._forces(nt, depth, v, move > 1e-12)
         self._hold(app, nt, st, d, depth)
@@ -577,7 +591,7 @@ class NeedleTissueSystem:
         if nt.punctured < len(nt.crossings) and nt.tent > 0:
             k_tent = _stiffness(scene, nt.crossings[nt.punctured].layer_in)
             room = nt.crossings[nt.punctured].room
-        tip = nt.crossings[nt.punctured - 1].layer_in if nt.punctured else -1
+        tip = nt.crossings[nt.punctured - 1].layer_in if nt.punctured and not _beyond(nt, depth) else -1
         nt.tip_layer = _name(scene, tip)
         if tip >= 0:
             cutting = float(L.cutting[tip])
