@@ -62,8 +62,8 @@ def add_arguments(p) -> None:
     )  # fmt: skip
     p.add_argument(
         "--reference", default=REFERENCE, choices=(*MODELS, REFERENCE),
-        help=f"the most accurate setting (default {REFERENCE}: the hybrid body with {REFERENCE_ITERATIONS} iterations a "
-        "frame, converged every frame)",
+        help=f"the most accurate setting (default {REFERENCE}: the hybrid body with {REFERENCE_ITERATIONS} "
+        "iterations a frame, converged every frame)",
     )  # fmt: skip
     p.add_argument("--hold", type=count(1, 600), default=60, help="frames the needle is held at depth (default 60)")
     p.add_argument("--out", default="runs/bench-needle", help="folder for results.json and results.md")

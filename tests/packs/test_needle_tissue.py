@@ -224,7 +224,7 @@ def analytic_axial(pack: str, crossings: list, leave: float, depth: float, v: fl
     man = manifest(pack)
     layers = {v_["mesh_layer"]: v_ for v_ in man["tissue_layers"].values()}
     radius = man["needle_tissue"]["contact_radius_mm"]
-    force, popped, pop_at = 0.0, [], []
+    force, popped = 0.0, []
     for s, number in crossings:
         s = max(s, 0.0)
         spec = layers[number]
