@@ -267,3 +267,36 @@ def test_turning_the_needle_inside_the_tissue_moves_the_tissue(tmp_path):
         tissue_checks(app)
     finally:
         app.close()
+
+
+@pytest.mark.parametrize(
+    "offset", [(0.0, 0.0), (1.5, 0.0), (1.5, 1.5), (0.7, 0.3)], ids=["node", "edge", "diagonal", "face"]
+)
+def test_a_tip_on_a_node_an_edge_or_a_face_punctures_each_layer_once(tmp_path, offset):
+    """The textbook path runs down a column of nodes (the volume is centred on it); moved half a spacing
+    (3 mm grid) it runs through edges, then a face diagonal, then faces."""
+    app = run_app(PRP, insertion_script("prp", "left", 0.0), 2.8, tmp_path)
+    try:
+        scene = app.resource(NeedleTissueScene)
+        with app.active():
+            ((_, st),) = esper.get_component(NeedleState)
+            d = st.direction()
+            u = np.cross(d, [0.0, 0.0, 1.0])
+            u /= np.linalg.norm(u)
+            v = np.cross(d, u)
+            top = scene.bodies[0].rest_world
+            node = top[np.argmin(np.linalg.norm(top - st.entry, axis=1))]
+            assert np.linalg.norm(node - st.entry) < 1e-3  # the path starts at a node of the volume
+            # the new entry, exactly that node moved by the offset across the needle
+            st.entry = node + offset[0] * u + offset[1] * v
+        from chainsim.components.input_events import Widget
+
+        app.resource(PendingInput).push(app.time.sim_time, Widget("insert", 25.0))
+        for i in range(150):
+            app.update(app.time.dt)
+            if i % 4 == 0:
+                tissue_checks(app)
+        ev = [e for e in trace_events(app) if e.startswith("puncture:")]
+        assert ev == ["puncture:skin", "puncture:subcutaneous", "puncture:muscle", "puncture:deep"]
+    finally:
+        app.close()
