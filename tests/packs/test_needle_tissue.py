@@ -52,7 +52,7 @@ def boundaries_along(pack: str, mesh_file: str, path: str) -> tuple[list[tuple[f
     out = []
     last = 0
     leave = np.inf
-    for s in np.arange(-1.0, 40.0, 0.01):
+    for s in np.arange(-1.0, np.linalg.norm(t - e) + 5.0, 0.01):
         x = e + s * d + off
         lam = np.einsum("tij,tj->ti", Tinv, x - a)
         inside = np.all(lam >= 0, axis=1) & (lam.sum(axis=1) <= 1)
@@ -141,7 +141,7 @@ def test_punctures_come_in_layer_order_at_the_depths_the_layer_data_predicts(ins
         k = 2 * radius * spec["E_kPa"] * 1e-3 / (1 - spec["nu"] ** 2)
         # F = k t h / (h - t) = F_p  =>  t = F_p h / (k h + F_p), h the tissue behind the boundary
         h, f = leave - max(s, 0.0), spec["puncture_N"]
-        pop = max(s, 0.0) + f * h / (k * h + f)
+        pop = max(s, 0.0) + (f * h / (k * h + f) if np.isfinite(h) else f / k)
         # a layer pressed past its threshold in the frame the one above gives way goes too
         if predicted and pop < predicted[-1][0]:
             pop = predicted[-1][0]
@@ -165,7 +165,8 @@ def test_force_rises_drops_at_the_pop_grows_with_depth_and_turns_on_withdrawal(i
     before = axial[start:pop]
     assert np.all(np.diff(before) > 0)  # the skin tents: stiffness grows with the press
     skin = manifest(pack)["tissue_layers"]["skin"]["puncture_N"]
-    assert before[-1] == pytest.approx(skin, rel=0.05)  # it gives at its threshold
+    # it gives at its threshold: within the frame after the last press below it (a frame's rise, stiffening)
+    assert before[-1] < skin <= before[-1] + 1.5 * (before[-1] - before[-2])
     assert axial[pop] < before[-1]  # the drop at the pop
     # deeper, at constant speed: the friction of the inserted length grows with it
     moving = [i for i in range(pop + 5, len(rows)) if depth[i] > depth[i - 1] and not ev[i] and ev[i - 1] == ""]

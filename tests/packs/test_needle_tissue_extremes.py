@@ -80,14 +80,13 @@ def needle_tissue(app) -> NeedleTissue:
 
 
 def test_full_depth_in_one_frame_punctures_every_layer_in_order(tmp_path):
-    root = pack_copy(tmp_path, lambda s: s.replace("insert_speed = 40.0", "insert_speed = 0.0"))
+    root = pack_copy(tmp_path, lambda s: s.replace("insert_speed = 100.0", "insert_speed = 0.0"))
     app = run_app(root, insertion_script("prp", "left", 60.0), 4.0, tmp_path)
     try:
         rows = [r for r in app.resource(NeedleTrace).rows if r[5]]
         first = [r for r in rows if "puncture:" in r[5]]
         assert len(first) == 1  # all in one frame
-        # past the tissue's far side (it ends before the skull base along prp's path) in the same frame
-        assert first[0][5] == "contact;puncture:skin;puncture:subcutaneous;puncture:muscle;puncture:deep;exit:deep"
+        assert first[0][5] == "contact;puncture:skin;puncture:subcutaneous;puncture:muscle;puncture:deep"
         tissue_checks(app)
         assert np.isfinite(needle_tissue(app).axial)
     finally:
@@ -270,11 +269,12 @@ def test_turning_the_needle_inside_the_tissue_moves_the_tissue(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "offset", [(0.0, 0.0), (1.5, 0.0), (1.5, 1.5), (0.7, 0.3)], ids=["node", "edge", "diagonal", "face"]
+    "offset", [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.7, 0.3)], ids=["node", "edge", "diagonal", "face"]
 )
 def test_a_tip_on_a_node_an_edge_or_a_face_punctures_each_layer_once(tmp_path, offset):
-    """The textbook path runs down a column of nodes (the volume is centred on it); moved half a spacing
-    (3 mm grid) it runs through edges, then a face diagonal, then faces."""
+    """From a node of the volume's skin face the needle runs down a line of nodes (the grid's columns are
+    parallel to the path); moved half the prp grid's 2 mm off it, along an edge line, a diagonal, or
+    inside faces."""
     app = run_app(PRP, insertion_script("prp", "left", 0.0), 2.8, tmp_path)
     try:
         scene = app.resource(NeedleTissueScene)
@@ -286,8 +286,7 @@ def test_a_tip_on_a_node_an_edge_or_a_face_punctures_each_layer_once(tmp_path, o
             v = np.cross(d, u)
             top = scene.bodies[0].rest_world
             node = top[np.argmin(np.linalg.norm(top - st.entry, axis=1))]
-            assert np.linalg.norm(node - st.entry) < 1e-3  # the path starts at a node of the volume
-            # the new entry, exactly that node moved by the offset across the needle
+            # the new entry, exactly the node nearest the path's, moved by the offset across the needle
             st.entry = node + offset[0] * u + offset[1] * v
         from chainsim.components.input_events import Widget
 

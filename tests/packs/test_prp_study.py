@@ -105,7 +105,7 @@ class Participant:
         if t["task"] == "location":
             events += [(now + 0.1 * (k + 1), p) for k, p in enumerate(self.picks)]
         events += [(now + 0.5 + 0.05 * k, e) for k, e in enumerate(self.aim)]
-        # the pack advances the needle at its insert_speed (40 mm/s): about 2 s to the foramen
+        # the pack advances the needle at its insert_speed: time for it to reach the foramen
         events.append((now + 3.0, Widget("save", None)))
         pend.extend(events)
         self.steps(3.2)

@@ -8,18 +8,21 @@ anatomy `[paths]`) with a layered tetrahedral volume, without a general mesher: 
 of columns parallel to the path, so its top is exactly the skin and its layer boundaries are surfaces
 the path crosses at known depths.
 
-- A square grid (`spacing` mm, `half_width` either way) in the plane normal to the path is cast along
-  the path onto the skin: each ray's first hit is a top node, on the skin surface itself.
+- A square grid (`spacing` mm, `half_width` either way, the path down the middle of a cell) in the
+  plane normal to the path is cast along the path onto the skin: each ray's first hit is a top node,
+  on the skin surface itself.
 - Below each top node, nodes follow the path's direction at the layer boundaries: a layer's thickness
   is measured along the skin normal (the published figures are), so along the column it is divided by
-  the cosine between normal and path (clamped); the deep layer ends where the column meets bone (skull
-  or mandible, ray cast), or at `max_depth`, never shallower than the fixed layers plus `deep_min`.
+  the cosine between normal and path (clamped). The deep layer goes on in slabs of `deep_slice` mm as
+  far as each column has room above bone (skull or mandible, ray cast; at most `max_depth`): a cell of
+  it exists where all four of its columns reach below it, so the volume follows a bony channel (prp's
+  path between the mandible and the maxilla to the skull base) in whole, regular cells.
 - Each hexahedron of the (i, j, k) grid is split into six tetrahedra around its main diagonal (the
   split conforms between neighbours), oriented positively.
 - The drawn skin (`skin_around_tissue.ply`) is the pack's display skin less the triangles over the
   volumes, whose own skin face moves with the tissue and is drawn in their place.
-- Point data `fixed` pins the bottom (on bone) and the side walls (where the tissue goes on beyond
-  the modelled region); cell data `layer` numbers each tetrahedron's layer (1 = the first in the
+- Point data `fixed` pins every boundary node but the skin's (on bone, and at the rim where the tissue
+  goes on beyond the modelled region); cell data `layer` numbers each tetrahedron's layer (1 = the first in the
   pack's list); the file's triangle cells are the skin face only, so only the skin is drawn.
 
 Quality is checked on the result (`check_quality`): no tetrahedron with a non-positive volume, the
@@ -71,9 +74,7 @@ class VolumeSpec:
     half_width: float
     spacing: float
     max_depth: float
-    deep_min: float
     deep_slice: float
-    slope: float = 1.0  # the deep layer's bottom rises or falls at most this much per mm across
 
 
 # Layer thicknesses: docs/tissue-layers.md gives each figure's source.
@@ -90,11 +91,9 @@ SPECS = {
             LayerSpec("deep", 4.0, 0),
         ),
         half_width=24.0,
-        spacing=3.0,
+        spacing=2.0,
         max_depth=72.0,
-        deep_min=4.0,
         deep_slice=4.0,
-        slope=1.5,
     ),
     "mental-block": VolumeSpec(
         paths=("mental_left", "mental_right"),
@@ -110,7 +109,6 @@ SPECS = {
         half_width=14.0,
         spacing=2.0,
         max_depth=25.0,
-        deep_min=1.0,
         deep_slice=2.0,
     ),
 }
@@ -154,7 +152,8 @@ def column_volume(skin: trimesh.Trimesh, bones: list[trimesh.Trimesh], entry, ta
     d = np.asarray(target, float) - entry
     d /= np.linalg.norm(d)
     u, v = _basis(d)
-    n = int(round(2 * spec.half_width / spec.spacing)) + 1
+    # an even count of nodes a side: the path runs down the middle of cells, not along a line of nodes
+    n = 2 * int(round(spec.half_width / spec.spacing))
     s = (np.arange(n) - (n - 1) / 2) * spec.spacing
     gi, gj = np.meshgrid(s, s, indexing="ij")
     start = entry - 60.0 * d
@@ -173,12 +172,12 @@ def column_volume(skin: trimesh.Trimesh, bones: list[trimesh.Trimesh], entry, ta
         depth_bone = np.minimum(depth_bone, t_b + 0.01)
     fixed_layers = spec.layers[:-1]
     shallow = sum(layer.thickness_mm for layer in fixed_layers) / cos
-    floor = shallow + spec.deep_min
-    # a bottom that may rise or fall by at most `slope` mm per mm across the columns keeps the deep
-    # elements whole where the bone below steps; taken as a lower envelope, it never enters the bone
-    bottom = _lower_envelope(np.minimum(depth_bone, spec.max_depth), n, spec.slope * spec.spacing)
-    bottom = np.clip(bottom, floor, None)
-    deep_slices = max(1, int(np.ceil(np.percentile(bottom - shallow, 75) / spec.deep_slice)))
+    # the deep layer in slabs of deep_slice mm under the shallow ones, each column as many as fit above
+    # its bone (at least one): where the bone steps, the volume steps with it in whole cells, so the
+    # elements stay regular however steep the bone's wall (a staircase at most one slab off the bone)
+    room = np.minimum(depth_bone, spec.max_depth) - shallow
+    slabs = np.clip(np.floor(room / spec.deep_slice), 1, None).astype(np.int64)
+    deep_slices = int(slabs.max())
     # node depths along the column, level by level
     levels = [np.zeros(len(top))]
     layer_of_slab: list[int] = []
@@ -188,8 +187,9 @@ def column_volume(skin: trimesh.Trimesh, bones: list[trimesh.Trimesh], entry, ta
             levels.append(acc + layer.thickness_mm / cos * k / layer.slices)
             layer_of_slab.append(li)
         acc = levels[-1]
+    n_shallow = len(layer_of_slab)
     for k in range(1, deep_slices + 1):
-        levels.append(shallow + (bottom - shallow) * k / deep_slices)
+        levels.append(shallow + spec.deep_slice * k)
         layer_of_slab.append(len(spec.layers))
     nz = len(levels)
     z = np.stack(levels, axis=1)  # (columns, levels)
@@ -198,18 +198,35 @@ def column_volume(skin: trimesh.Trimesh, bones: list[trimesh.Trimesh], entry, ta
     points = np.zeros((n * n * nz, 3))
     points[idx.ravel()] = pts.reshape(-1, 3)
     _, tets, _ = meshgen.tet_grid(n, n, nz)
-    tets = _orient(points, tets)
-    # the layer of each tetrahedron: its slab, from its nodes' level
+    # tet_grid gives six tetrahedra per cell, cell by cell within each of the six: keep a cell of the
+    # deep layer only where all four of its columns reach below it
+    sl = slabs.reshape(n, n)
+    reach = np.minimum.reduce([sl[:-1, :-1], sl[1:, :-1], sl[:-1, 1:], sl[1:, 1:]])
+    kd = np.arange(nz - 1) - n_shallow
+    keep_cell = (kd[None, None, :] < reach[:, :, None]) | (kd[None, None, :] < 0)
+    tets = tets[np.tile(keep_cell.ravel(), 6)]
     level = np.zeros(len(points), dtype=np.int64)
     level[idx.ravel()] = np.broadcast_to(np.arange(nz), (n, n, nz)).ravel()
+    rim = np.zeros((n, n, nz), dtype=bool)
+    rim[0], rim[-1], rim[:, 0], rim[:, -1] = True, True, True, True
+    on_rim = np.zeros(len(points), dtype=bool)
+    on_rim[idx.ravel()] = rim.ravel()
+    # drop the nodes no kept cell uses, renumbering the rest
+    used = np.unique(tets)
+    new_id = np.full(len(points), -1, dtype=np.int64)
+    new_id[used] = np.arange(len(used))
+    points, tets, level, on_rim = points[used], new_id[tets], level[used], on_rim[used]
+    tets = _orient(points, tets)
+    # the layer of each tetrahedron: its slab, from its nodes' level
     slab = level[tets].min(axis=1)
     layer = np.asarray(layer_of_slab, dtype=np.int64)[slab]
-    edge = np.zeros((n, n, nz), dtype=bool)
-    edge[0], edge[-1], edge[:, 0], edge[:, -1], edge[:, :, -1] = True, True, True, True, True
-    fixed = np.zeros(len(points), dtype=np.int64)
-    fixed[idx.ravel()] = edge.ravel()
     faces = boundary_triangles(tets)
     skin_faces = faces[np.all(level[faces] == 0, axis=1)]
+    # pinned: every boundary node but the skin's (bone below and beside, the rim where tissue goes on)
+    fixed = np.zeros(len(points), dtype=np.int64)
+    fixed[np.unique(faces)] = 1
+    fixed[np.unique(skin_faces)] = 0
+    fixed[on_rim] = 1
     return meshio.Mesh(
         points,
         [("tetra", tets), ("triangle", skin_faces)],
@@ -224,20 +241,6 @@ def _smooth(field: np.ndarray, n: int, passes: int) -> np.ndarray:
     for _ in range(passes):
         p = np.pad(f, 1, mode="edge")
         f = (4 * f + p[:-2, 1:-1] + p[2:, 1:-1] + p[1:-1, :-2] + p[1:-1, 2:]) / 8
-    return f.ravel()
-
-
-def _lower_envelope(depth: np.ndarray, n: int, spacing: float) -> np.ndarray:
-    """The largest field <= depth whose steps between grid neighbours are at most `spacing`."""
-    f = depth.reshape(n, n).copy()
-    for _ in range(2 * n):
-        p = np.pad(f, 1, mode="edge")
-        g = np.minimum.reduce(
-            [f, p[:-2, 1:-1] + spacing, p[2:, 1:-1] + spacing, p[1:-1, :-2] + spacing, p[1:-1, 2:] + spacing]
-        )
-        if np.array_equal(g, f):
-            break
-        f = g
     return f.ravel()
 
 
