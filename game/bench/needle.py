@@ -33,14 +33,15 @@ from pathlib import Path
 import esper
 import numpy as np
 
-from chainsim.components.input_events import PickPoint, Widget
+from chainsim.components.input_events import Widget
 from chainsim.components.resources import PendingInput
 from chainsim.game.app.headless import build_app
 from chainsim.game.packs.pack import discover
+from chainsim.systems.engine import needle_force
 from chainsim.systems.engine.argtypes import count
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.progress import progress
-from chainsim.systems.procedures.needle import needle_force
+from chainsim.systems.procedures.needle.insertion import straight_insertion
 from chainsim.systems.procedures.needle.tissue import NeedleTissueScene, NeedleTrace
 from chainsim.systems.tissue.deformable import Deformable, use_model
 
@@ -82,33 +83,8 @@ def needle_packs(names: str) -> list:
     return out
 
 
-def attempt(root: Path, manifest: dict) -> tuple[list, float, float]:
-    """Events placing the needle at the first path's entry and aiming it at the target, then the depth the
-    needle advances to and the time it gets there."""
-    anatomy = tomllib.loads((root / "anatomy.toml").read_text())
-    path = next(iter(anatomy["paths"].values()))
-    entry, target = np.array(path["entry"], float), np.array(path["target"], float)
-    d = (target - entry) / np.linalg.norm(target - entry)
-    needle = manifest["entities"]["needle"]["needle"]
-    aim = np.array(needle.get("aim_at", [0.0, 0.0, 0.0]), float)
-    start = np.array([aim[0] - entry[0], aim[1] - entry[1], 0.0])
-    start /= np.linalg.norm(start)
-    flat = np.array([d[0], d[1], 0.0]) / np.linalg.norm(d[:2])
-    yaw = float(np.degrees(np.arctan2(start[0] * flat[1] - start[1] * flat[0], start @ flat)))
-    pitch = float(np.degrees(np.arcsin(d[2])))
-    depth = float(np.linalg.norm(target - entry)) - 2.0
-    n_landmarks = max(1, len(manifest.get("landmarks", [])))
-    ev = [(0.2 + 0.1 * i, PickPoint("skin", tuple(map(float, entry)))) for i in range(n_landmarks)]
-    ev += [
-        (1.0, Widget("rotate_horizontal", yaw)),
-        (1.2, Widget("rotate_vertical", pitch)),
-        (1.5, Widget("insert", depth)),
-    ]
-    return ev, depth, 1.5 + depth / float(needle.get("insert_speed") or 1e9)
-
-
 def run_one(pack: str, root: Path, manifest: dict, model: str, hold: int) -> dict:
-    events, depth, reached = attempt(root, manifest)
+    events, depth, reached = straight_insertion(root, manifest)
     base = "hybrid" if model == REFERENCE else model
     app = build_app(pack, settings={"model": base}, save="a benchmark saves nothing")
     try:

@@ -30,6 +30,7 @@ from collections.abc import Callable, Iterable
 import numba
 import numpy as np
 
+from chainsim.systems.engine import needle_force
 from chainsim.systems.engine.bodies.chainmail import ChainMailBody
 from chainsim.systems.engine.bodies.hybrid import HybridBody
 from chainsim.systems.engine.bodies.projective import ProjectiveBody
@@ -104,6 +105,9 @@ def _models() -> None:
     indptr, indices = np.arange(n + 1, dtype=np.int64), np.arange(n, dtype=np.int64)
     pcg3(indptr, indices, np.ones(n), np.ones(n), np.ones((n, 3)), np.zeros((n, 3)), 2, 1e-10,
          *(np.zeros((n, 3)) for _ in range(4)))  # fmt: skip
+    # the needle's force on soft tissue (a tissue pack's needle evaluates it every frame)
+    lengths = np.array([1.0, 2.0])
+    needle_force.axial_force(1.0, 0.2, 10.0, True, 0.3, lengths, lengths, lengths, lengths, 5.0, 0.5, 0.1)
 
 
 def _csr(tris: np.ndarray, n: int):
@@ -149,7 +153,7 @@ def _moving_normals() -> None:
 #: pack's own go first: Compiler.prefer)
 GEOMETRY = "normals and collision"
 MOVING = "normals of moving meshes"
-MODELS = "XPBD and projective"
+MODELS = "XPBD and projective"  # and the hybrid body, SurfaceChainMail, the needle's tissue force
 PRECISIONS = {"float64": np.float64, "float32": np.float32}
 
 

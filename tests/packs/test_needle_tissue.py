@@ -19,7 +19,7 @@ from hypothesis import strategies as hs
 from needle_insertion import ASSETS, CASES, anatomy, insertion_script, manifest
 
 from chainsim.game.app.headless import run_pack
-from chainsim.systems.procedures.needle import needle_force
+from chainsim.systems.engine import needle_force
 
 
 def run_script(tmp_path: Path, pack: str | Path, script: str, steps: int, name: str = "run") -> tuple[dict, list]:

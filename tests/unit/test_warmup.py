@@ -141,9 +141,15 @@ def test_the_scene_needs_its_own_models_kernels():
     from chainsim.game.app.headless import build_app
     from chainsim.systems.engine import warmup
 
-    app = build_app("prp")
+    app = build_app("loop-demo")  # nothing soft: collision and normals only
     try:
         assert needed_groups(app) == [warmup.GEOMETRY]
+    finally:
+        app.close()
+    app = build_app("prp")  # the needle's soft tissue: the hybrid body and the needle's force
+    try:
+        needed = needed_groups(app)
+        assert needed[:2] == [warmup.GEOMETRY, warmup.MOVING] and warmup.MODELS in needed
     finally:
         app.close()
     app = build_app("cutting")

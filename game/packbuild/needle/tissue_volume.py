@@ -146,11 +146,8 @@ def _first_hits(mesh: trimesh.Trimesh, origins: np.ndarray, d: np.ndarray) -> tu
     return dist, face
 
 
-def column_volume(skin: trimesh.Trimesh, bones: list[trimesh.Trimesh], entry, target, spec: VolumeSpec) -> meshio.Mesh:
-    """The layered tetrahedral volume around one path (module docstring)."""
-    entry = np.asarray(entry, float)
-    d = np.asarray(target, float) - entry
-    d /= np.linalg.norm(d)
+def _skin_columns(skin: trimesh.Trimesh, bones: list, entry: np.ndarray, d: np.ndarray, spec: VolumeSpec):
+    """The columns' grid size, top nodes on the skin, thickness cosines and depth to bone (mm)."""
     u, v = _basis(d)
     # an even count of nodes a side: the path runs down the middle of cells, not along a line of nodes
     n = 2 * int(round(spec.half_width / spec.spacing))
@@ -170,6 +167,15 @@ def column_volume(skin: trimesh.Trimesh, bones: list[trimesh.Trimesh], entry, ta
     for bone in bones:
         t_b, _ = _first_hits(bone, top + 0.01 * d, d)
         depth_bone = np.minimum(depth_bone, t_b + 0.01)
+    return n, top, cos, depth_bone
+
+
+def column_volume(skin: trimesh.Trimesh, bones: list[trimesh.Trimesh], entry, target, spec: VolumeSpec) -> meshio.Mesh:
+    """The layered tetrahedral volume around one path (module docstring)."""
+    entry = np.asarray(entry, float)
+    d = np.asarray(target, float) - entry
+    d /= np.linalg.norm(d)
+    n, top, cos, depth_bone = _skin_columns(skin, bones, entry, d, spec)
     fixed_layers = spec.layers[:-1]
     shallow = sum(layer.thickness_mm for layer in fixed_layers) / cos
     # the deep layer in slabs of deep_slice mm under the shallow ones, each column as many as fit above
