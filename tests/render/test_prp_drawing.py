@@ -261,8 +261,9 @@ def test_a_needle_turned_over_a_still_view_looks_as_drawn_afresh(prp_app, monkey
             cached = _pixels(app)
             diff = np.abs(cached - fresh).max(axis=-1)
             # where the needle meets the skin or a landmark at equal depth, which shows is arbitrary in
-            # any depth-buffered drawing (the one drawn first wins, and the layer is drawn first)
-            assert np.count_nonzero(diff > 2) <= 3 and np.count_nonzero(diff) < 200, f"frame {k}: pixels differ"
+            # any depth-buffered drawing (the one drawn first wins, and the layer is drawn first); the cheek's
+            # tissue face, finer than the skin, meets the shaft along a few more pixels
+            assert np.count_nonzero(diff > 2) <= 8 and np.count_nonzero(diff) < 200, f"frame {k}: pixels differ"
         assert vc.layered >= 6, "the needle was not drawn over the surgeon's view layer"
         # once when the needle first moved; the needle-tip view, whose camera rides on the needle, makes
         # a layer of its own when the needle pauses for a frame
@@ -328,10 +329,14 @@ def test_display_copies_are_lighter_and_close_to_the_full_meshes():
     skin, shown = pack.mesh("skin"), pack.display_mesh("skin")
     assert shown.vertices[:, 2].min() > skin.vertices[:, 2].min()  # the ragged neck rim is cut away
     face = skin.vertices[:, 2] > -60.0
-    _, dist, _ = trimesh.proximity.closest_point(
-        trimesh.Trimesh(shown.vertices, shown.triangles, process=False), skin.vertices[face][::25]
-    )
-    assert dist.max() < 1e-6  # the face and head are the collision skin itself
+    # what is drawn of the face: the display skin (the collision skin itself) and, over each cheek, the
+    # tissue volume's skin face, whose nodes lie on the skin and whose 2 mm triangles cut its creases
+    drawn = [trimesh.Trimesh(shown.vertices, shown.triangles, process=False)]
+    for side in ("left", "right"):
+        tissue = pack.mesh(f"tissue_{side}")
+        drawn.append(trimesh.Trimesh(tissue.vertices, tissue.triangles, process=False))
+    _, dist, _ = trimesh.proximity.closest_point(trimesh.util.concatenate(drawn), skin.vertices[face][::25])
+    assert np.median(dist) < 1e-6 and dist.max() < 0.1
 
 
 def test_bench_render_pack_writes_its_report(tmp_path):

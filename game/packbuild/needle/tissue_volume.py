@@ -308,8 +308,9 @@ def check_quality(mesh: meshio.Mesh, skin: trimesh.Trimesh) -> dict:
 
 def skin_with_holes(display: trimesh.Trimesh, volumes: list[tuple[np.ndarray, np.ndarray, float]]) -> trimesh.Trimesh:
     """The drawn skin less its triangles over each volume's footprint, where the volume's own skin face
-    (which moves) is drawn instead; `volumes`: (entry, direction, half width) each. The hole stays inside
-    the footprint, so the two surfaces overlap (coincident, same material) rather than leave a gap."""
+    (which moves) is drawn instead; `volumes`: (entry, direction, half width of the hole) each. The hole
+    stays inside the volume's face, so the two surfaces overlap (coincident, same material) rather than
+    leave a gap the bone could show through."""
     keep = np.ones(len(display.faces), dtype=bool)
     for entry, d, half in volumes:
         u, v = _basis(d)
@@ -336,7 +337,8 @@ def build(pack: str, write: bool = True) -> dict:
         report[name] = check_quality(mesh, skin)
         entry = np.asarray(path["entry"], float)
         d = np.asarray(path["target"], float) - entry
-        footprints.append((entry, d / np.linalg.norm(d), spec.half_width))
+        # the hole stays two cells inside the volume's skin face (which ends half a cell inside half_width)
+        footprints.append((entry, d / np.linalg.norm(d), spec.half_width - 2.5 * spec.spacing))
         if write:
             out = pack_dir / "meshes" / f"tissue_{name.split('_')[-1]}.vtu"
             out.parent.mkdir(exist_ok=True)
