@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+from numpy.typing import ArrayLike
 
 
 def punch_stiffness(E_kpa: float, nu: float, radius_mm: float) -> float:
@@ -73,7 +74,20 @@ def axial_force(tent, k_tent, room, advancing, cutting, lengths, dyn, visc, stat
     return f_stiff + f_cut + f_fric, f_stiff, f_cut, f_fric
 
 
-def evaluate(tent, k_tent, room, advancing, cutting, lengths, dyn, visc, static, v, dv, stick):
+def evaluate(
+    tent: float,
+    k_tent: float,
+    room: float,
+    advancing: bool,
+    cutting: float,
+    lengths: ArrayLike,
+    dyn: ArrayLike,
+    visc: ArrayLike,
+    static: ArrayLike,
+    v: float,
+    dv: float,
+    stick: float,
+) -> tuple[float, float, float, float]:
     """`axial_force` with its arguments made the types the kernel is compiled for."""
     return axial_force(
         float(tent), float(k_tent), float(room), bool(advancing), float(cutting),

@@ -33,7 +33,8 @@ def straight_insertion(root: Path, manifest: dict) -> tuple[list, float, float]:
     pitch = float(np.degrees(np.arcsin(d[2])))
     depth = float(np.linalg.norm(target - entry)) - 2.0
     n_landmarks = max(1, len(manifest.get("landmarks", [])))
-    ev = [(0.2 + 0.1 * i, PickPoint("skin", tuple(map(float, entry)))) for i in range(n_landmarks)]
+    point = (float(entry[0]), float(entry[1]), float(entry[2]))
+    ev: list[tuple[float, PickPoint | Widget]] = [(0.2 + 0.1 * i, PickPoint("skin", point)) for i in range(n_landmarks)]
     ev += [
         (1.0, Widget("rotate_horizontal", yaw)),
         (1.2, Widget("rotate_vertical", pitch)),

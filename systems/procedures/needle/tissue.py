@@ -35,8 +35,8 @@ from chainsim.components.hud import HudState
 from chainsim.components.registry import Field, section
 from chainsim.components.resources import EntityIndex, PackResource, RunOutputs
 from chainsim.components.stages import ORDER_COLLISION
-from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine import needle_force
+from chainsim.systems.engine.errors import UserError
 from chainsim.systems.procedures.needle.collision import NeedleHit
 from chainsim.systems.procedures.needle.components import Needle, NeedleState
 from chainsim.systems.procedures.needle.manifest import NeedleScene
