@@ -51,6 +51,9 @@ from chainsim.systems.engine.meshes import boundary_triangles
 MIN_RADIUS_RATIO = 0.02
 #: top nodes lie on the skin to this distance (mm)
 SKIN_TOLERANCE = 0.05
+#: the drawn skin is cut this far inside the rim of the volume's skin face: that rim is a chain of chords of
+#: the skin, up to 0.05 mm off it, and a strip this narrow closes that crack without a visible overlap
+SEAM_MM = 0.25
 #: a column leaning further than this from the skin normal divides thickness by no less than this cosine
 MIN_COS = 0.35
 
@@ -306,18 +309,36 @@ def check_quality(mesh: meshio.Mesh, skin: trimesh.Trimesh) -> dict:
     return out
 
 
+def _slice(mesh: trimesh.Trimesh, normal: np.ndarray, origin: np.ndarray) -> trimesh.Trimesh:
+    """The part of `mesh` on the side of the plane `normal` points to (triangles cut along it)."""
+    if not len(mesh.faces):
+        return mesh
+    v, f = trimesh.intersections.slice_faces_plane(mesh.vertices, mesh.faces, plane_normal=normal, plane_origin=origin)[
+        :2
+    ]
+    return trimesh.Trimesh(v, f, process=False)
+
+
 def skin_with_holes(display: trimesh.Trimesh, volumes: list[tuple[np.ndarray, np.ndarray, float]]) -> trimesh.Trimesh:
-    """The drawn skin less its triangles over each volume's footprint, where the volume's own skin face
-    (which moves) is drawn instead; `volumes`: (entry, direction, half width of the hole) each. The hole
-    stays inside the volume's face, so the two surfaces overlap (coincident, same material) rather than
-    leave a gap the bone could show through."""
-    keep = np.ones(len(display.faces), dtype=bool)
+    """The drawn skin less the part each volume's own skin face (which moves) draws instead; `volumes`:
+    (entry, direction, half width of the volume's face) each. The face's rim lies in the four planes
+    u = +-half, v = +-half across the path (its columns are parallel to the path), so the skin is cut
+    along those planes: the two surfaces meet edge to edge, neither overlapping (two coplanar surfaces
+    would show whichever was drawn first) nor leaving a gap the bone could show through."""
+    out = display
     for entry, d, half in volumes:
         u, v = _basis(d)
-        rel = display.vertices - entry
-        inside = (np.abs(rel @ u) < half) & (np.abs(rel @ v) < half) & (np.abs(rel @ d) < 30.0)
-        keep &= ~np.all(inside[display.faces], axis=1)
-    out = trimesh.Trimesh(display.vertices, display.faces[keep], process=False)
+        near = np.abs((out.triangles_center - entry) @ d) < 30.0  # this side of the head only
+        keep = [out.submesh([np.nonzero(~near)[0]], append=True)] if (~near).any() else []
+        front = out.submesh([np.nonzero(near)[0]], append=True)
+        # outside the square across the path: u beyond +-half, else v beyond +-half
+        for normal, origin in ((u, entry + half * u), (-u, entry - half * u)):
+            keep.append(_slice(front, normal, origin))
+        band = _slice(_slice(front, -u, entry + half * u), u, entry - half * u)
+        for normal, origin in ((v, entry + half * v), (-v, entry - half * v)):
+            keep.append(_slice(band, normal, origin))
+        out = trimesh.util.concatenate([m for m in keep if len(m.faces)])
+        out.merge_vertices()
     out.remove_unreferenced_vertices()
     return out
 
@@ -337,8 +358,8 @@ def build(pack: str, write: bool = True) -> dict:
         report[name] = check_quality(mesh, skin)
         entry = np.asarray(path["entry"], float)
         d = np.asarray(path["target"], float) - entry
-        # the hole stays two cells inside the volume's skin face (which ends half a cell inside half_width)
-        footprints.append((entry, d / np.linalg.norm(d), spec.half_width - 2.5 * spec.spacing))
+        # the volume's skin face ends half a cell inside half_width (the grid's outer columns)
+        footprints.append((entry, d / np.linalg.norm(d), spec.half_width - 0.5 * spec.spacing - SEAM_MM))
         if write:
             out = pack_dir / "meshes" / f"tissue_{name.split('_')[-1]}.vtu"
             out.parent.mkdir(exist_ok=True)
