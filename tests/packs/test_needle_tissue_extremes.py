@@ -299,3 +299,20 @@ def test_a_tip_on_a_node_an_edge_or_a_face_punctures_each_layer_once(tmp_path, o
         assert ev == ["puncture:skin", "puncture:subcutaneous", "puncture:muscle", "puncture:deep"]
     finally:
         app.close()
+
+
+def test_the_gauge_shows_once_the_needle_is_placed_and_reads_the_needle_force(tmp_path):
+    from chainsim.components.hud import HudState
+
+    app = run_app(PRP, insertion_script("prp", "left", 5.5), 0.3, tmp_path)
+    try:
+        hud = app.resource(HudState)
+        assert hud.force_gauge == ()  # no needle on the face yet: nothing to read
+        for _ in range(int(3.2 / app.time.dt)):
+            app.update(app.time.dt)
+        axial, lateral, full, caption, pop = hud.force_gauge
+        nt = needle_tissue(app)
+        assert axial == nt.axial and full > axial > 0 and caption
+        assert "skin" in pop or "pressing" in caption  # it gave at about 5 mm, or is about to
+    finally:
+        app.close()

@@ -469,7 +469,7 @@ class NeedleTissueSystem:
             events = self.step(app, nt, st, dt)
             if bone:
                 events.append("bone")
-            self._gauge(app, nt, events)
+            self._gauge(app, nt, events, st.placed)
             tip = st.depth - nt.contact_depth if nt.contact else 0.0
             trace.rows.append(
                 (
@@ -479,10 +479,14 @@ class NeedleTissueSystem:
             )  # fmt: skip
             break  # one needle
 
-    def _gauge(self, app: App, nt: NeedleTissue, events: list[str]) -> None:
-        """The force gauge over the tip view; a layer giving way shows as a pop for POP_SECONDS."""
+    def _gauge(self, app: App, nt: NeedleTissue, events: list[str], placed: bool) -> None:
+        """The force gauge over the tip view once the needle is placed; a layer giving way shows as a pop
+        for POP_SECONDS."""
         hud = app.get_resource(HudState)
         if hud is None:
+            return
+        if not placed:
+            hud.force_gauge = ()
             return
         pops = [e.partition(":")[2] for e in events if e.startswith("puncture:")]
         if pops:
