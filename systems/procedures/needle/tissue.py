@@ -519,8 +519,9 @@ class NeedleTissueSystem:
             if beyond and not nt.beyond:  # out through the far side of the modelled tissue
                 events.append(f"exit:{_name(scene, nt.crossings[nt.punctured - 1].layer_in)}")
             nt.beyond = beyond
-        self._drag(nt, depth, move)
-        self._forces(nt, depth, v, move > 1e-12)
+        lengths = _lengths(nt, len(scene.layers.names), depth)  # shaft in each layer, read by both below
+        self._drag(nt, lengths, move)
+        self._forces(nt, depth, lengths, v, move > 1e-12)
         self._hold(app, nt, st, d, depth)
         nt.last_depth = depth
         nt.peak_axial = max(nt.peak_axial, nt.axial)
@@ -574,10 +575,9 @@ class NeedleTissueSystem:
             nt.tent = 0.0
             self._let_go(app, nt, everything=False)
 
-    def _drag(self, nt: NeedleTissue, depth: float, move: float) -> None:
+    def _drag(self, nt: NeedleTissue, lengths: np.ndarray, move: float) -> None:
         """Stick-slip of each constraint point: carried by the needle until its pull exceeds static friction."""
         L = self.scene.layers
-        lengths = _lengths(nt, len(L.names), depth)
         for i in range(nt.punctured):
             c = nt.crossings[i]
             k = _stiffness(self.scene, c.layer_in)
@@ -587,9 +587,8 @@ class NeedleTissueSystem:
                 o = np.sign(o) * L.dyn[c.layer_in] * length / k
             nt.offsets[i] = o
 
-    def _forces(self, nt: NeedleTissue, depth: float, v: float, advancing: bool) -> None:
+    def _forces(self, nt: NeedleTissue, depth: float, lengths: np.ndarray, v: float, advancing: bool) -> None:
         scene, L = self.scene, self.scene.layers
-        lengths = _lengths(nt, len(L.names), depth)
         k_tent = cutting = 0.0
         room = np.inf
         if nt.punctured < len(nt.crossings) and nt.tent > 0:
