@@ -9,6 +9,7 @@ import shutil
 from pathlib import Path
 
 import esper
+import meshio
 import numpy as np
 import pytest
 from needle_insertion import ASSETS, insertion_script
@@ -316,3 +317,17 @@ def test_the_gauge_shows_once_the_needle_is_placed_and_reads_the_needle_force(tm
         assert "skin" in pop or "pressing" in caption  # it gave at about 5 mm, or is about to
     finally:
         app.close()
+
+
+def test_a_tissue_mesh_with_a_layer_below_one_fails_validate_in_one_line(tmp_path):
+    root = pack_copy(tmp_path)
+    path = root / "meshes" / "tissue_left.vtu"
+    mesh = meshio.read(path)
+    layers = [np.asarray(b).copy() for b in mesh.cell_data["layer"]]
+    layers[0][0] = 0  # a tetrahedron in no layer
+    mesh.cell_data["layer"] = layers
+    meshio.write(path, mesh)
+    _, problems = validate_pack(root)
+    text = " ".join(str(p) for p in problems)
+    assert "tissue_left" in text and "'layer' must be 1 or more" in text, text
+    assert "Traceback" not in text
