@@ -12,6 +12,13 @@ Tables sort and page on the server (links with ``sort``, ``dir`` and ``page``), 
 scripts. Plots: one per metric, every trainee's attempts faint, the class median over attempt
 number bold, the benchmark as a horizontal line.
 
+Class medians (here and on each trainee's plots, ``class_median``) are drawn only at the attempt
+numbers where at least ``MEDIAN_MIN_TRAINEES`` trainees have a value: the median of fewer is one
+classmate's figure, or the mean of two, so a trainee shown it would read a classmate's attempts.
+Elsewhere the plot says so (``MEDIAN_WITHHELD``) instead of drawing it.
+
+A refused page (403) names nothing the account may not see: not the class, not its trainees.
+
 Management (trainers, for classes they teach; CSRF-checked forms; a refused form counts against
 the trainer like a failed sign-in, so the site's throttle slows guessing): add a trainee account,
 set a trainee's new password (their sessions and tokens end).
@@ -35,6 +42,10 @@ from chainsim.systems.procedures.needle import debrief
 
 PAGE_SIZE = 25
 SORTS = ("trainee", "attempts", "success", "latest", "best", "trend", "last")
+#: trainees that must have a value at an attempt number before the class median there is shown
+MEDIAN_MIN_TRAINEES = 5
+#: what a plot says where it withholds the class median
+MEDIAN_WITHHELD = f"class median shown from {MEDIAN_MIN_TRAINEES} trainees"
 
 
 def values(a: dict) -> dict:
@@ -69,13 +80,29 @@ def trend(scores: list[int]) -> str:
     return "better" if late > early + 0.25 else "worse" if late < early - 0.25 else "steady"
 
 
+def class_median(series: list[list[Any]]) -> list[float | None]:
+    """Per attempt number k (from 1), the median of the trainees' k-th values (``series``: one list per
+    trainee, oldest first; a value that is not a number counts for nothing), or None where fewer
+    than ``MEDIAN_MIN_TRAINEES`` trainees have one."""
+    longest = max((len(ys) for ys in series), default=0)
+    out: list[float | None] = []
+    for k in range(longest):
+        at_k = [float(ys[k]) for ys in series if len(ys) > k and _number(ys[k])]
+        out.append(statistics.median(at_k) if len(at_k) >= MEDIAN_MIN_TRAINEES else None)
+    return out
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
 def class_row(store: RecordStore, user: User, class_id: int) -> dict:
     rows = store.query("SELECT id, name FROM classes WHERE id = ?", (class_id,))
     if not rows:
         raise HTTPError(404, f"no class with id {class_id}")
     name = rows[0]["name"]
     if not user.is_trainer or name not in user.classes:
-        raise HTTPError(403, f"you do not teach class {name!r}")
+        raise HTTPError(403, "you do not teach that class")  # its name is not the account's to learn
     return {"id": class_id, "name": name}
 
 
@@ -165,17 +192,20 @@ def metric_plot(store: RecordStore, user: User, class_id: int, pack: str, metric
         if a["retracted_at"] or a["pack"] != pack:
             continue
         v = values(a).get(metric)
-        if isinstance(v, (int, float)) and not isinstance(v, bool):
+        if _number(v):
             by_trainee.setdefault(a["trainee"], []).append(float(v))
     fig = Figure(figsize=(6.4, 3.0), dpi=100)
     FigureCanvasSVG(fig)
     ax = fig.subplots()
     for ys in by_trainee.values():
         ax.plot(range(1, len(ys) + 1), ys, color="tab:blue", alpha=0.25, marker=".", linewidth=1)
+    shown = [(k, y) for k, y in enumerate(class_median(list(by_trainee.values())), start=1) if y is not None]
+    if shown:
+        xs, ys = zip(*shown)
+        ax.plot(xs, ys, color="tab:blue", linewidth=2.5, marker="o", label="class median")
     longest = max((len(ys) for ys in by_trainee.values()), default=0)
-    med = [statistics.median([ys[k] for ys in by_trainee.values() if len(ys) > k]) for k in range(longest)]
-    if med:
-        ax.plot(range(1, longest + 1), med, color="tab:blue", linewidth=2.5, marker="o", label="class median")
+    if len(shown) < longest:  # some attempt numbers have too few trainees for a median
+        ax.text(0.01, 0.98, MEDIAN_WITHHELD, transform=ax.transAxes, fontsize=8, va="top", color="0.35")
     units = spec.get("units", "")
     if isinstance(spec.get("benchmark"), (int, float)):
         better = "at most" if spec.get("lower_is_better", True) else "at least"
@@ -186,7 +216,7 @@ def metric_plot(store: RecordStore, user: User, class_id: int, pack: str, metric
     ax.set_xlabel("attempt")
     ax.set_ylabel(f"{spec.get('label', metric)}" + (f" ({units})" if units else ""))
     ax.grid(alpha=0.3)
-    if med or spec.get("benchmark") is not None:
+    if shown or spec.get("benchmark") is not None:
         ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
     buf = io.BytesIO()

@@ -153,10 +153,6 @@ def trainee_detail(store: RecordStore, user: User, trainee_id: int, specs_for=No
     return t
 
 
-#: a trainee sees the class median only in classes of at least this many trainees
-MEDIAN_MIN_TRAINEES = 5
-
-
 def trainee_plot(
     store: RecordStore, user: User, trainee_id: int, metric: str, fmt: str, pack: str, specs: dict
 ) -> bytes:
@@ -167,10 +163,8 @@ def trainee_plot(
     for a in store.list_attempts(t["class_name"]):  # oldest first within each trainee
         if not a["retracted_at"] and a["pack"] == t["pack"]:
             by_trainee.setdefault(a["trainee"], []).append(classpage.values(a))
-    median = plots.class_median(list(by_trainee.values()), metric)
-    if not user.is_trainer and len(by_trainee) < MEDIAN_MIN_TRAINEES:
-        # with few classmates the median gives their scores away (two trainees: it is their mean)
-        median = []
+    # only where enough trainees have a k-th value: the median of fewer is a classmate's figure
+    median = classpage.class_median([[v.get(metric) for v in rows] for rows in by_trainee.values()])
     spec = specs.get(metric) or {}
     units = spec.get("units", "")
     words = t["metrics"][metric]
@@ -179,6 +173,8 @@ def trainee_plot(
         better = "at most" if spec.get("lower_is_better", True) else "at least"
         bench = (float(spec["benchmark"]), f"benchmark: {better} {debrief.number(spec['benchmark'], units)}")
     title = f"{t['name']} ({t['class_name']}), {t['pack']}: {words}"
+    if None in median:
+        title += f"\n{classpage.MEDIAN_WITHHELD}"
     own = by_trainee.get(t["name"], [])  # every attempt of the pack, not only the page's
     ylabel = f"{words} ({units})" if units else words
     return plots.render(own, median, metric, title, fmt, ylabel=ylabel, benchmark=bench)
