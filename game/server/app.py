@@ -78,11 +78,13 @@ def build_app(
     scorers: int = scoring.DEFAULT_WORKERS,
     lease_s: float = scoring.DEFAULT_LEASE_S,
     base_url: str = xapi.DEFAULT_HOMEPAGE,
+    train_max_s: float | None = None,
 ) -> Starlette:
     """The app over the records database ``db`` (a path, a postgresql:// URL, or None: default file).
 
     ``scorers`` replays run at once (``chainsim.game.server.scoring``); packs are the built-in and
-    installed ones plus ``pack_paths``."""
+    installed ones plus ``pack_paths``. ``train_max_s``: the longest a browser training session runs
+    (``serve --train-max-minutes``; None: $CHAINSIM_TRAIN_MAX_S, else ``train_routes``' default)."""
     storage = Storage(db)
     packs = scoring.ServerPacks(pack_paths)
     scorer = scoring.Scorer(db, packs, scorers, lease_s)
@@ -117,7 +119,7 @@ def build_app(
     app.state.packs = packs
     app.state.scorer = scorer
     app.state.throttle = Throttle()
-    train_routes.install(app)  # /train/PACK: the trainer in a browser tab
+    train_routes.install(app, max_s=train_max_s)  # /train/PACK: the trainer in a browser tab
     # the programme's address in xAPI identities: configured, never taken from a request's Host header
     app.state.base_url = remote.server_url(base_url)
     return app
@@ -160,11 +162,15 @@ def serve(
     pack_paths: list[str] | tuple = (),
     scorers: int = scoring.DEFAULT_WORKERS,
     base_url: str | None = None,
+    trust_proxy: list[str] | tuple = (),
+    train_max_s: float | None = None,
 ) -> None:
     """Run the server until interrupted (uvicorn, one process; replays in ``scorers`` processes beside it).
 
     ``base_url`` (``serve --base-url``) is the programme's address in xAPI identities; without it
-    $CHAINSIM_SERVER_URL, else the address the server listens on."""
+    $CHAINSIM_SERVER_URL, else the address the server listens on. ``trust_proxy`` (``serve
+    --trust-proxy``): the addresses of proxies whose X-Forwarded-For and X-Forwarded-Proto are believed;
+    without one the client is the socket's peer, whatever a request's headers say."""
     import uvicorn  # noqa: PLC0415 - only `chainsim serve` needs the server
 
     if base_url is not None:
@@ -178,7 +184,7 @@ def serve(
             base_url = remote.server_url(base_url)
         except UserError as exc:
             raise UserError(f"${BASE_URL_ENV}: {exc}") from None
-    app = build_app(db, pack_paths=pack_paths, scorers=scorers, base_url=base_url)
+    app = build_app(db, pack_paths=pack_paths, scorers=scorers, base_url=base_url, train_max_s=train_max_s)
     logger.info(
         "records server on %s://%s:%d, database %s",
         "https" if certfile else "http",
@@ -194,7 +200,8 @@ def serve(
         ssl_certfile=certfile,
         ssl_keyfile=keyfile,
         access_log=False,
-        # behind a TLS proxy the scheme comes from X-Forwarded-Proto, only trusted from localhost
-        proxy_headers=True,
-        forwarded_allow_ips="127.0.0.1",
+        # a proxy's headers only from the proxies named: anyone else could choose the address the
+        # sign-in throttle counts against (chainsim.game.server.throttle)
+        proxy_headers=bool(trust_proxy),
+        forwarded_allow_ips=list(trust_proxy) or None,
     )

@@ -9,6 +9,10 @@ answered 429 with Retry-After before the password is looked at, so a flood of gu
 server no password hashing and other requests keep their speed. A right password clears its
 account's count (not the address's: signing in to one's own account must not buy more guesses).
 Counts of keys idle for ``FORGET_S`` are dropped.
+
+The address is the connection's own (the socket's peer). Only behind a proxy named with ``chainsim
+serve --trust-proxy ADDR`` is it the client that proxy names in X-Forwarded-For (uvicorn puts it in
+``request.client``): believed from anyone, the header would let a guesser pick a new address per try.
 """
 
 from __future__ import annotations
@@ -75,7 +79,7 @@ def retry_after(wait_s: float) -> str:
 def guarded(request, name) -> tuple[str, str]:
     """``(name key, address)`` of a sign-in; HTTPError 429 (with Retry-After) while either must wait."""
     key = name.strip()[:64] if isinstance(name, str) else ""
-    address = request.client.host if request.client else ""
+    address = request.client.host if request.client else ""  # the peer, or what a trusted proxy names
     wait = request.app.state.throttle.wait_s(key, address)
     if wait > 0:
         after = retry_after(wait)

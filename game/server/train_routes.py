@@ -15,14 +15,20 @@ Sessions: one per trainee account (a second tab takes the session over; another 
 reaches it: sessions are keyed by the account of the session cookie). At most ``seats`` processes
 run at once ($CHAINSIM_TRAIN_SEATS); past that the page says all seats are taken (503). A session
 whose page went away is kept ``grace_s`` ($CHAINSIM_TRAIN_GRACE_S) for a reload to resume it, then
-its process is killed; one without input for ``idle_s`` ($CHAINSIM_TRAIN_IDLE_S) is ended.
+its process is killed; one without input for ``idle_s`` ($CHAINSIM_TRAIN_IDLE_S) is ended, and every
+session ends ``max_s`` after it was ready (``serve --train-max-minutes``, $CHAINSIM_TRAIN_MAX_S), input
+or not: a page that keeps sending input must not hold a seat for ever.
 
 Input: each message is a JSON object of at most ``MAX_MESSAGE_BYTES``, one of the device events of
 ``chainsim.components.input_events`` (mouse_move, mouse_button, mouse_drag, scroll, key) with
 coordinates inside the window, a known key name and an optional ``seq``, or ``{"type": "ack"}``
 (a frame drawn: send the next). At most ``RATE`` messages a second (burst ``BURST``). Anything else
 closes the socket with a 44xx code and a one-line reason naming what is wrong; nothing reaches the
-App unchecked. The socket is refused from another site's page (Origin) like the dashboard's forms.
+App unchecked. Each such close also holds the account back: its next session may start only after a
+back-off (``backoff_s``, $CHAINSIM_TRAIN_BACKOFF_S, doubling with every refused close up to
+``BACKOFF_MAX_S``, forgotten after a session that ended without one), refused before a process is
+started, so a script sending bad input cannot make the server start one process (some 440 MiB) per
+message. The socket is refused from another site's page (Origin) like the dashboard's forms.
 """
 
 from __future__ import annotations
@@ -51,11 +57,16 @@ from chainsim.systems.engine.errors import UserError
 logger = logging.getLogger(__name__)
 
 SEATS_ENV, IDLE_ENV, GRACE_ENV = "CHAINSIM_TRAIN_SEATS", "CHAINSIM_TRAIN_IDLE_S", "CHAINSIM_TRAIN_GRACE_S"
+MAX_ENV, BACKOFF_ENV = "CHAINSIM_TRAIN_MAX_S", "CHAINSIM_TRAIN_BACKOFF_S"
 FORMAT_ENV, QUALITY_ENV = "CHAINSIM_TRAIN_FORMAT", "CHAINSIM_TRAIN_QUALITY"
 #: sessions at once: each holds about one core while it draws (docs/records-server.md, cost per seat)
 DEFAULT_SEATS = 2
 DEFAULT_IDLE_S = 900.0
 DEFAULT_GRACE_S = 60.0
+#: the longest session: an afternoon's practice, then the seat goes to the next trainee
+DEFAULT_MAX_S = 7200.0
+#: the first wait after a refused input message; each further refusal doubles it, up to BACKOFF_MAX_S
+DEFAULT_BACKOFF_S, BACKOFF_MAX_S = 5.0, 300.0
 RECHECK_S = 30.0  # how often a running session's sign-in is checked again
 START_TIMEOUT_S = 120.0  # a cold numba cache compiles the kernels once
 MAX_MESSAGE_BYTES = 512
@@ -99,6 +110,9 @@ BAD_MESSAGE, NOT_SIGNED_IN, FORBIDDEN, NO_PACK, TOO_FAST, IDLE, SEATS_TAKEN, TAK
     4409,
     4500,
 )
+#: the session reached its longest length; a session start refused while the account is held back
+#: (429's "slow down", as for input sent too fast)
+TOO_LONG, HELD_BACK = 4410, 4429
 
 
 class BadMessage(Exception):
@@ -189,19 +203,46 @@ class Seat:
     error: str = ""
     tasks: list = field(default_factory=list)
     frames: int = 0
+    ready_at: float | None = None  # when the trainer was ready: its length counts from here
+    refused: bool = False  # ended for a message broke the rules: no reset of the account's back-off
 
 
 class Trainer:
     """The sessions of one server (``app.state.trainer``): seats, processes, relaying, saving."""
 
-    def __init__(self, seats: int, idle_s: float, grace_s: float, fmt: str = "jpeg", quality: int = 70) -> None:
+    def __init__(
+        self,
+        seats: int,
+        idle_s: float,
+        grace_s: float,
+        fmt: str = "jpeg",
+        quality: int = 70,
+        max_s: float = DEFAULT_MAX_S,
+        backoff_s: float = DEFAULT_BACKOFF_S,
+    ) -> None:
         self.seats = seats
         self.idle_s = idle_s
         self.grace_s = grace_s
         self.fmt = fmt
         self.quality = quality
+        self.max_s = max_s
+        self.backoff_s = backoff_s
         self.running: dict[int, Seat] = {}  # account id -> its session
+        self.held: dict[int, tuple[float, float]] = {}  # account id -> (no start before, the next wait)
         self.lock = asyncio.Lock()
+
+    def hold_back(self, seat: Seat) -> float:
+        """The session broke a rule of the input: its account may start no session for a while (doubling
+        with each refusal). The wait, in seconds."""
+        seat.refused = True
+        _, wait = self.held.get(seat.user.id, (0.0, self.backoff_s))
+        self.held[seat.user.id] = (time.monotonic() + wait, min(2.0 * wait, max(BACKOFF_MAX_S, self.backoff_s)))
+        return wait
+
+    def held_back_s(self, user: accounts.User) -> float:
+        """Seconds before this account may start a session again (0: now)."""
+        until, _ = self.held.get(user.id, (0.0, 0.0))
+        return max(0.0, until - time.monotonic())
 
     def full_for(self, user: accounts.User) -> bool:
         return user.id not in self.running and len(self.running) >= self.seats
@@ -236,9 +277,12 @@ class Trainer:
         return seat
 
     async def end(self, seat: Seat, why: str) -> None:
-        """Kill the session's process and free its seat."""
+        """Kill the session's process and free its seat; a session that ended without breaking a rule
+        clears its account's back-off."""
         if self.running.get(seat.user.id) is seat:
             del self.running[seat.user.id]
+        if not seat.refused:
+            self.held.pop(seat.user.id, None)
         if seat.proc.returncode is None:
             with contextlib.suppress(ProcessLookupError):
                 seat.proc.kill()
@@ -275,6 +319,7 @@ class Trainer:
                 msg = json.loads(payload)
                 kind = msg.get("t")
                 if kind == "ready":
+                    seat.ready_at = time.monotonic()
                     seat.size = (int(msg["size"][0]), int(msg["size"][1]))
                     seat.mime = msg.get("format", seat.mime)
                     seat.ready.set()
@@ -330,8 +375,9 @@ class Trainer:
         return {"ok": True, "attempts": json.loads(json.dumps(rows, default=str))}
 
     async def _watch(self, seat: Seat) -> None:
-        """End a session whose page is gone for ``grace_s``, that had no input for ``idle_s``, or whose
-        sign-in ended (signed out, password changed, expired: checked every ``RECHECK_S``)."""
+        """End a session whose page is gone for ``grace_s``, that had no input for ``idle_s``, that ran
+        ``max_s`` since it was ready (input or not), or whose sign-in ended (signed out, password
+        changed, expired: checked every ``RECHECK_S``)."""
         checked = time.monotonic()
         while True:
             await asyncio.sleep(1.0)
@@ -352,6 +398,17 @@ class Trainer:
             if seat.socket is None and seat.detached_at is not None and now - seat.detached_at > self.grace_s:
                 await self.end(seat, f"page gone for {self.grace_s:g} s")
                 return
+            if seat.ready_at is not None and now - seat.ready_at > self.max_s:
+                ws, seat.socket = seat.socket, None
+                if ws is not None:
+                    with contextlib.suppress(Exception):
+                        await ws.close(
+                            TOO_LONG,
+                            f"ended after {_duration(self.max_s)}, the longest a session runs here; "
+                            "reload to start a new one",
+                        )
+                await self.end(seat, f"longest session, {_duration(self.max_s)}, reached")
+                return
             if seat.socket is not None and now - seat.last_input > self.idle_s:
                 ws, seat.socket = seat.socket, None
                 with contextlib.suppress(Exception):
@@ -360,6 +417,11 @@ class Trainer:
                     )
                 await self.end(seat, "idle")
                 return
+
+
+def _duration(seconds: float) -> str:
+    """``90 minutes``, or ``4 s`` for a length under a minute (the short ones tests set)."""
+    return f"{seconds / 60:g} minutes" if seconds >= 60 else f"{seconds:g} s"
 
 
 def _env_number(name: str, default: float, kind=float, lo: float = 0.0):
@@ -375,7 +437,9 @@ def _env_number(name: str, default: float, kind=float, lo: float = 0.0):
     return value
 
 
-def trainer_from_env() -> Trainer:
+def trainer_from_env(max_s: float | None = None) -> Trainer:
+    """The sessions' settings from the environment ($CHAINSIM_TRAIN_*); ``max_s`` (``serve
+    --train-max-minutes``), when given, over $CHAINSIM_TRAIN_MAX_S."""
     fmt = os.environ.get(FORMAT_ENV, "").strip().lower() or "jpeg"
     if fmt not in ("jpeg", "webp"):
         raise UserError(f"${FORMAT_ENV} must be jpeg or webp, got {fmt!r}")
@@ -388,6 +452,8 @@ def trainer_from_env() -> Trainer:
         grace_s=_env_number(GRACE_ENV, DEFAULT_GRACE_S, float, 0.0),
         fmt=fmt,
         quality=quality,
+        max_s=max_s if max_s is not None else _env_number(MAX_ENV, DEFAULT_MAX_S, float, 1.0),
+        backoff_s=_env_number(BACKOFF_ENV, DEFAULT_BACKOFF_S, float, 0.1),
     )
 
 
@@ -435,13 +501,26 @@ def _same_origin(ws: WebSocket) -> bool:
 
 async def train_socket(ws: WebSocket) -> None:
     await ws.accept()
+    admitted = await _admit(ws)
+    if admitted is None:
+        return
+    trainer: Trainer = ws.app.state.trainer
+    seat = await _claim(ws, trainer, *admitted)
+    if seat is None or not await _started(ws, trainer, seat):
+        return
+    await _relay(ws, trainer, seat)
+
+
+async def _admit(ws: WebSocket) -> tuple[accounts.User, str, dict] | None:
+    """(account, pack, pack info) of a socket from this site, a signed-in trainee and a pack the server
+    has; None once the socket is closed saying why not."""
     if not _same_origin(ws):
         await ws.close(FORBIDDEN, "opened from another site; refused")
-        return
+        return None
     found = await session(ws)  # the dashboard's session cookie: HttpOnly, never seen by the script
     if found is None:
         await ws.close(NOT_SIGNED_IN, "not signed in; sign in and open the page again")
-        return
+        return None
     user = found[0]
     try:
         _trainee(user)
@@ -449,9 +528,20 @@ async def train_socket(ws: WebSocket) -> None:
         info = await run_in_threadpool(_pack_info, ws, pack)
     except HTTPError as exc:
         await ws.close(NO_PACK if exc.status == 404 else FORBIDDEN, exc.message[:120])
-        return
-    trainer: Trainer = ws.app.state.trainer
+        return None
+    return user, pack, info
+
+
+async def _claim(ws: WebSocket, trainer: Trainer, user: accounts.User, pack: str, info: dict) -> Seat | None:
+    """The trainee's running session (this page takes it over from another tab), else a new one when
+    the account is not held back and a seat is free; None once the socket is closed saying why not."""
     async with trainer.lock:  # one start at a time: two pages at once never pass the seat count together
+        wait = trainer.held_back_s(user)
+        if wait > 0:  # refused before any process starts: that is what the back-off saves
+            await ws.close(
+                HELD_BACK, f"the last session sent input the server refuses; start again in {math.ceil(wait)} s"
+            )
+            return None
         seat = trainer.running.get(user.id)
         if seat is not None and seat.pack != pack:
             await trainer.end(seat, "the trainee opened another pack")
@@ -459,13 +549,19 @@ async def train_socket(ws: WebSocket) -> None:
         if seat is None:
             if trainer.full_for(user):
                 await ws.close(SEATS_TAKEN, f"all {trainer.seats} seats are taken; try again in a few minutes")
-                return
+                return None
             seat = await trainer.start(ws.app, user, pack, info)
         elif seat.socket is not None:  # the same trainee in a second tab: this one takes the session over
             old, seat.socket = seat.socket, None
             with contextlib.suppress(Exception):
                 await old.close(TAKEN_OVER, "this session was opened in another tab")
         seat.socket, seat.detached_at = ws, None
+    return seat
+
+
+async def _started(ws: WebSocket, trainer: Trainer, seat: Seat) -> bool:
+    """Tell the page the trainer is starting, then ready (its picture's size); False when it did not
+    start or the page went away meanwhile."""
     try:
         await ws.send_json({"type": "starting"})
         try:
@@ -475,13 +571,19 @@ async def train_socket(ws: WebSocket) -> None:
         if seat.error:
             await ws.close(ENDED, seat.error[:120])
             await trainer.end(seat, seat.error)
-            return
+            return False
         seat.last_input = time.monotonic()
         await ws.send_json({"type": "ready", "width": seat.size[0], "height": seat.size[1], "format": seat.mime})
     except WebSocketDisconnect:  # the page went away while the trainer started: a reload may come back
         if seat.socket is ws:
             seat.socket, seat.detached_at = None, time.monotonic()
-        return
+        return False
+    return True
+
+
+async def _relay(ws: WebSocket, trainer: Trainer, seat: Seat) -> None:
+    """The page's input to the session, checked, until the page goes or breaks a rule (which ends the
+    session at once, its seat too, and holds the account back)."""
     await trainer.send_child(seat, {"t": "credit", "n": 2, "fresh": True})
     bucket = Bucket()
     try:
@@ -489,16 +591,17 @@ async def train_socket(ws: WebSocket) -> None:
             message = await ws.receive()
             if message["type"] == "websocket.disconnect":
                 break
-            # a page that breaks the rules loses its session at once (its seat too)
             if not bucket.take():
+                wait = trainer.hold_back(seat)
                 await ws.close(TOO_FAST, f"too many input messages: at most {RATE:g} a second")
-                await trainer.end(seat, "too many input messages")
+                await trainer.end(seat, f"too many input messages; no new session for {wait:g} s")
                 break
             try:
                 checked = check_message(message.get("text", message.get("bytes")), seat.size)
             except BadMessage as exc:
+                wait = trainer.hold_back(seat)
                 await ws.close(BAD_MESSAGE, str(exc)[:120])
-                await trainer.end(seat, f"bad input message: {exc}")
+                await trainer.end(seat, f"bad input message: {exc}; no new session for {wait:g} s")
                 break
             if checked is None:
                 await trainer.send_child(seat, {"t": "credit", "n": 1})
@@ -512,9 +615,10 @@ async def train_socket(ws: WebSocket) -> None:
             seat.socket, seat.detached_at = None, time.monotonic()
 
 
-def install(app) -> None:
-    """Add the trainer's page and socket to the records server ``app`` (called by ``app.build_app``)."""
-    app.state.trainer = trainer_from_env()
+def install(app, max_s: float | None = None) -> None:
+    """Add the trainer's page and socket to the records server ``app`` (called by ``app.build_app``;
+    ``max_s``: the longest session, else $CHAINSIM_TRAIN_MAX_S)."""
+    app.state.trainer = trainer_from_env(max_s)
     app.router.routes[:0] = [
         Route("/train/{pack}", train_page, methods=["GET"]),
         WebSocketRoute("/train/{pack}/ws", train_socket),

@@ -12,7 +12,7 @@ import time
 
 from conftest import PASSWORD, call, populate, start_server
 
-from chainsim.game.server.throttle import ACCOUNT_FREE, ACCOUNT_MAX_WAIT_S
+from chainsim.game.server.throttle import ACCOUNT_FREE, ACCOUNT_MAX_WAIT_S, ADDRESS_FREE
 
 ATTACKER, TRAINEE = "127.0.0.1", "127.0.0.2"
 
@@ -68,3 +68,58 @@ def test_password_guesses_are_throttled_without_locking_the_user_out(records_db,
         assert server.alive()
     finally:
         server.stop()
+
+
+# -- whose address a failure counts against -------------------------------------------------------
+
+
+def forged_guesses(server, forwarded_for, count: int) -> list[int]:
+    """``count`` wrong sign-ins from 127.0.0.1, each as a different made-up account (no account's own
+    wait applies) and each with ``X-Forwarded-For: forwarded_for(i)``; their statuses."""
+    return [
+        call(
+            server,
+            "POST",
+            "/api/login",
+            {"name": f"nobody{i:03d}", "password": "a wrong password"},
+            headers={"X-Forwarded-For": forwarded_for(i)},
+            source=ATTACKER,
+        )[0]
+        for i in range(count)
+    ]
+
+
+def test_a_forged_forwarded_for_does_not_escape_the_address_count(tmp_path):
+    """Without --trust-proxy the client is the connection's address: a guesser who writes a new
+    X-Forwarded-For on every try is still slowed as 127.0.0.1 (the throttle lives in the server
+    process, not the database: checked on SQLite)."""
+    db = str(tmp_path / "forged.sqlite3")
+    populate(db)
+    server = start_server(db, tmp_path / "serve.log")
+    try:
+        statuses = forged_guesses(server, lambda i: f"10.{i // 250}.{i % 250}.7", ADDRESS_FREE + 2)
+        assert statuses[:ADDRESS_FREE] == [401] * ADDRESS_FREE
+        assert statuses[-1] == 429  # the address's 21st failure made it wait
+    finally:
+        server.stop()
+
+
+def test_a_trusted_proxy_names_the_client(tmp_path):
+    """With --trust-proxy 127.0.0.1 (the proxy's address) the client is the one the proxy forwards for:
+    one client's failures slow that client, not another client behind the same proxy."""
+    db = str(tmp_path / "proxied.sqlite3")
+    populate(db)
+    server = start_server(db, tmp_path / "serve.log", args=("--trust-proxy", "127.0.0.1"))
+    try:
+        statuses = forged_guesses(server, lambda i: "192.0.2.10", ADDRESS_FREE + 2)
+        assert statuses[-1] == 429
+        assert forged_guesses(server, lambda i: "192.0.2.11", 1) == [401]  # another client: counted apart
+    finally:
+        server.stop()
+
+
+def test_trust_proxy_takes_an_address_only(cli):
+    code, _, err = cli("serve", "--trust-proxy", "proxy.example.org")
+    assert code == 2 and "Traceback" not in err
+    assert "--trust-proxy: expected the proxy's IP address (such as 127.0.0.1) or network" in err
+    assert "got 'proxy.example.org'" in err

@@ -5,7 +5,8 @@ drawn by the server, and drives it with the mouse and keys; the slow test makes 
 correct attempt with the clicks and drags of assets/prp/scripts/correct-mouse.toml and finds it in the
 records under the trainee, scored by the server's replay. The socket's rules are tested with a plain
 WebSocket client carrying a signed-in trainee's cookie: who may open a session, messages refused with
-a reason, the rate limit, the seats and the end of a session whose page went away.
+a reason, the rate limit, the seats, the end of a session whose page went away or that reached its
+longest length, and the back-off that holds an account back after refused input.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import json
+import re
 import time
 
 import pytest
@@ -226,6 +228,106 @@ def test_the_stream_runs_on_the_servers_tls(tmp_path, certificates):  # noqa: F8
             in_thread(_talk(server.url.replace("https", "http", 1), "/train/prp/ws", None, server.url))
     finally:
         server.stop()
+
+
+# -- a session's longest length, and the back-off after refused input ----------------------------
+
+
+@pytest.fixture(scope="module")
+def short(tmp_path_factory, pack_copy):
+    """A server of its own whose sessions last at most 4 s and whose first back-off is 2 s."""
+    folder = tmp_path_factory.mktemp("short")
+    db = str(folder / "short.sqlite3")
+    populate(db)
+    with pytest.MonkeyPatch.context() as env:
+        env.setenv("CHAINSIM_TRAIN_MAX_S", "4")
+        env.setenv("CHAINSIM_TRAIN_BACKOFF_S", "2")
+        server = start_server(db, folder / "serve.log")
+    yield server
+    server.stop()
+
+
+async def _drive(url: str, cookie: str, within: float = 30.0):
+    """A page that acks every picture and moves the mouse four times a second until the server closes
+    the socket; (close code, reason, seconds from ready to the close), code None if it never did."""
+    import websockets
+
+    async with websockets.connect(
+        url.replace("http", "ws", 1) + "/train/prp/ws",
+        additional_headers={"Cookie": f"chainsim_session={cookie}"},
+        origin=url,
+        max_size=None,
+    ) as ws:
+        ready = None
+        deadline = time.monotonic() + within + 120  # the start, then the session
+        try:
+            while time.monotonic() < deadline and (ready is None or time.monotonic() - ready < within):
+                try:
+                    msg = await asyncio.wait_for(ws.recv(), 0.25)
+                except TimeoutError:
+                    msg = None
+                if isinstance(msg, str) and json.loads(msg)["type"] == "ready":
+                    ready = time.monotonic()
+                elif isinstance(msg, bytes):
+                    await ws.send('{"type": "ack"}')
+                if ready is not None:
+                    await ws.send('{"type": "mouse_move", "x": 640, "y": 400}')
+        except websockets.ConnectionClosed as exc:
+            after = None if ready is None else time.monotonic() - ready
+            return exc.rcvd.code if exc.rcvd else None, exc.rcvd.reason if exc.rcvd else "", after
+    return None, "", None
+
+
+def test_a_session_ends_at_its_longest_even_while_input_comes(short):
+    code, reason, after = in_thread(_drive(short.url, cookie_for(short.db, "alice")))
+    assert (code, reason) == (4410, "ended after 4 s, the longest a session runs here; reload to start a new one")
+    assert 3.0 < after < 30.0
+    assert logged(short, "alice's session ended (longest session, 4 s, reached)")
+
+
+def logged(server, line: str, within: float = 10.0) -> bool:
+    """Whether the server's log says ``line`` (the log follows the socket's close by a moment)."""
+    deadline = time.monotonic() + within
+    while line not in server.log.read_text():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.1)
+    return True
+
+
+BAD = ['{"type": "key", "key": "f1", "pressed": "yes"}']
+
+
+def held_back(server, cookie: str) -> float:
+    """The wait a refused session start names; the start must be refused before anything started."""
+    code, reason, seen = in_thread(_talk(server.url, "/train/prp/ws", cookie, server.url))
+    assert (code, seen) == (4429, []), (code, reason, seen)
+    said = re.fullmatch(r"the last session sent input the server refuses; start again in (\d+) s", reason)
+    assert said, reason
+    return float(said.group(1))
+
+
+def test_refused_input_holds_the_account_back_without_starting_a_process(short):
+    cookie = cookie_for(short.db, "bob")
+
+    def starts() -> int:
+        return short.log.read_text().count("train: bob started prp")
+
+    bad = in_thread(_talk(short.url, "/train/prp/ws", cookie, short.url, BAD))
+    assert bad[:2] == (4400, "key: 'pressed' must be true or false")
+    assert held_back(short, cookie) <= 2.0
+    assert starts() == 1  # the refused start made no process
+    time.sleep(2.1)
+    assert in_thread(_talk(short.url, "/train/prp/ws", cookie, short.url, BAD))[0] == 4400
+    assert 2.0 < held_back(short, cookie) <= 4.0  # doubled
+    assert starts() == 2
+    time.sleep(4.1)
+    # a session that ends without breaking a rule (here: its longest length) forgets the back-off
+    assert in_thread(_drive(short.url, cookie))[0] == 4410
+    assert in_thread(_talk(short.url, "/train/prp/ws", cookie, short.url, BAD))[0] == 4400
+    assert held_back(short, cookie) <= 2.0
+    assert starts() == 4
+    assert logged(short, "bob's session ended (bad input message: key: 'pressed' must be true or false; no new session")
 
 
 # -- in Chromium, as a trainee does ---------------------------------------------------------------

@@ -6,6 +6,7 @@ The server's web stack is the ``server`` extra: `chainsim serve --help` works wi
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import logging
 
 from chainsim.game.records import remote
@@ -35,6 +36,27 @@ def _port(text: str) -> int:
     return value
 
 
+def _proxy(text: str) -> str:
+    try:
+        if "/" not in text:
+            return str(ipaddress.ip_address(text.strip()))
+        return str(ipaddress.ip_network(text.strip(), strict=True))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected the proxy's IP address (such as 127.0.0.1) or network (such as 10.0.0.0/8), got {text[:64]!r}"
+        ) from None
+
+
+def _minutes(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of minutes, got {text[:64]!r}") from None
+    if not 0 < value <= 24 * 60:
+        raise argparse.ArgumentTypeError(f"expected minutes above 0 and at most 1440 (a day), got {text[:64]!r}")
+    return value
+
+
 def add_parser(sub):
     p = sub.add_parser(
         NAME, help=HELP, description=HELP, epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -53,6 +75,22 @@ def add_parser(sub):
     )
     p.add_argument(
         "--scorers", type=int, default=2, metavar="N", help="attempts replayed at once, one process each (default 2)"
+    )
+    p.add_argument(
+        "--trust-proxy",
+        action="append",
+        default=[],
+        type=_proxy,
+        metavar="ADDR",
+        help="a reverse proxy's IP address (or network): its X-Forwarded-For and X-Forwarded-Proto are believed; "
+        "repeatable. Without it the client is the connection's own address",
+    )
+    p.add_argument(
+        "--train-max-minutes",
+        type=_minutes,
+        metavar="M",
+        help="the longest a browser training session (/train/PACK) runs, input or not "
+        "(default $CHAINSIM_TRAIN_MAX_S seconds, else 120 minutes)",
     )
     return p
 
@@ -88,5 +126,7 @@ def run(args) -> int:
         pack_paths=args.pack_path,
         scorers=args.scorers,
         base_url=args.base_url,
+        trust_proxy=args.trust_proxy,
+        train_max_s=None if args.train_max_minutes is None else args.train_max_minutes * 60.0,
     )
     return 0
