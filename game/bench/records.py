@@ -5,7 +5,9 @@ The bench works on a copy of the built-in rhizotomy pack in its temporary folder
 and the bench's uploads, made with the old files, refused as another copy of the pack.
 
 First the bench makes one real upload as the simulator does: the copied rhizotomy pack runs its
-scripted correct attempt headless and presses Save, and the upload the simulator queues (its
+correct attempt headless as a person makes it at the window (clicks and drags at a person's pace,
+``chainsim.game.app.windowform``; with ``--session-minutes M`` spread over an M-minute session with
+the pointer moving between gestures) and clicks Save, and the upload the simulator queues (its
 figures, the compressed recording, the pack's identity) is taken from its local outbox. It times
 replaying that recording the way the server scores it, pinned to one core: the replay speed is
 replay seconds per simulated second (below 0.1 is "10x real time or faster").
@@ -17,8 +19,10 @@ replay workers, makes one trainee account and API token per client in a class of
 connections, an idempotency key each). Acknowledgement is the time from sending an upload to its
 202; scoring is the time from the 202 to the server having stored the replay's attempt (the bench
 watches the uploads table every 0.2 s). The count check: every acknowledged upload scored, once,
-into one attempt, and nothing refused. The bench class, its accounts, uploads and attempts are
-removed at the end (``--keep`` leaves them), and the server is stopped.
+into one attempt, and nothing refused. ``last_save_to_last_scored_s`` is what a class waits at the end
+of a session when every trainee saves at once: from the last acknowledgement to the last result.
+The bench class, its accounts, uploads and attempts are removed at the end (``--keep`` leaves
+them), and the server is stopped.
 """
 
 from __future__ import annotations
@@ -55,6 +59,14 @@ def add_arguments(p) -> None:
     p.add_argument("--db", metavar="PATH|URL", help="records database (default: a new SQLite file in a temp folder)")
     p.add_argument("--timeout", type=float, default=3600.0, help="longest wait for the scoring, seconds (default 3600)")
     p.add_argument("--keep", action="store_true", help="keep the bench class, its accounts, uploads and attempts")
+    p.add_argument(
+        "--session-minutes",
+        type=float,
+        default=0.0,
+        metavar="M",
+        help="each upload is a session of M minutes at the window (the attempt's gestures spread out, the "
+        "pointer moving between them); default: the attempt alone, about 16 s",
+    )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
@@ -72,10 +84,40 @@ def copy_pack(folder: Path) -> list[str]:
     return [str(folder / "packs")]
 
 
-def make_upload(folder: Path, pack_paths: list[str]) -> dict:
-    """The upload the simulator queues after the prp pack's scripted correct attempt and a Save."""
-    from chainsim.components.input_events import Widget  # noqa: PLC0415 - the simulator, loaded when used
-    from chainsim.components.resources import PendingInput  # noqa: PLC0415
+def _stretched(events: list, minutes: float) -> list:
+    """The gestures spread over a session of ``minutes``, as a person takes them: idle time between, and the
+    pointer travelling to each target over the second before it (30 moves a second)."""
+    from chainsim.components.input_events import MouseButton, MouseMove  # noqa: PLC0415
+
+    presses = [i for i, (_, ev) in enumerate(events) if isinstance(ev, MouseButton) and ev.pressed]
+    if minutes <= 0 or len(presses) < 2:
+        return events
+    span = events[-1][0]
+    extra = max(0.0, minutes * 60.0 - span) / len(presses)  # the same pause before every click
+    out, shift, last = [], 0.0, (640.0, 400.0)
+    for i, (t, ev) in enumerate(events):
+        nxt = events[i + 1][1] if i + 1 < len(events) else None
+        if extra >= 1.5 and isinstance(nxt, MouseButton) and nxt.pressed:
+            shift += extra
+            x, y = ev.x, ev.y
+            for k in range(30):  # the hand on its way to the target
+                f = (k + 1) / 31
+                out.append(
+                    (
+                        t + shift - 1.0 + k / 30,
+                        MouseMove(round(last[0] + f * (x - last[0])), round(last[1] + f * (y - last[1]))),
+                    )
+                )
+            last = (x, y)
+        out.append((t + shift, ev))
+    return out
+
+
+def make_upload(folder: Path, pack_paths: list[str], session_minutes: float = 0.0) -> dict:
+    """The upload the simulator queues after the prp pack's correct attempt made at the window at a person's
+    pace (``chainsim.game.app.windowform``), over a session of ``session_minutes`` when given, and a Save."""
+    from chainsim.components.resources import PendingInput  # noqa: PLC0415 - the simulator, loaded when used
+    from chainsim.game.app import windowform  # noqa: PLC0415
     from chainsim.game.app.headless import build_app  # noqa: PLC0415
     from chainsim.game.app.inputscript import load_script  # noqa: PLC0415
     from chainsim.game.records.store import RecordStore  # noqa: PLC0415
@@ -84,21 +126,21 @@ def make_upload(folder: Path, pack_paths: list[str]) -> dict:
     info = ServerPacks(pack_paths).info("prp")
     if info is None:
         raise UserError("the built-in pack 'prp' is missing; reinstall chainsim")
-    events = load_script(Path(info["root"]) / "scripts" / SCRIPT)
-    end = events[-1][0]
     local = str(folder / "simulator.sqlite3")
     # nobody is signed in to this address, so the save stays in the local outbox without a request
     settings = {"db": local, "records": "http://127.0.0.1:9", "class": "bench", "trainee": "bench"}
     app = build_app("prp", pack_paths=pack_paths, settings=settings)
     try:
-        app.resource(PendingInput).extend([*events, (end + 0.5, Widget("save"))])
-        app.run_steps(int((end + 1.0) * 120))
+        events = windowform.gestures(app, load_script(Path(info["root"]) / "scripts" / SCRIPT))
+        events = _stretched(events + windowform.save_click(app, events[-1][0]), session_minutes)
+        app.resource(PendingInput).extend(events)
+        app.run_steps(int((events[-1][0] + 1.0) * 120))
     finally:
         app.close()
     with RecordStore(local) as store:
         rows = store.query("SELECT attempt FROM outbox")
     if not rows:
-        raise UserError(f"the scripted attempt {SCRIPT} did not save; the bench has no upload to send")
+        raise UserError(f"the attempt made from {SCRIPT} did not save; the bench has no upload to send")
     return json.loads(rows[0][0])
 
 
@@ -157,7 +199,7 @@ def _start_server(db: str, log: Path, scorers: int, pack_paths: list[str]) -> tu
     with log.open("ab") as fh:
         proc = subprocess.Popen(
             [sys.executable, "-m", "chainsim.game", "-q", "serve", "--db", db, "--port", str(port)]
-            + ["--scorers", str(scorers)]
+            + ["--scorers", str(scorers), "--uploads-per-minute", "10000"]
             + [arg for p in pack_paths for arg in ("--pack-path", p)],
             stdout=fh,
             stderr=subprocess.STDOUT,
@@ -247,6 +289,7 @@ def run_bench(
     scorers: int = 2,
     keep: bool = False,
     timeout: float = 3600.0,
+    session_minutes: float = 0.0,
 ) -> dict[str, Any]:
     from chainsim.game.records.backend import is_postgres  # noqa: PLC0415 - keep `chainsim bench -h` light
     from chainsim.game.records.store import RecordStore  # noqa: PLC0415
@@ -260,10 +303,12 @@ def run_bench(
         raise UserError(f"--scorers must be 1-64, got {scorers}")
     if not 1 <= timeout <= 86400:
         raise UserError(f"--timeout must be 1-86400 seconds, got {timeout}")
+    if not 0 <= session_minutes <= 45:
+        raise UserError(f"--session-minutes must be 0-45 (the server's longest session), got {session_minutes}")
     tmp = tempfile.TemporaryDirectory(prefix="chainsim-bench-")
     folder = Path(tmp.name)
     pack_paths = copy_pack(folder)
-    upload = make_upload(folder, pack_paths)
+    upload = make_upload(folder, pack_paths, session_minutes)
     speed = replay_speed(upload, pack_paths)
     body = json.dumps(upload).encode()
     db = db or str(folder / "bench.sqlite3")
@@ -286,6 +331,7 @@ def run_bench(
         for t in threads:
             t.join()
         sent_s = time.monotonic() - t0
+        last_ack = time.monotonic()  # the last Save: every upload is acknowledged by now
         done = _watch_scoring(db, class_name, out["acked"], timeout)
         scored_s = time.monotonic() - t0
     finally:
@@ -330,6 +376,9 @@ def run_bench(
         "scoring_p99_s": None if not scoring else round(_percentile(scoring, 0.99), 2),
         "scoring_max_s": None if not scoring else round(max(scoring), 2),
         "scored_per_s": round(len(scored) / scored_s, 2) if scored_s else None,
+        "session_minutes": session_minutes,
+        # what a class waits for at the end of a session: from the last Save to the last result
+        "last_save_to_last_scored_s": round(max(done.values()) - last_ack, 2) if done else None,
         "errors": len(out["errors"]),
         "first_error": out["errors"][0] if out["errors"] else None,
         "scored": len(scored),
@@ -341,7 +390,9 @@ def run_bench(
 
 
 def run(args) -> int:
-    result = run_bench(args.db, args.clients, args.attempts, args.scorers, args.keep, args.timeout)
+    result = run_bench(
+        args.db, args.clients, args.attempts, args.scorers, args.keep, args.timeout, args.session_minutes
+    )
     if args.json:
         print(json.dumps(result, indent=2))
     else:
@@ -363,6 +414,8 @@ def run(args) -> int:
             + f", refused {result['refused']}"
             + (f" (first: {result['first_refusal']})" if result["refused"] else "")
             + "\n"
+            f"  class waits   {result['last_save_to_last_scored_s']} s from the last Save to the last result "
+            f"(sessions of {result['session_minutes'] or 'about 0.3'} minutes)\n"
             f"  count check   {result['stored']} attempts stored, {result['scored']} uploads scored for "
             f"{result['acknowledged']} acknowledged: " + ("ok" if result["count_ok"] else "MISMATCH")
         )

@@ -339,6 +339,24 @@ section(
 )
 
 section(
+    "records",
+    "table",
+    "How a records server judges an upload of this pack (docs/limits.md, \"Input a person can make\").",
+    [
+        Field(
+            "min_attempt_s",
+            "float",
+            0.0,
+            units="s",
+            help="The shortest time in which a person can make an attempt (aimed clicks and the tool's own travel "
+            "at its top speed); a replayed attempt saved sooner is flagged for its trainer. 0: no minimum.",
+            min=0.0,
+            max=3600.0,
+        ),
+    ],
+)
+
+section(
     "docs",
     "named",
     "A documentation page shown in the app.",

@@ -100,12 +100,18 @@ def encode_recording(recording: dict) -> str:
     return base64.b64encode(zlib.compress(raw, 9)).decode("ascii")
 
 
-def decode_recording(text: Any) -> dict:
-    """A recording from ``encode_recording`` text, within the size limits; UserError naming what is wrong."""
+def check_recording_text(text: Any) -> None:
+    """UserError unless ``text`` looks like ``encode_recording`` output within the compressed size limit;
+    reads nothing of what it holds (that is the scorer's work)."""
     if not isinstance(text, str) or not text:
         raise UserError("recording must be the compressed text the simulator sends (base64 of zlib JSON)")
     if len(text) > MAX_RECORDING_BYTES * 4 // 3 + 4:
         raise UserError(f"recording is over {MAX_RECORDING_BYTES} bytes compressed (docs/limits.md)")
+
+
+def decode_recording(text: Any) -> dict:
+    """A recording from ``encode_recording`` text, within the size limits; UserError naming what is wrong."""
+    check_recording_text(text)
     try:
         packed = base64.b64decode(text, validate=True)
         inflater = zlib.decompressobj()

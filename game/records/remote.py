@@ -298,7 +298,7 @@ def sync(store: RecordStore, server: str | None = None) -> dict[str, Any]:
             if exc.status == 401:
                 skipped.add(srv)
                 problems.append(f"{srv}: sign-in expired or refused ({exc}); run: chainsim records login {srv} NAME")
-            elif exc.status >= 500:
+            elif exc.status >= 500 or exc.status == 429:  # busy, or this account's uploads are rate-limited
                 skipped.add(srv)
                 problems.append(f"{srv}: server error {exc.status} ({exc}); attempts kept for the next sync")
             else:
@@ -346,7 +346,7 @@ class RemoteRecords:
                 why = f"{self.server} is unreachable"
             except ServerError as exc:
                 _note_error(self.local, local_id, f"HTTP {exc.status}: {exc}")
-                if exc.status < 500 and exc.status != 401:
+                if exc.status < 500 and exc.status not in (401, 429):
                     raise UserError(f"{self.server} refused the attempt: {exc} (kept in the local queue)") from None
                 why = f"{self.server} answered {exc.status} ({exc})"
             else:

@@ -38,6 +38,11 @@ CSV_COLUMNS = (
     "step_times",
     "details",
     "metrics",  # the procedure's own metrics (records' procedure-neutral table), JSON
+    # provenance (docs/records-server.md): local, replayed or witnessed; why the input is beyond a
+    # person's, if it is; who accepted it anyway
+    "source",
+    "flags",
+    "accepted_by",
 )
 
 
@@ -119,6 +124,9 @@ def csv_rows(attempts: Sequence[dict[str, Any]]) -> list[list[Any]]:
                 json.dumps(a["step_times"], sort_keys=True),
                 json.dumps(a["details"], sort_keys=True),
                 json.dumps(a.get("metrics") or {}, sort_keys=True),
+                a.get("source", "local"),
+                "; ".join(a.get("flags") or []),
+                a.get("accepted_by") or "",
             ]
         )
     return [[neutral(cell) for cell in row] for row in rows]

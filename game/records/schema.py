@@ -240,7 +240,36 @@ V7_DDL: tuple[str, ...] = (
 # verify the server against it; sign-ins saved before trust the system's authorities, as they did.
 V8_DDL: tuple[str, ...] = ("ALTER TABLE server_logins ADD COLUMN ca_pem TEXT",)
 
-MIGRATIONS: tuple[tuple[str, ...], ...] = (V1_DDL, V2_DDL, V3_DDL, V4_DDL, V5_DDL, V6_DDL, V7_DDL, V8_DDL)
+# Version 9: where an attempt came from and whether its input is a person's (docs/records-server.md,
+# "Provenance"). ``source`` is ``local`` (saved to a local file), ``replayed`` (uploaded from the
+# window, scored by replaying its recording) or ``witnessed`` (made in the browser trainer: the server
+# ran it); attempts a server stored before keep ``replayed``. ``flags`` lists why a replayed attempt's
+# input is beyond what a person can do (docs/limits.md); a flagged attempt counts in no class figure
+# until a trainer accepts it (``accepted_by``/``accepted_at``). A class may require witnessed attempts.
+# ``uploads.witnessed`` marks the browser trainer's saves; ``uploads.sim_s`` is the recording's
+# simulated time once the scorer has read it.
+V9_DDL: tuple[str, ...] = (
+    "ALTER TABLE attempts ADD COLUMN source TEXT NOT NULL DEFAULT 'local'",
+    "UPDATE attempts SET source = 'replayed' WHERE filed_by IS NOT NULL",
+    "ALTER TABLE attempts ADD COLUMN flags TEXT NOT NULL DEFAULT '[]'",
+    "ALTER TABLE attempts ADD COLUMN accepted_by TEXT",
+    "ALTER TABLE attempts ADD COLUMN accepted_at TEXT",
+    "ALTER TABLE uploads ADD COLUMN witnessed INTEGER NOT NULL DEFAULT 0",
+    "CREATE INDEX uploads_by_trainee ON uploads (class_name, trainee, state, id)",
+    "ALTER TABLE classes ADD COLUMN require_witnessed INTEGER NOT NULL DEFAULT 0",
+)
+
+MIGRATIONS: tuple[tuple[str, ...], ...] = (
+    V1_DDL,
+    V2_DDL,
+    V3_DDL,
+    V4_DDL,
+    V5_DDL,
+    V6_DDL,
+    V7_DDL,
+    V8_DDL,
+    V9_DDL,
+)
 SCHEMA_VERSION = len(MIGRATIONS)
 
 # Tables a records database owns; a version-0 file holding anything else is not ours.

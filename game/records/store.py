@@ -184,7 +184,7 @@ def migrate(conn: sqlite3.Connection) -> int:
 
 def _row_to_attempt(row: sqlite3.Row) -> dict[str, Any]:
     out = {key: row[key] for key in row.keys()}
-    for key in ("aids", "step_times", "details", "differences"):
+    for key in ("aids", "step_times", "details", "differences", "flags"):
         out[key] = json.loads(out[key])
     if out["client_figures"] is not None:
         out["client_figures"] = json.loads(out["client_figures"])
@@ -197,7 +197,7 @@ _ATTEMPT_SELECT = f"""
     SELECT a.id, c.name AS class_name, t.name AS trainee, a.pack, a.created_at,
            {", ".join(f"a.{name}" for name in _FIXED)}, a.aids, a.step_times, a.details,
            a.filed_by, a.client_created_at, a.pack_version, a.pack_hash, a.client_figures, a.differences,
-           a.retracted_at, a.retracted_by, a.retract_reason
+           a.retracted_at, a.retracted_by, a.retract_reason, a.source, a.flags, a.accepted_by, a.accepted_at
     FROM attempts a JOIN trainees t ON t.id = a.trainee_id JOIN classes c ON c.id = t.class_id
 """
 
@@ -477,7 +477,9 @@ class RecordStore:
         """Insert one cleaned attempt (``clean_attempt``) inside the caller's transaction; returns its id.
 
         ``provenance`` (the records server's scoring) fills who filed it, the client's clock, the pack's
-        version and hash, the client's own figures, where they differ from the replay's, and the recording.
+        version and hash, the client's own figures, where they differ from the replay's, the recording,
+        ``source`` (``replayed`` or ``witnessed``; ``local`` without provenance) and ``flags`` (why its input
+        is beyond a person's, ``chainsim.game.records.plausible``).
         """
         prov = provenance or {}
         class_id = self._class_id(conn, class_name)
@@ -492,8 +494,8 @@ class RecordStore:
             f"""
             INSERT INTO attempts (trainee_id, pack, created_at, {", ".join(_FIXED)}, aids, step_times,
                 details, idem_key, filed_by, client_created_at, pack_version, pack_hash, client_figures,
-                differences)
-            VALUES ({", ".join("?" * (13 + len(_FIXED)))})
+                differences, source, flags)
+            VALUES ({", ".join("?" * (15 + len(_FIXED)))})
             """,
             (
                 trainee_id,
@@ -510,6 +512,8 @@ class RecordStore:
                 prov.get("pack_hash"),
                 None if prov.get("client_figures") is None else to_json(prov["client_figures"]),
                 to_json(prov.get("differences") or []),
+                prov.get("source", "local"),
+                to_json(prov.get("flags") or []),
             ),
         )
         rid = cur.lastrowid
@@ -594,6 +598,37 @@ class RecordStore:
             self.audit(conn, actor, "retract", row["class_name"], reason, attempt_id)
         return self.get_attempt(attempt_id)
 
+    def accept_attempt(self, attempt_id: int, actor: str) -> dict[str, Any]:
+        """A trainer accepts a flagged attempt: from now on it counts in the class figures; one audit row."""
+        attempt_id = _attempt_id(attempt_id)
+        with self._write() as conn:
+            row = conn.execute(_ATTEMPT_SELECT + " WHERE a.id = ?", (attempt_id,)).fetchone()
+            if row is None:
+                raise UserError(f"no attempt with id {attempt_id}")
+            if json.loads(row["flags"]) == []:
+                raise UserError(f"attempt {attempt_id} is not flagged; there is nothing to accept")
+            if row["accepted_at"] is not None:
+                raise UserError(f"attempt {attempt_id} was already accepted by {row['accepted_by']}")
+            conn.execute(
+                "UPDATE attempts SET accepted_by = ?, accepted_at = ? WHERE id = ?",
+                (actor, clean_created_at(None), attempt_id),
+            )
+            self.audit(conn, actor, "accept", row["class_name"], "flagged input accepted as a person's", attempt_id)
+        return self.get_attempt(attempt_id)
+
+    def require_witnessed(self, class_name: str, required: bool | None = None) -> bool:
+        """Whether ``class_name`` takes only witnessed attempts (browser trainer); set it when ``required``
+        is given (the class is made if missing). An unknown class requires nothing."""
+        class_name = clean_name("class", class_name)
+        if required is None:
+            row = self._db.execute("SELECT require_witnessed FROM classes WHERE name = ?", (class_name,)).fetchone()
+            return bool(row and row[0])
+        with self._write() as conn:
+            if self._class_id(conn, class_name) is None:
+                conn.execute("INSERT INTO classes (name) VALUES (?)", (class_name,))
+            conn.execute("UPDATE classes SET require_witnessed = ? WHERE name = ?", (1 if required else 0, class_name))
+        return bool(required)
+
     def audit(
         self, conn: sqlite3.Connection, actor: str, action: str, class_name: str, detail: str, attempt_id=None
     ) -> None:
@@ -669,6 +704,12 @@ class RecordStore:
     def query(self, sql: str, params: tuple = ()) -> list[Any]:
         """Rows of one read statement (``?`` parameters), readable by index and column name."""
         return list(self._db.execute(sql, params))
+
+
+def in_class_figures(attempt: dict[str, Any]) -> bool:
+    """Whether an attempt counts in its class's figures (medians, plots, summaries): not retracted, and its
+    input a person's or accepted as such by a trainer (docs/records-server.md, "Provenance")."""
+    return not attempt.get("retracted_at") and (not attempt.get("flags") or bool(attempt.get("accepted_by")))
 
 
 def _attempt_id(value: Any) -> int:

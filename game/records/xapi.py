@@ -34,7 +34,18 @@ ACTIVITY_SIMULATION = "http://adlnet.gov/expapi/activities/simulation"
 ACTIVITY_COURSE = "http://adlnet.gov/expapi/activities/course"
 _NAMESPACE = uuid.UUID("6f1c1a52-2f0e-5d7c-9a43-63686169736d")
 # Fields of the record that are who/when/where, not measurements.
-_NOT_METRICS = {"id", "class_name", "trainee", "pack", "created_at", "target"}
+_NOT_METRICS = {
+    "id",
+    "class_name",
+    "trainee",
+    "pack",
+    "created_at",
+    "target",
+    "source",
+    "flags",
+    "accepted_by",
+    "accepted_at",
+}
 
 
 def iso_duration(seconds: float) -> str:
@@ -89,6 +100,12 @@ def statement(attempt: dict[str, Any], homepage: str = DEFAULT_HOMEPAGE) -> dict
         "result": result,
         "context": {
             "platform": "chainsim",
+            # where the attempt came from (docs/records-server.md, "Provenance"), and whether its input is
+            # beyond a person's and not yet accepted by the trainer
+            "extensions": {
+                f"{ext}/source": attempt.get("source", "local"),
+                f"{ext}/flagged": bool(attempt.get("flags")) and not attempt.get("accepted_by"),
+            },
             "contextActivities": {
                 "grouping": [
                     {

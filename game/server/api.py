@@ -9,6 +9,7 @@
     GET    /api/uploads/{id}       an upload's state: scoring, scored (with attempt_id) or refused (error)
     GET    /api/attempts/{id}      one attempt (403 when it is someone else's)
     POST   /api/attempts/{id}/retract  {"reason"}: a trainer retracts an attempt of their class (kept)
+    POST   /api/attempts/{id}/accept   a trainer accepts a flagged attempt: it counts in the class figures
     DELETE /api/attempts/{id}      refused: attempts are records (a trainer retracts instead)
     GET    /api/audit              ?class=C, the audit log of a trainer's classes
 
@@ -18,7 +19,9 @@ are kept beside them (``client_figures``) and ``differences`` lists where they d
 trainee files attempts under their own class and name; a trainer may file for a trainee of a
 class they teach by naming ``class_name`` and ``trainee``; the attempt records the account that
 filed it and the server's time. A resent upload with the same Idempotency-Key answers 200 with
-the first upload; the same key with another body is a 409.
+the first upload; the same key with another body is a 409. Each account files at most
+``serve --uploads-per-minute`` new uploads a minute (``chainsim.game.server.ratelimit``; 429 with
+Retry-After past it), and a class that requires witnessed attempts refuses uploads from the window (422).
 """
 
 from __future__ import annotations
@@ -93,6 +96,18 @@ def retract_attempt(store: RecordStore, user: User, attempt_id: int, reason: Any
         raise HTTPError(422, str(exc)) from None
 
 
+def accept_attempt(store: RecordStore, user: User, attempt_id: int) -> dict:
+    if not user.is_trainer:
+        raise HTTPError(403, "only a trainer of the class can accept a flagged attempt")
+    readable_attempt(store, user, attempt_id)
+    try:
+        return store.accept_attempt(attempt_id, user.name)
+    except UserError as exc:
+        if type(exc) is not UserError:
+            raise
+        raise HTTPError(422, str(exc)) from None
+
+
 def audit_entries(store: RecordStore, user: User, class_name: str | None) -> list[dict]:
     if not user.is_trainer:
         raise HTTPError(403, "the audit log is for trainers")
@@ -147,8 +162,22 @@ def file_under(user: User, record: dict[str, Any]) -> tuple[str, str]:
     return own
 
 
-def queue_upload(store: RecordStore, user: User, class_name: str, trainee: str, checked: dict, key, digest: str):
-    row, created = scoring.enqueue(store, user.name, class_name, trainee, checked, key, digest)
+def queue_upload(
+    store: RecordStore,
+    user: User,
+    class_name: str,
+    trainee: str,
+    checked: dict,
+    key,
+    digest: str,
+    witnessed: bool = False,
+):
+    try:
+        row, created = scoring.enqueue(store, user.name, class_name, trainee, checked, key, digest, witnessed=witnessed)
+    except UserError as exc:
+        if type(exc) is not UserError:
+            raise
+        raise HTTPError(422, str(exc)) from None
     if not created:  # two sends of one key raced; the first one's row answers both
         if row["body_hash"] != digest:
             raise HTTPError(409, "this Idempotency-Key was used for a different attempt; send it with a fresh key")
@@ -202,6 +231,13 @@ async def list_attempts(request: Request) -> Response:
 
 async def create_attempt(request: Request) -> Response:
     user = await api_user(request)
+    # a few uploads are read and checked at once, the rest wait their turn: the server's memory is bounded
+    # by this many bodies at the size limit, however many arrive together
+    async with request.app.state.upload_slots:
+        return await _create_attempt(request, user)
+
+
+async def _create_attempt(request: Request, user: User) -> Response:
     body = await read_json(request)
     if not isinstance(body, dict):
         raise HTTPError(422, f"an attempt must be a JSON object of fields, got {type(body).__name__}")
@@ -216,6 +252,7 @@ async def create_attempt(request: Request) -> Response:
     row = None if key is None else await storage.run(known_upload, user, key, digest)
     created = False
     if row is None:
+        request.app.state.upload_rate.take(user.id)  # a resend of a known upload costs nothing
         class_name, trainee = file_under(user, body)
         try:
             # the pack's identity (hashed once per server) and the recording are checked off the event loop
@@ -247,6 +284,12 @@ async def retract(request: Request) -> Response:
     body = await read_json(request)
     reason = body.get("reason") if isinstance(body, dict) else None
     attempt = await request.app.state.storage.run(retract_attempt, user, _attempt_id(request), reason)
+    return JSONResponse(attempt)
+
+
+async def accept(request: Request) -> Response:
+    user = await api_user(request)
+    attempt = await request.app.state.storage.run(accept_attempt, user, _attempt_id(request))
     return JSONResponse(attempt)
 
 
@@ -283,6 +326,7 @@ routes = [
     Route("/api/attempts/{attempt_id:int}", get_attempt, methods=["GET"]),
     Route("/api/attempts/{attempt_id:int}", remove_attempt, methods=["DELETE"]),
     Route("/api/attempts/{attempt_id:int}/retract", retract, methods=["POST"]),
+    Route("/api/attempts/{attempt_id:int}/accept", accept, methods=["POST"]),
     Route("/api/uploads/{upload_id:int}", get_upload, methods=["GET"]),
     Route("/api/audit", audit, methods=["GET"]),
 ]

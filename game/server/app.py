@@ -9,6 +9,7 @@ images from elsewhere, no framing).
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import os
 from contextlib import asynccontextmanager
@@ -23,13 +24,16 @@ from starlette.routing import Mount
 from starlette.staticfiles import StaticFiles
 
 from chainsim.game.records import remote, xapi
-from chainsim.game.server import BASE_URL_ENV, api, scoring, train_routes, views
+from chainsim.game.server import BASE_URL_ENV, api, ratelimit, scoring, train_routes, views
 from chainsim.game.server.auth import HTTPError
 from chainsim.game.server.storage import Storage, Unavailable
 from chainsim.game.server.throttle import Throttle
 from chainsim.systems.engine.errors import UserError
 
 logger = logging.getLogger(__name__)
+
+#: uploads read and checked at once (each holds its body, at most about 1 MB, while it is checked)
+UPLOADS_AT_ONCE = 8
 
 
 SECURITY_HEADERS = {
@@ -79,6 +83,8 @@ def build_app(
     lease_s: float = scoring.DEFAULT_LEASE_S,
     base_url: str = xapi.DEFAULT_HOMEPAGE,
     train_max_s: float | None = None,
+    max_session_s: float = scoring.DEFAULT_MAX_SESSION_S,
+    uploads_per_minute: float = ratelimit.DEFAULT_PER_MINUTE,
 ) -> Starlette:
     """The app over the records database ``db`` (a path, a postgresql:// URL, or None: default file).
 
@@ -87,7 +93,7 @@ def build_app(
     (``serve --train-max-minutes``; None: $CHAINSIM_TRAIN_MAX_S, else ``train_routes``' default)."""
     storage = Storage(db)
     packs = scoring.ServerPacks(pack_paths)
-    scorer = scoring.Scorer(db, packs, scorers, lease_s)
+    scorer = scoring.Scorer(db, packs, scorers, lease_s, max_session_s)
 
     @asynccontextmanager
     async def lifespan(app: Starlette):
@@ -119,6 +125,8 @@ def build_app(
     app.state.packs = packs
     app.state.scorer = scorer
     app.state.throttle = Throttle()
+    app.state.upload_rate = ratelimit.UploadRate(uploads_per_minute)
+    app.state.upload_slots = asyncio.Semaphore(UPLOADS_AT_ONCE)
     train_routes.install(app, max_s=train_max_s)  # /train/PACK: the trainer in a browser tab
     # the programme's address in xAPI identities: configured, never taken from a request's Host header
     app.state.base_url = remote.server_url(base_url)
@@ -164,6 +172,8 @@ def serve(
     base_url: str | None = None,
     trust_proxy: list[str] | tuple = (),
     train_max_s: float | None = None,
+    max_session_s: float = scoring.DEFAULT_MAX_SESSION_S,
+    uploads_per_minute: float = ratelimit.DEFAULT_PER_MINUTE,
 ) -> None:
     """Run the server until interrupted (uvicorn, one process; replays in ``scorers`` processes beside it).
 
@@ -184,7 +194,15 @@ def serve(
             base_url = remote.server_url(base_url)
         except UserError as exc:
             raise UserError(f"${BASE_URL_ENV}: {exc}") from None
-    app = build_app(db, pack_paths=pack_paths, scorers=scorers, base_url=base_url, train_max_s=train_max_s)
+    app = build_app(
+        db,
+        pack_paths=pack_paths,
+        scorers=scorers,
+        base_url=base_url,
+        train_max_s=train_max_s,
+        max_session_s=max_session_s,
+        uploads_per_minute=uploads_per_minute,
+    )
     logger.info(
         "records server on %s://%s:%d, database %s",
         "https" if certfile else "http",

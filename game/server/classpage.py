@@ -34,7 +34,7 @@ from matplotlib.backends.backend_svg import FigureCanvasSVG
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from chainsim.game.records.store import RecordStore
+from chainsim.game.records.store import RecordStore, in_class_figures
 from chainsim.game.server import accounts
 from chainsim.game.server.accounts import User
 from chainsim.game.server.auth import HTTPError
@@ -117,7 +117,10 @@ def overview(store: RecordStore, user: User, class_id: int, specs_for, query: di
             (class_id,),
         )
     ]
-    attempts = [a for a in store.list_attempts(cls["name"]) if not a["retracted_at"]]
+    everything = store.list_attempts(cls["name"])
+    # retracted attempts, and those whose input is beyond a person's until a trainer accepts them, count for nothing
+    attempts = [a for a in everything if in_class_figures(a)]
+    waiting = [a for a in everything if not a["retracted_at"] and not in_class_figures(a)]
     packs = sorted({a["pack"] for a in attempts})
     pack = query.get("pack") if query.get("pack") in packs else (packs[0] if packs else "")
     specs = specs_for(pack) if pack else {}
@@ -171,6 +174,8 @@ def overview(store: RecordStore, user: User, class_id: int, specs_for, query: di
         "rows": table[(page - 1) * PAGE_SIZE : page * PAGE_SIZE],
         "count": len(table),
         "below": [r["name"] for r in table if r["below"]],
+        # flagged attempts waiting for a trainer: listed on their trainees' pages, counted nowhere here
+        "flagged": [{"id": a["id"], "trainee": a["trainee"]} for a in waiting],
         "page": page,
         "pages": pages,
         "sort": sort,
@@ -189,7 +194,7 @@ def metric_plot(store: RecordStore, user: User, class_id: int, pack: str, metric
     spec = specs[metric]
     by_trainee: dict[str, list[float]] = {}
     for a in store.list_attempts(cls["name"]):
-        if a["retracted_at"] or a["pack"] != pack:
+        if not in_class_figures(a) or a["pack"] != pack:
             continue
         v = values(a).get(metric)
         if _number(v):

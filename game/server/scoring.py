@@ -24,22 +24,20 @@ import hashlib
 import json
 import logging
 import math
-import multiprocessing
 import os
 import socket
 import threading
 import time
 import uuid
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
-from chainsim.game.records import provenance
+from chainsim.game.records import plausible, provenance
 from chainsim.game.records.backend import db_errors
 from chainsim.game.records.schema import LEGACY_METRICS
 from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import clean_attempt, clean_created_at, clean_name, to_json
+from chainsim.game.server.replayer import Cancelled, OverBudget, ReplayFailed, ReplayProcess
 from chainsim.systems.engine import limits
 from chainsim.systems.engine.errors import UserError
 
@@ -51,16 +49,25 @@ DEFAULT_WORKERS = 2
 DEFAULT_LEASE_S = 300.0
 #: how often an idle worker looks for new uploads (seconds); a new upload also wakes one at once
 POLL_S = 1.0
-#: times an upload is tried when the replay process itself fails (not the recording) before it is refused
-MAX_TRIES = 3
+#: claims of one upload before it is refused: the first, and one more after its scorer died or its replay
+#: process failed (a recording that kills every process it runs in must not hold a scorer for ever)
+MAX_CLAIMS = 2
 #: settings a recording may carry; a replay uses only the deformation model
 RECORDING_SETTINGS = ("class", "trainee", "model")
+#: the longest session (simulated seconds) this server replays, unless ``serve --max-session-minutes`` says
+#: otherwise: a class's session is rarely over half an hour, and a longer recording is refused in one line
+DEFAULT_MAX_SESSION_S = 45 * 60.0
+#: a replay's time budget (seconds of wall time): this much to start, then the session's own simulated time
+#: (a replay slower than the session was in the window is killed; replays run many times faster)
+BUDGET_START_S = 120.0
 
 #: where the replay's and the simulator's figures may differ without a flag: times by a frame or two
 #: (a window that took several steps in one frame saves a step or two later than the replay), the
 #: dose with them, everything else by rounding only
 TIME_TOLERANCE_S = 0.1
 COMPARED = (*LEGACY_METRICS, "target")  # every fixed figure of an attempt
+#: what a replay process runs
+REPLAY_TARGET = "chainsim.game.server.scoring:replay_record"
 
 
 # -- the server's packs --------------------------------------------------------------------------
@@ -142,12 +149,11 @@ def _recording_fields(rec: dict) -> dict:
 
 
 def check_upload(packs: ServerPacks, body: dict) -> dict:
-    """Take the evidence out of an upload and check it all; UserError (a 422) naming what is wrong.
+    """Take the evidence out of an upload and check its envelope; UserError (a 422) naming what is wrong.
 
-    Returns ``claimed`` (the simulator's figures, cleaned), ``recording`` (the compressed text, as kept),
-    ``identity`` and ``pack`` (the server's pack info)."""
-    from chainsim.game.app.inputscript import parse_events  # noqa: PLC0415 - the app layer, loaded on use
-
+    The recording is not read here: inflating and parsing it is the scorer's work, in its own process
+    (a small upload can hold a large recording; the request thread must stay cheap). Returns ``claimed``
+    (the simulator's figures, cleaned), ``recording`` (the compressed text, as kept) and ``identity``."""
     text = body.pop("recording", None)
     identity = body.pop("pack_identity", None)
     if text is None or identity is None:
@@ -169,17 +175,7 @@ def check_upload(packs: ServerPacks, body: dict) -> dict:
             f"server's (version {have['version']}, files {have['hash'][:12]}); the attempt was made on another copy "
             "of the pack, so the server cannot score it"
         )
-    recording = provenance.decode_recording(text)
-    fields = _recording_fields(recording)
-    if recording["pack"].split("/")[0] != identity["name"]:
-        raise UserError(f"the recording is of pack {recording['pack']!r}, not {identity['name']!r}")
-    if fields["scene"] not in (info["scenes"] or [info["default_scene"] or fields["scene"]]):
-        raise UserError(f"the recording's scene {fields['scene']!r} is not a scene of pack {identity['name']!r}")
-    events = parse_events(recording, "recording")
-    # Save is a widget event in a script, a click (or a key) in a window or browser session: the replay
-    # decides whether that click was on Save; a recording with neither is refused here already
-    if not any(getattr(ev, "name", None) == "save" or getattr(ev, "pressed", False) for _, ev in events):
-        raise UserError("the recording never presses Save, so it cannot reproduce a saved attempt")
+    provenance.check_recording_text(text)
     return {"claimed": claimed, "recording": text, "identity": identity}
 
 
@@ -191,40 +187,76 @@ def body_hash(body: dict) -> str:
 # -- replaying (in a worker process) -------------------------------------------------------------
 
 
-def replay_record(recording_text: str, pack_root: str, pack_paths: list[str]) -> dict:
-    """Replay a recording headless on the pack at ``pack_root``; the attempt record its last Save made.
+def replay_record(
+    recording_text: str, pack_root: str, pack_paths: list[str], options: dict | None = None, report=None
+) -> dict:
+    """Replay a recording headless on the pack at ``pack_root``, up to the Save that made the upload.
 
-    Raises UserError when the recording does not replay to a Save (events the scene refuses, a Save the
-    procedure refuses, such as one before every marked point is placed)."""
-    from chainsim.components.resources import PendingInput, Records  # noqa: PLC0415 - worker process only
+    ``options``: ``witnessed`` (the browser trainer's own recording: its form is the server's, not checked)
+    and ``max_session_s`` (the longest session this server replays). ``report``, when given, is told the
+    session's simulated time once the recording is read (the scorer sets the replay's budget from it).
+    Returns ``{"record", "flags", "digest_ok", "sim_s", "steps"}``: the attempt record the Save made, why
+    its input is beyond a person's (``chainsim.game.records.plausible``), whether the replay's state at
+    the Save is the simulator's (``components.digest``), and the steps replayed of the recording's.
+    Raises UserError when the recording is not the window's, is longer than the server replays, or
+    does not replay to a Save."""
+    from chainsim.components.digest import world_digest  # noqa: PLC0415 - worker process only
+    from chainsim.components.resources import PendingInput, Records  # noqa: PLC0415
     from chainsim.game.app.headless import app_for_pack, check_events  # noqa: PLC0415
     from chainsim.game.app.inputscript import parse_events  # noqa: PLC0415
     from chainsim.game.packs import pack as packs  # noqa: PLC0415
 
+    opts = options or {}
     recording = provenance.decode_recording(recording_text)
     fields = _recording_fields(recording)
-    events = parse_events(recording, "recording")
     pack = packs.load(Path(pack_root), pack_paths)
+    if not opts.get("witnessed"):
+        plausible.window_form(recording, float(pack.section("settings").get("dt", 1.0 / 120.0)))
+    sim_s = fields["steps"] * fields["dt"]
+    cap = float(opts.get("max_session_s", DEFAULT_MAX_SESSION_S))
+    if sim_s > cap:
+        raise UserError(
+            f"the recording is a {sim_s / 60:.1f}-minute session; this server replays sessions of up to "
+            f"{cap / 60:g} minutes (serve --max-session-minutes)"
+        )
+    if report is not None:
+        report({"sim_s": sim_s})
+    events = parse_events(recording, "recording")
     settings = {"model": fields["model"]} if fields["model"] else {}
     app = app_for_pack(pack, fields["scene"], settings=settings, dt=fields["dt"], save="scoring replay")
     try:
-        saved: list[dict] = []
+        saved: list[tuple[dict, str]] = []
 
         def capture(class_name: str, trainee: str, record: dict) -> int:
-            saved.append(record)
+            # the simulator took its digest at this same point of the Save (game.app.headless.attempt_evidence)
+            saved.append((record, world_digest(app)))
             return len(saved)
 
         # the procedure saves through Records; here each save is caught instead of stored
         app.insert_resource(Records(save_attempt=capture, list_attempts=lambda c, t: [], where="replay"))
         check_events(app, events, "recording")
-        app.resource(PendingInput).extend(events)
+        pending = app.resource(PendingInput)
+        pending.extend(events)
+        steps_run = 0
         for _ in range(fields["steps"]):
             app.update(app.time.dt)
+            steps_run += 1
+            if saved and pending.exhausted:  # the upload's Save is the recording's last input: stop there
+                break
     finally:
         app.close()
     if not saved:
         raise UserError("the recording does not replay to a saved attempt (the replayed session never saved)")
-    return saved[-1]
+    record, digest = saved[-1]
+    minimum = float(pack.section("records").get("min_attempt_s", 0.0))
+    flags = [] if opts.get("witnessed") else plausible.flags(recording["event"], record.get("duration_s"), minimum)
+    return {
+        "record": record,
+        "flags": flags,
+        "digest_ok": digest == recording["digest"],
+        "sim_s": sim_s,
+        "steps": (steps_run, fields["steps"]),
+    }
 
 
 def _close(a: Any, b: Any, *, name: str) -> bool:
@@ -262,8 +294,26 @@ def upload_for_key(store: RecordStore, key: str) -> dict | None:
     return dict(rows[0]) if rows else None
 
 
-def enqueue(store: RecordStore, filed_by: str, class_name: str, trainee: str, checked: dict, key, digest: str):
-    """Commit an upload to the queue; ``(row, created)`` - a known key returns its first row instead."""
+def enqueue(
+    store: RecordStore,
+    filed_by: str,
+    class_name: str,
+    trainee: str,
+    checked: dict,
+    key,
+    digest: str,
+    *,
+    witnessed: bool = False,
+):
+    """Commit an upload to the queue; ``(row, created)`` - a known key returns its first row instead.
+
+    ``witnessed``: the browser trainer's save (the server ran the session). A class that requires
+    witnessed attempts refuses any other upload (UserError, a 422)."""
+    if not witnessed and store.require_witnessed(class_name):
+        raise UserError(
+            f"class {class_name!r} takes only attempts made in the browser trainer (/train/PACK on this server), "
+            "which the server witnesses; an attempt made in the window cannot be filed there"
+        )
     now = clean_created_at(None)
     with store.transaction() as conn:
         if key is not None:
@@ -274,8 +324,8 @@ def enqueue(store: RecordStore, filed_by: str, class_name: str, trainee: str, ch
         uid = conn.execute(
             """
             INSERT INTO uploads (idem_key, body_hash, filed_by, class_name, trainee, received_at, pack, pack_version,
-                pack_hash, claimed, recording, state)
-            VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'scoring')
+                pack_hash, claimed, recording, state, witnessed)
+            VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'scoring', ?)
             """,
             (
                 key,
@@ -289,6 +339,7 @@ def enqueue(store: RecordStore, filed_by: str, class_name: str, trainee: str, ch
                 checked["identity"]["hash"],
                 to_json(claimed),
                 checked["recording"],
+                1 if witnessed else 0,
             ),
         ).lastrowid
         row = conn.execute("SELECT * FROM uploads WHERE id = ?", (uid,)).fetchone()
@@ -307,6 +358,7 @@ def upload_view(row: dict) -> dict:
         "trainee": row["trainee"],
         "filed_by": row["filed_by"],
         "pack": row["pack"],
+        "witnessed": bool(row.get("witnessed")),
     }
 
 
@@ -354,6 +406,40 @@ def waiting_uploads(store: RecordStore, classes: list[str], trainee: str | None 
     return [dict(r) for r in rows]
 
 
+def list_queue(store: RecordStore, state: str = "waiting") -> list[dict]:
+    """Uploads for ``chainsim records uploads``: ``waiting`` (not scored yet), ``refused`` or ``all``."""
+    where = {"waiting": "state = 'scoring'", "refused": "state = 'refused'", "all": "1 = 1"}[state]
+    rows = store.query(
+        "SELECT id, class_name, trainee, filed_by, received_at, pack, state, claimed_by, claimed_at, tries, "
+        f"witnessed, error, length(recording) AS recording_chars FROM uploads WHERE {where} ORDER BY id"
+    )
+    return [dict(r) for r in rows]
+
+
+def end_upload(store: RecordStore, upload_id: int, actor: str, how: str, reason: str) -> dict:
+    """Cancel (``how="cancel"``: withdrawn, e.g. sent by mistake) or refuse (``how="refuse"``: not accepted)
+    an upload still waiting or being scored; a replay in flight is stopped by its scorer within a second
+    or so. One audit row. UserError when there is no such upload or it is already scored or refused."""
+    reason = reason.strip() if isinstance(reason, str) else ""
+    if not reason or len(reason) > 500:
+        raise UserError("say why, in 1-500 characters (--reason)")
+    verb = {"cancel": "cancelled", "refuse": "refused"}[how]
+    with store.transaction() as conn:
+        row = conn.execute("SELECT id, state, class_name FROM uploads WHERE id = ?", (upload_id,)).fetchone()
+        if row is None:
+            raise UserError(f"no upload with id {upload_id}")
+        if row["state"] != "scoring":
+            raise UserError(f"upload {upload_id} is already {row['state']}; only a waiting upload can be {verb}")
+        conn.execute(
+            "UPDATE uploads SET state = 'refused', error = ?, scored_at = ? WHERE id = ?",
+            (f"{verb} by {actor}: {reason}", clean_created_at(None), upload_id),
+        )
+        store.audit(conn, actor, how, row["class_name"], f"upload {upload_id}: {reason}")
+    got = get_upload(store, upload_id)
+    assert got is not None
+    return got
+
+
 def _host() -> str:
     return socket.gethostname()
 
@@ -377,17 +463,59 @@ def _gone(claimed_by: str | None, mine: str) -> bool:
     return False
 
 
+def _candidates(conn: Any, mine: str, lease_s: float, now: float) -> list[Any]:
+    """Uploads a worker may claim now: each trainee's oldest unclaimed one, and any whose claim lapsed."""
+    rows = list(
+        conn.execute(
+            "SELECT id, class_name, trainee, claimed_by, claimed_at, tries FROM uploads WHERE id IN "
+            "(SELECT MIN(id) FROM uploads WHERE state = 'scoring' AND claimed_by IS NULL GROUP BY class_name, trainee)"
+        )
+    )
+    for r in conn.execute(
+        "SELECT id, class_name, trainee, claimed_by, claimed_at, tries FROM uploads "
+        "WHERE state = 'scoring' AND claimed_by IS NOT NULL ORDER BY id LIMIT 200"
+    ):
+        if (r["claimed_at"] or 0) < now - lease_s or _gone(r["claimed_by"], mine):
+            rows.append(r)
+    return rows
+
+
+def _last_served(conn: Any, rows: list[Any]) -> dict[tuple[str, str], float]:
+    """When each of these rows' trainees last had an upload claimed (0: never)."""
+    out: dict[tuple[str, str], float] = {}
+    for r in rows:
+        who = (r["class_name"], r["trainee"])
+        if who not in out:
+            got = conn.execute(
+                "SELECT MAX(claimed_at) FROM uploads WHERE class_name = ? AND trainee = ?", who
+            ).fetchone()[0]
+            out[who] = float(got or 0.0)
+    return out
+
+
 def claim(store: RecordStore, worker: str, lease_s: float) -> dict | None:
-    """Take the oldest waiting upload for ``worker`` (``host|pid|instance|n``); None when there is none."""
+    """Take the next upload for ``worker`` (``host|pid|instance|n``); None when there is none.
+
+    Trainees are served in turn: among each trainee's oldest waiting upload, the one whose trainee was
+    served longest ago goes first, so one trainee's flood of uploads delays another's by at most one
+    replay. An upload already claimed ``MAX_CLAIMS`` times (its scorers died) is refused instead."""
     mine = "|".join(worker.split("|")[:3])
     now = time.time()
     with store.transaction() as conn:
-        rows = conn.execute(
-            "SELECT id, claimed_by, claimed_at FROM uploads WHERE state = 'scoring' ORDER BY id LIMIT 50"
-        ).fetchall()
-        for r in rows:
-            free = r["claimed_by"] is None or (r["claimed_at"] or 0) < now - lease_s or _gone(r["claimed_by"], mine)
-            if not free:
+        rows = _candidates(conn, mine, lease_s, now)
+        served = _last_served(conn, rows)
+        for r in sorted(rows, key=lambda r: (served[(r["class_name"], r["trainee"])], r["id"])):
+            if r["tries"] >= MAX_CLAIMS:
+                conn.execute(
+                    "UPDATE uploads SET state = 'refused', error = ?, scored_at = ? WHERE id = ?",
+                    (
+                        f"scoring was started {r['tries']} times and never finished (the replay process or the "
+                        "server stopped each time); send the attempt again or ask the trainer",
+                        clean_created_at(None),
+                        r["id"],
+                    ),
+                )
+                store.audit(conn, "server", "refuse", r["class_name"], f"upload {r['id']}: scoring never finished")
                 continue
             conn.execute(
                 "UPDATE uploads SET claimed_by = ?, claimed_at = ?, tries = tries + 1 WHERE id = ?",
@@ -395,6 +523,17 @@ def claim(store: RecordStore, worker: str, lease_s: float) -> dict | None:
             )
             return dict(conn.execute("SELECT * FROM uploads WHERE id = ?", (r["id"],)).fetchone())
     return None
+
+
+def renew(store: RecordStore, upload_id: int, worker: str) -> bool:
+    """Renew ``worker``'s claim on a replaying upload; False when it is no longer this worker's to score
+    (cancelled or refused meanwhile, or taken over)."""
+    with store.transaction() as conn:
+        n = conn.execute(
+            "UPDATE uploads SET claimed_at = ? WHERE id = ? AND claimed_by = ? AND state = 'scoring'",
+            (time.time(), upload_id, worker),
+        ).rowcount
+    return n == 1
 
 
 def finish(store: RecordStore, upload: dict, worker: str, scored: dict | None, error: str | None) -> int | None:
@@ -413,9 +552,12 @@ def finish(store: RecordStore, upload: dict, worker: str, scored: dict | None, e
             )
             return None
         claimed = json.loads(upload["claimed"])
-        record = clean_attempt({**scored, "created_at": upload["received_at"]})
+        record = clean_attempt({**scored["record"], "created_at": upload["received_at"]})
         record["pack"] = upload["pack"]
         diffs = differences(claimed, record)
+        if not scored["digest_ok"]:
+            diffs.append({"field": "state at the Save", "simulator": "recorded digest", "replay": "another"})
+        flags = list(scored["flags"])
         aid = store.insert_attempt(
             conn,
             clean_name("class", upload["class_name"]),
@@ -430,8 +572,14 @@ def finish(store: RecordStore, upload: dict, worker: str, scored: dict | None, e
                 "client_figures": claimed,
                 "differences": diffs,
                 "recording": upload["recording"],
+                "source": "witnessed" if upload.get("witnessed") else "replayed",
+                "flags": flags,
             },
         )
+        if flags:
+            store.audit(
+                conn, "server", "implausible", upload["class_name"], "input beyond a person's: " + "; ".join(flags), aid
+            )
         if diffs:
             store.audit(
                 conn,
@@ -449,7 +597,12 @@ def finish(store: RecordStore, upload: dict, worker: str, scored: dict | None, e
 
 
 class Scorer:
-    """The bounded pool that scores uploads (see module docstring); ``start`` it, ``wake`` it, ``stop`` it."""
+    """The bounded pool that scores uploads (see module docstring); ``start`` it, ``wake`` it, ``stop`` it.
+
+    Each of ``workers`` threads owns one replay process (``chainsim.game.server.replayer``). While it
+    replays, the thread renews its claim every ``lease_s / 4`` (a live replay is never taken over),
+    kills the replay when the upload is cancelled meanwhile, and kills a replay that runs past its
+    budget: ``BUDGET_START_S`` plus the session's simulated time."""
 
     def __init__(
         self,
@@ -457,24 +610,28 @@ class Scorer:
         packs: ServerPacks,
         workers: int = DEFAULT_WORKERS,
         lease_s: float = DEFAULT_LEASE_S,
+        max_session_s: float = DEFAULT_MAX_SESSION_S,
     ) -> None:
         if not 1 <= workers <= 64:
             raise UserError(f"--scorers must be from 1 to 64, got {workers}")
+        if not 1.0 <= max_session_s <= 24 * 3600.0:
+            raise UserError(f"--max-session-minutes must be from 1/60 to 1440, got {max_session_s / 60:g}")
         self.db = db
         self.packs = packs
         self.workers = workers
         self.lease_s = lease_s
+        self.max_session_s = max_session_s
         self._stop = threading.Event()
         self._wake = threading.Condition()
         self._threads: list[threading.Thread] = []
-        self._pool: ProcessPoolExecutor | None = None
+        self._procs: list[ReplayProcess] = []
         self.prefix = f"{_host()}|{os.getpid()}|{uuid.uuid4().hex[:8]}"
 
     def start(self) -> None:
-        # spawn: a fresh interpreter per replay process, never a fork of the server's threads
-        self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
         for i in range(self.workers):
-            t = threading.Thread(target=self._loop, args=(f"{self.prefix}|{i}",), name=f"scorer-{i}", daemon=True)
+            proc = ReplayProcess(REPLAY_TARGET)
+            self._procs.append(proc)
+            t = threading.Thread(target=self._loop, args=(f"{self.prefix}|{i}", proc), name=f"scorer-{i}", daemon=True)
             t.start()
             self._threads.append(t)
 
@@ -486,12 +643,12 @@ class Scorer:
         self._stop.set()
         with self._wake:
             self._wake.notify_all()
+        for proc in self._procs:  # a replay in flight ends now; its upload is claimed again after a restart
+            proc.close()
         for t in self._threads:
             t.join(timeout=30)
-        if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
 
-    def _loop(self, worker: str) -> None:
+    def _loop(self, worker: str, proc: ReplayProcess) -> None:
         store = None
         while not self._stop.is_set():
             try:
@@ -502,7 +659,7 @@ class Scorer:
                     with self._wake:
                         self._wake.wait(POLL_S)
                     continue
-                self._score(store, upload, worker)
+                self._score(store, upload, worker, proc)
             except (UserError, *db_errors()) as exc:  # database gone or busy: reconnect and try again
                 logger.warning("scoring: %s", exc)
                 if store is not None:
@@ -512,36 +669,70 @@ class Scorer:
                         logger.debug("closing a failed scoring connection", exc_info=True)
                 store = None
                 self._stop.wait(POLL_S)
+        proc.close()
         if store is not None:
             store.close()
 
-    def _score(self, store: RecordStore, upload: dict, worker: str) -> None:
+    def _replay(self, store: RecordStore, upload: dict, worker: str, proc: ReplayProcess, root: str) -> tuple:
+        """Run the upload's replay in ``proc``, renewing the claim; ``(scored, error)``, or None to drop it
+        (cancelled, taken over, or the server stopping)."""
+        budget = [BUDGET_START_S + self.max_session_s]  # until the replay has read the recording's length
+        renewed = [time.monotonic()]
+
+        def keep_going() -> bool:
+            if self._stop.is_set():
+                return False
+            if time.monotonic() - renewed[0] >= self.lease_s / 4:
+                renewed[0] = time.monotonic()
+                return renew(store, upload["id"], worker)
+            return True
+
+        def on_note(note: dict) -> float:
+            budget[0] = BUDGET_START_S + float(note.get("sim_s", self.max_session_s))
+            return budget[0]
+
+        options = {"witnessed": bool(upload.get("witnessed")), "max_session_s": self.max_session_s}
+        try:
+            job = (upload["recording"], root, self.packs.pack_paths, options)
+            answer = proc.run(job, budget[0], keep_going, on_note)
+        except Cancelled:
+            logger.info("upload %s: replay stopped (cancelled, taken over or server stopping)", upload["id"])
+            return None
+        except OverBudget:
+            return None, (
+                f"the replay ran past its budget of {budget[0]:.0f} s (the session's simulated time and "
+                f"{BUDGET_START_S:.0f} s to start) and was stopped"
+            )
+        except ReplayFailed as exc:
+            if self._stop.is_set():
+                return None
+            logger.warning("scoring upload %s: %s; it is tried again once", upload["id"], exc)
+            with store.transaction() as conn:  # free the claim for the next try (claims are counted)
+                conn.execute("UPDATE uploads SET claimed_by = NULL WHERE id = ?", (upload["id"],))
+            return None
+        if answer[0] == "ok":
+            return answer[1], None
+        if answer[1] == "UserError":
+            return None, f"the recording does not replay: {answer[2]}"
+        logger.warning("scoring upload %s failed: %s: %s", upload["id"], answer[1], answer[2])
+        return None, f"the recording does not replay: {answer[1]}: {answer[2][:200]}"
+
+    def _score(self, store: RecordStore, upload: dict, worker: str, proc: ReplayProcess) -> None:
         info = self.packs.info(upload["pack"])
-        scored, error = None, None
         if info is None or info["identity"]["hash"] != upload["pack_hash"]:
+            scored = None
             error = f"pack {upload['pack']!r} is no longer on this server at the version the attempt ran on"
         else:
-            try:
-                assert self._pool is not None
-                future = self._pool.submit(replay_record, upload["recording"], info["root"], self.packs.pack_paths)
-                scored = future.result()
-            except UserError as exc:
-                error = f"the recording does not replay: {exc}"
-            except BrokenProcessPool as exc:
-                if self._stop.is_set():
-                    return
-                self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
-                if upload["tries"] < MAX_TRIES:
-                    logger.warning("scoring upload %s: the replay process failed (%s); trying again", upload["id"], exc)
-                    with store.transaction() as conn:  # free the claim for the next try
-                        conn.execute("UPDATE uploads SET claimed_by = NULL WHERE id = ?", (upload["id"],))
-                    return
-                error = "the replay failed on the server every time it was tried"
-            except Exception as exc:  # a replay that crashes is the recording's fault, said in one line
-                logger.warning("scoring upload %s failed", upload["id"], exc_info=True)
-                error = f"the recording does not replay: {type(exc).__name__}: {str(exc)[:200]}"
+            result = self._replay(store, upload, worker, proc, info["root"])
+            if result is None:
+                return
+            scored, error = result
         aid = finish(store, upload, worker, scored, error)
         if aid is not None:
-            logger.info("upload %s scored: attempt %s", upload["id"], aid)
+            assert scored is not None
+            run, of = scored["steps"]
+            logger.info(
+                "upload %s scored: attempt %s (replayed %d of the recording's %d steps)", upload["id"], aid, run, of
+            )
         elif error:
             logger.info("upload %s refused: %s", upload["id"], error)

@@ -353,7 +353,10 @@ class Trainer:
             digest = scoring.body_hash(body)
             class_name, trainee = api.file_under(seat.user, body)
             checked = await run_in_threadpool(scoring.check_upload, app.state.packs, body)
-            row, created = await storage.run(api.queue_upload, seat.user, class_name, trainee, checked, None, digest)
+            # the server ran this session: the attempt is witnessed, whatever the class requires
+            row, created = await storage.run(
+                api.queue_upload, seat.user, class_name, trainee, checked, None, digest, True
+            )
             if created:
                 app.state.scorer.wake()
             answer = await storage.run(api.acknowledgement, row)

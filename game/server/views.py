@@ -19,6 +19,7 @@ procedure (pack) at a time.
                                             step times, aids, details
     GET  /attempts/{id}/replay.json, /attempts/{id}/xray/{k}.png, /packs/{pack}/display.glb
     POST /attempts/{id}/retract             with a reason (audit log)
+    POST /attempts/{id}/accept              a trainer accepts a flagged attempt (audit log)
     GET  /export/attempts.csv, /export/attempts.xapi.json   ?class=C&trainee=T
 """
 
@@ -42,7 +43,13 @@ from chainsim.game.records import report, xapi
 from chainsim.game.records.store import RecordStore
 from chainsim.game.server import accounts, classpage, plots, replay3d, scoring, throttle
 from chainsim.game.server.accounts import User
-from chainsim.game.server.api import audit_entries, readable_attempt, retract_attempt, visible_attempts
+from chainsim.game.server.api import (
+    accept_attempt,
+    audit_entries,
+    readable_attempt,
+    retract_attempt,
+    visible_attempts,
+)
 from chainsim.game.server.auth import (
     LOGIN_CSRF_COOKIE,
     SESSION_COOKIE,
@@ -552,6 +559,15 @@ async def attempt_retract(request: Request) -> Response:
     return RedirectResponse(f"/attempts/{attempt_id}", status_code=303)
 
 
+async def attempt_accept(request: Request) -> Response:
+    user, csrf = await page_user(request)
+    form = await read_form(request)
+    check_csrf(request, form, csrf)
+    attempt_id = _int_param(request, "attempt_id")
+    await request.app.state.storage.run(accept_attempt, user, attempt_id)
+    return RedirectResponse(f"/attempts/{attempt_id}", status_code=303)
+
+
 async def audit_page(request: Request) -> Response:
     user, csrf = await page_user(request)
     rows = await request.app.state.storage.run(audit_entries, user, None)
@@ -603,6 +619,7 @@ routes = [
     Route("/trainees/{trainee_id:int}/plot/{pack}/{image}", plot_image, methods=["GET"]),
     Route("/attempts/{attempt_id:int}", attempt_page, methods=["GET"]),
     Route("/attempts/{attempt_id:int}/retract", attempt_retract, methods=["POST"]),
+    Route("/attempts/{attempt_id:int}/accept", attempt_accept, methods=["POST"]),
     Route("/attempts/{attempt_id:int}/replay.json", attempt_replay, methods=["GET"]),
     Route("/attempts/{attempt_id:int}/xray/{image}", attempt_xray, methods=["GET"]),
     Route("/packs/{pack}/display.glb", pack_mesh, methods=["GET"]),

@@ -91,18 +91,20 @@ def attempt(i: int = 0, **over) -> dict:
 
 
 def save_through_simulator(url: str, local: str, script: str, trainee: str = "alice") -> None:
-    """Run a built-in scripted attempt in the simulator with --records and press Save at its end."""
-    from chainsim.components.input_events import Widget  # noqa: PLC0415 - the simulator, loaded when used
-    from chainsim.components.resources import PendingInput  # noqa: PLC0415
+    """Make a built-in scripted attempt in the simulator with --records as a person at the window does
+    (its picks and widget presses as clicks and drags at a person's pace, ``chainsim.game.app.windowform``)
+    and click Save at its end."""
+    from chainsim.components.resources import PendingInput  # noqa: PLC0415 - the simulator, loaded when used
+    from chainsim.game.app import windowform  # noqa: PLC0415
     from chainsim.game.app.headless import build_app  # noqa: PLC0415
     from chainsim.game.app.inputscript import load_script  # noqa: PLC0415
 
-    events = load_script(SCRIPTS / script)
-    end = events[-1][0]
     app = build_app("prp", settings={"db": local, "records": url, "class": "c1", "trainee": trainee})
     try:
-        app.resource(PendingInput).extend([*events, (end + 0.5, Widget("save"))])
-        app.run_steps(int((end + 1.0) * 120))
+        events = windowform.gestures(app, load_script(SCRIPTS / script))
+        events += windowform.save_click(app, max(t for t, _ in events))
+        app.resource(PendingInput).extend(events)
+        app.run_steps(int((events[-1][0] + 1.0) * 120))
     finally:
         app.close()
 
@@ -170,6 +172,8 @@ def start_server(db: str, log: Path, port: int | None = None, args: tuple[str, .
     if PACKS:  # a session's server starts before any test's environment is set
         env["CHAINSIM_PACK_PATH"] = str(PACKS[0])
     fh = log.open("ab")
+    if not any(a.startswith("--uploads-per-minute") for a in args):  # tests upload far more than a person
+        args = (*args, "--uploads-per-minute", "6000")
     proc = subprocess.Popen(
         [sys.executable, "-m", "chainsim.game", "serve", "--db", db, "--port", str(port), *args],
         stdout=fh,

@@ -3,8 +3,9 @@
 Uploads come from the real simulator (the prp pack, scripted input, Save pressed) through the
 local outbox, to a real `chainsim serve` over SQLite and PostgreSQL. A queued upload edited to
 claim a success after an attempt that hit the skull is stored with the replay's figures and
-flagged; an unknown pack, another copy of a pack or a recording that never saves is refused and
-stays queued with the reason; a server killed with uploads waiting scores each of them once
+flagged; an unknown pack, another copy of a pack or an upload without its recording is refused and
+stays queued with the reason (a recording that never saves is refused by the scorer:
+test_provenance.py); a server killed with uploads waiting scores each of them once
 after a restart; attempts cannot be deleted by a trainee, and a trainer's retraction is audited.
 A trainer who updates a pack on a running server has uploads made with the new files scored
 without a restart, and those made with the old files refused.
@@ -89,7 +90,7 @@ def test_honest_upload_is_not_flagged_and_the_server_keeps_time(server, tmp_path
     assert a["client_created_at"] == json.loads(row["attempt"])["created_at"]
 
 
-def test_unknown_pack_or_copy_or_non_saving_recording_is_refused_and_stays_queued(server, tmp_path):
+def test_unknown_pack_or_copy_or_no_recording_is_refused_and_stays_queued(server, tmp_path):
     local = queue_offline(tmp_path, server.url, "skull-hit.toml")
     with RecordStore(local) as store:
         (row,) = store.query("SELECT id, attempt FROM outbox")
@@ -99,9 +100,6 @@ def test_unknown_pack_or_copy_or_non_saving_recording_is_refused_and_stays_queue
             "not on this server": {**good, "pack_identity": {**good["pack_identity"], "name": "nope"}, "pack": "nope"},
             "another copy": {**good, "pack_identity": {**good["pack_identity"], "hash": "0" * 64}},
         }
-        rec = provenance.decode_recording(good["recording"])
-        rec["event"] = [e for e in rec["event"] if e.get("name") != "save"]
-        cases["never presses Save"] = {**good, "recording": provenance.encode_recording(rec)}
         cases["must carry its recording"] = {k: v for k, v in good.items() if k != "recording"}
         for expected, body in cases.items():
             with store.transaction() as conn:

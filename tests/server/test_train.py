@@ -441,6 +441,8 @@ def test_a_whole_correct_attempt_in_the_browser_is_saved_under_the_trainee(brows
     assert attempt["target"].startswith("foramen_ovale")
     status, full, _ = call(site, "GET", f"/api/attempts/{attempt['id']}", token=site.tokens["bob"])
     assert status == 200 and full["differences"] == []
+    # the server ran this session: the attempt is witnessed, and its pace is not judged
+    assert full["source"] == "witnessed" and full["flags"] == []
 
 
 @pytest.mark.parametrize(

@@ -323,7 +323,7 @@ def test_v1_database_is_migrated_in_place_with_rows_intact(tmp_path):
     path = tmp_path / "old.sqlite3"
     make_v1(path)
     with RecordStore(path) as s:
-        assert s.schema_version == SCHEMA_VERSION == 8
+        assert s.schema_version == SCHEMA_VERSION == 9
         rows = s.list_attempts()
         assert [r["created_at"] for r in rows] == [f"2025-01-0{i + 1}T10:00:00Z" for i in range(3)]
         assert [r["needle_error_mm"] for r in rows] == [None, 7.0, 6.0]
@@ -383,7 +383,7 @@ def test_v4_database_keeps_its_rows_and_gains_xray_costs_and_questionnaires(tmp_
     before = [tuple(r) for r in conn.execute("SELECT * FROM attempts ORDER BY id")]
     conn.close()
     with RecordStore(path) as s:
-        assert s.schema_version == 8  # through versions 5, 6 and 7, and on to 8
+        assert s.schema_version == SCHEMA_VERSION  # through versions 5, 6 and 7, and on to the newest
         rows = s.list_attempts()
         assert [(r["xray_shots"], r["exposure_s"], r["dose_mgy"]) for r in rows] == [(0, 0.0, 0.0)] * 3
         assert [r["redirections"] for r in rows] == [0, 0, 2]
@@ -547,7 +547,7 @@ def test_v5_rhizotomy_rows_migrate_to_the_metrics_table_and_lose_nothing(tmp_pat
     ]
     conn.close()
     with RecordStore(path) as s:
-        assert s.schema_version == 8
+        assert s.schema_version == SCHEMA_VERSION
         rows = s.list_attempts()
         assert len(rows) == len(before) == 3
         for old, new in zip(before, rows):
@@ -590,6 +590,6 @@ def test_v7_sign_ins_are_kept_and_trust_the_systems_authorities_after_migration(
     conn.commit()
     conn.close()
     with RecordStore(path) as s:
-        assert s.schema_version == 8
+        assert s.schema_version == SCHEMA_VERSION
         rows = s.query("SELECT server, user_name, token, ca_pem FROM server_logins")
         assert [tuple(r) for r in rows] == [("https://records.example.org", "alice", "tok", None)]

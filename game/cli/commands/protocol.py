@@ -86,7 +86,7 @@ NAME = "protocol"
 HELP = "run a study protocol with a participant at the window (or scripted), print Table 6.1 over all participants"
 
 AIDS = layout.AIDS
-TOP_KEYS = {"format", "pack", "title", "description", "trial"}
+TOP_KEYS = {"format", "pack", "title", "description", "trial", "require_witnessed"}
 TRIAL_KEYS = {"name", "task", "condition", "scripts", "script", "repeat", "steps", "aids"}
 
 
@@ -207,7 +207,17 @@ def load_protocol(path: str | Path) -> dict:
     runs = sum(max(len(t["scripts"]), 1) * t["repeat"] for t in out)
     if runs > limits.MAX_PROTOCOL_RUNS:
         raise _err(where, f"asks for {runs:,} runs, over the {limits.MAX_PROTOCOL_RUNS:,} limit (docs/limits.md)")
-    return {"path": path, "pack": data["pack"], "title": data.get("title", ""), "trials": out}
+    witnessed = data.get("require_witnessed", False)
+    if not isinstance(witnessed, bool):
+        raise _err(where, f"'require_witnessed' must be true or false, got {witnessed!r}")
+    return {
+        "path": path,
+        "pack": data["pack"],
+        "title": data.get("title", ""),
+        "trials": out,
+        # the summary counts only attempts the records server witnessed (made in its browser trainer)
+        "require_witnessed": witnessed,
+    }
 
 
 def _script_path(proto: dict, pack_root: Path, rel: str, where: str) -> Path:
@@ -282,7 +292,13 @@ def run_summary(args, proto: dict) -> int:
         except UserError:
             attempts, questionnaires = [], []
     attempts, questionnaires = current_attempts(attempts), newest_questionnaires(questionnaires)
+    left_out = 0
+    if proto.get("require_witnessed"):
+        kept = [a for a in attempts if a.get("source") == "witnessed"]
+        left_out, attempts = len(attempts) - len(kept), kept
     rows = [r for r in study_rows(attempts, study) if not r["scripted"]]
+    if left_out:
+        print(f"{left_out} attempt(s) left out: the study requires witnessed attempts (browser trainer)")
     if not rows:
         raise UserError(
             f"no attempts of study '{study}' by people in class '{args.class_name}' in {store.path}; "

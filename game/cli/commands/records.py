@@ -12,7 +12,7 @@ import json
 import sys
 from pathlib import Path
 
-from chainsim.game.cli.commands import records_server
+from chainsim.game.cli.commands import records_queue, records_server
 from chainsim.game.records import report as report
 from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import printable
@@ -23,7 +23,7 @@ from chainsim.systems.procedures.needle import records as layout
 NAME = "records"
 HELP = "view, export, plot or delete trainee records (classes, trainees, attempts)"
 #: actions that look at what exists: on a path with no database they say so (a mistyped --db)
-READ_ONLY = ("classes", "trainees", "list", "show", "plot", "delete")
+READ_ONLY = ("classes", "trainees", "list", "show", "plot", "delete", "uploads")
 
 _EPILOG = """\
 database: --db PATH or postgresql:// URL, else $CHAINSIM_DB, else the user data folder (records.sqlite3).
@@ -75,6 +75,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     a.add_argument("--trainee", metavar="T", help="only this trainee")
     records_server.add_export_options(a)
     records_server.add_actions(action)
+    records_queue.add_actions(action)
 
     a = action("delete", "delete one attempt (needs --yes)")
     a.add_argument("id", type=_positive_id, help="attempt id (from `list`)")
@@ -167,6 +168,8 @@ def run(args: argparse.Namespace) -> int:
         act = args.action
         if act in records_server.ACTIONS:
             return records_server.run(args, store)
+        if act in records_queue.ACTIONS:
+            return records_queue.run(args, store)
         if act == "classes":
             rows = store.class_summary()
             print(

@@ -77,6 +77,20 @@ def add_parser(sub):
         "--scorers", type=int, default=2, metavar="N", help="attempts replayed at once, one process each (default 2)"
     )
     p.add_argument(
+        "--max-session-minutes",
+        type=_minutes,
+        default=45.0,
+        metavar="M",
+        help="the longest session a recording may hold (simulated minutes, default 45); a longer one is refused",
+    )
+    p.add_argument(
+        "--uploads-per-minute",
+        type=float,
+        default=6.0,
+        metavar="N",
+        help="uploads an account may file a minute on average, 20 at once (default 6); past it: 429 and Retry-After",
+    )
+    p.add_argument(
         "--trust-proxy",
         action="append",
         default=[],
@@ -99,6 +113,8 @@ def run(args) -> int:
     require_web_stack()
     from chainsim.game.server.app import serve  # noqa: PLC0415 - the web stack, once it is known to be there
 
+    if not 0.1 <= args.uploads_per_minute <= 10000:
+        raise UserError(f"--uploads-per-minute: expected 0.1 to 10000, got {args.uploads_per_minute:g}")
     if bool(args.certfile) != bool(args.keyfile):
         raise UserError("--certfile and --keyfile go together")
     if args.base_url is not None:
@@ -125,6 +141,8 @@ def run(args) -> int:
         log_level="warning" if level >= logging.WARNING else "info",
         pack_paths=args.pack_path,
         scorers=args.scorers,
+        max_session_s=args.max_session_minutes * 60.0,
+        uploads_per_minute=args.uploads_per_minute,
         base_url=args.base_url,
         trust_proxy=args.trust_proxy,
         train_max_s=None if args.train_max_minutes is None else args.train_max_minutes * 60.0,
