@@ -37,10 +37,13 @@ from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import clean_key, clean_name
 from chainsim.game.server import accounts, scoring, throttle
 from chainsim.game.server.accounts import User
-from chainsim.game.server.auth import HTTPError, api_user, read_json
+from chainsim.game.server.auth import MAX_JSON_BYTES, HTTPError, api_user, read_json
+from chainsim.systems.engine import limits
 from chainsim.systems.engine.errors import UserError
 
 IDEMPOTENCY_HEADER = "idempotency-key"
+#: an upload's body: the largest recording (base64 of at most MAX_RECORDING_BYTES) and the attempt's fields
+UPLOAD_BODY_BYTES = limits.MAX_RECORDING_BYTES * 4 // 3 + MAX_JSON_BYTES
 
 
 # -- store work (runs on a storage worker thread) ----------------------------------------------
@@ -80,7 +83,7 @@ def readable_attempt(store: RecordStore, user: User, attempt_id: int) -> dict:
     except UserError:
         raise HTTPError(404, f"no attempt with id {attempt_id}") from None
     if not user.can_see(attempt["class_name"], attempt["trainee"]):
-        raise HTTPError(403, f"attempt {attempt_id} is not yours to see")
+        raise HTTPError(403, "that attempt is not yours to see")
     return attempt
 
 
@@ -121,7 +124,7 @@ def readable_upload(store: RecordStore, user: User, upload_id: int) -> dict:
     if row is None:
         raise HTTPError(404, f"no upload with id {upload_id}")
     if not user.can_see(row["class_name"], row["trainee"]) and row["filed_by"] != user.name:
-        raise HTTPError(403, f"upload {upload_id} is not yours to see")
+        raise HTTPError(403, "that upload is not yours to see")
     return scoring.upload_view(row)
 
 
@@ -238,7 +241,7 @@ async def create_attempt(request: Request) -> Response:
 
 
 async def _create_attempt(request: Request, user: User) -> Response:
-    body = await read_json(request)
+    body = await read_json(request, UPLOAD_BODY_BYTES)
     if not isinstance(body, dict):
         raise HTTPError(422, f"an attempt must be a JSON object of fields, got {type(body).__name__}")
     key = request.headers.get(IDEMPOTENCY_HEADER)

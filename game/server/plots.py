@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import io
 import numbers
-import statistics
 from collections.abc import Sequence
 from typing import Any
 
@@ -51,17 +50,6 @@ def label(metric: str) -> str:
         if metric.endswith(suffix):
             return f"{metric[: -len(suffix)].replace('_', ' ')} ({unit})"
     return metric.replace("_", " ")
-
-
-def class_median(by_trainee: Sequence[Sequence[dict[str, Any]]], metric: str) -> list[float | None]:
-    """Per attempt number k (from 1), the median of the trainees' k-th values that exist."""
-    longest = max((len(rows) for rows in by_trainee), default=0)
-    out: list[float | None] = []
-    for k in range(longest):
-        values = [rows[k].get(metric) for rows in by_trainee if len(rows) > k]
-        values = [float(v) for v in values if _is_number(v)]
-        out.append(statistics.median(values) if values else None)
-    return out
 
 
 def render(

@@ -207,17 +207,21 @@ def load_protocol(path: str | Path) -> dict:
     runs = sum(max(len(t["scripts"]), 1) * t["repeat"] for t in out)
     if runs > limits.MAX_PROTOCOL_RUNS:
         raise _err(where, f"asks for {runs:,} runs, over the {limits.MAX_PROTOCOL_RUNS:,} limit (docs/limits.md)")
-    witnessed = data.get("require_witnessed", False)
-    if not isinstance(witnessed, bool):
-        raise _err(where, f"'require_witnessed' must be true or false, got {witnessed!r}")
     return {
         "path": path,
         "pack": data["pack"],
         "title": data.get("title", ""),
         "trials": out,
         # the summary counts only attempts the records server witnessed (made in its browser trainer)
-        "require_witnessed": witnessed,
+        "require_witnessed": _flag(data, "require_witnessed", where),
     }
+
+
+def _flag(data: dict, key: str, where: str) -> bool:
+    value = data.get(key, False)
+    if not isinstance(value, bool):
+        raise _err(where, f"'{key}' must be true or false, got {value!r}")
+    return value
 
 
 def _script_path(proto: dict, pack_root: Path, rel: str, where: str) -> Path:
