@@ -1,9 +1,10 @@
 """The paths the documentation shows, run as a user runs them against a real `chainsim serve`.
 
 docs/records-server.md: sign in with `chainsim records login`, then `chainsim run PACK --headless
---input SCRIPT --records URL` saves the scripted attempt (the built-in scripts end with Save attempt)
-and the server stores the figures its replay of the recording computes. The needle trainer and the
-cutting trainer alike.
+--input SCRIPT --records URL` saves the scripted attempt (the built-in scripts end with Save attempt).
+A script of mouse events only is in the window's form: the server stores the figures its replay of
+the recording computes, flagged because the script clicks faster than a person. A script that picks
+points and presses widgets (the cutting trainer's) is refused in one line.
 """
 
 from __future__ import annotations
@@ -30,9 +31,10 @@ def chainsim(*args: str, stdin: str | None = None) -> subprocess.CompletedProces
     )
 
 
-def run_and_score(site, tmp_path, pack: str, script: str) -> dict:
+def run_and_score(site, tmp_path, pack: str, script: str, scored: bool = True) -> dict:
     """Sign in as alice, run `chainsim run PACK --headless --input SCRIPT --records URL` as documented,
-    and return the attempt the server stored once its replay scored the upload."""
+    and return the attempt the server stored once its replay scored the upload (the upload's state when
+    ``scored`` is false)."""
     local = str(tmp_path / "local.sqlite3")
     r = chainsim("records", "--db", local, "login", site.url, "alice", "--password-stdin", stdin=PASSWORD + "\n")
     assert r.returncode == 0, r.stderr
@@ -43,6 +45,8 @@ def run_and_score(site, tmp_path, pack: str, script: str) -> dict:
     assert len(sent) == 1, sent  # the script's Save made one upload, sent at once
     token = site.tokens["alice"]
     result = wait_scored(site, sent[0][0], token)
+    if not scored:
+        return result
     assert result["status"] == "scored", result
     status, stored, _ = call(site, "GET", f"/api/attempts/{result['attempt_id']}", token=token)
     assert status == 200, stored
@@ -50,19 +54,17 @@ def run_and_score(site, tmp_path, pack: str, script: str) -> dict:
 
 
 def test_the_documented_needle_run_saves_an_attempt_the_server_scores(site, tmp_path):
-    stored = run_and_score(site, tmp_path, "prp", str(REPO / "assets" / "prp" / "scripts" / "correct.toml"))
+    stored = run_and_score(site, tmp_path, "prp", str(REPO / "assets" / "prp" / "scripts" / "correct-mouse.toml"))
     assert stored["pack"] == "prp" and stored["trainee"] == "alice" and stored["filed_by"] == "alice"
     assert stored["target"] == "foramen_ovale_left" and stored["needle_error_mm"] < 1.0
     assert stored["differences"] == []  # the replay computed what the simulator showed
+    assert stored["source"] == "replayed" and stored["accepted_by"] is None
+    assert any("clicks on separate targets within one second" in f for f in stored["flags"]), stored["flags"]
 
 
-def test_the_cutting_trainer_saves_an_attempt_the_server_scores_with_its_own_metrics(site, tmp_path):
-    stored = run_and_score(
-        site, tmp_path, "cutting", str(REPO / "assets" / "cutting" / "scripts" / "cut-and-open.toml")
+def test_a_scripted_attempt_that_picks_and_presses_widgets_is_refused_in_one_line(site, tmp_path):
+    result = run_and_score(
+        site, tmp_path, "cutting", str(REPO / "assets" / "cutting" / "scripts" / "cut-and-open.toml"), scored=False
     )
-    assert stored["pack"] == "cutting" and stored["target"] == "dura"  # the opening made in the top layer
-    metrics = stored["metrics"]
-    assert metrics["links_cut"] > 0 and metrics["layers_cut"] == 1
-    assert metrics["cut_length_mm"] > 50.0 and metrics["forceps_time_s"] > 0
-    assert stored["differences"] == []
-    assert set(stored["step_times"]) == {"pull", "cut", "open"}
+    assert result["status"] == "refused", result
+    assert "event, which the window never records" in result["error"] and "\n" not in result["error"]

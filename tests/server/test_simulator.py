@@ -30,6 +30,7 @@ from records_db import free_port
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import PendingInput
+from chainsim.game.app import windowform
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script
 from chainsim.game.packbuild.needle.make_prp_mouse_script import SCRIPTS
@@ -38,14 +39,15 @@ from chainsim.game.records.store import RecordStore
 
 
 def play_and_save(settings: dict) -> list[str]:
-    """Run the scripted correct attempt, press Save then My attempts; the HUD messages and panel."""
+    """Make the correct attempt as a person does at the window (clicks and drags at a person's pace), click
+    Save, then press My attempts; the HUD messages and panel."""
     app = build_app("prp", settings=settings)
     try:
-        events = load_script(SCRIPTS / "correct.toml")
-        app.resource(PendingInput).extend(
-            [(t + 0.2, e) for t, e in events] + [(5.5, Widget("save")), (6.0, Widget("my_attempts"))]
-        )
-        app.run_steps(int(6.5 * 120))
+        events = windowform.gestures(app, load_script(SCRIPTS / "correct.toml"))
+        events += windowform.save_click(app, events[-1][0])
+        end = events[-1][0]
+        app.resource(PendingInput).extend([*events, (end + 0.5, Widget("my_attempts"))])
+        app.run_steps(int((end + 1.0) * 120))
         hud = app.resource(HudState)
         return [m[0] if isinstance(m, tuple) else str(m) for m in getattr(hud, "messages", [])] + list(hud.panel_text)
     finally:
@@ -164,8 +166,7 @@ def chainsim(*args, env=None, stdin=None):
 
 @pytest.mark.slow
 def test_command_line_run_login_and_sync(site, tmp_path):
-    script = tmp_path / "save.toml"
-    script.write_text((SCRIPTS / "correct.toml").read_text() + '\n[[event]]\nt = 5.0\nkind = "widget"\nname = "save"\n')
+    script = SCRIPTS / "correct-mouse.toml"  # the window's form, ending with Self assessment and Save
     local = str(tmp_path / "local.sqlite3")
     r = chainsim("records", "--db", local, "login", site.url, "alice", "--password-stdin", stdin="wrong password\n")
     assert r.returncode == 2 and "refused the sign-in" in r.stderr and "Traceback" not in r.stderr

@@ -135,3 +135,21 @@ def test_a_recording_longer_than_the_server_replays_is_refused_before_any_step()
     rec["event"].append({"t": 1.0, "kind": "pick", "entity": "skin", "point": [0, 0, 0]})
     with pytest.raises(UserError, match="a 'pick' event, which the window never records"):
         scoring.replay_record(provenance.encode_recording(rec), str(root), [], {"max_session_s": 1e9})
+
+
+def test_upload_rate_allows_a_burst_then_the_rate_per_account():
+    from chainsim.game.server.auth import HTTPError
+    from chainsim.game.server.ratelimit import UploadRate
+
+    now = [0.0]
+    rate = UploadRate(per_minute=6, burst=20, clock=lambda: now[0])
+    for _ in range(20):
+        rate.take(1)
+    with pytest.raises(HTTPError) as refused:
+        rate.take(1)
+    assert refused.value.status == 429 and refused.value.headers["Retry-After"] == "10"
+    rate.take(2)  # another account is not held up
+    now[0] += 10.0  # one upload's worth of time
+    rate.take(1)
+    with pytest.raises(HTTPError):
+        rate.take(1)
