@@ -90,6 +90,37 @@ class Needle:
         help="Withdrawn back to the skin, the rotation unlocks where it is (withdraw and redirect); false: "
         "only a Reset unlocks it.",
     )
+    recontact_withdraw: float = prop(
+        "float",
+        2.0,
+        units="mm",
+        help="A contact with the same role counts again only after the needle was withdrawn this far past "
+        "where the last contact left it (after its spring-back), turned by recontact_angle, or touched "
+        "recontact_distance away; pushing on at the same place is the same contact.",
+        min=0.0,
+    )
+    recontact_angle: float = prop(
+        "float", 2.0, units="deg", help="A turn this large since the last contact makes the next one new.", min=0.0
+    )
+    recontact_distance: float = prop(
+        "float",
+        2.0,
+        units="mm",
+        help="A contact this far from the last counted one on the same role is a new contact.",
+        min=0.0,
+    )
+
+
+@dataclass(slots=True)
+class Touch:
+    """The last contact with one role (NeedleState.touches): where the last counted one was and which way
+    the needle pointed then, the depth the needle was left at after the latest one (its spring-back
+    included) and the shallowest depth since, which says how far the trainee has withdrawn."""
+
+    point: np.ndarray
+    direction: np.ndarray
+    rest: float
+    shallowest: float
 
 
 @dataclass(slots=True)
@@ -109,8 +140,10 @@ class NeedleState:
     done: bool = False  # tip is in the target: no further insertion
     contact: str = ""  # object the tip touched last ("" none)
     contact_point: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
-    contacts: dict[str, int] = field(default_factory=dict)  # per role name, this attempt
-    rotation_refused: int = 0
+    contacts: dict[str, int] = field(default_factory=dict)  # per role name, this attempt (the counted ones)
+    touches: dict[str, Touch] = field(default_factory=dict)  # per role name: what decides the next counts
+    rotation_refused: int = 0  # turns asked for while the needle was in (not while it withdrew to the skin)
+    held_turns: list = field(default_factory=list)  # (widget, value, increment) asked for on the way back
     path_length: float = 0.0  # mm travelled by the tip while inserted (forward and back)
     redirections: int = 0  # times the needle was withdrawn to the skin and turned again
     withdrawn: bool = False  # back at the skin after an insertion: the next turn is a redirection

@@ -45,17 +45,22 @@ class Feedback:
     def has(self, event: str) -> bool:
         return event in self.by_event
 
+    def light(self, event: str, lights: dict) -> None:
+        """Set the lights the pack gives `event`, without its messages."""
+        for e in self.by_event.get(event, []):
+            if e.get("light") and e.get("color"):
+                for name in lights:
+                    lights[name] = "off"
+                lights[e["light"]] = e["color"]
+
     def fire(self, app: App, event: str, lights: dict, default: str = "", **values) -> bool:
         """Show the event's messages and set its lights; `default` is said when the pack says nothing.
         Returns whether the pack declared feedback for the event."""
         entries = self.by_event.get(event, [])
         h = hud(app)
         said = False
+        self.light(event, lights)
         for e in entries:
-            if e.get("light") and e.get("color"):
-                for name in lights:
-                    lights[name] = "off"
-                lights[e["light"]] = e["color"]
             if e.get("message"):
                 h.message(e["message"].format_map(_Blank(values)))
                 said = True

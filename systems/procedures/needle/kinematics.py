@@ -1,9 +1,9 @@
 """Needle kinematics: rotation by concatenated quaternions, then insertion along the axis (thesis 3.3.4-3.3.5).
 
-Stage: simulation (ORDER_KINEMATICS). Reads: Widget and Key events, Needle, NeedleState, WidgetState,
-InputState. Writes: NeedleState, the Transforms of the needle (tip) and its shaft, WidgetState
-(`disabled` and the dial/slider values it keeps in step); emits RotationRefused, InsertRefused,
-NeedleAction and NeedleReset.
+Stage: simulation (ORDER_KINEMATICS). Reads: Widget, WidgetRefused (a click on a locked dial) and Key
+events, Needle, NeedleState, WidgetState, InputState. Writes: NeedleState, the Transforms of the needle
+(tip) and its shaft, WidgetState (`disabled` and the dial/slider values it keeps in step); emits
+RotationRefused, InsertRefused, NeedleAction and NeedleReset.
 
 Controls (documented for trainees in the pack's how-to page):
 
@@ -27,6 +27,13 @@ as in the thesis, until the needle is withdrawn back to the skin (depth 0) - the
 where they are, as a surgeon withdraws and redirects, and the next turn counts as a redirection -
 or until a reset (which also zeroes the dials). The needle is hidden until landmark 1 places it.
 
+A turn asked for while the needle is in (a key, a dial value, a click on the locked dial) is refused
+and counted (`rotation_refused`, RotationRefused "locked"). A turn asked for after the needle was sent
+back to the skin but before it got there (it withdraws at `withdraw_speed`) is not refused: the
+trainee has withdrawn and is redirecting, as a clinician turns the needle while drawing it back, so
+the turn is held (NeedleAction "turn_held") and made, in order, when the dials unlock at the skin;
+sent in again first, the needle drops the held turns and says so (NeedleAction "turns_dropped").
+
 Forward insertion reaches the requested depth within one step, or at the needle's `insert_speed` where
 the pack sets one (the tissue's friction depends on speed); the collision system that runs next tests
 the whole swept segment, so a jump of any length cannot pass through bone. Backward motion
@@ -47,6 +54,7 @@ from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, Widget
 from chainsim.components.resources import EntityIndex, InputState
 from chainsim.components.stages import ORDER_KINEMATICS
+from chainsim.components.view_events import WidgetRefused
 from chainsim.systems.engine import quaternion as Q
 from chainsim.systems.procedures.needle.components import Needle, NeedleState
 from chainsim.systems.view.ui.widgets import WidgetState
@@ -153,6 +161,7 @@ def reset(app: App, ent: int, needle: Needle, st: NeedleState) -> None:
     st.yaw = st.pitch = 0.0
     st.depth = st.target_depth = st.prev_depth = 0.0
     st.locked = st.done = st.withdrawn = False
+    st.held_turns = []
     st.contact = ""
     st.contact_point = np.full(3, np.nan)
     sync_widgets(app, st)
@@ -175,6 +184,7 @@ def park(app: App, ent: int, needle: Needle, st: NeedleState) -> None:
 def new_attempt(st: NeedleState) -> None:
     """Zero what an attempt counts (a saved attempt is closed; the next one counts afresh)."""
     st.contacts = {}
+    st.touches = {}
     st.rotation_refused = 0
     st.redirections = 0
     st.path_length = 0.0
@@ -208,18 +218,52 @@ def _widgets(app: App):
     return app.get_resource(WidgetState)
 
 
-def sync_widgets(app: App, st: NeedleState) -> None:
-    """Mirror the needle's pose and lock state on the controller's dials (also after a collision)."""
+def sync_widgets(app: App, st: NeedleState, needle: Needle | None = None) -> None:
+    """Mirror the needle's pose and lock state on the controller's dials (also after a collision). With
+    the `needle`, dials stay usable while it withdraws to the skin: their turns wait for it there."""
     ws = _widgets(app)
     if ws is None:
         return
     for name, v in (("rotate_horizontal", st.yaw), ("rotate_vertical", st.pitch), ("insert", st.target_depth)):
         if name in ws.specs:
             ws.set(name, v)
-    if st.locked:
+    if st.locked and not (needle is not None and withdrawing(needle, st)):
         ws.disable(*ROTATION_WIDGETS)
     else:
         ws.enable(*ROTATION_WIDGETS)
+
+
+def withdrawing(needle: Needle, st: NeedleState) -> bool:
+    """Locked, but sent back to the skin where the dials will unlock (the slider at 0, withdraw pressed
+    back to 0, or a spring-back from bone near the skin): the needle is still on its way there."""
+    return st.locked and st.target_depth <= 0.0 and needle.unlock_at_skin
+
+
+def turn(app: App, ent, needle: Needle, st: NeedleState, name: str, value, increment: bool) -> None:
+    """Turn the unlocked needle: by `value` degrees (`increment`) or to the dial angle `value`."""
+    current = st.yaw if name == "rotate_horizontal" else st.pitch
+    if increment:
+        delta = float(value)
+    elif isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+        delta = float(value) - current
+    else:
+        return
+    if delta == 0.0:
+        return
+    if st.withdrawn:  # turned after coming back to the skin: a redirection
+        st.withdrawn = False
+        st.redirections += 1
+    if name == "rotate_horizontal":
+        if needle.max_yaw > 0.0:
+            delta = min(max(st.yaw + delta, -needle.max_yaw), needle.max_yaw) - st.yaw
+            if delta == 0.0:
+                return
+        rotate_horizontal(st, delta)
+    else:
+        rotate_vertical(st, delta, needle.max_pitch)
+    apply_pose(app, ent, needle, st)
+    sync_widgets(app, st, needle)
+    app.events.emit(NeedleAction(name, st.yaw if name == "rotate_horizontal" else st.pitch))
 
 
 # -- the system -------------------------------------------------------------------------------------
@@ -228,6 +272,7 @@ def sync_widgets(app: App, st: NeedleState) -> None:
 class NeedleSystem:
     def __init__(self, app: App):
         self.widgets = app.events.reader(Widget)
+        self.refused = app.events.reader(WidgetRefused)
         self.keys = app.events.reader(Key)
 
     def commands(self, app: App):
@@ -235,6 +280,9 @@ class NeedleSystem:
         out = []
         for ev in self.widgets.read():
             out.append((ev.name, ev.value, False))
+        for ev in self.refused.read():  # a click on a locked dial: a turn asked for, with no angle
+            if ev.name in ROTATION_WIDGETS:
+                out.append((ev.name, None, False))
         for ev in self.keys.read():
             if ev.pressed and ev.key in KEY_ACTIONS:
                 name, sign = KEY_ACTIONS[ev.key]
@@ -242,36 +290,25 @@ class NeedleSystem:
         return out
 
     def rotate(self, app: App, ent, needle, st, name, value, from_key) -> None:
+        """A turn asked for: made, held until the needle is back at the skin, or refused (and counted)."""
         if not st.placed:
             app.events.emit(RotationRefused(name, "not_placed"))
+            return
+        if from_key:  # a key turns by a step from where the dial is; held, it keeps that increment
+            value = float(value) * needle.rotate_step * (FINE if _shift(app) else 1.0)
+        if withdrawing(needle, st):
+            # sent back to the skin and still on its way: the turn is the redirection asked for, made
+            # when the dials unlock there - the time the withdrawal takes is the simulator's, not a
+            # refusal of the trainee's technique
+            if value is not None:
+                st.held_turns.append((name, value, from_key))
+            app.events.emit(NeedleAction("turn_held", float(len(st.held_turns))))
             return
         if st.locked:
             st.rotation_refused += 1
             app.events.emit(RotationRefused(name, "locked"))
             return
-        current = st.yaw if name == "rotate_horizontal" else st.pitch
-        if from_key:
-            delta = float(value) * needle.rotate_step * (FINE if _shift(app) else 1.0)
-        elif isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
-            delta = float(value) - current
-        else:
-            return
-        if delta == 0.0:
-            return
-        if st.withdrawn:  # turned after coming back to the skin: a redirection
-            st.withdrawn = False
-            st.redirections += 1
-        if name == "rotate_horizontal":
-            if needle.max_yaw > 0.0:
-                delta = min(max(st.yaw + delta, -needle.max_yaw), needle.max_yaw) - st.yaw
-                if delta == 0.0:
-                    return
-            rotate_horizontal(st, delta)
-        else:
-            rotate_vertical(st, delta, needle.max_pitch)
-        apply_pose(app, ent, needle, st)
-        sync_widgets(app, st)
-        app.events.emit(NeedleAction(name, st.yaw if name == "rotate_horizontal" else st.pitch))
+        turn(app, ent, needle, st, name, value, from_key)
 
     def insert(self, app: App, ent, needle, st, name, value, from_key) -> None:
         if not st.placed:
@@ -293,7 +330,11 @@ class NeedleSystem:
         st.target_depth = min(max(want, 0.0), needle.max_depth)
         if st.target_depth > 0.0 and not st.locked and needle.lock_on_insert:
             st.locked = True  # thesis 3.3.4: no rotation once the insertion has begun
-        sync_widgets(app, st)
+        if st.target_depth > 0.0 and st.held_turns:
+            # sent in again before it reached the skin: the turns that waited for the skin are not made
+            app.events.emit(NeedleAction("turns_dropped", float(len(st.held_turns))))
+            st.held_turns = []
+        sync_widgets(app, st, needle)
         app.events.emit(NeedleAction(name, st.target_depth))
 
     def __call__(self, app: App) -> None:
@@ -331,8 +372,11 @@ class NeedleSystem:
             # back at the skin: the dials unlock where they are (withdraw and redirect)
             st.locked = st.done = False
             st.withdrawn = True
-            sync_widgets(app, st)
+            sync_widgets(app, st, needle)
             app.events.emit(NeedleAction("withdrawn", 0.0))
+            held, st.held_turns = st.held_turns, []
+            for name, value, increment in held:  # the turns asked for on the way back, in order
+                turn(app, ent, needle, st, name, value, increment)
 
 
 def init_state(app: App) -> None:

@@ -37,9 +37,9 @@ import numpy as np
 from chainsim.components.app import App
 from chainsim.components.core import Label, Marker, MeshRef, Name, Transform
 from chainsim.components.input_events import Widget
-from chainsim.components.resources import EntityIndex, PackResource
+from chainsim.components.resources import EntityIndex, PackResource, RunInfo
 from chainsim.components.stages import ORDER_PROCEDURE
-from chainsim.components.view_events import Picked, WidgetRefused
+from chainsim.components.view_events import Picked
 from chainsim.systems.engine import quaternion as Q
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.procedures.needle import assessment, collision, fluoro, tissue
@@ -64,6 +64,9 @@ DEFAULTS = {
     "landmark_missing": "Landmark {n} is not placed yet: the steps go in order. {instruction}",
     "landmark": "Landmark {n} placed.",
     "withdrawn": "The needle is back at the skin: the dials are free; turn them to redirect.",
+    "turn_held": "The needle is on its way back to the skin: the turn is made when it gets there.",
+    "turns_dropped": "The needle went in again before it reached the skin: {n} turns asked for on the way "
+    "back were not made.",
     "refused:locked": "The dials are locked while the needle is in: withdraw it to the skin, or press Reset.",
     "refused:not_placed": "Place landmark {n} first: the needle starts there.",
     "refused:in_target": "The needle is in the target; press Reset to try again.",
@@ -73,6 +76,8 @@ DEFAULTS = {
     "attempt": "Attempt {attempt} begins: its time, path and contacts count from zero.",
     "contact:target": "The needle reached {what}.",
     "contact": "The needle touched {what}, its tip {dist_mm:.1f} mm from the target centre.",
+    "contact_again": "Still on {what} at the same place: one contact until you withdraw {withdraw_mm:g} mm, "
+    "turn the needle or meet it elsewhere.",
 }
 
 
@@ -87,7 +92,6 @@ class ProcedureSystem:
         self.actions = app.events.reader(NeedleAction)
         self.resets = app.events.reader(NeedleReset)
         self.refused = app.events.reader(RotationRefused)
-        self.widget_refused = app.events.reader(WidgetRefused)
         self.insert_refused = app.events.reader(InsertRefused)
         self.hits = app.events.reader(NeedleHit)
         pres: PackResource = app.resource(PackResource)
@@ -107,6 +111,8 @@ class ProcedureSystem:
             (v["name"] for v in pres.layout.get("viewports", []) if v.get("attach") == needle_name), ""
         )
         self.fluoro_first = fluoro.fluoro_first(app)
+        info = app.get_resource(RunInfo)
+        self.replay = bool(info is not None and info.replay)
         ids = [s["id"] for s in self.step_list]
         landmark_steps = [i for i, s in enumerate(self.step_list) if s.get("landmark")]
         self.reset_all_step = self.config.get("reset_all_step") or (ids[landmark_steps[0]] if landmark_steps else "")
@@ -256,16 +262,15 @@ class ProcedureSystem:
             self.event(app, ps, f"button:{ev.name}")
         self._read_resets(app, ps)
         entry_n = self.scene.entry + 1
-        for ev in self.widget_refused.read():
-            if ev.name in ROTATION_WIDGETS:
-                self.say(app, "refused:locked")
+        # every refused turn says why, each time (the HUD counts a repeated message: "(x5)"); a click on
+        # a locked dial comes here too, through the needle system, which counts it
         for ev in self.refused.read():
             self.say(app, "refused:locked" if ev.reason == "locked" else "refused:not_placed", n=entry_n)
         for ev in self.insert_refused.read():
             self.say(app, f"refused:{ev.reason}", n=entry_n)
         for ev in self.actions.read():
-            if ev.kind == "withdrawn":
-                self.say(app, "withdrawn")
+            if ev.kind in ("withdrawn", "turn_held", "turns_dropped"):
+                self.say(app, ev.kind, n=int(ev.value))
                 continue
             self.begin_attempt(app, ps)
             if ev.kind in ROTATION_WIDGETS:
@@ -280,7 +285,8 @@ class ProcedureSystem:
         for name in self.lights:
             h.set_light(name, self.lights[name] if show else "off")
         self.update_planes(app, ps)
-        self.update_aim(app, ps)
+        if not self.replay:  # the aiming aid is drawn, never read back: a replay has no use for it
+            self.update_aim(app, ps)
         # time per step, in fixed simulation steps (never the frame's length, which depends on the
         # machine); the clock stops once the target is reached or the attempt is saved
         ticks, self.last_tick = app.time.tick - self.last_tick, app.time.tick
@@ -350,16 +356,20 @@ class ProcedureSystem:
         is_target = ev.role == scene.target_role
         if is_target:
             ps.finished = True
-        self.say(
-            app,
-            f"contact:{ev.role}",
-            "contact:target" if is_target else "contact",
+        values = dict(
             what=scene.label(ev.object),
             dist_mm=ev.distance_to_target_mm,
             error_mm=ev.distance_to_target_mm - radius,
             radius_mm=radius,
             side=ps.side,
         )
+        if not ev.counted and not is_target:
+            # pushed on at the same place: the contact's light, and a line saying it is not another one
+            self.feedback.light(f"contact:{ev.role}", self.lights)
+            _ent, needle, _st = self.needle(app)
+            self.say(app, f"contact_again:{ev.role}", "contact_again", withdraw_mm=needle.recontact_withdraw, **values)
+        else:
+            self.say(app, f"contact:{ev.role}", "contact:target" if is_target else "contact", **values)
         self.event(app, ps, f"contact:{ev.role}")
 
     def next_step(self, app: App, ps: ProcedureState) -> None:
@@ -451,7 +461,7 @@ def _check(pack, scene: NeedleScene, index: EntityIndex) -> None:
     for what, ev in events:
         kind, _, arg = ev.partition(":")
         bad = (
-            (kind in ("click", "contact") and arg not in scene.roles)
+            (kind in ("click", "contact", "contact_again") and arg not in scene.roles)
             or (kind == "landmark" and arg not in ids)
             or (kind == "dial" and arg not in ROTATION_WIDGETS)
             or (kind == "refused" and arg not in ("locked", "not_placed", "in_target", "max_depth"))
@@ -466,7 +476,10 @@ def _check(pack, scene: NeedleScene, index: EntityIndex) -> None:
                 "dial",
                 "depth",
                 "withdrawn",
+                "turn_held",
+                "turns_dropped",
                 "contact",
+                "contact_again",
                 "refused",
                 "reset",
                 "reset_all",
