@@ -7,10 +7,12 @@ the help. Until the groups the scene needs are compiled (`needed_groups`: the no
 kernels every scene draws and steps with, and the kernels of each soft body's model), `KernelGate`
 lets through what needs no kernel - the pointer moving, a resize, the sign-in form, F1 and the help
 pages and their buttons - and holds everything else in order: the scene is not stepped while input
-is held, the window keeps drawing and answering, and the HUD says that the input waits and how far
-compiling has got. When the groups are ready the held input goes to the scene with its own spacing
-in time, as if it had just been given. Without a gate (`chainsim warmup` done, or a script played)
-nothing changes.
+is held, the window keeps drawing and answering, and the HUD says that the input waits (how many
+presses and clicks) and how far compiling has got. When the groups are ready the held input goes to
+the scene with its own spacing in time, as if it had just been given, and the HUD says so; input
+given after it waits behind it, so nothing overtakes what was held (a key's release its press).
+Nothing given while compiling is dropped. Without a gate (`chainsim warmup` done, or a script
+played) nothing changes.
 """
 
 from __future__ import annotations
@@ -64,12 +66,14 @@ class KernelGate:
 
     def lets_through(self, ev, hud: HudState, hover: str) -> bool:
         """Whether `ev` may reach the App now."""
-        if self.ready():
-            return True
         if isinstance(ev, (MouseMove, Resize)):
             return True
-        if self.held:  # once something waits, what follows waits behind it (a release after its press)
+        # once something waits, what follows waits behind it (a release after its press), also when the
+        # kernels are ready but the held input has not been released yet (that happens once a frame)
+        if self.held:
             return False
+        if self.ready():
+            return True
         if hud.doc_open or hud.notice:
             return True  # a page or question has the input; its box keeps clicks from the scene
         if isinstance(ev, Key):
@@ -78,6 +82,10 @@ class KernelGate:
 
     def hold(self, wall: float, ev) -> None:
         self.held.append((wall, ev))
+
+    def presses(self, events=None) -> int:
+        """Key presses and button presses among `events` (default: the held ones)."""
+        return sum(bool(getattr(ev, "pressed", False)) for _w, ev in (self.held if events is None else events))
 
     def stepping(self) -> bool:
         """Whether the scene may step this frame: not while input waits for kernels, nor, when a script
@@ -100,7 +108,7 @@ class KernelGate:
         c = self.compiler
         have = set(c.done)
         done = sum(n in have for n in self.needed)
-        lead = "Your input waits: " if self.held else ""
+        lead = f"Your input waits ({self.presses()} presses and clicks): " if self.held else ""
         return (
             f"{lead}preparing the soft-tissue engine (first start only): {done} of {len(self.needed)} kernel "
             f"groups compiled. Sign in and read the help (F1) meanwhile."

@@ -484,8 +484,12 @@ class WindowSession:
         gate.show(self.hud)
         if not meshbuf.KERNEL_NORMALS and compiler.ready([GEOMETRY]):
             meshbuf.KERNEL_NORMALS = True
-        for t_ev, ev in gate.release(self.now(), self.app.time.dt):
+        released = gate.release(self.now(), self.app.time.dt)
+        for t_ev, ev in released:
             self.pending.push(t_ev, ev)
+        if released:  # said, so a trainee who pressed on meanwhile knows where that input went
+            n = gate.presses(released)
+            self.hud.message(f"Ready: the {n} presses and clicks given while preparing are applied now, in order.", 8.0)
 
     def on_close(self):
         # the window's close button asks as Esc does; a second close (or Esc) while asked quits
