@@ -35,6 +35,7 @@ COMMANDS: dict[str, str] = {
     "serve": "run the records server: trainers' dashboard and JSON API over the records database",
     "snapshot": "render a pack's window layout off screen to a PNG",
     "study": "speed-accuracy study of ChainMail vs FEM and mass-spring; calibrate ChainMail presets",
+    "study-report": "known-groups validity of a pack's metrics: novices against experts, pass marks, a report to file",
     "validate": "check a pack folder and report every problem",
     "warmup": "compile the soft-tissue kernels now (seconds, once per install) so no interaction waits on it",
 }
