@@ -34,3 +34,14 @@ def _untyped(path: Path) -> list[str]:
 @pytest.mark.parametrize("path", TYPED, ids=[p.relative_to(ENGINE).as_posix() for p in TYPED])
 def test_public_functions_are_typed(path):
     assert _untyped(path) == []
+
+
+def test_the_researchers_names_come_from_the_engine_package():
+    import chainsim.systems.engine as engine
+    from chainsim.systems.engine.bodies.factory import make_body
+    from chainsim.systems.engine.meshgen import tet_grid
+
+    assert engine.make_body is make_body and engine.tet_grid is tet_grid
+    assert set(engine.__all__) == {"make_body", "tet_grid"}
+    with pytest.raises(AttributeError, match="no attribute 'make_bodies'"):
+        engine.make_bodies  # noqa: B018 - a misspelt name fails as a missing attribute does
