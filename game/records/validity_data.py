@@ -6,7 +6,7 @@ procedures_performed) or, without one, from the attempts themselves: an attempt'
 synthetic cohort's do. A register, when given, decides every participant's group.
 
 A participant is ``details.protocol.participant`` where the attempt was made in a study (``chainsim
-protocol``), else the trainee it was saved under. Attempts of another pack, study or condition,
+protocol``), else the trainee it was saved under. Attempts of another pack, study, task or condition,
 retracted ones and ones whose input was flagged and not accepted (``in_class_figures``), and those of
 participants with no group, are left out and counted. An attempt made by a script (``scripted``) or
 drawn by the synthetic cohort builder (``synthetic``) is counted as such: the report then says its data
@@ -127,7 +127,7 @@ def parse_register(text: str, path: str) -> dict[str, Participant]:
         if not any(c.strip() for c in cells):
             continue  # a blank line, as spreadsheets leave at the end
         if len(cells) != len(names):
-            problems.append(f"line {line}: {len(cells)} cells; the header has {len(names)}")
+            problems.append(f"line {line}: {len(cells)} cell{'s' * (len(cells) != 1)}; the header has {len(names)}")
             continue
         p, problem = _row(line, dict(zip(names, cells)), seen)
         if problem:
@@ -197,15 +197,16 @@ class Selection:
         return sorted(p for p in self.series if self.participants[p].group == group)
 
 
-def _filtered(attempts: Iterable[dict[str, Any]], pack: str, study: str | None, condition: str | None, sel: Selection):
+def _filtered(attempts: Iterable[dict[str, Any]], pack: str, narrow: dict[str, str | None], sel: Selection):
+    """The attempts of `pack` whose details.protocol matches every key of `narrow` given (study, task,
+    condition) and that count in a class's figures; the rest counted in `sel.left_out` by reason."""
     for a in attempts:
         p = protocol(a)
+        other = next((k for k, v in narrow.items() if v is not None and p.get(k) != v), None)
         if a.get("pack") != pack:
             sel.left_out["of another pack"] += 1
-        elif study is not None and p.get("study") != study:
-            sel.left_out["of another study (or none)"] += 1
-        elif condition is not None and p.get("condition") != condition:
-            sel.left_out["of another condition (or none)"] += 1
+        elif other is not None:
+            sel.left_out[f"of another {other} (or none)"] += 1
         elif not in_class_figures(a):
             sel.left_out["retracted, or flagged and not accepted"] += 1
         else:
@@ -234,12 +235,14 @@ def select(
     *,
     pack: str,
     study: str | None = None,
+    task: str | None = None,
     condition: str | None = None,
 ) -> Selection:
-    """The attempts of `pack` (and `study`, `condition`) by participants with a group, oldest first."""
+    """The attempts of `pack` (and `study`, `task`, `condition`) by participants with a group, oldest first."""
     sel = Selection(groups_from="register" if register is not None else "attempts")
     by_person: dict[str, list[dict[str, Any]]] = {}
-    for a in _filtered(attempts, pack, study, condition, sel):
+    narrow = {"study": study, "task": task, "condition": condition}
+    for a in _filtered(attempts, pack, narrow, sel):
         by_person.setdefault(participant_of(a), []).append(a)
     for name, own in by_person.items():
         person = register.get(name) if register is not None else _group_from_attempts(name, own)

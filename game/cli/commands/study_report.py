@@ -1,7 +1,7 @@
 """`chainsim study-report`: does each metric of a pack tell experts from novices? Evidence a programme can file.
 
-Reads a pack's attempts from a records database (``--db``, ``--class``; ``--study`` and
-``--condition`` narrow them to one study of ``chainsim protocol`` and one of its conditions), takes
+Reads a pack's attempts from a records database (``--db``, ``--class``; ``--study``, ``--task`` and
+``--condition`` narrow them to one study of ``chainsim protocol``, one task and one condition), takes
 each participant's experience group from a register (``--groups FILE``, a CSV: participant, group
 (novice or expert), year_of_training, procedures_performed) or from the attempts' own
 ``details.protocol.group``, and writes into ``--out DIR`` one PNG per metric of the pack's [metrics],
@@ -63,6 +63,7 @@ def add_parser(sub):
         "procedures_performed (default: each attempt's details.protocol.group)",
     )
     p.add_argument("--study", metavar="NAME", help="only attempts of this study (details.protocol.study)")
+    p.add_argument("--task", metavar="NAME", help="only attempts of this task (details.protocol.task)")
     p.add_argument("--condition", metavar="NAME", help="only attempts of this condition (details.protocol.condition)")
     p.add_argument(
         "--unit",
@@ -117,8 +118,9 @@ def _from_database(args, pack_name: str) -> tuple[Selection, str]:
     with RecordStore(args.db, create=False) as store:
         attempts = store.list_attempts(args.class_name)
         where = redact(args.db) if is_postgres(args.db) else str(store.path)
-    sel = select(attempts, register, pack=pack_name, study=args.study, condition=args.condition)
-    narrowed = "".join(f", {k} {v}" for k, v in (("study", args.study), ("condition", args.condition)) if v)
+    narrow = {"study": args.study, "task": args.task, "condition": args.condition}
+    sel = select(attempts, register, pack=pack_name, **narrow)
+    narrowed = "".join(f", {k} {v}" for k, v in narrow.items() if v)
     source = f"records database {where}, class {args.class_name}{narrowed}, pack {pack_name}"
     if args.groups:
         source += f"; groups from the register {args.groups}"
@@ -130,8 +132,10 @@ def _from_database(args, pack_name: str) -> tuple[Selection, str]:
 
 
 def _from_cohort(args, pack_name: str, metrics: dict) -> tuple[Selection, str]:
-    if args.db or args.groups or args.study or args.condition:
-        raise UserError("--demo-cohort draws its own attempts: leave out --db, --groups, --study and --condition")
+    if args.db or args.groups or args.study or args.task or args.condition:
+        raise UserError(
+            "--demo-cohort draws its own attempts: leave out --db, --groups, --study, --task and --condition"
+        )
     drawn = cohort.build(
         metrics,
         args.demo_cohort,
@@ -152,11 +156,11 @@ def _from_cohort(args, pack_name: str, metrics: dict) -> tuple[Selection, str]:
 
 def run(args) -> int:
     pack_name, metrics = pack_metrics(args.pack, args.pack_path)
-    out = prepare_output_dir(args.out, "--out")
     if args.demo_cohort:
         sel, source = _from_cohort(args, pack_name, metrics)
     else:
         sel, source = _from_database(args, pack_name)
+    out = prepare_output_dir(args.out, "--out")  # made once there is something to write into it
     study = validity_report.analyse(
         sel,
         metrics,
