@@ -149,7 +149,8 @@ def _from_cohort(args, pack_name: str, metrics: dict) -> tuple[Selection, str]:
     sel = select(cohort.as_listed(drawn), None, pack=pack_name)
     source = (
         f"a synthetic cohort of {args.demo_cohort} participants with {args.trials} attempts each, drawn by "
-        f"chainsim's cohort builder with Cohen's d = {args.effect:g} between the groups (seed {args.seed})"
+        f"chainsim's cohort builder with Cohen's d = {args.effect:g} between the groups' levels, novices "
+        f"learning more over their attempts (seed {args.seed})"
     )
     return sel, source
 
