@@ -294,3 +294,18 @@ def test_a_burst_of_input_while_the_kernels_compile_waits_visibly_and_is_applied
         assert st.placed and st.yaw == pytest.approx(3.0)  # the landmarks placed the needle, the keys turned it
     finally:
         app.close()
+
+
+def test_input_given_after_the_kernels_are_ready_waits_behind_what_was_held():
+    from chainsim.game.app.compiling import KernelGate
+
+    compiler = _Compiling()
+    gate, hud = KernelGate(compiler, ["normals and collision"]), HudState()
+    press, release = Key("lshift", True), Key("lshift", False)
+    assert not gate.lets_through(press, hud, "")
+    gate.hold(1.0, press)
+    compiler.finished = True  # ready between two window events, before the next frame releases the held
+    assert not gate.lets_through(release, hud, "")  # so Shift's release cannot overtake its press
+    gate.hold(1.2, release)
+    assert [ev for _, ev in gate.release(5.0, 0.1)] == [press, release]
+    assert gate.lets_through(Key("i", True), hud, "")
