@@ -282,6 +282,19 @@ def _watch_scoring(db: str, class_name: str, acked: dict[int, float], timeout: f
     return done
 
 
+def _check_sizes(clients: int, attempts: int, scorers: int, timeout: float, session_minutes: float) -> None:
+    if not 1 <= clients <= 500:
+        raise UserError(f"--clients must be 1-500, got {clients}")
+    if not 1 <= attempts <= 1000:
+        raise UserError(f"--attempts must be 1-1000, got {attempts}")
+    if not 1 <= scorers <= 64:
+        raise UserError(f"--scorers must be 1-64, got {scorers}")
+    if not 1 <= timeout <= 86400:
+        raise UserError(f"--timeout must be 1-86400 seconds, got {timeout}")
+    if not 0 <= session_minutes <= 45:
+        raise UserError(f"--session-minutes must be 0-45 (the server's longest session), got {session_minutes}")
+
+
 def run_bench(
     db: str | None,
     clients: int,
@@ -295,16 +308,7 @@ def run_bench(
     from chainsim.game.records.store import RecordStore  # noqa: PLC0415
     from chainsim.game.server import accounts  # noqa: PLC0415
 
-    if not 1 <= clients <= 500:
-        raise UserError(f"--clients must be 1-500, got {clients}")
-    if not 1 <= attempts <= 1000:
-        raise UserError(f"--attempts must be 1-1000, got {attempts}")
-    if not 1 <= scorers <= 64:
-        raise UserError(f"--scorers must be 1-64, got {scorers}")
-    if not 1 <= timeout <= 86400:
-        raise UserError(f"--timeout must be 1-86400 seconds, got {timeout}")
-    if not 0 <= session_minutes <= 45:
-        raise UserError(f"--session-minutes must be 0-45 (the server's longest session), got {session_minutes}")
+    _check_sizes(clients, attempts, scorers, timeout, session_minutes)
     tmp = tempfile.TemporaryDirectory(prefix="chainsim-bench-")
     folder = Path(tmp.name)
     pack_paths = copy_pack(folder)

@@ -722,6 +722,11 @@ class Scorer:
         if info is None or info["identity"]["hash"] != upload["pack_hash"]:
             scored = None
             error = f"pack {upload['pack']!r} is no longer on this server at the version the attempt ran on"
+        elif upload.get("witnessed"):
+            # the browser trainer's session ran in this server's own process, driven only by the trainee's
+            # checked device events: its figures are the server's already, and replaying them proves nothing new
+            record = json.loads(upload["claimed"])
+            scored, error = {"record": record, "flags": [], "digest_ok": True, "sim_s": 0.0, "steps": (0, 0)}, None
         else:
             result = self._replay(store, upload, worker, proc, info["root"])
             if result is None:
@@ -731,6 +736,9 @@ class Scorer:
         if aid is not None:
             assert scored is not None
             run, of = scored["steps"]
+            if upload.get("witnessed"):
+                logger.info("upload %s stored: attempt %s (witnessed: the server ran the session)", upload["id"], aid)
+                return
             logger.info(
                 "upload %s scored: attempt %s (replayed %d of the recording's %d steps)", upload["id"], aid, run, of
             )

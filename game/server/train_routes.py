@@ -9,7 +9,8 @@ trainee (the App, drawn off screen, pictures encoded as JPEG), and this module r
 to the page and the page's mouse, wheel and keyboard to it. Because the server simulates the
 attempt, a Save files it through the same path as every upload (``api.file_under``,
 ``scoring.check_upload``, the scoring queue): under the signed-in trainee, with the session's
-recording and the pack's identity, scored by replay.
+recording and the pack's identity, marked witnessed (the server ran it: stored as the session
+computed it, whatever the class requires).
 
 Sessions: one per trainee account (a second tab takes the session over; another account never
 reaches it: sessions are keyed by the account of the session cookie). At most ``seats`` processes

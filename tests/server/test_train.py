@@ -3,7 +3,7 @@
 As a trainee uses it: headless Chromium signs in, follows the link on their page, sees the trainer
 drawn by the server, and drives it with the mouse and keys; the slow test makes the prp pack's whole
 correct attempt with the clicks and drags of assets/prp/scripts/correct-mouse.toml and finds it in the
-records under the trainee, scored by the server's replay. The socket's rules are tested with a plain
+records under the trainee, witnessed (the server ran the session). The socket's rules are tested with a plain
 WebSocket client carrying a signed-in trainee's cookie: who may open a session, messages refused with
 a reason, the rate limit, the seats, the end of a session whose page went away or that reached its
 longest length, and the back-off that holds an account back after refused input.
@@ -427,7 +427,7 @@ def test_a_whole_correct_attempt_in_the_browser_is_saved_under_the_trainee(brows
             i += 1
         assert dials == []
         deadline = time.monotonic() + 240
-        while True:  # the script ends with Self assessment and Save: the server scores it by replay
+        while True:  # the script ends with Self assessment and Save: the server stores it, witnessed
             rows = call(site, "GET", "/api/attempts", token=site.tokens["bob"])[1]["attempts"]
             new = [a for a in rows if a["id"] not in before]
             if new:

@@ -149,61 +149,10 @@ def load_protocol(path: str | Path) -> dict:
     trials = data.get("trial")
     if not isinstance(trials, list) or not trials:
         raise _err(where, "needs at least one [[trial]]")
-    out = []
-    names = set()
+    out: list[dict] = []
+    names: set[str] = set()
     for i, t in enumerate(trials, 1):
-        w = f"{where}: trial {i}"
-        if not isinstance(t, dict):
-            raise _err(w, "must be a table")
-        extra = sorted(set(t) - TRIAL_KEYS)
-        if extra:
-            raise _err(w, f"unknown key '{extra[0]}'; expected {', '.join(sorted(TRIAL_KEYS))}")
-        name = t.get("name", f"trial-{i}")
-        if not isinstance(name, str) or not name:
-            raise _err(w, "'name' must be text")
-        if name in names:
-            raise _err(w, f"duplicate trial name '{name}'")
-        names.add(name)
-        task = t.get("task")
-        if task not in TASKS:
-            raise _err(w, f"'task' must be one of {', '.join(TASKS)}, got {task!r}")
-        cond = t.get("condition")
-        if not isinstance(cond, str) or not cond:
-            raise _err(w, "'condition' must be text (the table column, e.g. \"without_clues\")")
-        if "script" in t and "scripts" in t:
-            raise _err(w, "give 'script' or 'scripts', not both")
-        scripts = t.get("scripts", [t["script"]] if "script" in t else [])
-        if not isinstance(scripts, list) or not all(isinstance(s, str) and s for s in scripts):
-            raise _err(w, "'scripts' must be an array of script paths")
-        try:
-            repeat = limits.whole(t.get("repeat", 1), 1, limits.MAX_REPEAT)
-        except limits.LimitError as e:
-            raise _err(w, f"'repeat' {e} (docs/limits.md)") from None
-        steps = t.get("steps")
-        if steps is not None:
-            try:
-                steps = limits.whole(steps, 1, limits.MAX_STEPS)
-            except limits.LimitError as e:
-                raise _err(w, f"'steps' {e} (docs/limits.md)") from None
-        aids = t.get("aids", {})
-        if not isinstance(aids, dict):
-            raise _err(w, "'aids' must be a table of true/false")
-        for k, v in aids.items():
-            if k not in AIDS:
-                raise _err(w, f"unknown aid '{k}'; aids are {', '.join(AIDS)}")
-            if not isinstance(v, bool):
-                raise _err(w, f"aid '{k}' must be true or false, got {v!r}")
-        out.append(
-            {
-                "name": name,
-                "task": task,
-                "condition": cond,
-                "scripts": scripts,
-                "repeat": repeat,
-                "steps": steps,
-                "aids": {a: bool(aids.get(a, False)) for a in AIDS},
-            }
-        )
+        out.append(_trial(t, f"{where}: trial {i}", f"trial-{i}", names))
     runs = sum(max(len(t["scripts"]), 1) * t["repeat"] for t in out)
     if runs > limits.MAX_PROTOCOL_RUNS:
         raise _err(where, f"asks for {runs:,} runs, over the {limits.MAX_PROTOCOL_RUNS:,} limit (docs/limits.md)")
@@ -214,6 +163,59 @@ def load_protocol(path: str | Path) -> dict:
         "trials": out,
         # the summary counts only attempts the records server witnessed (made in its browser trainer)
         "require_witnessed": _flag(data, "require_witnessed", where),
+    }
+
+
+def _trial(t: object, w: str, default_name: str, names: set[str]) -> dict:
+    """One [[trial]] of a protocol, checked (``names``: the trial names so far, this one added)."""
+    if not isinstance(t, dict):
+        raise _err(w, "must be a table")
+    extra = sorted(set(t) - TRIAL_KEYS)
+    if extra:
+        raise _err(w, f"unknown key '{extra[0]}'; expected {', '.join(sorted(TRIAL_KEYS))}")
+    name = t.get("name", default_name)
+    if not isinstance(name, str) or not name:
+        raise _err(w, "'name' must be text")
+    if name in names:
+        raise _err(w, f"duplicate trial name '{name}'")
+    names.add(name)
+    task = t.get("task")
+    if task not in TASKS:
+        raise _err(w, f"'task' must be one of {', '.join(TASKS)}, got {task!r}")
+    cond = t.get("condition")
+    if not isinstance(cond, str) or not cond:
+        raise _err(w, "'condition' must be text (the table column, e.g. \"without_clues\")")
+    if "script" in t and "scripts" in t:
+        raise _err(w, "give 'script' or 'scripts', not both")
+    scripts = t.get("scripts", [t["script"]] if "script" in t else [])
+    if not isinstance(scripts, list) or not all(isinstance(s, str) and s for s in scripts):
+        raise _err(w, "'scripts' must be an array of script paths")
+    try:
+        repeat = limits.whole(t.get("repeat", 1), 1, limits.MAX_REPEAT)
+    except limits.LimitError as e:
+        raise _err(w, f"'repeat' {e} (docs/limits.md)") from None
+    steps = t.get("steps")
+    if steps is not None:
+        try:
+            steps = limits.whole(steps, 1, limits.MAX_STEPS)
+        except limits.LimitError as e:
+            raise _err(w, f"'steps' {e} (docs/limits.md)") from None
+    aids = t.get("aids", {})
+    if not isinstance(aids, dict):
+        raise _err(w, "'aids' must be a table of true/false")
+    for k, v in aids.items():
+        if k not in AIDS:
+            raise _err(w, f"unknown aid '{k}'; aids are {', '.join(AIDS)}")
+        if not isinstance(v, bool):
+            raise _err(w, f"aid '{k}' must be true or false, got {v!r}")
+    return {
+        "name": name,
+        "task": task,
+        "condition": cond,
+        "scripts": scripts,
+        "repeat": repeat,
+        "steps": steps,
+        "aids": {a: bool(aids.get(a, False)) for a in AIDS},
     }
 
 
