@@ -111,9 +111,28 @@ class EntityIndex:
 
 @dataclass(slots=True)
 class Assessment:
-    """Procedure results for the summary: plugins fill `values` (JSON-serialisable)."""
+    """Procedure results for the summary: plugins fill `values` (JSON-serialisable).
 
-    values: dict[str, Any] = field(default_factory=dict)
+    A replay's procedure may `defer` them instead: nothing in a frame reads them, only the code that
+    runs an App between frames (summaries, the window), so a replay works them out when they are
+    read - from the state of the last frame, exactly as that frame would have - not every frame."""
+
+    _values: dict[str, Any] = field(default_factory=dict)
+    _deferred: Callable[[], dict[str, Any]] | None = None
+
+    @property
+    def values(self) -> dict[str, Any]:
+        if self._deferred is not None:
+            self._values, self._deferred = self._deferred(), None
+        return self._values
+
+    @values.setter
+    def values(self, v: dict[str, Any]) -> None:
+        self._values, self._deferred = v, None
+
+    def defer(self, compute: Callable[[], dict[str, Any]]) -> None:
+        """`values` are `compute()`, called when they are first read (until they are set or deferred again)."""
+        self._deferred = compute
 
 
 @dataclass(slots=True)
@@ -126,6 +145,10 @@ class RunInfo:
     render: bool
     out_dir: str | None = None
     screenshot_every: int = 0
+    # a replay (a records server's scoring, `chainsim replay`, a headless run that saves nothing): the
+    # systems skip work that only feeds a window - pictures, HUD text, hover - and never what the world
+    # digest or an attempt's figures are made of (tests/unit/test_replay_mode.py)
+    replay: bool = False
 
 
 class SavedLocally(UserError):

@@ -102,11 +102,14 @@ def app_for_pack(
     screenshot_every: int = 0,
     size: tuple[int, int] | None = None,
     save: str = "",
+    replay: bool | None = None,
 ) -> App:
     """A started App for a validated pack's scene: spawned, plugins installed, not stepped.
 
     `save`, when given, is why this run saves nothing (a replay, a protocol trial): its Records then
     refuse every write and list no attempts, and the records database is never opened.
+    `replay`: the systems skip the work that only feeds a window (`RunInfo.replay`); by default a
+    run that saves nothing and draws nothing (`save` given, `render` off) is one.
     """
     pack_settings = dict(pack.section("settings"))
     pack_settings.update(check_user_settings(settings))
@@ -119,7 +122,8 @@ def app_for_pack(
         app.insert_resource(RunOutputs())
         spawn_scene(app, pack, scene)
         scene_name = app.resource(PackResource).scene
-        app.insert_resource(RunInfo(pack.name, scene_name, headless, render, out_dir, screenshot_every))
+        lean = bool(save) and not render if replay is None else replay
+        app.insert_resource(RunInfo(pack.name, scene_name, headless, render, out_dir, screenshot_every, lean))
         app.insert_resource(Assessment())
         if save:
             app.insert_resource(refusing_records(save))

@@ -45,6 +45,7 @@ from chainsim.components.resources import (
     FailedSaves,
     PackResource,
     Records,
+    RunInfo,
     SavedLocally,
     Settings,
 )
@@ -376,6 +377,10 @@ def geometry(app: App, v: dict, trace: list) -> None:
     v["verdict"] = {"passed": o["passed"], "met": o["met"], "judged": o["judged"], "critical": o["critical"]}
 
 
+#: what `geometry` adds to the assessment values
+GEOMETRY_KEYS = ("needle_path", "ideal_path", "ideal_landmarks", "verdict")
+
+
 def debrief_rows(v: dict, scene: NeedleScene, pack) -> list[tuple[str, str]]:
     """The debrief as (text, tone) rows: the verdict, one row per metric with its benchmark, the
     landmark terms, the X-ray and aids, the advice for each failed metric and what the views show."""
@@ -464,6 +469,12 @@ class AssessmentSystem:
         self.trace = db.PathTrace()
         self.drawing = DebriefDrawing()
         self.drawn_path = 0  # points of the needle path the debrief drawing shows
+        # ((figures, path, its length), geometry, debrief rows or None) of the last frame, and whether
+        # this frame's figures were that frame's (see `values`)
+        self.memo: tuple | None = None
+        self.memo_hit = False
+        info = app.get_resource(RunInfo)
+        self.replay = bool(info is not None and info.replay)  # window-only work skipped (RunInfo.replay)
 
     def open_debrief(self, app: App, v: dict) -> None:
         h = hud(app)
@@ -486,15 +497,66 @@ class AssessmentSystem:
         h.debrief, h.debrief_paths = [], []
         self.drawing.show(None)
 
+    def values(self, app: App) -> dict:
+        """The assessment values now: the attempt's figures and what the debrief draws.
+
+        The debrief's geometry and rows are functions of the figures and the needle's path alone, so
+        a frame whose figures and path are those of the frame before (the debrief shown while the
+        trainee reads it) takes them from that frame instead of working them out again."""
+        v = compute(app)
+        # the landmarks by repr too: == takes -0.0 for 0.0, and an ideal landmark keeps the sign of a zero
+        key = (dict(v), repr(v["landmarks"]), self.trace.points, len(self.trace.points))
+        last = self.memo
+        if last is not None and last[0][2] is key[2] and last[0][1:] == key[1:] and last[0][0] == key[0]:
+            v.update(last[1])
+            self.memo_hit = True
+            return v
+        geometry(app, v, self.trace.points)
+        self.memo = (key, {k: v[k] for k in GEOMETRY_KEYS}, None)
+        self.memo_hit = False
+        return v
+
+    def rows(self, app: App, v: dict) -> list[tuple[str, str]]:
+        """debrief_rows of `v`, those of the last frame when `values` found its figures unchanged."""
+        memo = self.memo
+        if self.memo_hit and memo is not None and memo[2] is not None:
+            return memo[2]
+        rows = debrief_rows(v, app.resource(NeedleScene), app.resource(PackResource).pack)
+        if memo is not None:
+            self.memo = (memo[0], memo[1], rows)
+        return rows
+
+    def with_saves(self, app: App, v: dict) -> dict:
+        """`v` with the ids this session's saves got and the errors of those that failed."""
+        ps = esper.component_for_entity(app.resource(NeedleHandles).procedure, ProcedureState)
+        v["saved"] = list(ps.saved)
+        v["save_errors"] = list(self.errors)
+        return v
+
+    def deferred(self, app: App):
+        """The values of this frame's end, worked out when they are read (Assessment.defer)."""
+
+        def later() -> dict:
+            with app.active():
+                return self.with_saves(app, self.values(app))
+
+        return later
+
     def __call__(self, app: App) -> None:
 
         handles: NeedleHandles = app.resource(NeedleHandles)
         ps0 = esper.component_for_entity(handles.procedure, ProcedureState)
         st0: NeedleState = esper.component_for_entity(handles.needle, NeedleState)
-        self.trace.update(ps0.attempt, st0.tip() if st0.placed else None, st0.placed and st0.depth > 0)
-        v = compute(app)
-        geometry(app, v, self.trace.points)
-        for ev in self.widgets.read():
+        inserted = st0.placed and st0.depth > 0
+        self.trace.update(ps0.attempt, st0.tip() if inserted else None, inserted)
+        events = self.widgets.read()
+        if self.replay and not events and self.panel_shown is None:
+            # no press to act on and no debrief to follow: nothing this frame reads the values, so a
+            # replay works them out only when they are read, from the state this frame leaves
+            app.resource(Assessment).defer(self.deferred(app))
+            return
+        v = self.values(app)
+        for ev in events:
             h = hud(app)
             if ev.name == "self_assessment":
                 self.open_debrief(app, v)
@@ -551,14 +613,10 @@ class AssessmentSystem:
             if h.panel_text != self.panel_shown:  # something else took the panel (My attempts, a new attempt)
                 self.panel_shown = None
                 self.close_debrief(app)
-            else:  # the debrief follows the attempt while it is shown (a bone hit's needle error)
-                scene, pack = app.resource(NeedleScene), app.resource(PackResource).pack
-                if debrief_rows(v, scene, pack) != h.debrief or len(v["needle_path"]) != self.drawn_path:
-                    self.open_debrief(app, v)
-        ps = esper.component_for_entity(app.resource(NeedleHandles).procedure, ProcedureState)
-        v["saved"] = list(ps.saved)
-        v["save_errors"] = list(self.errors)
-        app.resource(Assessment).values = v
+            elif self.rows(app, v) != h.debrief or len(v["needle_path"]) != self.drawn_path:
+                # the debrief follows the attempt while it is shown (a bone hit's needle error)
+                self.open_debrief(app, v)
+        app.resource(Assessment).values = self.with_saves(app, v)
 
     def delete(self, app: App, h) -> None:
         """Delete the trainee's newest attempt: the first press names it, the second deletes it."""
@@ -583,4 +641,7 @@ def plugin(app: App) -> None:
 
     if not app.has_resource(Assessment):
         app.insert_resource(Assessment())
-    app.add_system("procedure", AssessmentSystem(app), order=ORDER_ASSESSMENT, name="needle_assessment")
+    system = AssessmentSystem(app)
+    app.add_system("procedure", system, order=ORDER_ASSESSMENT, name="needle_assessment")
+    # values a replay deferred are worked out while its world is still there
+    app.on_close(lambda: app.resource(Assessment).values)
