@@ -29,8 +29,11 @@ class EventReader(Generic[T]):
     def read(self) -> list[T]:
         """Events of this reader's type emitted since the previous read, oldest first."""
         out: list[T] = []
+        items = self._queue._items
+        if not items or items[-1][0] <= self._seen:
+            return out  # nothing new (most readers, most frames): no pass over the frames kept
         last = self._seen
-        for seq, _frame, ev in self._queue._items:
+        for seq, _frame, ev in items:
             if seq <= self._seen:
                 continue
             last = seq

@@ -84,6 +84,15 @@ def rotate(q: Quat, v: ArrayLike) -> np.ndarray:
     """Rotate vector(s) v, shape (3,) or (N, 3), by the unit quaternion q (q v q*)."""
     v = np.asarray(v, dtype=np.float64)
     w = float(q[0])
+    if v.shape == (3,):
+        # one vector (a needle's direction, every frame): the same products in the same order on
+        # Python floats, so the same bits, without numpy's per-call cost of cross
+        x, y, z = float(q[1]), float(q[2]), float(q[3])
+        a, b, c = float(v[0]), float(v[1]), float(v[2])
+        t0, t1, t2 = 2.0 * (y * c - z * b), 2.0 * (z * a - x * c), 2.0 * (x * b - y * a)
+        return np.array(
+            [a + w * t0 + (y * t2 - z * t1), b + w * t1 + (z * t0 - x * t2), c + w * t2 + (x * t1 - y * t0)]
+        )
     u = np.asarray(q[1:], dtype=np.float64)
     # v' = v + 2w (u x v) + 2 u x (u x v): the expanded sandwich product, fewer operations
     t = 2.0 * np.cross(u, v)
