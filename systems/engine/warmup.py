@@ -46,6 +46,7 @@ from chainsim.systems.engine.kernels.normals import (
     vertex_normals_kernel,
 )
 from chainsim.systems.engine.kernels.projective import pcg3
+from chainsim.systems.engine.kernels.twolevel import det_at
 from chainsim.systems.engine.meshgen import tet_grid, triangulated_grid
 from chainsim.systems.engine.progress import progress
 from chainsim.systems.engine.segment_tree import SegmentTree
@@ -105,6 +106,9 @@ def _models() -> None:
     indptr, indices = np.arange(n + 1, dtype=np.int64), np.arange(n, dtype=np.int64)
     pcg3(indptr, indices, np.ones(n), np.ones(n), np.ones((n, 3)), np.zeros((n, 3)), 2, 1e-10,
          *(np.zeros((n, 3)) for _ in range(4)))  # fmt: skip
+    # the hybrid start's look at the element that failed it last time (a needle held short in tissue)
+    body = HybridBody(rest, tets, fixed=[0])
+    det_at(body.x, body.tets, body.D, np.int64(0))
     # the needle's force on soft tissue (a tissue pack's needle evaluates it every frame)
     lengths = np.array([1.0, 2.0])
     needle_force.axial_force(1.0, 0.2, 10.0, True, 0.3, lengths, lengths, lengths, lengths, 5.0, 0.5, 0.1)

@@ -1,6 +1,7 @@
 """The hybrid body's solver kernels against plain references on drawn inputs: the block matrix product
 and block-preconditioned CG against scipy and numpy, the smallest volume ratio against numpy's
-determinants, and the drift that a front node reports against a plain breadth-first search."""
+determinants (and the hybrid start's two shortcuts to it, bit for bit), and the drift that a front
+node reports against a plain breadth-first search."""
 
 from __future__ import annotations
 
@@ -11,7 +12,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from chainsim.systems.engine.kernels.twolevel import block_pcg, bspmv3, min_det, ring_max, volume_barrier
+from chainsim.systems.engine.kernels.twolevel import (
+    block_pcg,
+    bspmv3,
+    det_at,
+    min_det,
+    min_det_below,
+    ring_max,
+    volume_barrier,
+)
 
 finite = st.floats(-10, 10, allow_nan=False)
 
@@ -88,6 +97,26 @@ def test_min_det_is_the_smallest_volume_ratio(seed, count):
         for e, t in zip(elems, tets[elems])
     )
     assert min_det(x, tets, D, elems) == pytest.approx(ref, rel=1e-9, abs=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 30), st.floats(-1.0, 1.5))
+def test_the_starts_ratios_are_min_dets_own_bits(seed, count, floor):
+    """The hybrid body's start decides with these what min_det would decide: one element's ratio is the
+    very number min_det gives it, and min_det_below's smallest is min_det's, its index the first below."""
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(count * 4, 3)) * rng.choice([1e-3, 1.0, 1e3])
+    tets = rng.permutation(count * 4).astype(np.int64).reshape(count, 4)
+    D = rng.normal(size=(count, 4, 3)) * rng.choice([1e-2, 1.0, 1e2])
+    ratios = [min_det(x, tets, D, np.array([t])) for t in range(count)]
+    assert [np.float64(det_at(x, tets, D, t)).tobytes() for t in range(count)] == [
+        np.float64(j).tobytes() for j in ratios
+    ]
+    elems = rng.permutation(count)[: max(1, count // 2)].astype(np.int64)
+    smallest, below = min_det_below(x, tets, D, elems, floor)
+    assert np.float64(smallest).tobytes() == np.float64(min_det(x, tets, D, elems)).tobytes()
+    first = next((k for k, t in enumerate(elems) if ratios[t] < floor), -1)
+    assert below == first
 
 
 @settings(max_examples=60, deadline=None)

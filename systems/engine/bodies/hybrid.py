@@ -81,8 +81,10 @@ from chainsim.systems.engine.kernels.projective import pcg3, spmv3
 from chainsim.systems.engine.kernels.twolevel import (
     assemble_tets,
     block_pcg,
+    det_at,
     local_forces,
     min_det,
+    min_det_below,
     ring_max,
     tet_components,
     tet_pattern,
@@ -461,7 +463,7 @@ class HybridBody(ProjectiveBody):
             x[g] = xg + alpha * jump
             if lin is not None:
                 x[free] = xf + alpha * lin
-            min_j = min_det(x, self.tets, self.D, s["elems"]) if len(s["elems"]) else math.inf
+            min_j = self._start_ratio(s, x, floor) if len(s["elems"]) else math.inf
             if min_j >= floor:
                 break
             alpha *= 0.5
@@ -481,6 +483,24 @@ class HybridBody(ProjectiveBody):
             self._cache = (s, math.nan, min_j, c[3] - alpha * moved.reshape(-1, 3))
         else:
             self._cache = None
+
+    def _start_ratio(self, s: dict, x: np.ndarray, floor: float) -> float:
+        """The smallest det F among the frame's elements at x, as far as the start's test needs it: the
+        element that fell below `floor` last time is looked at first, and while it is still below, its
+        own ratio is returned (below `floor` as the smallest is, and the start only compares it with
+        `floor`). A pull held short of its target tries eleven ever shorter moves every frame, each
+        failing on the same squeezed element; a whole pass each cost as much as the local step's
+        gradients. det_at computes the element's ratio as min_det does, to the bit."""
+        elems = s["elems"]
+        k = s.get("squeezed", -1)
+        if k >= 0:
+            j = det_at(x, self.tets, self.D, elems[k])
+            if j < floor:
+                return j
+        min_j, below = min_det_below(x, self.tets, self.D, elems, floor)
+        if below >= 0:
+            s["squeezed"] = int(below)
+        return min_j
 
     def _say_short(self, short: float, scale: float) -> None:
         """One line when the grabbed nodes stay short of their targets because reaching them would turn

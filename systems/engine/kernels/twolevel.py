@@ -309,6 +309,40 @@ def min_det(x, tets, D, elems):
 
 
 @njit(cache=True)
+def det_at(x, tets, D, t):
+    """det F of tetrahedron t at positions x, in one thread: the products and sums of `gradients` and
+    `det9` in their order, so the very ratio min_det finds for it (tests/kernels compare the bits)."""
+    i0, i1, i2, i3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
+    F = np.empty(9)
+    for r in range(3):
+        e1 = x[i1, r] - x[i0, r]
+        e2 = x[i2, r] - x[i0, r]
+        e3 = x[i3, r] - x[i0, r]
+        for c in range(3):
+            F[3 * r + c] = e1 * D[t, 1, c] + e2 * D[t, 2, c] + e3 * D[t, 3, c]
+    return det9(F)
+
+
+@njit(cache=True, parallel=True)
+def min_det_below(x, tets, D, elems, floor):
+    """min_det (the same ratios, taken in the same order, so the same number) and the position in
+    `elems` of the first tetrahedron whose ratio is below `floor`, -1 when none is: a caller that
+    retries a move can try that one first next time."""
+    m = elems.shape[0]
+    Fs = gradients(x, tets, D, elems)
+    Js = np.empty(m)
+    for k in prange(m):
+        Js[k] = det9(Fs[k])
+    out = np.inf
+    below = -1
+    for k in range(m):
+        out = min(out, Js[k])
+        if below < 0 and Js[k] < floor:
+            below = k
+    return out, below
+
+
+@njit(cache=True)
 def tet_pattern(n, tets, elems):
     """The sparsity pattern of a matrix over nodes assembled from tetrahedra `elems`: CSR (indptr,
     indices) with row a holding every node that shares one of those tetrahedra with a (a included),
