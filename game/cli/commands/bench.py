@@ -22,6 +22,7 @@ BENCHES = {
     "records": "chainsim.game.bench.records",
     "train": "chainsim.game.bench.train",
     "needle": "chainsim.game.bench.needle",
+    "replay": "chainsim.game.bench.replay",
 }
 
 # benchmarks that start `chainsim serve`: without the server extra they stop before starting anything
