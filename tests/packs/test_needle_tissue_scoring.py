@@ -21,12 +21,13 @@ def test_the_scoring_replay_stores_the_tissue_figures_the_simulator_saved(tmp_pa
     from chainsim.game.server.scoring import replay_record
 
     db, rec = tmp_path / "r.db", tmp_path / "a.json"
-    run_pack("prp", script=str(ASSETS / "prp" / "scripts" / "correct.toml"), record=str(rec),
+    # the pack's attempt in the window's form (mouse only), which is what a server takes
+    run_pack("prp", script=str(ASSETS / "prp" / "scripts" / "correct-mouse.toml"), record=str(rec),
              settings={"db": str(db), "class": "c", "trainee": "t"})  # fmt: skip
     with RecordStore(db) as store:
         (saved,) = store.list_attempts("c", "t")
     # as an upload carries it
-    replayed = replay_record(encode_recording(json.loads(rec.read_text())), str(ASSETS / "prp"), [])
+    replayed = replay_record(encode_recording(json.loads(rec.read_text())), str(ASSETS / "prp"), [])["record"]
     for name in ("peak_force_N", "skin_punctures", "repunctures"):
         assert replayed["metrics"][name] == pytest.approx(saved["metrics"][name], rel=0, abs=1e-9)
     assert saved["metrics"]["skin_punctures"] == 1 and saved["metrics"]["peak_force_N"] > 1.0

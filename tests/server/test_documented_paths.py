@@ -3,7 +3,7 @@
 docs/records-server.md: sign in with `chainsim records login`, then `chainsim run PACK --headless
 --input SCRIPT --records URL` saves the scripted attempt (the built-in scripts end with Save attempt).
 A script of mouse events only is in the window's form: the server stores the figures its replay of
-the recording computes, flagged because the script clicks faster than a person. A script that picks
+the recording computes. A script that picks
 points and presses widgets (the cutting trainer's) is refused in one line.
 """
 
@@ -58,8 +58,8 @@ def test_the_documented_needle_run_saves_an_attempt_the_server_scores(site, tmp_
     assert stored["pack"] == "prp" and stored["trainee"] == "alice" and stored["filed_by"] == "alice"
     assert stored["target"] == "foramen_ovale_left" and stored["needle_error_mm"] < 1.0
     assert stored["differences"] == []  # the replay computed what the simulator showed
-    assert stored["source"] == "replayed" and stored["accepted_by"] is None
-    assert any("clicks on separate targets within one second" in f for f in stored["flags"]), stored["flags"]
+    # at the edge of a person's pace (six aimed clicks in a second), not beyond it
+    assert stored["source"] == "replayed" and stored["flags"] == []
 
 
 def test_a_scripted_attempt_that_picks_and_presses_widgets_is_refused_in_one_line(site, tmp_path):
