@@ -20,15 +20,22 @@ from chainsim.game.app.logs import setup_logging
 from chainsim.systems.engine.argtypes import NEGATIVE_NUMBER
 from chainsim.systems.engine.errors import UserError, printable
 
-# name -> one-line help; the module is chainsim.game.cli.commands.<name with - as _>
+# name -> one-line help, the same text as the module's HELP (a test holds them equal; kept here so
+# `chainsim --help` imports no command); the module is chainsim.game.cli.commands.<name with - as _>
 COMMANDS: dict[str, str] = {
     "bench": "run a benchmark (chainmail, render, ...)",
     "chainmail": "move one element of a mesh with Generalised ChainMail and save the result (.npz)",
-    "docs": "print reference documentation (components: every manifest key; limits: every input limit)",
+    "docs": (
+        "print reference documentation (components: every manifest key; limits: every input limit; "
+        "models: every deformation model's parameters)"
+    ),
     "new-pack": "create a new asset pack folder from a template",
     "packs": "list the asset packs found and where",
     "play": "open the simulator window on a pack",
-    "protocol": "run a study protocol of scripted trials, save the attempts, print a Table 6.1-style summary",
+    "protocol": (
+        "run a study protocol with a participant at the window (or --scripted), save the attempts, "
+        "print Table 6.1 over all participants"
+    ),
     "records": "view, export, plot or delete trainee records (classes, trainees, attempts)",
     "replay": "replay a recorded session and compare its final digest",
     "run": "run a pack without a window and write OUT/summary.json",
@@ -37,7 +44,10 @@ COMMANDS: dict[str, str] = {
     "study": "speed-accuracy study of ChainMail vs FEM and mass-spring; calibrate ChainMail presets",
     "study-report": "known-groups validity of a pack's metrics: novices against experts, pass marks, a report to file",
     "validate": "check a pack folder and report every problem",
-    "warmup": "compile the soft-tissue kernels now (seconds, once per install) so no interaction waits on it",
+    "warmup": (
+        "compile every numba kernel a built-in pack can reach now (a minute or two, once per install) "
+        "so nothing waits on it later"
+    ),
 }
 
 

@@ -53,3 +53,22 @@ def test_python_dash_m_game_is_the_chainsim_command():
         "protocol",
     ):
         assert cmd in r.stdout, cmd
+
+
+def test_top_level_help_says_what_protocol_and_warmup_do():
+    r = subprocess.run(
+        [sys.executable, "-m", "chainsim.game.cli.main", "--help"], capture_output=True, text=True, cwd=ROOT
+    )
+    assert r.returncode == 0, r.stderr
+    text = " ".join(r.stdout.split())  # argparse wraps the help column
+    assert "run a study protocol with a participant at the window (or --scripted)" in text
+    assert "scripted trials" not in text
+    assert "compile every numba kernel a built-in pack can reach now (a minute or two" in text
+    assert "(seconds," not in text
+
+
+def test_top_level_help_is_each_commands_own_help():
+    # the table in main.py stands in for the modules so `--help` stays light; it must not drift from them
+    from chainsim.game.cli.main import COMMANDS, command_module
+
+    assert {name: command_module(name).HELP for name in COMMANDS} == COMMANDS

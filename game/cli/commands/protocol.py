@@ -83,7 +83,10 @@ from chainsim.systems.procedures.needle.assessment import attempt_record
 logger = logging.getLogger(__name__)
 
 NAME = "protocol"
-HELP = "run a study protocol with a participant at the window (or scripted), print Table 6.1 over all participants"
+HELP = (
+    "run a study protocol with a participant at the window (or --scripted), save the attempts, "
+    "print Table 6.1 over all participants"
+)
 
 AIDS = layout.AIDS
 TOP_KEYS = {"format", "pack", "title", "description", "trial", "require_witnessed"}

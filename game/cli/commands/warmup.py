@@ -13,7 +13,10 @@ from chainsim.systems.engine.progress import progress
 from chainsim.systems.engine.warmup import GROUPS, Compiler, reachable, warm_up
 
 NAME = "warmup"
-HELP = "compile the soft-tissue kernels now (a minute or two once per install) so no interaction waits on it"
+HELP = (
+    "compile every numba kernel a built-in pack can reach now (a minute or two, once per install) "
+    "so nothing waits on it later"
+)
 
 
 def add_parser(sub):
