@@ -7,6 +7,8 @@ its minimum by scipy's L-BFGS, and the affine field of a uniform stretch (the pa
 
 from __future__ import annotations
 
+import logging
+import re
 import warnings
 
 import numpy as np
@@ -16,6 +18,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.optimize import minimize
 
+from chainsim.systems.engine.bodies import xpbd
 from chainsim.systems.engine.bodies.xpbd import XPBDBody, tet_rest_data
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.kernels.xpbd import corot_forces, corot_sweep
@@ -123,11 +126,29 @@ def test_a_pull_inverts_no_tetrahedron(n, size, E, nu, pull):
         assert np.all(sign * _signed_volumes(b.positions, tets) > 0.0), f"a tetrahedron inverted in frame {f}"
 
 
+class _Said(logging.Handler):
+    """The lines a logger says (on the logger itself: the command line's set-up stops propagation)."""
+
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.lines: list[str] = []
+
+    def emit(self, record):
+        self.lines.append(record.getMessage())
+
+
 def test_fewer_substeps_than_the_rule_are_honoured_with_a_warning():
     pos, tets, fixed = _cube(5, 4.0)
     b = XPBDBody(pos, tets, E=3e4, nu=0.45, unit=1e-3, fixed=fixed, substeps=4)
-    with pytest.warns(UserWarning, match="need [0-9]+ substeps"):
+    said, log = _Said(), logging.getLogger(xpbd.__name__)
+    log.addHandler(said)
+    try:
         b.step(FRAME)
+        b.step(FRAME)  # said once per step length, not every frame
+    finally:
+        log.removeHandler(said)
+    said = said.lines
+    assert len(said) == 1 and re.search("need [0-9]+ substeps", said[0]) and "\n" not in said[0]
     assert b.substeps == 4 and "substeps" in b.notice
 
 

@@ -341,3 +341,16 @@ def test_a_preset_with_an_unbounded_count_is_refused(tmp_path, monkeypatch):
     assert any(
         "materials.soft.preset" in str(p) and "relax_iterations" in str(p) and "<= 1000" in str(p) for p in problems
     )
+
+
+def test_a_stiff_xpbd_body_under_its_substep_rule_is_said_in_one_line(tmp_path):
+    # E = 1e12 with 2 substeps given: honoured, and the user reads why it may go wrong, not a Python warning
+    stiff = _sub("fixed = [0]\n", 'fixed = [0]\nmodel = "xpbd"\nE = 1e12\nsubsteps = 2\n')
+    r = chainsim("run", write_pack(tmp_path / "p", stiff), "--steps", "3", "--out", tmp_path / "o")
+    assert r.returncode == 0, r.stderr
+    said = [line for line in r.stderr.splitlines() if "substeps" in line]
+    assert said == [
+        "xpbd: 5 mm elements at E = 1e+12 Pa need 105410 substeps per 8.33 ms step (a wave crosses 0.5 of an "
+        "element per substep); 2 given, so the body may come out too soft or invert under a hard pull"
+    ], r.stderr
+    assert ".py" not in r.stderr and "Warning" not in r.stderr

@@ -8,9 +8,9 @@ E in Pa, density in kg/m^3. The solve runs in SI so E and density mean what they
 
 from __future__ import annotations
 
+import logging
 import math
 import time
-import warnings
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -35,6 +35,9 @@ from chainsim.systems.engine.model_params import XPBD_CONSTRAINTS, defaults
 CONSTRAINTS = XPBD_CONSTRAINTS
 #: the body's defaults, from the one declaration of its parameters
 _D = defaults("xpbd")
+#: says the substep shortfall on stderr as one line (the command line's logging, game/app/logs.py; with
+#: no set-up, Python's last-resort handler prints the bare message): a Python warning would show a source path
+logger = logging.getLogger(__name__)
 
 MAX_SUBSTEPS = 1000
 MAX_ITERATIONS = 1000
@@ -260,11 +263,11 @@ class XPBDBody(Body):
         else:
             n = int(self.substeps_setting)
             if n < need:
-                # honoured (a researcher may measure exactly this), but never silently; the frame's cost
-                # stays said beside it
+                # honoured (a researcher may measure exactly this), but never silently: said once per step
+                # length, and kept in the notice beside the frame's cost
                 line = f"{what}; {n} given, so the body may come out too soft or invert under a hard pull"
                 self.notice = framecost.join(framecost.xpbd_notice(self.frame_cost()), line)
-                warnings.warn(line, stacklevel=3)
+                logger.warning("%s", line)
         self._substeps_for[dt] = n
         return n
 
