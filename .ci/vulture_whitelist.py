@@ -61,3 +61,10 @@ _.added_count
 # result fields filled positionally: PathResult(u, status, iterations, load_steps, ...) of the study's
 # nonlinear FEM (tools/study/fem_nonlinear.py)
 _.load_steps
+
+# a package's module-level __getattr__ (PEP 562): Python calls it for `from chainsim.systems.engine import make_body`
+__getattr__
+
+# jobs a spawned replay process runs by name ("replay_targets:sleepy"), tests/unit/test_replay_process.py
+sleepy
+crash
