@@ -10,6 +10,9 @@ checked before anything runs (`check_user_settings`), and a run whose save faile
 from __future__ import annotations
 
 import json
+import signal
+import threading
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -43,11 +46,19 @@ from chainsim.game.records.remote import remote_records
 from chainsim.game.records.store import local_records
 from chainsim.game.records.validate import clean_name
 from chainsim.systems.engine import limits
-from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.errors import Interrupted, UserError
 from chainsim.systems.engine.progress import progress
 from chainsim.systems.motion.input import InputLog
 from chainsim.systems.tissue.deformable import Deformable
 from chainsim.systems.view.picking import entity_surface
+
+
+@dataclass(slots=True)
+class SaveReport:
+    """Where each Save of a run on a records server went, one line each (`chainsim run` prints them)."""
+
+    lines: list[str] = field(default_factory=list)
+
 
 #: settings a user (or a recording) may give on top of the pack's own: name -> type
 USER_SETTINGS = {"db": str, "records": str, "class": str, "trainee": str, "model": str, "fluoro_first": bool}
@@ -130,7 +141,9 @@ def app_for_pack(
         elif pack_settings.get("records"):  # a records server (queueing in the local store when offline)
             # the server scores the attempt by replaying this session, so each save carries its recording
             evidence = lambda: attempt_evidence(app, pack, settings)  # noqa: E731
-            app.insert_resource(remote_records(pack_settings["records"], pack_settings.get("db") or None, evidence))
+            said = app.insert_resource(SaveReport()).lines
+            server, db = pack_settings["records"], pack_settings.get("db") or None
+            app.insert_resource(remote_records(server, db, evidence, said))
         else:
             app.insert_resource(local_records(pack_settings.get("db") or None))
         plugins.install(app, pack.manifest["pack"].get("procedure", ""), render=render)
@@ -244,6 +257,52 @@ def _steps(total: int):
     return progress(range(total), desc="steps", unit="step") if total >= 2000 else range(total)
 
 
+class _StopAtStep:
+    """Ctrl-C while a run steps: the step under way finishes and the run stops after it (`asked`), so
+    what it writes is a whole step's world; a second Ctrl-C stops at once (KeyboardInterrupt).
+
+    Only in the main thread (the only one Python delivers signals to), and never over a SIGINT that
+    was set to be ignored (a run started in the background)."""
+
+    def __init__(self) -> None:
+        self.asked = False
+        self._installed = False
+        self._before: Any = None
+
+    def _ask(self, signum, frame) -> None:
+        if self.asked:
+            raise KeyboardInterrupt
+        self.asked = True
+
+    def __enter__(self) -> _StopAtStep:
+        if threading.current_thread() is threading.main_thread():
+            self._before = signal.getsignal(signal.SIGINT)
+            if self._before is not signal.SIG_IGN:
+                signal.signal(signal.SIGINT, self._ask)
+                self._installed = True
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._installed:  # a handler set outside Python reads as None: the default is put back then
+            signal.signal(signal.SIGINT, signal.SIG_DFL if self._before is None else self._before)
+
+
+def _run_steps(app, n: int) -> int:
+    """Step `app` `n` times; returns how many steps ran (fewer when Ctrl-C stopped the run)."""
+    done, steps = 0, _steps(n)
+    try:
+        with _StopAtStep() as stop:
+            for _ in steps:
+                app.update(app.time.dt)
+                done += 1
+                if stop.asked:
+                    break
+    finally:
+        if hasattr(steps, "close"):
+            steps.close()  # the bar ends its line before anything else is said
+    return done
+
+
 def run_pack(
     ref: str,
     steps: int | None = None,
@@ -265,6 +324,8 @@ def run_pack(
 
     `save`: why this run saves nothing ("" saves to the records database; see `app_for_pack`).
     `scene`: the scene to run when `ref` is a pack alone (a replay passes the recorded one).
+    Ctrl-C ends the run after the step under way: the summary and outputs of the steps run so far are
+    written as for a whole run, then `Interrupted` says where it stopped and what was written.
     """
     if steps is not None:
         try:
@@ -298,29 +359,50 @@ def run_pack(
         check_events(app, timed, script or "input")
         app.resource(PendingInput).extend(timed)
         n = int(steps if steps is not None else app.resource(Settings).get("steps", 600))
-        for _ in _steps(n):
-            app.update(app.time.dt)
+        done = _run_steps(app, n)
         summary = _summary(app)
-        if record:
-            log = app.get_resource(InputLog)
-            applied = log.items if log else timed
-            write_recording(
-                record, pack=ref, scene=pres.scene, dt=app.time.dt, steps=n, events=applied,
-                digest=summary["digest"], settings=settings,
-            )  # fmt: skip
+        if done < n:
+            summary["interrupted"] = {"steps_run": done, "steps_asked": n}
+        wrote = _write_run(app, summary, ref, settings, record, out, timed, done)
         failed = app.resource(FailedSaves).messages
+        more = f" (and {len(failed) - 1} more)" if len(failed) > 1 else ""
+        not_saved = f"the attempt was not saved: {failed[0]}{more}" if failed else ""
+        if done < n:
+            written = f"wrote {', '.join(wrote)}" if wrote else "wrote nothing (--out DIR keeps the summary)"
+            raise Interrupted(f"interrupted at step {done} of {n}; {written}" + (f"; {not_saved}" if failed else ""))
         if failed:
-            summary["save_errors"] = list(failed)
-        if out:
-            write_text_atomic(Path(out) / "summary.json", json.dumps(summary, indent=2, sort_keys=True), "--out")
-            for name, text in app.resource(RunOutputs).files.items():
-                write_text_atomic(Path(out) / name, text(), "--out")
-        if failed:
-            more = f" (and {len(failed) - 1} more)" if len(failed) > 1 else ""
-            raise UserError(f"the attempt was not saved: {failed[0]}{more}")
+            raise UserError(not_saved)
         return summary
     finally:
         app.close()
+
+
+def _write_run(app, summary: dict, ref: str, settings, record: str | None, out: str | None, timed, steps: int):
+    """Write the run's recording of its `steps` (--record) and OUT/summary.json with the procedure's
+    files (--out); returns what was written, as the user named it."""
+    wrote = []
+    pres: PackResource = app.resource(PackResource)
+    if record:
+        log = app.get_resource(InputLog)
+        applied = log.items if log else timed
+        write_recording(
+            record, pack=ref, scene=pres.scene, dt=app.time.dt, steps=steps, events=applied,
+            digest=summary["digest"], settings=settings,
+        )  # fmt: skip
+        wrote.append(str(record))
+    failed = app.resource(FailedSaves).messages
+    if failed:
+        summary["save_errors"] = list(failed)
+    report = app.get_resource(SaveReport)
+    if report is not None and report.lines:
+        summary["saves"] = list(report.lines)
+    if out:
+        write_text_atomic(Path(out) / "summary.json", json.dumps(summary, indent=2, sort_keys=True), "--out")
+        wrote.append(str(Path(out) / "summary.json"))
+        for name, text in app.resource(RunOutputs).files.items():
+            write_text_atomic(Path(out) / name, text(), "--out")
+            wrote.append(str(Path(out) / name))
+    return wrote
 
 
 def _summary(app) -> dict[str, Any]:

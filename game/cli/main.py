@@ -3,7 +3,7 @@
 Each subcommand is a module in `commands/` with NAME, HELP, add_parser(sub) and run(args). Only the
 chosen command's module is imported, so `chainsim --help` and a light command never pay for numba,
 GL or plotting imports. User errors (UserError) print as one line on stderr with exit code 2, never a
-traceback; argparse usage errors also exit 2.
+traceback; argparse usage errors also exit 2; Ctrl-C is one line and exit 130.
 """
 
 from __future__ import annotations
@@ -108,11 +108,14 @@ def _chosen(argv: list[str]) -> str | None:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = build_parser(_chosen(argv))
     try:
+        parser = build_parser(_chosen(argv))  # imports the command's module: seconds for numba's
         args = parser.parse_args(argv)
     except SystemExit as e:  # usage errors (exit 2), --help and --version (exit 0) return a code here
         return int(e.code or 0)
+    except KeyboardInterrupt:
+        print("chainsim: interrupted", file=sys.stderr)
+        return 130
     setup_logging(logging.WARNING if args.quiet else (logging.INFO, logging.DEBUG)[min(args.verbose, 1)])
     if not getattr(args, "_run", None):
         parser.print_help()
@@ -122,8 +125,8 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as e:
         print(f"chainsim {args.command}: " + "\n".join(e.lines()), file=sys.stderr)
         return e.exit_code
-    except KeyboardInterrupt:
-        print(f"chainsim {args.command}: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as e:  # Interrupted says where the job stopped and what it kept
+        print(f"chainsim {args.command}: {printable(str(e)) or 'interrupted'}", file=sys.stderr)
         return 130
     except BrokenPipeError:  # output piped into `head` and the like: stop quietly
         devnull = os.open(os.devnull, os.O_WRONLY)

@@ -43,11 +43,13 @@ MAX_CA_BYTES = 1 << 20
 
 
 class KeptOffline(SavedLocally):
-    """The attempt is safe in the local queue but not on the server yet (message says why)."""
+    """The attempt is safe in the local queue but not on the server yet (message says why; ``why`` is
+    that reason alone, e.g. "http://HOST:8000 is unreachable")."""
 
-    def __init__(self, message: str, local_id: int) -> None:
+    def __init__(self, message: str, local_id: int, why: str = "") -> None:
         super().__init__(message)
         self.local_id = local_id
+        self.why = why
 
 
 class ServerError(Exception):
@@ -355,6 +357,7 @@ class RemoteRecords:
         raise KeptOffline(
             f"{why}; attempt kept on this computer and sent by `chainsim records sync` or the next start",
             local_id,
+            why,
         )
 
     def _flush_quietly(self) -> None:
@@ -381,7 +384,10 @@ class RemoteRecords:
 
 
 def remote_records(
-    server: str, db: str | os.PathLike[str] | None = None, evidence: Callable[[], dict] | None = None
+    server: str,
+    db: str | os.PathLike[str] | None = None,
+    evidence: Callable[[], dict] | None = None,
+    said: list[str] | None = None,
 ) -> Records:
     """The Records resource on a records server, queueing in the local store ``db`` (see module doc).
 
@@ -389,15 +395,27 @@ def remote_records(
     trainee cannot delete an attempt on a server (a trainer retracts it), so there is no delete here.
     ``filed_as(upload)`` is what the server said it files a save under: the signed-in trainee's class and
     name (not the names typed in the window) and the attempt's number among theirs once it is scored.
+    ``said`` gets one line per save saying where the attempt went (`chainsim run` prints them).
     """
     server = server_url(server)
     filed: dict[int, tuple[str, str, int | None]] = {}
 
     def save_attempt(class_name: str, trainee: str, record: dict) -> int:
         with RemoteRecords(server, db) as rr:
-            upload = rr.save_attempt(class_name, trainee, record, None if evidence is None else evidence())
+            try:
+                upload = rr.save_attempt(class_name, trainee, record, None if evidence is None else evidence())
+            except KeptOffline as exc:
+                if said is not None:
+                    said.append(f"attempt kept on this computer: {exc.why}; sent by `chainsim records sync`")
+                raise
             ack = rr.acknowledged or {}
             filed[upload] = (ack.get("class_name", class_name), ack.get("trainee", trainee), ack.get("number"))
+            if said is not None:
+                cls, who, _ = filed[upload]
+                said.append(
+                    f"attempt sent to {server} as upload {upload} ({who}, class {cls}): the server scores it by "
+                    "replaying the session"
+                )
             return upload
 
     def list_attempts(class_name: str, trainee: str) -> list[dict]:

@@ -1,4 +1,5 @@
-"""User-facing errors: raised anywhere, printed as one line at the CLI edge with exit code 2.
+"""User-facing errors: raised anywhere, printed as one line at the CLI edge with exit code 2; and
+`Interrupted`, a Ctrl-C a job stopped at cleanly, printed as one line with exit code 130.
 
 Messages quote what the user gave (names, paths, keys); `printable` shows any control, format or
 other invisible character in them as an escape, so a message stays one line and cannot be made to
@@ -28,3 +29,10 @@ class UserError(Exception):
     def lines(self) -> list[str]:
         """What to print: the message as one line, hidden characters escaped."""
         return [printable(str(self))]
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C that a job stopped at cleanly; the message says where it stopped and what it kept.
+
+    A KeyboardInterrupt, so nothing that catches Exception on the way out swallows it; the command
+    line prints the message as one line and exits 130 (128 + SIGINT), as a shell does."""

@@ -12,13 +12,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from records_db import free_port
 
 from chainsim.game.app.headless import build_app
 from chainsim.game.records.store import RecordStore
 from chainsim.systems.engine import meshgen
 from chainsim.systems.engine.errors import UserError
 
-from .conftest import ROOT, assert_one_line_error
+from .conftest import ROOT, assert_one_line_error, chainsim
 
 PRP_SCRIPT = ROOT / "assets" / "prp" / "scripts" / "correct.toml"
 
@@ -59,6 +60,18 @@ def test_a_save_that_did_not_happen_ends_a_headless_run_with_exit_2(cli, tmp_pat
     summary = (tmp_path / "o" / "summary.json").read_text()
     assert "save_errors" in summary  # what was computed is still written
     assert not db.exists()
+
+
+def test_a_save_kept_offline_says_so_in_one_line(tmp_path):
+    url = f"http://127.0.0.1:{free_port()}"  # nothing listens there
+    script = ROOT / "assets" / "cutting" / "scripts" / "cut-and-open.toml"  # ends with Save attempt
+    db = tmp_path / "r.sqlite3"
+    r = chainsim("run", "cutting", "--input", script, "--records", url, "--db", db, env={"CHAINSIM_RECORDS_TOKEN": "t"})
+    assert r.returncode == 0, r.stderr  # safe in the local queue: no failure
+    said = [line.strip() for line in r.stdout.splitlines() if "this computer" in line or "sent to" in line]
+    assert said == [f"attempt kept on this computer: {url} is unreachable; sent by `chainsim records sync`"]
+    with RecordStore(db) as store:
+        assert len(store.query("SELECT id FROM outbox WHERE sent_at IS NULL")) == 1
 
 
 @pytest.mark.parametrize(

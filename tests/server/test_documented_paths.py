@@ -43,6 +43,9 @@ def run_and_score(site, tmp_path, pack: str, script: str, scored: bool = True) -
     with RecordStore(local) as store:
         sent = store.query("SELECT remote_id FROM outbox")
     assert len(sent) == 1, sent  # the script's Save made one upload, sent at once
+    # the run says where the attempt went, under the signed-in account
+    said = f"attempt sent to {site.url} as upload {sent[0][0]} (alice, class c1): the server scores it by replaying"
+    assert [line.strip() for line in r.stdout.splitlines() if "attempt sent" in line] == [f"{said} the session"]
     token = site.tokens["alice"]
     result = wait_scored(site, sent[0][0], token)
     if not scored:

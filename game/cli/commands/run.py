@@ -67,6 +67,8 @@ def run(args) -> int:
             f"{summary['pack']}/{summary['scene']}: {summary['steps']} steps, "
             f"{summary['simulated_time_s']:.3f} s simulated, digest {summary['digest'][:16]}"
         )
+        for line in summary.get("saves", ()):  # where each Save on a records server went
+            print(f"  {line}")
         if "assessment" in summary:
             for k, v in summary["assessment"].items():
                 if not isinstance(v, (dict, list)):
