@@ -96,7 +96,7 @@ def pack_variant(name: str, tissue: bool, folder: Path) -> tuple[Path, list[str]
 
     source = BUILTIN_DIR / name
     if not (source / "pack.toml").is_file():
-        raise UserError(f"--packs: no built-in pack {name!r}; built-in needle packs: {', '.join(PACKS)}")
+        raise UserError(f"the built-in pack {name!r} is missing; reinstall chainsim")
     if tissue:
         return source, [str(BUILTIN_DIR)]
     root = folder / "no-tissue" / name
@@ -178,10 +178,10 @@ def stretched(gestures: list[list[tuple[float, Any]]], seconds: float, size: tup
     return out
 
 
-def record_session(root: Path, pack_paths: list[str], minutes: float, replay: bool = False) -> dict:
+def record_session(root: Path, pack_paths: list[str], minutes: float) -> dict:
     """The stretched session made at the window (module docstring, steps 1-3): ``{"recording"}`` (the
     upload's compressed text), ``"record"`` (the figures the Save made), ``"digest"``, ``"events"``,
-    ``"simulated_s"``. ``replay=True`` records with the replay's skipping on (for the tests)."""
+    ``"simulated_s"``."""
     from chainsim.components.resources import PendingInput, Records, Settings  # noqa: PLC0415
     from chainsim.game.app.headless import app_for_pack, attempt_evidence  # noqa: PLC0415
     from chainsim.game.packs import pack as packs  # noqa: PLC0415
@@ -189,7 +189,8 @@ def record_session(root: Path, pack_paths: list[str], minutes: float, replay: bo
     from chainsim.game.ui.frameloop import FixedStepper  # noqa: PLC0415
 
     pack = packs.load(root, pack_paths)
-    app = app_for_pack(pack, None, save="a benchmark's session saves nothing", replay=replay)
+    # the window's App does all its work: replay=False, though this one draws and saves nothing itself
+    app = app_for_pack(pack, None, save="a benchmark's session saves nothing", replay=False)
     try:
         saved: list[dict] = []
         evidence: dict = {}
@@ -315,8 +316,10 @@ def run_bench(packs: list[str], variants: list[bool], minutes: float, repeats: i
 
 def run(args) -> int:
     packs = [p.strip() for p in args.packs.split(",") if p.strip()]
-    if not packs:
-        raise UserError(f"--packs: name at least one pack, e.g. {','.join(PACKS)}")
+    unknown = [p for p in packs if p not in PACKS]
+    if not packs or unknown:
+        got = f"got {', '.join(map(repr, unknown))}" if unknown else "got none"
+        raise UserError(f"--packs: the needle packs to time, comma-separated, of {', '.join(PACKS)}; {got}")
     variants = {"both": [True, False], "with": [True], "without": [False]}[args.tissue]
     result = run_bench(packs, variants, args.session_minutes, args.repeats, args.threads)
     if args.json:

@@ -4,8 +4,8 @@ world digest at the Save, the same saved figures, and the same assessment whenev
 The session is made as the window makes it (chainsim.game.bench.replay.record_session: a stretched,
 mouse-only correct attempt driven frame by frame) with every shortcut off - the replay's skipping, the
 assessment's reuse of an unchanged frame's debrief, the hybrid body's first look at the element that
-failed its start last time - so it is the computation as written before them; the replay runs with
-all of them on."""
+failed its start last time and its skipping of a frame that repeats the last - so it is the
+computation as written before them; the replay runs with all of them on."""
 
 from __future__ import annotations
 
@@ -49,9 +49,18 @@ def as_written(monkeypatch):
         def start_ratio(self, s, x, floor):
             return min_det(x, self.tets, self.D, s["elems"])
 
+        solve = hybrid.HybridBody._solve
+
+        def solve_in_full(self, dt):
+            self._quiet = None  # no frame is taken for a repeat of the last
+            stats = solve(self, dt)
+            self._kept = False  # every step compares the positions it leaves with those it found
+            return stats
+
         m.setattr(assessment.AssessmentSystem, "values", values)
         m.setattr(assessment.AssessmentSystem, "rows", rows)
         m.setattr(hybrid.HybridBody, "_start_ratio", start_ratio)
+        m.setattr(hybrid.HybridBody, "_solve", solve_in_full)
         yield
 
 
@@ -99,7 +108,18 @@ def test_a_replay_without_the_windows_work_reaches_the_sessions_state(pack, tmp_
 
 
 def test_a_replay_with_tissue_reaches_the_sessions_state(tmp_path, monkeypatch):
+    """mental-block's needle rests in converged tissue: frames that repeat the last are skipped."""
+    skipped = []
+    solve = hybrid.HybridBody._solve
+
+    def spy(self, dt):
+        stats = solve(self, dt)
+        skipped.append(bool(self._kept and len(self.grab_ids)))
+        return stats
+
+    monkeypatch.setattr(hybrid.HybridBody, "_solve", spy)
     check(*bench.pack_variant("mental-block", True, tmp_path), monkeypatch)
+    assert sum(skipped) > 100
 
 
 @pytest.mark.slow

@@ -108,6 +108,7 @@ class Body:
         self.grab_targets = np.zeros((0, 3))
         self.moved = np.zeros(0, dtype=np.int64)
         self.stats = StepStats()
+        self._kept = False  # set by a _solve that wrote no position this step
 
     @property
     def n(self) -> int:
@@ -137,8 +138,12 @@ class Body:
     def step(self, dt: float = 1.0 / 60.0) -> StepStats:
         """Advance by `dt` seconds (static models solve for the current grab)."""
         before = self.positions.copy()
+        self._kept = False
         stats = self._solve(check_dt(dt))
-        moved, finite = changed_rows(self.positions, before)
+        if self._kept:  # the solve wrote no position (it says so): none moved, and they were finite before
+            moved, finite = np.zeros(0, dtype=np.int64), True
+        else:
+            moved, finite = changed_rows(self.positions, before)
         self.moved = moved
         stats.moved = len(moved)
         if not finite:  # never hand back a NaN: restore and say so

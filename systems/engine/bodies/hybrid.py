@@ -203,6 +203,8 @@ class HybridBody(ProjectiveBody):
         self._other_disp = 0.0
         self._rest_si = self.rest * self.unit
         self._setup: dict | None = None  # the solve's set-up for the current held and awake set
+        # (set-up, stats) of a frame that changed nothing: the next one under the same targets is skipped
+        self._quiet: tuple | None = None
         self._last_targets: np.ndarray | None = None
         self._sleep_scale = 0.0
         self._prev_last = 0.0
@@ -366,14 +368,24 @@ class HybridBody(ProjectiveBody):
         self._chainmail_start(x, targets)
         still = self._last_targets is not None and np.array_equal(self._last_targets, targets)
         self._last_targets = targets.copy()
+        settled = False
         if self._released:
             self._released = False
-            self._at_rest = self._settle_at_rest()
+            self._at_rest = settled = self._settle_at_rest()
         if self._at_rest and not len(self.grab_ids):
+            self._kept = not settled  # at rest since before this frame: nothing written
             return StepStats(0, 0.0, 0, time.perf_counter() - t0, {"setup_s": 0.0, "awake": 0, "solved": 0})
+        quiet, self._quiet = self._quiet, None
+        if quiet is not None and still and quiet[0] is self._setup and self._converged:
+            # the last frame changed nothing under these same targets, and nothing touched the body since
+            # (a grab, a release, a cut or new positions drop the set-up or the convergence): this frame
+            # would change nothing either (a needle resting in converged tissue, frame after frame)
+            self._quiet, self._kept = quiet, True
+            return StepStats(0, 0.0, 0, time.perf_counter() - t0, dict(quiet[1]))
         if self._setup is None:
             self._setup = self._prepare_hybrid()
         s = self._setup
+        before = (self._short_frames, self._prev_last, self.notice, self._sleep_scale)
         # nodes neither solved nor grabbed (fixed, asleep, floating) keep their place while the set-up
         # holds, so their largest displacement and their positions need no pass over the whole body
         partial = self._chain is None and s is self._synced
@@ -413,6 +425,11 @@ class HybridBody(ProjectiveBody):
         }
         if self.notice:
             extra["notice"] = self.notice
+        if still and partial and short == 0.0 and not done and self._converged and self._setup is s:
+            # nothing moved, nothing woke or slept, and the frame's own counters were already where it left
+            # them: the next frame under the same targets repeats this one exactly
+            if before == (self._short_frames, self._prev_last, self.notice, self._sleep_scale):
+                self._quiet = (s, extra)
         return StepStats(done, last / scale if scale > 0 else 0.0, 0, time.perf_counter() - t0, extra)
 
     def _chainmail_start(self, x: np.ndarray, targets: np.ndarray) -> None:
