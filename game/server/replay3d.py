@@ -1,12 +1,13 @@
-"""The attempt page's 3-D replay: the needle's track, bone contacts and X-ray images from a recording,
-and the pack's anatomy as compact display meshes (binary glTF).
+"""The attempt page's 3-D replay: the needle's track, bone contacts, where it reached the target and
+X-ray images from a recording, and the pack's anatomy as compact display meshes (binary glTF).
 
 The thesis's trainer lets a trainee watch the attempt against the ideal afterwards (6.1.5); on the
 records server the trainer does it in the browser. The server already replays every upload to score
 it (``chainsim.game.server.scoring``); here the stored recording of one attempt is replayed again,
 headless with off-screen rendering (EGL), and sampled: the needle's tip and direction over the
-attempt's time, where the tip touched something (role and point), and every X-ray image the C-arm
-made, rendered by the simulator's own fluoroscopy renderer (``chainsim.game.gl.fluoro``) exactly as
+attempt's time, where the tip touched bone (a contact, as the procedure counts them; reaching the
+target is kept apart as ``reached``, it is no contact), and every X-ray image the C-arm made,
+rendered by the simulator's own fluoroscopy renderer (``chainsim.game.gl.fluoro``) exactly as
 the trainee saw it. Only the attempt the recording saved last is kept (a recording starts at the
 session's start, so earlier attempts of that session come before it).
 
@@ -51,8 +52,9 @@ def replay_track(recording_text: str, pack_root: str, pack_paths: list[str]) -> 
     """Replay a recording headless with off-screen rendering; the last saved attempt's track:
 
     ``{"duration_s", "frames": [[t, tip x y z, direction x y z], ...], "contacts": [{"t", "role",
-    "point"}], "images": [{"t", "png" (bytes), "view", "azimuth_deg", "elevation_deg"}], "needle_length_mm"}``
-    with t in seconds of the attempt's own clock."""
+    "point"}], "reached": {"t", "role", "point"} or None, "images": [{"t", "png" (bytes), "view",
+    "azimuth_deg", "elevation_deg"}], "needle_length_mm"}`` with t in seconds of the attempt's own clock;
+    contacts are the counted ones (obstacles: bone), the target's touch is `reached`."""
     import esper  # noqa: PLC0415 - worker process only
 
     from chainsim.components.resources import EntityIndex, PendingInput, Records  # noqa: PLC0415
@@ -64,7 +66,7 @@ def replay_track(recording_text: str, pack_root: str, pack_paths: list[str]) -> 
     from chainsim.systems.procedures.needle.carm import CArm  # noqa: PLC0415
     from chainsim.systems.procedures.needle.components import Needle, NeedleState  # noqa: PLC0415
     from chainsim.systems.procedures.needle.handles import NeedleHandles  # noqa: PLC0415
-    from chainsim.systems.procedures.needle.manifest import ProcedureState  # noqa: PLC0415
+    from chainsim.systems.procedures.needle.manifest import NeedleScene, ProcedureState  # noqa: PLC0415
 
     recording = provenance.decode_recording(recording_text)
     fields = _recording_fields(recording)
@@ -75,6 +77,7 @@ def replay_track(recording_text: str, pack_root: str, pack_paths: list[str]) -> 
     saves: list[tuple[int, int]] = []  # (attempt number, frame index) at each Save
     frames: list[tuple[int, list[float]]] = []
     contacts: list[tuple[int, dict]] = []
+    reached: list[tuple[int, dict]] = []
     images: list[tuple[int, dict]] = []
     try:
 
@@ -89,6 +92,7 @@ def replay_track(recording_text: str, pack_root: str, pack_paths: list[str]) -> 
         handles = app.resource(NeedleHandles)
         with app.active():
             length = float(esper.component_for_entity(handles.needle, Needle).length)
+        scene = app.resource(NeedleScene)
         every = max(1, round(1.0 / (SAMPLE_HZ * app.time.dt)))
         seen_contacts = 0
         image_id = -1
@@ -107,7 +111,9 @@ def replay_track(recording_text: str, pack_root: str, pack_paths: list[str]) -> 
                     seen_contacts = 0
                 if n > seen_contacts:
                     point = st.contact_point if np.all(np.isfinite(st.contact_point)) else st.tip()
-                    contacts.append((ps.attempt, {"t": t, "role": st.contact, "point": _r(point)}))
+                    role = scene.role_of(st.contact, scene.side_of(st.entry))
+                    hit = (ps.attempt, {"t": t, "role": st.contact, "point": _r(point)})
+                    (reached if role is not None and role.kind == "target" else contacts).append(hit)
                     seen_contacts = n
                 index = app.get_resource(EntityIndex)
                 carm = esper.try_component(index.get("carm"), CArm) if index and index.get("carm") is not None else None
@@ -119,19 +125,7 @@ def replay_track(recording_text: str, pack_root: str, pack_paths: list[str]) -> 
                     last_live_t = t if carm.live else last_live_t
                     rgb = fluoro.image_rgb()
                     if rgb is not None:
-                        images.append(
-                            (
-                                ps.attempt,
-                                {
-                                    "t": t,
-                                    "png": _png(rgb),
-                                    "view": carm.view,
-                                    "live": bool(carm.live),
-                                    "azimuth_deg": round(float(carm.image_pose[0]), 1),
-                                    "elevation_deg": round(float(carm.image_pose[1]), 1),
-                                },
-                            )
-                        )
+                        images.append((ps.attempt, _xray(t, rgb, carm)))
     finally:
         app.close()
     if not saves:
@@ -143,7 +137,20 @@ def replay_track(recording_text: str, pack_root: str, pack_paths: list[str]) -> 
         "duration_s": kept[-1][0] if kept else 0.0,
         "frames": kept,
         "contacts": [c for a, c in contacts if a == attempt],
+        "reached": next((c for a, c in reversed(reached) if a == attempt), None),
         "images": [i for a, i in images if a == attempt][-MAX_IMAGES:],
+    }
+
+
+def _xray(t: float, rgb: np.ndarray, carm) -> dict:
+    """One X-ray image of the track: when, the picture and the C-arm's view and pose."""
+    return {
+        "t": t,
+        "png": _png(rgb),
+        "view": carm.view,
+        "live": bool(carm.live),
+        "azimuth_deg": round(float(carm.image_pose[0]), 1),
+        "elevation_deg": round(float(carm.image_pose[1]), 1),
     }
 
 

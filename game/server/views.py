@@ -416,8 +416,7 @@ def attempt_view(a: dict, specs: dict) -> dict:
     skip |= {k for k in d if k[:1] in "Dd" and k[1:].isdigit() or k.startswith("Dist")}
     facts = [said(k, a.get(k)) for k in ("pack", "created_at", "target") if k in a]
     facts += [said(k, v) for k, v in d.items() if k not in skip]
-    if d.get("contacts"):
-        facts.append(("Contacts", "; ".join(f"{k.replace('_', ' ')} {v}" for k, v in d["contacts"].items())))
+    facts += layout.contact_facts(d)  # bone contacts counted; the target reached is no contact
     if d.get("needle_path"):
         facts.append(("Needle path stored", f"{len(d['needle_path'])} points"))
     return {

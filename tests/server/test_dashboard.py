@@ -11,7 +11,7 @@ import time
 import urllib.parse
 
 import pytest
-from conftest import PASSWORD, PEOPLE, attempt, call, count_attempts
+from conftest import PASSWORD, PEOPLE, attempt, call, count_attempts, save_scored, upload
 
 from chainsim.game.records.report import CSV_COLUMNS
 from chainsim.game.records.store import RecordStore
@@ -230,6 +230,26 @@ def test_names_are_escaped_in_pages(site, name):
     for page in (class_page, detail):
         assert name not in page
     assert "&lt;script&gt;" in class_page or "&#34;" in class_page or "&amp;" in class_page
+
+
+def test_attempt_page_says_the_needle_reached_the_foramen_and_counts_bone_contacts_only(site):
+    # the correct attempt touches no bone and ends in the foramen, which the procedure books as a touch of
+    # its target role: the page must not call that a contact
+    stored = save_scored(site, "alice", upload("correct.toml"))
+    assert stored["skull_contacts"] == 0 and stored["target"] == "foramen_ovale_left"
+    b = Browser(site)
+    b.sign_in("tina")
+    status, page, _ = b.get(f"/attempts/{stored['id']}")
+    assert status == 200
+    facts = dict(re.findall(r"<tr><th>([^<]*)</th><td>([^<]*)</td></tr>", page))
+    assert facts["Bone contacts, per bone"] == "skull 0"
+    assert facts["Needle reached the foramen"] == "yes (not a contact: only bone contacts are counted)"
+    assert "Contacts" not in facts and "foramen 1" not in page
+    # the 3-D replay's track: no contact, the foramen reached where the attempt ended
+    status, track, _ = b.get(f"/attempts/{stored['id']}/replay.json")
+    assert status == 200, track
+    assert track["contacts"] == []
+    assert track["reached"]["role"] == "foramen_ovale_left" and track["reached"]["t"] <= track["duration_s"]
 
 
 def test_attempt_page_says_each_metric_in_words_against_the_benchmark(site):

@@ -190,8 +190,10 @@ async function main() {
     renderer.render(scene, camera);
   });
   show(0);
-  window.chainsimReplay = { state, show, frames: frames.length, images: track.images.length, contacts: track.contacts.length };
-  say(`Replayed from the recording: ${frames.length} needle positions, ${plural(track.contacts.length, 'contact')}, ${plural(track.images.length, 'X-ray image')}. Drag to turn, wheel to zoom.`);
+  window.chainsimReplay = { state, show, frames: frames.length, images: track.images.length, contacts: track.contacts.length, reached: !!track.reached };
+  // contacts are bone contacts, as the procedure counts them; reaching the target is said apart, it is no contact
+  const reached = track.reached ? ` the needle reached the ${track.reached.role.replaceAll('_', ' ')} at ${track.reached.t.toFixed(1)} s,` : '';
+  say(`Replayed from the recording: ${frames.length} needle positions, ${plural(track.contacts.length, 'bone contact')},${reached} ${plural(track.images.length, 'X-ray image')}. Drag to turn, wheel to zoom.`);
   box.dataset.ready = '1';
 }
 

@@ -51,6 +51,26 @@ COLUMNS: tuple[Column, ...] = (
 #: the aids of thesis 3.3.4 / 6.1.3 whose effect the study compares, as an attempt records them
 AIDS = ("skin_transparent", "reference_planes", "landmark_planes", "tip_view", "collision_signals")
 
+
+def contact_facts(details: dict) -> list[tuple[str, str]]:
+    """An attempt's page says what the needle touched: (words, value) lines from the assessment's
+    `contacts`, which holds every role touched, the target's too. Only the obstacles' (bone) contacts
+    are counted (BONE_CONTACTS); reaching the target is said as such. The target's role is the one
+    whose ROLE_radius_mm the assessment keeps; without it (an attempt saved before) the roles are
+    listed as they were stored."""
+    contacts = dict(details.get("contacts") or {})
+    target = next((k.removesuffix("_radius_mm") for k in details if k.endswith("_radius_mm")), None)
+    if target is None:
+        return [("Contacts", "; ".join(f"{k.replace('_', ' ')} {v}" for k, v in contacts.items()))] if contacts else []
+    reached = bool(contacts.pop(target, 0))
+    out = []
+    if contacts:
+        out.append(("Bone contacts, per bone", "; ".join(f"{k.replace('_', ' ')} {v}" for k, v in contacts.items())))
+    words = f"Needle reached the {target.replace('_', ' ')}"
+    out.append((words, "yes (not a contact: only bone contacts are counted)" if reached else "no"))
+    return out
+
+
 #: what the tip may end on that is not a target: nothing, or bone (an attempt so ended did not succeed)
 KNOWN_TARGETS = frozenset({"none", "skull", "mandible"})
 #: what an attempt's target looks like beside the known ones, for the message refusing a malformed one
