@@ -37,6 +37,7 @@ from chainsim.systems.engine.bodies.projective import ProjectiveBody
 from chainsim.systems.engine.bodies.surface import SurfaceChainMailBody
 from chainsim.systems.engine.bodies.xpbd import XPBDBody
 from chainsim.systems.engine.chainmail_params import ORDERS
+from chainsim.systems.engine.haptics import servo as haptic_servo
 from chainsim.systems.engine.kernels import waves
 from chainsim.systems.engine.kernels.chainmail import cascade
 from chainsim.systems.engine.kernels.normals import (
@@ -112,6 +113,8 @@ def _models() -> None:
     # the needle's force on soft tissue (a tissue pack's needle evaluates it every frame)
     lengths = np.array([1.0, 2.0])
     needle_force.axial_force(1.0, 0.2, 10.0, True, 0.3, lengths, lengths, lengths, lengths, 5.0, 0.5, 0.1)
+    # the haptic servo's kernels (a device on the needle: chainsim.systems.engine.haptics)
+    haptic_servo.warm()
 
 
 def _csr(tris: np.ndarray, n: int):
@@ -157,7 +160,7 @@ def _moving_normals() -> None:
 #: pack's own go first: Compiler.prefer)
 GEOMETRY = "normals and collision"
 MOVING = "normals of moving meshes"
-MODELS = "XPBD and projective"  # and the hybrid body, SurfaceChainMail, the needle's tissue force
+MODELS = "XPBD and projective"  # and the hybrid body, SurfaceChainMail, the needle's tissue force and haptics
 PRECISIONS = {"float64": np.float64, "float32": np.float32}
 
 

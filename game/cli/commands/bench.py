@@ -23,6 +23,7 @@ BENCHES = {
     "train": "chainsim.game.bench.train",
     "needle": "chainsim.game.bench.needle",
     "replay": "chainsim.game.bench.replay",
+    "haptics": "chainsim.game.bench.haptics",
 }
 
 # benchmarks that start `chainsim serve`: without the server extra they stop before starting anything

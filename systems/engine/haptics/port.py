@@ -1,0 +1,123 @@
+"""The device port: the one interface a force-feedback device fills in, and the drivers that can fill it.
+
+A device gives a pose and buttons and takes a force, on its own clock (`DevicePort`). The needle takes
+one axis from it: the depth along the device's insertion axis (`axis`, in the device's frame) since the
+needle was placed on the skin, or since the clutch button (button 0) was last let go: while the clutch
+is held the hand moves without the needle, to re-centre in the device's workspace. The force goes back
+along that axis.
+
+Drivers are optional: `DRIVERS` names each with the Python package it needs, and `open_device` imports
+a driver only when asked for and only when its package is installed, else says in one line what is
+missing (no device library is a dependency of chainsim). The simulated device ("sim", always there) is
+chainsim.systems.engine.haptics.simdevice; with a file ("sim:FILE") it plays that trajectory. Adding a
+driver: a module with `open(arg) -> DevicePort`, and a line in DRIVERS (docs/haptics.md).
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from chainsim.systems.engine.errors import UserError
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceSample:
+    """What a device reports: position (mm, device frame), orientation (w, x, y, z), buttons (bit per button)."""
+
+    position: np.ndarray
+    orientation: np.ndarray
+    buttons: int
+
+
+class DevicePort(Protocol):
+    """A force-feedback device. `read` and `write` are called once a servo tick, from the servo's thread."""
+
+    name: str
+    max_force_N: float
+    axis: np.ndarray  # the insertion axis in the device's frame (unit)
+
+    def clock(self) -> float:
+        """Seconds on the device's own clock."""
+        ...
+
+    def read(self) -> DeviceSample: ...
+
+    def write(self, force_N: np.ndarray) -> None:
+        """Render this force (N, device frame) until the next write."""
+        ...
+
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True, slots=True)
+class Driver:
+    package: str  # the Python package the driver needs
+    module: str  # "module:function" returning a DevicePort
+    what: str
+
+
+DRIVERS: dict[str, Driver] = {
+    "touch": Driver(
+        "pyOpenHaptics",
+        "chainsim.systems.engine.haptics.touch:open_touch",
+        "3D Systems Touch, Touch X and Phantom devices through OpenHaptics",
+    ),
+}
+SIM = "sim"
+
+
+def device_names() -> list[str]:
+    return [SIM, *DRIVERS]
+
+
+def parse(spec: str) -> tuple[str, str]:
+    """'NAME' or 'NAME:ARG' -> (name, arg); UserError for a name no driver has."""
+    name, _, arg = str(spec).partition(":")
+    if name != SIM and name not in DRIVERS:
+        raise UserError(f"--device {spec!r}: unknown device {name!r}; known: {', '.join(device_names())}")
+    return name, arg
+
+
+def open_device(spec: str) -> DevicePort:
+    """The driver's port for a real device named by `spec` (not "sim"); UserError naming what is missing."""
+    name, arg = parse(spec)
+    if name == SIM:
+        raise UserError("--device sim: the simulated device runs inside the servo loop, not through a port")
+    d = DRIVERS[name]
+    if importlib.util.find_spec(d.package) is None:
+        raise UserError(
+            f"--device {name}: needs the Python package {d.package} ({d.what}), which is not installed; "
+            f"pip install {d.package}"
+        )
+    module, _, fn = d.module.partition(":")
+    return getattr(importlib.import_module(module), fn)(arg)
+
+
+class Depth:
+    """A device's depth along its insertion axis since a reference, re-referenced by the clutch (button 0)."""
+
+    def __init__(self, axis):
+        a = np.asarray(axis, dtype=np.float64)
+        self.axis = a / np.linalg.norm(a)
+        self.ref: np.ndarray | None = None
+        self.held = 0.0  # the depth while the clutch is held
+        self.clutched = False
+
+    def __call__(self, sample: DeviceSample, placed: bool) -> float:
+        p = np.asarray(sample.position, dtype=np.float64)
+        if self.ref is None or not placed:
+            self.ref = p.copy()  # the depth counts from where the hand is when the needle is placed
+            return 0.0
+        if sample.buttons & 1:
+            if not self.clutched:
+                self.clutched, self.held = True, float((p - self.ref) @ self.axis)
+            return self.held
+        if self.clutched:  # let go: the depth goes on from where it was held
+            self.clutched = False
+            self.ref = p - self.held * self.axis
+        return float((p - self.ref) @ self.axis)
