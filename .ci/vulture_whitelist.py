@@ -68,3 +68,12 @@ __getattr__
 # jobs a spawned replay process runs by name ("replay_targets:sleepy"), tests/unit/test_replay_process.py
 sleepy
 crash
+
+# the haptics' device port (chainsim.systems.engine.haptics.port): a driver is opened by the name DRIVERS
+# gives as a string; OpenHaptics keeps only a pointer to the callback the Touch driver holds; a device
+# reports its orientation though the needle reads only its depth; the servo keeps the device's own time
+# of its last tick for a driver's diagnostics
+_.open_touch
+_._callback
+_.orientation
+_.device_clock

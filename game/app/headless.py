@@ -49,6 +49,7 @@ from chainsim.systems.engine import limits
 from chainsim.systems.engine.errors import Interrupted, UserError
 from chainsim.systems.engine.progress import progress
 from chainsim.systems.motion.input import InputLog
+from chainsim.systems.procedures.needle import haptics
 from chainsim.systems.tissue.deformable import Deformable
 from chainsim.systems.view.picking import entity_surface
 
@@ -319,6 +320,7 @@ def run_pack(
     size: tuple[int, int] | None = None,
     save: str = "",
     scene: str | None = None,
+    device: str | None = None,
 ) -> dict[str, Any]:
     """Run a pack headless for `steps` fixed steps; returns (and writes to OUT/summary.json) the summary.
 
@@ -353,6 +355,8 @@ def run_pack(
         save=save,
     )
     try:
+        if device:
+            haptics.attach(app, device)
         pres: PackResource = app.resource(PackResource)
         if not script and events is None and pres.scene_spec.get("script"):
             timed = load_script(pres.pack.file(pres.scene_spec["script"]))

@@ -78,3 +78,13 @@ def add_mode_arguments(p: argparse.ArgumentParser) -> None:
         help="fluoroscopy first: no target ring or distance in the needle-tip view, guide by X-ray "
         "(as the pack's [needle_procedure] fluoro_first; recorded with each attempt)",
     )
+
+
+def add_device_argument(p: argparse.ArgumentParser) -> None:
+    """--device, for the commands that run a needle pack (play, run): docs/haptics.md."""
+    p.add_argument(
+        "--device",
+        metavar="NAME",
+        help="drive the needle with a force-feedback device: sim (the simulated device), sim:FILE (it plays "
+        "that trajectory) or a driver's name (docs/haptics.md)",
+    )

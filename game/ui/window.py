@@ -50,6 +50,7 @@ from chainsim.game.ui.signin import SignInForm, remember, remembered, status_lin
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.warmup import GEOMETRY, Compiler
 from chainsim.systems.motion.input import InputLog
+from chainsim.systems.procedures.needle import haptics
 from chainsim.systems.view.cameras import ViewState
 
 QUIT_QUESTION = (
@@ -135,6 +136,12 @@ def _run_window(args, session, compiler: Compiler) -> int:
     script = load_script(args.input) if getattr(args, "input", None) else None
     settings = user_settings(args)  # --db, --class, --trainee for procedures that save attempts
     app = build_app(args.pack, pack_paths=args.pack_path, headless=False, settings=settings)
+    if getattr(args, "device", None):
+        try:
+            haptics.attach(app, args.device, realtime=True)  # the servo thread, at 1 kHz beside the frames
+        except BaseException:
+            app.close()
+            raise
     window, ctx, width = _window_for(app, args.pack)
     target = _attach_renderer(app, window, ctx, width)
     ui = WindowSession(app, window, target, compiler, args=args, settings=settings, script=script)

@@ -6,7 +6,7 @@ import os
 import sys
 import threading
 
-from chainsim.game.app.options import add_mode_arguments, add_records_arguments
+from chainsim.game.app.options import add_device_argument, add_mode_arguments, add_records_arguments
 from chainsim.game.app.outputs import check_output_file
 from chainsim.game.packs import pack as packs
 from chainsim.game.records import remote
@@ -39,6 +39,7 @@ def add_parser(sub):
     )
     add_mode_arguments(p)
     add_records_arguments(p)
+    add_device_argument(p)
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     return p
 

@@ -6,6 +6,7 @@ import json
 
 from chainsim.game.app.headless import run_pack
 from chainsim.game.app.options import (
+    add_device_argument,
     add_mode_arguments,
     add_records_arguments,
     user_settings,
@@ -40,6 +41,7 @@ def add_parser(sub):
     add_records_arguments(p)
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    add_device_argument(p)
     return p
 
 
@@ -59,6 +61,7 @@ def run(args) -> int:
         screenshot_every=args.screenshot_every,
         size=args.size,
         settings=user_settings(args),
+        device=args.device,
     )
     if args.json:
         print(json.dumps(summary, indent=2, sort_keys=True))

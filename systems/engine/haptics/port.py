@@ -83,17 +83,23 @@ def parse(spec: str) -> tuple[str, str]:
     return name, arg
 
 
-def open_device(spec: str) -> DevicePort:
-    """The driver's port for a real device named by `spec` (not "sim"); UserError naming what is missing."""
-    name, arg = parse(spec)
-    if name == SIM:
-        raise UserError("--device sim: the simulated device runs inside the servo loop, not through a port")
+def require(name: str) -> Driver:
+    """The driver `name`, if its package is installed; else a UserError saying what to install."""
     d = DRIVERS[name]
     if importlib.util.find_spec(d.package) is None:
         raise UserError(
             f"--device {name}: needs the Python package {d.package} ({d.what}), which is not installed; "
             f"pip install {d.package}"
         )
+    return d
+
+
+def open_device(spec: str) -> DevicePort:
+    """The driver's port for a real device named by `spec` (not "sim"); UserError naming what is missing."""
+    name, arg = parse(spec)
+    if name == SIM:
+        raise UserError("--device sim: the simulated device runs inside the servo loop, not through a port")
+    d = require(name)
     module, _, fn = d.module.partition(":")
     return getattr(importlib.import_module(module), fn)(arg)
 
@@ -101,7 +107,7 @@ def open_device(spec: str) -> DevicePort:
 class Depth:
     """A device's depth along its insertion axis since a reference, re-referenced by the clutch (button 0)."""
 
-    def __init__(self, axis):
+    def __init__(self, axis: np.ndarray) -> None:
         a = np.asarray(axis, dtype=np.float64)
         self.axis = a / np.linalg.norm(a)
         self.ref: np.ndarray | None = None

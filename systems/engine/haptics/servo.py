@@ -3,7 +3,7 @@
 `Servo` owns the arrays the loop and the simulation share: a mailbox the simulation writes a new model
 into each frame (`refresh`, a seqlock: the sequence number is odd while it writes, and the loop takes
 the model only if the number was even and unchanged across its copy), the loop's own model and state,
-the simulated hand and its trajectory, a ring log of every tick (simdevice.LOG_COLUMNS) and the time
+the simulated hand and its trajectory, a ring log of every tick (simdevice's L_* columns) and the time
 each tick woke. How it runs (`mode`):
 
 - "kernel" (the default): a thread calls `servo_loop`, a nopython, nogil kernel that sleeps to each
@@ -165,6 +165,7 @@ class Servo:
         self.ctl[CT_PERIOD] = int(round(cfg[M.C_DT] * 1e9))
         self.ctl[CT_SPIN] = int(spin_us * 1e3)
         self.scheduling = ""
+        self.device_clock = 0.0
         self.depth = Depth(port.axis) if port is not None else None
         self._thread: threading.Thread | None = None
 
@@ -236,6 +237,9 @@ class Servo:
 
     def _port_tick(self) -> None:
         port, depth = self.port, self.depth
+        if port is None or depth is None:  # stopped
+            return
+        self.device_clock = port.clock()  # the device's own time at this tick
         x_h = depth(port.read(), self.model[M.M_PLACED] != 0.0)
         f = port_tick(*self.args()[:6], self.log, self.ctl, x_h)
         port.write(-f * depth.axis)  # on the hand: against the insertion when positive

@@ -6,7 +6,8 @@ hand of mass m through a spring k and damper b (the arm's own stiffness), and th
 that mass. Each tick (`device_tick`): the servo reads the hand's depth, the contact model answers with a
 force (chainsim.systems.engine.haptics.model.contact_tick), the force pushes the hand for the tick
 (zero-order hold, as a real device renders it) and the hand moves (semi-implicit Euler). Every tick is
-logged (LOG_COLUMNS). `simulate` runs a whole trajectory in lockstep, with model refreshes at given
+logged (the L_* columns: tick, the trajectory's depth, hand, tool, force, crossings passed, events,
+wall). `simulate` runs a whole trajectory in lockstep, with model refreshes at given
 ticks, in one compiled loop: the same inputs give the same log, byte for byte, which is what the tests
 and a headless run rely on; the servo thread (chainsim.systems.engine.haptics.servo) runs the same
 `device_tick` against the wall clock.
@@ -32,7 +33,6 @@ HAND_SIZE = 8
 # one row per tick
 L_TICK, L_REF, L_HAND, L_TOOL, L_FORCE, L_PASSED, L_EVENT, L_WALL = range(8)
 LOG_W = 8
-LOG_COLUMNS = ("tick", "ref_mm", "hand_mm", "tool_mm", "force_N", "passed", "events", "wall")
 
 
 def new_hand(

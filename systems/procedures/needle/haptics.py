@@ -80,6 +80,7 @@ def attach(app: App, spec: str, realtime: bool = False, mode: str = "kernel", tr
             raise UserError(f"--device {spec}: {e}") from None
         servo = Servo(cfg, traj, D.new_hand(float(traj[0]), free=False), mode=mode if realtime else "lockstep")
     else:
+        P.require(name)
         if not realtime:
             raise UserError(f"--device {name}: a real device runs in the window (chainsim play), not headless")
         dev = P.open_device(spec)
@@ -177,7 +178,8 @@ def haptic_refresh(app: App) -> None:
     _tick, force, tool = link.read
     if nt is not None and nt.contact and st.placed and abs(st.depth - tool) < 1e-3 and tool < link.wall:
         # moved: the simulation's needle slid this step (its friction is then the sliding one, as the servo's)
-        moved = abs(st.depth - link.last_depth) > scene.stick_band * app.time.dt
+        band = scene.stick_band if scene is not None else 0.0
+        moved = abs(st.depth - link.last_depth) > band * app.time.dt
         link.errors.append((force, float(nt.axial), moved))
     link.last_depth = float(st.depth)
 

@@ -1,0 +1,153 @@
+"""A device on a running needle pack: `chainsim run PACK --device sim` drives the needle from the servo's tool,
+writes the forces, records what a replay needs and compiles nothing mid-run; bad devices are one line; a
+driver's port is read and written along its axis, with the clutch."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from chainsim.game.cli.main import main
+from chainsim.systems.engine.haptics import model as M
+from chainsim.systems.engine.haptics import port as P
+from chainsim.systems.engine.haptics import servo as S
+from chainsim.systems.engine.haptics import simdevice as D
+
+REPO = Path(__file__).resolve().parents[2]
+#: prp's correct script up to the needle's aim (its landmarks, then the dials), without its insertion
+AIM_UNTIL = 4.0
+
+
+@pytest.fixture(scope="module")
+def aim_script(tmp_path_factory) -> Path:
+    import tomllib
+
+    import tomli_w
+
+    script = tomllib.loads((REPO / "assets/prp/scripts/correct.toml").read_text())
+    script["event"] = [e for e in script["event"] if e["t"] < AIM_UNTIL and e.get("name") != "insert"]
+    path = tmp_path_factory.mktemp("aim") / "aim.toml"
+    path.write_text(tomli_w.dumps(script))
+    return path
+
+
+def _run(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "chainsim.game.cli.main", *args], capture_output=True, text=True)
+
+
+def test_a_run_with_the_simulated_device_punctures_writes_the_forces_and_replays_without_it(aim_script, tmp_path):
+    keys = tmp_path / "keys.csv"  # placed at ~1.5 s and aimed by 2.5 s: wait, then in to 25 mm and hold
+    keys.write_text("t_s,depth_mm\n0,-3\n2.5,-3\n7,25\n")
+    out, rec = tmp_path / "out", tmp_path / "rec.json"
+    steps = 1000  # 8.3 s
+    args = ["run", "prp", "--device", f"sim:{keys}", "--input", str(aim_script), "--steps", str(steps)]
+    res = _run(*args, "--out", str(out), "--record", str(rec), "--json")
+    assert res.returncode == 0, res.stderr
+    summary = json.loads(res.stdout)
+    trace = (out / "needle_trace.csv").read_text()
+    assert "puncture:skin" in trace and "puncture:muscle" in trace  # the device's push went through the layers
+    rows = np.genfromtxt(out / "haptic_trace.csv", delimiter=",", names=True)
+    assert len(rows) == round((summary["simulated_time_s"] - summary["dt"]) * 1000)  # every tick to the last step
+    assert rows["force_N"].max() > 1.0 and rows["passed"].max() >= 3
+    # the needle behind the hand by the tissue's drag through the coupling, the hand behind its path likewise
+    assert 20.0 < rows["tool_mm"].max() < rows["hand_mm"].max() < rows["ref_mm"].max() <= 25.0
+    # the recording holds the depths the device gave: a replay without the device reaches the same world
+    again = _run("replay", str(rec))
+    assert again.returncode == 0, again.stderr
+    assert "matches the recording" in again.stdout
+    # and the same run again gives the same forces
+    res2 = _run(*args, "--out", str(tmp_path / "out2"), "--json")
+    assert (tmp_path / "out2" / "haptic_trace.csv").read_bytes() == (out / "haptic_trace.csv").read_bytes()
+    assert json.loads(res2.stdout)["digest"] == summary["digest"]
+
+
+def _signatures() -> dict:
+    from chainsim.systems.engine.haptics import clock, model
+
+    out = {}
+    for mod in (clock, model, D, S):
+        for name, v in vars(mod).items():
+            if hasattr(v, "signatures") and getattr(v, "py_func", v).__module__ == mod.__name__:
+                out[f"{mod.__name__}.{name}"] = set(map(str, v.signatures))
+    return out
+
+
+def test_a_device_run_compiles_nothing_warmup_left_out(aim_script):
+    from chainsim.systems.engine.warmup import GROUPS, MODELS
+
+    GROUPS[MODELS]()
+    before = _signatures()
+    main(["-q", "run", "prp", "--device", "sim", "--input", str(aim_script), "--steps", "700"])
+    after = _signatures()
+    assert {k: v - before.get(k, set()) for k, v in after.items() if v - before.get(k, set())} == {}
+
+
+@pytest.mark.parametrize(
+    "device, said",
+    [
+        ("phantom9", "unknown device 'phantom9'; known: sim, touch"),
+        ("touch", "needs the Python package pyOpenHaptics"),
+        ("sim:/nonexistent/keys.csv", "cannot read it"),
+    ],
+)
+def test_a_device_that_cannot_be_had_is_one_line_and_exit_2(device, said):
+    if device == "touch":  # the message is for a machine without the package
+        import importlib.util
+
+        if importlib.util.find_spec("pyOpenHaptics") is not None:
+            pytest.skip("pyOpenHaptics is installed here")
+    res = _run("run", "prp", "--device", device, "--steps", "1")
+    assert res.returncode == 2
+    assert said in res.stderr and len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr
+
+
+class FakePort:
+    """A device at a position the test sets, recording the forces written to it."""
+
+    name, max_force_N = "fake", 3.3
+    axis = np.array([0.0, 0.0, -1.0])
+
+    def __init__(self):
+        self.position, self.buttons, self.forces = np.zeros(3), 0, []
+
+    def clock(self) -> float:
+        return 0.0
+
+    def read(self) -> P.DeviceSample:
+        return P.DeviceSample(self.position.copy(), np.array([1.0, 0.0, 0.0, 0.0]), self.buttons)
+
+    def write(self, force_N) -> None:
+        self.forces.append(np.array(force_N))
+
+    def close(self) -> None:
+        pass
+
+
+def test_a_port_device_is_read_along_its_axis_pushed_back_along_it_and_clutched():
+    wall = M.new_model()
+    wall[M.M_PLACED], wall[M.M_GEN], wall[M.M_WALL] = 1.0, 1.0, 5.0
+    dev = FakePort()
+    servo = S.Servo(M.new_cfg(), np.zeros(1), D.new_hand(0.0), mode="python", port=dev)
+    servo.refresh(wall)
+    dev.position[:] = (3.0, 4.0, 20.0)  # where the hand is when the needle is placed: depth 0
+    servo._port_tick()
+    for z in np.linspace(20.0, 12.0, 9):  # pushed 8 mm along -Z: 3 mm past the wall at 5 mm
+        dev.position[2] = z
+        servo._port_tick()
+    assert servo.state[M.S_XT] == 5.0
+    f = dev.forces[-1]
+    assert f[0] == f[1] == 0.0 and f[2] > 1.0  # pushed back towards the hand (+Z), by the coupling
+    dev.buttons = 1  # clutch: the hand goes back without the needle
+    for z in np.linspace(12.0, 30.0, 10):
+        dev.position[2] = z
+        servo._port_tick()
+    dev.buttons = 0
+    servo._port_tick()
+    assert servo.log[servo.ticks - 1, D.L_HAND] == pytest.approx(8.0)  # still where it was held
+    servo.stop()
+    assert not dev.forces[-1].any()  # a stopped servo leaves the device with no force
