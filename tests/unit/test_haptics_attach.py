@@ -56,6 +56,11 @@ def test_a_run_with_the_simulated_device_punctures_writes_the_forces_and_replays
     assert rows["force_N"].max() > 1.0 and rows["passed"].max() >= 3
     # the needle behind the hand by the tissue's drag through the coupling, the hand behind its path likewise
     assert 20.0 < rows["tool_mm"].max() < rows["hand_mm"].max() < rows["ref_mm"].max() <= 25.0
+    # the attempt's force figures: the skin gave at its puncture force, felt through the coupling
+    a = summary["assessment"]
+    assert a["device"] == f"sim:{keys}" and a["puncture_force_N"] == pytest.approx(1.22, abs=0.05)
+    assert a["device_peak_force_N"] == pytest.approx(rows["force_N"].max(), abs=1e-5) and a["bone_contact_s"] == 0.0
+    assert 100 < len(a["force_profile"]) <= 450 and (out / "haptic_force.png").stat().st_size > 10_000
     # the recording holds the depths the device gave: a replay without the device reaches the same world
     again = _run("replay", str(rec))
     assert again.returncode == 0, again.stderr
@@ -64,6 +69,30 @@ def test_a_run_with_the_simulated_device_punctures_writes_the_forces_and_replays
     res2 = _run(*args, "--out", str(tmp_path / "out2"), "--json")
     assert (tmp_path / "out2" / "haptic_trace.csv").read_bytes() == (out / "haptic_trace.csv").read_bytes()
     assert json.loads(res2.stdout)["digest"] == summary["digest"]
+
+
+def test_pushed_on_to_the_target_the_needle_stops_there_and_the_time_held_is_counted(aim_script, tmp_path):
+    keys = tmp_path / "keys.csv"  # in past the foramen (67 mm along the path) and held
+    keys.write_text("t_s,depth_mm\n0,-3\n2.5,-3\n9.5,75\n")
+    res = _run("run", "prp", "--device", f"sim:{keys}", "--input", str(aim_script), "--steps", "1500", "--json")
+    assert res.returncode == 0, res.stderr
+    a = json.loads(res.stdout)["assessment"]
+    assert a["target_reached"] and a["target"] != "none"
+    assert 0.3 < a["bone_contact_s"] < 12.5 - 9.5 + 1.0  # held at the target from reaching it to the end
+    assert a["device_peak_force_N"] > 2.0  # the hand, pushing on, feels the wall say so
+
+
+def test_packs_metrics_can_name_the_force_measures():
+    from chainsim.systems.procedures.needle.assessment import metric_values
+
+    class Pack:
+        def section(self, name):
+            return {"pop_N": {"measure": "puncture_force"}, "on_bone_s": {"measure": "bone_contact_time"},
+                    "felt_N": {"measure": "device_peak_force"}}  # fmt: skip
+
+    v = {"puncture_force_N": 1.2, "bone_contact_s": 0.5, "device_peak_force_N": 2.5}
+    assert metric_values(Pack(), None, v) == {"pop_N": 1.2, "on_bone_s": 0.5, "felt_N": 2.5}
+    assert metric_values(Pack(), None, {}) == {"pop_N": None, "on_bone_s": None, "felt_N": None}  # no device
 
 
 def _signatures() -> dict:

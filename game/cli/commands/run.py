@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+from chainsim.game.app.haptic_plot import plot_trace
 from chainsim.game.app.headless import run_pack
 from chainsim.game.app.options import (
     add_device_argument,
@@ -63,6 +65,9 @@ def run(args) -> int:
         settings=user_settings(args),
         device=args.device,
     )
+    if args.device and args.out:  # the forces drawn beside the trace they come from
+        out = Path(args.out)
+        plot_trace(out / "haptic_trace.csv", out / "haptic_force.png", f"{args.pack}, {args.device}")
     if args.json:
         print(json.dumps(summary, indent=2, sort_keys=True))
     else:

@@ -52,7 +52,7 @@ from chainsim.components.resources import (
 from chainsim.components.stages import ORDER_ASSESSMENT
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.procedures.needle import debrief as db
-from chainsim.systems.procedures.needle import fluoro
+from chainsim.systems.procedures.needle import fluoro, haptics
 from chainsim.systems.procedures.needle.carm import CArm
 from chainsim.systems.procedures.needle.components import NeedleState
 from chainsim.systems.procedures.needle.handles import NeedleHandles, hud
@@ -117,6 +117,7 @@ def compute(app: App) -> dict:
         out[f"{r}_contacts"] = int(st.contacts.get(r, 0))
     out.update(xray_values(app))
     out.update(tissue_values(app, handles.needle))
+    out.update(haptics.haptic_values(app))
     for k in range(1, len(scene.landmark_ids) + 1):
         out[f"D{k}"] = lm.get(f"D{k}")
         out[f"d{k}"] = lm.get(f"d{k}")
@@ -139,6 +140,9 @@ MEASURE_KEYS = {
     "dose": "dose_mgy",
     "peak_force": "peak_axial_N",
     "repunctures": "repunctures",
+    "device_peak_force": "device_peak_force_N",
+    "puncture_force": "puncture_force_N",
+    "bone_contact_time": "bone_contact_s",
 }
 
 
@@ -283,6 +287,11 @@ DETAIL_KEYS = (
     "punctures",
     "repunctures",
     "reentries",
+    "device",
+    "device_peak_force_N",
+    "puncture_force_N",
+    "bone_contact_s",
+    "force_profile",
 )
 
 

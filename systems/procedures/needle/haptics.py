@@ -49,6 +49,43 @@ SIM_DEPTH = 30.0
 TRACE_HEADER = "time_s,ref_mm,hand_mm,tool_mm,force_N,passed,events,wall"
 
 
+#: the force profile keeps a point every this many ticks (and every tick with an event)
+PROFILE_EVERY = 20
+#: at most this many points of it are stored with an attempt
+PROFILE_POINTS = 400
+
+
+@dataclass(slots=True)
+class AttemptForces:
+    """What the device felt this attempt, gathered tick by tick as the servo logs them."""
+
+    seen: int = 0  # ticks gathered so far
+    peak: float = 0.0  # largest force resisting insertion, N
+    at_puncture: float | None = None  # the force the tick before the first puncture, N
+    wall_ticks: int = 0  # ticks held at the wall (bone or target)
+    last_force: float = 0.0
+    profile: list = field(default_factory=list)  # (time s, tool depth mm, force N, events)
+
+    def gather(self, rows: np.ndarray, dt: float) -> None:
+        if not len(rows):
+            return
+        f = rows[:, D.L_FORCE]
+        self.peak = max(self.peak, float(f.max()))
+        self.wall_ticks += int(rows[:, D.L_WALL].sum())
+        ev = rows[:, D.L_EVENT].astype(np.int64)
+        hits = np.nonzero(ev & M.EV_PUNCTURE)[0]
+        if self.at_puncture is None and len(hits):
+            k = int(hits[0])
+            self.at_puncture = float(f[k - 1]) if k else self.last_force
+        keep = (rows[:, D.L_TICK].astype(np.int64) % PROFILE_EVERY == 0) | (ev != 0)
+        self.profile.extend(
+            (round(r[D.L_TICK] * dt, 3), round(r[D.L_TOOL], 3), round(r[D.L_FORCE], 4), int(r[D.L_EVENT]))
+            for r in rows[keep]
+        )
+        self.last_force = float(f[-1])
+        self.seen = int(rows[-1, D.L_TICK]) + 1
+
+
 @dataclass(slots=True)
 class HapticLink:
     """Resource: the servo attached to this App and what the systems keep between steps."""
@@ -62,6 +99,7 @@ class HapticLink:
     errors: list = field(default_factory=list)  # (servo N, simulation N, moved) at the same depth
     last_depth: float = 0.0  # the needle's depth at the end of the previous step
     attempt_tick: int = 0  # the first tick of the current attempt
+    figures: AttemptForces = field(default_factory=lambda: AttemptForces())
 
 
 def attach(app: App, spec: str, realtime: bool = False, mode: str = "kernel", traj=None) -> HapticLink:
@@ -120,6 +158,7 @@ def haptic_input(app: App) -> None:
         servo.advance(int(round(app.time.sim_time / servo.cfg[M.C_DT])))
     row = servo.latest()
     link.read = (servo.ticks, float(row[D.L_FORCE]), float(row[D.L_TOOL]))
+    link.figures.gather(servo.rows(max(link.figures.seen, link.attempt_tick)), float(servo.cfg[M.C_DT]))
     _ent, needle, st = _needle(app)
     if not st.placed:
         return
@@ -170,7 +209,8 @@ def haptic_refresh(app: App) -> None:
     key = (st.placed, tuple(np.round(st.entry, 9)), tuple(np.round(st.q, 12)), nt.pose if nt is not None else ())
     if key != link.key:
         if st.placed and not (link.key and link.key[0]):
-            link.attempt_tick = link.servo.ticks  # placed: an attempt begins
+            link.attempt_tick = link.servo.ticks  # placed: an attempt begins, its forces counted afresh
+            link.figures = AttemptForces(seen=link.attempt_tick)
         link.gen, link.key = link.gen + 1, key
         link.wall = _wall(app, needle, st) if st.placed else np.inf
     scene = app.get_resource(NeedleTissueScene)
@@ -182,6 +222,25 @@ def haptic_refresh(app: App) -> None:
         moved = abs(st.depth - link.last_depth) > band * app.time.dt
         link.errors.append((force, float(nt.axial), moved))
     link.last_depth = float(st.depth)
+
+
+def haptic_values(app: App) -> dict:
+    """The attempt's force figures from the device (nothing without one): the largest force the hand felt
+    resisting the insertion, the force when the first boundary gave, seconds held against bone (or the
+    target), and the force profile (time s, depth mm, force N, events) thinned to PROFILE_POINTS."""
+    link = app.get_resource(HapticLink)
+    if link is None:
+        return {}
+    fig = link.figures
+    step = max(1, -(-len(fig.profile) // PROFILE_POINTS))
+    profile = [p for i, p in enumerate(fig.profile) if i % step == 0 or p[3]]
+    return {
+        "device": link.device,
+        "device_peak_force_N": fig.peak,
+        "puncture_force_N": fig.at_puncture,
+        "bone_contact_s": fig.wall_ticks * float(link.servo.cfg[M.C_DT]),
+        "force_profile": [list(p) for p in profile],
+    }
 
 
 def trace_csv(servo: Servo) -> str:

@@ -55,6 +55,9 @@ MEASURES = (
     "peak_force",
     "punctures",
     "repunctures",
+    "device_peak_force",
+    "puncture_force",
+    "bone_contact_time",
 )
 
 section(
@@ -255,7 +258,9 @@ METRIC_FIELDS = (
         "`step`, path_length mm, contacts with `role`, first_contact_distance mm tip to target centre, "
         "needle_error mm = Dist - R at the last contact, landmark_error mm, redirections, refused_rotations, "
         "xray_shots, exposure s, dose mGy, peak_force N axial on the needle, punctures of `layer`, repunctures: the "
-        "skin punctured again at a new place); stored per attempt in the records' metrics table under this "
+        "skin punctured again at a new place; with a force-feedback device: device_peak_force N the hand felt, "
+        "puncture_force N when the first layer gave, bone_contact_time s held against bone); stored per attempt "
+        "in the records' metrics table under this "
         "metric's name. Empty: the assessment value of the same name, if any.",
     ),
     Field("role", "str", "", help="measure = contacts: the role whose contacts are counted."),
