@@ -34,6 +34,7 @@ from chainsim.game.app.headless import build_app
 from chainsim.game.bench.needle import needle_packs
 from chainsim.game.ui.frameloop import FixedStepper
 from chainsim.systems.engine import argtypes
+from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.haptics import simdevice as D
 from chainsim.systems.engine.haptics.servo import warm
 from chainsim.systems.procedures.needle import haptics as H
@@ -112,8 +113,10 @@ def run_scene(pack: str, root: Path, manifest: dict, speed: float, servo: str, s
 
 
 def run(args) -> int:
-    chosen = needle_packs(args.pack)
-    pack, root, manifest = chosen[0]
+    packs = {name: (name, root, manifest) for name, root, manifest in needle_packs("")}
+    if args.pack not in packs:
+        raise UserError(f"--pack: expected a needle pack with tissue ({', '.join(packs)}), got {args.pack!r}")
+    pack, root, manifest = packs[args.pack]
     warm()  # nothing compiles while the loop runs
     load0 = os.getloadavg()
     out = run_scene(pack, root, manifest, args.speed, args.servo, args.spin_us)
