@@ -63,11 +63,11 @@ _.added_count
 _.load_steps
 
 # a package's module-level __getattr__ (PEP 562): Python calls it for `from chainsim.systems.engine import make_body`
-__getattr__
+_.__getattr__
 
 # jobs a spawned replay process runs by name ("replay_targets:sleepy"), tests/unit/test_replay_process.py
-sleepy
-crash
+_.sleepy
+_.crash
 
 # the haptics' device port (chainsim.systems.engine.haptics.port): a driver is opened by the name DRIVERS
 # gives as a string; OpenHaptics keeps only a pointer to the callback the Touch driver holds; a device

@@ -341,7 +341,7 @@ section(
 section(
     "records",
     "table",
-    "How a records server judges an upload of this pack (docs/limits.md, \"Input a person can make\").",
+    'How a records server judges an upload of this pack (docs/limits.md, "Input a person can make").',
     [
         Field(
             "min_attempt_s",

@@ -652,5 +652,8 @@ def plugin(app: App) -> None:
         app.insert_resource(Assessment())
     system = AssessmentSystem(app)
     app.add_system("procedure", system, order=ORDER_ASSESSMENT, name="needle_assessment")
-    # values a replay deferred are worked out while its world is still there
-    app.on_close(lambda: app.resource(Assessment).values)
+
+    def settle() -> None:  # values a replay deferred are worked out while its world is still there
+        _ = app.resource(Assessment).values
+
+    app.on_close(settle)
