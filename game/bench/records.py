@@ -67,20 +67,31 @@ def add_arguments(p) -> None:
         help="each upload is a session of M minutes at the window (the attempt's gestures spread out, the "
         "pointer moving between them); default: the attempt alone, about 16 s",
     )
+    p.add_argument(
+        "--tissue",
+        choices=("with", "without"),
+        default="with",
+        help="the prp pack as shipped, with its cheek tissue (default), or without it",
+    )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
 # -- one real upload, and how fast it replays -----------------------------------------------------
 
 
-def copy_pack(folder: Path) -> list[str]:
-    """The built-in prp pack copied into ``folder/packs``; the pack paths that find the copy first."""
+def copy_pack(folder: Path, tissue: bool = True) -> list[str]:
+    """The built-in prp pack copied into ``folder/packs`` (without its soft tissue when ``tissue`` is false,
+    as ``chainsim bench replay`` cuts it); the pack paths that find the copy first."""
+    from chainsim.game.bench.replay import without_tissue  # noqa: PLC0415
     from chainsim.game.packs.discovery import BUILTIN_DIR  # noqa: PLC0415
 
     source = BUILTIN_DIR / "prp"
     if not (source / "pack.toml").is_file():
         raise UserError("the built-in pack 'prp' is missing; reinstall chainsim")
     shutil.copytree(source, folder / "packs" / "prp", ignore=shutil.ignore_patterns("__pycache__", ".*"))
+    if not tissue:
+        manifest = folder / "packs" / "prp" / "pack.toml"
+        manifest.write_text(without_tissue(manifest.read_text(encoding="utf-8")), encoding="utf-8")
     return [str(folder / "packs")]
 
 
@@ -303,6 +314,7 @@ def run_bench(
     keep: bool = False,
     timeout: float = 3600.0,
     session_minutes: float = 0.0,
+    tissue: bool = True,
 ) -> dict[str, Any]:
     from chainsim.game.records.backend import is_postgres  # noqa: PLC0415 - keep `chainsim bench -h` light
     from chainsim.game.records.store import RecordStore  # noqa: PLC0415
@@ -311,7 +323,7 @@ def run_bench(
     _check_sizes(clients, attempts, scorers, timeout, session_minutes)
     tmp = tempfile.TemporaryDirectory(prefix="chainsim-bench-")
     folder = Path(tmp.name)
-    pack_paths = copy_pack(folder)
+    pack_paths = copy_pack(folder, tissue)
     upload = make_upload(folder, pack_paths, session_minutes)
     speed = replay_speed(upload, pack_paths)
     body = json.dumps(upload).encode()
@@ -381,6 +393,7 @@ def run_bench(
         "scoring_max_s": None if not scoring else round(max(scoring), 2),
         "scored_per_s": round(len(scored) / scored_s, 2) if scored_s else None,
         "session_minutes": session_minutes,
+        "tissue": tissue,
         # what a class waits for at the end of a session: from the last Save to the last result
         "last_save_to_last_scored_s": round(max(done.values()) - last_ack, 2) if done else None,
         "errors": len(out["errors"]),
@@ -395,7 +408,14 @@ def run_bench(
 
 def run(args) -> int:
     result = run_bench(
-        args.db, args.clients, args.attempts, args.scorers, args.keep, args.timeout, args.session_minutes
+        args.db,
+        args.clients,
+        args.attempts,
+        args.scorers,
+        args.keep,
+        args.timeout,
+        args.session_minutes,
+        args.tissue == "with",
     )
     if args.json:
         print(json.dumps(result, indent=2))
@@ -419,7 +439,8 @@ def run(args) -> int:
             + (f" (first: {result['first_refusal']})" if result["refused"] else "")
             + "\n"
             f"  class waits   {result['last_save_to_last_scored_s']} s from the last Save to the last result "
-            f"(sessions of {result['session_minutes'] or 'about 0.3'} minutes)\n"
+            f"(sessions of {result['session_minutes'] or 'about 0.3'} minutes, "
+            f"{'with' if result['tissue'] else 'without'} tissue)\n"
             f"  count check   {result['stored']} attempts stored, {result['scored']} uploads scored for "
             f"{result['acknowledged']} acknowledged: " + ("ok" if result["count_ok"] else "MISMATCH")
         )
