@@ -117,3 +117,68 @@ def flags(events: Iterable[dict], duration_s: float | None, min_attempt_s: float
     if duration_s is not None and min_attempt_s > 0 and duration_s < min_attempt_s:
         out.append(f"the attempt took {duration_s:.2f} s; this procedure cannot be done in under {min_attempt_s:g} s")
     return out
+
+
+def markdown() -> str:
+    """The section of docs/limits.md that states these rules, with their thresholds, and why."""
+    table = [
+        (
+            "Presses (keys and mouse buttons)",
+            f"more than {MAX_PRESSES_PER_S} in one second",
+            "sustained finger tapping peaks near 10-14 a second with one finger "
+            "and about 20 with two hands alternating",
+        ),
+        (
+            f"Clicks on separate targets (at least {AIMED_PX:g} px from the previous press)",
+            f"more than {MAX_AIMED_CLICKS_PER_S} in one second",
+            "an aimed movement and click takes at least about 0.2 s "
+            "(Fitts' law with the shortest published intercepts)",
+        ),
+        (
+            "Pointer travel while dragging",
+            f"more than {MAX_DRAG_PX_PER_S:,.0f} px in one second",
+            "the width of a 1280-px window crossed 15 times, several times faster than a hand moves a mouse",
+        ),
+        (
+            "The attempt's duration",
+            "under the pack's `[records] min_attempt_s`",
+            "the procedure's own minimum: its aimed clicks at 0.3 s each and the tool's travel at its top speed",
+        ),
+    ]
+    rows = "\n".join(f"| {rule} | {limit} | {why} |" for rule, limit, why in table)
+    return f"""## Input a person can make
+
+A records server replays each upload to compute its result (docs/records-server.md, "Provenance"),
+which proves that the recording produces the figures, not that a person produced the recording.
+Two checks on uploads from the window (`chainsim.game.records.plausible`; attempts made in the
+browser trainer are the server's own and are not checked):
+
+- **The window's form.** The window records device events only (`mouse_move`, `mouse_button`,
+  `mouse_drag`, `scroll`, `key`, `resize`) at the pack's own step (`[settings] dt`). A recording
+  with a `widget` or `pick` event, or another step, was made by a script, and the upload is refused
+  with one line naming the event or the step.
+- **A person's hands.** An attempt is stored but flagged (counted in no class figure until its
+  trainer accepts it; one audit line) when its input breaks any of these, each over any one second
+  of the session (the window stamps events with the frame they arrive in, so single intervals are
+  not trusted; no frame is a second long while a person plays):
+
+| Rule | Threshold | Why |
+|---|---|---|
+{rows}
+
+Single intervals between events are not judged: the window stamps each event with the simulated
+time of the frame it arrives in, and a frame that stalls (an X-ray image being drawn, kernels
+compiling) advances the simulation by at most 0.1 s however long it lasts, so a person's clicks
+during a 1.5 s stall arrive milliseconds apart. Over one second such bunching stays far below the
+thresholds above, which also allow for a simulation running at half speed on a slow machine (a
+person's three aimed clicks a second then read as six). What these rules catch is input made by a
+program and sped up; input made by a program at a person's pace cannot be told from a person's,
+which is why a class or a study can require witnessed attempts.
+
+The needle packs' minimum is 2.5 s: after the first landmark, six aimed clicks (two landmarks, two
+dials, the insertion, Save) at 0.3 s, and the needle's travel to the target at its `insert_speed`
+(prp: 69 mm at 100 mm/s; mental-block: 17 mm at 20 mm/s), rounded down. The pack's own scripted
+attempt at five times its speed breaks the clicks rule and the minimum; the same attempt made at a
+person's pace (`chainsim.game.app.windowform.HUMAN`, under two aimed clicks a second) breaks none.
+
+"""

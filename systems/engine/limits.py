@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import numbers
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -278,8 +279,10 @@ def max_mesh_bytes() -> int:
     return max(1, int(mb * 1024 * 1024))
 
 
-def markdown() -> str:
-    """docs/limits.md, generated from LIMITS."""
+def markdown(sections: Sequence[str] = ()) -> str:
+    """docs/limits.md, generated from LIMITS; ``sections`` (markdown, each from its own ``## `` heading) are
+    set before the closing section: limits that live outside the engine (``chainsim docs limits`` adds the
+    records server's rules for input a person can make, chainsim.game.records.plausible)."""
     out = [
         "# Limits",
         "",
@@ -306,6 +309,7 @@ def markdown() -> str:
         f"- `{MESH_ENV}`: mesh size limit in megabytes, a number in (0, {MAX_MESH_MB:g}]; anything else",
         "  (text, `nan`, `inf`, zero or negative) is refused with one line.",
         "",
+        *(line for sec in sections for line in sec.rstrip("\n").split("\n") + [""]),
         "## How the limits are tested",
         "",
         "`tests/hardening/` throws bad input at every entry point (broken packs, hostile mesh files, bad",

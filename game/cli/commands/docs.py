@@ -87,7 +87,9 @@ def render_reference() -> str:
 
 def run(args) -> int:
     if args.topic == "limits":
-        print(limits.markdown(), end="")
+        from chainsim.game.records import plausible  # noqa: PLC0415 - the records server's rules, a section of the page
+
+        print(limits.markdown([plausible.markdown()]), end="")
         return 0
     if args.topic == "models":
         print(model_params.markdown(), end="")
