@@ -36,8 +36,13 @@ MESSAGE_VALUES: dict[str, list[dict[str, Any]]] = {
     "reset_all": [{}],
     "refused:locked": [{}, {"n": _INT}],
     "refused": [{"n": _INT}],
-    "withdrawn": [{}],
+    "withdrawn": [{}, {"n": _INT}],
+    "turn_held": [{"n": _INT}],
+    "turns_dropped": [{"n": _INT}],
     "contact": [{"what": _STR, "dist_mm": _FLOAT, "error_mm": _FLOAT, "radius_mm": _FLOAT, "side": _STR}],
+    "contact_again": [
+        {"what": _STR, "dist_mm": _FLOAT, "error_mm": _FLOAT, "radius_mm": _FLOAT, "side": _STR, "withdraw_mm": _FLOAT}
+    ],
     # events a step may be done on that say nothing: a message there is never shown
     "click": [{}],
     "dial": [{}],
