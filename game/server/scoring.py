@@ -57,9 +57,11 @@ RECORDING_SETTINGS = ("class", "trainee", "model")
 #: the longest session (simulated seconds) this server replays, unless ``serve --max-session-minutes`` says
 #: otherwise: a class's session is rarely over half an hour, and a longer recording is refused in one line
 DEFAULT_MAX_SESSION_S = 45 * 60.0
-#: a replay's time budget (seconds of wall time): this much to start, then the session's own simulated time
-#: (a replay slower than the session was in the window is killed; replays run many times faster)
-BUDGET_START_S = 120.0
+#: a replay's time budget (seconds of wall time): this much to start (a process on a cold cache compiles its
+#: kernels first, minutes on a busy 2-core machine), then twice the session's own simulated time (a replay
+#: slower than that is killed; replays run many times faster, prp's held cheek tissue about as fast)
+BUDGET_START_S = 600.0
+BUDGET_PER_SIM_S = 2.0
 
 #: where the replay's and the simulator's figures may differ without a flag: times by a frame or two
 #: (a window that took several steps in one frame saves a step or two later than the replay), the
@@ -602,7 +604,7 @@ class Scorer:
     Each of ``workers`` threads owns one replay process (``chainsim.game.server.replayer``). While it
     replays, the thread renews its claim every ``lease_s / 4`` (a live replay is never taken over),
     kills the replay when the upload is cancelled meanwhile, and kills a replay that runs past its
-    budget: ``BUDGET_START_S`` plus the session's simulated time."""
+    budget: ``BUDGET_START_S`` plus ``BUDGET_PER_SIM_S`` times the session's simulated time."""
 
     def __init__(
         self,
@@ -676,7 +678,8 @@ class Scorer:
     def _replay(self, store: RecordStore, upload: dict, worker: str, proc: ReplayProcess, root: str) -> tuple:
         """Run the upload's replay in ``proc``, renewing the claim; ``(scored, error)``, or None to drop it
         (cancelled, taken over, or the server stopping)."""
-        budget = [BUDGET_START_S + self.max_session_s]  # until the replay has read the recording's length
+        # until the replay has read the recording's length
+        budget = [BUDGET_START_S + BUDGET_PER_SIM_S * self.max_session_s]
         renewed = [time.monotonic()]
 
         def keep_going() -> bool:
@@ -688,7 +691,7 @@ class Scorer:
             return True
 
         def on_note(note: dict) -> float:
-            budget[0] = BUDGET_START_S + float(note.get("sim_s", self.max_session_s))
+            budget[0] = BUDGET_START_S + BUDGET_PER_SIM_S * float(note.get("sim_s", self.max_session_s))
             return budget[0]
 
         options = {"witnessed": bool(upload.get("witnessed")), "max_session_s": self.max_session_s}
@@ -700,8 +703,8 @@ class Scorer:
             return None
         except OverBudget:
             return None, (
-                f"the replay ran past its budget of {budget[0]:.0f} s (the session's simulated time and "
-                f"{BUDGET_START_S:.0f} s to start) and was stopped"
+                f"the replay ran past its budget of {budget[0]:.0f} s ({BUDGET_START_S:.0f} s to start and "
+                f"{BUDGET_PER_SIM_S:g} s for each second of the session) and was stopped"
             )
         except ReplayFailed as exc:
             if self._stop.is_set():
