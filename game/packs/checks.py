@@ -429,7 +429,8 @@ def check_entities(v: Validator, raw: dict, man: dict) -> dict[str, dict[str, An
             entities[ename][cname] = conv
             for f in schema.fields:
                 ref = conv.get(f.name)
-                if f.kind == "mesh" and ref and ref not in man.get("meshes", {}):
+                # an empty name written in the table names no mesh either (left out, a field keeps its default)
+                if f.kind == "mesh" and (ref or f.name in ctable) and ref not in man.get("meshes", {}):
                     v.add(file, f"{key}.{cname}.{f.name}", f"no mesh named '{ref}' in [meshes]")
                 if f.kind == "material" and ref and ref not in man.get("materials", {}):
                     v.add(file, f"{key}.{cname}.{f.name}", f"no material named '{ref}' in [materials]")
