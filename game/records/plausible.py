@@ -175,7 +175,7 @@ person's three aimed clicks a second then read as six). What these rules catch i
 program and sped up; input made by a program at a person's pace cannot be told from a person's,
 which is why a class or a study can require witnessed attempts.
 
-The needle packs' minimum is 2.5 s: after the first landmark, six aimed clicks (two landmarks, two
+The needle packs' minimum is 2.5 s: after the first point marked on the face, six aimed clicks (two more points, two
 dials, the insertion, Save) at 0.3 s, and the needle's travel to the target at its `insert_speed`
 (prp: 69 mm at 100 mm/s; mental-block: 17 mm at 20 mm/s), rounded down. The pack's own scripted
 attempt at five times its speed breaks the clicks rule and the minimum; the same attempt made at a
