@@ -17,6 +17,7 @@ import pytest
 
 from chainsim.components.input_events import PickPoint, Widget
 from chainsim.game.app.headless import build_app
+from chainsim.game.bench.replay import without_tissue  # the cut the replay bench makes too
 from chainsim.systems.procedures.needle.components import NeedleState
 from chainsim.systems.procedures.needle.manifest import ProcedureState
 
@@ -39,22 +40,6 @@ def _boxes(specs):
         b.apply_translation((lo + hi) / 2)
         ms.append(b)
     return trimesh.util.concatenate(ms)
-
-
-def without_tissue(text: str) -> str:
-    """The pack.toml less its soft tissue (built on the real anatomy, not this one), the needle inserting
-    in one step as in a pack without tissue: these tests are the needle procedure's own. Text in, text
-    out, so the other tables keep the lines tests edit."""
-    out, skip = [], False
-    for line in text.splitlines():
-        if line.startswith("["):
-            name = line.strip("[] ")
-            skip = name.startswith(("meshes.tissue_", "entities.tissue_", "needle_tissue", "tissue_layers."))
-        if line.startswith("insert_speed = "):
-            line = "insert_speed = 0.0"
-        if not skip:
-            out.append(line)
-    return "\n".join(out) + "\n"
 
 
 def make_synthetic_pack(root: Path) -> Path:
