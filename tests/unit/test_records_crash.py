@@ -95,6 +95,11 @@ def expected(i: int) -> dict:
         "retracted_at": None,
         "retracted_by": None,
         "retract_reason": None,
+        # saved locally: its source is local, its input judged by nobody
+        "source": "local",
+        "flags": [],
+        "accepted_by": None,
+        "accepted_at": None,
     }
     # the procedure-neutral metrics table holds every fixed-column value too, saved in the same transaction
     row["metrics"] = {k: None if row[k] is None else float(row[k]) for k in LEGACY_METRICS}
