@@ -54,10 +54,10 @@ def test_the_budget_the_replay_reports_replaces_the_first(proc):
         notes.append(note)
         return 1.0 + note["sim_s"]
 
-    start = time.monotonic()
+    # the job sleeps 60 s: under the first budget (600 s) it would end normally, so only the reported one kills it
     with pytest.raises(OverBudget):
         proc.run((60.0, 0.5), 600, lambda: True, on_note)
-    assert notes == [{"sim_s": 0.5}] and time.monotonic() - start < 30
+    assert notes == [{"sim_s": 0.5}]
 
 
 def test_a_cancelled_replay_is_killed(proc):
