@@ -127,30 +127,31 @@ class ReplayProcess:
             self.close()
             self._start()
         self._jobs += 1
+        # this job's process and pipe, held here: close() from another thread (the server stopping) clears
+        # the attributes, and the job then ends as a failed replay rather than an error in this thread
+        proc, conn = self._proc, self._conn
         start = time.monotonic()
         try:
-            self._conn.send(args)
+            conn.send(args)
             while True:
-                if self._conn.poll(SLICE_S):
-                    answer = self._conn.recv()
+                if conn.poll(SLICE_S):
+                    answer = conn.recv()
                     if answer[0] != "note":
                         return answer
                     if on_note is not None:
                         budget_s = on_note(answer[1])
                     continue
-                if not self._proc.is_alive():
-                    raise ReplayFailed(f"the replay process ended (exit code {self._proc.exitcode})")
+                if not proc.is_alive():
+                    raise ReplayFailed(f"the replay process ended (exit code {proc.exitcode})")
                 if not keep_going():
                     self.close()
                     raise Cancelled()
                 if time.monotonic() - start > budget_s:
                     self.close()
                     raise OverBudget()
-        except (EOFError, OSError):
-            proc = self._proc
-            if proc is not None:
-                proc.join(timeout=5)
-            code = None if proc is None else proc.exitcode
+        except (EOFError, OSError, ValueError):  # ValueError: the pipe was closed under this thread
+            proc.join(timeout=5)
+            code = proc.exitcode
             self.close()
             raise ReplayFailed(f"the replay process ended (exit code {code})") from None
 

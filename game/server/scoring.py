@@ -671,6 +671,9 @@ class Scorer:
                         logger.debug("closing a failed scoring connection", exc_info=True)
                 store = None
                 self._stop.wait(POLL_S)
+            except Exception:  # a scorer that died would stall every class's scoring: say it and go on
+                logger.exception("scoring: an unexpected error; this scorer goes on with the next upload")
+                self._stop.wait(POLL_S)
         proc.close()
         if store is not None:
             store.close()

@@ -99,7 +99,10 @@ def wake_front(indptr, indices, awake, change, threshold, rings):
     return woke
 
 
-@njit(cache=True, fastmath=True, parallel=True)
+# no fast-math here: local_forces calls this kernel, and with reassociation allowed the code compiled with
+# its caller in one process rounded differently from the code loaded from numba's cache, so a replay
+# process missed the simulator's digest (tests/kernels/test_cached_kernels_same_bits.py); 10 % slower
+@njit(cache=True, parallel=True)
 def refine_rotations(F, Q, iterations):
     """Refine unit quaternions Q (M, 4) (w, x, y, z) towards the rotations of the matrices F (M, 9),
     row-major, `iterations` times, all elements per pass, with no branch and no trigonometry, so the
