@@ -365,7 +365,7 @@ class HybridBody(ProjectiveBody):
         t0 = time.perf_counter()
         x = self.x
         targets = self.grab_targets * self.unit
-        self._chainmail_start(x, targets)
+        spread = self._chainmail_start(x, targets)
         still = self._last_targets is not None and np.array_equal(self._last_targets, targets)
         self._last_targets = targets.copy()
         settled = False
@@ -398,13 +398,19 @@ class HybridBody(ProjectiveBody):
         free = s["free"]
         jump = targets - x[self.grab_ids]
         # the grabbed nodes' jump and its linear spread, shortened where it would turn elements inside out
-        self._start(s, jump, x)
+        went = max(self._start(s, jump, x), spread)
         short = float(np.max(np.abs(targets - x[self.grab_ids]), initial=0.0))
         moving = np.concatenate([free, self.grab_ids])
         disp = max(self._other_disp, float(np.max(np.abs(x[moving] - self._rest_si[moving]), initial=0.0)))
         scale = max(disp, 1e-12 * self._scale)
-        if not still or short > 0.0:
+        if went > 0.0 or (not still and not short):
             self._converged, self._momentum, self._f_peak = False, None, 0.0
+        elif short > 0.0:
+            # held short and waiting (no share of the move keeps every element whole), the targets still
+            # or not: nothing moved, and the body's answer depends on where the grabbed nodes are, not on
+            # where they are asked to go. It settles there, and once it has, such frames cost no iteration
+            # (a needle pressing on for seconds where the tissue cannot follow: 15 ms a frame before)
+            self._momentum = None
         done, last = 0, 0.0
         if len(free) and not self._converged:
             done, last, _ = self._iterate(s, x, scale)
@@ -425,25 +431,28 @@ class HybridBody(ProjectiveBody):
         }
         if self.notice:
             extra["notice"] = self.notice
-        if still and partial and short == 0.0 and not done and self._converged and self._setup is s:
+        if still and partial and not went and not done and self._converged and self._setup is s:
             # nothing moved, nothing woke or slept, and the frame's own counters were already where it left
             # them: the next frame under the same targets repeats this one exactly
             if before == (self._short_frames, self._prev_last, self.notice, self._sleep_scale):
                 self._quiet = (s, extra)
         return StepStats(done, last / scale if scale > 0 else 0.0, 0, time.perf_counter() - t0, extra)
 
-    def _chainmail_start(self, x: np.ndarray, targets: np.ndarray) -> None:
-        """`start = "chainmail"`: a new target is spread through the body by one cascade, the solve refines."""
+    def _chainmail_start(self, x: np.ndarray, targets: np.ndarray) -> float:
+        """`start = "chainmail"`: a new target is spread through the body by one cascade, the solve refines.
+        Returns 1.0 when it moved the body, else 0.0."""
         if self._chain is None or not len(self.grab_ids):
-            return
+            return 0.0
         if self._last_targets is None or not np.array_equal(self._last_targets, targets):
             self._chain.positions[:] = x / self.unit
             self._chain.held = np.zeros(0, dtype=np.int64)
             self._chain.move(self.grab_ids, self.grab_targets)
             x[:] = self._chain.positions * self.unit
             self._cache = None
+            return 1.0
+        return 0.0
 
-    def _start(self, s: dict, jump: np.ndarray, x: np.ndarray) -> None:
+    def _start(self, s: dict, jump: np.ndarray, x: np.ndarray) -> float:
         """Move the grabbed nodes by `jump` towards their targets and, with `start = "linear"`, spread the
         jump through the body by the linear response on the coarse grid (forces -K_fh jump, one coarse
         solve), so the first local step sees a body already near the new shape, not one ring of elements
@@ -454,9 +463,9 @@ class HybridBody(ProjectiveBody):
         where it already was): a far jump in one frame (a 12 mm shear of a 6 mm patch) otherwise folds the
         ring of elements around the grabbed nodes over, and an energy that does not forbid inversion keeps
         them folded. The grabbed nodes then reach their targets over the next frames, as the body makes
-        room."""
+        room. Returns the share of the jump taken (0 when nothing moved)."""
         if not (len(self.grab_ids) and np.any(jump)):
-            return
+            return 0.0
         free, g = s["free"], self.grab_ids
         lin = None
         if self.start == "linear" and s["coarse"] is not None and len(free):
@@ -500,6 +509,7 @@ class HybridBody(ProjectiveBody):
             self._cache = (s, math.nan, min_j, c[3] - alpha * moved.reshape(-1, 3))
         else:
             self._cache = None
+        return alpha
 
     def _start_ratio(self, s: dict, x: np.ndarray, floor: float) -> float:
         """The smallest det F among the frame's elements at x, as far as the start's test needs it: the
@@ -530,7 +540,8 @@ class HybridBody(ProjectiveBody):
             )
         elif short <= 1e-6 * scale and self.notice.startswith("hybrid: the pull"):
             self.notice = ""
-        self._short_frames = self._short_frames + 1 if short > 1e-6 * scale else 0
+        # counted to 2 only (the notice waits one frame): a count that grew would make each frame differ
+        self._short_frames = min(self._short_frames + 1, 2) if short > 1e-6 * scale else 0
 
     def _evaluate(self, s: dict, x: np.ndarray) -> tuple[float, float, np.ndarray]:
         """The energy, the smallest det F and the forces on the solved nodes at x (one local step)."""
