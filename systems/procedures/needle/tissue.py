@@ -229,6 +229,8 @@ class NeedleTissue:
     reentries: int = 0
     held: dict = field(default_factory=dict)  # body index -> node ids held last frame
     held_at: dict = field(default_factory=dict)  # body index -> their targets (world mm)
+    hold_key: tuple = ()  # what the last frame's holds were worked out from (NeedleTissueSystem._hold)
+    tent_key: tuple = ()  # what skin_tent was read from: the crossing, the body's version and place
     tip_layer: str = ""
     beyond: bool = False  # the tip is past the far side of the tissue
     skin_tent: float = 0.0
@@ -607,10 +609,19 @@ class NeedleTissueSystem:
 
     def _hold(self, app: App, nt: NeedleTissue, st: NeedleState, d: np.ndarray, depth: float) -> None:
         """Grab the pressed face and the constraint points where the needle puts them; let go of the rest."""
+        # the holds follow from the needle's pose, depth, drag and tent alone: under a still needle (most
+        # of a session's frames) they are the last frame's, and only the skin's tent is read again
+        key = (st.entry.tobytes(), st.q.tobytes(), depth, nt.punctured, nt.offsets.tobytes(), nt.tent, nt.pose)
+        if key != nt.hold_key:
+            self._place_holds(app, nt, st, d)
+            nt.hold_key = key
+        nt.skin_tent = self._skin_tent(app, nt)
+
+    def _place_holds(self, app: App, nt: NeedleTissue, st: NeedleState, d: np.ndarray) -> None:
+        """Work out where the needle holds each body's nodes and grab them there (only what changed)."""
         scene = self.scene
         want: dict[int, tuple[list, list]] = {}
         lateral = np.zeros(3)
-        skin_tent = 0.0
         for i in range(min(nt.punctured, len(nt.crossings))):
             c = nt.crossings[i]
             body = scene.bodies[c.body]
@@ -657,14 +668,30 @@ class NeedleTissueSystem:
                     deformation.release(dcomp, old)
                     nt.held_at.pop(bi, None)
                 nt.held[bi] = ids_a
-            # the skin under the tip: how far the crossed skin face has moved from rest
-            if nt.crossings and nt.contact:
-                c = nt.crossings[0]
-                dcomp = esper.try_component(scene.bodies[c.body].entity, Deformable)
-                if dcomp is not None:
-                    now = to_world(esper.try_component(scene.bodies[c.body].entity, Transform), dcomp.pos[c.nodes])
-                    skin_tent = float(np.linalg.norm((now - scene.bodies[c.body].rest_world[c.nodes]).mean(axis=0)))
-        nt.skin_tent = skin_tent
+
+    def _skin_tent(self, app: App, nt: NeedleTissue) -> float:
+        """How far the crossed skin face under the tip has moved from rest (mm), 0 without contact."""
+        if not (nt.crossings and nt.contact):
+            return 0.0
+        c = nt.crossings[0]
+        body = self.scene.bodies[c.body]
+        with app.active():
+            dcomp = esper.try_component(body.entity, Deformable)
+            if dcomp is None:
+                return 0.0
+            tf = esper.try_component(body.entity, Transform)
+            # a body's version changes with every step that moves it: a resting skin is not read again
+            key = (
+                nt.pose,
+                c.body,
+                dcomp.version,
+                None if tf is None else (tf.position.tobytes(), tf.rotation.tobytes(), tf.scale),
+            )
+            if key == nt.tent_key:
+                return nt.skin_tent
+            now = to_world(tf, dcomp.pos[c.nodes])
+        nt.tent_key = key
+        return float(np.linalg.norm((now - body.rest_world[c.nodes]).mean(axis=0)))
 
     def _let_go(self, app: App, nt: NeedleTissue, everything: bool) -> None:
         with app.active():
@@ -674,6 +701,7 @@ class NeedleTissueSystem:
                     deformation.release(dcomp, ids)
                 nt.held[bi] = np.zeros(0, dtype=np.int64)
                 nt.held_at.pop(bi, None)
+        nt.hold_key = nt.tent_key = ()
         nt.punctured = 0
         nt.offsets = np.zeros(0)
         nt.tent = 0.0
