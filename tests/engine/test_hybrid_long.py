@@ -128,6 +128,37 @@ def test_a_pull_no_shape_can_follow_is_refused_in_one_line_and_nothing_inverts(b
     assert body.notice == ""
 
 
+def test_a_move_held_short_settles_and_then_costs_no_iteration_while_the_tool_presses_on(block):
+    # a needle pressing one layer boundary's node onto the next one's, which it also holds: the element
+    # between them cannot give, the move waits, and the body settles under the nodes where they are; from
+    # then on a frame makes no iteration and moves nothing, the push still or going deeper (a needle
+    # held in the cheek for minutes: each frame a full iteration before)
+    top = int(np.argmin(np.linalg.norm(block.pos - [15, 15, 20], axis=1)))
+    under = int(np.argmin(np.linalg.norm(block.pos - [15, 15, 17.5], axis=1)))
+    ids = np.array([top, under])
+    body = make_body("hybrid", block.pos, tets=block.tets, fixed=block.fixed, E=3e4, nu=0.45, unit=1e-3)
+    body.grab(ids, block.pos[ids] + [[0.0, 0.0, -5.0], [0.0, 0.0, 0.0]])
+    for _ in range(120):  # two seconds
+        stats = body.step(DT)
+    assert stats.iterations == 0 and stats.moved == 0 and stats.extra["converged"], stats
+    assert "short of the target" in body.notice
+    held = body.positions.copy()
+    assert held[top, 2] > block.pos[top, 2] - 5.0 + 1.0  # it stopped short
+    for depth in np.linspace(5.0, 7.0, 30):  # deeper still, a new target each frame
+        body.grab(ids, block.pos[ids] + [[0.0, 0.0, -depth], [0.0, 0.0, 0.0]])
+        stats = body.step(DT)
+        assert stats.iterations == 0 and stats.moved == 0, stats
+    np.testing.assert_array_equal(body.positions, held)
+    # what it settled to is the body's answer there: 40 iterations from that shape move nothing visible
+    check = make_body("hybrid", block.pos, tets=block.tets, fixed=block.fixed, E=3e4, nu=0.45, unit=1e-3,
+                      iterations=40)  # fmt: skip
+    check.positions = held.copy()
+    check.grab(ids, held[ids])
+    check.step(DT)
+    assert np.abs(check.positions - held).max() < 1e-3 * 5.0
+    assert _volume_ratios(block, held).min() > 0.0
+
+
 def _answer(b, E, nu):
     """The energy's converged answer: the same body iterating 40 times a frame for 5 s."""
     u, body = _run(b, b.grabbed, np.tile([0.0, 0.0, 3.0], (300, 1)), E, nu, iterations=40)
