@@ -229,8 +229,10 @@ class NeedleTissue:
     reentries: int = 0
     held: dict = field(default_factory=dict)  # body index -> node ids held last frame
     held_at: dict = field(default_factory=dict)  # body index -> their targets (world mm)
-    hold_key: tuple = ()  # what the last frame's holds were worked out from (NeedleTissueSystem._hold)
-    tent_key: tuple = ()  # what skin_tent was read from: the crossing, the body's version and place
+    # what the last frame's holds and skin_tent were worked out from (NeedleTissueSystem._hold): caches,
+    # not state, so left out of the world digest
+    hold_key: tuple = field(default=(), metadata={"digest": False})
+    tent_key: tuple = field(default=(), metadata={"digest": False})
     tip_layer: str = ""
     beyond: bool = False  # the tip is past the far side of the tissue
     skin_tent: float = 0.0
