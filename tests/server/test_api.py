@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import secrets
+import time
 import uuid
 
 import pytest
@@ -239,6 +240,7 @@ def test_injection_shaped_and_huge_names(site):
     q = "?trainee=" + urllib_quote(nasty)
     listed = call(site, "GET", "/api/attempts" + q, token=site.tokens["tina"])[1]["attempts"]
     assert [a["trainee"] for a in listed] == [nasty]
+    settle(site.db)  # an earlier test's upload scored meanwhile would change the count
     before = (count_attempts(site.db), count_uploads(site.db))
     assert send(site, "tina", upload(class_name="c1", trainee="n" * 10_000))[0] == 422
     assert call(site, "GET", "/api/attempts?class=" + "c" * 10_000, token=site.tokens["tina"])[0] == 400
@@ -273,8 +275,19 @@ def test_many_concurrent_uploads_all_land_and_are_scored_once(site):
     before = (count_attempts(site.db), count_uploads(site.db))
     keys = [secrets.token_hex(8) for _ in range(40)]
     body = upload("skull-hit.toml")
+
+    def send_as_a_client_does(key: str):
+        # past the account's burst the server answers 429 with Retry-After, and a client (the simulator's
+        # outbox) sends again then, under the same key: 40 at once outrun 20 at 100 a second on a fast run
+        for _ in range(30):
+            answer = send(site, "carol", body, key)
+            if answer[0] != 429:
+                return answer
+            time.sleep(float(answer[2]["Retry-After"]))
+        return answer
+
     with ThreadPoolExecutor(8) as pool:
-        acks = list(pool.map(lambda k: send(site, "carol", body, k), keys))
+        acks = list(pool.map(send_as_a_client_does, keys))
     assert all(r[0] == 202 for r in acks), [r for r in acks if r[0] != 202][:1]
     assert len({r[1]["upload"] for r in acks}) == 40
     assert count_uploads(site.db) == before[1] + 40
