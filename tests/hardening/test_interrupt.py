@@ -18,6 +18,12 @@ from .conftest import ROOT, chainsim
 STEPPING = re.compile(rb"\b[1-9][0-9]*/100000\b")
 
 
+def _from_a_terminal() -> None:
+    """In the child, before it runs: Ctrl-C's signal as a terminal hands it over. A shell starts background
+    jobs with SIGINT ignored, and a test suite started that way (nohup, &) would pass the child that."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def interrupt_when_stepping(*args: str, timeout: float = 600) -> tuple[int, str]:
     """Start `chainsim ARGS`, send SIGINT once its progress bar shows a step done; (exit code, stderr)."""
     env = {**os.environ, "PYGLET_HEADLESS": "true", "MPLBACKEND": "Agg", "CHAINSIM_PROGRESS": "1"}
@@ -28,6 +34,7 @@ def interrupt_when_stepping(*args: str, timeout: float = 600) -> tuple[int, str]
         stderr=subprocess.PIPE,
         env=env,
         cwd=ROOT,
+        preexec_fn=_from_a_terminal,
     )
     err, stepping = bytearray(), threading.Event()
 
@@ -103,6 +110,7 @@ def test_ctrl_c_while_the_command_loads_is_one_line():
         text=True,
         env=env,
         cwd=ROOT,
+        preexec_fn=_from_a_terminal,
     )
     assert proc.stdout.readline() == "ready\n"
     time.sleep(0.05)
