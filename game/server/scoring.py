@@ -39,6 +39,7 @@ from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import clean_attempt, clean_created_at, clean_name, to_json
 from chainsim.game.server.replayer import Cancelled, OverBudget, ReplayFailed, ReplayProcess
 from chainsim.systems.engine import limits
+from chainsim.systems.engine.haptics import DEVICE_DETAILS, DEVICE_MEASURES
 from chainsim.systems.engine.errors import UserError
 
 logger = logging.getLogger(__name__)
@@ -258,7 +259,35 @@ def replay_record(
         "digest_ok": digest == recording["digest"],
         "sim_s": sim_s,
         "steps": (steps_run, fields["steps"]),
+        "device_metrics": [
+            name for name, spec in pack.section("metrics").items() if spec.get("measure") in DEVICE_MEASURES
+        ],
     }
+
+
+def device_reported(claimed: dict, record: dict, device_metrics: list[str]) -> list[str]:
+    """Take the device's figures from the simulator's claim into the replay's `record`; the fields taken.
+
+    An attempt made with a force-feedback device records the depths the hand gave, not the hand: the
+    forces it felt were measured on the trainee's machine and a replay cannot feel them again (it gives
+    no value). They are kept as the simulator reported them, where the replay has none, and named in
+    ``details.reported_by_device`` so the attempt page says so. Every other figure stays the replay's."""
+    said = claimed.get("details") or {}
+    if not said.get("device"):
+        return []
+    details, metrics, taken = record.setdefault("details", {}), record.setdefault("metrics", {}), []
+    for k in DEVICE_DETAILS:
+        if details.get(k) is None and said.get(k) is not None:
+            details[k] = said[k]
+            taken.append(k)
+    for name in device_metrics:
+        value = (claimed.get("metrics") or {}).get(name)
+        if metrics.get(name) is None and value is not None:
+            metrics[name] = value
+            taken.append(f"metrics.{name}")
+    if taken:
+        details["reported_by_device"] = taken
+    return taken
 
 
 def _close(a: Any, b: Any, *, name: str) -> bool:
@@ -556,6 +585,7 @@ def finish(store: RecordStore, upload: dict, worker: str, scored: dict | None, e
         claimed = json.loads(upload["claimed"])
         record = clean_attempt({**scored["record"], "created_at": upload["received_at"]})
         record["pack"] = upload["pack"]
+        device_reported(claimed, record, scored.get("device_metrics", []))
         diffs = differences(claimed, record)
         if not scored["digest_ok"]:
             diffs.append({"field": "state at the Save", "simulator": "recorded digest", "replay": "another"})

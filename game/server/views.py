@@ -413,6 +413,7 @@ def attempt_view(a: dict, specs: dict) -> dict:
             }
         )
     skip = {layout.MARKS, layout.IDEAL_MARKS, "needle_path", "ideal_path", "verdict", "contacts", "protocol"}
+    skip |= {"force_profile", "reported_by_device"}  # drawn under "Force through the device"
     skip |= {k for k in d if k[:1] in "Dd" and k[1:].isdigit() or k.startswith("Dist")}
     facts = [said(k, a.get(k)) for k in ("pack", "created_at", "target") if k in a]
     facts += [said(k, v) for k, v in d.items() if k not in skip]
@@ -428,6 +429,25 @@ def attempt_view(a: dict, specs: dict) -> dict:
         "marks_column": layout.MARKS_COLUMN,
         "marks_note": Markup(layout.MARKS_NOTE),  # the procedure's own text, with its subscripts
         "facts": facts,
+        "force": _force_view(d),
+    }
+
+
+def _force_view(d: dict) -> dict | None:
+    """What the page says of the forces felt through a device (None: made without one)."""
+    profile = d.get("force_profile")
+    if not d.get("device") or not isinstance(profile, list) or not profile:
+        return None
+    reported = d.get("reported_by_device") or []
+    return {
+        "device": str(d["device"]),
+        "points": len(profile),
+        "reported": bool(reported),
+        "alt": (
+            f"Force against needle depth and against time, {len(profile)} points; peak "
+            f"{debrief.number(d.get('device_peak_force_N'), 'N')}, at the first puncture "
+            f"{debrief.number(d.get('puncture_force_N'), 'N')}, {debrief.number(d.get('bone_contact_s'), 's')} on bone"
+        ),
     }
 
 
@@ -537,6 +557,23 @@ async def attempt_xray(request: Request) -> Response:
     return Response(track["images"][k - 1]["png"], media_type="image/png", headers=headers)
 
 
+def force_plot(store: RecordStore, user: User, attempt_id: int) -> bytes:
+    """The force profile of an attempt made with a force-feedback device (404 for one made without)."""
+    a = readable_attempt(store, user, attempt_id)
+    profile = (a.get("details") or {}).get("force_profile")
+    if not isinstance(profile, list) or not profile:
+        raise HTTPError(404, f"attempt {attempt_id} was made without a force-feedback device: no force profile")
+    return plots.force_profile(profile, f"Force through the device, attempt {attempt_id}")
+
+
+async def attempt_force(request: Request) -> Response:
+    user, _csrf = await page_user(request)
+    if request.path_params["image"] != "force.svg":
+        raise HTTPError(404, f"the force profile is force.svg, got {request.path_params['image']!r}")
+    data = await request.app.state.storage.run(force_plot, user, _int_param(request, "attempt_id"))
+    return Response(data, media_type="image/svg+xml", headers={"Cache-Control": "private, no-store"})
+
+
 async def pack_mesh(request: Request) -> Response:
     """The pack's anatomy as binary glTF, cached by the pack's version (its hash)."""
     await page_user(request)
@@ -621,6 +658,7 @@ routes = [
     Route("/attempts/{attempt_id:int}/accept", attempt_accept, methods=["POST"]),
     Route("/attempts/{attempt_id:int}/replay.json", attempt_replay, methods=["GET"]),
     Route("/attempts/{attempt_id:int}/xray/{image}", attempt_xray, methods=["GET"]),
+    Route("/attempts/{attempt_id:int}/plot/{image}", attempt_force, methods=["GET"]),
     Route("/packs/{pack}/display.glb", pack_mesh, methods=["GET"]),
     Route("/audit", audit_page, methods=["GET"]),
     Route("/export/attempts.csv", export_csv, methods=["GET"]),

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from chainsim.game.cli.main import main
+from chainsim.systems.engine import quaternion as Q
 from chainsim.systems.engine.haptics import model as M
 from chainsim.systems.engine.haptics import port as P
 from chainsim.systems.engine.haptics import servo as S
@@ -180,3 +181,96 @@ def test_a_port_device_is_read_along_its_axis_pushed_back_along_it_and_clutched(
     assert servo.log[servo.ticks - 1, D.L_HAND] == pytest.approx(8.0)  # still where it was held
     servo.stop()
     assert not dev.forces[-1].any()  # a stopped servo leaves the device with no force
+
+
+class StylusPort(FakePort):
+    """A fake device whose stylus the test also turns (orientation w, x, y, z in the device's frame)."""
+
+    name = "stylus"
+    up = np.array([0.0, 1.0, 0.0])
+
+    def __init__(self):
+        super().__init__()
+        self.orientation = np.array([1.0, 0.0, 0.0, 0.0])
+
+    def read(self) -> P.DeviceSample:
+        return P.DeviceSample(self.position.copy(), self.orientation.copy(), self.buttons)
+
+
+def _turned(axis, deg) -> np.ndarray:
+    return Q.from_axis_angle(axis, np.radians(deg))
+
+
+def test_the_stylus_aims_the_needle_outside_tissue_and_tissue_holds_the_hand_on_the_line(aim_script, monkeypatch):
+    """A real device's stylus turns the needle's dials while the needle is out of the tissue; once in, turning it
+    asks for nothing (no refused turn is counted) and moving the hand across the needle's line is pushed back."""
+    import time
+
+    import esper
+
+    from chainsim.components.resources import PendingInput
+    from chainsim.game.app.headless import build_app
+    from chainsim.game.app.inputscript import load_script
+    from chainsim.systems.procedures.needle import haptics as H
+    from chainsim.systems.procedures.needle.components import NeedleState
+
+    dev = StylusPort()
+    monkeypatch.setitem(P.DRIVERS, "stylus", P.Driver("numpy", "x:y", "a test stylus"))
+    monkeypatch.setattr(P, "open_device", lambda spec: dev)
+    app = build_app("prp")
+    try:
+        app.resource(PendingInput).extend(load_script(aim_script))
+        app.run_steps(int(AIM_UNTIL * 120))
+        link = H.attach(app, "stylus", realtime=True)
+        with app.active():  # the same object all along: the systems change it in place
+            st = esper.component_for_entity(app.resource(H.NeedleHandles).needle, NeedleState)
+
+        def steps(n=6):
+            for _ in range(n):
+                time.sleep(0.004)  # the servo's thread reads the stylus meanwhile
+                app.update(app.time.dt)
+
+        assert st.placed and not st.locked
+        steps()
+        yaw0, pitch0 = st.yaw, st.pitch
+        dev.orientation = _turned(dev.up, 10.0)  # turned left about the device's up: the needle turns with it
+        steps()
+        assert st.yaw == pytest.approx(yaw0 + 10.0, abs=0.01) and st.pitch == pytest.approx(pitch0, abs=0.01)
+        heading = Q.rotate(_turned(dev.up, 10.0), dev.axis)
+        dev.orientation = Q.mul(_turned(np.cross(heading, dev.up), 4.0), _turned(dev.up, 10.0))  # then tip raised 4
+        steps()
+        assert st.pitch == pytest.approx(pitch0 + 4.0, abs=0.05) and st.yaw == pytest.approx(yaw0 + 10.0, abs=0.05)
+        assert not any(f[:2].any() for f in dev.forces)  # out of tissue: no force across the axis
+        # pushed in along the device's axis (-Z) until the skin gives and the needle is 8 mm in
+        for z in np.linspace(0.0, -14.0, 60):
+            dev.position[2] = z
+            steps(1)
+        steps(30)
+        assert st.locked and st.depth > 5.0 and link.servo.embedded() > 3.0
+        yaw_in, refused = st.yaw, st.rotation_refused
+        dev.orientation = _turned(dev.up, 30.0)  # turned hard in tissue: nothing asked, nothing refused
+        steps()
+        assert st.yaw == yaw_in and st.rotation_refused == refused
+        # the hand moved 3 mm across the line (+X): pushed back (-X), more firmly the deeper the needle
+        dev.position[0] = 3.0
+        steps(10)
+        f = dev.forces[-1]
+        assert f[0] < -0.1 and abs(f[1]) < 1e-9
+        link.servo.stop()
+    finally:
+        app.close()
+
+
+def test_tissue_holds_the_needle_on_its_line_from_where_it_went_in_stiffer_the_deeper():
+    lat = P.Lateral(np.array([0.0, 0.0, -1.0]), 1e-3, 6e-4)
+    ref = np.zeros(3)
+    assert not lat(np.array([2.0, 0.0, -3.0]), ref, 0.0).any()  # not in tissue: the hand moves freely
+    assert not lat(np.array([2.0, 0.0, -3.0]), ref, 0.1).any()  # the line is where the hand went in: no step
+    forces = []
+    for depth in (5.0, 10.0, 20.0, 30.0, 60.0):
+        lat(np.array([2.0, 0.0, -3.0]), ref, depth)  # held still across the line (no speed)
+        forces.append(lat(np.array([3.0, 0.0, -9.0]), ref, depth))  # 1 mm across, any depth along the axis
+        lat(np.array([2.0, 0.0, -3.0]), ref, depth)
+    assert all(f[1] == 0.0 and f[2] == 0.0 and f[0] < 0.0 for f in forces)  # back across, never along the axis
+    spring = [-(f[0] + 6e-4 * 1.0 / 1e-3) for f in forces]  # less the damper's share (1 mm in one tick)
+    assert spring == pytest.approx([0.1, 0.2, 0.4, 0.6, 0.6])  # 0.02 N/mm per mm in, at most 0.6 N/mm

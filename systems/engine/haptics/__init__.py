@@ -10,3 +10,9 @@ coupling), so the needle stops at bone however hard the hand pushes and the forc
 a spring-mass hand, so everything runs and is tested without hardware. No ECS here: the needle
 procedure attaches all this to a running scene (chainsim.systems.procedures.needle.haptics).
 """
+
+#: the measures a pack's [metrics.NAME] can name that only a force-feedback device gives (no value without one)
+DEVICE_MEASURES = ("device_peak_force", "puncture_force", "bone_contact_time")
+#: an attempt's details that come from the device: the hand's forces are felt on the trainee's machine, and a
+#: replay of the recording (depths, not the hand) cannot feel them again (chainsim.game.server.scoring)
+DEVICE_DETAILS = ("device", "device_peak_force_N", "puncture_force_N", "bone_contact_s", "force_profile")

@@ -35,7 +35,7 @@ from numba import njit
 from chainsim.systems.engine.haptics import model as M
 from chainsim.systems.engine.haptics import simdevice as D
 from chainsim.systems.engine.haptics.clock import fence, now_ns, scratch, sleep_until
-from chainsim.systems.engine.haptics.port import Depth
+from chainsim.systems.engine.haptics.port import Depth, DeviceSample, Lateral
 
 # ctl: the loop's controls and counters
 CT_STOP = 0  # set to 1 to end the loop
@@ -167,6 +167,8 @@ class Servo:
         self.scheduling = ""
         self.device_clock = 0.0
         self.depth = Depth(port.axis) if port is not None else None
+        self.lateral = Lateral(port.axis, cfg[M.C_DT], cfg[M.C_BC]) if port is not None else None
+        self.sample: DeviceSample | None = None  # the port's last reading
         self._thread: threading.Thread | None = None
 
     # -- the simulation's side -------------------------------------------------------------------
@@ -240,9 +242,23 @@ class Servo:
         if port is None or depth is None:  # stopped
             return
         self.device_clock = port.clock()  # the device's own time at this tick
-        x_h = depth(port.read(), self.model[M.M_PLACED] != 0.0)
+        sample = port.read()
+        self.sample = sample  # the stylus's pose, for the needle's heading (the App's thread reads it)
+        x_h = depth(sample, self.model[M.M_PLACED] != 0.0)
         f = port_tick(*self.args()[:6], self.log, self.ctl, x_h)
-        port.write(-f * depth.axis)  # on the hand: against the insertion when positive
+        out = -f * depth.axis  # on the hand: against the insertion when positive
+        if self.lateral is not None:  # in tissue the needle holds the hand on its line
+            out = out + self.lateral(sample.position, depth.ref, self.embedded())
+            size = float(np.linalg.norm(out))
+            if size > self.cfg[M.C_FMAX]:
+                out *= self.cfg[M.C_FMAX] / size
+        port.write(out)
+
+    def embedded(self) -> float:
+        """mm of the needle in tissue: past the first boundary it punctured (0 before the skin gives)."""
+        if self.state[M.S_P] < 1 or self.model[M.M_NC] < 1:
+            return 0.0
+        return max(float(self.state[M.S_XT] - self.model[M.M_HEAD + M.X_DEPTH]), 0.0)
 
     def wait(self, timeout: float | None = None) -> None:
         """Until the loop ends (its tick limit), at most `timeout` seconds."""

@@ -19,6 +19,7 @@ import pyOpenHaptics.hd as hd
 from pyOpenHaptics.hd_callback import hd_callback
 from pyOpenHaptics.hd_device import HapticDevice
 
+from chainsim.systems.engine import quaternion as Q
 from chainsim.systems.engine.haptics.port import DeviceSample
 
 #: the Touch's continuous force (N); its peak is 3.3 N
@@ -29,10 +30,12 @@ class TouchPort:
     name = "touch"
     max_force_N = TOUCH_MAX_FORCE
     axis = np.array([0.0, 0.0, -1.0])
+    up = np.array([0.0, 1.0, 0.0])  # the Touch's +Y
 
     def __init__(self, device_name: str = "Default Device"):
         self._lock = threading.Lock()
         self._position = np.zeros(3)
+        self._rotation = np.eye(3)
         self._buttons = 0
         self._force = [0.0, 0.0, 0.0]
         self._t0 = time.monotonic()
@@ -43,6 +46,8 @@ class TouchPort:
             buttons = hd.get_buttons()
             with self._lock:
                 self._position[:] = (t[3][0], t[3][1], t[3][2])
+                # OpenHaptics' transform is column-major: t[i] is the i-th column, t[3] the translation
+                self._rotation[:] = [[t[c][r] for c in range(3)] for r in range(3)]
                 self._buttons = int(buttons)
                 force = list(self._force)
             hd.set_force(force)
@@ -55,7 +60,8 @@ class TouchPort:
 
     def read(self) -> DeviceSample:
         with self._lock:
-            return DeviceSample(self._position.copy(), np.array([1.0, 0.0, 0.0, 0.0]), self._buttons)
+            position, rotation, buttons = self._position.copy(), self._rotation.copy(), self._buttons
+        return DeviceSample(position, Q.from_matrix(rotation), buttons)
 
     def write(self, force_N: np.ndarray) -> None:
         f = np.clip(np.asarray(force_N, dtype=np.float64), -self.max_force_N, self.max_force_N)

@@ -14,6 +14,8 @@ import math
 
 import numpy as np
 
+from chainsim.systems.engine.haptics import DEVICE_MEASURES
+
 #: debrief row tones: how the window colours a row (PASS, FAIL and PLAIN are metric rows, set in columns)
 HEAD, PASS, FAIL, PLAIN, NOTE, ADVICE, CRITICAL = "head", "pass", "fail", "plain", "note", "advice", "critical"
 
@@ -42,11 +44,14 @@ def verdicts(metrics_spec: dict, values: dict) -> list[dict]:
 
     `values` maps metric names to numbers or None (an attempt's `metrics`). A metric with a critical
     value and no value at all (a needle that touched nothing has no needle error) is a critical error:
-    there is nothing to show it was done."""
+    there is nothing to show it was done. A metric only a force-feedback device measures has no row in an
+    attempt made without one (DEVICE_MEASURES): the trainee did nothing it could judge."""
     out = []
     for name, spec in metrics_spec.items():
         v = values.get(name)
         v = None if v is None or not math.isfinite(float(v)) else float(v)
+        if v is None and spec.get("measure") in DEVICE_MEASURES:
+            continue
         lower = bool(spec.get("lower_is_better", True))
         bench = spec.get("benchmark")
         crit = spec.get("critical")

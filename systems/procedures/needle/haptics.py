@@ -14,7 +14,9 @@
   (the crossings of the needle's line, the holes, the wall along the line: `line_model`), and the
   servo's force at the depth this step took is paired with the simulation's axial force there.
 
-The dials, landmarks and buttons stay the mouse's and the keyboard's; the device drives the depth.
+The device drives the depth. A port's stylus also turns the needle while it may turn (placed, out of the
+tissue: `aim_needle`); in tissue the servo holds the hand on the needle's line (port.Lateral). The
+landmarks and buttons stay the mouse's and the keyboard's; so do the dials, with the simulated device.
 The forces of every tick go to the run's haptic_trace.csv; `haptic_values` gives the attempt's
 force metrics (peak force, force at the first puncture, time held against bone) to the assessment.
 """
@@ -100,6 +102,9 @@ class HapticLink:
     last_depth: float = 0.0  # the needle's depth at the end of the previous step
     attempt_tick: int = 0  # the first tick of the current attempt
     figures: AttemptForces = field(default_factory=lambda: AttemptForces())
+    aim: P.Aim | None = None  # a port's stylus turns the needle while it may turn (`aim_needle`)
+    aim_from: tuple | None = None  # the dials' (yaw, pitch) when the stylus's turn started counting
+    aim_left: tuple = ()  # the dials as this system left them: changed since, the keys or mouse turned them
 
 
 def attach(app: App, spec: str, realtime: bool = False, mode: str = "kernel", traj=None) -> HapticLink:
@@ -125,6 +130,8 @@ def attach(app: App, spec: str, realtime: bool = False, mode: str = "kernel", tr
         cfg[M.C_FMAX] = min(cfg[M.C_FMAX], dev.max_force_N)
         servo = Servo(cfg, np.zeros(1), D.new_hand(0.0), mode="python", port=dev)
     link = HapticLink(servo, spec)
+    if servo.port is not None:
+        link.aim = P.Aim(servo.port.axis, getattr(servo.port, "up", np.array([0.0, 1.0, 0.0])))
     app.insert_resource(link)
     app.add_system("input", haptic_input, order=ORDER_INPUT - 1, name="haptics_input")
     app.add_system("simulation", haptic_refresh, order=ORDER_NEEDLE_TISSUE + 1, name="haptics_refresh")
@@ -160,6 +167,8 @@ def haptic_input(app: App) -> None:
     link.read = (servo.ticks, float(row[D.L_FORCE]), float(row[D.L_TOOL]))
     link.figures.gather(servo.rows(max(link.figures.seen, link.attempt_tick)), float(servo.cfg[M.C_DT]))
     _ent, needle, st = _needle(app)
+    if link.aim is not None:
+        aim_needle(app, link, st)
     if not st.placed:
         return
     depth = float(row[D.L_TOOL]) + (WALL_REACH if row[D.L_WALL] else 0.0)
@@ -167,6 +176,31 @@ def haptic_input(app: App) -> None:
     if abs(depth - st.target_depth) < 1e-9 or (st.done and depth > st.depth):
         return
     _push_now(app, Widget("insert", depth))
+
+
+def aim_needle(app: App, link: HapticLink, st: NeedleState) -> None:
+    """The stylus's turn since the needle could last turn, given to the dials (as their absolute values,
+    so a recording replays without the device). Only while the needle may turn: placed, out of the
+    tissue and the clutch let go. In tissue the needle keeps its line (the servo holds the hand on it,
+    port.Lateral) and turning the stylus asks for nothing, so no turn is refused or counted. Turned by
+    the keys or the mouse meanwhile, or stopped at a dial's limit, the dials start from there again."""
+    sample, aim = link.servo.sample, link.aim
+    if aim is None or sample is None or not st.placed or st.locked or sample.buttons & 1:
+        link.aim_from = None
+        return
+    now = (float(st.yaw), float(st.pitch))
+    if link.aim_from is None or max(abs(a - b) for a, b in zip(now, link.aim_left, strict=True)) > 1e-6:
+        aim.start(sample.orientation)
+        link.aim_from = link.aim_left = now
+        return
+    turned = aim.turned(sample.orientation)
+    left = list(now)
+    for k, name in enumerate(("rotate_horizontal", "rotate_vertical")):
+        want = round(link.aim_from[k] + turned[k], 3)
+        if abs(want - now[k]) >= P.AIM_DEADBAND_DEG:
+            _push_now(app, Widget(name, want))
+            left[k] = want
+    link.aim_left = tuple(left)
 
 
 def _wall(app: App, needle: Needle, st: NeedleState) -> float:
