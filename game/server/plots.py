@@ -108,7 +108,8 @@ def force_profile(profile: Sequence[Sequence[float]], title: str) -> bytes:
     FigureCanvasSVG(fig)
     ax_d, ax_t = fig.subplots(1, 2)
     t, depth, force = ([float(r[k]) for r in rows] for k in range(3))
-    pops = [k for k, r in enumerate(rows) if int(r[3]) & _PUNCTURE]
+    # each puncture marked where the layer gave: the point before the force dropped
+    pops = [max(k - 1, 0) for k, r in enumerate(rows) if int(r[3]) & _PUNCTURE]
     ax_d.plot(depth, force, lw=0.9, color="tab:blue")
     ax_t.plot(t, force, lw=0.9, color="tab:blue", label="force")
     for ax, xs in ((ax_d, depth), (ax_t, t)):
