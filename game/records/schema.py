@@ -259,6 +259,51 @@ V9_DDL: tuple[str, ...] = (
     "ALTER TABLE classes ADD COLUMN require_witnessed INTEGER NOT NULL DEFAULT 0",
 )
 
+# Version 10: blinded rating (docs/validity.md, "Blinded rating"). A rating set is a list of attempts
+# shown to raters under random codes, without names, dates or class; each rater has a secret link (its
+# hash kept here), not an account, so a rater can open nothing else. ``form`` is the global rating form's
+# items (JSON) as the set was made with, ``scores`` a rater's marks per item (JSON).
+V10_DDL: tuple[str, ...] = (
+    """
+    CREATE TABLE rating_sets (
+        id         INTEGER PRIMARY KEY,
+        name       TEXT NOT NULL UNIQUE,
+        created_by TEXT NOT NULL,
+        created_at TEXT NOT NULL,
+        form       TEXT NOT NULL
+    )
+    """,
+    """
+    CREATE TABLE rating_items (
+        id         INTEGER PRIMARY KEY,
+        set_id     INTEGER NOT NULL REFERENCES rating_sets(id) ON DELETE CASCADE,
+        code       TEXT NOT NULL UNIQUE,
+        attempt_id INTEGER NOT NULL REFERENCES attempts(id) ON DELETE CASCADE,
+        UNIQUE (set_id, attempt_id)
+    )
+    """,
+    """
+    CREATE TABLE raters (
+        id         INTEGER PRIMARY KEY,
+        set_id     INTEGER NOT NULL REFERENCES rating_sets(id) ON DELETE CASCADE,
+        name       TEXT NOT NULL,
+        token_hash TEXT NOT NULL UNIQUE,
+        UNIQUE (set_id, name)
+    )
+    """,
+    """
+    CREATE TABLE ratings (
+        id       INTEGER PRIMARY KEY,
+        item_id  INTEGER NOT NULL REFERENCES rating_items(id) ON DELETE CASCADE,
+        rater_id INTEGER NOT NULL REFERENCES raters(id) ON DELETE CASCADE,
+        scores   TEXT NOT NULL,
+        total    REAL NOT NULL,
+        rated_at TEXT NOT NULL,
+        UNIQUE (item_id, rater_id)
+    )
+    """,
+)
+
 MIGRATIONS: tuple[tuple[str, ...], ...] = (
     V1_DDL,
     V2_DDL,
@@ -269,6 +314,7 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
     V7_DDL,
     V8_DDL,
     V9_DDL,
+    V10_DDL,
 )
 SCHEMA_VERSION = len(MIGRATIONS)
 
@@ -289,5 +335,9 @@ OWN_TABLES = frozenset(
         "uploads",
         "attempt_recordings",
         "audit_log",
+        "rating_sets",
+        "rating_items",
+        "raters",
+        "ratings",
     }
 )
