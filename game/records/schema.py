@@ -304,6 +304,31 @@ V10_DDL: tuple[str, ...] = (
     """,
 )
 
+# Version 11: study registers (docs/validity.md, "From protocol to report"). A participant is entered
+# in a study's register before their first trial, with the covariates a methods reviewer asks for (group,
+# year of training, procedures performed); ``slot`` is their place in the study's one allocation sequence
+# (the row of the protocol's counterbalanced design they take), given in registration order and unique
+# per study, so every site and machine filing to this database draws from the same sequence. ``grp``:
+# ``group`` is an SQL keyword.
+V11_DDL: tuple[str, ...] = (
+    """
+    CREATE TABLE study_participants (
+        id                   INTEGER PRIMARY KEY,
+        study                TEXT NOT NULL,
+        class_name           TEXT NOT NULL,
+        code                 TEXT NOT NULL,
+        grp                  TEXT NOT NULL,
+        year_of_training     INTEGER NOT NULL,
+        procedures_performed INTEGER NOT NULL,
+        slot                 INTEGER NOT NULL,
+        registered_by        TEXT NOT NULL,
+        registered_at        TEXT NOT NULL,
+        UNIQUE (study, code),
+        UNIQUE (study, slot)
+    )
+    """,
+)
+
 MIGRATIONS: tuple[tuple[str, ...], ...] = (
     V1_DDL,
     V2_DDL,
@@ -315,6 +340,7 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
     V8_DDL,
     V9_DDL,
     V10_DDL,
+    V11_DDL,
 )
 SCHEMA_VERSION = len(MIGRATIONS)
 
@@ -338,6 +364,7 @@ OWN_TABLES = frozenset(
         "rating_sets",
         "rating_items",
         "raters",
+        "study_participants",
         "ratings",
     }
 )
