@@ -1,0 +1,161 @@
+"""A study's participant register and its allocation sequence (docs/validity.md, "From protocol to report").
+
+Before their first trial a participant is entered in the study's register with the covariates a
+methods reviewer asks for: the group (novice or expert), the year of training and the number of
+procedures performed. Registering gives them the next ``slot`` of the study's one allocation
+sequence: slot k takes row k of the protocol's counterbalanced design (a balanced Latin square over
+each task's conditions, chainsim.game.ui.study.latin_row), so consecutive participants take
+consecutive rows and every row is used equally often.
+
+The sequence lives in the records database that holds the register. Kept on the records server,
+every site and machine filing to it draws from that one sequence; the slot is taken inside the
+store's write transaction (SQLite's write lock, PostgreSQL's advisory lock) and ``UNIQUE (study,
+slot)`` stands behind it, so two registrations at once never get the same slot. A register kept in
+a machine's own file allocates for that machine only; the window says so and the trials record it.
+
+Registering the same participant again with the same covariates answers the first entry (a resend);
+with other covariates it is refused: a register entry is evidence and is not changed.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+from urllib.parse import quote
+
+from chainsim.game.records import remote
+from chainsim.game.records.store import RecordStore
+from chainsim.game.records.validate import clean_created_at, clean_name
+from chainsim.game.records.validity_data import GROUPS
+from chainsim.systems.engine.errors import UserError
+
+DESIGN = "balanced Latin square"
+#: the register's whole-number covariates and their largest values (as a CSV register takes them)
+COUNTS = {"year_of_training": 80, "procedures_performed": 1_000_000}
+FIELDS = ("code", "group", "year_of_training", "procedures_performed")
+_COLUMNS = "study, class_name, code, grp, year_of_training, procedures_performed, slot, registered_by, registered_at"
+
+
+class AlreadyRegistered(UserError):
+    """The participant is in the register with other covariates (HTTP 409)."""
+
+
+def clean_entry(study: Any, body: Any) -> tuple[str, dict]:
+    """(study, {code, group, year_of_training, procedures_performed}) checked; a one-line UserError
+    naming what is wrong and what is expected otherwise."""
+    study = clean_name("study", study)
+    if not isinstance(body, dict):
+        raise UserError(f"a registration must be an object with {', '.join(FIELDS)}")
+    extra = sorted(set(body) - set(FIELDS) - {"class_name"})
+    if extra:
+        raise UserError(f"unknown field '{extra[0]}' in a registration; expected {', '.join(FIELDS)}")
+    code = clean_name("participant", body.get("code"))
+    group = body.get("group")
+    if not isinstance(group, str) or group.strip().lower() not in GROUPS:
+        raise UserError(f"group is {group!r}; expected {' or '.join(GROUPS)}")
+    out = {"code": code, "group": group.strip().lower()}
+    for key, top in COUNTS.items():
+        v = body.get(key)
+        if isinstance(v, str) and v.strip().isdigit():
+            v = int(v.strip())
+        if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= top:
+            raise UserError(f"{key} is {v!r}; expected a whole number from 0 to {top}")
+        out[key] = v
+    return study, out
+
+
+def _entry(row: Any) -> dict:
+    d = {k: row[k] for k in row.keys()}
+    d["group"] = d.pop("grp")
+    return d
+
+
+def register(store: RecordStore, study: Any, class_name: Any, body: Any, by: str) -> tuple[dict, bool]:
+    """Enter a participant in ``study``'s register under ``class_name``: (entry with its slot, created).
+    The slot is the next of the study's sequence, taken in the same write transaction as the entry."""
+    study, entry = clean_entry(study, body)
+    class_name = clean_name("class", class_name)
+    with store.transaction() as conn:
+        row = conn.execute(
+            f"SELECT {_COLUMNS} FROM study_participants WHERE study = ? AND code = ?", (study, entry["code"])
+        ).fetchone()
+        if row is not None:
+            old = _entry(row)
+            if any(old[k] != entry[k] for k in FIELDS) or old["class_name"] != class_name:
+                raise AlreadyRegistered(
+                    f"participant {entry['code']!r} is already in the register of study {study!r} (class "
+                    f"{old['class_name']}, group {old['group']}, year {old['year_of_training']}, "
+                    f"{old['procedures_performed']} procedures); a register entry is not changed"
+                )
+            return old, False
+        slot = conn.execute(
+            "SELECT COALESCE(MAX(slot) + 1, 0) FROM study_participants WHERE study = ?", (study,)
+        ).fetchone()[0]
+        conn.execute(
+            f"INSERT INTO study_participants ({_COLUMNS}) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            (
+                study,
+                class_name,
+                entry["code"],
+                entry["group"],
+                entry["year_of_training"],
+                entry["procedures_performed"],
+                int(slot),
+                by,
+                clean_created_at(None),
+            ),
+        )
+    found = lookup(store, study, entry["code"])
+    assert found is not None  # written in the transaction just committed
+    return found, True
+
+
+def lookup(store: RecordStore, study: str, code: str) -> dict | None:
+    """A participant's register entry, or None."""
+    rows = store.query(f"SELECT {_COLUMNS} FROM study_participants WHERE study = ? AND code = ?", (study, code))
+    return _entry(rows[0]) if rows else None
+
+
+def entries(store: RecordStore, study: str, classes: list[str] | None = None) -> list[dict]:
+    """The study's register in slot order (of ``classes`` only, when given)."""
+    rows = store.query(f"SELECT {_COLUMNS} FROM study_participants WHERE study = ? ORDER BY slot", (study,))
+    out = [_entry(r) for r in rows]
+    return out if classes is None else [e for e in out if e["class_name"] in classes]
+
+
+# -- on a records server (the simulator's side) --------------------------------------------------
+
+
+def _server_call(server: str, db, path: str, body: Any = None, missing_ok: bool = False) -> Any:
+    with RecordStore(db) as local:
+        token = remote.token_for(local, server)
+        if token is None:
+            raise UserError(f"not signed in to {server}: chainsim records login {server} NAME (a trainer)")
+        context = remote.context_for(local, server)
+    try:
+        return remote.request(
+            f"{server}{path}", "POST" if body is not None else "GET", body, token=token, context=context
+        )
+    except remote.ServerError as exc:
+        if missing_ok and exc.status == 404:
+            return None
+        raise UserError(f"{server}: {exc}") from None
+    except OSError as exc:
+        raise UserError(
+            f"{exc}; allocation from the study's sequence needs the records server (without --records the "
+            "order comes from this machine's own register, and the trials record that)"
+        ) from None
+
+
+def register_on_server(server: str, db, study: str, class_name: str, body: dict) -> dict:
+    """Register on the records server ``server`` (signed in as a trainer of ``class_name``)."""
+    server = remote.server_url(server)
+    return _server_call(
+        server, db, f"/api/studies/{quote(study, safe='')}/participants", {**body, "class_name": class_name}
+    )
+
+
+def lookup_on_server(server: str, db, study: str, code: str) -> dict | None:
+    """A participant's entry in the server's register, or None when they are not in it."""
+    server = remote.server_url(server)
+    path = f"/api/studies/{quote(study, safe='')}/participants/{quote(code, safe='')}"
+    return _server_call(server, db, path, missing_ok=True)

@@ -1,0 +1,85 @@
+"""The records server's study register under /api/studies (chainsim.game.records.register): trainers only.
+
+    POST /api/studies/{study}/participants         {"class_name", "code", "group", "year_of_training",
+                                                    "procedures_performed"} -> 201 the entry with its
+                                                    ``slot`` (200: the same registration again)
+    GET  /api/studies/{study}/participants         the register, in slot order (the trainer's classes)
+    GET  /api/studies/{study}/participants/{code}  one entry (404 when not registered)
+
+The slot is the participant's place in the study's one allocation sequence, kept in this database, so
+the simulator at every site takes its condition order from here (``chainsim protocol --records``).
+A bad field is a 422 naming it; other covariates for a registered participant a 409.
+"""
+
+from __future__ import annotations
+
+from starlette.requests import Request
+from starlette.responses import JSONResponse, Response
+from starlette.routing import Route
+
+from chainsim.game.records import register
+from chainsim.game.records.store import RecordStore
+from chainsim.game.records.validate import clean_name
+from chainsim.game.server.accounts import User
+from chainsim.game.server.auth import HTTPError, api_user, read_json
+from chainsim.systems.engine.errors import UserError
+
+
+def _trainer(user: User) -> None:
+    if not user.is_trainer:
+        raise HTTPError(403, "the study register is kept by trainers")
+
+
+def _register(store: RecordStore, user: User, study: str, body: object) -> tuple[dict, bool]:
+    class_name = body.get("class_name") if isinstance(body, dict) else None
+    try:
+        class_name = clean_name("class", class_name)
+    except UserError as exc:
+        raise HTTPError(422, f"{exc} (class_name: the class the participant's trials are saved under)") from None
+    if class_name not in user.classes:
+        raise HTTPError(403, "you do not teach that class")
+    try:
+        return register.register(store, study, class_name, body, user.name)
+    except register.AlreadyRegistered as exc:
+        raise HTTPError(409, str(exc)) from None
+    except UserError as exc:
+        if type(exc) is not UserError:
+            raise
+        raise HTTPError(422, str(exc)) from None
+
+
+def _one(store: RecordStore, user: User, study: str, code: str) -> dict:
+    entry = register.lookup(store, study, code)
+    if entry is None or entry["class_name"] not in user.classes:
+        raise HTTPError(404, f"no participant {code!r} in the register of study {study!r}")
+    return entry
+
+
+async def add_participant(request: Request) -> Response:
+    user = await api_user(request)
+    _trainer(user)
+    body = await read_json(request)
+    storage = request.app.state.storage
+    entry, created = await storage.run(_register, user, request.path_params["study"], body)
+    return JSONResponse(entry, status_code=201 if created else 200)
+
+
+async def list_participants(request: Request) -> Response:
+    user = await api_user(request)
+    _trainer(user)
+    rows = await request.app.state.storage.run(register.entries, request.path_params["study"], list(user.classes))
+    return JSONResponse({"study": request.path_params["study"], "design": register.DESIGN, "participants": rows})
+
+
+async def get_participant(request: Request) -> Response:
+    user = await api_user(request)
+    _trainer(user)
+    p = request.path_params
+    return JSONResponse(await request.app.state.storage.run(_one, user, p["study"], p["code"]))
+
+
+routes = [
+    Route("/api/studies/{study}/participants", add_participant, methods=["POST"]),
+    Route("/api/studies/{study}/participants", list_participants, methods=["GET"]),
+    Route("/api/studies/{study}/participants/{code}", get_participant, methods=["GET"]),
+]

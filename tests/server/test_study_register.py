@@ -1,0 +1,76 @@
+"""The study register on the records server (/api/studies, chainsim.game.server.study_api), on SQLite and
+PostgreSQL: trainers register participants of their classes with their covariates and get the next slot
+of the study's one sequence; two clients registering at once never get the same slot; trainees and other
+classes' trainers are refused; a bad field is a 422 naming it."""
+
+from __future__ import annotations
+
+import threading
+import uuid
+
+from conftest import call
+
+
+def person(code: str, **over) -> dict:
+    return {
+        "class_name": "c1",
+        "code": code,
+        "group": "novice",
+        "year_of_training": 1,
+        "procedures_performed": 0,
+        **over,
+    }
+
+
+def test_a_trainer_registers_and_the_slots_follow_one_sequence(site):
+    study = f"s-{uuid.uuid4().hex[:8]}"
+    path = f"/api/studies/{study}/participants"
+    tina = site.tokens["tina"]
+    first = call(site, "POST", path, person("P1"), tina)
+    second = call(site, "POST", path, person("P2", group="expert", year_of_training=6), tina)
+    again = call(site, "POST", path, person("P1"), tina)
+    assert (first[0], first[1]["slot"], second[0], second[1]["slot"]) == (201, 0, 201, 1)
+    assert (again[0], again[1]["slot"]) == (200, 0)
+    changed = call(site, "POST", path, person("P1", procedures_performed=9), tina)
+    assert changed[0] == 409 and "already in the register" in changed[1]["error"]
+    status, listed, _ = call(site, "GET", path, token=tina)
+    assert status == 200
+    assert [(p["code"], p["group"], p["year_of_training"], p["slot"]) for p in listed["participants"]] == [
+        ("P1", "novice", 1, 0),
+        ("P2", "expert", 6, 1),
+    ]
+    assert call(site, "GET", f"{path}/P2", token=tina)[1]["slot"] == 1
+    assert call(site, "GET", f"{path}/nobody", token=tina)[0] == 404
+
+
+def test_bad_fields_and_people_without_the_right_are_refused(site):
+    path = f"/api/studies/s-{uuid.uuid4().hex[:8]}/participants"
+    bad = call(site, "POST", path, person("P1", year_of_training="x"), site.tokens["tina"])
+    assert bad[0] == 422 and "year_of_training is 'x'; expected a whole number" in bad[1]["error"]
+    assert call(site, "POST", path, person("P1"), site.tokens["alice"])[0] == 403  # a trainee
+    assert call(site, "POST", path, person("P1"), site.tokens["tom"])[0] == 403  # teaches c2, not c1
+    assert call(site, "GET", path, token=site.tokens["alice"])[0] == 403
+    assert call(site, "POST", path, person("P1"))[0] == 401
+    assert call(site, "GET", path, token=site.tokens["tina"])[1]["participants"] == []
+
+
+def test_two_clients_registering_at_once_never_share_a_slot(site):
+    path = f"/api/studies/s-{uuid.uuid4().hex[:8]}/participants"
+    slots: list[int] = []
+    statuses: list[int] = []
+    start = threading.Barrier(2)
+
+    def client(prefix: str) -> None:
+        start.wait()
+        for i in range(10):
+            status, answer, _ = call(site, "POST", path, person(f"{prefix}{i}"), site.tokens["tina"])
+            statuses.append(status)
+            slots.append(answer["slot"])
+
+    threads = [threading.Thread(target=client, args=(p,)) for p in ("a", "b")]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    assert statuses == [201] * 20
+    assert sorted(slots) == list(range(20))
