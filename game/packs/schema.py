@@ -325,7 +325,23 @@ section(
             help="Proficiency level in the metric's units: the debrief passes a value at or below it (at or "
             "above when lower_is_better is false). Absent: the metric is shown without a verdict.",
         ),
-        Field("benchmark_source", "str", "", help="Where the benchmark comes from (a study, an expert group)."),
+        Field(
+            "benchmark_basis",
+            "enum",
+            "provisional",
+            choices=needle.BENCHMARK_BASES,
+            help="What the benchmark rests on: published (a cited study; benchmark_source gives the publication, "
+            "the figure and the population it describes), programme (the programme's own data, e.g. a study-report "
+            "pass mark; benchmark_source says which data) or provisional (neither: the debrief and the records mark "
+            "it so).",
+        ),
+        Field(
+            "benchmark_source",
+            "str",
+            "",
+            help="Where the benchmark comes from: the citation and population, the programme's data, or why it "
+            "is provisional. Required with benchmark_basis published or programme.",
+        ),
         Field(
             "critical",
             "float",

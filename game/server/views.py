@@ -31,6 +31,7 @@ import csv
 import hashlib
 import io
 import json
+from collections import Counter
 from typing import Any
 
 from jinja2 import Environment, PackageLoader, select_autoescape
@@ -430,7 +431,34 @@ def attempt_view(a: dict, specs: dict) -> dict:
         "marks_note": Markup(layout.MARKS_NOTE),  # the procedure's own text, with its subscripts
         "facts": facts,
         "force": _force_view(d),
+        "basis_note": debrief.basis_note(rows),
+        "saved_basis": saved_basis(d.get("verdict"), rows),
     }
+
+
+def saved_basis(verdict: Any, rows: list[dict]) -> str:
+    """What the attempt's stored verdict rested on (details.verdict.benchmarks), and which of those
+    benchmarks the pack has changed since; '' for an attempt saved before verdicts kept them."""
+    saved = verdict.get("benchmarks") if isinstance(verdict, dict) else None
+    if not isinstance(saved, dict):
+        return ""
+    saved = {k: b for k, b in saved.items() if isinstance(b, dict)}
+    if not saved:
+        return ""
+    bases = Counter(str(b.get("basis") or "provisional") for b in saved.values())
+    text = f"When it was saved, this attempt was judged against {len(saved)} benchmarks: " + ", ".join(
+        f"{n} {basis}" for basis, n in sorted(bases.items())
+    )
+    now = {r["name"]: r for r in rows}
+    changed = []
+    for name, b in saved.items():
+        r = now.get(name, {"label": name, "units": "", "benchmark": None, "basis": ""})
+        if (r["benchmark"], r["basis"]) != (b.get("benchmark"), b.get("basis")):
+            then = b.get("benchmark") if isinstance(b.get("benchmark"), (int, float)) else None
+            changed.append(f"{r['label']} (then {debrief.number(then, r['units'])}, {b.get('basis') or '-'})")
+    if changed:
+        text += ". The pack's benchmarks have changed since; the verdicts above use today's: " + "; ".join(changed)
+    return text + "."
 
 
 def _force_view(d: dict) -> dict | None:
@@ -477,16 +505,33 @@ async def attempt_page(request: Request) -> Response:
 # -- the attempt in 3-D (chainsim.game.server.replay3d) ------------------------------------------
 
 
-def attempt_recording(store: RecordStore, user: User, attempt_id: int) -> tuple[dict, str]:
-    """The attempt (if this account may read it) and its stored recording; 404 when it has none."""
-    a = readable_attempt(store, user, attempt_id)
+def stored_recording(store: RecordStore, attempt_id: int) -> str:
+    """The attempt's stored recording; 404 when it has none."""
     rows = store.query("SELECT recording FROM attempt_recordings WHERE attempt_id = ?", (attempt_id,))
     if not rows:
         raise HTTPError(404, f"attempt {attempt_id} has no recording (only attempts the server scored can be replayed)")
-    return a, rows[0][0]
+    return rows[0][0]
 
 
-def _pack_info(request: Request, name: str, pack_hash: str | None = None) -> dict:
+def attempt_recording(store: RecordStore, user: User, attempt_id: int) -> tuple[dict, str]:
+    """The attempt (if this account may read it) and its stored recording; 404 when it has none."""
+    a = readable_attempt(store, user, attempt_id)
+    return a, stored_recording(store, attempt_id)
+
+
+def attempt_geometry(a: dict) -> dict:
+    """The attempt's own geometry the 3-D page draws beside the replay: the marked points and their ideal
+    places, the needle's path and the ideal one (under their stored names)."""
+    d = a.get("details") or {}
+    return {
+        layout.MARKS: d.get(layout.MARKS) or [],
+        layout.IDEAL_MARKS: d.get(layout.IDEAL_MARKS) or [],
+        "ideal_path": d.get("ideal_path"),
+        "needle_path": d.get("needle_path") or [],
+    }
+
+
+def pack_info(request: Request, name: str, pack_hash: str | None = None) -> dict:
     info = request.app.state.packs.info(name)
     if info is None:
         raise HTTPError(404, f"this server has no pack {name!r}, so the attempt cannot be replayed")
@@ -495,14 +540,14 @@ def _pack_info(request: Request, name: str, pack_hash: str | None = None) -> dic
     return info
 
 
-def _replays(request: Request) -> replay3d.Replays:
+def replays(request: Request) -> replay3d.Replays:
     state = request.app.state
     if getattr(state, "replays", None) is None:
         state.replays = replay3d.Replays()
     return state.replays
 
 
-def _paths(request: Request) -> list[str]:
+def pack_paths(request: Request) -> list[str]:
     return list(request.app.state.packs.pack_paths)
 
 
@@ -516,10 +561,10 @@ async def _track(request: Request) -> tuple[dict, dict, str]:
     user, _ = await page_user(request)
     attempt_id = _int_param(request, "attempt_id")
     a, recording = await request.app.state.storage.run(attempt_recording, user, attempt_id)
-    info = await asyncio.to_thread(_pack_info, request, a["pack"], a.get("pack_hash"))
+    info = await asyncio.to_thread(pack_info, request, a["pack"], a.get("pack_hash"))
     key = replay3d.track_key(recording, info["identity"]["hash"])
     # a replay takes seconds: on a thread of its own, not one of the database's workers
-    track = await asyncio.to_thread(_replays(request).track, key, recording, info["root"], _paths(request))
+    track = await asyncio.to_thread(replays(request).track, key, recording, info["root"], pack_paths(request))
     return a, track, key
 
 
@@ -530,18 +575,8 @@ async def attempt_replay(request: Request) -> Response:
     headers = _cached(request, key, 3600)
     if headers is None:
         return Response(status_code=304, headers={"ETag": f'"{key}"'})
-    d = a.get("details") or {}
     body = replay3d.public_track(track, a["id"])
-    body.update(
-        {
-            "pack": a["pack"],
-            "mesh": f"/packs/{a['pack']}/display.glb",
-            layout.MARKS: d.get(layout.MARKS) or [],
-            layout.IDEAL_MARKS: d.get(layout.IDEAL_MARKS) or [],
-            "ideal_path": d.get("ideal_path"),
-            "needle_path": d.get("needle_path") or [],
-        }
-    )
+    body.update({"pack": a["pack"], "mesh": f"/packs/{a['pack']}/display.glb", **attempt_geometry(a)})
     return Response(json.dumps(body), media_type="application/json", headers=headers)
 
 
@@ -577,12 +612,12 @@ async def attempt_force(request: Request) -> Response:
 async def pack_mesh(request: Request) -> Response:
     """The pack's anatomy as binary glTF, cached by the pack's version (its hash)."""
     await page_user(request)
-    info = await asyncio.to_thread(_pack_info, request, request.path_params["pack"])
+    info = await asyncio.to_thread(pack_info, request, request.path_params["pack"])
     etag = info["identity"]["hash"][:32]
     headers = _cached(request, etag, 86400)
     if headers is None:
         return Response(status_code=304, headers={"ETag": f'"{etag}"'})
-    data = await asyncio.to_thread(_replays(request).glb, etag, info["root"], _paths(request))
+    data = await asyncio.to_thread(replays(request).glb, etag, info["root"], pack_paths(request))
     return Response(data, media_type="model/gltf-binary", headers=headers)
 
 

@@ -56,7 +56,10 @@ def test_the_shipped_packs_declare_benchmarks_critical_errors_and_an_ideal_path(
         pack = load(REPO / "assets" / name)
         metrics = pack.section("metrics")
         assert any(m.get("critical") is not None for m in metrics.values())
-        assert all(m.get("benchmark_source") for m in metrics.values() if m.get("benchmark") is not None)
+        benchmarked = [m for m in metrics.values() if m.get("benchmark") is not None]
+        assert all(m.get("benchmark_source") for m in benchmarked)
+        # nothing a shipped pack benchmarks rests on a study of people yet: each says provisional
+        assert all(m["benchmark_basis"] == "provisional" for m in benchmarked)
         assert pack.section("needle_procedure")["ideal_path"]
 
 
@@ -75,5 +78,24 @@ def test_a_bone_hit_attempt_ends_with_a_failed_debrief_that_says_why_and_what_to
         assert len(h.debrief_paths) == 2 and len(h.debrief_paths[1][0]) > 10
         v = app.resource(Assessment).values
         assert v["verdict"]["passed"] is False and len(v["ideal_landmarks"]) == 3
+        # every benchmark prp ships is provisional: said beside each threshold, under the verdicts, and kept
+        assert any(t.startswith("Needle error:") and "\u2264 0.0 mm, provisional)" in t for t in texts)
+        assert any(t.startswith("Provisional: every benchmark here rests on no study") for t in texts)
+        kept = v["verdict"]["benchmarks"]
+        assert kept["landmark_error_mm"]["basis"] == "provisional" and kept["landmark_error_mm"]["benchmark"] == 3.0
+        assert "Shakur et al. 2015" in kept["landmark_error_mm"]["source"]
     finally:
         app.close()
+
+
+def test_a_benchmark_says_what_it_rests_on_and_the_debrief_says_when_it_is_provisional():
+    spec = dict(SPEC, xray_shots=dict(SPEC["xray_shots"], benchmark_basis="programme", benchmark_source="our data"))
+    rows = db.verdicts(spec, {"needle_error_mm": -1.0, "skull_contacts": 0.0, "xray_shots": 3.0})
+    by = {r["name"]: r for r in rows}
+    # no basis stated: provisional; no benchmark: nothing to rest on
+    assert (by["needle_error_mm"]["basis"], by["xray_shots"]["basis"]) == ("provisional", "programme")
+    assert by["first_contact_dist_mm"]["basis"] == ""
+    assert db.basis_note(rows).startswith("Provisional: 2 of 3 benchmarks here rest")
+    assert db.rested_on(rows)["xray_shots"] == {"benchmark": 10.0, "basis": "programme", "source": "our data"}
+    published = {k: dict(m, benchmark_basis="published") for k, m in SPEC.items()}
+    assert db.basis_note(db.verdicts(published, {})) == ""

@@ -274,3 +274,35 @@ def test_attempt_page_says_each_metric_in_words_against_the_benchmark(site):
     assert "0.0 mm" in page and "6.72" not in page and "e-05" not in page
     assert "-46.4, 52.6, -38.1 mm (x, y, z)" in page or "-46.4, 52.6, -38.2 mm (x, y, z)" in page
     assert "skull_contacts" not in page and "[[" not in page and "needle_error_mm" not in page
+
+
+def test_attempt_page_marks_provisional_benchmarks_and_says_what_the_saved_verdict_rested_on(site):
+    saved_with = {
+        "skull_contacts": {"benchmark": 1.0, "basis": "provisional", "source": "the pack's default"},
+        "xray_shots": {"benchmark": 8.0, "basis": "programme", "source": "programme data: 9 novices / 9 experts"},
+    }
+    a = attempt(
+        3,
+        skull_contacts=0,
+        metrics={"skull_contacts": 0.0, "xray_shots": 2.0},
+        details={"verdict": {"passed": True, "met": 2, "judged": 2, "critical": [], "benchmarks": saved_with}},
+    )
+    aid = save(site, "alice", a)
+    b = Browser(site)
+    b.sign_in("tina")
+    status, page, _ = b.get(f"/attempts/{aid}")
+    assert status == 200
+    # prp ships provisional benchmarks: marked beside each threshold, and what that means said once
+    assert re.search(r"<td[^>]*>\u2264 1 <span class=\"provisional\">provisional</span></td>", page)
+    note = re.search(r'id="provisional">([^<]*)<', page).group(1)
+    assert note.startswith("Provisional: every benchmark here rests on no study and no programme data")
+    sources = re.search(r'id="benchmark-sources">(.*?)</details>', page, re.S).group(1)
+    assert "Landmark error: provisional - provisional: the scripted correct attempt" in sources
+    assert "Shakur et al. 2015" in sources
+    # the stored verdict's own benchmarks, and the one the pack has changed since
+    kept = re.search(r'id="saved-benchmarks">([^<]*)<', page).group(1)
+    assert kept.startswith(
+        "When it was saved, this attempt was judged against 2 benchmarks: 1 programme, 1 provisional"
+    )
+    assert "changed since" in kept and "X-ray images (then 8, programme)" in kept
+    assert "Bone contacts (then" not in kept

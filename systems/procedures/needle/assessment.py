@@ -382,8 +382,11 @@ def geometry(app: App, v: dict, trace: list) -> None:
         p = None if mark is None else db.ideal_landmark(t.point, t.ideal_mm, t.plane, mark)
         ideal.append(None if p is None else [round(float(c), 2) for c in p])
     v["ideal_landmarks"] = ideal
-    o = db.outcome(db.verdicts(app.resource(PackResource).pack.section("metrics"), v["metrics"]))
+    rows = db.verdicts(app.resource(PackResource).pack.section("metrics"), v["metrics"])
+    o = db.outcome(rows)
     v["verdict"] = {"passed": o["passed"], "met": o["met"], "judged": o["judged"], "critical": o["critical"]}
+    # a stored verdict says what it rested on: each benchmark, published, the programme's or provisional
+    v["verdict"]["benchmarks"] = db.rested_on(rows)
 
 
 #: what `geometry` adds to the assessment values
@@ -403,7 +406,10 @@ def debrief_rows(v: dict, scene: NeedleScene, pack) -> list[tuple[str, str]]:
             out.append((f"{text} (no benchmark)", db.PLAIN))
         else:
             word = "CRITICAL" if r["critical"] else "pass" if r["passed"] else "FAIL"
-            out.append((f"{text} - {word} ({r['threshold']})", db.PASS if r["passed"] else db.FAIL))
+            basis = ", provisional" if r["basis"] == db.PROVISIONAL else ""
+            out.append((f"{text} - {word} ({r['threshold']}{basis})", db.PASS if r["passed"] else db.FAIL))
+    if db.basis_note(rows):
+        out.append((db.basis_note(rows), db.NOTE))
     n = len(scene.landmark_ids)
     if n and v.get("D1") is not None:
         ds = ", ".join(db.number(v[f"D{k}"], "mm") for k in range(1, n + 1))

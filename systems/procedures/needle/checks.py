@@ -356,6 +356,15 @@ def _metric_problems(t: _Tables) -> list[tuple[str, str]]:
         # a critical error the debrief could not name would fail an attempt without saying why
         if m.get("critical") is not None and not m.get("critical_note"):
             out.append((f"metrics.{mname}.critical_note", "a critical value needs a critical_note: the error in words"))
+        # a benchmark said to rest on a study or on the programme's data must say which
+        if m.get("benchmark_basis", "provisional") != "provisional" and not m.get("benchmark_source"):
+            out.append(
+                (
+                    f"metrics.{mname}.benchmark_source",
+                    f"benchmark_basis '{m['benchmark_basis']}' needs a benchmark_source: the publication and "
+                    "population, or the programme's data",
+                )
+            )
     return out
 
 

@@ -4,8 +4,9 @@ geometry drawn against the trainee's (the ideal landmark positions, the ideal ne
 
 Plain functions on plain data, no GL and no ECS: the window's debrief (chainsim.systems.procedures.
 needle.assessment) and the records server's attempt page (chainsim.game.server.views) say the same
-thing from the same pack data. A pack declares the benchmark, its source, the critical value and the
-advice on each [metrics.NAME] (docs/needle-procedures.md, "Benchmarks and critical errors").
+thing from the same pack data. A pack declares the benchmark, what it rests on (benchmark_basis:
+published, programme or provisional) and its source, the critical value and the advice on each
+[metrics.NAME] (docs/needle-procedures.md, "Benchmarks and critical errors").
 """
 
 from __future__ import annotations
@@ -15,6 +16,9 @@ import math
 import numpy as np
 
 from chainsim.systems.engine.haptics import DEVICE_MEASURES
+from chainsim.systems.procedures.needle.manifest import BENCHMARK_BASES
+
+PROVISIONAL = BENCHMARK_BASES[0]
 
 #: debrief row tones: how the window colours a row (PASS, FAIL and PLAIN are metric rows, set in columns)
 HEAD, PASS, FAIL, PLAIN, NOTE, ADVICE, CRITICAL = "head", "pass", "fail", "plain", "note", "advice", "critical"
@@ -71,6 +75,8 @@ def verdicts(metrics_spec: dict, values: dict) -> list[dict]:
                 "benchmark": bench,
                 "threshold": "" if bench is None else ("\u2264 " if lower else "\u2265 ") + number(bench, units),
                 "source": spec.get("benchmark_source", ""),
+                # what the benchmark rests on; a benchmark without one is provisional (docs/validity.md)
+                "basis": "" if bench is None else spec.get("benchmark_basis") or PROVISIONAL,
                 "passed": passed,
                 "critical": critical,
                 "critical_note": spec.get("critical_note", "") if critical else "",
@@ -78,6 +84,32 @@ def verdicts(metrics_spec: dict, values: dict) -> list[dict]:
             }
         )
     return out
+
+
+def rested_on(rows: list[dict]) -> dict:
+    """What each benchmark of a verdict rested on, as an attempt stores it (details.verdict.benchmarks):
+    metric name -> its benchmark, basis and source when the attempt was judged."""
+    return {
+        r["name"]: {"benchmark": r["benchmark"], "basis": r["basis"], "source": r["source"]}
+        for r in rows
+        if r["benchmark"] is not None
+    }
+
+
+def basis_note(rows: list[dict]) -> str:
+    """The line the debrief says under its verdicts when any benchmark is provisional ('' when none is)."""
+    judged = [r for r in rows if r["basis"]]
+    provisional = [r for r in judged if r["basis"] == PROVISIONAL]
+    if not provisional:
+        return ""
+    if len(provisional) == len(judged):
+        share = "every benchmark here rests"
+    else:
+        share = f"{len(provisional)} of {len(judged)} benchmarks here rest"
+    return (
+        f"Provisional: {share} on no study and no programme data (set by the pack's authors); "
+        "a pass or fail against it is a guide, not evidence of proficiency"
+    )
 
 
 def outcome(rows: list[dict]) -> dict:

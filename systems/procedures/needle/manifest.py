@@ -38,6 +38,9 @@ ROLE_KINDS = ("skin", "target", "obstacle", "tissue")
 ON_CONTACT = ("bounce", "stop", "warn")
 LANDMARK_SCORES = ("thesis-6.1.5", "mean-distance", "none")
 LIGHT_COLOURS = ("", "off", "red", "green", "yellow")
+#: what a metric's benchmark rests on ([metrics.NAME] benchmark_basis): the first is the default, a
+#: benchmark no study or programme data stands behind (docs/validity.md)
+BENCHMARK_BASES = ("provisional", "published", "programme")
 MEASURES = (
     "",
     "duration",
