@@ -65,6 +65,8 @@ class MetricResult:
     d_ci: tuple[float, float] | None = None
     mark: dict[str, Any] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    #: what the pack's benchmark rests on ([metrics.NAME] benchmark_basis; a benchmark without one is provisional)
+    benchmark_basis: str = "provisional"
 
     @property
     def separates(self) -> bool:
@@ -214,6 +216,7 @@ def analyse_metric(
         lower_is_better=lower,
         benchmark=float(bench) if isinstance(bench, (int, float)) and not isinstance(bench, bool) else None,
         benchmark_source=str(spec.get("benchmark_source") or ""),
+        benchmark_basis=str(spec.get("benchmark_basis") or "provisional"),
         novice=_finite(novice_values),
         expert=_finite(expert_values),
     )

@@ -340,7 +340,8 @@ def _marks(study: Study) -> list[str]:
         m = r.mark
         unit = f" {r.units}" if r.units else ""
         bench = (
-            f"pack benchmark {number(r.benchmark)}{unit} (source: {r.benchmark_source or 'not stated'})"
+            f"pack benchmark {number(r.benchmark)}{unit} "
+            f"({r.benchmark_basis}; source: {r.benchmark_source or 'not stated'})"
             if r.benchmark is not None
             else "no pack benchmark"
         )

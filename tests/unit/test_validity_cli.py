@@ -112,7 +112,10 @@ def test_report_from_a_database_with_a_register(cli, tmp_path, prp):
     for name in metrics:
         assert (out / f"metric-{name}.png").stat().st_size > 5000
     assert (out / "learning-curves.png").stat().st_size > 5000
-    assert stdout.strip().splitlines()[-1] == f"report: {out / 'report.md'}"
+    assert stdout.strip().splitlines()[-2:] == [
+        f"report: {out / 'report.md'}",
+        f"benchmarks a programme may adopt: {out / 'benchmarks.toml'}",
+    ]
 
 
 def test_one_scripted_attempt_makes_the_report_say_synthetic_at_the_top(cli, tmp_path, prp):
@@ -150,7 +153,8 @@ def test_demo_cohort_writes_every_file_and_says_it_is_synthetic(cli, tmp_path, p
     )
     assert code == 0, err
     files = {p.name for p in out.iterdir()}
-    assert files == {"report.md", "statistics.csv", "learning-curves.png"} | {f"metric-{m}.png" for m in metrics}
+    report = {"report.md", "statistics.csv", "learning-curves.png", "benchmarks.toml"}
+    assert files == report | {f"metric-{m}.png" for m in metrics}
     md = (out / "report.md").read_text()
     assert md.startswith("**synthetic data: not evidence.**") and "synthetic cohort of 12 participants" in md
     code, _, err = cli("study-report", "--pack", "prp", "--demo-cohort", "12", "--db", tmp_path / "x.db", "--out", out)

@@ -5,7 +5,9 @@ Reads a pack's attempts from a records database (``--db``, ``--class``; ``--stud
 each participant's experience group from a register (``--groups FILE``, a CSV: participant, group
 (novice or expert), year_of_training, procedures_performed) or from the attempts' own
 ``details.protocol.group``, and writes into ``--out DIR`` one PNG per metric of the pack's [metrics],
-learning-curves.png, statistics.csv and report.md (``chainsim.game.records.validity_report``).
+learning-curves.png, statistics.csv and report.md (``chainsim.game.records.validity_report``), and
+benchmarks.toml: the pass marks a programme may adopt as its own benchmarks, which
+``--write-benchmarks PACK_DIR`` writes into a (not built-in) pack (``chainsim.game.records.programme_benchmarks``).
 
 ``--demo-cohort N`` analyses a synthetic cohort of N participants instead (``chainsim.game.records.
 cohort``: values drawn from normal distributions with Cohen's d = ``--effect`` between the groups);
@@ -16,18 +18,20 @@ docs/validity.md walks through a study from protocol to report.
 from __future__ import annotations
 
 import argparse
+from datetime import date
 from pathlib import Path
 
 from chainsim.game.app.options import name
 from chainsim.game.app.outputs import prepare_output_dir
 from chainsim.game.packs import pack as packs
 from chainsim.game.packs.checks import PackError
-from chainsim.game.records import cohort, validity_report
+from chainsim.game.packs.discovery import BUILTIN_DIR
+from chainsim.game.records import cohort, programme_benchmarks, validity_report
 from chainsim.game.records.backend import is_postgres, redact
 from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validity import RESAMPLES
 from chainsim.game.records.validity_data import UNITS, Selection, read_register, select
-from chainsim.systems.engine import argtypes
+from chainsim.systems.engine import argtypes, atomicfile
 from chainsim.systems.engine.errors import UserError
 
 NAME = "study-report"
@@ -97,6 +101,13 @@ def add_parser(sub):
         default=5,
         help="--demo-cohort: attempts per participant (default 5)",
     )
+    p.add_argument(
+        "--write-benchmarks",
+        metavar="PACK_DIR",
+        help="also write the marks of the metrics that separate the groups into this pack folder's pack.toml "
+        "(benchmark_basis programme, the data as benchmark_source; the old file kept as pack.toml.bak); "
+        "a built-in pack is never rewritten: copy it first",
+    )
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     return p
 
@@ -155,8 +166,64 @@ def _from_cohort(args, pack_name: str, metrics: dict) -> tuple[Selection, str]:
     return sel, source
 
 
+def _target_pack(args, pack_name: str) -> Path | None:
+    """The pack folder --write-benchmarks names, checked before any analysis: a pack of the same name,
+    not a built-in one, from people's attempts."""
+    if not args.write_benchmarks:
+        return None
+    root = Path(args.write_benchmarks).resolve()
+    if args.demo_cohort:
+        raise UserError("--write-benchmarks takes marks from people's attempts: a --demo-cohort is synthetic")
+    if root == BUILTIN_DIR.resolve() or BUILTIN_DIR.resolve() in root.parents:
+        raise UserError(
+            f"--write-benchmarks {args.write_benchmarks}: a built-in pack is never rewritten; copy the folder "
+            "and give the copy (and --pack COPY)"
+        )
+    if not (root / "pack.toml").is_file():
+        raise UserError(f"--write-benchmarks {args.write_benchmarks}: no pack.toml there; expected a pack folder")
+    other, problems = packs.validate(root, load_meshes=False, pack_paths=args.pack_path)
+    if problems or other is None:
+        raise PackError(problems)
+    if other.name != pack_name:
+        raise UserError(f"--write-benchmarks {args.write_benchmarks}: pack '{other.name}', expected '{pack_name}'")
+    return root
+
+
+def _benchmarks(args, study, out: Path, target: Path | None) -> None:
+    """benchmarks.toml beside the report, and the marks into --write-benchmarks' pack when given."""
+    named = [f"{k} {v}" for k, v in (("study", args.study), ("task", args.task), ("condition", args.condition)) if v]
+    where = "a synthetic cohort" if args.demo_cohort else ", ".join(named) or f"class {args.class_name}"
+    marks, none = programme_benchmarks.proposals(study, where, date.today().isoformat())
+    _save_text(out / programme_benchmarks.FILE, programme_benchmarks.toml_text(study, marks, none))
+    print(f"benchmarks a programme may adopt: {out / programme_benchmarks.FILE}")
+    if target is None:
+        return
+    if study.synthetic:
+        raise UserError(
+            f"--write-benchmarks: {validity_report.SYNTHETIC} (scripted or drawn attempts); pack left as it was"
+        )
+    if not marks:
+        print(f"no metric separates the groups with a pass mark: {target / 'pack.toml'} left as it was")
+        return
+
+    def check(root: Path) -> list:
+        return packs.validate(root, load_meshes=False, pack_paths=args.pack_path)[1]
+
+    backup = programme_benchmarks.apply(target, marks, check)
+    print(f"wrote {len(marks)} programme benchmarks into {target / 'pack.toml'} ({', '.join(m.name for m in marks)});")
+    print(f"  its previous text is in {backup}")
+
+
+def _save_text(path: Path, text: str) -> None:
+    try:
+        atomicfile.write_text(path, text)
+    except OSError as e:
+        raise UserError(f"--out {path}: cannot write ({e.strerror or e})") from None
+
+
 def run(args) -> int:
     pack_name, metrics = pack_metrics(args.pack, args.pack_path)
+    target = _target_pack(args, pack_name)
     if args.demo_cohort:
         sel, source = _from_cohort(args, pack_name, metrics)
     else:
@@ -180,4 +247,5 @@ def run(args) -> int:
         effect = f"Cliff's delta {validity_report.number(r.delta)} {validity_report.interval(r.delta_ci)}"
         print(f"{r.label}: {effect}, {verdict}")
     print(f"report: {md}")
+    _benchmarks(args, study, Path(out), target)
     return 0
