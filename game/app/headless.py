@@ -145,8 +145,9 @@ def app_for_pack(
             said = app.insert_resource(SaveReport()).lines
             server, db = pack_settings["records"], pack_settings.get("db") or None
             app.insert_resource(remote_records(server, db, evidence, said))
-        else:
-            app.insert_resource(local_records(pack_settings.get("db") or None))
+        else:  # each attempt keeps the recording of its session, as a records server keeps an upload's
+            recording = lambda: attempt_recording(app, pack, settings)  # noqa: E731
+            app.insert_resource(local_records(pack_settings.get("db") or None, recording))
         plugins.install(app, pack.manifest["pack"].get("procedure", ""), render=render)
     except BaseException:
         app.close()
@@ -159,6 +160,11 @@ def attempt_evidence(app: App, pack: packs.Pack, settings: dict | None) -> dict:
 
     Called while the Save is handled, so the recording runs from the session's start to the step that
     saves (the state an attempt starts from is whatever the session's earlier attempts left)."""
+    return {"recording": attempt_recording(app, pack, settings), "pack_identity": provenance.pack_identity(pack)}
+
+
+def attempt_recording(app: App, pack: packs.Pack, settings: dict | None) -> str:
+    """The session so far as a compressed recording (``provenance.encode_recording``), as a Save keeps it."""
     log = app.get_resource(InputLog)
     recording = recording_data(
         pack=pack.name,
@@ -169,7 +175,7 @@ def attempt_evidence(app: App, pack: packs.Pack, settings: dict | None) -> dict:
         digest=world_digest(app),
         settings={k: v for k, v in (settings or {}).items() if k in ("class", "trainee", "model")},
     )
-    return {"recording": provenance.encode_recording(recording), "pack_identity": provenance.pack_identity(pack)}
+    return provenance.encode_recording(recording)
 
 
 def refusing_records(reason: str) -> Records:

@@ -159,3 +159,38 @@ def lookup_on_server(server: str, db, study: str, code: str) -> dict | None:
     server = remote.server_url(server)
     path = f"/api/studies/{quote(study, safe='')}/participants/{quote(code, safe='')}"
     return _server_call(server, db, path, missing_ok=True)
+
+
+# -- where a session's order comes from -----------------------------------------------------------
+
+LOCAL_WARNING = (
+    "condition order allocated from this machine's own register, not the records server's sequence: "
+    "another machine may give the same order (run with --records URL to draw from the study's one sequence)"
+)
+
+
+def allocate(study: str, class_name: str, code: str, covariates: dict | None, server: str | None, db) -> dict:
+    """A participant's allocation: their register entry's slot and covariates, the design, and who keeps the
+    sequence (``by``; ``warning`` when it is only this machine's). ``covariates`` given: register first (a
+    resend of the same entry is fine); None: they must be in the register already."""
+    body = None if covariates is None else {"code": code, **covariates}
+    if server:
+        server = remote.server_url(server)
+        if body is not None:
+            entry: dict | None = register_on_server(server, db, study, class_name, body)
+        else:
+            entry = lookup_on_server(server, db, study, code)
+        by, where = f"records server {server}", f" on {server}"
+    else:
+        with RecordStore(db) as store:
+            entry = lookup(store, study, code) if body is None else register(store, study, class_name, body, "local")[0]
+            by, where = "this machine", f" in {store.path}"
+    if entry is None:
+        raise UserError(
+            f"participant {code!r} is not in the register of study {study!r}{where}; enter them before their first "
+            "trial: add --group novice|expert --year-of-training N --procedures-performed N"
+        )
+    out = {"by": by, "design": DESIGN, "slot": entry["slot"], **{k: entry[k] for k in FIELDS[1:]}}
+    if not server:
+        out["warning"] = LOCAL_WARNING
+    return out

@@ -28,7 +28,7 @@ import json
 import logging
 import os
 import sqlite3
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -446,12 +446,21 @@ class RecordStore:
 
     # -- attempts ---------------------------------------------------------------------------
 
-    def save_attempt(self, class_name: str, trainee: str, attempt: dict[str, Any], *, key: str | None = None) -> int:
+    def save_attempt(
+        self,
+        class_name: str,
+        trainee: str,
+        attempt: dict[str, Any],
+        *,
+        key: str | None = None,
+        recording: str | None = None,
+    ) -> int:
         """Validate and store one attempt in one transaction; returns its id.
 
         The class and trainee are created if missing, in the same transaction, so an interrupted
         save leaves no empty trainee behind either. ``key`` (an idempotency key, see
-        ``attempt_id_for_key``) makes a resend return the first save's id instead of a copy.
+        ``attempt_id_for_key``) makes a resend return the first save's id instead of a copy. ``recording``
+        (``provenance.encode_recording`` text) is kept with the attempt, as a records server keeps an upload's.
         """
         class_name = clean_name("class", class_name)
         trainee = clean_name("trainee", trainee)
@@ -462,7 +471,8 @@ class RecordStore:
                 row = conn.execute("SELECT id FROM attempts WHERE idem_key = ?", (key,)).fetchone()
                 if row is not None:
                     return row[0]
-            return self.insert_attempt(conn, class_name, trainee, a, key=key)
+            prov = None if recording is None else {"recording": recording}
+            return self.insert_attempt(conn, class_name, trainee, a, key=key, provenance=prov)
 
     def insert_attempt(
         self,
@@ -690,6 +700,11 @@ class RecordStore:
             out.append(d)
         return out
 
+    def recording(self, attempt_id: int) -> str | None:
+        """The recording kept with an attempt (``provenance.encode_recording`` text), or None."""
+        found = list(self._db.execute("SELECT recording FROM attempt_recordings WHERE attempt_id = ?", (attempt_id,)))
+        return found[0][0] if found else None
+
     def attempt_id_for_key(self, key: str) -> int | None:
         """The attempt saved with idempotency key ``key``, or None if none was."""
         row = self._db.execute("SELECT id FROM attempts WHERE idem_key = ?", (clean_key(key),)).fetchone()
@@ -719,12 +734,15 @@ def _attempt_id(value: Any) -> int:
     return value
 
 
-def local_records(db: str | os.PathLike[str] | None = None) -> Records:
-    """The Records resource over a local SQLite store; each call opens and closes the database."""
+def local_records(db: str | os.PathLike[str] | None = None, recording: Callable[[], str] | None = None) -> Records:
+    """The Records resource over a local SQLite store; each call opens and closes the database.
+    ``recording()`` gives, at each save, the session's recording to keep with the attempt (a study's
+    trials keep theirs on every machine, not only on those that upload)."""
 
     def save_attempt(class_name: str, trainee: str, record: dict) -> int:
+        kept = None if recording is None else recording()
         with RecordStore(db) as store:
-            return store.save_attempt(class_name, trainee, record)
+            return store.save_attempt(class_name, trainee, record, recording=kept)
 
     def list_attempts(class_name: str, trainee: str) -> list[dict]:
         with RecordStore(db, create=False) as store:  # looking never creates a database

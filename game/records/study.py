@@ -30,12 +30,13 @@ THESIS_MM = {
 }
 
 
-def study_rows(attempts: Iterable[dict[str, Any]], study: str) -> list[dict[str, Any]]:
-    """One row per attempt of `study`: participant, task, condition, the task's error (or None)."""
+def study_rows(attempts: Iterable[dict[str, Any]], study: str, practice: bool = False) -> list[dict[str, Any]]:
+    """One row per attempt of `study`: participant, task, condition, the task's error (or None). Practice
+    trials are left out (they are never scored) unless ``practice``."""
     out = []
     for a in attempts:
         p = (a.get("details") or {}).get("protocol") or {}
-        if p.get("study") != study or p.get("task") not in TASKS:
+        if p.get("study") != study or p.get("task") not in TASKS or (p.get("practice") and not practice):
             continue
         out.append(
             {

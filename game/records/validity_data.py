@@ -207,6 +207,8 @@ def _filtered(attempts: Iterable[dict[str, Any]], pack: str, narrow: dict[str, s
             sel.left_out["of another pack"] += 1
         elif other is not None:
             sel.left_out[f"of another {other} (or none)"] += 1
+        elif p.get("practice"):
+            sel.left_out["practice trials"] += 1
         elif not in_class_figures(a):
             sel.left_out["retracted, or flagged and not accepted"] += 1
         else:

@@ -11,7 +11,11 @@ participant through the protocol, as the thesis ran its volunteers:
    condition says and locked for the trial. The conditions of a task are run in cycles, each
    condition once per cycle, `repeat` cycles, and the order within a cycle is counterbalanced between
    participants (rows of a balanced Latin square, by the participant's number in the study), because
-   the thesis saw participants improve as they went. A page before each trial says what comes;
+   the thesis saw participants improve as they went. The row is the participant's slot in the
+   study's register (chainsim.game.records.register): taken from the records server's one sequence
+   with `--records`, else from this machine's own register, which the pages say and the trials record
+   (``allocation.warning``). `practice = N` in the protocol puts N practice trials before each task's
+   scored ones (saved marked ``practice``, never counted). A page before each trial says what comes;
    the trial ends when the participant presses Save attempt;
 3. the post-session questionnaire (ratings of each feature, chainsim.game.ui.questionnaire.POST);
 4. Table 6.1 and the mean ratings over every participant of this study in the records database.
@@ -40,6 +44,7 @@ import numpy as np
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import PickPoint, Widget
 from chainsim.components.resources import Assessment, PackResource, PendingInput, Settings
+from chainsim.game.records import register
 from chainsim.game.records import study as results
 from chainsim.game.records.store import RecordStore
 from chainsim.game.ui.questionnaire import POST, PRE, THESIS_RATINGS, Notice, Questionnaire
@@ -50,6 +55,9 @@ logger = logging.getLogger(__name__)
 
 AIDS = layout.AIDS
 TASK_DOES = layout.TASK_DOES
+#: a participant's register covariates, recorded with each trial (the validity report's groups read them)
+COVARIATES = ("group", "year_of_training", "procedures_performed")
+LOCAL_WARNING = register.LOCAL_WARNING
 
 
 def latin_row(n: int, participant: int) -> list[int]:
@@ -114,7 +122,8 @@ def study_name(proto: dict) -> str:
 
 
 def plan(proto: dict, participant: int) -> list[dict]:
-    """The participant's trials in order: per task (in protocol order), cycles of its conditions."""
+    """The participant's trials in order: per task (in protocol order), its practice trials (the conditions
+    in the participant's order, round again if there are more), then cycles of its conditions."""
     out = []
     tasks = []
     for t in proto["trials"]:
@@ -123,10 +132,12 @@ def plan(proto: dict, participant: int) -> list[dict]:
     for task in tasks:
         trials = [t for t in proto["trials"] if t["task"] == task]
         order = latin_row(len(trials), participant)
+        for k in range(proto.get("practice", 0)):
+            out.append({**trials[order[k % len(order)]], "cycle": 0, "practice": True})
         for cycle in range(max(t["repeat"] for t in trials)):
             for i in order:
                 if cycle < trials[i]["repeat"]:
-                    out.append({**trials[i], "cycle": cycle + 1})
+                    out.append({**trials[i], "cycle": cycle + 1, "practice": False})
     for k, t in enumerate(out, 1):
         t["order"] = k
     return out
@@ -136,9 +147,20 @@ class StudySession:
     """One participant's session on an App (see the module docstring)."""
 
     def __init__(
-        self, app, proto: dict, participant: str, class_name: str, db, side: str = "left", restart: bool = False
+        self,
+        app,
+        proto: dict,
+        participant: str,
+        class_name: str,
+        db,
+        side: str = "left",
+        restart: bool = False,
+        allocation: dict | None = None,
     ):
         self.app = app
+        # where the participant's order comes from (chainsim.game.records.register.allocate); None: numbered
+        # by this machine's records, as before registers, with the warning every trial records
+        self.allocation = allocation
         self.restart = restart  # start at the beginning even where a questionnaire was answered before
         self.proto = proto
         self.study = study_name(proto)
@@ -170,11 +192,15 @@ class StudySession:
         with RecordStore(self.db) as store:
             attempts = self._attempts(store)
             qs = self._questionnaires(store)
-        known = []
-        for r in results.study_rows(attempts, self.study):
-            if r["participant"] not in known:
-                known.append(r["participant"])
-        self.number = known.index(self.participant) if self.participant in known else len(known)
+        if self.allocation is None:
+            known = []
+            for r in results.study_rows(attempts, self.study, practice=True):
+                if r["participant"] not in known:
+                    known.append(r["participant"])
+            number = known.index(self.participant) if self.participant in known else len(known)
+            self.allocation = {"by": "this machine", "design": "participants in order of first trial", "slot": number}
+            self.allocation["warning"] = LOCAL_WARNING
+        self.number = self.allocation["slot"]
         self.trials = plan(self.proto, self.number)
         saved = saved_trials(attempts, self.study, self.participant)
         answered = {q["kind"] for q in qs if q.get("trainee") == self.participant and q.get("session") == self.study}
@@ -185,7 +211,7 @@ class StudySession:
         self.form = Questionnaire(
             "Before the session",
             f"Welcome, {self.participant}. A few questions about you first (participant {self.number + 1} "
-            f"of study '{self.study}'; {len(self.trials)} trials follow).",
+            f"of study '{self.study}'; {len(self.trials)} trials follow).{self._warning()}",
             PRE,
         )
         self._show()
@@ -281,6 +307,11 @@ class StudySession:
         except Exception:  # no such class yet
             return []
 
+    def _warning(self) -> str:
+        """The allocation's warning as a paragraph of the page (a local order may repeat another machine's)."""
+        w = (self.allocation or {}).get("warning")
+        return f"\n\n**Warning:** {w}." if w else ""
+
     def _show(self) -> None:
         self.app.resource(HudState).notice = self.notice
 
@@ -323,15 +354,17 @@ class StudySession:
             return
         t = self.trials[self.k]
         on = [a.replace("_", " ") for a in AIDS if t["aids"].get(a)]
+        kind = "Practice trial (not scored)" if t.get("practice") else "Trial"
         # the scene behind the trial's page already shows this trial's aids, not the last trial's
         self.app.resource(WidgetState).enable(*AIDS)
         now = self.app.time.sim_time
         self.app.resource(PendingInput).extend([(now + 0.01, Widget(a, bool(t["aids"].get(a, False)))) for a in AIDS])
         self.state = "intro"
         self.form = Notice(
-            f"# Trial {self.k + 1} of {len(self.trials)}: {results.TASK_TITLE[t['task']]}, "
+            f"# {kind} {self.k + 1} of {len(self.trials)}: {results.TASK_TITLE[t['task']]}, "
             f"{t['condition'].replace('_', ' ')}\n\n{TASK_DOES[t['task']]}\n\n"
             f"Aids in this trial: **{', '.join(on) if on else 'none'}** (the others are off and locked)."
+            f"{self._warning()}"
         )
         self._show()
 
@@ -364,6 +397,9 @@ class StudySession:
             "condition": t["condition"],
             "order": t["order"],
             "cycle": t["cycle"],
+            "practice": bool(t.get("practice")),
+            "allocation": {k: v for k, v in self.allocation.items() if k not in COVARIATES},
+            **{k: self.allocation[k] for k in COVARIATES if k in self.allocation},
         }
         h = app.resource(HudState)
         h.close_doc()

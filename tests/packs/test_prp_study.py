@@ -273,6 +273,7 @@ def test_restart_asks_and_then_retracts_the_saved_trials(tmp_path, cli, monkeypa
     ann.do_trial()
     ann.app.close()
     args = ["protocol", tmp_path / "study61.toml", "--participant", "ann", "--db", db, "--restart"]
+    args += ["--group", "novice", "--year-of-training", "2", "--procedures-performed", "0"]
     import chainsim.game.ui.window as window
 
     sessions = []
@@ -314,3 +315,82 @@ def test_summary_shows_every_condition_of_the_protocol_those_without_attempts_to
     for condition in ("reference planes", "without clues", "local viewer"):
         assert condition in header
     assert "0/0" in out.splitlines()[4]  # the conditions still missing: none scored of none made
+
+
+SERVER_ALLOCATION = {
+    "by": "records server http://records.example",
+    "design": "balanced Latin square",
+    "slot": 1,
+    "group": "expert",
+    "year_of_training": 5,
+    "procedures_performed": 40,
+}
+
+
+def test_practice_trials_come_first_are_saved_marked_and_never_counted(tmp_path):
+    """`practice = 1`: one practice trial before each task's scored ones, in the order the register's slot
+    gives; each trial keeps its recording and the participant's covariates; the table counts no practice."""
+    from chainsim.game.records import provenance
+
+    db = tmp_path / "study.sqlite3"
+    ann = Participant(tmp_path, "ann", db)
+    ann.proto["practice"] = 1
+    ann.s = StudySession(ann.app, ann.proto, "ann", "study", db, allocation=SERVER_ALLOCATION)
+    ann.s.start()
+    assert "Warning" not in ann.s.notice  # the order comes from the server's sequence
+    ann.answer(["@return"] * len(PRE))
+    assert "Practice trial (not scored) 1 of 6" in ann.s.notice
+    done = [ann.do_trial()[0] for _ in range(6)]
+    assert [t["practice"] for t in done] == [True, False, False, True, False, False]
+    # slot 1: the second row of the design, so each task starts with its second condition
+    assert [t["condition"] for t in done[:3]] == ["without_clues", "without_clues", "reference_planes"]
+    ann.answer(["@return"] * len(POST))
+    assert ann.s.table[("location", "without_clues")]["attempts"] == 1
+    with RecordStore(db) as store:
+        rows = store.list_attempts("study", "ann")
+        recordings = [store.recording(r["id"]) for r in rows]
+    protos = [r["details"]["protocol"] for r in rows]
+    assert [p["practice"] for p in protos] == [True, False, False, True, False, False]
+    assert {(p["group"], p["year_of_training"], p["procedures_performed"]) for p in protos} == {("expert", 5, 40)}
+    assert {p["allocation"]["slot"] for p in protos} == {1} and "warning" not in protos[0]["allocation"]
+    events = [len(provenance.decode_recording(text)["event"]) for text in recordings]
+    assert all(n > 0 for n in events) and events == sorted(events)  # each trial's session so far, kept
+    ann.app.close()
+
+
+def test_without_a_records_server_the_order_is_local_and_every_trial_says_so(tmp_path):
+    db = tmp_path / "study.sqlite3"
+    ann = Participant(tmp_path, "ann", db)
+    ann.s.start()
+    assert "Warning" in ann.s.notice and "another machine may give the same order" in ann.s.notice
+    ann.answer(["@return"] * len(PRE))
+    assert "another machine may give the same order" in ann.s.notice
+    ann.do_trial()
+    ann.app.close()
+    with RecordStore(db) as store:
+        (row,) = store.list_attempts("study", "ann")
+    assert "another machine may give the same order" in row["details"]["protocol"]["allocation"]["warning"]
+
+
+def test_register_enters_participants_in_order_and_refuses_bad_entries(tmp_path, cli):
+    f = tmp_path / "study61.toml"
+    f.write_text(PROTO.replace("title =", "practice = 1\ntitle =", 1))
+    db = tmp_path / "study.sqlite3"
+    entry = ["--group", "novice", "--year-of-training", "2", "--procedures-performed", "3"]
+    code, out, err = cli("protocol", f, "--register", "ann", *entry, "--db", db)
+    assert code == 0, err
+    assert "slot 0" in out and "practice loc-planes, loc-planes, loc-none" in out
+    assert "another machine may give the same order" in err
+    code, out, _ = cli("protocol", f, "--register", "bob", *entry, "--db", db)
+    assert code == 0 and "slot 1" in out and "practice loc-none, loc-none, loc-planes" in out
+    code, _, err = cli(
+        "protocol", f, "--register", "cy", *entry[:2], "--year-of-training", "two", *entry[4:], "--db", db
+    )
+    assert code == 2 and "year_of_training is 'two'; expected a whole number from 0 to 80" in err
+    assert len(err.strip().splitlines()) == 1
+    code, _, err = cli("protocol", f, "--register", "ann", *entry[:4], "--procedures-performed", "9", "--db", db)
+    assert code == 2 and "already in the register" in err
+    code, _, err = cli("protocol", f, "--participant", "dee", "--db", db)
+    assert code == 2 and "not in the register of study 'study61'" in err and "--year-of-training" in err
+    code, _, err = cli("protocol", f, "--register", "eve", "--group", "expert", "--db", db)
+    assert code == 2 and "--year-of-training is missing" in err

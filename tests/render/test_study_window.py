@@ -52,6 +52,7 @@ class StudyWindow:
         self.db = tmp / "study.sqlite3"
         (tmp / "study.toml").write_text(PROTO)
         cmd = [sys.executable, "-m", "chainsim.game.cli.main", "protocol", "study.toml", "--participant", "tess"]
+        cmd += ["--group", "novice", "--year-of-training", "1", "--procedures-performed", "0"]
         self.app = subprocess.Popen(
             [*cmd, "--db", str(self.db)],
             cwd=tmp,

@@ -1,5 +1,12 @@
 """`chainsim protocol PROTOCOL.toml`: a study after thesis 6.1.4 - with people at the window, or scripted.
 
+Register first: `--register CODE --group novice|expert --year-of-training N --procedures-performed N`
+enters the participant in the study's register (chainsim.game.records.register) and prints the slot and
+condition order they are allocated; with `--records URL` the register and its one allocation sequence
+are the records server's (signed in as a trainer of --class), else this machine's own, and the window
+warns that another machine may give the same order. `--participant CODE` with those options registers
+at the start of the session; without them the participant must be in the register already.
+
 With people (`--participant NAME`): the trainer window opens for that participant and runs the
 session of chainsim.game.ui.study - the short pre-session questionnaire, the protocol's trials with
 the aids on and off in an order counterbalanced between participants, the post-session ratings - and
@@ -20,6 +27,7 @@ Format:
     format = 1
     pack = "prp"                       # a pack name or folder
     title = "..."                      # optional
+    practice = 1                       # practice trials per task before its scored ones (default 0)
     [[trial]]
     name = "location-planes"
     task = "location"                  # location | insertion
@@ -54,6 +62,7 @@ from chainsim.game.app.inputscript import load_script
 from chainsim.game.app.options import name
 from chainsim.game.app.outputs import prepare_output_dir, write_text_atomic
 from chainsim.game.packs import pack as packs
+from chainsim.game.records import register
 from chainsim.game.records.store import RecordStore, check_target
 from chainsim.game.records.study import (
     TASK_METRIC,
@@ -72,6 +81,7 @@ from chainsim.game.ui.study import (
     current_attempts,
     every_condition,
     newest_questionnaires,
+    plan,
     saved_trials,
     study_name,
 )
@@ -89,7 +99,7 @@ HELP = (
 )
 
 AIDS = layout.AIDS
-TOP_KEYS = {"format", "pack", "title", "description", "trial", "require_witnessed"}
+TOP_KEYS = {"format", "pack", "title", "description", "trial", "require_witnessed", "practice"}
 TRIAL_KEYS = {"name", "task", "condition", "scripts", "script", "repeat", "steps", "aids"}
 
 
@@ -102,6 +112,22 @@ def add_parser(sub):
     )
     mode.add_argument("--scripted", action="store_true", help="run the trials' scripts headless (a smoke test)")
     mode.add_argument("--summary", action="store_true", help="print the study's results over all participants")
+    mode.add_argument(
+        "--register",
+        type=name("participant"),
+        metavar="CODE",
+        help="enter a participant in the study's register (with --group, --year-of-training, "
+        "--procedures-performed) and print the condition order they are allocated",
+    )
+    reg = p.add_argument_group("the participant's register entry (--register, or --participant's first session)")
+    reg.add_argument("--group", metavar="GROUP", help="novice or expert")
+    reg.add_argument("--year-of-training", metavar="N", help="year of training (a whole number, 0-80)")
+    reg.add_argument("--procedures-performed", metavar="N", help="procedures of this kind performed (whole number)")
+    p.add_argument(
+        "--records",
+        metavar="URL",
+        help="records server that keeps the register and its allocation sequence (and receives the trials)",
+    )
     p.add_argument(
         "--restart",
         action="store_true",
@@ -156,6 +182,11 @@ def load_protocol(path: str | Path) -> dict:
     names: set[str] = set()
     for i, t in enumerate(trials, 1):
         out.append(_trial(t, f"{where}: trial {i}", f"trial-{i}", names))
+    try:
+        # practice trials per task, before its scored ones: saved marked practice, never counted
+        practice = limits.whole(data.get("practice", 0), 0, limits.MAX_REPEAT)
+    except limits.LimitError as e:
+        raise _err(where, f"'practice' {e} (docs/limits.md)") from None
     runs = sum(max(len(t["scripts"]), 1) * t["repeat"] for t in out)
     if runs > limits.MAX_PROTOCOL_RUNS:
         raise _err(where, f"asks for {runs:,} runs, over the {limits.MAX_PROTOCOL_RUNS:,} limit (docs/limits.md)")
@@ -164,6 +195,7 @@ def load_protocol(path: str | Path) -> dict:
         "pack": data["pack"],
         "title": data.get("title", ""),
         "trials": out,
+        "practice": practice,
         # the summary counts only attempts the records server witnessed (made in its browser trainer)
         "require_witnessed": _flag(data, "require_witnessed", where),
     }
@@ -281,6 +313,8 @@ def run(args) -> int:
         raise UserError("--restart goes with --participant NAME (it starts that participant's session over)")
     if args.summary:
         return run_summary(args, proto)
+    if args.register:
+        return run_register(args, proto)
     if args.scripted:
         return run_scripted(args, proto)
     if args.participant:
@@ -289,6 +323,41 @@ def run(args) -> int:
         "name the participant (--participant NAME) to run the study in the window, "
         "--scripted for the scripted smoke test, or --summary for the results so far"
     )
+
+
+def covariates(args) -> dict | None:
+    """The register entry's covariates given on the command line; None when none is; all three or none."""
+    given = {"group": args.group, "year_of_training": args.year_of_training}
+    given["procedures_performed"] = args.procedures_performed
+    if all(v is None for v in given.values()):
+        return None
+    missing = [k for k, v in given.items() if v is None]
+    if missing:
+        flag = "--" + missing[0].replace("_", "-")
+        raise UserError(
+            f"{flag} is missing; a register entry needs --group, --year-of-training and --procedures-performed"
+        )
+    return given
+
+
+def allocation(args, proto: dict, code: str) -> dict:
+    """The participant's allocation (chainsim.game.records.register.allocate), registering them if asked."""
+    return register.allocate(study_name(proto), args.class_name, code, covariates(args), args.records, args.db)
+
+
+def run_register(args, proto: dict) -> int:
+    """--register CODE: enter the participant in the register; print the slot and the order it gives."""
+    if covariates(args) is None:
+        raise UserError("--register needs --group, --year-of-training and --procedures-performed")
+    if args.records is None:
+        check_target(args.db)
+    got = allocation(args, proto, args.register)
+    trials = plan(proto, got["slot"])
+    print(f"{args.register} is in the register of study '{study_name(proto)}' ({got['by']}): slot {got['slot']}")
+    print("trials: " + ", ".join(("practice " if t["practice"] else "") + t["name"] for t in trials))
+    if got.get("warning"):
+        logger.warning(got["warning"])
+    return 0
 
 
 def run_summary(args, proto: dict) -> int:
@@ -331,13 +400,23 @@ def run_people(args, proto: dict) -> int:
     check_target(args.db)  # a mistyped or read-only database is refused before the window opens
     out = _out_dir(args)
     db = args.db
+    allocated = allocation(args, proto, args.participant)  # in the register before the first trial
+    if allocated.get("warning"):
+        logger.warning(allocated["warning"])
     if args.restart:
         restart(args, proto)
     holder: dict = {}
 
     def make_session(app):
         holder["session"] = StudySession(
-            app, proto, args.participant, args.class_name, db, side=args.side, restart=args.restart
+            app,
+            proto,
+            args.participant,
+            args.class_name,
+            db,
+            side=args.side,
+            restart=args.restart,
+            allocation=allocated,
         )
         return holder["session"]
 
@@ -349,6 +428,7 @@ def run_people(args, proto: dict) -> int:
         screenshot=None,
         record=None,
         db=db,
+        records=args.records,  # the trials go to the records server with their recordings
         class_name=args.class_name,
         trainee=args.participant,
     )
