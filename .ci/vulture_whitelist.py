@@ -77,3 +77,5 @@ _.open_touch
 _._callback
 _.orientation
 _.device_clock
+# the rating set a rater works on, named on the raters' pages (templates rate_list.html, rate_attempt.html)
+_.set_name

@@ -36,6 +36,7 @@ COMMANDS: dict[str, str] = {
         "run a study protocol with a participant at the window (or --scripted), save the attempts, "
         "print Table 6.1 over all participants"
     ),
+    "rating": "a blinded rating of attempts by raters in the browser, and the raters' agreement",
     "records": "view, export, plot or delete trainee records (classes, trainees, attempts)",
     "replay": "replay a recorded session and compare its final digest",
     "run": "run a pack without a window and write OUT/summary.json",

@@ -24,7 +24,7 @@ from starlette.routing import Mount
 from starlette.staticfiles import StaticFiles
 
 from chainsim.game.records import remote, xapi
-from chainsim.game.server import BASE_URL_ENV, api, ratelimit, scoring, study_api, train_routes, views
+from chainsim.game.server import BASE_URL_ENV, api, ratelimit, rating_routes, scoring, study_api, train_routes, views
 from chainsim.game.server.auth import HTTPError
 from chainsim.game.server.storage import Storage, Unavailable
 from chainsim.game.server.throttle import Throttle
@@ -110,6 +110,7 @@ def build_app(
             *api.routes,
             *study_api.routes,
             *views.routes,
+            *rating_routes.routes,
             Mount("/static", app=StaticFiles(packages=[("chainsim.game.server", "static")]), name="static"),
         ],
         exception_handlers={

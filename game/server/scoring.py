@@ -39,8 +39,8 @@ from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import clean_attempt, clean_created_at, clean_name, to_json
 from chainsim.game.server.replayer import Cancelled, OverBudget, ReplayFailed, ReplayProcess
 from chainsim.systems.engine import limits
-from chainsim.systems.engine.haptics import DEVICE_DETAILS, DEVICE_MEASURES
 from chainsim.systems.engine.errors import UserError
+from chainsim.systems.engine.haptics import DEVICE_DETAILS, DEVICE_MEASURES
 
 logger = logging.getLogger(__name__)
 
