@@ -8,7 +8,7 @@ from __future__ import annotations
 import threading
 import uuid
 
-from conftest import call
+from conftest import REPO, call
 
 
 def person(code: str, **over) -> dict:
@@ -74,3 +74,38 @@ def test_two_clients_registering_at_once_never_share_a_slot(site):
         t.join(120)
     assert statuses == [201] * 20
     assert sorted(slots) == list(range(20))
+
+
+def test_two_machines_draw_from_the_servers_one_sequence(site, tmp_path, cli, monkeypatch):
+    """`chainsim protocol --register --records URL` on two machines (two local databases): the slots and
+    orders come from the server's sequence, not each machine's own, so they differ; no warning is given."""
+    study = f"s{uuid.uuid4().hex[:8]}"
+    proto = tmp_path / f"{study}.toml"
+    text = (REPO / "assets" / "prp" / "protocols" / "table61.toml").read_text()
+    proto.write_text(text.replace('pack = "prp"', 'pack = "prp"\npractice = 1', 1))
+    monkeypatch.setenv("CHAINSIM_RECORDS_TOKEN", site.tokens["tina"])
+    entry = ["--group", "expert", "--year-of-training", "4", "--procedures-performed", "30", "--class", "c1"]
+    outs = []
+    for machine, code in (("north", "P1"), ("south", "P2")):
+        db = tmp_path / f"{machine}.sqlite3"
+        rc, out, err = cli("protocol", proto, "--register", code, *entry, "--records", site.url, "--db", db)
+        assert rc == 0, err
+        assert "another machine" not in err
+        outs.append(out)
+    assert "slot 0" in outs[0] and "slot 1" in outs[1]
+    assert outs[0].splitlines()[1] != outs[1].splitlines()[1]  # the next row of the design: another order
+    status, listed, _ = call(site, "GET", f"/api/studies/{study}/participants", token=site.tokens["tina"])
+    assert [(p["code"], p["year_of_training"], p["procedures_performed"]) for p in listed["participants"]] == [
+        ("P1", 4, 30),
+        ("P2", 4, 30),
+    ]
+
+
+def test_without_the_server_allocation_is_refused_in_one_line(tmp_path, cli, monkeypatch):
+    monkeypatch.setenv("CHAINSIM_RECORDS_TOKEN", "anything")
+    entry = ["--group", "novice", "--year-of-training", "1", "--procedures-performed", "0"]
+    proto = REPO / "assets" / "prp" / "protocols" / "table61.toml"
+    db = tmp_path / "local.sqlite3"
+    rc, _, err = cli("protocol", proto, "--register", "P1", *entry, "--records", "http://127.0.0.1:9", "--db", db)
+    assert rc == 2 and len(err.strip().splitlines()) == 1
+    assert "cannot reach" in err and "allocation from the study's sequence needs the records server" in err
