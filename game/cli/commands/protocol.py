@@ -4,7 +4,8 @@ Register first: `--register CODE --group novice|expert --year-of-training N --pr
 enters the participant in the study's register (chainsim.game.records.register) and prints the slot and
 condition order they are allocated; with `--records URL` the register and its one allocation sequence
 are the records server's (signed in as a trainer of --class), else this machine's own, and the window
-warns that another machine may give the same order. `--participant CODE` with those options registers
+warns that another machine may give the same order. The trials themselves are saved in the local
+records (--db), each with its recording. `--participant CODE` with those options registers
 at the start of the session; without them the participant must be in the register already.
 
 With people (`--participant NAME`): the trainer window opens for that participant and runs the
@@ -428,7 +429,10 @@ def run_people(args, proto: dict) -> int:
         screenshot=None,
         record=None,
         db=db,
-        records=args.records,  # the trials go to the records server with their recordings
+        # the trials are saved in --db with their recordings, not uploaded: the records server refuses a
+        # recording whose aids and marked points the session set (not window input) and keeps no
+        # details.protocol from its replay (docs/validity.md, "From protocol to report")
+        records=None,
         class_name=args.class_name,
         trainee=args.participant,
     )
