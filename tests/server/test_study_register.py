@@ -109,3 +109,34 @@ def test_without_the_server_allocation_is_refused_in_one_line(tmp_path, cli, mon
     rc, _, err = cli("protocol", proto, "--register", "P1", *entry, "--records", "http://127.0.0.1:9", "--db", db)
     assert rc == 2 and len(err.strip().splitlines()) == 1
     assert "cannot reach" in err and "allocation from the study's sequence needs the records server" in err
+
+
+def test_a_session_takes_its_order_from_the_servers_register(site, tmp_path, cli, monkeypatch):
+    """`--participant CODE --records URL`: the window's session is given the slot the server allocated (no
+    warning); a participant the server has not registered is refused before the window opens."""
+    import chainsim.game.ui.window as window
+    from chainsim.game.app.headless import build_app
+
+    study = f"s{uuid.uuid4().hex[:8]}"
+    proto = tmp_path / f"{study}.toml"
+    proto.write_text((REPO / "assets" / "prp" / "protocols" / "table61.toml").read_text())
+    monkeypatch.setenv("CHAINSIM_RECORDS_TOKEN", site.tokens["tina"])
+    path = f"/api/studies/{study}/participants"
+    for code in ("P1", "P2"):
+        assert call(site, "POST", path, person(code, class_name="c1"), site.tokens["tina"])[0] == 201
+    sessions = []
+    monkeypatch.setattr(window, "run_window", lambda args, session: sessions.append(session) or 0)
+    db = tmp_path / "local.sqlite3"
+    common = ["--records", site.url, "--db", db, "--class", "c1"]
+    rc, _, err = cli("protocol", proto, "--participant", "P2", *common)
+    assert rc == 0, err
+    app = build_app("prp", settings={"db": str(db), "class": "c1", "trainee": "P2"})
+    try:
+        s = sessions[-1](app)
+        s.start()
+        assert s.allocation["slot"] == 1 and s.allocation["by"] == f"records server {site.url}"
+        assert "Warning" not in s.notice
+    finally:
+        app.close()
+    rc, _, err = cli("protocol", proto, "--participant", "P9", *common)
+    assert rc == 2 and "'P9' is not in the register of study" in err and f"on {site.url}" in err
