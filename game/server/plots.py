@@ -99,31 +99,29 @@ def render(
 _PUNCTURE = 1
 
 
-def force_profile(profile: Sequence[Sequence[float]], title: str) -> bytes:
+def force_profile(profile: Sequence[Sequence[float]], title: str, against: str = "depth") -> bytes:
     """An attempt's force profile as SVG: the force the hand felt through the device against the needle's
-    depth (in and out) and against time, each puncture marked. ``profile`` rows are (time s, depth mm,
-    force N, events), as the simulator stores them (details.force_profile)."""
+    depth (in and out, ``against="depth"``) or against time (``"time"``), each puncture marked where the
+    layer gave. ``profile`` rows are (time s, depth mm, force N, events), as the simulator stores them
+    (details.force_profile). One panel a plot, so a narrow screen stacks them at a readable size."""
     rows = [r for r in profile if len(r) >= 4 and all(_is_number(x) for x in r[:4])]
-    fig = Figure(figsize=(6.4, 3.0), dpi=100)
+    fig = Figure(figsize=(4.8, 3.2), dpi=100)
     FigureCanvasSVG(fig)
-    ax_d, ax_t = fig.subplots(1, 2)
-    t, depth, force = ([float(r[k]) for r in rows] for k in range(3))
+    ax = fig.subplots()
+    xs = [float(r[1 if against == "depth" else 0]) for r in rows]
+    force = [float(r[2]) for r in rows]
     # each puncture marked where the layer gave: the point before the force dropped
     pops = [max(k - 1, 0) for k, r in enumerate(rows) if int(r[3]) & _PUNCTURE]
-    ax_d.plot(depth, force, lw=0.9, color="tab:blue")
-    ax_t.plot(t, force, lw=0.9, color="tab:blue", label="force")
-    for ax, xs in ((ax_d, depth), (ax_t, t)):
-        if pops:
-            ax.plot([xs[k] for k in pops], [force[k] for k in pops], "v", color="tab:red", label="puncture")
-        ax.axhline(0.0, color="0.6", lw=0.5)
-        ax.grid(alpha=0.3)
-        ax.tick_params(labelsize=8)
-    ax_d.set_xlabel("needle depth (mm)", fontsize=9)
-    ax_d.set_ylabel("force against insertion (N)", fontsize=9)
-    ax_t.set_xlabel("time (s)", fontsize=9)
+    ax.plot(xs, force, lw=1.0, color="tab:blue", label="force")
     if pops:
-        ax_t.legend(loc="best", fontsize=8)
-    fig.suptitle(title, fontsize=10)
+        ax.plot([xs[k] for k in pops], [force[k] for k in pops], "v", color="tab:red", ms=7, label="puncture")
+        ax.legend(loc="best", fontsize=10)
+    ax.axhline(0.0, color="0.6", lw=0.5)
+    ax.grid(alpha=0.3)
+    ax.tick_params(labelsize=10)
+    ax.set_xlabel("needle depth (mm)" if against == "depth" else "time (s)", fontsize=11)
+    ax.set_ylabel("force against insertion (N)", fontsize=11)
+    ax.set_title(title, fontsize=11)
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="svg", metadata={"Date": None})

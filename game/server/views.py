@@ -414,7 +414,8 @@ def attempt_view(a: dict, specs: dict) -> dict:
             }
         )
     skip = {layout.MARKS, layout.IDEAL_MARKS, "needle_path", "ideal_path", "verdict", "contacts", "protocol"}
-    skip |= {"force_profile", "reported_by_device"}  # drawn under "Force through the device"
+    # shown under "Force through the device" and as the pack's device metrics, not again as raw details
+    skip |= {"force_profile", "reported_by_device", "device_peak_force_N", "puncture_force_N", "bone_contact_s"}
     skip |= {k for k in d if k[:1] in "Dd" and k[1:].isdigit() or k.startswith("Dist")}
     facts = [said(k, a.get(k)) for k in ("pack", "created_at", "target") if k in a]
     facts += [said(k, v) for k, v in d.items() if k not in skip]
@@ -472,7 +473,7 @@ def _force_view(d: dict) -> dict | None:
         "points": len(profile),
         "reported": bool(reported),
         "alt": (
-            f"Force against needle depth and against time, {len(profile)} points; peak "
+            f"{len(profile)} points; peak "
             f"{debrief.number(d.get('device_peak_force_N'), 'N')}, at the first puncture "
             f"{debrief.number(d.get('puncture_force_N'), 'N')}, {debrief.number(d.get('bone_contact_s'), 's')} on bone"
         ),
@@ -592,20 +593,26 @@ async def attempt_xray(request: Request) -> Response:
     return Response(track["images"][k - 1]["png"], media_type="image/png", headers=headers)
 
 
-def force_plot(store: RecordStore, user: User, attempt_id: int) -> bytes:
+#: the force profile's plots: image name -> what the force is drawn against
+FORCE_PLOTS = {"force-depth.svg": "depth", "force-time.svg": "time"}
+
+
+def force_plot(store: RecordStore, user: User, attempt_id: int, against: str) -> bytes:
     """The force profile of an attempt made with a force-feedback device (404 for one made without)."""
     a = readable_attempt(store, user, attempt_id)
     profile = (a.get("details") or {}).get("force_profile")
     if not isinstance(profile, list) or not profile:
         raise HTTPError(404, f"attempt {attempt_id} was made without a force-feedback device: no force profile")
-    return plots.force_profile(profile, f"Force through the device, attempt {attempt_id}")
+    title = f"Attempt {attempt_id}: force against {'depth' if against == 'depth' else 'time'}"
+    return plots.force_profile(profile, title, against)
 
 
 async def attempt_force(request: Request) -> Response:
     user, _csrf = await page_user(request)
-    if request.path_params["image"] != "force.svg":
-        raise HTTPError(404, f"the force profile is force.svg, got {request.path_params['image']!r}")
-    data = await request.app.state.storage.run(force_plot, user, _int_param(request, "attempt_id"))
+    against = FORCE_PLOTS.get(request.path_params["image"])
+    if against is None:
+        raise HTTPError(404, f"the force plots are {' and '.join(FORCE_PLOTS)}, got {request.path_params['image']!r}")
+    data = await request.app.state.storage.run(force_plot, user, _int_param(request, "attempt_id"), against)
     return Response(data, media_type="image/svg+xml", headers={"Cache-Control": "private, no-store"})
 
 

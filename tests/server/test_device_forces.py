@@ -47,17 +47,20 @@ def test_a_device_attempt_keeps_its_forces_says_they_are_reported_and_draws_them
     assert status == 200
     section = re.search(r'<section class="force" id="force".*?</section>', page, re.S).group(0)
     assert "cannot feel the hand again" in section and "62 points" in section
-    assert f'src="/attempts/{stored["id"]}/plot/force.svg"' in section and "peak 5.9 N" in section
+    for against in ("depth", "time"):
+        assert f'src="/attempts/{stored["id"]}/plot/force-{against}.svg"' in section and "peak 5.9 N" in section
     assert re.search(r"<td[^>]*>Peak force felt</td>\s*<td class=\"num\">5.9 N</td>", page)
-    status, svg, hdrs = b.get(f"/attempts/{stored['id']}/plot/force.svg")
+    status, svg, hdrs = b.get(f"/attempts/{stored['id']}/plot/force-depth.svg")
     assert status == 200 and hdrs["Content-Type"].startswith("image/svg+xml")
     assert "needle depth (mm)" in svg and "puncture" in svg
+    status, svg, _ = b.get(f"/attempts/{stored['id']}/plot/force-time.svg")
+    assert status == 200 and "time (s)" in svg
     # the profile is drawn, not listed as raw data among the details
-    assert "Force profile" not in page and "[[" not in page
-    # another class's trainee may not see it
+    assert "Force profile" not in page and "[[" not in page and "Device peak force" not in page
+    # another trainee may not see it
     bob = Browser(site)
     bob.sign_in("bob")
-    assert bob.get(f"/attempts/{stored['id']}/plot/force.svg")[0] == 403
+    assert bob.get(f"/attempts/{stored['id']}/plot/force-depth.svg")[0] == 403
 
 
 def test_an_attempt_without_a_device_has_no_force_section_and_no_device_rows(site):
@@ -68,7 +71,7 @@ def test_an_attempt_without_a_device_has_no_force_section_and_no_device_rows(sit
     status, page, _ = b.get(f"/attempts/{stored['id']}")
     assert status == 200 and 'id="force"' not in page
     assert "Peak force felt" not in page  # a device metric with no device is no row, not a dash
-    status, text, _ = b.get(f"/attempts/{stored['id']}/plot/force.svg")
+    status, text, _ = b.get(f"/attempts/{stored['id']}/plot/force-depth.svg")
     assert status == 404 and "without a force-feedback device" in text
     assert b.get(f"/attempts/{stored['id']}/plot/other.svg")[0] == 404
 
