@@ -19,33 +19,10 @@ from starlette.routing import Route
 
 from chainsim.game.records import register
 from chainsim.game.records.store import RecordStore
-from chainsim.game.records.validate import clean_name
+from chainsim.game.server import study_pages
 from chainsim.game.server.accounts import User
 from chainsim.game.server.auth import HTTPError, api_user, read_json
-from chainsim.systems.engine.errors import UserError
-
-
-def _trainer(user: User) -> None:
-    if not user.is_trainer:
-        raise HTTPError(403, "the study register is kept by trainers")
-
-
-def _register(store: RecordStore, user: User, study: str, body: object) -> tuple[dict, bool]:
-    class_name = body.get("class_name") if isinstance(body, dict) else None
-    try:
-        class_name = clean_name("class", class_name)
-    except UserError as exc:
-        raise HTTPError(422, f"{exc} (class_name: the class the participant's trials are saved under)") from None
-    if class_name not in user.classes:
-        raise HTTPError(403, "you do not teach that class")
-    try:
-        return register.register(store, study, class_name, body, user.name)
-    except register.AlreadyRegistered as exc:
-        raise HTTPError(409, str(exc)) from None
-    except UserError as exc:
-        if type(exc) is not UserError:
-            raise
-        raise HTTPError(422, str(exc)) from None
+from chainsim.game.server.study_pages import register_as, trainer_only
 
 
 def _one(store: RecordStore, user: User, study: str, code: str) -> dict:
@@ -57,23 +34,23 @@ def _one(store: RecordStore, user: User, study: str, code: str) -> dict:
 
 async def add_participant(request: Request) -> Response:
     user = await api_user(request)
-    _trainer(user)
+    trainer_only(user)
     body = await read_json(request)
     storage = request.app.state.storage
-    entry, created = await storage.run(_register, user, request.path_params["study"], body)
+    entry, created = await storage.run(register_as, user, request.path_params["study"], body)
     return JSONResponse(entry, status_code=201 if created else 200)
 
 
 async def list_participants(request: Request) -> Response:
     user = await api_user(request)
-    _trainer(user)
+    trainer_only(user)
     rows = await request.app.state.storage.run(register.entries, request.path_params["study"], list(user.classes))
     return JSONResponse({"study": request.path_params["study"], "design": register.DESIGN, "participants": rows})
 
 
 async def get_participant(request: Request) -> Response:
     user = await api_user(request)
-    _trainer(user)
+    trainer_only(user)
     p = request.path_params
     return JSONResponse(await request.app.state.storage.run(_one, user, p["study"], p["code"]))
 
@@ -82,4 +59,5 @@ routes = [
     Route("/api/studies/{study}/participants", add_participant, methods=["POST"]),
     Route("/api/studies/{study}/participants", list_participants, methods=["GET"]),
     Route("/api/studies/{study}/participants/{code}", get_participant, methods=["GET"]),
+    *study_pages.routes,  # the trainers' page of the same register
 ]

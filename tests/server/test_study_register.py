@@ -140,3 +140,27 @@ def test_a_session_takes_its_order_from_the_servers_register(site, tmp_path, cli
         app.close()
     rc, _, err = cli("protocol", proto, "--participant", "P9", *common)
     assert rc == 2 and "'P9' is not in the register of study" in err and f"on {site.url}" in err
+
+
+def test_the_register_page_enters_a_participant_and_shows_their_slot(site):
+    """A trainer signed in to the dashboard registers on /studies/STUDY (CSRF-checked form); a bad count
+    is a 422 naming it; a trainee may not open the page."""
+    from test_dashboard import Browser, csrf_of
+
+    study = f"s{uuid.uuid4().hex[:8]}"
+    b = Browser(site)
+    assert b.sign_in("tina")[0] == 303
+    status, page, _ = b.get(f"/studies/{study}")
+    assert status == 200 and "No participant registered yet" in page
+    form = {"class_name": "c1", "code": "P1", "group": "expert", "year_of_training": "7", "procedures_performed": "120"}
+    assert b.post(f"/studies/{study}", {**form, "csrf": "forged" * 6})[0] == 403
+    status, _, hdrs = b.post(f"/studies/{study}", {**form, "csrf": csrf_of(page)})
+    assert status == 303 and hdrs["location"] == f"/studies/{study}?added=P1"
+    status, page, _ = b.get(hdrs["location"])
+    assert "P1 registered: slot 0." in page and "<td>expert</td><td>7</td>" in page
+    bad = {**form, "code": "P2", "year_of_training": "seven", "csrf": csrf_of(page)}
+    status, page, _ = b.post(f"/studies/{study}", bad)
+    assert status == 422 and "year_of_training is &#39;seven&#39;" in page
+    trainee = Browser(site)
+    trainee.sign_in("alice")
+    assert trainee.get(f"/studies/{study}")[0] == 403
