@@ -182,6 +182,8 @@ def overview(store: RecordStore, user: User, class_id: int, specs_for, query: di
         "desc": desc,
         "metrics": [{"key": m, "label": specs[m].get("label", m.replace("_", " "))} for m in shown_metrics],
         "accounts": [t["account"] for t in trainees if t["account"]],
+        # "below the benchmark" against provisional benchmarks is a guide: the page says so
+        "basis_note": debrief.basis_note(debrief.verdicts(specs, {})) if specs else "",
     }
 
 

@@ -122,6 +122,9 @@ def test_trainer_opens_trainee_progress_plots_with_class_median(site):
     class_link = re.search(r'href="(/classes/\d+)">c1<', page).group(1)
     status, page, _ = b.get(class_link)
     assert status == 200 and ">alice</a>" in page and ">bob</a>" in page
+    # who is below prp's benchmarks is a guide: they are provisional, and the page says so
+    note = re.search(r'id="provisional">([^<]*)<', page).group(1)
+    assert note.startswith("Provisional: every benchmark here rests on no study and no programme data")
     alice = trainee_id(site, "alice")
     status, page, _ = b.get(f"/trainees/{alice}")
     assert status == 200
