@@ -157,6 +157,7 @@ def trainee_detail(store: RecordStore, user: User, trainee_id: int, specs_for=No
         t["metrics"] = {m: plots.label(m) for m in plots.metrics(live)}
     t["columns"] = list(t["metrics"])[:4]  # the table shows a few; the attempt page shows every one
     t["units"] = {m: (specs.get(m) or {}).get("units", "") for m in t["metrics"]}
+    t["basis_note"] = debrief.basis_note(debrief.verdicts(specs, {})) if specs else ""
     t["waiting"] = scoring.waiting_uploads(store, [t["class_name"]], t["name"])
     return t
 

@@ -128,6 +128,7 @@ def test_trainer_opens_trainee_progress_plots_with_class_median(site):
     alice = trainee_id(site, "alice")
     status, page, _ = b.get(f"/trainees/{alice}")
     assert status == 200
+    assert re.search(r'id="provisional">Provisional: every benchmark here rests on no study', page)
     plots = re.findall(r'<img src="([^"]+\.svg)"', page)
     names = {p.rsplit("/", 1)[1] for p in plots}
     # one plot per numeric field of the record
