@@ -103,3 +103,27 @@ def test_a_rating_set_refuses_bad_requests_in_one_line(site, rated, capsys):
     assert err.strip().count("\n") == 0 and "no attempt with id 999999" in err
     assert main(["rating", "report", "--db", site.db, "--name", "nope", "--pack", "prp", "--out", "/tmp/x"]) == 2
     assert "no rating set named 'nope'" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_a_rater_marks_an_attempt_in_a_real_browser(site, rated, capsys):
+    """The distribution's Chromium: the rater's link, the replay drawn, the form marked by clicks, saved."""
+    from test_browser import chromium
+
+    ids = ",".join(str(a["id"]) for a in rated[:3])
+    assert main(["rating", "create", "--db", site.db, "--name", "browser-panel", "--attempts", ids,
+                 "--rater", "rita", "--rater", "rolf", "--base-url", site.url]) == 0  # fmt: skip
+    link = _links(capsys.readouterr().out)["rita"]
+    for browser in chromium():
+        page = browser.new_page(viewport={"width": 1024, "height": 768})
+        page.goto(f"{site.url}/rate/{link}")
+        assert page.locator("#progress").inner_text() == "0 of 3 attempts rated."
+        page.click("table#items a >> nth=0")
+        page.locator("#replay-status:has-text('Replayed')").wait_for(timeout=60_000)  # the page's CSP allows no eval
+        assert "alice" not in page.content()
+        for key, _label, _anchors in FORM:
+            page.check(f"input[name={key}][value='4']")
+        page.click("button[type=submit]")
+        page.wait_for_url(f"{site.url}/rate/{link}")
+        assert page.locator("#progress").inner_text() == "1 of 3 attempts rated."
+        assert page.locator("text=20 of 25").count() == 1
