@@ -51,6 +51,27 @@ def study_rows(attempts: Iterable[dict[str, Any]], study: str, practice: bool = 
     return out
 
 
+def design_notes(attempts: Iterable[dict[str, Any]], study: str) -> list[str]:
+    """What a methods reviewer should know about `study`'s trials besides the table: practice trials left
+    out, and trials whose condition order came from one machine's register instead of the study's sequence."""
+    practice = local = 0
+    for a in attempts:
+        p = (a.get("details") or {}).get("protocol") or {}
+        if p.get("study") != study or p.get("scripted"):
+            continue
+        practice += bool(p.get("practice"))
+        local += bool((p.get("allocation") or {}).get("warning"))
+    out = []
+    if practice:
+        out.append(f"{practice} practice trial(s) left out of the table")
+    if local:
+        out.append(
+            f"{local} trial(s) took their condition order from one machine's own register, not the records "
+            "server's sequence: another machine may have given the same order"
+        )
+    return out
+
+
 def table(rows: Iterable[dict[str, Any]]) -> dict[tuple[str, str], dict[str, Any]]:
     """(task, condition) -> mean error over the scored attempts, attempts scored / made, participants."""
     groups: dict[tuple[str, str], list[dict]] = {}

@@ -358,7 +358,7 @@ def test_practice_trials_come_first_are_saved_marked_and_never_counted(tmp_path)
     ann.app.close()
 
 
-def test_without_a_records_server_the_order_is_local_and_every_trial_says_so(tmp_path):
+def test_without_a_records_server_the_order_is_local_and_every_trial_says_so(tmp_path, cli):
     db = tmp_path / "study.sqlite3"
     ann = Participant(tmp_path, "ann", db)
     ann.s.start()
@@ -370,6 +370,9 @@ def test_without_a_records_server_the_order_is_local_and_every_trial_says_so(tmp
     with RecordStore(db) as store:
         (row,) = store.list_attempts("study", "ann")
     assert "another machine may give the same order" in row["details"]["protocol"]["allocation"]["warning"]
+    code, out, err = cli("protocol", tmp_path / "study61.toml", "--summary", "--db", db)
+    assert code == 0, err
+    assert "1 trial(s) took their condition order from one machine's own register" in out
 
 
 def test_register_enters_participants_in_order_and_refuses_bad_entries(tmp_path, cli):

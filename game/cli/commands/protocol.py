@@ -70,6 +70,7 @@ from chainsim.game.records.study import (
     TASK_TITLE,
     TASKS,
     THESIS_MM,
+    design_notes,
     format_ratings,
     format_table,
     ratings,
@@ -388,6 +389,8 @@ def run_summary(args, proto: dict) -> int:
     text = format_table(tab, f"{people} participants")
     rates = ratings(questionnaires, study)
     print(text)
+    for line in design_notes(attempts, study):  # under the table: its rows stay where they were
+        print(line)
     print()
     print(format_ratings(rates, {q.id: q.text for q in POST}, THESIS_RATINGS))
     _write_out(_out_dir(args), proto, proto["pack"], tab, text, "participants", {"ratings": rates})
