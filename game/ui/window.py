@@ -219,7 +219,7 @@ class WindowSession:
         self.confirm = False  # a quit question is shown
         self.behind = ""  # the page the quit question covers
         self.swallow_text = False  # the key that answered the question types nothing
-        self.said_ready = self.said_all = False
+        self.said_ready = self.said_all = self.said_first = False
         self.pending: PendingInput = app.resource(PendingInput)
         needed = needed_groups(app)
         compiler.prefer(needed)
@@ -462,12 +462,20 @@ class WindowSession:
             return
         if self.gate is not None:
             self._watch_kernels()
+        elif not self.said_all and self.compiler.ready():  # loaded from the cache: no gate, said all the same
+            self.said_all = True
+            print(f"kernels: all compiled {self.compiler.seconds:.1f} s after start", flush=True)
         if self.gate is not None and not self.gate.stepping():
             self.stepper.carry = 0.0
             render.draw(self.app)  # input waits for kernels: the scene stands still, the window still draws
         elif self.stepper.advance(dt) == 0:
             render.draw(self.app)  # no whole step yet: show the same state again
         self.frame_log.add(t, dt, time.perf_counter() - t)
+        if not self.said_first:  # chainsim bench startup times a start by these lines
+            self.said_first = True
+            print(f"window: first picture {time.perf_counter() - self.compiler.started:.1f} s after start", flush=True)
+            if self.gate is None:
+                print("kernels: the scene's ready at the first picture (compiled before)", flush=True)
         for ev in self.widget_events.read():
             if ev.name == "sign_in" and self.form is None and self.study is None:
                 self.open_sign_in()
@@ -485,6 +493,8 @@ class WindowSession:
         if not self.said_ready and gate.ready():
             self.said_ready = True
             print(f"kernels: the scene's ready {time.perf_counter() - compiler.started:.1f} s after start", flush=True)
+            if not gate.held:  # with input held, the "Ready: the N presses ..." line below says it
+                self.hud.message("Ready: the soft-tissue engine is prepared; the scene takes your input.", 8.0)
         if not self.said_all and compiler.ready():
             self.said_all = True
             print(f"kernels: all compiled {compiler.seconds:.1f} s after start", flush=True)

@@ -24,6 +24,7 @@ BENCHES = {
     "needle": "chainsim.game.bench.needle",
     "replay": "chainsim.game.bench.replay",
     "haptics": "chainsim.game.bench.haptics",
+    "startup": "chainsim.game.bench.startup",
 }
 
 # benchmarks that start `chainsim serve`: without the server extra they stop before starting anything
