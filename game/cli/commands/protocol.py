@@ -128,7 +128,7 @@ def add_parser(sub):
     p.add_argument(
         "--records",
         metavar="URL",
-        help="records server that keeps the register and its allocation sequence (and receives the trials)",
+        help="records server that keeps the study's register and allocation sequence (trials are saved in --db)",
     )
     p.add_argument(
         "--restart",
