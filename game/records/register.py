@@ -23,6 +23,7 @@ from typing import Any
 from urllib.parse import quote
 
 from chainsim.game.records import remote
+from chainsim.game.records.backend import is_postgres
 from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import clean_created_at, clean_name
 from chainsim.game.records.validity_data import GROUPS
@@ -174,6 +175,7 @@ def allocate(study: str, class_name: str, code: str, covariates: dict | None, se
     sequence (``by``; ``warning`` when it is only this machine's). ``covariates`` given: register first (a
     resend of the same entry is fine); None: they must be in the register already."""
     body = None if covariates is None else {"code": code, **covariates}
+    shared = False
     if server:
         server = remote.server_url(server)
         if body is not None:
@@ -184,13 +186,15 @@ def allocate(study: str, class_name: str, code: str, covariates: dict | None, se
     else:
         with RecordStore(db) as store:
             entry = lookup(store, study, code) if body is None else register(store, study, class_name, body, "local")[0]
-            by, where = "this machine", f" in {store.path}"
+            # a PostgreSQL records database is one every machine can share: its sequence is the study's one
+            shared = is_postgres(str(store.path))
+            by, where = (f"records database {store.path}" if shared else "this machine"), f" in {store.path}"
     if entry is None:
         raise UserError(
             f"participant {code!r} is not in the register of study {study!r}{where}; enter them before their first "
             "trial: add --group novice|expert --year-of-training N --procedures-performed N"
         )
     out = {"by": by, "design": DESIGN, "slot": entry["slot"], **{k: entry[k] for k in FIELDS[1:]}}
-    if not server:
+    if not server and not shared:
         out["warning"] = LOCAL_WARNING
     return out

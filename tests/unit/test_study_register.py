@@ -97,3 +97,18 @@ def test_a_version_10_database_opens_and_gains_the_register(tmp_path):
         assert store.schema_version == SCHEMA_VERSION
         assert store.list_classes() == ["study"]
         assert register.register(store, "table61", "study", person("A"), "tina")[0]["slot"] == 0
+
+
+def test_an_allocation_from_a_file_warns_and_one_from_a_shared_database_does_not(records_db):
+    """Without a records server the order comes from the --db's register: an SQLite file is one machine's
+    (warned), a PostgreSQL database is one every machine can share (its sequence is the study's)."""
+    covariates = {"group": "expert", "year_of_training": 6, "procedures_performed": 80}
+    got = register.allocate("table61", "study", "A", covariates, None, records_db)
+    again = register.allocate("table61", "study", "A", None, None, records_db)
+    assert got == again and got["slot"] == 0 and got["group"] == "expert"
+    if records_db.startswith("postgresql://"):
+        assert "warning" not in got and got["by"].startswith("records database postgresql://")
+    else:
+        assert "another machine may give the same order" in got["warning"] and got["by"] == "this machine"
+    with pytest.raises(UserError, match="'B' is not in the register of study 'table61'"):
+        register.allocate("table61", "study", "B", None, None, records_db)
