@@ -244,6 +244,8 @@ def _lock_cache_index() -> None:
 def _child() -> int:
     """A compiling child: reads group names from stdin, one per line, answers 'done NAME' or 'failed NAME: why'."""
     _lock_cache_index()
+    if hasattr(os, "nice"):  # the window that waits on us draws and answers first (its first picture, the help)
+        os.nice(10)
     print("ready", flush=True)
     for line in sys.stdin:
         name = line.strip()
