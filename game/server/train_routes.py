@@ -15,10 +15,12 @@ computed it, whatever the class requires).
 Sessions: one per trainee account (a second tab takes the session over; another account never
 reaches it: sessions are keyed by the account of the session cookie). At most ``seats`` processes
 run at once ($CHAINSIM_TRAIN_SEATS); past that the page says all seats are taken (503). A session
-whose page went away is kept ``grace_s`` ($CHAINSIM_TRAIN_GRACE_S) for a reload to resume it, then
-its process is killed; one without input for ``idle_s`` ($CHAINSIM_TRAIN_IDLE_S) is ended, and every
-session ends ``max_s`` after it was ready (``serve --train-max-minutes``, $CHAINSIM_TRAIN_MAX_S), input
-or not: a page that keeps sending input must not hold a seat for ever.
+whose page went away is kept ``grace_s`` ($CHAINSIM_TRAIN_GRACE_S) for a reload to resume it (the
+``ready`` message then says ``resumed`` and the session's age, and the page says so with a button to
+start afresh: the socket opened with ``?fresh=1`` ends the old session first), then its process is
+killed; one without input for ``idle_s`` ($CHAINSIM_TRAIN_IDLE_S) is ended, and every session ends
+``max_s`` after it was ready (``serve --train-max-minutes``, $CHAINSIM_TRAIN_MAX_S), input or not: a
+page that keeps sending input must not hold a seat for ever.
 
 Input: each message is a JSON object of at most ``MAX_MESSAGE_BYTES``, one of the device events of
 ``chainsim.components.input_events`` (mouse_move, mouse_button, mouse_drag, scroll, key) with
@@ -206,6 +208,7 @@ class Seat:
     frames: int = 0
     ready_at: float | None = None  # when the trainer was ready: its length counts from here
     refused: bool = False  # ended for a message broke the rules: no reset of the account's back-off
+    resumed: bool = False  # this page took over a session that was running (a reload, another tab)
 
 
 class Trainer:
@@ -550,6 +553,11 @@ async def _claim(ws: WebSocket, trainer: Trainer, user: accounts.User, pack: str
         if seat is not None and seat.pack != pack:
             await trainer.end(seat, "the trainee opened another pack")
             seat = None
+        if seat is not None and ws.query_params.get("fresh") == "1":  # the page's "Start afresh"
+            await trainer.end(seat, "the trainee started afresh")
+            seat = None
+        if seat is not None:
+            seat.resumed = True  # the page says so, with a way to start afresh
         if seat is None:
             if trainer.full_for(user):
                 await ws.close(SEATS_TAKEN, f"all {trainer.seats} seats are taken; try again in a few minutes")
@@ -577,7 +585,11 @@ async def _started(ws: WebSocket, trainer: Trainer, seat: Seat) -> bool:
             await trainer.end(seat, seat.error)
             return False
         seat.last_input = time.monotonic()
-        await ws.send_json({"type": "ready", "width": seat.size[0], "height": seat.size[1], "format": seat.mime})
+        age = 0.0 if seat.ready_at is None else time.monotonic() - seat.ready_at
+        await ws.send_json(
+            {"type": "ready", "width": seat.size[0], "height": seat.size[1], "format": seat.mime}
+            | ({"resumed": True, "age_s": round(age)} if seat.resumed else {})
+        )
     except WebSocketDisconnect:  # the page went away while the trainer started: a reload may come back
         if seat.socket is ws:
             seat.socket, seat.detached_at = None, time.monotonic()

@@ -458,3 +458,53 @@ def test_bench_train_refuses_bad_sizes_in_one_line(cli, args, says):
     code, out, err = cli("bench", "train", *args)
     assert code == 2
     assert says in err and "Traceback" not in err
+
+
+async def _ready(url: str, path: str, cookie: str) -> dict:
+    """Open the socket, take its first picture and close the page: the session's ``ready`` message."""
+    import websockets
+
+    async with websockets.connect(
+        url.replace("http", "ws", 1) + path, additional_headers={"Cookie": f"chainsim_session={cookie}"},
+        origin=url, max_size=None,
+    ) as ws:  # fmt: skip
+        ready = None
+        while True:
+            msg = await asyncio.wait_for(ws.recv(), 120)
+            if isinstance(msg, str) and json.loads(msg)["type"] == "ready":
+                ready = json.loads(msg)
+            elif isinstance(msg, bytes) and ready is not None:
+                return ready
+
+
+def test_a_reload_says_it_resumed_the_session_and_a_fresh_start_ends_it(site):
+    one_backend(site)
+    cookie = cookie_for(site.db, "carol")
+    first = in_thread(_ready(site.url, "/train/prp/ws", cookie))
+    assert "resumed" not in first
+    again = in_thread(_ready(site.url, "/train/prp/ws", cookie))  # the page reloaded within the grace time
+    assert again["resumed"] is True and again["age_s"] >= 0
+    fresh = in_thread(_ready(site.url, "/train/prp/ws?fresh=1", cookie))  # "Start a new session"
+    assert "resumed" not in fresh
+    assert logged(site, "carol's session ended (the trainee started afresh)")
+
+
+@pytest.mark.slow
+def test_a_reload_in_the_browser_says_it_resumed_and_offers_a_new_session(browser, site):  # noqa: F811
+    one_backend(site)
+    context, page = open_trainer(browser, site, "bob")
+    try:
+        assert page.locator("#train-state").inner_text().startswith("Trainer ready")
+        assert page.locator("#train-fresh").is_hidden()
+        page.reload()
+        page.wait_for_function("window.trainStats && window.trainStats.frames > 0", timeout=120_000)
+        said = page.locator("#train-state").inner_text()
+        assert said.startswith("Resumed your session from ") and "goes on where you left it" in said
+        page.click("#train-fresh")  # a new session: the old one ends, its attempt in progress unsaved
+        page.wait_for_function(
+            "document.getElementById('train-state').textContent.startsWith('Trainer ready')", timeout=120_000
+        )
+        assert page.locator("#train-fresh").is_hidden()
+        assert logged(site, "bob's session ended (the trainee started afresh)")
+    finally:
+        context.close()

@@ -59,9 +59,17 @@
     }).catch(() => send({ type: "ack" }));
   }
 
-  function connect() {
+  const fresh = document.getElementById("train-fresh");
+  fresh.addEventListener("click", () => {
+    // end the resumed session on the server and start a new one (its attempt in progress is not saved)
+    fresh.hidden = true;
+    if (ws) { ws.onclose = null; ws.close(); }
+    connect(true);
+  });
+
+  function connect(afresh) {
     const scheme = location.protocol === "https:" ? "wss:" : "ws:";
-    ws = new WebSocket(scheme + "//" + location.host + canvas.dataset.socket);
+    ws = new WebSocket(scheme + "//" + location.host + canvas.dataset.socket + (afresh ? "?fresh=1" : ""));
     ws.binaryType = "arraybuffer";
     say("Starting the trainer on the server...");
     ws.onmessage = (e) => {
@@ -74,7 +82,16 @@
           mime = msg.format;
           fit();
           stats.ready = true;
-          say("Trainer ready: click the picture to give it the keyboard.");
+          if (msg.resumed) {
+            // a reload (or another tab) came back to the session that was running: say so, and offer a new one
+            const mins = Math.round(msg.age_s / 60);
+            say("Resumed your session from " + (mins >= 1 ? mins + " min" : msg.age_s + " s") +
+                " ago: the attempt in progress goes on where you left it. Click the picture to give it the keyboard.");
+            fresh.hidden = false;
+          } else {
+            say("Trainer ready: click the picture to give it the keyboard.");
+            fresh.hidden = true;
+          }
           canvas.focus();
         }
         return;
