@@ -36,10 +36,25 @@ def view_title(ov: Overlay, title: str, r: Rect, s: float) -> None:
     ov.label(title, r.x + 6 * s, r.y + r.h - f.ascent - 3 * s, TEXT)
 
 
-def fluoro_status(ov: Overlay, status: str, live: bool, has_image: bool, r: Rect, s: float) -> None:
+def window_level_text(window: float, level: float) -> str:
+    """The monitor's window/level as the C-arm view shows it ('' while at the automatic setting)."""
+    if window == 1.0 and level == 0.0:
+        return ""
+    return f"W x{window:.2f}  L {level:+.2f}  (right-click: reset)"
+
+
+def fluoro_status(
+    ov: Overlay, status: str, live: bool, has_image: bool, r: Rect, s: float, window_level: str = ""
+) -> None:
     """The C-arm view's lines: what the image is and costs along the bottom, LIVE while the pedal is held,
-    and how to make the first image before there is one."""
+    the monitor's window/level once turned from automatic (with how to reset it), and how to make the
+    first image before there is one."""
     f = ov.font
+    if window_level and has_image:
+        w = min(f.width(window_level) + 12 * s, r.w - 8 * s)
+        y = r.y + r.h - 2 * f.line_h - 14 * s  # under the view's title and LIVE
+        ov.rect(r.x + r.w - w - 4 * s, y - 2 * s, w, f.line_h + 4 * s, (0, 0, 0, 0.55))
+        ov.label(window_level, r.x + r.w - w + 2 * s, y + f.descent, TEXT, max_w=w - 8 * s)
     if not has_image:
         msg = "No image yet: Take X-ray (x)"
         ov.label(msg, r.x + max((r.w - f.width(msg)) / 2, 4 * s), r.y + r.h / 2, DIM, max_w=r.w - 8 * s)

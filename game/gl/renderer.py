@@ -755,7 +755,8 @@ class Renderer:
             if view.title:
                 panelview.view_title(ov, view.title, r, s)
             if view.kind == "fluoro" and frame.fluoro is not None:
-                panelview.fluoro_status(ov, frame.fluoro.status, frame.fluoro.live, self.fluoro.shown, r, s)
+                wl = panelview.window_level_text(frame.fluoro.window, frame.fluoro.level)
+                panelview.fluoro_status(ov, frame.fluoro.status, frame.fluoro.live, self.fluoro.shown, r, s, wl)
                 if frame.hud is not None and frame.hud.debrief_paths and self.fluoro.shown:
                     panelview.debrief_paths(ov, frame.fluoro.camera, r, frame.hud.debrief_paths, s, square=True)
             if view.camera is not None:

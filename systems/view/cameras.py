@@ -125,8 +125,9 @@ class ViewState:
     # its own, 2 = it fills the window; 0 = the layout as written
     enlarged: str = ""
     enlarge: int = 0
-    # the C-arm monitor's window/level (a right-drag in its view): the grey window's width as a
-    # multiple of the automatic one, and its centre moved by this fraction of the automatic width
+    # the C-arm monitor's window/level (a right-drag in its view; a right-click resets it): the grey
+    # window's width as a multiple of the automatic one, and its centre moved by this fraction of the
+    # automatic width
     xray_window: float = 1.0
     xray_level: float = 0.0
 
@@ -516,6 +517,8 @@ class ViewSystem:
         vp = vs.get(vs.active) if vs.active else None
         if vs.press is not None:
             vs.travel = max(vs.travel, abs(ev.x - vs.press[0]) + abs(ev.y - vs.press[1]))
+        if vp is not None and vp.kind == "fluoro" and ev.button == "right" and vs.travel <= CLICK_PX:
+            vs.xray_window, vs.xray_level = 1.0, 0.0  # a right-click without a drag: window/level reset
         if vp is not None and vp.is_3d and vp.camera is not None:
             if vs.grab is not None:
                 g = vs.grab

@@ -273,3 +273,34 @@ def test_a_new_attempt_starts_without_the_last_attempts_image(gl_ctx, tmp_path):
         assert fr.shown  # the new attempt's own image
     finally:
         app.close()
+
+
+def test_window_level_is_dragged_shown_with_its_values_and_reset_by_a_right_click():
+    """A right-drag in the C-arm view turns the monitor's window/level, the view says the values and how to
+    reset them, and a right-click (no drag) puts them back to automatic."""
+    from chainsim.components.input_events import MouseButton, MouseDrag
+    from chainsim.game.gl import panelview
+    from chainsim.game.gl.render_system import fluoro_draw
+    from chainsim.systems.view.cameras import ViewState
+
+    app = open_app(str(PACK))
+    try:
+        vs = app.resource(ViewState)
+        r = vs.get("carm").rect
+        x, y = r.x + r.w / 2, r.y + r.h / 2
+        pending, t = app.resource(PendingInput), app.time.sim_time
+        pending.extend([(t, MouseButton(x, y, "right", True)), (t, MouseDrag(x + 40, y + 20, 40, 20, "right")),
+                        (t, MouseButton(x + 40, y + 20, "right", False))])  # fmt: skip
+        app.update(app.time.dt)
+        assert vs.xray_window > 1.0 and vs.xray_level > 0.0
+        with app.active():
+            draw = fluoro_draw(app)
+        said = panelview.window_level_text(draw.window, draw.level)
+        assert said == f"W x{vs.xray_window:.2f}  L {vs.xray_level:+.2f}  (right-click: reset)"
+        t = app.time.sim_time
+        pending.extend([(t, MouseButton(x, y, "right", True)), (t, MouseButton(x, y, "right", False))])
+        app.update(app.time.dt)
+        assert (vs.xray_window, vs.xray_level) == (1.0, 0.0)
+        assert panelview.window_level_text(vs.xray_window, vs.xray_level) == ""
+    finally:
+        app.close()
