@@ -201,9 +201,12 @@ def metric_plot(store: RecordStore, user: User, class_id: int, pack: str, metric
         v = values(a).get(metric)
         if _number(v):
             by_trainee.setdefault(a["trainee"], []).append(float(v))
-    fig = Figure(figsize=(6.4, 3.0), dpi=100)
+    # 4.8 x 3.2 in with 10-11 pt text: on a 390 px phone the image is drawn at about 3/4 size, its
+    # text still about 10 px (at 6.4 in and 8 pt it was 5 px, unreadable)
+    fig = Figure(figsize=(4.8, 3.2), dpi=100)
     FigureCanvasSVG(fig)
     ax = fig.subplots()
+    ax.tick_params(labelsize=10)
     for ys in by_trainee.values():
         ax.plot(range(1, len(ys) + 1), ys, color="tab:blue", alpha=0.25, marker=".", linewidth=1)
     shown = [(k, y) for k, y in enumerate(class_median(list(by_trainee.values())), start=1) if y is not None]
@@ -212,19 +215,19 @@ def metric_plot(store: RecordStore, user: User, class_id: int, pack: str, metric
         ax.plot(xs, ys, color="tab:blue", linewidth=2.5, marker="o", label="class median")
     longest = max((len(ys) for ys in by_trainee.values()), default=0)
     if len(shown) < longest:  # some attempt numbers have too few trainees for a median
-        ax.text(0.01, 0.98, MEDIAN_WITHHELD, transform=ax.transAxes, fontsize=8, va="top", color="0.35")
+        ax.text(0.01, 0.98, MEDIAN_WITHHELD, transform=ax.transAxes, fontsize=10, va="top", color="0.35")
     units = spec.get("units", "")
     if isinstance(spec.get("benchmark"), (int, float)):
         better = "at most" if spec.get("lower_is_better", True) else "at least"
         bench = debrief.number(spec["benchmark"], units)
         ax.axhline(float(spec["benchmark"]), color="tab:red", linestyle="--", label=f"benchmark: {better} {bench}")
-    ax.set_title(f"{cls['name']}: {spec.get('label', metric)} ({pack})", fontsize=10)
+    ax.set_title(f"{cls['name']}: {spec.get('label', metric)} ({pack})", fontsize=11)
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # attempts are whole numbers
-    ax.set_xlabel("attempt")
-    ax.set_ylabel(f"{spec.get('label', metric)}" + (f" ({units})" if units else ""))
+    ax.set_xlabel("attempt", fontsize=11)
+    ax.set_ylabel(f"{spec.get('label', metric)}" + (f" ({units})" if units else ""), fontsize=11)
     ax.grid(alpha=0.3)
     if shown or spec.get("benchmark") is not None:
-        ax.legend(loc="best", fontsize=8)
+        ax.legend(loc="best", fontsize=10)
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="svg", metadata={"Date": None})

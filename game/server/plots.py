@@ -63,9 +63,11 @@ def render(
     benchmark: tuple[float, str] | None = None,
 ) -> bytes:
     """The plot as SVG or PNG bytes; ``benchmark`` (value, words) is drawn as a horizontal line."""
-    fig = Figure(figsize=(6.4, 3.2), dpi=100)
+    # sized so a phone (390 px) draws it at about 3/4 size with its text still about 10 px
+    fig = Figure(figsize=(4.8, 3.2), dpi=100)
     canvas = (FigureCanvasSVG if fmt == "svg" else FigureCanvasAgg)(fig)
     ax = fig.subplots()
+    ax.tick_params(labelsize=10)
     xs = list(range(1, len(attempts) + 1))
     own = [(x, float(a[metric])) for x, a in zip(xs, attempts) if _is_number(a.get(metric))]
     if own:
@@ -77,12 +79,12 @@ def render(
         )
     if benchmark is not None:
         ax.axhline(benchmark[0], color="tab:red", linestyle=":", label=benchmark[1])
-    ax.set_xlabel("attempt")
-    ax.set_ylabel(ylabel or label(metric))
-    ax.set_title(title, fontsize=10)
+    ax.set_xlabel("attempt", fontsize=11)
+    ax.set_ylabel(ylabel or label(metric), fontsize=11)
+    ax.set_title(title, fontsize=11)
     ax.grid(alpha=0.3)
     if own or med or benchmark is not None:
-        ax.legend(loc="best", fontsize=8)
+        ax.legend(loc="best", fontsize=10)
     if len(xs) <= 20 and xs:
         ax.set_xticks(xs)
     fig.tight_layout()

@@ -102,3 +102,28 @@ def test_trainee_gets_403_on_another_trainees_attempt(browser, site):
         assert "not yours" in page.content()
     finally:
         context.close()
+
+
+@pytest.mark.slow
+def test_class_and_progress_plots_stay_readable_on_a_phone(browser, site):
+    """At 390 px wide (a phone held upright) the class page's and a trainee's plots stack one under another
+    and are drawn at three quarters of their size or more: their 10-11 pt text stays about 10 px high."""
+    save_scored(site, "alice", upload("correct.toml"))
+    page = browser.new_page(viewport={"width": 390, "height": 844})
+    try:
+        sign_in(page, site, "tina")
+        page.click("a:text-is('c1')")
+        for where in ("class", "trainee"):
+            page.wait_for_load_state("networkidle")
+            sizes = page.eval_on_selector_all(
+                "img",
+                "els => els.map(e => { const r = e.getBoundingClientRect(); return [e.naturalWidth, r.width, r.left]; })",
+            )
+            plots = [s for s in sizes if s[0] > 300]
+            assert plots, f"no plot drawn on the {where} page"
+            assert all(shown >= 0.75 * natural for natural, shown, _ in plots), (where, plots)
+            assert len({round(left) for _, _, left in plots}) == 1  # one column: stacked, not side by side
+            if where == "class":
+                page.click("a:text-is('alice')")
+    finally:
+        page.close()
