@@ -117,7 +117,7 @@ def test_class_and_progress_plots_stay_readable_on_a_phone(browser, site):
             page.wait_for_load_state("networkidle")
             sizes = page.eval_on_selector_all(
                 "img",
-                "els => els.map(e => { const r = e.getBoundingClientRect(); return [e.naturalWidth, r.width, r.left]; })",
+                "els => els.map(e => [e.naturalWidth, e.getBoundingClientRect().width, e.offsetLeft])",
             )
             plots = [s for s in sizes if s[0] > 300]
             assert plots, f"no plot drawn on the {where} page"
