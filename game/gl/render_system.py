@@ -31,7 +31,7 @@ from chainsim.game.gl.png import read_rgba, write_png
 from chainsim.game.gl.renderer import Frame, MeshDraw, PanelDraw, Renderer, ViewDraw
 from chainsim.systems.procedures.needle.carm import DETECTOR_MM, SOURCE_TO_DETECTOR_MM, SOURCE_TO_ISO_MM, CArm
 from chainsim.systems.tissue.deformable import Deformable
-from chainsim.systems.view.cameras import ViewState, refresh_cameras
+from chainsim.systems.view.cameras import ViewState, main_view, refresh_cameras
 from chainsim.systems.view.picking import surface_cache
 from chainsim.systems.view.ui import docbox, keyhelp
 from chainsim.systems.view.ui.viewports import carm_camera
@@ -195,9 +195,8 @@ def collect_frame(app):
     _collect_views(app, frame, vs)
     frame.hud = app.get_resource(HudState)
     frame.fluoro = fluoro_draw(app)
-    shown3d = [v for v in frame.views if v.kind not in ("panel", "fluoro")]
-    orbit = [v for v in shown3d if v.kind == "orbit"]
-    frame.hud_view = (orbit or shown3d)[0].name if shown3d else ""
+    main = main_view(vs)  # the step text, messages and pages: the same view the pointer's pages use
+    frame.hud_view = main.name if main is not None and any(v.name == main.name for v in frame.views) else ""
     shown = page(app)
     if shown is not None and frame.hud_view:
         title, text, buttons = shown

@@ -149,12 +149,17 @@ class ViewState:
 
 
 def main_view(vs: ViewState) -> Viewport | None:
-    """The view that shows the step text, messages and pages: the first visible orbit view, else the
-    first visible 3-D view."""
-    shown = [vp for vp in vs.viewports if vp.visible and vp.is_3d]
-    orbit = [vp for vp in shown if vp.kind == "orbit"]
-    views = orbit or shown
-    return views[0] if views else None
+    """The view that shows the step text, messages and pages: the first visible orbit view on screen,
+    else the first visible 3-D view; while another view fills the whole window (an enlarged X-ray,
+    every other view given way) that one, so the pages and the step text are not squeezed into a view
+    with no room."""
+    on_screen = [vp for vp in vs.viewports if vp.visible and vp.kind != "panel" and vp.rect.w > 0 and vp.rect.h > 0]
+    pool = on_screen or [vp for vp in vs.viewports if vp.visible and vp.kind != "panel"]  # before the first layout
+    shown = [vp for vp in pool if vp.is_3d]
+    views = [vp for vp in shown if vp.kind == "orbit"] or shown
+    if views:
+        return views[0]
+    return max(pool, key=lambda vp: vp.rect.w * vp.rect.h) if pool else None
 
 
 def _xyz(p) -> tuple[float, float, float]:
@@ -397,7 +402,7 @@ class ViewSystem:
         if name.startswith("camera:") and name[7:] in CAMERA_PRESETS:
             vs = app.resource(ViewState)
             vp = main_view(vs)
-            if vp is not None:
+            if vp is not None and vp.is_3d:
                 camera_preset(vp, name[7:])
                 if vp.spec.get("fit") and vs.scene_box is not None:  # framed for the view's size now
                     frame_view(vs, vp, *vs.scene_box)

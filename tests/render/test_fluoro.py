@@ -304,3 +304,27 @@ def test_window_level_is_dragged_shown_with_its_values_and_reset_by_a_right_clic
         assert panelview.window_level_text(vs.xray_window, vs.xray_level) == ""
     finally:
         app.close()
+
+
+def test_the_whole_window_x_ray_carries_the_step_text_and_the_pages_at_full_size():
+    """With the C-arm view over the whole window (Big X-ray twice) the other views have no room: the step
+    text, the messages and F1's pages go to the X-ray view, as wide as the window allows, at 1024x768."""
+    from chainsim.systems.view.cameras import ViewState, main_view
+    from chainsim.systems.view.ui import docbox
+
+    app = open_app(str(PACK), size=(1024, 768))
+    try:
+        vs = app.resource(ViewState)
+        assert main_view(vs).name == "surgeon"
+        pending = app.resource(PendingInput)
+        for _ in range(2):
+            pending.push(app.time.sim_time, Widget("enlarge:carm", None))
+            app.update(app.time.dt)
+        assert main_view(vs).name == "carm" and (vs.get("carm").rect.w, vs.get("carm").rect.h) == (1024, 768)
+        box = docbox.box(main_view(vs).rect)
+        assert box.w > 0.7 * 1024 and box.h > 0.7 * 768
+        pending.push(app.time.sim_time, Widget("enlarge:carm", None))
+        app.update(app.time.dt)
+        assert main_view(vs).name == "surgeon"
+    finally:
+        app.close()
