@@ -36,6 +36,22 @@ def view_title(ov: Overlay, title: str, r: Rect, s: float) -> None:
     ov.label(title, r.x + 6 * s, r.y + r.h - f.ascent - 3 * s, TEXT)
 
 
+#: a button's label is drawn down to this share of the font's size before it is cut short
+BUTTON_FONT_MIN = 0.65
+
+
+def button_label(ov: Overlay, f, label: str, key: str, room: float):
+    """(text, font) of a button `room` pixels wide: the label with its key, else the label alone, else
+    (a narrow window: 1024 x 768) the label in a smaller font, down to BUTTON_FONT_MIN of `f` (only a
+    label wider still is cut short, with an ellipsis)."""
+    text = label + key
+    if f.width(text) > room:
+        text = label
+    if f.width(text) > room:
+        f = ov.font_sized(max(int(f.font.size * room / f.width(text)), BUTTON_FONT_MIN * f.font.size))
+    return text, f
+
+
 def window_level_text(window: float, level: float) -> str:
     """The monitor's window/level as the C-arm view shows it ('' while at the automatic setting)."""
     if window == 1.0 and level == 0.0:
@@ -350,9 +366,8 @@ def widget(ov: Overlay, pl, p, lights: dict, s: float) -> None:
     if kind == "button":
         ov.rect(r.x, r.y, r.w, r.h, (0.20, 0.22, 0.27, 1.0) if off else (0.25, 0.33, 0.45, 1.0))
         ov.frame(r.x, r.y, r.w, r.h, (0.4, 0.45, 0.55, 1.0), s)
-        text = label + key
-        if f.width(text) > r.w - 8 * s:
-            text = label
+        text, f = button_label(ov, f, label, key, r.w - 8 * s)
+        mid = r.y + (r.h - f.ascent) / 2 + 1
         ov.label(text, r.x + max((r.w - f.width(text)) / 2, 4 * s), mid, fg, max_w=r.w - 8 * s, font=f)
     elif kind == "toggle":
         bx = 16 * s
