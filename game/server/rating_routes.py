@@ -118,11 +118,8 @@ async def rate_replay(request: Request) -> Response:
 
 async def rate_xray(request: Request) -> Response:
     track, _key, _a = await _track(request)
-    name = request.path_params["image"]
-    k = int(name[:-4]) if name.endswith(".png") and name[:-4].isdigit() else 0
-    if not 1 <= k <= len(track["images"]):
-        raise HTTPError(404, f"this attempt has {len(track['images'])} X-ray images; no image {name!r}")
-    return Response(track["images"][k - 1]["png"], media_type="image/png", headers={"Cache-Control": "private"})
+    _k, png = views.xray_image(track, request.path_params["image"], "this attempt")
+    return Response(png, media_type="image/png", headers={"Cache-Control": "private"})
 
 
 async def rate_mesh(request: Request) -> Response:

@@ -582,16 +582,21 @@ async def attempt_replay(request: Request) -> Response:
     return Response(json.dumps(body), media_type="application/json", headers=headers)
 
 
-async def attempt_xray(request: Request) -> Response:
-    a, track, key = await _track(request)
-    name = request.path_params["image"]
+def xray_image(track: dict, name: str, whose: str) -> tuple[int, bytes]:
+    """(k, PNG bytes) of the track's X-ray image named "k.png" (1-based); 404 naming how many there are."""
     k = int(name[:-4]) if name.endswith(".png") and name[:-4].isdigit() else 0
     if not 1 <= k <= len(track["images"]):
-        raise HTTPError(404, f"attempt {a['id']} has {len(track['images'])} X-ray images; no image {name!r}")
+        raise HTTPError(404, f"{whose} has {len(track['images'])} X-ray images; no image {name!r}")
+    return k, track["images"][k - 1]["png"]
+
+
+async def attempt_xray(request: Request) -> Response:
+    a, track, key = await _track(request)
+    k, png = xray_image(track, request.path_params["image"], f"attempt {a['id']}")
     headers = _cached(request, f"{key}-{k}", 3600)
     if headers is None:
         return Response(status_code=304)
-    return Response(track["images"][k - 1]["png"], media_type="image/png", headers=headers)
+    return Response(png, media_type="image/png", headers=headers)
 
 
 #: the force profile's plots: image name -> what the force is drawn against

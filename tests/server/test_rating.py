@@ -58,6 +58,11 @@ def test_raters_see_coded_attempts_only_mark_them_and_the_report_gives_their_agr
         assert secret not in seen
     assert track["frames"] and all(im["url"].startswith(f"/rate/{links['rita']}/{codes[0]}/") for im in track["images"])
     assert rita.get(f"/rate/{links['rita']}/{codes[0]}/display.glb")[0] == 200
+    for im in track["images"][:1]:  # the X-ray images the trainee took, under the code's address
+        status, _, hdrs = rita.get(im["url"])
+        assert status == 200 and hdrs["Content-Type"] == "image/png"
+    status, text, _ = rita.get(f"/rate/{links['rita']}/{codes[0]}/xray/99.png")
+    assert status == 404 and f"this attempt has {len(track['images'])} X-ray images" in text
     # the link is the credential: an unknown one, or a code of no set of this rater's, opens nothing
     assert rita.get("/rate/not-a-link")[0] == 404
     assert rita.get(f"/rate/{links['rita']}/RFFFFFFFF")[0] == 404
