@@ -477,22 +477,31 @@ async def _ready(url: str, path: str, cookie: str) -> dict:
                 return ready
 
 
-def test_a_reload_says_it_resumed_the_session_and_a_fresh_start_ends_it(site):
-    one_backend(site)
-    cookie = cookie_for(site.db, "carol")
-    first = in_thread(_ready(site.url, "/train/prp/ws", cookie))
+@pytest.fixture(scope="module")
+def own(tmp_path_factory, pack_copy):
+    """A server of its own, its seats free of the sessions other tests leave within their grace time."""
+    folder = tmp_path_factory.mktemp("own")
+    db = str(folder / "own.sqlite3")
+    populate(db)
+    server = start_server(db, folder / "serve.log")
+    yield server
+    server.stop()
+
+
+def test_a_reload_says_it_resumed_the_session_and_a_fresh_start_ends_it(own):
+    cookie = cookie_for(own.db, "carol")
+    first = in_thread(_ready(own.url, "/train/prp/ws", cookie))
     assert "resumed" not in first
-    again = in_thread(_ready(site.url, "/train/prp/ws", cookie))  # the page reloaded within the grace time
+    again = in_thread(_ready(own.url, "/train/prp/ws", cookie))  # the page reloaded within the grace time
     assert again["resumed"] is True and again["age_s"] >= 0
-    fresh = in_thread(_ready(site.url, "/train/prp/ws?fresh=1", cookie))  # "Start a new session"
+    fresh = in_thread(_ready(own.url, "/train/prp/ws?fresh=1", cookie))  # "Start a new session"
     assert "resumed" not in fresh
-    assert logged(site, "carol's session ended (the trainee started afresh)")
+    assert logged(own, "carol's session ended (the trainee started afresh)")
 
 
 @pytest.mark.slow
-def test_a_reload_in_the_browser_says_it_resumed_and_offers_a_new_session(browser, site):  # noqa: F811
-    one_backend(site)
-    context, page = open_trainer(browser, site, "bob")
+def test_a_reload_in_the_browser_says_it_resumed_and_offers_a_new_session(browser, own):  # noqa: F811
+    context, page = open_trainer(browser, own, "bob")
     try:
         assert page.locator("#train-state").inner_text().startswith("Trainer ready")
         assert page.locator("#train-fresh").is_hidden()
@@ -505,6 +514,6 @@ def test_a_reload_in_the_browser_says_it_resumed_and_offers_a_new_session(browse
             "document.getElementById('train-state').textContent.startsWith('Trainer ready')", timeout=120_000
         )
         assert page.locator("#train-fresh").is_hidden()
-        assert logged(site, "bob's session ended (the trainee started afresh)")
+        assert logged(own, "bob's session ended (the trainee started afresh)")
     finally:
         context.close()
