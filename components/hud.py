@@ -43,6 +43,9 @@ class HudState:
     # needle.debrief's (head, pass, fail, note, advice, critical); and its lines over the last X-ray image
     debrief: list[tuple[str, str]] = field(default_factory=list)
     debrief_paths: list[tuple] = field(default_factory=list)  # (points (K, 3) world mm, RGBA)
+    # with a force-feedback device: the force the hand felt, (depth mm, force N, events) points, drawn as a
+    # chart above the debrief
+    debrief_force: list[tuple] = field(default_factory=list)
 
     def open_doc(self, name: str | None = None) -> None:
         if name:

@@ -181,6 +181,40 @@ def debrief(ov: Overlay, rows: list[tuple[str, str]], r: Rect, s: float) -> Debr
     return fit
 
 
+#: the force chart over the debrief: its size in window pixels (times the scale)
+FORCE_CHART = (300.0, 130.0)
+
+
+def force_chart(ov: Overlay, points: list[tuple], r: Rect, fit: DebriefFit, s: float) -> None:
+    """The force the hand felt through the device against the needle's depth (in and out), each puncture
+    a red mark where the layer gave, in a box at the right end of the main view just above the debrief."""
+    w, h = FORCE_CHART[0] * s, FORCE_CHART[1] * s
+    x0, y0 = r.x + r.w - w - 8 * s, min(fit.y + fit.h + 6 * s, r.y + r.h - h - 8 * s)
+    f = ov.font_sized(ov.font_px_base * 0.85)
+    ov.rect(x0, y0, w, h, (0.0, 0.0, 0.0, 0.78))
+    depth = [float(p[0]) for p in points]
+    force = [float(p[1]) for p in points]
+    lo_d, hi_d = min(depth + [0.0]), max(depth + [1.0])
+    hi_f = max(force + [0.5])
+    lo_f = min(force + [0.0])
+    px, py, pw, ph = x0 + 36 * s, y0 + f.line_h + 8 * s, w - 44 * s, h - 2 * f.line_h - 14 * s
+
+    def at(d: float, fn: float) -> tuple[float, float]:
+        return px + (d - lo_d) / (hi_d - lo_d) * pw, py + (fn - lo_f) / (hi_f - lo_f) * ph
+
+    ov.segment(*at(lo_d, 0.0), *at(hi_d, 0.0), (0.5, 0.5, 0.5, 1.0), s)
+    for a, b in zip(points, points[1:], strict=False):
+        ov.segment(*at(float(a[0]), float(a[1])), *at(float(b[0]), float(b[1])), (0.45, 0.7, 1.0, 1.0), 1.5 * s)
+    for k, p in enumerate(points):
+        if int(p[2]) & 1:  # a puncture: marked where the layer gave, the point before the force dropped
+            q = points[max(k - 1, 0)]
+            ov.disc(*at(float(q[0]), float(q[1])), 3.5 * s, (1.0, 0.35, 0.3, 1.0))
+    ov.label("Force felt through the device", x0 + 6 * s, y0 + h - f.ascent - 4 * s, TEXT, font=f)
+    ov.label(f"{hi_f:.1f} N", x0 + 4 * s, py + ph - f.ascent, DIM, font=f)
+    ov.label("0", x0 + 4 * s, at(lo_d, 0.0)[1] - f.ascent / 2, DIM, font=f)
+    ov.label(f"depth {lo_d:.0f}-{hi_d:.0f} mm; red: a layer gave", px, y0 + 4 * s + f.descent, DIM, font=f, max_w=pw)
+
+
 def debrief_paths(ov: Overlay, camera, r: Rect, paths: list[tuple], s: float, square: bool = False) -> None:
     """The debrief's ideal path and the trainee's, projected with a view's camera and drawn over it
     (in front of skin and bone, which would hide them inside the head). `square`: the X-ray image,
@@ -198,7 +232,9 @@ def hud(ov: Overlay, h, r: Rect, s: float) -> None:
     """Step title, instruction and messages in a dark band at the top of the main view; the debrief,
     while shown, along its bottom."""
     if getattr(h, "debrief", None):
-        debrief(ov, h.debrief, r, s)
+        fit = debrief(ov, h.debrief, r, s)
+        if getattr(h, "debrief_force", None):
+            force_chart(ov, h.debrief_force, r, fit, s)
     f = ov.font
     pad = 8 * s
     width = min(r.w - 2 * pad, 640 * s)

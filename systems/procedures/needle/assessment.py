@@ -496,6 +496,8 @@ class AssessmentSystem:
         scene, pack = app.resource(NeedleScene), app.resource(PackResource).pack
         h.debrief = debrief_rows(v, scene, pack)
         h.debrief_paths = self.drawing.paths(v)
+        # a device's force profile (time, depth, force, events): drawn against depth over the debrief
+        h.debrief_force = [(p[1], p[2], p[3]) for p in v.get("force_profile") or []]
         self.drawn_path = len(v["needle_path"])
         self.drawing.show(v)
         # the panel keeps the headline; the whole debrief is over the surgeon's view
@@ -509,7 +511,7 @@ class AssessmentSystem:
 
     def close_debrief(self, app: App) -> None:
         h = hud(app)
-        h.debrief, h.debrief_paths = [], []
+        h.debrief, h.debrief_paths, h.debrief_force = [], [], []
         self.drawing.show(None)
 
     def values(self, app: App) -> dict:
