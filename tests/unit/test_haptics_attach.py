@@ -227,7 +227,10 @@ def test_the_stylus_aims_the_needle_outside_tissue_and_tissue_holds_the_hand_on_
 
         def steps(n=6):
             for _ in range(n):
-                time.sleep(0.004)  # the servo's thread reads the stylus meanwhile
+                seen = link.servo.ticks  # the servo's thread has read the stylus as it is now: two ticks on
+                deadline = time.monotonic() + 10.0
+                while link.servo.ticks < seen + 2 and time.monotonic() < deadline:
+                    time.sleep(0.001)
                 app.update(app.time.dt)
 
         assert st.placed and not st.locked
