@@ -186,7 +186,8 @@ class HybridBody(ProjectiveBody):
         rest_si = self.rest * self.unit
         links = meshgen.links_from_cells(self.tets)
         self.edge = float(np.mean(np.linalg.norm(rest_si[links[:, 0]] - rest_si[links[:, 1]], axis=1)))
-        self.K_e = tet_stiffness(self.D, self.vol, self.mu, self.lam)
+        T = len(self.tets)
+        self.K_e = tet_stiffness(self.D, self.vol, np.full(T, self.mu), np.full(T, self.lam))
         if self.coarse:
             h = self.coarse * self.edge
             lo = rest_si.min(axis=0)
@@ -221,6 +222,16 @@ class HybridBody(ProjectiveBody):
         self._momentum: tuple | None = None
         self._grab_key = b""
         self._f_peak = 0.0  # the largest force on a solved node since the targets last moved
+
+    def set_materials(self, E: ArrayLike, nu: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """Per-tetrahedron E and nu (see ProjectiveBody.set_materials): the rest stiffness too, and every
+        set-up assembled from the old one is dropped."""
+        mu, lam = super().set_materials(E, nu)
+        self.K_e = tet_stiffness(self.D, self.vol, mu, lam)
+        self._setups.clear()
+        self._setup = self._matrices = self._synced = self._quiet = None
+        self._cache, self._converged = None, False
+        return mu, lam
 
     # -- set-up per held and awake set ----------------------------------------------------------
     def _placed(self) -> None:

@@ -240,6 +240,28 @@ class ProjectiveBody(Body):
     def _placed(self) -> None:
         """Hook: the positions were set from outside the solve."""
 
+    def set_materials(self, E: ArrayLike, nu: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """Give each tetrahedron its own Young's modulus E (Pa) and Poisson's ratio nu (T,) in place of the
+        one material the body was made with (a layered tissue); what was prepared from the old weights is
+        made again. Returns the elements' Lame parameters (mu, lam). Equal values everywhere give exactly
+        the body made with that material."""
+        if self.surface:
+            raise UserError("materials per element need tetrahedra (a sheet has one material)")
+        T = len(self.tets)
+        E = np.asarray(E, dtype=np.float64).reshape(-1)
+        nu = np.asarray(nu, dtype=np.float64).reshape(-1)
+        if len(E) != T or len(nu) != T:
+            raise UserError(f"materials: expected one E and one nu per tetrahedron ({T}), got {len(E)} and {len(nu)}")
+        for e, v in {(float(a), float(b)) for a, b in zip(E, nu)}:  # a few distinct pairs: one per layer
+            check_elastic(e, v, 1.0)
+        # the same operations as check_elastic's, element by element: equal inputs give equal bits
+        mu = E / (2.0 * (1.0 + nu))
+        lam = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+        self.w_arap = 2.0 * mu * self.vol
+        self.w_vol = 3.0 * lam * self.vol
+        self._factor, self._factor_key, self._rate = None, None, None
+        return mu, lam
+
     def _stiffness(self) -> sp.csr_matrix:
         """Sum over live tets of (w_a + w_v) D D^T scattered to the corners (one matrix for x, y, z)."""
         t = self.tets[self.active]

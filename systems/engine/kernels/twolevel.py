@@ -49,20 +49,22 @@ def trilinear_weights(points, lo, spacing, dims):
 def tet_stiffness(D, vol, mu, lam):
     """Element stiffness (T, 12, 12) of linear elasticity, energy V (mu |eps|^2 + lam / 2 tr(eps)^2),
     dof 3 a + i for corner a and axis i; D (T, 4, 3) holds each corner's shape-function gradient (the
-    projective body's rest operator). At rest this is the Hessian of the corotational energy, whose
-    rotation term vanishes to first order."""
+    projective body's rest operator), mu and lam (T,) each element's Lame parameters (a layered body has
+    several). At rest this is the Hessian of the corotational energy, whose rotation term vanishes to
+    first order."""
     T = D.shape[0]
     K = np.zeros((T, 12, 12))
     for t in range(T):
         v = vol[t]
+        mu_t, lam_t = mu[t], lam[t]
         for a in range(4):
             for b in range(4):
                 gg = D[t, a, 0] * D[t, b, 0] + D[t, a, 1] * D[t, b, 1] + D[t, a, 2] * D[t, b, 2]
                 for i in range(3):
                     for j in range(3):
-                        k = lam * D[t, a, i] * D[t, b, j] + mu * D[t, a, j] * D[t, b, i]
+                        k = lam_t * D[t, a, i] * D[t, b, j] + mu_t * D[t, a, j] * D[t, b, i]
                         if i == j:
-                            k += mu * gg
+                            k += mu_t * gg
                         K[t, 3 * a + i, 3 * b + j] = v * k
     return K
 
