@@ -213,6 +213,13 @@ class FluoroRenderer:
         self.blur: np.ndarray | None = None  # blurred(self.path), kept with it
         self._pose: tuple | None = None  # the arm's pose and image size the kept shares were made for
         self._parts: dict = {}  # mesh key -> (its share of L, that share's blur) (see capture)
+        # In the window a single image is made one frame after the shot, once a frame saying so has been
+        # drawn: making it takes a software renderer a good part of a second at full-window size, and
+        # a trainee who pressed x sees the cue at once instead of a frozen window. Off screen (tests,
+        # snapshots, replays) the image is made at the shot itself.
+        self.defer_shots = False
+        self.waiting = 0  # the image the view announces and has not made yet (0: none)
+        self.cue_drawn = 0  # the last image whose cue a drawn frame has shown
 
     def capture(self, meshes: list[XrayMesh], camera: Camera) -> np.ndarray:
         """Attenuation image (size x size, float32, rows top first) of `meshes` seen by `camera`.
@@ -285,6 +292,10 @@ class FluoroRenderer:
             if self.path is not None and contrast != self.contrast:  # the monitor's window/level turned
                 self._show(contrast)
             return False
+        if self.defer_shots and not draw.live and self.cue_drawn != draw.image_id:
+            self.waiting = draw.image_id  # drawn with its cue first (see __init__)
+            return False
+        self.waiting = 0
         if draw.size != self.size:
             self._resize(draw.size)
         path = self.capture(draw.meshes, draw.camera)

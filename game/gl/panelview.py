@@ -59,19 +59,36 @@ def window_level_text(window: float, level: float) -> str:
     return f"W x{window:.2f}  L {level:+.2f}  (right-click: reset)"
 
 
+#: what the C-arm view says between the shot and its image (chainsim.game.gl.fluoro: the window's cue)
+TAKING = "Taking X-ray..."
+
+
 def fluoro_status(
-    ov: Overlay, status: str, live: bool, has_image: bool, r: Rect, s: float, window_level: str = ""
+    ov: Overlay,
+    status: str,
+    live: bool,
+    has_image: bool,
+    r: Rect,
+    s: float,
+    window_level: str = "",
+    taking: bool = False,
 ) -> None:
     """The C-arm view's lines: what the image is and costs along the bottom, LIVE while the pedal is held,
-    the monitor's window/level once turned from automatic (with how to reset it), and how to make the
-    first image before there is one."""
+    the monitor's window/level once turned from automatic (with how to reset it), how to make the
+    first image before there is one, and (`taking`) that an image is being made."""
     f = ov.font
+    if taking:
+        w = min(f.width(TAKING) + 24 * s, r.w - 8 * s)
+        h = f.line_h + 12 * s
+        x, y = r.x + (r.w - w) / 2, r.y + (r.h - h) / 2
+        ov.rect(x, y, w, h, (0.0, 0.0, 0.0, 0.75))
+        ov.label(TAKING, x + 12 * s, y + 6 * s + f.descent, MESSAGE, max_w=w - 16 * s)
     if window_level and has_image:
         w = min(f.width(window_level) + 12 * s, r.w - 8 * s)
         y = r.y + r.h - 2 * f.line_h - 14 * s  # under the view's title and LIVE
         ov.rect(r.x + r.w - w - 4 * s, y - 2 * s, w, f.line_h + 4 * s, (0, 0, 0, 0.55))
         ov.label(window_level, r.x + r.w - w + 2 * s, y + f.descent, TEXT, max_w=w - 8 * s)
-    if not has_image:
+    if not has_image and not taking:
         msg = "No image yet: Take X-ray (x)"
         ov.label(msg, r.x + max((r.w - f.width(msg)) / 2, 4 * s), r.y + r.h / 2, DIM, max_w=r.w - 8 * s)
     if status:

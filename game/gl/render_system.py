@@ -331,7 +331,7 @@ def fluoro_draw(app) -> FluoroDraw | None:
     camera = carm_camera(az, el, iso, SOURCE_TO_ISO_MM, SOURCE_TO_DETECTOR_MM, DETECTOR_MM)
     status = (
         f"{VIEW_NAMES.get(carm.view, carm.view)} (az {carm.azimuth_deg:.0f}, el {carm.elevation_deg:.0f}) - "
-        f"{carm.shots} images, {carm.exposure_s:.1f} s, {carm.dose_mgy:.2f} mGy"
+        f"{carm.shots} image{'' if carm.shots == 1 else 's'}, {carm.exposure_s:.1f} s, {carm.dose_mgy:.2f} mGy"
     )
     images = carm.shots + (1 if carm.live_s > 0 else 0)
     side = max((min(vp.rect.w, vp.rect.h) for vp in vs.viewports if vp.kind == "fluoro"), default=0)

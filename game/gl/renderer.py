@@ -159,6 +159,7 @@ class Renderer:
         # viewport rect -> label in sight (this frame): a list of bools, or of queries not yet read
         self._labels_seen: dict[tuple, list] = {}
         self._fluoro: FluoroRenderer | None = None  # made on first use (only layouts with a C-arm view)
+        self.defer_shots = False  # the window's: an X-ray's cue is drawn before its image is made
         self.cull_enclosed = True  # off: meshes inside an opaque one are drawn anyway (tests compare)
         self.cull_back = True  # off: back faces of closed opaque meshes are drawn too (tests compare)
         self._label_q: list[list] = []  # occlusion queries of the labels, a set per scene drawn in a frame
@@ -174,6 +175,7 @@ class Renderer:
         """The C-arm image maker (chainsim.game.gl.fluoro), created on first use."""
         if self._fluoro is None:
             self._fluoro = FluoroRenderer(self.ctx)
+            self._fluoro.defer_shots = self.defer_shots
         return self._fluoro
 
     # -- meshes ------------------------------------------------------------------------------
@@ -756,7 +758,9 @@ class Renderer:
                 panelview.view_title(ov, view.title, r, s)
             if view.kind == "fluoro" and frame.fluoro is not None:
                 wl = panelview.window_level_text(frame.fluoro.window, frame.fluoro.level)
-                panelview.fluoro_status(ov, frame.fluoro.status, frame.fluoro.live, self.fluoro.shown, r, s, wl)
+                fr, fd = self.fluoro, frame.fluoro
+                panelview.fluoro_status(ov, fd.status, fd.live, fr.shown, r, s, wl, taking=bool(fr.waiting))
+                fr.cue_drawn = fr.waiting or fr.cue_drawn  # the next step makes the image (FluoroRenderer.update)
                 if frame.hud is not None and frame.hud.debrief_paths and self.fluoro.shown:
                     panelview.debrief_paths(ov, frame.fluoro.camera, r, frame.hud.debrief_paths, s, square=True)
             if view.camera is not None:

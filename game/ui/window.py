@@ -187,6 +187,7 @@ def _attach_renderer(app, window, ctx, w: int) -> render.RenderTarget:
     target = render.RenderTarget(ctx, ctx.screen, fw / max(w, 1), offscreen=False, size=(fw, fh))
     app.insert_resource(target)
     app.add_plugin(render.plugin)
+    app.resource(render.Renderer).defer_shots = True  # the X-ray's cue first (FluoroRenderer.__init__)
     if not getattr(window.config, "sample_buffers", 0):
         # without multisampling (software GL) a view's image can be kept and copied while it is unchanged
         app.resource(render.Renderer).cache_views()

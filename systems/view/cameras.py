@@ -150,16 +150,26 @@ class ViewState:
 
 def main_view(vs: ViewState) -> Viewport | None:
     """The view that shows the step text, messages and pages: the first visible orbit view on screen,
-    else the first visible 3-D view; while another view fills the whole window (an enlarged X-ray,
-    every other view given way) that one, so the pages and the step text are not squeezed into a view
-    with no room."""
+    else the first visible 3-D view; while another view is more than MAIN_GIVES_WAY times its size (an
+    X-ray enlarged into its place, or over the whole window) that one, so the pages and the step text are
+    not squeezed into a small inset."""
     on_screen = [vp for vp in vs.viewports if vp.visible and vp.kind != "panel" and vp.rect.w > 0 and vp.rect.h > 0]
     pool = on_screen or [vp for vp in vs.viewports if vp.visible and vp.kind != "panel"]  # before the first layout
     shown = [vp for vp in pool if vp.is_3d]
     views = [vp for vp in shown if vp.kind == "orbit"] or shown
-    if views:
+    biggest = max(pool, key=_area) if pool else None
+    if views and (biggest is None or _area(biggest) <= MAIN_GIVES_WAY * _area(views[0])):
         return views[0]
-    return max(pool, key=lambda vp: vp.rect.w * vp.rect.h) if pool else None
+    return biggest
+
+
+#: the 3-D view gives the step text and pages to a view this many times its size (an X-ray enlarged into
+#: its place: the 3-D view is then the small inset)
+MAIN_GIVES_WAY = 2.0
+
+
+def _area(vp: Viewport) -> float:
+    return float(vp.rect.w) * float(vp.rect.h)
 
 
 def _xyz(p) -> tuple[float, float, float]:
