@@ -87,6 +87,7 @@ def _open_window(pyglet, w: int, h: int, caption: str):
     (`chainsim bench render --pack prp`), which costs more than smooth edges are worth."""
     base = dict(major_version=3, minor_version=3, forward_compatible=True, double_buffer=True, depth_size=24)
     last = None
+    w, h = fit_screen(pyglet, w, h)
     for extra in (dict(sample_buffers=1, samples=4), {}):
         try:
             config = pyglet.gl.Config(**base, **extra)
@@ -100,6 +101,16 @@ def _open_window(pyglet, w: int, h: int, caption: str):
             continue
         return window
     raise last
+
+
+def fit_screen(pyglet, w: int, h: int) -> tuple[int, int]:
+    """The window size asked for, made no larger than the display's screen (a 1024x768 screen gets a
+    1024x768 window, not a 1280x800 one whose controller runs off its edge)."""
+    try:
+        screen = pyglet.display.get_display().get_default_screen()
+        return max(min(w, int(screen.width)), 320), max(min(h, int(screen.height)), 240)
+    except Exception:  # no screen to ask (some headless displays): the size asked for
+        return w, h
 
 
 def server_login(values: dict):
@@ -177,7 +188,7 @@ def _window_for(app, pack: str):
             f"this display has no OpenGL 3.3 ({type(e).__name__}: {e}); "
             f"render off screen instead: chainsim snapshot {pack} --out shot.png"
         ) from None
-    return window, ctx, w
+    return window, ctx, int(window.width)  # the screen may have asked for a smaller window (fit_screen)
 
 
 def _attach_renderer(app, window, ctx, w: int) -> render.RenderTarget:
