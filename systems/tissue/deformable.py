@@ -199,6 +199,10 @@ class Deformable:
     model_reason: str = field(default="", metadata={"digest": False})
     mesh_data: MeshData | None = field(default=None, metadata={"digest": False})  # to rebuild on a model switch
     held_targets: np.ndarray = _nodigest(lambda: np.zeros((0, 3)))
+    # Young's modulus (Pa) and Poisson's ratio per tetrahedron, when a feature gives the body several
+    # materials (set_element_materials; empty: E and nu above for the whole body)
+    element_E: np.ndarray = _nodigest(lambda: np.zeros(0))
+    element_nu: np.ndarray = _nodigest(lambda: np.zeros(0))
     transient: np.ndarray = _nodigest(_empty_ids)  # grabbed for one step only (a GrabRequest without hold)
     last_order: np.ndarray = _nodigest(_empty_ids)
     last_sponsor: np.ndarray = _nodigest(_empty_ids)
@@ -484,12 +488,7 @@ def use_model(d: Deformable, model: str, where: str = "deformable", initial: boo
                 rotation_iterations=d.rotation_iterations,
             )
         settings.update(row)  # an auto choice builds exactly the row's setting
-        try:
-            body = make_body(
-                model, d.rest.astype(np.float64), tets=tets, triangles=mesh.triangles, fixed=d.fixed_mask, **settings
-            )
-        except UserError as e:
-            raise UserError(f"{where}: {e}") from None
+        body = _elastic_body(d, model, tets, settings, where)
         body.positions = d.pos if d.pos.dtype == np.float64 else d.pos.astype(np.float64)
         d.pos = body.positions
         d.body = body
@@ -501,6 +500,39 @@ def use_model(d: Deformable, model: str, where: str = "deformable", initial: boo
     if not initial:  # a switch at run time: everything is redrawn
         d.mark_dirty(np.arange(d.n_elements))
         d.version += 1
+
+
+def _elastic_body(d: Deformable, model: str, tets: np.ndarray | None, settings: dict, where: str) -> Any:
+    """A body of `model` from `d`'s rest shape, with its materials per element if a feature gave some."""
+    assert d.mesh_data is not None
+    try:
+        body = make_body(
+            model, d.rest.astype(np.float64), tets=tets, triangles=d.mesh_data.triangles, fixed=d.fixed_mask, **settings
+        )
+    except UserError as e:
+        raise UserError(f"{where}: {e}") from None
+    if len(d.element_E) and hasattr(body, "set_materials") and tets is not None:
+        body.set_materials(d.element_E, d.element_nu)
+    return body
+
+
+def set_element_materials(d: Deformable, E: np.ndarray, nu: np.ndarray, where: str) -> None:
+    """Give `d`'s tetrahedra their own E (Pa) and nu, kept across model switches: the projective and
+    hybrid bodies take them in their elastic energy; ChainMail has no moduli, and XPBD keeps the body's
+    E and nu (model_reason says so)."""
+    mesh = d.mesh_data
+    if mesh is None or mesh.tets is None or len(E) != len(mesh.tets) or len(nu) != len(mesh.tets):
+        raise UserError(f"{where}: materials per element need one E and one nu per tetrahedron of the mesh")
+    d.element_E = np.asarray(E, dtype=np.float64).copy()
+    d.element_nu = np.asarray(nu, dtype=np.float64).copy()
+    body = d.body
+    if hasattr(body, "set_materials") and not getattr(body, "surface", True):
+        try:
+            body.set_materials(d.element_E, d.element_nu)
+        except UserError as e:
+            raise UserError(f"{where}: {e}") from None
+    elif d.model_used == "xpbd":
+        d.model_reason += "; xpbd keeps one E and nu for the whole body (per-element moduli: projective, hybrid)"
 
 
 def build_pull(p: Pull, ctx) -> None:

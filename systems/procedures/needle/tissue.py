@@ -41,7 +41,7 @@ from chainsim.systems.procedures.needle.collision import NeedleHit
 from chainsim.systems.procedures.needle.components import Needle, NeedleState
 from chainsim.systems.procedures.needle.manifest import NeedleScene
 from chainsim.systems.tissue import deformation
-from chainsim.systems.tissue.deformable import Deformable
+from chainsim.systems.tissue.deformable import Deformable, set_element_materials
 
 ORDER_NEEDLE_TISSUE = ORDER_COLLISION + 50
 
@@ -337,6 +337,9 @@ def read_scene(app: App) -> NeedleTissueScene | None:
                         f"tissue_layers: '{name}' has tetrahedra of mesh layer {missing[0]} but no "
                         f"[tissue_layers.NAME] has mesh_layer = {missing[0]}"
                     )
+                # the body's elastic energy takes each layer's own modulus (kPa in the table)
+                li = idx[mesh.layers]
+                set_element_materials(d, layers.E[li] * 1e3, layers.nu[li], f"tissue_layers ('{name}')")
                 rest = to_world(esper.try_component(ent, Transform), d.rest.astype(np.float64))
                 f, s, nrm = boundaries(mesh.tets, idx[mesh.layers], rest)
                 bodies.append(TissueBody(ent, name, f, s, nrm, rest))
