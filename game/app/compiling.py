@@ -4,7 +4,7 @@ ready, and the progress line on the HUD.
 On a fresh install the numba kernels take minutes to compile (chainsim.systems.engine.warmup). The window
 opens at once and they compile in child processes (`Compiler`) while the trainee signs in and reads
 the help. Until the groups the scene needs are compiled (`needed_groups`: the normals and collision
-kernels every scene draws and steps with, and the kernels of each soft body's model), `KernelGate`
+kernels every scene draws and steps with, and the kernels of each soft body's own model), `KernelGate`
 lets through what needs no kernel - the pointer moving, a resize, the sign-in form, F1 and the help
 pages and their buttons - and holds everything else in order: the scene is not stepped while input
 is held, the window keeps drawing and answering, and the HUD says that the input waits (how many
@@ -21,8 +21,9 @@ import esper
 
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseMove, Resize
+from chainsim.components.resources import PackResource
 from chainsim.systems.engine.chainmail_params import order_name
-from chainsim.systems.engine.warmup import GEOMETRY, MODELS, MOVING, Compiler, chainmail_group
+from chainsim.systems.engine.warmup import GEOMETRY, HYBRID, MODELS, MOVING, Compiler, chainmail_group
 from chainsim.systems.tissue.deformable import Deformable
 
 #: keys that open or move through pages (no kernel behind them)
@@ -31,20 +32,34 @@ PAGE_KEYS = {"f1", "f12"}
 PAGE_WIDGETS = {"help", "sign_in"}
 
 
+def _switches_models(app) -> bool:
+    """Whether the scene's layout has the model switch (the m key): then every model is in reach."""
+    pack = app.get_resource(PackResource)
+    widgets = pack.layout.get("widgets", []) if pack is not None else []
+    return any(w.get("name") == "model" for w in widgets)
+
+
 def needed_groups(app) -> list[str]:
-    """The kernel groups the scene of `app` can call: normals and collision always; with soft bodies the
-    normals of moving meshes, ChainMail's for each body's cascade order and precision (its model's, or
-    the one the m key switches to) and the other models too."""
+    """The kernel groups the scene of `app` can call: normals, collision and the needle's force always;
+    with soft bodies the normals of moving meshes and each body's own model's group (ChainMail's for its
+    cascade order and precision, also under a hybrid body that starts with ChainMail); with the model
+    switch in the layout every model's. The rest compile after, where nothing waits on them."""
     names = [GEOMETRY]
+    every = _switches_models(app)
     with app.active():
         for _ent, d in esper.get_component(Deformable):
             body = getattr(d, "body", None)
             # the body's own order, else the material's: the m key reaches ChainMail from every model
             order = getattr(body, "order", None) or d.order
-            names.append(MOVING)
-            if order is not None:
+            if every or d.model_used == "hybrid":
+                names.append(HYBRID)
+            chain = every or d.model_used == "chainmail" or getattr(body, "start", None) == "chainmail"
+            if chain and order is not None:
                 names.append(chainmail_group(order_name(order), str(d.dtype)))
-            names.append(MODELS)
+            if every or d.model_used not in ("hybrid", "chainmail") or getattr(body, "sleep", 0.0):
+                names.append(MODELS)
+            # after the models' groups: the first two compile side by side, and a model's take longest
+            names.append(MOVING)
     return list(dict.fromkeys(names))
 
 

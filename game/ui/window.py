@@ -48,7 +48,7 @@ from chainsim.game.records.store import default_path as default_records_path
 from chainsim.game.ui.frameloop import FixedStepper, FrameLog
 from chainsim.game.ui.signin import SignInForm, remember, remembered, status_line
 from chainsim.systems.engine.errors import UserError
-from chainsim.systems.engine.warmup import GEOMETRY, Compiler
+from chainsim.systems.engine.warmup import GEOMETRY, HAPTICS, Compiler
 from chainsim.systems.motion.input import InputLog
 from chainsim.systems.procedures.needle import haptics
 from chainsim.systems.view.cameras import ViewState
@@ -233,7 +233,8 @@ class WindowSession:
         self.swallow_text = False  # the key that answered the question types nothing
         self.said_ready = self.said_all = self.said_first = False
         self.pending: PendingInput = app.resource(PendingInput)
-        needed = needed_groups(app)
+        # a force-feedback device's servo runs from the first frame: its kernels first too
+        needed = needed_groups(app) + ([HAPTICS] if getattr(args, "device", None) else [])
         compiler.prefer(needed)
         self.gate = None if compiler.ready(needed) else KernelGate(compiler, needed, scripted=bool(script))
         # until the normals kernel is compiled the first uploads take numpy's normals (the same vectors)

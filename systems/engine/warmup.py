@@ -67,7 +67,10 @@ def _chainmail(order: str, dtype) -> None:
     # numba compiles one version per argument type: with and without anchors
     for fixed in ([0], None):
         body = ChainMailBody(rest, links, relax=2, exact=True, order=order, dtype=dtype, fixed=fixed)
-        body.grab([len(rest) - 1], rest[-1] + 0.5)
+        # a pull out of reach, then the same element dragged on: the second searches against the fixed
+        # elements' field (exact._pin_field), as a drag does
+        for far in (0.5, 0.6):
+            body.grab([len(rest) - 1], rest[-1] + far)
         body.step()  # every body's step checks its rows (kernels.rows), one version per precision
         body.cut(rest[0] - 1.0, rest[-1] + 1.0, normal=[0.0, 0.0, 1.0], depth=10.0)
 
@@ -81,6 +84,24 @@ def _parallel_cascade(dtype) -> None:
             workspace=body.workspace, parallel=True)  # fmt: skip
 
 
+def _pull(body) -> None:
+    # two pulls (a moving target takes the hybrid body's linear start), then a release
+    for lift in (0.1, 0.15):
+        body.grab([1], body.rest[1] + lift)
+        body.step(1 / 60)
+    body.release()
+    body.step(1 / 60)
+
+
+def _hybrid() -> None:
+    # the hybrid body as packs set it up (no sleeping), pulled; what a tissue scene waits for
+    rest, tets, _links, _tris = _grid()
+    body = HybridBody(rest, tets, fixed=[0])
+    _pull(body)
+    # the start's look at the element that failed it last time (a tool held short in tissue)
+    det_at(body.x, body.tets, body.D, np.int64(0))
+
+
 def _models() -> None:
     rest, tets, _links, tris = _grid()
     for make in (
@@ -90,31 +111,16 @@ def _models() -> None:
         lambda: XPBDBody(rest[: tris.max() + 1], triangles=tris, fixed=[0]),
         lambda: ProjectiveBody(rest, tets, fixed=[0]),
         lambda: ProjectiveBody(rest[: tris.max() + 1], triangles=tris, fixed=[0]),
-        # the m key reaches these too: hybrid on volumes, SurfaceChainMail on sheets (the cutting layers)
-        lambda: HybridBody(rest, tets, fixed=[0]),
-        lambda: HybridBody(rest, tets, fixed=[0], sleep=0.01),  # the wake front and its drift rings
+        # the m key reaches this too on sheets (the cutting layers)
         lambda: SurfaceChainMailBody(rest[: tris.max() + 1], tris, fixed=[0]),
+        lambda: HybridBody(rest, tets, fixed=[0], sleep=0.01),  # the wake front and its drift rings
     ):
-        body = make()
-        # two pulls (a moving target takes the hybrid body's linear start), then a release
-        for lift in (0.1, 0.15):
-            body.grab([1], body.rest[1] + lift)
-            body.step(1 / 60)
-        body.release()
-        body.step(1 / 60)
+        _pull(make())
     # the hybrid line search's last resort (projective dynamics' CG step), which a small pull never needs
     n = len(rest)
     indptr, indices = np.arange(n + 1, dtype=np.int64), np.arange(n, dtype=np.int64)
     pcg3(indptr, indices, np.ones(n), np.ones(n), np.ones((n, 3)), np.zeros((n, 3)), 2, 1e-10,
          *(np.zeros((n, 3)) for _ in range(4)))  # fmt: skip
-    # the hybrid start's look at the element that failed it last time (a needle held short in tissue)
-    body = HybridBody(rest, tets, fixed=[0])
-    det_at(body.x, body.tets, body.D, np.int64(0))
-    # the needle's force on soft tissue (a tissue pack's needle evaluates it every frame)
-    lengths = np.array([1.0, 2.0])
-    needle_force.axial_force(1.0, 0.2, 10.0, True, 0.3, lengths, lengths, lengths, lengths, 5.0, 0.5, 0.1)
-    # the haptic servo's kernels (a device on the needle: chainsim.systems.engine.haptics)
-    haptic_servo.warm()
 
 
 def _csr(tris: np.ndarray, n: int):
@@ -130,37 +136,43 @@ def _geometry() -> None:
     rest, _tets, _links, tris = _grid()
     tris = np.ascontiguousarray(tris, dtype=np.int64)
     n = int(tris.max()) + 1
-    vertex_normals_kernel(np.ascontiguousarray(rest[:n]), tris, np.zeros((n, 3)))
+    # a GPU mesh's first normals: its float32 positions into float64 (chainsim.game.gl.meshbuf.GpuMesh)
+    vertex_normals_kernel(np.ascontiguousarray(rest[:n], dtype=np.float32), tris, np.zeros((n, 3)))
     SegmentTree.build(rest, tris).first_hit(rest[0] - 1.0, rest[-1] + 1.0)
+    # the needle's force on soft tissue (a tissue pack's needle evaluates it every frame; a second to compile)
+    lengths = np.array([1.0, 2.0])
+    needle_force.axial_force(1.0, 0.2, 10.0, True, 0.3, lengths, lengths, lengths, lengths, 5.0, 0.5, 0.1)
 
 
 def _moving_normals() -> None:
-    # the argument types the app passes: float64 positions from the engine, float32 from the window's
-    # GPU meshes (chainsim.game.gl.meshbuf: whole-mesh normals into float32 or float64, and the moved
-    # vertices' normals while a tool drags tissue); missing one froze a first instrument grip for seconds
+    # the argument types the window passes: its GPU meshes' float32 positions (chainsim.game.gl.meshbuf:
+    # whole-mesh normals into the float32 copy, and the moved vertices' normals while a tool drags
+    # tissue); missing one froze a first instrument grip for seconds. The engine's float64 positions
+    # never reach these kernels, so no float64 version is compiled
     rest, _tets, _links, tris = _grid()
     tris = np.ascontiguousarray(tris, dtype=np.int64)
     n = int(tris.max()) + 1
     ptr, idx = _csr(tris, n)
-    for pos_type, out_types in ((np.float64, (np.float64,)), (np.float32, (np.float32, np.float64))):
-        pos = np.ascontiguousarray(rest[:n], dtype=pos_type)
-        for out_type in out_types:
-            vertex_normals_kernel(pos, tris, np.zeros((n, 3), out_type))
-        normals = np.zeros((n, 3), pos_type)
-        moved_normals_kernel(pos, tris, ptr, idx, np.arange(2, dtype=np.int64), np.zeros(n, np.bool_), normals)
+    pos = np.ascontiguousarray(rest[:n], dtype=np.float32)
+    vertex_normals_kernel(pos, tris, np.zeros((n, 3), np.float32))
+    normals = np.zeros((n, 3), np.float32)
+    moved_normals_kernel(pos, tris, ptr, idx, np.arange(2, dtype=np.int64), np.zeros(n, np.bool_), normals)
     # large meshes on machines with several cores take the parallel gather (float32, the GPU copy);
     # with fewer threads normals_into never calls it, and a parallel kernel is slow to compile
     if numba.config.NUMBA_NUM_THREADS >= PARALLEL_THREADS:
-        pos32 = np.ascontiguousarray(rest[:n], dtype=np.float32)
-        _normals_parallel(pos32, tris, ptr, idx, np.zeros((n, 3), np.float32), 2)
+        _normals_parallel(pos, tris, ptr, idx, np.zeros((n, 3), np.float32), 2)
 
 
 #: the kernel groups, in the order they are compiled when nothing asks for another first: what every
-#: window draws with (normals) and a needle's collisions first, then each model a pack can pick (a
-#: pack's own go first: Compiler.prefer)
+#: window draws with (normals), a needle's collisions and force first, then each model a pack can pick
+#: (a pack's own go first: Compiler.prefer); each group holds what a scene of that model calls, so a
+#: scene waits only on its own (chainsim.game.app.compiling.needed_groups)
 GEOMETRY = "normals and collision"
 MOVING = "normals of moving meshes"
-MODELS = "XPBD and projective"  # and the hybrid body, SurfaceChainMail, the needle's tissue force and haptics
+HYBRID = "hybrid"  # the hybrid body as packs set it up
+#: and SurfaceChainMail, a sleeping hybrid body and its CG fallback: what only the m key or a rarer setting reaches
+MODELS = "XPBD and projective"
+HAPTICS = "haptics"  # the servo's kernels (a force-feedback device on the needle: chainsim.systems.engine.haptics)
 PRECISIONS = {"float64": np.float64, "float32": np.float32}
 
 
@@ -173,6 +185,7 @@ PARALLEL = "ChainMail level-parallel"
 
 GROUPS: dict[str, Callable[[], None]] = {
     GEOMETRY: _geometry,
+    HYBRID: _hybrid,  # the longest a tissue scene waits on: begun beside the normals
     MOVING: _moving_normals,
     PARALLEL: lambda: _parallel_cascade(np.float64),  # long (a parallel kernel), shares nothing: begun early
     **{
@@ -182,6 +195,7 @@ GROUPS: dict[str, Callable[[], None]] = {
     },
     f"{PARALLEL} (float32)": lambda: _parallel_cascade(np.float32),
     MODELS: _models,
+    HAPTICS: haptic_servo.warm,
 }
 
 
@@ -203,6 +217,8 @@ def family(name: str) -> str:
     """Groups of one family share most of their kernels (every ChainMail order of one precision shares
     relaxation and the exact-limit pass): one of them runs alone until it is done, and the others then
     load the shared kernels from the cache instead of compiling them a second time alongside."""
+    if name == MODELS:  # its sleeping hybrid body calls every kernel the hybrid group compiles
+        return HYBRID
     return name.rsplit(" ", 1)[1] if name.startswith("ChainMail ") and name.endswith(tuple(PRECISIONS)) else name
 
 

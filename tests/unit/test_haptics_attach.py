@@ -108,9 +108,9 @@ def _signatures() -> dict:
 
 
 def test_a_device_run_compiles_nothing_warmup_left_out(aim_script):
-    from chainsim.systems.engine.warmup import GROUPS, MODELS
+    from chainsim.systems.engine.warmup import GROUPS, HAPTICS
 
-    GROUPS[MODELS]()
+    GROUPS[HAPTICS]()
     before = _signatures()
     main(["-q", "run", "prp", "--device", "sim", "--input", str(aim_script), "--steps", "700"])
     after = _signatures()

@@ -31,8 +31,13 @@ def _signatures() -> dict[str, set[str]]:
     return out
 
 
+#: every built-in pack with scripts: each drags in its own ways (a pull held on out of reach searches
+#: against the fixed elements' field, exact._pin_field, which warmup once left out)
+SCRIPTED = sorted(p.parent.parent.name for p in (ROOT / "assets").glob("*/scripts/*.toml"))
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("pack", ["cutting", "prp"])
+@pytest.mark.parametrize("pack", sorted(set(SCRIPTED)))
 def test_no_pack_needs_a_kernel_type_warmup_left_out(pack, monkeypatch):
     monkeypatch.setenv("PYGLET_HEADLESS", "true")
     from chainsim.components.resources import PendingInput
@@ -146,17 +151,17 @@ def test_the_scene_needs_its_own_models_kernels():
         assert needed_groups(app) == [warmup.GEOMETRY]
     finally:
         app.close()
-    app = build_app("prp")  # the needle's soft tissue: the hybrid body and the needle's force
+    app = build_app("prp")  # the needle's soft tissue: the hybrid body (the needle's force is with collision)
     try:
-        needed = needed_groups(app)
-        assert needed[:2] == [warmup.GEOMETRY, warmup.MOVING] and warmup.MODELS in needed
+        # no model switch in its layout: the other models compile after, where the scene does not wait
+        assert needed_groups(app) == [warmup.GEOMETRY, warmup.HYBRID, warmup.MOVING]
     finally:
         app.close()
     app = build_app("cutting")
     try:
         needed = needed_groups(app)
-        assert needed[:2] == [warmup.GEOMETRY, warmup.MOVING] and warmup.chainmail_group("schill", "float64") in needed
-        assert warmup.MODELS in needed  # the m key switches the tissue's model
+        assert needed[0] == warmup.GEOMETRY and warmup.chainmail_group("schill", "float64") in needed
+        assert {warmup.MOVING, warmup.MODELS, warmup.HYBRID} <= set(needed)  # the m key switches the model
     finally:
         app.close()
 
@@ -185,7 +190,7 @@ def test_warmup_leaves_out_only_groups_no_body_takes_with_that_many_threads(thre
     # the level-parallel cascade is compiled exactly where a body would take it on some mesh
     takes = any(waves.parallel_wins(n, threads) for n in (10**4, 10**5, 10**6, 10**7))
     assert (warmup.PARALLEL in groups) == takes
-    assert {warmup.GEOMETRY, warmup.MOVING, warmup.MODELS} <= set(groups)
+    assert {warmup.GEOMETRY, warmup.MOVING, warmup.HYBRID, warmup.MODELS, warmup.HAPTICS} <= set(groups)
 
 
 @pytest.mark.parametrize("pack", sorted(p.name for p in (ROOT / "assets").iterdir() if (p / "pack.toml").is_file()))
