@@ -175,6 +175,9 @@ def attempt_recording(app: App, pack: packs.Pack, settings: dict | None) -> str:
         digest=world_digest(app),
         settings={k: v for k, v in (settings or {}).items() if k in ("class", "trainee", "model")},
     )
+    trial = app.resource(Settings).values.get("protocol")
+    if isinstance(trial, dict):  # a study's trial: the records server checks it against its register
+        recording["protocol"] = {k: trial.get(k) for k in ("study", "participant", "order", "trial", "condition")}
     return provenance.encode_recording(recording)
 
 

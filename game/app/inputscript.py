@@ -49,6 +49,7 @@ def parse_events(data: dict, where: str) -> list[tuple[float, Any]]:
         "digest",
         "settings",
         "chainsim",
+        "protocol",  # a study trial's recording names its trial (chainsim.game.records.protocol)
     }
     if unknown:
         raise UserError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}; expected format, event, description")

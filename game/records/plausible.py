@@ -43,8 +43,10 @@ AIMED_PX = 40.0
 MAX_DRAG_PX_PER_S = 20000.0
 
 
-def window_form(recording: dict[str, Any], pack_dt: float) -> None:
-    """UserError naming the first thing in ``recording`` the window never records, if any."""
+def window_form(recording: dict[str, Any], pack_dt: float, session_kinds: Iterable[str] = ()) -> None:
+    """UserError naming the first thing in ``recording`` the window never records, if any. ``session_kinds``:
+    kinds of event a study session sets itself, which its caller checks (chainsim.game.records.protocol)."""
+    allowed = WINDOW_EVENTS | frozenset(session_kinds)
     dt = recording.get("dt")
     if not isinstance(dt, (int, float)) or abs(float(dt) - pack_dt) > DT_TOLERANCE:
         raise UserError(
@@ -53,7 +55,7 @@ def window_form(recording: dict[str, Any], pack_dt: float) -> None:
         )
     for i, ev in enumerate(recording.get("event") or []):
         kind = ev.get("kind") if isinstance(ev, dict) else None
-        if kind not in WINDOW_EVENTS:
+        if kind not in allowed:
             raise UserError(
                 f"recording event {i + 1} is a {kind!r} event, which the window never records (it records "
                 f"{', '.join(sorted(WINDOW_EVENTS))}): a scripted attempt cannot be uploaded as a trainee's"

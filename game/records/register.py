@@ -4,7 +4,7 @@ Before their first trial a participant is entered in the study's register with t
 methods reviewer asks for: the group (novice or expert), the year of training and the number of
 procedures performed. Registering gives them the next ``slot`` of the study's one allocation
 sequence: slot k takes row k of the protocol's counterbalanced design (a balanced Latin square over
-each task's conditions, chainsim.game.ui.study.latin_row), so consecutive participants take
+each task's conditions, chainsim.game.records.protocol.latin_row), so consecutive participants take
 consecutive rows and every row is used equally often.
 
 The sequence lives in the records database that holds the register. Kept on the records server,
@@ -14,15 +14,19 @@ slot)`` stands behind it, so two registrations at once never get the same slot. 
 a machine's own file allocates for that machine only; the window says so and the trials record it.
 
 Registering the same participant again with the same covariates answers the first entry (a resend);
-with other covariates it is refused: a register entry is evidence and is not changed.
+with other covariates it is refused: a register entry is evidence and is not changed. The study's
+design (its trials and their aids, chainsim.game.records.protocol.design) is filed with the register,
+once, so the records server can check each uploaded trial against the participant's allocation; a
+design other than the one filed is refused likewise.
 """
 
 from __future__ import annotations
 
+import json
 from typing import Any
 from urllib.parse import quote
 
-from chainsim.game.records import remote
+from chainsim.game.records import protocol, remote
 from chainsim.game.records.backend import is_postgres
 from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import clean_created_at, clean_name
@@ -123,6 +127,47 @@ def entries(store: RecordStore, study: str, classes: list[str] | None = None) ->
     return out if classes is None else [e for e in out if e["class_name"] in classes]
 
 
+def file_design(store: RecordStore, study: Any, value: Any, by: str) -> tuple[dict, bool]:
+    """Keep ``study``'s design (checked): (the design kept, filed now). The same design again is a resend;
+    another is refused (AlreadyRegistered): trials already checked against the first must stay valid."""
+    study = clean_name("study", study)
+    value = protocol.clean_design(value, study)
+    text = protocol.design_text(value)
+    with store.transaction() as conn:
+        row = conn.execute("SELECT design FROM study_designs WHERE study = ?", (study,)).fetchone()
+        if row is not None:
+            if row["design"] != text:
+                raise AlreadyRegistered(
+                    f"study {study!r} has another design on this server (its trials or aids differ from this "
+                    "protocol's); a study's design is not changed: give the changed protocol a new file name"
+                )
+            return value, False
+        conn.execute(
+            "INSERT INTO study_designs (study, design, filed_by, filed_at) VALUES (?, ?, ?, ?)",
+            (study, text, by, clean_created_at(None)),
+        )
+    return value, True
+
+
+def design_of(store: RecordStore, study: str) -> dict | None:
+    """The design filed for ``study``, or None."""
+    rows = store.query("SELECT design FROM study_designs WHERE study = ?", (study,))
+    return json.loads(rows[0]["design"]) if rows else None
+
+
+def check_trial(store: RecordStore, class_name: str, trainee: str, claimed: dict) -> dict:
+    """The ``details.protocol`` a records server keeps for an uploaded study trial: the trial its design
+    and register give the participant at that place (chainsim.game.records.protocol.check_claim); a
+    one-line UserError when the upload's trial, condition, practice flag, slot or aids are not that."""
+    said = (claimed.get("details") or {}).get("protocol")
+    said = said if isinstance(said, dict) else {}
+    study, code = said.get("study"), said.get("participant")
+    known = isinstance(study, str) and isinstance(code, str)
+    value = design_of(store, study) if known else None
+    entry = lookup(store, study, code) if known else None
+    return protocol.check_claim({**said, "aids": claimed.get("aids")}, value, entry, (class_name, trainee))
+
+
 # -- on a records server (the simulator's side) --------------------------------------------------
 
 
@@ -153,6 +198,12 @@ def register_on_server(server: str, db, study: str, class_name: str, body: dict)
     return _server_call(
         server, db, f"/api/studies/{quote(study, safe='')}/participants", {**body, "class_name": class_name}
     )
+
+
+def file_design_on_server(server: str, db, study: str, value: dict) -> dict:
+    """File the study's design on the records server ``server`` (a resend of the same one is fine)."""
+    server = remote.server_url(server)
+    return _server_call(server, db, f"/api/studies/{quote(study, safe='')}/design", value)
 
 
 def lookup_on_server(server: str, db, study: str, code: str) -> dict | None:

@@ -439,3 +439,34 @@ def sync_quietly(server: str, db: str | os.PathLike[str] | None = None) -> None:
         logger.info("sent %d queued attempt(s) to %s", result["sent"], server)
     for line in result["problems"]:
         logger.warning("records: %s", line)
+
+
+def kept_and_filed(
+    server: str, db: str | os.PathLike[str] | None, evidence: Callable[[], dict], said: Callable[[str], None]
+) -> Records:
+    """The Records of a study session with a records server: each trial is saved in the local store ``db``
+    with its recording, as without a server, and filed on ``server`` through the outbox with the same
+    recording (the server checks it against its register and scores it by replaying it). A server that
+    cannot be reached leaves the trial in the queue (``chainsim records sync`` sends it); one that
+    refuses it says why. ``said`` gets one line per trial saying where it went."""
+    server = server_url(server)
+
+    def save_attempt(class_name: str, trainee: str, record: dict) -> int:
+        sent = evidence()
+        with RecordStore(db) as store:
+            local_id = store.save_attempt(class_name, trainee, record, recording=sent["recording"])
+        try:
+            with RemoteRecords(server, db) as rr:
+                upload = rr.save_attempt(class_name, trainee, record, sent)
+            said(f"trial saved here and sent to {server} as upload {upload}")
+        except KeptOffline as exc:
+            said(f"trial saved here; for {server} it waits in the queue ({exc.why}): chainsim records sync sends it")
+        except UserError as exc:
+            said(f"trial saved here; {exc}")
+        return local_id
+
+    def list_attempts(class_name: str, trainee: str) -> list[dict]:
+        with RecordStore(db, create=False) as store:
+            return store.list_attempts(class_name, trainee)
+
+    return Records(save_attempt, list_attempts, f"this computer and records server {server}")

@@ -329,6 +329,21 @@ V11_DDL: tuple[str, ...] = (
     """,
 )
 
+# Version 12: study designs. A study's trials and their aids (chainsim.game.records.protocol.design),
+# filed before its trials are uploaded, so the records server checks each trial against the trial the
+# participant's slot gives that place of their session. Kept as filed: a design is not changed.
+V12_DDL: tuple[str, ...] = (
+    """
+    CREATE TABLE study_designs (
+        id        INTEGER PRIMARY KEY,
+        study     TEXT NOT NULL UNIQUE,
+        design    TEXT NOT NULL,
+        filed_by  TEXT NOT NULL,
+        filed_at  TEXT NOT NULL
+    )
+    """,
+)
+
 MIGRATIONS: tuple[tuple[str, ...], ...] = (
     V1_DDL,
     V2_DDL,
@@ -341,6 +356,7 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
     V9_DDL,
     V10_DDL,
     V11_DDL,
+    V12_DDL,
 )
 SCHEMA_VERSION = len(MIGRATIONS)
 
@@ -365,6 +381,7 @@ OWN_TABLES = frozenset(
         "rating_items",
         "raters",
         "study_participants",
+        "study_designs",
         "ratings",
     }
 )

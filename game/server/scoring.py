@@ -32,7 +32,7 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from chainsim.game.records import plausible, provenance
+from chainsim.game.records import plausible, protocol, provenance, register
 from chainsim.game.records.backend import db_errors
 from chainsim.game.records.schema import LEGACY_METRICS
 from chainsim.game.records.store import RecordStore
@@ -204,7 +204,7 @@ def replay_record(
     Raises UserError when the recording is not the window's, is longer than the server replays, or
     does not replay to a Save."""
     from chainsim.components.digest import world_digest  # noqa: PLC0415 - worker process only
-    from chainsim.components.resources import PendingInput, Records  # noqa: PLC0415
+    from chainsim.components.resources import PendingInput, Records, Settings  # noqa: PLC0415
     from chainsim.game.app.headless import app_for_pack, check_events  # noqa: PLC0415
     from chainsim.game.app.inputscript import parse_events  # noqa: PLC0415
     from chainsim.game.packs import pack as packs  # noqa: PLC0415
@@ -213,8 +213,9 @@ def replay_record(
     recording = provenance.decode_recording(recording_text)
     fields = _recording_fields(recording)
     pack = packs.load(Path(pack_root), pack_paths)
+    trial = opts.get("protocol")  # a study's trial, as the server's register gives it (enqueue)
     if not opts.get("witnessed"):
-        plausible.window_form(recording, float(pack.section("settings").get("dt", 1.0 / 120.0)))
+        _window_form(recording, pack, trial)
     sim_s = fields["steps"] * fields["dt"]
     cap = float(opts.get("max_session_s", DEFAULT_MAX_SESSION_S))
     if sim_s > cap:
@@ -227,6 +228,8 @@ def replay_record(
     events = parse_events(recording, "recording")
     settings = {"model": fields["model"]} if fields["model"] else {}
     app = app_for_pack(pack, fields["scene"], settings=settings, dt=fields["dt"], save="scoring replay")
+    if trial:  # the replayed Save keeps the trial in its details, as the session's did
+        app.resource(Settings).values["protocol"] = dict(trial)
     try:
         saved: list[tuple[dict, str]] = []
 
@@ -251,6 +254,8 @@ def replay_record(
     if not saved:
         raise UserError("the recording does not replay to a saved attempt (the replayed session never saved)")
     record, digest = saved[-1]
+    if trial:
+        protocol.check_replayed_aids(record, trial)
     minimum = float(pack.section("records").get("min_attempt_s", 0.0))
     flags = [] if opts.get("witnessed") else plausible.flags(recording["event"], record.get("duration_s"), minimum)
     return {
@@ -263,6 +268,16 @@ def replay_record(
             name for name, spec in pack.section("metrics").items() if spec.get("measure") in DEVICE_MEASURES
         ],
     }
+
+
+def _window_form(recording: dict, pack: Any, trial: dict | None) -> None:
+    """UserError unless the recording is the window's (``plausible.window_form``); a study's trial may also
+    hold the aids and points its session set, and nothing else of their kind (``protocol``)."""
+    plausible.window_form(
+        recording, float(pack.section("settings").get("dt", 1.0 / 120.0)), protocol.SESSION_KINDS if trial else ()
+    )
+    if trial:
+        protocol.check_session_events(recording, trial, pack)
 
 
 def device_reported(claimed: dict, record: dict, device_metrics: list[str]) -> list[str]:
@@ -345,6 +360,10 @@ def enqueue(
             f"class {class_name!r} takes only attempts made in the browser trainer (/train/PACK on this server), "
             "which the server witnesses; an attempt made in the window cannot be filed there"
         )
+    claimed = checked["claimed"]
+    if "protocol" in (claimed.get("details") or {}):
+        # a study's trial: kept as the server's design and register give it, refused when they disagree
+        claimed["details"]["protocol"] = register.check_trial(store, class_name, trainee, claimed)
     now = clean_created_at(None)
     with store.transaction() as conn:
         if key is not None:
@@ -728,6 +747,9 @@ class Scorer:
             return budget[0]
 
         options = {"witnessed": bool(upload.get("witnessed")), "max_session_s": self.max_session_s}
+        trial = (json.loads(upload["claimed"]).get("details") or {}).get("protocol")
+        if trial:
+            options["protocol"] = trial
         try:
             job = (upload["recording"], root, self.packs.pack_paths, options)
             answer = proc.run(job, budget[0], keep_going, on_note)

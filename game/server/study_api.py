@@ -5,6 +5,9 @@
                                                     ``slot`` (200: the same registration again)
     GET  /api/studies/{study}/participants         the register, in slot order (the trainer's classes)
     GET  /api/studies/{study}/participants/{code}  one entry (404 when not registered)
+    POST /api/studies/{study}/design               the study's trials and aids (``chainsim protocol`` sends
+                                                    them) -> 201, 200 for the same design again, 409 for
+                                                    another: uploaded trials are checked against it
 
 The slot is the participant's place in the study's one allocation sequence, kept in this database, so
 the simulator at every site takes its condition order from here (``chainsim protocol --records``).
@@ -23,6 +26,7 @@ from chainsim.game.server import study_pages
 from chainsim.game.server.accounts import User
 from chainsim.game.server.auth import HTTPError, api_user, read_json
 from chainsim.game.server.study_pages import register_as, trainer_only
+from chainsim.systems.engine.errors import UserError
 
 
 def _one(store: RecordStore, user: User, study: str, code: str) -> dict:
@@ -55,7 +59,25 @@ async def get_participant(request: Request) -> Response:
     return JSONResponse(await request.app.state.storage.run(_one, user, p["study"], p["code"]))
 
 
+def _file_design(store: RecordStore, user: User, study: str, body: object) -> tuple[dict, bool]:
+    try:
+        return register.file_design(store, study, body, user.name)
+    except register.AlreadyRegistered as exc:
+        raise HTTPError(409, str(exc)) from None
+    except UserError as exc:
+        raise HTTPError(422, str(exc)) from None
+
+
+async def file_design(request: Request) -> Response:
+    user = await api_user(request)
+    trainer_only(user)
+    body = await read_json(request)
+    kept, created = await request.app.state.storage.run(_file_design, user, request.path_params["study"], body)
+    return JSONResponse(kept, status_code=201 if created else 200)
+
+
 routes = [
+    Route("/api/studies/{study}/design", file_design, methods=["POST"]),
     Route("/api/studies/{study}/participants", add_participant, methods=["POST"]),
     Route("/api/studies/{study}/participants", list_participants, methods=["GET"]),
     Route("/api/studies/{study}/participants/{code}", get_participant, methods=["GET"]),

@@ -21,7 +21,8 @@ participant through the protocol, as the thesis ran its volunteers:
 4. Table 6.1 and the mean ratings over every participant of this study in the records database.
 
 Everything is saved as it happens: the attempts (with `details.protocol`: study, participant, trial,
-task, condition, order) and both questionnaires, so a session cut short keeps what was done. Running
+task, condition, order) and both questionnaires, so a session cut short keeps what was done. With a
+records server (``records``) each trial is filed there as well (chainsim.game.records.remote.kept_and_filed). Running
 the same participant again resumes after their last saved trial (and skips a questionnaire already
 answered), so no trial is made or counted twice; `chainsim protocol --restart` retracts the saved
 trials first (kept in the records, marked retracted, never counted) to start over. Attempts retracted
@@ -39,13 +40,13 @@ from __future__ import annotations
 
 import logging
 
-import numpy as np
-
 from chainsim.components.hud import HudState
-from chainsim.components.input_events import PickPoint, Widget
 from chainsim.components.resources import Assessment, PackResource, PendingInput, Settings
-from chainsim.game.records import register
+from chainsim.game.app.headless import attempt_evidence
+from chainsim.game.records import protocol as trials
+from chainsim.game.records import register, remote
 from chainsim.game.records import study as results
+from chainsim.game.records.protocol import plan, study_name
 from chainsim.game.records.store import RecordStore
 from chainsim.game.ui.questionnaire import POST, PRE, THESIS_RATINGS, Notice, Questionnaire
 from chainsim.systems.procedures.needle import records as layout
@@ -58,17 +59,6 @@ TASK_DOES = layout.TASK_DOES
 #: a participant's register covariates, recorded with each trial (the validity report's groups read them)
 COVARIATES = ("group", "year_of_training", "procedures_performed")
 LOCAL_WARNING = register.LOCAL_WARNING
-
-
-def latin_row(n: int, participant: int) -> list[int]:
-    """Order of n conditions for a participant: a row of a balanced Latin square (each condition comes
-    first equally often and follows each other condition equally often over n participants; for an odd n,
-    over 2n, the second n taking the rows reversed)."""
-    first = [j // 2 if j % 2 == 0 else n - (j + 1) // 2 for j in range(n)]
-    row = [(v + participant) % n for v in first]
-    if n % 2 == 1 and (participant // n) % 2 == 1:
-        row.reverse()
-    return row
 
 
 def current_attempts(attempts: list[dict]) -> list[dict]:
@@ -116,33 +106,6 @@ def every_condition(tab: dict, proto: dict) -> dict:
     return {**out, **{k: v for k, v in tab.items() if k not in out}}
 
 
-def study_name(proto: dict) -> str:
-    """The study's label in the records: the protocol file's name without .toml."""
-    return proto["path"].stem
-
-
-def plan(proto: dict, participant: int) -> list[dict]:
-    """The participant's trials in order: per task (in protocol order), its practice trials (the conditions
-    in the participant's order, round again if there are more), then cycles of its conditions."""
-    out = []
-    tasks = []
-    for t in proto["trials"]:
-        if t["task"] not in tasks:
-            tasks.append(t["task"])
-    for task in tasks:
-        trials = [t for t in proto["trials"] if t["task"] == task]
-        order = latin_row(len(trials), participant)
-        for k in range(proto.get("practice", 0)):
-            out.append({**trials[order[k % len(order)]], "cycle": 0, "practice": True})
-        for cycle in range(max(t["repeat"] for t in trials)):
-            for i in order:
-                if cycle < trials[i]["repeat"]:
-                    out.append({**trials[i], "cycle": cycle + 1, "practice": False})
-    for k, t in enumerate(out, 1):
-        t["order"] = k
-    return out
-
-
 class StudySession:
     """One participant's session on an App (see the module docstring)."""
 
@@ -156,8 +119,15 @@ class StudySession:
         side: str = "left",
         restart: bool = False,
         allocation: dict | None = None,
+        records: str | None = None,
+        served: list[dict] | None = None,
     ):
         self.app = app
+        # in the browser trainer: the participant's attempts on the records server, which keeps the trials
+        # (no local records, no questionnaires: those are typed at the window); None at the window
+        self.served = served
+        # the records server the trials are filed on too (each is kept in ``db`` whether or not it answers)
+        self.records = records
         # where the participant's order comes from (chainsim.game.records.register.allocate); None: numbered
         # by this machine's records, as before registers, with the warning every trial records
         self.allocation = allocation
@@ -189,9 +159,14 @@ class StudySession:
         return self.state == "finished"
 
     def start(self) -> None:
-        with RecordStore(self.db) as store:
-            attempts = self._attempts(store)
-            qs = self._questionnaires(store)
+        if self.records:
+            self._file_on(self.records)
+        if self.served is not None:
+            attempts, qs = current_attempts(self.served), []
+        else:
+            with RecordStore(self.db) as store:
+                attempts = self._attempts(store)
+                qs = self._questionnaires(store)
         if self.allocation is None:
             known = []
             for r in results.study_rows(attempts, self.study, practice=True):
@@ -206,6 +181,9 @@ class StudySession:
         answered = {q["kind"] for q in qs if q.get("trainee") == self.participant and q.get("session") == self.study}
         if not self.restart and (saved or "pre" in answered):
             self._resume(saved, answered)
+            return
+        if self.served is not None:  # the browser asks no questions: the first trial's page comes
+            self.next_trial()
             return
         self.state = "pre"
         self.form = Questionnaire(
@@ -239,8 +217,12 @@ class StudySession:
             f"# Welcome back, {self.participant}\n\n"
             f"{len(saved)} of {len(self.trials)} trials of study '{self.study}' are saved"
             f"{' (the last: trial ' + str(last) + ')' if saved else ''}. {goes_on}\n\n"
-            "To start over from trial 1 instead, close the window (**Esc**) and run the protocol again with "
-            "`--restart`."
+            + (
+                ""
+                if self.served is not None
+                else "To start over from trial 1 instead, close the window (**Esc**) and run the protocol again "
+                "with `--restart`."
+            )
         )
         self._show()
 
@@ -294,6 +276,16 @@ class StudySession:
             self.done_trials.append({"trial": t["name"], "condition": t["condition"], "attempt_id": saved[-1]})
             self.next_trial()
 
+    def _file_on(self, server: str) -> None:
+        """Each trial saved in the local records and filed on ``server`` with the same recording."""
+        app = self.app
+        pack = app.resource(PackResource).pack
+        values = app.resource(Settings).values
+        kept = {k: values[k] for k in ("class", "trainee", "model") if isinstance(values.get(k), str)}
+        evidence = lambda: attempt_evidence(app, pack, kept)  # noqa: E731
+        hud = app.resource(HudState)
+        app.insert_resource(remote.kept_and_filed(server, self.db, evidence, lambda line: hud.message(line, 8.0)))
+
     # -- steps ------------------------------------------------------------------------------------
     def _attempts(self, store: RecordStore) -> list[dict]:
         try:
@@ -345,6 +337,9 @@ class StudySession:
 
     def next_trial(self) -> None:
         self.k += 1
+        if self.k >= len(self.trials) and self.served is not None:
+            self.finish()
+            return
         if self.k >= len(self.trials):
             self.state = "post"
             self.form = Questionnaire(
@@ -358,7 +353,7 @@ class StudySession:
         # the scene behind the trial's page already shows this trial's aids, not the last trial's
         self.app.resource(WidgetState).enable(*AIDS)
         now = self.app.time.sim_time
-        self.app.resource(PendingInput).extend([(now + 0.01, Widget(a, bool(t["aids"].get(a, False)))) for a in AIDS])
+        self.app.resource(PendingInput).extend(trials.aid_events(t, now))
         self.state = "intro"
         self.form = Notice(
             f"# {kind} {self.k + 1} of {len(self.trials)}: {results.TASK_TITLE[t['task']]}, "
@@ -378,14 +373,7 @@ class StudySession:
         ws.enable(*AIDS)
         now = app.time.sim_time
         pending = app.resource(PendingInput)
-        events = [(now + 0.01, Widget(a, bool(t["aids"].get(a, False)))) for a in AIDS]
-        events.append((now + 0.05, Widget("reset", "all")))
-        if t["task"] == "insertion":
-            pts = app.resource(PackResource).pack.section("points")
-            for k in range(1, layout.MARK_COUNT + 1):
-                p = pts.get(layout.IDEAL_POINT.format(k=k, side=self.side))
-                if p is not None:
-                    events.append((now + 0.06 + 0.02 * k, PickPoint("skin", tuple(np.asarray(p["position"], float)))))
+        events = trials.session_events(t, now, app.resource(PackResource).pack, self.side)
         pending.extend(events)
         self.lock_at = now + 0.2
         app.resource(Settings).values["protocol"] = {
@@ -410,6 +398,9 @@ class StudySession:
         app = self.app
         app.resource(Settings).values.pop("protocol", None)
         app.resource(WidgetState).enable(*AIDS)
+        if self.served is not None:
+            self._finish_served()
+            return
         with RecordStore(self.db) as store:
             rows = results.study_rows(self._attempts(store), self.study)
             qs = self._questionnaires(store)
@@ -434,6 +425,18 @@ class StudySession:
             "Post-session ratings, 1 = poor, 10 = very good:\n\n"
             f"{results.markdown_ratings(rates, labels, THESIS_RATINGS)}\n\n"
             "Thank you for taking part.",
+            enter="Enter",
+        )
+        self._show()
+
+    def _finish_served(self) -> None:
+        """The browser trainer's last page: every trial is on the records server (its study report and
+        ``chainsim protocol --summary --records`` table them with everyone's)."""
+        self.summary = f"{len(self.trials)} trials of study '{self.study}' saved on the records server"
+        self.state = "summary"
+        self.form = Notice(
+            f"# Study '{self.study}': done\n\nAll {len(self.trials)} trials are saved on the records server, "
+            "which tables them with every participant's.\n\nThank you for taking part.",
             enter="Enter",
         )
         self._show()

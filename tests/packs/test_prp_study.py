@@ -14,9 +14,10 @@ from chainsim.components.resources import PendingInput
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script
 from chainsim.game.cli.commands.protocol import load_protocol
+from chainsim.game.records.protocol import latin_row
 from chainsim.game.records.store import RecordStore
 from chainsim.game.ui.questionnaire import POST, PRE
-from chainsim.game.ui.study import StudySession, latin_row, plan
+from chainsim.game.ui.study import StudySession, plan
 from chainsim.systems.view.ui.widgets import WidgetState
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -323,7 +323,7 @@ def test_v1_database_is_migrated_in_place_with_rows_intact(tmp_path):
     path = tmp_path / "old.sqlite3"
     make_v1(path)
     with RecordStore(path) as s:
-        assert s.schema_version == SCHEMA_VERSION == 11
+        assert s.schema_version == SCHEMA_VERSION == 12
         rows = s.list_attempts()
         assert [r["created_at"] for r in rows] == [f"2025-01-0{i + 1}T10:00:00Z" for i in range(3)]
         assert [r["needle_error_mm"] for r in rows] == [None, 7.0, 6.0]

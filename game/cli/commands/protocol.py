@@ -4,9 +4,12 @@ Register first: `--register CODE --group novice|expert --year-of-training N --pr
 enters the participant in the study's register (chainsim.game.records.register) and prints the slot and
 condition order they are allocated; with `--records URL` the register and its one allocation sequence
 are the records server's (signed in as a trainer of --class), else this machine's own, and the window
-warns that another machine may give the same order. The trials themselves are saved in the local
-records (--db), each with its recording. `--participant CODE` with those options registers
-at the start of the session; without them the participant must be in the register already.
+warns that another machine may give the same order. With `--records` the study's design (its trials and
+their aids) is filed on the server too, and each trial is saved in the local records (--db) with its
+recording and filed on the server through the outbox (`chainsim records sync` sends what an unreachable
+server did not get): the server checks it against the participant's allocation and replays it
+(chainsim.game.records.protocol). `--participant CODE` with those options registers at the start of
+the session; without them the participant must be in the register already.
 
 With people (`--participant NAME`): the trainer window opens for that participant and runs the
 session of chainsim.game.ui.study - the short pre-session questionnaire, the protocol's trials with
@@ -16,7 +19,8 @@ Running the same participant again continues after their last saved trial; `--re
 from trial 1, after asking on the terminal (type yes): the earlier trials are retracted, kept in the
 records but never counted, so no trial counts twice.
 
-`--summary` prints that table and the mean ratings from the records without running anything.
+`--summary` prints that table and the mean ratings from the records without running anything (with
+`--records`, from the trials filed on the server).
 
 `--scripted` is the smoke test of the harness: each trial's input scripts run headless with its
 aids, every attempt is saved (marked scripted), and the table of this run is printed. Scripted
@@ -63,12 +67,14 @@ from chainsim.game.app.inputscript import load_script
 from chainsim.game.app.options import name
 from chainsim.game.app.outputs import prepare_output_dir, write_text_atomic
 from chainsim.game.packs import pack as packs
+from chainsim.game.records import protocol as study_protocol
 from chainsim.game.records import register
+from chainsim.game.records.protocol import load_protocol
+from chainsim.game.records.remote import RemoteRecords
 from chainsim.game.records.store import RecordStore, check_target
 from chainsim.game.records.study import (
     TASK_METRIC,
     TASK_TITLE,
-    TASKS,
     THESIS_MM,
     design_notes,
     format_ratings,
@@ -87,7 +93,6 @@ from chainsim.game.ui.study import (
     saved_trials,
     study_name,
 )
-from chainsim.systems.engine import datafile, limits
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.procedures.needle import records as layout
 from chainsim.systems.procedures.needle.assessment import attempt_record
@@ -99,10 +104,6 @@ HELP = (
     "run a study protocol with a participant at the window (or --scripted), save the attempts, "
     "print Table 6.1 over all participants"
 )
-
-AIDS = layout.AIDS
-TOP_KEYS = {"format", "pack", "title", "description", "trial", "require_witnessed", "practice"}
-TRIAL_KEYS = {"name", "task", "condition", "scripts", "script", "repeat", "steps", "aids"}
 
 
 def add_parser(sub):
@@ -128,7 +129,8 @@ def add_parser(sub):
     p.add_argument(
         "--records",
         metavar="URL",
-        help="records server that keeps the study's register and allocation sequence (trials are saved in --db)",
+        help="records server that keeps the study's register, allocation sequence and design; the trials are "
+        "filed there too (and kept in --db); --summary reads the server's records",
     )
     p.add_argument(
         "--restart",
@@ -155,112 +157,6 @@ def add_parser(sub):
     p.add_argument("--out", metavar="DIR", help="folder for results.json, table61.txt and table61.png")
     p.add_argument("--pack-path", action="append", default=[], metavar="DIR")
     return p
-
-
-def _err(where: str, msg: str):
-
-    return UserError(f"{where}: {msg}")
-
-
-def load_protocol(path: str | Path) -> dict:
-    """Read and check a protocol; every problem is a one-line UserError naming the key."""
-
-    path = Path(path)
-    data = datafile.parse_toml(
-        datafile.read_text(path, max_bytes=limits.MAX_SCRIPT_BYTES, what="protocol file"), str(path)
-    )
-    where = str(path)
-    extra = sorted(set(data) - TOP_KEYS)
-    if extra:
-        raise _err(where, f"unknown key '{extra[0]}'; expected {', '.join(sorted(TOP_KEYS))}")
-    if data.get("format") != 1:
-        raise _err(where, f"'format' must be 1, got {data.get('format')!r}")
-    if not isinstance(data.get("pack"), str) or not data["pack"]:
-        raise _err(where, "'pack' must name a pack (e.g. \"prp\")")
-    trials = data.get("trial")
-    if not isinstance(trials, list) or not trials:
-        raise _err(where, "needs at least one [[trial]]")
-    out: list[dict] = []
-    names: set[str] = set()
-    for i, t in enumerate(trials, 1):
-        out.append(_trial(t, f"{where}: trial {i}", f"trial-{i}", names))
-    try:
-        # practice trials per task, before its scored ones: saved marked practice, never counted
-        practice = limits.whole(data.get("practice", 0), 0, limits.MAX_REPEAT)
-    except limits.LimitError as e:
-        raise _err(where, f"'practice' {e} (docs/limits.md)") from None
-    runs = sum(max(len(t["scripts"]), 1) * t["repeat"] for t in out)
-    if runs > limits.MAX_PROTOCOL_RUNS:
-        raise _err(where, f"asks for {runs:,} runs, over the {limits.MAX_PROTOCOL_RUNS:,} limit (docs/limits.md)")
-    return {
-        "path": path,
-        "pack": data["pack"],
-        "title": data.get("title", ""),
-        "trials": out,
-        "practice": practice,
-        # the summary counts only attempts the records server witnessed (made in its browser trainer)
-        "require_witnessed": _flag(data, "require_witnessed", where),
-    }
-
-
-def _trial(t: object, w: str, default_name: str, names: set[str]) -> dict:
-    """One [[trial]] of a protocol, checked (``names``: the trial names so far, this one added)."""
-    if not isinstance(t, dict):
-        raise _err(w, "must be a table")
-    extra = sorted(set(t) - TRIAL_KEYS)
-    if extra:
-        raise _err(w, f"unknown key '{extra[0]}'; expected {', '.join(sorted(TRIAL_KEYS))}")
-    name = t.get("name", default_name)
-    if not isinstance(name, str) or not name:
-        raise _err(w, "'name' must be text")
-    if name in names:
-        raise _err(w, f"duplicate trial name '{name}'")
-    names.add(name)
-    task = t.get("task")
-    if task not in TASKS:
-        raise _err(w, f"'task' must be one of {', '.join(TASKS)}, got {task!r}")
-    cond = t.get("condition")
-    if not isinstance(cond, str) or not cond:
-        raise _err(w, "'condition' must be text (the table column, e.g. \"without_clues\")")
-    if "script" in t and "scripts" in t:
-        raise _err(w, "give 'script' or 'scripts', not both")
-    scripts = t.get("scripts", [t["script"]] if "script" in t else [])
-    if not isinstance(scripts, list) or not all(isinstance(s, str) and s for s in scripts):
-        raise _err(w, "'scripts' must be an array of script paths")
-    try:
-        repeat = limits.whole(t.get("repeat", 1), 1, limits.MAX_REPEAT)
-    except limits.LimitError as e:
-        raise _err(w, f"'repeat' {e} (docs/limits.md)") from None
-    steps = t.get("steps")
-    if steps is not None:
-        try:
-            steps = limits.whole(steps, 1, limits.MAX_STEPS)
-        except limits.LimitError as e:
-            raise _err(w, f"'steps' {e} (docs/limits.md)") from None
-    aids = t.get("aids", {})
-    if not isinstance(aids, dict):
-        raise _err(w, "'aids' must be a table of true/false")
-    for k, v in aids.items():
-        if k not in AIDS:
-            raise _err(w, f"unknown aid '{k}'; aids are {', '.join(AIDS)}")
-        if not isinstance(v, bool):
-            raise _err(w, f"aid '{k}' must be true or false, got {v!r}")
-    return {
-        "name": name,
-        "task": task,
-        "condition": cond,
-        "scripts": scripts,
-        "repeat": repeat,
-        "steps": steps,
-        "aids": {a: bool(aids.get(a, False)) for a in AIDS},
-    }
-
-
-def _flag(data: dict, key: str, where: str) -> bool:
-    value = data.get(key, False)
-    if not isinstance(value, bool):
-        raise _err(where, f"'{key}' must be true or false, got {value!r}")
-    return value
 
 
 def _script_path(proto: dict, pack_root: Path, rel: str, where: str) -> Path:
@@ -344,6 +240,8 @@ def covariates(args) -> dict | None:
 
 def allocation(args, proto: dict, code: str) -> dict:
     """The participant's allocation (chainsim.game.records.register.allocate), registering them if asked."""
+    if args.records:  # the server checks each uploaded trial against the study's design filed here
+        register.file_design_on_server(args.records, args.db, study_name(proto), study_protocol.design(proto))
     return register.allocate(study_name(proto), args.class_name, code, covariates(args), args.records, args.db)
 
 
@@ -365,12 +263,7 @@ def run_register(args, proto: dict) -> int:
 def run_summary(args, proto: dict) -> int:
     """Table 6.1 and the ratings over every participant of the study in the records."""
     study = study_name(proto)
-    with RecordStore(args.db) as store:
-        try:
-            attempts = store.list_attempts(args.class_name)
-            questionnaires = store.list_questionnaires(args.class_name)
-        except UserError:
-            attempts, questionnaires = [], []
+    attempts, questionnaires, where = _summary_records(args)
     attempts, questionnaires = current_attempts(attempts), newest_questionnaires(questionnaires)
     left_out = 0
     if proto.get("require_witnessed"):
@@ -381,7 +274,7 @@ def run_summary(args, proto: dict) -> int:
         print(f"{left_out} attempt(s) left out: the study requires witnessed attempts (browser trainer)")
     if not rows:
         raise UserError(
-            f"no attempts of study '{study}' by people in class '{args.class_name}' in {store.path}; "
+            f"no attempts of study '{study}' by people in class '{args.class_name}' in {where}; "
             f"run a session first: chainsim protocol {args.protocol} --participant NAME"
         )
     tab = every_condition(table(rows), proto)
@@ -395,6 +288,19 @@ def run_summary(args, proto: dict) -> int:
     print(format_ratings(rates, {q.id: q.text for q in POST}, THESIS_RATINGS))
     _write_out(_out_dir(args), proto, proto["pack"], tab, text, "participants", {"ratings": rates})
     return 0
+
+
+def _summary_records(args) -> tuple[list[dict], list[dict], str]:
+    """(attempts, questionnaires, where) of --class: the records server's with --records (the trials
+    filed there; questionnaires stay on the machine that asked them), else --db's."""
+    if args.records:
+        with RemoteRecords(args.records, args.db) as rr:
+            return rr.list_attempts(args.class_name), [], rr.where
+    with RecordStore(args.db) as store:
+        try:
+            return store.list_attempts(args.class_name), store.list_questionnaires(args.class_name), str(store.path)
+        except UserError:
+            return [], [], str(store.path)
 
 
 def run_people(args, proto: dict) -> int:
@@ -421,6 +327,7 @@ def run_people(args, proto: dict) -> int:
             side=args.side,
             restart=args.restart,
             allocation=allocated,
+            records=args.records,
         )
         return holder["session"]
 
@@ -432,9 +339,8 @@ def run_people(args, proto: dict) -> int:
         screenshot=None,
         record=None,
         db=db,
-        # the trials are saved in --db with their recordings, not uploaded: the records server refuses a
-        # recording whose aids and marked points the session set (not window input) and keeps no
-        # details.protocol from its replay (docs/validity.md, "From protocol to report")
+        # each trial is kept in --db with its recording; with --records the session files it on the server
+        # too (StudySession: the outbox, so a server out of reach gets it with the next sync)
         records=None,
         class_name=args.class_name,
         trainee=args.participant,
