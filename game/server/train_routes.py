@@ -3,6 +3,12 @@
     GET /train/{pack}      the page (signed-in trainees only): a canvas, the stream's state, a link back
     WS  /train/{pack}/ws   pictures out (binary), input in (JSON text), on the same origin and TLS
 
+With ``?study=STUDY`` (on both) the seat runs that study's trials for the signed-in trainee, who must be
+in its register (chainsim.game.records.register): the pages and the aids of each trial in the order of
+their allocation, practice trials first, as ``chainsim protocol`` runs them at the window
+(chainsim.game.ui.study), each Save filed as a witnessed attempt with ``details.protocol``; a reload
+continues after the last trial on this server.
+
 The thesis wants the trainer delivered in a web browser with nothing to install (3.3.1). The server
 runs the trainer for the trainee: ``chainsim.game.server.train_session`` in a child process per
 trainee (the App, drawn off screen, pictures encoded as JPEG), and this module relays its pictures
@@ -53,6 +59,8 @@ from starlette.responses import Response
 from starlette.routing import Route, WebSocketRoute
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
+from chainsim.game.records import register
+from chainsim.game.records.store import RecordStore
 from chainsim.game.server import accounts, api, scoring, views
 from chainsim.game.server.auth import HTTPError, session
 from chainsim.systems.engine.errors import UserError
@@ -209,6 +217,7 @@ class Seat:
     ready_at: float | None = None  # when the trainer was ready: its length counts from here
     refused: bool = False  # ended for a message broke the rules: no reset of the account's back-off
     resumed: bool = False  # this page took over a session that was running (a reload, another tab)
+    study: str = ""  # the study whose trials the seat runs (``?study=``), or "" for free practice
 
 
 class Trainer:
@@ -251,8 +260,9 @@ class Trainer:
     def full_for(self, user: accounts.User) -> bool:
         return user.id not in self.running and len(self.running) >= self.seats
 
-    async def start(self, app, user: accounts.User, pack: str, info: dict) -> Seat:
+    async def start(self, app, user: accounts.User, pack: str, info: dict, study: dict | None = None) -> Seat:
         cfg = {
+            "study": study,
             "root": info["root"],
             "pack_paths": app.state.packs.pack_paths,
             "class": user.classes[0],
@@ -271,7 +281,7 @@ class Trainer:
             env=env,
             limit=1 << 24,
         )
-        seat = Seat(user, pack, proc)
+        seat = Seat(user, pack, proc, study=(study or {}).get("study", ""))
         self.running[user.id] = seat
         seat.tasks.append(asyncio.create_task(self._pump(app, seat)))
         seat.tasks.append(asyncio.create_task(self._watch(seat)))
@@ -483,17 +493,45 @@ def _pack_info(request, name: str) -> dict:
     return info
 
 
+def study_seat(store: RecordStore, user: accounts.User, study: str, pack: str) -> dict:
+    """What a seat needs to run ``study``'s trials for the signed-in trainee: the study's design, their
+    allocation in its register and their trials already on this server; HTTPError when they cannot."""
+    value = register.design_of(store, study)
+    if value is None:
+        raise HTTPError(404, f"study {study[:64]!r} has no design on this server; ask your trainer")
+    if value["pack"] != pack:
+        raise HTTPError(404, f"study {study!r} runs pack {value['pack']!r}, not {pack!r}")
+    entry = register.lookup(store, study, user.trainee)
+    if entry is None or entry["class_name"] != user.classes[0]:
+        raise HTTPError(403, f"{user.trainee} is not in the register of study {study!r}; ask your trainer")
+    try:
+        attempts = store.list_attempts(user.classes[0], user.trainee)
+    except UserError:  # no attempts yet
+        attempts = []
+    done = []
+    for a in attempts:
+        trial = (a.get("details") or {}).get("protocol") or {}
+        if trial.get("study") == study and not a.get("retracted_at"):
+            done.append({"id": a["id"], "details": {"protocol": trial}})
+    allocation = {"by": "records server", "design": register.DESIGN}
+    allocation.update({k: entry[k] for k in ("slot", "group", "year_of_training", "procedures_performed")})
+    return {"study": study, "design": value, "allocation": allocation, "attempts": done}
+
+
 async def train_page(request: Request) -> Response:
     user, csrf = await views.page_user(request)
     _trainee(user)
     pack = request.path_params["pack"]
     await run_in_threadpool(_pack_info, request, pack)
+    study = request.query_params.get("study", "")
+    if study:  # refused here, with the page's reason, rather than by the socket
+        await request.app.state.storage.run(study_seat, user, study, pack)
     trainer: Trainer = request.app.state.trainer
     if trainer.full_for(user):
         page = views.render("train_full.html", 503, user=user, csrf=csrf, pack=pack, seats=trainer.seats)
         page.headers["Retry-After"] = "60"
         return page
-    page = views.render("train.html", user=user, csrf=csrf, pack=pack)
+    page = views.render("train.html", user=user, csrf=csrf, pack=pack, study=study)
     page.headers["Content-Security-Policy"] = PAGE_CSP
     return page
 
@@ -550,8 +588,9 @@ async def _claim(ws: WebSocket, trainer: Trainer, user: accounts.User, pack: str
             )
             return None
         seat = trainer.running.get(user.id)
-        if seat is not None and seat.pack != pack:
-            await trainer.end(seat, "the trainee opened another pack")
+        study = ws.query_params.get("study", "")
+        if seat is not None and (seat.pack, seat.study) != (pack, study):
+            await trainer.end(seat, "the trainee opened another pack or study")
             seat = None
         if seat is not None and ws.query_params.get("fresh") == "1":  # the page's "Start afresh"
             await trainer.end(seat, "the trainee started afresh")
@@ -562,7 +601,12 @@ async def _claim(ws: WebSocket, trainer: Trainer, user: accounts.User, pack: str
             if trainer.full_for(user):
                 await ws.close(SEATS_TAKEN, f"all {trainer.seats} seats are taken; try again in a few minutes")
                 return None
-            seat = await trainer.start(ws.app, user, pack, info)
+            try:
+                spec = await ws.app.state.storage.run(study_seat, user, study, pack) if study else None
+            except HTTPError as exc:
+                await ws.close(FORBIDDEN, exc.message[:120])
+                return None
+            seat = await trainer.start(ws.app, user, pack, info, spec)
         elif seat.socket is not None:  # the same trainee in a second tab: this one takes the session over
             old, seat.socket = seat.socket, None
             with contextlib.suppress(Exception):

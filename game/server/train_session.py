@@ -157,6 +157,23 @@ def server_records(channel: Channel, app, pack, settings: dict):
     return Records(save_attempt, list_attempts, "records server", filed_as=filed.get)
 
 
+def study_session(app, cfg: dict):
+    """The study session of ``cfg["study"]`` on the App, started: the trials of the trainee's allocation
+    with their aids, practice first (chainsim.game.ui.study, as at the window, without the questionnaires),
+    each Save filed through the server with ``details.protocol``."""
+    from pathlib import Path  # noqa: PLC0415
+
+    from chainsim.game.ui.study import StudySession  # noqa: PLC0415
+
+    spec = cfg["study"]
+    proto = {**spec["design"], "path": Path(f"{spec['study']}.toml"), "title": ""}
+    session = StudySession(
+        app, proto, cfg["trainee"], cfg["class"], None, allocation=spec["allocation"], served=spec["attempts"]
+    )
+    session.start()
+    return session
+
+
 class Session:
     """The App of one trainee drawn off screen: input in, pictures out (see the module docstring)."""
 
@@ -200,6 +217,8 @@ class Session:
             self.hud.status = self.who
         self.widget_events = app.events.reader(Widget)
         self.stepper = FixedStepper(app, None)
+        # a study's trials (``cfg["study"]``, from train_routes.study_seat): its pages take the keys they show
+        self.study = study_session(app, cfg) if cfg.get("study") else None
         self.pressed_at: dict[str, float] = {}
         self.last_seq = 0
         self.frame_no = 0
@@ -213,6 +232,10 @@ class Session:
         ev = event_from_dict(dict(msg["ev"]), "input")
         self.last_seq = max(self.last_seq, int(msg.get("seq") or 0))
         now = self.app.time.sim_time
+        if isinstance(ev, Key) and self.study is not None and self.study.form is not None:
+            if ev.pressed:  # a study page (what comes next, the last page) takes Enter, as at the window
+                self.study.key(ev.key)
+            return
         if isinstance(ev, Key):
             if ev.key == "escape" and ev.pressed and not self.hud.doc_open:
                 self.hud.message("Close the tab to leave; press Save attempt first to keep this attempt.", 6.0)
@@ -251,6 +274,8 @@ class Session:
                 had_input = True
             self.stepper.advance(start - last)
             last = start
+            if self.study is not None:
+                self.study.update()
             for ev in self.widget_events.read():
                 if ev.name == "sign_in":  # the page's sign-in is the records server's: say who is signed in
                     self.hud.message(self.who.replace("Signed in:", "You are signed in as"), 6.0)

@@ -69,7 +69,7 @@
 
   function connect(afresh) {
     const scheme = location.protocol === "https:" ? "wss:" : "ws:";
-    ws = new WebSocket(scheme + "//" + location.host + canvas.dataset.socket + (afresh ? "?fresh=1" : ""));
+    ws = new WebSocket(scheme + "//" + location.host + canvas.dataset.socket + (afresh ? (canvas.dataset.socket.includes("?") ? "&" : "?") + "fresh=1" : ""));
     ws.binaryType = "arraybuffer";
     say("Starting the trainer on the server...");
     ws.onmessage = (e) => {

@@ -1,0 +1,132 @@
+"""A study run in the browser trainer (/train/PACK?study=STUDY, chainsim.game.server.train_routes.study_seat).
+
+A trainee registered in a study opens the seat with the study: its pages come before each trial, each
+trial has the aids of the trainee's allocation, practice first, and every Save is filed as a witnessed
+attempt whose details.protocol the server checked against its register. Driven over the seat's socket
+with a signed-in trainee's cookie, as test_train.py drives seats; checked on SQLite (the seat's rules do
+not depend on the database; the register's are tested on both in test_study_trials.py)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+import uuid
+
+import pytest
+from conftest import SCRIPTS, call
+from test_train import cookie_for, in_thread
+
+PROTOCOL = {
+    "pack": "prp",
+    "practice": 1,
+    "trials": [
+        {
+            "name": "loc-planes",
+            "task": "location",
+            "condition": "reference_planes",
+            "repeat": 1,
+            "aids": {"reference_planes": True},
+        },
+        {"name": "loc-none", "task": "location", "condition": "without_clues", "repeat": 1, "aids": {}},
+    ],
+}
+
+
+def window_messages(events) -> list[tuple[float, dict]]:
+    """(seconds after the previous one, socket message) for window events (as the page sends them)."""
+    out, last = [], events[0][0]
+    for t, ev in events:
+        msg = {"type": ev.kind, "x": ev.x, "y": ev.y}
+        if ev.kind == "mouse_button":
+            msg.update(button=ev.button, pressed=ev.pressed)
+        out.append((t - last, msg))
+        last = t
+    return out
+
+
+def trial_clicks() -> list[tuple[float, dict]]:
+    """A location trial at the window: the correct script's three points clicked, then Save."""
+    from chainsim.components.input_events import PickPoint
+    from chainsim.game.app import windowform
+    from chainsim.game.app.headless import build_app
+    from chainsim.game.app.inputscript import load_script
+
+    picks = [(0.2 * k, e) for k, (_, e) in enumerate(load_script(SCRIPTS / "correct.toml")) if isinstance(e, PickPoint)]
+    app = build_app("prp")
+    try:
+        events = windowform.gestures(app, picks[:3], close_page=False)
+        events += windowform.save_click(app, max(t for t, _ in events))
+    finally:
+        app.close()
+    return window_messages(events)
+
+
+async def _run(url: str, path: str, cookie: str, trials: int, clicks) -> list[str]:
+    """Open the seat, then per trial: Enter on its page, the clicks, a wait for the Save to be filed."""
+    import websockets
+
+    seen: list[str] = []
+    async with websockets.connect(
+        url.replace("http", "ws", 1) + path,
+        additional_headers={"Cookie": f"chainsim_session={cookie}"},
+        origin=url,
+        max_size=None,
+    ) as ws:
+
+        async def read() -> None:
+            async for msg in ws:
+                seen.append(json.loads(msg)["type"] if isinstance(msg, str) else "frame")
+                if not isinstance(msg, str):
+                    await ws.send('{"type": "ack"}')
+
+        reader = asyncio.create_task(read())
+        while "frame" not in seen:
+            assert not reader.done(), seen
+            await asyncio.sleep(0.2)
+        for _ in range(trials):
+            for pressed in (True, False):
+                await ws.send(json.dumps({"type": "key", "key": "return", "pressed": pressed}))
+            await asyncio.sleep(1.0)  # the trial's aids set, a fresh attempt
+            for delay, msg in clicks:
+                await asyncio.sleep(delay * 1.5)
+                await ws.send(json.dumps(msg))
+            await asyncio.sleep(4.0)  # the Save filed through the server
+        reader.cancel()
+    return seen
+
+
+def test_a_registered_trainee_runs_the_studys_trials_in_the_browser(site):
+    if site.db.startswith("postgresql"):
+        pytest.skip("the seat runs the same on both databases; the register's checks are tested on both")
+    study = f"s{uuid.uuid4().hex[:8]}"
+    tina = site.tokens["tina"]
+    assert call(site, "POST", f"/api/studies/{study}/design", PROTOCOL, tina)[0] == 201
+    entry = {"class_name": "c1", "code": "alice", "group": "expert", "year_of_training": 5, "procedures_performed": 40}
+    assert call(site, "POST", f"/api/studies/{study}/participants", entry, tina)[0] == 201
+    cookie = cookie_for(site.db, "alice")
+    # the page names the study; a study the trainee is not registered in is refused with the reason
+    status, page, _ = call(site, "GET", f"/train/prp?study={study}", headers={"Cookie": f"chainsim_session={cookie}"})
+    assert status == 200 and f"Study <b>{study}</b>" in page and f"ws?study={study}" in page
+    status, page, _ = call(site, "GET", "/train/prp?study=nosuch", headers={"Cookie": f"chainsim_session={cookie}"})
+    assert status == 404 and "has no design on this server" in page
+
+    seen = in_thread(_run(site.url, f"/train/prp/ws?study={study}", cookie, 3, trial_clicks()))
+    assert "ready" in seen
+    deadline = time.monotonic() + 120
+    while True:
+        rows = call(site, "GET", "/api/attempts", token=site.tokens["alice"])[1]["attempts"]
+        mine = [a for a in rows if (a["details"].get("protocol") or {}).get("study") == study]
+        if len(mine) == 3 or time.monotonic() > deadline:
+            break
+        time.sleep(1.0)
+    mine.sort(key=lambda a: a["details"]["protocol"]["order"])
+    protos = [a["details"]["protocol"] for a in mine]
+    # slot 0: practice first, then the conditions in the first row of the design, each with its aids
+    assert [(p["order"], p["trial"], p["practice"]) for p in protos] == [
+        (1, "loc-planes", True),
+        (2, "loc-planes", False),
+        (3, "loc-none", False),
+    ]
+    assert [a["aids"]["reference_planes"] for a in mine] == [True, True, False]
+    assert all(a["source"] == "witnessed" and p["group"] == "expert" for a, p in zip(mine, protos, strict=True))
