@@ -142,6 +142,7 @@ def _geometry() -> None:
     # the needle's force on soft tissue (a tissue pack's needle evaluates it every frame; a second to compile)
     lengths = np.array([1.0, 2.0])
     needle_force.axial_force(1.0, 0.2, 10.0, True, 0.3, lengths, lengths, lengths, lengths, 5.0, 0.5, 0.1)
+    needle_force.press_force(1.0, 0.2, 10.0)  # also called on its own (a boundary's tenting)
 
 
 def _moving_normals() -> None:
