@@ -4,10 +4,11 @@ Each start is a fresh process, `chainsim play PACK` in the real window under Xvf
 moment it is started to the lines the window prints (chainsim.game.ui.window): `window: first
 picture` (the first frame drawn), `kernels: the scene's ready` (the scene takes input: the kernels it
 needs are there) and `kernels: all compiled` (every kernel a built-in pack can reach). **Cold**: numba's
-cache empty (a fresh NUMBA_CACHE_DIR), as on a new install before `chainsim warmup`; **warm**: the same
-cache right after, as every later start. Python's own bytecode is compiled in both (a first import
-after install adds a few seconds once). The machine's load average is reported with the figures, since
-on a shared 2-core machine it moves them more than anything in the code.
+cache and chainsim's mesh cache empty (a fresh NUMBA_CACHE_DIR and CHAINSIM_CACHE_DIR), as on a new
+install before `chainsim warmup`; **warm**: the same caches right after, as every later start.
+Python's own bytecode is compiled in both (a first import after install adds a few seconds once).
+The machine's load average is reported with the figures, since on a shared 2-core machine it moves
+them more than anything in the code.
 
     chainsim bench startup [--pack prp] [--runs 1] [--json] [--timeout 900]
 
@@ -110,6 +111,7 @@ def run(args) -> int:
             for k in range(args.runs):
                 cache = Path(tmp) / f"numba-cache-{k}"  # empty: cold
                 env = {**os.environ, "DISPLAY": display, "NUMBA_CACHE_DIR": str(cache)}
+                env["CHAINSIM_CACHE_DIR"] = str(Path(tmp) / f"chainsim-cache-{k}")  # the meshes read, as new
                 env.pop("PYGLET_HEADLESS", None)
                 for kind in ("cold", "warm"):
                     got = one_start(cmd, env, args.timeout)

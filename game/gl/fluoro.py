@@ -29,7 +29,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
 
 from chainsim.game.gl.context import release_framebuffer
 from chainsim.systems.view.ui.viewports import Camera, Rect
@@ -131,6 +130,8 @@ def blur_sigma(side: int) -> float:
 
 def blurred(path: np.ndarray) -> np.ndarray:
     """The blurred copy of L that the edge enhancement subtracts (scipy's gaussian, reflected at the edges)."""
+    from scipy import ndimage  # noqa: PLC0415 - half a second to import: the window loads it behind its first picture
+
     return ndimage.gaussian_filter(path, blur_sigma(path.shape[0]))
 
 
@@ -148,6 +149,8 @@ def blurred_part(part: np.ndarray) -> np.ndarray:
     h, w = part.shape
     if y0 < 0 or x0 < 0 or y1 > h or x1 > w:  # near the edge the reflection matters: the whole image
         return blurred(part)
+    from scipy import ndimage  # noqa: PLC0415 - as in blurred
+
     # zeros all round the crop, at least the kernel's reach: its reflected edges add nothing
     out[y0:y1, x0:x1] = ndimage.gaussian_filter(part[y0:y1, x0:x1], sigma)
     return out

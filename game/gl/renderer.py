@@ -17,12 +17,12 @@ from functools import partial
 from typing import Any
 
 import numpy as np
-import trimesh
 
 from chainsim.game.gl import culling, panelview, shaders
 from chainsim.game.gl.context import release_framebuffer
 from chainsim.game.gl.docview import PageView
 from chainsim.game.gl.fluoro import FluoroDraw, FluoroRenderer
+from chainsim.game.gl.icosphere import icosphere
 from chainsim.game.gl.meshbuf import ORDER_DIRECTIONS, GpuMesh
 from chainsim.game.gl.overlay import Overlay
 from chainsim.game.gl.viewcache import ViewCache, base_key, item_keys
@@ -133,12 +133,6 @@ def _writes_off(fbo):
         fbo.color_mask = (True, True, True, True)
         fbo.depth_mask = True
         fbo.use()
-
-
-def icosphere(subdiv: int = 2) -> tuple[np.ndarray, np.ndarray]:
-
-    s = trimesh.creation.icosphere(subdivisions=subdiv, radius=1.0)
-    return np.asarray(s.vertices), np.asarray(s.faces)
 
 
 class Renderer:

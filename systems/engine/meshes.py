@@ -17,11 +17,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import meshio
 import numpy as np
-import trimesh
 
-from chainsim.systems.engine import limits, meshcheck, meshgen
+from chainsim.systems.engine import limits, meshcache, meshcheck, meshgen
 from chainsim.systems.engine.limits import max_mesh_bytes  # noqa: F401  (the mesh size limit, re-exported)
 
 SURFACE_EXT = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
@@ -102,11 +100,17 @@ def load_file(path: Path, scale_to_mm: float = 1.0, merge_vertices: bool = True,
         meshcheck.check_file(path, ext, limit)
     except meshcheck.MeshCheckError as e:
         raise MeshError(f"{where}: {e}") from None
+    data = path.read_bytes()
+    name = meshcache.key(data, ext, scale_to_mm, merge_vertices)
+    kept = meshcache.read(name)
+    if kept is not None and kept["vertices"] is not None:
+        return _check(MeshData(**{k: v for k, v in kept.items() if v is not None}), where)
     if ext in VOLUME_EXT:
-        mesh = _load_volume(path, where, scale_to_mm)
+        mesh = _check(_load_volume(path, where, scale_to_mm), where)
     else:
-        mesh = _load_surface(path, merge_vertices, where, scale_to_mm)
-    return _check(mesh, where)
+        mesh = _check(_load_surface(path, merge_vertices, where, scale_to_mm), where)
+    meshcache.write(name, {f: getattr(mesh, f) for f in meshcache.FIELDS})
+    return mesh
 
 
 @contextlib.contextmanager
@@ -128,6 +132,8 @@ def _why(e: BaseException) -> str:
 
 
 def _load_surface(path: Path, merge_vertices: bool, where: str, scale: float) -> MeshData:
+    import trimesh  # noqa: PLC0415 - most of a second to import; a cached mesh needs none (meshcache)
+
     try:
         # unprocessed first: processing silently drops NaN/inf vertices, which must be refused instead
         with _quiet():
@@ -148,6 +154,8 @@ def _load_surface(path: Path, merge_vertices: bool, where: str, scale: float) ->
 
 
 def _load_volume(path: Path, where: str, scale: float) -> MeshData:
+    import meshio  # noqa: PLC0415 - as trimesh in _load_surface
+
     try:
         with _quiet():
             m = meshio.read(str(path))
@@ -248,17 +256,16 @@ def primitive(
     """Built-in shapes so packs can have tools and test bodies without mesh files."""
     check_primitive(kind, resolution)
     res = [max(1, int(round(r))) for r in resolution]
-    if kind == "box":
-        m = trimesh.creation.box(extents=extents)
-    elif kind == "sphere":
-        m = trimesh.creation.uv_sphere(radius=radius, count=[max(res[0], 8), max(res[1], 8)])
-    elif kind == "cylinder":
-        m = trimesh.creation.cylinder(radius=radius, height=height, sections=max(res[0], 6))
-    elif kind == "capsule":
-        m = trimesh.creation.capsule(radius=radius, height=height, count=[max(res[0], 8), max(res[1], 8)])
-    elif kind == "cone":
-        m = trimesh.creation.cone(radius=radius, height=height, sections=max(res[0], 6))
-    elif kind == "grid":
+    if kind in TRIMESH_SHAPES:
+        spec = repr((kind, [float(x) for x in extents], float(radius), float(height), res)).encode()
+        name = meshcache.key(spec, "primitive", 1.0, False)
+        kept = meshcache.read(name)
+        if kept is not None and kept["vertices"] is not None and kept["triangles"] is not None:
+            return MeshData(kept["vertices"], kept["triangles"])
+        mesh = _trimesh_shape(kind, extents, radius, height, res)
+        meshcache.write(name, {"vertices": mesh.vertices, "triangles": mesh.triangles})
+        return mesh
+    if kind == "grid":
         nx, ny = res[0] + 1, res[1] + 1
         pos, tris, links = meshgen.triangulated_grid(nx, ny, 1.0, dim=3)
         pos[:, 0] *= extents[0] / max(nx - 1, 1)
@@ -270,6 +277,24 @@ def primitive(
         pos, tets, _ = meshgen.tet_grid(nx, ny, nz)
         pos = pos * (np.asarray(extents) / np.maximum([nx - 1, ny - 1, nz - 1], 1)) - np.asarray(extents) / 2
         return MeshData(pos, boundary_triangles(tets), tets)
+    raise MeshError(f"unknown primitive {kind!r}")
+
+
+#: the primitives trimesh makes (kept by meshcache: a later start imports no trimesh for them)
+TRIMESH_SHAPES = ("box", "sphere", "cylinder", "capsule", "cone")
+
+
+def _trimesh_shape(kind: str, extents, radius: float, height: float, res: list[int]) -> MeshData:
+    import trimesh  # noqa: PLC0415 - as in _load_surface
+
+    if kind == "box":
+        m = trimesh.creation.box(extents=extents)
+    elif kind == "sphere":
+        m = trimesh.creation.uv_sphere(radius=radius, count=[max(res[0], 8), max(res[1], 8)])
+    elif kind == "cylinder":
+        m = trimesh.creation.cylinder(radius=radius, height=height, sections=max(res[0], 6))
+    elif kind == "capsule":
+        m = trimesh.creation.capsule(radius=radius, height=height, count=[max(res[0], 8), max(res[1], 8)])
     else:
-        raise MeshError(f"unknown primitive {kind!r}")
+        m = trimesh.creation.cone(radius=radius, height=height, sections=max(res[0], 6))
     return MeshData(np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64))

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike
-from trimesh.triangles import closest_point
 
 EPS = 1e-12
 
@@ -56,6 +55,8 @@ def ray_mesh(
 
 def closest_on_mesh(vertices: np.ndarray, triangles: np.ndarray, point: ArrayLike) -> tuple[int, np.ndarray]:
     """(triangle, point) on the mesh surface nearest to `point`."""
+    # trimesh takes most of a second to import: not at start (the window loads it behind its first picture)
+    from trimesh.triangles import closest_point  # noqa: PLC0415
 
     p = np.asarray(point, float)
     corners = vertices[triangles]
