@@ -1,6 +1,7 @@
 """The needle packs' tissue deforms with each layer's own material: every tetrahedron of the shipped
 volumes takes the E and nu of its layer's [tissue_layers] table (read here from pack.toml and the mesh
-file directly), under the pack's model and after a switch to another physical model."""
+file directly), under the pack's model and after a switch to another physical model; and the tip presses
+the skin over the force model's punch, not over one face of the mesh."""
 
 from __future__ import annotations
 
@@ -12,8 +13,10 @@ import numpy as np
 import pytest
 from needle_insertion import ASSETS
 
+from chainsim.components.resources import PendingInput
 from chainsim.game.app.headless import build_app
-from chainsim.systems.procedures.needle.tissue import NeedleTissueScene
+from chainsim.systems.procedures.needle.insertion import straight_insertion
+from chainsim.systems.procedures.needle.tissue import NeedleTissue, NeedleTissueScene
 from chainsim.systems.tissue.deformable import Deformable, use_model
 
 
@@ -42,5 +45,43 @@ def test_each_tetrahedron_deforms_with_its_layers_modulus(pack):
                     if model != d.model_used:
                         use_model(d, model)
                     np.testing.assert_allclose(d.body.w_arap / d.body.vol, want, rtol=1e-12)
+    finally:
+        app.close()
+
+
+@pytest.mark.parametrize("pack", ["mental-block", "prp"])
+def test_the_tip_presses_the_skin_over_the_force_models_punch(pack):
+    """Before the skin gives, every free skin node within contact_radius_mm of where the needle meets the
+    skin (the flat punch the stiffness term assumes; nodes from the mesh file's skin triangles and pinned
+    points) goes with the tip, not only the face the needle crosses."""
+    manifest = tomllib.loads((ASSETS / pack / "pack.toml").read_text())
+    radius = float(manifest["needle_tissue"]["contact_radius_mm"])
+    events, _, _ = straight_insertion(ASSETS / pack, manifest)
+    app = build_app(pack, save="a test saves nothing")
+    try:
+        app.resource(PendingInput).extend(events)
+        scene = app.resource(NeedleTissueScene)
+        pressed = []
+        for _ in range(400):
+            app.update(app.time.dt)
+            with app.active():
+                [(_, nt)] = esper.get_component(NeedleTissue)
+                if nt.punctured:
+                    break
+                if nt.contact and nt.tent > 0:
+                    c = nt.crossings[0]
+                    body = scene.bodies[c.body]
+                    d = esper.component_for_entity(body.entity, Deformable)
+                    pressed.append((body.name, c.point.copy(), c.nodes.copy(), d.pos - d.rest))
+        assert len(pressed) >= 3, "the tip pressed the skin for a few frames before it gave"
+        name, point, face, moved = pressed[-1]
+        m = meshio.read(ASSETS / pack / "meshes" / f"{name}.vtu")
+        skin = np.unique(m.cells_dict["triangle"])
+        skin = skin[m.point_data["fixed"][skin] == 0]
+        under = skin[np.linalg.norm(m.points[skin] - point, axis=1) <= radius]
+        assert len(under), "nodes lie under the punch"  # on prp's cheek more than the crossed face's three
+        tent = np.linalg.norm(moved[face], axis=1)
+        assert tent.min() > 1.0  # the crossed face went in with the tip
+        np.testing.assert_allclose(np.linalg.norm(moved[under], axis=1), tent.mean(), rtol=1e-6)
     finally:
         app.close()

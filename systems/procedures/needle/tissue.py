@@ -183,6 +183,8 @@ class TissueBody:
     sides: np.ndarray  # (F, 2) layer index (into Layers) on each side, -1 outside the tissue
     normals: np.ndarray  # (F, 3) from sides[:, 0] towards sides[:, 1]
     rest_world: np.ndarray
+    # each boundary's nodes that are free to move, by the (lower, higher) layer index on its two sides
+    boundary_nodes: dict = field(default_factory=dict)
 
 
 @dataclass(slots=True)
@@ -205,6 +207,8 @@ class Crossing:
     layer_in: int  # layer entered going deeper
     layer_out: int  # layer left going deeper (-1: outside)
     room: float = np.inf  # tissue behind it along the line before the line leaves the body (mm)
+    # the boundary's nodes the tip presses before it gives: the punch of the force model (see _patch)
+    patch: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
 
 @dataclass(slots=True)
@@ -309,6 +313,26 @@ def boundaries(tets: np.ndarray, tet_layer: np.ndarray, rest: np.ndarray) -> tup
     return f, s, nrm
 
 
+def _boundary_nodes(faces: np.ndarray, sides: np.ndarray, pinned: np.ndarray) -> dict:
+    """The unpinned nodes of each boundary, keyed by the (lower, higher) layer index on its sides."""
+    key = np.sort(sides, axis=1)
+    out = {}
+    for pair in np.unique(key, axis=0):
+        nodes = np.unique(faces[np.all(key == pair, axis=1)])
+        out[(int(pair[0]), int(pair[1]))] = nodes[~pinned[nodes]]
+    return out
+
+
+def _patch(body: TissueBody, face: int, point: np.ndarray, radius: float) -> np.ndarray:
+    """The nodes a tip pressing the boundary at `point` holds: the crossed face's and every free node of
+    the same boundary within `radius` (the force model's flat punch of contact_radius_mm), so the press
+    is spread over the punch's area as the stiffness term assumes, not over one face of the mesh."""
+    a, b = sorted(int(x) for x in body.sides[face])
+    nodes = body.boundary_nodes.get((a, b), np.zeros(0, dtype=np.int64))
+    near = nodes[np.linalg.norm(body.rest_world[nodes] - point, axis=1) <= radius]
+    return np.union1d(body.faces[face], near)
+
+
 def read_scene(app: App) -> NeedleTissueScene | None:
     pack = app.resource(PackResource).pack
     table = pack.section("needle_tissue")
@@ -342,7 +366,7 @@ def read_scene(app: App) -> NeedleTissueScene | None:
                 set_element_materials(d, layers.E[li] * 1e3, layers.nu[li], f"tissue_layers ('{name}')")
                 rest = to_world(esper.try_component(ent, Transform), d.rest.astype(np.float64))
                 f, s, nrm = boundaries(mesh.tets, idx[mesh.layers], rest)
-                bodies.append(TissueBody(ent, name, f, s, nrm, rest))
+                bodies.append(TissueBody(ent, name, f, s, nrm, rest, _boundary_nodes(f, s, d.fixed_mask)))
     in_meshes = {int(x) for b in bodies for x in np.unique(b.sides) if x >= 0}
     for i, name in enumerate(layers.names):
         if i not in in_meshes:
@@ -390,7 +414,9 @@ def ray_crossings(scene: NeedleTissueScene, entry: np.ndarray, d: np.ndarray, re
                 # the entry point is on the skin: a skin face the needle's line meets just behind it (the
                 # volume's skin face is a chord of the skin surface) is met at the entry itself
                 depth = max(depth, 0.0)
-            out.append(Crossing(bi, depth, body.faces[fi].copy(), o + t[fi] * d, int(lin), int(lout)))
+            point = o + t[fi] * d
+            patch = _patch(body, int(fi), point, scene.contact_radius)
+            out.append(Crossing(bi, depth, body.faces[fi].copy(), point, int(lin), int(lout), patch=patch))
     out.sort(key=lambda c: c.depth)
     for c in out:
         beyond = [x for b, x in exits if b == c.body and x > c.depth + 1e-9]
@@ -645,10 +671,10 @@ class NeedleTissueSystem:
             c = nt.crossings[nt.punctured]
             body = scene.bodies[c.body]
             ids, targets = want.setdefault(c.body, ([], []))
-            ids.extend(c.nodes.tolist())
-            # the face goes with the tip, but never more than TENT_ROOM of the tissue behind it (the force
+            ids.extend(c.patch.tolist())
+            # the patch goes with the tip, but never more than TENT_ROOM of the tissue behind it (the force
             # model's stiffening makes it give before that in all but the softest tissue)
-            targets.extend((body.rest_world[c.nodes] + min(nt.tent, TENT_ROOM * c.room) * d).tolist())
+            targets.extend((body.rest_world[c.patch] + min(nt.tent, TENT_ROOM * c.room) * d).tolist())
         nt.lateral = float(np.linalg.norm(lateral))
         with app.active():
             for bi, body in enumerate(scene.bodies):
