@@ -29,6 +29,7 @@ from chainsim.components.input_events import PickPoint, Widget
 from chainsim.systems.engine import datafile, limits
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.procedures.needle import records as layout
+from chainsim.systems.view.ui.widgets import WidgetState
 
 AIDS = layout.AIDS
 TASKS = ("location", "insertion")
@@ -42,6 +43,9 @@ SESSION_KINDS = ("widget", "pick")
 RESET = "reset"
 #: the task whose trials start from points marked for the participant at their ideal places
 MARKED_TASK = "insertion"
+#: seconds from a trial's start to its fresh attempt, and to the lock of its aids (the page's Enter counts
+#: as the start; the aids' events come first, at 0.01 s)
+RESET_AFTER_S, LOCK_AFTER_S = 0.05, 0.2
 #: how far (mm) a point the session marked may lie from the pack's ideal point (JSON keeps 17 digits)
 POINT_TOLERANCE = 1e-6
 
@@ -311,7 +315,7 @@ def aid_events(trial: dict, now: float) -> list[tuple[float, Widget]]:
 def session_events(trial: dict, now: float, pack: Any, side: str) -> list[tuple[float, Any]]:
     """What a study session sets at a trial's start: its aids, a fresh attempt, and the marked points of an
     insertion trial."""
-    events: list[tuple[float, Any]] = [*aid_events(trial, now), (now + 0.05, Widget(RESET, "all"))]
+    events: list[tuple[float, Any]] = [*aid_events(trial, now), (now + RESET_AFTER_S, Widget(RESET, "all"))]
     if trial["task"] == MARKED_TASK:
         for k, p in enumerate(marked_points(pack, side), 1):
             events.append((now + 0.06 + 0.02 * k, PickPoint("skin", p)))
@@ -349,3 +353,26 @@ def check_replayed_aids(record: dict, trial: dict) -> None:
             f"the replayed trial had aids {_on(got)}, but trial {trial['order']} ({trial['condition']}) of "
             f"{trial['participant']!r} has {_on(trial['aids'])}"
         )
+
+
+def aid_locks(events: list[dict]) -> list[tuple[float, float]]:
+    """When the session held a recording's aids locked (seconds): from ``LOCK_AFTER_S`` after each trial's
+    start to the next trial's page, which frees them just before setting that trial's aids."""
+    widgets = [(float(e["t"]), e.get("name")) for e in events if isinstance(e, dict) and e.get("kind") == "widget"]
+    out = []
+    for i, (t, name) in enumerate(widgets):
+        if name == RESET:
+            end = next((u for u, n in widgets[i + 1 :] if n in AIDS), float("inf"))
+            out.append((t - RESET_AFTER_S + LOCK_AFTER_S, end - 0.005))
+    return out
+
+
+def hold_locks(app: Any, locks: list[tuple[float, float]]) -> None:
+    """Lock or free the aids as the session did at the App's time: a replay's clicks on a locked aid are
+    ignored, as the participant's were."""
+    now = app.time.sim_time
+    ws = app.resource(WidgetState)
+    if any(a <= now < b for a, b in locks):
+        ws.disable(*AIDS)
+    elif locks and now >= locks[0][0]:  # before the first trial's lock the session had not touched them
+        ws.enable(*AIDS)

@@ -204,7 +204,7 @@ def replay_record(
     Raises UserError when the recording is not the window's, is longer than the server replays, or
     does not replay to a Save."""
     from chainsim.components.digest import world_digest  # noqa: PLC0415 - worker process only
-    from chainsim.components.resources import PendingInput, Records, Settings  # noqa: PLC0415
+    from chainsim.components.resources import Records, Settings  # noqa: PLC0415
     from chainsim.game.app.headless import app_for_pack, check_events  # noqa: PLC0415
     from chainsim.game.app.inputscript import parse_events  # noqa: PLC0415
     from chainsim.game.packs import pack as packs  # noqa: PLC0415
@@ -241,14 +241,8 @@ def replay_record(
         # the procedure saves through Records; here each save is caught instead of stored
         app.insert_resource(Records(save_attempt=capture, list_attempts=lambda c, t: [], where="replay"))
         check_events(app, events, "recording")
-        pending = app.resource(PendingInput)
-        pending.extend(events)
-        steps_run = 0
-        for _ in range(fields["steps"]):
-            app.update(app.time.dt)
-            steps_run += 1
-            if saved and pending.exhausted:  # the upload's Save is the recording's last input: stop there
-                break
+        locks = protocol.aid_locks(recording["event"]) if trial else []
+        steps_run = _step_to_save(app, events, fields["steps"], saved, locks)
     finally:
         app.close()
     if not saved:
@@ -268,6 +262,22 @@ def replay_record(
             name for name, spec in pack.section("metrics").items() if spec.get("measure") in DEVICE_MEASURES
         ],
     }
+
+
+def _step_to_save(app: Any, events: list, steps: int, saved: list, locks: list[tuple[float, float]]) -> int:
+    """Step the replay through ``events`` until the upload's Save (its last input) has saved, or ``steps``;
+    the steps run. ``locks``: when a study session held the aids locked (``protocol.aid_locks``)."""
+    from chainsim.components.resources import PendingInput  # noqa: PLC0415 - worker process only
+
+    pending = app.resource(PendingInput)
+    pending.extend(events)
+    for n in range(1, steps + 1):
+        if locks:
+            protocol.hold_locks(app, locks)
+        app.update(app.time.dt)
+        if saved and pending.exhausted:  # the upload's Save is the recording's last input: stop there
+            return n
+    return steps
 
 
 def _window_form(recording: dict, pack: Any, trial: dict | None) -> None:

@@ -375,7 +375,7 @@ class StudySession:
         pending = app.resource(PendingInput)
         events = trials.session_events(t, now, app.resource(PackResource).pack, self.side)
         pending.extend(events)
-        self.lock_at = now + 0.2
+        self.lock_at = now + trials.LOCK_AFTER_S  # a replay locks them at the same time (protocol.aid_locks)
         app.resource(Settings).values["protocol"] = {
             "study": self.study,
             "participant": self.participant,

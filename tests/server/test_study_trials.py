@@ -66,6 +66,8 @@ def run_session(session, app) -> list[dict]:
         steps(0.3)
         now = app.time.sim_time
         script = [(now + 0.1 * (k + 1), p) for k, p in enumerate(picks)] if t["task"] == "location" else []
+        # a click on the locked aid's button: ignored at the window, and so in the server's replay
+        script.insert(0, (now, Widget("reference_planes", not t["aids"]["reference_planes"])))
         script += [(now + 0.5 + 0.05 * k, e) for k, e in enumerate(aim)] if t["task"] == "insertion" else []
         events = windowform.gestures(app, script, close_page=False)
         events += windowform.save_click(app, max(e[0] for e in events))
