@@ -178,6 +178,9 @@ def attempt_recording(app: App, pack: packs.Pack, settings: dict | None) -> str:
     trial = app.resource(Settings).values.get("protocol")
     if isinstance(trial, dict):  # a study's trial: the records server checks it against its register
         recording["protocol"] = {k: trial.get(k) for k in ("study", "participant", "order", "trial", "condition")}
+        recording["protocol"].update(
+            practice=bool(trial.get("practice")), slot=(trial.get("allocation") or {}).get("slot")
+        )
     return provenance.encode_recording(recording)
 
 

@@ -327,8 +327,11 @@ def check_session_events(recording: dict, trial: dict, pack: Any) -> None:
     ``session_events``): aid and reset widgets, and after the last reset only the marked points of an
     insertion trial; and unless the recording names this trial."""
     said = recording.get("protocol") or {}
-    if not isinstance(said, dict) or any(said.get(k) != trial[k] for k in ("study", "participant", "order")):
-        raise UserError("the recording is not of this trial (its protocol's study, participant or order differ)")
+    known = {k: trial[k] for k in ("study", "participant", "order", "trial", "condition", "practice")}
+    known["slot"] = trial["allocation"]["slot"]
+    wrong = next((k for k in known if not isinstance(said, dict) or said.get(k) != known[k]), None)
+    if wrong is not None:
+        raise UserError(f"the recording is not of this trial: its protocol's {wrong} is not the upload's")
     points = marked_points(pack)
     events = [e for e in recording.get("event") or [] if isinstance(e, dict)]
     resets = [i for i, e in enumerate(events) if e.get("kind") == "widget" and e.get("name") == RESET]

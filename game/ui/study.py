@@ -33,7 +33,9 @@ Ending early is a choice, never an accident: Esc in the window asks first (`end_
 what is saved and how to continue.
 
 The session is GL-free: the window feeds it keys and text and calls `update()` once per frame; tests
-drive it the same way on a headless App.
+drive it the same way on a headless App. The records server's browser trainer runs it too
+(``served``, /train/PACK?study=S: chainsim.game.server.train_session), without questionnaires and
+with the trials the server already has in place of the local records.
 """
 
 from __future__ import annotations

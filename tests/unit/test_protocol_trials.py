@@ -73,12 +73,17 @@ def test_the_servers_trial_is_kept_and_one_not_allocated_refused_in_one_line():
         protocol.check_claim(claim(1), None, ENTRY, ("c1", "P1"))
 
 
+SAID = {"study": "s1", "participant": "P1", "order": 5, "trial": "viewer", "condition": "local_viewer"}
+SAID.update(practice=False, slot=1)
+
+
 def recording(*events: dict) -> dict:
-    return {"protocol": {"study": "s1", "participant": "P1", "order": 5}, "event": list(events)}
+    return {"protocol": dict(SAID), "event": list(events)}
 
 
 def test_only_the_sessions_own_events_pass_where_it_sets_them():
-    trial = {"study": "s1", "participant": "P1", "order": 5, "task": "insertion", "aids": {}}
+    trial = {**{k: v for k, v in SAID.items() if k != "slot"}, "task": "insertion", "aids": {}}
+    trial["allocation"] = {"slot": 1}
     aid = {"t": 0.01, "kind": "widget", "name": "tip_view", "value": True}
     reset = {"t": 0.05, "kind": "widget", "name": "reset", "value": "all"}
     pick = {"t": 0.08, "kind": "pick", "entity": "skin", "point": list(POINT), "button": "left"}
@@ -88,7 +93,8 @@ def test_only_the_sessions_own_events_pass_where_it_sets_them():
         (recording({**aid, "name": "save"}, reset), trial, "sets widget 'save'"),
         (recording(reset, {**pick, "point": [10.0, 20.0, 31.0]}), trial, "marks a point"),
         (recording(reset, pick), {**trial, "task": "location"}, "marks a point"),  # a location trial marks its own
-        (recording(reset), {**trial, "order": 4}, "not of this trial"),
+        (recording(reset), {**trial, "order": 4}, "not of this trial: its protocol's order"),
+        (recording(reset), {**trial, "allocation": {"slot": 0}}, "not of this trial: its protocol's slot"),
     ]
     for rec, t, says in refused:
         with pytest.raises(UserError, match=says):
