@@ -497,6 +497,7 @@ def use_model(d: Deformable, model: str, where: str = "deformable", initial: boo
     d.model_used = model
     notice = getattr(d.body, "notice", "")  # what a frame will cost here, said where the choice is
     d.model_reason = (reason or f"{model} (as the pack or --model asks)") + (f"; {notice}" if notice else "")
+    d.model_reason += _one_material_note(d)
     if not initial:  # a switch at run time: everything is redrawn
         d.mark_dirty(np.arange(d.n_elements))
         d.version += 1
@@ -531,8 +532,15 @@ def set_element_materials(d: Deformable, E: np.ndarray, nu: np.ndarray, where: s
             body.set_materials(d.element_E, d.element_nu)
         except UserError as e:
             raise UserError(f"{where}: {e}") from None
-    elif d.model_used == "xpbd":
-        d.model_reason += "; xpbd keeps one E and nu for the whole body (per-element moduli: projective, hybrid)"
+    else:
+        d.model_reason += _one_material_note(d)
+
+
+def _one_material_note(d: Deformable) -> str:
+    """What model_reason adds when the body has materials per element that its model does not take."""
+    if len(d.element_E) and d.model_used == "xpbd" and "one E and nu" not in d.model_reason:
+        return "; xpbd keeps one E and nu for the whole body (per-element moduli: projective, hybrid)"
+    return ""
 
 
 def build_pull(p: Pull, ctx) -> None:

@@ -45,6 +45,8 @@ def test_each_tetrahedron_deforms_with_its_layers_modulus(pack):
                     if model != d.model_used:
                         use_model(d, model)
                     np.testing.assert_allclose(d.body.w_arap / d.body.vol, want, rtol=1e-12)
+                use_model(d, "xpbd")  # one material per body: the model line says the layers' are not used
+                assert "xpbd keeps one E and nu for the whole body" in d.model_reason
     finally:
         app.close()
 
