@@ -15,6 +15,7 @@ import uuid
 
 import pytest
 from conftest import SCRIPTS, call
+from test_browser import browser, sign_in  # noqa: F401 - the module's Chromium fixture
 from test_train import cookie_for, in_thread
 
 PROTOCOL = {
@@ -130,3 +131,27 @@ def test_a_registered_trainee_runs_the_studys_trials_in_the_browser(site):
     ]
     assert [a["aids"]["reference_planes"] for a in mine] == [True, True, False]
     assert all(a["source"] == "witnessed" and p["group"] == "expert" for a, p in zip(mine, protos, strict=True))
+
+
+def test_the_study_link_opens_the_seat_with_the_study_in_chromium(browser, site):  # noqa: F811
+    """The link a trainer hands out, opened in the browser: the page names the study, and its socket carries
+    it (the seat starts with the study's first page)."""
+    if site.db.startswith("postgresql"):
+        pytest.skip("the page and the socket do not touch the database; checked on SQLite")
+    study = f"s{uuid.uuid4().hex[:8]}"
+    tina = site.tokens["tina"]
+    assert call(site, "POST", f"/api/studies/{study}/design", PROTOCOL, tina)[0] == 201
+    entry = {"class_name": "c1", "code": "bob", "group": "novice", "year_of_training": 1, "procedures_performed": 0}
+    assert call(site, "POST", f"/api/studies/{study}/participants", entry, tina)[0] == 201
+    context = browser.new_context(viewport={"width": 1400, "height": 1000}, bypass_csp=True)
+    page = context.new_page()
+    sockets: list[str] = []
+    page.on("websocket", lambda ws: sockets.append(ws.url))
+    try:
+        sign_in(page, site, "bob")
+        page.goto(f"{site.url}/train/prp?study={study}")
+        assert f"Study {study}" in page.inner_text("main")
+        page.wait_for_function("window.trainStats && window.trainStats.frames > 0", timeout=120_000)
+        assert sockets and sockets[-1].endswith(f"/train/prp/ws?study={study}")
+    finally:
+        context.close()
