@@ -1,9 +1,10 @@
 """The trainers' register page of a study on the records server: /studies/{study}.
 
 The same register as /api/studies (chainsim.game.records.register), for a trainer signed in to the
-dashboard: the participants of their classes in slot order with their covariates, and a form that
+dashboard: the participants of their classes in slot order with their covariates, a form that
 enters the next one before their first trial and shows the slot (the row of the protocol's design)
-they are given. A bad entry is answered with the error page naming the field (4xx); nothing is saved.
+they are given, and, once the study's design is filed, the browser trainer's link for its trials. A
+bad entry is answered with the error page naming the field (4xx); nothing is saved.
 It also holds the store work of a registration, which the JSON API (study_api) runs too.
 """
 
@@ -54,9 +55,13 @@ async def study_page(request: Request) -> Response:
     trainer_only(user)
     study = request.path_params["study"]
     rows = await request.app.state.storage.run(register.entries, study, list(user.classes))
+    filed = await request.app.state.storage.run(register.design_of, study)
     added = request.query_params.get("added", "")
     note = next((f"{r['code']} registered: slot {r['slot']}." for r in rows if r["code"] == added), "")
-    return render("study.html", user=user, csrf=csrf, study=study, rows=rows, design=register.DESIGN, note=note)
+    pack = filed["pack"] if filed else ""
+    return render(
+        "study.html", user=user, csrf=csrf, study=study, rows=rows, design=register.DESIGN, note=note, pack=pack
+    )
 
 
 async def study_register(request: Request) -> Response:

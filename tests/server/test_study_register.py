@@ -144,7 +144,8 @@ def test_a_session_takes_its_order_from_the_servers_register(site, tmp_path, cli
 
 def test_the_register_page_enters_a_participant_and_shows_their_slot(site):
     """A trainer signed in to the dashboard registers on /studies/STUDY (CSRF-checked form); a bad count
-    is a 422 naming it; a trainee may not open the page."""
+    is a 422 naming it; a trainee may not open the page. Once the study's design is filed (the same one
+    again is fine, another is a 409, a bad one a 422) the page gives the browser trainer's link."""
     from test_dashboard import Browser, csrf_of
 
     study = f"s{uuid.uuid4().hex[:8]}"
@@ -152,12 +153,23 @@ def test_the_register_page_enters_a_participant_and_shows_their_slot(site):
     assert b.sign_in("tina")[0] == 303
     status, page, _ = b.get(f"/studies/{study}")
     assert status == 200 and "No participant registered yet" in page
+    assert "design (its trials and aids) is not filed yet" in page
     form = {"class_name": "c1", "code": "P1", "group": "expert", "year_of_training": "7", "procedures_performed": "120"}
     assert b.post(f"/studies/{study}", {**form, "csrf": "forged" * 6})[0] == 403
     status, _, hdrs = b.post(f"/studies/{study}", {**form, "csrf": csrf_of(page)})
     assert status == 303 and hdrs["location"] == f"/studies/{study}?added=P1"
+    design = {"pack": "prp", "practice": 0, "trials": [{"name": "t", "task": "location", "condition": "c"}]}
+    path = f"/api/studies/{study}/design"
+    assert call(site, "POST", path, design, site.tokens["tina"])[0] == 201
+    assert call(site, "POST", path, design, site.tokens["tina"])[0] == 200  # the same design again
+    status, answer, _ = call(site, "POST", path, {**design, "practice": 1}, site.tokens["tina"])
+    assert status == 409 and "has another design on this server" in answer["error"]
+    bad = call(site, "POST", path, {**design, "trials": [{"task": "juggling"}]}, site.tokens["tina"])
+    assert bad[0] == 422 and "'task' must be one of location, insertion" in bad[1]["error"]
+    assert call(site, "POST", path, design, site.tokens["alice"])[0] == 403
     status, page, _ = b.get(hdrs["location"])
     assert "P1 registered: slot 0." in page and "<td>expert</td><td>7</td>" in page
+    assert f'href="/train/prp?study={study}"' in page  # the browser trainer's link for the trials
     bad = {**form, "code": "P2", "year_of_training": "seven", "csrf": csrf_of(page)}
     status, page, _ = b.post(f"/studies/{study}", bad)
     assert status == 422 and "year_of_training is &#39;seven&#39;" in page
