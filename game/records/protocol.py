@@ -35,6 +35,8 @@ AIDS = layout.AIDS
 TASKS = ("location", "insertion")
 TOP_KEYS = {"format", "pack", "title", "description", "trial", "require_witnessed", "practice"}
 TRIAL_KEYS = {"name", "task", "condition", "scripts", "script", "repeat", "steps", "aids"}
+#: how a participant's slot picks their condition order (``plan``)
+DESIGN = "balanced Latin square"
 #: what the design filed on a records server keeps of each trial (the scripts are a scripted run's only)
 DESIGN_TRIAL_KEYS = ("name", "task", "condition", "repeat", "aids")
 #: the kinds of event a study session sets itself (not window input), checked by ``check_session_events``
@@ -278,7 +280,7 @@ def check_claim(claim: Any, trial_design: dict | None, entry: dict | None, where
         "cycle": t["cycle"],
         "practice": t["practice"],
         "aids": t["aids"],
-        "allocation": {"by": "records server", "design": "balanced Latin square", "slot": entry["slot"]},
+        "allocation": {"by": "records server", "design": DESIGN, "slot": entry["slot"]},
         **{k: entry[k] for k in ("group", "year_of_training", "procedures_performed")},
     }
 

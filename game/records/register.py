@@ -33,7 +33,7 @@ from chainsim.game.records.validate import clean_created_at, clean_name
 from chainsim.game.records.validity_data import GROUPS
 from chainsim.systems.engine.errors import UserError
 
-DESIGN = "balanced Latin square"
+DESIGN = protocol.DESIGN
 #: the register's whole-number covariates and their largest values (as a CSV register takes them)
 COUNTS = {"year_of_training": 80, "procedures_performed": 1_000_000}
 FIELDS = ("code", "group", "year_of_training", "procedures_performed")
