@@ -170,3 +170,48 @@ def test_a_trial_of_an_unfiled_study_is_refused(site):
     body["details"]["protocol"] = {"study": f"s{uuid.uuid4().hex[:8]}", "participant": "alice", "order": 1}
     status, answer, _ = call(site, "POST", "/api/attempts", body, site.tokens["alice"])
     assert status == 422 and "has no design on this server" in answer["error"]
+
+
+def test_with_the_server_out_of_reach_a_trial_is_kept_and_queued(tmp_path, monkeypatch):
+    """Offline the session goes on: the trial is in the local records and waits in the outbox for the next
+    sync, and the window says so."""
+    from chainsim.components.hud import HudState
+    from chainsim.components.input_events import PickPoint, Widget
+    from chainsim.components.resources import PendingInput
+    from chainsim.game.app.headless import build_app
+    from chainsim.game.app.inputscript import load_script
+    from chainsim.game.records import remote
+    from chainsim.game.records.protocol import load_protocol
+    from chainsim.game.records.store import RecordStore
+    from chainsim.game.ui.questionnaire import PRE
+    from chainsim.game.ui.study import StudySession
+
+    monkeypatch.setenv("CHAINSIM_RECORDS_TOKEN", "anything")
+    proto_file = tmp_path / "offline.toml"
+    proto_file.write_text(PROTOCOL.replace("practice = 1", "practice = 0"))
+    db = tmp_path / "local.sqlite3"
+    app = build_app("prp", settings={"db": str(db), "class": "c1", "trainee": "P1"})
+    allocation = {"by": "records server", "design": "balanced Latin square", "slot": 0, "group": "novice"}
+    try:
+        s = StudySession(
+            app, load_protocol(proto_file), "P1", "c1", db, allocation=allocation, records="http://127.0.0.1:9"
+        )
+        s.start()
+        for _ in PRE:
+            s.key("return")
+        s.key("return")  # the first trial's page
+        now = app.time.sim_time
+        picks = [e for _, e in load_script(SCRIPTS / "correct.toml") if isinstance(e, PickPoint)]
+        events = [(now + 0.3 + 0.1 * k, p) for k, p in enumerate(picks)] + [(now + 1.0, Widget("save", None))]
+        app.resource(PendingInput).extend(events)
+        for _ in range(int(1.5 / app.time.dt)):
+            app.update(app.time.dt)
+            s.update()
+        assert s.k == 1, app.resource(HudState).messages
+        said = " ".join(m for m, _ in app.resource(HudState).messages)
+    finally:
+        app.close()
+    with RecordStore(db) as store:
+        assert len(store.list_attempts("c1", "P1")) == 1
+        (queued,) = remote.pending(store)
+    assert queued["server"] == "http://127.0.0.1:9" and "trial saved here" in said and "waits in the queue" in said
