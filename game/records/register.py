@@ -165,7 +165,19 @@ def check_trial(store: RecordStore, class_name: str, trainee: str, claimed: dict
     known = isinstance(study, str) and isinstance(code, str)
     value = design_of(store, study) if known else None
     entry = lookup(store, study, code) if known else None
-    return protocol.check_claim({**said, "aids": claimed.get("aids")}, value, entry, (class_name, trainee))
+    kept = protocol.check_claim({**said, "aids": claimed.get("aids")}, value, entry, (class_name, trainee))
+    try:
+        attempts = store.list_attempts(class_name, trainee)
+    except UserError:  # the trainee has no attempts yet
+        attempts = []
+    for a in attempts:
+        p = (a.get("details") or {}).get("protocol") or {}
+        if not a.get("retracted_at") and (p.get("study"), p.get("order")) == (study, kept["order"]):
+            raise UserError(
+                f"trial {kept['order']} of {code!r} in study {study!r} is already on this server (attempt "
+                f"{a['id']}); a trial counts once: a trainer retracts it before it is made again"
+            )
+    return kept
 
 
 # -- on a records server (the simulator's side) --------------------------------------------------

@@ -147,6 +147,9 @@ def test_trials_are_filed_checked_replayed_and_tabled(site, tmp_path, cli, monke
     status, answer, _ = call(site, "POST", "/api/attempts", body, tina)
     assert status == 422 and len(answer["error"].splitlines()) == 1, answer
     assert "but the upload says aids none" in answer["error"] and "must have its allocation" in answer["error"]
+    # the same trial again, as it was: a trial counts once
+    status, answer, _ = call(site, "POST", "/api/attempts", remote_body(site, db, local[1]["id"]), tina)
+    assert status == 422 and "is already on this server" in answer["error"], answer
 
 
 def remote_body(site, db, local_id: int) -> dict:
