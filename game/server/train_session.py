@@ -16,14 +16,19 @@ Protocol on the pipes (the parent is the only peer; it has validated every input
   may be sent (the page asks for the next frame once it has drawn one, so a slow link never queues
   pictures), with ``"fresh": true`` when a page attached (the picture is sent even if unchanged);
   ``{"t": "reply", ...}`` the answer to a request below. End of input ends the session.
-- stdout, records of ``kind`` (1 byte), length (4 bytes, big-endian), payload: ``F`` a frame (8-byte
-  header: frame number and the last input ``seq`` the frame shows, both uint32, then the encoded
-  picture), ``J`` a JSON object: ``ready``, ``save`` (the attempt with the recording and pack identity
-  the records server scores it from, the same evidence ``chainsim play --records`` uploads), ``list``
-  (the trainee's saved attempts, for My attempts), ``error``.
+- stdout, records of ``kind`` (1 byte), length (4 bytes, big-endian), payload: ``F`` a frame (the parts
+  of the picture that changed since the last frame sent, with the frame number and the last input
+  ``seq`` the picture shows: ``chainsim.game.server.frame_tiles``), ``J`` a JSON object: ``ready``,
+  ``save`` (the attempt with the recording and pack identity the records server scores it from, the
+  same evidence ``chainsim play --records`` uploads), ``list`` (the trainee's saved attempts, for My
+  attempts), ``error``.
 
 A frame is encoded and sent only when the page has credit for one and the picture changed; a still
-scene costs no bandwidth.
+scene costs no bandwidth. Encoding runs on a thread of its own (Pillow lets go of the interpreter while
+it encodes), so the App steps and draws the next picture meanwhile. The page's credit comes back when it
+has drawn a frame: how long that takes above the quickest return seen is time frames spent queued on
+the link or in the browser, and the session lowers the pictures' quality while it grows, raising it
+again once it is gone; the credit window covers the link's round trip at the session's frame rate.
 """
 
 from __future__ import annotations
@@ -44,8 +49,12 @@ DEFAULT_FORMAT = "jpeg"
 DEFAULT_QUALITY = 70
 #: the most pictures a second a session draws and sends (a window draws about 60; the stream is the cost)
 DEFAULT_FPS = 30.0
-#: frames the page may have in flight at once (sent, not yet drawn)
-FRAME_CREDIT = 2
+#: frames the page may have in flight at once (sent, not yet drawn): at least MIN_CREDIT, and as many as
+#: the quickest round trip seen takes at the session's frame rate, up to MAX_CREDIT
+MIN_CREDIT, MAX_CREDIT = 2, 6
+#: the quality falls by QUALITY_STEP (not under MIN_QUALITY) while frames wait longer than QUEUED_MS beyond
+#: the quickest round trip, and climbs back while they wait under CLEAR_MS
+MIN_QUALITY, QUALITY_STEP, QUEUED_MS, CLEAR_MS = 30, 10, 60.0, 25.0
 SAVE_REPLY_S = 30.0
 #: after this many loops without input or a changed picture, the picture is drawn every STILL_EVERY-th loop
 STILL_FRAMES, STILL_EVERY = 15, 6
@@ -77,6 +86,11 @@ class Channel:
         self.credit = 0  # the parent gives credit once the page is told the picture's size
         self.fresh = False
         self._credit_lock = threading.Lock()
+        self.window = MIN_CREDIT  # the credit the page may hold (see MIN_CREDIT)
+        self.period = 1.0 / DEFAULT_FPS
+        self._sent: list[float] = []  # when each frame not yet drawn by the page was sent
+        self.base_ms = float("inf")  # the quickest send-to-drawn time seen (the link's round trip)
+        self.queued_ms = 0.0  # how much longer than that frames take now (smoothed)
         threading.Thread(target=self._read, args=(inp,), daemon=True, name="train-input").start()
 
     def _read(self, inp) -> None:
@@ -87,21 +101,32 @@ class Channel:
                 if kind == "in":
                     self.inputs.put(msg)
                 elif kind == "credit":
-                    with self._credit_lock:
-                        self.credit = min(self.credit + int(msg.get("n", 1)), FRAME_CREDIT)
-                        if msg.get("fresh"):  # a page (re)attached: it needs the picture even if unchanged
-                            self.fresh = True
+                    self._credited(int(msg.get("n", 1)), bool(msg.get("fresh")))
                 elif kind == "reply":
                     self.replies.put(msg)
         finally:
             self.closed.set()
             self.replies.put(None)
 
+    def _credited(self, n: int, fresh: bool) -> None:
+        with self._credit_lock:
+            if fresh:  # a page (re)attached: it needs the picture even if unchanged; nothing is in flight
+                self.fresh, self._sent = True, []
+            now = time.perf_counter()
+            for _ in range(min(n, len(self._sent))):
+                took = 1e3 * (now - self._sent.pop(0))
+                self.base_ms = min(self.base_ms, took)
+                self.queued_ms = 0.8 * self.queued_ms + 0.2 * (took - self.base_ms)
+            if self.base_ms < float("inf"):
+                self.window = max(MIN_CREDIT, min(MAX_CREDIT, 1 + int(self.base_ms / 1e3 / self.period + 0.999)))
+            self.credit = min(self.credit + n, self.window)
+
     def take_credit(self) -> bool:
         with self._credit_lock:
             if self.credit <= 0:
                 return False
             self.credit -= 1
+            self._sent.append(time.perf_counter())
             return True
 
     def send(self, kind: bytes, payload: bytes) -> None:
@@ -124,6 +149,52 @@ class Channel:
 
             raise UserError("the records server did not answer; the attempt is not saved")
         return reply
+
+
+class Encoder:
+    """Encodes and sends one frame at a time on a thread of its own (the module docstring): the changed
+    parts of each picture against the last one sent, at a quality that follows the link."""
+
+    def __init__(self, channel: Channel, fmt: str, quality: int) -> None:
+        self.channel, self.fmt = channel, fmt
+        self.best = self.quality = int(quality)
+        self.last = None  # the last picture sent (rows top first), or None: the next is sent whole
+        self.idle = threading.Event()
+        self.idle.set()
+        self.jobs: queue.Queue = queue.Queue()
+        threading.Thread(target=self._run, daemon=True, name="train-encode").start()
+
+    def submit(self, number: int, seq: int, picture) -> None:
+        self.idle.clear()
+        self.jobs.put((number, seq, picture))
+
+    def close(self) -> None:
+        self.jobs.put(None)
+
+    def _adapt(self) -> None:
+        queued = self.channel.queued_ms
+        if queued > QUEUED_MS:
+            self.quality = max(MIN_QUALITY, self.quality - QUALITY_STEP)
+        elif queued < CLEAR_MS:
+            self.quality = min(self.best, self.quality + QUALITY_STEP // 2)
+
+    def _run(self) -> None:
+        from chainsim.game.server.frame_tiles import changed_runs, pack_frame  # noqa: PLC0415
+
+        while True:
+            job = self.jobs.get()
+            if job is None:
+                return
+            number, seq, picture = job
+            try:
+                self._adapt()
+                runs = changed_runs(self.last, picture)
+                self.channel.send(b"F", pack_frame(number, seq, picture, runs, self.fmt, self.quality))
+                self.last = picture
+            except (OSError, ValueError):  # the parent is gone: the App's loop ends on the closed input
+                pass
+            finally:
+                self.idle.set()
 
 
 def server_records(channel: Channel, app, pack, settings: dict):
@@ -174,6 +245,22 @@ def study_session(app, cfg: dict):
     return session
 
 
+def key_times(keys: dict[str, tuple[float, float]], key: str, pressed: bool, now: float, dt: float) -> tuple[float]:
+    """The simulated time a key event from the page lands at, `keys` updated. A key pressed and released
+    before a step ran is held for one step, as in the window. Presses of one key that arrive together
+    (the network hands over a burst of taps at once) land two steps apart each, so every tap is one turn
+    of a dial, not one turn for the lot."""
+    if pressed:
+        at = max(now, keys.get(key, (now, now))[1])
+        keys[key] = (at, at)
+        return (at,)
+    down, _ = keys.get(key, (now - dt, now))
+    if down >= now:  # released before a step ran with it held: up a step later, the next press a step after
+        keys[key] = (down, down + 2 * dt)
+        return (down + dt,)
+    return (now,)
+
+
 class Session:
     """The App of one trainee drawn off screen: input in, pictures out (see the module docstring)."""
 
@@ -194,6 +281,8 @@ class Session:
         self.fmt = cfg.get("format", DEFAULT_FORMAT)
         self.quality = int(cfg.get("quality", DEFAULT_QUALITY))
         self.period = 1.0 / float(cfg.get("fps", DEFAULT_FPS))
+        channel.period = self.period
+        self.encoder = Encoder(channel, self.fmt, self.quality)
         self.settings = {"class": cfg["class"], "trainee": cfg["trainee"]}
         pack = packs.load(cfg["root"], cfg.get("pack_paths", []))
         # the window's App (headless=False: the window's settings), saving through the records server
@@ -219,7 +308,7 @@ class Session:
         self.stepper = FixedStepper(app, None)
         # a study's trials (``cfg["study"]``, from train_routes.study_seat): its pages take the keys they show
         self.study = study_session(app, cfg) if cfg.get("study") else None
-        self.pressed_at: dict[str, float] = {}
+        self.keys: dict[str, tuple[float, float]] = {}  # key -> (when its last press lands, when it is free)
         self.last_seq = 0
         self.frame_no = 0
         self.last_raw: bytes | None = None
@@ -240,16 +329,14 @@ class Session:
             if ev.key == "escape" and ev.pressed and not self.hud.doc_open:
                 self.hud.message("Close the tab to leave; press Save attempt first to keep this attempt.", 6.0)
                 return
-            if ev.pressed:
-                self.pressed_at[ev.key] = now
-            elif self.pressed_at.pop(ev.key, None) == now:
-                # pressed and released within one frame: held for one step, as in the window
-                self.pending.push(now + self.app.time.dt, ev)
-                return
+            self.pending.push(*key_times(self.keys, ev.key, ev.pressed, now, self.app.time.dt), ev)
+            return
         self.pending.push(now, ev)
 
-    def frame(self) -> bytes | None:
-        """Draw now; the encoded picture, or None when it is the one sent last."""
+    def frame(self):
+        """Draw now; the picture (H, W, 3 uint8, rows top first), or None when it is the one sent last."""
+        import numpy as np  # noqa: PLC0415
+
         render = self.render
         render.draw(self.app)
         target = self.app.resource(render.RenderTarget)
@@ -257,7 +344,8 @@ class Session:
         if raw == self.last_raw:
             return None
         self.last_raw = raw
-        return encode(raw, tuple(target.fbo.size), self.fmt, self.quality)
+        w, h = target.fbo.size
+        return np.ascontiguousarray(np.frombuffer(raw, np.uint8).reshape(h, w, 3)[::-1])  # GL: bottom row first
 
     def run(self) -> None:
         channel = self.channel
@@ -281,20 +369,24 @@ class Session:
                     self.hud.message(self.who.replace("Signed in:", "You are signed in as"), 6.0)
             # a still scene is looked at a few times a second only; input brings back the full rate
             self.still = 0 if had_input else self.still + 1
-            if channel.fresh:
-                channel.fresh, self.last_raw, self.still = False, None, 0
-            if channel.credit > 0 and (self.still < STILL_FRAMES or self.still % STILL_EVERY == 0):
+            encoder = self.encoder
+            if channel.fresh and encoder.idle.is_set():
+                channel.fresh, self.last_raw, self.still, encoder.last = False, None, 0, None
+            # a picture is drawn only when the encoder can take it: the steps go on meanwhile
+            ready = encoder.idle.is_set() and channel.credit > 0
+            if ready and (self.still < STILL_FRAMES or self.still % STILL_EVERY == 0):
                 picture = self.frame()
                 if picture is not None:
                     self.still = 0
                     if channel.take_credit():
                         self.frame_no += 1
-                        channel.send(b"F", struct.pack(">II", self.frame_no, self.last_seq & 0xFFFFFFFF) + picture)
+                        encoder.submit(self.frame_no, self.last_seq, picture)
             spare = self.period - (time.perf_counter() - start)
             if spare > 0:
                 channel.closed.wait(spare)
 
     def close(self) -> None:
+        self.encoder.close()
         self.app.close()
 
 

@@ -40,11 +40,45 @@
     ws.send(JSON.stringify(msg));
   }
 
-  function shown(blob, frameSeq) {
+  // past this median of the last few input-to-picture times the page says the link or server is slow, in
+  // a box over the page's corner (fixed: a line added above the picture would move it under the pointer)
+  const HIGH_LATENCY_MS = 300;
+  const slow = document.createElement("div");
+  slow.id = "train-latency";
+  slow.className = "error";
+  slow.setAttribute("role", "status");
+  Object.assign(slow.style, {
+    position: "fixed", top: "8px", right: "8px", maxWidth: "28em", padding: "6px 10px", zIndex: 10,
+    background: "#fff3f0", border: "1px solid #c0392b", borderRadius: "4px", font: "14px sans-serif",
+  });
+  slow.hidden = true;
+  document.body.appendChild(slow);
+
+  function latencyNotice() {
+    const recent = stats.latencies.slice(-7).sort((a, b) => a - b);
+    if (recent.length < 3) return;
+    const median = recent[recent.length >> 1];
+    slow.hidden = median <= HIGH_LATENCY_MS;
+    if (!slow.hidden) {
+      slow.textContent = "High latency: about " + Math.round(median) + " ms from your input to the picture " +
+        "(the network or the server is slow); the pictures' quality drops to keep up.";
+    }
+  }
+
+  function shown(data) {
+    // one frame: the parts of the picture that changed (game/server/frame_tiles.py: the wire format)
+    const head = new DataView(data);
+    const frameSeq = head.getUint32(4), n = head.getUint16(8);
+    const runs = [];
+    let at = 10;
+    for (let i = 0; i < n; i++) {
+      const x = head.getUint16(at), y = head.getUint16(at + 2), len = head.getUint32(at + 8);
+      runs.push([x, y, new Blob([data.slice(at + 12, at + 12 + len)], { type: mime })]);
+      at += 12 + len;
+    }
     drawing = drawing.then(async () => {
-      const bitmap = await createImageBitmap(blob);
-      g.drawImage(bitmap, 0, 0, W, H);
-      bitmap.close();
+      const bitmaps = await Promise.all(runs.map((r) => createImageBitmap(r[2])));
+      bitmaps.forEach((bitmap, i) => { g.drawImage(bitmap, runs[i][0], runs[i][1]); bitmap.close(); });
       const now = performance.now();
       for (const [s, t] of sentAt) {
         if (s <= frameSeq) {
@@ -55,6 +89,7 @@
       }
       stats.frames += 1;
       stats.shownSeq = frameSeq;
+      latencyNotice();
       send({ type: "ack" }); // drawn: the server may send the next picture
     }).catch(() => send({ type: "ack" }));
   }
@@ -96,9 +131,8 @@
         }
         return;
       }
-      const head = new DataView(e.data, 0, 8);
       stats.bytes += e.data.byteLength;
-      shown(new Blob([e.data.slice(8)], { type: mime }), head.getUint32(4));
+      shown(e.data);
     };
     ws.onclose = (e) => {
       stats.closed = { code: e.code, reason: e.reason };
