@@ -502,6 +502,8 @@ class WindowSession:
             threading.Thread(target=_load_behind, args=(("trimesh", "scipy.ndimage"),), daemon=True).start()
             if self.gate is None:
                 print("kernels: the scene's ready at the first picture (compiled before)", flush=True)
+            else:  # the window is up: what the scene waits on compiles at normal priority from now on
+                self.compiler.hurry(self.gate.needed)
         for ev in self.widget_events.read():
             if ev.name == "sign_in" and self.form is None and self.study is None:
                 self.open_sign_in()

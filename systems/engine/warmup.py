@@ -54,6 +54,8 @@ from chainsim.systems.engine.segment_tree import SegmentTree
 
 #: child processes compiling at once (a third would only share the same cores on a two-core machine)
 PROCESSES = max(1, min(2, os.cpu_count() or 1))
+#: the nice increment of a child compiling what nothing waits on (the window draws and answers first)
+BACKGROUND_NICE = 10
 
 
 def _grid():
@@ -258,11 +260,12 @@ def _lock_cache_index() -> None:
     IndexDataCacheFile.save = _locked_save
 
 
-def _child() -> int:
-    """A compiling child: reads group names from stdin, one per line, answers 'done NAME' or 'failed NAME: why'."""
+def _child(nice: int = BACKGROUND_NICE) -> int:
+    """A compiling child at `nice` (an increment): reads group names from stdin, one per line, answers
+    'done NAME' or 'failed NAME: why'."""
     _lock_cache_index()
-    if hasattr(os, "nice"):  # the window that waits on us draws and answers first (its first picture, the help)
-        os.nice(10)
+    if nice and hasattr(os, "nice"):  # the window that waits on us draws first (its first picture)
+        os.nice(nice)
     print("ready", flush=True)
     for line in sys.stdin:
         name = line.strip()
@@ -286,6 +289,11 @@ class Compiler:
     those groups are done;
     `wait()` blocks until all are. `seconds` is the time from start to the last group. `groups`
     defaults to the `reachable` ones; a group `first` or `prefer` names joins them.
+
+    The children start at nice BACKGROUND_NICE so that the window's first picture is not slowed; once
+    the window is up, `hurry(names)` makes the groups the scene waits on compile at normal priority (a
+    child of its own for those not begun; one running lowered where the system lets it) while the
+    rest stay at BACKGROUND_NICE. `ran_at` (group -> nice increment) says where each one compiled.
     """
 
     def __init__(self, first: Iterable[str] = (), processes: int | None = None, groups: Iterable[str] | None = None):
@@ -305,6 +313,10 @@ class Compiler:
         self._processes = processes or PROCESSES
         self._alive = 0
         self._workers = 0  # feeding threads started (their numbers)
+        self.urgent: set[str] = set()  # the groups the scene waits on (`hurry`)
+        self.ran_at: dict[str, int] = {}
+        self._nice: dict[int, int] = {}  # worker -> the nice increment its child has now
+        self._pids: dict[int, int] = {}
         with self._lock:
             self._start_workers()
         if not self._alive:
@@ -326,15 +338,17 @@ class Compiler:
             return True
         return not any(family(r) == fam for r in self.running.values())
 
-    def _next(self, worker: int) -> str | None:
+    def _next(self, worker: int, urgent_only: bool = False) -> str | None:
         with self._changed:
             self.running.pop(worker, None)
             self._changed.notify_all()
-            while self.queue:
-                name = next((n for n in self.queue if self._eligible(n)), None)
+            while names := [n for n in self.queue if n in self.urgent or not urgent_only]:
+                name = next((n for n in names if self._eligible(n)), None)
                 if name is not None:
                     self.queue.remove(name)
                     self.running[worker] = name
+                    self._renice(worker, 0 if name in self.urgent else BACKGROUND_NICE)
+                    self.ran_at[name] = self._nice.get(worker, BACKGROUND_NICE)
                     return name
                 self._changed.wait(0.5)  # a group of the same family is running: wait until it is done
             self._retire()  # now, under the lock: a group `prefer` adds after this starts another feeder
@@ -347,12 +361,24 @@ class Compiler:
             self.seconds = time.perf_counter() - self.started
             self._finished.set()
 
-    def _feed(self, worker: int) -> None:
+    def _renice(self, worker: int, nice: int) -> None:
+        """Give worker's child the increment `nice` (with the lock held); lowering it may be refused
+        (an ordinary user cannot): it then keeps the one it has."""
+        pid = self._pids.get(worker)
+        if pid is None or self._nice.get(worker) == nice or not hasattr(os, "setpriority"):
+            return
+        try:
+            os.setpriority(os.PRIO_PROCESS, pid, min(19, os.getpriority(os.PRIO_PROCESS, 0) + nice))
+        except OSError:
+            return
+        self._nice[worker] = nice
+
+    def _feed(self, worker: int, nice: int = BACKGROUND_NICE, urgent_only: bool = False) -> None:
         proc = None
         retired = False
         try:
             proc = subprocess.Popen(
-                [sys.executable, "-m", "chainsim.systems.engine.warmup", "--child"],
+                [sys.executable, "-m", "chainsim.systems.engine.warmup", "--child", str(nice)],
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 stderr=subprocess.DEVNULL,
@@ -361,12 +387,14 @@ class Compiler:
             )
             with self._lock:
                 self._procs.append(proc)
+                self._pids[worker] = proc.pid
+                self._nice[worker] = nice
             stdin, stdout = proc.stdin, proc.stdout
             assert stdin is not None and stdout is not None  # both pipes (PIPE above)
             if stdout.readline().strip() != "ready":
                 raise RuntimeError("the compiling process did not start")
             while True:
-                name = self._next(worker)
+                name = self._next(worker, urgent_only)
                 if name is None:  # no group left: _next has retired this feeder
                     retired = True
                     break
@@ -414,6 +442,23 @@ class Compiler:
                 self.seconds = None
                 self._start_workers()
 
+    def hurry(self, names: Iterable[str]) -> None:
+        """The groups `names` are waited on now (the window is up): those not handed out yet compile in
+        a child at normal priority of its own, and a child already on one is lowered to it where the
+        system lets it; the other groups keep BACKGROUND_NICE."""
+        with self._lock:
+            self.urgent = {n for n in names if n in GROUPS and n not in self.done}
+            for worker, name in self.running.items():
+                if name in self.urgent:
+                    self._renice(worker, 0)
+                    self.ran_at[name] = self._nice.get(worker, BACKGROUND_NICE)
+            if any(n in self.urgent for n in self.queue):
+                self._alive += 1
+                self._workers += 1
+                i = self._workers - 1
+                args = (i, 0, True)
+                threading.Thread(target=self._feed, args=args, daemon=True, name=f"chainsim-compile-{i}").start()
+
     def ready(self, names: Iterable[str] | None = None) -> bool:
         """Whether the groups `names` (default: all) need no more compiling here."""
         if names is None:
@@ -448,5 +493,5 @@ class Compiler:
             self.queue.clear()
 
 
-if __name__ == "__main__" and sys.argv[1:] == ["--child"]:
-    sys.exit(_child())
+if __name__ == "__main__" and sys.argv[1:2] == ["--child"]:
+    sys.exit(_child(int(sys.argv[2]) if len(sys.argv) > 2 else BACKGROUND_NICE))

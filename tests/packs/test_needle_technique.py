@@ -235,6 +235,9 @@ class _Compiling:
     def prefer(self, names) -> None:
         pass
 
+    def hurry(self, names) -> None:
+        self.hurried = list(names)
+
 
 class _WallClock:
     """The window's wall clock, moved by the test (frames of 1/60 s)."""
@@ -259,6 +262,9 @@ def test_a_burst_of_input_while_the_kernels_compile_waits_visibly_and_is_applied
         ui = window.WindowSession(app, None, None, compiler, args=args, settings={}, script=None)
         ui.begin(None)
         hud = app.resource(HudState)
+        assert not hasattr(compiler, "hurried")  # before the first picture the children stay in the background
+        ui.on_draw()
+        assert compiler.hurried == ui.gate.needed  # then the scene's own groups compile at normal priority
 
         def frames(seconds: float) -> None:
             for _ in range(round(seconds * 60)):

@@ -217,3 +217,21 @@ def test_a_group_a_pack_asks_for_after_the_rest_are_done_is_compiled():
     assert c.wait(300), "the group was not compiled"
     c.close()
     assert c.ready([warmup.GEOMETRY]) and c.done == [warmup.GEOMETRY] and not c.failed
+
+
+def test_once_the_window_is_up_the_scenes_groups_compile_at_normal_priority_and_the_rest_in_the_background(
+    monkeypatch,
+):
+    import os
+
+    from chainsim.systems.engine import warmup
+
+    # lowering a child already started is refused to an ordinary user: here every renice is taken
+    monkeypatch.setattr(os, "setpriority", lambda which, pid, value: None, raising=False)
+    c = warmup.Compiler(groups=[warmup.GEOMETRY, warmup.HAPTICS], processes=1)
+    c.hurry([warmup.HAPTICS])  # the scene waits on it; the normals group does not
+    assert c.wait(300), "the groups were not compiled"
+    c.close()
+    assert not c.failed
+    # whichever child took it: the scene's group at normal priority, the other one at the background's
+    assert c.ran_at == {warmup.GEOMETRY: warmup.BACKGROUND_NICE, warmup.HAPTICS: 0}
