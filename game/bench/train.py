@@ -6,8 +6,11 @@ tabs in headless Chromium (the distribution's /usr/bin/chromium, driven by Playw
 every tab (the needle moves: every frame changes, the stream's worst steady case) while pressing F5
 and F6 (Front and Side views) once a second. Each tab counts the frames it drew and the bytes it
 received, and times each key press from sending it to drawing the first picture that shows it
-(``window.trainStats`` of static/train.js): frames per second, input-to-picture latency on
-loopback and bandwidth per session, and so how many sessions hold 20 frames per second.
+(``window.trainStats`` of static/train.js): frames per second, input-to-picture latency (median, 90th
+and 95th percentiles) and bandwidth per session, how long a new tab waited for its first picture, and
+so how many sessions hold 20 frames per second. ``--rtt-ms`` puts a relay that delays every byte by
+half that round trip each way between the tabs and the server (``delay_proxy``), as a long network
+does; without it the tabs talk to the server over loopback.
 Before the tabs it encodes one frame of the pack as JPEG and WebP at the stream's quality, timing
 each and weighing the result, which is why the stream is JPEG (docs/records-server.md).
 """
@@ -70,6 +73,7 @@ def add_arguments(p) -> None:
     p.add_argument("--pack", default="prp", help="the pack trained (default prp; the dial turned is where prp's is)")
     p.add_argument("--format", choices=("jpeg", "webp"), default="jpeg", help="the stream's picture format")
     p.add_argument("--quality", type=int, default=70, help="the pictures' quality, 1-100 (default 70)")
+    p.add_argument("--rtt-ms", type=float, default=0.0, help="emulated network round trip, ms (default 0: loopback)")
     p.add_argument("--json", default=None, help="also write the figures to this JSON file")
 
 
@@ -150,6 +154,8 @@ def run(args) -> int:
         raise UserError(f"--seconds must be from 2 to 600, got {args.seconds:g}")
     if not 1 <= args.quality <= 100:
         raise UserError(f"--quality must be from 1 to 100, got {args.quality}")
+    if not 0.0 <= args.rtt_ms <= 2000.0:
+        raise UserError(f"--rtt-ms must be from 0 to 2000, got {args.rtt_ms:g}")
     if args.json:
         from chainsim.game.app.outputs import check_output_file  # noqa: PLC0415
 
@@ -191,16 +197,25 @@ def run(args) -> int:
             stderr=subprocess.STDOUT,
             env=env,
         )
-    rows = []
+    rows, relay = [], None
     try:
         _wait(url, server, log)
+        if args.rtt_ms > 0:
+            from chainsim.game.bench.delay_proxy import DelayProxy  # noqa: PLC0415
+
+            relay = DelayProxy(port, args.rtt_ms)
+            print(f"the tabs reach the server through a relay adding {args.rtt_ms:g} ms of round trip", flush=True)
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
             try:
-                rows = _measure(browser, url, names, args, server.pid)
+                rows = _measure(
+                    browser, url if relay is None else f"http://127.0.0.1:{relay.port}", names, args, server.pid
+                )
             finally:
                 browser.close()
     finally:
+        if relay is not None:
+            relay.close()
         server.terminate()
         try:
             server.wait(15)
@@ -211,14 +226,20 @@ def run(args) -> int:
     print(f"sessions holding {HOLD_FPS:g} fps: {held}  (load after: {os.getloadavg()[0]:.2f})")
     if args.json:
         Path(args.json).write_text(
-            json.dumps({"encoding": costs, "rows": rows, "hold_20fps": held, "format": args.format}, indent=1)
+            json.dumps(
+                {"encoding": costs, "rows": rows, "hold_20fps": held, "format": args.format, "rtt_ms": args.rtt_ms},
+                indent=1,
+            )
         )
     return 0
 
 
 def _measure(browser, url: str, names: list[str], args, server_pid: int) -> list[dict]:
     contexts, pages, rows = [], [], []
-    print("sessions  fps (min / median)  latency ms (median / p90)  KiB/s per session  CPU per session  load")
+    print(
+        "sessions  fps (min / median)  latency ms (median / p90 / p95)  KiB/s per session  CPU per session  "
+        "first picture s  load"
+    )
     for k, name in enumerate(names, start=1):
         context = browser.new_context(viewport={"width": 1400, "height": 1000}, bypass_csp=True)
         page = context.new_page()
@@ -227,8 +248,10 @@ def _measure(browser, url: str, names: list[str], args, server_pid: int) -> list
         page.fill("input[name=password]", PASSWORD)
         page.click("button[type=submit]")
         page.wait_for_url("**/trainees/**")
+        opened = time.perf_counter()
         page.goto(f"{url}/train/{args.pack}")
         page.wait_for_function("window.trainStats && window.trainStats.frames > 0", timeout=180_000)
+        first_picture = time.perf_counter() - opened
         page.evaluate(DRIVE, list(DIAL))
         contexts.append(context)
         pages.append(page)
@@ -248,15 +271,21 @@ def _measure(browser, url: str, names: list[str], args, server_pid: int) -> list
             "fps_median": statistics.median(fps),
             "latency_ms_median": statistics.median(lat) if lat else None,
             "latency_ms_p90": lat[int(0.9 * (len(lat) - 1))] if lat else None,
+            "latency_ms_p95": lat[int(0.95 * (len(lat) - 1))] if lat else None,
+            "first_picture_s": first_picture,
             "kib_s_median": statistics.median(kbs),
             "cpu_per_session": cpu,
             "load": os.getloadavg()[0],
         }
         rows.append(row)
-        latency = f"{row['latency_ms_median']:.0f} / {row['latency_ms_p90']:.0f}" if lat else "- (no key press shown)"
+        latency = (
+            f"{row['latency_ms_median']:.0f} / {row['latency_ms_p90']:.0f} / {row['latency_ms_p95']:.0f}"
+            if lat
+            else "- (no key press shown)"
+        )
         print(
-            f"{k:8d}  {row['fps_min']:5.1f} / {row['fps_median']:5.1f}       {latency:>24}  "
-            f"{row['kib_s_median']:17.0f}  {cpu:14.0%}  {row['load']:.2f}",
+            f"{k:8d}  {row['fps_min']:5.1f} / {row['fps_median']:5.1f}       {latency:>30}  "
+            f"{row['kib_s_median']:17.0f}  {cpu:14.0%}  {first_picture:15.1f}  {row['load']:.2f}",
             flush=True,
         )
     for context in contexts:

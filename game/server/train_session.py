@@ -119,7 +119,8 @@ class Channel:
                 self.queued_ms = 0.8 * self.queued_ms + 0.2 * (took - self.base_ms)
             if self.base_ms < float("inf"):
                 self.window = max(MIN_CREDIT, min(MAX_CREDIT, 1 + int(self.base_ms / 1e3 / self.period + 0.999)))
-            self.credit = min(self.credit + n, self.window)
+            # the page hands back one credit per frame drawn; what may be in flight is the window
+            self.credit = max(self.window - len(self._sent), 0)
 
     def take_credit(self) -> bool:
         with self._credit_lock:

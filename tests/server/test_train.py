@@ -451,6 +451,7 @@ def test_a_whole_correct_attempt_in_the_browser_is_saved_under_the_trainee(brows
         (("--sessions", "0"), "--sessions must be from 1 to 32, got 0"),
         (("--seconds", "1"), "--seconds must be from 2 to 600, got 1"),
         (("--quality", "101"), "--quality must be from 1 to 100, got 101"),
+        (("--rtt-ms", "-5"), "--rtt-ms must be from 0 to 2000, got -5"),
         (("--json", "/no/such/folder/figures.json"), "--json /no/such/folder/figures.json: folder /no/such/folder"),
     ],
 )
