@@ -79,3 +79,5 @@ _.orientation
 _.device_clock
 # the rating set a rater works on, named on the raters' pages (templates rate_list.html, rate_attempt.html)
 _.set_name
+# socketserver calls a request handler's handle() by name (tests/unit/test_delay_proxy.py)
+_.handle
