@@ -53,7 +53,8 @@ def test_raters_see_coded_attempts_only_mark_them_and_the_report_gives_their_agr
     assert status == 200 and 'id="rating-form"' in page
     status, track, _ = rita.get(f"/rate/{links['rita']}/{codes[0]}/replay.json")
     assert status == 200, track
-    seen = page + json.dumps(track)
+    # the rater's own link is a random token that may hold any two letters ("c1" among them): left out
+    seen = (page + json.dumps(track)).replace(links["rita"], "")
     for secret in ("alice", "c1", "2026-", "Needle error", "PASS", "FAIL", "/attempts/"):
         assert secret not in seen
     assert track["frames"] and all(im["url"].startswith(f"/rate/{links['rita']}/{codes[0]}/") for im in track["images"])
