@@ -35,6 +35,7 @@ import tomli_w
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script
 from chainsim.game.app.outputs import prepare_output_dir
+from chainsim.game.app.xvfb import start_xvfb
 from chainsim.game.packs.discovery import resolve
 from chainsim.game.packs.pack import load
 from chainsim.systems.engine import argtypes
@@ -99,13 +100,10 @@ def run(args) -> int:
     widgets = _widgets()
     script = out / "marks.toml"
     _marks_script(script)
-    display = f":{70 + os.getpid() % 50}"
+    xvfb, display = start_xvfb(W, H)
     env = {**os.environ, "DISPLAY": display}
     env.pop("PYGLET_HEADLESS", None)
     frames = out / "frames.csv"
-    xvfb = subprocess.Popen(
-        ["Xvfb", display, "-screen", "0", f"{W}x{H}x24", "-nolisten", "tcp"], stderr=subprocess.DEVNULL
-    )
     records = tempfile.TemporaryDirectory()  # the attempt is not kept
     db = Path(records.name) / "records.sqlite3"
     play = None

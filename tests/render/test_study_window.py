@@ -19,6 +19,8 @@ import pytest
 from PIL import Image
 from test_trainee_session import H, W, landmark_pixels, needs_x, widget_centre
 
+from chainsim.game.app.xvfb import start_xvfb
+
 ROOT = Path(__file__).resolve().parents[2]
 
 PROTO = """
@@ -44,11 +46,9 @@ collision_signals = true
 class StudyWindow:
     def __init__(self, tmp: Path):
         self.tmp = tmp
-        self.display = f":{140 + os.getpid() % 50}"
+        self.xvfb, self.display = start_xvfb(W, H)
         self.env = {**os.environ, "DISPLAY": self.display, "XDG_CONFIG_HOME": str(tmp / "config")}
         self.env.pop("PYGLET_HEADLESS", None)
-        self.xvfb = subprocess.Popen(["Xvfb", self.display, "-screen", "0", f"{W}x{H}x24", "-nolisten", "tcp"])
-        time.sleep(1.0)
         self.db = tmp / "study.sqlite3"
         (tmp / "study.toml").write_text(PROTO)
         cmd = [sys.executable, "-m", "chainsim.game.cli.main", "protocol", "study.toml", "--participant", "tess"]

@@ -19,6 +19,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from chainsim.game.app.xvfb import start_xvfb
+
 ROOT = Path(__file__).resolve().parents[2]
 W, H = 1280, 800
 needs_x = pytest.mark.skipif(
@@ -48,11 +50,9 @@ def landmark_pixels():
 class Session:
     def __init__(self, tmp: Path):
         self.tmp = tmp
-        self.display = f":{90 + os.getpid() % 50}"
+        self.xvfb, self.display = start_xvfb(W, H)
         self.env = {**os.environ, "DISPLAY": self.display, "XDG_CONFIG_HOME": str(tmp / "config")}
         self.env.pop("PYGLET_HEADLESS", None)
-        self.xvfb = subprocess.Popen(["Xvfb", self.display, "-screen", "0", f"{W}x{H}x24", "-nolisten", "tcp"])
-        time.sleep(1.0)
         self.db = tmp / "records.sqlite3"
         self.app = subprocess.Popen(
             [sys.executable, "-m", "chainsim.game.cli.main", "play", "prp", "--db", str(self.db)],
