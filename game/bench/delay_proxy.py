@@ -22,6 +22,7 @@ class DelayProxy:
         self.target = (host, int(target_port))
         self.delay = max(float(rtt_ms), 0.0) / 2e3
         self.port = 0
+        self._writers: set = set()  # every open connection's two ends, closed with the relay
         self._loop = asyncio.new_event_loop()
         started = threading.Event()
         self._thread = threading.Thread(target=self._run, args=(host, started), daemon=True, name="delay-proxy")
@@ -35,6 +36,14 @@ class DelayProxy:
         self.port = server.sockets[0].getsockname()[1]
         started.set()
         self._loop.run_forever()
+        # stopped (close): what was still relaying is cancelled and waited for before the loop closes
+        tasks = asyncio.all_tasks(self._loop)
+        for task in tasks:
+            task.cancel()
+        self._loop.run_until_complete(asyncio.gather(*tasks, return_exceptions=True))
+        server.close()
+        self._loop.run_until_complete(server.wait_closed())
+        self._loop.close()
 
     async def _client(self, reader, writer) -> None:
         try:
@@ -42,7 +51,11 @@ class DelayProxy:
         except OSError:
             writer.close()
             return
-        await asyncio.gather(self._pipe(reader, up_writer), self._pipe(up_reader, writer))
+        self._writers.update((writer, up_writer))
+        try:
+            await asyncio.gather(self._pipe(reader, up_writer), self._pipe(up_reader, writer))
+        finally:
+            self._writers.difference_update((writer, up_writer))
 
     async def _pipe(self, reader, writer) -> None:
         """Bytes from `reader` to `writer`, each chunk sent `delay` after it arrived, in order."""
@@ -69,5 +82,12 @@ class DelayProxy:
         await sender
 
     def close(self) -> None:
-        self._loop.call_soon_threadsafe(self._loop.stop)
+        """Close every connection still open (both its ends see the end of the stream), then stop."""
+
+        def shut() -> None:
+            for writer in list(self._writers):
+                writer.close()
+            self._loop.stop()
+
+        self._loop.call_soon_threadsafe(shut)
         self._thread.join(5)

@@ -11,6 +11,11 @@ import time
 from chainsim.game.bench.delay_proxy import DelayProxy
 
 
+class _EchoServer(socketserver.ThreadingTCPServer):
+    daemon_threads = True
+    block_on_close = False  # a connection the relay left open never holds the test up
+
+
 class _Echo(socketserver.BaseRequestHandler):
     def handle(self):
         while data := self.request.recv(4096):
@@ -18,7 +23,7 @@ class _Echo(socketserver.BaseRequestHandler):
 
 
 def test_the_relay_carries_every_byte_in_order_and_not_before_its_delay():
-    server = socketserver.ThreadingTCPServer(("127.0.0.1", 0), _Echo)
+    server = _EchoServer(("127.0.0.1", 0), _Echo)
     threading.Thread(target=server.serve_forever, daemon=True).start()
     relay = DelayProxy(server.server_address[1], rtt_ms=120)
     try:
