@@ -81,3 +81,6 @@ _.device_clock
 _.set_name
 # socketserver calls a request handler's handle() by name (tests/unit/test_delay_proxy.py)
 _.handle
+# socketserver reads these class attributes by name (tests/unit/test_delay_proxy.py)
+_.daemon_threads
+_.block_on_close
