@@ -147,7 +147,8 @@ def _wait(url: str, proc, log: Path) -> None:
     raise UserError("chainsim serve did not answer in 60 s")
 
 
-def run(args) -> int:
+def _check_args(args) -> None:
+    """Each flag in its range, one line naming the flag otherwise."""
     if not 1 <= args.sessions <= 32:
         raise UserError(f"--sessions must be from 1 to 32, got {args.sessions}")
     if not 2.0 <= args.seconds <= 600.0:
@@ -156,6 +157,10 @@ def run(args) -> int:
         raise UserError(f"--quality must be from 1 to 100, got {args.quality}")
     if not 0.0 <= args.rtt_ms <= 2000.0:
         raise UserError(f"--rtt-ms must be from 0 to 2000, got {args.rtt_ms:g}")
+
+
+def run(args) -> int:
+    _check_args(args)
     if args.json:
         from chainsim.game.app.outputs import check_output_file  # noqa: PLC0415
 
