@@ -87,15 +87,19 @@ def _free_port() -> int:
 
 def encoding_costs(pack: str, quality: int) -> dict:
     """One frame of the pack's trainer, encoded as JPEG and as WebP: milliseconds and kilobytes each."""
+    import numpy as np  # noqa: PLC0415
+
     import chainsim.game.gl.render_system as render  # noqa: PLC0415
     from chainsim.game.app.headless import build_app  # noqa: PLC0415
-    from chainsim.game.server.train_session import encode  # noqa: PLC0415
+    from chainsim.game.server.frame_tiles import encode_rgb  # noqa: PLC0415
 
     app = build_app(pack, render=True, save="a benchmark saves nothing")
     try:
         render.draw(app)
         target = app.resource(render.RenderTarget)
-        raw, size = target.fbo.read(components=3, alignment=1), tuple(target.fbo.size)
+        w, h = target.fbo.size
+        # the whole picture, rows top first, as the session's first frame sends it
+        picture = np.frombuffer(target.fbo.read(components=3, alignment=1), np.uint8).reshape(h, w, 3)[::-1]
     finally:
         app.close()
     out = {}
@@ -103,7 +107,7 @@ def encoding_costs(pack: str, quality: int) -> dict:
         times = []
         for _ in range(7):
             t = time.perf_counter()
-            data = encode(raw, size, fmt, quality)
+            data = encode_rgb(picture, fmt, quality)
             times.append(time.perf_counter() - t)
         out[fmt] = {"ms": 1e3 * statistics.median(times), "kb": len(data) / 1024}
     return out

@@ -33,7 +33,6 @@ again once it is gone; the credit window covers the link's round trip at the ses
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import queue
@@ -58,20 +57,6 @@ MIN_QUALITY, QUALITY_STEP, QUEUED_MS, CLEAR_MS = 30, 10, 60.0, 25.0
 SAVE_REPLY_S = 30.0
 #: after this many loops without input or a changed picture, the picture is drawn every STILL_EVERY-th loop
 STILL_FRAMES, STILL_EVERY = 15, 6
-
-
-def encode(rgb: bytes, size: tuple[int, int], fmt: str, quality: int) -> bytes:
-    """A picture of the framebuffer's bytes (RGB, bottom row first, as GL reads them) in ``fmt``."""
-    from PIL import Image  # noqa: PLC0415 - the session process only
-
-    # a negative stride reads the rows bottom-up: the flip costs no copy
-    im = Image.frombuffer("RGB", size, rgb, "raw", "RGB", 0, -1)
-    out = io.BytesIO()
-    if fmt == "webp":
-        im.save(out, "WEBP", quality=quality, method=0)
-    else:
-        im.save(out, "JPEG", quality=quality)
-    return out.getvalue()
 
 
 class Channel:
