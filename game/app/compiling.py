@@ -6,22 +6,31 @@ opens at once and they compile in child processes (`Compiler`) while the trainee
 the help. Until the groups the scene needs are compiled (`needed_groups`: the normals and collision
 kernels every scene draws and steps with, and the kernels of each soft body's own model), `KernelGate`
 lets through what needs no kernel - the pointer moving, a resize, the sign-in form, F1 and the help
-pages and their buttons - and holds everything else in order: the scene is not stepped while input
-is held, the window keeps drawing and answering, and the HUD says that the input waits (how many
-presses and clicks) and how far compiling has got. When the groups are ready the held input goes to
-the scene with its own spacing in time, as if it had just been given, and the HUD says so; input
-given after it waits behind it, so nothing overtakes what was held (a key's release its press).
+pages and their buttons - and holds everything else in order (the pointer's moves too, once anything
+is held): the scene is not stepped while input is held, the window keeps drawing and answering, and
+the HUD says that the input waits (how many presses and clicks) and how far compiling has got. When
+the groups are ready the held input goes to the scene with its own spacing in time, as if it had just
+been given (a tap within one step held for a step: chainsim.game.app.keytiming), and the HUD says so;
+input given after it waits behind it, so nothing overtakes what was held (a key's release its press).
 Nothing given while compiling is dropped. Without a gate (`chainsim warmup` done, or a script
 played) nothing changes.
+
+`KernelWatch` is what a seat does with the gate each frame - the window's and a browser session's
+(chainsim.game.server.train_session) alike: hold or pass each input, say on the HUD how far compiling
+has got and when the scene is ready, and hand the held input to the App once it is.
 """
 
 from __future__ import annotations
+
+import time
+from collections.abc import Callable
 
 import esper
 
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseMove, Resize
-from chainsim.components.resources import PackResource
+from chainsim.components.resources import PackResource, PendingInput
+from chainsim.game.app.keytiming import key_times
 from chainsim.systems.engine.chainmail_params import order_name
 from chainsim.systems.engine.warmup import GEOMETRY, HYBRID, MODELS, MOVING, Compiler, chainmail_group
 from chainsim.systems.tissue.deformable import Deformable
@@ -71,6 +80,7 @@ class KernelGate:
         self.scripted = scripted
         self.needed = list(needed)
         self.held: list[tuple[float, object]] = []  # (wall seconds, event)
+        self.last: tuple[float, float] | None = None  # the last released event's (wall, simulated) times
         self.said = ""  # the HUD message this gate shows now
         self.open = compiler.ready(self.needed)
 
@@ -81,13 +91,14 @@ class KernelGate:
 
     def lets_through(self, ev, hud: HudState, hover: str) -> bool:
         """Whether `ev` may reach the App now."""
-        if isinstance(ev, (MouseMove, Resize)):
+        if isinstance(ev, Resize):
             return True
         # once something waits, what follows waits behind it (a release after its press), also when the
-        # kernels are ready but the held input has not been released yet (that happens once a frame)
+        # kernels are ready but the held input has not been released yet (that happens once a frame);
+        # the pointer's moves too: a held click lands where the pointer was when it was given
         if self.held:
             return False
-        if self.ready():
+        if isinstance(ev, MouseMove) or self.ready():
             return True
         if hud.doc_open or hud.notice:
             return True  # a page or question has the input; its box keeps clicks from the scene
@@ -112,7 +123,16 @@ class KernelGate:
         if not self.ready() or not self.held:
             return []
         w0 = self.held[0][0]
-        out = [(now + round((w - w0) / dt) * dt, ev) for w, ev in self.held]
+        if self.last is not None:  # input held behind a replay keeps its distance to the replay's last event
+            now = max(now, self.last[1] + round((w0 - self.last[0]) / dt) * dt)
+        keys: dict[str, tuple[float, float]] = {}
+        out = []
+        for w, ev in self.held:
+            t = now + round((w - w0) / dt) * dt
+            # a tap given within one step is held for a step, taps of one key a step apart each
+            times = key_times(keys, ev.key, ev.pressed, t, dt) if isinstance(ev, Key) else (t,)
+            out += [(at, ev) for at in times]
+        self.last = (self.held[-1][0], max(at for at, _ in out))
         self.held = []
         return out
 
@@ -138,3 +158,77 @@ class KernelGate:
         if text:
             hud.messages.append((text, None))
         self.said = text
+
+
+class KernelWatch:
+    """One seat's input and HUD while the scene's kernel groups compile (the module docstring).
+
+    `log` gets the lines `chainsim bench startup` times a start by; `on_ready(group)` is told once per
+    needed group as it becomes ready (the window switches its normals to the kernel's)."""
+
+    def __init__(
+        self,
+        compiler: Compiler,
+        needed: list[str],
+        hud: HudState,
+        pending: PendingInput,
+        *,
+        scripted: bool = False,
+        log: Callable[[str], None] = print,
+    ) -> None:
+        compiler.prefer(needed)
+        self.compiler, self.hud, self.pending, self.log = compiler, hud, pending, log
+        self.gate = None if compiler.ready(needed) else KernelGate(compiler, needed, scripted=scripted)
+        self.said_ready = self.said_all = False
+        self.replaying = False  # held input released into the App and not all due yet
+        self.said_released = False
+
+    def _replaying(self) -> bool:
+        self.replaying = self.replaying and not self.pending.exhausted
+        return self.replaying
+
+    def lets_through(self, ev, wall: float, hover: str = "") -> bool:
+        """Whether `ev` may go to the App now; when not, it is held in order with `wall`, the seat's clock
+        when it was given (its spacing in time is kept when it is released). While released input is
+        still being given to the scene, what comes meanwhile is held behind it: stamped now, it would
+        wait behind the replay and then arrive all at once, without its own spacing."""
+        gate = self.gate
+        if gate is None:
+            return True
+        if not isinstance(ev, Resize) and self._replaying():
+            gate.hold(wall, ev)
+            return False
+        if gate.lets_through(ev, self.hud, hover):
+            return True
+        gate.hold(wall, ev)
+        return False
+
+    def stepping(self) -> bool:
+        """Whether the scene may step this frame (not while input waits for its kernels)."""
+        return self.gate is None or self.gate.stepping()
+
+    def update(self, now: float, dt: float) -> None:
+        """Once a frame: say when the scene and then everything is ready, show the gate's line, and give
+        the App the held input once its kernels are there (stamped from simulated time `now`)."""
+        gate, compiler = self.gate, self.compiler
+        if gate is not None and not self.said_ready and gate.ready():
+            self.said_ready = True
+            self.log(f"kernels: the scene's ready {time.perf_counter() - compiler.started:.1f} s after start")
+            if not gate.held:  # with input held, the "Ready: the N presses ..." line below says it
+                self.hud.message("Ready: the soft-tissue engine is prepared; the scene takes your input.", 8.0)
+        if not self.said_all and compiler.ready():  # also without a gate: loaded from the cache
+            self.said_all = True
+            self.log(f"kernels: all compiled {compiler.seconds:.1f} s after start")
+        if gate is None:
+            return
+        gate.show(self.hud)
+        if self._replaying():
+            return  # what came meanwhile follows once the replay is given (lets_through)
+        released = gate.release(now, dt)
+        for t_ev, ev in released:
+            self.pending.push(t_ev, ev)
+        self.replaying = bool(released)
+        if released and not self.said_released:  # said, so a trainee who pressed on knows where it went
+            self.said_released = True
+            n = gate.presses(released)
+            self.hud.message(f"Ready: the {n} presses and clicks given while preparing are applied now, in order.", 8.0)

@@ -60,7 +60,10 @@ def icc(table) -> Agreement:
     if mse == 0.0 and msr == 0.0:
         raise UserError("every rater gave every attempt the same score: agreement cannot be measured")
     single = (msr - mse) / (msr + (k - 1) * mse + k * (msc - mse) / n)
-    average = (msr - mse) / (msr + (msc - mse) / n)
+    spread = msr + (msc - mse) / n
+    # the attempts differ by no more than the raters' noise: the mean of the raters agrees on nothing,
+    # and the formula's limit is minus infinity (pingouin gives the same); the report says so in words
+    average = (msr - mse) / spread if spread != 0.0 else -math.inf
     df1, df2 = n - 1, (n - 1) * (k - 1)
     f = msr / mse if mse > 0 else math.inf
     # McGraw and Wong (1996), case 2A: Satterthwaite's degrees of freedom v for the interval, written

@@ -60,6 +60,12 @@ def analyse(store: RecordStore, name: str, specs: dict[str, dict], source: str) 
     )
 
 
+NO_AVERAGE = (
+    "The attempts differ by no more than the raters disagree: the mean of the raters has no agreement to "
+    "report (ICC(A,k) falls to minus infinity, shown as -)."
+)
+
+
 def _num(x: float | None, digits: int = 2) -> str:
     return "-" if x is None or not np.isfinite(x) else f"{x:.{digits}f}"
 
@@ -121,6 +127,8 @@ def write(study: RatingStudy, out: Path) -> Path:
             "",
             f"F({a.df1}, {a.df2}) = {_num(a.f)}, p = {_num(a.p, 4)} (attempts differ beyond the raters' disagreement).",
         ]
+        if not np.isfinite(a.average):
+            lines += ["", NO_AVERAGE]
     lines += [
         "",
         "## Each metric against the raters",

@@ -29,6 +29,11 @@ it encodes), so the App steps and draws the next picture meanwhile. The page's c
 has drawn a frame: how long that takes above the quickest return seen is time frames spent queued on
 the link or in the browser, and the session lowers the pictures' quality while it grows, raising it
 again once it is gone; the credit window covers the link's round trip at the session's frame rate.
+
+The session is ready as soon as its App is built: the scene's numba kernels compile (on a fresh install)
+or load from numba's cache in child processes while the page already shows the scene, as at the window
+(``chainsim.game.app.compiling.KernelWatch``): input that needs them waits and is given in order once
+they are there, and the HUD says how far compiling has got.
 """
 
 from __future__ import annotations
@@ -231,22 +236,6 @@ def study_session(app, cfg: dict):
     return session
 
 
-def key_times(keys: dict[str, tuple[float, float]], key: str, pressed: bool, now: float, dt: float) -> tuple[float]:
-    """The simulated time a key event from the page lands at, `keys` updated. A key pressed and released
-    before a step ran is held for one step, as in the window. Presses of one key that arrive together
-    (the network hands over a burst of taps at once) land two steps apart each, so every tap is one turn
-    of a dial, not one turn for the lot."""
-    if pressed:
-        at = max(now, keys.get(key, (now, now))[1])
-        keys[key] = (at, at)
-        return (at,)
-    down, _ = keys.get(key, (now - dt, now))
-    if down >= now:  # released before a step ran with it held: up a step later, the next press a step after
-        keys[key] = (down, down + 2 * dt)
-        return (down + dt,)
-    return (now,)
-
-
 class Session:
     """The App of one trainee drawn off screen: input in, pictures out (see the module docstring)."""
 
@@ -255,12 +244,15 @@ class Session:
         from chainsim.components.hud import HudState  # noqa: PLC0415
         from chainsim.components.input_events import Widget  # noqa: PLC0415
         from chainsim.components.resources import PendingInput, Settings  # noqa: PLC0415
-        from chainsim.game.app.compiling import needed_groups  # noqa: PLC0415
+        from chainsim.game.app.compiling import KernelWatch, needed_groups  # noqa: PLC0415
         from chainsim.game.app.headless import app_for_pack  # noqa: PLC0415
+        from chainsim.game.app.keytiming import key_times  # noqa: PLC0415
+        from chainsim.game.gl import meshbuf  # noqa: PLC0415
         from chainsim.game.gl.context import egl_context, offscreen_framebuffer  # noqa: PLC0415
         from chainsim.game.packs import pack as packs  # noqa: PLC0415
         from chainsim.game.ui.frameloop import FixedStepper  # noqa: PLC0415
-        from chainsim.systems.engine.warmup import warm_up  # noqa: PLC0415
+        from chainsim.systems.engine.warmup import GEOMETRY, Compiler  # noqa: PLC0415
+        from chainsim.systems.view.cameras import ViewState  # noqa: PLC0415
 
         self.render = render
         self.channel = channel
@@ -282,9 +274,18 @@ class Session:
         app.insert_resource(render.RenderTarget(ctx, offscreen_framebuffer(ctx, (w, h)), 1.0, samples=1))
         app.add_plugin(render.plugin)
         app.resource(render.Renderer).cache_views()  # most frames repeat most views
-        warm_up(needed_groups(app))  # numba's cache: loaded once here, not mid-frame
         self.pending = app.resource(PendingInput)
         self.hud = app.resource(HudState)
+        # as at the window: the picture comes at once and the scene's kernels compile (or load from
+        # numba's cache) in child processes meanwhile; input that needs them waits, and the HUD says so
+        needed = needed_groups(app)
+        self.compiler = Compiler(first=[GEOMETRY], groups=needed)
+        self.kernels = KernelWatch(self.compiler, needed, self.hud, self.pending, log=self._log)
+        self.meshbuf, self.geometry = meshbuf, GEOMETRY
+        self.key_times = key_times
+        self.view_state = app.resource(ViewState)
+        meshbuf.KERNEL_NORMALS = self.compiler.ready([GEOMETRY])
+        self.hurried = False
         values = app.resource(Settings).values
         layout = {wd["name"] for wd in app.resource(render.PackResource).layout.get("widgets", [])}
         self.who = f"Signed in: {values.get('trainee')}, class {values.get('class')}. Records: this server"
@@ -300,6 +301,10 @@ class Session:
         self.last_raw: bytes | None = None
         self.still = 0  # loops since the input or picture last changed
 
+    @staticmethod
+    def _log(line: str) -> None:
+        print(f"train session: {line}", file=sys.stderr, flush=True)  # the records server's log
+
     def apply(self, msg: dict) -> None:
         """One input from the page, as the window turns a device event into an App event."""
         from chainsim.components.input_events import Key, event_from_dict  # noqa: PLC0415
@@ -311,11 +316,13 @@ class Session:
             if ev.pressed:  # a study page (what comes next, the last page) takes Enter, as at the window
                 self.study.key(ev.key)
             return
+        if isinstance(ev, Key) and ev.key == "escape" and ev.pressed and not self.hud.doc_open:
+            self.hud.message("Close the tab to leave; press Save attempt first to keep this attempt.", 6.0)
+            return
+        if not self.kernels.lets_through(ev, time.perf_counter(), self.view_state.hover):
+            return  # held until the kernels are ready, then given in order (KernelWatch.update)
         if isinstance(ev, Key):
-            if ev.key == "escape" and ev.pressed and not self.hud.doc_open:
-                self.hud.message("Close the tab to leave; press Save attempt first to keep this attempt.", 6.0)
-                return
-            self.pending.push(*key_times(self.keys, ev.key, ev.pressed, now, self.app.time.dt), ev)
+            self.pending.push(*self.key_times(self.keys, ev.key, ev.pressed, now, self.app.time.dt), ev)
             return
         self.pending.push(now, ev)
 
@@ -346,7 +353,7 @@ class Session:
                 except queue.Empty:
                     break
                 had_input = True
-            self.stepper.advance(start - last)
+            self.step(start - last)
             last = start
             if self.study is not None:
                 self.study.update()
@@ -367,11 +374,33 @@ class Session:
                     if channel.take_credit():
                         self.frame_no += 1
                         encoder.submit(self.frame_no, self.last_seq, picture)
+                        self._first_picture()
             spare = self.period - (time.perf_counter() - start)
             if spare > 0:
                 channel.closed.wait(spare)
 
+    def step(self, dt: float) -> None:
+        """The App's steps for `dt` wall seconds, unless input waits for kernels (the scene then stands)."""
+        self.kernels.update(self.app.time.sim_time, self.app.time.dt)
+        if not self.meshbuf.KERNEL_NORMALS and self.compiler.ready([self.geometry]):
+            self.meshbuf.KERNEL_NORMALS = True
+        if self.kernels.stepping():
+            self.stepper.advance(dt)
+        else:
+            self.stepper.carry = 0.0
+
+    def _first_picture(self) -> None:
+        """Once the first picture is on its way: the groups the scene waits on compile at normal priority."""
+        if self.hurried:
+            return
+        self.hurried = True
+        gate = self.kernels.gate
+        self._log(f"first picture {time.perf_counter() - self.compiler.started:.1f} s after the compiler started")
+        if gate is not None:
+            self.compiler.hurry(gate.needed)
+
     def close(self) -> None:
+        self.compiler.stop()
         self.encoder.close()
         self.app.close()
 

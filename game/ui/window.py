@@ -38,9 +38,10 @@ from chainsim.components.digest import world_digest
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, MouseMove, Resize, Scroll, Widget
 from chainsim.components.resources import Assessment, PendingInput, Settings
-from chainsim.game.app.compiling import KernelGate, needed_groups
+from chainsim.game.app.compiling import KernelWatch, needed_groups
 from chainsim.game.app.headless import build_app
 from chainsim.game.app.inputscript import load_script, write_recording
+from chainsim.game.app.keytiming import key_times
 from chainsim.game.app.options import user_settings
 from chainsim.game.gl import meshbuf
 from chainsim.game.gl.context import window_context
@@ -241,19 +242,21 @@ class WindowSession:
         self.confirm = False  # a quit question is shown
         self.behind = ""  # the page the quit question covers
         self.swallow_text = False  # the key that answered the question types nothing
-        self.said_ready = self.said_all = self.said_first = False
+        self.said_first = False
         self.pending: PendingInput = app.resource(PendingInput)
+        self.hud: HudState = app.resource(HudState)
         # a force-feedback device's servo runs from the first frame: its kernels first too
         needed = needed_groups(app) + ([HAPTICS] if getattr(args, "device", None) else [])
-        compiler.prefer(needed)
-        self.gate = None if compiler.ready(needed) else KernelGate(compiler, needed, scripted=bool(script))
+        self.kernels = KernelWatch(
+            compiler, needed, self.hud, self.pending, scripted=bool(script), log=lambda s: print(s, flush=True)
+        )
+        self.gate = self.kernels.gate
         # until the normals kernel is compiled the first uploads take numpy's normals (the same vectors)
         meshbuf.KERNEL_NORMALS = compiler.ready([GEOMETRY])
         self.view_state: ViewState = app.resource(ViewState)
         if script:
             self.pending.extend(script)
         self.scripted = bool(script)
-        self.hud: HudState = app.resource(HudState)
         self.values = app.resource(Settings).values
         self.records_path = Path(self.values["db"]).expanduser() if self.values.get("db") else default_records_path()
         self.widget_events = app.events.reader(Widget)
@@ -262,7 +265,7 @@ class WindowSession:
             self.hud.status = status_line(self.values, self.records_path)
         self.form: SignInForm | None = None
         self.study = None
-        self.pressed_at: dict[str, float] = {}  # when a key went down, in simulated time
+        self.keys: dict[str, tuple[float, float]] = {}  # key -> (when its last press lands, when it is free)
         self.stepper = FixedStepper(app, target)
         self.frame_log = FrameLog(getattr(args, "frame_times", None))
 
@@ -312,10 +315,14 @@ class WindowSession:
 
     def send(self, ev, t: float | None = None) -> None:
         """Queue a device event for the App, or hold it while the kernels it may need compile."""
-        if self.gate is not None and not self.gate.lets_through(ev, self.hud, self.view_state.hover):
-            self.gate.hold(time.perf_counter(), ev)
+        if not self.kernels.lets_through(ev, time.perf_counter(), self.view_state.hover):
             return
-        self.pending.push(self.now() if t is None else t, ev)
+        now = self.now() if t is None else t
+        if isinstance(ev, Key):  # a quick tap is held for a step, as in a browser session
+            for at in key_times(self.keys, ev.key, ev.pressed, now, self.app.time.dt):
+                self.pending.push(at, ev)
+            return
+        self.pending.push(now, ev)
 
     def finish(self) -> None:
         """Save what was asked for, then close (once)."""
@@ -426,7 +433,6 @@ class WindowSession:
             path = render.screenshot(self.app, f"chainsim-shot-{self.app.time.frame:06d}.png")
             self.app.resource(HudState).message(f"saved {path}", 3.0)
         elif symbol not in _arrows()[0]:  # arrows arrive through on_text_motion, with key repeat
-            self.pressed_at[key_name(symbol)] = self.now()
             self.send(Key(key_name(symbol), True))
         return pyglet.event.EVENT_HANDLED
 
@@ -461,12 +467,9 @@ class WindowSession:
 
     def on_key_release(self, symbol, modifiers):
         if symbol not in (pyglet.window.key.ESCAPE, pyglet.window.key.F12):
-            name, t = key_name(symbol), self.now()
             # a key pressed and released within one frame (a quick Shift+R) is held for one step, so the
-            # step that sees R also sees Shift down; otherwise both would be up before anything read them
-            if self.pressed_at.pop(name, None) == t:
-                t += self.app.time.dt
-            self.send(Key(name, False), t)
+            # step that sees R also sees Shift down (key_times, in send)
+            self.send(Key(key_name(symbol), False))
 
     # --- the window
 
@@ -483,12 +486,10 @@ class WindowSession:
         self.last = t
         if self.closing:
             return
-        if self.gate is not None:
-            self._watch_kernels()
-        elif not self.said_all and self.compiler.ready():  # loaded from the cache: no gate, said all the same
-            self.said_all = True
-            print(f"kernels: all compiled {self.compiler.seconds:.1f} s after start", flush=True)
-        if self.gate is not None and not self.gate.stepping():
+        self.kernels.update(self.now(), self.app.time.dt)
+        if not meshbuf.KERNEL_NORMALS and self.compiler.ready([GEOMETRY]):
+            meshbuf.KERNEL_NORMALS = True
+        if not self.kernels.stepping():
             self.stepper.carry = 0.0
             render.draw(self.app)  # input waits for kernels: the scene stands still, the window still draws
         elif self.stepper.advance(dt) == 0:
@@ -513,28 +514,6 @@ class WindowSession:
                 self.finish()
         if self.args.exit_after is not None and self.app.time.sim_time >= self.args.exit_after:
             self.finish()
-
-    def _watch_kernels(self) -> None:
-        """While kernels compile: say when the scene and then everything is ready, show the gate's line,
-        and let held input through once its kernels are there."""
-        gate, compiler = self.gate, self.compiler
-        if not self.said_ready and gate.ready():
-            self.said_ready = True
-            print(f"kernels: the scene's ready {time.perf_counter() - compiler.started:.1f} s after start", flush=True)
-            if not gate.held:  # with input held, the "Ready: the N presses ..." line below says it
-                self.hud.message("Ready: the soft-tissue engine is prepared; the scene takes your input.", 8.0)
-        if not self.said_all and compiler.ready():
-            self.said_all = True
-            print(f"kernels: all compiled {compiler.seconds:.1f} s after start", flush=True)
-        gate.show(self.hud)
-        if not meshbuf.KERNEL_NORMALS and compiler.ready([GEOMETRY]):
-            meshbuf.KERNEL_NORMALS = True
-        released = gate.release(self.now(), self.app.time.dt)
-        for t_ev, ev in released:
-            self.pending.push(t_ev, ev)
-        if released:  # said, so a trainee who pressed on meanwhile knows where that input went
-            n = gate.presses(released)
-            self.hud.message(f"Ready: the {n} presses and clicks given while preparing are applied now, in order.", 8.0)
 
     def on_close(self):
         # the window's close button asks as Esc does; a second close (or Esc) while asked quits

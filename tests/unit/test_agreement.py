@@ -45,6 +45,10 @@ def test_icc_matches_pingouin_on_drawn_tables(table):
     assert ours.average == pytest.approx(avg["ICC"], abs=1e-6, nan_ok=True)
     assert ours.f == pytest.approx(one["F"], rel=1e-6, nan_ok=True) and ours.df2 == one["df2"]
     assert ours.p == pytest.approx(one["pval"], abs=1e-6, nan_ok=True)
+    _, msc, mse = A.mean_squares(table.astype(float))
+    if mse == 0.0 and msc == 0.0:  # raters identical: perfect agreement, where pingouin's interval divides by 0
+        assert ours.single_ci == ours.average_ci == (1.0, 1.0) and ours.single == ours.average == 1.0
+        return
     for got, want in ((ours.single_ci, one["CI95"]), (ours.average_ci, avg["CI95"])):
         # pingouin rounds its interval to 2 places
         assert np.allclose(got, want, atol=0.005 + 1e-9, equal_nan=True)
@@ -65,6 +69,11 @@ def test_agreeing_raters_give_one_and_random_raters_about_zero():
     assert abs(noise.single) < 0.2 and noise.single_ci[0] < 0.0 < noise.single_ci[1]
     shifted = A.icc(np.column_stack([truth, truth + 3.0]))  # one rater marks everything 3 higher
     assert shifted.single < 1.0  # absolute agreement: a constant offset is disagreement
+
+
+def test_raters_who_differ_more_than_the_attempts_give_no_mean_agreement():
+    a = A.icc([[8, 5], [5, 8], [5, 5]])  # the attempts' mean square equals the residual's over n
+    assert a.single == pytest.approx(-1.0) and a.average == -np.inf
 
 
 def test_too_few_attempts_or_raters_is_one_line():

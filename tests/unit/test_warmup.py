@@ -8,6 +8,8 @@ import sys
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from chainsim.game.cli.main import main
 
@@ -77,9 +79,13 @@ class _Compiling:
         self.done: list[str] = []
         self.failed: dict[str, str] = {}
         self.total = total
+        self.started, self.seconds = 0.0, None
 
     def ready(self, names=None):
         return names is not None and all(n in self.done for n in names)
+
+    def prefer(self, names):
+        pass
 
 
 def test_window_input_waits_for_the_kernels_and_then_arrives_in_order():
@@ -114,6 +120,52 @@ def test_window_input_waits_for_the_kernels_and_then_arrives_in_order():
     assert gate.stepping() and gate.lets_through(Key("r", True), hud, "")
     gate.show(hud)
     assert not any("soft-tissue engine" in t for t, _ in hud.messages)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    gaps=st.lists(st.floats(0.0, 0.4), min_size=2, max_size=30),
+    ready_after=st.floats(0.0, 6.0),
+    fps=st.sampled_from([20.0, 60.0, 144.0]),
+)
+def test_input_given_while_compiling_and_after_reaches_the_scene_in_order_with_its_spacing(gaps, ready_after, fps):
+    """A seat's frames: input given while the kernels compile is held, input given while the held input is
+    being replayed waits behind it, and every event reaches the scene in order, none closer to the one
+    before it than it was given (less a frame): nothing arrives in a burst."""
+    from chainsim.components.hud import HudState
+    from chainsim.components.input_events import MouseButton
+    from chainsim.components.resources import PendingInput
+    from chainsim.game.app.compiling import KernelWatch
+
+    compiler, hud, pending, dt = _Compiling(), HudState(), PendingInput(), 1 / 120
+    watch = KernelWatch(compiler, ["normals and collision"], hud, pending, log=lambda s: None)
+    given = []
+    wall = 0.0
+    for k, gap in enumerate(gaps):
+        wall += gap
+        given.append((wall, MouseButton(float(k), 0.0, "left", k % 2 == 0)))
+    seen: list[tuple[float, object]] = []
+    now, frame, i, t = 0.0, 1.0 / fps, 0, 0.0
+    while len(seen) < len(given) and t < wall + ready_after + 60:
+        t += frame
+        if t >= ready_after:
+            compiler.done = ["normals and collision"]
+        while i < len(given) and given[i][0] <= t:
+            if watch.lets_through(given[i][1], given[i][0]):
+                pending.push(now, given[i][1])
+            i += 1
+        watch.update(now, dt)
+        if watch.stepping():
+            steps = round(frame / dt)
+            for _ in range(steps):
+                now += dt
+                seen += [(now, ev) for ev in pending.due(now)]
+    assert [ev for _, ev in seen] == [ev for _, ev in given]  # every one, in order
+    for (t0, _), (t1, _), (w0, _), (w1, _) in zip(seen, seen[1:], given, given[1:], strict=False):
+        if w1 < ready_after:  # both held while compiling: released with the spacing they were given with
+            assert t1 - t0 >= (w1 - w0) - 2 * dt
+        if w1 - w0 > frame + 2 * dt:  # given frames apart: never handed over in one step (a burst)
+            assert t1 - t0 >= dt - 1e-9
 
 
 def test_a_scripted_window_stands_still_until_the_kernels_are_ready():

@@ -15,6 +15,7 @@ docs/validity.md, "Blinded rating", walks through it.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 
 from chainsim.game.app.outputs import prepare_output_dir
@@ -93,6 +94,8 @@ def _report(args, store: RecordStore) -> int:
             f"ICC(A,1) {a.single:.2f} (95 % {a.single_ci[0]:.2f} to {a.single_ci[1]:.2f}); "
             f"ICC(A,{a.k}) {a.average:.2f}; {a.n} attempts, {a.k} raters"
         )
+        if not math.isfinite(a.average):
+            print(rating_report.NO_AVERAGE)
     for c in study.correlations:
         rho = "-" if c["rho"] is None else f"{c['rho']:.2f}"
         print(f"{c['label']}: rho {rho} over {c['n']} attempts")

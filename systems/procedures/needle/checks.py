@@ -392,7 +392,9 @@ def hit_entities(man: dict) -> list[tuple[str, str]]:
     for rname, r in man.get("roles", {}).items():
         if r.get("role") in ("target", "obstacle"):
             for e in r.get("entities", []):
-                out += [(f"roles.{rname}.entities", e.format(side=s)) for s in sides]
+                # a name that does not format for each side is reported where names are checked
+                if isinstance(e, str) and not format_problem(e, [{"side": s} for s in sides], strict=True):
+                    out += [(f"roles.{rname}.entities", e.format(side=s)) for s in sides]
     return out
 
 
