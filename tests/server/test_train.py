@@ -156,6 +156,9 @@ def test_a_flood_of_input_is_cut_off(site):
     flood = ['{"type": "mouse_move", "x": 5, "y": 5}'] * 2000
     code, reason, _ = talk(site, "bob", send=flood)
     assert code == 4429 and "too many input messages" in reason
+    # the account is held back a while (how long: test_refused_input_holds_the_account_back_...): waited
+    # out here, so that bob's later sessions on this site start
+    time.sleep(held_back(site, cookie_for(site.db, "bob")) + 0.5)
 
 
 @pytest.mark.slow
@@ -339,7 +342,12 @@ def open_trainer(browser, site, who):  # noqa: F811
     sign_in(page, site, who)
     page.click("a#train")
     assert page.url.endswith("/train/prp")
-    page.wait_for_function("window.trainStats && window.trainStats.frames > 0", timeout=120_000)
+    try:
+        page.wait_for_function("window.trainStats && window.trainStats.frames > 0", timeout=120_000)
+    except Exception as exc:  # say what the page and the server said, not only that time ran out
+        state = page.evaluate("() => (document.getElementById('train-state') || {}).textContent")
+        tail = "\n".join(site.log.read_text(errors="replace").splitlines()[-40:])
+        raise AssertionError(f"no picture in 120 s; the page says {state!r}; the server's log ends:\n{tail}") from exc
     return context, page
 
 
