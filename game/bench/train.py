@@ -52,11 +52,13 @@ DRIVE = """([x, y]) => {
   const fire = (type, init) => c.dispatchEvent(new (type.startsWith('key') ? KeyboardEvent : MouseEvent)(
       type, Object.assign({bubbles: true}, init)));
   fire('keydown', {key: 'Escape', code: 'Escape'}); fire('keyup', {key: 'Escape', code: 'Escape'});
-  let a = 0, n = 0;
+  let a = 0, step = 5, n = 0;
   fire('mousedown', {clientX: cx, clientY: cy, button: 0, buttons: 1});
   window.__drive = setInterval(() => {
-    a += 0.12;
-    const at = {bubbles: true, clientX: cx + 70 * Math.sin(a), clientY: cy, buttons: 1};
+    // back and forth at a steady 5 px a tick (a sine's slow turns would leave some pictures unchanged)
+    if (Math.abs(a + step) > 70) step = -step;
+    a += step;
+    const at = {bubbles: true, clientX: cx + a, clientY: cy, buttons: 1};
     c.dispatchEvent(new MouseEvent('mousemove', at));
   }, 16);
   window.__probe = setInterval(() => {

@@ -52,7 +52,7 @@ FORMATS = {"jpeg": ("JPEG", "image/jpeg"), "webp": ("WEBP", "image/webp")}
 DEFAULT_FORMAT = "jpeg"
 DEFAULT_QUALITY = 70
 #: the most pictures a second a session draws and sends (a window draws about 60; the stream is the cost)
-DEFAULT_FPS = 30.0
+DEFAULT_FPS = 40.0
 #: frames the page may have in flight at once (sent, not yet drawn): at least MIN_CREDIT, and as many as
 #: the quickest round trip seen takes at the session's frame rate, up to MAX_CREDIT
 MIN_CREDIT, MAX_CREDIT = 2, 6
@@ -343,7 +343,7 @@ class Session:
     def run(self) -> None:
         channel = self.channel
         channel.send_json({"t": "ready", "size": list(self.size), "format": FORMATS[self.fmt][1]})
-        last = time.perf_counter()
+        last = due = time.perf_counter()
         while not channel.closed.is_set():
             start = time.perf_counter()
             had_input = False
@@ -375,7 +375,10 @@ class Session:
                         self.frame_no += 1
                         encoder.submit(self.frame_no, self.last_seq, picture)
                         self._first_picture()
-            spare = self.period - (time.perf_counter() - start)
+            # a fixed cadence (each loop due a period after the last was due), so the wake-up's own delay
+            # does not lower the rate; a loop that overran starts the next at once and the cadence anew
+            due = max(due + self.period, time.perf_counter() - self.period)
+            spare = due - time.perf_counter()
             if spare > 0:
                 channel.closed.wait(spare)
 
