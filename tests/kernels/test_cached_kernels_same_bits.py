@@ -16,6 +16,9 @@ import sys
 
 import pytest
 
+# each case compiles a scene's kernels in fresh processes, cold then warm (half a minute on 2 cores): CI runs it
+pytestmark = pytest.mark.slow
+
 SCENE = r"""
 import hashlib, sys
 import numpy as np

@@ -18,6 +18,9 @@ from conftest import PASSWORD, call, count_attempts, populate, start_server, upl
 
 from chainsim.game.records.store import RecordStore
 
+# a server killed mid-burst and restarted, on both databases (a minute and a half on 2 cores): CI runs it
+pytestmark = pytest.mark.slow
+
 #: acknowledged uploads before the kill; each one costs a replay after the restart
 ENOUGH = 24
 

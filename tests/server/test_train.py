@@ -310,6 +310,7 @@ def held_back(server, cookie: str) -> float:
     return float(said.group(1))
 
 
+@pytest.mark.slow
 def test_refused_input_holds_the_account_back_without_starting_a_process(short):
     cookie = cookie_for(short.db, "bob")
 

@@ -97,6 +97,7 @@ async def _run(url: str, path: str, cookie: str, trials: int, clicks) -> list[st
     return seen
 
 
+@pytest.mark.slow
 def test_a_registered_trainee_runs_the_studys_trials_in_the_browser(site):
     if site.db.startswith("postgresql"):
         pytest.skip("the seat runs the same on both databases; the register's checks are tested on both")

@@ -16,6 +16,7 @@ from chainsim.game.cli.main import main
 ROOT = Path(__file__).resolve().parents[2]
 
 
+@pytest.mark.slow
 def test_warmup_command_readies_the_kernels(capsys):
     assert main(["-q", "warmup"]) == 0
     assert "kernels ready" in capsys.readouterr().out
