@@ -84,3 +84,6 @@ _.handle
 # socketserver reads these class attributes by name (tests/unit/test_delay_proxy.py)
 _.daemon_threads
 _.block_on_close
+
+# pytest reads a test module's marks from a module-level variable of this name (tests marked slow)
+_.pytestmark
