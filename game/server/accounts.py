@@ -14,6 +14,7 @@ version 3, ``chainsim.game.records.schema``), on SQLite or PostgreSQL alike.
 from __future__ import annotations
 
 import base64
+import functools
 import hashlib
 import hmac
 import secrets
@@ -123,8 +124,12 @@ def needs_rehash(stored: str) -> bool:
     return len(parts) != 6 or parts[0] != "scrypt" or parts[1:4] != [str(SCRYPT_N), str(SCRYPT_R), str(SCRYPT_P)]
 
 
-# Checked against when the name is unknown, so a wrong name costs as long as a wrong password.
-_DUMMY_HASH = hash_password("not a real password")
+@functools.cache
+def _dummy_hash() -> str:
+    """Checked against when the name is unknown, so a wrong name costs as long as a wrong password.
+    Made at the first unknown name, not at import: every process that imports this module (the
+    server, each command line) would otherwise pay a full hash before doing anything."""
+    return hash_password("not a real password")
 
 
 def _secret_hash(secret: str) -> str:
@@ -235,7 +240,7 @@ def check_login(store: RecordStore, name: Any, password: Any) -> User | None:
         return None
     rows = store.query("SELECT id, password_hash FROM users WHERE name = ?", (name.strip(),)) if name.strip() else []
     if not rows:
-        verify_password(password, _DUMMY_HASH)
+        verify_password(password, _dummy_hash())
         return None
     if not verify_password(password, rows[0]["password_hash"]):
         return None
