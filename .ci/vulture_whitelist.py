@@ -45,6 +45,7 @@ _.log_message
 
 # pytest reads pytest_plugins, and hands fixtures to the tests that name them as arguments
 _.pytest_plugins
+_.pytest_configure  # a hook pytest calls by name (tests/conftest.py)
 _.gpu_always
 _.monkeypatch_session
 

@@ -34,6 +34,7 @@ import urllib.parse
 import urllib.request
 from dataclasses import dataclass, field
 from pathlib import Path
+from unittest import mock
 
 import pytest
 
@@ -273,10 +274,24 @@ def save_scored(server: Server, who: str, body: dict, key: str | None = None, to
     return stored
 
 
+_password_hash = functools.cache(functools.partial(accounts.hash_password, PASSWORD))
+
+
 def populate(db: str) -> None:
-    with RecordStore(db) as store:
+    """The PEOPLE accounts in ``db``. They share one hash of PASSWORD (each hash costs a few tenths of a
+    second by design, and dozens of servers are populated per run); sign-in checks it as any other."""
+    with RecordStore(db) as store, mock.patch.object(accounts, "hash_password", lambda _password: _password_hash()):
         for name, role, classes in PEOPLE:
             accounts.add_user(store, name, role, PASSWORD, classes)
+
+
+def sign_in(server: Server, *names: str) -> None:
+    """API tokens for ``names`` in ``server.tokens``, issued in the store as ``/api/login`` issues them, for
+    tests about something else than signing in (that is tested over HTTP by ``site`` and test_api.py)."""
+    with RecordStore(server.db) as store:
+        users = {u.name: u for u in accounts.list_users(store)}
+        for name in names:
+            server.tokens[name] = accounts.issue_token(store, users[name])[0]
 
 
 @pytest.fixture(scope="session", params=("sqlite", "postgresql"))

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import PASSWORD, call, populate, save_scored, send, start_server, upload, wait_scored
+from conftest import call, populate, save_scored, send, sign_in, start_server, upload, wait_scored
 
 from chainsim.game.cli.main import main
 from chainsim.game.records import provenance
@@ -29,9 +29,7 @@ from chainsim.game.records.store import RecordStore
 def server(records_db, tmp_path):
     populate(records_db)
     srv = start_server(records_db, tmp_path / "serve.log", args=("--max-session-minutes", "180"))
-    for name in ("alice", "tina", "bob"):
-        status, answer, _ = call(srv, "POST", "/api/login", {"name": name, "password": PASSWORD})
-        srv.tokens[name] = answer["token"]
+    sign_in(srv, "alice", "tina", "bob")
     yield srv
     srv.stop()
 
@@ -113,16 +111,15 @@ def test_an_account_past_its_upload_rate_waits_with_retry_after(records_db, tmp_
     populate(records_db)
     srv = start_server(records_db, tmp_path / "serve.log", args=("--uploads-per-minute", "1"))
     try:
-        status, answer, _ = call(srv, "POST", "/api/login", {"name": "alice", "password": PASSWORD})
-        token = answer["token"]
+        sign_in(srv, "alice", "bob")
+        token = srv.tokens["alice"]
         bad = {**upload(), "pack": "nope", "pack_identity": {"name": "nope", "version": "1", "hash": "0" * 64}}
         statuses = [send(srv, "alice", bad, token=token)[0] for _ in range(20)]
         assert statuses == [422] * 20  # checked (and refused) within the burst of 20
         status, answer, headers = send(srv, "alice", bad, token=token)
         assert status == 429 and "too many uploads from this account" in answer["error"], answer
         assert 1 <= int(headers["Retry-After"]) <= 60
-        status, answer, _ = call(srv, "POST", "/api/login", {"name": "bob", "password": PASSWORD})
-        assert send(srv, "bob", bad, token=answer["token"])[0] == 422  # another account is not held up
+        assert send(srv, "bob", bad)[0] == 422  # another account is not held up
     finally:
         srv.stop()
 
@@ -170,7 +167,7 @@ def test_replay_processes_end_with_the_server(records_db, tmp_path, sig):
     populate(records_db)
     srv = start_server(records_db, tmp_path / "serve.log")
     try:
-        status, answer, _ = call(srv, "POST", "/api/login", {"name": "alice", "password": PASSWORD})
+        sign_in(srv, "alice")
 
         def late_save(rec):  # a replay that runs a while: the Save comes after 30 more minutes of waiting
             rec["steps"] += 30 * 60 * 120
@@ -178,7 +175,7 @@ def test_replay_processes_end_with_the_server(records_db, tmp_path, sig):
                 e["t"] += 30 * 60
 
         body = with_recording(upload(), late_save)
-        status, ack, _ = send(srv, "alice", body, token=answer["token"])
+        status, ack, _ = send(srv, "alice", body)
         assert status == 202
         deadline = time.monotonic() + 60
         while not children(srv.proc.pid) and time.monotonic() < deadline:
@@ -213,8 +210,8 @@ def test_forty_maximum_size_uploads_at_once_keep_the_servers_memory_bounded(reco
     populate(records_db)
     srv = start_server(records_db, tmp_path / "serve.log")
     try:
-        status, answer, _ = call(srv, "POST", "/api/login", {"name": "alice", "password": PASSWORD})
-        token = answer["token"]
+        sign_in(srv, "alice")
+        token = srv.tokens["alice"]
         # the largest recording text an upload may carry (the scorer finds it is no recording and refuses it)
         text = base64.b64encode(os.urandom(limits.MAX_RECORDING_BYTES)).decode()
         body = {**upload(), "recording": text}

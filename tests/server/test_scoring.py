@@ -18,7 +18,7 @@ import shutil
 import signal
 
 import pytest
-from conftest import PASSWORD, call, populate, save_through_simulator, start_server, upload, wait_scored
+from conftest import PASSWORD, call, populate, save_through_simulator, sign_in, start_server, upload, wait_scored
 
 from chainsim.game.packs import pack as packs
 from chainsim.game.records import provenance, remote
@@ -38,9 +38,7 @@ def queue_offline(tmp_path, url: str, script: str, name: str = "local.sqlite3") 
 def server(records_db, tmp_path):
     populate(records_db)
     srv = start_server(records_db, tmp_path / "serve.log")
-    for name in ("alice", "tina"):
-        status, answer, _ = call(srv, "POST", "/api/login", {"name": name, "password": PASSWORD})
-        srv.tokens[name] = answer["token"]
+    sign_in(srv, "alice", "tina")
     yield srv
     srv.stop()
 
@@ -116,8 +114,8 @@ def test_unknown_pack_or_copy_or_no_recording_is_refused_and_stays_queued(server
 def test_killed_server_scores_every_waiting_upload_once_after_restart(records_db, tmp_path):
     populate(records_db)
     srv = start_server(records_db, tmp_path / "serve.log")
-    status, answer, _ = call(srv, "POST", "/api/login", {"name": "alice", "password": PASSWORD})
-    token = answer["token"]
+    sign_in(srv, "alice")
+    token = srv.tokens["alice"]
     local = queue_offline(tmp_path, srv.url, "skull-hit.toml")
     with RecordStore(local) as store:
         body = json.loads(store.query("SELECT attempt FROM outbox")[0][0])
@@ -178,7 +176,8 @@ def test_a_pack_updated_on_a_running_server_scores_uploads_made_with_its_new_fil
     populate(records_db)
     srv = start_server(records_db, tmp_path / "serve.log", args=("--pack-path", str(folder)))
     try:
-        token = call(srv, "POST", "/api/login", {"name": "alice", "password": PASSWORD})[1]["token"]
+        sign_in(srv, "alice")
+        token = srv.tokens["alice"]
         old = upload("correct.toml")
         status, ack, _ = call(srv, "POST", "/api/attempts", old, token, {"Idempotency-Key": "before-update"})
         assert status == 202, ack
