@@ -81,6 +81,7 @@ from chainsim.systems.engine.kernels.projective import pcg3, spmv3
 from chainsim.systems.engine.kernels.twolevel import (
     assemble_tets,
     block_pcg,
+    bspmv3,
     det_at,
     local_forces,
     min_det,
@@ -326,7 +327,7 @@ class HybridBody(ProjectiveBody):
             "touch": touch,
             "elems": np.flatnonzero(touch),
             "L_ff": (L_ff.indptr.astype(np.int64), L_ff.indices.astype(np.int64), L_ff.data),
-            "L_fo": L_fo,
+            "L_fo": _csr(L_fo),
             "inv_diag": 1.0 / diag if nf else np.zeros(0),
             "scratch": [np.zeros((nf, 3)) for _ in range(5)],
             "coarse": None,
@@ -348,21 +349,7 @@ class HybridBody(ProjectiveBody):
             bad = np.abs(np.linalg.det(diag_blocks)) <= 1e-300
             diag_blocks[bad] = np.eye(3)
             s["K_ff"] = (bptr, bidx, blocks, np.linalg.inv(diag_blocks))
-            ids, cw = self._cids[free], self._cw[free]
-            used, cidx = np.unique(ids, return_inverse=True)
-            P = sp.csr_matrix((cw.ravel(), (np.repeat(np.arange(nf), 8), cidx.ravel())), shape=(nf, len(used)))
-            P3 = sp.kron(P, sp.eye(3), format="csr")
-            KP = (K_ff @ P3).tocsr()  # the coarse step's force change K P y in one product with fewer entries
-            Kc = (P3.T @ KP).tocsc()
-            cd = Kc.diagonal()
-            if np.any(cd <= 1e-300 * max(cd.max(), 1e-300)):
-                Kc = Kc + sp.diags(np.where(cd <= 1e-300 * max(cd.max(), 1e-300), 1.0, 0.0))
-            # a small awake region can cover fewer solved nodes than coarse nodes, so that P^T K P has
-            # directions y with P y = 0: singular, but the forces never reach them (f . P y = 0). A shift
-            # of 1e-10 of the largest diagonal keeps the factorisation defined and gives them no step
-            Kc = (Kc + sp.diags(np.full(Kc.shape[0], 1e-10 * cd.max()))).tocsc()
-            factor = splu(Kc, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-            s["coarse"] = (KP, P3, factor)
+            s["coarse"] = _coarse_operators(K_ff, self._cids[free], self._cw[free])
             # K from the held dofs into the solved ones: the linear response to a move of the grabbed nodes
             s["K_fh"] = K_rows.multiply(np.repeat(~solve, 3)[None, :]).tocsr()
         s["seconds"] = time.perf_counter() - t0
@@ -484,9 +471,9 @@ class HybridBody(ProjectiveBody):
             if s.get("K_fg_key") != key:  # only the grabbed nodes' columns of K_fh act on a jump
                 s["K_fg"] = s["K_fh"][:, (3 * g[:, None] + np.arange(3)).ravel()].tocsr()
                 s["K_fg_key"] = key
-            _, P3, factor = s["coarse"]
-            y = factor.solve(P3.T @ -(s["K_fg"] @ jump.ravel()))
-            lin = (P3 @ y).reshape(-1, 3)
+            _, P, factor = s["coarse"]
+            y = factor.solve(_spmv3(P[1], -(s["K_fg"] @ jump.ravel()).reshape(-1, 3)).ravel())
+            lin = _spmv3(P[0], y.reshape(-1, 3))
         xg, xf = x[g].copy(), x[free].copy()
         # a frame's move may squeeze the most squeezed element by a tenth more, never below J_FLOOR: the
         # iterations between moves let the body make room, as the load steps of a nonlinear FEM do
@@ -515,9 +502,8 @@ class HybridBody(ProjectiveBody):
             # coarse part through K P y). A moving tool then costs one local step a frame, as a still
             # one does, not two; the step's trial point is evaluated exactly, and its energy is unknown
             # here (nan: _iterate tests the step by its curvature and det F, not by the energy)
-            KP = s["coarse"][0]
-            moved = KP @ y + s["K_fg"] @ jump.ravel()
-            self._cache = (s, math.nan, min_j, c[3] - alpha * moved.reshape(-1, 3))
+            moved = _bspmv3(s["coarse"][0], y.reshape(-1, 3)) + (s["K_fg"] @ jump.ravel()).reshape(-1, 3)
+            self._cache = (s, math.nan, min_j, c[3] - alpha * moved)
         else:
             self._cache = None
         return alpha
@@ -575,7 +561,7 @@ class HybridBody(ProjectiveBody):
         xf = x[free]
         Lx = np.empty_like(xf)
         spmv3(*s["L_ff"], xf, Lx)
-        f = rhs[free] - Lx - s["L_fo"] @ x
+        f = rhs[free] - Lx - _spmv3(s["L_fo"], x)
         self._cache = (s, float(energy), float(min_j), f)
         return float(energy), float(min_j), f
 
@@ -692,10 +678,10 @@ class HybridBody(ProjectiveBody):
         r, z, p, q, d = s["scratch"]
         step = np.zeros_like(f)
         if coarse and s["coarse"] is not None:
-            KP, P3, factor = s["coarse"]
-            y = factor.solve(P3.T @ f.ravel())
-            f = f - (KP @ y).reshape(-1, 3)
-            step += (P3 @ y).reshape(-1, 3)
+            KP, P, factor = s["coarse"]
+            y = factor.solve(_spmv3(P[1], f).ravel()).reshape(-1, 3)
+            f = f - _bspmv3(KP, y)
+            step += _spmv3(P[0], y)
         if coarse and s["coarse"] is not None:
             # smoothing with the rest stiffness: it knows the volume term's coupling of the axes, where
             # projective dynamics' matrix stiffens every direction by it (at nu 0.49 on the 1.5k-node
@@ -787,3 +773,49 @@ class HybridBody(ProjectiveBody):
         self._setup = None
         self._synced = None
         self._last_targets = None
+
+
+def _coarse_operators(K_ff: sp.csr_matrix, ids: np.ndarray, cw: np.ndarray) -> tuple:
+    """The coarse step's operators for the solved nodes, whose coarse nodes and trilinear weights are ids
+    and cw (nf, 8): K P as 3 x 3 blocks, P and P^T (CSR arrays), and the factorised P^T K P. The frame's
+    products with them run in numba's threads, rows apart, so the same bits whatever their number (in
+    scipy's single thread they were a sixth of a dragged frame on one thread at 10k nodes)."""
+    nf = len(ids)
+    used, cidx = np.unique(ids, return_inverse=True)
+    P = sp.csr_matrix((cw.ravel(), (np.repeat(np.arange(nf), 8), cidx.ravel())), shape=(nf, len(used)))
+    P3 = sp.kron(P, sp.eye(3), format="csr")
+    KP = (K_ff @ P3).tocsr()  # the coarse step's force change K P y in one product with fewer entries
+    Kc = (P3.T @ KP).tocsc()
+    cd = Kc.diagonal()
+    if np.any(cd <= 1e-300 * max(cd.max(), 1e-300)):
+        Kc = Kc + sp.diags(np.where(cd <= 1e-300 * max(cd.max(), 1e-300), 1.0, 0.0))
+    # a small awake region can cover fewer solved nodes than coarse nodes, so that P^T K P has
+    # directions y with P y = 0: singular, but the forces never reach them (f . P y = 0). A shift
+    # of 1e-10 of the largest diagonal keeps the factorisation defined and gives them no step
+    Kc = (Kc + sp.diags(np.full(Kc.shape[0], 1e-10 * cd.max()))).tocsc()
+    factor = splu(Kc, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    KPb = KP.tobsr(blocksize=(3, 3))
+    KPb.sort_indices()
+    blocks = (KPb.indptr.astype(np.int64), KPb.indices.astype(np.int64), np.ascontiguousarray(KPb.data))
+    return blocks, (_csr(P), _csr(P.T.tocsr())), factor
+
+
+def _csr(A: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A CSR matrix's arrays as the kernels take them (sorted int64 indices, contiguous values)."""
+    A = A.tocsr()
+    A.sort_indices()
+    return A.indptr.astype(np.int64), A.indices.astype(np.int64), np.ascontiguousarray(A.data, dtype=np.float64)
+
+
+def _spmv3(A: tuple[np.ndarray, np.ndarray, np.ndarray], x: np.ndarray) -> np.ndarray:
+    """A x for a matrix from `_csr` and x (n, 3), in numba's threads."""
+    out = np.empty((len(A[0]) - 1, 3))
+    spmv3(*A, np.ascontiguousarray(x), out)
+    return out
+
+
+def _bspmv3(A: tuple[np.ndarray, np.ndarray, np.ndarray], y: np.ndarray) -> np.ndarray:
+    """A y for a matrix of 3 x 3 blocks (indptr, indices, blocks) and y (n, 3), in numba's threads."""
+    out = np.empty((len(A[0]) - 1, 3))
+    bspmv3(*A, np.ascontiguousarray(y), out)
+    return out
