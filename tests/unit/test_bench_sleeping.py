@@ -13,7 +13,7 @@ from chainsim.tools.bench import sleeping
 
 def test_the_wider_slab_solves_about_the_same_region_and_the_extra_error_is_measured(tmp_path):
     out = tmp_path / "sl"
-    cmd = [sys.executable, "-m", "chainsim.game.cli.main", "bench", "sleeping", "--widths", "20,80"]
+    cmd = [sys.executable, "-m", "chainsim.game.cli.main", "bench", "sleeping", "--widths", "20,120"]
     cmd += ["--element-mm", "2.5", "--ramp", "3", "--hold", "2", "--out", str(out)]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -23,7 +23,9 @@ def test_the_wider_slab_solves_about_the_same_region_and_the_extra_error_is_meas
     # sleeping: the region a frame solves follows the disturbance, not the body: about the nodes the
     # same pull moves by more than the threshold when the body is solved whole, not all of them
     assert wide["solved_max"] < 0.9 * wide["nodes"]
-    assert wide["solved_max"] < 1.15 * _reach(80.0)
+    # (the slab is wide enough that the pull reaches under half of it: an 80 mm one had 85 % of its free
+    # nodes reached, and the body wakes whole past 80 %; the fringe is the wake rings around the reach)
+    assert wide["solved_max"] < 1.25 * _reach(120.0)
     # the extra error is measured against the whole solve, and it is small but not nothing
     for r in rows:
         assert 0.0 <= r["extra_rms_end"] < 0.1 and np.isfinite(r["extra_worst_node"])

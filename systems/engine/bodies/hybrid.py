@@ -127,6 +127,8 @@ REST_FORCE = 1e-3
 #: rings inside the front whose largest drift a front node reports (see _sleep_or_wake)
 DRIFT_RINGS = 2
 MARGIN_RINGS = 12  # rings of elements assembled beyond the awake region (sleeping bodies)
+#: once this share of the body's free nodes is awake, all of it wakes (see _sleep_or_wake)
+WAKE_ALL = 0.8
 
 
 class HybridBody(ProjectiveBody):
@@ -199,6 +201,7 @@ class HybridBody(ProjectiveBody):
             self._chain = ChainMailBody(self.rest, self.graph, alpha_min, alpha_max, beta, fixed=self.fixed)
         self.awake = np.ones(self.n, dtype=np.bool_) if not self.sleep else np.zeros(self.n, dtype=np.bool_)
         self._setups: dict = {}
+        self._built = 0  # set-ups made (each a slice of the matrices and a coarse factorisation)
         self._matrices: tuple | None = None
         self._floating_cache: tuple | None = None
         self._synced: dict | None = None  # the set-up whose frame last wrote every position
@@ -300,7 +303,9 @@ class HybridBody(ProjectiveBody):
     def _prepare_hybrid(self) -> dict:
         held = self.fixed.copy()
         held[self.grab_ids] = True
-        key = (held.tobytes(), self.awake.tobytes(), self.active.tobytes())
+        # whether a held node is awake does not change the solve: keyed on it, a fixed node the front
+        # reached would cost a new set-up (a factorisation) for the same nodes solved
+        key = (held.tobytes(), (self.awake & ~held).tobytes(), self.active.tobytes())
         hit = self._setups.get(key)
         if hit is not None:
             return hit
@@ -356,6 +361,7 @@ class HybridBody(ProjectiveBody):
         if len(self._setups) >= CACHE:
             self._setups.pop(next(iter(self._setups)))
         self._setups[key] = s
+        self._built += 1
         return s
 
     # -- a frame ----------------------------------------------------------------------------------
@@ -422,6 +428,7 @@ class HybridBody(ProjectiveBody):
             self._synced = s
         extra = {
             "setup_s": s["seconds"],
+            "setups_built": self._built,
             "awake": int(self.awake.sum()),
             "solved": len(free),
             "min_j": self._cache[2] if self._cache is not None else math.nan,
@@ -716,6 +723,13 @@ class HybridBody(ProjectiveBody):
         woke = wake_front(self.graph.indptr, self.graph.indices, self.awake, drift, threshold, self.wake_rings)
         if woke:
             self._setup = None
+            loose = ~self.fixed
+            if np.count_nonzero(self.awake & loose) >= WAKE_ALL * np.count_nonzero(loose):
+                # a front that has crossed most of the body would grow a little every frame, and each
+                # new awake set costs a new coarse factorisation (147-181 ms a frame on two threads at 10k
+                # nodes, where the whole body costs 12): the rest is woken at once, so the set, and with
+                # it the cached set-up, stays the same while the tool holds
+                self.awake[:] = True
             spoke = free[drift[free] > threshold]
             self._anchor[spoke] = x[spoke]  # these told their neighbours: their drift counts afresh
             new = self.awake & ~before
