@@ -82,6 +82,10 @@ def _button(b) -> str:
 
 
 SOFTWARE_GL = ("llvmpipe", "softpipe", "swrast")
+FULL_FPS = 60  # redraws a second
+#: ... while the scene waits on its kernels (a first start): its picture stands still, and drawing it at
+#: the full rate took about 0.8 of a core (software GL, two cores) from the processes compiling them
+WAIT_FPS = 15
 
 
 def _open_window(pyglet, w: int, h: int, caption: str):
@@ -166,7 +170,7 @@ def _run_window(args, session, compiler: Compiler) -> int:
     for name, handler in ui.handlers().items():  # as @window.event sets them
         window.set_handler(name, handler)
     try:
-        pyglet.app.run(1 / 60)
+        pyglet.app.run(1 / FULL_FPS)
     finally:
         ui.frame_log.close()
         app.close()
@@ -243,6 +247,7 @@ class WindowSession:
         self.behind = ""  # the page the quit question covers
         self.swallow_text = False  # the key that answered the question types nothing
         self.said_first = False
+        self.slow = False  # redrawing at WAIT_FPS
         self.pending: PendingInput = app.resource(PendingInput)
         self.hud: HudState = app.resource(HudState)
         # a force-feedback device's servo runs from the first frame: its kernels first too
@@ -480,6 +485,15 @@ class WindowSession:
         self.send(Resize(max(int(width), 1), max(int(height), 1)))
         return pyglet.event.EVENT_HANDLED
 
+    def _pace(self, waiting: bool) -> None:
+        """Redraw at WAIT_FPS while the scene's kernels compile and at FULL_FPS once they are ready."""
+        loop = pyglet.app.event_loop
+        if waiting == self.slow or not loop.is_running:
+            return
+        self.slow = waiting
+        pyglet.clock.unschedule(loop._redraw_windows)
+        pyglet.clock.schedule_interval(loop._redraw_windows, 1.0 / (WAIT_FPS if waiting else FULL_FPS))
+
     def on_draw(self):
         t = time.perf_counter()  # wall clock paces the window only; the App runs on simulated time
         dt = 0.0 if self.last is None else t - self.last
@@ -487,6 +501,7 @@ class WindowSession:
         if self.closing:
             return
         self.kernels.update(self.now(), self.app.time.dt)
+        self._pace(self.gate is not None and not self.gate.ready())
         if not meshbuf.KERNEL_NORMALS and self.compiler.ready([GEOMETRY]):
             meshbuf.KERNEL_NORMALS = True
         if not self.kernels.stepping():
