@@ -326,12 +326,11 @@ class HybridBody(ProjectiveBody):
         if nf and np.any(diag <= 0.0):  # a node with no live element keeps its place
             L_ff = L_ff + sp.diags(np.where(diag <= 0.0, 1.0, 0.0))
             diag = L_ff.diagonal()
-        L_ff.sort_indices()
         s = {
             "free": free,
             "touch": touch,
             "elems": np.flatnonzero(touch),
-            "L_ff": (L_ff.indptr.astype(np.int64), L_ff.indices.astype(np.int64), L_ff.data),
+            "L_ff": _csr(L_ff),
             "L_fo": _csr(L_fo),
             "inv_diag": 1.0 / diag if nf else np.zeros(0),
             "scratch": [np.zeros((nf, 3)) for _ in range(5)],
