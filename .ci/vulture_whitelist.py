@@ -7,7 +7,7 @@ from vulture.whitelist_utils import Whitelist
 
 _ = Whitelist()
 
-# pyglet calls a window's event handlers by name, with these arguments (game/ui/window.py)
+# pyglet calls a window's event handlers by name, with these arguments (game/trainer/window.py)
 _.on_draw
 _.on_key_press
 _.on_key_release
@@ -22,7 +22,7 @@ _.on_text_motion
 _.modifiers
 _.scroll_x
 
-# moderngl applies these context settings when they are assigned (game/gl)
+# moderngl applies these context settings when they are assigned (game/render)
 _.blend_equation
 _.blend_func
 _.color_mask

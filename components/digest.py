@@ -1,7 +1,9 @@
 """A digest of world state: equal digests mean bit-identical components and simulated time.
 
 Entities are visited in id order and components in type-name order; numpy arrays contribute
-dtype, shape and raw bytes, floats their IEEE-754 bits. Used to check determinism and replays.
+dtype, shape and raw bytes, floats their IEEE-754 bits. A component's fields marked `digest: False` are
+left out; one that keeps state on an object it holds names it, as (name, value) pairs fed after its
+fields, with a `digest_items()` method. Used to check determinism and replays.
 """
 
 from __future__ import annotations
@@ -45,6 +47,10 @@ def _feed(h, value) -> None:
             if f.metadata.get("digest", True):
                 h.update(f.name.encode())
                 _feed(h, getattr(value, f.name))
+        # state a component keeps on an object it holds (a soft body), fed as if they were its fields
+        for name, item in value.digest_items() if hasattr(value, "digest_items") else ():
+            h.update(name.encode())
+            _feed(h, item)
     elif value is None:
         h.update(b"N")
     else:

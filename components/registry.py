@@ -162,7 +162,7 @@ def load_all(features: Iterable[str] = ()) -> None:
     """Register every manifest table: the shared types of this package, then each feature's modules.
 
     A feature declares its own component types and sections in its modules (importing one registers
-    them); the composition root names the features (chainsim.game.app.plugins.load_manifests). A
+    them); the composition root names the features (chainsim.game.trainer.plugins.load_manifests). A
     feature module that is missing is an error, not a smaller registry."""
     global _loaded
     for mod in pkgutil.iter_modules(chainsim.components.__path__):

@@ -6,6 +6,7 @@ fixed-step loop, never read from a clock, so a run is a pure function of its pac
 
 from __future__ import annotations
 
+import bisect
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -61,7 +62,11 @@ class PendingInput:
     cursor: int = 0
 
     def push(self, t: float, event: Any) -> None:
-        self.items.append((t, event))
+        """Queue `event` for simulated time `t`, in time order behind everything due by then: a seat pushes
+        a tapped key's release a step ahead, and another key tapped after it must not wait behind that
+        release (it would land in the same step as its own release, and no step would see it down)."""
+        at = bisect.bisect_right(self.items, t, lo=self.cursor, key=lambda te: te[0])
+        self.items.insert(at, (t, event))
 
     def extend(self, timed_events: Iterable[tuple[float, Any]]) -> None:
         self.items.extend(timed_events)

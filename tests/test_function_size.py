@@ -39,12 +39,11 @@ ALLOWED: dict[str, tuple[int, str]] = {
     "game/packbuild/needle/prepare_prp.py::fit_skin": (87, "pack build recipe, run once"),
     "game/packbuild/needle/make_prp_scripts.py::main": (125, "pack build recipe, run once"),
     # benchmark drivers: the timed sequence in one place, so what is measured is read at once
-    "game/bench/window.py::run": (121, "benchmark driver: the timed sequence"),
-    "game/bench/render.py::run_sheets": (118, "benchmark driver: the timed sequence"),
-    "game/bench/render.py::run_pack": (99, "benchmark driver: the timed sequence"),
-    "game/bench/records.py::run_bench": (98, "benchmark driver: the timed sequence"),
+    "tools/bench/window.py::run": (121, "benchmark driver: the timed sequence"),
+    "tools/bench/render.py::run_sheets": (118, "benchmark driver: the timed sequence"),
+    "tools/bench/render.py::run_pack": (99, "benchmark driver: the timed sequence"),
+    "tools/bench/records.py::run_bench": (98, "benchmark driver: the timed sequence"),
     # not split yet
-    "game/server/replay3d.py::replay_track": (92, "to split: replay, then the track's samples and contacts"),
 }
 
 

@@ -16,7 +16,7 @@ import re
 import sys
 
 from chainsim.game import __version__
-from chainsim.game.app.logs import setup_logging
+from chainsim.game.common.logs import setup_logging
 from chainsim.systems.engine.argtypes import NEGATIVE_NUMBER
 from chainsim.systems.engine.errors import UserError, printable
 

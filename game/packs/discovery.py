@@ -81,7 +81,7 @@ def _package_folders(ep) -> list[Path]:
     dist = getattr(ep, "dist", None)
     for f in (dist.files or []) if dist is not None else []:
         if f.parts[: len(parts)] == tuple(parts) and f.name == MANIFEST and len(f.parts) == len(parts) + 1:
-            found.append(Path(dist.locate_file(f)).parent)
+            found.append(Path(dist.locate_file(f)).parent)  # type: ignore[union-attr]  # files came from this dist
     if not found:  # editable installs and distributions without a RECORD
         for entry in sys.path:
             folder = Path(entry or ".").joinpath(*parts)
@@ -126,7 +126,7 @@ def resolve(ref: str, pack_paths=()) -> tuple[Path, str | None]:
     name, _, scene = ref.partition("/")
     if (Path(name) / "pack.toml").is_file() and scene:
         return Path(name), scene
-    seen = {}
+    seen: dict[str, Found] = {}
     for f in discover(pack_paths):
         seen.setdefault(f.name, f)
     if name in seen:

@@ -17,7 +17,7 @@ from typing import Any
 
 from chainsim.assets import ASSETS_DIR
 from chainsim.components.registry import SECTION_STYLE
-from chainsim.game.packs import schema as ms
+from chainsim.game.packs import declarations as ms
 from chainsim.game.packs.requires import split_ref
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.meshes import MeshData, check_mesh, load_file, primitive
@@ -98,7 +98,7 @@ class Pack:
     def scene_names(self) -> list[str]:
         return list(self.section("scenes"))
 
-    def scene(self, name: str | None) -> tuple[str, dict]:
+    def scene(self, name: str | None = None) -> tuple[str, dict]:
         scenes = self.section("scenes")
         if not scenes:
             return "main", {

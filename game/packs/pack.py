@@ -11,7 +11,7 @@ ever imported or executed. This module holds `validate` and `load`; the parts li
 
 Validation collects every problem at once, each as `file:line: key.path: what is wrong`; every
 value is bounded (docs/limits.md). Starting each scene the way `run` does, so that whatever `run`
-refuses `chainsim validate` reports first, is the app's part: chainsim.game.app.headless.validate_pack.
+refuses `chainsim validate` reports first, is the app's part: chainsim.game.trainer.headless.validate_pack.
 """
 
 from __future__ import annotations
@@ -19,8 +19,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from chainsim.components.registry import load_all
-from chainsim.game.packs import checks
-from chainsim.game.packs.checks import PackError, Problem, Validator, problem_at
+from chainsim.game.packs import validation as checks
 from chainsim.game.packs.discovery import (
     BUILTIN_DIR,
     ENTRY_POINT_GROUP,
@@ -32,6 +31,7 @@ from chainsim.game.packs.discovery import (
     resolve,
 )
 from chainsim.game.packs.model import PRESET_FILE, Pack, build_mesh, material_presets
+from chainsim.game.packs.validation import PackError, Problem, Validator, problem_at
 from chainsim.systems import manifest_modules
 
 __all__ = [
@@ -60,7 +60,7 @@ def validate(root: Path, *, load_meshes: bool = True, pack_paths=()) -> tuple[Pa
 
     `pack_paths` (--pack-path folders) are searched for the packs it requires (chainsim.game.packs.requires).
 
-    This checks everything that needs no running App; chainsim.game.app.headless.validate_pack
+    This checks everything that needs no running App; chainsim.game.trainer.headless.validate_pack
     also starts each scene as `run` does (what `chainsim validate` reports).
     """
     load_all(manifest_modules())
@@ -93,4 +93,5 @@ def load(root: Path, pack_paths=()) -> Pack:
     pack, problems = validate(root, pack_paths=pack_paths)
     if problems:
         raise PackError(problems)
+    assert pack is not None  # validate returns the pack whenever it found no problem
     return pack

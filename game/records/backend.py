@@ -20,10 +20,10 @@ from __future__ import annotations
 import re
 import sqlite3
 from collections.abc import Iterator, Sequence
-from typing import Any
+from typing import Any, Protocol, TypeGuard
 from urllib.parse import urlsplit, urlunsplit
 
-from chainsim.game.records.schema import OWN_TABLES, SCHEMA_VERSION
+from chainsim.game.records.migrations import OWN_TABLES, SCHEMA_VERSION
 from chainsim.systems.engine.errors import UserError
 
 PG_SCHEMES = ("postgresql", "postgres")
@@ -33,7 +33,42 @@ WRITE_LOCK_KEY = 0x636861696E73696D
 CONNECT_TIMEOUT_S = 10
 
 
-def is_postgres(spec: object) -> bool:
+class Cursor(Protocol):
+    """The part of ``sqlite3.Cursor`` the store reads (``PgCursor`` is the other)."""
+
+    @property
+    def lastrowid(self) -> int | None: ...
+
+    @property
+    def rowcount(self) -> int: ...
+
+    def fetchone(self) -> Any: ...
+
+    def fetchall(self) -> list[Any]: ...
+
+    def __iter__(self) -> Iterator[Any]: ...
+
+
+class Connection(Protocol):
+    """The part of ``sqlite3.Connection`` the store uses: ``sqlite3.Connection`` or ``PgConnection``."""
+
+    def execute(self, sql: str, params: Sequence[Any] = ..., /) -> Cursor: ...
+
+    @property
+    def in_transaction(self) -> bool: ...
+
+    def close(self) -> None: ...
+
+
+def inserted_id(cur: Cursor) -> int:
+    """The id of the row an ``INSERT`` made (both backends set ``lastrowid`` after one)."""
+    rid = cur.lastrowid
+    if rid is None:
+        raise RuntimeError("an INSERT left no row id")
+    return rid
+
+
+def is_postgres(spec: object) -> TypeGuard[str]:
     """True when ``spec`` is a postgresql:// (or postgres://) URL rather than a file path."""
     return isinstance(spec, str) and spec.split("://", 1)[0].lower() in PG_SCHEMES and "://" in spec
 

@@ -45,7 +45,7 @@ MAX_DRAG_PX_PER_S = 20000.0
 
 def window_form(recording: dict[str, Any], pack_dt: float, session_kinds: Iterable[str] = ()) -> None:
     """UserError naming the first thing in ``recording`` the window never records, if any. ``session_kinds``:
-    kinds of event a study session sets itself, which its caller checks (chainsim.game.records.protocol)."""
+    kinds of event a study session sets itself, which its caller checks (chainsim.game.study.protocol)."""
     allowed = WINDOW_EVENTS | frozenset(session_kinds)
     dt = recording.get("dt")
     if not isinstance(dt, (int, float)) or abs(float(dt) - pack_dt) > DT_TOLERANCE:
@@ -181,6 +181,6 @@ The needle packs' minimum is 2.5 s: after the first point marked on the face, si
 dials, the insertion, Save) at 0.3 s, and the needle's travel to the target at its `insert_speed`
 (prp: 69 mm at 100 mm/s; mental-block: 17 mm at 20 mm/s), rounded down. The pack's own scripted
 attempt at five times its speed breaks the clicks rule and the minimum; the same attempt made at a
-person's pace (`chainsim.game.app.windowform.HUMAN`, under two aimed clicks a second) breaks none.
+person's pace (`chainsim.game.trainer.windowform.HUMAN`, under two aimed clicks a second) breaks none.
 
 """

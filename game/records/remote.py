@@ -233,6 +233,11 @@ def enqueue(
         ).lastrowid
 
 
+def outbox_attempts(store: RecordStore) -> list[str]:
+    """The attempt (JSON text) of every outbox row, sent or not."""
+    return [r[0] for r in store.query("SELECT attempt FROM outbox")]
+
+
 def pending(store: RecordStore, server: str | None = None) -> list[Any]:
     return store.query(
         "SELECT id, server, idem_key, class_name, trainee, attempt FROM outbox "

@@ -10,11 +10,10 @@ leaves a half-written file under the requested name.
 from __future__ import annotations
 
 import csv
-import io
 import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -22,7 +21,10 @@ from matplotlib.figure import Figure
 from chainsim.game.records.validate import AIDS, printable
 from chainsim.systems.engine.atomicfile import atomic_open
 from chainsim.systems.engine.errors import UserError
-from chainsim.systems.procedures.needle import records as layout
+from chainsim.systems.procedures import records_layout
+
+#: the attempt as the records keep it (the fixed columns' procedure, chainsim.systems.procedures)
+LAYOUT = records_layout()
 
 CSV_COLUMNS = (
     "id",
@@ -30,10 +32,10 @@ CSV_COLUMNS = (
     "trainee",
     "pack",
     "created_at",
-    # the fixed fields of the needle procedure's attempt (chainsim.systems.procedures.needle.records)
-    *(c.name for c in layout.COLUMNS[:3]),
+    # the fixed fields of the needle procedure's attempt (its declared layout, LAYOUT)
+    *(c.name for c in LAYOUT.columns[:3]),
     "target",
-    *(c.name for c in layout.COLUMNS[3:]),
+    *(c.name for c in LAYOUT.columns[3:]),
     *(f"aid_{name}" for name in AIDS),
     "step_times",
     "details",
@@ -76,7 +78,7 @@ def _cell(value: Any) -> str:
     return printable(str(value))  # a name stored by an older version shows its hidden characters
 
 
-def atomic_write(path: Path, write: Callable[[io.TextIOBase | io.BufferedIOBase], None], *, binary: bool) -> None:
+def atomic_write(path: Path, write: Callable[[IO[Any]], object], *, binary: bool) -> None:
     """Write through `write(fh)` atomically (chainsim.systems.engine.atomicfile), after checking the folder."""
     path = Path(path)
     if path.is_dir():
@@ -105,6 +107,20 @@ def neutral(value: Any) -> Any:
     return value
 
 
+def _figures(a: dict[str, Any]) -> list[Any]:
+    """The figure columns' cells of one attempt. An attempt of another procedure (it names it) has none of
+    these figures: its cells are empty, its own figures are in its metrics."""
+    if "procedure" in a:
+        return [""] * len(LAYOUT.columns)
+    first = ["" if a[c.name] is None else a[c.name] for c in LAYOUT.columns[:3]]
+    # figures later versions added read as their defaults in an attempt made without them; counts are whole
+    return [
+        *first,
+        *(a[c.name] for c in LAYOUT.columns[3:5]),
+        *(a.get(c.name, 0 if c.whole else 0.0) for c in LAYOUT.columns[5:]),
+    ]
+
+
 def csv_rows(attempts: Sequence[dict[str, Any]]) -> list[list[Any]]:
     """The export's rows: one per attempt, text cells neutralised (``neutral``)."""
     rows = []
@@ -116,10 +132,9 @@ def csv_rows(attempts: Sequence[dict[str, Any]]) -> list[list[Any]]:
                 a["trainee"],
                 a["pack"],
                 a["created_at"],
-                *("" if a[c.name] is None else a[c.name] for c in layout.COLUMNS[:3]),
+                *_figures(a)[:3],
                 a["target"],
-                *(a[c.name] for c in layout.COLUMNS[3:5]),
-                *(a.get(c.name, 0.0 if c.units else 0) for c in layout.COLUMNS[5:]),  # counts have no units
+                *_figures(a)[3:],
                 *(int(bool(a["aids"].get(name, False))) for name in AIDS),
                 json.dumps(a["step_times"], sort_keys=True),
                 json.dumps(a["details"], sort_keys=True),
@@ -152,9 +167,9 @@ def plot_progress(attempts: Sequence[dict[str, Any]], path: Path, title: str) ->
         raise UserError(f"plot output {path} must end in .png")
 
     n = list(range(1, len(attempts) + 1))
-    words = {c.name: c.words.lower() for c in layout.COLUMNS}
-    marks = [a[layout.MARK_ERROR] for a in attempts]
-    needle = [float("nan") if a[layout.TARGET_ERROR] is None else a[layout.TARGET_ERROR] for a in attempts]
+    words = {c.name: c.words.lower() for c in LAYOUT.columns}
+    marks = [float("nan") if a.get(LAYOUT.mark_error) is None else a[LAYOUT.mark_error] for a in attempts]
+    needle = [float("nan") if a.get(LAYOUT.target_error) is None else a[LAYOUT.target_error] for a in attempts]
     shots = [a.get("xray_shots", 0) for a in attempts]
     exposure = [a.get("exposure_s", 0.0) for a in attempts]
 
@@ -162,7 +177,7 @@ def plot_progress(attempts: Sequence[dict[str, Any]], path: Path, title: str) ->
     FigureCanvasAgg(fig)
     ax_l, ax_n, ax_x = fig.subplots(3, 1, sharex=True)
     ax_l.plot(n, marks, marker="o", color="tab:blue")
-    ax_l.set_ylabel(f"{words[layout.MARK_ERROR]} E (mm)")
+    ax_l.set_ylabel(f"{words[LAYOUT.mark_error]} E (mm)")
     ax_l.set_ylim(bottom=0)
     ax_l.grid(alpha=0.3)
     # Attempts with no needle contact have no needle error: join the others, mark the gaps.
@@ -173,7 +188,7 @@ def plot_progress(attempts: Sequence[dict[str, Any]], path: Path, title: str) ->
     for i in missing:
         ax_n.axvline(i, color="0.7", linestyle=":", linewidth=1)
     ax_n.axhline(0.0, color="0.4", linewidth=0.8)
-    ax_n.set_ylabel(f"{words[layout.TARGET_ERROR]} (mm)")
+    ax_n.set_ylabel(f"{words[LAYOUT.target_error]} (mm)")
     ax_n.grid(alpha=0.3)
     # X-ray: images as bars, seconds of exposure as a line on a second axis (thesis 3.2.3)
     ax_x.bar(n, shots, color="tab:gray", alpha=0.6, label="X-ray images")

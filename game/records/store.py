@@ -19,7 +19,7 @@ trigger that is not ours) is never written into. A new database file is made by 
 not by opening (a command that fails first leaves nothing; reads until then see an empty store),
 only in a folder that exists (the default location's folder excepted), and with a warning naming
 the file, so a mistyped path is noticed; ``create=False`` refuses a path with no database at all.
-Schema and migrations: ``chainsim.game.records.schema``.
+Schema and migrations: ``chainsim.game.records.migrations``.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ import json
 import logging
 import os
 import sqlite3
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -37,14 +37,16 @@ import platformdirs
 
 from chainsim.components.resources import Records
 from chainsim.game.records.backend import (
+    Connection,
     PgConnection,
     db_errors,
+    inserted_id,
     is_postgres,
     redact,
     schema_version,
     set_schema_version,
 )
-from chainsim.game.records.schema import LEGACY_METRICS, MIGRATIONS, OWN_TABLES, SCHEMA_VERSION
+from chainsim.game.records.migrations import MIGRATIONS, OWN_TABLES, SCHEMA_VERSION
 from chainsim.game.records.validate import (
     clean_attempt,
     clean_created_at,
@@ -55,6 +57,8 @@ from chainsim.game.records.validate import (
 )
 from chainsim.systems.engine import limits
 from chainsim.systems.engine.errors import UserError
+from chainsim.systems.procedures import RECORDS_PROCEDURE, procedure_for
+from chainsim.systems.procedures.procedure import AttemptLayout, Column
 
 ENV_VAR = "CHAINSIM_DB"
 DB_FILENAME = "records.sqlite3"
@@ -145,26 +149,29 @@ _OWN: dict = {}
 
 
 def _own_schema() -> dict:
-    """Tables, indexes and columns a records database may hold: those the migrations create."""
+    """Tables, indexes and columns a records database may hold: those the migrations create, at any
+    version (a later step may drop a column an earlier file still has)."""
     if not _OWN:
         mem = sqlite3.connect(":memory:")
+        objects: set = set()
+        columns: dict[str, set] = {}
         try:
             for step in MIGRATIONS:
                 for statement in step:
                     mem.execute(statement)
-            objects = set(mem.execute("SELECT type, name FROM sqlite_master WHERE name NOT LIKE 'sqlite_%'"))
+                now = set(mem.execute("SELECT type, name FROM sqlite_master WHERE name NOT LIKE 'sqlite_%'"))
+                objects |= now
+                for kind, name in now:
+                    if kind == "table":
+                        columns.setdefault(name, set()).update(r[1] for r in mem.execute(f"PRAGMA table_info({name})"))
             _OWN["objects"] = objects
-            _OWN["columns"] = {
-                name: {r[1] for r in mem.execute(f"PRAGMA table_info({name})")}
-                for kind, name in objects
-                if kind == "table"
-            }
+            _OWN["columns"] = columns
         finally:
             mem.close()
     return _OWN
 
 
-def migrate(conn: sqlite3.Connection) -> int:
+def migrate(conn: Connection) -> int:
     """Bring ``conn`` up to SCHEMA_VERSION, one transaction per step; returns the final version."""
     while True:
         conn.execute("BEGIN IMMEDIATE")
@@ -182,20 +189,48 @@ def migrate(conn: sqlite3.Connection) -> int:
             raise
 
 
-def _row_to_attempt(row: sqlite3.Row) -> dict[str, Any]:
-    out = {key: row[key] for key in row.keys()}
+def _row_to_attempt(row: sqlite3.Row, figures: dict[str, Any], metrics: dict[str, Any]) -> dict[str, Any]:
+    """An attempt as the store gives it: its row, its procedure's figures by name (each figure in the
+    place and type versions 1-12 read its fixed column in: the first three, the target, the rest; counts
+    whole), then its metrics. An attempt of another procedure than the records' names it, after its pack."""
+    raw = {key: row[key] for key in row.keys()}
+    procedure = raw.pop("procedure_name")
+    columns = attempt_layout(procedure).columns
+    out: dict[str, Any] = {}
+    for key, value in raw.items():
+        if key == "pack" and procedure != RECORDS_PROCEDURE.name:
+            out["procedure"] = procedure
+            out[key] = value
+        elif key == "target":
+            out.update(_figures(columns[:3], figures))
+            out[key] = value
+            out.update(_figures(columns[3:], figures))
+        else:
+            out[key] = value
     for key in ("aids", "step_times", "details", "differences", "flags"):
         out[key] = json.loads(out[key])
     if out["client_figures"] is not None:
         out["client_figures"] = json.loads(out["client_figures"])
+    out["metrics"] = metrics
     return out
 
 
-# the attempt's fixed fields in their stored order: three metric columns, the target, the rest
-_FIXED = (*LEGACY_METRICS[:3], "target", *LEGACY_METRICS[3:])
-_ATTEMPT_SELECT = f"""
+def _figures(columns: Sequence[Column], figures: dict[str, Any]) -> dict[str, Any]:
+    out = {}
+    for c in columns:
+        v = figures.get(c.name)
+        out[c.name] = None if v is None else int(v) if c.whole else v
+    return out
+
+
+def attempt_layout(procedure: str) -> AttemptLayout:
+    """The attempt layout of a stored attempt's procedure (one without a layout keeps no figures)."""
+    return procedure_for(procedure).layout or AttemptLayout(columns=())
+
+
+_ATTEMPT_SELECT = """
     SELECT a.id, c.name AS class_name, t.name AS trainee, a.pack, a.created_at,
-           {", ".join(f"a.{name}" for name in _FIXED)}, a.aids, a.step_times, a.details,
+           a.target, a.procedure_name, a.aids, a.step_times, a.details,
            a.filed_by, a.client_created_at, a.pack_version, a.pack_hash, a.client_figures, a.differences,
            a.retracted_at, a.retracted_by, a.retract_reason, a.source, a.flags, a.accepted_by, a.accepted_at
     FROM attempts a JOIN trainees t ON t.id = a.trainee_id JOIN classes c ON c.id = t.class_id
@@ -208,8 +243,11 @@ def check_target(path: str | os.PathLike[str] | None) -> Path | str | None:
     An existing file must be a records database we may write; a new one needs an existing, writable
     folder (a mistyped folder is an error, not a new database somewhere unexpected).
     """
-    if is_postgres(path) or (path is None and is_postgres(os.environ.get(ENV_VAR, "").strip())):
-        return path  # a PostgreSQL server answers for itself when connected to
+    # a PostgreSQL server answers for itself when connected to
+    if is_postgres(path):
+        return path
+    if path is None and is_postgres(os.environ.get(ENV_VAR, "").strip()):
+        return None
     p = _path(path)
     folder = p.parent
     if p.is_file() and not os.access(p, os.W_OK):
@@ -237,6 +275,8 @@ class RecordStore:
     def __init__(self, path: str | os.PathLike[str] | None = None, *, create: bool = True) -> None:
         if path is None and is_postgres(os.environ.get(ENV_VAR, "").strip()):
             path = os.environ[ENV_VAR].strip()
+        self.path: Path | str  # the SQLite file, or the PostgreSQL URL without its password
+        self._conn: Connection | None
         if is_postgres(path):
             # A PostgreSQL URL (chainsim.game.records.backend): same schema, same migrations.
             self.path = redact(path)
@@ -250,20 +290,20 @@ class RecordStore:
                 self._conn.close()
                 raise
             return
-        self.path = _path(path)
-        _check_file(self.path)
-        created = not self.path.exists()
+        self.path = self._file = _path(path)
+        _check_file(self._file)
+        created = not self._file.exists()
         if created and not create:
-            raise NoDatabase(f"no records database at {self.path} (nothing has been saved there)")
+            raise NoDatabase(f"no records database at {self._file} (nothing has been saved there)")
         if created:
             if path is None:  # the default location: its folder is ours to make
                 try:
-                    self.path.parent.mkdir(parents=True, exist_ok=True)
+                    self._file.parent.mkdir(parents=True, exist_ok=True)
                 except OSError as exc:
-                    raise UserError(f"cannot create folder for records database {self.path}: {exc.strerror}") from None
-            elif not self.path.parent.is_dir():
+                    raise UserError(f"cannot create folder for records database {self._file}: {exc.strerror}") from None
+            elif not self._file.parent.is_dir():
                 raise UserError(
-                    f"records database {self.path}: folder {self.path.parent} does not exist (is the path mistyped?)"
+                    f"records database {self._file}: folder {self._file.parent} does not exist (is the path mistyped?)"
                 )
             # The file is made by the first write, not now: a command that fails before writing leaves
             # nothing behind, and reads until then see an empty store (an in-memory one).
@@ -276,30 +316,30 @@ class RecordStore:
 
     def _open_file(self) -> sqlite3.Connection:
         """Connect to the SQLite file (made if missing), in WAL mode, migrated to SCHEMA_VERSION."""
-        if not self.path.exists():
+        if not self._file.exists():
             # attempts and password hashes are private: the file (and, after it, SQLite's -wal and
             # -shm files, which copy its mode) is readable by its owner only
             try:
-                os.close(os.open(self.path, os.O_CREAT | os.O_WRONLY, 0o600))
+                os.close(os.open(self._file, os.O_CREAT | os.O_WRONLY, 0o600))
             except OSError as exc:
-                raise UserError(f"cannot create records database {self.path}: {exc.strerror}") from None
+                raise UserError(f"cannot create records database {self._file}: {exc.strerror}") from None
         try:
             # isolation_level=None: we issue BEGIN/COMMIT ourselves so each save is exactly one
             # transaction and DDL is not auto-committed behind our back.
-            conn = sqlite3.connect(self.path, isolation_level=None, timeout=BUSY_TIMEOUT_MS / 1000)
+            conn = sqlite3.connect(self._file, isolation_level=None, timeout=BUSY_TIMEOUT_MS / 1000)
         except sqlite3.Error as exc:
-            raise UserError(f"cannot open records database {self.path}: {exc}") from None
+            raise UserError(f"cannot open records database {self._file}: {exc}") from None
         try:
             conn.row_factory = sqlite3.Row
             conn.execute("PRAGMA foreign_keys = ON")
             mode = conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
             if mode.lower() != "wal":
-                raise UserError(f"records database {self.path} cannot use WAL journaling (got {mode})")
+                raise UserError(f"records database {self._file} cannot use WAL journaling (got {mode})")
             conn.execute("PRAGMA synchronous = FULL")
             migrate(conn)
         except sqlite3.Error as exc:
             conn.close()
-            raise UserError(f"cannot use records database {self.path}: {exc}") from None
+            raise UserError(f"cannot use records database {self._file}: {exc}") from None
         except BaseException:
             conn.close()
             raise
@@ -326,9 +366,9 @@ class RecordStore:
         return schema_version(self._db)
 
     @property
-    def _db(self) -> sqlite3.Connection:
+    def _db(self) -> Connection:
         if self._conn is None:
-            if getattr(self, "_unmade", False) and self.path.exists():  # another store made it meanwhile
+            if getattr(self, "_unmade", False) and self._file.exists():  # another store made it meanwhile
                 self._conn = self._open_file()
                 self._unmade = False
                 return self._conn
@@ -342,7 +382,7 @@ class RecordStore:
         return self._conn
 
     @contextmanager
-    def _write(self) -> Iterator[sqlite3.Connection]:
+    def _write(self) -> Iterator[Connection]:
         """One write transaction; rolled back whole on any error. The first one makes a new file."""
         if self._conn is None and getattr(self, "_unmade", False):
             self._conn = self._open_file()
@@ -362,11 +402,11 @@ class RecordStore:
                 raise WriteFailed(f"records database {self.path}: write failed, nothing changed ({exc})") from None
             raise
 
-    def _class_id(self, conn: sqlite3.Connection, name: str) -> int | None:
+    def _class_id(self, conn: Connection, name: str) -> int | None:
         row = conn.execute("SELECT id FROM classes WHERE name = ?", (name,)).fetchone()
         return None if row is None else row[0]
 
-    def _trainee_id(self, conn: sqlite3.Connection, class_id: int, name: str) -> int | None:
+    def _trainee_id(self, conn: Connection, class_id: int, name: str) -> int | None:
         row = conn.execute("SELECT id FROM trainees WHERE class_id = ? AND name = ?", (class_id, name)).fetchone()
         return None if row is None else row[0]
 
@@ -405,8 +445,8 @@ class RecordStore:
         with self._write() as conn:
             class_id = self._class_id(conn, class_name)
             created = class_id is None
-            if created:
-                class_id = conn.execute("INSERT INTO classes (name) VALUES (?)", (class_name,)).lastrowid
+            if class_id is None:
+                class_id = inserted_id(conn.execute("INSERT INTO classes (name) VALUES (?)", (class_name,)))
             elif self._trainee_id(conn, class_id, name) is not None:
                 raise UserError(f"trainee {name!r} already exists in class {class_name!r}")
             conn.execute("INSERT INTO trainees (class_id, name) VALUES (?, ?)", (class_id, name))
@@ -476,7 +516,7 @@ class RecordStore:
 
     def insert_attempt(
         self,
-        conn: sqlite3.Connection,
+        conn: Connection,
         class_name: str,
         trainee: str,
         a: dict[str, Any],
@@ -492,26 +532,29 @@ class RecordStore:
         is beyond a person's, ``chainsim.game.records.plausible``).
         """
         prov = provenance or {}
+        procedure = a.get("procedure", RECORDS_PROCEDURE.name)
+        figures = [c.name for c in attempt_layout(procedure).columns]
         class_id = self._class_id(conn, class_name)
         if class_id is None:
-            class_id = conn.execute("INSERT INTO classes (name) VALUES (?)", (class_name,)).lastrowid
+            class_id = inserted_id(conn.execute("INSERT INTO classes (name) VALUES (?)", (class_name,)))
         trainee_id = self._trainee_id(conn, class_id, trainee)
         if trainee_id is None:
-            trainee_id = conn.execute(
-                "INSERT INTO trainees (class_id, name) VALUES (?, ?)", (class_id, trainee)
-            ).lastrowid
+            trainee_id = inserted_id(
+                conn.execute("INSERT INTO trainees (class_id, name) VALUES (?, ?)", (class_id, trainee))
+            )
         cur = conn.execute(
-            f"""
-            INSERT INTO attempts (trainee_id, pack, created_at, {", ".join(_FIXED)}, aids, step_times,
+            """
+            INSERT INTO attempts (trainee_id, pack, created_at, target, procedure_name, aids, step_times,
                 details, idem_key, filed_by, client_created_at, pack_version, pack_hash, client_figures,
                 differences, source, flags)
-            VALUES ({", ".join("?" * (15 + len(_FIXED)))})
+            VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)
             """,
             (
                 trainee_id,
                 a["pack"],
                 a["created_at"],
-                *(a[name] for name in _FIXED),
+                a["target"],
+                procedure,
                 to_json(a["aids"]),
                 to_json(a["step_times"]),
                 to_json(a["details"]),
@@ -526,9 +569,15 @@ class RecordStore:
                 to_json(prov.get("flags") or []),
             ),
         )
-        rid = cur.lastrowid
-        # the procedure-neutral metrics: the fixed columns' values, then the procedure's own
-        metrics = {name: a[name] for name in LEGACY_METRICS}
+        rid = inserted_id(cur)
+        # the figures of the procedure's layout, then the procedure-neutral metrics: those figures too
+        # (as version 6 keeps them), then the pack's own
+        for name in figures:
+            conn.execute(
+                "INSERT INTO attempt_figures (attempt_id, name, value) VALUES (?, ?, ?)",
+                (rid, name, None if a[name] is None else float(a[name])),
+            )
+        metrics = {name: a[name] for name in figures}
         metrics.update(a["metrics"])
         for name, value in metrics.items():
             conn.execute(
@@ -541,21 +590,24 @@ class RecordStore:
             )
         return rid
 
-    def _with_metrics(self, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-        """Each attempt with `metrics`, its rows of the metrics table by name (in the order stored)."""
-        by_id: dict[int, dict[str, Any]] = {r["id"]: {} for r in rows}
-        ids = list(by_id)
+    def _attempts(self, rows: list[sqlite3.Row]) -> list[dict[str, Any]]:
+        """Each attempt of `rows`, with its figures and `metrics`, its rows of the metrics table by name
+        (in the order stored)."""
+        figures = self._by_attempt("attempt_figures", [r["id"] for r in rows])
+        metrics = self._by_attempt("attempt_metrics", [r["id"] for r in rows])
+        return [_row_to_attempt(r, figures[r["id"]], metrics[r["id"]]) for r in rows]
+
+    def _by_attempt(self, table: str, ids: list[int]) -> dict[int, dict[str, Any]]:
+        by_id: dict[int, dict[str, Any]] = {i: {} for i in ids}
         for start in range(0, len(ids), 500):
             chunk = ids[start : start + 500]
             marks = ", ".join("?" for _ in chunk)
             for m in self._db.execute(
-                f"SELECT attempt_id, name, value FROM attempt_metrics WHERE attempt_id IN ({marks}) ORDER BY id",
+                f"SELECT attempt_id, name, value FROM {table} WHERE attempt_id IN ({marks}) ORDER BY id",
                 tuple(chunk),
             ):
                 by_id[m["attempt_id"]][m["name"]] = m["value"]
-        for r in rows:
-            r["metrics"] = by_id[r["id"]]
-        return rows
+        return by_id
 
     def list_attempts(self, class_name: str | None = None, trainee: str | None = None) -> list[dict[str, Any]]:
         """Attempts, oldest first, optionally filtered; naming an unknown class/trainee is an error."""
@@ -573,14 +625,14 @@ class RecordStore:
             """,
             (class_name, class_name, trainee, trainee),
         )
-        return self._with_metrics([_row_to_attempt(r) for r in rows])
+        return self._attempts(list(rows))
 
     def get_attempt(self, attempt_id: int) -> dict[str, Any]:
         attempt_id = _attempt_id(attempt_id)
         row = self._db.execute(_ATTEMPT_SELECT + " WHERE a.id = ?", (attempt_id,)).fetchone()
         if row is None:
             raise UserError(f"no attempt with id {attempt_id}")
-        return self._with_metrics([_row_to_attempt(row)])[0]
+        return self._attempts([row])[0]
 
     def delete_attempt(self, attempt_id: int) -> None:
         attempt_id = _attempt_id(attempt_id)
@@ -639,9 +691,7 @@ class RecordStore:
             conn.execute("UPDATE classes SET require_witnessed = ? WHERE name = ?", (1 if required else 0, class_name))
         return bool(required)
 
-    def audit(
-        self, conn: sqlite3.Connection, actor: str, action: str, class_name: str, detail: str, attempt_id=None
-    ) -> None:
+    def audit(self, conn: Connection, actor: str, action: str, class_name: str, detail: str, attempt_id=None) -> None:
         """One row of the audit log, inside the caller's transaction."""
         conn.execute(
             "INSERT INTO audit_log (at, actor, action, attempt_id, class_name, detail) VALUES (?, ?, ?, ?, ?, ?)",
@@ -668,16 +718,17 @@ class RecordStore:
         with self._write() as conn:
             class_id = self._class_id(conn, class_name)
             if class_id is None:
-                class_id = conn.execute("INSERT INTO classes (name) VALUES (?)", (class_name,)).lastrowid
+                class_id = inserted_id(conn.execute("INSERT INTO classes (name) VALUES (?)", (class_name,)))
             trainee_id = self._trainee_id(conn, class_id, trainee)
             if trainee_id is None:
-                trainee_id = conn.execute(
-                    "INSERT INTO trainees (class_id, name) VALUES (?, ?)", (class_id, trainee)
-                ).lastrowid
-            return conn.execute(
+                trainee_id = inserted_id(
+                    conn.execute("INSERT INTO trainees (class_id, name) VALUES (?, ?)", (class_id, trainee))
+                )
+            cur = conn.execute(
                 "INSERT INTO questionnaires (trainee_id, kind, session, created_at, answers) VALUES (?, ?, ?, ?, ?)",
                 (trainee_id, kind, session, clean_created_at(None), to_json(answers)),
-            ).lastrowid
+            )
+            return inserted_id(cur)
 
     def list_questionnaires(self, class_name: str | None = None) -> list[dict[str, Any]]:
         """Questionnaires, oldest first, optionally of one class."""

@@ -17,21 +17,25 @@ from typing import Any
 
 from chainsim.systems.engine import limits
 from chainsim.systems.engine.errors import HIDDEN_CATEGORIES, UserError, printable
-from chainsim.systems.procedures.needle import records as layout
+from chainsim.systems.procedures import PROCEDURES, RECORDS_PROCEDURE, records_layout
+from chainsim.systems.procedures.procedure import AttemptLayout
+
+#: the attempt as the records keep it (the fixed columns' procedure, chainsim.systems.procedures)
+LAYOUT = records_layout()
 
 NAME_MAX = limits.MAX_NAME_LENGTH
 
 # Aids of 3.3.4 / 6.1.3 whose effect on performance the thesis compares (the needle procedure names them).
-AIDS = layout.AIDS
+AIDS = LAYOUT.aids
 
 # What the needle tip ended on; pack-specific objects use the same lower_snake_case form.
-KNOWN_TARGETS = layout.KNOWN_TARGETS
+KNOWN_TARGETS = LAYOUT.known_targets
 TARGET_RE = re.compile(r"[a-z][a-z0-9_]{0,63}")
 STEP_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}")
 
-# The attempt's fixed fields (the needle procedure's columns, chainsim.systems.procedures.needle.records):
+# The attempt's fixed fields (the needle procedure's columns, its declared layout LAYOUT):
 # the first five metric columns and the target are required, the X-ray's cost and redirections default to 0.
-_COLUMNS = tuple(c.name for c in layout.COLUMNS)
+_COLUMNS = tuple(c.name for c in LAYOUT.columns)
 REQUIRED = ("pack", *_COLUMNS[:3], "target", *_COLUMNS[3:5])
 OPTIONAL = ("created_at", "aids", "step_times", "details", *_COLUMNS[5:], "metrics")
 METRIC_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,63}")
@@ -91,7 +95,8 @@ def clean_created_at(value: Any) -> str:
     if value is None:
         return datetime.now(UTC).isoformat(timespec="seconds")
     if isinstance(value, datetime):
-        if value.utcoffset() is None or value.utcoffset().total_seconds() != 0:
+        offset = value.utcoffset()
+        if offset is None or offset.total_seconds() != 0:
             raise UserError(f"attempt field 'created_at' {value!r} must be a UTC datetime")
         return value.isoformat()
     if not isinstance(value, str):
@@ -113,7 +118,7 @@ def clean_target(value: Any) -> str:
     if not isinstance(value, str) or not TARGET_RE.fullmatch(value):
         raise UserError(
             f"attempt field 'target' is {value!r}; expected one of {', '.join(sorted(KNOWN_TARGETS))}, "
-            f"{layout.TARGET_FORM} or another lower_snake_case object name"
+            f"{LAYOUT.target_form} or another lower_snake_case object name"
         )
     return value
 
@@ -197,24 +202,28 @@ def clean_metrics(value: Any) -> dict[str, float | None]:
 
 
 def clean_attempt(attempt: Any) -> dict[str, Any]:
-    """Validated, normalised copy of an attempt dict, ready to store."""
+    """Validated, normalised copy of an attempt dict, ready to store. An attempt names its procedure in
+    `procedure` (absent: the records' procedure, whose fixed fields every attempt had before)."""
     if not isinstance(attempt, dict):
         raise UserError(f"an attempt must be a dict of fields, got {type(attempt).__name__}")
+    if attempt.get("procedure", RECORDS_PROCEDURE.name) != RECORDS_PROCEDURE.name:
+        return _clean_figures(attempt, _layout_of(attempt["procedure"]))
+    attempt = {k: v for k, v in attempt.items() if k != "procedure"}
     unknown = sorted(set(attempt) - set(FIELDS), key=str)
     if unknown:
         raise UserError(f"attempt has unknown field {unknown[0]!r}; known: {', '.join(FIELDS)}")
     missing = [f for f in REQUIRED if f not in attempt]
     if missing:
         raise UserError(f"attempt is missing field {missing[0]!r}; required: {', '.join(REQUIRED)}")
-    mark, needle = attempt[layout.MARK_ERROR], attempt[layout.TARGET_ERROR]
+    mark, needle = attempt[LAYOUT.mark_error], attempt[LAYOUT.target_error]
     return {
         "pack": clean_name("pack", attempt["pack"]),
         "created_at": clean_created_at(attempt.get("created_at")),
         "duration_s": _number("duration_s", attempt["duration_s"]),
-        layout.MARK_ERROR: _number(layout.MARK_ERROR, mark),
+        LAYOUT.mark_error: _number(LAYOUT.mark_error, mark),
         # 6.1.5 scores the needle as distance-to-centre minus the target's radius, so a tip inside
         # the opening is legitimately negative; None means the needle never touched anything.
-        layout.TARGET_ERROR: None if needle is None else _number(layout.TARGET_ERROR, needle, minimum=None),
+        LAYOUT.target_error: None if needle is None else _number(LAYOUT.target_error, needle, minimum=None),
         "target": clean_target(attempt["target"]),
         "skull_contacts": _count("skull_contacts", attempt["skull_contacts"]),
         "path_length_mm": _number("path_length_mm", attempt["path_length_mm"]),
@@ -223,6 +232,42 @@ def clean_attempt(attempt: Any) -> dict[str, Any]:
         "exposure_s": _number("exposure_s", attempt.get("exposure_s", 0.0)),
         "dose_mgy": _number("dose_mgy", attempt.get("dose_mgy", 0.0)),
         "aids": clean_aids(attempt.get("aids")),
+        "step_times": clean_step_times(attempt.get("step_times")),
+        "details": clean_details(attempt.get("details")),
+        "metrics": clean_metrics(attempt.get("metrics")),
+    }
+
+
+def _layout_of(name: Any) -> AttemptLayout:
+    proc = PROCEDURES.get(name) if isinstance(name, str) else None
+    if proc is None or proc.layout is None:
+        keep = sorted(k for k, p in PROCEDURES.items() if p.layout is not None)
+        raise UserError(
+            f"attempt field 'procedure' is {printable(str(name))[:64]!r}; attempts are kept of: {', '.join(keep)}"
+        )
+    return proc.layout
+
+
+def _clean_figures(attempt: dict, layout: AttemptLayout) -> dict[str, Any]:
+    """An attempt of a procedure other than the records' one: its layout's figures, all required."""
+    figures = tuple(c.name for c in layout.columns)
+    known = ("procedure", "pack", "created_at", *figures, "target", "aids", "step_times", "details", "metrics")
+    unknown = sorted(set(attempt) - set(known), key=str)
+    if unknown:
+        raise UserError(f"attempt has unknown field {unknown[0]!r}; known: {', '.join(known)}")
+    required = ("pack", *figures, "target")
+    missing = [f for f in required if f not in attempt]
+    if missing:
+        raise UserError(f"attempt is missing field {missing[0]!r}; required: {', '.join(required)}")
+    if attempt.get("aids") not in (None, {}):
+        raise UserError(f"attempt field 'aids': the {attempt['procedure']} procedure records no aids")
+    return {
+        "procedure": attempt["procedure"],
+        "pack": clean_name("pack", attempt["pack"]),
+        "created_at": clean_created_at(attempt.get("created_at")),
+        **{c.name: (_count if c.whole else _number)(c.name, attempt[c.name]) for c in layout.columns},
+        "target": clean_target(attempt["target"]),
+        "aids": {},
         "step_times": clean_step_times(attempt.get("step_times")),
         "details": clean_details(attempt.get("details")),
         "metrics": clean_metrics(attempt.get("metrics")),

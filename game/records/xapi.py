@@ -25,7 +25,10 @@ from urllib.parse import quote
 
 from chainsim.game.records.validate import KNOWN_TARGETS
 from chainsim.systems.engine.errors import UserError
-from chainsim.systems.procedures.needle import records as layout
+from chainsim.systems.procedures import records_layout
+
+#: the attempt as the records keep it (the fixed columns' procedure, chainsim.systems.procedures)
+LAYOUT = records_layout()
 
 XAPI_VERSION = "1.0.3"
 DEFAULT_HOMEPAGE = "http://localhost/chainsim"
@@ -36,6 +39,7 @@ _NAMESPACE = uuid.UUID("6f1c1a52-2f0e-5d7c-9a43-63686169736d")
 # Fields of the record that are who/when/where, not measurements.
 _NOT_METRICS = {
     "id",
+    "procedure",
     "class_name",
     "trainee",
     "pack",
@@ -81,7 +85,7 @@ def statement(attempt: dict[str, Any], homepage: str = DEFAULT_HOMEPAGE) -> dict
         "duration": iso_duration(attempt["duration_s"]),
         "extensions": {**metrics, f"{ext}/target": attempt["target"]},
     }
-    needle = attempt.get(layout.TARGET_ERROR)
+    needle = attempt.get(LAYOUT.target_error)
     if isinstance(needle, numbers.Real):
         result["score"] = {"raw": float(needle)}
     return {

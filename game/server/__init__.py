@@ -1,10 +1,13 @@
 """The records server: trainee records of a whole programme on one server (thesis 3.3.4, Fig. 3.11).
 
 ``chainsim serve`` runs ``app.build_app`` with uvicorn over the records store (SQLite file or
-PostgreSQL): accounts and roles (``accounts``), request checks (``auth``), the JSON API
-(``api``), the trainers' dashboard (``views``, ``plots``, ``templates/``, ``static/``). The
+PostgreSQL): request checks (``auth``, ``throttle``), the JSON API (``api``), the trainers' dashboard
+(``dashboard``, ``classpage``, ``plots``, ``replay3d``, ``templates/``, ``static/``), scoring by replay
+(``scoring``, ``replayer``, ``store_threads``, ``upload_limit``), the study's pages (``study_api``,
+``study_pages``, ``rating_pages``) and the trainer in a browser tab (``train_routes``, ``train_session``,
+``frame_tiles``). Accounts and the store are the records feature's (``chainsim.game.records``). The
 simulator's side, saving to a server with an offline queue, is ``chainsim.game.records.remote``;
-the load benchmark is ``chainsim.game.bench.records``. docs/records-server.md describes it as a
+the load benchmark is ``chainsim.tools.bench.records``. docs/records-server.md describes it as a
 user sees it.
 
 The web stack is the ``server`` extra (``pip install 'chainsim[server]'``), not a dependency of the

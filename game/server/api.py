@@ -20,7 +20,7 @@ trainee files attempts under their own class and name; a trainer may file for a 
 class they teach by naming ``class_name`` and ``trainee``; the attempt records the account that
 filed it and the server's time. A resent upload with the same Idempotency-Key answers 200 with
 the first upload; the same key with another body is a 409. Each account files at most
-``serve --uploads-per-minute`` new uploads a minute (``chainsim.game.server.ratelimit``; 429 with
+``serve --uploads-per-minute`` new uploads a minute (``chainsim.game.server.upload_limit``; 429 with
 Retry-After past it), and a class that requires witnessed attempts refuses uploads from the window (422).
 """
 
@@ -33,10 +33,11 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
 from starlette.routing import Route
 
+from chainsim.game.records import accounts
+from chainsim.game.records.accounts import User
 from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import clean_key, clean_name
-from chainsim.game.server import accounts, scoring, throttle
-from chainsim.game.server.accounts import User
+from chainsim.game.server import scoring, throttle
 from chainsim.game.server.auth import MAX_JSON_BYTES, HTTPError, api_user, read_json
 from chainsim.systems.engine import limits
 from chainsim.systems.engine.errors import UserError
@@ -157,7 +158,7 @@ def file_under(user: User, record: dict[str, Any]) -> tuple[str, str]:
         if class_name not in user.classes:
             raise HTTPError(403, "you do not teach that class")
         return class_name, trainee
-    if user.trainee_id is None:
+    if user.trainee_id is None or user.trainee is None:  # both are set together (accounts.load_user)
         raise HTTPError(403, "this trainee account has no trainee record; ask your trainer")
     own = (user.classes[0], user.trainee)
     if (class_name or own[0], trainee or own[1]) != own:

@@ -12,7 +12,9 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
+from collections.abc import Callable
 from contextlib import asynccontextmanager
+from typing import Any
 
 from starlette.applications import Starlette
 from starlette.datastructures import MutableHeaders
@@ -24,9 +26,12 @@ from starlette.routing import Mount
 from starlette.staticfiles import StaticFiles
 
 from chainsim.game.records import remote, xapi
-from chainsim.game.server import BASE_URL_ENV, api, ratelimit, rating_routes, scoring, study_api, train_routes, views
+from chainsim.game.server import BASE_URL_ENV, api, scoring, study_api, train_routes
+from chainsim.game.server import dashboard as views
+from chainsim.game.server import rating_pages as rating_routes
+from chainsim.game.server import upload_limit as ratelimit
 from chainsim.game.server.auth import HTTPError
-from chainsim.game.server.storage import Storage, Unavailable
+from chainsim.game.server.store_threads import Storage, Unavailable
 from chainsim.game.server.throttle import Throttle
 from chainsim.systems.engine.errors import UserError
 
@@ -105,6 +110,14 @@ def build_app(
             replays.close()
         storage.close()
 
+    # starlette calls each handler with its own exception class, which its handler type cannot say
+    handlers: dict[Any, Callable[..., Any]] = {
+        HTTPError: _http_error,
+        HTTPException: _starlette_error,
+        views.Redirect: _redirect,
+        Unavailable: _unavailable,
+        UserError: _user_error,
+    }
     app = Starlette(
         routes=[
             *api.routes,
@@ -113,13 +126,7 @@ def build_app(
             *rating_routes.routes,
             Mount("/static", app=StaticFiles(packages=[("chainsim.game.server", "static")]), name="static"),
         ],
-        exception_handlers={
-            HTTPError: _http_error,
-            HTTPException: _starlette_error,
-            views.Redirect: _redirect,
-            Unavailable: _unavailable,
-            UserError: _user_error,
-        },
+        exception_handlers=handlers,
         middleware=[Middleware(SecurityHeaders)],
         lifespan=lifespan,
     )

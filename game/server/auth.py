@@ -17,10 +17,10 @@ import secrets
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
-from starlette.requests import Request
+from starlette.requests import HTTPConnection, Request
 
-from chainsim.game.server import accounts
-from chainsim.game.server.accounts import User
+from chainsim.game.records import accounts
+from chainsim.game.records.accounts import User
 
 SESSION_COOKIE = "chainsim_session"
 LOGIN_CSRF_COOKIE = "chainsim_login_csrf"
@@ -82,7 +82,7 @@ def too_deep(value: Any, limit: int) -> str | None:
     """What in ``value`` nests deeper than ``limit`` (``field 'details'``, or ``request body``), else None.
 
     Walked with a stack, not recursion, so any depth the JSON parser accepted is measured safely."""
-    stack = [(value, 1, None)]
+    stack: list[tuple[Any, int, Any]] = [(value, 1, None)]  # (item, its depth, the top-level field it is in)
     while stack:
         item, depth, top = stack.pop()
         if isinstance(item, dict):
@@ -141,7 +141,7 @@ async def api_user(request: Request) -> User:
     return user
 
 
-async def session(request: Request) -> tuple[User, str] | None:
+async def session(request: HTTPConnection) -> tuple[User, str] | None:
     """(account, CSRF token) of the request's session cookie, or None."""
     sid = request.cookies.get(SESSION_COOKIE)
     if not sid:

@@ -5,7 +5,7 @@ trainee of a class at once: for one procedure (pack) - never two on one line or 
 trainee's latest and best attempt, their success rate (attempts that met every benchmark and had
 no critical error), a trend (whether their latest attempts pass more benchmarks than their earlier
 ones) and whether they are below the benchmark now (their latest attempt failed). Verdicts come from
-the pack's own [metrics] benchmarks (``chainsim.systems.procedures.needle.debrief``), labels and
+the pack's own [metrics] benchmarks (``chainsim.systems.procedures.verdicts``), labels and
 units too, so nothing here names a procedure's words.
 
 Tables sort and page on the server (links with ``sort``, ``dir`` and ``page``), so they work without
@@ -28,17 +28,17 @@ from __future__ import annotations
 
 import io
 import statistics
-from typing import Any
+from typing import Any, TypeGuard
 
 from matplotlib.backends.backend_svg import FigureCanvasSVG
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from chainsim.game.records import accounts, listings
+from chainsim.game.records.accounts import User
 from chainsim.game.records.store import RecordStore, in_class_figures
-from chainsim.game.server import accounts
-from chainsim.game.server.accounts import User
 from chainsim.game.server.auth import HTTPError
-from chainsim.systems.procedures.needle import debrief
+from chainsim.systems.procedures import verdicts as debrief
 
 PAGE_SIZE = 25
 SORTS = ("trainee", "attempts", "success", "latest", "best", "trend", "last")
@@ -92,15 +92,14 @@ def class_median(series: list[list[Any]]) -> list[float | None]:
     return out
 
 
-def _number(v: Any) -> bool:
+def _number(v: Any) -> TypeGuard[int | float]:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
 def class_row(store: RecordStore, user: User, class_id: int) -> dict:
-    rows = store.query("SELECT id, name FROM classes WHERE id = ?", (class_id,))
-    if not rows:
+    name = listings.name_of_class(store, class_id)
+    if name is None:
         raise HTTPError(404, f"no class with id {class_id}")
-    name = rows[0]["name"]
     if not user.is_trainer or name not in user.classes:
         raise HTTPError(403, "you do not teach that class")  # its name is not the account's to learn
     return {"id": class_id, "name": name}
@@ -109,14 +108,7 @@ def class_row(store: RecordStore, user: User, class_id: int) -> dict:
 def overview(store: RecordStore, user: User, class_id: int, specs_for, query: dict) -> dict:
     """What the class page shows for one pack (``query['pack']``, else the class's first)."""
     cls = class_row(store, user, class_id)
-    trainees = [
-        dict(r)
-        for r in store.query(
-            "SELECT t.id, t.name, u.name AS account FROM trainees t LEFT JOIN users u ON u.trainee_id = t.id "
-            "WHERE t.class_id = ? ORDER BY t.name",
-            (class_id,),
-        )
-    ]
+    trainees = listings.class_trainees(store, class_id)
     everything = store.list_attempts(cls["name"])
     # retracted attempts, and those whose input is beyond a person's until a trainer accepts them, count for nothing
     attempts = [a for a in everything if in_class_figures(a)]
@@ -147,7 +139,8 @@ def overview(store: RecordStore, user: User, class_id: int, specs_for, query: di
                 "last": own[-1]["created_at"] if own else "",
             }
         )
-    sort = query.get("sort") if query.get("sort") in SORTS else "trainee"
+    sort = query.get("sort")
+    sort = sort if isinstance(sort, str) and sort in SORTS else "trainee"
     desc = query.get("dir") == "desc"
     key = {
         "trainee": lambda r: (r["name"],),
@@ -245,11 +238,8 @@ def add_trainee(store: RecordStore, user: User, class_id: int, name: Any, passwo
 
 def reset_password(store: RecordStore, user: User, class_id: int, name: Any, password: Any) -> str:
     cls = class_row(store, user, class_id)
-    rows = store.query(
-        "SELECT u.name FROM users u JOIN trainees t ON t.id = u.trainee_id WHERE t.class_id = ? AND u.name = ?",
-        (class_id, name if isinstance(name, str) else ""),
-    )
-    if not rows:
+    account = listings.trainee_account(store, class_id, name if isinstance(name, str) else "")
+    if account is None:
         raise HTTPError(404, f"class {cls['name']} has no trainee account {name!r}")
-    accounts.set_password(store, rows[0][0], password)
-    return f"New password set for {rows[0][0]!r}; their sessions and tokens have ended."
+    accounts.set_password(store, account, password)
+    return f"New password set for {account!r}; their sessions and tokens have ended."

@@ -43,11 +43,11 @@ def changed_runs(prev: np.ndarray | None, cur: np.ndarray, tile: int = TILE) -> 
         per = tile * 3 // 8
         diff = np.zeros((ny * tile, nx * per), bool)
         diff[:h, : a.shape[1]] = a != b
-        blocks = diff.reshape(ny, tile, nx, per).any(axis=(1, 3))
+        blocks = np.any(diff.reshape(ny, tile, nx, per), axis=(1, 3))
     else:
         diff = np.zeros((ny * tile, nx * tile), bool)
         diff[:h, :w] = np.any(prev != cur, axis=2)
-        blocks = diff.reshape(ny, tile, nx, tile).any(axis=(1, 3))
+        blocks = np.any(diff.reshape(ny, tile, nx, tile), axis=(1, 3))
     if blocks.sum() > WHOLE_SHARE * blocks.size:
         return [(0, 0, w, h)]
     runs = []

@@ -93,6 +93,7 @@ def render(
         # No date in the metadata: the same attempts give the same bytes.
         fig.savefig(buf, format="svg", metadata={"Date": None})
     else:
+        assert isinstance(canvas, FigureCanvasAgg)  # made above for any format but svg
         canvas.print_png(buf)
     return buf.getvalue()
 

@@ -7,7 +7,7 @@ it (``chainsim.game.server.scoring``); here the stored recording of one attempt 
 headless with off-screen rendering (EGL), and sampled: the needle's tip and direction over the
 attempt's time, where the tip touched bone (a contact, as the procedure counts them; reaching the
 target is kept apart as ``reached``, it is no contact), and every X-ray image the C-arm made,
-rendered by the simulator's own fluoroscopy renderer (``chainsim.game.gl.fluoro``) exactly as
+rendered by the simulator's own fluoroscopy renderer (``chainsim.game.render.radiograph``) exactly as
 the trainee saw it. Only the attempt the recording saved last is kept (a recording starts at the
 session's start, so earlier attempts of that session come before it).
 
@@ -37,6 +37,7 @@ import numpy as np
 
 from chainsim.game.records import provenance
 from chainsim.systems.engine.errors import UserError
+from chainsim.systems.procedures.procedure import XrayImage
 
 #: needle samples per simulated second kept in the track (the browser interpolates between them)
 SAMPLE_HZ = 20.0
@@ -55,77 +56,63 @@ def replay_track(recording_text: str, pack_root: str, pack_paths: list[str]) -> 
     "point"}], "reached": {"t", "role", "point"} or None, "images": [{"t", "png" (bytes), "view",
     "azimuth_deg", "elevation_deg"}], "needle_length_mm"}`` with t in seconds of the attempt's own clock;
     contacts are the counted ones (obstacles: bone), the target's touch is `reached`."""
-    import esper  # noqa: PLC0415 - worker process only
 
-    from chainsim.components.resources import EntityIndex, PendingInput, Records  # noqa: PLC0415
-    from chainsim.game.app.headless import app_for_pack, check_events  # noqa: PLC0415
-    from chainsim.game.app.inputscript import parse_events  # noqa: PLC0415
-    from chainsim.game.gl.renderer import Renderer  # noqa: PLC0415
+    from chainsim.components.resources import PendingInput, Records  # noqa: PLC0415
     from chainsim.game.packs import pack as packs  # noqa: PLC0415
+    from chainsim.game.render.renderer import Renderer  # noqa: PLC0415
     from chainsim.game.server.scoring import _recording_fields  # noqa: PLC0415
-    from chainsim.systems.procedures.needle.carm import CArm  # noqa: PLC0415
-    from chainsim.systems.procedures.needle.components import Needle, NeedleState  # noqa: PLC0415
-    from chainsim.systems.procedures.needle.handles import NeedleHandles  # noqa: PLC0415
-    from chainsim.systems.procedures.needle.manifest import NeedleScene, ProcedureState  # noqa: PLC0415
+    from chainsim.game.trainer.headless import app_for_pack, check_events  # noqa: PLC0415
+    from chainsim.game.trainer.inputscript import parse_events  # noqa: PLC0415
+    from chainsim.systems.procedures import procedure_of  # noqa: PLC0415
 
     recording = provenance.decode_recording(recording_text)
     fields = _recording_fields(recording)
     events = parse_events(recording, "recording")
     pack = packs.load(Path(pack_root), pack_paths)
+    proc = procedure_of(pack.manifest)
+    if proc is None or proc.replay is None:
+        raise UserError(f"pack {pack.name}: its procedure has no 3-D replay")
     settings = {"model": fields["model"]} if fields["model"] else {}
     app = app_for_pack(pack, fields["scene"], settings=settings, dt=fields["dt"], render=True, save="replay")
     saves: list[tuple[int, int]] = []  # (attempt number, frame index) at each Save
-    frames: list[tuple[int, list[float]]] = []
+    frames: list[tuple[int, list[float | None]]] = []  # None: not finite (no tip yet)
     contacts: list[tuple[int, dict]] = []
     reached: list[tuple[int, dict]] = []
     images: list[tuple[int, dict]] = []
     try:
+        scene = proc.replay(app)
 
         def capture(class_name: str, trainee: str, record: dict) -> int:
-            ps = esper.component_for_entity(handles.procedure, ProcedureState)
-            saves.append((ps.attempt, len(frames)))
+            saves.append((scene.attempt(), len(frames)))
             return len(saves)
 
         app.insert_resource(Records(save_attempt=capture, list_attempts=lambda c, t: [], where="replay"))
         check_events(app, events, "recording")
         app.resource(PendingInput).extend(events)
-        handles = app.resource(NeedleHandles)
-        with app.active():
-            length = float(esper.component_for_entity(handles.needle, Needle).length)
-        scene = app.resource(NeedleScene)
+        length = scene.length_mm
         every = max(1, round(1.0 / (SAMPLE_HZ * app.time.dt)))
-        seen_contacts = 0
         image_id = -1
         last_live_t = -1e9
         for step in range(fields["steps"]):
             app.update(app.time.dt)
             with app.active():
-                ps = esper.component_for_entity(handles.procedure, ProcedureState)
-                st = esper.component_for_entity(handles.needle, NeedleState)
-                t = round(float(ps.elapsed), 3)
+                f = scene.frame()
+                t = f.t
                 if step % every == 0 or not frames:
-                    tip = st.tip() if st.placed else np.full(3, np.nan)
-                    frames.append((ps.attempt, [t, *_r(tip), *_r(st.direction(), 4)]))
-                n = sum(st.contacts.values())
-                if n < seen_contacts:  # a new attempt counts from zero
-                    seen_contacts = 0
-                if n > seen_contacts:
-                    point = st.contact_point if np.all(np.isfinite(st.contact_point)) else st.tip()
-                    role = scene.role_of(st.contact, scene.side_of(st.entry))
-                    hit = (ps.attempt, {"t": t, "role": st.contact, "point": _r(point)})
-                    (reached if role is not None and role.kind == "target" else contacts).append(hit)
-                    seen_contacts = n
-                index = app.get_resource(EntityIndex)
-                carm = esper.try_component(index.get("carm"), CArm) if index and index.get("carm") is not None else None
+                    frames.append((f.attempt, [t, *_r(f.tip), *_r(f.direction, 4)]))
+                if f.contact is not None:
+                    role, point, target = f.contact
+                    (reached if target else contacts).append((f.attempt, {"t": t, "role": role, "point": _r(point)}))
+                shot = proc.xray(app) if proc.xray is not None else None
                 fluoro = app.resource(Renderer)._fluoro if app.get_resource(Renderer) is not None else None
-                if carm is not None and fluoro is not None and fluoro.image_id != image_id and fluoro.shown:
+                if shot is not None and fluoro is not None and fluoro.image_id != image_id and fluoro.shown:
                     image_id = fluoro.image_id
-                    if carm.live and t - last_live_t < LIVE_KEEP_S:
+                    if shot.live and t - last_live_t < LIVE_KEEP_S:
                         continue
-                    last_live_t = t if carm.live else last_live_t
+                    last_live_t = t if shot.live else last_live_t
                     rgb = fluoro.image_rgb()
                     if rgb is not None:
-                        images.append((ps.attempt, _xray(t, rgb, carm)))
+                        images.append((f.attempt, _xray(t, rgb, shot)))
     finally:
         app.close()
     if not saves:
@@ -142,15 +129,15 @@ def replay_track(recording_text: str, pack_root: str, pack_paths: list[str]) -> 
     }
 
 
-def _xray(t: float, rgb: np.ndarray, carm) -> dict:
-    """One X-ray image of the track: when, the picture and the C-arm's view and pose."""
+def _xray(t: float, rgb: np.ndarray, shot: XrayImage) -> dict:
+    """One X-ray image of the track: when, the picture and the view and pose it was taken from."""
     return {
         "t": t,
         "png": _png(rgb),
-        "view": carm.view,
-        "live": bool(carm.live),
-        "azimuth_deg": round(float(carm.image_pose[0]), 1),
-        "elevation_deg": round(float(carm.image_pose[1]), 1),
+        "view": shot.view,
+        "live": bool(shot.live),
+        "azimuth_deg": round(float(shot.azimuth_deg), 1),
+        "elevation_deg": round(float(shot.elevation_deg), 1),
     }
 
 

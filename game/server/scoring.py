@@ -4,7 +4,8 @@ An upload (``POST /api/attempts``) carries the simulator's figures, the input re
 session up to the Save and the pack's identity (``chainsim.game.records.provenance``). It is
 checked at once - the pack must be one this server has, at the same version and with the same
 files, and the recording must be a well-formed recording of that pack that reaches a Save -
-then committed to the ``uploads`` table and acknowledged (202). Nothing is scored on the request.
+then committed to the ``uploads`` table (its statements: ``chainsim.game.records.upload_queue``) and
+acknowledged (202). Nothing is scored on the request.
 
 ``Scorer`` is a bounded pool: ``workers`` threads, each claiming the oldest waiting upload from the
 database and replaying it in a process of its own (the ECS world is per process, and a replay is
@@ -32,15 +33,17 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from chainsim.game.records import plausible, protocol, provenance, register
+from chainsim.game.records import plausible, provenance, upload_queue
 from chainsim.game.records.backend import db_errors
-from chainsim.game.records.schema import LEGACY_METRICS
+from chainsim.game.records.migrations import LEGACY_METRICS
 from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import clean_attempt, clean_created_at, clean_name, to_json
 from chainsim.game.server.replayer import Cancelled, OverBudget, ReplayFailed, ReplayProcess
+from chainsim.game.study import protocol, register
 from chainsim.systems.engine import limits
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.haptics import DEVICE_DETAILS, DEVICE_MEASURES
+from chainsim.systems.procedures import procedure_for
 
 logger = logging.getLogger(__name__)
 
@@ -53,6 +56,8 @@ POLL_S = 1.0
 #: claims of one upload before it is refused: the first, and one more after its scorer died or its replay
 #: process failed (a recording that kills every process it runs in must not hold a scorer for ever)
 MAX_CLAIMS = 2
+#: claimed uploads a scorer looks at for a lapsed claim, oldest first
+CLAIMS_LOOKED_AT = 200
 #: settings a recording may carry; a replay uses only the deformation model
 RECORDING_SETTINGS = ("class", "trainee", "model")
 #: the longest session (simulated seconds) this server replays, unless ``serve --max-session-minutes`` says
@@ -108,7 +113,7 @@ class ServerPacks:
         from chainsim.game.packs import pack as packs  # noqa: PLC0415 - loaded when the first upload needs it
         from chainsim.game.packs.discovery import discover  # noqa: PLC0415
 
-        found = {}
+        found: dict[str, Path] = {}
         for f in discover(self.pack_paths):
             found.setdefault(f.name, f.path)
         if name not in found:
@@ -205,9 +210,9 @@ def replay_record(
     does not replay to a Save."""
     from chainsim.components.digest import world_digest  # noqa: PLC0415 - worker process only
     from chainsim.components.resources import Records, Settings  # noqa: PLC0415
-    from chainsim.game.app.headless import app_for_pack, check_events  # noqa: PLC0415
-    from chainsim.game.app.inputscript import parse_events  # noqa: PLC0415
     from chainsim.game.packs import pack as packs  # noqa: PLC0415
+    from chainsim.game.trainer.headless import app_for_pack, check_events  # noqa: PLC0415
+    from chainsim.game.trainer.inputscript import parse_events  # noqa: PLC0415
 
     opts = options or {}
     recording = provenance.decode_recording(recording_text)
@@ -234,7 +239,7 @@ def replay_record(
         saved: list[tuple[dict, str]] = []
 
         def capture(class_name: str, trainee: str, record: dict) -> int:
-            # the simulator took its digest at this same point of the Save (game.app.headless.attempt_evidence)
+            # the simulator took its digest at this same point of the Save (game.trainer.headless.attempt_evidence)
             saved.append((record, world_digest(app)))
             return len(saved)
 
@@ -329,7 +334,10 @@ def _close(a: Any, b: Any, *, name: str) -> bool:
 def differences(claimed: dict, scored: dict) -> list[dict]:
     """``[{"field", "simulator", "replay"}]`` where the simulator's figures are not the replay's."""
     out = []
-    pairs = [(k, claimed.get(k), scored.get(k)) for k in COMPARED]
+    # every figure of the attempt's procedure (the records' fixed figures unless it names another), and its target
+    proc = procedure_for(claimed["procedure"]) if "procedure" in claimed else None
+    figures = [c.name for c in proc.layout.columns] if proc is not None and proc.layout is not None else []
+    pairs = [(k, claimed.get(k), scored.get(k)) for k in [*figures, *COMPARED]]
     for k in sorted(set(claimed.get("step_times", {})) | set(scored.get("step_times", {}))):
         pairs.append((f"step_times.{k}", claimed["step_times"].get(k), scored["step_times"].get(k)))
     for k in sorted(set(claimed.get("metrics", {})) | set(scored.get("metrics", {}))):
@@ -346,8 +354,7 @@ def differences(claimed: dict, scored: dict) -> list[dict]:
 
 
 def upload_for_key(store: RecordStore, key: str) -> dict | None:
-    rows = store.query("SELECT * FROM uploads WHERE idem_key = ?", (key,))
-    return dict(rows[0]) if rows else None
+    return upload_queue.read_by_key(store, key)
 
 
 def enqueue(
@@ -377,32 +384,25 @@ def enqueue(
     now = clean_created_at(None)
     with store.transaction() as conn:
         if key is not None:
-            row = conn.execute("SELECT * FROM uploads WHERE idem_key = ?", (key,)).fetchone()
+            row = upload_queue.find_by_key(conn, key)
             if row is not None:
                 return dict(row), False
         claimed = checked["claimed"]
-        uid = conn.execute(
-            """
-            INSERT INTO uploads (idem_key, body_hash, filed_by, class_name, trainee, received_at, pack, pack_version,
-                pack_hash, claimed, recording, state, witnessed)
-            VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'scoring', ?)
-            """,
-            (
-                key,
-                digest,
-                filed_by,
-                class_name,
-                trainee,
-                now,
-                checked["identity"]["name"],
-                checked["identity"]["version"],
-                checked["identity"]["hash"],
-                to_json(claimed),
-                checked["recording"],
-                1 if witnessed else 0,
-            ),
-        ).lastrowid
-        row = conn.execute("SELECT * FROM uploads WHERE id = ?", (uid,)).fetchone()
+        uid = upload_queue.insert(
+            conn,
+            key=key,
+            body_hash=digest,
+            filed_by=filed_by,
+            class_name=class_name,
+            trainee=trainee,
+            received_at=now,
+            identity=checked["identity"],
+            claimed_json=to_json(claimed),
+            recording=checked["recording"],
+            witnessed=witnessed,
+        )
+        row = upload_queue.find(conn, uid)
+    assert row is not None  # inserted above, in this transaction
     return dict(row), True
 
 
@@ -429,51 +429,29 @@ def attempt_number(store: RecordStore, row: dict) -> int | None:
     Attempts come in the order the server received them and waiting uploads are scored in that order,
     so an upload still scoring comes after every attempt stored and every earlier upload still waiting;
     one statement counts both, so an upload scored meanwhile is counted once."""
-    who = "FROM attempts a JOIN trainees t ON a.trainee_id = t.id JOIN classes c ON t.class_id = c.id "
-    who += "WHERE c.name = ? AND t.name = ?"
     if row["state"] == "scoring":
-        rows = store.query(
-            f"SELECT (SELECT COUNT(*) {who}) + (SELECT COUNT(*) FROM uploads WHERE state = 'scoring' "
-            "AND class_name = ? AND trainee = ? AND id <= ?)",
-            (row["class_name"], row["trainee"], row["class_name"], row["trainee"], row["id"]),
-        )
+        n = upload_queue.count_before_waiting(store, row["class_name"], row["trainee"], row["id"])
     elif row["state"] == "scored" and row["attempt_id"] is not None:
-        rows = store.query(
-            f"SELECT COUNT(*) {who} AND (a.created_at < (SELECT created_at FROM attempts WHERE id = ?) "
-            "OR (a.created_at = (SELECT created_at FROM attempts WHERE id = ?) AND a.id <= ?))",
-            (row["class_name"], row["trainee"], row["attempt_id"], row["attempt_id"], row["attempt_id"]),
-        )
+        n = upload_queue.count_up_to_attempt(store, row["class_name"], row["trainee"], row["attempt_id"])
     else:
         return None
-    return int(rows[0][0]) or None
+    return n or None
 
 
 def get_upload(store: RecordStore, upload_id: int) -> dict | None:
-    rows = store.query("SELECT * FROM uploads WHERE id = ?", (upload_id,))
-    return dict(rows[0]) if rows else None
+    return upload_queue.read(store, upload_id)
 
 
 def waiting_uploads(store: RecordStore, classes: list[str], trainee: str | None = None) -> list[dict]:
     """Uploads of these classes not scored yet, and those refused: what the dashboard lists beside attempts."""
     if not classes:
         return []
-    marks = ", ".join("?" for _ in classes)
-    rows = store.query(
-        "SELECT id, class_name, trainee, received_at, pack, state, error, filed_by FROM uploads "
-        f"WHERE state != 'scored' AND class_name IN ({marks}) AND (? IS NULL OR trainee = ?) ORDER BY id",
-        (*classes, trainee, trainee),
-    )
-    return [dict(r) for r in rows]
+    return upload_queue.not_scored(store, classes, trainee)
 
 
 def list_queue(store: RecordStore, state: str = "waiting") -> list[dict]:
     """Uploads for ``chainsim records uploads``: ``waiting`` (not scored yet), ``refused`` or ``all``."""
-    where = {"waiting": "state = 'scoring'", "refused": "state = 'refused'", "all": "1 = 1"}[state]
-    rows = store.query(
-        "SELECT id, class_name, trainee, filed_by, received_at, pack, state, claimed_by, claimed_at, tries, "
-        f"witnessed, error, length(recording) AS recording_chars FROM uploads WHERE {where} ORDER BY id"
-    )
-    return [dict(r) for r in rows]
+    return upload_queue.listing(store, state)
 
 
 def end_upload(store: RecordStore, upload_id: int, actor: str, how: str, reason: str) -> dict:
@@ -485,15 +463,12 @@ def end_upload(store: RecordStore, upload_id: int, actor: str, how: str, reason:
         raise UserError("say why, in 1-500 characters (--reason)")
     verb = {"cancel": "cancelled", "refuse": "refused"}[how]
     with store.transaction() as conn:
-        row = conn.execute("SELECT id, state, class_name FROM uploads WHERE id = ?", (upload_id,)).fetchone()
+        row = upload_queue.state_and_class(conn, upload_id)
         if row is None:
             raise UserError(f"no upload with id {upload_id}")
         if row["state"] != "scoring":
             raise UserError(f"upload {upload_id} is already {row['state']}; only a waiting upload can be {verb}")
-        conn.execute(
-            "UPDATE uploads SET state = 'refused', error = ?, scored_at = ? WHERE id = ?",
-            (f"{verb} by {actor}: {reason}", clean_created_at(None), upload_id),
-        )
+        upload_queue.mark_refused(conn, upload_id, f"{verb} by {actor}: {reason}", clean_created_at(None))
         store.audit(conn, actor, how, row["class_name"], f"upload {upload_id}: {reason}")
     got = get_upload(store, upload_id)
     assert got is not None
@@ -525,16 +500,8 @@ def _gone(claimed_by: str | None, mine: str) -> bool:
 
 def _candidates(conn: Any, mine: str, lease_s: float, now: float) -> list[Any]:
     """Uploads a worker may claim now: each trainee's oldest unclaimed one, and any whose claim lapsed."""
-    rows = list(
-        conn.execute(
-            "SELECT id, class_name, trainee, claimed_by, claimed_at, tries FROM uploads WHERE id IN "
-            "(SELECT MIN(id) FROM uploads WHERE state = 'scoring' AND claimed_by IS NULL GROUP BY class_name, trainee)"
-        )
-    )
-    for r in conn.execute(
-        "SELECT id, class_name, trainee, claimed_by, claimed_at, tries FROM uploads "
-        "WHERE state = 'scoring' AND claimed_by IS NOT NULL ORDER BY id LIMIT 200"
-    ):
+    rows = upload_queue.waiting_heads(conn)
+    for r in upload_queue.claimed_waiting(conn, CLAIMS_LOOKED_AT):
         if (r["claimed_at"] or 0) < now - lease_s or _gone(r["claimed_by"], mine):
             rows.append(r)
     return rows
@@ -546,10 +513,7 @@ def _last_served(conn: Any, rows: list[Any]) -> dict[tuple[str, str], float]:
     for r in rows:
         who = (r["class_name"], r["trainee"])
         if who not in out:
-            got = conn.execute(
-                "SELECT MAX(claimed_at) FROM uploads WHERE class_name = ? AND trainee = ?", who
-            ).fetchone()[0]
-            out[who] = float(got or 0.0)
+            out[who] = float(upload_queue.last_claimed_at(conn, *who) or 0.0)
     return out
 
 
@@ -566,22 +530,19 @@ def claim(store: RecordStore, worker: str, lease_s: float) -> dict | None:
         served = _last_served(conn, rows)
         for r in sorted(rows, key=lambda r: (served[(r["class_name"], r["trainee"])], r["id"])):
             if r["tries"] >= MAX_CLAIMS:
-                conn.execute(
-                    "UPDATE uploads SET state = 'refused', error = ?, scored_at = ? WHERE id = ?",
-                    (
-                        f"scoring was started {r['tries']} times and never finished (the replay process or the "
-                        "server stopped each time); send the attempt again or ask the trainer",
-                        clean_created_at(None),
-                        r["id"],
-                    ),
+                upload_queue.mark_refused(
+                    conn,
+                    r["id"],
+                    f"scoring was started {r['tries']} times and never finished (the replay process or the "
+                    "server stopped each time); send the attempt again or ask the trainer",
+                    clean_created_at(None),
                 )
                 store.audit(conn, "server", "refuse", r["class_name"], f"upload {r['id']}: scoring never finished")
                 continue
-            conn.execute(
-                "UPDATE uploads SET claimed_by = ?, claimed_at = ?, tries = tries + 1 WHERE id = ?",
-                (worker, now, r["id"]),
-            )
-            return dict(conn.execute("SELECT * FROM uploads WHERE id = ?", (r["id"],)).fetchone())
+            upload_queue.mark_claimed(conn, r["id"], worker, now)
+            claimed = upload_queue.find(conn, r["id"])
+            assert claimed is not None  # claimed above, in this transaction
+            return dict(claimed)
     return None
 
 
@@ -589,11 +550,7 @@ def renew(store: RecordStore, upload_id: int, worker: str) -> bool:
     """Renew ``worker``'s claim on a replaying upload; False when it is no longer this worker's to score
     (cancelled or refused meanwhile, or taken over)."""
     with store.transaction() as conn:
-        n = conn.execute(
-            "UPDATE uploads SET claimed_at = ? WHERE id = ? AND claimed_by = ? AND state = 'scoring'",
-            (time.time(), upload_id, worker),
-        ).rowcount
-    return n == 1
+        return upload_queue.renew_claim(conn, upload_id, worker, time.time())
 
 
 def finish(store: RecordStore, upload: dict, worker: str, scored: dict | None, error: str | None) -> int | None:
@@ -602,14 +559,12 @@ def finish(store: RecordStore, upload: dict, worker: str, scored: dict | None, e
     Returns the new attempt's id (None when refused, or when the claim was lost to another worker)."""
     now = clean_created_at(None)
     with store.transaction() as conn:
-        row = conn.execute("SELECT state, claimed_by FROM uploads WHERE id = ?", (upload["id"],)).fetchone()
+        row = upload_queue.claim_of(conn, upload["id"])
         if row is None or row["state"] != "scoring" or row["claimed_by"] != worker:
             return None  # another worker took it over and finishes it; never two attempts
         if scored is None:
-            conn.execute(
-                "UPDATE uploads SET state = 'refused', error = ?, scored_at = ? WHERE id = ?",
-                (error[:500], now, upload["id"]),
-            )
+            assert error is not None  # a refusal always says why
+            upload_queue.mark_refused(conn, upload["id"], error[:500], now)
             return None
         claimed = json.loads(upload["claimed"])
         record = clean_attempt({**scored["record"], "created_at": upload["received_at"]})
@@ -650,10 +605,7 @@ def finish(store: RecordStore, upload: dict, worker: str, scored: dict | None, e
                 "result differs from the simulator's: " + ", ".join(d["field"] for d in diffs),
                 aid,
             )
-        conn.execute(
-            "UPDATE uploads SET state = 'scored', attempt_id = ?, scored_at = ?, recording = '' WHERE id = ?",
-            (aid, now, upload["id"]),
-        )
+        upload_queue.mark_scored(conn, upload["id"], aid, now)
         return aid
 
 
@@ -711,6 +663,7 @@ class Scorer:
 
     def _loop(self, worker: str, proc: ReplayProcess) -> None:
         store = None
+        gone: tuple[type[BaseException], ...] = (UserError, *db_errors())  # the database gone or busy
         while not self._stop.is_set():
             try:
                 if store is None:
@@ -721,7 +674,7 @@ class Scorer:
                         self._wake.wait(POLL_S)
                     continue
                 self._score(store, upload, worker, proc)
-            except (UserError, *db_errors()) as exc:  # database gone or busy: reconnect and try again
+            except gone as exc:  # reconnect and try again
                 logger.warning("scoring: %s", exc)
                 if store is not None:
                     try:
@@ -737,7 +690,9 @@ class Scorer:
         if store is not None:
             store.close()
 
-    def _replay(self, store: RecordStore, upload: dict, worker: str, proc: ReplayProcess, root: str) -> tuple:
+    def _replay(
+        self, store: RecordStore, upload: dict, worker: str, proc: ReplayProcess, root: str
+    ) -> tuple[dict | None, str | None] | None:
         """Run the upload's replay in ``proc``, renewing the claim; ``(scored, error)``, or None to drop it
         (cancelled, taken over, or the server stopping)."""
         # until the replay has read the recording's length
@@ -776,7 +731,7 @@ class Scorer:
                 return None
             logger.warning("scoring upload %s: %s; it is tried again once", upload["id"], exc)
             with store.transaction() as conn:  # free the claim for the next try (claims are counted)
-                conn.execute("UPDATE uploads SET claimed_by = NULL WHERE id = ?", (upload["id"],))
+                upload_queue.release_claim(conn, upload["id"])
             return None
         if answer[0] == "ok":
             return answer[1], None

@@ -1,4 +1,4 @@
-"""The records server's study register under /api/studies (chainsim.game.records.register): trainers only.
+"""The records server's study register under /api/studies (chainsim.game.study.register): trainers only.
 
     POST /api/studies/{study}/participants         {"class_name", "code", "group", "year_of_training",
                                                     "procedures_performed"} -> 201 the entry with its
@@ -20,12 +20,12 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
 from starlette.routing import Route
 
-from chainsim.game.records import register
+from chainsim.game.records.accounts import User
 from chainsim.game.records.store import RecordStore
 from chainsim.game.server import study_pages
-from chainsim.game.server.accounts import User
 from chainsim.game.server.auth import HTTPError, api_user, read_json
 from chainsim.game.server.study_pages import register_as, trainer_only
+from chainsim.game.study import register
 from chainsim.systems.engine.errors import UserError
 
 

@@ -1,6 +1,6 @@
 """The trainers' register page of a study on the records server: /studies/{study}.
 
-The same register as /api/studies (chainsim.game.records.register), for a trainer signed in to the
+The same register as /api/studies (chainsim.game.study.register), for a trainer signed in to the
 dashboard: the participants of their classes in slot order with their covariates, a form that
 enters the next one before their first trial and shows the slot (the row of the protocol's design)
 they are given, and, once the study's design is filed, the browser trainer's link for its trials. A
@@ -16,12 +16,12 @@ from starlette.requests import Request
 from starlette.responses import RedirectResponse, Response
 from starlette.routing import Route
 
-from chainsim.game.records import register
+from chainsim.game.records.accounts import User
 from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import clean_name
-from chainsim.game.server.accounts import User
 from chainsim.game.server.auth import HTTPError, check_csrf, read_form
-from chainsim.game.server.views import page_user, render
+from chainsim.game.server.dashboard import page_user, render
+from chainsim.game.study import register
 from chainsim.systems.engine.errors import UserError
 
 # -- store work (storage worker threads), run by this page and by the JSON API (study_api) ------------

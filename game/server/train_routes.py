@@ -4,9 +4,9 @@
     WS  /train/{pack}/ws   pictures out (binary), input in (JSON text), on the same origin and TLS
 
 With ``?study=STUDY`` (on both) the seat runs that study's trials for the signed-in trainee, who must be
-in its register (chainsim.game.records.register): the pages and the aids of each trial in the order of
+in its register (chainsim.game.study.register): the pages and the aids of each trial in the order of
 their allocation, practice trials first, as ``chainsim protocol`` runs them at the window
-(chainsim.game.ui.study), each Save filed as a witnessed attempt with ``details.protocol``; a reload
+(chainsim.game.study.session), each Save filed as a witnessed attempt with ``details.protocol``; a reload
 continues after the last trial on this server.
 
 The thesis wants the trainer delivered in a web browser with nothing to install (3.3.1). The server
@@ -59,10 +59,12 @@ from starlette.responses import Response
 from starlette.routing import Route, WebSocketRoute
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
-from chainsim.game.records import register
+from chainsim.game.records import accounts
 from chainsim.game.records.store import RecordStore
-from chainsim.game.server import accounts, api, scoring, views
+from chainsim.game.server import api, scoring
+from chainsim.game.server import dashboard as views
 from chainsim.game.server.auth import HTTPError, session
+from chainsim.game.study import register
 from chainsim.systems.engine.errors import UserError
 
 logger = logging.getLogger(__name__)
@@ -501,6 +503,8 @@ def study_seat(store: RecordStore, user: accounts.User, study: str, pack: str) -
         raise HTTPError(404, f"study {study[:64]!r} has no design on this server; ask your trainer")
     if value["pack"] != pack:
         raise HTTPError(404, f"study {study!r} runs pack {value['pack']!r}, not {pack!r}")
+    if user.trainee is None:  # a trainee account without its trainee (train_page checked it already: _trainee)
+        raise HTTPError(403, "this trainee account has no trainee record; ask your trainer")
     entry = register.lookup(store, study, user.trainee)
     if entry is None or entry["class_name"] != user.classes[0]:
         raise HTTPError(403, f"{user.trainee} is not in the register of study {study!r}; ask your trainer")

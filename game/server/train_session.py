@@ -2,10 +2,10 @@
 
 The records server starts this module as a child process per browser session
 (``python -m chainsim.game.server.train_session``, see ``train_routes``). It is the desktop window
-(``chainsim.game.ui.window``) without a display: the same App built by ``build_app``, the same
+(``chainsim.game.trainer.window``) without a display: the same App built by ``build_app``, the same
 layout, widgets, help pages and steps, drawn by the same render system into an EGL off-screen
-framebuffer (``chainsim.game.gl.context``) and paced by the wall clock in whole fixed steps
-(``chainsim.game.ui.frameloop.FixedStepper``), so a browser session replays exactly as a window
+framebuffer (``chainsim.game.render.context``) and paced by the wall clock in whole fixed steps
+(``chainsim.game.trainer.frameloop.FixedStepper``), so a browser session replays exactly as a window
 session does (thesis 3.3.1: delivery in a web browser; 3.3.4: the linked views and controller).
 
 Protocol on the pipes (the parent is the only peer; it has validated every input already):
@@ -32,7 +32,7 @@ again once it is gone; the credit window covers the link's round trip at the ses
 
 The session is ready as soon as its App is built: the scene's numba kernels compile (on a fresh install)
 or load from numba's cache in child processes while the page already shows the scene, as at the window
-(``chainsim.game.app.compiling.KernelWatch``): input that needs them waits and is given in order once
+(``chainsim.game.trainer.compiling.KernelWatch``): input that needs them waits and is given in order once
 they are there, and the HUD says how far compiling has got.
 """
 
@@ -190,11 +190,11 @@ class Encoder:
 
 def server_records(channel: Channel, app, pack, settings: dict):
     """Records that file each save through the records server's parent process, with the session's
-    recording and the pack's identity (``chainsim.game.app.headless.attempt_evidence``): the server
+    recording and the pack's identity (``chainsim.game.trainer.headless.attempt_evidence``): the server
     checks and queues it as it does every upload, and scores it by replaying the recording."""
     from chainsim.components.resources import Records  # noqa: PLC0415
-    from chainsim.game.app.headless import attempt_evidence  # noqa: PLC0415
     from chainsim.game.records.validate import clean_attempt, to_json  # noqa: PLC0415
+    from chainsim.game.trainer.headless import attempt_evidence  # noqa: PLC0415
     from chainsim.systems.engine.errors import UserError  # noqa: PLC0415
 
     filed: dict[int, tuple[str, str, int | None]] = {}
@@ -221,11 +221,11 @@ def server_records(channel: Channel, app, pack, settings: dict):
 
 def study_session(app, cfg: dict):
     """The study session of ``cfg["study"]`` on the App, started: the trials of the trainee's allocation
-    with their aids, practice first (chainsim.game.ui.study, as at the window, without the questionnaires),
+    with their aids, practice first (chainsim.game.study.session, as at the window, without the questionnaires),
     each Save filed through the server with ``details.protocol``."""
     from pathlib import Path  # noqa: PLC0415
 
-    from chainsim.game.ui.study import StudySession  # noqa: PLC0415
+    from chainsim.game.study.session import StudySession  # noqa: PLC0415
 
     spec = cfg["study"]
     proto = {**spec["design"], "path": Path(f"{spec['study']}.toml"), "title": ""}
@@ -240,19 +240,14 @@ class Session:
     """The App of one trainee drawn off screen: input in, pictures out (see the module docstring)."""
 
     def __init__(self, cfg: dict, channel: Channel) -> None:
-        import chainsim.game.gl.render_system as render  # noqa: PLC0415 - imported in the session process only
-        from chainsim.components.hud import HudState  # noqa: PLC0415
-        from chainsim.components.input_events import Widget  # noqa: PLC0415
-        from chainsim.components.resources import PendingInput, Settings  # noqa: PLC0415
-        from chainsim.game.app.compiling import KernelWatch, needed_groups  # noqa: PLC0415
-        from chainsim.game.app.headless import app_for_pack  # noqa: PLC0415
-        from chainsim.game.app.keytiming import key_times  # noqa: PLC0415
-        from chainsim.game.gl import meshbuf  # noqa: PLC0415
-        from chainsim.game.gl.context import egl_context, offscreen_framebuffer  # noqa: PLC0415
+        import chainsim.game.render.render_system as render  # noqa: PLC0415 - imported in the session process only
+        from chainsim.components.resources import Settings  # noqa: PLC0415
         from chainsim.game.packs import pack as packs  # noqa: PLC0415
-        from chainsim.game.ui.frameloop import FixedStepper  # noqa: PLC0415
+        from chainsim.game.render.context import egl_context, offscreen_framebuffer  # noqa: PLC0415
+        from chainsim.game.trainer.compiling import needed_groups  # noqa: PLC0415
+        from chainsim.game.trainer.headless import app_for_pack  # noqa: PLC0415
+        from chainsim.game.trainer.seat import Seat  # noqa: PLC0415
         from chainsim.systems.engine.warmup import GEOMETRY, Compiler  # noqa: PLC0415
-        from chainsim.systems.view.cameras import ViewState  # noqa: PLC0415
 
         self.render = render
         self.channel = channel
@@ -270,32 +265,21 @@ class Session:
         w, h = (int(x) for x in app.resource(Settings).get("window_size", [1280, 800]))
         self.size = (w, h)
         ctx = egl_context()
-        # one sample: multisampling multiplies a software rasteriser's time (see game/ui/window.py)
+        # one sample: multisampling multiplies a software rasteriser's time (see game/trainer/window.py)
         app.insert_resource(render.RenderTarget(ctx, offscreen_framebuffer(ctx, (w, h)), 1.0, samples=1))
         app.add_plugin(render.plugin)
         app.resource(render.Renderer).cache_views()  # most frames repeat most views
-        self.pending = app.resource(PendingInput)
-        self.hud = app.resource(HudState)
         # as at the window: the picture comes at once and the scene's kernels compile (or load from
         # numba's cache) in child processes meanwhile; input that needs them waits, and the HUD says so
-        needed = needed_groups(app)
-        self.compiler = Compiler(first=[GEOMETRY], groups=needed)
-        self.kernels = KernelWatch(self.compiler, needed, self.hud, self.pending, log=self._log)
-        self.meshbuf, self.geometry = meshbuf, GEOMETRY
-        self.key_times = key_times
-        self.view_state = app.resource(ViewState)
-        meshbuf.KERNEL_NORMALS = self.compiler.ready([GEOMETRY])
-        self.hurried = False
+        self.compiler = Compiler(first=[GEOMETRY], groups=needed_groups(app))
+        self.seat = Seat(app, self.compiler, log=self._log)
+        self.hud = self.seat.hud
         values = app.resource(Settings).values
-        layout = {wd["name"] for wd in app.resource(render.PackResource).layout.get("widgets", [])}
         self.who = f"Signed in: {values.get('trainee')}, class {values.get('class')}. Records: this server"
-        if "sign_in" in layout:
+        if self.seat.has_sign_in:
             self.hud.status = self.who
-        self.widget_events = app.events.reader(Widget)
-        self.stepper = FixedStepper(app, None)
         # a study's trials (``cfg["study"]``, from train_routes.study_seat): its pages take the keys they show
         self.study = study_session(app, cfg) if cfg.get("study") else None
-        self.keys: dict[str, tuple[float, float]] = {}  # key -> (when its last press lands, when it is free)
         self.last_seq = 0
         self.frame_no = 0
         self.last_raw: bytes | None = None
@@ -311,7 +295,6 @@ class Session:
 
         ev = event_from_dict(dict(msg["ev"]), "input")
         self.last_seq = max(self.last_seq, int(msg.get("seq") or 0))
-        now = self.app.time.sim_time
         if isinstance(ev, Key) and self.study is not None and self.study.form is not None:
             if ev.pressed:  # a study page (what comes next, the last page) takes Enter, as at the window
                 self.study.key(ev.key)
@@ -319,12 +302,7 @@ class Session:
         if isinstance(ev, Key) and ev.key == "escape" and ev.pressed and not self.hud.doc_open:
             self.hud.message("Close the tab to leave; press Save attempt first to keep this attempt.", 6.0)
             return
-        if not self.kernels.lets_through(ev, time.perf_counter(), self.view_state.hover):
-            return  # held until the kernels are ready, then given in order (KernelWatch.update)
-        if isinstance(ev, Key):
-            self.pending.push(*self.key_times(self.keys, ev.key, ev.pressed, now, self.app.time.dt), ev)
-            return
-        self.pending.push(now, ev)
+        self.seat.give(ev)  # as the window gives a device event: held while kernels compile, keys timed
 
     def frame(self):
         """Draw now; the picture (H, W, 3 uint8, rows top first), or None when it is the one sent last."""
@@ -357,9 +335,8 @@ class Session:
             last = start
             if self.study is not None:
                 self.study.update()
-            for ev in self.widget_events.read():
-                if ev.name == "sign_in":  # the page's sign-in is the records server's: say who is signed in
-                    self.hud.message(self.who.replace("Signed in:", "You are signed in as"), 6.0)
+            if self.seat.sign_in_pressed():  # the page's sign-in is the records server's: say who is signed in
+                self.hud.message(self.who.replace("Signed in:", "You are signed in as"), 6.0)
             # a still scene is looked at a few times a second only; input brings back the full rate
             self.still = 0 if had_input else self.still + 1
             encoder = self.encoder
@@ -384,23 +361,13 @@ class Session:
 
     def step(self, dt: float) -> None:
         """The App's steps for `dt` wall seconds, unless input waits for kernels (the scene then stands)."""
-        self.kernels.update(self.app.time.sim_time, self.app.time.dt)
-        if not self.meshbuf.KERNEL_NORMALS and self.compiler.ready([self.geometry]):
-            self.meshbuf.KERNEL_NORMALS = True
-        if self.kernels.stepping():
-            self.stepper.advance(dt)
-        else:
-            self.stepper.carry = 0.0
+        self.seat.advance(dt)
 
     def _first_picture(self) -> None:
         """Once the first picture is on its way: the groups the scene waits on compile at normal priority."""
-        if self.hurried:
-            return
-        self.hurried = True
-        gate = self.kernels.gate
-        self._log(f"first picture {time.perf_counter() - self.compiler.started:.1f} s after the compiler started")
-        if gate is not None:
-            self.compiler.hurry(gate.needed)
+        since = self.seat.first_picture()
+        if since is not None:
+            self._log(f"first picture {since:.1f} s after the compiler started")
 
     def close(self) -> None:
         self.compiler.stop()

@@ -5,7 +5,7 @@ NaN, an inf, a negative count or a count that would run for ever: `real(lo, hi)`
 a range, default +-MAX_COORD), `count(lo, hi)` (whole numbers in a range) and `size` (WIDTHxHEIGHT
 within MAX_PIXELS). The bounds come from chainsim.systems.engine.limits (docs/limits.md). A bad value is
 argparse's one-line usage error, exit 2. (Names of classes and trainees are the records' own type:
-chainsim.game.app.options.name.)
+chainsim.game.trainer.options.name.)
 
 `NEGATIVE_NUMBER` is what the parser takes for a negative number rather than an option, so
 `--to -1e3 0 0` works (argparse on its own knows only -12 and -1.5).

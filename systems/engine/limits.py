@@ -224,7 +224,7 @@ def _fmt(x) -> str:
     return f"{x:g}" if isinstance(x, float) else str(x)
 
 
-def whole(value: ArrayLike, lo: int, hi: int) -> int:
+def whole(value: object, lo: int, hi: int) -> int:
     """`value` as an int in [lo, hi]; refuses bools, fractions and anything out of range."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise LimitError(f"expected a whole number from {lo} to {hi}, got {value!r}")
@@ -235,7 +235,7 @@ def whole(value: ArrayLike, lo: int, hi: int) -> int:
     return v
 
 
-def number(value: ArrayLike, lo: float = -MAX_COORD, hi: float = MAX_COORD) -> float:
+def number(value: object, lo: float = -MAX_COORD, hi: float = MAX_COORD) -> float:
     """`value` as a finite float in [lo, hi]; refuses bools, text and non-finite values."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise LimitError(f"expected a number, got {value!r}")

@@ -256,16 +256,18 @@ MODEL_HELP = {
 #: where a pack sets each model's parameters: a [materials] entry or the entity's `deformable` table (the
 #: others keep the body's default in a pack, or take an `auto` row's value)
 _VOLUME_KEYS = ("E", "nu", "density", "damping", "iterations", "unit", "thickness")
+#: the ChainMail keys of a [materials] entry (the manifest's [materials] fields and the tissue's materials)
+MATERIAL_KEYS = ("alpha_min", "alpha_max", "beta", "relax", "exact")
 PACK_TABLE: dict[str, dict[str, str]] = {
     "chainmail": {
-        **dict.fromkeys(("alpha_min", "alpha_max", "beta", "relax", "exact"), "materials"),
+        **dict.fromkeys(MATERIAL_KEYS, "materials"),
         **dict.fromkeys(("order", "relax_step", "depth", "dtype"), "deformable"),
     },
     "xpbd": dict.fromkeys((*_VOLUME_KEYS, "substeps"), "deformable"),
     "projective": dict.fromkeys((*_VOLUME_KEYS, "solver", "cg_iterations", "rotation_iterations"), "deformable"),
     "hybrid": dict.fromkeys(("E", "nu", "density", "iterations", "unit"), "deformable"),
     "surface": {
-        **dict.fromkeys(("alpha_min", "alpha_max", "beta", "relax", "exact"), "materials"),
+        **dict.fromkeys(MATERIAL_KEYS, "materials"),
         "order": "deformable",
     },
 }

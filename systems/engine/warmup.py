@@ -138,7 +138,7 @@ def _geometry() -> None:
     rest, _tets, _links, tris = _grid()
     tris = np.ascontiguousarray(tris, dtype=np.int64)
     n = int(tris.max()) + 1
-    # a GPU mesh's first normals: its float32 positions into float64 (chainsim.game.gl.meshbuf.GpuMesh)
+    # a GPU mesh's first normals: its float32 positions into float64 (chainsim.game.render.meshbuf.GpuMesh)
     vertex_normals_kernel(np.ascontiguousarray(rest[:n], dtype=np.float32), tris, np.zeros((n, 3)))
     SegmentTree.build(rest, tris).first_hit(rest[0] - 1.0, rest[-1] + 1.0)
     # the needle's force on soft tissue (a tissue pack's needle evaluates it every frame; a second to compile)
@@ -148,7 +148,7 @@ def _geometry() -> None:
 
 
 def _moving_normals() -> None:
-    # the argument types the window passes: its GPU meshes' float32 positions (chainsim.game.gl.meshbuf:
+    # the argument types the window passes: its GPU meshes' float32 positions (chainsim.game.render.meshbuf:
     # whole-mesh normals into the float32 copy, and the moved vertices' normals while a tool drags
     # tissue); missing one froze a first instrument grip for seconds. The engine's float64 positions
     # never reach these kernels, so no float64 version is compiled
@@ -169,7 +169,7 @@ def _moving_normals() -> None:
 #: the kernel groups, in the order they are compiled when nothing asks for another first: what every
 #: window draws with (normals), a needle's collisions and force first, then each model a pack can pick
 #: (a pack's own go first: Compiler.prefer); each group holds what a scene of that model calls, so a
-#: scene waits only on its own (chainsim.game.app.compiling.needed_groups)
+#: scene waits only on its own (chainsim.game.trainer.compiling.needed_groups)
 GEOMETRY = "normals and collision"
 MOVING = "normals of moving meshes"
 HYBRID = "hybrid"  # the hybrid body as packs set it up

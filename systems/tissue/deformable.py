@@ -7,11 +7,12 @@ from a [materials] entry and optional inline overrides. An entity whose `simulat
 or "volume" but has no `deformable` table gets a default one from `chainsim.systems.tissue.deformation` (same fields,
 material = the mesh's material), so both spellings lead to one component.
 
-Runtime state lives in the same dataclass: `rest` and `pos` (N, 3) in the entity's local frame, the
-link graph, per-link limits, the fixed mask, the cascade workspace, `dirty` (ids moved since the
-renderer last uploaded; the renderer replaces it with an empty array after uploading) and `version`.
-Of the runtime state only `pos`, `version`, `alive` (cut links) and `held` count towards the world
-digest; the rest is derived from the pack or is render bookkeeping and is marked digest-neutral.
+The component holds the pack's keys and one handle, `body`: the soft body built at spawn
+(chainsim.systems.engine.bodies.soft), which owns the runtime state: the rest shape and positions (N, 3)
+in the entity's local frame, the link graph and per-link limits, the fixed mask, the held elements,
+`version` and the ids moved since the renderer last took them. Of that state only the positions,
+`version`, the alive links and the held elements count towards the world digest (`digest_items`); the
+rest derives from the pack or is render bookkeeping.
 
 `pull` scripts a pull on one element (the thesis 5.3 demos): when triggered (at a time, or by a
 widget event), the element is dragged along a path of waypoints at a constant speed.
@@ -30,13 +31,12 @@ from chainsim.components.core import MeshRef
 from chainsim.components.registry import component, prop
 from chainsim.components.resources import Settings
 from chainsim.systems.engine import limits, meshgen, model_params
-from chainsim.systems.engine.bodies.chainmail import ChainMailBody
+from chainsim.systems.engine.bodies.chainmail import ChainMailBody, link_limits
 from chainsim.systems.engine.bodies.factory import choose_model, load_table, make_body
+from chainsim.systems.engine.bodies.soft import SoftBody
 from chainsim.systems.engine.chainmail_params import ORDER_CHOICES, order_name
 from chainsim.systems.engine.errors import UserError
-from chainsim.systems.engine.kernels.chainmail import make_workspace
 from chainsim.systems.engine.kernels.graph import Graph, build_graph
-from chainsim.systems.engine.meshes import MeshData
 from chainsim.systems.engine.model_params import manifest_spec
 
 ORDERS = ORDER_CHOICES  # breadth-first, balanced, schill, depth-first; fifo = breadth-first
@@ -46,10 +46,10 @@ MODEL_TABLE = ASSETS_DIR / "presets" / "models.toml"
 SOURCES = ("auto", "surface", "volume")
 INHERIT = -1.0  # an inline material value of -1 means "take it from the material"
 
-#: the ChainMail keys of a [materials] entry
-MATERIAL_KEYS = ("alpha_min", "alpha_max", "beta", "relax", "exact")
 #: [materials] defaults when an entity names no material (the manifest's own defaults, model_params)
-DEFAULT_MATERIAL = {k: model_params.params("chainmail")[k].manifest_default for k in MATERIAL_KEYS}
+DEFAULT_MATERIAL = {k: model_params.params("chainmail")[k].manifest_default for k in model_params.MATERIAL_KEYS}
+#: the ChainMail body's own defaults (where a material gives none)
+CHAINMAIL_DEFAULTS = model_params.defaults("chainmail")
 #: a volume model's settings, shared by the models that take them (named in each key's help)
 ELASTIC_MODELS = ("xpbd", "projective", "hybrid")
 
@@ -174,59 +174,23 @@ class Deformable:
     )
     time_budget_ms: float = prop("float", 0.0, units="ms", help="auto: CPU per update allowed (0: none).", min=0.0)
 
-    # --- runtime state (not manifest keys) -----------------------------------------------------
-    pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    version: int = 0
-    alive: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.bool_))
-    held: np.ndarray = field(default_factory=_empty_ids)
-    rest: np.ndarray = _nodigest(lambda: np.zeros((0, 3)))
-    graph: Graph | None = field(default=None, metadata={"digest": False})  # set at spawn (setup_deformable)
-    amin: np.ndarray = _nodigest(lambda: np.zeros(0))
-    amax: np.ndarray = _nodigest(lambda: np.zeros(0))
-    beta_l: np.ndarray = _nodigest(lambda: np.zeros(0))
-    # the resolved material and (box, material) regions the per-link limits come from
-    material_spec: tuple | None = field(default=None, metadata={"digest": False})
-    fixed_mask: np.ndarray = _nodigest(lambda: np.zeros(0, dtype=np.bool_))
-    relax_iterations: int = field(default=0, metadata={"digest": False})
-    exact_limits: bool = field(default=False, metadata={"digest": False})  # the material's `exact`
-    last_shortfall: float = field(default=0.0, metadata={"digest": False})  # of the last grab (exact only)
-    workspace: object = field(default=None, metadata={"digest": False})
-    dirty: np.ndarray = _nodigest(_empty_ids)
-    # the ChainMail, XPBD, projective, hybrid or SurfaceChainMail body: each model's path uses its own API
-    body: Any = field(default=None, metadata={"digest": False})
-    chainmail_links: np.ndarray = _nodigest(lambda: np.zeros((0, 2), dtype=np.int64))
-    model_used: str = field(default="chainmail", metadata={"digest": False})
-    model_reason: str = field(default="", metadata={"digest": False})
-    mesh_data: MeshData | None = field(default=None, metadata={"digest": False})  # to rebuild on a model switch
-    held_targets: np.ndarray = _nodigest(lambda: np.zeros((0, 3)))
-    # Young's modulus (Pa) and Poisson's ratio per tetrahedron, when a feature gives the body several
-    # materials (set_element_materials; empty: E and nu above for the whole body)
-    element_E: np.ndarray = _nodigest(lambda: np.zeros(0))
-    element_nu: np.ndarray = _nodigest(lambda: np.zeros(0))
-    transient: np.ndarray = _nodigest(_empty_ids)  # grabbed for one step only (a GrabRequest without hold)
-    last_order: np.ndarray = _nodigest(_empty_ids)
-    last_sponsor: np.ndarray = _nodigest(_empty_ids)
-    _dirty_mask: np.ndarray = _nodigest(lambda: np.zeros(0, dtype=np.bool_))
-    _dirty_seen: np.ndarray | None = field(default=None, metadata={"digest": False})
+    # --- runtime state (not a manifest key) ------------------------------------------------------
+    # the soft body: positions, links, limits and what readers see. Built by the spawn hook
+    # (setup_deformable), so every spawned component has one; None only on a component not yet set up
+    body: SoftBody = field(default=None, metadata={"digest": False})  # type: ignore[assignment]
 
-    @property
-    def n_elements(self) -> int:
-        return int(self.pos.shape[0])
-
-    def mark_dirty(self, ids: np.ndarray) -> None:
-        """Union `ids` into `dirty` (cost follows len(ids), not N)."""
-        if self._dirty_seen is not self.dirty:
-            # the renderer replaced `dirty` after uploading: forget what it has already seen
-            if self._dirty_seen is not None and len(self._dirty_seen):
-                self._dirty_mask[self._dirty_seen] = False
-            if len(self.dirty):
-                self._dirty_mask[self.dirty] = True
-        ids = np.asarray(ids, dtype=np.int64)
-        new = np.unique(ids[~self._dirty_mask[ids]])
-        if len(new):
-            self._dirty_mask[new] = True
-            self.dirty = np.concatenate([self.dirty, new])
-        self._dirty_seen = self.dirty
+    def digest_items(self) -> tuple[tuple[str, Any], ...]:
+        """The body's state that counts towards the world digest (components.digest): its positions,
+        version, alive links and held elements; the rest derives from the pack or is render bookkeeping."""
+        b = self.body
+        if b is None:
+            return (
+                ("pos", np.zeros((0, 3))),
+                ("version", 0),
+                ("alive", np.zeros(0, dtype=np.bool_)),
+                ("held", _empty_ids()),
+            )
+        return (("pos", b.positions), ("version", b.version), ("alive", b.alive), ("held", b.held))
 
 
 def _named_material(materials: dict, name: str, where: str) -> dict:
@@ -278,12 +242,12 @@ def resolve_regions(d: Deformable, materials: dict, where: str) -> list[tuple[np
     return out
 
 
-def link_limits(links: np.ndarray, verts: np.ndarray, spec: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-link (amin, amax, beta) for `links` from `spec` = (material, regions): the material's limits,
-    and in each region's box (by link midpoint, later regions winning) the region material's."""
+def material_limits(links: np.ndarray, verts: np.ndarray, spec: tuple) -> tuple[np.ndarray, ...]:
+    """Per-link (amin, amax, beta) for `links` from `spec` = (material, regions): the material's limits
+    (link_limits), and in each region's box (by link midpoint, later regions winning) the region material's."""
     mat, regions = spec
     m = len(links)
-    amin, amax, beta = (np.full(m, float(mat[k])) for k in ("alpha_min", "alpha_max", "beta"))
+    amin, amax, beta = link_limits(m, *(float(mat[k]) for k in model_params.PER_LINK))
     if regions and m:
         mid = 0.5 * (np.asarray(verts[links[:, 0]], np.float64) + np.asarray(verts[links[:, 1]], np.float64))
         for box, rmat in regions:
@@ -324,7 +288,7 @@ def boundary_vertices(triangles: np.ndarray) -> np.ndarray:
 def setup_deformable(
     d: Deformable, mesh, materials: dict, mesh_material: str = "", where: str = "deformable", model: str = ""
 ) -> Deformable:
-    """Fill the runtime state of `d` from a MeshData (positions copied; the pack's mesh is shared)."""
+    """Build the soft body of `d` from a MeshData (positions copied; the pack's mesh is shared)."""
 
     mat = resolve_material(d, materials, mesh_material, where)
     dtype = np.float32 if d.dtype == "float32" else np.float64
@@ -334,7 +298,7 @@ def setup_deformable(
     graph = build_graph(n, links)
     # the per-link limits, built once here: every ChainMail body of this component gets these arrays
     spec = (mat, resolve_regions(d, materials, where))
-    amin, amax, beta = link_limits(graph.links, verts, spec)
+    per_link = material_limits(graph.links, verts, spec)
     fixed = np.zeros(n, dtype=np.bool_)
     ids = np.asarray(d.fixed, dtype=np.int64)
     if len(ids):
@@ -350,70 +314,48 @@ def setup_deformable(
         fixed |= mesh.fixed
     if d.fixed_boundary:
         fixed[boundary_vertices(np.asarray(mesh.triangles, dtype=np.int64))] = True
-    d.rest = verts.copy()
-    d.pos = verts.copy()
-    d.graph = graph
-    d.alive = graph.alive  # the same array the kernels read: cutting flips it in place
-    d.amin, d.amax, d.beta_l = amin, amax, beta
-    d.material_spec = spec
-    d.fixed_mask = fixed
-    d.relax_iterations = int(mat["relax"])
-    d.exact_limits = bool(mat["exact"])
     d.order = order_name(d.order)  # fifo is stored as breadth-first
-    d.workspace = make_workspace(n)
-    d.dirty = _empty_ids()
-    d._dirty_mask = np.zeros(n, dtype=np.bool_)
-    d._dirty_seen = d.dirty
-    d.held = _empty_ids()
-    d.version = 0
-    d.mesh_data = mesh
-    d.chainmail_links = links
-    use_model(d, model or d.model, where, initial=True)
+    rest = verts.copy()  # the body's own: `verts` may be the pack's array
+    d.body = SoftBody(
+        rest, mesh, links, fixed, per_link, relax_iterations=int(mat["relax"]), exact=bool(mat["exact"]), material=spec
+    )
+    use_model(d, model or d.model, where, graph=graph)
     return d
 
 
-def chainmail_body(d: Deformable, fresh: bool = True) -> ChainMailBody:
-    """A ChainMail body from `d`'s rest shape, links and per-link limits (the arrays themselves, as the
-    component built them); `d` mirrors its arrays. `fresh`: a new graph (every link alive) rather than
-    the one the component built at spawn."""
+def chainmail_body(d: Deformable, graph: Graph | None = None) -> ChainMailBody:
+    """A ChainMail body from the soft body's rest shape, links and per-link limits (the arrays themselves,
+    as setup_deformable built them), on `graph` (the links as built at spawn) or a new graph of every
+    link alive."""
+    soft = d.body
     body = make_body(
         "chainmail",
-        d.rest,
-        links=d.chainmail_links if fresh else d.graph,
-        fixed=d.fixed_mask,
-        alpha_min=d.amin,
-        alpha_max=d.amax,
-        beta=d.beta_l,
-        relax=d.relax_iterations,
+        soft.rest,
+        links=soft.links if graph is None else graph,
+        fixed=soft.fixed,
+        alpha_min=soft.base_limits[0],
+        alpha_max=soft.base_limits[1],
+        beta=soft.base_limits[2],
+        relax=soft.relax_iterations,
         relax_step=d.relax_step,
         order=d.order,
         depth=d.depth,
-        exact=d.exact_limits,
+        exact=soft.exact,
         dtype=d.dtype,
     )
     assert isinstance(body, ChainMailBody)
-    mirror_chainmail(d, body)
     return body
 
 
-def mirror_chainmail(d: Deformable, body: ChainMailBody) -> None:
-    """The component's ChainMail fields are the body's arrays (renderer, picking and digest read them)."""
-    d.pos = body.positions
-    d.graph = body.graph
-    d.alive = body.graph.alive  # the same array the kernels read: cutting flips it in place
-    d.amin, d.amax, d.beta_l = body.amin, body.amax, body.beta
-    d.workspace = body.workspace
-    d.held = body.held
-
-
-def surface_limits(d: Deformable, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-link limits for a SurfaceChainMail body, whose links are the triangles' edges: the component's
+def surface_limits(d: Deformable, triangles: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Per-link limits for a SurfaceChainMail body, whose links are the triangles' edges: the body's
     own arrays where its links are those edges, else the same material and regions on the sheet's links."""
+    soft = d.body
     links = meshgen.links_from_cells(np.asarray(triangles, dtype=np.int64))
-    if len(d.amin) == len(links) and np.array_equal(links, d.chainmail_links):
-        return d.amin, d.amax, d.beta_l
-    assert d.material_spec is not None  # set at spawn (setup_deformable)
-    return link_limits(links, d.rest, d.material_spec)
+    amin, amax, beta = soft.limits
+    if len(amin) == len(links) and np.array_equal(links, soft.links):
+        return amin, amax, beta
+    return material_limits(links, soft.rest, soft.material)
 
 
 def auto_scene(d: Deformable, volume: bool) -> str:
@@ -421,99 +363,100 @@ def auto_scene(d: Deformable, volume: bool) -> str:
     in the surgical-scale block, larger volumes in the 1 m block, surfaces in the sheet."""
     if not volume:
         return "sheet"
-    extent = float(np.ptp(d.rest, axis=0).max()) * d.unit if len(d.rest) else 0.0
+    rest = d.body.rest
+    extent = float(np.ptp(rest, axis=0).max()) * d.unit if len(rest) else 0.0
     return "tissue-block" if extent < 0.5 else "block"
 
 
-def use_model(d: Deformable, model: str, where: str = "deformable", initial: bool = False) -> None:
-    """Put `d` under `model` from its rest shape: ChainMail state stays; xpbd/projective get a body
-    whose positions array is `d.pos`, so drawing, picking and tools see one set of positions."""
+def _auto_choice(d: Deformable, volume: bool) -> tuple[str, dict, str]:
+    """The model, its table row's settings and the reason `auto` picks them for `d`."""
+    choice = choose_model(
+        load_table(MODEL_TABLE),
+        scene=auto_scene(d, volume),
+        nodes=d.body.n,
+        error_budget=d.error_budget,
+        time_budget_ms=d.time_budget_ms,
+        E=d.E,
+    )
+    return choice.model, choice.params, f"auto: {choice.model} ({choice.setting}), {choice.reason}"
+
+
+def use_model(d: Deformable, model: str, where: str = "deformable", graph: Graph | None = None) -> None:
+    """Put `d`'s body under `model` from its rest shape. `graph`: the first body at spawn, a ChainMail
+    body on the links built there; without it this is a switch at run time and everything is redrawn."""
     if model not in MODEL_CHOICES:
         raise UserError(f"{where}.model: expected one of {', '.join(MODEL_CHOICES)}, got {model!r}")
-    mesh = d.mesh_data
-    tets = mesh.tets if mesh is not None and mesh.tets is not None and len(mesh.tets) else None
+    soft = d.body
+    mesh = soft.mesh
+    tets = mesh.tets if mesh.tets is not None and len(mesh.tets) else None
     reason = ""
     row: dict = {}
     if model == "auto":
-        choice = choose_model(
-            load_table(MODEL_TABLE),
-            scene=auto_scene(d, tets is not None),
-            nodes=d.n_elements,
-            error_budget=d.error_budget,
-            time_budget_ms=d.time_budget_ms,
-            E=d.E,
-        )
-        model, row = choice.model, choice.params
-        reason = f"auto: {choice.model} ({choice.setting}), {choice.reason}"
-    d.held_targets = np.zeros((0, 3))
+        model, row, reason = _auto_choice(d, tets is not None)
+    body: Any
     if model == "chainmail":
         if row:  # the row's material and relaxation, as the study measured them
-            n = len(d.chainmail_links)
-            d.amin = np.full(n, float(row.get("alpha_min", d.amin[0] if len(d.amin) else 0.8)))
-            d.amax = np.full(n, float(row.get("alpha_max", d.amax[0] if len(d.amax) else 1.2)))
-            d.beta_l = np.full(n, float(row.get("beta", d.beta_l[0] if len(d.beta_l) else 0.1)))
-            d.relax_iterations = int(row.get("relax", d.relax_iterations))
-        d.body = chainmail_body(d, fresh=not initial)
+            first = [a[0] if len(a) else CHAINMAIL_DEFAULTS[k] for k, a in zip(model_params.PER_LINK, soft.base_limits)]
+            soft.base_limits = link_limits(
+                len(soft.links), *(float(row.get(k, v)) for k, v in zip(model_params.PER_LINK, first))
+            )
+            soft.relax_iterations = int(row.get("relax", soft.relax_iterations))
+        body = chainmail_body(d, graph)
     else:
-        assert mesh is not None  # set at spawn (setup_deformable): the other models are built from it
-        d.pos = d.rest.copy()
-        d.held = _empty_ids()
-        settings: dict[str, Any] = {
-            "E": d.E,
-            "nu": d.nu,
-            "density": d.density,
-            "damping": d.damping,
-            "unit": d.unit,
-            "thickness": d.thickness,
-        }
-        if model == "xpbd":
-            settings.update(substeps=d.substeps or "auto", iterations=d.iterations or 1)
-        elif model == "surface":  # SurfaceChainMail with the material's per-link limits (thesis 4.4)
-            amin, amax, beta = surface_limits(d, mesh.triangles)
-            settings.update(
-                alpha_min=amin,
-                alpha_max=amax,
-                beta=beta,
-                relax=d.relax_iterations,
-                exact=d.exact_limits,
-                order=d.order,
-            )
-        elif model == "hybrid":  # one two-level iteration a frame (chainsim.systems.engine.bodies.hybrid)
-            settings.update(iterations=d.iterations or 1)
-        else:
-            settings.update(
-                iterations=d.iterations or 10,
-                solver=d.solver,
-                cg_iterations=d.cg_iterations,
-                rotation_iterations=d.rotation_iterations,
-            )
+        settings = _elastic_settings(d, model)
         settings.update(row)  # an auto choice builds exactly the row's setting
         body = _elastic_body(d, model, tets, settings, where)
-        body.positions = d.pos if d.pos.dtype == np.float64 else d.pos.astype(np.float64)
-        d.pos = body.positions
-        d.body = body
-        d.graph = body.graph
-        d.alive = body.graph.alive
-    d.model_used = model
-    notice = getattr(d.body, "notice", "")  # what a frame will cost here, said where the choice is
-    d.model_reason = (reason or f"{model} (as the pack or --model asks)") + (f"; {notice}" if notice else "")
-    d.model_reason += _one_material_note(d)
-    if not initial:  # a switch at run time: everything is redrawn
-        d.mark_dirty(np.arange(d.n_elements))
-        d.version += 1
+        # the positions array the body solves in, as every model's first frame has it
+        body.positions = np.array(soft.rest, dtype=np.float64)
+    notice = getattr(body, "notice", "")  # what a frame will cost here, said where the choice is
+    why = (reason or f"{model} (as the pack or --model asks)") + (f"; {notice}" if notice else "")
+    soft.adopt(body, model, why)
+    soft.model_reason += _one_material_note(d)
+    if graph is None:  # a switch at run time: everything is redrawn
+        soft.changed()
+
+
+def _elastic_settings(d: Deformable, model: str) -> dict[str, Any]:
+    """The settings the pack's keys give a body of `model` other than ChainMail."""
+    soft = d.body
+    settings: dict[str, Any] = {
+        "E": d.E,
+        "nu": d.nu,
+        "density": d.density,
+        "damping": d.damping,
+        "unit": d.unit,
+        "thickness": d.thickness,
+    }
+    if model == "xpbd":
+        settings.update(substeps=d.substeps or "auto", iterations=d.iterations or 1)
+    elif model == "surface":  # SurfaceChainMail with the material's per-link limits (thesis 4.4)
+        amin, amax, beta = surface_limits(d, soft.mesh.triangles)
+        settings.update(
+            alpha_min=amin, alpha_max=amax, beta=beta, relax=soft.relax_iterations, exact=soft.exact, order=d.order
+        )
+    elif model == "hybrid":  # one two-level iteration a frame (chainsim.systems.engine.bodies.hybrid)
+        settings.update(iterations=d.iterations or 1)
+    else:
+        settings.update(
+            iterations=d.iterations or 10,
+            solver=d.solver,
+            cg_iterations=d.cg_iterations,
+            rotation_iterations=d.rotation_iterations,
+        )
+    return settings
 
 
 def _elastic_body(d: Deformable, model: str, tets: np.ndarray | None, settings: dict, where: str) -> Any:
-    """A body of `model` from `d`'s rest shape, with its materials per element if a feature gave some."""
-    assert d.mesh_data is not None
+    """A body of `model` from the rest shape, with its materials per element if a feature gave some."""
+    soft = d.body
     try:
         body = make_body(
-            model, d.rest.astype(np.float64), tets=tets, triangles=d.mesh_data.triangles, fixed=d.fixed_mask, **settings
+            model, soft.rest.astype(np.float64), tets=tets, triangles=soft.mesh.triangles, fixed=soft.fixed, **settings
         )
     except UserError as e:
         raise UserError(f"{where}: {e}") from None
-    if len(d.element_E) and hasattr(body, "set_materials") and tets is not None:
-        body.set_materials(d.element_E, d.element_nu)
+    if len(soft.element_E) and hasattr(body, "set_materials") and tets is not None:
+        body.set_materials(soft.element_E, soft.element_nu)
     return body
 
 
@@ -521,24 +464,26 @@ def set_element_materials(d: Deformable, E: np.ndarray, nu: np.ndarray, where: s
     """Give `d`'s tetrahedra their own E (Pa) and nu, kept across model switches: the projective and
     hybrid bodies take them in their elastic energy; ChainMail has no moduli, and XPBD keeps the body's
     E and nu (model_reason says so)."""
-    mesh = d.mesh_data
-    if mesh is None or mesh.tets is None or len(E) != len(mesh.tets) or len(nu) != len(mesh.tets):
+    soft = d.body
+    tets = soft.mesh.tets
+    if tets is None or len(E) != len(tets) or len(nu) != len(tets):
         raise UserError(f"{where}: materials per element need one E and one nu per tetrahedron of the mesh")
-    d.element_E = np.asarray(E, dtype=np.float64).copy()
-    d.element_nu = np.asarray(nu, dtype=np.float64).copy()
-    body = d.body
+    soft.element_E = np.asarray(E, dtype=np.float64).copy()
+    soft.element_nu = np.asarray(nu, dtype=np.float64).copy()
+    body = soft.model_body
     if hasattr(body, "set_materials") and not getattr(body, "surface", True):
         try:
-            body.set_materials(d.element_E, d.element_nu)
+            body.set_materials(soft.element_E, soft.element_nu)
         except UserError as e:
             raise UserError(f"{where}: {e}") from None
     else:
-        d.model_reason += _one_material_note(d)
+        soft.model_reason += _one_material_note(d)
 
 
 def _one_material_note(d: Deformable) -> str:
     """What model_reason adds when the body has materials per element that its model does not take."""
-    if len(d.element_E) and d.model_used == "xpbd" and "one E and nu" not in d.model_reason:
+    soft = d.body
+    if len(soft.element_E) and soft.model_used == "xpbd" and "one E and nu" not in soft.model_reason:
         return "; xpbd keeps one E and nu for the whole body (per-element moduli: projective, hybrid)"
     return ""
 

@@ -4,7 +4,8 @@ Stage: simulation (ORDER_DEFORMATION; the scripted puller just before it). Reads
 ReleaseRequest, CutRequest, AddLinksRequest (chainsim.systems.tissue.events), Widget events (to start pulls) and
 the view system's Dragged events (with `deformable.drag`, a mouse drag on a body pulls the element
 nearest the grab point; off by default so a procedure's own tools are the only hands on the tissue).
-Writes Deformable.pos / dirty / version / held / alive, emits Deformed.
+Writes the soft body's positions, dirty ids, version, held elements and alive links (Deformable.body),
+emits Deformed.
 
 Each grab runs one Generalised ChainMail cascade (thesis 5.2.3) from the grabbed elements, then the
 relaxation of 5.2.5 over the elements that moved (grabbed, held and fixed elements stay put), then, for
@@ -33,9 +34,10 @@ from chainsim.components.resources import EntityIndex, PackResource
 from chainsim.components.stages import ORDER_DEFORMATION
 from chainsim.components.view_events import Dragged
 from chainsim.systems.engine.bodies.chainmail import relax_moved  # noqa: F401  (re-exported for the older callers)
+from chainsim.systems.engine.bodies.soft import SoftBody
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.kernels import topology
-from chainsim.systems.tissue.deformable import Deformable, Pull, mirror_chainmail, setup_deformable, use_model
+from chainsim.systems.tissue.deformable import Deformable, Pull, setup_deformable, use_model
 from chainsim.systems.tissue.events import (
     FRAMES,
     AddLinksRequest,
@@ -94,117 +96,113 @@ def _entity(app: App, ref) -> int | None:
 def grab(d: Deformable, ids, targets_local: np.ndarray, hold: bool = True) -> np.ndarray:
     """Move `ids` to local `targets`, cascade, relax (and keep every link inside its limits with an exact
     material); returns the ids that changed."""
+    soft = d.body
     ids = np.atleast_1d(np.asarray(ids, dtype=np.int64))
-    n = d.n_elements
+    n = soft.n
     if len(ids) == 0 or ids.min() < 0 or ids.max() >= n:
         raise ValueError(f"element ids must be in 0..{n - 1}")
     targets = np.asarray(targets_local, dtype=np.float64).reshape(len(ids), 3)
-    if _dynamic(d):
-        return _grab_body(d, ids, targets, hold)
-    b = d.body  # the component's settings are the ones a pack, a tool or a test last set
+    if soft.dynamic:
+        return _grab_body(soft, ids, targets, hold)
+    b = soft.model_body  # the settings are the ones a pack, a tool or a test last set
     b.relax_iterations, b.relax_step, b.order, b.depth, b.exact = (
-        d.relax_iterations,
+        soft.relax_iterations,
         d.relax_step,
         d.order,
         d.depth,
-        d.exact_limits,
+        soft.exact,
     )
-    b.fixed, b.held = d.fixed_mask, d.held
+    b.fixed, b.held = soft.fixed, soft.held
     changed = b.move(ids, targets, hold=hold)
-    d.held = d.body.held
-    d.last_order, d.last_sponsor, d.last_shortfall = d.body.last_order, d.body.last_sponsor, d.body.last_shortfall
+    soft.held = b.held
     if len(changed):
-        d.mark_dirty(changed)
-        d.version += 1
+        soft.changed(changed)
     return changed
 
 
-def _dynamic(d: Deformable) -> bool:
-    """An XPBD or projective body (it integrates every step); ChainMail moves only when grabbed."""
-    return d.body is not None and d.body.model != "chainmail"
-
-
 def release(d: Deformable, ids=None) -> None:
+    soft = d.body
     if ids is None:
-        keep = np.zeros(len(d.held), dtype=np.bool_)
+        keep = np.zeros(len(soft.held), dtype=np.bool_)
     else:
-        keep = ~np.isin(d.held, np.asarray(ids, dtype=np.int64))
-    if _dynamic(d) and len(d.held_targets) == len(d.held):
-        d.held_targets = d.held_targets[keep]
-        d.body.grab(d.held[keep], d.held_targets) if keep.any() else d.body.release()
-    d.held = d.held[keep]
-    if d.body is not None and not _dynamic(d):
-        d.body.held = d.held
+        keep = ~np.isin(soft.held, np.asarray(ids, dtype=np.int64))
+    body = soft.model_body
+    if soft.dynamic and len(soft.held_targets) == len(soft.held):
+        soft.held_targets = soft.held_targets[keep]
+        body.grab(soft.held[keep], soft.held_targets) if keep.any() else body.release()
+    soft.held = soft.held[keep]
+    if body is not None and not soft.dynamic:
+        body.held = soft.held
 
 
-def _grab_body(d: Deformable, ids: np.ndarray, targets: np.ndarray, hold: bool) -> np.ndarray:
+def _grab_body(soft: SoftBody, ids: np.ndarray, targets: np.ndarray, hold: bool) -> np.ndarray:
     """xpbd / projective: the elements are held at their targets; the body moves on its next step."""
-    old = ~np.isin(d.held, ids)
-    d.held = np.concatenate([d.held[old], ids])
-    d.held_targets = np.concatenate([d.held_targets[old], targets])
-    d.body.grab(d.held, d.held_targets)
+    old = ~np.isin(soft.held, ids)
+    soft.held = np.concatenate([soft.held[old], ids])
+    soft.held_targets = np.concatenate([soft.held_targets[old], targets])
+    soft.model_body.grab(soft.held, soft.held_targets)
     if not hold:  # a one-off move: held for the next step only
-        d.transient = np.union1d(d.transient, ids)
+        soft.transient = np.union1d(soft.transient, ids)
     return np.zeros(0, dtype=np.int64)
 
 
 def step_body(d: Deformable, dt: float) -> int:
     """Advance an xpbd / projective body one simulation step; returns how many elements moved."""
+    soft = d.body
     try:
-        d.body.step(dt)
+        soft.model_body.step(dt)
     except UserError as e:  # diverged: positions were restored; say so once and let go of the grab
         release(d)
         raise ValueError(str(e)) from None
-    if len(d.transient):
-        release(d, d.transient)
-        d.transient = np.zeros(0, dtype=np.int64)
-    moved = d.body.moved
+    if len(soft.transient):
+        release(d, soft.transient)
+        soft.transient = np.zeros(0, dtype=np.int64)
+    moved = soft.model_body.moved
     if len(moved):
-        d.mark_dirty(moved)
-        d.version += 1
+        soft.changed(moved)
     return len(moved)
 
 
 def cut(d: Deformable, ent: int, req: CutRequest) -> int:
     """Kill the links a blade crosses (4.5.2); returns how many were cut."""
 
-    before = int(np.count_nonzero(d.alive))
-    if _dynamic(d):
-        return _cut_body(d, ent, req)
-    assert d.graph is not None  # the ChainMail links, set at spawn
+    soft = d.body
+    before = int(np.count_nonzero(soft.alive))
+    if soft.dynamic:
+        return _cut_body(soft, ent, req)
     if req.polyline is not None:
         pts = to_local(ent, as_points(req.polyline, "CutRequest.polyline"), req.frame)
         if len(pts) < 2:
             raise ValueError("CutRequest.polyline: needs at least 2 points")
-        topology.cut_path(d.pos, d.graph, pts, **_blade_kwargs(ent, req))
+        topology.cut_path(soft.positions, soft.graph, pts, **_blade_kwargs(ent, req))
     else:
         if req.p0 is None or req.p1 is None:
             raise ValueError("CutRequest: give p0 and p1, or a polyline")
         p0 = to_local(ent, as_points(req.p0, "CutRequest.p0"), req.frame)[0]
         p1 = to_local(ent, as_points(req.p1, "CutRequest.p1"), req.frame)[0]
-        topology.cut_segment(d.pos, d.graph, p0, p1, **_blade_kwargs(ent, req))
-    cut_count = before - int(np.count_nonzero(d.alive))
+        topology.cut_segment(soft.positions, soft.graph, p0, p1, **_blade_kwargs(ent, req))
+    cut_count = before - int(np.count_nonzero(soft.alive))
     if cut_count:
-        d.version += 1
+        soft.version += 1
     return cut_count
 
 
-def _cut_body(d: Deformable, ent: int, req: CutRequest) -> int:
+def _cut_body(soft: SoftBody, ent: int, req: CutRequest) -> int:
     """xpbd / projective: the blade removes the links it crosses and the constraints built on them."""
     kw = _blade_kwargs(ent, req)
     if req.polyline is not None:
         pts = to_local(ent, as_points(req.polyline, "CutRequest.polyline"), req.frame)
         if len(pts) < 2:
             raise ValueError("CutRequest.polyline: needs at least 2 points")
-        n = d.body.cut_path(pts, **kw)
+        n = soft.model_body.cut_path(pts, **kw)
     else:
         if req.p0 is None or req.p1 is None:
             raise ValueError("CutRequest: give p0 and p1, or a polyline")
         p0 = to_local(ent, as_points(req.p0, "CutRequest.p0"), req.frame)[0]
         p1 = to_local(ent, as_points(req.p1, "CutRequest.p1"), req.frame)[0]
-        n = d.body.cut(p0, p1, **kw)
+        n = soft.model_body.cut(p0, p1, **kw)
     if n:
-        d.version += 1
+        soft.version += 1
     return n
 
 
@@ -225,12 +223,12 @@ def _blade_kwargs(ent: int, req: CutRequest) -> dict:
 def add_links(d: Deformable, links) -> int:
     """Join element pairs with new links carrying the body's material limits; returns how many."""
 
-    if _dynamic(d):
-        raise ValueError(f"adding links needs a ChainMail body; this one runs {d.model_used}")
-    added = d.body.add_links(links)
+    soft = d.body
+    if soft.dynamic:
+        raise ValueError(f"adding links needs a ChainMail body; this one runs {soft.model_used}")
+    added = soft.model_body.add_links(links)
     if added:
-        mirror_chainmail(d, d.body)
-        d.version += 1
+        soft.version += 1
     return added
 
 
@@ -239,16 +237,14 @@ def add_links(d: Deformable, links) -> int:
 
 def reset(d: Deformable) -> int:
     """Rest shape, all links alive, nothing held; returns how many elements were displaced."""
-    moved = int(np.count_nonzero(np.any(d.pos != d.rest, axis=1)))
-    if _dynamic(d):
-        use_model(d, d.model_used)  # a fresh body: rest shape, every constraint back
+    soft = d.body
+    moved = int(np.count_nonzero(np.any(soft.positions != soft.rest, axis=1)))
+    if soft.dynamic:
+        use_model(d, soft.model_used)  # a fresh body: rest shape, every constraint back
         return moved
-    d.body.reset()
-    d.held = d.body.held
-    assert d.graph is not None  # the ChainMail links, set at spawn
-    d.alive = d.graph.alive
-    d.mark_dirty(np.arange(d.n_elements))
-    d.version += 1
+    soft.model_body.reset()
+    soft.held = soft.model_body.held
+    soft.changed()
     return moved
 
 
@@ -270,11 +266,11 @@ def deformation_system(app: App) -> None:
         elif isinstance(ev, Widget) and ev.name == "model":
             switch_models(app, st, str(ev.value))
     for ent, d in esper.get_component(Deformable):
-        if _dynamic(d):
+        if d.body.dynamic:
             try:
                 counts.setdefault(ent, [0, 0, 0])[0] += step_body(d, app.time.dt)
             except ValueError as e:
-                st.errors.append(f"{d.model_used} body {ent}: {e}")
+                st.errors.append(f"{d.body.model_used} body {ent}: {e}")
     for ent, (m, c, a) in counts.items():
         if m or c or a:
             app.events.emit(Deformed(ent, m, c, a))
@@ -293,11 +289,12 @@ def model_lines(auto_only: bool = False) -> list[str]:
     """One line per soft body naming the model it runs and why (for `auto`: the choice and its reason)."""
     out = []
     for ent, d in esper.get_component(Deformable):
-        if auto_only and not d.model_reason.startswith("auto") and "; " not in d.model_reason:
+        soft = d.body
+        if auto_only and not soft.model_reason.startswith("auto") and "; " not in soft.model_reason:
             continue
         name = esper.component_for_entity(ent, Name).value if esper.has_component(ent, Name) else f"body {ent}"
-        why = d.model_reason if d.model_reason.startswith("auto") else d.model_reason.partition("; ")[2]
-        out.append(f"{name}: {d.model_used}" + (f" - {why}" if why else ""))
+        why = soft.model_reason if soft.model_reason.startswith("auto") else soft.model_reason.partition("; ")[2]
+        out.append(f"{name}: {soft.model_used}" + (f" - {why}" if why else ""))
     return out
 
 
@@ -310,21 +307,21 @@ def _say(app: App, text: str, seconds: float) -> None:
 def switch_models(app: App, st: DeformationState, value: str) -> None:
     """Put every deformable body under another model, from rest: `value` names one or is "next"."""
     for _ent, d in esper.get_component(Deformable):
-        mesh = d.mesh_data
-        volume = mesh is not None and getattr(mesh, "tets", None) is not None and len(mesh.tets) > 0
+        mesh = d.body.mesh
+        volume = mesh.tets is not None and len(mesh.tets) > 0
         choices = list(SWITCH_ORDER if volume else SWITCH_ORDER_SURFACE)
         if value in choices:
             model = value
         elif value in SWITCH_ORDER + SWITCH_ORDER_SURFACE:
             continue  # a model for the other kind of mesh: this body keeps its own
         else:  # the button (True) or "next": the next model in turn
-            cur = d.model_used if d.model_used in choices else choices[-1]
+            cur = d.body.model_used if d.body.model_used in choices else choices[-1]
             model = choices[(choices.index(cur) + 1) % len(choices)]
         try:
             use_model(d, model)
         except UserError as e:
             st.errors.append(f"model switch: {e}")
-    models = sorted({d.model_used for _e, d in esper.get_component(Deformable)})
+    models = sorted({d.body.model_used for _e, d in esper.get_component(Deformable)})
     if models:
         _say(app, f"Tissue model: {', '.join(models)} (m switches)", 3.0)
 
@@ -365,10 +362,11 @@ def _drag_requests(st: DeformationState, ev) -> list:
         return []
     if ev.phase == "start":
         local = to_local(ent, np.asarray([ev.grab_point], dtype=np.float64), "world")[0]
-        v = int(np.argmin(np.sum((d.pos - local) ** 2, axis=1)))
+        pos = d.body.positions
+        v = int(np.argmin(np.sum((pos - local) ** 2, axis=1)))
         st.dragging[ent] = (
             v,
-            _to_world(ent, d.pos[v][None, :].astype(np.float64))[0],
+            _to_world(ent, pos[v][None, :].astype(np.float64))[0],
             np.asarray(ev.grab_point, dtype=np.float64),
         )
         return []
@@ -409,7 +407,7 @@ def pull_system(app: App) -> None:
                     p.resolved = _pull_element(ent, p, d)
                 if p.frame == "world":
                     p.waypoints = to_local(ent, p.waypoints, "world")
-                p.start_at = d.pos[p.resolved].astype(np.float64)
+                p.start_at = d.body.positions[p.resolved].astype(np.float64)
             else:
                 continue
         p.travelled += p.speed * app.time.dt
@@ -422,18 +420,18 @@ def pull_system(app: App) -> None:
 
 
 def _pull_element(ent: int, p: Pull, d: Deformable) -> int:
+    n = d.body.n
     if p.element >= 0:
-        if p.element >= d.n_elements:
+        if p.element >= n:
             name = esper.try_component(ent, Name)
             raise UserError(
-                f"entities.{name.value if name else ent}.pull.element: {p.element} is not an element id "
-                f"(0..{d.n_elements - 1})"
+                f"entities.{name.value if name else ent}.pull.element: {p.element} is not an element id (0..{n - 1})"
             )
         return int(p.element)
     at = np.asarray(p.at, dtype=np.float64)[None, :]
     if p.frame == "world":
         at = to_local(ent, at, "world")
-    return int(np.argmin(np.sum((d.rest - at) ** 2, axis=1)))
+    return int(np.argmin(np.sum((d.body.rest - at) ** 2, axis=1)))
 
 
 def _default_deformables(app: App) -> None:

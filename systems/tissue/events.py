@@ -6,7 +6,7 @@ of the requests below; `chainsim.systems.tissue.deformation` serves them in the 
 
 Coordinates: `frame="world"` (the default) means millimetres in the scene frame, as `Picked` events
 deliver them; the system maps them into the body's local frame through its Transform. `frame="local"`
-means the mesh's own frame (the frame of `Deformable.rest` / `Deformable.pos`).
+means the mesh's own frame (the frame of the soft body's `rest` and `positions`, `Deformable.body`).
 """
 
 from __future__ import annotations

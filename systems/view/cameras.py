@@ -268,7 +268,7 @@ def scene_bounds(app: App) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def page_buttons(h: HudState) -> tuple[str, ...]:
-    """The footer buttons of what the page box shows now (as chainsim.game.gl.render_system draws them):
+    """The footer buttons of what the page box shows now (as chainsim.game.render.render_system draws them):
     the key page leads on to the pack's help pages."""
     if h.notice:
         return ()

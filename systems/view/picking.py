@@ -3,9 +3,9 @@ world point -> nearest surface point (thesis 3.3.4: a point is marked by clickin
 
 The ray test (chainsim.systems.engine.raycast) is a vectorised, two-sided Moller-Trumbore over every triangle of each
 candidate mesh
-(after a bounding-sphere cull), on the vertex positions the renderer draws: `Deformable.pos` when the
-entity has one, else the pack mesh, mapped through the entity's Transform. Triangles that lost an edge
-to a cut (a dead ChainMail link, thesis 4.5.2) are neither drawn nor picked.
+(after a bounding-sphere cull), on the vertex positions the renderer draws: its soft body's positions
+(Deformable.body) when the entity has one, else the pack mesh, mapped through the entity's Transform.
+Triangles that lost an edge to a cut (a dead ChainMail link, thesis 4.5.2) are neither drawn nor picked.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import numpy as np
 from chainsim.components.app import App
 from chainsim.components.core import MeshRef, Name, Transform, to_world
 from chainsim.components.resources import PackResource
+from chainsim.systems.engine.bodies.soft import SoftBody
 from chainsim.systems.engine.raycast import closest_on_mesh, ray_mesh, triangle_links
 from chainsim.systems.tissue.deformable import Deformable
 
@@ -45,10 +46,11 @@ class SurfaceCache:
 
     items: dict[int, _Surface] = field(default_factory=dict)
 
-    def live_triangles(self, entity: int, triangles: np.ndarray, deformable) -> np.ndarray:
-        """Indices (into `triangles`) of the triangles whose edges are all alive."""
-        graph = getattr(deformable, "graph", None) if deformable is not None else None
-        alive = getattr(deformable, "alive", None) if deformable is not None else None
+    def live_triangles(self, entity: int, triangles: np.ndarray, body: SoftBody | None) -> np.ndarray:
+        """Indices (into `triangles`) of the triangles whose edges are all alive (`body`: the entity's
+        soft body, None for a mesh that does not deform)."""
+        graph = body.graph if body is not None else None
+        alive = body.alive if body is not None else None
         if graph is None or alive is None or len(alive) == 0:
             return np.arange(len(triangles))
         s = self.items.get(entity)
@@ -82,15 +84,16 @@ def entity_surface(app: App, ent: int, mesh_ref=None, transform=None):
     mesh = app.resource(PackResource).pack.mesh(mesh_ref.mesh)
     if len(mesh.triangles) == 0:
         return None
-    deform = _deformable(ent)
-    local = np.asarray(deform.pos, float) if deform is not None and len(getattr(deform, "pos", ())) else mesh.vertices
+    body = _soft_body(ent)
+    local = np.asarray(body.positions, float) if body is not None and body.n else mesh.vertices
     transform = transform or esper.try_component(ent, Transform)
-    tri_ids = surface_cache(app).live_triangles(ent, mesh.triangles, deform)
+    tri_ids = surface_cache(app).live_triangles(ent, mesh.triangles, body)
     return to_world(transform, local), mesh.triangles, tri_ids
 
 
-def _deformable(ent: int):
-    return esper.try_component(ent, Deformable)
+def _soft_body(ent: int) -> SoftBody | None:
+    d = esper.try_component(ent, Deformable)
+    return d.body if d is not None else None
 
 
 def pick(app: App, origin, direction) -> Hit | None:

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import chainsim.game.packs.schema  # noqa: F401  (registers the manifest sections)
+import chainsim.game.packs.declarations  # noqa: F401  (registers the manifest sections)
 from chainsim.components.registry import COMPONENTS, SECTIONS, load_all
 from chainsim.game.cli.commands import docs as docs_command
 from chainsim.systems import manifest_modules

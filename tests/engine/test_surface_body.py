@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from chainsim.components.resources import EntityIndex, PendingInput
-from chainsim.game.app.headless import build_app
-from chainsim.game.app.inputscript import load_script
+from chainsim.game.trainer.headless import build_app
+from chainsim.game.trainer.inputscript import load_script
 from chainsim.systems.engine.bodies.factory import make_body
 from chainsim.systems.engine.bodies.surface import clamp_pass
 from chainsim.systems.engine.kernels.graph import build_graph
@@ -95,16 +95,16 @@ def test_the_cutting_trainer_lifts_cuts_and_opens_on_surface_chainmail(script, t
     app = _play(script)
     try:
         d = _layer(app, "dura")
-        assert d.model_used == "surface"
+        assert d.body.model_used == "surface"
         c = nearest(d, CORNER)
-        np.testing.assert_allclose(d.pos[c], target, atol=1e-9)
-        assert max(d.body.link_excess()) <= 1e-9
-        moved = np.linalg.norm(d.pos - d.rest, axis=1) > 1e-9
-        assert moved.sum() > 100 and not moved[d.fixed_mask].any()
+        np.testing.assert_allclose(d.body.positions[c], target, atol=1e-9)
+        assert max(d.body.model_body.link_excess()) <= 1e-9
+        moved = np.linalg.norm(d.body.positions - d.body.rest, axis=1) > 1e-9
+        assert moved.sum() > 100 and not moved[d.body.fixed].any()
         low = _layer(app, "arachnoid")
-        assert np.array_equal(low.pos, low.rest) and low.alive.all()
+        assert np.array_equal(low.body.positions, low.body.rest) and low.body.alive.all()
         if script == "cut-and-open.toml":
-            assert (~d.alive).sum() > 20
-            assert not moved[d.rest[:, 0] < CUT_X].any()  # across the cut nothing followed the flap
+            assert (~d.body.alive).sum() > 20
+            assert not moved[d.body.rest[:, 0] < CUT_X].any()  # across the cut nothing followed the flap
     finally:
         app.close()

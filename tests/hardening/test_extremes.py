@@ -27,7 +27,7 @@ from chainsim.components.input_events import (
     Widget,
 )
 from chainsim.components.resources import EntityIndex, PackResource, PendingInput
-from chainsim.game.app.headless import build_app
+from chainsim.game.trainer.headless import build_app
 from chainsim.systems.engine import limits
 
 BIG = limits.MAX_COORD

@@ -30,7 +30,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from chainsim.components.registry import COMPONENTS, SECTIONS, load_all
-from chainsim.game.app.headless import validate_pack
+from chainsim.game.trainer.headless import validate_pack
 from chainsim.systems.engine import limits
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.meshes import MeshError, load_file

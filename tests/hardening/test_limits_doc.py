@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-import chainsim.game.packs.schema  # noqa: F401  (registers the manifest sections)
+import chainsim.game.packs.declarations  # noqa: F401  (registers the manifest sections)
 from chainsim.components.registry import COMPONENTS, SECTIONS, FieldError, convert, load_all
 from chainsim.systems import manifest_modules
 from chainsim.systems.engine import limits

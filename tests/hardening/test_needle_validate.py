@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from chainsim.game.app.headless import validate_pack
+from chainsim.game.trainer.headless import validate_pack
 from chainsim.systems.procedures.needle import checks
 from chainsim.systems.procedures.needle.handles import _Blank
 from chainsim.systems.procedures.needle.procedure import DEFAULTS

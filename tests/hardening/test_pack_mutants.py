@@ -25,8 +25,8 @@ import tomli_w
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from chainsim.game.app.headless import run_pack, validate_pack
-from chainsim.game.app.inputscript import read_file
+from chainsim.game.trainer.headless import run_pack, validate_pack
+from chainsim.game.trainer.inputscript import read_file
 from chainsim.systems.engine.errors import UserError
 
 from .conftest import ROOT

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from chainsim.game.app.headless import validate_pack
+from chainsim.game.trainer.headless import validate_pack
 
 from .badfiles import npz_arrays, ply_declaring, vtu_bomb
 from .conftest import BASE_PACK, assert_one_line_error, chainsim, write_pack

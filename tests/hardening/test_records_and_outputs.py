@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from records_db import free_port
 
-from chainsim.game.app.headless import build_app
 from chainsim.game.records.store import RecordStore
+from chainsim.game.trainer.headless import build_app
 from chainsim.systems.engine import meshgen
 from chainsim.systems.engine.errors import UserError
 
@@ -279,7 +279,7 @@ def test_read_only_places_as_an_unprivileged_user(as_nobody, shared_tmp):
     ],
 )
 def test_a_damaged_remembered_sign_in_gives_empty_names(content, tmp_path, monkeypatch):
-    from chainsim.game.ui import signin
+    from chainsim.game.trainer import signin
 
     monkeypatch.setattr(signin, "remembered_path", lambda: tmp_path / "signin.json")
     (tmp_path / "signin.json").write_text(content, encoding="utf-8", errors="surrogateescape")
@@ -289,7 +289,7 @@ def test_a_damaged_remembered_sign_in_gives_empty_names(content, tmp_path, monke
 
 
 def test_a_good_remembered_sign_in_is_kept(tmp_path, monkeypatch):
-    from chainsim.game.ui import signin
+    from chainsim.game.trainer import signin
 
     monkeypatch.setattr(signin, "remembered_path", lambda: tmp_path / "signin.json")
     (tmp_path / "signin.json").write_text('{"class": "c1", "trainee": "Zoë"}', encoding="utf-8")

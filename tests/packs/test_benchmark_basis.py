@@ -8,7 +8,7 @@ import shutil
 from pathlib import Path
 
 from chainsim.game.packs.pack import load
-from chainsim.systems.procedures.needle import debrief as db
+from chainsim.systems.procedures import verdicts as vd
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -43,6 +43,6 @@ def test_a_programme_benchmark_with_its_source_validates_and_is_no_longer_provis
     copy = pack_with(tmp_path, duration_s=("programme", "programme data: 9 novices / 9 experts, 2026-01-05"))
     code, out, err = cli("validate", copy)
     assert code == 0, err
-    rows = {r["name"]: r for r in db.verdicts(load(copy).section("metrics"), {"duration_s": 10.0})}
+    rows = {r["name"]: r for r in vd.verdicts(load(copy).section("metrics"), {"duration_s": 10.0})}
     assert rows["duration_s"]["basis"] == "programme" and rows["redirections"]["basis"] == "provisional"
     assert rows["duration_s"]["source"].startswith("programme data: 9 novices")

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from chainsim.game.app.headless import run_pack
 from chainsim.game.packs import pack as packs
+from chainsim.game.trainer.headless import run_pack
 
 BUILTIN = sorted((f.name, f.path) for f in packs.discover() if f.source == "builtin")
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from chainsim.components.resources import PackResource, PendingInput
-from chainsim.game.app.headless import build_app, run_pack
-from chainsim.game.app.inputscript import load_script
 from chainsim.game.packs import pack as packs
+from chainsim.game.trainer.headless import build_app, run_pack
+from chainsim.game.trainer.inputscript import load_script
 from chainsim.systems.tissue.deformable import Deformable, Pull
 
 SCENES = ("patch", "brain", "volume")
@@ -31,7 +31,7 @@ def _run(scene: str, relax: int | None = None):
     with app.active():
         ent, (d, p) = next(iter(esper.get_components(Deformable, Pull)))
     if relax is not None:
-        d.relax_iterations = relax
+        d.body.relax_iterations = relax
     app.run_steps(STEPS)
     return app, d, p
 
@@ -49,13 +49,13 @@ def test_scene_pulls_the_element_to_its_target(scene):
     app, d, p = _run(scene)
     try:
         assert p.started and p.done, "the script's Pull widget started the pull and the path was completed"
-        np.testing.assert_allclose(d.pos[p.resolved], p.waypoints[-1], atol=1e-9)
-        assert np.all(np.isfinite(d.pos))
-        moved = np.any(d.pos != d.rest, axis=1)
+        np.testing.assert_allclose(d.body.positions[p.resolved], p.waypoints[-1], atol=1e-9)
+        assert np.all(np.isfinite(d.body.positions))
+        moved = np.any(d.body.positions != d.body.rest, axis=1)
         assert moved.sum() > 1, "the pull spread to other elements"
-        assert not moved[d.fixed_mask].any(), "pinned elements stay at rest"
-        assert d.fixed_mask.any()
-        assert len(d.dirty) >= moved.sum() and d.version > 0
+        assert not moved[d.body.fixed].any(), "pinned elements stay at rest"
+        assert d.body.fixed.any()
+        assert len(d.body.dirty) >= moved.sum() and d.body.version > 0
     finally:
         app.close()
 
@@ -64,8 +64,8 @@ def test_scene_pulls_the_element_to_its_target(scene):
 def test_raw_cascade_keeps_every_moved_element_in_its_sponsors_region(scene):
     app, d, p = _run(scene, relax=0)
     try:
-        order, sponsor = d.last_order, d.last_sponsor
-        if d.exact_limits:
+        order, sponsor = d.body.last_order, d.body.last_sponsor
+        if d.body.exact:
             # an exact material without relaxation takes the exact step, which has no sponsors: its links
             # are checked by test_patch_pull_keeps_every_link_inside_its_limits
             assert np.all(sponsor == -1) and p.resolved in order and len(order) > 1
@@ -73,14 +73,16 @@ def test_raw_cascade_keeps_every_moved_element_in_its_sponsors_region(scene):
         assert order[0] == p.resolved and len(order) > 1
         for e, s, _k in zip(order[1:], sponsor[1:], range(1, len(order))):
             lid = _link_id(d, e, s)
-            lo, hi = _box(d.rest, d.pos, e, s, d.amin[lid], d.amax[lid], d.beta_l[lid])
-            assert np.all(d.pos[e] >= lo - 1e-9) and np.all(d.pos[e] <= hi + 1e-9), (scene, e, s)
+            lo, hi = _box(
+                d.body.rest, d.body.positions, e, s, d.body.limits[0][lid], d.body.limits[1][lid], d.body.limits[2][lid]
+            )
+            assert np.all(d.body.positions[e] >= lo - 1e-9) and np.all(d.body.positions[e] <= hi + 1e-9), (scene, e, s)
     finally:
         app.close()
 
 
 def _link_id(d, e, s) -> int:
-    g = d.graph
+    g = d.body.graph
     row = slice(g.indptr[e], g.indptr[e + 1])
     return int(g.link[row][g.indices[row] == s][0])
 
@@ -100,12 +102,12 @@ def test_patch_pull_keeps_every_link_inside_its_limits():
     app, d, p = _run("patch")
     try:
         assert p.done
-        links = np.asarray(d.chainmail_links)
+        links = np.asarray(d.body.links)
         assert len(links) > 0
         for a, b in links:
             for e, s in ((a, b), (b, a)):
-                lo, hi = _box(d.rest, d.pos, e, s, 0.8, 1.2, 0.5)
-                assert np.all(d.pos[e] >= lo - 1e-6) and np.all(d.pos[e] <= hi + 1e-6), (e, s)
+                lo, hi = _box(d.body.rest, d.body.positions, e, s, 0.8, 1.2, 0.5)
+                assert np.all(d.body.positions[e] >= lo - 1e-6) and np.all(d.body.positions[e] <= hi + 1e-6), (e, s)
     finally:
         app.close()
 

@@ -13,9 +13,9 @@ import pytest
 
 from chainsim.components.digest import world_digest
 from chainsim.components.resources import Assessment, EntityIndex, PendingInput, Settings
-from chainsim.game.app.headless import build_app
-from chainsim.game.app.inputscript import load_script
 from chainsim.game.packs import pack as packs
+from chainsim.game.trainer.headless import build_app
+from chainsim.game.trainer.inputscript import load_script
 from chainsim.systems.tissue.deformable import Deformable
 
 PACK = Path(__file__).resolve().parents[2] / "assets" / "cutting"
@@ -29,7 +29,7 @@ def play(script: str, steps: int | None = None, relax: int | None = None):
     if relax is not None:
         with app.active():
             for _, d in esper.get_component(Deformable):
-                d.relax_iterations = relax
+                d.body.relax_iterations = relax
     app.resource(PendingInput).extend(load_script(SCRIPTS / script))
     n = int(steps if steps is not None else app.resource(Settings).get("steps"))
     for _ in range(n):
@@ -43,16 +43,19 @@ def layer(app, name: str) -> Deformable:
 
 
 def nearest(d: Deformable, point) -> int:
-    return int(np.argmin(np.sum((d.rest - np.asarray(point)) ** 2, axis=1)))
+    return int(np.argmin(np.sum((d.body.rest - np.asarray(point)) ** 2, axis=1)))
 
 
 def box_violation(d: Deformable) -> np.ndarray:
     """How far (mm) each live link lies outside its ChainMail box (thesis 5.2.2: per axis, the rest
     offset scaled by alpha_min..alpha_max, widened by beta times the offset on the other axes)."""
-    links = d.graph.links[d.alive]
-    r = d.rest[links[:, 1]] - d.rest[links[:, 0]]
-    p = np.asarray(d.pos, dtype=np.float64)[links[:, 1]] - np.asarray(d.pos, dtype=np.float64)[links[:, 0]]
-    amin, amax, beta = d.amin[d.alive], d.amax[d.alive], d.beta_l[d.alive]
+    links = d.body.graph.links[d.body.alive]
+    r = d.body.rest[links[:, 1]] - d.body.rest[links[:, 0]]
+    p = (
+        np.asarray(d.body.positions, dtype=np.float64)[links[:, 1]]
+        - np.asarray(d.body.positions, dtype=np.float64)[links[:, 0]]
+    )
+    amin, amax, beta = d.body.limits[0][d.body.alive], d.body.limits[1][d.body.alive], d.body.limits[2][d.body.alive]
     worst = np.zeros(len(links))
     for a in range(3):
         other = np.abs(r).sum(axis=1) - np.abs(r[:, a])
@@ -96,12 +99,12 @@ def test_meshes_are_what_the_generator_writes():
 def test_two_layers_with_one_fixed_edge_each(pulled):
     top, low = layer(pulled, "dura"), layer(pulled, "arachnoid")
     for d in (top, low):
-        assert 1000 <= d.n_elements <= 3000
-        span = d.rest.max(axis=0) - d.rest.min(axis=0)
+        assert 1000 <= d.body.n <= 3000
+        span = d.body.rest.max(axis=0) - d.body.rest.min(axis=0)
         assert span[:2] == pytest.approx([80.0, 60.0], abs=1e-3)
         # exactly the elements on the y = -30 mm edge are fixed
-        assert np.array_equal(d.fixed_mask, np.isclose(d.rest[:, 1], -30.0, atol=1e-3))
-    assert float(top.rest[:, 2].mean() - low.rest[:, 2].mean()) == pytest.approx(2.5, abs=1e-6)
+        assert np.array_equal(d.body.fixed, np.isclose(d.body.rest[:, 1], -30.0, atol=1e-3))
+    assert float(top.body.rest[:, 2].mean() - low.body.rest[:, 2].mean()) == pytest.approx(2.5, abs=1e-6)
 
 
 # -- pull-corner.toml ----------------------------------------------------------------------------------
@@ -110,7 +113,7 @@ def test_two_layers_with_one_fixed_edge_each(pulled):
 def test_pull_moves_the_corner_to_its_target(pulled):
     d = layer(pulled, "dura")
     c = nearest(d, CORNER)
-    assert np.allclose(d.pos[c], [40.0, 30.0, 20.0], atol=1e-9)
+    assert np.allclose(d.body.positions[c], [40.0, 30.0, 20.0], atol=1e-9)
     v = pulled.resource(Assessment).values
     assert v["max_displacement_mm"] == pytest.approx(20.0, abs=1e-9)
     assert "pull" in v["steps_done"]
@@ -119,23 +122,23 @@ def test_pull_moves_the_corner_to_its_target(pulled):
 
 def test_pull_leaves_the_fixed_edge_and_the_lower_layer_alone(pulled):
     d = layer(pulled, "dura")
-    moved = np.linalg.norm(d.pos - d.rest, axis=1) > 1e-9
+    moved = np.linalg.norm(d.body.positions - d.body.rest, axis=1) > 1e-9
     assert moved.sum() > 100  # the pull spread well beyond the corner
-    assert np.array_equal(d.pos[d.fixed_mask], d.rest[d.fixed_mask])
+    assert np.array_equal(d.body.positions[d.body.fixed], d.body.rest[d.body.fixed])
     low = layer(pulled, "arachnoid")
-    assert np.array_equal(low.pos, low.rest)
+    assert np.array_equal(low.body.positions, low.body.rest)
     v = pulled.resource(Assessment).values
-    assert v["elements_moved"] == int((np.linalg.norm(d.pos - d.rest, axis=1) > 0.01).sum())
+    assert v["elements_moved"] == int((np.linalg.norm(d.body.positions - d.body.rest, axis=1) > 0.01).sum())
 
 
 def test_the_straight_lift_stretches_no_link_beyond_alpha_max(pulled):
     d = layer(pulled, "dura")
-    links = d.graph.links[d.alive]
-    ratio = np.linalg.norm(d.pos[links[:, 1]] - d.pos[links[:, 0]], axis=1) / np.linalg.norm(
-        d.rest[links[:, 1]] - d.rest[links[:, 0]], axis=1
+    links = d.body.graph.links[d.body.alive]
+    ratio = np.linalg.norm(d.body.positions[links[:, 1]] - d.body.positions[links[:, 0]], axis=1) / np.linalg.norm(
+        d.body.rest[links[:, 1]] - d.body.rest[links[:, 0]], axis=1
     )
     assert ratio.max() > 1.05  # the pull did stretch the tissue
-    assert ratio.max() <= d.amax.max() + 1e-9
+    assert ratio.max() <= d.body.limits[1].max() + 1e-9
     assert pulled.resource(Assessment).values["max_stretch_ratio"] == pytest.approx(ratio.max())
 
 
@@ -147,13 +150,13 @@ def test_the_chainmail_step_keeps_every_link_within_its_limits(script):
     app = play(script, relax=0)
     try:
         d = layer(app, "dura")
-        assert (np.linalg.norm(d.pos - d.rest, axis=1) > 1e-9).sum() > 100
-        if d.model_used == "surface":
-            in_plane, normal = d.body.link_excess()
+        assert (np.linalg.norm(d.body.positions - d.body.rest, axis=1) > 1e-9).sum() > 100
+        if d.body.model_used == "surface":
+            in_plane, normal = d.body.model_body.link_excess()
             assert in_plane <= 1e-9 and normal <= 1e-9
         else:
             assert float(box_violation(d).max()) <= 1e-9
-        assert np.allclose(d.pos[nearest(d, CORNER)], pulled_target(script), atol=1e-9)
+        assert np.allclose(d.body.positions[nearest(d, CORNER)], pulled_target(script), atol=1e-9)
     finally:
         app.close()
 
@@ -167,7 +170,7 @@ def pulled_target(script: str):
 
 def crossing(d: Deformable, inner: float = 30.0 + 1e-6) -> np.ndarray:
     """Links whose rest segment crosses the line x = CUT_X at |y| < inner (the path's ends included)."""
-    a, b = d.rest[d.graph.links[:, 0]], d.rest[d.graph.links[:, 1]]
+    a, b = d.body.rest[d.body.graph.links[:, 0]], d.body.rest[d.body.graph.links[:, 1]]
     sa, sb = a[:, 0] - CUT_X, b[:, 0] - CUT_X
     cross = sa * sb < 0
     t = np.where(cross, sa / np.where(cross, sa - sb, 1.0), 0.0)
@@ -177,29 +180,29 @@ def crossing(d: Deformable, inner: float = 30.0 + 1e-6) -> np.ndarray:
 
 def test_cut_removes_the_crossed_links_of_the_top_layer_only(opened):
     d = layer(opened, "dura")
-    dead = ~d.alive
+    dead = ~d.body.alive
     assert dead.sum() > 20
     assert np.all(crossing(d)[dead])  # nothing off the path was cut
     assert np.all(dead[crossing(d, inner=29.0)])  # and the path cut through
     low = layer(opened, "arachnoid")
-    assert low.alive.all()
-    assert np.array_equal(low.pos, low.rest)
+    assert low.body.alive.all()
+    assert np.array_equal(low.body.positions, low.body.rest)
 
 
 def test_the_flap_opens_and_the_other_side_stays(opened):
     d = layer(opened, "dura")
     c = nearest(d, CORNER)
-    assert np.allclose(d.pos[c], [36.0, 24.0, 16.0], atol=1e-9)
-    right = d.rest[:, 0] > CUT_X
-    moved = np.linalg.norm(d.pos - d.rest, axis=1) > 1e-9
+    assert np.allclose(d.body.positions[c], [36.0, 24.0, 16.0], atol=1e-9)
+    right = d.body.rest[:, 0] > CUT_X
+    moved = np.linalg.norm(d.body.positions - d.body.rest, axis=1) > 1e-9
     assert moved[right].sum() > 100
     assert not moved[~right].any()  # across the cut nothing followed the flap
 
 
 def test_the_two_sides_are_joined_only_through_the_fixed_edge(opened):
     d = layer(opened, "dura")
-    g = d.graph
-    seen = np.zeros(d.n_elements, dtype=bool)
+    g = d.body.graph
+    seen = np.zeros(d.body.n, dtype=bool)
     start = nearest(d, CORNER)
     seen[start] = True
     todo = [start]
@@ -207,17 +210,17 @@ def test_the_two_sides_are_joined_only_through_the_fixed_edge(opened):
         e = todo.pop()
         for j in range(g.indptr[e], g.indptr[e + 1]):
             n = g.indices[j]
-            if g.alive[g.link[j]] and not seen[n] and not d.fixed_mask[n]:
+            if g.alive[g.link[j]] and not seen[n] and not d.body.fixed[n]:
                 seen[n] = True
                 todo.append(n)
-    assert seen[d.rest[:, 0] > CUT_X + 2.0].mean() > 0.95
-    assert not seen[d.rest[:, 0] < CUT_X].any()
+    assert seen[d.body.rest[:, 0] > CUT_X + 2.0].mean() > 0.95
+    assert not seen[d.body.rest[:, 0] < CUT_X].any()
 
 
 def test_cut_assessment(opened):
     v = opened.resource(Assessment).values
     d = layer(opened, "dura")
-    assert v["links_cut"] == int((~d.alive).sum())
+    assert v["links_cut"] == int((~d.body.alive).sum())
     assert v["links_cut_by_layer"] == {"dura": v["links_cut"], "arachnoid": 0}
     assert v["layers_cut"] == ["dura"]
     assert v["top_layer"] == "dura"
@@ -234,7 +237,7 @@ def test_cut_assessment(opened):
 def test_no_nan_anywhere(pulled, opened):
     for app in (pulled, opened):
         for name in ("dura", "arachnoid"):
-            assert np.isfinite(layer(app, name).pos).all()
+            assert np.isfinite(layer(app, name).body.positions).all()
         json.dumps(app.resource(Assessment).values, allow_nan=False)
         assert all(math.isfinite(x) for x in (app.resource(Assessment).values["max_stretch_ratio"],))
 

@@ -10,21 +10,21 @@ import pytest
 
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import PendingInput
-from chainsim.game.app.headless import build_app
-from chainsim.game.app.inputscript import load_script
+from chainsim.game.trainer.headless import build_app
+from chainsim.game.trainer.inputscript import load_script
 
 SCRIPT = Path(__file__).resolve().parents[2] / "assets" / "cutting" / "scripts" / "cut-and-open.toml"
 
 
 @pytest.fixture(scope="module")
 def cut_frame():
-    from chainsim.game.gl.context import GLUnavailable, egl_context
+    from chainsim.game.render.context import GLUnavailable, egl_context
 
     try:
         egl_context()
     except GLUnavailable as e:
         pytest.skip(f"no EGL OpenGL 3.3 context: {e}")
-    from chainsim.game.gl.render_system import draw, read_pixels
+    from chainsim.game.render.render_system import draw, read_pixels
     from chainsim.systems.view.cameras import ViewState
 
     app = build_app("cutting", render=True)

@@ -18,8 +18,8 @@ import pytest
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, PickPoint, Widget
 from chainsim.components.resources import Assessment, PendingInput
-from chainsim.game.app.headless import build_app
-from chainsim.game.app.inputscript import load_script
+from chainsim.game.trainer.headless import build_app
+from chainsim.game.trainer.inputscript import load_script
 from chainsim.systems.motion.input import InputLog
 from chainsim.systems.procedures.needle.collision import NeedleHit, new_contact
 from chainsim.systems.procedures.needle.components import Needle, NeedleState, Touch
@@ -250,11 +250,13 @@ class _WallClock:
 
 
 def test_a_burst_of_input_while_the_kernels_compile_waits_visibly_and_is_applied_in_order(monkeypatch):
-    import chainsim.game.ui.window as window
+    import chainsim.game.trainer.seat as seat
+    import chainsim.game.trainer.window as window
 
     monkeypatch.setattr(window.render, "draw", lambda app: None)  # no GL here: the scene is what is tested
     clock = _WallClock()
     monkeypatch.setattr(window, "time", clock)
+    monkeypatch.setattr(seat, "time", clock)  # the seat stamps held input with the same wall clock
     compiler = _Compiling()
     app = build_app("prp", settings={"class": "c", "trainee": "t"})
     try:
@@ -264,7 +266,7 @@ def test_a_burst_of_input_while_the_kernels_compile_waits_visibly_and_is_applied
         hud = app.resource(HudState)
         assert not hasattr(compiler, "hurried")  # before the first picture the children stay in the background
         ui.on_draw()
-        assert compiler.hurried == ui.gate.needed  # then the scene's own groups compile at normal priority
+        assert compiler.hurried == ui.seat.kernels.gate.needed  # then the scene's own groups compile at normal priority
 
         def frames(seconds: float) -> None:
             for _ in range(round(seconds * 60)):
@@ -303,7 +305,7 @@ def test_a_burst_of_input_while_the_kernels_compile_waits_visibly_and_is_applied
 
 
 def test_input_given_after_the_kernels_are_ready_waits_behind_what_was_held():
-    from chainsim.game.app.compiling import KernelGate
+    from chainsim.game.trainer.compiling import KernelGate
 
     compiler = _Compiling()
     gate, hud = KernelGate(compiler, ["normals and collision"]), HudState()

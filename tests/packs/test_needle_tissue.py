@@ -18,7 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as hs
 from needle_insertion import ASSETS, CASES, anatomy, insertion_script, manifest
 
-from chainsim.game.app.headless import run_pack
+from chainsim.game.trainer.headless import run_pack
 from chainsim.systems.engine import needle_force
 
 

@@ -15,8 +15,8 @@ import pytest
 from needle_insertion import ASSETS, insertion_script
 
 from chainsim.components.resources import PendingInput
-from chainsim.game.app.headless import build_app, validate_pack
-from chainsim.game.app.inputscript import parse_events, read_file
+from chainsim.game.trainer.headless import build_app, validate_pack
+from chainsim.game.trainer.inputscript import parse_events, read_file
 from chainsim.systems.procedures.needle.components import NeedleState
 from chainsim.systems.procedures.needle.tissue import NeedleTissue, NeedleTissueScene, NeedleTrace
 from chainsim.systems.tissue.deformable import Deformable
@@ -64,13 +64,13 @@ def tissue_checks(app, pressed_ok: bool = True) -> None:
     with app.active():
         for body in scene.bodies:
             d = esper.component_for_entity(body.entity, Deformable)
-            assert np.all(np.isfinite(d.pos))
-            vol = signed_volumes(d.pos, d.mesh_data.tets)
+            assert np.all(np.isfinite(d.body.positions))
+            vol = signed_volumes(d.body.positions, d.body.mesh.tets)
             bad = vol <= 0
             if pressed_ok:
-                held = np.zeros(len(d.pos), bool)
-                held[d.held] = True
-                bad &= ~held[d.mesh_data.tets].any(axis=1)
+                held = np.zeros(len(d.body.positions), bool)
+                held[d.body.held] = True
+                bad &= ~held[d.body.mesh.tets].any(axis=1)
             assert not bad.any(), f"{body.name}: {int(bad.sum())} tetrahedra inverted away from the needle"
 
 
@@ -159,7 +159,7 @@ def test_a_needle_that_misses_the_tissue_feels_nothing(tmp_path):
     data["event"][0]["point"] = [-20.0, 80.0, 60.0]
     app = build_app(str(PRP), save="test")
     try:
-        from chainsim.game.app.inputscript import parse_events as pe
+        from chainsim.game.trainer.inputscript import parse_events as pe
 
         app.resource(PendingInput).extend(pe(data, "script"))
         for _ in range(int(5.0 / app.time.dt)):
@@ -254,14 +254,14 @@ def test_turning_the_needle_inside_the_tissue_moves_the_tissue(tmp_path):
         scene = app.resource(NeedleTissueScene)
         with app.active():
             d = esper.component_for_entity(scene.bodies[0].entity, Deformable)
-            held = d.held.copy()
-            before = d.pos[held].copy()
+            held = d.body.held.copy()
+            before = d.body.positions[held].copy()
         assert len(held) and needle_tissue(app).lateral < 1e-6
         for _ in range(60):
             app.update(app.time.dt)
         nt = needle_tissue(app)
         with app.active():
-            moved = np.linalg.norm(d.pos[held] - before, axis=1)
+            moved = np.linalg.norm(d.body.positions[held] - before, axis=1)
         assert nt.lateral > 0.01  # the tissue pushes back on the turned shaft
         assert moved.max() > 0.5  # and the tissue held on the shaft went with it
         tissue_checks(app)
@@ -291,7 +291,8 @@ def test_a_tip_on_a_node_an_edge_or_a_face_punctures_each_layer_once(tmp_path, o
             st.entry = node + offset[0] * u + offset[1] * v
         from chainsim.components.input_events import Widget
 
-        app.resource(PendingInput).push(app.time.sim_time, Widget("insert", 25.0))
+        # after the script's own last event (its insert to depth 0 at 3 s), which it would otherwise undo
+        app.resource(PendingInput).push(3.0, Widget("insert", 25.0))
         for i in range(150):
             app.update(app.time.dt)
             if i % 4 == 0:

@@ -14,7 +14,7 @@ import pytest
 from needle_insertion import ASSETS
 
 from chainsim.components.resources import PendingInput
-from chainsim.game.app.headless import build_app
+from chainsim.game.trainer.headless import build_app
 from chainsim.systems.procedures.needle.insertion import straight_insertion
 from chainsim.systems.procedures.needle.tissue import NeedleTissue, NeedleTissueScene
 from chainsim.systems.tissue.deformable import Deformable, use_model
@@ -41,12 +41,12 @@ def test_each_tetrahedron_deforms_with_its_layers_modulus(pack):
                 d = esper.component_for_entity(body.entity, Deformable)
                 want = _expected_two_mu(pack, f"{body.name}.vtu")
                 assert len(np.unique(np.round(want))) >= 3  # the layers differ: the check can tell them apart
-                for model in (d.model_used, "projective"):
-                    if model != d.model_used:
+                for model in (d.body.model_used, "projective"):
+                    if model != d.body.model_used:
                         use_model(d, model)
-                    np.testing.assert_allclose(d.body.w_arap / d.body.vol, want, rtol=1e-12)
+                    np.testing.assert_allclose(d.body.model_body.w_arap / d.body.model_body.vol, want, rtol=1e-12)
                 use_model(d, "xpbd")  # one material per body: the model line says the layers' are not used
-                assert "xpbd keeps one E and nu for the whole body" in d.model_reason
+                assert "xpbd keeps one E and nu for the whole body" in d.body.model_reason
     finally:
         app.close()
 
@@ -74,7 +74,7 @@ def test_the_tip_presses_the_skin_over_the_force_models_punch(pack):
                     c = nt.crossings[0]
                     body = scene.bodies[c.body]
                     d = esper.component_for_entity(body.entity, Deformable)
-                    pressed.append((body.name, c.point.copy(), c.nodes.copy(), d.pos - d.rest))
+                    pressed.append((body.name, c.point.copy(), c.nodes.copy(), d.body.positions - d.body.rest))
         assert len(pressed) >= 3, "the tip pressed the skin for a few frames before it gave"
         name, point, face, moved = pressed[-1]
         m = meshio.read(ASSETS / pack / "meshes" / f"{name}.vtu")

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from chainsim.game.app.headless import run_pack
 from chainsim.game.records.provenance import encode_recording
 from chainsim.game.records.store import RecordStore
+from chainsim.game.trainer.headless import run_pack
 
 ASSETS = Path(__file__).resolve().parents[2] / "assets"
 

@@ -18,8 +18,8 @@ import pytest
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, Widget
 from chainsim.components.resources import Assessment, EntityIndex, PendingInput
-from chainsim.game.app.headless import build_app
-from chainsim.game.app.inputscript import load_script
+from chainsim.game.trainer.headless import build_app
+from chainsim.game.trainer.inputscript import load_script
 from chainsim.systems.procedures.needle.carm import DOSE_RATE_MGY_S, SHOT_S, CArm
 from chainsim.systems.procedures.needle.fluoro import OBLIQUE_DEG
 from chainsim.systems.view.ui.viewports import carm_source_direction

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from chainsim.components.input_events import MouseButton, MouseDrag, MouseMove
-from chainsim.game.app.headless import run_pack
-from chainsim.game.app.inputscript import load_script
 from chainsim.game.packbuild.needle.make_prp_mouse_script import SCRIPTS, build
+from chainsim.game.trainer.headless import run_pack
+from chainsim.game.trainer.inputscript import load_script
 
 MOUSE = SCRIPTS / "correct-mouse.toml"
 

@@ -10,8 +10,8 @@ from pathlib import Path
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import PendingInput, Settings
-from chainsim.game.app.headless import build_app
-from chainsim.game.app.inputscript import load_script
+from chainsim.game.trainer.headless import build_app
+from chainsim.game.trainer.inputscript import load_script
 
 PACK = Path(__file__).resolve().parents[2] / "assets" / "prp"
 

@@ -1,7 +1,7 @@
 """The shipped prp pack: its scripted attempts reach the foramen / hit the skull (thesis 3.3.6, 6.1.5).
 
-These run the real anatomy (assets/prp/anatomy.toml and meshes) headless through chainsim.game.app.headless.run_pack,
-exactly as `chainsim run prp --headless --input FILE --out DIR` does.
+These run the real anatomy (assets/prp/anatomy.toml and meshes) headless through
+chainsim.game.trainer.headless.run_pack, exactly as `chainsim run prp --headless --input FILE --out DIR` does.
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from chainsim.components.input_events import Widget
-from chainsim.game.app.headless import run_pack
-from chainsim.game.app.inputscript import load_script
 from chainsim.game.packs import pack as packs
+from chainsim.game.trainer.headless import run_pack
+from chainsim.game.trainer.inputscript import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 PACK = Path(os.environ.get("CHAINSIM_PRP_TEST_PACK", ROOT / "assets" / "prp"))

@@ -11,13 +11,13 @@ import pytest
 
 from chainsim.components.input_events import PickPoint, Widget
 from chainsim.components.resources import PendingInput
-from chainsim.game.app.headless import build_app
-from chainsim.game.app.inputscript import load_script
 from chainsim.game.cli.commands.protocol import load_protocol
-from chainsim.game.records.protocol import latin_row
 from chainsim.game.records.store import RecordStore
-from chainsim.game.ui.questionnaire import POST, PRE
-from chainsim.game.ui.study import StudySession, plan
+from chainsim.game.study.protocol import latin_row
+from chainsim.game.study.questionnaire import POST, PRE
+from chainsim.game.study.session import StudySession, plan
+from chainsim.game.trainer.headless import build_app
+from chainsim.game.trainer.inputscript import load_script
 from chainsim.systems.view.ui.widgets import WidgetState
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -275,7 +275,7 @@ def test_restart_asks_and_then_retracts_the_saved_trials(tmp_path, cli, monkeypa
     ann.app.close()
     args = ["protocol", tmp_path / "study61.toml", "--participant", "ann", "--db", db, "--restart"]
     args += ["--group", "novice", "--year-of-training", "2", "--procedures-performed", "0"]
-    import chainsim.game.ui.window as window
+    import chainsim.game.trainer.window as window
 
     sessions = []
     monkeypatch.setattr(window, "run_window", lambda args, session: sessions.append(session) or 0)

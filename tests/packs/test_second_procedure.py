@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from chainsim.game.app.inputscript import load_script
+from chainsim.game.trainer.inputscript import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 PACK = ROOT / "assets" / "mental-block"

@@ -13,7 +13,7 @@ from chainsim.components.core import Marker, PolyLine, Transform
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, MouseButton, Resize, Widget
 from chainsim.components.resources import EntityIndex, PackResource, PendingInput
-from chainsim.game.app.headless import build_app
+from chainsim.game.trainer.headless import build_app
 from chainsim.systems.procedures.cutting.state import CuttingState
 from chainsim.systems.procedures.cutting.steps import tissue_bounds
 from chainsim.systems.tissue.deformable import Deformable, Pull
@@ -135,7 +135,7 @@ def test_f1_leads_on_to_the_help_pages(cutting):
 
 
 def test_the_key_page_names_the_help_pages_and_the_trainers_own_mouse_actions(cutting):
-    from chainsim.game.gl.render_system import page
+    from chainsim.game.render.render_system import page
 
     send(cutting, Key("f1", True), Key("f1", False))
     _title, text, buttons = page(cutting)
@@ -168,14 +168,14 @@ def test_the_demo_marks_the_element_its_pull_drags(demo):
         d = esper.component_for_entity(ent, Deformable)
         p = esper.component_for_entity(ent, Pull)
         assert mk.visible and mk.radius > 0
-        assert np.allclose(esper.component_for_entity(mark, Transform).position, d.pos[p.resolved])
+        assert np.allclose(esper.component_for_entity(mark, Transform).position, d.body.positions[p.resolved])
         line = esper.component_for_entity(mark, PolyLine)
         assert line.visible and np.allclose(line.points[-1], p.waypoints[-1])  # where it will go
     send(demo, Widget("pull"), steps=90)
     with demo.active():
         assert p.done
-        assert np.allclose(esper.component_for_entity(mark, Transform).position, d.pos[p.resolved])
-        assert np.allclose(d.pos[p.resolved], p.waypoints[-1])  # the marker went with it
+        assert np.allclose(esper.component_for_entity(mark, Transform).position, d.body.positions[p.resolved])
+        assert np.allclose(d.body.positions[p.resolved], p.waypoints[-1])  # the marker went with it
 
 
 def test_the_demo_reset_puts_the_tissue_back_and_pull_works_again(demo):
@@ -187,11 +187,11 @@ def test_the_demo_reset_puts_the_tissue_back_and_pull_works_again(demo):
     with demo.active():
         d = esper.component_for_entity(ent, Deformable)
         p = esper.component_for_entity(ent, Pull)
-        assert np.array_equal(d.pos, d.rest) and not p.started
+        assert np.array_equal(d.body.positions, d.body.rest) and not p.started
     assert hud.step_title.startswith("1.")
     send(demo, Widget("pull"), steps=90)
     with demo.active():
-        assert p.done and np.allclose(d.pos[p.resolved], p.waypoints[-1])
+        assert p.done and np.allclose(d.body.positions[p.resolved], p.waypoints[-1])
 
 
 def test_the_demo_panel_has_a_title_and_says_which_demo_runs(demo):

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from chainsim.game.app.headless import validate_pack
 from chainsim.game.packs import pack as packs
+from chainsim.game.trainer.headless import validate_pack
 
 BROKEN = Path(__file__).parent / "broken"
 ROOT = Path(__file__).resolve().parents[2]

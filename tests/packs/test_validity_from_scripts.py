@@ -14,11 +14,11 @@ import pytest
 
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import Assessment, PendingInput
-from chainsim.game.app.headless import build_app
-from chainsim.game.app.inputscript import load_script
-from chainsim.game.records.cohort import Participant, _record
-from chainsim.game.records.validity_data import select
-from chainsim.game.records.validity_report import analyse
+from chainsim.game.study.cohort import Participant, _record
+from chainsim.game.study.validity_data import select
+from chainsim.game.study.validity_report import analyse
+from chainsim.game.trainer.headless import build_app
+from chainsim.game.trainer.inputscript import load_script
 
 PACK = Path(__file__).resolve().parents[2] / "assets" / "prp"
 DIALS = ("rotate_horizontal", "rotate_vertical")

@@ -12,7 +12,7 @@ import pytest
 
 @pytest.fixture(scope="session")
 def gl_ctx():
-    from chainsim.game.gl.context import GLUnavailable, egl_context
+    from chainsim.game.render.context import GLUnavailable, egl_context
 
     try:
         return egl_context()
@@ -53,7 +53,7 @@ def make_pack(tmp_path):
 
 
 def open_app(ref: str, size=None):
-    from chainsim.game.app.headless import build_app
+    from chainsim.game.trainer.headless import build_app
 
     return build_app(ref, render=True, headless=True, size=size)
 
@@ -62,8 +62,8 @@ def frame_pixels(app, strip_overlay: bool = True):
     """Draw the world (optionally without panel/HUD/titles) and return (frame, RGBA image bottom-up)."""
     import numpy as np
 
-    from chainsim.game.gl.render_system import RenderTarget, collect_frame, sync_deformables
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render.render_system import RenderTarget, collect_frame, sync_deformables
+    from chainsim.game.render.renderer import Renderer
 
     target = app.resource(RenderTarget)
     with app.active():

@@ -36,7 +36,7 @@ def test_bench_render_writes_table_json_and_plot(tmp_path):
     assert r.returncode == 0, r.stderr
     data = json.loads((tmp_path / "results.json").read_text())
     assert [(row["mode"]) for row in data["rows"]] == ["static", "full", "patch"] * 2
-    from chainsim.game.bench.render import sheet
+    from chainsim.tools.bench.render import sheet
 
     assert sorted({row["triangles"] for row in data["rows"]}) == [len(sheet(200)[1]), len(sheet(3000)[1])]
     assert abs(len(sheet(3000)[1]) - 3000) < 0.1 * 3000

@@ -57,9 +57,9 @@ def test_window_view_images_and_layers_draw_what_a_fresh_frame_draws(ref, script
     drawn afresh, but for a pixel or two where a moving item meets another surface at equal depth."""
     from chainsim.components.loader import PackResource
     from chainsim.components.resources import PendingInput
-    from chainsim.game.app.inputscript import load_script
-    from chainsim.game.gl import render_system as render
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render import render_system as render
+    from chainsim.game.render.renderer import Renderer
+    from chainsim.game.trainer.inputscript import load_script
 
     app = open_app(ref, size=(640, 400))
     try:

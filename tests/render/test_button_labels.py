@@ -16,8 +16,8 @@ ROOT = Path(__file__).resolve().parents[2]
 def test_every_button_label_is_whole_at_the_window_sizes_trainees_use(gl_ctx, pack, size):
     """No button's label is cut short ("My attem...") at 1024x768 or 1280x800: a narrow button draws its
     label in a smaller font, down to BUTTON_FONT_MIN of the panel's."""
-    from chainsim.game.gl import panelview
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render import panelview
+    from chainsim.game.render.renderer import Renderer
     from chainsim.systems.view.cameras import ViewState
 
     app = open_app(str(ROOT / "assets" / pack), size=size)

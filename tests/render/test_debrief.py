@@ -7,9 +7,10 @@ from pathlib import Path
 
 from chainsim.components.hud import HudState
 from chainsim.components.resources import Assessment, PendingInput
-from chainsim.game.app.headless import build_app
-from chainsim.game.app.inputscript import load_script
 from chainsim.game.packs.pack import load
+from chainsim.game.trainer.headless import build_app
+from chainsim.game.trainer.inputscript import load_script
+from chainsim.systems.procedures import verdicts as vd
 from chainsim.systems.procedures.needle import debrief as db
 
 REPO = Path(__file__).resolve().parents[2]
@@ -30,16 +31,16 @@ SPEC = {
 
 
 def test_a_critical_error_fails_the_attempt_whatever_the_rest():
-    rows = db.verdicts(SPEC, {"needle_error_mm": -1.0, "skull_contacts": 4.0, "xray_shots": 2.0})
-    o = db.outcome(rows)
+    rows = vd.verdicts(SPEC, {"needle_error_mm": -1.0, "skull_contacts": 4.0, "xray_shots": 2.0})
+    o = vd.outcome(rows)
     assert not o["passed"] and o["critical"] == ["over 3 contacts"]
-    assert db.verdict_line(o).startswith("FAILED: critical error - over 3 contacts")
+    assert vd.verdict_line(o).startswith("FAILED: critical error - over 3 contacts")
 
 
 def test_every_benchmark_met_passes_and_a_missing_value_is_critical():
-    ok = db.outcome(db.verdicts(SPEC, {"needle_error_mm": -1.0, "skull_contacts": 0.0, "xray_shots": 3.0}))
+    ok = vd.outcome(vd.verdicts(SPEC, {"needle_error_mm": -1.0, "skull_contacts": 0.0, "xray_shots": 3.0}))
     assert ok["passed"] and (ok["met"], ok["judged"]) == (3, 3)
-    rows = db.verdicts(SPEC, {"needle_error_mm": None, "skull_contacts": 0.0, "xray_shots": 12.0})
+    rows = vd.verdicts(SPEC, {"needle_error_mm": None, "skull_contacts": 0.0, "xray_shots": 12.0})
     by = {r["name"]: r for r in rows}
     assert by["needle_error_mm"]["critical"] and by["needle_error_mm"]["advice"] == "aim again"
     assert by["xray_shots"]["passed"] is False and by["xray_shots"]["advice"] == "fewer images"
@@ -47,8 +48,8 @@ def test_every_benchmark_met_passes_and_a_missing_value_is_critical():
 
 
 def test_numbers_are_rounded_with_their_units():
-    assert db.number(6.721578213131352e-05, "mm") == "0.0 mm"
-    assert db.number(-1.1727, "mm") == "-1.2 mm" and db.number(3.0) == "3" and db.number(0.1812, "mGy") == "0.18 mGy"
+    assert vd.number(6.721578213131352e-05, "mm") == "0.0 mm"
+    assert vd.number(-1.1727, "mm") == "-1.2 mm" and vd.number(3.0) == "3" and vd.number(0.1812, "mGy") == "0.18 mGy"
 
 
 def test_the_shipped_packs_declare_benchmarks_critical_errors_and_an_ideal_path():
@@ -90,12 +91,12 @@ def test_a_bone_hit_attempt_ends_with_a_failed_debrief_that_says_why_and_what_to
 
 def test_a_benchmark_says_what_it_rests_on_and_the_debrief_says_when_it_is_provisional():
     spec = dict(SPEC, xray_shots=dict(SPEC["xray_shots"], benchmark_basis="programme", benchmark_source="our data"))
-    rows = db.verdicts(spec, {"needle_error_mm": -1.0, "skull_contacts": 0.0, "xray_shots": 3.0})
+    rows = vd.verdicts(spec, {"needle_error_mm": -1.0, "skull_contacts": 0.0, "xray_shots": 3.0})
     by = {r["name"]: r for r in rows}
     # no basis stated: provisional; no benchmark: nothing to rest on
     assert (by["needle_error_mm"]["basis"], by["xray_shots"]["basis"]) == ("provisional", "programme")
     assert by["first_contact_dist_mm"]["basis"] == ""
-    assert db.basis_note(rows).startswith("Provisional: 2 of 3 benchmarks here rest")
-    assert db.rested_on(rows)["xray_shots"] == {"benchmark": 10.0, "basis": "programme", "source": "our data"}
+    assert vd.basis_note(rows).startswith("Provisional: 2 of 3 benchmarks here rest")
+    assert vd.rested_on(rows)["xray_shots"] == {"benchmark": 10.0, "basis": "programme", "source": "our data"}
     published = {k: dict(m, benchmark_basis="published") for k, m in SPEC.items()}
-    assert db.basis_note(db.verdicts(published, {})) == ""
+    assert vd.basis_note(vd.verdicts(published, {})) == ""

@@ -13,9 +13,9 @@ from conftest import open_app
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key
 from chainsim.components.resources import PendingInput
-from chainsim.game.app.inputscript import load_script
-from chainsim.game.gl import panelview
-from chainsim.game.gl.render_system import draw, read_pixels
+from chainsim.game.render import panelview
+from chainsim.game.render.render_system import draw, read_pixels
+from chainsim.game.trainer.inputscript import load_script
 from chainsim.systems.engine.haptics import simdevice as D
 from chainsim.systems.procedures.needle import haptics as H
 from chainsim.systems.view.cameras import ViewState, main_view

@@ -12,8 +12,8 @@ import pytest
 
 from chainsim.components.hud import HudState
 from chainsim.components.resources import PendingInput
-from chainsim.game.app.headless import build_app
-from chainsim.game.app.inputscript import load_script
+from chainsim.game.trainer.headless import build_app
+from chainsim.game.trainer.inputscript import load_script
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPTS = {
@@ -25,9 +25,9 @@ SCRIPTS = {
 @pytest.mark.parametrize("size", [(1280, 800), (1024, 768)], ids=["1280x800", "1024x768"])
 @pytest.mark.parametrize("pack", ["prp", "mental-block"])
 def test_every_line_of_the_debrief_is_inside_the_window(pack, size):
-    from chainsim.game.gl import panelview
-    from chainsim.game.gl.render_system import draw, read_pixels
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render import panelview
+    from chainsim.game.render.render_system import draw, read_pixels
+    from chainsim.game.render.renderer import Renderer
     from chainsim.systems.view.cameras import ViewState
 
     app = build_app(pack, render=True, size=size)

@@ -17,8 +17,8 @@ from PIL import Image
 
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import Assessment, PendingInput
-from chainsim.game.app.inputscript import load_script
-from chainsim.game.gl.fluoro import grey
+from chainsim.game.render.radiograph import grey
+from chainsim.game.trainer.inputscript import load_script
 from chainsim.systems.view.ui.viewports import Rect, carm_camera
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -49,8 +49,8 @@ def test_attenuation_is_mu_times_the_chord_through_each_closed_mesh(gl_ctx, boxe
     overlapping meshes included, checked against the slab chord of the same rays."""
     import trimesh
 
-    from chainsim.game.gl.fluoro import FluoroRenderer, XrayMesh
-    from chainsim.game.gl.meshbuf import GpuMesh
+    from chainsim.game.render.meshbuf import GpuMesh
+    from chainsim.game.render.radiograph import FluoroRenderer, XrayMesh
 
     fr = FluoroRenderer(gl_ctx, size=96)
     gms = []
@@ -77,8 +77,18 @@ def test_attenuation_is_mu_times_the_chord_through_each_closed_mesh(gl_ctx, boxe
                 hi = np.asarray(centre) + np.asarray(ext) / 2
                 want += mu * _box_chord(o, d, lo, hi)
                 # a pixel whose neighbourhood straddles an edge can be covered either way: skip it
-                for di in (-0.6, 0.6):
-                    o2, d2 = cam.ray(j + 0.5 + di, 96 - i - 0.5 + di, rect)
+                # (every neighbour within 0.6 px: a silhouette edge may run along either diagonal)
+                for di, dj in (
+                    (-0.6, -0.6),
+                    (0.6, 0.6),
+                    (-0.6, 0.6),
+                    (0.6, -0.6),
+                    (0, 0.6),
+                    (0, -0.6),
+                    (0.6, 0),
+                    (-0.6, 0),
+                ):
+                    o2, d2 = cam.ray(j + 0.5 + dj, 96 - i - 0.5 + di, rect)
                     if (_box_chord(o2, d2, lo, hi) > 0) != (_box_chord(o, d, lo, hi) > 0):
                         near_edge = True
             if near_edge:
@@ -113,7 +123,7 @@ def test_submental_shot_of_a_correct_attempt_shows_the_needle_in_the_foramen(gl_
     """In the last image of the correct attempt (submental-oblique) the steel needle is the darkest
     thing along its shaft, its tip projects inside the foramen's opening, and the foramen ovale shows
     as a hole: less bone on the rays through it than on those through the rim around it."""
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render.renderer import Renderer
 
     app, events, last = _correct_app()
     try:
@@ -165,7 +175,7 @@ def test_submental_shot_of_a_correct_attempt_shows_the_needle_in_the_foramen(gl_
 def test_the_big_xray_key_enlarges_the_monitor_and_its_images():
     """v (the Big X-ray button): the C-arm view takes the surgeon's view's place, then the whole window,
     then the layout comes back; a large view gets images of 1024 pixels a side."""
-    from chainsim.game.gl.fluoro import IMAGE_PX, LARGE_IMAGE_PX, image_size
+    from chainsim.game.render.radiograph import IMAGE_PX, LARGE_IMAGE_PX, image_size
     from chainsim.systems.view.cameras import ViewState
 
     app = open_app(str(PACK))
@@ -198,7 +208,7 @@ def test_window_level_narrows_and_moves_the_grey_window():
 
 
 def test_the_image_stays_frozen_until_the_next_shot(gl_ctx):
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render.renderer import Renderer
 
     app, events, last = _correct_app()
     try:
@@ -208,7 +218,7 @@ def test_the_image_stays_frozen_until_the_next_shot(gl_ctx):
         fr = app.resource(Renderer).fluoro
         shown, image_id = fr.path.copy(), fr.image_id
         # the needle went on in after that image; a frame drawn now still shows the image as taken
-        from chainsim.game.gl.render_system import draw
+        from chainsim.game.render.render_system import draw
 
         draw(app)
         assert fr.image_id == image_id and np.array_equal(fr.path, shown)
@@ -250,9 +260,9 @@ def test_snapshot_of_the_fluoro_scene_shows_bone_and_needle(tmp_path):
 
 def test_a_new_attempt_starts_without_the_last_attempts_image(gl_ctx, tmp_path):
     """After Save and Reset the C-arm view says "No image yet" with its 0 images, not the last attempt's image."""
-    from chainsim.game.app.headless import build_app
-    from chainsim.game.gl.render_system import draw
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render.render_system import draw
+    from chainsim.game.render.renderer import Renderer
+    from chainsim.game.trainer.headless import build_app
 
     settings = {"db": str(tmp_path / "r.sqlite3"), "class": "c1", "trainee": "ann"}
     app = build_app(str(PACK), render=True, headless=True, settings=settings)
@@ -279,8 +289,8 @@ def test_window_level_is_dragged_shown_with_its_values_and_reset_by_a_right_clic
     """A right-drag in the C-arm view turns the monitor's window/level, the view says the values and how to
     reset them, and a right-click (no drag) puts them back to automatic."""
     from chainsim.components.input_events import MouseButton, MouseDrag
-    from chainsim.game.gl import panelview
-    from chainsim.game.gl.render_system import fluoro_draw
+    from chainsim.game.render import panelview
+    from chainsim.game.render.render_system import fluoro_draw
     from chainsim.systems.view.cameras import ViewState
 
     app = open_app(str(PACK))

@@ -1,5 +1,5 @@
 """The window's X-ray cue: between the shot and its image the C-arm view says an image is being made,
-drawn at once, and the image follows on the next frame (chainsim.game.gl.fluoro, FluoroRenderer)."""
+drawn at once, and the image follows on the next frame (chainsim.game.render.radiograph, FluoroRenderer)."""
 
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ from conftest import open_app
 
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import PendingInput
-from chainsim.game.app.inputscript import load_script
-from chainsim.game.gl.panelview import MESSAGE
-from chainsim.game.gl.render_system import RenderTarget, draw, read_pixels
-from chainsim.game.gl.renderer import Renderer
+from chainsim.game.render.panelview import MESSAGE
+from chainsim.game.render.render_system import RenderTarget, draw, read_pixels
+from chainsim.game.render.renderer import Renderer
+from chainsim.game.trainer.inputscript import load_script
 
 PACK = Path(__file__).resolve().parents[2] / "assets" / "prp"
 

@@ -10,10 +10,10 @@ import pytest
 
 from chainsim.components.input_events import PickPoint
 from chainsim.components.resources import PendingInput
-from chainsim.game.app.headless import build_app
-from chainsim.game.app.inputscript import load_script
-from chainsim.game.gl.panelview import AIM
-from chainsim.game.gl.render_system import RenderTarget, draw, read_pixels
+from chainsim.game.render.panelview import AIM
+from chainsim.game.render.render_system import RenderTarget, draw, read_pixels
+from chainsim.game.trainer.headless import build_app
+from chainsim.game.trainer.inputscript import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 

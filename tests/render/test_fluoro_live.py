@@ -11,15 +11,15 @@ from conftest import open_app
 
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import PendingInput
-from chainsim.game.app.inputscript import load_script
-from chainsim.game.gl.fluoro import blurred
+from chainsim.game.render.radiograph import blurred
+from chainsim.game.trainer.inputscript import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 PACK = ROOT / "assets" / "prp"
 
 
 def test_live_pulses_redraw_only_the_needle_and_equal_a_fresh_image(gl_ctx):
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render.renderer import Renderer
 
     app = open_app(str(PACK))
     try:
@@ -60,7 +60,7 @@ def test_live_pulses_redraw_only_the_needle_and_equal_a_fresh_image(gl_ctx):
 
 
 def _meshes(app):
-    from chainsim.game.gl.render_system import fluoro_draw
+    from chainsim.game.render.render_system import fluoro_draw
 
     with app.active():
         return fluoro_draw(app).meshes

@@ -1,4 +1,4 @@
-"""Normals computed on the GPU for full rewrites (game/gl/gpunormals.py) against the plain numpy reference,
+"""Normals computed on the GPU for full rewrites (game/render/gpunormals.py) against the plain numpy reference,
 and a frame drawn with them against the same frame drawn with the CPU kernel's normals."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_normals_kernel import reference_normals
 
-from chainsim.game.gl import meshbuf
-from chainsim.game.gl.gpunormals import GpuNormals, corner_incidence
+from chainsim.game.render import meshbuf
+from chainsim.game.render.gpunormals import GpuNormals, corner_incidence
 from chainsim.systems.engine.meshgen import triangulated_grid
 
 
@@ -76,9 +76,9 @@ def test_full_then_partial_uploads_keep_the_drawn_normals_right(gl_ctx, gpu_alwa
 
 
 def _draw(gl_ctx, pos, tris):
-    from chainsim.game.bench.render import _frame
-    from chainsim.game.gl.context import offscreen_framebuffer, release_framebuffer
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render.context import offscreen_framebuffer, release_framebuffer
+    from chainsim.game.render.renderer import Renderer
+    from chainsim.tools.bench.render import _frame
 
     renderer = Renderer(gl_ctx)
     fbo = offscreen_framebuffer(gl_ctx, (320, 200))

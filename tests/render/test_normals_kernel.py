@@ -1,4 +1,4 @@
-"""Normal kernels (game/gl/normals.py) against a plain numpy reference on random meshes."""
+"""Normal kernels (game/render/normals.py) against a plain numpy reference on random meshes."""
 
 import numpy as np
 from hypothesis import given, settings
@@ -48,7 +48,7 @@ def test_vertex_normals_match_the_reference(seed, n, f, dtype):
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**31 - 1), st.integers(3, 60), st.integers(1, 120), st.integers(1, 10))
 def test_moved_normals_renew_exactly_the_affected_vertices(seed, n, f, k):
-    from chainsim.game.gl.meshbuf import incidence
+    from chainsim.game.render.meshbuf import incidence
 
     rng = np.random.default_rng(seed)
     pos, tris = random_mesh(rng, n, f)
@@ -70,7 +70,7 @@ def test_moved_normals_renew_exactly_the_affected_vertices(seed, n, f, k):
 def test_gathered_normals_match_the_reference_and_the_serial_kernel(seed, n, f, dtype):
     """The gathering kernel (each vertex sums its own faces: the parallel path for whole-mesh uploads)
     against the plain reference, and bit for bit against the serial kernel: same sums in the same order."""
-    from chainsim.game.gl.meshbuf import incidence
+    from chainsim.game.render.meshbuf import incidence
     from chainsim.systems.engine.kernels.normals import _gather
 
     rng = np.random.default_rng(seed)
@@ -87,7 +87,7 @@ def test_gathered_normals_match_the_reference_and_the_serial_kernel(seed, n, f, 
 def test_parallel_normals_are_the_same_for_any_thread_count(monkeypatch):
     import numba
 
-    from chainsim.game.gl.meshbuf import incidence
+    from chainsim.game.render.meshbuf import incidence
     from chainsim.systems.engine.kernels import normals
 
     monkeypatch.setattr(normals, "PARALLEL_TRIANGLES", 0)

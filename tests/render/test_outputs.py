@@ -25,7 +25,7 @@ def test_snapshot_writes_the_whole_layout(tmp_path):
     assert img.shape == (250, 400, 3)
     # loop-demo: scene on the left 75 %, control panel on the right 25 % (split at x = 300)
     panel = img[120:, 305:]
-    from chainsim.game.gl.renderer import PANEL_BG
+    from chainsim.game.render.renderer import PANEL_BG
 
     want = [round(c * 255) for c in PANEL_BG[:3]]
     assert np.median(panel.reshape(-1, 3), axis=0).tolist() == want
@@ -43,7 +43,7 @@ def test_snapshot_without_egl_exits_2_with_one_line(tmp_path):
 
 
 def test_headless_run_writes_every_kth_frame(tmp_path):
-    from chainsim.game.app.headless import run_pack
+    from chainsim.game.trainer.headless import run_pack
 
     run_pack("loop-demo", 5, out=str(tmp_path), screenshot_every=2, size=(160, 100))
     frames = sorted(p.name for p in tmp_path.glob("frame_*.png"))

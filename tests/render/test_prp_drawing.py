@@ -15,8 +15,8 @@ CAMERAS = [(35.0, 10.0, 420.0), (200.0, 20.0, 420.0), (90.0, -30.0, 300.0), (0.0
 def prp_app():
     from chainsim.components.loader import PackResource
     from chainsim.components.resources import PendingInput
-    from chainsim.game.app.inputscript import load_script
-    from chainsim.game.gl import render_system as render
+    from chainsim.game.render import render_system as render
+    from chainsim.game.trainer.inputscript import load_script
 
     app = open_app("prp", size=(640, 400))
     pres = app.resource(PackResource)
@@ -28,7 +28,7 @@ def prp_app():
 
 
 def _pixels(app) -> np.ndarray:
-    from chainsim.game.gl import render_system as render
+    from chainsim.game.render import render_system as render
 
     render.draw(app)
     return render.read_pixels(app).astype(np.int16)
@@ -44,7 +44,7 @@ def _camera(app, yaw, pitch, distance):
 
 @pytest.mark.parametrize("yaw,pitch,distance", CAMERAS)
 def test_culling_enclosed_meshes_never_hides_what_shows(prp_app, yaw, pitch, distance):
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render.renderer import Renderer
 
     r = prp_app.resource(Renderer)
     _camera(prp_app, yaw, pitch, distance)
@@ -60,7 +60,7 @@ def test_culling_enclosed_meshes_never_hides_what_shows(prp_app, yaw, pitch, dis
 
 @pytest.mark.parametrize("yaw,pitch,distance", CAMERAS)
 def test_back_faces_skipped_only_where_they_cannot_show(prp_app, yaw, pitch, distance):
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render.renderer import Renderer
 
     r = prp_app.resource(Renderer)
     _camera(prp_app, yaw, pitch, distance)
@@ -83,7 +83,7 @@ def test_big_meshes_drawn_nearest_first_look_the_same(prp_app, monkeypatch, yaw,
     direction; with the skin see-through it shows, and the picture is the one drawn in file order."""
     from chainsim.components.input_events import Widget
     from chainsim.components.resources import PendingInput
-    from chainsim.game.gl import meshbuf
+    from chainsim.game.render import meshbuf
 
     _camera(prp_app, yaw, pitch, distance)
     pending = prp_app.resource(PendingInput)
@@ -114,9 +114,9 @@ def test_landmark_labels_show_where_their_point_can_be_seen(see_through):
     from chainsim.components.input_events import Widget
     from chainsim.components.loader import PackResource
     from chainsim.components.resources import PendingInput
-    from chainsim.game.app.inputscript import load_script
-    from chainsim.game.gl import render_system as render
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render import render_system as render
+    from chainsim.game.render.renderer import Renderer
+    from chainsim.game.trainer.inputscript import load_script
     from chainsim.systems.view.cameras import ViewState
 
     app = open_app("prp", size=(640, 400))
@@ -177,8 +177,8 @@ def test_landmark_labels_show_where_their_point_can_be_seen(see_through):
 
 
 def test_closed_outward_surfaces_are_told_apart():
-    from chainsim.game.gl.meshbuf import _closed_outward
-    from chainsim.game.gl.renderer import icosphere
+    from chainsim.game.render.meshbuf import _closed_outward
+    from chainsim.game.render.renderer import icosphere
 
     v, f = icosphere(1)
     assert _closed_outward(v, f)
@@ -192,7 +192,7 @@ def test_closed_outward_surfaces_are_told_apart():
 
 
 def test_cached_views_match_fresh_ones_and_redraw_on_change(prp_app):
-    from chainsim.game.gl.renderer import STILL_FRAMES, Renderer
+    from chainsim.game.render.renderer import STILL_FRAMES, Renderer
 
     r = prp_app.resource(Renderer)
     try:
@@ -234,8 +234,8 @@ def test_a_needle_turned_over_a_still_view_looks_as_drawn_afresh(prp_app, monkey
     blitted where the GL can, drawn otherwise. Either way every frame equals one drawn afresh."""
     from chainsim.components.input_events import Widget
     from chainsim.components.resources import PendingInput
-    from chainsim.game.gl import rawgl as blit_module
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render import rawgl as blit_module
+    from chainsim.game.render.renderer import Renderer
 
     if not blit:
         monkeypatch.setattr(blit_module, "_entry_points", lambda: None)
@@ -279,8 +279,8 @@ def test_text_drawn_as_inked_boxes_looks_as_whole_cells(prp_app, monkeypatch):
     """Glyphs are drawn as their inked boxes, not whole atlas cells: the same pixels, plain and bold;
     slanted (italic on help pages), a pixel may take the neighbouring texel where its sample falls on
     a texel boundary, as the two quads interpolate the same texture coordinate in different steps."""
-    from chainsim.game.gl import render_system as render
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render import render_system as render
+    from chainsim.game.render.renderer import Renderer
 
     r = prp_app.resource(Renderer)
     ov = r.overlay
@@ -391,7 +391,7 @@ def test_meshes_said_to_be_inside_the_skin_are_inside_it():
 
 
 def test_text_laid_out_once_draws_the_same_quads(gl_ctx):
-    from chainsim.game.gl.overlay import Overlay
+    from chainsim.game.render.overlay import Overlay
 
     ov = Overlay(gl_ctx)
     try:

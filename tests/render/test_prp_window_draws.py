@@ -1,5 +1,5 @@
 """The window's frames while a dial turns are the same with the triangle culling of big meshes and the
-labels laid out after the rest of the overlay as without them (chainsim.game.gl.culling; the
+labels laid out after the rest of the overlay as without them (chainsim.game.render.culling; the
 needle-tip view redrawn each frame and the see-through skin blended again around the needle)."""
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ def test_turning_a_dial_draws_the_same_frames_with_and_without_the_shortcuts(see
     from chainsim.components.input_events import Widget
     from chainsim.components.loader import PackResource
     from chainsim.components.resources import PendingInput
-    from chainsim.game.app.inputscript import load_script
-    from chainsim.game.gl import render_system as render
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render import render_system as render
+    from chainsim.game.render.renderer import Renderer
+    from chainsim.game.trainer.inputscript import load_script
 
     app = open_app("prp", size=(960, 600))
     try:

@@ -32,8 +32,8 @@ layout = "three"
 def test_viewport_rectangles_are_where_the_layout_says(make_pack):
     app = open_app(make_pack(THREE_VIEWS), size=(333, 211))
     try:
-        from chainsim.game.gl.render_system import RenderTarget, collect_frame
-        from chainsim.game.gl.renderer import Renderer
+        from chainsim.game.render.render_system import RenderTarget, collect_frame
+        from chainsim.game.render.renderer import Renderer
 
         colours = {"left": (1.0, 0.0, 0.0, 1.0), "top": (0.0, 1.0, 0.0, 1.0), "panel": (0.0, 0.0, 1.0, 1.0)}
         with app.active():
@@ -217,7 +217,7 @@ value = false
 
 def test_xray_toggle_makes_a_layer_see_through(make_pack):
     from chainsim.components.input_events import Widget
-    from chainsim.game.gl.render_system import XRAY_OPACITY
+    from chainsim.game.render.render_system import XRAY_OPACITY
 
     app = open_app(make_pack(XRAY), size=(64, 48))
     try:
@@ -233,8 +233,8 @@ def test_xray_toggle_makes_a_layer_see_through(make_pack):
 
 
 def test_cpu_pick_returns_the_triangle_the_renderer_shows(gl_ctx):
-    from chainsim.game.gl.render_system import RenderTarget
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render.render_system import RenderTarget
+    from chainsim.game.render.renderer import Renderer
     from chainsim.systems.view.cameras import ViewState
 
     app = open_app("loop-demo", size=(480, 300))
@@ -313,8 +313,8 @@ fov = 40.0
 def test_deformed_vertices_are_uploaded_in_place_with_fresh_normals(make_pack):
     import esper
 
-    from chainsim.game.gl.meshbuf import vertex_normals
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render.meshbuf import vertex_normals
+    from chainsim.game.render.renderer import Renderer
     from chainsim.systems.tissue.deformable import Deformable
 
     app = open_app(make_pack(DEFORM), size=(200, 200))
@@ -326,21 +326,23 @@ def test_deformed_vertices_are_uploaded_in_place_with_fresh_normals(make_pack):
         full = gm.n * 24
         before = gm.bytes_written
         moved = np.array([220, 221, 241])  # a patch in the middle of the 21 x 21 sheet
-        d.pos[moved] += [5.0, -3.0, 12.0]
-        d.mark_dirty(moved)
+        d.body.positions[moved] += [5.0, -3.0, 12.0]
+        d.body.mark_dirty(moved)
         _, img = frame_pixels(app)
-        assert len(d.dirty) == 0  # the renderer took them
+        assert len(d.body.dirty) == 0  # the renderer took them
         written = gm.bytes_written - before
         assert 0 < written < full / 4
         gpu_pos = np.frombuffer(gm.vbo_pos.read(), np.float32).reshape(-1, 3)
         gpu_nrm = np.frombuffer(gm.vbo_nrm.read(), np.float32).reshape(-1, 3)
-        np.testing.assert_allclose(gpu_pos, d.pos, atol=1e-4)
-        np.testing.assert_allclose(gpu_nrm, vertex_normals(d.pos.astype(np.float32), gm.tris), atol=1e-5)
+        np.testing.assert_allclose(gpu_pos, d.body.positions, atol=1e-4)
+        np.testing.assert_allclose(gpu_nrm, vertex_normals(d.body.positions.astype(np.float32), gm.tris), atol=1e-5)
         # a second change far away also lands, and nothing else is rewritten
-        d.pos[[0, 1]] += 1.0
-        d.mark_dirty(np.array([0, 1]))
+        d.body.positions[[0, 1]] += 1.0
+        d.body.mark_dirty(np.array([0, 1]))
         frame_pixels(app)
-        np.testing.assert_allclose(np.frombuffer(gm.vbo_pos.read(), np.float32).reshape(-1, 3), d.pos, atol=1e-4)
+        np.testing.assert_allclose(
+            np.frombuffer(gm.vbo_pos.read(), np.float32).reshape(-1, 3), d.body.positions, atol=1e-4
+        )
     finally:
         app.close()
 
@@ -348,7 +350,7 @@ def test_deformed_vertices_are_uploaded_in_place_with_fresh_normals(make_pack):
 def test_cut_links_hide_their_triangles_in_drawing_and_picking(make_pack):
     import esper
 
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render.renderer import Renderer
     from chainsim.systems.tissue.deformable import Deformable
     from chainsim.systems.view.cameras import ViewState
 
@@ -357,11 +359,11 @@ def test_cut_links_hide_their_triangles_in_drawing_and_picking(make_pack):
         _, whole = frame_pixels(app)
         with app.active():
             ent, d = esper.get_component(Deformable)[0]
-        links = np.asarray(d.graph.links)
+        links = np.asarray(d.body.graph.links)
         centre = np.array([0.0, 0.0, 0.0])
-        mid = 0.5 * (d.pos[links[:, 0]] + d.pos[links[:, 1]])
+        mid = 0.5 * (d.body.positions[links[:, 0]] + d.body.positions[links[:, 1]])
         near = np.linalg.norm(mid - centre, axis=1) < 12.0
-        d.graph.cut(near)
+        d.body.graph.cut(near)
         _, holed = frame_pixels(app)
         gm = app.resource(Renderer).meshes[ent]
         assert len(gm.tri_ids) < len(gm.tris)
@@ -391,7 +393,7 @@ def test_partial_uploads_match_a_full_recompute_on_random_patches(gl_ctx):
     from hypothesis import given, settings
     from hypothesis import strategies as st
 
-    from chainsim.game.gl.meshbuf import GpuMesh, runs, vertex_normals
+    from chainsim.game.render.meshbuf import GpuMesh, runs, vertex_normals
     from chainsim.systems.engine.meshgen import triangulated_grid
 
     pos0, tris, _ = triangulated_grid(15, 12, 2.0, dim=3)
@@ -475,7 +477,7 @@ def test_attached_view_looks_ahead_of_its_entity_without_drawing_it(make_pack):
 
 
 def test_hidpi_target_draws_the_same_layout_at_twice_the_pixels(make_pack):
-    from chainsim.game.gl.render_system import RenderTarget, draw, read_pixels
+    from chainsim.game.render.render_system import RenderTarget, draw, read_pixels
 
     app = open_app(make_pack(ATTACHED), size=(200, 100))
     try:
@@ -542,7 +544,7 @@ value = true
 
 def test_indicator_lights_show_the_hud_state(make_pack):
     from chainsim.components.hud import HudState
-    from chainsim.game.gl.renderer import LIGHT_RGBA
+    from chainsim.game.render.renderer import LIGHT_RGBA
     from chainsim.systems.view.cameras import ViewState
 
     app = open_app(make_pack(PANEL), size=(400, 300))

@@ -19,7 +19,7 @@ import pytest
 from PIL import Image
 from test_trainee_session import H, W, landmark_pixels, needs_x, widget_centre
 
-from chainsim.game.app.xvfb import start_xvfb
+from chainsim.game.trainer.xvfb import start_xvfb
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -12,8 +12,8 @@ from conftest import open_app
 
 from chainsim.components.input_events import PickPoint
 from chainsim.components.resources import PendingInput
-from chainsim.game.app.inputscript import load_script
-from chainsim.game.gl.render_system import RenderTarget, draw, read_pixels
+from chainsim.game.render.render_system import RenderTarget, draw, read_pixels
+from chainsim.game.trainer.inputscript import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 

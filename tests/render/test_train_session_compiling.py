@@ -51,7 +51,7 @@ def test_the_scene_shows_at_once_and_input_waits_for_the_kernels(monkeypatch):
         picture = session.frame()  # ready before any kernel is compiled: the page shows the scene
         assert picture is not None and picture.ndim == 3 and picture.std() > 0
         session._first_picture()
-        assert compiler.hurried == session.kernels.gate.needed  # the scene's groups at normal priority now
+        assert compiler.hurried == session.seat.kernels.gate.needed  # the scene's groups at normal priority now
         hud = app.resource(HudState)
         assert hud.doc_open  # prp opens on its reading page, which takes keys while compiling: Esc closes it
         for key in ("escape", "right"):

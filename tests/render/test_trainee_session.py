@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from chainsim.game.app.xvfb import start_xvfb
+from chainsim.game.trainer.xvfb import start_xvfb
 
 ROOT = Path(__file__).resolve().parents[2]
 W, H = 1280, 800
@@ -31,7 +31,7 @@ needs_x = pytest.mark.skipif(
 def landmark_pixels():
     """Window pixels (top-left origin, as xdotool wants) of the ideal left landmarks."""
     from chainsim.components.loader import PackResource
-    from chainsim.game.app.headless import build_app
+    from chainsim.game.trainer.headless import build_app
     from chainsim.systems.view.cameras import ViewState, main_view
 
     app = build_app("prp")
@@ -122,7 +122,7 @@ class Session:
 
 
 def widget_centre(name: str) -> tuple[int, int]:
-    from chainsim.game.app.headless import build_app
+    from chainsim.game.trainer.headless import build_app
     from chainsim.systems.view.cameras import ViewState
 
     app = build_app("prp")
@@ -136,7 +136,7 @@ def widget_centre(name: str) -> tuple[int, int]:
 
 def grid_rows(img: np.ndarray, x0: int, x1: int) -> int:
     """Rows where a long run of table-grid colour crosses the page box."""
-    from chainsim.game.gl.docview import GRID
+    from chainsim.game.render.docview import GRID
 
     g = np.round(np.array(GRID[:3]) * 255)
     near = np.abs(img[:, x0:x1] - g).max(axis=2) <= 12

@@ -11,14 +11,14 @@ import pytest
 from chainsim.components.core import Transform
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import EntityIndex, PendingInput
-from chainsim.game.app.headless import build_app
+from chainsim.game.trainer.headless import build_app
 from chainsim.systems.procedures.demo.procedure import MARK_COLOR
 from chainsim.systems.view.cameras import ViewState
 
 
 @pytest.fixture(scope="module", autouse=True)
 def egl():
-    from chainsim.game.gl.context import GLUnavailable, egl_context
+    from chainsim.game.render.context import GLUnavailable, egl_context
 
     try:
         egl_context()
@@ -27,7 +27,7 @@ def egl():
 
 
 def frame(pack: str, events=(), steps: int = 2):
-    from chainsim.game.gl.render_system import draw, read_pixels
+    from chainsim.game.render.render_system import draw, read_pixels
 
     app = build_app(pack, render=True)
     app.resource(PendingInput).extend([(0.001, ev) for ev in events])
@@ -79,7 +79,7 @@ def test_the_demo_draws_its_marked_element():
 
 
 def test_the_cutting_help_button_shows_its_page_over_the_viewer():
-    from chainsim.game.gl.docview import BOX_BG
+    from chainsim.game.render.docview import BOX_BG
     from chainsim.systems.view.ui import docbox
 
     app, rgba = frame("cutting", [Widget("help")])

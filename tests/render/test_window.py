@@ -35,7 +35,7 @@ key = "f1"
 
 @pytest.mark.skipif(shutil.which("xvfb-run") is None, reason="xvfb-run is not installed")
 def test_window_plays_a_script_and_saves_what_it_shows(tmp_path):
-    from chainsim.game.gl.renderer import ACCENT, PANEL_BG
+    from chainsim.game.render.renderer import ACCENT, PANEL_BG
 
     script = tmp_path / "s.toml"
     script.write_text(SCRIPT, encoding="utf-8")
@@ -124,8 +124,8 @@ def test_bench_window_drives_the_real_window_and_reports_each_phase(tmp_path):
     import json
 
     from chainsim.components.resources import PendingInput
-    from chainsim.game.app.headless import build_app
-    from chainsim.game.app.inputscript import load_script
+    from chainsim.game.trainer.headless import build_app
+    from chainsim.game.trainer.inputscript import load_script
     from chainsim.systems.view.ui.widgets import WidgetState
 
     rec = out / "session.json"

@@ -23,8 +23,8 @@ STATUS = "Submental-oblique (az -180, el -90) - 99 images, 99.9 s, 99.99 mGy"
 @pytest.mark.parametrize("size", SIZES)
 @pytest.mark.parametrize("mode", MODES)
 def test_every_x_ray_mode_keeps_text_pages_and_labels_whole(gl_ctx, size, mode):
-    from chainsim.game.gl import panelview
-    from chainsim.game.gl.renderer import Renderer
+    from chainsim.game.render import panelview
+    from chainsim.game.render.renderer import Renderer
     from chainsim.systems.view.cameras import ViewState, main_view
     from chainsim.systems.view.ui import docbox
 

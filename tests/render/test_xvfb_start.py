@@ -1,4 +1,4 @@
-"""Virtual displays for the real-window tests and benchmarks (chainsim.game.app.xvfb): two started at once
+"""Virtual displays for the real-window tests and benchmarks (chainsim.game.trainer.xvfb): two started at once
 get two displays, each ready for a client as soon as it is returned."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-from chainsim.game.app.xvfb import start_xvfb
+from chainsim.game.trainer.xvfb import start_xvfb
 
 needs_x = pytest.mark.skipif(
     shutil.which("Xvfb") is None or shutil.which("xdotool") is None, reason="needs Xvfb and xdotool"

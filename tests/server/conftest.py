@@ -38,8 +38,8 @@ from unittest import mock
 
 import pytest
 
+from chainsim.game.records import accounts
 from chainsim.game.records.store import RecordStore
-from chainsim.game.server import accounts
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPTS = REPO / "assets" / "prp" / "scripts"
@@ -93,12 +93,12 @@ def attempt(i: int = 0, **over) -> dict:
 
 def save_through_simulator(url: str, local: str, script: str, trainee: str = "alice") -> None:
     """Make a built-in scripted attempt in the simulator with --records as a person at the window does
-    (its picks and widget presses as clicks and drags at a person's pace, ``chainsim.game.app.windowform``)
+    (its picks and widget presses as clicks and drags at a person's pace, ``chainsim.game.trainer.windowform``)
     and click Save at its end."""
     from chainsim.components.resources import PendingInput  # noqa: PLC0415 - the simulator, loaded when used
-    from chainsim.game.app import windowform  # noqa: PLC0415
-    from chainsim.game.app.headless import build_app  # noqa: PLC0415
-    from chainsim.game.app.inputscript import load_script  # noqa: PLC0415
+    from chainsim.game.trainer import windowform  # noqa: PLC0415
+    from chainsim.game.trainer.headless import build_app  # noqa: PLC0415
+    from chainsim.game.trainer.inputscript import load_script  # noqa: PLC0415
 
     app = build_app("prp", settings={"db": local, "records": url, "class": "c1", "trainee": trainee})
     try:

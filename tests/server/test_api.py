@@ -12,8 +12,8 @@ import uuid
 import pytest
 from conftest import PASSWORD, call, count_attempts, save_scored, send, settle, upload, wait_scored
 
+from chainsim.game.records import accounts
 from chainsim.game.records.store import RecordStore
-from chainsim.game.server import accounts
 
 
 def count_uploads(db: str) -> int:

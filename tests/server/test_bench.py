@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import pytest
 
-from chainsim.game.bench.records import run_bench
 from chainsim.game.records.store import RecordStore
+from chainsim.tools.bench.records import run_bench
 
 
 @pytest.mark.slow

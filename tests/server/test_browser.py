@@ -18,7 +18,7 @@ import pytest
 from conftest import PASSWORD, save_scored, send, upload, wait_scored
 from records_db import missing
 
-from chainsim.game.bench.train import CHROMIUM, CHROMIUM_ARGS
+from chainsim.tools.bench.train import CHROMIUM, CHROMIUM_ARGS
 
 # the flags the bench starts Chromium with (a closed network: no background connections)
 ARGS = ["--headless", *CHROMIUM_ARGS]

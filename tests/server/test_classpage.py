@@ -18,8 +18,8 @@ import pytest
 from conftest import PASSWORD, attempt
 from test_attempt3d import browser, sign_in, wait_until  # noqa: F401 - the fixture, shared
 
+from chainsim.game.records import accounts
 from chainsim.game.records.store import RecordStore
-from chainsim.game.server import accounts
 
 CLASS = "big"
 TRAINER = "tess"

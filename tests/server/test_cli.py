@@ -11,8 +11,8 @@ import sys
 import pytest
 from conftest import PASSWORD, attempt, call, populate, save_scored, start_server, upload
 
+from chainsim.game.records import accounts
 from chainsim.game.records.store import RecordStore
-from chainsim.game.server import accounts
 
 
 def add_user(cli, monkeypatch, db, *args, password=PASSWORD):

@@ -15,8 +15,8 @@ import urllib.parse
 import pytest
 from conftest import PASSWORD, attempt, call
 
+from chainsim.game.records import accounts
 from chainsim.game.records.store import RecordStore
-from chainsim.game.server import accounts
 from chainsim.game.server.classpage import MEDIAN_MIN_TRAINEES, MEDIAN_WITHHELD
 
 CLASS, TRAINER, VIEWER = "few", "fay", "f0"

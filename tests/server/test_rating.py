@@ -16,8 +16,8 @@ from conftest import call, save_scored, upload
 from test_dashboard import Browser
 
 from chainsim.game.cli.main import main
-from chainsim.game.records import agreement
-from chainsim.game.records.rating import FORM
+from chainsim.game.study import agreement
+from chainsim.game.study.rating import FORM
 
 SCRIPTS = ("correct.toml", "skull-hit.toml", "variant-1.toml", "variant-2.toml")
 

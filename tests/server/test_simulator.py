@@ -31,12 +31,12 @@ from records_db import free_port
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import PendingInput
-from chainsim.game.app import windowform
-from chainsim.game.app.headless import build_app
-from chainsim.game.app.inputscript import load_script
 from chainsim.game.packbuild.needle.make_prp_mouse_script import SCRIPTS
 from chainsim.game.records import remote
 from chainsim.game.records.store import RecordStore
+from chainsim.game.trainer import windowform
+from chainsim.game.trainer.headless import build_app
+from chainsim.game.trainer.inputscript import load_script
 
 
 def play_and_save(settings: dict) -> list[str]:
@@ -189,8 +189,8 @@ def test_command_line_run_login_and_sync(site, tmp_path):
 
 
 def test_the_window_sign_in_asks_for_the_password_once_and_keeps_the_token(site, tmp_path):
-    from chainsim.game.ui.signin import SignInForm
-    from chainsim.game.ui.window import server_login
+    from chainsim.game.trainer.signin import SignInForm
+    from chainsim.game.trainer.window import server_login
 
     local = str(tmp_path / "local.sqlite3")
     values = {"db": local, "records": site.url}

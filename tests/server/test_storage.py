@@ -13,9 +13,9 @@ import threading
 import pytest
 from conftest import REPO, attempt
 
-from chainsim.game.records.schema import SCHEMA_VERSION, V1_DDL, V2_DDL
+from chainsim.game.records import accounts
+from chainsim.game.records.migrations import SCHEMA_VERSION, V1_DDL, V2_DDL
 from chainsim.game.records.store import ENV_VAR, RecordStore
-from chainsim.game.server import accounts
 from chainsim.systems.engine.errors import UserError
 
 

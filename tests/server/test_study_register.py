@@ -114,8 +114,8 @@ def test_without_the_server_allocation_is_refused_in_one_line(tmp_path, cli, mon
 def test_a_session_takes_its_order_from_the_servers_register(site, tmp_path, cli, monkeypatch):
     """`--participant CODE --records URL`: the window's session is given the slot the server allocated (no
     warning); a participant the server has not registered is refused before the window opens."""
-    import chainsim.game.ui.window as window
-    from chainsim.game.app.headless import build_app
+    import chainsim.game.trainer.window as window
+    from chainsim.game.trainer.headless import build_app
 
     study = f"s{uuid.uuid4().hex[:8]}"
     proto = tmp_path / f"{study}.toml"

@@ -39,13 +39,13 @@ ENTRY = ["--group", "novice", "--year-of-training", "2", "--procedures-performed
 
 def run_session(session, app) -> list[dict]:
     """The participant at the window: the pages answered with keys, each trial done with clicks at a
-    person's pace (chainsim.game.app.windowform), Save clicked; the trials in the order given."""
+    person's pace (chainsim.game.trainer.windowform), Save clicked; the trials in the order given."""
     from chainsim.components.hud import HudState
     from chainsim.components.input_events import PickPoint, Widget
     from chainsim.components.resources import PendingInput
-    from chainsim.game.app import windowform
-    from chainsim.game.app.inputscript import load_script
-    from chainsim.game.ui.questionnaire import POST, PRE
+    from chainsim.game.study.questionnaire import POST, PRE
+    from chainsim.game.trainer import windowform
+    from chainsim.game.trainer.inputscript import load_script
 
     correct = load_script(SCRIPTS / "correct.toml")
     picks = [e for _, e in correct if isinstance(e, PickPoint)]
@@ -85,10 +85,10 @@ def run_session(session, app) -> list[dict]:
 
 
 def test_trials_are_filed_checked_replayed_and_tabled(site, tmp_path, cli, monkeypatch):
-    import chainsim.game.ui.window as window
-    from chainsim.game.app.headless import build_app
+    import chainsim.game.trainer.window as window
     from chainsim.game.records import remote
     from chainsim.game.records.store import RecordStore
+    from chainsim.game.trainer.headless import build_app
 
     study = f"s{uuid.uuid4().hex[:8]}"
     proto = tmp_path / f"{study}.toml"
@@ -181,13 +181,13 @@ def test_with_the_server_out_of_reach_a_trial_is_kept_and_queued(tmp_path, monke
     from chainsim.components.hud import HudState
     from chainsim.components.input_events import PickPoint, Widget
     from chainsim.components.resources import PendingInput
-    from chainsim.game.app.headless import build_app
-    from chainsim.game.app.inputscript import load_script
     from chainsim.game.records import remote
-    from chainsim.game.records.protocol import load_protocol
     from chainsim.game.records.store import RecordStore
-    from chainsim.game.ui.questionnaire import PRE
-    from chainsim.game.ui.study import StudySession
+    from chainsim.game.study.protocol import load_protocol
+    from chainsim.game.study.questionnaire import PRE
+    from chainsim.game.study.session import StudySession
+    from chainsim.game.trainer.headless import build_app
+    from chainsim.game.trainer.inputscript import load_script
 
     monkeypatch.setenv("CHAINSIM_RECORDS_TOKEN", "anything")
     proto_file = tmp_path / "offline.toml"

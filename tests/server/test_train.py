@@ -22,8 +22,8 @@ from conftest import PASSWORD, call, populate, start_server
 from test_browser import browser, sign_in  # noqa: F401 - the module's Chromium fixture
 from test_tls import certificates  # noqa: F401 - the programme's authority and the server's certificate
 
+from chainsim.game.records import accounts
 from chainsim.game.records.store import RecordStore
-from chainsim.game.server import accounts
 from chainsim.game.server.train_routes import RECHECK_S, BadMessage, Bucket, check_message
 
 SIZE = (1280, 800)
@@ -400,7 +400,7 @@ def test_a_whole_correct_attempt_in_the_browser_is_saved_under_the_trainee(brows
     from conftest import SCRIPTS
 
     from chainsim.components.input_events import Widget
-    from chainsim.game.app.inputscript import load_script
+    from chainsim.game.trainer.inputscript import load_script
 
     dials = [
         (ev.name, ev.value) for _, ev in load_script(SCRIPTS / "correct.toml") if getattr(ev, "name", "") in DIAL_KEYS

@@ -49,9 +49,9 @@ def window_messages(events) -> list[tuple[float, dict]]:
 def trial_clicks() -> list[tuple[float, dict]]:
     """A location trial at the window: the correct script's three points clicked, then Save."""
     from chainsim.components.input_events import PickPoint
-    from chainsim.game.app import windowform
-    from chainsim.game.app.headless import build_app
-    from chainsim.game.app.inputscript import load_script
+    from chainsim.game.trainer import windowform
+    from chainsim.game.trainer.headless import build_app
+    from chainsim.game.trainer.inputscript import load_script
 
     picks = [(0.2 * k, e) for k, (_, e) in enumerate(load_script(SCRIPTS / "correct.toml")) if isinstance(e, PickPoint)]
     app = build_app("prp")

@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from chainsim.game.records import agreement as A
+from chainsim.game.study import agreement as A
 from chainsim.systems.engine.errors import UserError
 
 #: Shrout and Fleiss (1979), Table 2: six targets, four judges

@@ -118,7 +118,7 @@ def test_save_stores_the_attempt_under_class_and_trainee(pack_dir, tmp_path):
     try:
         _full_attempt(r)
         r.send(Widget("save"))
-        a = r.app.resource(__import__("chainsim.game.app.headless", fromlist=["Assessment"]).Assessment).values
+        a = r.app.resource(__import__("chainsim.game.trainer.headless", fromlist=["Assessment"]).Assessment).values
     finally:
         r.close()
     with RecordStore(db) as store:

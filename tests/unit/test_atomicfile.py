@@ -55,8 +55,8 @@ def test_an_interrupt_or_a_failed_sync_leaves_the_old_file(tmp_path, monkeypatch
 
 
 def test_the_callers_say_what_could_not_be_written_and_keep_the_old_file(tmp_path, monkeypatch):
-    from chainsim.game.app.outputs import write_text_atomic
     from chainsim.game.cli.commands.chainmail import write_result
+    from chainsim.game.common.outputs import write_text_atomic
 
     out = tmp_path / "result.npz"
     out.write_bytes(b"previous result")

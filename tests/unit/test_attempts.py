@@ -7,10 +7,10 @@ import pytest
 
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import PendingInput
-from chainsim.game.app.headless import build_app
-from chainsim.game.app.inputscript import load_script
 from chainsim.game.packbuild.needle.make_prp_mouse_script import SCRIPTS
 from chainsim.game.records.store import RecordStore
+from chainsim.game.trainer.headless import build_app
+from chainsim.game.trainer.inputscript import load_script
 
 DT = 1.0 / 120.0
 

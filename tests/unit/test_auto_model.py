@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import chainsim.systems.tissue.deformable as deformable
-from chainsim.game.app.headless import build_app
+from chainsim.game.trainer.headless import build_app
 from chainsim.systems.engine.bodies.factory import ROW_PARAMS, Choice, choose_model, load_table, make_body
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.meshgen import tet_grid
@@ -107,8 +107,8 @@ def test_every_row_of_the_shipped_table_builds_exactly_its_setting(monkeypatch):
             choice = Choice(r["model"], r["setting"], r["rms_error"], "test", dict(r["params"]))
             monkeypatch.setattr(deformable, "choose_model", lambda *a, _c=choice, **k: _c)
             use_model(d, "auto")
-            _check_body(d.body, r["model"], r["params"])
-            assert d.model_reason.startswith(f"auto: {r['model']} ({r['setting']})")
+            _check_body(d.body.model_body, r["model"], r["params"])
+            assert d.body.model_reason.startswith(f"auto: {r['model']} ({r['setting']})")
     finally:
         app.close()
 
@@ -150,13 +150,13 @@ def test_a_bodys_cost_notice_is_said_with_its_model_at_the_scenes_start(monkeypa
         with app.active():
             _ent, d = esper.get_component(Deformable)[0]
             use_model(d, "projective")
-            assert d.model_reason == "projective (as the pack or --model asks)"  # fits a frame: nothing said
+            assert d.body.model_reason == "projective (as the pack or --model asks)"  # fits a frame: nothing said
             assert model_lines(auto_only=True) == []
             monkeypatch.setattr(framecost, "FRAME_MS", 1e-6)  # a machine where no frame fits
             use_model(d, "projective")
-            assert d.body.notice and "\n" not in d.body.notice
-            assert d.model_reason.endswith(f"; {d.body.notice}")
+            assert d.body.model_body.notice and "\n" not in d.body.model_body.notice
+            assert d.body.model_reason.endswith(f"; {d.body.model_body.notice}")
             [line] = model_lines(auto_only=True)
-            assert line.endswith(f": projective - {d.body.notice}")
+            assert line.endswith(f": projective - {d.body.model_body.notice}")
     finally:
         app.close()

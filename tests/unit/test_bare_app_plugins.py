@@ -40,7 +40,7 @@ def _sheet(n: int = 6, size: float = 10.0) -> tuple[Deformable, np.ndarray]:
     pos, tris, _links = triangulated_grid(n, n, size / (n - 1), dim=3)
     d = Deformable()
     setup_deformable(d, MeshData(np.asarray(pos, dtype=np.float64), np.asarray(tris, dtype=np.int64)), {})
-    return d, d.pos.copy()
+    return d, d.body.positions.copy()
 
 
 # -- tissue: the deformation plugin ----------------------------------------------------------------
@@ -60,17 +60,17 @@ def test_the_deformation_plugin_alone_serves_grab_and_release_on_a_hand_made_bod
         app.events.emit(GrabRequest(ent, [corner], [target]))
         app.run_steps(1)
 
-        np.testing.assert_allclose(d.pos[corner], target, atol=1e-9)
+        np.testing.assert_allclose(d.body.positions[corner], target, atol=1e-9)
         (ev,) = deformed.read()
         assert ev.entity == ent and ev.moved_count > 1  # the cascade carried neighbours along
-        moved = np.linalg.norm(d.pos - rest, axis=1) > 1e-9
+        moved = np.linalg.norm(d.body.positions - rest, axis=1) > 1e-9
         assert moved.sum() == ev.moved_count
-        assert corner in d.held
+        assert corner in d.body.held
 
         app.events.emit(ReleaseRequest(ent))
         app.run_steps(1)
-        assert len(d.held) == 0
-        np.testing.assert_allclose(d.pos[corner], target, atol=1e-9)  # a release lets go, it does not undo
+        assert len(d.body.held) == 0
+        np.testing.assert_allclose(d.body.positions[corner], target, atol=1e-9)  # a release lets go, it does not undo
 
 
 def test_the_deformation_plugin_adds_nothing_to_an_app_without_deformable_bodies():

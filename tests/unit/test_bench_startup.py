@@ -9,8 +9,8 @@ import time
 
 import pytest
 
-from chainsim.game.bench import startup
 from chainsim.systems.engine.errors import UserError
+from chainsim.tools.bench import startup
 
 
 def _fake(script: str) -> list[str]:

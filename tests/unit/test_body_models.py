@@ -10,7 +10,7 @@ import pytest
 from chainsim.assets import ASSETS_DIR
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import PendingInput
-from chainsim.game.app.headless import build_app, run_pack
+from chainsim.game.trainer.headless import build_app, run_pack
 from chainsim.systems.engine.bodies.factory import choose_model
 from chainsim.systems.tissue.deformable import Deformable
 
@@ -39,8 +39,10 @@ def test_the_m_key_switches_models_live_from_rest():
             for _ in range(2):
                 app.update(app.time.dt)
             with app.active():
-                models = {d.model_used for _, d in esper.get_component(Deformable)}
-                assert all(np.allclose(d.pos, d.rest, atol=1e-9) for _, d in esper.get_component(Deformable))
+                models = {d.body.model_used for _, d in esper.get_component(Deformable)}
+                assert all(
+                    np.allclose(d.body.positions, d.body.rest, atol=1e-9) for _, d in esper.get_component(Deformable)
+                )
             seen.append(models)
         # the layers are sheets: the walk reaches SurfaceChainMail, the pack's own model
         assert seen == [{"xpbd"}, {"projective"}, {"surface"}, {"chainmail"}]
@@ -53,15 +55,15 @@ def test_a_dynamic_body_keeps_moving_toward_its_grab_between_requests():
     try:
         with app.active():
             ent, d = esper.get_component(Deformable)[0]
-        top = int(np.argmax(d.rest[:, 2]))
+        top = int(np.argmax(d.body.rest[:, 2]))
         from chainsim.systems.tissue.events import GrabRequest
 
-        app.events.emit(GrabRequest(ent, np.array([top]), d.rest[top][None] + [0, 0, 2.0], frame="local"))
+        app.events.emit(GrabRequest(ent, np.array([top]), d.body.rest[top][None] + [0, 0, 2.0], frame="local"))
         gaps = []
         for _ in range(30):
             app.update(app.time.dt)
-            gaps.append(float(np.linalg.norm(d.pos - d.rest, axis=1).sum()))
-        assert d.pos[top, 2] == pytest.approx(d.rest[top, 2] + 2.0)
+            gaps.append(float(np.linalg.norm(d.body.positions - d.body.rest, axis=1).sum()))
+        assert d.body.positions[top, 2] == pytest.approx(d.body.rest[top, 2] + 2.0)
         assert gaps[-1] > gaps[0] > 0.0  # the rest of the body follows over the next steps
     finally:
         app.close()
@@ -126,7 +128,9 @@ def test_auto_names_its_choice_and_reason_in_the_hud():
         texts = [t for t, _ in app.resource(HudState).messages]
         with app.active():
             ((_, d),) = esper.get_component(Deformable)
-        assert any(f": {d.model_used} - auto: {d.model_used}" in t and "study scene" in t for t in texts), texts
+        assert any(f": {d.body.model_used} - auto: {d.body.model_used}" in t and "study scene" in t for t in texts), (
+            texts
+        )
     finally:
         app.close()
 
@@ -173,7 +177,12 @@ def test_projective_solver_settings_come_from_the_pack(tmp_path):
     try:
         with app.active():
             ((_, d),) = esper.get_component(Deformable)
-        assert (d.body.model, d.body.solver, d.body.cg_iterations, d.body.rotation_iterations) == (
+        assert (
+            d.body.model_body.model,
+            d.body.model_body.solver,
+            d.body.model_body.cg_iterations,
+            d.body.model_body.rotation_iterations,
+        ) == (
             "projective",
             "cg",
             7,

@@ -1,4 +1,4 @@
-"""The triangles a draw leaves out (chainsim.game.gl.culling) are exactly those wholly outside one side
+"""The triangles a draw leaves out (chainsim.game.render.culling) are exactly those wholly outside one side
 of the drawn region, checked against the clip coordinates of each corner on random meshes, cameras
 and scissor boxes: none that could put a pixel in the box is ever left out."""
 
@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from chainsim.game.gl import culling
+from chainsim.game.render import culling
 
 
 def _perspective(fov: float, aspect: float, near: float, far: float) -> np.ndarray:

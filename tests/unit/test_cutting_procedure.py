@@ -15,7 +15,7 @@ from chainsim.components.core import Transform
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import MouseButton, MouseDrag, MouseMove, PickPoint, Widget
 from chainsim.components.resources import Assessment, EntityIndex, PendingInput
-from chainsim.game.app.headless import build_app
+from chainsim.game.trainer.headless import build_app
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.procedures.cutting.state import parse_point
 from chainsim.systems.procedures.cutting.tools import Forceps, Scissors
@@ -42,7 +42,7 @@ def comp(app, name: str, kind):
 
 
 def nearest(d: Deformable, point) -> int:
-    return int(np.argmin(np.sum((d.rest - np.asarray(point)) ** 2, axis=1)))
+    return int(np.argmin(np.sum((d.body.rest - np.asarray(point)) ** 2, axis=1)))
 
 
 @pytest.fixture
@@ -70,9 +70,9 @@ def test_forceps_tip_follows_the_hand_at_its_speed(app):
     c = nearest(d, CORNER)
     assert f.held_element == c
     one = f.speed * app.time.dt
-    assert d.pos[c] == pytest.approx([40.0, 30.0, one], abs=1e-9)
+    assert d.body.positions[c] == pytest.approx([40.0, 30.0, one], abs=1e-9)
     steps(app, 9)
-    assert d.pos[c] == pytest.approx([40.0, 30.0, 10 * one], abs=1e-9)
+    assert d.body.positions[c] == pytest.approx([40.0, 30.0, 10 * one], abs=1e-9)
 
 
 def test_push_presses_the_held_element_into_the_tissue_along_its_normal(app):
@@ -82,13 +82,13 @@ def test_push_presses_the_held_element_into_the_tissue_along_its_normal(app):
     steps(app, 30)
     d = comp(app, "dura", Deformable)
     c = nearest(d, (0.0, 0.0, 0.0))
-    assert d.pos[c] == pytest.approx(d.rest[c] - [0.0, 0.0, 3.0], abs=1e-9)
+    assert d.body.positions[c] == pytest.approx(d.body.rest[c] - [0.0, 0.0, 3.0], abs=1e-9)
     app.resource(PendingInput).push(app.time.sim_time, Widget("push"))  # the button: 2 mm more
     steps(app, 30)
     # along the normal of the surface as it is now (tilted a little by the dent), pressed in: nearly
     # straight down again, 2 mm further
-    assert d.pos[c][2] == pytest.approx(d.rest[c][2] - 5.0, abs=5e-3)
-    assert np.linalg.norm(d.pos[c] - d.rest[c]) == pytest.approx(5.0, abs=2e-2)
+    assert d.body.positions[c][2] == pytest.approx(d.body.rest[c][2] - 5.0, abs=5e-3)
+    assert np.linalg.norm(d.body.positions[c] - d.body.rest[c]) == pytest.approx(5.0, abs=2e-2)
 
 
 def test_release_leaves_the_tissue_where_it_is(app):
@@ -103,8 +103,8 @@ def test_release_leaves_the_tissue_where_it_is(app):
     steps(app, 80)
     d = comp(app, "dura", Deformable)
     f = comp(app, "forceps", Forceps)
-    assert f.held_entity == -1 and len(d.held) == 0
-    assert d.pos[nearest(d, CORNER)][2] == pytest.approx(6.0, abs=1e-9)
+    assert f.held_entity == -1 and len(d.body.held) == 0
+    assert d.body.positions[nearest(d, CORNER)][2] == pytest.approx(6.0, abs=1e-9)
     v = app.resource(Assessment).values
     assert v["forceps_uses"] == 1
     assert v["forceps_time_s"] == pytest.approx(0.5, abs=app.time.dt)
@@ -122,10 +122,10 @@ def test_scissors_cut_only_the_layer_the_stroke_started_on(app):
     app.resource(PendingInput).extend([(0.0, Widget("scissors"))] + [(0.0, PickPoint("arachnoid", p)) for p in pts])
     steps(app, 2)
     low, top = comp(app, "arachnoid", Deformable), comp(app, "dura", Deformable)
-    assert top.alive.all()
-    dead = low.graph.links[~low.alive]
+    assert top.body.alive.all()
+    dead = low.body.graph.links[~low.body.alive]
     assert len(dead) > 20
-    ys = low.rest[dead][:, :, 1]
+    ys = low.body.rest[dead][:, :, 1]
     assert np.all((ys.min(axis=1) <= 10.0) & (ys.max(axis=1) >= 10.0))  # every cut link crossed y = 10
     v = app.resource(Assessment).values
     assert v["layers_cut"] == ["arachnoid"] and v["cut_length_mm"] == pytest.approx(40.0, abs=1e-6)
@@ -150,7 +150,7 @@ def test_reset_restores_both_layers_and_the_steps(app):
     assert v["steps_done"] == [] and v["step"] == "pull"
     for name in ("dura", "arachnoid"):
         d = comp(app, name, Deformable)
-        assert np.array_equal(d.pos, d.rest) and d.alive.all() and len(d.held) == 0
+        assert np.array_equal(d.body.positions, d.body.rest) and d.body.alive.all() and len(d.body.held) == 0
     assert comp(app, "forceps", Forceps).held_entity == -1
 
 
@@ -197,9 +197,9 @@ def test_a_mouse_drag_in_the_controller_pulls_and_lets_go(app):
     d = comp(app, "dura", Deformable)
     f = comp(app, "forceps", Forceps)
     c = nearest(d, CORNER)
-    assert f.uses == 1 and f.held_entity == -1 and len(d.held) == 0  # let go at the end of the drag
-    assert d.pos[c][2] > 5.0  # dragging up the screen lifted the corner
-    assert np.array_equal(d.pos[d.fixed_mask], d.rest[d.fixed_mask])
+    assert f.uses == 1 and f.held_entity == -1 and len(d.body.held) == 0  # let go at the end of the drag
+    assert d.body.positions[c][2] > 5.0  # dragging up the screen lifted the corner
+    assert np.array_equal(d.body.positions[d.body.fixed], d.body.rest[d.body.fixed])
 
 
 def test_a_mouse_drag_with_the_scissors_cuts_the_top_layer(app):
@@ -217,10 +217,10 @@ def test_a_mouse_drag_with_the_scissors_cuts_the_top_layer(app):
     app.resource(PendingInput).extend(ev)
     steps(app, 40)
     top, low = comp(app, "dura", Deformable), comp(app, "arachnoid", Deformable)
-    assert low.alive.all()
-    dead = top.graph.links[~top.alive]
+    assert low.body.alive.all()
+    dead = top.body.graph.links[~top.body.alive]
     assert len(dead) > 15
-    mid = top.rest[dead].mean(axis=1)
+    mid = top.body.rest[dead].mean(axis=1)
     assert np.all(np.abs(mid[:, 0] - 0.6) < 2.5) and mid[:, 1].min() > -23.0 and mid[:, 1].max() < 31.0
     s = comp(app, "scissors", Scissors)
     assert s.uses == 1 and s.stroke_entity == -1 and s.path_length > 40.0
@@ -270,7 +270,7 @@ def test_touching_without_a_tool_does_nothing(app):
     app.resource(PendingInput).push(0.0, PickPoint("dura", CORNER))
     steps(app, 2)
     d = comp(app, "dura", Deformable)
-    assert np.array_equal(d.pos, d.rest)
+    assert np.array_equal(d.body.positions, d.body.rest)
     assert any("tool" in text for text, _ in app.resource(HudState).messages)
 
 
@@ -326,4 +326,4 @@ def test_a_pull_far_past_what_the_layer_allows_leaves_every_link_in_its_limits(a
     v = app.resource(Assessment).values
     assert v["max_stretch_by_layer"]["dura"] <= 1.6 + 1e-6
     d = comp(app, "dura", Deformable)
-    assert np.all(np.isfinite(d.pos)) and d.pos[nearest(d, CORNER)][2] > 5.0
+    assert np.all(np.isfinite(d.body.positions)) and d.body.positions[nearest(d, CORNER)][2] > 5.0

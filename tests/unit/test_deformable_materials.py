@@ -11,7 +11,7 @@ import esper
 import numpy as np
 import pytest
 
-from chainsim.game.app.headless import build_app
+from chainsim.game.trainer.headless import build_app
 from chainsim.systems.engine.bodies import chainmail as chainmail_body
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.kernels.chainmail import cascade
@@ -93,12 +93,13 @@ def test_two_materials_reach_the_kernel_link_by_link(tmp_path, monkeypatch):
     app = build_app(make_pack(tmp_path, extra=REGIONS))
     try:
         d = deformable(app)
-        want = declared(d.rest, d.graph.links)
+        want = declared(d.body.rest, d.body.graph.links)
         assert 0 < np.count_nonzero(want[0] == STIFF[0]) < len(want[0])  # both materials are on the body
-        # the component's arrays are the body's, not a copy cut to their first value
-        assert d.body.amin is d.amin and d.body.amax is d.amax and d.body.beta is d.beta_l
-        top = int(np.argmax(d.rest[:, 2] + 1e-3 * d.rest[:, 0]))
-        app.events.emit(GrabRequest("body", [top], d.rest[top] + [0.0, 0.0, 3.0], frame="local"))
+        # the limits built at spawn are the ChainMail body's own arrays, not a copy cut to their first value
+        model = d.body.model_body
+        assert all(a is b for a, b in zip((model.amin, model.amax, model.beta), d.body.base_limits))
+        top = int(np.argmax(d.body.rest[:, 2] + 1e-3 * d.body.rest[:, 0]))
+        app.events.emit(GrabRequest("body", [top], d.body.rest[top] + [0.0, 0.0, 3.0], frame="local"))
         app.run_steps(1)
         assert len(received) == 1
         for got, exp in zip(received[0], want):
@@ -111,12 +112,12 @@ def test_a_body_of_two_materials_moves_as_a_plain_cascade_with_both_limits(tmp_p
     app = build_app(make_pack(tmp_path, extra=REGIONS))
     try:
         d = deformable(app)
-        rest, links = d.rest.copy(), d.graph.links.copy()
-        grab = int(np.argmax(d.rest[:, 2] + 1e-3 * d.rest[:, 0]))
+        rest, links = d.body.rest.copy(), d.body.graph.links.copy()
+        grab = int(np.argmax(d.body.rest[:, 2] + 1e-3 * d.body.rest[:, 0]))
         target = rest[grab] + [0.0, 0.0, 3.0]
         app.events.emit(GrabRequest("body", [grab], target, frame="local"))
         app.run_steps(1)
-        got = d.pos.copy()
+        got = d.body.positions.copy()
     finally:
         app.close()
 
@@ -149,10 +150,10 @@ def test_surface_chainmail_gets_the_per_link_limits(tmp_path):
     app = build_app(text)
     try:
         d = deformable(app)
-        assert d.model_used == "surface"
-        plane = d.body.plane
+        assert d.body.model_used == "surface"
+        plane = d.body.model_body.plane
         links = d.body.graph.links
-        mid = 0.5 * (d.rest[links[:, 0]] + d.rest[links[:, 1]])
+        mid = 0.5 * (d.body.rest[links[:, 0]] + d.body.rest[links[:, 1]])
         inside = mid[:, 0] >= 0.0
         assert 0 < inside.sum() < len(links)
         np.testing.assert_array_equal(plane.amin, np.where(inside, STIFF[0], SOFT[0]))

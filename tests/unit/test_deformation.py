@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from chainsim.components.digest import world_digest
-from chainsim.game.app.headless import build_app
+from chainsim.game.trainer.headless import build_app
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.tissue.deformable import Deformable, Pull
 from chainsim.systems.tissue.events import Deformed, GrabRequest, ReleaseRequest
@@ -85,11 +85,11 @@ def test_spawn_builds_the_chainmail_object_from_the_render_mesh(tmp_path):
         from chainsim.components.resources import PackResource
 
         mesh = app.resource(PackResource).pack.mesh("sheet")
-        np.testing.assert_array_equal(d.pos, mesh.vertices)  # same vertex order as the renderer's mesh
-        np.testing.assert_array_equal(d.rest, mesh.vertices)
-        assert d.graph.n_links == len(mesh.edge_links())
-        assert np.all(d.amin == 0.8) and np.all(d.amax == 1.2) and np.all(d.beta_l == 0.1)
-        assert d.relax_iterations == 0 and d.version == 0 and len(d.dirty) == 0
+        np.testing.assert_array_equal(d.body.positions, mesh.vertices)  # same vertex order as the renderer's mesh
+        np.testing.assert_array_equal(d.body.rest, mesh.vertices)
+        assert d.body.graph.n_links == len(mesh.edge_links())
+        assert np.all(d.body.limits[0] == 0.8) and np.all(d.body.limits[1] == 1.2) and np.all(d.body.limits[2] == 0.1)
+        assert d.body.relax_iterations == 0 and d.body.version == 0 and len(d.body.dirty) == 0
     finally:
         app.close()
 
@@ -99,21 +99,21 @@ def test_grab_moves_the_element_emits_deformed_and_marks_dirty(tmp_path):
     try:
         ent, d = body(app)
         seen = app.events.reader(Deformed)
-        target = d.rest[60] + [0.0, 0.0, 4.0]
+        target = d.body.rest[60] + [0.0, 0.0, 4.0]
         app.events.emit(GrabRequest("body", [60], target, frame="local"))
         app.run_steps(1)
-        np.testing.assert_allclose(d.pos[60], target)
-        moved = np.flatnonzero(np.any(d.pos != d.rest, axis=1))
+        np.testing.assert_allclose(d.body.positions[60], target)
+        moved = np.flatnonzero(np.any(d.body.positions != d.body.rest, axis=1))
         assert 60 in moved and len(moved) > 1
-        assert set(moved.tolist()) <= set(d.dirty.tolist())
-        assert set(d.dirty.tolist()) == set(d.last_order.tolist())
+        assert set(moved.tolist()) <= set(d.body.dirty.tolist())
+        assert set(d.body.dirty.tolist()) == set(d.body.last_order.tolist())
         evs = seen.read()
-        assert len(evs) == 1 and evs[0].entity == ent and evs[0].moved_count == len(d.last_order)
-        assert d.version == 1 and d.held.tolist() == [60]
+        assert len(evs) == 1 and evs[0].entity == ent and evs[0].moved_count == len(d.body.last_order)
+        assert d.body.version == 1 and d.body.held.tolist() == [60]
         # every moved element sits in the valid region of its sponsor (thesis 5.2.2), nothing else moved
-        for e, s in zip(d.last_order[1:], d.last_sponsor[1:]):
-            lo, hi = _box(d.rest, d.pos, e, s, 0.8, 1.2, 0.1)
-            assert np.all(d.pos[e] >= lo - 1e-9) and np.all(d.pos[e] <= hi + 1e-9)
+        for e, s in zip(d.body.last_order[1:], d.body.last_sponsor[1:]):
+            lo, hi = _box(d.body.rest, d.body.positions, e, s, 0.8, 1.2, 0.1)
+            assert np.all(d.body.positions[e] >= lo - 1e-9) and np.all(d.body.positions[e] <= hi + 1e-9)
     finally:
         app.close()
 
@@ -139,10 +139,10 @@ position = [100.0, 0.0, 0.0]
     )
     try:
         _, d = body(app)
-        world_target = d.rest[5] + [100.0, 0.0, 3.0]
+        world_target = d.body.rest[5] + [100.0, 0.0, 3.0]
         app.events.emit(GrabRequest("body", [5], world_target))  # world frame is the default
         app.run_steps(1)
-        np.testing.assert_allclose(d.pos, d.rest + [0.0, 0.0, 3.0], atol=1e-12)
+        np.testing.assert_allclose(d.body.positions, d.body.rest + [0.0, 0.0, 3.0], atol=1e-12)
     finally:
         app.close()
 
@@ -159,16 +159,19 @@ fixed_box = [-100.0, -100.0, -1.0, -4.0, 100.0, 1.0]
     )
     try:
         _, d = body(app)
-        pinned = d.rest[:, 0] <= -4.0
-        assert pinned.sum() > 0 and np.array_equal(d.fixed_mask, pinned)
+        pinned = d.body.rest[:, 0] <= -4.0
+        assert pinned.sum() > 0 and np.array_equal(d.body.fixed, pinned)
         app.events.emit(
             GrabRequest(
-                "body", [int(np.argmax(d.rest[:, 0]))], d.rest[np.argmax(d.rest[:, 0])] + [0, 0, 5.0], frame="local"
+                "body",
+                [int(np.argmax(d.body.rest[:, 0]))],
+                d.body.rest[np.argmax(d.body.rest[:, 0])] + [0, 0, 5.0],
+                frame="local",
             )
         )
         app.run_steps(1)
-        np.testing.assert_array_equal(d.pos[pinned], d.rest[pinned])
-        assert np.any(d.pos[~pinned] != d.rest[~pinned])
+        np.testing.assert_array_equal(d.body.positions[pinned], d.body.rest[pinned])
+        assert np.any(d.body.positions[~pinned] != d.body.rest[~pinned])
     finally:
         app.close()
 
@@ -177,17 +180,19 @@ def test_dirty_is_a_union_until_the_renderer_clears_it(tmp_path):
     app = build_app(make_pack(tmp_path, SHEET.format(material="medium")))
     try:
         _, d = body(app)
-        app.events.emit(GrabRequest("body", [0], d.rest[0] + [0, 0, 2.0], frame="local"))
+        app.events.emit(GrabRequest("body", [0], d.body.rest[0] + [0, 0, 2.0], frame="local"))
         app.run_steps(1)
-        first = set(d.last_order.tolist())
-        app.events.emit(GrabRequest("body", [120], d.rest[120] + [0, 0, 2.0], frame="local"))
+        first = set(d.body.last_order.tolist())
+        app.events.emit(GrabRequest("body", [120], d.body.rest[120] + [0, 0, 2.0], frame="local"))
         app.run_steps(1)
-        second = set(d.last_order.tolist())
-        assert sorted(d.dirty.tolist()) == sorted(first | second) and len(d.dirty) == len(set(d.dirty.tolist()))
-        d.dirty = np.zeros(0, dtype=np.int64)  # what the render system does after uploading
-        app.events.emit(GrabRequest("body", [0], d.rest[0] + [0, 0, 3.0], frame="local"))
+        second = set(d.body.last_order.tolist())
+        assert sorted(d.body.dirty.tolist()) == sorted(first | second) and len(d.body.dirty) == len(
+            set(d.body.dirty.tolist())
+        )
+        d.body.take_dirty()  # what the render system does when it uploads
+        app.events.emit(GrabRequest("body", [0], d.body.rest[0] + [0, 0, 3.0], frame="local"))
         app.run_steps(1)
-        assert sorted(d.dirty.tolist()) == sorted(set(d.last_order.tolist()))
+        assert sorted(d.body.dirty.tolist()) == sorted(set(d.body.last_order.tolist()))
     finally:
         app.close()
 
@@ -196,18 +201,18 @@ def test_held_elements_stay_put_until_released(tmp_path):
     app = build_app(make_pack(tmp_path, SHEET.format(material="medium")))
     try:
         _, d = body(app)
-        app.events.emit(GrabRequest("body", [0], d.rest[0] + [0, 0, 1.0], frame="local"))
+        app.events.emit(GrabRequest("body", [0], d.body.rest[0] + [0, 0, 1.0], frame="local"))
         app.run_steps(1)
-        held_at = d.pos[0].copy()
-        app.events.emit(GrabRequest("body", [1], d.rest[1] + [0, 0, 6.0], frame="local"))
+        held_at = d.body.positions[0].copy()
+        app.events.emit(GrabRequest("body", [1], d.body.rest[1] + [0, 0, 6.0], frame="local"))
         app.run_steps(1)
-        np.testing.assert_array_equal(d.pos[0], held_at)
-        assert sorted(d.held.tolist()) == [0, 1]
+        np.testing.assert_array_equal(d.body.positions[0], held_at)
+        assert sorted(d.body.held.tolist()) == [0, 1]
         app.events.emit(ReleaseRequest("body", [0]))
-        app.events.emit(GrabRequest("body", [1], d.rest[1] + [0, 0, 9.0], frame="local"))
+        app.events.emit(GrabRequest("body", [1], d.body.rest[1] + [0, 0, 9.0], frame="local"))
         app.run_steps(1)
-        assert d.pos[0, 2] > held_at[2]
-        assert d.held.tolist() == [1]
+        assert d.body.positions[0, 2] > held_at[2]
+        assert d.body.held.tolist() == [1]
     finally:
         app.close()
 
@@ -217,9 +222,9 @@ def test_digest_follows_positions_not_render_bookkeeping(tmp_path):
     try:
         _, d = body(app)
         before = world_digest(app)
-        d.dirty = np.arange(5, dtype=np.int64)
+        d.body.mark_dirty(np.arange(5, dtype=np.int64))
         assert world_digest(app) == before
-        d.pos[3, 2] += 1.0
+        d.body.positions[3, 2] += 1.0
         assert world_digest(app) != before
     finally:
         app.close()
@@ -245,7 +250,7 @@ kind = "volume"
 
         mesh = app.resource(PackResource).pack.mesh("block")
         assert d.source == "volume"
-        assert d.graph.n_links == len(meshgen.links_from_cells(mesh.tets))
+        assert d.body.graph.n_links == len(meshgen.links_from_cells(mesh.tets))
         assert "deformation" in app.systems("simulation")
     finally:
         app.close()
@@ -270,13 +275,13 @@ start = 0.05
         ent, d = body(app)
         with app.active():
             p = esper.component_for_entity(ent, Pull)
-        assert p.resolved == int(np.argmin(np.linalg.norm(d.rest, axis=1)))
+        assert p.resolved == int(np.argmin(np.linalg.norm(d.body.rest, axis=1)))
         app.run_steps(60)
         assert p.done
-        np.testing.assert_allclose(d.pos[p.resolved], [1.0, 0.0, 3.0], atol=1e-12)
-        rim = d.fixed_mask
+        np.testing.assert_allclose(d.body.positions[p.resolved], [1.0, 0.0, 3.0], atol=1e-12)
+        rim = d.body.fixed
         assert rim.sum() == 40  # the rim of an 11 x 11 sheet
-        np.testing.assert_array_equal(d.pos[rim], d.rest[rim])
+        np.testing.assert_array_equal(d.body.positions[rim], d.body.rest[rim])
     finally:
         app.close()
 
@@ -319,16 +324,16 @@ position = [0.0, 0.0, 50.0]
     )
     try:
         ent, d = body(app)
-        grab_world = d.rest[60] + [0.1, 0.0, 50.0]
+        grab_world = d.body.rest[60] + [0.1, 0.0, 50.0]
         app.events.emit(Dragged("front", ent, "body", "start", 0, tuple(grab_world), tuple(grab_world)))
         app.events.emit(Dragged("front", ent, "body", "move", 0, tuple(grab_world), tuple(grab_world + [0, 0, 4.0])))
         app.run_steps(1)
-        np.testing.assert_allclose(d.pos[60], d.rest[60] + [0, 0, 4.0])
-        assert d.held.tolist() == [60]
+        np.testing.assert_allclose(d.body.positions[60], d.body.rest[60] + [0, 0, 4.0])
+        assert d.body.held.tolist() == [60]
         app.events.emit(Dragged("front", ent, "body", "end", 0, tuple(grab_world), tuple(grab_world + [0, 0, 5.0])))
         app.run_steps(1)
-        np.testing.assert_allclose(d.pos[60], d.rest[60] + [0, 0, 5.0])
-        assert len(d.held) == 0
+        np.testing.assert_allclose(d.body.positions[60], d.body.rest[60] + [0, 0, 5.0])
+        assert len(d.body.held) == 0
     finally:
         app.close()
 
@@ -339,11 +344,11 @@ def test_mouse_drags_are_ignored_unless_the_body_asks_for_them(tmp_path):
     app = build_app(make_pack(tmp_path, SHEET.format(material="medium")))
     try:
         ent, d = body(app)
-        p = tuple(d.rest[60])
+        p = tuple(d.body.rest[60])
         app.events.emit(Dragged("front", ent, "body", "start", 0, p, p))
-        app.events.emit(Dragged("front", ent, "body", "move", 0, p, tuple(d.rest[60] + [0, 0, 4.0])))
+        app.events.emit(Dragged("front", ent, "body", "move", 0, p, tuple(d.body.rest[60] + [0, 0, 4.0])))
         app.run_steps(1)
-        np.testing.assert_array_equal(d.pos, d.rest)
+        np.testing.assert_array_equal(d.body.positions, d.body.rest)
     finally:
         app.close()
 
@@ -361,15 +366,20 @@ def test_cut_kills_crossed_links_and_the_pieces_move_apart(tmp_path):
         )
         app.run_steps(1)
         cut = [e for e in seen.read() if e.cut_count]
-        assert cut and cut[0].cut_count == int((~d.alive).sum()) > 0
-        a, b = d.rest[d.graph.links[~d.alive, 0], 0], d.rest[d.graph.links[~d.alive, 1], 0]
+        assert cut and cut[0].cut_count == int((~d.body.alive).sum()) > 0
+        a, b = (
+            d.body.rest[d.body.graph.links[~d.body.alive, 0], 0],
+            d.body.rest[d.body.graph.links[~d.body.alive, 1], 0],
+        )
         assert np.all(np.minimum(a, b) < 0.5) and np.all(np.maximum(a, b) > 0.5)
-        left = int(np.argmin(d.rest[:, 0]))
-        app.events.emit(GrabRequest("body", [left], d.rest[left] + [0, 0, 3.0], frame="local"))
+        left = int(np.argmin(d.body.rest[:, 0]))
+        app.events.emit(GrabRequest("body", [left], d.body.rest[left] + [0, 0, 3.0], frame="local"))
         app.run_steps(1)
-        right_side = d.rest[:, 0] > 0.5
-        np.testing.assert_array_equal(d.pos[right_side], d.rest[right_side])  # no link left to pull them
-        assert np.all(d.pos[~right_side, 2] == 3.0)
+        right_side = d.body.rest[:, 0] > 0.5
+        np.testing.assert_array_equal(
+            d.body.positions[right_side], d.body.rest[right_side]
+        )  # no link left to pull them
+        assert np.all(d.body.positions[~right_side, 2] == 3.0)
     finally:
         app.close()
 
@@ -384,16 +394,21 @@ def test_added_links_join_pieces_with_the_body_material(tmp_path):
             CutRequest("body", p0=[0.5, -20.0, 0.0], p1=[0.5, 20.0, 0.0], normal=[0.0, 0.0, 1.0], frame="local")
         )
         app.run_steps(1)
-        m = d.graph.n_links
-        a = int(np.argmin(np.abs(d.rest[:, 0] - 0.0) + np.abs(d.rest[:, 1])))
-        b = int(np.argmin(np.abs(d.rest[:, 0] - 1.0) + np.abs(d.rest[:, 1])))
+        m = d.body.graph.n_links
+        a = int(np.argmin(np.abs(d.body.rest[:, 0] - 0.0) + np.abs(d.body.rest[:, 1])))
+        b = int(np.argmin(np.abs(d.body.rest[:, 0] - 1.0) + np.abs(d.body.rest[:, 1])))
         app.events.emit(AddLinksRequest("body", [[a, b]]))
         app.run_steps(1)
-        assert d.graph.n_links == m + 1 and len(d.amin) == m + 1 and d.amin[-1] == 1.0 and d.amax[-1] == 1.0
-        left = int(np.argmin(d.rest[:, 0]))
-        app.events.emit(GrabRequest("body", [left], d.rest[left] + [0, 0, 3.0], frame="local"))
+        assert (
+            d.body.graph.n_links == m + 1
+            and len(d.body.limits[0]) == m + 1
+            and d.body.limits[0][-1] == 1.0
+            and d.body.limits[1][-1] == 1.0
+        )
+        left = int(np.argmin(d.body.rest[:, 0]))
+        app.events.emit(GrabRequest("body", [left], d.body.rest[left] + [0, 0, 3.0], frame="local"))
         app.run_steps(1)
-        np.testing.assert_allclose(d.pos[:, 2], 3.0)  # the stitch carries the pull across the cut
+        np.testing.assert_allclose(d.body.positions[:, 2], 3.0)  # the stitch carries the pull across the cut
     finally:
         app.close()
 
@@ -403,17 +418,17 @@ def test_orders_and_single_precision_keep_the_grab_and_the_limits(tmp_path, extr
     app = build_app(make_pack(tmp_path, SHEET.format(material="medium") + extra + "\n"))
     try:
         _, d = body(app)
-        target = d.rest[60].astype(np.float64) + [2.0, 1.0, 4.0]
+        target = d.body.rest[60].astype(np.float64) + [2.0, 1.0, 4.0]
         app.events.emit(GrabRequest("body", [60], target, frame="local"))
         app.run_steps(1)
-        assert d.pos.dtype == (np.float32 if "float32" in extra else np.float64)
-        np.testing.assert_allclose(d.pos[60], target, rtol=1e-6)
+        assert d.body.positions.dtype == (np.float32 if "float32" in extra else np.float64)
+        np.testing.assert_allclose(d.body.positions[60], target, rtol=1e-6)
         tol = 1e-5 if "float32" in extra else 1e-9
-        rest, pos = d.rest.astype(np.float64), d.pos.astype(np.float64)
-        for e, s in zip(d.last_order[1:], d.last_sponsor[1:]):
+        rest, pos = d.body.rest.astype(np.float64), d.body.positions.astype(np.float64)
+        for e, s in zip(d.body.last_order[1:], d.body.last_sponsor[1:]):
             lo, hi = _box(rest, pos, e, s, 0.8, 1.2, 0.1)
             assert np.all(pos[e] >= lo - tol) and np.all(pos[e] <= hi + tol)
-        assert len(d.last_order) > 1
+        assert len(d.body.last_order) > 1
     finally:
         app.close()
 
@@ -442,22 +457,24 @@ order = "fifo"
     app = build_app(pack)
     try:
         _, d = body(app)
-        assert d.exact_limits and d.order == "breadth-first"
-        app.events.emit(GrabRequest("body", [0], d.rest[0] + [0, 0, 1.5], frame="local"))  # held by a tool
+        assert d.body.exact and d.order == "breadth-first"
+        app.events.emit(GrabRequest("body", [0], d.body.rest[0] + [0, 0, 1.5], frame="local"))  # held by a tool
         app.run_steps(1)
-        held = d.pos[0].copy()
-        g = int(np.argmax(d.rest[:, 0]))
+        held = d.body.positions[0].copy()
+        g = int(np.argmax(d.body.rest[:, 0]))
         for k in range(1, 8):
-            d.dirty = np.zeros(0, dtype=np.int64)
-            before = d.pos.copy()
-            app.events.emit(GrabRequest("body", [g], d.rest[g] + [0.0, 1.5 * k, 2.5 * k], frame="local"))
+            d.body.take_dirty()
+            before = d.body.positions.copy()
+            app.events.emit(GrabRequest("body", [g], d.body.rest[g] + [0.0, 1.5 * k, 2.5 * k], frame="local"))
             app.run_steps(1)
-            v = violations(d.rest, d.pos, d.graph, d.amin, d.amax, d.beta_l)
+            v = violations(
+                d.body.rest, d.body.positions, d.body.graph, d.body.limits[0], d.body.limits[1], d.body.limits[2]
+            )
             assert v.outside == 0 and v.worst <= 1e-6, (k, v)
-            np.testing.assert_array_equal(d.pos[d.fixed_mask], d.rest[d.fixed_mask])
-            np.testing.assert_array_equal(d.pos[0], held)
-            changed = np.flatnonzero(np.any(d.pos != before, axis=1))
-            assert set(changed.tolist()) <= set(d.dirty.tolist())  # (none once the pull is past reach)
-        assert d.last_shortfall > 0  # the last pulls go further than the limits allow from the fixed edge
+            np.testing.assert_array_equal(d.body.positions[d.body.fixed], d.body.rest[d.body.fixed])
+            np.testing.assert_array_equal(d.body.positions[0], held)
+            changed = np.flatnonzero(np.any(d.body.positions != before, axis=1))
+            assert set(changed.tolist()) <= set(d.body.dirty.tolist())  # (none once the pull is past reach)
+        assert d.body.last_shortfall > 0  # the last pulls go further than the limits allow from the fixed edge
     finally:
         app.close()

@@ -1,4 +1,4 @@
-"""bench train's network relay (chainsim.game.bench.delay_proxy): every byte arrives, in order, both ways,
+"""bench train's network relay (chainsim.tools.bench.delay_proxy): every byte arrives, in order, both ways,
 and none sooner than half the round trip asked for."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import socketserver
 import threading
 import time
 
-from chainsim.game.bench.delay_proxy import DelayProxy
+from chainsim.tools.bench.delay_proxy import DelayProxy
 
 
 class _EchoServer(socketserver.ThreadingTCPServer):

@@ -5,7 +5,7 @@ from __future__ import annotations
 from chainsim.components.hud import HudState
 from chainsim.components.input_events import Key, PickPoint, Widget
 from chainsim.components.resources import PackResource, PendingInput
-from chainsim.game.app.headless import build_app
+from chainsim.game.trainer.headless import build_app
 
 
 def test_reading_step_opens_its_page_and_help_toggles_it():

@@ -209,8 +209,8 @@ def test_the_stylus_aims_the_needle_outside_tissue_and_tissue_holds_the_hand_on_
     import esper
 
     from chainsim.components.resources import PendingInput
-    from chainsim.game.app.headless import build_app
-    from chainsim.game.app.inputscript import load_script
+    from chainsim.game.trainer.headless import build_app
+    from chainsim.game.trainer.inputscript import load_script
     from chainsim.systems.procedures.needle import haptics as H
     from chainsim.systems.procedures.needle.components import NeedleState
 

@@ -10,8 +10,8 @@ import pytest
 
 from chainsim.components.core import Name, ScriptedMotion, Transform
 from chainsim.components.input_events import Key, Widget
-from chainsim.game.app.headless import build_app, run_pack
-from chainsim.game.app.inputscript import load_script
+from chainsim.game.trainer.headless import build_app, run_pack
+from chainsim.game.trainer.inputscript import load_script
 from chainsim.systems.engine.errors import UserError
 
 

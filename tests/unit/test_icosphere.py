@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from chainsim.game.gl.icosphere import icosphere
+from chainsim.game.render.icosphere import icosphere
 
 
 @pytest.mark.parametrize("subdiv", [0, 1, 2, 3])

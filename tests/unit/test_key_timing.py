@@ -1,4 +1,4 @@
-"""Key timing (chainsim.game.app.keytiming.key_times: the browser trainer's, the window's, the held input's):
+"""Key timing (chainsim.game.trainer.keytiming.key_times: the browser trainer's, the window's, the held input's):
 a tap held for one step, a burst of taps of one key that arrives at once spread a step apart each, a held
 key released when the page says so."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 
-from chainsim.game.app.keytiming import key_times
+from chainsim.game.trainer.keytiming import key_times
 
 DT = 1 / 120
 

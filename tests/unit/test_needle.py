@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 from chainsim.components.input_events import PickPoint, Widget
-from chainsim.game.app.headless import build_app
-from chainsim.game.bench.replay import without_tissue  # the cut the replay bench makes too
+from chainsim.game.trainer.headless import build_app
 from chainsim.systems.procedures.needle.components import NeedleState
 from chainsim.systems.procedures.needle.manifest import ProcedureState
+from chainsim.tools.bench.replay import without_tissue  # the cut the replay bench makes too
 
 ROOT = Path(__file__).resolve().parents[2]
 PACK = ROOT / "assets" / "prp"
@@ -280,7 +280,7 @@ def test_foramen_entry_is_green_and_scored_dist_minus_r(run):
     tip = st.tip()
     assert tip[2] < PLATE_Z[0]  # stopped at the plug's lower face
     dist = float(np.linalg.norm(np.asarray(hits[0].point) - FORAMEN["left"]))
-    a = run.app.resource(__import__("chainsim.game.app.headless", fromlist=["Assessment"]).Assessment).values
+    a = run.app.resource(__import__("chainsim.game.trainer.headless", fromlist=["Assessment"]).Assessment).values
     assert a["needle_error_mm"] == pytest.approx(dist - RADIUS)
     assert run.app.resource(HudState).lights["target"] == "green"
     run.send(Widget("insert", 320.0))  # no further once in the foramen
@@ -325,7 +325,7 @@ def test_hidden_collision_signals_are_still_recorded(run):
     assert run.app.resource(HudState).lights["skull"] == "off"
     assert run.proc.lights["skull"] == "red"
     assert (
-        run.app.resource(__import__("chainsim.game.app.headless", fromlist=["Assessment"]).Assessment).values[
+        run.app.resource(__import__("chainsim.game.trainer.headless", fromlist=["Assessment"]).Assessment).values[
             "skull_contacts"
         ]
         == 1

@@ -36,7 +36,7 @@ def test_every_template_validates_and_runs_headless(tmp_path, cli, template):
 def test_every_template_renders_a_snapshot(tmp_path, cli, template):
     from PIL import Image
 
-    from chainsim.game.gl.context import GLUnavailable, egl_context
+    from chainsim.game.render.context import GLUnavailable, egl_context
 
     try:
         egl_context()
@@ -59,8 +59,8 @@ def test_empty_template_a_drag_turns_the_view_as_its_step_says(tmp_path, cli):
 
     root = make(tmp_path, "empty", cli)
     from chainsim.components.resources import PendingInput
-    from chainsim.game.app.headless import build_app
-    from chainsim.game.app.inputscript import load_script
+    from chainsim.game.trainer.headless import build_app
+    from chainsim.game.trainer.inputscript import load_script
 
     app = build_app(str(root))
     try:
@@ -81,21 +81,21 @@ def _tissue_lift(root, script: str, steps: int) -> float:
     import esper
 
     from chainsim.components.resources import PendingInput
-    from chainsim.game.app.headless import build_app
-    from chainsim.game.app.inputscript import load_script
+    from chainsim.game.trainer.headless import build_app
+    from chainsim.game.trainer.inputscript import load_script
     from chainsim.systems.tissue.deformable import Deformable
 
     app = build_app(f"{root}/main", settings=None)
     try:
         with app.active():
             ((_, d0),) = esper.get_component(Deformable)
-            rest = np.array(d0.pos, dtype=float)
+            rest = np.array(d0.body.positions, dtype=float)
         app.resource(PendingInput).extend(load_script(root / "scripts" / script))
         for _ in range(steps):
             app.update(app.time.dt)
         with app.active():
             ((_, d),) = esper.get_component(Deformable)
-            return float((np.asarray(d.pos, float) - rest)[:, 2].max())
+            return float((np.asarray(d.body.positions, float) - rest)[:, 2].max())
     finally:
         app.close()
 
@@ -109,7 +109,7 @@ def test_tissue_template_pull_button_and_mouse_drag_both_pull_as_its_step_says(t
 
 
 def test_needle_template_correct_attempt_reaches_the_target_and_the_wrong_one_hits_bone(tmp_path, cli):
-    from chainsim.game.app.headless import run_pack
+    from chainsim.game.trainer.headless import run_pack
 
     root = make(tmp_path, "needle", cli)
     text = (root / "pack.toml").read_text()

@@ -9,7 +9,7 @@ from chainsim.components.core import Transform
 from chainsim.components.input_events import MouseButton, MouseDrag, PickPoint
 from chainsim.components.resources import EntityIndex, PendingInput
 from chainsim.components.view_events import Picked
-from chainsim.game.app.headless import build_app
+from chainsim.game.trainer.headless import build_app
 from chainsim.systems.engine.raycast import closest_on_mesh, ray_mesh, ray_triangles, triangle_links
 from chainsim.systems.view.cameras import ViewState
 from chainsim.systems.view.picking import pick

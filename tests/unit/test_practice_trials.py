@@ -3,8 +3,8 @@ validity report's selection leave them out, saying how many."""
 
 from __future__ import annotations
 
-from chainsim.game.records.study import study_rows
-from chainsim.game.records.validity_data import select
+from chainsim.game.study.table61 import study_rows
+from chainsim.game.study.validity_data import select
 
 
 def trial(i: int, practice: bool) -> dict:

@@ -15,10 +15,10 @@ from test_validity_cli import FAST, fill
 
 from chainsim.game.cli.commands.study_report import pack_metrics
 from chainsim.game.packs.pack import load
-from chainsim.game.records import cohort
-from chainsim.game.records.programme_benchmarks import Proposal, edited
+from chainsim.game.study import cohort
+from chainsim.game.study.programme_benchmarks import Proposal, edited
 from chainsim.systems.engine.errors import UserError
-from chainsim.systems.procedures.needle import debrief as db
+from chainsim.systems.procedures import verdicts as vd
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -66,10 +66,10 @@ def test_a_programme_sets_its_benchmarks_from_its_study_with_the_source_recorded
     for name, keys in proposed.items():
         assert {k: metrics[name][k] for k in keys} == keys
     # the debrief now says the programme's marks are not provisional; the rest still are
-    rows = db.verdicts(metrics, {})
+    rows = vd.verdicts(metrics, {})
     assert {r["basis"] for r in rows if r["name"] in proposed} == {"programme"}
     left = len([r for r in rows if r["basis"] == "provisional"])
-    assert db.basis_note(rows).startswith(f"Provisional: {left} of ") or left == 0
+    assert vd.basis_note(rows).startswith(f"Provisional: {left} of ") or left == 0
 
 
 def test_a_built_in_pack_and_synthetic_data_are_never_written_into(cli, tmp_path, prp):

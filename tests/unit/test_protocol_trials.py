@@ -1,4 +1,4 @@
-"""What a records server accepts of a study trial (chainsim.game.records.protocol): the trial its design and
+"""What a records server accepts of a study trial (chainsim.game.study.protocol): the trial its design and
 register give that place of the participant's session, and in the recording only the events a study
 session sets itself, where it sets them."""
 
@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from chainsim.game.records import protocol
+from chainsim.game.study import protocol
 from chainsim.systems.engine.errors import UserError
 
 DESIGN = {

@@ -13,7 +13,7 @@ import sqlite3
 import pytest
 
 from chainsim.game.records import report, xapi
-from chainsim.game.records.schema import MIGRATIONS, SCHEMA_VERSION
+from chainsim.game.records.migrations import MIGRATIONS, SCHEMA_VERSION
 from chainsim.game.records.store import RecordStore, in_class_figures
 from chainsim.game.records.validate import clean_attempt
 from chainsim.systems.engine.errors import UserError

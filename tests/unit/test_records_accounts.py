@@ -6,8 +6,8 @@ import base64
 import hashlib
 import secrets
 
+from chainsim.game.records import accounts
 from chainsim.game.records.store import RecordStore
-from chainsim.game.server import accounts
 
 PASSWORD = "correct horse 42"
 

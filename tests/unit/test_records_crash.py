@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from chainsim.game.records.schema import LEGACY_METRICS
+from chainsim.game.records.migrations import LEGACY_METRICS
 from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import AIDS
 

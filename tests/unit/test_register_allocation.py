@@ -1,4 +1,4 @@
-"""A study's register and its one allocation sequence (chainsim.game.records.register), on SQLite and
+"""A study's register and its one allocation sequence (chainsim.game.study.register), on SQLite and
 PostgreSQL: slots in registration order, a resend answers the first entry, other covariates are
 refused, bad fields are one line, and registrations at once from two connections never share a slot."""
 
@@ -9,9 +9,9 @@ import threading
 
 import pytest
 
-from chainsim.game.records import register
-from chainsim.game.records.schema import MIGRATIONS, SCHEMA_VERSION
+from chainsim.game.records.migrations import MIGRATIONS, SCHEMA_VERSION
 from chainsim.game.records.store import RecordStore
+from chainsim.game.study import register
 from chainsim.systems.engine.errors import UserError
 
 

@@ -1,7 +1,7 @@
 """A replay skips the window's work (RunInfo.replay) and still reaches the window session's state: the same
 world digest at the Save, the same saved figures, and the same assessment whenever it is read.
 
-The session is made as the window makes it (chainsim.game.bench.replay.record_session: a stretched,
+The session is made as the window makes it (chainsim.tools.bench.replay.record_session: a stretched,
 mouse-only correct attempt driven frame by frame) with every shortcut off - the replay's skipping, the
 assessment's reuse of an unchanged frame's debrief, the hybrid body's first look at the element that
 failed its start last time and its skipping of a frame that repeats the last - so it is the
@@ -16,15 +16,15 @@ import pytest
 
 from chainsim.components.digest import world_digest
 from chainsim.components.resources import Assessment, PackResource, PendingInput, Records, RunInfo
-from chainsim.game.app.headless import app_for_pack
-from chainsim.game.app.inputscript import parse_events
-from chainsim.game.bench import replay as bench
 from chainsim.game.packs import pack as packs
 from chainsim.game.records import provenance
+from chainsim.game.trainer.headless import app_for_pack
+from chainsim.game.trainer.inputscript import parse_events
 from chainsim.systems.engine.bodies import hybrid
 from chainsim.systems.engine.kernels.twolevel import min_det
 from chainsim.systems.procedures.needle import assessment
 from chainsim.systems.procedures.needle.manifest import NeedleScene
+from chainsim.tools.bench import replay as bench
 
 #: long enough for every gesture of an attempt to have its own second or so, with idle frames between
 MINUTES = 0.45

@@ -139,7 +139,7 @@ def test_a_recording_longer_than_the_server_replays_is_refused_before_any_step()
 
 def test_upload_rate_allows_a_burst_then_the_rate_per_account():
     from chainsim.game.server.auth import HTTPError
-    from chainsim.game.server.ratelimit import UploadRate
+    from chainsim.game.server.upload_limit import UploadRate
 
     now = [0.0]
     rate = UploadRate(per_minute=6, burst=20, clock=lambda: now[0])

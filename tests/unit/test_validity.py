@@ -12,9 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import optimize, stats
 
-from chainsim.game.records import cohort, validity, validity_report
-from chainsim.game.records.cohort import Draw
-from chainsim.game.records.validity_data import select
+from chainsim.game.study import cohort, validity, validity_report
+from chainsim.game.study.cohort import Draw
+from chainsim.game.study.validity_data import select
 
 METRICS = {"m": {"label": "M", "units": "u", "lower_is_better": True}}
 SEEDS = 1000

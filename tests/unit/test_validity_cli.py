@@ -9,9 +9,9 @@ import csv
 import pytest
 
 from chainsim.game.cli.commands.study_report import pack_metrics
-from chainsim.game.records import cohort
 from chainsim.game.records.store import RecordStore
-from chainsim.game.records.validity_data import parse_register, select
+from chainsim.game.study import cohort
+from chainsim.game.study.validity_data import parse_register, select
 
 FAST = ("--resamples", "1000")
 

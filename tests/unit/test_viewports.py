@@ -112,7 +112,7 @@ def test_a_scene_without_layout_gets_one_orbit_view_framing_every_mesh(tmp_path)
 
     from chainsim.components.core import MeshRef, Transform
     from chainsim.components.resources import PackResource
-    from chainsim.game.app.headless import build_app
+    from chainsim.game.trainer.headless import build_app
     from chainsim.systems.view.cameras import ViewState
 
     root = tmp_path / "bare"

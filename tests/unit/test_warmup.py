@@ -44,10 +44,10 @@ SCRIPTED = sorted(p.parent.parent.name for p in (ROOT / "assets").glob("*/script
 def test_no_pack_needs_a_kernel_type_warmup_left_out(pack, monkeypatch):
     monkeypatch.setenv("PYGLET_HEADLESS", "true")
     from chainsim.components.resources import PendingInput
-    from chainsim.game.app.headless import build_app
-    from chainsim.game.app.inputscript import load_script
-    from chainsim.game.gl.context import GLUnavailable
-    from chainsim.game.gl.render_system import draw
+    from chainsim.game.render.context import GLUnavailable
+    from chainsim.game.render.render_system import draw
+    from chainsim.game.trainer.headless import build_app
+    from chainsim.game.trainer.inputscript import load_script
 
     main(["-q", "warmup"])
     before = _signatures()  # what warmup readied; anything else a run needs would compile mid-session
@@ -92,7 +92,7 @@ class _Compiling:
 def test_window_input_waits_for_the_kernels_and_then_arrives_in_order():
     from chainsim.components.hud import HudState
     from chainsim.components.input_events import Key, MouseButton, MouseMove
-    from chainsim.game.app.compiling import KernelGate
+    from chainsim.game.trainer.compiling import KernelGate
 
     compiler = _Compiling()
     gate = KernelGate(compiler, ["normals and collision"])
@@ -136,7 +136,7 @@ def test_input_given_while_compiling_and_after_reaches_the_scene_in_order_with_i
     from chainsim.components.hud import HudState
     from chainsim.components.input_events import MouseButton
     from chainsim.components.resources import PendingInput
-    from chainsim.game.app.compiling import KernelWatch
+    from chainsim.game.trainer.compiling import KernelWatch
 
     compiler, hud, pending, dt = _Compiling(), HudState(), PendingInput(), 1 / 120
     watch = KernelWatch(compiler, ["normals and collision"], hud, pending, log=lambda s: None)
@@ -170,7 +170,7 @@ def test_input_given_while_compiling_and_after_reaches_the_scene_in_order_with_i
 
 
 def test_a_scripted_window_stands_still_until_the_kernels_are_ready():
-    from chainsim.game.app.compiling import KernelGate
+    from chainsim.game.trainer.compiling import KernelGate
 
     compiler = _Compiling()
     gate = KernelGate(compiler, ["normals and collision"], scripted=True)
@@ -195,8 +195,8 @@ def test_groups_sharing_kernels_compile_one_after_another():
 
 
 def test_the_scene_needs_its_own_models_kernels():
-    from chainsim.game.app.compiling import needed_groups
-    from chainsim.game.app.headless import build_app
+    from chainsim.game.trainer.compiling import needed_groups
+    from chainsim.game.trainer.headless import build_app
     from chainsim.systems.engine import warmup
 
     app = build_app("loop-demo")  # nothing soft: collision and normals only
@@ -222,7 +222,7 @@ def test_the_scene_needs_its_own_models_kernels():
 def test_first_uploads_take_numpys_normals_equal_to_the_kernels(monkeypatch):
     import numpy as np
 
-    from chainsim.game.gl import meshbuf
+    from chainsim.game.render import meshbuf
     from chainsim.systems.engine.meshgen import triangulated_grid
 
     pos, tris, _links = triangulated_grid(6, 5, spacing=1.0, dim=3)
@@ -248,8 +248,8 @@ def test_warmup_leaves_out_only_groups_no_body_takes_with_that_many_threads(thre
 
 @pytest.mark.parametrize("pack", sorted(p.name for p in (ROOT / "assets").iterdir() if (p / "pack.toml").is_file()))
 def test_every_group_a_built_in_pack_needs_is_compiled_by_warmup(pack):
-    from chainsim.game.app.compiling import needed_groups
-    from chainsim.game.app.headless import build_app
+    from chainsim.game.trainer.compiling import needed_groups
+    from chainsim.game.trainer.headless import build_app
     from chainsim.systems.engine import warmup
 
     app = build_app(str(ROOT / "assets" / pack))

@@ -7,7 +7,7 @@ from chainsim.components.core import MeshRef
 from chainsim.components.input_events import Key, MouseButton, MouseDrag, Widget
 from chainsim.components.resources import PendingInput
 from chainsim.components.view_events import WidgetRefused
-from chainsim.game.app.headless import build_app
+from chainsim.game.trainer.headless import build_app
 from chainsim.systems.view.cameras import ViewState
 from chainsim.systems.view.ui import widgets as wd
 from chainsim.systems.view.ui.viewports import Rect

@@ -7,7 +7,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from chainsim.game.ui.window import fit_screen
+from chainsim.game.trainer.window import fit_screen
 
 
 def _pyglet(width: int, height: int):

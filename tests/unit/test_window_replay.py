@@ -1,5 +1,5 @@
 """A window session replays to the same digest whatever its frame times: the window runs whole fixed
-steps (chainsim.game.ui.frameloop), and `chainsim replay` runs the recording one step per update."""
+steps (chainsim.game.trainer.frameloop), and `chainsim replay` runs the recording one step per update."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import numpy as np
 from chainsim.components.digest import world_digest
 from chainsim.components.input_events import MouseButton, Widget
 from chainsim.components.resources import PendingInput
-from chainsim.game.app.headless import build_app, run_pack
-from chainsim.game.app.inputscript import load_script
 from chainsim.game.packbuild.needle.make_prp_mouse_script import SCRIPTS
-from chainsim.game.ui.frameloop import FixedStepper
+from chainsim.game.trainer.frameloop import FixedStepper
+from chainsim.game.trainer.headless import build_app, run_pack
+from chainsim.game.trainer.inputscript import load_script
 from chainsim.systems.motion.input import InputLog
 
 

@@ -88,7 +88,7 @@ def measure(side: int, thread_counts: list[int], repeats: int, modules) -> list[
             numba.set_num_threads(threads)
             pos = {False: rest.copy(), True: rest.copy()}
             ws = {False: chainmail.make_workspace(n), True: chainmail.make_workspace(n)}
-            times = {False: [], True: []}
+            times: dict[bool, list[float]] = {False: [], True: []}
             moved = {False: 0, True: 0}
             t_row = time.perf_counter()
             for rep in range(repeats + 1):  # drag 0 compiles and warms

@@ -57,6 +57,7 @@ def skin_case(fixed_rim: bool = True, volume: bool = False) -> Case:
     direction = _outward_normal(verts, tris, v)
     if volume:
         vol = load_mesh(SKIN, kind="volume")
+        assert vol.tets is not None  # a volume mesh has its tetrahedra
         rest = np.ascontiguousarray(vol.vertices, dtype=np.float64)
         links = meshgen.links_from_cells(vol.tets)
         grab = int(np.argmin(np.sum((rest - verts[v]) ** 2, axis=1)))

@@ -20,6 +20,7 @@ import time
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import Any
 
 import numba
 import numpy as np
@@ -93,7 +94,7 @@ def frame_ms(body: Body, pos: np.ndarray, grab: np.ndarray, frames: int = FRAMES
     return float(np.median(times)), stats
 
 
-def build(model: str, mesh: tuple, **settings: object) -> XPBDBody | ProjectiveBody:
+def build(model: str, mesh: tuple, **settings: Any) -> XPBDBody | ProjectiveBody:
     """An xpbd or projective body on `mesh` (block or sheet), millimetre units."""
     pos, cells, fixed, _ = mesh
     key = "tets" if cells.shape[1] == 4 else "triangles"
@@ -130,7 +131,7 @@ def check(sizes: tuple[int, ...] = SIZES) -> list[dict]:
 
 
 #: the settings `--fit` times: (model, mesh kind, nodes, settings)
-FIT_RUNS = [
+FIT_RUNS: list[tuple[str, str, int, dict[str, Any]]] = [
     *[
         ("xpbd", "block", n, dict(substeps=s, iterations=i, constraints=c))
         for n in (1_000, 4_000, 10_000)
@@ -166,7 +167,7 @@ def features(b: XPBDBody | ProjectiveBody, stats: list) -> dict[str, float]:
     if isinstance(b, XPBDBody):
         sweeps = b.substeps * b.iterations
         tets = int(b.tet_active.sum()) if b.tets is not None else 0
-        out = {f"XPBD_TET_MS[{b.constraints}]": sweeps * tets}
+        out: dict[str, float] = {f"XPBD_TET_MS[{b.constraints}]": sweeps * tets}
         return out | {"XPBD_PAIR_MS": sweeps * len(b.pairs), "XPBD_NODE_MS": b.substeps * b.n}
     it = float(np.median([s.iterations for s in stats]))
     free = int(b.n - b.fixed.sum())
@@ -199,7 +200,7 @@ def fit() -> dict[str, float]:
             continue
         rows.append((model, features(body, stats), ms))
         print(f"{model} {kind} {len(mesh[0])} {settings}: {ms:.2f} ms", flush=True)
-    out = {}
+    out: dict[str, float] = {}
     for model in ("xpbd", "projective"):
         mine = [(f, ms) for m, f, ms in rows if m == model]
         names = sorted({k for f, _ in mine for k in f})

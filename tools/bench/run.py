@@ -153,8 +153,11 @@ class Body:
         self.rest = np.ascontiguousarray(rest, dtype=np.float64)
         self.pos = self.rest.copy()
         self.graph = build_graph(len(rest), links)
-        self.mat = material_arrays(self.graph.n_links, amin, amax, beta)
-        self.scalar = (float(amin), float(amax), float(beta)) if np.ndim(amin) == 0 else None
+        self.mat: tuple[np.ndarray, np.ndarray, np.ndarray] = material_arrays(self.graph.n_links, amin, amax, beta)
+        # one material for every link (what the lean kernel takes), else None
+        self.scalar: tuple[float, float, float] | None = (
+            (float(amin), float(amax), float(beta)) if np.ndim(amin) == 0 else None
+        )
         self.ws = make_workspace(len(rest))
         self.lean_ws = LeanWorkspace(len(rest))
         self.fixed = None if fixed is None or not np.any(fixed) else np.ascontiguousarray(fixed, dtype=np.bool_)
@@ -184,6 +187,7 @@ class Body:
         return partial(self._lean, int(grab), target)
 
     def _lean(self, grab, target) -> None:
+        assert self.scalar is not None  # lean_call is used on bodies of one material (MATERIALS)
         g = self.graph
         self.moved = lean_move(self.rest, self.pos, g.indptr, g.indices, grab, target, *self.scalar, self.lean_ws)
         self._touch(self.lean_ws.order[: self.moved])

@@ -31,6 +31,7 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 import matplotlib.pyplot as plt
@@ -208,7 +209,7 @@ def measure(s: Sheet, refs: dict, model: str, setting: str, params: dict, E: flo
     warm = _body(s, model, params, E, nu)  # compilation and any factorisation outside the timing
     warm.grab(s.surf_grabbed, s.surf[s.surf_grabbed] + [0.0, 0.0, 1.0])
     _frame(warm)
-    row = {"model": model, "setting": setting, "params": params, "lifts": {}}
+    row: dict[str, Any] = {"model": model, "setting": setting, "params": params, "lifts": {}}
     firsts, movings = [], []
     for lift, ref in refs.items():
         shapes, first_ms, moving_ms = hold(s, model, params, E, nu, lift, frames)
@@ -239,7 +240,7 @@ def measure(s: Sheet, refs: dict, model: str, setting: str, params: dict, E: flo
 def baseline_rows(s: Sheet, refs: dict) -> list[dict]:
     rows = []
     for name in BASELINES:
-        row = {"model": "baseline", "setting": name, "params": {}, "lifts": {}, "ms_per_frame": None}
+        row: dict[str, Any] = {"model": "baseline", "setting": name, "params": {}, "lifts": {}, "ms_per_frame": None}
         for lift, ref in refs.items():
             rms, worst, node = _errors(baselines(s, lift)[name], ref, lift)
             row["lifts"][str(lift)] = {

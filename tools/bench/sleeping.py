@@ -24,6 +24,7 @@ import json
 import os
 import time
 from pathlib import Path
+from typing import Any
 
 import numba
 import numpy as np
@@ -36,7 +37,7 @@ from chainsim.tools.study import surgical
 
 HELP = "a local pull on a 10k- and a 110k-node slab with and without sleeping: ms per frame, awake nodes, error"
 DEPTH_MM, PATCH_MM = surgical.BLOCK_MM[2], surgical.PATCH_MM
-SETTING = dict(start="linear", cg_iterations=3, rotation_iterations=2)
+SETTING: dict[str, Any] = dict(start="linear", cg_iterations=3, rotation_iterations=2)
 
 
 def add_arguments(p) -> None:

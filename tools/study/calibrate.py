@@ -74,7 +74,7 @@ def fit(nu: float, E: float | None = None, strain: float | None = None, n: int =
         u, _ = cm.solve(scene.grabbed, disp, p)
         return displacement_error(u, ref, d)[0], p
 
-    best = (np.inf, None)
+    best: tuple = (np.inf, None)  # then (error, params, slack, ratio, beta factor) of the best setting
     # the stretch slack that matters scales with the strain (the cascade reaches about
     # strain / (alpha_max - 1) of the body), so search it relative to the strain level
     slacks = s * np.geomspace(0.03, 3.0, 12)

@@ -37,7 +37,7 @@ class ChainMailModel:
             self.fixed = np.zeros(self.n, np.bool_)
             self.fixed[np.asarray(fixed_ids, dtype=np.int64)] = True
         self.order_name = order
-        self._mat_key = None
+        self._mat_key: tuple[float, float, float] | None = None
 
     def _materials(self, p: ChainMailParams):
 

@@ -106,7 +106,8 @@ class NeoHookeanFEM:
         target = np.asarray(disp_constrained, dtype=np.float64).reshape(-1)
         fr = sorted(float(f) for f in fractions)
         u = np.zeros(3 * self.n)
-        out, iters = {}, {}
+        out: dict[float, np.ndarray] = {}
+        iters: dict[float, int] = {}
         current, steps, total_newton = 0.0, 0, 0
         scale = None
         base_step = (fr[-1] / initial_steps) if initial_steps else None

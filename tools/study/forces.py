@@ -29,7 +29,7 @@ def reference_forces(scene, strain: float, E: float, nu: float, lin, u_lin: np.n
     q = QuadraticFEM(scene.pos, scene.tets, E, nu, scene.constrained)
     u2 = q.solve(scene.constrained_disp(strain))
     p2 = float(q.reaction(u2, scene.grabbed) @ scene.direction)
-    out = {"p1_linear": p1, "p2_linear": p2, "p2_nodes": len(q.pos2)}
+    out: dict[str, float | str] = {"p1_linear": p1, "p2_linear": p2, "p2_nodes": len(q.pos2)}
     if nl is not None and u_nl is not None:
         r, _ = nl.residual_and_tangent(np.asarray(u_nl).ravel(), want_tangent=False)
         p1_nl = reaction_along(scene, r.reshape(-1, 3))

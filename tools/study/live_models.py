@@ -10,6 +10,7 @@ cost per frame, the frames it took, the settled field and the grab's reaction fo
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -38,7 +39,7 @@ def baseline_blend(scene, strain: float) -> np.ndarray:
 
 
 #: the live settings the study runs, as the body arguments `auto` rebuilds them from
-LIVE_PARAMS = {
+LIVE_PARAMS: dict[str, dict[str, Any]] = {
     "XPBD (8 substeps)": {"damping": 0.1, "substeps": 8},
     "projective (statics, 10 it)": {"iterations": 10, "dynamic": False},
 }

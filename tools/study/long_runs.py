@@ -54,6 +54,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numba
 import numpy as np
@@ -79,7 +80,7 @@ CACHE = Path(tempfile.gettempdir()) / "chainsim-long-runs-fem"  # the command li
 FEM_VERSION = 1  # part of the cache key: a change to how the references are solved invalidates the cache
 
 #: the settings run: (model, name, params); models that take `sleep` also run with SLEEP
-SETTINGS = [
+SETTINGS: list[tuple[str, str, dict[str, Any]]] = [
     ("hybrid", "hybrid (defaults)", {}),
     ("projective", "projective (defaults: dynamic, 10 it)", {}),
     (
@@ -388,7 +389,7 @@ def _row(b, sc, model, name, params, E, nu, ref, max_seconds) -> dict:
 
 def _fem_figures(b: surgical.Block, chosen: list[Scenario], refs: dict) -> dict:
     """Per scenario, the reference's own min J, overshoot and moved nodes (None where it did not converge)."""
-    out = {}
+    out: dict[str, dict[str, float] | None] = {}
     for sc in chosen:
         u = refs[(sc.region, sc.offset)]
         if u is None:

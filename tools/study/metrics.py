@@ -5,6 +5,8 @@ field, volume change, median update time, and the largest mesh updated at a give
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+from typing import TypeVar
 
 import numpy as np
 
@@ -29,10 +31,13 @@ def volume_change(pos, tets, u) -> dict:
     return {"volume_change": rel, "inverted_fraction": float(np.mean(s * v1 <= 0))}
 
 
-def median_time(fn, repeats: int = 5) -> tuple[float, object]:
+T = TypeVar("T")
+
+
+def median_time(fn: Callable[[], T], repeats: int = 5) -> tuple[float, T]:
     """Median wall time (s) of `fn()` over `repeats` calls, and the last result."""
-    times, out = [], None
-    for _ in range(max(1, repeats)):
+    times: list[float] = []
+    for _ in range(max(1, repeats)):  # at least once: `out` is always set
         t0 = time.thread_time()
         out = fn()
         times.append(time.thread_time() - t0)

@@ -2,7 +2,7 @@
 scene, error vs imposed displacement, mass-spring stability against time step) and results.json.
 
 Also renders the per-system frame-cost table of the built-in packs (`frame_cost_table`), from the
-summary dicts that chainsim.game.app.headless.run_pack returns.
+summary dicts that chainsim.game.trainer.headless.run_pack returns.
 """
 
 from __future__ import annotations
@@ -248,7 +248,7 @@ def plot_stability(results, out: Path) -> list[str]:
 def frame_cost_table(summaries: list[dict]) -> str:
     """Markdown table of per-system mean / max frame cost, one block per pack summary.
 
-    Each summary is the dict returned by chainsim.game.app.headless.run_pack: {"pack", "scene", "steps",
+    Each summary is the dict returned by chainsim.game.trainer.headless.run_pack: {"pack", "scene", "steps",
     "systems": {name: {"mean_ms", "max_ms", ...}}, ...}.
     """
     if not summaries:

@@ -167,7 +167,7 @@ def _linear_fem(lv: _Level) -> None:
 def _nonlinear_fem(lv: _Level) -> None:
     """The neo-Hookean FEM ground truth along the strain path; it is the reference on this mesh."""
     scene, strains = lv.scene, lv.strains
-    stamps = {}
+    stamps: dict[float, float] = {}  # strain -> CPU seconds when the path reached it
     t0 = time.thread_time()
     fem = lv.fem = NeoHookeanFEM(scene.pos, scene.tets, E_STUDY, NU_STUDY, scene.constrained)
     res = fem.solve_path(
@@ -384,7 +384,9 @@ def run(quick: bool, out_dir, scenes=None) -> dict:
     resolutions = sc.QUICK_RESOLUTIONS if quick else sc.RESOLUTIONS
     repeats = 3 if quick else 5
     cm_settings = default_chainmail_settings()
-    rows, timings, forces = [], [], []
+    rows: list[dict] = []
+    timings: list[dict] = []
+    forces: list[dict] = []
     t0 = time.thread_time()
     w0 = time.perf_counter()
     for name in scenes or list(sc.SCENES):

@@ -23,12 +23,15 @@ import logging
 import time
 import warnings
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 from scipy.spatial import cKDTree
 
+from chainsim.systems.engine.bodies.chainmail import ChainMailBody
 from chainsim.systems.engine.bodies.factory import make_body
+from chainsim.systems.engine.bodies.xpbd import XPBDBody
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.meshgen import tet_grid
 
@@ -52,7 +55,7 @@ DIRECT_LIMIT = 20_000  # the direct projective solve is not factorised above thi
 SLOW_FRAME_S = 8.0  # a setting whose first frame takes longer is timed on that frame only
 
 #: the live settings: (model, name, params)
-SETTINGS = [
+SETTINGS: list[tuple[str, str, dict[str, Any]]] = [
     ("chainmail", "ChainMail thesis-medium r0", {"alpha_min": 0.8, "alpha_max": 1.2, "beta": 0.1, "relax": 0}),
     ("chainmail", "ChainMail thesis-medium r4", {"alpha_min": 0.8, "alpha_max": 1.2, "beta": 0.1, "relax": 4}),
     (
@@ -107,8 +110,9 @@ class Block:
 def block(spacing: float, size_mm: tuple[float, float, float] = BLOCK_MM) -> Block:
     """A size_mm block of tetrahedra `spacing` mm apart, fixed at the bottom, with the PATCH_MM square at the
     top centre grabbed."""
-    shape = tuple(int(round(s / spacing)) + 1 for s in size_mm)
-    pos, tets, _ = tet_grid(*shape, spacing=spacing)
+    nx, ny, nz = (int(round(s / spacing)) + 1 for s in size_mm)
+    shape = (nx, ny, nz)
+    pos, tets, _ = tet_grid(nx, ny, nz, spacing=spacing)
     fixed = np.flatnonzero(pos[:, 2] < 1e-9)
     cx, cy = size_mm[0] / 2, size_mm[1] / 2
     top = (pos[:, 2] > size_mm[2] - 1e-9) & (np.abs(pos[:, 0] - cx) <= PATCH_MM / 2 + 1e-9)
@@ -151,7 +155,10 @@ def run_setting(b: Block, model: str, params: dict, E: float, nu: float) -> tupl
             times = []
             for f in range(FRAMES):
                 t0 = time.thread_time()
-                body.step(FRAME_DT) if model != "chainmail" else body.move(b.grabbed, target)
+                if isinstance(body, ChainMailBody):  # ChainMail moves to the target; the others step towards it
+                    body.move(b.grabbed, target)
+                else:
+                    body.step(FRAME_DT)
                 times.append(time.thread_time() - t0)
                 if f == 1 and times[0] + times[1] > SLOW_FRAME_S:
                     # too slow to hold for long: the cost is the second (warm) frame's, the error not measured
@@ -161,7 +168,7 @@ def run_setting(b: Block, model: str, params: dict, E: float, nu: float) -> tupl
         return None, {"ms_per_frame": float("nan"), "status": f"refused: {e}"}
     warm = times[1:] or times
     info = {"ms_per_frame": 1e3 * float(np.median(warm)), "first_frame_ms": 1e3 * times[0], "status": "ran"}
-    if model == "xpbd":
+    if isinstance(body, XPBDBody):
         info["substeps"] = int(body.substeps)
     return body.positions - b.pos, info
 
@@ -198,19 +205,21 @@ def run(mode: str = "quick", progress=None) -> dict:
     sizes = SIZES[mode]
     materials = MATERIALS if mode == "full" else QUICK_MATERIALS
     blocks = [block(h) for h in sizes]
-    rows, refs_info = [], []
+    rows: list[dict] = []
+    refs_info = []
     for name, E, nu in materials:
-        refs = []
+        refs: list[np.ndarray | None] = []
         for b in blocks:
             t0 = time.perf_counter()
             refs.append(reference(b, E, nu))
             refs_info.append({"material": name, "nodes": len(b.pos), "seconds": time.perf_counter() - t0})
         for k, b in enumerate(blocks):
-            finer = blocks[k + 1] if k + 1 < len(blocks) else None
-            phys = finer.interpolate(refs[k + 1], b.pos) if finer is not None and refs[k + 1] is not None else None
+            ref = refs[k]
+            finer, finer_ref = (blocks[k + 1], refs[k + 1]) if k + 1 < len(blocks) else (None, None)
+            phys = finer.interpolate(finer_ref, b.pos) if finer is not None and finer_ref is not None else None
             disc = None
-            if refs[k] is not None and phys is not None:
-                disc = _rms(refs[k], phys)  # this mesh's own discretisation error
+            if ref is not None and phys is not None:
+                disc = _rms(ref, phys)  # this mesh's own discretisation error
             runs = [(m, s_, p) for m, s_, p in SETTINGS] + [("baseline", s_, {}) for s_ in baselines(b)]
             for model, setting, params in runs:
                 if progress:
@@ -234,19 +243,24 @@ def run(mode: str = "quick", progress=None) -> dict:
                 }
                 if u is not None:
                     row.update(volume_figures(b, u))
-                if refs[k] is not None:
-                    row["reference_volume_change"] = volume_figures(b, refs[k])["volume_change"]
-                if u is not None and refs[k] is not None:
-                    row["solver_error"] = _rms(u, refs[k])
+                if ref is not None:
+                    row["reference_volume_change"] = volume_figures(b, ref)["volume_change"]
+                if u is not None and ref is not None:
+                    row["solver_error"] = _rms(u, ref)
                 if u is not None and phys is not None:
                     row["physical_error"] = _rms(u, phys)
-                elif u is not None and refs[k] is not None and k > 0 and blocks_disc(rows, name, blocks[k - 1]):
-                    row["physical_error"] = row["solver_error"] + blocks_disc(rows, name, blocks[k - 1]) / 4.0
+                elif (
+                    u is not None
+                    and ref is not None
+                    and k > 0
+                    and (coarse_disc := blocks_disc(rows, name, blocks[k - 1]))
+                ):
+                    row["physical_error"] = row["solver_error"] + coarse_disc / 4.0
                     row["physical_estimated"] = True
-                elif u is not None and k > 0 and refs[k - 1] is not None:
+                elif u is not None and k > 0 and (coarse := refs[k - 1]) is not None:
                     # no FEM on this mesh (too large): against the coarser mesh's FEM, interpolated, whose own
                     # discretisation error bounds how well this can score
-                    coarse_ref = blocks[k - 1].interpolate(refs[k - 1], b.pos)
+                    coarse_ref = blocks[k - 1].interpolate(coarse, b.pos)
                     row["physical_error"] = _rms(u, coarse_ref)
                     row["physical_estimated"] = True
                     row["reference"] = f"FEM on {len(blocks[k - 1].pos)} nodes, interpolated"

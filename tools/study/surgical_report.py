@@ -8,6 +8,7 @@ import json
 import math
 import tomllib
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 import matplotlib.pyplot as plt
@@ -91,7 +92,7 @@ def plot(results: dict, out: Path) -> str | None:
         ax.set_xlabel("CPU ms per frame (dotted: one 60 Hz frame)")
         ax.set_ylabel("physical error (RMS / lift)")
         ax.set_title(f"{mat}: E = {rows[[r['material'] for r in rows].index(mat)]['E']:g} Pa")
-    handles = {}
+    handles: dict[str, Any] = {}
     for ax in axes[0]:
         for h, lab in zip(*ax.get_legend_handles_labels()):
             handles.setdefault(lab, h)

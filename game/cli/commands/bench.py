@@ -13,18 +13,18 @@ HELP = "run a benchmark (chainmail, render, ...)"
 # name -> module; a benchmark module is imported only to build its sub-parser
 BENCHES = {
     "chainmail": "chainsim.tools.bench.chainmail",
-    "render": "chainsim.game.bench.render",
-    "docs": "chainsim.game.bench.docs",
-    "window": "chainsim.game.bench.window",
+    "render": "chainsim.tools.bench.render",
+    "docs": "chainsim.tools.bench.docs",
+    "window": "chainsim.tools.bench.window",
     "models": "chainsim.tools.bench.models",
     "sheet": "chainsim.tools.bench.sheet",
     "sleeping": "chainsim.tools.bench.sleeping",
-    "records": "chainsim.game.bench.records",
-    "train": "chainsim.game.bench.train",
-    "needle": "chainsim.game.bench.needle",
-    "replay": "chainsim.game.bench.replay",
-    "haptics": "chainsim.game.bench.haptics",
-    "startup": "chainsim.game.bench.startup",
+    "records": "chainsim.tools.bench.records",
+    "train": "chainsim.tools.bench.train",
+    "needle": "chainsim.tools.bench.needle",
+    "replay": "chainsim.tools.bench.replay",
+    "haptics": "chainsim.tools.bench.haptics",
+    "startup": "chainsim.tools.bench.startup",
 }
 
 # benchmarks that start `chainsim serve`: without the server extra they stop before starting anything

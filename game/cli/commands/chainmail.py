@@ -33,7 +33,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from chainsim.game.app.outputs import check_output_file
+from chainsim.game.common.outputs import check_output_file
 from chainsim.systems.engine import argtypes
 from chainsim.systems.engine.atomicfile import atomic_open
 from chainsim.systems.engine.bodies.chainmail import ChainMailBody
@@ -41,7 +41,7 @@ from chainsim.systems.engine.chainmail_params import ORDER_CHOICES, ORDERS, chec
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.kernels.chainmail import make_workspace, material_arrays
 from chainsim.systems.engine.kernels.exact import ExactResult, exact_move, violations
-from chainsim.systems.engine.kernels.graph import build_graph
+from chainsim.systems.engine.kernels.graph import Graph, build_graph
 from chainsim.systems.engine.meshimport import load_graph
 
 NAME = "chainmail"
@@ -143,8 +143,8 @@ class Body(NamedTuple):
     """The arrays one mesh needs for moves (built once, reused for every order in --stats)."""
 
     rest: np.ndarray
-    graph: object
-    mat: tuple
+    graph: Graph
+    mat: tuple[np.ndarray, np.ndarray, np.ndarray]
     fixed: np.ndarray | None
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-import chainsim.game.packs.schema  # noqa: F401  (importing it registers the manifest sections)
+import chainsim.game.packs.declarations  # noqa: F401  (importing it registers the manifest sections)
 from chainsim.components.registry import COMPONENTS, KINDS, REQUIRED, SECTION_STYLE, SECTIONS, load_all
 from chainsim.systems import manifest_modules
 from chainsim.systems.engine import limits, model_params

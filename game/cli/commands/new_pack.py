@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from chainsim.game.app.headless import validate_pack
 from chainsim.game.packs.scaffold import DEFAULT_TEMPLATE, TEMPLATES, create
+from chainsim.game.trainer.headless import validate_pack
 from chainsim.systems.engine.errors import UserError
 
 NAME = "new-pack"

@@ -33,6 +33,7 @@ def run(args) -> int:
             )
             scenes = ""
         else:
+            assert pack is not None  # no problem found: validate returned the pack
             status = pack.manifest["pack"].get("title") or ""
             scenes = ", ".join(pack.scene_names())
         rows.append((f.name + (" (shadowed)" if shadowed else ""), f.source, str(f.path), scenes, status))

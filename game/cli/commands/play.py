@@ -6,11 +6,11 @@ import os
 import sys
 import threading
 
-from chainsim.game.app.options import add_device_argument, add_mode_arguments, add_records_arguments
-from chainsim.game.app.outputs import check_output_file
+from chainsim.game.common.outputs import check_output_file
 from chainsim.game.packs import pack as packs
 from chainsim.game.records import remote
-from chainsim.game.ui.window import run_window
+from chainsim.game.trainer.options import add_device_argument, add_mode_arguments, add_records_arguments
+from chainsim.game.trainer.window import run_window
 from chainsim.systems.engine import argtypes, limits
 from chainsim.systems.engine.errors import UserError
 

@@ -1,18 +1,18 @@
 """`chainsim protocol PROTOCOL.toml`: a study after thesis 6.1.4 - with people at the window, or scripted.
 
 Register first: `--register CODE --group novice|expert --year-of-training N --procedures-performed N`
-enters the participant in the study's register (chainsim.game.records.register) and prints the slot and
+enters the participant in the study's register (chainsim.game.study.register) and prints the slot and
 condition order they are allocated; with `--records URL` the register and its one allocation sequence
 are the records server's (signed in as a trainer of --class), else this machine's own, and the window
 warns that another machine may give the same order. With `--records` the study's design (its trials and
 their aids) is filed on the server too, and each trial is saved in the local records (--db) with its
 recording and filed on the server through the outbox (`chainsim records sync` sends what an unreachable
 server did not get): the server checks it against the participant's allocation and replays it
-(chainsim.game.records.protocol). `--participant CODE` with those options registers at the start of
+(chainsim.game.study.protocol). `--participant CODE` with those options registers at the start of
 the session; without them the participant must be in the register already.
 
 With people (`--participant NAME`): the trainer window opens for that participant and runs the
-session of chainsim.game.ui.study - the short pre-session questionnaire, the protocol's trials with
+session of chainsim.game.study.session - the short pre-session questionnaire, the protocol's trials with
 the aids on and off in an order counterbalanced between participants, the post-session ratings - and
 ends with Table 6.1 over every participant of the study in the records database (also printed here).
 Running the same participant again continues after their last saved trial; `--restart` starts over
@@ -62,17 +62,24 @@ import matplotlib
 import matplotlib.pyplot as plt
 
 from chainsim.components.input_events import Widget
-from chainsim.game.app.headless import run_pack
-from chainsim.game.app.inputscript import load_script
-from chainsim.game.app.options import name
-from chainsim.game.app.outputs import prepare_output_dir, write_text_atomic
+from chainsim.game.common.outputs import prepare_output_dir, write_text_atomic
 from chainsim.game.packs import pack as packs
-from chainsim.game.records import protocol as study_protocol
-from chainsim.game.records import register
-from chainsim.game.records.protocol import load_protocol
 from chainsim.game.records.remote import RemoteRecords
 from chainsim.game.records.store import RecordStore, check_target
-from chainsim.game.records.study import (
+from chainsim.game.study import protocol as study_protocol
+from chainsim.game.study import register
+from chainsim.game.study.protocol import load_protocol
+from chainsim.game.study.questionnaire import POST, THESIS_RATINGS
+from chainsim.game.study.session import (
+    StudySession,
+    current_attempts,
+    every_condition,
+    newest_questionnaires,
+    plan,
+    saved_trials,
+    study_name,
+)
+from chainsim.game.study.table61 import (
     TASK_METRIC,
     TASK_TITLE,
     THESIS_MM,
@@ -83,19 +90,15 @@ from chainsim.game.records.study import (
     study_rows,
     table,
 )
-from chainsim.game.ui.questionnaire import POST, THESIS_RATINGS
-from chainsim.game.ui.study import (
-    StudySession,
-    current_attempts,
-    every_condition,
-    newest_questionnaires,
-    plan,
-    saved_trials,
-    study_name,
-)
+from chainsim.game.trainer.headless import run_pack
+from chainsim.game.trainer.inputscript import load_script
+from chainsim.game.trainer.options import name
+from chainsim.systems.engine import datafile, limits
 from chainsim.systems.engine.errors import UserError
-from chainsim.systems.procedures.needle import records as layout
-from chainsim.systems.procedures.needle.assessment import attempt_record
+from chainsim.systems.procedures import RECORDS_PROCEDURE, procedure_of, records_layout, records_study
+
+#: the attempt as the records keep it (the fixed columns' procedure, chainsim.systems.procedures)
+LAYOUT = records_layout()
 
 logger = logging.getLogger(__name__)
 
@@ -213,6 +216,8 @@ def run(args) -> int:
         return run_summary(args, proto)
     if args.register:
         return run_register(args, proto)
+    if args.scripted or args.participant:
+        check_study(args, proto)
     if args.scripted:
         return run_scripted(args, proto)
     if args.participant:
@@ -221,6 +226,23 @@ def run(args) -> int:
         "name the participant (--participant NAME) to run the study in the window, "
         "--scripted for the scripted smoke test, or --summary for the results so far"
     )
+
+
+def check_study(args, proto: dict) -> None:
+    """The protocol's pack runs the procedure whose study the study screens run: one line, exit 2, when
+    its procedure declares no study (a cutting pack's), before any trial starts."""
+    root, _scene = packs.resolve(proto["pack"], args.pack_path)
+    toml = root / "pack.toml"
+    manifest = datafile.parse_toml(
+        datafile.read_text(toml, max_bytes=limits.MAX_MANIFEST_BYTES, what="pack.toml"), str(toml)
+    )
+    proc = procedure_of(manifest)
+    if proc is None or proc.study is not records_study():
+        runs = "no procedure" if proc is None else f"the {proc.name} procedure"
+        raise UserError(
+            f"{proto['path']}: pack '{proto['pack']}' runs {runs}, which declares no study; a protocol's pack must "
+            f"run the procedure with a study ({RECORDS_PROCEDURE.name})"
+        )
 
 
 def covariates(args) -> dict | None:
@@ -239,7 +261,7 @@ def covariates(args) -> dict | None:
 
 
 def allocation(args, proto: dict, code: str) -> dict:
-    """The participant's allocation (chainsim.game.records.register.allocate), registering them if asked."""
+    """The participant's allocation (chainsim.game.study.register.allocate), registering them if asked."""
     if args.records:  # the server checks each uploaded trial against the study's design filed here
         register.file_design_on_server(args.records, args.db, study_name(proto), study_protocol.design(proto))
     return register.allocate(study_name(proto), args.class_name, code, covariates(args), args.records, args.db)
@@ -304,8 +326,8 @@ def _summary_records(args) -> tuple[list[dict], list[dict], str]:
 
 
 def run_people(args, proto: dict) -> int:
-    """The session of chainsim.game.ui.study in the trainer window; Table 6.1 over everyone at the end."""
-    from chainsim.game.ui.window import run_window  # noqa: PLC0415 - pyglet: only when a window is wanted
+    """The session of chainsim.game.study.session in the trainer window; Table 6.1 over everyone at the end."""
+    from chainsim.game.trainer.window import run_window  # noqa: PLC0415 - pyglet: only when a window is wanted
 
     check_target(args.db)  # a mistyped or read-only database is refused before the window opens
     out = _out_dir(args)
@@ -438,8 +460,9 @@ def run_scripted(args, proto: dict) -> int:
                 raise UserError(f"pack '{pack.name}' produced no assessment; protocols need a procedure pack")
             err = a.get(TASK_METRIC[t["task"]])
             saved = None
-            if a.get(layout.MARK_ERROR) is not None:
-                rec = attempt_record(pack.name, a)
+            proc = procedure_of(pack.manifest)
+            if a.get(LAYOUT.mark_error) is not None and proc is not None and proc.attempt_record is not None:
+                rec = proc.attempt_record(pack.name, a)
                 rec["details"]["protocol"] = {
                     "study": study,
                     "participant": args.trainee,

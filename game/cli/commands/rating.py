@@ -4,10 +4,10 @@
         makes the set (each attempt under a random code) and prints each rater's secret link on the
         records server (--base-url, default $CHAINSIM_SERVER_URL): the link opens that rater's coded
         attempts, each replayed in 3-D beside the global rating form, without names, class, dates or
-        the simulator's scores (chainsim.game.records.rating, chainsim.game.server.rating_routes);
+        the simulator's scores (chainsim.game.study.rating, chainsim.game.server.rating_pages);
     chainsim rating report --db DB --name SET --pack PACK --out DIR
         the raters' agreement (ICC with its 95 % interval) and each metric's correlation with their
-        scores: agreement.md, ratings.csv, ratings.png (chainsim.game.records.rating_report).
+        scores: agreement.md, ratings.csv, ratings.png (chainsim.game.study.rating_report).
 
 docs/validity.md, "Blinded rating", walks through it.
 """
@@ -18,10 +18,10 @@ import argparse
 import math
 import os
 
-from chainsim.game.app.outputs import prepare_output_dir
-from chainsim.game.records import rating, rating_report
+from chainsim.game.common.outputs import prepare_output_dir
 from chainsim.game.records.backend import is_postgres, redact
 from chainsim.game.records.store import RecordStore
+from chainsim.game.study import rating, rating_report
 from chainsim.systems.engine.errors import UserError
 
 NAME = "rating"

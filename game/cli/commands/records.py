@@ -18,7 +18,10 @@ from chainsim.game.records.store import RecordStore
 from chainsim.game.records.validate import printable
 from chainsim.systems.engine import argtypes, limits
 from chainsim.systems.engine.errors import UserError
-from chainsim.systems.procedures.needle import records as layout
+from chainsim.systems.procedures import records_layout
+
+#: the attempt as the records keep it (the fixed columns' procedure, chainsim.systems.procedures)
+LAYOUT = records_layout()
 
 NAME = "records"
 HELP = "view, export, plot or delete trainee records (classes, trainees, attempts)"
@@ -97,13 +100,13 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 _positive_id = argtypes.count(1, limits.MAX_ATTEMPT_ID)
 #: the fixed fields `list` shows (the needle procedure's; the dose is left to `show` and the exports)
-_LISTED = layout.COLUMNS[:8]
+_LISTED = LAYOUT.columns[:8]
 
 
 def _summary(a: dict) -> str:
     errors = []
-    for c in layout.COLUMNS[1:3]:  # the two errors of 6.1.5, in mm; the needle's is None when it touched nothing
-        errors.append(f"{c.short.removesuffix('_mm')} " + ("-" if a[c.name] is None else f"{a[c.name]:.2f} mm"))
+    for c in LAYOUT.columns[1:3]:  # the two errors of 6.1.5, in mm; the needle's is None when it touched nothing
+        errors.append(f"{c.short.removesuffix('_mm')} " + ("-" if a.get(c.name) is None else f"{a[c.name]:.2f} mm"))
     return (
         f"attempt {a['id']}: {printable(a['class_name'])}/{printable(a['trainee'])} {printable(a['pack'])} "
         f"{printable(a['created_at'])} {', '.join(errors)}, target {a['target']}"
@@ -130,9 +133,9 @@ def _attempts_table(rows) -> str:
                 a["class_name"],
                 a["trainee"],
                 a["pack"],
-                *(a[c.name] for c in _LISTED[:3]),
+                *(a.get(c.name) for c in _LISTED[:3]),  # an attempt of another procedure has none of them
                 a["target"],
-                *(a[c.name] for c in _LISTED[3:]),
+                *(a.get(c.name) for c in _LISTED[3:]),
             ]
             for a in rows
         ],

@@ -18,8 +18,7 @@ import os
 import sys
 from pathlib import Path
 
-from chainsim.game.records import remote, report, xapi
-from chainsim.game.server import accounts
+from chainsim.game.records import accounts, remote, report, xapi
 from chainsim.systems.engine.errors import UserError
 
 ACTIONS = ("user", "login", "sync")

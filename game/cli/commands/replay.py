@@ -9,8 +9,8 @@ known settings of the right type (docs/limits.md).
 
 from __future__ import annotations
 
-from chainsim.game.app.headless import run_pack
-from chainsim.game.app.inputscript import parse_events, read_file
+from chainsim.game.trainer.headless import run_pack
+from chainsim.game.trainer.inputscript import parse_events, read_file
 from chainsim.systems.engine import limits
 from chainsim.systems.engine.errors import UserError
 

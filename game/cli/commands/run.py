@@ -5,16 +5,16 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from chainsim.game.app.haptic_plot import plot_trace
-from chainsim.game.app.headless import run_pack
-from chainsim.game.app.options import (
+from chainsim.game.records import remote
+from chainsim.game.trainer.haptic_plot import plot_trace
+from chainsim.game.trainer.headless import run_pack
+from chainsim.game.trainer.options import (
     add_device_argument,
     add_mode_arguments,
     add_records_arguments,
     user_settings,
     window_size,
 )
-from chainsim.game.records import remote
 from chainsim.systems.engine import argtypes
 from chainsim.systems.engine.errors import UserError
 

@@ -11,12 +11,12 @@ import sys
 
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import PackResource, PendingInput
-from chainsim.game.app.headless import build_app
-from chainsim.game.app.inputscript import load_script
-from chainsim.game.app.options import window_size
-from chainsim.game.app.outputs import check_output_file
-from chainsim.game.gl.context import egl_context
-from chainsim.game.gl.render_system import screenshot
+from chainsim.game.common.outputs import check_output_file
+from chainsim.game.render.context import egl_context
+from chainsim.game.render.render_system import screenshot
+from chainsim.game.trainer.headless import build_app
+from chainsim.game.trainer.inputscript import load_script
+from chainsim.game.trainer.options import window_size
 from chainsim.systems.engine import argtypes
 from chainsim.systems.engine.errors import UserError
 

@@ -7,10 +7,10 @@ import os
 import platform
 from pathlib import Path
 
-from chainsim.game.app.outputs import prepare_output_dir
-from chainsim.game.bench import pack_costs
+from chainsim.game.common.outputs import prepare_output_dir
 from chainsim.systems.engine import argtypes, limits
 from chainsim.systems.engine.errors import UserError
+from chainsim.tools.bench import pack_costs
 from chainsim.tools.study import calibrate as cal
 from chainsim.tools.study import long_runs, report, speed_accuracy, surgical, surgical_report
 from chainsim.tools.study.scenes import SCENES
@@ -126,6 +126,7 @@ def run(args) -> int:
                 raise UserError(f"--scenes: unknown scene(s) {', '.join(bad)}; expected some of {', '.join(SCENES)}")
         prepare_output_dir(args.out, "--out")
         results = speed_accuracy.run(args.quick, args.out, scenes)
+        summaries: list[dict]
         summaries, note = ([], "skipped (--pack-steps 0)")
         if args.pack_steps:
             summaries, note = pack_costs.measure(args.pack_steps)

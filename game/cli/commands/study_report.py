@@ -5,9 +5,9 @@ Reads a pack's attempts from a records database (``--db``, ``--class``; ``--stud
 each participant's experience group from a register (``--groups FILE``, a CSV: participant, group
 (novice or expert), year_of_training, procedures_performed) or from the attempts' own
 ``details.protocol.group``, and writes into ``--out DIR`` one PNG per metric of the pack's [metrics],
-learning-curves.png, statistics.csv and report.md (``chainsim.game.records.validity_report``), and
+learning-curves.png, statistics.csv and report.md (``chainsim.game.study.validity_report``), and
 benchmarks.toml: the pass marks a programme may adopt as its own benchmarks, which
-``--write-benchmarks PACK_DIR`` writes into a (not built-in) pack (``chainsim.game.records.programme_benchmarks``).
+``--write-benchmarks PACK_DIR`` writes into a (not built-in) pack (``chainsim.game.study.programme_benchmarks``).
 
 ``--demo-cohort N`` analyses a synthetic cohort of N participants instead (``chainsim.game.records.
 cohort``: values drawn from normal distributions with Cohen's d = ``--effect`` between the groups);
@@ -21,16 +21,16 @@ import argparse
 from datetime import date
 from pathlib import Path
 
-from chainsim.game.app.options import name
-from chainsim.game.app.outputs import prepare_output_dir
+from chainsim.game.common.outputs import prepare_output_dir
 from chainsim.game.packs import pack as packs
-from chainsim.game.packs.checks import PackError
 from chainsim.game.packs.discovery import BUILTIN_DIR
-from chainsim.game.records import cohort, programme_benchmarks, validity_report
+from chainsim.game.packs.validation import PackError
 from chainsim.game.records.backend import is_postgres, redact
 from chainsim.game.records.store import RecordStore
-from chainsim.game.records.validity import RESAMPLES
-from chainsim.game.records.validity_data import UNITS, Selection, read_register, select
+from chainsim.game.study import cohort, programme_benchmarks, validity_report
+from chainsim.game.study.validity import RESAMPLES
+from chainsim.game.study.validity_data import UNITS, Selection, read_register, select
+from chainsim.game.trainer.options import name
 from chainsim.systems.engine import argtypes, atomicfile
 from chainsim.systems.engine.errors import UserError
 

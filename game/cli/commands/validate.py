@@ -1,7 +1,7 @@
 """`chainsim validate PATH`: every problem in a pack at once, one line each; exit 2 if any.
 
 It reports whatever `chainsim run` would refuse: the manifest and files are checked, then each
-scene is started as `run` starts it (chainsim.game.app.headless.validate_pack).
+scene is started as `run` starts it (chainsim.game.trainer.headless.validate_pack).
 """
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from chainsim.game.app.headless import validate_pack
 from chainsim.game.packs import pack as packs
+from chainsim.game.trainer.headless import validate_pack
 
 NAME = "validate"
 HELP = "check a pack folder and report every problem"
@@ -36,6 +36,7 @@ def run(args) -> int:
             print(p, file=sys.stderr)
         print(f"{len(problems)} problem{'s' if len(problems) > 1 else ''} in {path}", file=sys.stderr)
         return 2
+    assert pack is not None  # no problem found: validate_pack returned the pack
     m = pack.manifest
     print(
         f"{path}: ok ({m['pack']['name']}: {len(m['meshes'])} meshes, {len(m['entities'])} entities, "

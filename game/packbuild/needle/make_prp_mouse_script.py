@@ -18,9 +18,9 @@ from pathlib import Path
 
 from chainsim.assets import ASSETS_DIR
 from chainsim.components.input_events import MouseButton, MouseDrag
-from chainsim.game.app import windowform
-from chainsim.game.app.headless import build_app, run_pack
-from chainsim.game.app.inputscript import load_script
+from chainsim.game.trainer import windowform
+from chainsim.game.trainer.headless import build_app, run_pack
+from chainsim.game.trainer.inputscript import load_script
 from chainsim.systems.engine.errors import UserError
 
 logger = logging.getLogger(__name__)

@@ -31,8 +31,8 @@ import trimesh
 from chainsim.assets import ASSETS_DIR
 from chainsim.components.core import Transform
 from chainsim.components.registry import load_all
-from chainsim.game.app.headless import run_pack
 from chainsim.game.packs import pack as packs
+from chainsim.game.trainer.headless import run_pack
 from chainsim.systems import manifest_modules
 from chainsim.systems.engine.segment_tree import SegmentTree
 from chainsim.systems.procedures.needle.collision import NeedleObstacles

@@ -604,7 +604,10 @@ def tissue_report(skin, skull, mandible) -> dict:
 
 def landmarks_and_paths(skin, skull, mandible, bone, foramina, plugs, orbits, mouth) -> dict:
     L = prp_landmarks
-    points, planes, paths, report = {}, {}, {}, {"aiming": {}, "paths": {}}
+    points: dict = {}
+    planes: dict = {}
+    paths: dict = {}
+    report: dict[str, dict] = {"aiming": {}, "paths": {}}
     meatus = L.meatus_centres(skull)
     for side, sgn in (("left", 1.0), ("right", -1.0)):
         comm = L.skin_point_in_front(skin, float(mouth[side][0]), float(mouth[side][2]))

@@ -186,7 +186,7 @@ def _canal_centre(local: trimesh.Trimesh, line_point: np.ndarray, d: np.ndarray,
     tt = np.einsum("ij,ij->i", loc - origins[idx], rays[idx])
     ok = tt > 0
     np.minimum.at(t, idx[ok], tt[ok])
-    enclosed = (t.reshape(len(stations), len(dirs)) < width).all(axis=1)
+    enclosed = np.all(t.reshape(len(stations), len(dirs)) < width, axis=1)
     best, run, start = (0, 0), 0, 0
     for i, e in enumerate(enclosed):
         if e:

@@ -44,19 +44,26 @@ def _look(view_dir: np.ndarray, up: np.ndarray, centre: np.ndarray, half: float)
     return proj @ view
 
 
+def _uniform(prog: moderngl.Program, name: str) -> moderngl.Uniform:
+    u = prog[name]
+    assert isinstance(u, moderngl.Uniform), f"{name} is not a uniform of the program"
+    return u
+
+
 def render(layers, view_dir, up, centre, half, size=(640, 640)) -> np.ndarray:
     """layers: list of (trimesh.Trimesh, (r, g, b, a)). Returns an RGB uint8 image."""
 
-    ctx = moderngl.create_standalone_context(backend="egl")
+    # moderngl's stub types each keyword setting as a dict; backend is a str
+    ctx = moderngl.create_standalone_context(backend="egl")  # type: ignore[arg-type]
     try:
         prog = ctx.program(vertex_shader=_VS, fragment_shader=_FS)
         fbo = ctx.simple_framebuffer(size, components=4)
         fbo.use()
         ctx.clear(1.0, 1.0, 1.0, 1.0)
         mvp = _look(np.asarray(view_dir, float), np.asarray(up, float), np.asarray(centre, float), half)
-        prog["mvp"].write(mvp.T.astype("f4").tobytes())
+        _uniform(prog, "mvp").write(mvp.T.astype("f4").tobytes())
         light = -np.asarray(view_dir, float) + 0.5 * np.asarray(up, float)
-        prog["light"].value = tuple((light / np.linalg.norm(light)).tolist())
+        _uniform(prog, "light").value = tuple((light / np.linalg.norm(light)).tolist())
         opaque = [layer for layer in layers if layer[1][3] >= 1.0]
         clear = [layer for layer in layers if layer[1][3] < 1.0]
         ctx.enable(moderngl.DEPTH_TEST)
@@ -71,18 +78,18 @@ def render(layers, view_dir, up, centre, half, size=(640, 640)) -> np.ndarray:
                 order = np.argsort(-key)
                 tri = mesh.triangles[order].reshape(-1, 3)
                 nrm = np.repeat(mesh.face_normals[order], 3, axis=0)
-                ctx.depth_mask = False
+                fbo.depth_mask = False
             else:
                 ctx.disable(moderngl.BLEND)
-                ctx.depth_mask = True
+                fbo.depth_mask = True
+            fbo.use()  # moderngl hands a framebuffer's masks to GL when it is bound
             data = np.hstack([tri, nrm]).astype("f4")
             vbo = ctx.buffer(data.tobytes())
             vao = ctx.vertex_array(prog, [(vbo, "3f 3f", "in_pos", "in_nrm")])
-            prog["color"].value = tuple(float(c) for c in color)
+            _uniform(prog, "color").value = tuple(float(c) for c in color)
             vao.render(moderngl.TRIANGLES)
             vao.release()
             vbo.release()
-        ctx.depth_mask = True
         img = np.frombuffer(fbo.read(components=3), dtype=np.uint8).reshape(size[1], size[0], 3)
         return img[::-1].copy()
     finally:

@@ -146,7 +146,7 @@ def enclose(
         if len(outside) == 0:
             break
         # One new constraint per cluster of offending vertices.
-        picked = []
+        picked: list[np.intp] = []
         for i in outside:
             if all(np.linalg.norm(skull_vertices[i] - skull_vertices[j]) > cluster_mm for j in picked):
                 picked.append(i)

@@ -22,7 +22,7 @@ from chainsim.systems.engine.kernels.chainmail import cascade, make_workspace, m
 from chainsim.systems.engine.kernels.exact import ExactResult, exact_limits, exact_move
 from chainsim.systems.engine.kernels.graph import Graph, build_graph
 from chainsim.systems.engine.kernels.relax import relax
-from chainsim.systems.engine.model_params import defaults
+from chainsim.systems.engine.model_params import PER_LINK, defaults
 
 #: below this many active elements relaxation runs on one thread: a parallel region's barriers cost
 #: far more than the work when the machine is busy (measured ~100x slower for a 1000-element patch)
@@ -275,8 +275,8 @@ class ChainMailBody(Body):
         graph = topology.add_links(self.graph, links)
         added = graph.n_links - m_before
         if added:
-            first = (float(self.amin[0]), float(self.amax[0]), float(self.beta[0])) if m_before else (0.8, 1.2, 0.1)
-            amin, amax, beta = material_arrays(added, *first)
+            first = (self.amin[0], self.amax[0], self.beta[0]) if m_before else (_D[k] for k in PER_LINK)
+            amin, amax, beta = material_arrays(added, *map(float, first))
             self.amin = np.concatenate([self.amin, amin])
             self.amax = np.concatenate([self.amax, amax])
             self.beta = np.concatenate([self.beta, beta])

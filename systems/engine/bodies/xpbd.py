@@ -35,7 +35,7 @@ from chainsim.systems.engine.model_params import XPBD_CONSTRAINTS, defaults
 CONSTRAINTS = XPBD_CONSTRAINTS
 #: the body's defaults, from the one declaration of its parameters
 _D = defaults("xpbd")
-#: says the substep shortfall on stderr as one line (the command line's logging, game/app/logs.py; with
+#: says the substep shortfall on stderr as one line (the command line's logging, game/common/logs.py; with
 #: no set-up, Python's last-resort handler prints the bare message): a Python warning would show a source path
 logger = logging.getLogger(__name__)
 

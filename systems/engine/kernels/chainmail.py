@@ -61,7 +61,7 @@ _GEN_LIMIT = 254  # byte stamps (255 marks the overflow lane): generations 1 to 
 # materials
 
 
-def material_arrays(n_links, alpha_min, alpha_max, beta, dtype=np.float64):
+def material_arrays(n_links, alpha_min, alpha_max, beta, dtype=np.float64) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-link (amin, amax, beta) arrays of length `n_links` from scalars or per-link arrays.
 
     alpha_min in [0, 1] limits compression, alpha_max >= 1 stretching, beta >= 0 shear (5.2.2); all

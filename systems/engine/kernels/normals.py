@@ -1,4 +1,4 @@
-"""Per-vertex normals of a deformed mesh (numba kernels, thin wrappers in chainsim.game.gl.meshbuf).
+"""Per-vertex normals of a deformed mesh (numba kernels, thin wrappers in chainsim.game.render.meshbuf).
 
 A vertex normal is the area-weighted sum of the face normals around it (the unnormalised cross
 product of two triangle edges), normalised. After a ChainMail move (thesis 5.2.3) only the normals

@@ -6,10 +6,10 @@ Settings ("class", "trainee") and Records; writes Assessment.values (the summary
 messages and FailedSaves (a headless run whose save failed then exits 2).
 
 An attempt runs from the session's start, or from the last Reset tissue, to Save attempt; Save closes
-it (a second Save stores nothing) and Reset tissue begins the next. The record saved fills the records'
-fixed columns as a procedure without landmarks or needle does (landmark error 0, no needle error, no
-obstacle contacts): `target` is the top layer once every step is done (the opening made) and "none"
-before, `path_length_mm` the scissors' path. `step_times` holds, per step done, the seconds from the
+it (a second Save stores nothing) and Reset tissue begins the next. The record saved names this
+procedure and holds its figures (time, cut length, links cut, stretch, displacement, instrument times:
+chainsim.systems.procedures.cutting.records): `target` is the top layer once every step is done (the
+opening made) and "none" before. `step_times` holds, per step done, the seconds from the
 attempt's start to when it was done (the steps may be done in any order). `metrics` carries the pack's
 own [metrics.NAME], each the assessment value of that name (a list counts its items), and `details`
 the per-layer figures and the instrument uses. Records that refuse saves (a replay) store nothing and
@@ -26,6 +26,7 @@ from chainsim.components.hud import HudState
 from chainsim.components.input_events import Widget
 from chainsim.components.resources import Assessment, FailedSaves, PackResource, Records, SavedLocally, Settings
 from chainsim.systems.engine.errors import UserError
+from chainsim.systems.procedures.cutting import records
 from chainsim.systems.procedures.cutting.state import MOVED_MM, CuttingState, link_stretch
 from chainsim.systems.procedures.cutting.tools import Forceps, Scissors
 from chainsim.systems.tissue.deformable import Deformable
@@ -51,9 +52,10 @@ DETAIL_KEYS = (
 
 
 def layer_values(ent: int, d: Deformable) -> dict:
-    disp = np.linalg.norm(np.asarray(d.pos, dtype=np.float64) - d.rest, axis=1)
+    b = d.body
+    disp = np.linalg.norm(np.asarray(b.positions, dtype=np.float64) - b.rest, axis=1)
     return {
-        "links_cut": int(len(d.alive) - np.count_nonzero(d.alive)),
+        "links_cut": int(len(b.alive) - np.count_nonzero(b.alive)),
         "max_stretch_ratio": link_stretch(d),
         "elements_moved": int(np.count_nonzero(disp > MOVED_MM)),
         "max_displacement_mm": float(disp.max()) if len(disp) else 0.0,
@@ -73,15 +75,13 @@ def metric_values(pack, v: dict) -> dict:
 
 
 def attempt_record(pack, v: dict) -> dict:
-    """The records-store attempt (chainsim.game.records.store) for assessment values `v` (see the module)."""
+    """The records-store attempt (chainsim.game.records.store) for assessment values `v` (see the module):
+    this procedure's figures by the names its layout declares (chainsim.systems.procedures.cutting.records)."""
     return {
+        "procedure": "cutting",
         "pack": pack.name,
-        "duration_s": v["duration_s"],
-        "landmark_error_mm": 0.0,
-        "needle_error_mm": None,
+        **{c.name: v[c.name] for c in records.COLUMNS},
         "target": v["top_layer"] if v["step"] == "done" else "none",
-        "skull_contacts": 0,
-        "path_length_mm": v["cut_length_mm"],
         "step_times": dict(v["step_times"]),
         "details": {k: v[k] for k in DETAIL_KEYS if k in v},
         "metrics": metric_values(pack, v),
@@ -162,7 +162,7 @@ class AssessmentSystem:
         per = {}
         for ent in st.layers:
             d = esper.component_for_entity(ent, Deformable)
-            key = (d.version, int(np.count_nonzero(d.alive)))
+            key = (d.body.version, int(np.count_nonzero(d.body.alive)))
             hit = st.cache.get(ent)
             if hit is None or hit[0] != key:
                 hit = (key, layer_values(ent, d))

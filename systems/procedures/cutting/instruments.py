@@ -79,7 +79,7 @@ class ToolsSystem:
         if dist > f.reach:
             self.say(app, "Nothing to grip there.")
             return False
-        if d.fixed_mask[elem]:
+        if d.body.fixed[elem]:
             self.say(app, "That edge is fixed: grip the tissue further in.")
             return False
         f.held_entity, f.held_element = int(ent), elem

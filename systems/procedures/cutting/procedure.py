@@ -31,7 +31,7 @@ Systems:
       instrument sits on the tissue point under the cursor, read from MouseMove), the pack's
       [[steps]] (pull, cut, open: each done when what it asks for has happened, in any order, 4.5.2)
       and HUD text.
-  procedure stage, ORDER_ASSESSMENT (`cutting_assessment`): chainsim.game.app.headless.Assessment values,
+  procedure stage, ORDER_ASSESSMENT (`cutting_assessment`): chainsim.game.trainer.headless.Assessment values,
       and Save attempt: the attempt (from the start or the last Reset tissue) stored through the Records
       resource with the pack's own metrics (.assessment).
 
@@ -81,7 +81,7 @@ KEY_ROWS = [
 
 def check_event(ev) -> None:
     """One scripted event as this procedure will read it: a widget value it would refuse mid-run is
-    refused here, before the run (chainsim.game.app.headless.check_events; so `validate` reports a
+    refused here, before the run (chainsim.game.trainer.headless.check_events; so `validate` reports a
     scene script's bad value)."""
     if isinstance(ev, Widget) and ev.name in ("pull", "pull_by", "push"):
         widget_value(ev.name, ev.value)

@@ -95,7 +95,7 @@ class CuttingState:
 
 
 def world_positions(ent: int, d: Deformable) -> np.ndarray:
-    return to_world(esper.try_component(ent, Transform), d.pos)
+    return to_world(esper.try_component(ent, Transform), d.body.positions)
 
 
 def nearest_element(ent: int, d: Deformable, point) -> tuple[int, float]:
@@ -139,11 +139,11 @@ def parse_point(value, where: str) -> np.ndarray:
 
 def link_stretch(d: Deformable) -> float:
     """Largest current / rest length over the live links of a body (1.0 when nothing is stretched)."""
-    assert d.graph is not None  # set at spawn
-    links = d.graph.links[d.alive]
+    b = d.body
+    links = b.graph.links[b.alive]
     if len(links) == 0:
         return 1.0
-    cur = np.linalg.norm(d.pos[links[:, 1]] - d.pos[links[:, 0]], axis=1)
-    rest = np.linalg.norm(d.rest[links[:, 1]] - d.rest[links[:, 0]], axis=1)
+    cur = np.linalg.norm(b.positions[links[:, 1]] - b.positions[links[:, 0]], axis=1)
+    rest = np.linalg.norm(b.rest[links[:, 1]] - b.rest[links[:, 0]], axis=1)
     ok = rest > 1e-12
     return float(np.max(cur[ok] / rest[ok])) if np.any(ok) else 1.0

@@ -222,8 +222,8 @@ class StepsSystem:
 
 
 def _dead(ent: int) -> int:
-    d = esper.component_for_entity(ent, Deformable)
-    return int(len(d.alive) - np.count_nonzero(d.alive))
+    alive = esper.component_for_entity(ent, Deformable).body.alive
+    return int(len(alive) - np.count_nonzero(alive))
 
 
 def panel_lines(app: App, st: CuttingState) -> list[str]:
@@ -232,7 +232,7 @@ def panel_lines(app: App, st: CuttingState) -> list[str]:
     tool = st.tool or "none - take the forceps or the scissors"
     if st.tool == "forceps" and f.held_entity >= 0:
         tool += f" (holding {st.names.get(f.held_entity, '?')})"
-    top = esper.component_for_entity(st.top, Deformable)
+    top = esper.component_for_entity(st.top, Deformable).body
     lines = [f"Tool: {tool}", f"Tissue model: {top.model_used} (m switches)"]
     if top.model_reason.startswith("auto"):  # which model the budget chose, and why
         lines.append(top.model_reason)

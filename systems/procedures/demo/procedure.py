@@ -66,7 +66,7 @@ def _world(ent: int, points) -> np.ndarray:
 def _pull_path(ent: int, p: Pull, d: Deformable) -> np.ndarray:
     """World points: the pulled element now, then the waypoints still ahead of it (all of them before
     the pull starts)."""
-    here = _world(ent, d.pos[p.resolved])
+    here = _world(ent, d.body.positions[p.resolved])
     if p.done:
         return np.zeros((0, 3))
     way = np.asarray(p.waypoints, np.float64).reshape(-1, 3)
@@ -94,9 +94,9 @@ def place_marks(st: DemoState) -> None:
     for ent, marker in st.marks.items():
         p = esper.component_for_entity(ent, Pull)
         d = esper.component_for_entity(ent, Deformable)
-        if p.resolved < 0 or p.resolved >= len(d.pos):
+        if p.resolved < 0 or p.resolved >= d.body.n:
             continue
-        esper.component_for_entity(marker, Transform).position = _world(ent, d.pos[p.resolved])
+        esper.component_for_entity(marker, Transform).position = _world(ent, d.body.positions[p.resolved])
         line = esper.component_for_entity(marker, PolyLine)
         line.points = _pull_path(ent, p, d)
         line.visible = len(line.points) >= 2
@@ -118,7 +118,7 @@ class DemoSystem:
         pres: PackResource = app.resource(PackResource)
         scenes = pres.pack.section("scenes")
         lines = [f"Demo: {pres.scene}. {scenes.get(pres.scene, {}).get('description', '')}".strip()]
-        models = sorted({d.model_used for _e, d in esper.get_component(Deformable)})
+        models = sorted({d.body.model_used for _e, d in esper.get_component(Deformable)})
         lines.append(f"Tissue model: {', '.join(models)} (m switches)")
         others = [name for name in scenes if name != pres.scene]
         if others:
@@ -172,7 +172,7 @@ def plugin(app: App) -> None:
     st = DemoState()
     with app.active():
         for ent, (_p, d) in esper.get_components(Pull, Deformable):
-            size = float(np.linalg.norm(np.ptp(d.rest, axis=0))) if len(d.rest) else 10.0
+            size = float(np.linalg.norm(np.ptp(d.body.rest, axis=0))) if d.body.n else 10.0
             name = esper.try_component(ent, Name)
             marker = esper.create_entity(
                 Name(f"{name.value if name else ent}.marked"),

@@ -5,7 +5,7 @@ Thesis 3.3.4 (the tool, Fig. 3.11) and 6.1.5 (the error formulas). Stage: proced
 Widget events (self_assessment, save, help), Settings ("class", "trainee"), Records (where attempts
 go; a replay's refuse every save, which then closes the attempt without storing it). A save that
 did not happen is shown and appended to FailedSaves (a headless run then exits 2). Writes:
-chainsim.game.app.headless.Assessment.values (the summary's `assessment`), HudState.panel_text and
+chainsim.game.trainer.headless.Assessment.values (the summary's `assessment`), HudState.panel_text and
 messages; saves attempts to the records store.
 
 Values, on the side the trainee works on (all millimetres unless said):
@@ -28,7 +28,7 @@ last X-ray image). The attempt stores its thinned needle path and the ideal geom
 
 The record saved per attempt keeps the records' fixed columns and adds `metrics`: every [metrics.NAME]
 of the pack with its value (`measure` picks it from the vocabulary), stored in the procedure-neutral
-metrics table (chainsim.game.records.schema).
+metrics table (chainsim.game.records.migrations).
 """
 
 from __future__ import annotations
@@ -51,6 +51,7 @@ from chainsim.components.resources import (
 )
 from chainsim.components.stages import ORDER_ASSESSMENT
 from chainsim.systems.engine.errors import UserError
+from chainsim.systems.procedures import verdicts as vd
 from chainsim.systems.procedures.needle import debrief as db
 from chainsim.systems.procedures.needle import fluoro, haptics
 from chainsim.systems.procedures.needle.carm import CArm
@@ -382,11 +383,11 @@ def geometry(app: App, v: dict, trace: list) -> None:
         p = None if mark is None else db.ideal_landmark(t.point, t.ideal_mm, t.plane, mark)
         ideal.append(None if p is None else [round(float(c), 2) for c in p])
     v["ideal_landmarks"] = ideal
-    rows = db.verdicts(app.resource(PackResource).pack.section("metrics"), v["metrics"])
-    o = db.outcome(rows)
+    rows = vd.verdicts(app.resource(PackResource).pack.section("metrics"), v["metrics"])
+    o = vd.outcome(rows)
     v["verdict"] = {"passed": o["passed"], "met": o["met"], "judged": o["judged"], "critical": o["critical"]}
     # a stored verdict says what it rested on: each benchmark, published, the programme's or provisional
-    v["verdict"]["benchmarks"] = db.rested_on(rows)
+    v["verdict"]["benchmarks"] = vd.rested_on(rows)
 
 
 #: what `geometry` adds to the assessment values
@@ -396,24 +397,24 @@ GEOMETRY_KEYS = ("needle_path", "ideal_path", "ideal_landmarks", "verdict")
 def debrief_rows(v: dict, scene: NeedleScene, pack) -> list[tuple[str, str]]:
     """The debrief as (text, tone) rows: the verdict, one row per metric with its benchmark, the
     landmark terms, the X-ray and aids, the advice for each failed metric and what the views show."""
-    rows = db.verdicts(pack.section("metrics"), v["metrics"])
-    o = db.outcome(rows)
+    rows = vd.verdicts(pack.section("metrics"), v["metrics"])
+    o = vd.outcome(rows)
     head = f"Debrief, attempt {v.get('attempt', 1)}" + (f" ({v['side']} side)" if v["side"] else "")
-    out = [(f"{head}: {db.verdict_line(o)}", db.CRITICAL if (o["critical"] or not o["passed"]) else db.HEAD)]
+    out = [(f"{head}: {vd.verdict_line(o)}", db.CRITICAL if (o["critical"] or not o["passed"]) else db.HEAD)]
     for r in rows:
         text = f"{r['label']}: {r['shown']}"
         if r["passed"] is None:
             out.append((f"{text} (no benchmark)", db.PLAIN))
         else:
             word = "CRITICAL" if r["critical"] else "pass" if r["passed"] else "FAIL"
-            basis = ", provisional" if r["basis"] == db.PROVISIONAL else ""
+            basis = ", provisional" if r["basis"] == vd.PROVISIONAL else ""
             out.append((f"{text} - {word} ({r['threshold']}{basis})", db.PASS if r["passed"] else db.FAIL))
-    if db.basis_note(rows):
-        out.append((db.basis_note(rows), db.NOTE))
+    if vd.basis_note(rows):
+        out.append((vd.basis_note(rows), db.NOTE))
     n = len(scene.landmark_ids)
     if n and v.get("D1") is not None:
-        ds = ", ".join(db.number(v[f"D{k}"], "mm") for k in range(1, n + 1))
-        dp = ", ".join(db.number(v[f"d{k}"], "mm") for k in range(1, n + 1))
+        ds = ", ".join(vd.number(v[f"D{k}"], "mm") for k in range(1, n + 1))
+        dp = ", ".join(vd.number(v[f"d{k}"], "mm") for k in range(1, n + 1))
         out.append(
             (f"Landmarks 1-{n}: off the ideal distance (D) {ds}; off their planes (d) {dp}", db.NOTE),
         )

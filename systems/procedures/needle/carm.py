@@ -14,7 +14,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import esper
 import numpy as np
+
+from chainsim.components.app import App
+from chainsim.components.resources import EntityIndex
+from chainsim.systems.procedures.procedure import XrayImage
+from chainsim.systems.view.ui.viewports import carm_camera
 
 #: entrance dose rate of continuous fluoroscopy, mGy per second
 DOSE_RATE_MGY_S = 0.2
@@ -53,3 +59,32 @@ class CArm:
     def dose_mgy(self) -> float:
         """Estimated entrance dose this attempt, mGy (module docstring)."""
         return self.exposure_s * DOSE_RATE_MGY_S
+
+
+#: the C-arm's presets in words (the X-ray view's status line)
+VIEW_NAMES = {"lateral": "Lateral", "submental": "Submental-oblique", "free": "Free angle"}
+
+
+def xray_image(app: App) -> XrayImage | None:
+    """The X-ray view's image request from the arm's pose at its last image, with its status line (the
+    view, the arm's angles and what this attempt's X-ray has cost); None when the world has no C-arm."""
+    index = app.get_resource(EntityIndex)
+    carm = esper.try_component(index.get("carm"), CArm) if index is not None and index.get("carm") is not None else None
+    if carm is None:
+        return None
+    az, el, iso = carm.image_pose
+    status = (
+        f"{VIEW_NAMES.get(carm.view, carm.view)} (az {carm.azimuth_deg:.0f}, el {carm.elevation_deg:.0f}) - "
+        f"{carm.shots} image{'' if carm.shots == 1 else 's'}, {carm.exposure_s:.1f} s, {carm.dose_mgy:.2f} mGy"
+    )
+    return XrayImage(
+        camera=carm_camera(az, el, iso, SOURCE_TO_ISO_MM, SOURCE_TO_DETECTOR_MM, DETECTOR_MM),
+        image_id=carm.image_id,
+        live=carm.live,
+        attempt=carm.attempt,
+        images=carm.shots + (1 if carm.live_s > 0 else 0),
+        status=status,
+        view=carm.view,
+        azimuth_deg=float(az),
+        elevation_deg=float(el),
+    )

@@ -6,7 +6,7 @@ A pack that passes these checks cannot fail a trainee at run time through its ow
 the types they have, so a bad format spec, an unbalanced brace or an unknown field is one line now
 and not a traceback when the needle reaches the target; every `{side}` name is formatted for each
 side and must name what exists; steps, roles, landmarks, aids and metrics resolve. `problems(man)`
-returns (key path, message) pairs; chainsim.game.packs.checks places them as validate problems and
+returns (key path, message) pairs; chainsim.game.packs.validation places them as validate problems and
 adds the limits of the records store.
 """
 

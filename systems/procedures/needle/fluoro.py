@@ -4,7 +4,7 @@ Stage: procedure (ORDER_FLUORO, after the procedure steps and before the assessm
 events, ViewTurned events from the "fluoro" viewport, InputState.keys (the pedal), ProcedureState
 (the attempt and the entry side), NeedleScene (the side's target: where to centre the arm, its
 axis). Writes: the CArm component on the runtime entity "carm", HudState messages. The image
-itself is made by the renderer (chainsim.game.gl.fluoro) whenever `CArm.image_id` grows; without
+itself is made by the renderer (chainsim.game.render.radiograph) whenever `CArm.image_id` grows; without
 a renderer the counts still run.
 
 Controls (widget names; the pack's layout gives them buttons and keys):

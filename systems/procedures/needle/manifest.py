@@ -9,7 +9,7 @@ described entirely by pack data, read by the generic systems in chainsim.systems
                          obstacle (bounce | stop | warn on contact), tissue (deformable, not an obstacle)
     [[landmarks]]        the points the trainee clicks, in order, each scored by its distance to a
                          named point (minus an ideal distance) and to a named plane
-    [[steps]]            (the shell's table, game/packs/schema.py) gain `landmark` (STEP_FIELDS, here);
+    [[steps]]            (the shell's table, game/packs/declarations.py) gain `landmark` (STEP_FIELDS, here);
                          `done_on` names this procedure's events
     [[feedback]]         per event: a message, a light and its colour
     [metrics.NAME]       (the shell's table) gain `measure`, `role`, `step` (METRIC_FIELDS, here): which
@@ -38,9 +38,6 @@ ROLE_KINDS = ("skin", "target", "obstacle", "tissue")
 ON_CONTACT = ("bounce", "stop", "warn")
 LANDMARK_SCORES = ("thesis-6.1.5", "mean-distance", "none")
 LIGHT_COLOURS = ("", "off", "red", "green", "yellow")
-#: what a metric's benchmark rests on ([metrics.NAME] benchmark_basis): the first is the default, a
-#: benchmark no study or programme data stands behind (docs/validity.md)
-BENCHMARK_BASES = ("provisional", "published", "programme")
 MEASURES = (
     "",
     "duration",
@@ -229,7 +226,7 @@ section(
     ],
 )
 
-# -- this procedure's part in the shell's shared tables (chainsim.game.packs.schema) ----------------------
+# -- this procedure's part in the shell's shared tables (chainsim.game.packs.declarations) ----------------------
 #
 # [pack], [[steps]] and [metrics.NAME] are declared by the shell for every procedure; what they say of
 # the needle procedure, and the keys only it reads, are declared here, with the rest of its vocabulary.

@@ -25,7 +25,7 @@ closes it (its clock stops); the next action - a reset, a turn, an insertion, a 
 next attempt from zero, keeping the landmarks unless shift+Reset clears them.
 
 Aiming aid: every frame the HUD gets the entry side's target centre and the tip's distance to it,
-which the needle-tip view draws with a crosshair (chainsim.game.gl.panelview.aim); in fluoroscopy-first
+which the needle-tip view draws with a crosshair (chainsim.game.render.panelview.aim); in fluoroscopy-first
 mode (.fluoro.fluoro_first) it gets neither, only a note, and the trainee guides by the X-ray.
 """
 

@@ -4,28 +4,18 @@ Before the records kept procedure-neutral metrics (schema version 6), an attempt
 fixed columns of the attempts table (schema versions 1-5) hold its time, the two errors of thesis
 6.1.5, what the tip ended on, bone contacts, path, redirections and the X-ray's cost, and every stored
 file keeps them. The shell (the records store and its validation, reports, exports, the server's pages,
-the study screens) takes those fields' names, units and words from here, so the procedure's vocabulary
+the study screens) takes those fields' names, units and words from LAYOUT, through the procedure's
+declaration (chainsim.systems.procedures.needle.declaration), so the procedure's vocabulary
 stays in its folder; what a pack declares in [metrics.NAME] (label, units, benchmark) is said as
 declared.
 
 The thesis study (6.1.2-6.1.5: its tasks, how each is scored, the features its participants rated) is
-this procedure's too; `chainsim protocol` and the window's study screens read it from here.
+this procedure's too (STUDY); `chainsim protocol` and the window's study screens read it from there.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
-
-class Column(NamedTuple):
-    """A fixed attempt field: its column (and the attempt dict's key), its words and units on pages, and
-    its header in the terminal's attempt list."""
-
-    name: str
-    words: str
-    units: str
-    short: str
-
+from chainsim.systems.procedures.procedure import AttemptLayout, Column, Study
 
 #: the error of the points the trainee marks (thesis 6.1.5's E over the three marks), in mm
 MARK_ERROR = "landmark_error_mm"
@@ -40,10 +30,10 @@ COLUMNS: tuple[Column, ...] = (
     Column("duration_s", "Time", "s", "time_s"),
     Column(MARK_ERROR, "Landmark error", "mm", "landmark_mm"),
     Column(TARGET_ERROR, "Needle error", "mm", "needle_mm"),
-    Column(BONE_CONTACTS, "Bone contacts", "", "contacts"),
+    Column(BONE_CONTACTS, "Bone contacts", "", "contacts", whole=True),
     Column("path_length_mm", "Insertion path length", "mm", "path_mm"),
-    Column("redirections", "Redirections", "", "redirect"),
-    Column("xray_shots", "X-ray images", "", "xrays"),
+    Column("redirections", "Redirections", "", "redirect", whole=True),
+    Column("xray_shots", "X-ray images", "", "xrays", whole=True),
     Column("exposure_s", "X-ray exposure", "s", "exposure_s"),
     Column("dose_mgy", "Estimated skin dose", "mGy", "dose_mgy"),
 )
@@ -134,3 +124,31 @@ RATINGS: tuple[tuple[str, str], ...] = (
 )
 #: post-session averages the thesis reports (6.1.5), on the same 1-10 scale
 THESIS_RATINGS = {"reference_planes": 9.5, "local_viewer": 9.7, "landmark_planes": 8.8, "signals": 9.3}
+
+#: the needle attempt as the records and their pages read it
+LAYOUT = AttemptLayout(
+    columns=COLUMNS,
+    aids=AIDS,
+    mark_error=MARK_ERROR,
+    target_error=TARGET_ERROR,
+    known_targets=KNOWN_TARGETS,
+    target_form=TARGET_FORM,
+    marks=MARKS,
+    ideal_marks=IDEAL_MARKS,
+    marks_heading=MARKS_HEADING,
+    marks_column=MARKS_COLUMN,
+    marks_note=MARKS_NOTE,
+    field_words=FIELD_WORDS,
+    contact_facts=contact_facts,
+)
+
+#: the thesis study (6.1.2-6.1.5)
+STUDY = Study(
+    task_metric=TASK_METRIC,
+    task_scored=TASK_SCORED,
+    task_does=TASK_DOES,
+    ideal_point=IDEAL_POINT,
+    mark_count=MARK_COUNT,
+    ratings=RATINGS,
+    published_ratings=THESIS_RATINGS,
+)

@@ -347,9 +347,9 @@ def read_scene(app: App) -> NeedleTissueScene | None:
             for name in dict.fromkeys(pattern.replace("{side}", s) for s in sides):
                 ent = index.get(name)
                 d = esper.try_component(ent, Deformable) if ent is not None else None
-                if ent is None or d is None or d.mesh_data is None or d.mesh_data.tets is None:
+                if ent is None or d is None or d.body is None or d.body.mesh.tets is None:
                     raise UserError(f"needle_tissue.bodies: '{name}' is not a deformable tetrahedral entity")
-                mesh = d.mesh_data
+                mesh = d.body.mesh
                 if mesh.layers is None:
                     raise UserError(f"needle_tissue.bodies: '{name}': its mesh has no cell data 'layer'")
                 if len(mesh.layers) and int(mesh.layers.min()) < 1:
@@ -364,9 +364,9 @@ def read_scene(app: App) -> NeedleTissueScene | None:
                 # the body's elastic energy takes each layer's own modulus (kPa in the table)
                 li = idx[mesh.layers]
                 set_element_materials(d, layers.E[li] * 1e3, layers.nu[li], f"tissue_layers ('{name}')")
-                rest = to_world(esper.try_component(ent, Transform), d.rest.astype(np.float64))
+                rest = to_world(esper.try_component(ent, Transform), d.body.rest.astype(np.float64))
                 f, s, nrm = boundaries(mesh.tets, idx[mesh.layers], rest)
-                bodies.append(TissueBody(ent, name, f, s, nrm, rest, _boundary_nodes(f, s, d.fixed_mask)))
+                bodies.append(TissueBody(ent, name, f, s, nrm, rest, _boundary_nodes(f, s, d.body.fixed)))
     in_meshes = {int(x) for b in bodies for x in np.unique(b.sides) if x >= 0}
     for i, name in enumerate(layers.names):
         if i not in in_meshes:
@@ -715,12 +715,12 @@ class NeedleTissueSystem:
             key = (
                 nt.pose,
                 c.body,
-                dcomp.version,
+                dcomp.body.version,
                 None if tf is None else (tf.position.tobytes(), tf.rotation.tobytes(), tf.scale),
             )
             if key == nt.tent_key:
                 return nt.skin_tent
-            now = to_world(tf, dcomp.pos[c.nodes])
+            now = to_world(tf, dcomp.body.positions[c.nodes])
         nt.tent_key = key
         return float(np.linalg.norm((now - body.rest_world[c.nodes]).mean(axis=0)))
 

@@ -3,7 +3,7 @@
 The pack's docs pages (and the F1 key overlay) are small Markdown files. This module turns them into
 what a screen shows - headings, paragraphs with bold, italic and code spans, bullet and numbered
 lists, tables with wrapped cells, indented code - as positioned text runs, without any GL: the caller
-passes a `measure(text, style)` function in pixels and draws the result (chainsim.game.gl.docview).
+passes a `measure(text, style)` function in pixels and draws the result (chainsim.game.render.docview).
 
 Supported: ATX headings (#, ##, ###), paragraphs (joined lines), `-`/`*` bullets and `1.` numbered
 items (continuation lines indented), pipe tables with a `|---|` separator row, code blocks indented
