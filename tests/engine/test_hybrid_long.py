@@ -166,12 +166,15 @@ def _answer(b, E, nu):
     return u[-1]
 
 
-@pytest.mark.parametrize("nu, within10", [(0.45, 0.1), (0.49, 0.1), pytest.param(0.499, 0.6, marks=pytest.mark.slow)])
-def test_stiff_tissue_converges_towards_its_energys_answer(block, nu, within10):
+@pytest.mark.parametrize("nu, frames", [(0.45, 10), (0.49, 10), pytest.param(0.499, 25, marks=pytest.mark.slow)])
+def test_stiff_tissue_converges_towards_its_energys_answer(block, nu, frames):
+    # frames: from this frame on within 10 % of the energy's answer. At nu 0.499 the conjugate-gradient
+    # iteration gets there by frame 22 on this block; a fixed half of the last step carried on (heavy
+    # ball) took 38 (10k-node block: 13 and 28, docs/choosing-a-model.md)
     ref = _answer(block, 3e4, nu)
     u, _ = _run(block, block.grabbed, np.tile([0.0, 0.0, 3.0], (300, 1)), 3e4, nu)
     err = np.linalg.norm(u - ref, axis=(1, 2)) / np.linalg.norm(ref)
-    assert err[9] < within10  # frame 10 (nu 0.499 gets there later: docs/choosing-a-model.md)
+    assert err[frames - 1 :].max() < 0.1
     assert err[59] < 0.5 * err[9] and err[-1] < 0.01  # and keeps going down to it
 
 
