@@ -670,7 +670,7 @@ class HybridBody(ProjectiveBody):
         two-level step alone under-steps the smooth, nearly volume-keeping part of a stiff body's answer,
         whose error then falls by a constant factor a frame; the conjugate share carries it on. On the
         study's 10,625-node block lifted 3 mm at nu 0.499: 13 frames to 10 % of the energy's answer and 37
-        to 1 %, where a fixed half of the last step (heavy ball) took 28 and more than 100; at nu 0.45 2
+        to 1 %, where a fixed half of the last step (heavy ball) took 28 and 146; at nu 0.45 2
         and 6 frames against 3 and 6 (tools/study/long_runs.py, the stiffness part). Polak-Ribiere rather
         than Fletcher-Reeves: the smoothing's few CG steps make the preconditioner change with f, which
         Polak-Ribiere's difference of z tolerates."""
