@@ -11,7 +11,11 @@ off, and reports:
   small slab's: the cost of a body that is ten times bigger around the same pull;
 - the nodes a frame solves (the awake region);
 - the extra error that sleeping brings: the sleeping body's shape against the same body solved whole
-  on the same frames, RMS over all nodes and the worst node, as a fraction of the lift.
+  on the same frames, RMS over all nodes and the worst node, as a fraction of the lift; and relative to
+  the displacement field, |u_sleeping - u_whole| / |u_whole| over all nodes. The RMS over all nodes is
+  diluted by every node far from the pull: on the 111k-node slab it reads 1.4 % where the field-relative
+  difference is 27 %, since the whole body's far field (each node moving less than the sleep threshold,
+  but a hundred thousand of them) is what the sleepers leave out.
 
 The pull: the patch rises `--lift` mm over `--ramp` frames (a drag, a new target every frame) and is
 held for `--hold` frames. Frames at 60 Hz; the first frame after the grab (the awake region's first
@@ -92,6 +96,7 @@ def measure(width: float, args, lifts: np.ndarray) -> dict:
     # the error sleeping adds: against the same body solved whole on the same frames, per frame
     rms = [float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1)))) / lift for a, b, lift in zip(xs, xw, lifts)]
     worst = [float(np.sqrt(np.max(np.sum((a - b) ** 2, axis=1)))) / lift for a, b, lift in zip(xs, xw, lifts)]
+    field = [float(np.linalg.norm(a - b) / max(np.linalg.norm(b - pos), 1e-300)) for a, b in zip(xs, xw)]
     return {
         "width_mm": width,
         "nodes": len(pos),
@@ -104,6 +109,8 @@ def measure(width: float, args, lifts: np.ndarray) -> dict:
         "extra_rms_end": rms[-1],
         "extra_rms_worst_frame": max(rms),
         "extra_worst_node": max(worst),
+        "extra_field_end": field[-1],
+        "extra_field_worst_frame": max(field),
     }
 
 
@@ -139,11 +146,13 @@ def run(args) -> int:
         f"Pa, nu = {args.nu:g}) lifted {args.lift:g} mm over {args.ramp} frames and held {args.hold}; hybrid body "
         f"(linear start, CG 3, 2 rotations), sleep {args.sleep:g}, one thread, load average "
         f"{info['load_average'][0]:.1f}. ms/frame: median CPU of every frame after the first. Extra error: the "
-        "sleeping body against the same body solved whole, as a fraction of the lift.",
+        "sleeping body against the same body solved whole: RMS over all nodes and the worst node as a fraction "
+        "of the lift, and relative to the displacement field (|u_sleeping - u_whole| / |u_whole|).",
         "",
         "| slab | nodes | ms/frame sleeping | x smallest | ms/frame whole | x smallest | first / slowest frame ms "
-        "(sleeping) | nodes solved (median, most) | extra error RMS at end (worst frame) | worst node |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "(sleeping) | nodes solved (median, most) | extra error RMS at end (worst frame) | worst node | "
+        "relative to the field at end (worst frame) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         md.append(
@@ -152,7 +161,8 @@ def run(args) -> int:
             f"{r['ms_whole']:.1f} | {r['cost_over_smallest_whole']:.2f} | {r['first_frame_ms_sleeping']:.0f} / "
             f"{r['slowest_frame_ms_sleeping']:.0f} | {r['solved_median']}, {r['solved_max']} | "
             f"{100 * r['extra_rms_end']:.2f} % ({100 * r['extra_rms_worst_frame']:.2f} %) | "
-            f"{100 * r['extra_worst_node']:.1f} % |"
+            f"{100 * r['extra_worst_node']:.1f} % | "
+            f"{100 * r['extra_field_end']:.1f} % ({100 * r['extra_field_worst_frame']:.1f} %) |"
         )
     (out / "results.md").write_text("\n".join(md) + "\n")
     print("\n".join(md))
