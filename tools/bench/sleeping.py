@@ -96,7 +96,7 @@ def measure(width: float, args, lifts: np.ndarray) -> dict:
     # the error sleeping adds: against the same body solved whole on the same frames, per frame
     rms = [float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1)))) / lift for a, b, lift in zip(xs, xw, lifts)]
     worst = [float(np.sqrt(np.max(np.sum((a - b) ** 2, axis=1)))) / lift for a, b, lift in zip(xs, xw, lifts)]
-    field = [float(np.linalg.norm(a - b) / max(np.linalg.norm(b - pos), 1e-300)) for a, b in zip(xs, xw)]
+    field = [float(np.linalg.norm(a - b)) / max(float(np.linalg.norm(b - pos)), 1e-300) for a, b in zip(xs, xw)]
     return {
         "width_mm": width,
         "nodes": len(pos),
