@@ -63,8 +63,10 @@ def trial_clicks() -> list[tuple[float, dict]]:
     return window_messages(events)
 
 
-async def _run(url: str, path: str, cookie: str, trials: int, clicks) -> list[str]:
-    """Open the seat, then per trial: Enter on its page, the clicks, a wait for the Save to be filed."""
+async def _run(url: str, path: str, cookie: str, trials: int, clicks, filed) -> list[str]:
+    """Open the seat, then per trial: Enter on its page, the clicks, a wait until `filed()` (the attempts
+    the server has from this session) counts the trial's Save: a loaded machine files it late, and the
+    next trial's Enter must not come first."""
     import websockets
 
     seen: list[str] = []
@@ -85,14 +87,17 @@ async def _run(url: str, path: str, cookie: str, trials: int, clicks) -> list[st
         while "frame" not in seen:
             assert not reader.done(), seen
             await asyncio.sleep(0.2)
-        for _ in range(trials):
+        for k in range(trials):
             for pressed in (True, False):
                 await ws.send(json.dumps({"type": "key", "key": "return", "pressed": pressed}))
             await asyncio.sleep(1.0)  # the trial's aids set, a fresh attempt
             for delay, msg in clicks:
                 await asyncio.sleep(delay * 1.5)
                 await ws.send(json.dumps(msg))
-            await asyncio.sleep(4.0)  # the Save filed through the server
+            deadline = time.monotonic() + 180
+            while await asyncio.to_thread(filed) < k + 1:
+                assert time.monotonic() < deadline, f"trial {k + 1}'s Save was not filed in 180 s"
+                await asyncio.sleep(0.5)
         reader.cancel()
     return seen
 
@@ -113,15 +118,13 @@ def test_a_registered_trainee_runs_the_studys_trials_in_the_browser(site):
     status, page, _ = call(site, "GET", "/train/prp?study=nosuch", headers={"Cookie": f"chainsim_session={cookie}"})
     assert status == 404 and "has no design on this server" in page
 
-    seen = in_thread(_run(site.url, f"/train/prp/ws?study={study}", cookie, 3, trial_clicks()))
-    assert "ready" in seen
-    deadline = time.monotonic() + 120
-    while True:
+    def attempts() -> list[dict]:
         rows = call(site, "GET", "/api/attempts", token=site.tokens["alice"])[1]["attempts"]
-        mine = [a for a in rows if (a["details"].get("protocol") or {}).get("study") == study]
-        if len(mine) == 3 or time.monotonic() > deadline:
-            break
-        time.sleep(1.0)
+        return [a for a in rows if (a["details"].get("protocol") or {}).get("study") == study]
+
+    seen = in_thread(_run(site.url, f"/train/prp/ws?study={study}", cookie, 3, trial_clicks(), lambda: len(attempts())))
+    assert "ready" in seen
+    mine = attempts()
     mine.sort(key=lambda a: a["details"]["protocol"]["order"])
     protos = [a["details"]["protocol"] for a in mine]
     # slot 0: practice first, then the conditions in the first row of the design, each with its aids
