@@ -118,6 +118,9 @@ def _models() -> None:
         lambda: HybridBody(rest, tets, fixed=[0], sleep=0.01),  # the wake front and its drift rings
     ):
         _pull(make())
+    # a bar long enough that a pull at one end leaves sleepers at the other: their far field
+    bar, bar_tets, _ = tet_grid(10, 2, 2, spacing=1.0)
+    _pull(HybridBody(bar, bar_tets, fixed=[0], sleep=0.01, wake_rings=1))
     # the hybrid line search's last resort (projective dynamics' CG step), which a small pull never needs
     n = len(rest)
     indptr, indices = np.arange(n + 1, dtype=np.int64), np.arange(n, dtype=np.int64)

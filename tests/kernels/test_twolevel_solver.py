@@ -16,6 +16,7 @@ from chainsim.systems.engine.kernels.twolevel import (
     block_pcg,
     bspmv3,
     det_at,
+    follow_far,
     min_det,
     min_det_below,
     ring_max,
@@ -157,3 +158,32 @@ def test_the_barrier_is_zero_above_its_ratio_continuous_and_its_push_is_minus_it
     assert -slope == pytest.approx(push, rel=1e-4)
     # continuous with zero slope where it starts, so the energy stays smooth
     assert volume_barrier(j_b - 1e-9, kappa, j_b)[0] < 1e-12 * kappa + 1e-15
+
+
+@st.composite
+def far_fields(draw):
+    """Nodes with coarse ids and weights (some rows all zero: nodes the field leaves alone), a coarse
+    field Y, positions, anchors, the last field and which nodes sleep."""
+    n, nc = draw(st.integers(1, 30)), draw(st.integers(1, 10))
+    cids = draw(arrays(np.int64, (n, 8), elements=st.integers(0, nc - 1)))
+    cw = draw(arrays(np.float64, (n, 8), elements=st.floats(0, 1, allow_nan=False)))
+    cw[draw(arrays(np.bool_, n))] = 0.0
+    Y = draw(arrays(np.float64, (nc, 3), elements=finite))
+    rest, x, anchor, far_u = (draw(arrays(np.float64, (n, 3), elements=finite)) for _ in range(4))
+    return cids, cw, Y, rest, x, anchor, far_u, draw(arrays(np.bool_, n))
+
+
+@settings(max_examples=60, deadline=None)
+@given(far_fields())
+def test_follow_far_places_sleepers_on_the_interpolated_field_as_a_plain_loop_does(case):
+    cids, cw, Y, rest, x, anchor, far_u, sleeping = case
+    u = np.einsum("nk,nka->na", cw, Y[cids])  # the plain reference: the trilinear sum per node
+    want_x = np.where(sleeping[:, None], rest + u, x)
+    want_anchor = anchor + u - far_u
+    got_x, got_anchor, got_u, moved = x.copy(), anchor.copy(), far_u.copy(), np.full_like(x, np.nan)
+    top = follow_far(cids, cw, Y, rest, got_x, got_anchor, got_u, sleeping, moved)
+    np.testing.assert_allclose(got_u, u, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(got_x, want_x, rtol=1e-12, atol=1e-11)
+    np.testing.assert_allclose(got_anchor, want_anchor, rtol=1e-12, atol=1e-11)
+    np.testing.assert_allclose(moved, want_x - x, rtol=1e-12, atol=1e-11)
+    assert top == pytest.approx(float(np.abs(want_x - x).max(initial=0.0)), rel=1e-12, abs=1e-11)

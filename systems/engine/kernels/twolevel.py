@@ -69,6 +69,34 @@ def tet_stiffness(D, vol, mu, lam):
     return K
 
 
+@njit(cache=True, parallel=True)
+def follow_far(cids, cw, Y, rest, x, anchor, far_u, sleeping, moved):
+    """Place the sleepers on a far field given on a coarse grid (chainsim.systems.engine.bodies.far_field).
+    For every node, u = sum_k cw[i, k] Y[cids[i, k]] (rows of cw all zero for nodes the field leaves
+    alone); its anchor moves by the change of u since far_u, which becomes u; a node in `sleeping` goes
+    to rest + u, and `moved` gets that move (zero elsewhere). Returns the largest move of a coordinate.
+    One pass over the nodes, apart in numba's threads; the result does not depend on their number."""
+    n = x.shape[0]
+    big = np.zeros(n)
+    for i in prange(n):
+        for a in range(3):
+            u = 0.0
+            for k in range(8):
+                u += cw[i, k] * Y[cids[i, k], a]
+            anchor[i, a] += u - far_u[i, a]
+            far_u[i, a] = u
+            d = 0.0
+            if sleeping[i]:
+                d = rest[i, a] + u - x[i, a]
+                x[i, a] += d
+            moved[i, a] = d
+            big[i] = max(big[i], abs(d))
+    top = 0.0
+    for i in range(n):
+        top = max(top, big[i])
+    return top
+
+
 @njit(cache=True)
 def wake_front(indptr, indices, awake, change, threshold, rings):
     """Wake the sleeping neighbours (graph CSR indptr/indices) of every awake node whose last change
