@@ -504,18 +504,7 @@ class HybridBody(ProjectiveBody):
         if self._g_rhs is None:
             self._g_rhs = np.zeros_like(x)
         rhs = self._g_rhs
-        local_forces(
-            x,
-            self.tets,
-            self.D,
-            s["g_elems"],
-            self.w_arap,
-            self.w_vol,
-            self.quats,
-            self.rotation_iterations,
-            rhs,
-            J_BARRIER,
-        )
+        self._local_step(x, s["g_elems"], rhs)
         load = -(rhs[g] - s["L_g"] @ x)  # the tool holds the grabbed nodes against their elastic forces
         Y = self._far.response(g, load)
         if self._far_Y is None or self._far_Y.shape != Y.shape:
@@ -642,23 +631,18 @@ class HybridBody(ProjectiveBody):
         # counted to 2 only (the notice waits one frame): a count that grew would make each frame differ
         self._short_frames = min(self._short_frames + 1, 2) if short > 1e-6 * scale else 0
 
+    def _local_step(self, x: np.ndarray, elems: np.ndarray, rhs: np.ndarray) -> tuple[float, float]:
+        """One local step over `elems` into rhs (kernels.twolevel.local_forces): (energy, smallest det F)."""
+        return local_forces(
+            x, self.tets, self.D, elems, self.w_arap, self.w_vol, self.quats, self.rotation_iterations, rhs, J_BARRIER
+        )
+
     def _evaluate(self, s: dict, x: np.ndarray) -> tuple[float, float, np.ndarray]:
         """The energy, the smallest det F and the forces on the solved nodes at x (one local step)."""
         free = s["free"]
         rhs = self._rhs if self._rhs is not None and self._rhs.shape == x.shape else np.zeros_like(x)
         self._rhs = rhs
-        energy, min_j = local_forces(
-            x,
-            self.tets,
-            self.D,
-            s["elems"],
-            self.w_arap,
-            self.w_vol,
-            self.quats,
-            self.rotation_iterations,
-            rhs,
-            J_BARRIER,
-        )
+        energy, min_j = self._local_step(x, s["elems"], rhs)
         # forces on the solved nodes: f = rhs - L x (minus the energy's gradient)
         xf = x[free]
         Lx = np.empty_like(xf)
