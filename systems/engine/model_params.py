@@ -213,10 +213,13 @@ HYBRID = (
     Param(
         "coarse",
         "float",
-        3.0,
-        "Coarse-grid spacing in mean edge lengths (0: no coarse correction; otherwise 1.5..16).",
+        "auto",
+        "Coarse-grid spacing in mean edge lengths (0: no coarse correction; otherwise 1.5..16); auto: 3, or 2 "
+        "for nearly incompressible tissue (nu >= 0.497), whose volume a coarser trilinear grid cannot follow "
+        "(docs/choosing-a-model.md).",
         min=0.0,
         max=16.0,
+        auto=True,
     ),
     Param("start", "enum", "linear", "Start of each frame: none, chainmail or linear.", choices=HYBRID_STARTS),
     Param(

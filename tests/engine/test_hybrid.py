@@ -167,6 +167,25 @@ def test_coarse_correction_settles_in_fewer_frames_than_cg_alone():
     assert frames(coarse=3.0) < 0.8 * frames(coarse=0.0)
 
 
+def test_the_coarse_grid_is_finer_for_nearly_incompressible_tissue_only():
+    # coarse = "auto": a trilinear grid of 3 edges cannot follow a nearly volume-keeping answer, so from
+    # nu 0.497 the body takes 2 (docs/choosing-a-model.md, the stiffness tables); tissue layers given
+    # per tetrahedron after construction move the grid too
+    pos, tets, fixed, _ = _block(4)
+    soft = HybridBody(pos, tets, E=3e4, nu=0.45, fixed=fixed)
+    stiff = HybridBody(pos, tets, E=3e4, nu=0.499, fixed=fixed)
+    told = HybridBody(pos, tets, E=3e4, nu=0.499, fixed=fixed, coarse=3.0)
+    assert (soft.coarse, stiff.coarse, told.coarse) == (3.0, 2.0, 3.0)
+    assert len(np.unique(stiff._cids)) > len(np.unique(soft._cids))
+    nu = np.full(len(tets), 0.45)
+    nu[:3] = 0.499
+    soft.set_materials(np.full(len(tets), 3e4), nu)
+    told.set_materials(np.full(len(tets), 3e4), np.full(len(tets), 0.45))
+    assert (soft.coarse, told.coarse) == (2.0, 3.0)
+    with pytest.raises(UserError, match=r"coarse: expected auto, 0 \(off\) or a grid spacing"):
+        HybridBody(pos, tets, nu=0.45, fixed=fixed, coarse="fine")
+
+
 def test_sleeping_solves_only_near_the_tool_and_stays_close_to_the_full_solve():
     pos, tets, _ = tet_grid(25, 9, 5, spacing=1.0)  # a long slab, base fixed, pulled at one end
     fixed = np.flatnonzero(pos[:, 2] < 1e-9)

@@ -9,6 +9,7 @@ import pytest
 import chainsim.systems.tissue.deformable as deformable
 from chainsim.game.trainer.headless import build_app
 from chainsim.systems.engine.bodies.factory import ROW_PARAMS, Choice, choose_model, load_table, make_body
+from chainsim.systems.engine.bodies.hybrid import coarse_spacing
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.meshgen import tet_grid
 from chainsim.systems.tissue.deformable import MODEL_TABLE, Deformable, use_model
@@ -91,6 +92,8 @@ def _check_body(body, model, params):
                 assert np.all(got == want), key
         elif key == "substeps":
             assert body.substeps_setting == want
+        elif key == "coarse":  # "auto": the spacing the body takes for its Poisson ratio
+            assert body.coarse == coarse_spacing(want, float(np.max(body.lam / (2 * (body.lam + body.mu))))), key
         else:
             assert getattr(body, key) == want, key
 

@@ -76,12 +76,12 @@ SETTINGS: list[tuple[str, str, dict[str, Any]]] = [
     (
         "hybrid",
         "hybrid, linear start, CG 6, 3 rotations",
-        {"coarse": 3.0, "cg_iterations": 6, "rotation_iterations": 3, "start": "linear"},
+        {"coarse": "auto", "cg_iterations": 6, "rotation_iterations": 3, "start": "linear"},
     ),
     (
         "hybrid",
         "hybrid, linear start, CG 3, 2 rotations",
-        {"coarse": 3.0, "cg_iterations": 3, "rotation_iterations": 2, "start": "linear"},
+        {"coarse": "auto", "cg_iterations": 3, "rotation_iterations": 2, "start": "linear"},
     ),
 ]
 
