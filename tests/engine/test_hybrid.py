@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 from chainsim.systems.engine.bodies.factory import make_body
-from chainsim.systems.engine.bodies.hybrid import HybridBody
+from chainsim.systems.engine.bodies.hybrid import HybridBody, first_share
 from chainsim.systems.engine.bodies.projective import ProjectiveBody
 from chainsim.systems.engine.errors import UserError
 from chainsim.systems.engine.kernels.graph import build_graph
@@ -184,6 +185,25 @@ def test_the_coarse_grid_is_finer_for_nearly_incompressible_tissue_only():
     assert (soft.coarse, told.coarse) == (2.0, 3.0)
     with pytest.raises(UserError, match=r"coarse: expected auto, 0 \(off\) or a grid spacing"):
         HybridBody(pos, tets, nu=0.45, fixed=fixed, coarse="fine")
+
+
+_coords = st.floats(-10.0, 10.0, allow_nan=False)
+
+
+@settings(max_examples=80, deadline=None)
+@given(arrays(np.float64, st.tuples(st.integers(1, 12), st.just(3)), elements=_coords), st.data())
+def test_a_grabs_first_far_field_never_carries_the_grabbed_nodes_past_the_tool(far, data):
+    moved = data.draw(arrays(np.float64, far.shape, elements=_coords))
+    a = first_share(far, moved)
+    assert 0.0 <= a <= 1.0
+    # the best fit of the scaled field to the grabbed nodes' own move, against a plain search over shares
+    shares = np.linspace(0.0, 1.0, 2001)
+    misfit = [float(np.sum((t * far - moved) ** 2)) for t in shares]
+    assert float(np.sum((a * far - moved) ** 2)) <= min(misfit) + 1e-9 * (1.0 + min(misfit))
+    # a field carrying them twice as far as the tool moved them is taken at half; one short of it whole
+    if float(np.sum(far * far)) > 1e-12:  # a field, not rounding (a grab moves nodes microns at least)
+        assert first_share(far, far / 2.0) == pytest.approx(0.5)
+        assert first_share(far / 2.0, far) == 1.0
 
 
 def test_sleeping_solves_only_near_the_tool_and_stays_close_to_the_full_solve():

@@ -202,6 +202,9 @@ def test_a_wide_sleeping_slab_keeps_the_far_field_and_comes_to_rest():
     asleep_u, body = _run(b, b.grabbed, path, 3e4, 0.45, sleep=0.015, cg_iterations=3, rotation_iterations=2)
     rel = np.linalg.norm(asleep_u - awake_u, axis=(1, 2)) / np.linalg.norm(awake_u, axis=(1, 2))
     assert rel[2:].max() < 0.15 and rel[9:].max() < 0.06 and rel[-1] < 0.04
+    # the grab's first frames: its first far field fitted to the grabbed nodes' own move (0.42, 0.20 of
+    # the field here) where a fixed half of it left 0.52 and 0.26
+    assert rel[0] < 0.47 and rel[1] < 0.23
     assert body.awake.sum() < 0.6 * len(b.pos)  # the far field is not bought by waking the slab
     st = body.step(DT)
     assert st.extra["converged"] and st.iterations == 0  # at rest under the still tool: a frame costs nothing

@@ -77,3 +77,7 @@ class FarField:
         _, P, factor = self._ops
         b = (P[nodes].T @ force).ravel()
         return np.ascontiguousarray(factor.solve(b).reshape(-1, 3))
+
+    def at(self, nodes: np.ndarray, Y: np.ndarray) -> np.ndarray:
+        """The displacement (len(nodes), 3) the coarse grid's displacement Y gives `nodes`."""
+        return np.einsum("ik,ikj->ij", self.weights[nodes], Y[self.cmap[nodes]])
