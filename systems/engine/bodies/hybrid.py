@@ -224,7 +224,7 @@ class HybridBody(ProjectiveBody):
         self._released = False
         self._at_rest = True  # at the rest shape with nothing held: a step has nothing to do
         self._init_iteration()
-        rest_si = self.rest * self.unit
+        self._rest_si = rest_si = self.rest * self.unit
         links = meshgen.links_from_cells(self.tets)
         self.edge = float(np.mean(np.linalg.norm(rest_si[links[:, 0]] - rest_si[links[:, 1]], axis=1)))
         T = len(self.tets)
@@ -240,7 +240,6 @@ class HybridBody(ProjectiveBody):
         self._floating_cache: tuple | None = None
         self._synced: dict | None = None  # the set-up whose frame last wrote every position
         self._other_disp = 0.0
-        self._rest_si = self.rest * self.unit
         self._far: FarField | None = self._build_far()
         self._setup: dict | None = None  # the solve's set-up for the current held and awake set
         # (set-up, stats) of a frame that changed nothing: the next one under the same targets is skipped
@@ -281,8 +280,7 @@ class HybridBody(ProjectiveBody):
     def _coarse_grid(self) -> None:
         """Each node's coarse-grid nodes and trilinear weights, on a grid of `coarse` mean edges."""
         if self.coarse:
-            rest_si = self.rest * self.unit
-            h = self.coarse * self.edge
+            rest_si, h = self._rest_si, self.coarse * self.edge
             lo = rest_si.min(axis=0)
             dims = np.maximum(np.ceil((rest_si.max(axis=0) - lo) / h).astype(np.int64) + 1, 2)
             self._cids, self._cw = trilinear_weights(rest_si, lo, h, dims)
