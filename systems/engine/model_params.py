@@ -73,7 +73,7 @@ class Param:
                 raise UserError(f"{name}: expected true or false, got {value!r}")
             return
         if isinstance(value, bool) or not isinstance(value, int | float) and not hasattr(value, "__float__"):
-            raise UserError(f"{name}: expected a number, got {value!r}")
+            raise UserError(f"{name}: expected a number{' or auto' if self.auto else ''}, got {value!r}")
         v = float(value)
         if not math.isfinite(v):
             raise UserError(f"{name}: must be a finite number, got {value}")

@@ -185,6 +185,8 @@ def test_the_coarse_grid_is_finer_for_nearly_incompressible_tissue_only():
     assert (soft.coarse, told.coarse) == (2.0, 3.0)
     with pytest.raises(UserError, match=r"coarse: expected auto, 0 \(off\) or a grid spacing"):
         HybridBody(pos, tets, nu=0.45, fixed=fixed, coarse="fine")
+    with pytest.raises(UserError, match=r"^coarse: expected a number or auto, got 'fine'$"):
+        make_body("hybrid", pos, tets=tets, fixed=fixed, coarse="fine")
 
 
 _coords = st.floats(-10.0, 10.0, allow_nan=False)
